@@ -13,6 +13,7 @@ import argparse
 import math
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -400,6 +401,26 @@ def bag_dir(path: str | Path, require_messages: bool = False) -> Path:
     if require_messages and count == 0:
         raise CliError(f"{path}: the bag has no messages")
     return path
+
+
+def param_overrides(items: Iterable[str] | None) -> dict:
+    """``NAME:=VALUE`` (the value in YAML, as ``ros2 run ... -p``) -> {NAME: value}.
+
+    Raises:
+        CliError: an item without ``:=`` or a name, or a value that is not YAML.
+    """
+    import yaml
+
+    out = {}
+    for it in items or ():
+        name, sep, text = it.partition(":=")
+        if not sep or not name.strip():
+            raise CliError(f"--param expects NAME:=VALUE, got {it!r}")
+        try:
+            out[name.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise CliError(f"--param {name.strip()}: not a YAML value: {text!r}") from None
+    return out
 
 
 def solver_help(prefix: str) -> str:

@@ -35,8 +35,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
         "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
         "docs/rig_node.md) with each camera's RS timing. The cameras, their timing and "
-        "max_points come from the bag's rig_params.yaml, then --params-file. Each camera's "
-        "clouds are read as the rig node reads them: with the camera_info of the cloud's "
+        "max_points come from the bag's rig_params.yaml, then --params-file, then -p. Each "
+        "camera's clouds (with a front end, -p frontend: its images through the front end, "
+        "e.g. of a render-bag --rig bag or a recording) are read as the rig node reads them: "
+        "with the camera_info of the cloud's "
         "stamp, rows with a NaN or inf dropped (counted points_dropped), then at most "
         "max_points rows (counted capped_clouds, capped_points); a cloud that cannot be read "
         "(an invalid stamp, no u, v, x, y, z fields) is left out, counted bad_input, as the "
@@ -58,6 +60,16 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="FILE",
         help="the node's parameter file with rig.cameras and the cameras' RS timing "
         "(repeatable; later ones win; over the bag's rig_params.yaml)",
+    )
+    c.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="set a node parameter (YAML value, as ros2 run -p; repeatable; over the parameter "
+        "files), e.g. frontend:=aruco with frontend_map:=BAG/markers.yaml to read each "
+        "camera's images through its front end instead of its correspondences",
     )
     c.add_argument(
         "--reference",
@@ -259,7 +271,12 @@ def run(args: argparse.Namespace) -> int:
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
     for f in args.params_file:
         A.input_file(f, "parameter file")
-    read = read_rig_frames(bag, args.params_file)
+    from ..ros.params import ConfigError
+
+    try:
+        read = read_rig_frames(bag, args.params_file, A.param_overrides(args.param))
+    except ConfigError as e:
+        raise A.CliError(f"invalid parameters: {e}") from None
     frames, values, cams = read.frames, read.values, read.cameras
     names = [str(n).strip() for n in values["rig.cameras"]]
     ref = args.reference or names[0]

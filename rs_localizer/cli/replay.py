@@ -212,22 +212,6 @@ _REPLAY_OVERRIDES = (
 )
 
 
-def _param_overrides(items) -> dict:
-    """``NAME:=VALUE`` (the value in YAML, as ``ros2 run ... -p``) -> {NAME: value}."""
-    import yaml
-
-    out = {}
-    for it in items or ():
-        name, sep, text = it.partition(":=")
-        if not sep or not name.strip():
-            raise A.CliError(f"--param expects NAME:=VALUE, got {it!r}")
-        try:
-            out[name.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise A.CliError(f"--param {name.strip()}: not a YAML value: {text!r}") from None
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     """Replay the bag; returns 0, or 1 when no frame was solved. Raises CliError for a bag,
     parameter file, landmark file or output that cannot be used (before any frame)."""
@@ -237,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
             raise A.CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
     if hasattr(args, "landmarks"):
         A.input_file(args.landmarks, "landmark CSV (id,x,y,z)")
-    params = _param_overrides(getattr(args, "param", []))
+    params = A.param_overrides(getattr(args, "param", []))
     params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
     from ..ros.bags.rig_bag import is_rig_bag
 

@@ -49,6 +49,7 @@ __all__ = [
     "hand_to_rig",
     "rig_camera_inputs",
     "rig_cloud_frame",
+    "rig_image_frame",
 ]
 
 
@@ -292,6 +293,54 @@ def rig_cloud_frame(
     except ValueError as e:
         return UnreadFrame(name, stamp, camera, e)
     tag = msg.header.frame_id or name
+    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
+
+
+def rig_image_frame(
+    name: str,
+    inp: CameraInput,
+    msg: Any,
+    stamp: Stamp | ValueError,
+    camera: CameraModel | None,
+    frontend: Any,
+) -> CameraFrame | UnreadFrame:
+    """Camera ``name``'s image message ``msg`` as a frame of its front end's correspondences,
+    without a rig to predict it (what ``calibrate-rig`` reads from a rig bag's images; the rig
+    node and ``replay`` hand an image to the rig itself, :func:`hand_image_to_rig`): decoded
+    and checked against ``camera``, the model of its checked header stamp ``stamp``
+    (:meth:`CameraInput.decode`), the front end run on the whole image
+    (``frontend.process(image, camera, encoding)``, a
+    :class:`~rs_localizer.correspondences.Frontend`), its rows as a cloud's
+    (:meth:`CameraInput.rows`: non-finite rows dropped, at most ``max_points``).
+
+    Returns:
+        a :class:`~rs_localizer.tracking.localizer.CameraFrame` tagged with its ``frame_id``
+        (else ``name``; without ``camera``: no rows, as the rig takes a frame before its
+        camera_info), or an :class:`UnreadFrame` skipped as ``bad_input`` (the stamp cannot
+        be read), ``bad_image`` or ``image_size_mismatch`` (:meth:`CameraInput.decode`), or
+        ``frontend_error`` (the front end raised).
+    """
+    from ..tracking.localizer import CameraFrame
+    from .image_codec import ImageRejected
+
+    if isinstance(stamp, ValueError):
+        return UnreadFrame(name, None, None, stamp)
+    tag = msg.header.frame_id or name
+    if camera is None:
+        return CameraFrame(stamp, None, np.zeros((0, 2)), np.zeros((0, 3)), tag=tag,
+                           camera_name=name)  # fmt: skip
+    try:
+        image, encoding = inp.decode(msg, camera)
+    except ImageRejected as e:
+        return UnreadFrame(name, stamp, camera, e, e.reason)
+    try:
+        found = frontend.process(image, camera, encoding)
+    except Exception as e:  # (any front end's failure: the frame is left out, counted)
+        return UnreadFrame(name, stamp, camera, ValueError(f"{type(e).__name__}: {e}"),
+                           "frontend_error")  # fmt: skip
+    uv = np.asarray(found.points2d, float).reshape(-1, 2)
+    xyz = np.asarray(found.points, float).reshape(-1, 3)
+    uv, xyz, _ = inp.rows(uv, xyz, found.valid_scores())
     return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 

@@ -334,3 +334,61 @@ def test_a_cameras_time_offset_is_used_and_kept_or_estimated(rig_bag, tmp_path, 
         dt, std = report[name]["time_offset"], report[name]["time_offset_std"]
         assert abs(dt) < 5e-4 and abs(dt) < 4 * std + 1e-5, (name, dt, std)
         assert params.get(f"rig.{name}.time_offset", 0.0) == pytest.approx(dt, abs=1e-7)
+
+
+def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
+    rig_bag, tmp_path, capsys
+):
+    """With a front end (-p frontend, frontend_map) each camera's images are read instead of
+    its clouds: on a rendered rig bag, whose clouds that front end made from the same images,
+    every frame has the cloud's rows (to the cloud's float32 rounding) and the mountings are
+    calibrated within their stated std of the truth; an image another size than its
+    camera_info's is left out and counted; a bag without images is refused with why."""
+    from helpers.rig_bags import rewrite_bag
+
+    from rs_localizer.cli import main
+    from rs_localizer.geometry import rotation_angle_deg
+    from rs_localizer.ros.bags.rig_bag import read_rig_frames
+    from rs_localizer.ros.param_files import read_params_file
+
+    bag = tmp_path / "rendered"
+    assert main(["render-bag", str(bag), "--rig", "2", "--frames", "6", "--supersample", "1",
+                 "--quiet"]) == 0  # fmt: skip
+    params = {"frontend": "aruco", "frontend_map": str(bag / "markers.yaml")}
+    clouds, images = read_rig_frames(bag).frames, read_rig_frames(bag, params=params).frames
+    assert len(images) == len(clouds) == 12
+    for a, b in zip(images, clouds, strict=True):
+        assert (a.camera_name, a.stamp_ns, a.tag) == (b.camera_name, b.stamp_ns, b.tag)
+        assert np.abs(a.points2d - b.points2d).max() < 1e-6
+        assert np.abs(a.points3d - b.points3d).max() < 1e-6
+    capsys.readouterr()
+    args = ["calibrate-rig", str(bag), "--json", "-o", str(tmp_path / "r.yaml"),
+            "--min-inliers", "8", "-p", "frontend:=aruco",
+            "-p", f"frontend_map:={bag / 'markers.yaml'}"]  # fmt: skip
+    assert main(args) == 0
+    back = json.loads(capsys.readouterr().out)["cameras"]["back"]
+    truth = _mount(read_params_file(bag / "rig_params.yaml")["rig.back.mounting"])
+    got = _mount(back["mounting"])
+    assert rotation_angle_deg(got.R, truth.R) < 3 * back["std_deg"]
+    assert 1e3 * np.linalg.norm(got.position - truth.position) < 3 * back["std_mm"]
+    assert back["frames"] == 6 and "image_size_mismatch" not in back
+    # the back camera's third image cut to 320 px wide: left out, counted
+    seen = []
+
+    def cut(topic, msg, t):
+        if topic == "/rig/back/image_raw":
+            seen.append(t)
+            if len(seen) == 3:
+                from dataclasses import replace
+
+                row = msg.step // msg.width * 320
+                data = np.asarray(msg.data).reshape(msg.height, msg.step)[:, :row].ravel()
+                msg = replace(msg, width=320, step=row, data=data)
+        return [(t, msg)]
+
+    read = read_rig_frames(rewrite_bag(bag, tmp_path / "cut", cut), params=params)
+    assert read.counts["back"]["image_size_mismatch"] == 1 and len(read.frames) == 11
+    # the make-bag rig bag has clouds only
+    args = ["calibrate-rig", str(rig_bag), "-p", "frontend:=aruco"]
+    assert main(args) == 2
+    assert "the rig bag has no camera images" in capsys.readouterr().err

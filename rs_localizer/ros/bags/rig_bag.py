@@ -414,7 +414,6 @@ def replay_rig(
     from ...frontends.shared import SHARED_MAPS
     from ...tracking.rig import RigLocalizer
     from ..camera_input import UnreadFrame, hand_image_to_rig, hand_to_rig, rig_camera_inputs
-    from ..config import build_config, load_maps, rig_used_values
     from ..pipeline import MapFitCheck
 
     values, _, cfg = rig_bag_config(bag, params_files, params)
@@ -430,18 +429,10 @@ def replay_rig(
     inputs = rig_camera_inputs(cfg, log, count)
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
-    kind = str(values.get("frontend", "none")).strip() or "none"
-    images = kind != "none"
-    if images:  # (each camera's front end on its images, as the rig node runs them)
-        wanted = RigTopics(rig_namespace(bag), res.cameras).of(("image",))
-        if not set(wanted) & set(bag_topics(bag)):
-            raise ConfigError(
-                f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
-                "replay it without a front end (frontend: none) to use its correspondences"
-            )
-        single = build_config(rig_used_values(values))
-        for c in cfg.cameras:  # (one map, a front end object per camera)
-            rig.set_frontend(c.name, load_maps(single, owner=res).frontend, kind)
+    frontends = rig_frontends(bag, values, cfg, owner=res)
+    images = frontends is not None
+    for n, fe in (frontends or {}).items():  # (each camera's own, as the rig node runs them)
+        rig.set_frontend(n, fe, str(values["frontend"]).strip())
     bar = progress_bar(progress, None, unit=" rig frames")
     try:
         source = rig_messages(bag, inputs, "image") if images else iter_rig_frames(bag, inputs)
@@ -496,6 +487,34 @@ def replay_rig(
     if cfg.unused_text:  # (a parameter file shared with single-camera nodes, as the node says)
         res.notes.append(cfg.unused_text)
     return res
+
+
+def rig_frontends(
+    bag: str | os.PathLike, values: Mapping[str, Any], cfg: RigConfig, owner: object
+) -> dict | None:
+    """Each camera's front end of the parameter ``values`` (``frontend``, ``frontend_map``,
+    ``aruco.*``, ...; one map loaded, a front end object per camera, as the rig node makes
+    them, on behalf of ``owner``: release with
+    ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``), camera name -> front end;
+    None when ``frontend`` is ``none`` (the bag's correspondences are read instead).
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a front end for a bag without the cameras'
+            images (``<namespace>/<camera>/image_raw``), or whose map does not load.
+    """
+    from ..config import build_config, load_maps, rig_used_values
+
+    kind = str(values.get("frontend", "none")).strip() or "none"
+    if kind == "none":
+        return None
+    wanted = RigTopics(rig_namespace(bag), tuple(c.name for c in cfg.cameras)).of(("image",))
+    if not set(wanted) & set(bag_topics(bag)):
+        raise ConfigError(
+            f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
+            "without a front end (frontend: none) its correspondences are read"
+        )
+    single = build_config(rig_used_values(values))
+    return {c.name: load_maps(single, owner=owner).frontend for c in cfg.cameras}
 
 
 def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
@@ -657,6 +676,7 @@ def read_rig_frames(
             :class:`~rs_localizer.ros.params.ConfigError` (a ValueError): parameters the rig
             node refuses (e.g. an unknown readout direction).
     """
+    from ...frontends.shared import SHARED_MAPS
     from ..camera_input import UnreadFrame, rig_camera_inputs
 
     values = rig_parameter_values(bag, params_files, params)[0]
@@ -669,11 +689,18 @@ def read_rig_frames(
         counts[name][key] += n
 
     inputs = rig_camera_inputs(cfg, _QuietLog(), count)
-    items = list(iter_rig_frames(bag, inputs))
+    owner = object()  # (the front ends' maps, released once read)
+    try:
+        items = list(iter_rig_frames(bag, inputs, rig_frontends(bag, values, cfg, owner)))
+    finally:
+        SHARED_MAPS.release(owner)
     for f in items:
         if isinstance(f, UnreadFrame):
-            count(f.camera_name, "bad_input")
-    rows = {n: {k: int(c[k]) for k in READ_COUNTS} for n, c in counts.items()}
+            count(f.camera_name, f.reason)
+    rows = {}
+    for n, c in counts.items():  # (READ_COUNTS, then the images' skip reasons counted)
+        rows[n] = {k: int(c[k]) for k in READ_COUNTS}
+        rows[n].update({k: int(v) for k, v in c.items() if k not in READ_COUNTS})
     return RigFrames(items, values, cams, rows, cfg.settings)
 
 
@@ -702,7 +729,7 @@ class RigTopics:
 
 
 def iter_rig_frames(
-    bag: str | os.PathLike, inputs: Mapping[str, CameraInput]
+    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], frontends: Mapping | None = None
 ) -> Iterator[CameraFrame | UnreadFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
     its :class:`~rs_localizer.ros.camera_input.CameraInput`,
@@ -722,13 +749,23 @@ def iter_rig_frames(
     counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
     skipped (:func:`~rs_localizer.ros.camera_input.hand_to_rig`).
 
+    With ``frontends`` (camera name -> its front end, :func:`rig_frontends`) each camera's
+    images (``.../image_raw``) are read instead, each frame the front end's correspondences
+    on the whole image (:func:`~rs_localizer.ros.camera_input.rig_image_frame`; an image not
+    read is an :class:`~rs_localizer.ros.camera_input.UnreadFrame` with its reason:
+    ``bad_image``, ``image_size_mismatch``, ``frontend_error``).
+
     Yields:
         :class:`~rs_localizer.tracking.rig.CameraFrame` (name, header stamp ns, model,
         pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
         :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
-    from ..camera_input import rig_cloud_frame
+    from ..camera_input import rig_cloud_frame, rig_image_frame
 
+    if frontends is not None:
+        for n, msg, stamp, camera in rig_messages(bag, inputs, "image"):
+            yield rig_image_frame(n, inputs[n], msg, stamp, camera, frontends[n])
+        return
     for n, msg, stamp, camera in rig_messages(bag, inputs, "cloud"):
         yield rig_cloud_frame(n, inputs[n], msg, stamp, camera)
 
