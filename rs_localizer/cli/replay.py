@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.debug_outputs and not args.out:
         raise A.CliError("--debug-outputs writes into the --out bag: give --out DIR")
-    if is_rig_bag(bag):
+    if is_rig_bag(bag, getattr(args, "params_file", []), params):
         _no_camera_options(args)
         return _run_rig(args, bag, params)
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None

@@ -266,6 +266,47 @@ def test_a_rig_names_the_single_cameras_parameters_it_does_not_use():
             assert why.startswith(f"{name} is not used in the rig mode: ") and why.count(":") == 1
 
 
+def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters(tmp_path, capsys):
+    """A recording of a rig's cameras (no sequence.json, no ground truth, each camera's
+    topics under the recording's namespace, here ``/<camera>/...``) is a rig bag when the
+    parameters name ``rig.cameras``: replayed and calibrated as the simulated bag it was
+    made from; the bag's namespace is found from the cameras' camera_info topics."""
+    import shutil
+
+    from rosbags.rosbag2 import Writer
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.bag_io import iter_messages, storage_plugin, typestore
+    from rs_localizer.ros.bags.rig_bag import is_rig_bag, replay_rig, rig_namespace
+
+    bag = tmp_path / "rig"
+    assert main(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--points", "80",
+                 "--quiet"]) == 0  # fmt: skip
+    rec, params = tmp_path / "recording", tmp_path / "rig.yaml"
+    with Writer(rec, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns, ts = {}, typestore()
+        for topic, mt, t, raw in iter_messages(bag):
+            if topic.startswith("/rig/"):
+                topic = topic[len("/rig") :]
+                if topic not in conns:
+                    conns[topic] = w.add_connection(topic, mt, typestore=ts)
+                w.write(conns[topic], t, raw)
+    shutil.copy(bag / "rig_params.yaml", params)
+    assert not is_rig_bag(rec) and is_rig_bag(rec, [params])
+    assert rig_namespace(rec, ["front", "left"]) == "" and rig_namespace(bag) == "/rig"
+    assert list(iter_messages(rec, {"/ground_truth/pose"})) == []  # (none of those topics)
+    a, b = replay_rig(bag), replay_rig(rec, [params])
+    assert b.solved == a.solved == 8 and b.counts == a.counts
+    assert a.summary["frames"] == 8 and b.summary["frames"] == 0  # (no ground truth)
+    for x, y in zip(a.outputs, b.outputs, strict=True):
+        assert np.array_equal(x.estimate.model.R, y.estimate.model.R)
+    capsys.readouterr()
+    assert main(["replay", str(rec), "--params-file", str(params), "--quiet"]) == 0
+    assert "solved 8/8 rig frames of 2 cameras" in capsys.readouterr().out
+    assert main(["calibrate-rig", str(rec), "--params-file", str(params), "--min-inliers", "8",
+                 "-o", str(tmp_path / "calibrated.yaml")]) == 0  # fmt: skip
+
+
 def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     """``make-bag --rig 2 --imu-rate 400`` writes the rig's gyro on ``/rig/imu`` with
     ``imu.enabled`` and ``imu.rotation`` in the node's parameters; ``replay`` solves every rig

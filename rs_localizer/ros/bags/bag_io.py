@@ -277,11 +277,14 @@ def read_bag_info(path: str | os.PathLike) -> dict:
 def iter_messages(
     path: str | os.PathLike, topics: Iterable[str] | None = None
 ) -> Iterator[tuple[str, str, int, bytes]]:
-    """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order."""
+    """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order: of every topic, or
+    of those of ``topics`` the bag has (none when it has none of them)."""
     from rosbags.rosbag2 import Reader
 
     with Reader(path) as r:
         conns = [c for c in r.connections if topics is None or c.topic in topics]
+        if not conns:  # (rosbags reads every connection when given none)
+            return
         for conn, t_ns, raw in r.messages(connections=conns):
             yield conn.topic, conn.msgtype, t_ns, bytes(raw)
 

@@ -427,7 +427,7 @@ def replay_rig(
 
     log = _QuietLog()
     inputs = rig_camera_inputs(cfg, log, count)
-    ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
+    ns = rig_namespace(bag, res.cameras)
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     frontends = rig_frontends(bag, values, cfg, owner=res)
     images = frontends is not None
@@ -507,7 +507,8 @@ def rig_frontends(
     kind = str(values.get("frontend", "none")).strip() or "none"
     if kind == "none":
         return None
-    wanted = RigTopics(rig_namespace(bag), tuple(c.name for c in cfg.cameras)).of(("image",))
+    names = tuple(c.name for c in cfg.cameras)
+    wanted = RigTopics(rig_namespace(bag, names), names).of(("image",))
     if not set(wanted) & set(bag_topics(bag)):
         raise ConfigError(
             f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
@@ -614,9 +615,20 @@ def _read_rig_gyro(bag: str | os.PathLike, ns: str) -> list:
     return out[::-1]
 
 
-def is_rig_bag(bag: str | os.PathLike) -> bool:
-    """The bag's ``sequence.json`` has a ``rig`` entry (written by ``make-bag --rig``)."""
-    return "rig" in read_bag_info(bag)
+def is_rig_bag(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> bool:
+    """The bag is a rig's: its ``sequence.json`` has a ``rig`` entry (``make-bag --rig``,
+    ``render-bag --rig``), or the parameter files and ``params`` name ``rig.cameras`` (a
+    recording of a rig's cameras, replayed with the rig node's parameters)."""
+    if "rig" in read_bag_info(bag):
+        return True
+    if not params_files and not (params or {}).get("rig.cameras"):
+        return False
+    values = rig_parameter_values(None, params_files, params)[0]
+    return any(str(n).strip() for n in values["rig.cameras"] or ())
 
 
 @dataclass
@@ -704,10 +716,23 @@ def read_rig_frames(
     return RigFrames(items, values, cams, rows, cfg.settings)
 
 
-def rig_namespace(bag: str | os.PathLike) -> str:
-    """The namespace of a rig bag's camera topics (``sequence.json``'s ``rig.namespace``,
-    default ``/rig``), without a trailing slash."""
-    return str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
+def rig_namespace(bag: str | os.PathLike, cameras: Iterable[str] = ()) -> str:
+    """The namespace of a rig bag's camera topics, without a trailing slash:
+    ``sequence.json``'s ``rig.namespace`` (``make-bag --rig``, ``render-bag --rig``); else,
+    for a recording of the ``cameras``, the namespace ``<ns>`` under which the bag holds the
+    most of their ``<ns>/<camera>/camera_info`` topics (``""`` for ``/front/camera_info``,
+    ``/robot`` for ``/robot/front/camera_info``: the rig node's topics, which are relative to
+    its namespace); else ``/rig``."""
+    info = read_bag_info(bag).get("rig")
+    if info is not None:
+        return str(info.get("namespace", "/rig")).rstrip("/")
+    found: Counter = Counter()
+    for topic in bag_topics(bag) if cameras else ():
+        for n in cameras:
+            leaf = f"/{n}/camera_info"
+            if topic.endswith(leaf):
+                found[topic[: -len(leaf)]] += 1
+    return found.most_common(1)[0][0] if found else "/rig"
 
 
 @dataclass(frozen=True)
@@ -786,7 +811,7 @@ def rig_messages(
     """
     from ..camera_input import frame_camera
 
-    topics = RigTopics(rig_namespace(bag), tuple(inputs)).of(("info", kind))
+    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", kind))
     ts = typestore()
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
         k, n = topics[topic]
@@ -935,7 +960,8 @@ class _RigImages:
 
     def __init__(self, bag: str | os.PathLike, outputs: Iterable[Any], names: Iterable[str]):
         present = bag_topics(bag)
-        self.topics = {t: n for t, (_, n) in RigTopics(rig_namespace(bag), tuple(names))
+        names = tuple(names)
+        self.topics = {t: n for t, (_, n) in RigTopics(rig_namespace(bag, names), names)
                        .of(("image",)).items() if t in present}  # fmt: skip
         with_images = set(self.topics.values())
         self.wanted = {(n, f.stamp_ns) for o in outputs if o.success
