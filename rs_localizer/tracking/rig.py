@@ -36,19 +36,20 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 A rig of one camera at the identity mounting without a covariance
 (:attr:`RigSettings.single_camera`: the camera's frame is the rig's) is that camera's video:
 its rig frames are solved as :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`
-solves the camera's frames. The single-camera estimator
+solves the camera's frames, with the single-camera estimator
 (:func:`~rs_localizer.estimation.estimate_rs_pose` with the camera's default solver,
 :data:`SINGLE_CAMERA_SOLVER`, and the frame's scores) on the camera's tracker
 (:class:`~rs_localizer.tracking.tracker.RSTracker`: cold frames with ``options``, tracked ones
 with the tracked options and the prediction's twist as the motion prior where
-``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold),
-the gyro's measurement over the camera's readout from its stamp; each estimate in the rig's
-terms (:attr:`RigOutput.estimate`: the model's velocities per second, one view). Given the
-camera's ``options`` (``EstimateOptions()``, not the default
-:data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``, its estimates,
-paths and fused twists are the camera's localizer's, bit for bit. The refusals of a rig frame
-posed from one camera while others run (:data:`RIG_REFUSALS`) have no other camera to wait
-for, nor does the disagreement of cameras.
+``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold)
+and the gyro's measurement over the camera's readout from its stamp; each estimate is in the
+rig's terms (:attr:`RigOutput.estimate`: the model's velocities per second, one view). Its images'
+front end is given the camera's prediction and told the camera's own estimate
+(:meth:`RigLocalizer.process_image`). Given the camera's ``options`` (``EstimateOptions()``,
+not the default :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``,
+its estimates, paths and fused twists are the camera's localizer's, bit for bit. The
+refusals of a rig frame posed from one camera while others run (:data:`RIG_REFUSALS`) have
+no other camera to wait for, nor does the disagreement of cameras.
 
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
 each rig frame is solved with the gyro's measurement over the rig frame's capture times
@@ -167,6 +168,7 @@ from .tracker import (
     Solve,
     TrackerOptions,
     TrackerPath,
+    carried_model,
     frame_inlier_ratio,
     model_from_state,
 )
@@ -591,6 +593,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._single = settings.single_camera  # (a rig of one; its mountings stay)
         self._track: TrackerPath | None = _new_track(settings)
         self._prior = None  # (the motion prior of the rig frame being solved: a rig of one)
+        # (a rig of one: its last rig frame's time and its camera's own estimate)
+        self._alone: tuple[int, RSPoseEstimate] | None = None
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_*
         self.gyro_input = GyroInput(
@@ -977,7 +981,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self, model: RSModel, dt: float, camera: CameraModel, view: _Camera
     ) -> RSModel:
         """The camera's model of the last posed rig frame carried ``dt`` s, through its
-        mounting."""
+        mounting (a rig of one: its camera's own model carried, as the camera's video does)."""
+        if self._single:
+            return carried_model(model, dt, camera.seconds_per_unit_r)
         return camera_model_of_rig(model, view.mount, dt, camera.seconds_per_unit_r)
 
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
@@ -1110,7 +1116,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         img = self._image_input()
         for out in outs:
             est = out.estimate
-            self._carried.update(out.stamp_ns, est)  # (posed: the prediction without tracking)
+            alone = self._alone_estimate(out)  # (a rig of one: its camera's own estimate)
+            # (posed: the prediction without tracking; a rig of one's, its camera's model)
+            self._carried.update(out.stamp_ns, alone if self._single else est)
             for k, n in enumerate(out.cameras):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)
@@ -1118,8 +1126,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 if item is None or fe is None or fe.frontend is None:
                     continue
                 stamp, uv, camera = item
-                feedback = None
-                if est is not None:
+                feedback = alone
+                if est is not None and alone is None:
                     mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
                     feedback = camera_estimate(est, k, camera, mount, off, uv)
                 fe.observe(stamp, uv, feedback)
@@ -1291,7 +1299,17 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             gyro=self._gyro,
             implementation=self._impl,
         )
+        self._alone = (out.stamp_ns, est)
         return _camera_as_rig(est, frame.camera.seconds_per_unit_r)
+
+    def _alone_estimate(self, out: RigOutput) -> RSPoseEstimate | None:
+        """A rig of one's rig frame ``out``: its camera's own estimate, the one the rig's is
+        made from (what its front end is told and the last posed frame carried, as the
+        camera's video does); None for a rig of several cameras or a rig frame not solved."""
+        a = self._alone
+        if a is None or a[0] != out.stamp_ns or out.estimate is None:
+            return None
+        return a[1]
 
     def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone (the others' points
@@ -1588,6 +1606,7 @@ class _CameraAlone:
         return self.view.model(predicted)
 
     def _rig(self, s: Solve) -> Solve:
+        self.rig._alone = (self.out.stamp_ns, s.estimate)  # (the last solve's: the frame's)
         return replace(s, estimate=_camera_as_rig(s.estimate, self.spr))
 
     def cold(self) -> Solve:

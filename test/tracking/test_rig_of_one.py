@@ -2,8 +2,8 @@
 (RigSettings.single_camera) given the camera's options solves every frame as the camera's own
 SequenceLocalizer does, bit for bit: each estimate (pose, twist, model, inliers, failure,
 covariances), its path and every fused twist, with tracking (the prediction's motion prior
-too), without, across a new configuration, and with a gyro. A rig of two cameras keeps the rig
-estimator."""
+too), without, across a new configuration, with a gyro, and on rendered images through a front
+end (the same prediction searched with). A rig of two cameras keeps the rig estimator."""
 
 import dataclasses
 
@@ -178,3 +178,38 @@ def test_which_rigs_are_one_camera_and_a_rig_of_two_keeps_the_rig_estimator(vide
     assert not two.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, camera_name="a"))
     (out2,) = two.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, camera_name="b"))
     assert out2.success and out2.estimate.solver == "gr6p_1lin"
+
+
+@pytest.mark.parametrize("tracking", [TrackerOptions(), None])
+def test_a_rig_of_one_on_images_is_the_camera_on_them(tracking):
+    """Rendered images of the marker room through a windowed ArUco front end each: the same
+    prediction handed to the front end (the tracker's, or the last posed frame carried without
+    tracking), the same rows found, estimates and fused twists, bit for bit."""
+    from rs_localizer.frontends import make_frontend
+    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+
+    (c,) = vga_rig(1)
+    frames, _ = render_rig_frames([c], 8, seed=3)
+
+    def aruco():
+        return make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
+
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=tracking), frontend=aruco())
+    rig = RigLocalizer(RigSettings({c.name: IDENTITY}, options=OPTS, tracking=tracking))
+    rig.set_frontend(c.name, aruco())
+    spr = c.camera.seconds_per_unit_r
+    predicted = 0
+    for f in frames:
+        p, q = seq.predict(f.stamp_ns, c.camera), rig.predict_camera(c.name, f.stamp_ns, c.camera)
+        assert (p is None) == (q is None)
+        if p is not None:
+            predicted += 1
+            assert all(_same(x, y) for x, y in zip(p, q, strict=True))
+        a = seq.process_image(f.stamp_ns, f.image, c.camera, "rgb8")
+        (b,) = rig.process_image(c.name, f.stamp_ns, f.image, c.camera, "rgb8")
+        assert _same(a.points2d, b.frames[c.name].points2d) and a.path == b.path
+        _assert_same_estimate(a.estimate, b.estimate, spr)
+        assert a.estimate.success
+        _assert_same_fused(a.fused, b.fused)
+    assert predicted == len(frames) - 1
+    _assert_same_fused(seq.flush(), rig.flush())
