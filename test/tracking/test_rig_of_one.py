@@ -16,6 +16,8 @@ from rs_localizer.frames import Mounting
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,
     SequenceConfig,
+    Teleport,
+    Trajectory,
     generate_sequence,
     imu_samples,
 )
@@ -127,12 +129,21 @@ def test_a_rig_of_one_camera_solves_its_frames_as_the_camera(video):
 
 def test_a_rig_of_one_relocalizes_resets_and_is_configured_as_the_camera(video):
     """A prediction that never explains enough (a 0.5 px gate): every frame relocalized, also
-    solved again without the prediction's prior; a gap of 12 frames (0.4 s, over a max_gap of
-    0.3 s) resets the track; new estimator options mid-video start a new track on both."""
+    solved again without the prediction's prior; a teleport (8 m, 40 deg) that the track
+    contradicts is relocalized and posed, not refused (no other camera to confirm it); a gap
+    of 12 frames (0.4 s, over a max_gap of 0.3 s) resets the track; new estimator options
+    mid-video start a new track on both."""
     strict = TrackerOptions(gate_px=0.5, gate_sigmas=0.0, min_explained_ratio=1.0,
                             prior_from_prediction="always")  # fmt: skip
     paths, _, _ = _compare(video, strict)
     assert paths[1:] == ["relocalized"] * (FRAMES - 1)
+    jump = Teleport(Trajectory(), time=0.3)
+    config = SequenceConfig(num_frames=16, num_points=200, seed=5, num_landmarks=3000)
+    jumped, _, _, _ = generate_sequence(config, trajectory=jump)
+    paths, _, rig = _compare(video, TrackerOptions(), frames=jumped)
+    k = paths.index("relocalized")
+    assert 8 <= k <= 10 and paths[k + 1 :] == ["tracked"] * (15 - k)
+    assert rig.counts["rig.solved"] == 16 and not any("rig.failed" in c for c in rig.counts)
     frames = [f for k, f in enumerate(video[0]) if not 6 <= k < 18]
     paths, _, _ = _compare(video, TrackerOptions(max_gap=0.3), frames=frames)
     assert paths[6] == "reset"
