@@ -36,7 +36,7 @@ import numpy as np
 
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..estimation.implementation import COMPILED, NUMPY, NUMPY_SOLVERS, compiled_by_default
-from ..tracking.rig import RigSettings
+from ..tracking.rig import SINGLE_CAMERA_SOLVER, RigSettings
 from ..tracking.tracker import TrackerOptions
 from . import warmup
 from .jit_cache import cache_state, compile_progress, numba_error
@@ -143,13 +143,17 @@ class CameraKernels:
 @dataclass(frozen=True)
 class RigKernels:
     """What a rig's frames compile (:func:`.warmup.warm_rig`'s arguments): the rig's kernels
-    for its ``settings`` and its cameras' RS ``timing``; its frames wait on NumPy."""
+    for its ``settings`` and its cameras' RS ``timing`` (a rig of one camera,
+    :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`: its camera's); its frames
+    wait on NumPy."""
 
     settings: RigSettings
     timing: dict | None = None
     what, command, numpy = "the rig's kernels", "compile --params-file", True
 
     def cached(self) -> bool:
+        if self.settings.single_camera:  # (solved as the camera: the camera's kernels)
+            return warmup.fused_cached(SINGLE_CAMERA_SOLVER, anchored=False)
         return warmup.rig_cached()
 
     def warm(self) -> None:

@@ -33,6 +33,24 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
    :attr:`~rs_localizer.estimation.result.RSPoseEstimate.acceleration_sensitivity`), as a
    camera's estimate is for the camera tracker.
 
+A rig of one camera at the identity mounting without a covariance
+(:attr:`RigSettings.single_camera`: the camera's frame is the rig's) is that camera's video:
+its rig frames are solved as :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`
+solves the camera's frames, with the single-camera estimator
+(:func:`~rs_localizer.estimation.estimate_rs_pose` with the camera's default solver,
+:data:`SINGLE_CAMERA_SOLVER`, and the frame's scores) on the camera's tracker
+(:class:`~rs_localizer.tracking.tracker.RSTracker`: cold frames with ``options``, tracked ones
+with the tracked options and the prediction's twist as the motion prior where
+``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold)
+and the gyro's measurement over the camera's readout from its stamp; each estimate is in the
+rig's terms (:attr:`RigOutput.estimate`: the model's velocities per second, one view). Its images'
+front end is given the camera's prediction and told the camera's own estimate
+(:meth:`RigLocalizer.process_image`). Given the camera's ``options`` (``EstimateOptions()``,
+not the default :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``,
+its estimates, paths and fused twists are the camera's localizer's, bit for bit. The
+refusals of a rig frame posed from one camera while others run (:data:`RIG_REFUSALS`) have
+no other camera to wait for, nor does the disagreement of cameras.
+
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
 each rig frame is solved with the gyro's measurement over the rig frame's capture times
 (from the first line of its earliest camera to the last line of its latest; in the rig frame
@@ -142,13 +160,25 @@ from .localizer import (
     VideoLocalizer,
     usable_rows,
 )
-from .tracker import STATES, Solve, TrackerOptions, TrackerPath
+from .sequence import SequenceSettings
+from .tracker import (
+    STATES,
+    PathEstimator,
+    RSTracker,
+    Solve,
+    TrackerOptions,
+    TrackerPath,
+    carried_model,
+    frame_inlier_ratio,
+    model_from_state,
+)
 
 __all__ = [
     "MISSED_REASONS",
     "RIG_PATHS",
     "RIG_REFUSALS",
     "RIG_TRACKED_MAX_ITERATIONS",
+    "SINGLE_CAMERA_SOLVER",
     "SKIP_REASONS",
     "CameraShare",
     "RigGrouping",
@@ -222,6 +252,11 @@ STOP_INTERVALS = 2.0
 RIG_PATHS = STATES
 
 
+#: the minimal solver of a rig of one camera (:attr:`RigSettings.single_camera`), solved as
+#: the camera: the camera's default
+#: (:attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`)
+SINGLE_CAMERA_SOLVER = SequenceSettings.solver
+
 #: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
 #: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
 RIG_TRACKED_MAX_ITERATIONS = 200
@@ -251,12 +286,17 @@ class RigSettings:
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
             :func:`~rs_localizer.estimation.rig.estimate_rig_pose`; default
-            :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`).
+            :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`). A rig of one camera
+            (:attr:`single_camera`) runs the single-camera estimator with them, all of them:
+            to get the camera's own results give it the camera's options (its default,
+            ``EstimateOptions()``: the default here differs in ``ransac.min_inliers``, 8
+            instead of 12).
         tracking: the camera tracker's
             :class:`~rs_localizer.tracking.tracker.TrackerOptions` (the gates, the explained
             ratio, ``max_gap``, ``tracked_max_iterations``: default
-            :data:`RIG_TRACKED_MAX_ITERATIONS`, the twist filter's ``fusion``); None: every
-            rig frame alone, its own twist.
+            :data:`RIG_TRACKED_MAX_ITERATIONS`, the twist filter's ``fusion``; a rig of one
+            camera reads them all as the camera does, ``tracked_max_iterations`` None being
+            ``options``' own); None: every rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
             at least ``disagree_min_points`` points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
@@ -325,6 +365,17 @@ class RigSettings:
     def cameras(self) -> tuple:
         """The cameras' names, in order."""
         return tuple(self.mounts)
+
+    @property
+    def single_camera(self) -> bool:
+        """The rig is its one camera: a rig of one camera at the identity mounting without a
+        covariance (the camera's frame is the rig's). Its rig frames are solved as that
+        camera's own video (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`):
+        module docstring."""
+        if len(self.mounts) != 1:
+            return False
+        (m,) = self.mounts.values()
+        return bool(m.covariance is None and np.array_equal(m.R, np.eye(3)) and not np.any(m.c))
 
     def reference_ns(self, name: str, stamp_ns: int, camera: CameraModel | None) -> int:
         """ns, camera ``name``'s frame stamped ``stamp_ns`` on the rig's clock: the capture
@@ -539,8 +590,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         # the tracker path (tracking/tracker.py: the time rule, the prediction, the twist
         # filter), the rig's views its estimator; None without tracking
-        to = settings.tracking
-        self._track: TrackerPath | None = None if to is None else TrackerPath(to)
+        self._single = settings.single_camera  # (a rig of one; its mountings stay)
+        self._track: TrackerPath | None = _new_track(settings)
+        self._prior = None  # (the motion prior of the rig frame being solved: a rig of one)
+        # (a rig of one: its last rig frame's time and its camera's own estimate)
+        self._alone: tuple[int, RSPoseEstimate] | None = None
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_*
         self.gyro_input = GyroInput(
@@ -583,10 +637,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         if changed:
             raise ValueError(f"a configured rig keeps its {', '.join(changed)}")
         with self._lock:
-            if settings.tracking != old.tracking:  # (the old track's twists: the old bounds)
+            # (a rig of one: its camera's tracker holds the estimator's options too)
+            if settings.tracking != old.tracking or (
+                self._single and settings.options != old.options
+            ):  # (the old track's twists: the old bounds)
                 self._carry += self._end_track(keep=True)
-                to = settings.tracking
-                self._track = None if to is None else TrackerPath(to)
+                self._track = _new_track(settings)
             self.settings = settings
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = self._clock.back_tolerance_ns = settings.time_reset_ns
@@ -596,7 +652,15 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """The gyro measurement over the rig frame's capture times (rig frame;
         :meth:`~rs_localizer.tracking.localizer.VideoLocalizer._gyro_readouts` of its cameras,
         each at its reference time after the rig frame's), waiting up to ``imu.wait`` for its
-        samples; None without a gyro or its samples (counted)."""
+        samples; None without a gyro or its samples (counted). A rig of one
+        (:attr:`RigSettings.single_camera`): its camera's readout from its stamp, as the
+        camera's own video takes it (None for a camera without readout time)."""
+        if self._single:
+            ((name, (frame, _)),) = g.frames.items()
+            if frame.camera.line_delay <= 0:
+                return None
+            t0 = self.settings.reference_ns(name, frame.stamp_ns, None)
+            return self._gyro_readouts(t0, [(frame.camera, 0.0, self.settings.stamp_row)])
         return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
 
     def _gyro_done(self, out: RigOutput) -> None:
@@ -764,9 +828,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         now = max((c.newest for c in self._cams.values() if c.newest is not None), default=None)
         if now is None:
             return []
+        stop_ns = s.stop_after * 1e9
         for cam in self._cams.values():
             last = cam.newest if cam.newest is not None else self._first
-            if not cam.stopped and now - last > self._stop_ns(cam):
+            # (stop_after first: the camera's own intervals only lengthen it)
+            if not cam.stopped and now - last > stop_ns and now - last > self._stop_ns(cam):
                 cam.stopped = True
                 self.counts[f"{cam.name}.stopped"] += 1
                 self.log.warning(
@@ -895,11 +961,17 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             return False, None
         if not t.predicts(ref):
             return True, None
-        self._filter_kernels(None if self._implementation is None else self._implementation())
+        impl = None if self._implementation is None else self._implementation()
+        self._filter_kernels(impl)
+        if isinstance(t, RSTracker):  # (a rig of one: its kernels as set, not the solver's)
+            return True, t.predict(ref, impl)
         return True, t.predict(ref)
 
     def _state_in_camera(self, state: FusedState, camera: CameraModel, view: _Camera) -> RSModel:
-        """The camera's model of the rig's predicted state, through its mounting."""
+        """The camera's model of the rig's predicted state, through its mounting (a rig of
+        one: the state's model in its camera, as the camera's own video has it)."""
+        if self._single:
+            return model_from_state(state, camera)
         pred = state.pose
         rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
                         pred.linear_velocity)  # fmt: skip
@@ -909,7 +981,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self, model: RSModel, dt: float, camera: CameraModel, view: _Camera
     ) -> RSModel:
         """The camera's model of the last posed rig frame carried ``dt`` s, through its
-        mounting."""
+        mounting (a rig of one: its camera's own model carried, as the camera's video does)."""
+        if self._single:
+            return carried_model(model, dt, camera.seconds_per_unit_r)
         return camera_model_of_rig(model, view.mount, dt, camera.seconds_per_unit_r)
 
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
@@ -1042,7 +1116,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         img = self._image_input()
         for out in outs:
             est = out.estimate
-            self._carried.update(out.stamp_ns, est)  # (posed: the prediction without tracking)
+            alone = self._alone_estimate(out)  # (a rig of one: its camera's own estimate)
+            # (posed: the prediction without tracking; a rig of one's, its camera's model)
+            self._carried.update(out.stamp_ns, alone if self._single else est)
             for k, n in enumerate(out.cameras):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)
@@ -1050,8 +1126,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 if item is None or fe is None or fe.frontend is None:
                     continue
                 stamp, uv, camera = item
-                feedback = None
-                if est is not None:
+                feedback = alone
+                if est is not None and alone is None:
                     mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
                     feedback = camera_estimate(est, k, camera, mount, off, uv)
                 fe.observe(stamp, uv, feedback)
@@ -1193,12 +1269,47 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """The rig frame's estimate on the tracker path
         (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
         estimator). Returns (estimate, path)."""
-        self._prediction = None
+        self._prediction = self._prior = None
+        one = self._single
         if self._track is None:
-            return self._run(views), None
-        f = self._track.solve(stamp, _RigViews(self, views, out))
-        self._prediction = f.predicted
+            return (self._run_camera(out) if one else self._run(views)), None
+        if one:
+            (frame,) = out.frames.values()
+            view = self._track.view(frame.points2d, frame.points3d, frame.camera, frame.scores,
+                                    self._gyro, self._impl)  # fmt: skip
+            estimator: PathEstimator = _CameraAlone(self, view, frame.camera, out)
+        else:
+            estimator = _RigViews(self, views, out)
+        f = self._track.solve(stamp, estimator)
+        self._prediction, self._prior = f.predicted, f.prior
         return f.estimate, f.path
+
+    def _run_camera(self, out: RigOutput) -> RSPoseEstimate:
+        """A rig of one without tracking: its camera's frame solved alone as the camera's
+        own video solves it (:func:`~rs_localizer.estimation.estimate_rs_pose` with the rig's
+        options), the estimate in the rig's terms."""
+        (frame,) = out.frames.values()
+        est = estimate_rs_pose(
+            frame.points2d,
+            frame.points3d,
+            frame.camera,
+            solver=SINGLE_CAMERA_SOLVER,
+            options=self.settings.options,
+            scores=frame.scores,
+            gyro=self._gyro,
+            implementation=self._impl,
+        )
+        self._alone = (out.stamp_ns, est)
+        return _camera_as_rig(est, frame.camera.seconds_per_unit_r)
+
+    def _alone_estimate(self, out: RigOutput) -> RSPoseEstimate | None:
+        """A rig of one's rig frame ``out``: its camera's own estimate, the one the rig's is
+        made from (what its front end is told and the last posed frame carried, as the
+        camera's video does); None for a rig of several cameras or a rig frame not solved."""
+        a = self._alone
+        if a is None or a[0] != out.stamp_ns or out.estimate is None:
+            return None
+        return a[1]
 
     def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone (the others' points
@@ -1346,7 +1457,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._update_disagreement(out, names, n_pts, n_in, views, est)
         if self._track is None:
             return
-        step = self._track.update(out.stamp_ns, est, path, total_in / max(int(n_pts.sum()), 1))
+        if self._single:  # (its camera's rule: the inliers of all its rows)
+            ratio = frame_inlier_ratio(est, out.num_points)
+        else:
+            ratio = total_in / max(int(n_pts.sum()), 1)
+        step = self._track.update(out.stamp_ns, est, path, ratio, self._prior)
         self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
         out.fused += self._fused(step.final)
 
@@ -1471,6 +1586,73 @@ class _RigViews:
 
     def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
         return Solve(self.rig._run(self.views, prediction=model))
+
+
+class _CameraAlone:
+    """The frame of a rig of one (:attr:`RigSettings.single_camera`) as the tracker path's
+    estimator: its camera's own (:meth:`~rs_localizer.tracking.tracker.RSTracker.view` of the
+    rig's camera tracker), each estimate in the rig's terms (:func:`_camera_as_rig`)."""
+
+    def __init__(self, rig: RigLocalizer, view: PathEstimator, camera: CameraModel, out):
+        self.rig, self.view, self.out = rig, view, out
+        self.spr = camera.seconds_per_unit_r
+        self.focal, self.num_points = view.focal, view.num_points
+        self.min_inliers = view.min_inliers
+
+    def ended(self, final: list) -> None:
+        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
+
+    def model(self, predicted: FusedState) -> RSModel:
+        return self.view.model(predicted)
+
+    def _rig(self, s: Solve) -> Solve:
+        self.rig._alone = (self.out.stamp_ns, s.estimate)  # (the last solve's: the frame's)
+        return replace(s, estimate=_camera_as_rig(s.estimate, self.spr))
+
+    def cold(self) -> Solve:
+        return self._rig(self.view.cold())
+
+    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
+        return self._rig(self.view.tracked(initial, predicted))
+
+    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
+        return self._rig(self.view.relocalize(model, predicted))
+
+
+def _new_track(settings: RigSettings) -> TrackerPath | None:
+    """The rig's tracker path (None without tracking): a rig of one's is its camera's tracker
+    (:class:`~rs_localizer.tracking.tracker.RSTracker`, the camera's default solver and the
+    rig's options), a rig's of several cameras the path alone (its estimator the rig's)."""
+    to = settings.tracking
+    if to is None:
+        return None
+    if settings.single_camera:
+        return RSTracker(SINGLE_CAMERA_SOLVER, settings.options, to)
+    return TrackerPath(to)
+
+
+def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEstimate:
+    """A camera's estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`) as the rig
+    estimate of a rig of one: the same pose, twist, covariances, inliers and record; the
+    model's velocities per second (the rig's ``w``, ``t``: the camera's over
+    ``seconds_per_unit_r`` s; a global shutter's zeros kept) and its ``model_covariance``
+    with them; the per-view fields of its one view."""
+    spr = float(seconds_per_unit_r)
+    model, cov = est.model, est.model_covariance
+    if spr > 0:
+        R, C, w, t = model
+        model = RSModel(R, C, w / spr, t / spr)
+        if cov is not None:
+            k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
+            cov = cov * k[:, None] * k[None, :]
+    return replace(
+        est,
+        model=model,
+        model_covariance=cov,
+        inliers_per_view=(est.inliers,),
+        num_inliers_per_view=(est.num_inliers,),
+        num_valid_per_view=(est.num_valid,),
+    )
 
 
 def _offsets_text(offsets: dict) -> str:

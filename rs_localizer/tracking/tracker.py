@@ -63,6 +63,7 @@ __all__ = [
     "TrackerOptions",
     "TrackerPath",
     "carried_model",
+    "frame_inlier_ratio",
     "model_from_state",
     "motion_prior_from_state",
     "predictable",
@@ -95,8 +96,8 @@ class TrackerOptions:
         tracked_min_iterations: RANSAC's minimum number of samples on tracked frames (the
             prediction is a hypothesis already; adaptive termination still runs).
         tracked_max_iterations: RANSAC's maximum number of samples on tracked frames; None:
-            a camera's estimator options' own (``ransac.max_iterations``), a rig's
-            :data:`~rs_localizer.tracking.rig.RIG_TRACKED_MAX_ITERATIONS`.
+            a camera's estimator options' own (``ransac.max_iterations``; also a rig of one
+            camera's), a rig's :data:`~rs_localizer.tracking.rig.RIG_TRACKED_MAX_ITERATIONS`.
         prior_from_prediction: when the estimator's motion prior is the predicted twist with
             its covariance (:func:`motion_prior_from_state`) instead of the estimator options'
             own prior: ``"planar"`` (default: on tracked frames when the previous frame's
@@ -110,10 +111,11 @@ class TrackerOptions:
             ``max_gap`` is set to the tracker's).
 
     The options of a camera's tracker and of a rig's
-    (:attr:`~rs_localizer.tracking.rig.RigSettings.tracking`); a rig's estimator takes no
-    motion prior and verifies its prediction with its own minimum of samples, so it reads all
-    of them but ``tracked_options``, ``tracked_min_iterations``, ``prior_from_prediction`` and
-    ``prior_inflation``.
+    (:attr:`~rs_localizer.tracking.rig.RigSettings.tracking`); the rig estimator takes no
+    motion prior and verifies its prediction with its own minimum of samples, so a rig of
+    several cameras reads all of them but ``tracked_options``, ``tracked_min_iterations``,
+    ``prior_from_prediction`` and ``prior_inflation`` (a rig of one camera, solved as the
+    camera, reads them all: :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`).
     """
 
     gate_px: float = 20.0
@@ -280,6 +282,12 @@ class PathEstimate(PoseMeasurement, Protocol):
 
     @property
     def initial_explained(self) -> int: ...
+
+
+def frame_inlier_ratio(estimate: PathEstimate, num_rows: int) -> float:
+    """A solved frame's inlier ratio as the tracker keeps it for the next frame's gate
+    (:func:`predicted_initial_model`): its inliers over the ``num_rows`` rows it was given."""
+    return estimate.num_inliers / max(num_rows, 1)
 
 
 def predicted_initial_model(
@@ -633,10 +641,43 @@ class RSTracker(TrackerPath):
         if not est.success:
             self.update(stamp_ns, est, f.path)
             return TrackResult(est, f.path, None, view.final, f.predicted, f.explained)
-        self._planar = bool(est.planar)
-        ratio = est.num_inliers / max(len(points2d), 1)
-        step = self.update(stamp_ns, est, f.path, ratio, f.prior)
+        step = self.update(stamp_ns, est, f.path, frame_inlier_ratio(est, len(points2d)), f.prior)
         return TrackResult(est, f.path, step, view.final + step.final, f.predicted, f.explained)
+
+    def view(
+        self,
+        points2d: np.ndarray,
+        points3d: np.ndarray,
+        camera: CameraModel,
+        scores: np.ndarray | None = None,
+        gyro: GyroMeasurement | None = None,
+        implementation: str | None = None,
+    ) -> PathEstimator:
+        """One frame of the camera as this tracker's estimator on the tracker path
+        (:class:`PathEstimator`), for a caller that runs the path's steps itself
+        (:meth:`~TrackerPath.solve`, then :meth:`update`), as :meth:`process` does: cold
+        frames solved with the tracker's options, tracked ones with its tracked options and the
+        prediction's twist as the motion prior where
+        :attr:`TrackerOptions.prior_from_prediction` asks for it, a prediction that did not
+        hold solved cold (:func:`estimate_rs_pose` on ``implementation``); the fused states of
+        a track the time rule ends before the frame are kept in its ``final`` (a list), unless
+        the caller hands them on itself. Arguments as :meth:`process`'s."""
+        return _CameraView(self, points2d, points3d, camera, scores, gyro, implementation)
+
+    def update(
+        self,
+        stamp_ns: int,
+        estimate: PathEstimate,
+        path: str,
+        inlier_ratio: float = 0.0,
+        prior: MotionPrior | None = None,
+    ) -> FusionStep | None:
+        """:meth:`TrackerPath.update`; a solved frame's ``planar`` also decides whether the
+        next frame takes the prediction's twist as its motion prior (``prior_from_prediction``
+        ``"planar"``)."""
+        if estimate.success:
+            self._planar = bool(estimate.planar)
+        return super().update(stamp_ns, estimate, path, inlier_ratio, prior)
 
     def _implementation(self, implementation: str | None) -> None:
         """The twist filter's kernels for ``implementation`` (the estimator's, None: its
