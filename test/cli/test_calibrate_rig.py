@@ -344,7 +344,7 @@ def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
     every frame has the cloud's rows (to the cloud's float32 rounding) and the mountings are
     calibrated within their stated std of the truth; an image another size than its
     camera_info's is left out and counted; a bag without images is refused with why."""
-    from helpers.rig_bags import rewrite_bag
+    from helpers.rig_bags import cut_image, rewrite_bag
 
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
@@ -373,20 +373,8 @@ def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
     assert 1e3 * np.linalg.norm(got.position - truth.position) < 3 * back["std_mm"]
     assert back["frames"] == 6 and "image_size_mismatch" not in back
     # the back camera's third image cut to 320 px wide: left out, counted
-    seen = []
 
-    def cut(topic, msg, t):
-        if topic == "/rig/back/image_raw":
-            seen.append(t)
-            if len(seen) == 3:
-                from dataclasses import replace
-
-                row = msg.step // msg.width * 320
-                data = np.asarray(msg.data).reshape(msg.height, msg.step)[:, :row].ravel()
-                msg = replace(msg, width=320, step=row, data=data)
-        return [(t, msg)]
-
-    read = read_rig_frames(rewrite_bag(bag, tmp_path / "cut", cut), params=params)
+    read = read_rig_frames(rewrite_bag(bag, tmp_path / "cut", cut_image("back", 2)), params=params)
     assert read.counts["back"]["image_size_mismatch"] == 1 and len(read.frames) == 11
     # the make-bag rig bag has clouds only
     args = ["calibrate-rig", str(rig_bag), "-p", "frontend:=aruco"]

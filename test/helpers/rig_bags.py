@@ -33,6 +33,26 @@ def rewrite_bag(src, dst, edit):
     return dst
 
 
+def cut_image(camera: str, index: int, width: int = 320, namespace: str = "/rig"):
+    """An ``edit`` for :func:`rewrite_bag`: camera ``camera``'s ``index``-th image (from 0)
+    cut to its first ``width`` columns (its camera_info keeps the full size: the node's
+    ``image_size_mismatch``), every other message as it is."""
+    import numpy as np
+
+    seen = []
+
+    def edit(topic, msg, t):
+        if topic == f"{namespace}/{camera}/image_raw":
+            seen.append(t)
+            if len(seen) == index + 1:
+                row = msg.step // msg.width * width
+                data = np.asarray(msg.data).reshape(msg.height, msg.step)[:, :row].ravel()
+                msg = replace(msg, width=width, step=row, data=data)
+        return [(t, msg)]
+
+    return edit
+
+
 @dataclass
 class UnreadCloudsBag:
     """:func:`bag_with_unread_clouds`: the bag, the rig's cameras, the frames written (the

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.rig_bags import rewrite_bag
+from helpers.rig_bags import cut_image, rewrite_bag
 
 pytest.importorskip("rosbags")
 
@@ -202,8 +202,6 @@ def test_replay_of_a_rendered_rig_bag_runs_each_cameras_front_end_on_its_images(
     on the same images, so the poses are those of the clouds' replay), an image another size
     than its camera_info's skipped for that reason and counted for its camera, the rig frame
     posed without it."""
-    from dataclasses import replace
-
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.rig_bag import replay_rig
 
@@ -221,18 +219,7 @@ def test_replay_of_a_rendered_rig_bag_runs_each_cameras_front_end_on_its_images(
         assert np.abs(a.estimate.model.C - b.estimate.model.C).max() < 1e-5  # (float32 clouds)
         assert a.tags == b.tags  # (each camera frame's stamp and frame id)
     # the back camera's second image cut to 320 px wide: skipped, the rig frame posed alone
-    seen = []
-
-    def cut(topic, msg, t):
-        if topic == "/rig/back/image_raw":
-            seen.append(t)
-            if len(seen) == 2:
-                row = msg.step // msg.width * 320
-                data = np.asarray(msg.data).reshape(msg.height, msg.step)[:, :row].ravel()
-                msg = replace(msg, width=320, step=row, data=data)
-        return [(t, msg)]
-
-    cut_bag = rewrite_bag(bag, tmp_path / "cut", cut)
+    cut_bag = rewrite_bag(bag, tmp_path / "cut", cut_image("back", 1))
     res = replay_rig(cut_bag, params=params)
     assert res.counts["back"]["skipped.image_size_mismatch"] == 1
     assert res.counts["back"]["received"] == 4 and res.solved == 4
