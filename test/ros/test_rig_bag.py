@@ -294,6 +294,27 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
                  "-o", str(tmp_path / "calibrated.yaml")]) == 0  # fmt: skip
 
 
+def test_a_cameras_bag_replayed_as_a_rig_of_one_is_the_cameras_replay(sample_bag):
+    """A camera alone is a rig of one: the sample bag (one camera) replayed through the rig
+    mode with ``rig.cameras: [camera]`` at the identity mounting and the camera's RS timing
+    gives the camera's replay, every row's pose and twist errors bit for bit (the rig's row is
+    stamped at its reference time, the camera's at its header stamp; both publish at the
+    reference time)."""
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.bags.rig_bag import replay_rig
+
+    timing = {"rs.line_delay": 3e-05, "rs.direction": "top_to_bottom",
+              "rs.reference_row": 359.5, "rs.stamp_row": 0.0}  # fmt: skip
+    rig = {"rig.cameras": ["camera"], "rig.camera.mounting": [0.0] * 6 + [1.0], **timing}
+    cam, one = replay(sample_bag), replay_rig(sample_bag, params=rig)
+    assert one.solved == len(cam.rows) == len(one.rows) == 30 and one.solver == "r6p_1lin"
+    for a, b in zip(cam.rows, one.rows, strict=True):
+        assert a["out_stamp_ns"] == b["out_stamp_ns"] and a["stamp_ns"] < b["stamp_ns"]
+        assert {k: v for k, v in a.items() if k not in ("stamp_ns", "time_ms")} == {
+            k: v for k, v in b.items() if k not in ("stamp_ns", "time_ms")
+        }
+
+
 def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     """``make-bag --rig 2 --imu-rate 400`` writes the rig's gyro on ``/rig/imu`` with
     ``imu.enabled`` and ``imu.rotation`` in the node's parameters; ``replay`` solves every rig
