@@ -87,6 +87,7 @@ __all__ = [
     "finite_rows",
     "image_sample",
     "same_image",
+    "search_image",
     "usable_rows",
 ]
 
@@ -530,7 +531,7 @@ class CameraFrontend:
 
 @dataclass
 class ImageSearch:
-    """What a camera's front end made of an image (:meth:`VideoLocalizer._search_image`).
+    """What a camera's front end made of an image (:func:`search_image`).
 
     Attributes:
         failure: None (searched), ``frozen_image`` (the camera's last image again: not
@@ -546,6 +547,36 @@ class ImageSearch:
     error: Exception | None = None
     found: Correspondences | None = None
     seconds: float = 0.0
+
+
+def search_image(
+    fe: CameraFrontend,
+    stamp_ns: int,
+    image: np.ndarray,
+    camera: CameraModel,
+    encoding: str,
+    prediction: Callable[[], RSModel | None],
+    *,
+    level: float = FROZEN_IMAGE_LEVEL,
+    check: bool = True,
+) -> ImageSearch:
+    """A camera's image through its front end ``fe``, before the estimator: the frozen-image
+    check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``: the front end told
+    that its tracks are stale, ``observe(stamp_ns, None, None)``), the frame's prediction
+    (``prediction()``: the video's model of the frame seen by ``camera``, None when nothing
+    predicts it; asked only for an image that is searched), the front end's search with it.
+    What a camera's video and each camera of a rig run on an image."""
+    diff = fe.frozen(image, level, check)
+    if diff is not None:
+        fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
+        return ImageSearch("frozen_image", difference=diff)
+    predicted = prediction()
+    t0 = time.perf_counter()
+    try:
+        found = fe.search(image, camera, encoding, predicted)
+    except Exception as e:
+        return ImageSearch("frontend_error", error=e)
+    return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
 
 class VideoSettings(Protocol):
@@ -756,37 +787,6 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
         out = self._fused(final)
         self._twists.clear()
         return out
-
-    # ---------------------------------------------------------------- images
-    def _search_image(
-        self,
-        fe: CameraFrontend,
-        stamp_ns: int,
-        ref: int,
-        image: np.ndarray,
-        camera: CameraModel,
-        encoding: str,
-        *,
-        level: float = FROZEN_IMAGE_LEVEL,
-        check: bool = True,
-        view: View,
-    ) -> ImageSearch:
-        """A camera's image through its front end ``fe``, before the estimator: the
-        frozen-image check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``:
-        the front end told that its tracks are stale, ``observe(stamp_ns, None, None)``), the
-        frame's prediction (:meth:`_predict` at reference time ``ref`` ns, ``view``: which
-        camera), the front end's search with it."""
-        diff = fe.frozen(image, level, check)
-        if diff is not None:
-            fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
-            return ImageSearch("frozen_image", difference=diff)
-        prediction = self._predict(ref, camera, view)
-        t0 = time.perf_counter()
-        try:
-            found = fe.search(image, camera, encoding, prediction)
-        except Exception as e:
-            return ImageSearch("frontend_error", error=e)
-        return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
     def _forget_last_pose(self) -> None:
         """Forget the last posed frame carried (:class:`~rs_localizer.tracking.tracker.
