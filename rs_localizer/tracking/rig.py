@@ -127,6 +127,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections import Counter, deque
@@ -584,8 +585,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer` runs its frames
             through it): its warnings are worded for a camera (the rolling-shutter timing's
             advice names the camera's ``rs.*`` parameters; a time reset is the caller's to
-            report, :meth:`check_time`) and its fused twists carry their frame's own tag
-            rather than a camera -> tag dict. Only for a rig of one (else ValueError).
+            report, :meth:`check_time`), its fused twists carry their frame's own tag
+            rather than a camera -> tag dict, and its outputs' ``estimate`` is the camera's own
+            (:attr:`RigOutput.camera_estimate`: the model's velocities per unit RS coordinate,
+            not per second). Only for a rig of one (else ValueError).
 
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
@@ -1071,7 +1074,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         fe = self._image_input().frontends.get(name)
         return None if fe is None else fe.frontend
 
-    def predict_camera(self, name: str, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+    def predict_camera(
+        self, name: str, stamp_ns: int, camera: CameraModel, *, reference_ns: int | None = None
+    ) -> RSModel | None:
         """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
         of row ``stamp_row``): the camera's model (:class:`~rs_localizer.pose.RSModel`
         ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
@@ -1082,7 +1087,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         posed through :meth:`process_image` carried at its own twist. None when nothing
         predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
         tracking) after the last, or not after it
-        (:func:`~rs_localizer.tracking.tracker.predictable`).
+        (:func:`~rs_localizer.tracking.tracker.predictable`). ``reference_ns``: the frame's
+        time on the rig's clock (:meth:`RigSettings.reference_ns`) when the caller made it;
+        None: made here.
 
         Raises:
             ValueError: a camera not in the rig, a stamp beyond the int64 ns range.
@@ -1090,7 +1097,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         cam = self._cams.get(name)
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
+        ref = reference_ns
+        if ref is None:
+            ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
         return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
@@ -1431,8 +1440,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         track) or alone without tracking (:func:`~rs_localizer.estimation.estimate_rs_pose`;
         the tracker dropped, its twists still pending with it), with the gyro's measurement
         over the camera's readout from its stamp. The estimate in the rig's terms
-        (:func:`_camera_as_rig`), the camera's own kept (:attr:`RigOutput.camera_estimate`:
-        the last posed frame carried, the front end's feedback). A rolling-shutter frame's
+        (:func:`_camera_as_rig`; a camera's video: its own), the camera's own kept
+        (:attr:`RigOutput.camera_estimate`: the last posed frame carried, the front end's
+        feedback). A rolling-shutter frame's
         twist is held for its fused twist; a global-shutter solver's or camera's is final
         (:attr:`RigOutput.twist_now`)."""
         s = self.settings
@@ -1493,8 +1503,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 return out
             self._track_over = False
             spr = camera.seconds_per_unit_r
+            # (a camera's video reports the camera's own estimate)
             out.camera_estimate = est
-            out.estimate = _camera_as_rig(est, spr)
+            out.estimate = _camera_as_rig(est, spr) if self._rig else est
             self._carried.update(ref, est)
             self.gyro_input.solved(ref, est, out.path in ("cold", "reset"))
             if not est.success:
@@ -1856,14 +1867,18 @@ def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEsti
         if cov is not None:
             k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
             cov = cov * k[:, None] * k[None, :]
-    return replace(
-        est,
-        model=model,
-        model_covariance=cov,
-        inliers_per_view=(est.inliers,),
-        num_inliers_per_view=(est.num_inliers,),
-        num_valid_per_view=(est.num_valid,),
-    )
+    # (dataclasses.replace's fields, set on a shallow copy: a frame's estimate has some forty
+    # fields, and a camera's video makes this once per frame)
+    out = copy.copy(est)
+    for name, value in (
+        ("model", model),
+        ("model_covariance", cov),
+        ("inliers_per_view", (est.inliers,)),
+        ("num_inliers_per_view", (est.num_inliers,)),
+        ("num_valid_per_view", (est.num_valid,)),
+    ):
+        object.__setattr__(out, name, value)
+    return out
 
 
 def _offsets_text(offsets: dict) -> str:

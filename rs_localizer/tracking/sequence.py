@@ -514,7 +514,7 @@ class SequenceLocalizer(GyroReadouts):
             TypeError: ``camera`` is not a :class:`~rs_localizer.camera.CameraModel`.
         """
         t = self.frame_time(stamp_ns, camera)
-        return self._rig.predict_camera(_CAMERA, t.stamp_ns, camera)
+        return self._rig.predict_camera(_CAMERA, t.stamp_ns, camera, reference_ns=t.reference_ns)
 
     # ---------------------------------------------------------------- frames
     def process(self, frame: CameraFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
