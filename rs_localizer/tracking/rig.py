@@ -291,7 +291,8 @@ class RigSettings:
             (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
             rig frames dropped), and so does a frame newer than the rig's newest by more than
             this (a gap in a bag, a clock jump: the open rig frames solved first); counted
-            ``rig.time_resets``.
+            ``rig.time_resets``. A rig of one camera takes the camera's policy: any step back
+            is a time reset, its frame solved (:meth:`RigLocalizer.check_time`).
         options: the rig estimator's options, the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;

@@ -105,6 +105,7 @@ __all__ = [
     "SequenceOutput",
     "SequenceSettings",
     "reference_stamp_ns",
+    "rig_of_one",
 ]
 
 #: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
