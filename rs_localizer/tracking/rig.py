@@ -57,9 +57,11 @@ camera's own twist is final (:attr:`RigOutput.twist_now`). Given the camera's ``
 ``tracking`` and ``imu``, its estimates, paths and fused twists are the camera's localizer's,
 bit for bit. The refusals of a rig frame posed from one camera while others run
 (:data:`RIG_REFUSALS`) have no other camera to wait for, nor does the disagreement of
-cameras. What stays the rig's: its counters (``rig.*``, ``<camera>.*``) and its images' input
-(:meth:`RigLocalizer.process_image` runs the estimator on a frame with too few
-correspondences, where the camera's drops it as ``frontend_too_few_points``).
+cameras. Its images (:meth:`RigLocalizer.process_image`) are taken as the camera's: an image
+with fewer correspondences than its solver needs is skipped before the estimator
+(``frontend_too_few_points``). What stays the rig's: its counters (``rig.*``,
+``<camera>.*``), and its frozen-image threshold (the camera's ``frozen_image_level`` setting
+has none here: the default level).
 
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
 each rig frame is solved with the gyro's measurement over the rig frame's capture times
@@ -139,7 +141,7 @@ from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Frontend, VideoFrontend
-from ..estimation.estimate import InitialModel, estimate_rs_pose
+from ..estimation.estimate import InitialModel, estimate_rs_pose, points_needed
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
 from ..estimation.options import EstimateOptions
@@ -158,6 +160,7 @@ from ..estimation.rig import (
     camera_model_of_rig,
     estimate_rig_pose,
 )
+from ..estimation.single_tag import coplanar_points
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
@@ -210,6 +213,9 @@ SKIP_REASONS = {
     "frontend_error": "an image: the camera's front end raised (RigLocalizer.process_image)",
     "frozen_image": "an image: the camera's previous image again (a driver re-sending its last "
     "frame, a stalled camera; the single-camera localizer's frozen_image rule)",
+    "frontend_too_few_points": "an image of a rig of one camera: its front end found fewer "
+    "correspondences than its solver needs (the single-camera localizer's rule: dropped before "
+    "the estimator)",
     "bad_image": "an image message that does not decode (the node: unsupported encoding, "
     "truncated data, a compressed payload that does not decode, an empty image)",
     "image_size_mismatch": "an image whose size is not its camera_info's (the node)",
@@ -1225,7 +1231,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         the others); an image whose front end raised (``frontend_error``) or that is the
         camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`);
         after a frozen image a rig of one camera's next frame starts a new track, searched
-        whole, as its camera's video does (:meth:`restart_track`).
+        whole, as its camera's video does (:meth:`restart_track`). A rig of one camera takes
+        its images as its camera's video does: the stamp checked first
+        (:meth:`check_time`; after a time reset the image is not compared with the last
+        one), and an image whose front end found fewer correspondences than its solver needs
+        (:func:`~rs_localizer.estimation.estimate.points_needed`, unless they are one
+        marker's coplanar corners) skipped as ``frontend_too_few_points``.
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
@@ -1250,9 +1261,13 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         # (the frame's reference time, once: the prediction, the rig frame it joins)
         ref = self.settings.reference_ns(name, stamp, camera)
         view = self._cams[name]
+        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
+        # is not compared with the last one)
+        reset = self._single and self.check_time(stamp) is not None
         r = search_image(
-            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view)
-        )
+            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
+            check=not reset,
+        )  # fmt: skip
         if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
@@ -1272,6 +1287,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         found = r.found
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
+        if self._single:  # (its camera's rule: too few correspondences never reach the solver)
+            s = self.settings
+            if len(uv) < points_needed(s.solver, s.options) and not coplanar_points(xyz):
+                return self._observed(self._drop(name, stamp, ref, "frontend_too_few_points"))
         uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)
         return self._observed(

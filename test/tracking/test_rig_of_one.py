@@ -386,3 +386,44 @@ def test_only_a_rig_of_one_is_a_camera_s_video():
         RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY}), camera_video=True)
     with pytest.raises(ValueError, match="rig of one"):
         RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
+
+
+def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(video):
+    """An image whose front end finds fewer correspondences than the solver needs is dropped
+    before the estimator, as the camera's (``frontend_too_few_points``, counted skipped; the
+    front end not told), and the video goes on as the camera's."""
+    from rs_localizer.correspondences import Correspondences
+
+    frames, cam, _ = video
+    rng = np.random.default_rng(1)
+    images = [rng.integers(0, 255, (48, 64), np.uint8) for _ in range(8)]
+
+    class Rows:  # (each frame's own rows, frame 3 with 5 of them)
+        def __init__(self):
+            self.k, self.told = 0, []
+
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = frames[self.k]
+            n = 5 if self.k == 3 else len(f.uv)
+            return Correspondences(f.uv[:n], f.xyz[:n])
+
+        def observe(self, stamp_ns, points2d, feedback):
+            self.told.append(stamp_ns)
+
+    a, b = Rows(), Rows()
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=a)
+    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS))
+    rig.set_frontend("cam", b)
+    for k in range(8):
+        a.k = b.k = k
+        out = seq.process_image(frames[k].stamp_ns, images[k], cam, "mono8")
+        outs = rig.process_image("cam", frames[k].stamp_ns, images[k], cam, "mono8")
+        if k == 3:
+            assert out.failure == "frontend_too_few_points" and outs == []
+            continue
+        (r,) = outs
+        assert out.path == r.path
+        _assert_same_estimate(out.estimate, r.estimate, cam.seconds_per_unit_r)
+        _assert_same_fused(out.fused, r.fused)
+    assert rig.counts["cam.skipped.frontend_too_few_points"] == 1
+    assert a.told == b.told and frames[3].stamp_ns not in a.told
