@@ -60,8 +60,7 @@ bit for bit. The refusals of a rig frame posed from one camera while others run
 cameras. Its images (:meth:`RigLocalizer.process_image`) are taken as the camera's: an image
 with fewer correspondences than its solver needs is skipped before the estimator
 (``frontend_too_few_points``). What stays the rig's: its counters (``rig.*``,
-``<camera>.*``), and its frozen-image threshold (the camera's ``frozen_image_level`` setting
-has none here: the default level).
+``<camera>.*``).
 
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
 each rig frame is solved with the gyro's measurement over the rig frame's capture times
@@ -169,6 +168,7 @@ from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
+    FROZEN_IMAGE_LEVEL,
     CameraFrame,
     CameraFrontend,
     FusedPose,
@@ -349,6 +349,12 @@ class RigSettings:
             without it while they disagree (as a camera's
             :attr:`~rs_localizer.tracking.sequence.SequenceSettings.check_gyro`; off only to
             show what the check prevents).
+        frozen_image_level: a camera's image of :meth:`RigLocalizer.process_image` whose
+            pixel sample differs from its previous image's by at most this mean absolute
+            difference (gray levels) is the same picture again, skipped as ``frozen_image``
+            (as a camera's
+            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.frozen_image_level`).
+            Negative: never.
     """
 
     mounts: dict
@@ -367,6 +373,7 @@ class RigSettings:
     time_offsets: dict = field(default_factory=dict)
     solver: str = SINGLE_CAMERA_SOLVER
     check_gyro: bool = True
+    frozen_image_level: float = FROZEN_IMAGE_LEVEL
 
     def __post_init__(self):
         if not self.mounts:
@@ -1266,7 +1273,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         reset = self._single and self.check_time(stamp) is not None
         r = search_image(
             fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
-            check=not reset,
+            level=self.settings.frozen_image_level, check=not reset,
         )  # fmt: skip
         if r.failure == "frozen_image":
             self.log.warning(

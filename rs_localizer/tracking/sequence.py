@@ -218,7 +218,7 @@ def rig_of_one(settings: SequenceSettings) -> RigSettings:
     :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`) that solves the frames of a
     :class:`SequenceLocalizer` with ``settings``: its solver, estimator options (None: the
     defaults, ``EstimateOptions()``), tracking, gyro and its check, ``stamp_row``,
-    ``time_reset_ns`` and ``max_points``."""
+    ``time_reset_ns``, ``max_points`` and ``frozen_image_level``."""
     options = settings.options if settings.options is not None else EstimateOptions()
     return RigSettings(
         {_CAMERA: _IDENTITY},
@@ -230,6 +230,7 @@ def rig_of_one(settings: SequenceSettings) -> RigSettings:
         max_points=settings.max_points,
         solver=settings.solver,
         check_gyro=settings.check_gyro,
+        frozen_image_level=settings.frozen_image_level,
     )
 
 

@@ -427,3 +427,29 @@ def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(
         _assert_same_fused(out.fused, r.fused)
     assert rig.counts["cam.skipped.frontend_too_few_points"] == 1
     assert a.told == b.told and frames[3].stamp_ns not in a.told
+
+
+def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
+    """``RigSettings.frozen_image_level`` (a camera's ``frozen_image_level``): the same image
+    twice is skipped as ``frozen_image`` at the default level, taken with a negative one."""
+    from rs_localizer.correspondences import Correspondences
+
+    frames, cam, _ = video
+    image = np.random.default_rng(2).integers(0, 255, (48, 64), np.uint8)
+
+    class Rows:
+        k = 0
+
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            return Correspondences(frames[self.k].uv, frames[self.k].xyz)
+
+    for level, taken in ((SequenceSettings.frozen_image_level, 1), (-1.0, 2)):
+        fe = Rows()
+        rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, frozen_image_level=level))
+        rig.set_frontend("cam", fe)
+        outs = []
+        for k in range(2):
+            fe.k = k
+            outs += rig.process_image("cam", frames[k].stamp_ns, image, cam, "mono8")
+        assert len(outs) == taken
+        assert rig.counts["cam.skipped.frozen_image"] == 2 - taken
