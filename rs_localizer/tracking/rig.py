@@ -662,7 +662,6 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._track_key = self._track_camera = None
         self._track_counts: Counter = Counter()  # (of the tracks ended)
         self._track_over = False  # (restart_track: the next rig frame starts a new track)
-        self._prior = None  # (the motion prior of the rig frame being solved)
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_* (or the caller's)
         if gyro_input is None:
@@ -1590,11 +1589,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """The rig frame's estimate on the tracker path
         (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
         estimator). Returns (estimate, path)."""
-        self._prediction = self._prior = None
+        self._prediction = None
         if self._track is None:
             return self._run(views), None
         f = self._track.solve(stamp, _RigViews(self, views, out))
-        self._prediction, self._prior = f.predicted, f.prior
+        self._prediction = f.predicted
         return f.estimate, f.path
 
     def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
@@ -1745,7 +1744,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         if self._track is None:
             return
         ratio = total_in / max(int(n_pts.sum()), 1)
-        step = self._track.update(out.stamp_ns, est, path, ratio, self._prior)
+        step = self._track.update(out.stamp_ns, est, path, ratio)
         self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
         out.fused += self._fused(step.final)
 
