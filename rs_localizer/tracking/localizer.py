@@ -1,9 +1,9 @@
 """One localizer of one or many cameras: what a camera's video and a rig's video share.
 
-:class:`VideoLocalizer` is the base of :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`
-(one camera: its frames are the "body") and :class:`~rs_localizer.tracking.rig.RigLocalizer` (a
-rig: its rig frames are the body, orientation rig -> world, velocities in the rig frame). Both
-run this code for:
+:class:`VideoLocalizer` is the base of :class:`~rs_localizer.tracking.rig.RigLocalizer` (a
+rig: its rig frames are the body, orientation rig -> world, velocities in the rig frame), which
+also solves one camera's video as a rig of one (the camera's frames are the body; its adapter
+is :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`). It holds the code for:
 
 - the frames waiting for their fused twist (:class:`PendingTwists`): a posed frame's pose is
   out at once, its twist is final only when the fixed-lag smoother
@@ -13,10 +13,10 @@ run this code for:
   :meth:`VideoLocalizer.flush` (the end of a video), :meth:`VideoLocalizer.flush_idle` (no
   frame for ``tracking.max_gap`` s, wall clock), :meth:`VideoLocalizer.end_track` (the twists
   still pending dropped) hand them out as :class:`FusedPose`;
-- each camera's image front end (:class:`CameraFrontend`): the frozen-image check
-  (:func:`same_image`), the search with the prediction (``process``), its one-time warning, the
-  feedback of how the frame was solved (``observe``), and the rows the estimator can use
-  (:func:`finite_rows`);
+- each camera's image front end (:class:`CameraFrontend`, :func:`search_image`): the
+  frozen-image check (:func:`same_image`), the search with the prediction (``process``), its
+  one-time warning, the feedback of how the frame was solved (``observe``), and the rows the
+  estimator can use (:func:`finite_rows`);
 - the prediction a camera's front end searches with (:meth:`VideoLocalizer._predict`): the
   track's prediction of the body at the frame's reference time while the track predicts,
   else the last posed frame carried at its own twist
@@ -87,6 +87,7 @@ __all__ = [
     "finite_rows",
     "image_sample",
     "same_image",
+    "search_image",
     "usable_rows",
 ]
 
@@ -530,7 +531,7 @@ class CameraFrontend:
 
 @dataclass
 class ImageSearch:
-    """What a camera's front end made of an image (:meth:`VideoLocalizer._search_image`).
+    """What a camera's front end made of an image (:func:`search_image`).
 
     Attributes:
         failure: None (searched), ``frozen_image`` (the camera's last image again: not
@@ -546,6 +547,36 @@ class ImageSearch:
     error: Exception | None = None
     found: Correspondences | None = None
     seconds: float = 0.0
+
+
+def search_image(
+    fe: CameraFrontend,
+    stamp_ns: int,
+    image: np.ndarray,
+    camera: CameraModel,
+    encoding: str,
+    prediction: Callable[[], RSModel | None],
+    *,
+    level: float = FROZEN_IMAGE_LEVEL,
+    check: bool = True,
+) -> ImageSearch:
+    """A camera's image through its front end ``fe``, before the estimator: the frozen-image
+    check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``: the front end told
+    that its tracks are stale, ``observe(stamp_ns, None, None)``), the frame's prediction
+    (``prediction()``: the video's model of the frame seen by ``camera``, None when nothing
+    predicts it; asked only for an image that is searched), the front end's search with it.
+    What a camera's video and each camera of a rig run on an image."""
+    diff = fe.frozen(image, level, check)
+    if diff is not None:
+        fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
+        return ImageSearch("frozen_image", difference=diff)
+    predicted = prediction()
+    t0 = time.perf_counter()
+    try:
+        found = fe.search(image, camera, encoding, predicted)
+    except Exception as e:
+        return ImageSearch("frontend_error", error=e)
+    return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
 
 class VideoSettings(Protocol):
@@ -564,8 +595,7 @@ class VideoSettings(Protocol):
 
 #: a video's settings (:class:`VideoSettings`)
 Settings = TypeVar("Settings", bound=VideoSettings)
-#: which of the body's cameras sees a frame, as the subclass's hooks take it: None for a
-#: camera's own video, the rig's camera for a rig
+#: which of the body's cameras sees a frame, as the subclass's hooks take it (a rig's camera)
 View = TypeVar("View")
 
 
@@ -575,7 +605,7 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
     (:meth:`_twist_source`) and how its track ends (:meth:`_forget_track`); its ``settings``
     (``Settings``, a :class:`VideoSettings`) have ``tracking`` (None: no tracking) with
     ``max_gap`` (s). ``View``: what names one of the body's cameras to the subclass's
-    prediction hooks (None for a single camera).
+    prediction hooks.
 
     Threads: :meth:`flush`, :meth:`flush_idle` and :meth:`end_track` take the localizer's lock
     (the one its frames are processed under, where the subclass takes it).
@@ -641,7 +671,7 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
     # ---------------------------------------------------------------- prediction
     def _predict(self, ref: int, camera: CameraModel, view: View) -> RSModel | None:
         """The prediction of a frame at reference time ``ref`` (ns) seen by ``camera``
-        (``view``: which of the body's cameras, None for a single camera): its model
+        (``view``: which of the body's cameras): its model
         (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at the camera's reference row,
         ``w``, ``t`` per unit RS coordinate), what its front end searches with. The track's
         prediction while the track decides (:meth:`_tracked_prediction`), else the last posed
@@ -756,37 +786,6 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
         out = self._fused(final)
         self._twists.clear()
         return out
-
-    # ---------------------------------------------------------------- images
-    def _search_image(
-        self,
-        fe: CameraFrontend,
-        stamp_ns: int,
-        ref: int,
-        image: np.ndarray,
-        camera: CameraModel,
-        encoding: str,
-        *,
-        level: float = FROZEN_IMAGE_LEVEL,
-        check: bool = True,
-        view: View,
-    ) -> ImageSearch:
-        """A camera's image through its front end ``fe``, before the estimator: the
-        frozen-image check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``:
-        the front end told that its tracks are stale, ``observe(stamp_ns, None, None)``), the
-        frame's prediction (:meth:`_predict` at reference time ``ref`` ns, ``view``: which
-        camera), the front end's search with it."""
-        diff = fe.frozen(image, level, check)
-        if diff is not None:
-            fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
-            return ImageSearch("frozen_image", difference=diff)
-        prediction = self._predict(ref, camera, view)
-        t0 = time.perf_counter()
-        try:
-            found = fe.search(image, camera, encoding, prediction)
-        except Exception as e:
-            return ImageSearch("frontend_error", error=e)
-        return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
     def _forget_last_pose(self) -> None:
         """Forget the last posed frame carried (:class:`~rs_localizer.tracking.tracker.

@@ -35,21 +35,32 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 
 A rig of one camera at the identity mounting without a covariance
 (:attr:`RigSettings.single_camera`: the camera's frame is the rig's) is that camera's video:
-its rig frames are solved as :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`
-solves the camera's frames, with the single-camera estimator
-(:func:`~rs_localizer.estimation.estimate_rs_pose` with the camera's default solver,
-:data:`SINGLE_CAMERA_SOLVER`, and the frame's scores) on the camera's tracker
-(:class:`~rs_localizer.tracking.tracker.RSTracker`: cold frames with ``options``, tracked ones
-with the tracked options and the prediction's twist as the motion prior where
-``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold)
-and the gyro's measurement over the camera's readout from its stamp; each estimate is in the
-rig's terms (:attr:`RigOutput.estimate`: the model's velocities per second, one view). Its images'
-front end is given the camera's prediction and told the camera's own estimate
-(:meth:`RigLocalizer.process_image`). Given the camera's ``options`` (``EstimateOptions()``,
-not the default :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``,
-its estimates, paths and fused twists are the camera's localizer's, bit for bit. The
-refusals of a rig frame posed from one camera while others run (:data:`RIG_REFUSALS`) have
-no other camera to wait for, nor does the disagreement of cameras.
+the camera's :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` is its adapter, and its
+frames are solved by this same class with the camera's policies. Each frame is solved at once
+on the camera's tracker (:class:`~rs_localizer.tracking.tracker.RSTracker` with the rig's
+:attr:`~RigSettings.solver`, ``options`` and ``tracking``: cold frames with ``options``,
+tracked ones with the tracked options and the prediction's twist as the motion prior where
+``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold;
+made again, the old track's twists out, when the solver, the options, the tracking options or
+the camera model object change), or alone without tracking
+(:func:`~rs_localizer.estimation.estimate_rs_pose` with the frame's scores), with the gyro's
+measurement over the camera's readout from its stamp; each estimate is in the rig's terms
+(:attr:`RigOutput.estimate`: the model's velocities per second, one view), the camera's own
+kept (:attr:`RigOutput.camera_estimate`). Its time policy is the camera's: every frame is
+taken (no ``out_of_order`` nor ``late``), a stamp going back or jumping ahead is a time reset
+of the gyro's timeline only (:meth:`RigLocalizer.check_time`; the track resets itself on such
+stamps). The last posed frame is carried (the prediction without tracking) for
+:meth:`RigLocalizer.add` as for :meth:`RigLocalizer.process_image`, a frozen image starts a new
+track at the next frame (:meth:`RigLocalizer.restart_track`), and a global-shutter solver's or
+camera's own twist is final (:attr:`RigOutput.twist_now`). Given the camera's ``options``
+(``EstimateOptions()``, not the default :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`),
+``tracking`` and ``imu``, its estimates, paths and fused twists are the camera's localizer's,
+bit for bit. The refusals of a rig frame posed from one camera while others run
+(:data:`RIG_REFUSALS`) have no other camera to wait for, nor does the disagreement of
+cameras. Its images (:meth:`RigLocalizer.process_image`) are taken as the camera's: an image
+with fewer correspondences than its solver needs is skipped before the estimator
+(``frontend_too_few_points``). What stays the rig's: its counters (``rig.*``,
+``<camera>.*``).
 
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
 each rig frame is solved with the gyro's measurement over the rig frame's capture times
@@ -117,7 +128,9 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
+import copy
 import math
+import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -127,9 +140,9 @@ from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Frontend, VideoFrontend
-from ..estimation.estimate import InitialModel, estimate_rs_pose
+from ..estimation.estimate import InitialModel, estimate_rs_pose, points_needed
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.implementation import NUMPY, compiled_by_default
+from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
 from ..estimation.options import EstimateOptions
 from ..estimation.result import (
     CAMERAS_DISAGREE,
@@ -146,30 +159,31 @@ from ..estimation.rig import (
     camera_model_of_rig,
     estimate_rig_pose,
 )
+from ..estimation.single_tag import coplanar_points
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
+from ..solvers.registry import solver_info
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
+    FROZEN_IMAGE_LEVEL,
     CameraFrame,
     CameraFrontend,
     FusedPose,
     LocalizerOutput,
     VideoLocalizer,
+    search_image,
     usable_rows,
 )
-from .sequence import SequenceSettings
 from .tracker import (
     STATES,
-    PathEstimator,
     RSTracker,
     Solve,
     TrackerOptions,
     TrackerPath,
     carried_model,
-    frame_inlier_ratio,
     model_from_state,
 )
 
@@ -199,6 +213,9 @@ SKIP_REASONS = {
     "frontend_error": "an image: the camera's front end raised (RigLocalizer.process_image)",
     "frozen_image": "an image: the camera's previous image again (a driver re-sending its last "
     "frame, a stalled camera; the single-camera localizer's frozen_image rule)",
+    "frontend_too_few_points": "an image of a rig of one camera: its front end found fewer "
+    "correspondences than its solver needs (the single-camera localizer's rule: dropped before "
+    "the estimator)",
     "bad_image": "an image message that does not decode (the node: unsupported encoding, "
     "truncated data, a compressed payload that does not decode, an empty image)",
     "image_size_mismatch": "an image whose size is not its camera_info's (the node)",
@@ -252,10 +269,9 @@ STOP_INTERVALS = 2.0
 RIG_PATHS = STATES
 
 
-#: the minimal solver of a rig of one camera (:attr:`RigSettings.single_camera`), solved as
-#: the camera: the camera's default
-#: (:attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`)
-SINGLE_CAMERA_SOLVER = SequenceSettings.solver
+#: the default minimal solver of one camera (:attr:`RigSettings.solver` of a rig of one, and
+#: :attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`)
+SINGLE_CAMERA_SOLVER = "r6p_1lin"
 
 #: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
 #: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
@@ -281,7 +297,8 @@ class RigSettings:
             (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
             rig frames dropped), and so does a frame newer than the rig's newest by more than
             this (a gap in a bag, a clock jump: the open rig frames solved first); counted
-            ``rig.time_resets``.
+            ``rig.time_resets``. A rig of one camera takes the camera's policy: any step back
+            is a time reset, its frame solved (:meth:`RigLocalizer.check_time`).
         options: the rig estimator's options, the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
@@ -323,6 +340,21 @@ class RigSettings:
             :class:`~rs_localizer.tracking.localizer.CameraFrame` keeps the stamp it was
             given. At most 1 s each (a clock further off is another
             clock: a time reset).
+        solver: the minimal solver of a rig of one camera (:attr:`single_camera`), any of
+            :mod:`rs_localizer.solvers.registry` as a camera's
+            (:attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`; default
+            :data:`SINGLE_CAMERA_SOLVER`); a rig of several cameras runs the rig estimator's
+            own.
+        check_gyro: check the gyro against the rotation between posed rig frames and solve
+            without it while they disagree (as a camera's
+            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.check_gyro`; off only to
+            show what the check prevents).
+        frozen_image_level: a camera's image of :meth:`RigLocalizer.process_image` whose
+            pixel sample differs from its previous image's by at most this mean absolute
+            difference (gray levels) is the same picture again, skipped as ``frozen_image``
+            (as a camera's
+            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.frozen_image_level`).
+            Negative: never.
     """
 
     mounts: dict
@@ -339,6 +371,9 @@ class RigSettings:
     imu: GyroSettings | None = None
     max_points: int | None = None
     time_offsets: dict = field(default_factory=dict)
+    solver: str = SINGLE_CAMERA_SOLVER
+    check_gyro: bool = True
+    frozen_image_level: float = FROZEN_IMAGE_LEVEL
 
     def __post_init__(self):
         if not self.mounts:
@@ -434,6 +469,15 @@ class RigOutput(LocalizerOutput):
         frames: camera -> its :class:`~rs_localizer.tracking.localizer.CameraFrame` (the rows
             given to the estimator: the rig's inliers per camera index them; e.g. a camera's
             debug image).
+        twist_now: the rig frame's own twist is its final twist, none comes in a later
+            ``fused``: no tracking, or a rig of one camera whose solver is a global-shutter
+            one or whose camera has no readout time (as a camera's
+            :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
+        gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
+        camera_estimate: a rig of one camera (:attr:`RigSettings.single_camera`): its
+            camera's own estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`'s, the
+            model's velocities per unit RS coordinate), the one ``estimate`` is made from;
+            None for a rig of several cameras or when the estimator did not run.
     """
 
     cameras: tuple = ()
@@ -443,6 +487,9 @@ class RigOutput(LocalizerOutput):
     disagreeing: tuple = ()
     tags: dict = field(default_factory=dict)
     frames: dict = field(default_factory=dict)
+    twist_now: bool = True
+    gyro_seconds: float = 0.0
+    camera_estimate: RSPoseEstimate | None = None
 
     @property
     def num_points(self) -> int:
@@ -545,6 +592,17 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             in NumPy/SciPy) with the track, the gyro and the twist filter as on the compiled
             kernels, a track under way going on across the switch (:attr:`RigOutput.compiled`,
             counted ``rig.uncompiled``).
+        gyro_input: the gyro's :class:`~rs_localizer.tracking.gyro_input.GyroInput` (its
+            samples, bias, mount check, warnings and counters under the caller's names); None:
+            the rig's own, counted ``rig.gyro_*``.
+        camera_video: the rig of one camera is that camera's own video
+            (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer` runs its frames
+            through it): its warnings are worded for a camera (the rolling-shutter timing's
+            advice names the camera's ``rs.*`` parameters; a time reset is the caller's to
+            report, :meth:`check_time`), its fused twists carry their frame's own tag
+            rather than a camera -> tag dict, and its outputs' ``estimate`` is the camera's own
+            (:attr:`RigOutput.camera_estimate`: the model's velocities per unit RS coordinate,
+            not per second). Only for a rig of one (else ValueError).
 
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
@@ -571,8 +629,15 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         settings: RigSettings,
         log: TrackLog | None = None,
         implementation: Callable[[], str] | None = None,
+        *,
+        gyro_input: GyroInput | None = None,
+        camera_video: bool = False,
     ):
+        if camera_video and not settings.single_camera:
+            raise ValueError("camera_video needs a rig of one camera (RigSettings.single_camera)")
         self.settings = settings
+        # (a camera's own video: its warnings and its fused twists' tags are the camera's)
+        self._rig = not camera_video
         self._implementation = implementation
         self._impl: str | None = None  # (the rig frame being solved: its implementation)
         self.log: TrackLog = log if log is not None else SilentLog()
@@ -589,22 +654,30 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._carried.max_gap = settings.max_gap  # (without tracking: the default, 0.5 s)
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         # the tracker path (tracking/tracker.py: the time rule, the prediction, the twist
-        # filter), the rig's views its estimator; None without tracking
+        # filter), the rig's views its estimator; None without tracking. A rig of one's is its
+        # camera's tracker, made at its first frame and again when what it was made for
+        # changes (_track_key: solver, options, tracking, camera model)
         self._single = settings.single_camera  # (a rig of one; its mountings stay)
-        self._track: TrackerPath | None = _new_track(settings)
-        self._prior = None  # (the motion prior of the rig frame being solved: a rig of one)
-        # (a rig of one: its last rig frame's time and its camera's own estimate)
-        self._alone: tuple[int, RSPoseEstimate] | None = None
+        self._track: TrackerPath | None = None if self._single else _new_track(settings)
+        self._track_key = self._track_camera = None
+        self._track_counts: Counter = Counter()  # (of the tracks ended)
+        self._track_over = False  # (restart_track: the next rig frame starts a new track)
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
-        # of its mounting on the rig as a camera's, counted rig.gyro_*
-        self.gyro_input = GyroInput(
-            self._count_gyro, self.log, what="rig frame", key="rig.gyro",
-            mount="IMU -> base_frame", used_key="gyro_used",
-        )  # fmt: skip
-        self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
+        # of its mounting on the rig as a camera's, counted rig.gyro_* (or the caller's)
+        if gyro_input is None:
+            gyro_input = GyroInput(
+                self._count_gyro, self.log, what="rig frame", key="rig.gyro",
+                mount="IMU -> base_frame", used_key="gyro_used",
+            )  # fmt: skip
+        self.gyro_input = gyro_input
+        self.gyro_input.configure(
+            settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
+        )
         # the time-reset policy (tracking/clock.py): a camera's step back by more than
-        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest
-        self._clock = VideoClock(settings.time_reset_ns, settings.time_reset_ns)
+        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest; a
+        # rig of one's is its camera's (any step back)
+        back = 0 if self._single else settings.time_reset_ns
+        self._clock = VideoClock(settings.time_reset_ns, back)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
@@ -620,6 +693,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         again; other ``tracking`` options end the track (its twists still pending go out with
         the next rig frame, :attr:`RigOutput.fused`) and the next rig frame starts a new one.
 
+        A rig of one camera (:attr:`RigSettings.single_camera`) is configured as its camera's
+        video: its ``solver``, ``options`` or ``tracking`` changed, or a new camera model
+        object, end its track at its next frame (its twists still pending go out with it,
+        counted a reset); it has no rig frames open, so its ``stamp_row``, ``time_offsets``,
+        ``window`` and the rest may change too.
+
         Raises:
             ValueError: settings of another rig: other cameras or mountings, ``window``,
                 ``stop_after``, ``stamp_row``, ``time_offsets`` or disagreement rule (the rig
@@ -629,7 +708,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         old = self.settings
         shape = ("window", "stop_after", "stamp_row", "time_offsets", "disagree_ratio",
                  "disagree_min_points", "disagree_frames", "disagree_history")  # fmt: skip
-        changed = [k for k in shape if getattr(settings, k) != getattr(old, k)]
+        changed = [] if self._single else [
+            k for k in shape if getattr(settings, k) != getattr(old, k)
+        ]  # fmt: skip
         if settings.cameras != old.cameras or not all(
             _same_mount(settings.mounts[n], old.mounts[n]) for n in old.cameras
         ):
@@ -637,30 +718,28 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         if changed:
             raise ValueError(f"a configured rig keeps its {', '.join(changed)}")
         with self._lock:
-            # (a rig of one: its camera's tracker holds the estimator's options too)
-            if settings.tracking != old.tracking or (
-                self._single and settings.options != old.options
-            ):  # (the old track's twists: the old bounds)
+            # (a rig of one: its camera's tracker is made again at its next frame when its
+            # solver, options or tracking changed, as the camera's)
+            if not self._single and settings.tracking != old.tracking:
+                # (the old track's twists: the old bounds)
                 self._carry += self._end_track(keep=True)
+                if self._track is not None:
+                    self._track_counts.update(self._track.track_counts())
                 self._track = _new_track(settings)
             self.settings = settings
             self._carried.max_gap = settings.max_gap
-            self._clock.time_reset_ns = self._clock.back_tolerance_ns = settings.time_reset_ns
-            self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
+            self._clock.time_reset_ns = settings.time_reset_ns
+            if not self._single:
+                self._clock.back_tolerance_ns = settings.time_reset_ns
+            self.gyro_input.configure(
+                settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
+            )
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
         """The gyro measurement over the rig frame's capture times (rig frame;
         :meth:`~rs_localizer.tracking.localizer.VideoLocalizer._gyro_readouts` of its cameras,
         each at its reference time after the rig frame's), waiting up to ``imu.wait`` for its
-        samples; None without a gyro or its samples (counted). A rig of one
-        (:attr:`RigSettings.single_camera`): its camera's readout from its stamp, as the
-        camera's own video takes it (None for a camera without readout time)."""
-        if self._single:
-            ((name, (frame, _)),) = g.frames.items()
-            if frame.camera.line_delay <= 0:
-                return None
-            t0 = self.settings.reference_ns(name, frame.stamp_ns, None)
-            return self._gyro_readouts(t0, [(frame.camera, 0.0, self.settings.stamp_row)])
+        samples; None without a gyro or its samples (counted)."""
         return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
 
     def _gyro_done(self, out: RigOutput) -> None:
@@ -727,20 +806,52 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
     def track_state(self) -> str:
         """``tracking``, ``lost`` or ``disabled``."""
         t = self._track
-        return "disabled" if t is None else t.track_state
+        if self.settings.tracking is None:
+            return "disabled"
+        return "lost" if t is None else t.track_state
+
+    def tracking_values(self) -> dict:
+        """The rig's tracking, as a camera's video reports it: ``track_state``
+        (:attr:`track_state`), ``frames_tracked``, ``relocalizations`` and ``resets`` (over
+        the rig's tracks; a rig of one counts a new track made for other settings or another
+        camera model, or after :meth:`restart_track`, as a reset), ``twists_own_frame`` and
+        ``twists_implausible``
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`),
+        ``readout_contradicted`` and ``readout_suspect``
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
+        t = self._track
+        tc = self._track_counts
+        return {
+            "track_state": self.track_state,
+            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
+            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
+            "resets": tc["resets"] + (t.resets if t else 0),
+            **self.twist_values(),
+            **self.readout_values(),
+        }
 
     # ---------------------------------------------------------------- frames
-    def add(self, frame: CameraFrame) -> list[RigOutput]:
+    def add(self, frame: CameraFrame, reference_ns: int | None = None) -> list[RigOutput]:
         """Take one camera's frame; returns the rig frames it completed, solved (oldest first;
-        often none, or one).
+        often none, or one). ``reference_ns``: the frame's time on the rig's clock
+        (:meth:`RigSettings.reference_ns`) when the caller made it; None: made here.
+
+        A rig of one camera (:attr:`RigSettings.single_camera`) takes its frames as its
+        camera's video does: each is solved at once, whatever its stamp (no ``out_of_order``
+        nor ``late``): a stamp older than the previous one, or newer by more than
+        ``time_reset_ns``, is a time reset (:meth:`check_time`) that starts the gyro's
+        timeline again, and its track resets itself on such stamps (a step back, a gap over
+        ``max_gap``).
 
         Raises:
             ValueError: a camera not in the rig.
         """
         if frame.camera is None:
             return self._add(frame, None)
-        s = self.settings
-        return self._add(frame, s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera))
+        if reference_ns is None:
+            s = self.settings
+            reference_ns = s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera)
+        return self._add(frame, reference_ns)
 
     def _add(self, frame: CameraFrame, ref: int | None) -> list[RigOutput]:
         """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
@@ -759,6 +870,14 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             self._skip(name, "no_camera_info")
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
+        if self._single:
+            self._step_alone(stamp)
+            cam.last_ref = cam.newest = ref
+            cam.recent.append(ref)
+            if self._first is None:  # (after a time reset)
+                self._first = ref
+            self.counts["rig_frames"] += 1
+            return [self._solve_alone(name, frame, ref)]
         out: list[RigOutput] = []
         reset = self._clock.step(ref, cam.last_ref)
         if reset is not None:
@@ -791,6 +910,44 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             self.counts["rig_frames"] += 1
         return out + self._ready()
 
+    def check_time(self, stamp_ns: int) -> str | None:
+        """A rig of one camera: note a frame's stamp (ns, the capture time of row
+        ``stamp_row``), as its camera's video does. A stamp older than the previous frame's,
+        or newer by more than ``time_reset_ns``, is a time reset: returns why (else None), and
+        the gyro's timeline starts again (on a stamp going back the samples buffered so far
+        are dropped, on a jump forward those older than the previous frame; the bias
+        estimator's and the gyro check's pairing restart; counted ``rig.time_resets``). Its
+        track resets itself on the same stamps. :meth:`add` notes each frame's stamp; calling
+        this first for the same stamp (to act on a reset before the frame is decoded) does
+        not count it twice.
+
+        Raises:
+            ValueError: a rig of several cameras (each camera's frame is checked as it is
+                added), a stamp beyond the int64 nanosecond range.
+        """
+        if not self._single:
+            raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
+        (name,) = self._cams
+        return self._step_alone(self.settings.reference_ns(name, checked_stamp(stamp_ns), None))
+
+    def _step_alone(self, stamp: int) -> str | None:
+        """:meth:`check_time` of a rig of one's stamp (ns, with its time offset)."""
+        reset = self._clock.step(stamp, self._clock.newest)
+        if reset is None:
+            return None
+        self._time_reset(reset)
+        return reset.detail
+
+    def restart_track(self) -> None:
+        """The next rig frame starts a new track, and nothing predicts a frame before it
+        (:meth:`predict_camera` gives None): the cameras moved by an unknown amount meanwhile
+        (a rig of one camera's frozen image, :meth:`process_image`: a prediction carried over
+        the frozen frames would misplace the front end's search). The track's twists still
+        pending go out with that rig frame, final as they are then; counted as a reset
+        (:meth:`tracking_values`)."""
+        with self._lock:
+            self._track_over = True
+
     def _skip(self, name: str, reason: str) -> None:
         self.counts[f"{name}.skipped"] += 1
         self.counts[f"{name}.skipped.{reason}"] += 1
@@ -801,11 +958,14 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         a jump ahead (``stamp_jump``, returned), else dropped (``time_reset``); the track and
         the cameras' timelines started again; the old track's pending twists go out with the
         next rig frame (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on
-        :meth:`reset`)."""
+        :meth:`reset`). A rig of one camera, as its camera's video: a time reset ends nothing
+        (its track resets itself on the same stamps); :meth:`reset` ends its track, its
+        twists still pending dropped."""
         solved = []
         if reset is not None:
             self.counts["rig.time_resets"] += 1
-            self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
+            if self._rig:  # (a camera's video: the caller reports it, check_time)
+                self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
                 solved = self.close()
         for g in self._open:
@@ -819,7 +979,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             cam.recent.clear()
             cam.stopped = False
         self._first = self._last_closed = None
-        self._carry += self._end_track(keep=True)
+        if not self._single:
+            self._carry += self._end_track(keep=True)
+        elif reset is None:
+            self._end_track()
+            self._track_over = False
         return solved
 
     def _ready(self) -> list[RigOutput]:
@@ -885,7 +1049,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
         as ``time_reset``), the track ends, the last rig frame posed is forgotten (the next
         frame is not predicted from it, without tracking either). Returns the track's twists
-        still pending."""
+        still pending (a rig of one camera drops them, as its camera's video does)."""
         self._forget_video()
         out, self._carry = self._carry, []
         return out
@@ -923,7 +1087,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         fe = self._image_input().frontends.get(name)
         return None if fe is None else fe.frontend
 
-    def predict_camera(self, name: str, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+    def predict_camera(
+        self, name: str, stamp_ns: int, camera: CameraModel, *, reference_ns: int | None = None
+    ) -> RSModel | None:
         """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
         of row ``stamp_row``): the camera's model (:class:`~rs_localizer.pose.RSModel`
         ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
@@ -934,7 +1100,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         posed through :meth:`process_image` carried at its own twist. None when nothing
         predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
         tracking) after the last, or not after it
-        (:func:`~rs_localizer.tracking.tracker.predictable`).
+        (:func:`~rs_localizer.tracking.tracker.predictable`). ``reference_ns``: the frame's
+        time on the rig's clock (:meth:`RigSettings.reference_ns`) when the caller made it;
+        None: made here.
 
         Raises:
             ValueError: a camera not in the rig, a stamp beyond the int64 ns range.
@@ -942,7 +1110,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         cam = self._cams.get(name)
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
+        ref = reference_ns
+        if ref is None:
+            ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
         return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
@@ -955,17 +1125,37 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
     def _tracked_prediction(
         self, ref: int, camera: CameraModel, view: _Camera
     ) -> tuple[bool, FusedState | None]:
-        """With tracking the twist filter decides (:meth:`predict_camera`)."""
+        """With tracking the twist filter decides (:meth:`predict_camera`); after
+        :meth:`restart_track` nothing predicts the next frame. A rig of one camera, as its
+        camera's video: its tracker decides while it has a state and tracks with the current
+        settings and this camera model, else the last posed frame carried predicts."""
+        if self._track_over:
+            return True, None
         t = self._track
+        if self._single:
+            if t is None or not t.filter.initialized or self._track_key != self._key(camera):
+                return False, None
+            return True, t.predict(ref, self._implementation_now())
         if t is None:
             return False, None
         if not t.predicts(ref):
             return True, None
-        impl = None if self._implementation is None else self._implementation()
-        self._filter_kernels(impl)
-        if isinstance(t, RSTracker):  # (a rig of one: its kernels as set, not the solver's)
-            return True, t.predict(ref, impl)
+        self._filter_kernels(None if self._implementation is None else self._implementation())
         return True, t.predict(ref)
+
+    def _implementation_now(self) -> str:
+        """A rig of one's estimator implementation for its next frame (``implementation()``,
+        default: its solver's, :func:`~rs_localizer.estimation.implementation.
+        default_implementation`)."""
+        if self._implementation is None:
+            return default_implementation(self.settings.solver)
+        return self._implementation()
+
+    def _key(self, camera: CameraModel) -> tuple:
+        """What a rig of one's tracker is made for: its solver, options, tracking options and
+        camera model (a new object: a new track, as the camera's video)."""
+        s = self.settings
+        return (s.solver, s.options, s.tracking, id(camera))
 
     def _state_in_camera(self, state: FusedState, camera: CameraModel, view: _Camera) -> RSModel:
         """The camera's model of the rig's predicted state, through its mounting (a rig of
@@ -1045,7 +1235,14 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         by pixel and keeps those it finds). A camera's frame joins
         its rig frame whatever its number of correspondences (even none: the rig is posed from
         the others); an image whose front end raised (``frontend_error``) or that is the
-        camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`).
+        camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`);
+        after a frozen image a rig of one camera's next frame starts a new track, searched
+        whole, as its camera's video does (:meth:`restart_track`). A rig of one camera takes
+        its images as its camera's video does: the stamp checked first
+        (:meth:`check_time`; after a time reset the image is not compared with the last
+        one), and an image whose front end found fewer correspondences than its solver needs
+        (:func:`~rs_localizer.estimation.estimate.points_needed`, unless they are one
+        marker's coplanar corners) skipped as ``frontend_too_few_points``.
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
@@ -1069,13 +1266,22 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
         ref = self.settings.reference_ns(name, stamp, camera)
-        r = self._search_image(fe, stamp, ref, image, camera, encoding, view=self._cams[name])
+        view = self._cams[name]
+        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
+        # is not compared with the last one)
+        reset = self._single and self.check_time(stamp) is not None
+        r = search_image(
+            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
+            level=self.settings.frozen_image_level, check=not reset,
+        )  # fmt: skip
         if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{r.difference:.2f} gray levels): skipped",
             )
+            if self._single:  # (its camera moved on unseen, :meth:`restart_track`)
+                self.restart_track()
             return self._observed(self._drop(name, stamp, ref, r.failure))
         if r.failure is not None:
             e = r.error
@@ -1087,6 +1293,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         found = r.found
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
+        if self._single:  # (its camera's rule: too few correspondences never reach the solver)
+            s = self.settings
+            if len(uv) < points_needed(s.solver, s.options) and not coplanar_points(xyz):
+                return self._observed(self._drop(name, stamp, ref, "frontend_too_few_points"))
         uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)
         return self._observed(
@@ -1116,9 +1326,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         img = self._image_input()
         for out in outs:
             est = out.estimate
-            alone = self._alone_estimate(out)  # (a rig of one: its camera's own estimate)
-            # (posed: the prediction without tracking; a rig of one's, its camera's model)
-            self._carried.update(out.stamp_ns, alone if self._single else est)
+            alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
+            if not self._single:  # (posed: the prediction without tracking; a rig of one
+                # carries each frame posed as it is solved)
+                self._carried.update(out.stamp_ns, est)
             for k, n in enumerate(out.cameras):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)
@@ -1141,9 +1352,17 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         return self._track
 
     def _forget_track(self, keep: bool) -> list:
-        """The track ends (the twist filter and the inlier ratio start again); returns the
-        filter's fused states not yet final when ``keep``."""
+        """The track ends (the twist filter and the inlier ratio start again; a rig of one's
+        tracker is dropped, its counters kept); returns the filter's fused states not yet final
+        when ``keep``."""
         t = self._track
+        if self._single:
+            final = []
+            if t is not None:
+                self._track_counts.update(t.track_counts())
+                final = t.reset() if keep else []
+            self._track = self._track_key = self._track_camera = None
+            return final
         final = [] if t is None else t.reset()
         return final if keep else []
 
@@ -1178,6 +1397,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         if out.missing:
             self.counts["rig.incomplete"] += 1
         self._update_apart(out)
+        if self._track_over:  # (restart_track: the old track's twists, final)
+            self._track_over = False
+            if self._track is not None:
+                out.fused += self._end_track(keep=True)
+                self._track_counts["resets"] += 1
         views = []
         for n in names:
             frame, ref = g.frames[n]
@@ -1234,6 +1458,102 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._gyro_done(out)
         return out
 
+    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> RigOutput:
+        """A rig of one camera's frame (reference time ``ref`` ns, the rig frame's time),
+        solved as its camera's video solves it: on its camera's tracker
+        (:meth:`~rs_localizer.tracking.tracker.RSTracker.process`, made again when its solver,
+        options, tracking options or camera model changed; after :meth:`restart_track` a new
+        track) or alone without tracking (:func:`~rs_localizer.estimation.estimate_rs_pose`;
+        the tracker dropped, its twists still pending with it), with the gyro's measurement
+        over the camera's readout from its stamp. The estimate in the rig's terms
+        (:func:`_camera_as_rig`; a camera's video: its own), the camera's own kept
+        (:attr:`RigOutput.camera_estimate`: the last posed frame carried, the front end's
+        feedback). A rolling-shutter frame's
+        twist is held for its fused twist; a global-shutter solver's or camera's is final
+        (:attr:`RigOutput.twist_now`)."""
+        s = self.settings
+        camera = frame.camera
+        self._last_closed = ref
+        out = RigOutput(stamp_ns=ref, cameras=(name,))
+        out.fused, self._carry = self._carry, []
+        out.stamp_offsets[name] = 0.0
+        out.tags[name] = frame.tag
+        out.frames[name] = frame
+        # (while the kernels compile in the background: the NumPy implementation, tracked and
+        # with the gyro all the same; runtime.background)
+        self._impl = impl = self._implementation_now()
+        out.compiled = impl != NUMPY
+        if not out.compiled:
+            self.counts["rig.uncompiled"] += 1
+        t0 = time.perf_counter()
+        gyro = None
+        if camera.line_delay > 0:
+            t = s.reference_ns(name, frame.stamp_ns, None)
+            gyro = self._gyro_readouts(t, [(camera, 0.0, s.stamp_row)])
+        out.gyro = self._gyro = gyro
+        out.gyro_seconds = time.perf_counter() - t0
+        uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
+        with self._lock:
+            # (ended: the frames of a track ended here, final; final: the tracker's states
+            # final now)
+            ended, final = [], []
+            try:
+                if s.tracking is not None:
+                    if self._track_over and self._track is not None:
+                        # (the camera moved on unseen: the track's pending twists are final,
+                        # the frame starts a new track, as after a gap)
+                        ended = self._end_track(keep=True)
+                        self._track_counts["resets"] += 1
+                    key = self._key(camera)
+                    if self._track is None or key != self._track_key:
+                        if self._track is not None:
+                            ended += self._end_track(keep=True)
+                            self._track_counts["resets"] += 1
+                        self._track = RSTracker(s.solver, s.options, s.tracking)
+                        self._track_key = key
+                        self._track_camera = camera  # (keeps id(camera) unique while in use)
+                    r = self._track.process(
+                        ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
+                    )
+                    est, out.path, final = r.estimate, r.state, r.final
+                else:
+                    self._end_track()
+                    est = estimate_rs_pose(uv, xyz, camera, solver=s.solver, options=s.options,
+                                           scores=scores, gyro=gyro,
+                                           implementation=impl)  # fmt: skip
+            except Exception as e:  # (the estimator raised: the frame failed)
+                out.fused += ended
+                out.error = f"{type(e).__name__}: {e}"
+                self._count_rig((name,), "error")
+                self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)
+                return out
+            self._track_over = False
+            spr = camera.seconds_per_unit_r
+            # (a camera's video reports the camera's own estimate)
+            out.camera_estimate = est
+            out.estimate = _camera_as_rig(est, spr) if self._rig else est
+            self._carried.update(ref, est)
+            self.gyro_input.solved(ref, est, out.path in ("cold", "reset"))
+            if not est.success:
+                self._count_rig((name,), est.failure or "error")
+                out.fused += ended + self._fused(final)
+                return out
+            self._count_rig((name,), None)
+            if out.path is not None:
+                self.counts[f"rig.path.{out.path}"] += 1
+            n_in, n_pts = int(est.num_inliers), len(uv)
+            share = CameraShare(n_pts, n_in, 1.0 if n_in else 0.0,
+                                n_in / n_pts if n_pts else float("nan"))  # fmt: skip
+            out.shares[name] = self._cams[name].last_share = share
+            out.twist_now = s.tracking is None or not solver_info(s.solver).rolling or spr <= 0
+            if not out.twist_now:  # (its fused twist comes when final)
+                tag = frame.tag if not self._rig else dict(out.tags)
+                self._twists.hold(ref, est, tag, out.path == "relocalized")
+            # (also with the frame's own twist final: an earlier track's, e.g. before the
+            # solver became a global-shutter one)
+            out.fused += ended + self._fused(final)
+        return out
+
     def _count_rig(self, names, failure: str | None) -> None:
         if failure is None:
             self.counts["rig.solved"] += 1
@@ -1269,47 +1589,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """The rig frame's estimate on the tracker path
         (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
         estimator). Returns (estimate, path)."""
-        self._prediction = self._prior = None
-        one = self._single
+        self._prediction = None
         if self._track is None:
-            return (self._run_camera(out) if one else self._run(views)), None
-        if one:
-            (frame,) = out.frames.values()
-            view = self._track.view(frame.points2d, frame.points3d, frame.camera, frame.scores,
-                                    self._gyro, self._impl)  # fmt: skip
-            estimator: PathEstimator = _CameraAlone(self, view, frame.camera, out)
-        else:
-            estimator = _RigViews(self, views, out)
-        f = self._track.solve(stamp, estimator)
-        self._prediction, self._prior = f.predicted, f.prior
+            return self._run(views), None
+        f = self._track.solve(stamp, _RigViews(self, views, out))
+        self._prediction = f.predicted
         return f.estimate, f.path
-
-    def _run_camera(self, out: RigOutput) -> RSPoseEstimate:
-        """A rig of one without tracking: its camera's frame solved alone as the camera's
-        own video solves it (:func:`~rs_localizer.estimation.estimate_rs_pose` with the rig's
-        options), the estimate in the rig's terms."""
-        (frame,) = out.frames.values()
-        est = estimate_rs_pose(
-            frame.points2d,
-            frame.points3d,
-            frame.camera,
-            solver=SINGLE_CAMERA_SOLVER,
-            options=self.settings.options,
-            scores=frame.scores,
-            gyro=self._gyro,
-            implementation=self._impl,
-        )
-        self._alone = (out.stamp_ns, est)
-        return _camera_as_rig(est, frame.camera.seconds_per_unit_r)
-
-    def _alone_estimate(self, out: RigOutput) -> RSPoseEstimate | None:
-        """A rig of one's rig frame ``out``: its camera's own estimate, the one the rig's is
-        made from (what its front end is told and the last posed frame carried, as the
-        camera's video does); None for a rig of several cameras or a rig frame not solved."""
-        a = self._alone
-        if a is None or a[0] != out.stamp_ns or out.estimate is None:
-            return None
-        return a[1]
 
     def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone (the others' points
@@ -1455,13 +1740,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             out.shares[n] = share
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)
+        out.twist_now = self._track is None
         if self._track is None:
             return
-        if self._single:  # (its camera's rule: the inliers of all its rows)
-            ratio = frame_inlier_ratio(est, out.num_points)
-        else:
-            ratio = total_in / max(int(n_pts.sum()), 1)
-        step = self._track.update(out.stamp_ns, est, path, ratio, self._prior)
+        ratio = total_in / max(int(n_pts.sum()), 1)
+        step = self._track.update(out.stamp_ns, est, path, ratio)
         self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
         out.fused += self._fused(step.final)
 
@@ -1588,47 +1871,12 @@ class _RigViews:
         return Solve(self.rig._run(self.views, prediction=model))
 
 
-class _CameraAlone:
-    """The frame of a rig of one (:attr:`RigSettings.single_camera`) as the tracker path's
-    estimator: its camera's own (:meth:`~rs_localizer.tracking.tracker.RSTracker.view` of the
-    rig's camera tracker), each estimate in the rig's terms (:func:`_camera_as_rig`)."""
-
-    def __init__(self, rig: RigLocalizer, view: PathEstimator, camera: CameraModel, out):
-        self.rig, self.view, self.out = rig, view, out
-        self.spr = camera.seconds_per_unit_r
-        self.focal, self.num_points = view.focal, view.num_points
-        self.min_inliers = view.min_inliers
-
-    def ended(self, final: list) -> None:
-        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
-
-    def model(self, predicted: FusedState) -> RSModel:
-        return self.view.model(predicted)
-
-    def _rig(self, s: Solve) -> Solve:
-        self.rig._alone = (self.out.stamp_ns, s.estimate)  # (the last solve's: the frame's)
-        return replace(s, estimate=_camera_as_rig(s.estimate, self.spr))
-
-    def cold(self) -> Solve:
-        return self._rig(self.view.cold())
-
-    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
-        return self._rig(self.view.tracked(initial, predicted))
-
-    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
-        return self._rig(self.view.relocalize(model, predicted))
-
-
 def _new_track(settings: RigSettings) -> TrackerPath | None:
-    """The rig's tracker path (None without tracking): a rig of one's is its camera's tracker
-    (:class:`~rs_localizer.tracking.tracker.RSTracker`, the camera's default solver and the
-    rig's options), a rig's of several cameras the path alone (its estimator the rig's)."""
+    """The tracker path of a rig of several cameras (None without tracking): the path alone,
+    its estimator the rig's (a rig of one's is its camera's tracker,
+    :class:`~rs_localizer.tracking.tracker.RSTracker`, made at its frames)."""
     to = settings.tracking
-    if to is None:
-        return None
-    if settings.single_camera:
-        return RSTracker(SINGLE_CAMERA_SOLVER, settings.options, to)
-    return TrackerPath(to)
+    return None if to is None else TrackerPath(to)
 
 
 def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEstimate:
@@ -1645,14 +1893,18 @@ def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEsti
         if cov is not None:
             k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
             cov = cov * k[:, None] * k[None, :]
-    return replace(
-        est,
-        model=model,
-        model_covariance=cov,
-        inliers_per_view=(est.inliers,),
-        num_inliers_per_view=(est.num_inliers,),
-        num_valid_per_view=(est.num_valid,),
-    )
+    # (dataclasses.replace's fields, set on a shallow copy: a frame's estimate has some forty
+    # fields, and a camera's video makes this once per frame)
+    out = copy.copy(est)
+    for name, value in (
+        ("model", model),
+        ("model_covariance", cov),
+        ("inliers_per_view", (est.inliers,)),
+        ("num_inliers_per_view", (est.num_inliers,)),
+        ("num_valid_per_view", (est.num_valid,)),
+    ):
+        object.__setattr__(out, name, value)
+    return out
 
 
 def _offsets_text(offsets: dict) -> str:

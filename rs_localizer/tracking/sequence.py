@@ -1,7 +1,10 @@
 """The library's video entry point: one rolling-shutter camera's frames, in order, with its gyro.
 
-:class:`SequenceLocalizer` owns every piece of a camera's video state (in the spirit of
-OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
+A camera alone is a rig of one: :class:`SequenceLocalizer` is the camera's adapter over a
+:class:`~rs_localizer.tracking.rig.RigLocalizer` of the one camera at the identity mounting
+(:attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`), whose code solves a camera's
+frames and a rig's. That rig of one holds the camera's video state (in the spirit of OpenVINS'
+``VioManager``, which its ROS wrappers and bag runner only drive):
 
 - the video tracker (:class:`~rs_localizer.tracking.tracker.RSTracker`: predicted RANSAC,
   relocalization, resets, the fused twist), made again when the solver, the estimator or
@@ -14,17 +17,20 @@ OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
   with ``estimate_bias``) and the check of the gyro against the rotation between solved frames
   (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`: frames are solved without the
   gyro while it is declared inconsistent);
-- the time policy, decided here (:class:`SequenceSettings`) and passed down: a frame stamp
-  older than the previous one, or newer by more than ``time_reset_ns`` (:meth:`check_time`),
-  starts the gyro's timeline again (the samples of the previous timeline, the bias
-  estimator's and the check's pairing); frames further apart than
-  :attr:`SequenceSettings.max_gap` share nothing across the gap (the track resets, the front
-  end gets no prediction, the gyro check and the bias estimator form no pair);
+- the time policy (:class:`SequenceSettings`): a frame stamp older than the previous one, or
+  newer by more than ``time_reset_ns`` (:meth:`check_time`), starts the gyro's timeline again
+  (the samples of the previous timeline, the bias estimator's and the check's pairing);
+  frames further apart than :attr:`SequenceSettings.max_gap` share nothing across the gap
+  (the track resets, the front end gets no prediction, the gyro check and the bias estimator
+  form no pair);
 - the prediction of each frame (:meth:`predict`): the tracker's, the one its estimator
-  starts from, is what the front end searches with (no front end keeps a pose);
-- the optional image front end (:meth:`set_frontend`) and its feedback: what
-  :meth:`process_image` calls on it is the
-  :class:`~rs_localizer.correspondences.VideoFrontend` protocol.
+  starts from, is what the front end searches with (no front end keeps a pose).
+
+The adapter itself keeps what is the camera's own: its settings, its frames' times
+(:meth:`frame_time`), its counters and the optional image front end (:meth:`set_frontend`)
+with its feedback: what :meth:`process_image` calls on it is the
+:class:`~rs_localizer.correspondences.VideoFrontend` protocol, and an image whose front end
+found fewer correspondences than the solver needs is dropped before the estimator.
 
 API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspondences ->
 :class:`SequenceOutput`), :meth:`process_image` (an image, through the front end ->
@@ -54,10 +60,9 @@ Example (a video of correspondences and a gyro; ``camera`` a
 
 from __future__ import annotations
 
-import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -66,24 +71,16 @@ from ..camera import (
     MAX_STAMP_NS,
     CameraModel,
     FrameTime,
-    Stamp,
     checked_stamp,
     reference_stamp_ns,
 )
 from ..correspondences import Correspondences, Frontend, VideoFrontend
-from ..estimation.estimate import (
-    EstimateOptions,
-    estimate_rs_pose,
-    points_needed,
-)
-from ..estimation.gyro import GyroMeasurement
-from ..estimation.implementation import COMPILED, default_implementation
+from ..estimation.estimate import EstimateOptions, points_needed
+from ..estimation.implementation import default_implementation
 from ..estimation.single_tag import coplanar_points
+from ..frames import Mounting
 from ..pose import RSModel
-from ..solvers.registry import solver_info
-from .clock import TimeReset, VideoClock
-from .fusion import FusedState
-from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
+from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
 from .localizer import (
     FROZEN_IMAGE_LEVEL,
     MAX_PENDING,
@@ -91,11 +88,12 @@ from .localizer import (
     CameraFrontend,
     FusedPose,
     LocalizerOutput,
-    VideoLocalizer,
     check_camera,
+    search_image,
     usable_rows,
 )
-from .tracker import RSTracker, TrackerOptions, carried_model, model_from_state
+from .rig import SINGLE_CAMERA_SOLVER, RigLocalizer, RigSettings
+from .tracker import TrackerOptions
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -107,6 +105,7 @@ __all__ = [
     "SequenceOutput",
     "SequenceSettings",
     "reference_stamp_ns",
+    "rig_of_one",
 ]
 
 #: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
@@ -149,7 +148,7 @@ class SequenceSettings:
             check prevents).
     """
 
-    solver: str = "r6p_1lin"
+    solver: str = SINGLE_CAMERA_SOLVER
     options: EstimateOptions | None = None
     tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
     imu: GyroSettings | None = None
@@ -207,8 +206,37 @@ class SequenceOutput(LocalizerOutput):
     frontend_seconds: float = 0.0
 
 
-class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
-    """A camera's video state (see the module docstring).
+#: the one camera's mounting in its rig of one: the camera's frame is the rig's
+_IDENTITY = Mounting(np.eye(3), np.zeros(3))
+#: the one camera's name in its rig of one (a :class:`CameraFrame`'s default ``camera_name``)
+_CAMERA = ""
+
+
+def rig_of_one(settings: SequenceSettings) -> RigSettings:
+    """The :class:`~rs_localizer.tracking.rig.RigSettings` of a camera's rig of one (the
+    camera, named ``""``, at the identity mounting:
+    :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`) that solves the frames of a
+    :class:`SequenceLocalizer` with ``settings``: its solver, estimator options (None: the
+    defaults, ``EstimateOptions()``), tracking, gyro and its check, ``stamp_row``,
+    ``time_reset_ns``, ``max_points`` and ``frozen_image_level``."""
+    options = settings.options if settings.options is not None else EstimateOptions()
+    return RigSettings(
+        {_CAMERA: _IDENTITY},
+        stamp_row=settings.stamp_row,
+        time_reset_ns=settings.time_reset_ns,
+        options=options,
+        tracking=settings.tracking,
+        imu=settings.imu,
+        max_points=settings.max_points,
+        solver=settings.solver,
+        check_gyro=settings.check_gyro,
+        frozen_image_level=settings.frozen_image_level,
+    )
+
+
+class SequenceLocalizer(GyroReadouts):
+    """A camera's video (see the module docstring): the single-camera adapter over its rig of
+    one (:func:`rig_of_one`).
 
     Args:
         settings: the :class:`SequenceSettings` (None: the defaults; change them at run time
@@ -219,7 +247,8 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         count: ``count(key, n)`` for each counter (the node's diagnostics keys:
             ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing[.<reason>]``,
             ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
-            ``gyro_inconsistent_detections``, ``gyro_bias_rejected``); None: counted in
+            ``gyro_inconsistent_detections``, ``gyro_bias_rejected``; ``points_dropped``,
+            ``capped_clouds``, ``capped_points`` of :meth:`valid_rows`); None: counted in
             :attr:`counts`.
         stopped: ``stopped()`` true ends a frame's wait for its gyro samples (shutdown).
         imu_span: s of gyro samples kept (default ``imu.buffer``; ``inf`` when every sample is
@@ -253,26 +282,22 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         implementation: Callable[[str], str] = default_implementation,
     ):
         self.log: TrackLog = log if log is not None else SilentLog()
-        self._implementation = implementation
         self.counts: Counter = Counter()
         self._count = count if count is not None else self._count_here
-        self.settings = SequenceSettings()
-        # the time-reset policy (tracking/clock.py): any step back, or a jump ahead
-        self._clock = VideoClock()
-        # the frames waiting for their fused twist (reference stamp -> (estimate, tag)) and
-        # the lock between process() and flush_idle() (tracking/localizer.py); the tracker,
-        # what it was made for, counters of the trackers dropped so far
-        self._init_video()
-        self._tracker: RSTracker | None = None
-        self._tracker_key = None
-        self._tracker_camera = None
-        self._track_counts: Counter = Counter()
-        # the gyro: its samples, bias, mount check and counters
+        self.settings = settings = settings or SequenceSettings()
+        # the gyro: its samples, bias, mount check and counters (the camera's names)
         self.gyro_input = GyroInput(self._count, self.log, stopped=stopped, span=imu_span)
+        # the camera's rig of one: the tracker, the twists pending, the last posed frame
+        # carried, the clock, the gyro's use (tracking/rig.py)
+        self._rig = RigLocalizer(
+            rig_of_one(settings),
+            self.log,
+            lambda: implementation(self.settings.solver),
+            gyro_input=self.gyro_input,
+            camera_video=True,
+        )
         # the front end and the fingerprint of the previous image (tracking/localizer.py)
         self._camera_frontend = CameraFrontend(self.log, frontend_name)
-        self._track_over = False  # (a frozen image: the next frame starts a new track)
-        self.configure(settings or SequenceSettings())
         self.set_frontend(frontend, frontend_name)
 
     def _count_here(self, key: str, n: int = 1) -> None:
@@ -286,45 +311,32 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         anew); the tracker is made again at the next frame when the solver, the options or the
         tracking options changed."""
         self.settings = settings
-        self._carried.max_gap = settings.max_gap
-        self._clock.time_reset_ns = settings.time_reset_ns
-        self.gyro_input.configure(
-            settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
-        )
+        self._rig.configure(rig_of_one(settings))
 
     # ---------------------------------------------------------------- read-outs
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
         ``relocalizations``, ``resets``, ``twists_own_frame`` and ``twists_implausible``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`),
-        ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter
-        timing, :meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
-        t = self._tracker
-        tc = self._track_counts
-        state = (
-            "disabled"
-            if self.settings.tracking is None
-            else t.track_state
-            if t is not None
-            else "lost"
-        )
-        return {
-            "track_state": state,
-            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
-            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
-            "resets": tc["resets"] + (t.resets if t else 0),
-            **self.twist_values(),
-            **self.readout_values(),
-        }
+        (:meth:`twist_values`), ``readout_contradicted`` and ``readout_suspect`` (the check of
+        the rolling-shutter timing, :meth:`readout_values`)."""
+        return self._rig.tracking_values()
 
-    # ---------------------------------------------------------------- gyro
-    def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
-        """The gyro measurement of the frame's readout (:meth:`VideoLocalizer._gyro_readouts`
-        of its one camera, the stamp the capture time of row ``stamp_row``), or None (no gyro,
-        no readout timing, or the samples missing: counted; the frame is solved without)."""
-        if camera.line_delay <= 0:
-            return None
-        return self._gyro_readouts(stamp, [(camera, 0.0, self.settings.stamp_row)])
+    @property
+    def pending(self) -> int:
+        """Frames whose fused twist is not final yet."""
+        return self._rig.pending
+
+    def twist_values(self) -> dict[str, int]:
+        """The fused twists handed out over the video's life: ``twists_own_frame`` and
+        ``twists_implausible``
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`)."""
+        return self._rig.twist_values()
+
+    def readout_values(self) -> dict[str, Any]:
+        """The check of the rolling-shutter timing: ``readout_contradicted`` and
+        ``readout_suspect``
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
+        return self._rig.readout_values()
 
     # ---------------------------------------------------------------- time
     def frame_time(self, stamp_ns: int | FrameTime, camera: CameraModel) -> FrameTime:
@@ -354,30 +366,13 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         timeline's) are dropped, on a jump forward those older than the previous frame; the
         bias estimator's and the gyro check's pairing restart. (The tracker resets itself on
         the same stamps.) :meth:`process` calls it; calling it first for the same stamp (to
-        act on a reset before the frame is decoded) does not count it twice.
+        act on a reset before the frame is decoded) does not count it twice
+        (:meth:`RigLocalizer.check_time <rs_localizer.tracking.rig.RigLocalizer.check_time>`).
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
         """
-        return self._check_time(checked_stamp(stamp_ns))
-
-    def _check_time(self, stamp: Stamp) -> str | None:
-        """:meth:`check_time` of a checked stamp (:class:`~rs_localizer.tracking.clock.
-        VideoClock`; a reset: :meth:`VideoLocalizer._time_reset`)."""
-        reset = self._clock.step(stamp, self._clock.newest)
-        if reset is None:
-            return None
-        self._time_reset(reset)
-        return reset.detail
-
-    def _timeline_ended(self, reset: TimeReset | None) -> list:
-        """A time reset ends nothing here (the tracker resets itself on the same stamps);
-        :meth:`reset` (None) ends the track, its twists dropped, and forgets the last image."""
-        if reset is None:
-            self._end_track()
-            self._camera_frontend.last_sample = None
-            self._track_over = False
-        return []
+        return self._rig.check_time(stamp_ns)
 
     # ---------------------------------------------------------------- images
     @property
@@ -446,7 +441,9 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         Returns:
             :class:`SequenceOutput`; a frame dropped before the estimator has ``failure``
             (``frontend_error``, ``frontend_too_few_points``, ``frozen_image``: the previous
-            image again, see :attr:`SequenceSettings.frozen_image_level`) and ``detail``.
+            image again, see :attr:`SequenceSettings.frozen_image_level`; the next new image
+            starts a new track, :meth:`RigLocalizer.restart_track
+            <rs_localizer.tracking.rig.RigLocalizer.restart_track>`) and ``detail``.
 
         Raises:
             ValueError: no front end (:meth:`set_frontend`), or a stamp beyond the int64
@@ -459,12 +456,12 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         name = fe.label
         if fe.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        reset = self._check_time(stamp)
+        reset = self._rig.check_time(stamp)
         s = self.settings
         out = SequenceOutput(stamp_ns=t.reference_ns)
-        r = self._search_image(
-            fe, stamp, t.reference_ns, image, camera, encoding,
-            level=s.frozen_image_level, check=not reset, view=None,
+        r = search_image(
+            fe, stamp, image, camera, encoding, lambda: self.predict(t, camera),
+            level=s.frozen_image_level, check=not reset,
         )  # fmt: skip
         if r.failure == FRONTEND_FAILURES[2]:
             out.failure = r.failure
@@ -474,7 +471,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
                 "camera; the next new image is searched whole"
             )
             # (the camera moved on unseen: the next new image starts a new track)
-            self._track_over = True
+            self._rig.restart_track()
             return out
         if r.failure is not None:
             e = r.error
@@ -509,7 +506,8 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         predicts the frame: no frame solved yet, or it starts a new track (a stamp going back
         or repeated, more than :attr:`SequenceSettings.max_gap` after the last solved
         frame: :func:`~rs_localizer.tracking.tracker.predictable`; or the first image after a
-        ``frozen_image``).
+        ``frozen_image``). The rig of one's
+        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.predict_camera`).
 
         ``stamp_ns`` may be the frame's :meth:`frame_time` (taken as it is).
 
@@ -517,32 +515,8 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
             TypeError: ``camera`` is not a :class:`~rs_localizer.camera.CameraModel`.
         """
-        return self._predict(self.frame_time(stamp_ns, camera).reference_ns, camera, None)
-
-    def _tracked_prediction(
-        self, ref: int, camera: CameraModel, view: None
-    ) -> tuple[bool, FusedState | None]:
-        """The tracker decides while it tracks with this camera and configuration
-        (:meth:`~rs_localizer.tracking.tracker.RSTracker.predict`); after a frozen image
-        nothing predicts the next frame (searched whole, a new track)."""
-        if self._track_over:
-            return True, None
-        s, t = self.settings, self._tracker
-        if (
-            t is not None
-            and t.filter.initialized
-            and self._tracker_key == (s.solver, s.options, s.tracking, id(camera))
-        ):
-            return True, t.predict(ref, self._implementation(s.solver))
-        return False, None
-
-    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: None) -> RSModel:
-        return model_from_state(state, camera)
-
-    def _carried_in_camera(
-        self, model: RSModel, dt: float, camera: CameraModel, view: None
-    ) -> RSModel:
-        return carried_model(model, dt, camera.seconds_per_unit_r)
+        t = self.frame_time(stamp_ns, camera)
+        return self._rig.predict_camera(_CAMERA, t.stamp_ns, camera, reference_ns=t.reference_ns)
 
     # ---------------------------------------------------------------- frames
     def process(self, frame: CameraFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
@@ -567,116 +541,46 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         return self._process(frame, ft)
 
     def _process(self, frame: CameraFrame, ft: FrameTime) -> SequenceOutput:
-        """:meth:`process` of a frame with its times ``ft``."""
-        self._check_time(frame.stamp_ns)
-        s = self.settings
-        camera = frame.camera
-        stamp = frame.stamp_ns
-        ref = ft.reference_ns
-        out = SequenceOutput(stamp_ns=ref)
-        # (while the kernels compile in the background: the NumPy implementation, tracked and
-        # with the gyro all the same; runtime.background)
-        impl = self._implementation(s.solver)
-        out.compiled = impl == COMPILED
-        t0 = time.perf_counter()
-        out.gyro = gyro = self._gyro_for(stamp, camera)
-        out.gyro_seconds = time.perf_counter() - t0
-        uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
-        with self._lock:
-            # (ended: the frames of a track ended here, final; final: the tracker's states
-            # final now)
-            ended, final = [], []
-            try:
-                if s.tracking is not None:
-                    if self._track_over and self._tracker is not None:
-                        # (after a frozen image: the track's pending twists are final, the
-                        # frame starts a new track, as after a gap)
-                        ended = self._end_track(keep=True)
-                        self._track_counts["resets"] += 1
-                    old = self._tracker
-                    tracker, more = self._tracker_for(camera)
-                    ended = ended + more
-                    r = tracker.process(
-                        ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
-                    )
-                    est, out.path = r.estimate, r.state
-                    new_track = tracker is not old or r.state in ("cold", "reset")
-                    final = r.final
-                    self._twists.note_frame()
-                else:
-                    self._end_track()
-                    new_track = False
-                    est = estimate_rs_pose(
-                        uv,
-                        xyz,
-                        camera,
-                        solver=s.solver,
-                        options=s.options,
-                        scores=scores,
-                        gyro=gyro,
-                        implementation=impl,
-                    )
-            except Exception as e:
-                out.fused = ended + self._fused(final)
-                out.error = f"{type(e).__name__}: {e}"
-                out.estimate = None
-                self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)
-                return out
-            self._track_over = False
-            out.estimate, out.new_track = est, new_track
-            self._carried.update(ref, est)
-            self.gyro_input.solved(ref, est, new_track)
-            if not est.success:  # (twists of earlier frames a reset made final still go out)
-                out.fused = ended + self._fused(final)
-                return out
-            # (global-shutter solver or timing: no twist to fuse; the frame's own twist is
-            # final)
-            out.twist_now = (
-                s.tracking is None
-                or not solver_info(s.solver).rolling
-                or camera.seconds_per_unit_r <= 0
-            )
-            if not out.twist_now:  # (its fused twist comes when final)
-                self._twists.hold(ref, est, frame.tag, out.path == "relocalized")
-            # (also with the frame's own twist final: an earlier track's, e.g. before the
-            # solver became a global-shutter one)
-            out.fused = ended + self._fused(final)
-        return out
+        """:meth:`process` of a frame with its times ``ft``: its rig of one's rig frame
+        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.add`) as the camera's output."""
+        if frame.camera_name != _CAMERA:
+            frame = replace(frame, camera_name=_CAMERA)
+        (r,) = self._rig.add(frame, ft.reference_ns)
+        return SequenceOutput(
+            stamp_ns=r.stamp_ns,
+            estimate=r.camera_estimate,
+            path=r.path,
+            fused=r.fused,
+            gyro=r.gyro,
+            error=r.error,
+            compiled=r.compiled,
+            twist_now=r.twist_now,
+            new_track=r.path in ("cold", "reset"),
+            gyro_seconds=r.gyro_seconds,
+        )
 
-    def _tracker_for(self, camera: CameraModel) -> tuple[RSTracker, list[FusedPose]]:
-        """The tracker for this camera and configuration: a new one when the solver, the
-        estimator or tracking options or the camera model changed (the old track's pending
-        twists are returned, final). Returns (tracker, the old track's frames, final)."""
-        s = self.settings
-        key = (s.solver, s.options, s.tracking, id(camera))
-        final = []
-        if self._tracker is None or key != self._tracker_key:
-            if self._tracker is not None:
-                final = self._end_track(keep=True)
-                self._track_counts["resets"] += 1
-            self._tracker = RSTracker(s.solver, s.options, s.tracking)
-            self._tracker_key = key
-            self._tracker_camera = camera  # (keeps id(camera) unique while in use)
-        return self._tracker, final
+    # ---------------------------------------------------------------- the video
+    def flush(self) -> list[FusedPose]:
+        """The end of the video: the twists still pending, as they are now (the track goes
+        on)."""
+        return self._rig.flush()
 
-    def _twist_source(self) -> RSTracker | None:
-        """The tracker (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
-        return self._tracker
+    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
+        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
+        without frames the track is over (the next frame more than ``max_gap`` later resets
+        it): the twists still pending, final now. Empty without tracking, with nothing
+        pending, or before that time."""
+        return self._rig.flush_idle(now)
 
-    def _forget_track(self, keep: bool) -> list:
-        """Forget the tracker (its counters are kept); returns its fused states not yet final
-        when ``keep``."""
-        final = []
-        t = self._tracker
-        if t is not None:
-            self._track_counts.update(t.track_counts())  # (added)
-            final = t.reset() if keep else []
-        self._tracker = self._tracker_key = None
-        return final
+    def end_track(self) -> None:
+        """End the track (e.g. the node is deactivated): the twists still pending are dropped;
+        the next frame starts a new track and is not predicted. The gyro state is kept."""
+        self._rig.end_track()
 
     def reset(self) -> None:
         """Forget the video (the configuration stays): the track and the twists pending, the
         gyro samples, the bias estimator's and the gyro check's pairing, the last posed frame
-        carried (the next frame is not predicted from it), the last stamp. The bias estimate
-        itself is kept (the same IMU)."""
-        self._forget_video()
+        carried (the next frame is not predicted from it), the last stamp, the last image. The
+        bias estimate itself is kept (the same IMU)."""
+        self._rig.reset()
+        self._camera_frontend.last_sample = None

@@ -644,26 +644,6 @@ class RSTracker(TrackerPath):
         step = self.update(stamp_ns, est, f.path, frame_inlier_ratio(est, len(points2d)), f.prior)
         return TrackResult(est, f.path, step, view.final + step.final, f.predicted, f.explained)
 
-    def view(
-        self,
-        points2d: np.ndarray,
-        points3d: np.ndarray,
-        camera: CameraModel,
-        scores: np.ndarray | None = None,
-        gyro: GyroMeasurement | None = None,
-        implementation: str | None = None,
-    ) -> PathEstimator:
-        """One frame of the camera as this tracker's estimator on the tracker path
-        (:class:`PathEstimator`), for a caller that runs the path's steps itself
-        (:meth:`~TrackerPath.solve`, then :meth:`update`), as :meth:`process` does: cold
-        frames solved with the tracker's options, tracked ones with its tracked options and the
-        prediction's twist as the motion prior where
-        :attr:`TrackerOptions.prior_from_prediction` asks for it, a prediction that did not
-        hold solved cold (:func:`estimate_rs_pose` on ``implementation``); the fused states of
-        a track the time rule ends before the frame are kept in its ``final`` (a list), unless
-        the caller hands them on itself. Arguments as :meth:`process`'s."""
-        return _CameraView(self, points2d, points3d, camera, scores, gyro, implementation)
-
     def update(
         self,
         stamp_ns: int,

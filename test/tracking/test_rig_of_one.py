@@ -67,7 +67,8 @@ def _assert_same_estimate(c, r, spr: float):
     _assert_same_pose(c.pose, r.pose)
     assert _same(c.model.R, r.model.R) and _same(c.model.C, r.model.C)
     if c.success:
-        assert _same(c.model.w / spr, r.model.w) and _same(c.model.t / spr, r.model.t)
+        k = spr if spr > 0 else 1.0  # (a global shutter's zeros kept)
+        assert _same(c.model.w / k, r.model.w) and _same(c.model.t / k, r.model.t)
     assert r.num_valid_per_view == (c.num_valid,) and r.num_inliers_per_view == (c.num_inliers,)
     assert r.disagreeing == ()
 
@@ -224,3 +225,231 @@ def test_a_rig_of_one_on_images_is_the_camera_on_them(tracking):
         _assert_same_fused(a.fused, b.fused)
     assert predicted == len(frames) - 1
     _assert_same_fused(seq.flush(), rig.flush())
+
+
+# ---------------------------------------------------------------------- the camera's policies
+def _pair(**kw):
+    """A camera's localizer and a rig of one (not its adapter: a RigLocalizer of its own) with
+    the same settings ``kw``."""
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, **kw))
+    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, **kw))
+    return seq, rig
+
+
+def _step(seq, rig, f, cam, stamp_ns=None):
+    """One frame through both; asserts the same outcome, returns the camera's output."""
+    t = f.stamp_ns if stamp_ns is None else stamp_ns
+    a = seq.process(CameraFrame(t, cam, f.uv, f.xyz, f.scores))
+    (b,) = rig.add(CameraFrame(t, cam, f.uv, f.xyz, f.scores, camera_name="cam"))
+    assert (a.stamp_ns, a.path, a.twist_now) == (b.stamp_ns, b.path, b.twist_now)
+    assert a.estimate is not None and b.camera_estimate is not None
+    _assert_same_estimate(a.estimate, b.estimate, cam.seconds_per_unit_r)
+    c = b.camera_estimate  # (the camera's own: its model per unit RS coordinate)
+    assert all(_same(x, y) for x, y in zip(a.estimate.model, c.model, strict=True))
+    assert _same(a.estimate.inliers, c.inliers) and a.estimate.failure == c.failure
+    _assert_same_fused(a.fused, b.fused)
+    assert seq.pending == rig.pending
+    return a
+
+
+def test_a_rig_of_one_takes_the_camera_s_solver_and_its_global_shutter_twists(video):
+    """``RigSettings.solver``: a rig of one solved with the global-shutter P3P as the camera
+    is: the same estimates, each frame's own twist final at once (``twist_now``, nothing
+    held); a camera without readout time (line delay 0) likewise on the default solver."""
+    frames, cam, _ = video
+    seq, rig = _pair(solver="p3p", tracking=TrackerOptions())
+    for f in frames[:8]:
+        a = _step(seq, rig, f, cam)
+        assert a.twist_now and a.estimate.solver == "p3p" and rig.pending == 0
+    gs = dataclasses.replace(cam, line_delay=0.0)
+    seq, rig = _pair(tracking=TrackerOptions())
+    for f in frames[:8]:
+        a = _step(seq, rig, f, gs)
+        assert a.twist_now and rig.pending == 0
+    assert seq.tracking_values() == rig.tracking_values()
+
+
+def test_a_rig_of_one_starts_a_track_for_a_new_camera_model_and_takes_frames_going_back(video):
+    """A new camera model object ends the track (its twists out, counted a reset), as the
+    camera's; a frame older than the previous one is no ``out_of_order`` skip: a time reset
+    whose frame starts a new track (``reset``), and a stamp jump ahead likewise (over
+    ``max_gap``); ``check_time`` names the same resets."""
+    frames, cam, _ = video
+    seq, rig = _pair(tracking=TrackerOptions())
+    for f in frames[:6]:
+        _step(seq, rig, f, cam)
+    other = dataclasses.replace(cam)
+    assert _step(seq, rig, frames[6], other).path == "cold"
+    assert seq.tracking_values() == rig.tracking_values()
+    assert rig.tracking_values()["resets"] == 1
+    _step(seq, rig, frames[7], other)
+    a = _step(seq, rig, frames[2], other)  # (going back)
+    assert a.path == "reset" and a.estimate.success
+    assert rig.counts["rig.time_resets"] == 1 and rig.counts["cam.skipped"] == 0
+    t = frames[3].stamp_ns + 3 * 10**9
+    assert seq.check_time(t) == rig.check_time(t) is not None
+    assert _step(seq, rig, frames[3], other, t).path == "reset"
+    assert rig.counts["rig.time_resets"] == 2 and rig.counts["cam.solved"] == 10
+    assert seq.tracking_values() == rig.tracking_values()
+    _assert_same_fused(seq.flush(), rig.flush())
+
+
+def test_a_rig_of_one_configured_and_reset_as_the_camera(video):
+    """Other tracking options at run time end the track at the next frame (the twists still
+    pending go out with it); tracking switched off drops them; ``reset`` drops them too and
+    forgets the last pose: the same outputs, counters and predictions as the camera's."""
+    frames, cam, _ = video
+    seq, rig = _pair(tracking=TrackerOptions())
+    for f in frames[:5]:
+        _step(seq, rig, f, cam)
+    other = TrackerOptions(gate_px=25.0)
+    seq.configure(dataclasses.replace(seq.settings, tracking=other))
+    rig.configure(dataclasses.replace(rig.settings, tracking=other))
+    assert seq.pending == rig.pending > 0  # (until the next frame)
+    a = _step(seq, rig, frames[5], cam)
+    assert a.path == "cold" and a.fused
+    _step(seq, rig, frames[6], cam)
+    seq.configure(dataclasses.replace(seq.settings, tracking=None))
+    rig.configure(dataclasses.replace(rig.settings, tracking=None))
+    a = _step(seq, rig, frames[7], cam)
+    assert a.fused == [] and rig.pending == 0 and a.twist_now
+    assert rig.tracking_values() == seq.tracking_values()
+    assert rig.tracking_values()["track_state"] == "disabled"
+    p, q = seq.predict(frames[8].stamp_ns, cam), rig.predict_camera("cam", frames[8].stamp_ns, cam)
+    assert p is not None and all(_same(x, y) for x, y in zip(p, q, strict=True))
+    seq.configure(dataclasses.replace(seq.settings, tracking=TrackerOptions()))
+    rig.configure(dataclasses.replace(rig.settings, tracking=TrackerOptions()))
+    for f in frames[8:12]:
+        _step(seq, rig, f, cam)
+    assert rig.pending > 0
+    seq.reset()
+    assert rig.reset() == [] and rig.pending == 0
+    assert seq.predict(frames[12].stamp_ns, cam) is None
+    assert rig.predict_camera("cam", frames[12].stamp_ns, cam) is None
+    assert _step(seq, rig, frames[12], cam).path == "cold"
+    assert seq.tracking_values() == rig.tracking_values()
+
+
+def test_a_rig_of_one_s_frozen_image_starts_a_new_track(video):
+    """The camera's image again (a frozen stream): the next new image is searched whole (no
+    prediction) and starts a new track, as the camera's (``restart_track``); counted a
+    reset."""
+    from rs_localizer.frontends import make_frontend
+    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+
+    (c,) = vga_rig(1)
+    frames, _ = render_rig_frames([c], 6, seed=3)
+
+    def aruco():
+        return make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
+
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=aruco())
+    rig = RigLocalizer(RigSettings({c.name: IDENTITY}, options=OPTS))
+    rig.set_frontend(c.name, aruco())
+    paths = []
+    for k, f in enumerate(frames):
+        stamp = f.stamp_ns
+        image = frames[2].image if k == 3 else f.image  # (frame 3: frame 2's image again)
+        a = seq.process_image(stamp, image, c.camera, "rgb8")
+        outs = rig.process_image(c.name, stamp, image, c.camera, "rgb8")
+        if k == 3:
+            assert a.failure == "frozen_image" and outs == []
+            assert seq.predict(frames[4].stamp_ns, c.camera) is None
+            assert rig.predict_camera(c.name, frames[4].stamp_ns, c.camera) is None
+            continue
+        (b,) = outs
+        paths.append(a.path)
+        assert a.path == b.path
+        _assert_same_estimate(a.estimate, b.estimate, c.camera.seconds_per_unit_r)
+        _assert_same_fused(a.fused, b.fused)
+    assert paths == ["cold", "tracked", "tracked", "cold", "tracked"]
+    assert seq.tracking_values() == rig.tracking_values()
+    assert rig.tracking_values()["resets"] == 1
+
+
+def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
+    """Without tracking the last posed frame, carried at its own twist, predicts the next
+    frame of :meth:`RigLocalizer.add` as of :meth:`RigLocalizer.process_image`, as the
+    camera's."""
+    frames, cam, _ = video
+    seq, rig = _pair(tracking=None)
+    for f in frames[:3]:
+        _step(seq, rig, f, cam)
+    t = frames[3].stamp_ns
+    p, q = seq.predict(t, cam), rig.predict_camera("cam", t, cam)
+    assert p is not None and all(_same(x, y) for x, y in zip(p, q, strict=True))
+
+
+def test_only_a_rig_of_one_is_a_camera_s_video():
+    """``camera_video`` and ``check_time`` are a rig of one's."""
+    with pytest.raises(ValueError, match="rig of one"):
+        RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY}), camera_video=True)
+    with pytest.raises(ValueError, match="rig of one"):
+        RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
+
+
+def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(video):
+    """An image whose front end finds fewer correspondences than the solver needs is dropped
+    before the estimator, as the camera's (``frontend_too_few_points``, counted skipped; the
+    front end not told), and the video goes on as the camera's."""
+    from rs_localizer.correspondences import Correspondences
+
+    frames, cam, _ = video
+    rng = np.random.default_rng(1)
+    images = [rng.integers(0, 255, (48, 64), np.uint8) for _ in range(8)]
+
+    class Rows:  # (each frame's own rows, frame 3 with 5 of them)
+        def __init__(self):
+            self.k, self.told = 0, []
+
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = frames[self.k]
+            n = 5 if self.k == 3 else len(f.uv)
+            return Correspondences(f.uv[:n], f.xyz[:n])
+
+        def observe(self, stamp_ns, points2d, feedback):
+            self.told.append(stamp_ns)
+
+    a, b = Rows(), Rows()
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=a)
+    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS))
+    rig.set_frontend("cam", b)
+    for k in range(8):
+        a.k = b.k = k
+        out = seq.process_image(frames[k].stamp_ns, images[k], cam, "mono8")
+        outs = rig.process_image("cam", frames[k].stamp_ns, images[k], cam, "mono8")
+        if k == 3:
+            assert out.failure == "frontend_too_few_points" and outs == []
+            continue
+        (r,) = outs
+        assert out.path == r.path
+        _assert_same_estimate(out.estimate, r.estimate, cam.seconds_per_unit_r)
+        _assert_same_fused(out.fused, r.fused)
+    assert rig.counts["cam.skipped.frontend_too_few_points"] == 1
+    assert a.told == b.told and frames[3].stamp_ns not in a.told
+
+
+def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
+    """``RigSettings.frozen_image_level`` (a camera's ``frozen_image_level``): the same image
+    twice is skipped as ``frozen_image`` at the default level, taken with a negative one."""
+    from rs_localizer.correspondences import Correspondences
+
+    frames, cam, _ = video
+    image = np.random.default_rng(2).integers(0, 255, (48, 64), np.uint8)
+
+    class Rows:
+        k = 0
+
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            return Correspondences(frames[self.k].uv, frames[self.k].xyz)
+
+    for level, taken in ((SequenceSettings.frozen_image_level, 1), (-1.0, 2)):
+        fe = Rows()
+        rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, frozen_image_level=level))
+        rig.set_frontend("cam", fe)
+        outs = []
+        for k in range(2):
+            fe.k = k
+            outs += rig.process_image("cam", frames[k].stamp_ns, image, cam, "mono8")
+        assert len(outs) == taken
+        assert rig.counts["cam.skipped.frozen_image"] == 2 - taken
