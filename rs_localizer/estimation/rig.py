@@ -764,6 +764,94 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
     return out
 
 
+@njit(cache=True)
+def _block_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
+    block: sequentially below 8, else in 8 interleaved partial sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    m = n - n % 8
+    while i < m:
+        j = lo + i
+        r0 += a[j]
+        r1 += a[j + 1]
+        r2 += a[j + 2]
+        r3 += a[j + 3]
+        r4 += a[j + 4]
+        r5 += a[j + 5]
+        r6 += a[j + 6]
+        r7 += a[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
+    float64 row, to the bit): blocks of at most 128 (:func:`_block_sum`), larger ranges
+    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
+    stack)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
+    vals = np.empty(128)
+    sp, vp = 1, 0
+    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
+    while sp > 0:
+        sp -= 1
+        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
+        if m <= 128:
+            vals[vp] = _block_sum(a, a0, m)
+            vp += 1
+        elif done:
+            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
+            vp -= 1
+        else:
+            n2 = m // 2
+            n2 -= n2 % 8
+            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
+            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
+            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
+            sp += 3
+    return vals[0]
+
+
+@njit(cache=True)
+def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
+    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
+    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
+    or the first NaN)."""
+    H, N = R.shape[0], X.shape[0]
+    d = np.empty((1, N, 2))
+    e = np.empty(N)
+    v = np.empty(N)
+    best_e = np.zeros(N)
+    best, best_cost = -1, 0.0
+    for h in range(H):
+        _residuals_kernel(R[h : h + 1], C[h : h + 1], w[h : h + 1], t[h : h + 1], X, tau, cam,
+                          Rm, cm, x, A, d)  # fmt: skip
+        for i in range(N):
+            e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
+            q = e[i] * e[i]
+            v[i] = th2 if q > th2 else q
+        c = _pairwise_sum(v, 0, N)
+        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
+            best, best_cost = h, c
+            best_e[:] = e
+    return best, best_cost, best_e
+
+
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
     """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
     rig's points at each observation's capture time
@@ -1206,16 +1294,31 @@ def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float,
     on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
     out = np.empty(OUT_SIZE)
     f = np.float64
+    X, x, tau, views = _kernel_arrays(pool)
     LM_REFINE_KERNEL(
         np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
         np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
         np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
-        np.ascontiguousarray(pool.tau, dtype=f), k, 12 if rolling else 6, cutoff, iterations,
-        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, pool.mountings().views,
+        X, x, tau, k, 12 if rolling else 6, cutoff, iterations,
+        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, views,
     )  # fmt: skip
-    return (out[OUT_R:OUT_C].reshape(3, 3).copy(), out[OUT_C:OUT_W].copy(),
-            out[OUT_W:OUT_T].copy(), out[OUT_T:OUT_COV].copy())  # fmt: skip
+    # (views of this call's own buffer: no other model shares it)
+    return (out[OUT_R:OUT_C].reshape(3, 3), out[OUT_C:OUT_W], out[OUT_W:OUT_T],
+            out[OUT_T:OUT_COV])  # fmt: skip
+
+
+def _kernel_arrays(pool: _Pool) -> tuple:
+    """The pool's ``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous
+    float64 arrays, :func:`_kernel_mountings`' views), built once per pool: a rig frame
+    refines and scores several times."""
+    a = pool.__dict__.get("_kernel_arrays")
+    if a is None:
+        f = np.float64
+        a = pool._kernel_arrays = (
+            np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
+            np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
+        )  # fmt: skip
+    return a
 
 
 def _final(
@@ -1751,7 +1854,8 @@ def _evened(pool: _Pool, voters) -> _Pool:
         [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
     )
     out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_sampling", "_bearing_rows"):
+    for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling",
+                   "_bearing_rows"):  # fmt: skip
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
@@ -2005,10 +2109,19 @@ class _RigSearch(RansacLoop):
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
-        e = _errors_px(self.pool, *hyp)
-        cost = np.minimum(e * e, self.th2).sum(axis=1)
-        h = int(np.argmin(cost))
-        self._e, self._cost = e[h], float(cost[h])
+        pool = self.pool
+        if pool.numpy:
+            e = _errors_px(pool, *hyp)
+            cost = np.minimum(e * e, self.th2).sum(axis=1)
+            h = int(np.argmin(cost))
+            self._e, self._cost = e[h], float(cost[h])
+        else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
+            f = [np.ascontiguousarray(a, dtype=np.float64) for a in hyp]
+            h, cost, self._e = _best_msac_kernel(
+                *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A,
+                self.th2,
+            )  # fmt: skip
+            self._cost = float(cost)
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
