@@ -131,6 +131,7 @@ from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, p
 from .finalize import (
     FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
+    FINAL_TOL,
     GLOBAL_SHUTTER,
     MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
@@ -161,10 +162,14 @@ from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
+    OUT_ACC,
     OUT_C,
     OUT_COV,
+    OUT_GRAD,
+    OUT_INFO,
     OUT_R,
     OUT_SIZE,
+    OUT_SIZE_ACC,
     OUT_T,
     OUT_W,
     KernelMountings,
@@ -666,13 +671,22 @@ class _Pool:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
         if self.numpy:
             return _errors_px(self, *_one(model))[0]
+        return self.scored(model, 0.0)[0]
+
+    def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
+        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
+        the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
+        if self.numpy:
+            e = _errors_px(self, *_one(model))[0]
+            return e, float(np.minimum(e**2, th2).sum())
         R, C, w, t = model
         f = np.float64
-        return _errors_kernel(
-            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
-            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
-            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
-        )[0]  # fmt: skip
+        e, cost = _errors_cost_kernel(
+            np.ascontiguousarray(R, dtype=f), np.ascontiguousarray(C, dtype=f),
+            np.ascontiguousarray(w, dtype=f), np.ascontiguousarray(t, dtype=f),
+            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2,
+        )  # fmt: skip
+        return e, float(cost)
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -850,6 +864,24 @@ def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
             best, best_cost = h, c
             best_e[:] = e
     return best, best_cost, best_e
+
+
+@njit(cache=True)
+def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
+    squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
+    ``t`` (3,)."""
+    N = X.shape[0]
+    d = np.empty((1, N, 2))
+    _residuals_kernel(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
+                      X, tau, cam, Rm, cm, x, A, d)  # fmt: skip
+    e = np.empty(N)
+    v = np.empty(N)
+    for i in range(N):
+        e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
+        q = e[i] * e[i]
+        v[i] = th2 if q > th2 else q
+    return e, _pairwise_sum(v, 0, N)
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
@@ -1096,7 +1128,7 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     S, Rg = samples[own[spread]], R[spread]
     for _ in range(rounds):
         k = len(S)
-        held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
+        held = (_identities(k), np.zeros((k, 6)))
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         if not b.valid.any():
             return R, C, z, z.copy()
@@ -1105,6 +1137,19 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
+
+
+@functools.lru_cache(maxsize=4)
+def _identity_stack(n: int) -> np.ndarray:
+    """(n, 6, 6) identities (:func:`_identities`; shared, never written: writeable only so
+    that the rig solver's kernel takes them as any other prior rows)."""
+    return np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
+
+
+def _identities(k: int) -> np.ndarray:
+    """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
+    stack built for a power of two at least ``k``: a search corrects every batch's samples."""
+    return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
@@ -1164,15 +1209,29 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     if pool.numpy:
         R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     else:
-        R_cam, C_cam, own = lambda_twist_batch(
-            _bearings(pool)[samples[:, :3]], pool.X[samples[:, :3]]
-        )
+        R_cam, C_cam, own = _lambda_twist_of(_bearings(pool), pool.X, samples)
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
     R = RcT @ R_cam
     C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     return R, C, own
+
+
+@njit(cache=True)
+def _lambda_twist_of(bearings, X, samples):
+    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3)."""
+    K = samples.shape[0]
+    b = np.empty((K, 3, 3))
+    P = np.empty((K, 3, 3))
+    for k in range(K):
+        for j in range(3):
+            i = samples[k, j]
+            for a in range(3):
+                b[k, j, a] = bearings[i, a]
+                P[k, j, a] = X[i, a]
+    return lambda_twist_batch(b, P)
 
 
 def _refit(
@@ -1409,9 +1468,13 @@ def _covariance(
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
-    sigma2, info = res.sigma**2, res.data_information
-    acc = res.acceleration_block if rolling else None
+    if pool.numpy:
+        res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
+        sigma, info = res.sigma, res.data_information
+        acc = res.acceleration_block if rolling else None
+    else:
+        sigma, info, acc = _jacobian_blocks(pool, model, k, rolling)
+    sigma2 = sigma**2
     H = info[:free, :free].copy()
     if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
@@ -1434,6 +1497,28 @@ def _covariance(
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+def _jacobian_blocks(pool: _Pool, model, k: float, rolling: bool) -> tuple:
+    """The compiled refinement's kernel at ``model`` without a step (what
+    :func:`~.finalize.frame_refinement` with ``max_iterations=0`` computes, its kernel called
+    directly): ``(sigma (px), J^T W J (12, 12), J^T W D (12, 6) or None)`` over the points
+    within ``FINAL_CUTOFF`` thresholds ``k``; ``J^T W D`` (:func:`_covariance`) only when
+    ``rolling``."""
+    R0, C0, w0, t0 = model
+    out = np.empty(OUT_SIZE_ACC if rolling else OUT_SIZE)
+    f = np.float64
+    X, x, tau, views = _kernel_arrays(pool)
+    on, mu, Lam = _NO_PRIOR
+    sigma, _, _ = LM_REFINE_KERNEL(
+        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
+        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
+        X, x, tau, k, 12 if rolling else 6, FINAL_CUTOFF * k, 0, FINAL_TOL, True, out, on,
+        mu, Lam, 1.0, -1.0, rolling, views,
+    )  # fmt: skip
+    acc = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6) if rolling else None
+    return float(sigma), out[OUT_INFO:OUT_GRAD].reshape(12, 12), acc
 
 
 def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
@@ -2077,9 +2162,9 @@ class _RigSearch(RansacLoop):
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
-        e = self.errors(model)
+        e, cost = self.pool.scored(model, self.th2)
         self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
-        return float(np.minimum(e**2, self.th2).sum())
+        return cost
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
