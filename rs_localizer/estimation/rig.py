@@ -563,19 +563,20 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
         )
     cam = v.camera
-    if np.isfinite(uv).all() and np.isfinite(X).all():
+    if _all_finite(uv, X, numpy):
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
         idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     x = cam.undistort(uv_g, compiled=not numpy)
-    if not np.isfinite(x).all():
+    if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
     stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
     if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.full(len(uv_g), stamp + 0.0)
+        tau = np.empty(len(uv_g))
+        tau.fill(stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
@@ -587,6 +588,46 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         A[:, 0] = A[:, 3] = cam.mean_focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             float(cam.mean_focal), A)  # fmt: skip
+
+
+@njit(cache=True)
+def _finite_kernel(a, b):
+    """Whether every entry of the 2D float64 arrays ``a`` and ``b`` is finite."""
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            if not np.isfinite(a[i, j]):
+                return False
+    for i in range(b.shape[0]):
+        for j in range(b.shape[1]):
+            if not np.isfinite(b[i, j]):
+                return False
+    return True
+
+
+def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
+    """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
+    in NumPy, nothing compiles)."""
+    if numpy or a.dtype != np.float64 or b.dtype != np.float64:
+        return bool(np.isfinite(a).all() and np.isfinite(b).all())
+    return bool(_finite_kernel(a, b))
+
+
+@njit(cache=True)
+def _spread_kernel(tau):
+    """``tau.max() - tau.min()`` of a non-empty finite (N,) float64 array."""
+    lo = hi = tau[0]
+    for v in tau:
+        if v < lo:
+            lo = v
+        if v > hi:
+            hi = v
+    return hi - lo
+
+
+def _spread(tau: np.ndarray, numpy: bool) -> float:
+    """``float(tau.max() - tau.min())`` of a non-empty finite (N,) array (``numpy``: in
+    NumPy, nothing compiles)."""
+    return float(tau.max() - tau.min()) if numpy else float(_spread_kernel(tau))
 
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
@@ -652,7 +693,7 @@ class _Pool:
             self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
-        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
+        self.tau_spread = _spread(self.tau, self.numpy) if len(self.tau) else 0.0
 
     @property
     def r(self) -> np.ndarray:
@@ -1562,6 +1603,12 @@ def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
     return code, behind
 
 
+def _rms(e: np.ndarray) -> float:
+    """``float(np.sqrt(np.mean(e ** 2)))`` of a non-empty (N,) array (``np.mean``'s sum
+    divided by N, the same numbers)."""
+    return math.sqrt(float(np.add.reduce(e * e)) / len(e))
+
+
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
 
@@ -2441,7 +2488,7 @@ def _estimate(
         out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=float(np.sqrt(np.mean(e[inl] ** 2))),
+        rmse_px=_rms(e[inl]),
         num_behind=behind,
         model_covariance=cov,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
