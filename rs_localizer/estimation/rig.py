@@ -112,7 +112,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -632,8 +631,11 @@ def _spread(tau: np.ndarray, numpy: bool) -> float:
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
-    ends = itertools.accumulate((int(n) for n in counts), initial=0)
-    return [slice(a, b) for a, b in itertools.pairwise(ends)]
+    out, a = [], 0
+    for n in counts:
+        out.append(slice(a, a + int(n)))
+        a += int(n)
+    return out
 
 
 class _Pool:
@@ -674,21 +676,26 @@ class _Pool:
         self.R_mount = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
         self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
         self.mount_cov = [q[2] for q in parts]
+        #: some camera's mounting has a covariance
+        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
         self.sizes = [q[3] for q in parts]
         n = [len(q[5]) for q in parts]
-        self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
         if parts:
-            cols = list(zip(*parts, strict=True))
-            self.x = np.concatenate(cols[4])
-            self.X = np.concatenate(cols[5])
-            self.uv = np.concatenate(cols[6])
-            self.tau = np.concatenate(cols[7])
-            self.row = np.concatenate(cols[8])
-            self.focal = np.repeat(np.array(cols[9], dtype=float), n)
-            self.A = np.ascontiguousarray(np.concatenate(cols[10]))
+            self.cam = np.empty(sum(n), dtype=np.int64)
+            self.focal = np.empty(len(self.cam))
+            for c, (q, s) in enumerate(zip(parts, self.slices, strict=True)):
+                self.cam[s] = c
+                self.focal[s] = q[9]
+            self.x = np.concatenate([q[4] for q in parts])
+            self.X = np.concatenate([q[5] for q in parts])
+            self.uv = np.concatenate([q[6] for q in parts])
+            self.tau = np.concatenate([q[7] for q in parts])
+            self.row = np.concatenate([q[8] for q in parts])
+            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
         else:
+            self.cam = np.zeros(0, dtype=np.int64)
             self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
             self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
@@ -770,39 +777,44 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
-            # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-            y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-            y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-            y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-            ti = tau[i]
-            p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-            th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-            if th < 1e-12:
-                z0 = y0 + p1 * y2 - p2 * y1
-                z1 = y1 + p2 * y0 - p0 * y2
-                z2 = y2 + p0 * y1 - p1 * y0
-            else:
-                k0, k1, k2 = p0 / th, p1 / th, p2 / th
-                c, s = np.cos(th), np.sin(th)
-                kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-                z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-                z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-                z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-            z0 += C[h, 0] + ti * t[h, 0]
-            z1 += C[h, 1] + ti * t[h, 1]
-            z2 += C[h, 2] + ti * t[h, 2]
-            c_ = cam[i]
-            q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-            q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-            q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-            if q2 <= 1e-9:
-                out[h, i, 0] = np.inf
-                out[h, i, 1] = np.inf
-            else:
-                ex = q0 / q2 - x[i, 0]
-                ey = q1 / q2 - x[i, 1]
-                out[h, i, 0] = A[i, 0] * ex + A[i, 1] * ey
-                out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
+            out[h, i, 0], out[h, i, 1] = _residual_point(R, C, w, t, h, X, tau, cam, Rm, cm, x,
+                                                         A, i)  # fmt: skip
+
+
+@njit(cache=True)
+def _residual_point(R, C, w, t, h, X, tau, cam, Rm, cm, x, A, i):
+    """:func:`_residuals_kernel`'s (2,) image error (px) of point i under model h, as two
+    scalars (inf behind the camera)."""
+    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
+    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
+    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
+    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
+    ti = tau[i]
+    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
+    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    if th < 1e-12:
+        z0 = y0 + p1 * y2 - p2 * y1
+        z1 = y1 + p2 * y0 - p0 * y2
+        z2 = y2 + p0 * y1 - p1 * y0
+    else:
+        k0, k1, k2 = p0 / th, p1 / th, p2 / th
+        c, s = np.cos(th), np.sin(th)
+        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
+        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
+        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
+        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
+    z0 += C[h, 0] + ti * t[h, 0]
+    z1 += C[h, 1] + ti * t[h, 1]
+    z2 += C[h, 2] + ti * t[h, 2]
+    c_ = cam[i]
+    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+    if q2 <= 1e-9:
+        return np.inf, np.inf
+    ex = q0 / q2 - x[i, 0]
+    ey = q1 / q2 - x[i, 1]
+    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
 
 
 @njit(cache=True)
@@ -888,18 +900,29 @@ def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
     or the first NaN)."""
     H, N = R.shape[0], X.shape[0]
-    d = np.empty((1, N, 2))
     e = np.empty(N)
     v = np.empty(N)
     best_e = np.zeros(N)
     best, best_cost = -1, 0.0
+    # a model is left once the plain running sum of its first capped squares exceeds the
+    # best cost by this factor: its pairwise sum over every point is then larger (each sum of
+    # N non-negative terms is within N * 2^-52 of the exact one), so it is not the argmin
+    stop = 1.0 + 1e-9
     for h in range(H):
-        _residuals_kernel(R[h : h + 1], C[h : h + 1], w[h : h + 1], t[h : h + 1], X, tau, cam,
-                          Rm, cm, x, A, d)  # fmt: skip
+        bound = best_cost * stop if best >= 0 and np.isfinite(best_cost) else np.inf
+        run = 0.0
+        left = False
         for i in range(N):
-            e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
+            d0, d1 = _residual_point(R, C, w, t, h, X, tau, cam, Rm, cm, x, A, i)
+            e[i] = np.sqrt(d0**2 + d1**2)
             q = e[i] * e[i]
             v[i] = th2 if q > th2 else q
+            run += v[i]
+            if run > bound:
+                left = True
+                break
+        if left:
+            continue
         c = _pairwise_sum(v, 0, N)
         if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
             best, best_cost = h, c
@@ -1159,7 +1182,11 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     z = np.zeros((len(own), 3))
     if missed is None:
         return R, C, z, z.copy()
-    spread = np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
+    spread = (
+        np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
+        if pool.numpy
+        else _spanning(missed, pool.cam, samples, own)
+    )
     if len(spread) == 0:
         return R, C, z, z.copy()
     # (one camera's P3P pose misses another camera's points by the lever arm times its
@@ -1191,6 +1218,22 @@ def _identities(k: int) -> np.ndarray:
     """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
     stack built for a power of two at least ``k``: a search corrects every batch's samples."""
     return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
+
+
+@njit(cache=True)
+def _spanning(missed, cam, samples, own):
+    """The indices h (increasing) of the models whose sample ``samples[own[h]]`` has a point
+    in a camera ``missed`` (M,) bool flags."""
+    out = np.empty(len(own), dtype=np.int64)
+    n = 0
+    for h in range(len(own)):
+        row = samples[own[h]]
+        for j in range(row.shape[0]):
+            if missed[cam[row[j]]]:
+                out[n] = h
+                n += 1
+                break
+    return out[:n]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
@@ -1525,7 +1568,7 @@ def _covariance(
         return None, None
     cov = np.zeros((12, 12))
     cov[:free, :free] = sigma2 * Hinv
-    if mounts and any(mc is not None for mc in pool.mount_cov):
+    if mounts and pool.has_mount_cov:
         cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
     cov = 0.5 * (cov + cov.T)
     if not np.isfinite(cov).all():
@@ -2209,15 +2252,18 @@ class _RigSearch(RansacLoop):
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
+        for m, _, cost in self._costed:
+            if m is model:  # (the same object, measured again: local optimization's)
+                return cost
         e, cost = self.pool.scored(model, self.th2)
-        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
+        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
         return cost
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
         last :data:`_ERRORS_KEPT` models :meth:`cost` measured when it is one of them (the
         same object: the final refinement compares several)."""
-        for m, e in self._costed:
+        for m, e, _ in self._costed:
             if m is model:
                 return e
         return self.pool.errors(model)
