@@ -113,6 +113,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -2240,6 +2241,37 @@ def _search_batches(r: RansacOptions) -> RansacOptions:
     return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
 
 
+#: the last options' batches (:func:`_search_batches_of`): ``[(options, batches)]``
+_LAST_BATCHES: list = [None]
+
+
+def _search_batches_of(r: RansacOptions) -> RansacOptions:
+    """:func:`_search_batches` of ``r``, the last options' kept by identity (a frozen
+    dataclass hashes all of its fields on every look-up)."""
+    hit = _LAST_BATCHES[0]
+    if hit is None or hit[0] is not r:
+        hit = _LAST_BATCHES[0] = (r, _search_batches(r))
+    return hit[1]
+
+
+#: each thread's random generator of its last search's seed (:func:`_search_rng`)
+_RNGS = threading.local()
+
+
+def _search_rng(seed) -> np.random.Generator:
+    """``seeded_rng(seed)``'s generator (the same stream from its start): for an int seed
+    this thread's generator of the last such seed, set back to its seeded state (a search
+    draws from it until it ends, before the thread's next search starts), else a new one."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        return seeded_rng(seed)
+    hit = getattr(_RNGS, "last", None)
+    if hit is None or hit[0] != int(seed):
+        rng = seeded_rng(seed)
+        hit = _RNGS.last = (int(seed), rng, rng.bit_generator.state)
+    hit[1].bit_generator.state = hit[2]
+    return hit[1]
+
+
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
 #: candidates and the one it returns
 _ERRORS_KEPT = 6
@@ -2260,7 +2292,7 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset = anchored, subset
-        self.rng = seeded_rng(r.seed)
+        self.rng = _search_rng(r.seed)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
@@ -2268,7 +2300,7 @@ class _RigSearch(RansacLoop):
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e, self._cost = np.zeros(0), 0.0
         self._costed: list = []
-        self.batches = _search_batches(r)
+        self.batches = _search_batches_of(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
@@ -2331,6 +2363,11 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
+            n, missed = _inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
+            if self.still and not self.spread:
+                self.missed = missed if missed.any() else None
+            return self._cost, model, float(n / len(self._e))
         inl = self._e < self.threshold_px
         if self.still and not self.spread:
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
@@ -2341,6 +2378,22 @@ class _RigSearch(RansacLoop):
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
         # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
         return self._cost, model, float(ratio)
+
+
+@njit(cache=True)
+def _inliers_missed(e, k, cam, counts):
+    """``(the number of errors e (N,) below k, (M,) bool: the cameras of at least 3 points
+    (``counts``) with none of them)``."""
+    hit = np.zeros(len(counts), dtype=np.int64)
+    n = 0
+    for i in range(len(e)):
+        if e[i] < k:
+            n += 1
+            hit[cam[i]] += 1
+    missed = np.empty(len(counts), dtype=np.bool_)
+    for c in range(len(counts)):
+        missed[c] = counts[c] >= 3 and hit[c] == 0
+    return n, missed
 
 
 def _rig_estimate(
