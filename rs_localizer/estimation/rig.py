@@ -630,6 +630,16 @@ def _spread(tau: np.ndarray, numpy: bool) -> float:
     return float(tau.max() - tau.min()) if numpy else float(_spread_kernel(tau))
 
 
+@njit(cache=True)
+def _selected_per_camera(mask, cam, M):
+    """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
+    out = np.zeros(M, dtype=np.int64)
+    for i in range(len(mask)):
+        if mask[i]:
+            out[cam[i]] += 1
+    return out
+
+
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
     out, a = [], 0
@@ -753,7 +763,9 @@ class _Pool:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
         if mask is None:
             return tuple(s.stop - s.start for s in self.slices)
-        return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
+        if self.numpy or mask.dtype != np.bool_:
+            return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
+        return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
 
     def degenerate(self, threshold_px: float) -> bool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
@@ -2455,26 +2467,32 @@ def _inconsistent_fit(
     (rolling shutter) or 6."""
     R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
     compiled = not pool.numpy
-    ratio = [np.count_nonzero(inl[s]) / max(s.stop - s.start, 1) for s in pool.slices]
+    sizes, counts = pool.counts(), pool.counts(inl)
+    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
     best = max(ratio, default=0.0)
-    support = np.zeros(len(inl), dtype=bool)
+    supporting, n, n_inl = [], 0, 0
     for c, s in enumerate(pool.slices):
-        ic = inl[s]
         if ratio[c] == 0.0 or ratio[c] < AGREE_SHARE * best:
             continue
-        support[s] = True
-        X = pool.X[s]
-        # (the planarity of the camera's points only when its inliers are one plane)
-        if ic.all() or np.count_nonzero(ic) < 3 or planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
+        supporting.append(s)
+        n, n_inl = n + sizes[c], n_inl + counts[c]
+        # (the planarity of the camera's points only when its inliers are one plane; every
+        # point an inlier, or fewer than 3: not a plane seen from behind)
+        if counts[c] == sizes[c] or counts[c] < 3:
+            continue
+        X, ic = pool.X[s], inl[s]
+        if planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
             continue
         if planarity(X, compiled=compiled) >= PLANAR_TOLERANCE:
             Rm, cm = pool.R_mount[c], pool.c_mount[c]
             centre = camera_position(Rm @ R, Rm @ C + cm)
             if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
                 return True
-    n, n_inl = int(np.count_nonzero(support)), int(np.count_nonzero(inl[support]))
     if n_inl >= MIRRORED_FIT_FRACTION * n:
         return False
+    support = np.zeros(len(inl), dtype=bool)
+    for s in supporting:
+        support[s] = True
     if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
         return False
     rolling = free == 12
