@@ -573,21 +573,44 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
-    stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
+    spr, focal, jacobian = _camera_constants(cam)
+    stamp = float(v.stamp_offset)
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
         tau.fill(stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
-    K = cam.K
-    if cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0:
+    if jacobian:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
-        A[:, 0] = A[:, 3] = cam.mean_focal
+        A[:, 0] = A[:, 3] = focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
-            float(cam.mean_focal), A)  # fmt: skip
+            focal, A)  # fmt: skip
+
+
+#: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
+_CAMERA_CONSTANTS: dict = {}
+
+
+def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
+    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
+    point)`` of a camera (distortion, or fx != fy, or skew), kept per camera object (a
+    frozen dataclass a rig's frames share: its properties cost as much as a view's arrays)."""
+    hit = _CAMERA_CONSTANTS.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    K = cam.K
+    out = (
+        cam.seconds_per_unit_r,
+        float(cam.mean_focal),
+        bool(cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0),
+    )
+    if len(_CAMERA_CONSTANTS) >= 64:
+        _CAMERA_CONSTANTS.clear()
+    _CAMERA_CONSTANTS[id(cam)] = (cam, out)
+    return out
 
 
 @njit(cache=True)
