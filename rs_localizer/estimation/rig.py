@@ -627,10 +627,18 @@ def _finite_kernel(a, b):
     return True
 
 
+def _kernel_ready(a: np.ndarray) -> bool:
+    """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
+    small kernels here are compiled for (the warm-up compiles those; another layout or a
+    read-only array would compile another specialization on a rig frame)."""
+    f = a.flags
+    return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
+
+
 def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
     """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
     in NumPy, nothing compiles)."""
-    if numpy or a.dtype != np.float64 or b.dtype != np.float64:
+    if numpy or not (_kernel_ready(a) and _kernel_ready(b)):
         return bool(np.isfinite(a).all() and np.isfinite(b).all())
     return bool(_finite_kernel(a, b))
 
@@ -786,7 +794,7 @@ class _Pool:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
         if mask is None:
             return tuple(s.stop - s.start for s in self.slices)
-        if self.numpy or mask.dtype != np.bool_:
+        if self.numpy or mask.dtype != np.bool_ or not _kernel_ready(mask):
             return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
         return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
 
@@ -1246,11 +1254,7 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     z = np.zeros((len(own), 3))
     if missed is None:
         return R, C, z, z.copy()
-    spread = (
-        np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
-        if pool.numpy
-        else _spanning(missed, pool.cam, samples, own)
-    )
+    spread = np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
     if len(spread) == 0:
         return R, C, z, z.copy()
     # (one camera's P3P pose misses another camera's points by the lever arm times its
@@ -1282,22 +1286,6 @@ def _identities(k: int) -> np.ndarray:
     """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
     stack built for a power of two at least ``k``: a search corrects every batch's samples."""
     return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
-
-
-@njit(cache=True)
-def _spanning(missed, cam, samples, own):
-    """The indices h (increasing) of the models whose sample ``samples[own[h]]`` has a point
-    in a camera ``missed`` (M,) bool flags."""
-    out = np.empty(len(own), dtype=np.int64)
-    n = 0
-    for h in range(len(own)):
-        row = samples[own[h]]
-        for j in range(row.shape[0]):
-            if missed[cam[row[j]]]:
-                out[n] = h
-                n += 1
-                break
-    return out[:n]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
