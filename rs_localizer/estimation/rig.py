@@ -558,6 +558,10 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
         )
     cam = v.camera
+    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
+        z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
+        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
+                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     if _all_finite(uv, X, numpy):
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
