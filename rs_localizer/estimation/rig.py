@@ -723,6 +723,7 @@ class _Pool:
         n = [len(q[5]) for q in parts]
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
+        self._sizes_valid = tuple(int(k) for k in n)
         if parts:
             self.cam = np.empty(sum(n), dtype=np.int64)
             self.focal = np.empty(len(self.cam))
@@ -792,7 +793,7 @@ class _Pool:
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
         if mask is None:
-            return tuple(s.stop - s.start for s in self.slices)
+            return self._sizes_valid
         if self.numpy or mask.dtype != np.bool_ or not _kernel_ready(mask):
             return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
         return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
@@ -1677,6 +1678,13 @@ def _rms(e: np.ndarray) -> float:
     return math.sqrt(float(np.add.reduce(e * e)) / len(e))
 
 
+def _copies(model) -> tuple:
+    """Float64 copies of a model's ``(R, C, w, t)``."""
+    f = float
+    return (np.array(model[0], dtype=f), np.array(model[1], dtype=f),
+            np.array(model[2], dtype=f), np.array(model[3], dtype=f))  # fmt: skip
+
+
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
 
@@ -1933,7 +1941,9 @@ def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
 def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
     """The views with the points of cameras ``drop`` removed (the cameras keep their place)."""
     return [
-        replace(v, uv=np.zeros((0, 2)), X=np.zeros((0, 3))) if c in drop else v
+        RigView(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
+        if c in drop
+        else v
         for c, v in enumerate(views)
     ]
 
@@ -2061,6 +2071,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
     sizes = [k * (s.stop - s.start) for s, k in zip(pool.slices, copies, strict=True)]
     out.slices = _stacked(sizes)
+    out._sizes_valid = tuple(sizes)
     return out
 
 
@@ -2406,7 +2417,7 @@ def _rig_estimate(
     if model is None:
         z = np.zeros(3)
         model = (np.eye(3), z, z, z.copy())
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    R, C, w, t = _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
@@ -2581,7 +2592,7 @@ def _estimate(
         first = refined[1] if refined is not None and refined[0] is model else None
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    R, C, w, t = _copies(model)
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         if still and not spread:  # (every sample corrected across the cameras: docstring)
