@@ -724,6 +724,8 @@ class _Pool:
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
         self._sizes_valid = tuple(int(k) for k in n)
+        #: every input row of every camera is valid (the pool's rows are the views' in order)
+        self.all_valid = self._sizes_valid == tuple(self.sizes)
         if parts:
             self.cam = np.empty(sum(n), dtype=np.int64)
             self.focal = np.empty(len(self.cam))
@@ -2072,6 +2074,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
     sizes = [k * (s.stop - s.start) for s, k in zip(pool.slices, copies, strict=True)]
     out.slices = _stacked(sizes)
     out._sizes_valid = tuple(sizes)
+    out.all_valid = False
     return out
 
 
@@ -2426,7 +2429,7 @@ def _rig_estimate(
         success=record.get("failure") is None,
         solver=RIG_SOLVER,
         model=RSModel(R, C, w, t),
-        inliers=_joined(per),
+        inliers=np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
         inliers_per_view=per,
         num_inliers_per_view=pool.counts(inl),
         num_valid_per_view=pool.counts(),
