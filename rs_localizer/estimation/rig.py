@@ -1434,7 +1434,16 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
     of a rig frame take it."""
     m = pool.__dict__.get("_kernel_mountings")
     if m is None:
-        m = pool._kernel_mountings = kernel_mountings(_mountings(pool), len(pool.X))
+        f = np.float64
+        Rm, cm = np.ascontiguousarray(pool.R_mount, f), np.ascontiguousarray(pool.c_mount, f)
+        n, cam, A = len(pool.X), pool.cam, pool.A
+        if cam.dtype == np.int64 and A.dtype == f and A.flags.c_contiguous and A.shape == (n, 4):
+            # (the pool's own arrays, already in the kernel's form and consistent: each
+            # camera index in range, one row of A per point)
+            m = KernelMountings(n, (np.ascontiguousarray(cam), Rm, cm, A))
+        else:
+            m = kernel_mountings(_mountings(pool), n)
+        pool._kernel_mountings = m
     return m
 
 
