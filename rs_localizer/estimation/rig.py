@@ -939,7 +939,9 @@ def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
-    or the first NaN)."""
+    or the first NaN). A model whose running cost already exceeds the best one's is left
+    before its last points: the hypotheses' models and the points are finite, so that no
+    later point makes its cost NaN."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
     v = np.empty(N)
