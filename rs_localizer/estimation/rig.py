@@ -763,7 +763,13 @@ class _Pool:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
         if self.numpy:
             return _errors_px(self, *_one(model))[0]
-        return self.scored(model, 0.0)[0]
+        R, C, w, t = model
+        f = np.float64
+        return _errors_kernel(
+            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
+            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
+            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
+        )[0]  # fmt: skip
 
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
