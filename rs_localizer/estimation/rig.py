@@ -1683,11 +1683,37 @@ def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
     RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
     code, behind = 0, 0
     X, tau = pool.X, pool.tau
+    if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
+        # (the same check on every camera in one compiled call)
+        bounds = pool.__dict__.get("_bounds")
+        if bounds is None:
+            bounds = pool._bounds = np.array(
+                [(s.start, s.stop) for s in pool.slices], dtype=np.int64
+            ).reshape(-1, 2)
+        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds)
+        return int(code), int(behind)
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
             continue
         k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
         code, behind = max(code, int(k)), behind + int(n)
+    return code, behind
+
+
+@njit(cache=True)
+def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
+    """:func:`~.plausibility.final_model_check` of each camera c's model ``(RcR[c], RcC[c],
+    Rcw[c], Rct[c])`` on its rows ``bounds[c, 0]:bounds[c, 1]`` of the pool's points (without
+    motion bounds): (the largest code, the number of points behind their cameras)."""
+    code, behind = 0, 0
+    for c in range(bounds.shape[0]):
+        a, b = bounds[c, 0], bounds[c, 1]
+        if b == a:
+            continue
+        k, n = final_model_check(RcR[c], RcC[c], Rcw[c], Rct[c], X[a:b], tau[a:b], inl[a:b],
+                                 np.inf, np.inf)  # fmt: skip
+        code = max(code, k)
+        behind += n
     return code, behind
 
 
@@ -2084,7 +2110,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
     )
     out = copy.copy(pool)
     for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling",
-                   "_bearing_rows"):  # fmt: skip
+                   "_bearing_rows", "_bounds"):  # fmt: skip
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
