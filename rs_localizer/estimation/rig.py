@@ -1125,14 +1125,16 @@ def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     if hit is not None and hit[0] is subset:
         return hit[1]
     if subset is None:  # (the pool's cameras' slices: the same numbers in Python floats)
-        n = [s.stop - s.start for s in pool.slices]
+        n = pool.counts()
         eligible = [c for c, k in enumerate(n) if k >= 3]
-        total, acc, cdf = sum(n[c] for c in eligible), 0.0, []
+        total, acc, cdf = 0, 0.0, []
+        for c in eligible:
+            total += n[c]
         for c in eligible:  # (np.cumsum's sequential sums of the same quotients)
             acc += n[c] / total
             cdf.append(acc)
-        cdf = np.array(cdf)
-        cdf /= cdf[-1]
+        last = cdf[-1]  # (then divided by the last: IEEE divisions, as NumPy's)
+        cdf = np.array([a / last for a in cdf])
         out = (np.array(n, dtype=np.int64), np.array([s.start for s in pool.slices], np.int64),
                np.array(eligible, dtype=np.int64), cdf, len(pool.cam))  # fmt: skip
         pool._sampling = (subset, out)
