@@ -259,8 +259,22 @@ def collinear_3d(X: np.ndarray, tol: float = 1e-3, compiled: bool = True) -> boo
     if len(X) < 3:
         return True
     S = _scatter(X) if compiled else np.cov(X.T, bias=True) * len(X)
+    if _clearly_spread(S, tol):
+        return False
     ev = np.linalg.eigvalsh(S)  # ascending
     return bool(not ev[2] > 0 or ev[1] < tol * tol * ev[2])
+
+
+def _clearly_spread(S: np.ndarray, tol: float) -> bool:
+    """Whether the symmetric 3x3 scatter ``S`` has its middle eigenvalue above ten times
+    ``tol^2`` times its largest, shown without the eigenvalues: with ``l1 <= l2 <= l3``, the
+    sum of its principal 2x2 minors ``e2`` is at most ``3 l2 l3`` and its trace at least
+    ``l3``, so ``l2 / l3 >= e2 / (3 trace^2)`` (:func:`collinear_3d` then returns False
+    whatever the eigenvalues' rounding; a margin of ten over ``tol^2``)."""
+    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    tr = a + d + f
+    e2 = (a * d - b * b) + (a * f - c * c) + (d * f - e * e)
+    return bool(tr > 0 and e2 > 30.0 * tol * tol * tr * tr)
 
 
 def line_rms(points: np.ndarray) -> float:

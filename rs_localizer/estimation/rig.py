@@ -112,8 +112,8 @@ from __future__ import annotations
 
 import copy
 import functools
-import itertools
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -558,36 +558,125 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
         )
     cam = v.camera
-    if np.isfinite(uv).all() and np.isfinite(X).all():
+    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
+        z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
+        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
+                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
+    if _all_finite(uv, X, numpy):
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
         idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     x = cam.undistort(uv_g, compiled=not numpy)
-    if not np.isfinite(x).all():
+    if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
-    stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
+    spr, focal, jacobian = _camera_constants(cam)
+    stamp = float(v.stamp_offset)
     if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.full(len(uv_g), stamp + 0.0)
+        tau = np.empty(len(uv_g))
+        tau.fill(stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
-    K = cam.K
-    if cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0:
+    if jacobian:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
-        A[:, 0] = A[:, 3] = cam.mean_focal
+        A[:, 0] = A[:, 3] = focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
-            float(cam.mean_focal), A)  # fmt: skip
+            focal, A)  # fmt: skip
+
+
+#: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
+_CAMERA_CONSTANTS: dict = {}
+
+
+def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
+    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
+    point)`` of a camera (distortion, or fx != fy, or skew), kept per camera object (a
+    frozen dataclass a rig's frames share: its properties cost as much as a view's arrays)."""
+    hit = _CAMERA_CONSTANTS.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    K = cam.K
+    out = (
+        cam.seconds_per_unit_r,
+        float(cam.mean_focal),
+        bool(cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0),
+    )
+    if len(_CAMERA_CONSTANTS) >= 64:
+        _CAMERA_CONSTANTS.clear()
+    _CAMERA_CONSTANTS[id(cam)] = (cam, out)
+    return out
+
+
+@njit(cache=True)
+def _finite_kernel(a, b):
+    """Whether every entry of the 2D float64 arrays ``a`` and ``b`` is finite."""
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            if not np.isfinite(a[i, j]):
+                return False
+    for i in range(b.shape[0]):
+        for j in range(b.shape[1]):
+            if not np.isfinite(b[i, j]):
+                return False
+    return True
+
+
+def _kernel_ready(a: np.ndarray) -> bool:
+    """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
+    small kernels here are compiled for (the warm-up compiles those; another layout or a
+    read-only array would compile another specialization on a rig frame)."""
+    f = a.flags
+    return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
+
+
+def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
+    """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
+    in NumPy, nothing compiles)."""
+    if numpy or not (_kernel_ready(a) and _kernel_ready(b)):
+        return bool(np.isfinite(a).all() and np.isfinite(b).all())
+    return bool(_finite_kernel(a, b))
+
+
+@njit(cache=True)
+def _spread_kernel(tau):
+    """``tau.max() - tau.min()`` of a non-empty finite (N,) float64 array."""
+    lo = hi = tau[0]
+    for v in tau:
+        if v < lo:
+            lo = v
+        if v > hi:
+            hi = v
+    return hi - lo
+
+
+def _spread(tau: np.ndarray, numpy: bool) -> float:
+    """``float(tau.max() - tau.min())`` of a non-empty finite (N,) array (``numpy``: in
+    NumPy, nothing compiles)."""
+    return float(tau.max() - tau.min()) if numpy else float(_spread_kernel(tau))
+
+
+@njit(cache=True)
+def _selected_per_camera(mask, cam, M):
+    """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
+    out = np.zeros(M, dtype=np.int64)
+    for i in range(len(mask)):
+        if mask[i]:
+            out[cam[i]] += 1
+    return out
 
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
-    ends = itertools.accumulate((int(n) for n in counts), initial=0)
-    return [slice(a, b) for a, b in itertools.pairwise(ends)]
+    out, a = [], 0
+    for n in counts:
+        out.append(slice(a, a + int(n)))
+        a += int(n)
+    return out
 
 
 class _Pool:
@@ -628,26 +717,34 @@ class _Pool:
         self.R_mount = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
         self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
         self.mount_cov = [q[2] for q in parts]
+        #: some camera's mounting has a covariance
+        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
         self.sizes = [q[3] for q in parts]
         n = [len(q[5]) for q in parts]
-        self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
+        self._sizes_valid = tuple(int(k) for k in n)
+        #: every input row of every camera is valid (the pool's rows are the views' in order)
+        self.all_valid = self._sizes_valid == tuple(self.sizes)
         if parts:
-            cols = list(zip(*parts, strict=True))
-            self.x = np.concatenate(cols[4])
-            self.X = np.concatenate(cols[5])
-            self.uv = np.concatenate(cols[6])
-            self.tau = np.concatenate(cols[7])
-            self.row = np.concatenate(cols[8])
-            self.focal = np.repeat(np.array(cols[9], dtype=float), n)
-            self.A = np.ascontiguousarray(np.concatenate(cols[10]))
+            self.cam = np.empty(sum(n), dtype=np.int64)
+            self.focal = np.empty(len(self.cam))
+            for c, (q, s) in enumerate(zip(parts, self.slices, strict=True)):
+                self.cam[s] = c
+                self.focal[s] = q[9]
+            self.x = np.concatenate([q[4] for q in parts])
+            self.X = np.concatenate([q[5] for q in parts])
+            self.uv = np.concatenate([q[6] for q in parts])
+            self.tau = np.concatenate([q[7] for q in parts])
+            self.row = np.concatenate([q[8] for q in parts])
+            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
         else:
+            self.cam = np.zeros(0, dtype=np.int64)
             self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
             self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
-        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
+        self.tau_spread = _spread(self.tau, self.numpy) if len(self.tau) else 0.0
 
     @property
     def r(self) -> np.ndarray:
@@ -674,6 +771,21 @@ class _Pool:
             self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
         )[0]  # fmt: skip
 
+    def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
+        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
+        the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
+        if self.numpy:
+            e = _errors_px(self, *_one(model))[0]
+            return e, float(np.minimum(e**2, th2).sum())
+        R, C, w, t = model
+        f = np.float64
+        e, cost = _errors_cost_kernel(
+            np.ascontiguousarray(R, dtype=f), np.ascontiguousarray(C, dtype=f),
+            np.ascontiguousarray(w, dtype=f), np.ascontiguousarray(t, dtype=f),
+            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2,
+        )  # fmt: skip
+        return e, float(cost)
+
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
         out = []
@@ -689,8 +801,10 @@ class _Pool:
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
         if mask is None:
-            return tuple(s.stop - s.start for s in self.slices)
-        return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
+            return self._sizes_valid
+        if self.numpy or mask.dtype != np.bool_ or not _kernel_ready(mask):
+            return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
+        return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
 
     def degenerate(self, threshold_px: float) -> bool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
@@ -762,6 +876,158 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
         for i in range(N):
             out[h, i] = np.sqrt(d[h, i, 0] ** 2 + d[h, i, 1] ** 2)
     return out
+
+
+@njit(cache=True)
+def _block_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
+    block: sequentially below 8, else in 8 interleaved partial sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    m = n - n % 8
+    while i < m:
+        j = lo + i
+        r0 += a[j]
+        r1 += a[j + 1]
+        r2 += a[j + 2]
+        r3 += a[j + 3]
+        r4 += a[j + 4]
+        r5 += a[j + 5]
+        r6 += a[j + 6]
+        r7 += a[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_sum(a, lo, n):
+    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
+    float64 row, to the bit): blocks of at most 128 (:func:`_block_sum`), larger ranges
+    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
+    stack)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
+    vals = np.empty(128)
+    sp, vp = 1, 0
+    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
+    while sp > 0:
+        sp -= 1
+        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
+        if m <= 128:
+            vals[vp] = _block_sum(a, a0, m)
+            vp += 1
+        elif done:
+            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
+            vp -= 1
+        else:
+            n2 = m // 2
+            n2 -= n2 % 8
+            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
+            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
+            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
+            sp += 3
+    return vals[0]
+
+
+@njit(cache=True)
+def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
+    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
+    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
+    or the first NaN). A model whose running cost already exceeds the best one's is left
+    before its last points: the hypotheses' models and the points are finite, so that no
+    later point makes its cost NaN."""
+    H, N = R.shape[0], X.shape[0]
+    e = np.empty(N)
+    v = np.empty(N)
+    best_e = np.zeros(N)
+    best, best_cost = -1, 0.0
+    # a model is left once the plain running sum of its first capped squares exceeds the
+    # best cost by this factor: its pairwise sum over every point is then larger (each sum of
+    # N non-negative terms is within N * 2^-52 of the exact one), so it is not the argmin
+    stop = 1.0 + 1e-9
+    for h in range(H):
+        bound = best_cost * stop if best >= 0 and np.isfinite(best_cost) else np.inf
+        run = 0.0
+        left = False
+        for i in range(N):
+            # (:func:`_residuals_kernel`'s point, written out: the same operations)
+            # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
+            y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
+            y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
+            y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
+            ti = tau[i]
+            p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
+            th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+            if th < 1e-12:
+                z0 = y0 + p1 * y2 - p2 * y1
+                z1 = y1 + p2 * y0 - p0 * y2
+                z2 = y2 + p0 * y1 - p1 * y0
+            else:
+                k0, k1, k2 = p0 / th, p1 / th, p2 / th
+                c, s = np.cos(th), np.sin(th)
+                kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
+                z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
+                z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
+                z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
+            z0 += C[h, 0] + ti * t[h, 0]
+            z1 += C[h, 1] + ti * t[h, 1]
+            z2 += C[h, 2] + ti * t[h, 2]
+            c_ = cam[i]
+            q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+            q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+            q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+            if q2 <= 1e-9:
+                d0 = np.inf
+                d1 = np.inf
+            else:
+                ex = q0 / q2 - x[i, 0]
+                ey = q1 / q2 - x[i, 1]
+                d0 = A[i, 0] * ex + A[i, 1] * ey
+                d1 = A[i, 2] * ex + A[i, 3] * ey
+            e[i] = np.sqrt(d0**2 + d1**2)
+            q = e[i] * e[i]
+            v[i] = th2 if q > th2 else q
+            run += v[i]
+            if run > bound:
+                left = True
+                break
+        if left:
+            continue
+        c = _pairwise_sum(v, 0, N)
+        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
+            best, best_cost = h, c
+            best_e[:] = e
+    return best, best_cost, best_e
+
+
+@njit(cache=True)
+def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
+    squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
+    ``t`` (3,)."""
+    N = X.shape[0]
+    d = np.empty((1, N, 2))
+    _residuals_kernel(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
+                      X, tau, cam, Rm, cm, x, A, d)  # fmt: skip
+    e = np.empty(N)
+    v = np.empty(N)
+    for i in range(N):
+        e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
+        q = e[i] * e[i]
+        v[i] = th2 if q > th2 else q
+    return e, _pairwise_sum(v, 0, N)
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
@@ -859,14 +1125,16 @@ def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     if hit is not None and hit[0] is subset:
         return hit[1]
     if subset is None:  # (the pool's cameras' slices: the same numbers in Python floats)
-        n = [s.stop - s.start for s in pool.slices]
+        n = pool.counts()
         eligible = [c for c, k in enumerate(n) if k >= 3]
-        total, acc, cdf = sum(n[c] for c in eligible), 0.0, []
+        total, acc, cdf = 0, 0.0, []
+        for c in eligible:
+            total += n[c]
         for c in eligible:  # (np.cumsum's sequential sums of the same quotients)
             acc += n[c] / total
             cdf.append(acc)
-        cdf = np.array(cdf)
-        cdf /= cdf[-1]
+        last = cdf[-1]  # (then divided by the last: IEEE divisions, as NumPy's)
+        cdf = np.array([a / last for a in cdf])
         out = (np.array(n, dtype=np.int64), np.array([s.start for s in pool.slices], np.int64),
                np.array(eligible, dtype=np.int64), cdf, len(pool.cam))  # fmt: skip
         pool._sampling = (subset, out)
@@ -1008,7 +1276,7 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     S, Rg = samples[own[spread]], R[spread]
     for _ in range(rounds):
         k = len(S)
-        held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
+        held = (_identities(k), np.zeros((k, 6)))
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         if not b.valid.any():
             return R, C, z, z.copy()
@@ -1017,6 +1285,19 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
+
+
+@functools.lru_cache(maxsize=4)
+def _identity_stack(n: int) -> np.ndarray:
+    """(n, 6, 6) identities (:func:`_identities`; shared, never written: writeable only so
+    that the rig solver's kernel takes them as any other prior rows)."""
+    return np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
+
+
+def _identities(k: int) -> np.ndarray:
+    """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
+    stack built for a power of two at least ``k``: a search corrects every batch's samples."""
+    return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
@@ -1076,15 +1357,29 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     if pool.numpy:
         R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     else:
-        R_cam, C_cam, own = lambda_twist_batch(
-            _bearings(pool)[samples[:, :3]], pool.X[samples[:, :3]]
-        )
+        R_cam, C_cam, own = _lambda_twist_of(_bearings(pool), pool.X, samples)
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
     R = RcT @ R_cam
     C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     return R, C, own
+
+
+@njit(cache=True)
+def _lambda_twist_of(bearings, X, samples):
+    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3)."""
+    K = samples.shape[0]
+    b = np.empty((K, 3, 3))
+    P = np.empty((K, 3, 3))
+    for k in range(K):
+        for j in range(3):
+            i = samples[k, j]
+            for a in range(3):
+                b[k, j, a] = bearings[i, a]
+                P[k, j, a] = X[i, a]
+    return lambda_twist_batch(b, P)
 
 
 def _refit(
@@ -1149,7 +1444,16 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
     of a rig frame take it."""
     m = pool.__dict__.get("_kernel_mountings")
     if m is None:
-        m = pool._kernel_mountings = kernel_mountings(_mountings(pool), len(pool.X))
+        f = np.float64
+        Rm, cm = np.ascontiguousarray(pool.R_mount, f), np.ascontiguousarray(pool.c_mount, f)
+        n, cam, A = len(pool.X), pool.cam, pool.A
+        if cam.dtype == np.int64 and A.dtype == f and A.flags.c_contiguous and A.shape == (n, 4):
+            # (the pool's own arrays, already in the kernel's form and consistent: each
+            # camera index in range, one row of A per point)
+            m = KernelMountings(n, (np.ascontiguousarray(cam), Rm, cm, A))
+        else:
+            m = kernel_mountings(_mountings(pool), n)
+        pool._kernel_mountings = m
     return m
 
 
@@ -1206,16 +1510,31 @@ def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float,
     on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
     out = np.empty(OUT_SIZE)
     f = np.float64
+    X, x, tau, views = _kernel_arrays(pool)
     LM_REFINE_KERNEL(
         np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
         np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
         np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
-        np.ascontiguousarray(pool.tau, dtype=f), k, 12 if rolling else 6, cutoff, iterations,
-        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, pool.mountings().views,
+        X, x, tau, k, 12 if rolling else 6, cutoff, iterations,
+        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, views,
     )  # fmt: skip
-    return (out[OUT_R:OUT_C].reshape(3, 3).copy(), out[OUT_C:OUT_W].copy(),
-            out[OUT_W:OUT_T].copy(), out[OUT_T:OUT_COV].copy())  # fmt: skip
+    # (views of this call's own buffer: no other model shares it)
+    return (out[OUT_R:OUT_C].reshape(3, 3), out[OUT_C:OUT_W], out[OUT_W:OUT_T],
+            out[OUT_T:OUT_COV])  # fmt: skip
+
+
+def _kernel_arrays(pool: _Pool) -> tuple:
+    """The pool's ``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous
+    float64 arrays, :func:`_kernel_mountings`' views), built once per pool: a rig frame
+    refines and scores several times."""
+    a = pool.__dict__.get("_kernel_arrays")
+    if a is None:
+        f = np.float64
+        a = pool._kernel_arrays = (
+            np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
+            np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
+        )  # fmt: skip
+    return a
 
 
 def _final(
@@ -1318,7 +1637,7 @@ def _covariance(
         return None, None
     cov = np.zeros((12, 12))
     cov[:free, :free] = sigma2 * Hinv
-    if mounts and any(mc is not None for mc in pool.mount_cov):
+    if mounts and pool.has_mount_cov:
         cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
     cov = 0.5 * (cov + cov.T)
     if not np.isfinite(cov).all():
@@ -1366,12 +1685,51 @@ def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
     RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
     code, behind = 0, 0
     X, tau = pool.X, pool.tau
+    if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
+        # (the same check on every camera in one compiled call)
+        bounds = pool.__dict__.get("_bounds")
+        if bounds is None:
+            bounds = pool._bounds = np.array(
+                [(s.start, s.stop) for s in pool.slices], dtype=np.int64
+            ).reshape(-1, 2)
+        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds)
+        return int(code), int(behind)
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
             continue
         k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
         code, behind = max(code, int(k)), behind + int(n)
     return code, behind
+
+
+@njit(cache=True)
+def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
+    """:func:`~.plausibility.final_model_check` of each camera c's model ``(RcR[c], RcC[c],
+    Rcw[c], Rct[c])`` on its rows ``bounds[c, 0]:bounds[c, 1]`` of the pool's points (without
+    motion bounds): (the largest code, the number of points behind their cameras)."""
+    code, behind = 0, 0
+    for c in range(bounds.shape[0]):
+        a, b = bounds[c, 0], bounds[c, 1]
+        if b == a:
+            continue
+        k, n = final_model_check(RcR[c], RcC[c], Rcw[c], Rct[c], X[a:b], tau[a:b], inl[a:b],
+                                 np.inf, np.inf)  # fmt: skip
+        code = max(code, k)
+        behind += n
+    return code, behind
+
+
+def _rms(e: np.ndarray) -> float:
+    """``float(np.sqrt(np.mean(e ** 2)))`` of a non-empty (N,) array (``np.mean``'s sum
+    divided by N, the same numbers)."""
+    return math.sqrt(float(np.add.reduce(e * e)) / len(e))
+
+
+def _copies(model) -> tuple:
+    """Float64 copies of a model's ``(R, C, w, t)``."""
+    f = float
+    return (np.array(model[0], dtype=f), np.array(model[1], dtype=f),
+            np.array(model[2], dtype=f), np.array(model[3], dtype=f))  # fmt: skip
 
 
 def _one(model):
@@ -1630,7 +1988,9 @@ def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
 def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
     """The views with the points of cameras ``drop`` removed (the cameras keep their place)."""
     return [
-        replace(v, uv=np.zeros((0, 2)), X=np.zeros((0, 3))) if c in drop else v
+        RigView(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
+        if c in drop
+        else v
         for c, v in enumerate(views)
     ]
 
@@ -1751,12 +2111,15 @@ def _evened(pool: _Pool, voters) -> _Pool:
         [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
     )
     out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_sampling", "_bearing_rows"):
+    for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling",
+                   "_bearing_rows", "_bounds"):  # fmt: skip
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
     sizes = [k * (s.stop - s.start) for s, k in zip(pool.slices, copies, strict=True)]
     out.slices = _stacked(sizes)
+    out._sizes_valid = tuple(sizes)
+    out.all_valid = False
     return out
 
 
@@ -1933,6 +2296,37 @@ def _search_batches(r: RansacOptions) -> RansacOptions:
     return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
 
 
+#: the last options' batches (:func:`_search_batches_of`): ``[(options, batches)]``
+_LAST_BATCHES: list = [None]
+
+
+def _search_batches_of(r: RansacOptions) -> RansacOptions:
+    """:func:`_search_batches` of ``r``, the last options' kept by identity (a frozen
+    dataclass hashes all of its fields on every look-up)."""
+    hit = _LAST_BATCHES[0]
+    if hit is None or hit[0] is not r:
+        hit = _LAST_BATCHES[0] = (r, _search_batches(r))
+    return hit[1]
+
+
+#: each thread's random generator of its last search's seed (:func:`_search_rng`)
+_RNGS = threading.local()
+
+
+def _search_rng(seed) -> np.random.Generator:
+    """``seeded_rng(seed)``'s generator (the same stream from its start): for an int seed
+    this thread's generator of the last such seed, set back to its seeded state (a search
+    draws from it until it ends, before the thread's next search starts), else a new one."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        return seeded_rng(seed)
+    hit = getattr(_RNGS, "last", None)
+    if hit is None or hit[0] != int(seed):
+        rng = seeded_rng(seed)
+        hit = _RNGS.last = (int(seed), rng, rng.bit_generator.state)
+    hit[1].bit_generator.state = hit[2]
+    return hit[1]
+
+
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
 #: candidates and the one it returns
 _ERRORS_KEPT = 6
@@ -1953,7 +2347,7 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset = anchored, subset
-        self.rng = seeded_rng(r.seed)
+        self.rng = _search_rng(r.seed)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
@@ -1961,7 +2355,7 @@ class _RigSearch(RansacLoop):
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e, self._cost = np.zeros(0), 0.0
         self._costed: list = []
-        self.batches = _search_batches(r)
+        self.batches = _search_batches_of(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
@@ -1973,15 +2367,18 @@ class _RigSearch(RansacLoop):
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
-        e = self.errors(model)
-        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
-        return float(np.minimum(e**2, self.th2).sum())
+        for m, _, cost in self._costed:
+            if m is model:  # (the same object, measured again: local optimization's)
+                return cost
+        e, cost = self.pool.scored(model, self.th2)
+        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
+        return cost
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
         last :data:`_ERRORS_KEPT` models :meth:`cost` measured when it is one of them (the
         same object: the final refinement compares several)."""
-        for m, e in self._costed:
+        for m, e, _ in self._costed:
             if m is model:
                 return e
         return self.pool.errors(model)
@@ -2005,13 +2402,27 @@ class _RigSearch(RansacLoop):
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
-        e = _errors_px(self.pool, *hyp)
-        cost = np.minimum(e * e, self.th2).sum(axis=1)
-        h = int(np.argmin(cost))
-        self._e, self._cost = e[h], float(cost[h])
+        pool = self.pool
+        if pool.numpy:
+            e = _errors_px(pool, *hyp)
+            cost = np.minimum(e * e, self.th2).sum(axis=1)
+            h = int(np.argmin(cost))
+            self._e, self._cost = e[h], float(cost[h])
+        else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
+            f = [np.ascontiguousarray(a, dtype=np.float64) for a in hyp]
+            h, cost, self._e = _best_msac_kernel(
+                *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A,
+                self.th2,
+            )  # fmt: skip
+            self._cost = float(cost)
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
+            n, missed = _inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
+            if self.still and not self.spread:
+                self.missed = missed if missed.any() else None
+            return self._cost, model, float(n / len(self._e))
         inl = self._e < self.threshold_px
         if self.still and not self.spread:
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
@@ -2022,6 +2433,22 @@ class _RigSearch(RansacLoop):
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
         # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
         return self._cost, model, float(ratio)
+
+
+@njit(cache=True)
+def _inliers_missed(e, k, cam, counts):
+    """``(the number of errors e (N,) below k, (M,) bool: the cameras of at least 3 points
+    (``counts``) with none of them)``."""
+    hit = np.zeros(len(counts), dtype=np.int64)
+    n = 0
+    for i in range(len(e)):
+        if e[i] < k:
+            n += 1
+            hit[cam[i]] += 1
+    missed = np.empty(len(counts), dtype=np.bool_)
+    for c in range(len(counts)):
+        missed[c] = counts[c] >= 3 and hit[c] == 0
+    return n, missed
 
 
 def _rig_estimate(
@@ -2038,7 +2465,7 @@ def _rig_estimate(
     if model is None:
         z = np.zeros(3)
         model = (np.eye(3), z, z, z.copy())
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    R, C, w, t = _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
@@ -2047,7 +2474,7 @@ def _rig_estimate(
         success=record.get("failure") is None,
         solver=RIG_SOLVER,
         model=RSModel(R, C, w, t),
-        inliers=_joined(per),
+        inliers=np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
         inliers_per_view=per,
         num_inliers_per_view=pool.counts(inl),
         num_valid_per_view=pool.counts(),
@@ -2083,26 +2510,32 @@ def _inconsistent_fit(
     (rolling shutter) or 6."""
     R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
     compiled = not pool.numpy
-    ratio = [np.count_nonzero(inl[s]) / max(s.stop - s.start, 1) for s in pool.slices]
+    sizes, counts = pool.counts(), pool.counts(inl)
+    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
     best = max(ratio, default=0.0)
-    support = np.zeros(len(inl), dtype=bool)
+    supporting, n, n_inl = [], 0, 0
     for c, s in enumerate(pool.slices):
-        ic = inl[s]
         if ratio[c] == 0.0 or ratio[c] < AGREE_SHARE * best:
             continue
-        support[s] = True
-        X = pool.X[s]
-        # (the planarity of the camera's points only when its inliers are one plane)
-        if ic.all() or np.count_nonzero(ic) < 3 or planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
+        supporting.append(s)
+        n, n_inl = n + sizes[c], n_inl + counts[c]
+        # (the planarity of the camera's points only when its inliers are one plane; every
+        # point an inlier, or fewer than 3: not a plane seen from behind)
+        if counts[c] == sizes[c] or counts[c] < 3:
+            continue
+        X, ic = pool.X[s], inl[s]
+        if planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
             continue
         if planarity(X, compiled=compiled) >= PLANAR_TOLERANCE:
             Rm, cm = pool.R_mount[c], pool.c_mount[c]
             centre = camera_position(Rm @ R, Rm @ C + cm)
             if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
                 return True
-    n, n_inl = int(np.count_nonzero(support)), int(np.count_nonzero(inl[support]))
     if n_inl >= MIRRORED_FIT_FRACTION * n:
         return False
+    support = np.zeros(len(inl), dtype=bool)
+    for s in supporting:
+        support[s] = True
     if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
         return False
     rolling = free == 12
@@ -2207,7 +2640,7 @@ def _estimate(
         first = refined[1] if refined is not None and refined[0] is model else None
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    R, C, w, t = _copies(model)
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         if still and not spread:  # (every sample corrected across the cameras: docstring)
@@ -2243,7 +2676,7 @@ def _estimate(
         out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=float(np.sqrt(np.mean(e[inl] ** 2))),
+        rmse_px=_rms(e[inl]),
         num_behind=behind,
         model_covariance=cov,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
