@@ -18,7 +18,7 @@ from .r6p_vCt_w import r6p_vCt_w, r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt, r6p_vCt_wt_batch
 from .r9p import r9p, r9p_batch
 
-__all__ = ["SOLVERS", "SOLVER_NAMES", "SolverInfo", "sample_size", "solver_info"]
+__all__ = ["DEFAULT_SOLVER", "SOLVERS", "SOLVER_NAMES", "SolverInfo", "sample_size", "solver_info"]
 
 #: how RANSAC makes hypotheses with a solver
 GLOBAL_SHUTTER = "global_shutter"  # the P3P pre-rotation itself is the hypothesis (w = t = 0)
@@ -198,6 +198,10 @@ SOLVERS: dict[str, SolverInfo] = {
 
 #: solver names in a stable order (parameter descriptions, CLI choices, benchmarks)
 SOLVER_NAMES = tuple(SOLVERS)
+
+#: the solver of a camera's frames unless its settings name another: the paper's linear
+#: rolling-shutter solver R6P_{v,C,w,t}^{[v]x} (sec. 3.3)
+DEFAULT_SOLVER = "r6p_1lin"
 
 
 def solver_info(name: str) -> SolverInfo:

@@ -163,7 +163,7 @@ from ..estimation.single_tag import coplanar_points
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
-from ..solvers.registry import solver_info
+from ..solvers.registry import DEFAULT_SOLVER, solver_info
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
@@ -270,8 +270,8 @@ RIG_PATHS = STATES
 
 
 #: the default minimal solver of one camera (:attr:`RigSettings.solver` of a rig of one, and
-#: :attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`)
-SINGLE_CAMERA_SOLVER = "r6p_1lin"
+#: :attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`): the registry's default
+SINGLE_CAMERA_SOLVER = DEFAULT_SOLVER
 
 #: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
 #: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
