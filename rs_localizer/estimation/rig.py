@@ -821,47 +821,56 @@ class _Pool:
         return True
 
 
+@njit(cache=True, inline="always")
+def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
+    """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
+    the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
+    :class:`_Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
+    camera. Inlined into each kernel that needs it (the same operations in each)."""
+    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
+    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
+    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
+    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
+    ti = tau[i]
+    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
+    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    if th < 1e-12:
+        z0 = y0 + p1 * y2 - p2 * y1
+        z1 = y1 + p2 * y0 - p0 * y2
+        z2 = y2 + p0 * y1 - p1 * y0
+    else:
+        k0, k1, k2 = p0 / th, p1 / th, p2 / th
+        c, s = np.cos(th), np.sin(th)
+        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
+        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
+        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
+        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
+    z0 += C[h, 0] + ti * t[h, 0]
+    z1 += C[h, 1] + ti * t[h, 1]
+    z2 += C[h, 2] + ti * t[h, 2]
+    c_ = cam[i]
+    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+    if q2 <= 1e-9:
+        return np.inf, np.inf
+    ex = q0 / q2 - x[i, 0]
+    ey = q1 / q2 - x[i, 1]
+    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+
+
 @njit(cache=True)
 def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
     normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`_Pool`): to first order the error in the measured image; inf behind the camera)."""
+    :class:`_Pool`): to first order the error in the measured image; inf behind the camera;
+    :func:`_point_residual`)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
-            # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-            y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-            y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-            y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-            ti = tau[i]
-            p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-            th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-            if th < 1e-12:
-                z0 = y0 + p1 * y2 - p2 * y1
-                z1 = y1 + p2 * y0 - p0 * y2
-                z2 = y2 + p0 * y1 - p1 * y0
-            else:
-                k0, k1, k2 = p0 / th, p1 / th, p2 / th
-                c, s = np.cos(th), np.sin(th)
-                kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-                z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-                z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-                z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-            z0 += C[h, 0] + ti * t[h, 0]
-            z1 += C[h, 1] + ti * t[h, 1]
-            z2 += C[h, 2] + ti * t[h, 2]
-            c_ = cam[i]
-            q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-            q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-            q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-            if q2 <= 1e-9:
-                out[h, i, 0] = np.inf
-                out[h, i, 1] = np.inf
-            else:
-                ex = q0 / q2 - x[i, 0]
-                ey = q1 / q2 - x[i, 1]
-                out[h, i, 0] = A[i, 0] * ex + A[i, 1] * ey
-                out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
+            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            out[h, i, 0] = d0
+            out[h, i, 1] = d1
 
 
 @njit(cache=True)
@@ -962,40 +971,7 @@ def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
         run = 0.0
         left = False
         for i in range(N):
-            # (:func:`_residuals_kernel`'s point, written out: the same operations)
-            # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-            y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-            y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-            y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-            ti = tau[i]
-            p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-            th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-            if th < 1e-12:
-                z0 = y0 + p1 * y2 - p2 * y1
-                z1 = y1 + p2 * y0 - p0 * y2
-                z2 = y2 + p0 * y1 - p1 * y0
-            else:
-                k0, k1, k2 = p0 / th, p1 / th, p2 / th
-                c, s = np.cos(th), np.sin(th)
-                kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-                z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-                z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-                z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-            z0 += C[h, 0] + ti * t[h, 0]
-            z1 += C[h, 1] + ti * t[h, 1]
-            z2 += C[h, 2] + ti * t[h, 2]
-            c_ = cam[i]
-            q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-            q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-            q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-            if q2 <= 1e-9:
-                d0 = np.inf
-                d1 = np.inf
-            else:
-                ex = q0 / q2 - x[i, 0]
-                ey = q1 / q2 - x[i, 1]
-                d0 = A[i, 0] * ex + A[i, 1] * ey
-                d1 = A[i, 2] * ex + A[i, 3] * ey
+            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
             e[i] = np.sqrt(d0**2 + d1**2)
             q = e[i] * e[i]
             v[i] = th2 if q > th2 else q
