@@ -120,6 +120,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
+from .._so3 import INLINE
 from ..camera import CameraModel
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
@@ -821,12 +822,13 @@ class _Pool:
         return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
     """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
     the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
     :class:`_Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
-    camera. Inlined into each kernel that needs it (the same operations in each)."""
+    camera. Inlined (numba permitting: ``INLINE``) into each kernel that needs it: the same
+    operations in each."""
     # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
     y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
     y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
