@@ -128,7 +128,6 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
-import copy
 import math
 import time
 from collections import Counter, deque
@@ -1893,18 +1892,14 @@ def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEsti
         if cov is not None:
             k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
             cov = cov * k[:, None] * k[None, :]
-    # (dataclasses.replace's fields, set on a shallow copy: a frame's estimate has some forty
-    # fields, and a camera's video makes this once per frame)
-    out = copy.copy(est)
-    for name, value in (
-        ("model", model),
-        ("model_covariance", cov),
-        ("inliers_per_view", (est.inliers,)),
-        ("num_inliers_per_view", (est.num_inliers,)),
-        ("num_valid_per_view", (est.num_valid,)),
-    ):
-        object.__setattr__(out, name, value)
-    return out
+    return replace(
+        est,
+        model=model,
+        model_covariance=cov,
+        inliers_per_view=(est.inliers,),
+        num_inliers_per_view=(est.num_inliers,),
+        num_valid_per_view=(est.num_valid,),
+    )
 
 
 def _offsets_text(offsets: dict) -> str:
