@@ -61,8 +61,9 @@ from ..correspondences import (
     video_frontend,
 )
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.options import EstimateOptions
+from ..estimation.options import EstimateOptions, points_needed
 from ..estimation.points import cap_points
+from ..estimation.single_tag import coplanar_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState
@@ -88,6 +89,7 @@ __all__ = [
     "image_sample",
     "same_image",
     "search_image",
+    "too_few_points",
     "usable_rows",
 ]
 
@@ -183,6 +185,19 @@ def finite_rows(
         uv, xyz = uv[good], xyz[good]
         scores = None if scores is None else scores[good]
     return uv, xyz, scores, n_bad
+
+
+def too_few_points(
+    points3d: np.ndarray, solver: str, options: EstimateOptions | None
+) -> int | None:
+    """The rule by which a camera's image is dropped before the estimator: the number of
+    correspondences ``solver`` needs with ``options`` (None: the defaults;
+    :func:`~rs_localizer.estimation.options.points_needed`) when the front end found fewer
+    (``points3d`` (N, 3) m, its rows) and they are not one marker's coplanar corners (which
+    the estimator poses alone, :func:`~rs_localizer.estimation.single_tag.coplanar_points`);
+    None when the frame goes on to the estimator."""
+    need = points_needed(solver, options if options is not None else EstimateOptions())
+    return need if len(points3d) < need and not coplanar_points(points3d) else None
 
 
 def usable_rows(

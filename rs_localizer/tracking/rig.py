@@ -139,7 +139,7 @@ from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Frontend, VideoFrontend
-from ..estimation.estimate import InitialModel, estimate_rs_pose, points_needed
+from ..estimation.estimate import InitialModel, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
 from ..estimation.options import EstimateOptions
@@ -158,7 +158,6 @@ from ..estimation.rig import (
     camera_model_of_rig,
     estimate_rig_pose,
 )
-from ..estimation.single_tag import coplanar_points
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
@@ -174,6 +173,7 @@ from .localizer import (
     LocalizerOutput,
     VideoLocalizer,
     search_image,
+    too_few_points,
     usable_rows,
 )
 from .tracker import (
@@ -1240,7 +1240,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         its images as its camera's video does: the stamp checked first
         (:meth:`check_time`; after a time reset the image is not compared with the last
         one), and an image whose front end found fewer correspondences than its solver needs
-        (:func:`~rs_localizer.estimation.estimate.points_needed`, unless they are one
+        (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
         marker's coplanar corners) skipped as ``frontend_too_few_points``.
 
         Args:
@@ -1294,7 +1294,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         if self._single:  # (its camera's rule: too few correspondences never reach the solver)
             s = self.settings
-            if len(uv) < points_needed(s.solver, s.options) and not coplanar_points(xyz):
+            if too_few_points(xyz, s.solver, s.options) is not None:
                 return self._observed(self._drop(name, stamp, ref, "frontend_too_few_points"))
         uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)

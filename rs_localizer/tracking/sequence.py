@@ -75,9 +75,8 @@ from ..camera import (
     reference_stamp_ns,
 )
 from ..correspondences import Correspondences, Frontend, VideoFrontend
-from ..estimation.estimate import EstimateOptions, points_needed
+from ..estimation.estimate import EstimateOptions
 from ..estimation.implementation import default_implementation
-from ..estimation.single_tag import coplanar_points
 from ..frames import Mounting
 from ..pose import RSModel
 from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
@@ -90,6 +89,7 @@ from .localizer import (
     LocalizerOutput,
     check_camera,
     search_image,
+    too_few_points,
     usable_rows,
 )
 from .rig import SINGLE_CAMERA_SOLVER, RigLocalizer, RigSettings
@@ -480,8 +480,8 @@ class SequenceLocalizer(GyroReadouts):
         found = out.correspondences = r.found
         out.frontend_seconds = r.seconds
         uv, xyz, scores = found.points2d, found.points, found.valid_scores()
-        need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
-        if len(uv) < need and not coplanar_points(xyz):  # (one marker's: the estimator's)
+        need = too_few_points(xyz, s.solver, s.options)
+        if need is not None:
             what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
             out.failure = FRONTEND_FAILURES[1]
             out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
