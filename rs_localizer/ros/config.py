@@ -51,6 +51,7 @@ __all__ = [
     "rig_unused",
     "rig_unused_text",
     "rig_used_values",
+    "same_value",
     "tracker_options",
 ]
 
@@ -591,7 +592,7 @@ def rig_unused(values: Mapping[str, Any]) -> tuple[str, ...]:
         for name, par in PARAMETERS.items()
         if _rig_unused_group(name) is not None
         and name in values
-        and not _same_value(values[name], par.default)
+        and not same_value(values[name], par.default)
     )
 
 
@@ -604,12 +605,16 @@ def rig_used_values(values: Mapping[str, Any]) -> dict:
     return {**values, **{name: PARAMETERS[name].default for name in rig_unused(values)}}
 
 
-def _same_value(a: Any, b: Any) -> bool:
-    """Parameter values ``a`` and ``b`` equal (lists element-wise, ints as floats)."""
-    if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)):
-        a, b = list(a or []), list(b or [])
-        return len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b, strict=True))
-    return a == b
+def same_value(a: Any, b: Any) -> bool:
+    """Whether two parameter values are the same: sequences (a list, a tuple, ROS's
+    ``array.array``) element by element, numbers by value (an int as the float it equals),
+    strings as they are."""
+    if isinstance(a, (str, bytes)) or isinstance(b, (str, bytes)):
+        return a == b
+    try:
+        return list(a) == list(b)
+    except TypeError:
+        return a == b
 
 
 def rig_unused_text(names: Iterable[str]) -> str | None:

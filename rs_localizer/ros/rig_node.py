@@ -104,6 +104,7 @@ from .config import (
     rig_change_refused,
     rig_config,
     rig_used_values,
+    same_value,
 )
 from .core import NodeCore
 from .declare import declare_parameters
@@ -116,16 +117,6 @@ from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
-
-
-def _same(a: Any, b: Any) -> bool:
-    """Whether two parameter values are the same (an array as a list or an ``array.array``)."""
-    if isinstance(a, (str, bytes)) or isinstance(b, (str, bytes)):
-        return a == b
-    try:
-        return list(a) == list(b)
-    except TypeError:
-        return a == b
 
 
 INPUT_SKIP_REASONS = {
@@ -434,7 +425,9 @@ class RigCore(NodeCore):
             ConfigError: a value that cannot be used, or a change refused (naming them).
         """
         if check:
-            changed = [n for n, v in overrides.items() if not _same(v, self.get_parameter(n).value)]
+            changed = [
+                n for n, v in overrides.items() if not same_value(v, self.get_parameter(n).value)
+            ]
             refused = rig_change_refused(changed)
             if refused is not None:
                 raise ConfigError(refused)
