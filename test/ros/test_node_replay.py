@@ -106,6 +106,11 @@ def test_replay_writes_what_the_node_publishes(
     else:
         bag, files, frame_topic = sample_bag, [CONFIG], "/camera/correspondences"
         params = {}
+    # The node publishes a frame's fused twist without the next frame once no frame has come
+    # for ``tracking.max_gap`` s of wall time; replay never waits. On a busy machine the
+    # lock-step player can take longer than the default 0.5 s between two frames: 3 s keeps
+    # that early twist to the bag's last frame (the bag's stamps are 33 ms apart).
+    params["tracking.max_gap"] = 3.0
     offline, res = _replay_outputs(tmp_path, bag, files, params)
     live, n = _node_outputs(tmp_path, ros_context, bag, files, params, frame_topic)
     assert res.solved == len(res.rows) == n
