@@ -36,10 +36,30 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "(--source). A node still compiling its kernels is waited for. A rig bag (make-bag "
         "--rig, render-bag --rig) publishes every camera's topics; lock-step waits for the "
         "rig's pose (e.g. /rig/pose) after the camera frame that completes each rig frame; "
-        "the rig frames it prints are counted as the rig node counts them.",
+        "the rig frames it prints are counted as the rig node counts them. A recording of a "
+        "rig's cameras (no sequence.json) plays as a rig bag given the rig node's parameter "
+        "file (--params-file with rig.cameras).",
         formatter_class=A.HelpFormatter,
     )
     pl.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
+    pl.add_argument(
+        "--params-file",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="the rig node's parameter file (repeatable; later ones win; over a rig bag's "
+        "rig_params.yaml): with rig.cameras, a recording of the rig's cameras plays as a rig "
+        "bag, its frames grouped into rig frames with these parameters",
+    )
+    pl.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="set a rig node parameter (YAML value, as ros2 run -p; repeatable; over the "
+        "parameter files), e.g. rig.window:=0.02",
+    )
     pl.add_argument(
         "--rate", type=A.nonneg_float, default=1.0, help="time scale (0: as fast as possible)"
     )
@@ -123,6 +143,19 @@ def run(args: argparse.Namespace) -> int:
             )
     from ..ros.bags.play import play
 
+    params = A.param_overrides(args.param)
+    if args.params_file or params:
+        from ..ros.bags.rig_bag import is_rig_bag
+
+        try:
+            rig = is_rig_bag(bag, args.params_file, params)
+        except (OSError, ValueError) as e:
+            raise A.CliError(f"--params-file / -p: {e}") from None
+        if not rig:
+            raise A.CliError(
+                "--params-file / -p: play takes the node's parameters only for a rig's "
+                "cameras (rig.cameras), and these name none; a camera's bag plays without them"
+            )
     output_topics = tuple(args.output_topic) if args.output_topic else None
     res = play(
         bag,
@@ -139,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
         loop=args.loop,
         give_up=args.give_up,
         source=args.source,
+        params_files=args.params_file,
+        params=params,
     )
     kind = "camera frames" if res.rig_frames_in_bag else "frames"
     msg = f"published {res.published} messages, {len(res.frames)} {kind} in {res.wall_time:.2f} s"

@@ -95,3 +95,25 @@ def bag_with_unread_clouds(tmp_path, duration: float = 0.5, seed: int = 7) -> Un
 
     bag = rewrite_bag(clean, tmp_path / "unread", edit)
     return UnreadCloudsBag(bag, cams, frames, stamps, no_x)
+
+
+def recording_of(bag, rec, params):
+    """The rig bag ``bag`` as a recording of its cameras at ``rec``: every ``/rig/...`` topic
+    moved to ``/...`` (the rig node's topics in the root namespace), no sequence.json, no
+    ground truth; the bag's rig_params.yaml copied to ``params``. Returns ``(rec, params)``."""
+    import shutil
+
+    from rosbags.rosbag2 import Writer
+
+    from rs_localizer.ros.bags.bag_io import iter_messages, storage_plugin, typestore
+
+    with Writer(rec, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns, ts = {}, typestore()
+        for topic, mt, t, raw in iter_messages(bag):
+            if topic.startswith("/rig/"):
+                topic = topic[len("/rig") :]
+                if topic not in conns:
+                    conns[topic] = w.add_connection(topic, mt, typestore=ts)
+                w.write(conns[topic], t, raw)
+    shutil.copy(bag / "rig_params.yaml", params)
+    return rec, params

@@ -323,3 +323,39 @@ def test_plays_preloaded_messages_without_a_bag(imu_bag, ros_context):
             time.sleep(0.05)
     assert res.published == len(msgs) > 5 and res.rig_frames == 0
     assert len(got) == 5
+
+
+def test_play_a_recording_of_a_rigs_cameras_with_the_rig_nodes_parameters(
+    tmp_path, ros_domain, capsys
+):
+    """A recording of a rig's cameras (no sequence.json, topics ``/<camera>/...``) plays as a
+    rig bag with the rig node's parameter file: lock-step into the rig node (root namespace)
+    waits for ``/pose`` after each camera frame completing a rig frame, and every rig frame is
+    answered; without the file it is a camera's bag, and parameters naming no rig are
+    refused."""
+    from helpers.rig_bags import recording_of
+
+    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+
+    bag = tmp_path / "rig"
+    assert cli(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--quiet"]) == 0
+    rec, params = recording_of(bag, tmp_path / "recording", tmp_path / "rig.yaml")
+    capsys.readouterr()
+    assert cli(["play", str(rec), "--rate", "0", "--wait", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "16 frames" in out and "rig frames" not in out
+    assert cli(["play", str(rec), "--rate", "0", "--wait", "0", "-p", "publish_tf:=false"]) == 2
+    assert "name none" in capsys.readouterr().err
+    overlay = write_params_yaml(tmp_path / "overlay.yaml", {"publish_tf": False})
+    node = NodeProcess([params, overlay], namespace="", env=ros_env(), log=tmp_path / "n.log")
+    try:
+        assert node.wait_ready(120.0), node.log
+        code = cli(["play", str(rec), "--lockstep", "--params-file", str(params),
+                    "--timeout", "10"])  # fmt: skip
+        out = capsys.readouterr().out
+    finally:
+        alive, rc = node.alive(), node.stop()
+    assert alive and rc == 0, node.log
+    assert code == 0, out
+    assert "16 camera frames" in out and "(8 rig frames: the camera frames grouped" in out
+    assert "8 rig frames completed in 8 waits answered, 0 timed out" in out

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers.rig_bags import cut_image, rewrite_bag
+from helpers.rig_bags import cut_image, recording_of, rewrite_bag
 
 pytest.importorskip("rosbags")
 
@@ -258,27 +258,14 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
     topics under the recording's namespace, here ``/<camera>/...``) is a rig bag when the
     parameters name ``rig.cameras``: replayed and calibrated as the simulated bag it was
     made from; the bag's namespace is found from the cameras' camera_info topics."""
-    import shutil
-
-    from rosbags.rosbag2 import Writer
-
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.bag_io import iter_messages, storage_plugin, typestore
+    from rs_localizer.ros.bags.bag_io import iter_messages
     from rs_localizer.ros.bags.rig_bag import is_rig_bag, replay_rig, rig_namespace
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--points", "80",
                  "--quiet"]) == 0  # fmt: skip
-    rec, params = tmp_path / "recording", tmp_path / "rig.yaml"
-    with Writer(rec, version=9, storage_plugin=storage_plugin("mcap")) as w:
-        conns, ts = {}, typestore()
-        for topic, mt, t, raw in iter_messages(bag):
-            if topic.startswith("/rig/"):
-                topic = topic[len("/rig") :]
-                if topic not in conns:
-                    conns[topic] = w.add_connection(topic, mt, typestore=ts)
-                w.write(conns[topic], t, raw)
-    shutil.copy(bag / "rig_params.yaml", params)
+    rec, params = recording_of(bag, tmp_path / "recording", tmp_path / "rig.yaml")
     assert not is_rig_bag(rec) and is_rig_bag(rec, [params])
     assert rig_namespace(rec, ["front", "left"]) == "" and rig_namespace(bag) == "/rig"
     assert list(iter_messages(rec, {"/ground_truth/pose"})) == []  # (none of those topics)

@@ -230,6 +230,8 @@ def play(
     give_up: int = 3,
     source: str = "auto",
     compile_wait: float = 600.0,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
 ) -> PlayResult:
     """Publish a bag into the ROS graph.
 
@@ -290,6 +292,10 @@ def play(
             before the first frame when, after ``wait_subscribers``, a node takes the frames
             but none publishes a waited topic. 0: never give up.
         compile_wait: lock-step: the longest wait (s) for a node that compiles.
+        params_files, params: the rig node's parameter files and parameters (``rig.cameras``,
+            ``rig.window``, ...), over a rig bag's ``rig_params.yaml``: a recording of a rig's
+            cameras (no ``sequence.json``) is played as a rig bag when they name
+            ``rig.cameras``, and lock-step groups its frames with them.
 
     When ``topics`` is None and a camera namespace has several frame topics, only the one
     :func:`choose_frame_topics` picks is played (a note through ``log`` names the others and
@@ -305,15 +311,18 @@ def play(
 
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")
-    rig = path is not None and is_rig_bag(path)
+    params_files = list(params_files)
+    rig = path is not None and is_rig_bag(path, params_files, params)
     grouping = None
     if rig:  # (its grouping is read beside the first messages sent: it reads the whole bag)
         from concurrent.futures import ThreadPoolExecutor
 
-        from .rig_bag import rig_frame_grouping, rig_namespace
+        from .rig_bag import rig_frame_grouping, rig_namespace, rig_parameter_values
 
+        cameras = rig_parameter_values(path, params_files, params)[0]["rig.cameras"]
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
-        grouping = (rig_namespace(path), pool.submit(rig_frame_grouping, path))
+        ns = rig_namespace(path, [str(n) for n in cameras or ()])
+        grouping = (ns, pool.submit(rig_frame_grouping, path, params_files, params))
         pool.shutdown(wait=False)
     own_context = context is None
     if own_context:
