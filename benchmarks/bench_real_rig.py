@@ -57,7 +57,7 @@ the rig frames' times).
 
 ``--video`` (instead of 2 and 3): the recording as a user's video (:func:`video_run`): every
 camera's detection messages in stamp order into a
-:class:`~rs_localizer.tracking.rig.RigLocalizer` (tracking with the prediction, the fused
+:class:`~rs_localizer.tracking.video.Localizer` (tracking with the prediction, the fused
 twist; ``--stop-after`` and ``--max-gap`` its settings): how many of its rig frames are
 exactly the benchmark's (by stamp and cameras with tags); the rig frames with tags in two or
 more cameras it posed and refused (by reason), against the rig frames posed alone (part 1);
@@ -222,8 +222,8 @@ def video_run(
 ) -> dict:
     """The rig's video path: every camera's detection message (its tags' corners matched to
     the map, none when it saw no tag of the map) fed in stamp order into a
-    :class:`~rs_localizer.tracking.rig.RigLocalizer` (the reference's extrinsics as the
-    mountings, ``options``, :class:`~rs_localizer.tracking.rig.RigSettings`' defaults:
+    :class:`~rs_localizer.tracking.video.Localizer` (the reference's extrinsics as the
+    mountings, ``options``, :class:`~rs_localizer.tracking.video.LocalizerSettings`' defaults:
     tracking with the prediction and the fused twist; ``stop_after`` and the tracking's
     ``max_gap`` s when given), then ``close()`` (``frames``: up to the last of the first
     that many rig frames with tags). A rig frame of the benchmark split over two rig frames
@@ -238,13 +238,13 @@ def video_run(
         with tags fed, ``"innovations"``: ``(NIS, dimension)`` of each posed rig frame's
         measurement against the track's prediction (its fused state's ``nis``; a rig frame that
         started the track has none), ``"counts"``: the localizer's counters, ``"outputs"``: its
-        :class:`~rs_localizer.tracking.rig.RigOutput` s, ``"settings"``}``.
+        :class:`~rs_localizer.tracking.video.LocalizerOutput` s, ``"settings"``}``.
     """
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
     from rs_localizer.tracking.tracker import TrackerOptions
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
-    settings = RigSettings({n: rig.mountings[n] for n in rig.cameras}, options=options)
+    settings = LocalizerSettings({n: rig.mountings[n] for n in rig.cameras}, options=options)
     if stop_after is not None:
         settings = replace(settings, stop_after=stop_after)
     if max_gap is not None:
@@ -262,11 +262,11 @@ def video_run(
                 int(round(stamp * 1e9)), rig.cameras[name], uv, X, tag=group, camera_name=name
             )
         )
-    warm = RigLocalizer(settings)  # (compiles the tracking's kernels: untimed)
+    warm = Localizer(settings)  # (compiles the tracking's kernels: untimed)
     for f in video[: 20 * len(rig.cameras)]:
         warm.add(f)
     warm.close()
-    loc = RigLocalizer(settings)
+    loc = Localizer(settings)
     outs, cpu = [], 0.0
     for f in video:
         got, t = _timed(lambda f=f: loc.add(f))
@@ -513,7 +513,7 @@ def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
         own[name].append(stamp)
     interval = np.median([np.median(np.diff(x)) for x in own.values() if len(x) > 1])
     print(
-        f"{rig.name} video (RigLocalizer, every camera's {len(rig.messages)} detection "
+        f"{rig.name} video (Localizer, every camera's {len(rig.messages)} detection "
         f"messages in stamp order, a camera's frame interval {1e3 * interval:.0f} ms median; "
         f"stop_after {v['settings'].stop_after} s, max_gap {v['settings'].max_gap} s): "
         f"{out} rig frames out, {exact} of them exactly a rig frame "
@@ -554,7 +554,7 @@ def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
         "poselib": np.array([alone[t]["poselib"] for t in both]),
     }
     for key, label in (
-        ("video", "video (RigLocalizer)"),
+        ("video", "video (Localizer)"),
         ("alone", "rig frame alone"),
         ("poselib", "PoseLib generalized"),
     ):
@@ -628,7 +628,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--video",
         action="store_true",
-        help="also pose the recording as a video (RigLocalizer: tracking, the fused twist) "
+        help="also pose the recording as a video (Localizer: tracking, the fused twist) "
         "and compare with the rig frames posed alone; leaves out the single cameras and the "
         "calibration",
     )
@@ -636,7 +636,7 @@ def main(argv: list[str] | None = None) -> None:
         "--stop-after",
         type=float,
         default=None,
-        help="--video: RigSettings.stop_after s (default its default; a camera's frame "
+        help="--video: LocalizerSettings.stop_after s (default its default; a camera's frame "
         "interval at least this splits rig frames)",
     )
     ap.add_argument(

@@ -22,7 +22,7 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -48,7 +48,7 @@ def main(argv=None) -> None:
     k = chi2.ppf(0.9973, 3)
     for label, exact in (("mountings taken as exact", True), ("with their covariance", False)):
         mounts = {n: Mounting(e.mount.R, e.mount.c) if exact else e.mount for n, e in est.items()}
-        rig = RigLocalizer(RigSettings(mounts))
+        rig = Localizer(LocalizerSettings(mounts))
         outs = []
         for f in loc:
             outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))

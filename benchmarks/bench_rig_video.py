@@ -1,4 +1,4 @@
-"""A rig of unsynchronized RS cameras through a video: the rig (RigLocalizer) against each
+"""A rig of unsynchronized RS cameras through a video: the rig (Localizer) against each
 camera alone (SequenceLocalizer, its pose mapped to the rig by its mounting), on the synthetic
 rig walk of rs_localizer.sim.rig_video (a corridor, turning up to ~1.7 rad/s, 20 % outliers,
 0.5 px noise, cameras 4 ms apart).
@@ -26,7 +26,7 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking import CameraFrame, SequenceLocalizer
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -40,9 +40,9 @@ def _errors(traj, stamp_ns, Ori, p, w=None, v=None):
 
 
 def _rig_run(frames, by, mounts, traj, implementation):
-    """The rig video through a RigLocalizer on ``implementation``: (own errors, fused errors,
+    """The rig video through a Localizer on ``implementation``: (own errors, fused errors,
     wall s, processor s, rig frames, rig frames posed, rig frames tracked)."""
-    rig = RigLocalizer(RigSettings(mounts), implementation=lambda: implementation)
+    rig = Localizer(LocalizerSettings(mounts), implementation=lambda: implementation)
     own, fused, t0, c0 = [], [], time.perf_counter(), time.process_time()
     for f in frames:
         for o in rig.add(
@@ -78,7 +78,7 @@ def main(argv=None) -> None:
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     # warm-up (compiled kernels; the NumPy implementation's first calls into SciPy)
     for impl in a.implementations:
-        warm = RigLocalizer(RigSettings(mounts), implementation=lambda impl=impl: impl)
+        warm = Localizer(LocalizerSettings(mounts), implementation=lambda impl=impl: impl)
         for f in frames[: 3 * a.cameras]:
             warm.add(CameraFrame(f.stamp_ns, by[f.name].camera, f.uv, f.xyz, camera_name=f.name))
     runs = {impl: [] for impl in a.implementations}

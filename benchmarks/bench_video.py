@@ -14,7 +14,7 @@ Prints the targets of the video work and whether they are met:
   ``pan`` video (>= 0.5 rad/s), from the rotation between frames and from a gyro; a ``car``
   video (no rotation) must say not observable;
 * **rolling-shutter timing check**: the localizer's ``readout_suspect``
-  (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`: of the last 30
+  (:meth:`~rs_localizer.tracking.video.Localizer.readout_values`: of the last 30
   frames, those relocalized or whose twist the fused twist refused) on ``data/sample`` and the
   synthetic videos with their true timing (never suspect) and with the line delay doubled,
   halved or the readout direction reversed (always suspect);

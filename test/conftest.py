@@ -55,16 +55,16 @@ def rig_kernels():
 
     from rs_localizer.frames import Mounting
     from rs_localizer.runtime.warmup import warm_rig
-    from rs_localizer.tracking.rig import RigSettings
     from rs_localizer.tracking.sequence import GyroSettings
+    from rs_localizer.tracking.video import LocalizerSettings
 
     turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     mounts = {
         "a": Mounting.from_pose(np.eye(3), np.zeros(3)),
         "b": Mounting.from_pose(turn, np.array([0.1, 0.0, 0.0])),
     }
-    warm_rig(RigSettings(mounts))
-    warm_rig(RigSettings(mounts, imu=GyroSettings(R_cam_imu=np.eye(3))))
+    warm_rig(LocalizerSettings(mounts))
+    warm_rig(LocalizerSettings(mounts, imu=GyroSettings(R_cam_imu=np.eye(3))))
 
 
 @pytest.fixture(autouse=True)

@@ -30,7 +30,11 @@ PKG = ROOT / "rs_localizer"
 #: runs none of them
 RIG_ONLY = {
     "estimation/rig.py": "estimate_rig_pose: one pose for a rig frame of several cameras",
-    "tracking/rig.py": "RigLocalizer: a rig's cameras grouped into rig frames, tracked",
+    "tracking/rig.py": (
+        "RigGrouping, CameraAgreement, refusal, RigViews: the cameras' frames grouped into rig "
+        "frames, their disagreement, the refusal of a rig frame one camera poses, the rig's "
+        "estimator on the track"
+    ),
     "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
     "ros/bags/rig_bag.py": "rig bags: written from a simulated rig video, read for replay",
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
@@ -48,7 +52,7 @@ ESTIMATORS = {
     ("estimation/rig.py", "estimate_rig_pose"): "one rig frame of several cameras",
     ("tracking/tracker.py", "RSTracker"): "a camera's video: predicted RANSAC, relocalization",
     ("tracking/sequence.py", "SequenceLocalizer"): "a camera's video, the library entry point",
-    ("tracking/rig.py", "RigLocalizer"): "a rig's video: rig frames tracked",
+    ("tracking/video.py", "Localizer"): "a camera's or a rig's video (a camera: a rig of one)",
     ("tracking/fusion.py", "TwistFilter"): "the fixed-lag smoother of a camera's or rig's twist",
     ("calibration/mountings.py", "calibrate_mountings"): "mountings from a video: poses jointly",
     ("mapping/marker_map.py", "map_markers"): "marker maps: the camera's poses with the map",

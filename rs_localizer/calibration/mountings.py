@@ -483,7 +483,7 @@ def calibrate_mountings(
     run again.
 
     Args:
-        frames: :class:`~rs_localizer.tracking.rig.CameraFrame` of every camera (any
+        frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
             order; frames without a camera model are skipped).
         reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
             (its known mounting on the rig) places it: the rig frame is then that mounting's.
@@ -497,7 +497,7 @@ def calibrate_mountings(
         options: the single-camera estimator's
             :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
         time_offsets: camera -> s added to its stamps (a rig's
-            :attr:`~rs_localizer.tracking.rig.RigSettings.time_offsets`); None: none.
+            :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
         estimate_time_offsets: also estimate every camera's time offset against the
             reference camera's (its given one kept): each one's parameter in the adjustment
             (a camera frame's pose moved along its own twist by it), the cameras' frames

@@ -101,7 +101,7 @@ def compile_targets(
 
 
 def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
-    """``(RigSettings, {camera: (line_delay, readout_time, direction)})`` of the rig mode the
+    """``(LocalizerSettings, {camera: (line_delay, readout_time, direction)})`` of the rig mode the
     parameter files configure (``rig.cameras`` set), else None. Raises CliError on a rig
     configuration the node would refuse."""
     if not params_files:

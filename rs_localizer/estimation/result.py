@@ -40,7 +40,7 @@ __all__ = [
 ]
 
 # The reasons a frame (a camera's, or a rig's: :func:`~.rig.estimate_rig_pose`, the rig
-# estimator, and :class:`~rs_localizer.tracking.rig.RigLocalizer`, its tracker) gives no pose,
+# estimator, and :class:`~rs_localizer.tracking.video.Localizer`, its tracker) gives no pose,
 # each documented here once. The velocity bounds and ``min_inliers`` are
 # :class:`~.options.EstimateOptions`', the rig's as a camera's.
 

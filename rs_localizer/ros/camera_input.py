@@ -16,9 +16,9 @@ log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``).
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
 
 A rig camera's cloud becomes the rig's frame in one place, :func:`rig_cloud_frame`, for the rig
-node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.rig.CameraFrame`,
+node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.localizer.CameraFrame`,
 or an :class:`UnreadFrame` (``bad_input``) that :func:`hand_to_rig` passes to the rig as a
-frame skipped (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`); a rig camera's image
+frame skipped (:meth:`~rs_localizer.tracking.video.Localizer.drop`); a rig camera's image
 reaches the rig in one place too, :func:`hand_image_to_rig`.
 """
 
@@ -39,7 +39,7 @@ from .pointcloud import read_correspondences
 
 if TYPE_CHECKING:
     from ..tracking.localizer import CameraFrame
-    from ..tracking.rig import RigLocalizer, RigOutput
+    from ..tracking.video import Localizer, LocalizerOutput
 
 __all__ = [
     "CameraInput",
@@ -255,7 +255,7 @@ class UnreadFrame:
             itself cannot be read (no rig frame can take the frame: the rig never sees it).
         camera: the camera model of that stamp (None: none yet, or no stamp).
         error: why it was not read. reason: the rig's skip reason
-            (:data:`~rs_localizer.tracking.rig.SKIP_REASONS`).
+            (:data:`~rs_localizer.tracking.video.SKIP_REASONS`).
     """
 
     camera_name: str
@@ -344,12 +344,12 @@ def rig_image_frame(
     return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 
-def hand_to_rig(rig: RigLocalizer, item: CameraFrame | UnreadFrame) -> list[RigOutput]:
+def hand_to_rig(rig: Localizer, item: CameraFrame | UnreadFrame) -> list[LocalizerOutput]:
     """A camera's frame of :func:`rig_cloud_frame` to the rig; returns the rig frames it
-    completed, solved. A frame read: :meth:`~rs_localizer.tracking.rig.RigLocalizer.add`; an
+    completed, solved. A frame read: :meth:`~rs_localizer.tracking.video.Localizer.add`; an
     :class:`UnreadFrame` with a stamp: counted received and skipped for its reason, the rig
     no longer waiting for the camera at that time
-    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`: a rig frame without it counts the
+    (:meth:`~rs_localizer.tracking.video.Localizer.drop`: a rig frame without it counts the
     camera ``missed.skipped``); one without a stamp: nothing (``[]``; its owner counts it)."""
     if not isinstance(item, UnreadFrame):
         return rig.add(item)
@@ -359,7 +359,7 @@ def hand_to_rig(rig: RigLocalizer, item: CameraFrame | UnreadFrame) -> list[RigO
 
 
 def hand_image_to_rig(
-    rig: RigLocalizer,
+    rig: Localizer,
     name: str,
     inp: CameraInput,
     msg: Any,
@@ -367,15 +367,15 @@ def hand_image_to_rig(
     camera: CameraModel | None,
     log: Any,
     tag: object = None,
-) -> tuple[list[RigOutput], tuple | None]:
+) -> tuple[list[LocalizerOutput], tuple | None]:
     """Camera ``name``'s image message ``msg`` (``sensor_msgs/Image`` or
     ``CompressedImage``) to the rig, the rig node's and the rig bag replay's one path:
     decoded and checked against ``camera``, the model of its checked header stamp ``stamp``
     (:meth:`CameraInput.decode`); a message rejected there (``bad_image``,
     ``image_size_mismatch``) is logged (``log.warning(key, text)``) and dropped for its reason
-    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`: the rig does not wait for the camera
+    (:meth:`~rs_localizer.tracking.video.Localizer.drop`: the rig does not wait for the camera
     at that time), any other goes through the camera's front end to the rig
-    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.process_image`), tagged ``tag`` (None:
+    (:meth:`~rs_localizer.tracking.video.Localizer.process_image`), tagged ``tag`` (None:
     its ``frame_id``, else ``name``).
 
     Returns:

@@ -396,7 +396,7 @@ class RigCameraConfig:
 @dataclass(frozen=True)
 class RigConfig:
     """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
-    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`; its ``max_points`` also
+    ``settings`` (:class:`~rs_localizer.tracking.video.LocalizerSettings`; its ``max_points`` also
     caps each camera's clouds in the node), ``base_frame`` (the rig's
     frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``, ``unused`` (the
     single camera's parameters given a value other than their default, which the rig mode
@@ -633,7 +633,7 @@ def rig_unused_text(names: Iterable[str]) -> str | None:
 
 #: the parameters a running rig takes (``ros2 param set``; the node's
 #: :meth:`~rs_localizer.ros.rig_node.RigCore._apply_change`): those that only reach its
-#: :class:`~rs_localizer.tracking.rig.RigSettings` (the estimator's options: ``ransac.*``,
+#: :class:`~rs_localizer.tracking.video.LocalizerSettings` (the estimator's options: ``ransac.*``,
 #: ``refine``, ``motion_prior.*``, ``correlated_noise.*``, the velocity bounds; ``tracking.*``;
 #: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap),
 #: ``queue_size`` and ``camera_info_wait`` (each camera's); the read-only ones among them are

@@ -8,7 +8,7 @@ flush) started and stopped with the frame inputs, the subscriptions destroyed, t
 visualizations closed, the latency and stamp-age record, the diagnostics published and the
 node destroyed. A core adds what differs: its frame inputs, what the worker does with a frame
 (a camera's :class:`~rs_localizer.ros.pipeline.FramePipeline`, or the rig's cameras and its
-:class:`~rs_localizer.tracking.rig.RigLocalizer`), what it publishes and its status.
+:class:`~rs_localizer.tracking.video.Localizer`), what it publishes and its status.
 
 A core's phases, run by :class:`RSLocalizerNode` / :class:`RigLocalizerNode` at construction
 or by the managed node's transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`):

@@ -22,7 +22,7 @@ from .pipeline import StatsSnapshot
 
 if TYPE_CHECKING:
     from ..tracking.gyro_input import GyroSettings
-    from ..tracking.rig import RigLocalizer
+    from ..tracking.video import Localizer
 
 __all__ = [
     "ERROR",
@@ -375,10 +375,10 @@ class RigInputs:
 
 
 def rig_diagnostics(
-    rig: RigLocalizer, waiting_info: set, inputs: Counter | RigInputs | None = None
+    rig: Localizer, waiting_info: set, inputs: Counter | RigInputs | None = None
 ) -> tuple[int, str, dict]:
     """``(level, message, values)`` of a rig's status (``rig``: a
-    :class:`~rs_localizer.tracking.rig.RigLocalizer`), built from the pieces of
+    :class:`~rs_localizer.tracking.video.Localizer`), built from the pieces of
     :func:`diagnostic_status`: level :data:`OK`,
     ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
     consensus outvoted a camera in its last rig frame; a camera's frames never join the
@@ -499,11 +499,11 @@ def _rig_level_and_message(
 
 
 def rig_camera_frames(
-    rig: RigLocalizer, n: str, own: Mapping[str, int] | None = None
+    rig: Localizer, n: str, own: Mapping[str, int] | None = None
 ) -> dict[str, int]:
     """Camera ``n``'s frame accounting as the rig node reports it: ``received``, ``solved``,
     ``failed``, ``skipped``, ``pending`` (received = the other four summed). The rig's
-    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_counts`), with the node's own
+    (:meth:`~rs_localizer.tracking.video.Localizer.camera_counts`), with the node's own
     counts of the camera ``own`` (keys without the ``<c>.`` prefix, :class:`RigInputs`'
     ``counts``; None: the rig's alone): ``received`` is then the node's (every message), the
     node's ``skipped.<reason>`` and ``failed.internal_error`` are added to the rig's, and the
@@ -523,7 +523,7 @@ def rig_camera_frames(
 
 
 def _rig_camera_values(
-    rig: RigLocalizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
+    rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
 ) -> tuple[dict[str, Any], int, int]:
     """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``:
     ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (the camera's frame
@@ -532,9 +532,9 @@ def _rig_camera_values(
     ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
     ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``capped_clouds``
     (frames capped to ``max_points``: the node's clouds and the rig's images,
-    ``RigLocalizer.process_image``), ``points_dropped`` (their rows with a NaN or inf),
+    ``Localizer.process_image``), ``points_dropped`` (their rows with a NaN or inf),
     ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its
-    frames never join the others', ``RigLocalizer.camera_apart``) and then
+    frames never join the others', ``Localizer.camera_apart``) and then
     ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
     the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
     ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, the node's
@@ -610,11 +610,11 @@ def _rig_camera_values(
 
 
 def _rig_gyro_values(
-    rig: RigLocalizer, inputs: RigInputs | None, warnings: list[str]
+    rig: Localizer, inputs: RigInputs | None, warnings: list[str]
 ) -> dict[str, Any]:
     """The rig's gyro values of :func:`rig_diagnostics` (with a gyro on the rig): a camera's
     (:func:`_imu_values`, the rig's counts by a camera's names,
-    :meth:`~rs_localizer.tracking.rig.RigLocalizer.gyro_counts`, the rig frames for its
+    :meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`, the rig frames for its
     frames) with ``gyro_missing.<reason>`` and ``gyro_rejected.<reason>``; appends its
     warnings to ``warnings``: the gyro contradicts the image (a wrong mounting), the image
     rejects it more often than it uses it, or no usable IMU sample for

@@ -2,7 +2,7 @@
 
 With ``rig.cameras`` set (docs/rig_node.md) the process runs this node instead of one localizer
 per camera. Every camera of the rig sends its own frames, unsynchronized; the node hands them
-to a :class:`~rs_localizer.tracking.rig.RigLocalizer` (frames grouped into rig frames by stamp,
+to a :class:`~rs_localizer.tracking.video.Localizer` (frames grouped into rig frames by stamp,
 one pose per rig frame from all cameras, tracked, the rig's twist fused) and publishes the rig,
 ``base_frame``, as one body.
 
@@ -84,7 +84,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import CameraModel, Stamp
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
-from ..tracking.rig import RigLocalizer, RigOutput
+from ..tracking.video import Localizer, LocalizerOutput
 from . import conversions as cv
 from .camera_input import (
     CameraInput,
@@ -126,7 +126,8 @@ INPUT_SKIP_REASONS = {
     "bad_input": "the message could not be read (a stamp out of range, a cloud without its fields)",
 }
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
-``<c>.skipped.<reason>``, beside the rig's own :data:`~rs_localizer.tracking.rig.SKIP_REASONS`)."""
+``<c>.skipped.<reason>``, beside the rig's own
+:data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
 
 
 @dataclass(frozen=True)
@@ -172,7 +173,7 @@ class RigCore(NodeCore):
     :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
     Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`,
     :meth:`_configure` (parameters -> configuration, the cameras' front ends, the
-    :class:`~rs_localizer.tracking.rig.RigLocalizer`), :meth:`_create_outputs`,
+    :class:`~rs_localizer.tracking.video.Localizer`), :meth:`_create_outputs`,
     :meth:`_create_info_inputs`, :meth:`_create_frame_inputs` (and
     :meth:`_destroy_frame_inputs`), :meth:`_end_video`, :meth:`_release_configured`: those of
     the camera's :class:`~rs_localizer.ros.node.LocalizerCore`, so that one template of the
@@ -219,7 +220,7 @@ class RigCore(NodeCore):
         self.image_transport = single.image_transport
         self._log = ThrottledLog(self.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = RigLocalizer(
+        self.rig = Localizer(
             self.config.settings, log=self._log, implementation=ready_implementation
         )
         for n, fe in frontends.items():
@@ -445,7 +446,7 @@ class RigCore(NodeCore):
 
     def _apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on
-        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.configure`: the estimator's options,
+        (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
@@ -503,7 +504,7 @@ class RigCore(NodeCore):
     def _ref_ns(self, item: _Queued) -> int:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
         stamp without one), as the rig groups it
-        (:meth:`~rs_localizer.tracking.rig.RigSettings.reference_ns`)."""
+        (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns`)."""
         return self.config.settings.reference_ns(
             item.name, item.stamp, self.inputs[item.name].newest
         )
@@ -572,7 +573,7 @@ class RigCore(NodeCore):
             if out.success:
                 self._record_timing(item.arrived, out.stamp_ns)
 
-    def _check_map_fit(self, out: RigOutput) -> None:
+    def _check_map_fit(self, out: LocalizerOutput) -> None:
         """The single-camera node's map-fit check over the rig frames
         (:class:`.pipeline.MapFitCheck`, every camera's rows of the rig frame together):
         counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a throttled
@@ -588,7 +589,7 @@ class RigCore(NodeCore):
         if warn:
             self._log.warning("map_fit", self._map_fit.text())
 
-    def _log_failure(self, out: RigOutput) -> None:
+    def _log_failure(self, out: LocalizerOutput) -> None:
         if out.error is not None:
             reason, detail = "error", f"the estimator raised {out.error}"
         elif out.estimate is not None and not out.estimate.success:
@@ -624,7 +625,7 @@ class RigCore(NodeCore):
         non-finite ones dropped, counted ``<c>.points_dropped``; capped to ``max_points``,
         counted ``<c>.capped_clouds``). One that cannot be read is counted
         ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
-        (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
+        (:meth:`Localizer.drop`), so the rig frame without it counts the camera
         ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
         as one whose clock is off); one whose stamp is out of range is counted by the node
         alone (:meth:`_not_read`). The cloud becomes the rig's frame as a rig bag's does in
@@ -669,7 +670,7 @@ class RigCore(NodeCore):
         (:meth:`.camera_input.CameraInput.decode`: a message that does not decode or is
         smaller than the front ends take: ``bad_image``; another size than the camera_info's:
         ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then the camera's
-        front end and the rig (:meth:`RigLocalizer.process_image`: the front end's rows as a
+        front end and the rig (:meth:`Localizer.process_image`: the front end's rows as a
         cloud's, the non-finite ones dropped and the rest capped to ``max_points``, counted by
         the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded image kept for
         ``debug_image`` while someone watches."""
@@ -693,7 +694,7 @@ class RigCore(NodeCore):
     def _flush_idle_track(self) -> None:
         """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
         frames the track is over (the next frame starts a new one): publish the twists still
-        pending (:meth:`RigLocalizer.flush_idle`)."""
+        pending (:meth:`Localizer.flush_idle`)."""
         if self.rig is None or not self._rig_lock.acquire(blocking=False):
             return  # (the worker is on a frame: not idle)
         try:
@@ -703,7 +704,7 @@ class RigCore(NodeCore):
         for f in fused:
             self._publish_fused(f)
 
-    def _publish_viz(self, out: RigOutput) -> None:
+    def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
         ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
         built only while subscribed, on its drawing thread), the camera as the rig's pose
@@ -724,7 +725,7 @@ class RigCore(NodeCore):
             viz.publish(view, frame.points2d, frame.points3d, frame.camera, frame.stamp_ns, ref,
                         frame.tag or n, mf)  # fmt: skip
 
-    def publish_output(self, out: RigOutput) -> None:
+    def publish_output(self, out: LocalizerOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
         final (or its own twist without tracking)."""
         if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)

@@ -202,7 +202,7 @@ def rig_camera_views(
     out: Any, mounts: dict, wanted: Any = None
 ) -> Iterator[tuple[str, Any, RSPoseEstimate, int]]:
     """Each camera of the posed rig frame ``out``
-    (:class:`~rs_localizer.tracking.rig.RigOutput`) as its ``<camera>/debug_image`` and
+    (:class:`~rs_localizer.tracking.video.LocalizerOutput`) as its ``<camera>/debug_image`` and
     ``<camera>/markers`` draw it: ``(name, its frame, its estimate, its reference line's
     stamp ns)``, the estimate the camera as the rig's pose and its mounting put it
     (:func:`~rs_localizer.estimation.rig.camera_estimate`), the stamp the rig frame's time

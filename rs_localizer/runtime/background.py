@@ -36,8 +36,8 @@ import numpy as np
 
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..estimation.implementation import COMPILED, NUMPY, NUMPY_SOLVERS, compiled_by_default
-from ..tracking.rig import SINGLE_CAMERA_SOLVER, RigSettings
 from ..tracking.tracker import TrackerOptions
+from ..tracking.video import SINGLE_CAMERA_SOLVER, LocalizerSettings
 from . import warmup
 from .jit_cache import cache_state, compile_progress, numba_error
 
@@ -144,10 +144,10 @@ class CameraKernels:
 class RigKernels:
     """What a rig's frames compile (:func:`.warmup.warm_rig`'s arguments): the rig's kernels
     for its ``settings`` and its cameras' RS ``timing`` (a rig of one camera,
-    :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`: its camera's); its frames
+    :attr:`~rs_localizer.tracking.video.LocalizerSettings.single_camera`: its camera's); its frames
     wait on NumPy."""
 
-    settings: RigSettings
+    settings: LocalizerSettings
     timing: dict | None = None
     what, command, numpy = "the rig's kernels", "compile --params-file", True
 

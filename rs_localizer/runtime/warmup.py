@@ -59,9 +59,9 @@ from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
 from ..tracking.localizer import CameraFrame
-from ..tracking.rig import RigLocalizer, RigSettings
 from ..tracking.sequence import reference_stamp_ns
 from ..tracking.tracker import RSTracker, TrackerOptions
+from ..tracking.video import Localizer, LocalizerSettings
 from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
 
 __all__ = [
@@ -489,11 +489,11 @@ class _SecondProcess:
 
 
 def warm_rig(
-    settings: RigSettings,
+    settings: LocalizerSettings,
     timing: dict[str, tuple[float, float, str]] | None = None,
     frames: int = 8,
 ) -> int:
-    """Run a :class:`~rs_localizer.tracking.rig.RigLocalizer` with ``settings`` (the rig node's:
+    """Run a :class:`~rs_localizer.tracking.video.Localizer` with ``settings`` (the rig node's:
     its mountings, estimator options, tracking, gyro) over ``frames`` rig frames at 30 Hz of a
     rig turning (0.3 rad/s) and moving (0.5 m/s) among points in front of every camera,
     projected through each camera's exact RS model (0.3 px noise), with gyro samples at 200 Hz
@@ -506,7 +506,7 @@ def warm_rig(
     rng = np.random.default_rng(4)
     om, v = np.array([0.0, 0.3, 0.1]), np.array([0.5, 0.0, 0.1])  # rig frame, rad/s, m/s
     w, t = -om, -v  # (the rig's model per second, C = 0 at T = 0: its twist is (om, v))
-    loc = RigLocalizer(settings)
+    loc = Localizer(settings)
     cams, points = {}, {}
     for name, m in settings.mounts.items():
         ld, rt, d = (timing or {}).get(name, (3e-5, 0.0, "top_to_bottom"))
@@ -557,7 +557,7 @@ def compile_kernels(
     ``gyro``, the node's ``imu.enabled``), as :func:`warm_up` runs them, reporting each kernel
     numba compiles through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` >
     1 a second process compiles part of the first solver's RANSAC batch, the kernels a frame
-    needs later and the other solvers' meanwhile (module docstring). ``rig``: ``(RigSettings,
+    needs later and the other solvers' meanwhile (module docstring). ``rig``: ``(LocalizerSettings,
     timing)`` of a rig node (:func:`warm_rig`'s arguments): its kernels too, after the solvers'
     (``solvers`` then maps ``"rig"`` to its seconds).
 

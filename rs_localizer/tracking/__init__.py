@@ -1,9 +1,11 @@
-"""A camera's video, frame after frame (:class:`CameraFrame`), without ROS:
-:class:`SequenceLocalizer` owns the video tracker, the frames waiting for their fused twist,
-the gyro samples, the online gyro-bias estimate, the check of the gyro against the image and
-the time resets. The node (:mod:`rs_localizer.ros.pipeline`), ``rs-localizer replay`` and the
-video benchmarks drive it. A rig's cameras take the same frames
-(:class:`~rs_localizer.tracking.rig.RigLocalizer`, ``camera_name`` set).
+"""A camera's or a rig's video, frame after frame (:class:`CameraFrame`), without ROS: one
+localizer for one camera or a rig of cameras (:class:`Localizer`; a camera alone is a rig of
+one) owns the tracker, the frames waiting for their fused twist, the gyro samples, the online
+gyro-bias estimate, the check of the gyro against the image and the time resets; a rig's
+cameras name themselves in their frames (``camera_name``). :class:`SequenceLocalizer` is a
+camera's adapter over it, with the camera's settings and outputs. The node
+(:mod:`rs_localizer.ros.pipeline`, :mod:`rs_localizer.ros.rig_node`), ``rs-localizer replay``
+and the video benchmarks drive them.
 """
 
 from .localizer import CameraFrame
@@ -15,11 +17,15 @@ from .sequence import (
     SequenceSettings,
     reference_stamp_ns,
 )
+from .video import Localizer, LocalizerOutput, LocalizerSettings
 
 __all__ = [
     "CameraFrame",
     "FusedPose",
     "GyroSettings",
+    "Localizer",
+    "LocalizerOutput",
+    "LocalizerSettings",
     "SequenceLocalizer",
     "SequenceOutput",
     "SequenceSettings",

@@ -16,11 +16,11 @@ On either, the gyro's timeline starts again
 the bias estimator and of the mount check). What else starts again is the localizer's:
 
 - one camera (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, through its rig of
-  one: a :class:`~rs_localizer.tracking.rig.RigLocalizer` of the one camera,
+  one: a :class:`~rs_localizer.tracking.video.Localizer` of the one camera,
   ``back_tolerance_ns`` 0: any step back is a reset): nothing else; its tracker resets itself
   on the same stamps (a stamp going back, or a gap beyond ``max_gap``, which
   ``time_reset_ns`` exceeds by default); the node counts ``time_resets``;
-- a rig of several cameras (:class:`~rs_localizer.tracking.rig.RigLocalizer`,
+- a rig of several cameras (:class:`~rs_localizer.tracking.video.Localizer`,
   ``back_tolerance_ns`` =
   ``time_reset_ns``: its cameras' frames interleave, a smaller step back of one camera is that
   frame out of order): the rig frames still open are dropped (``stamp_back``, counted

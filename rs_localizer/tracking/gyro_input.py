@@ -25,7 +25,7 @@ Counted through the owner's ``count(key, n)``: ``gyro_missing`` and
 (:data:`~rs_localizer.estimation.result.GYRO_REJECTIONS`), ``frames_with_gyro`` (a rig:
 ``gyro_used``; a rig prefixes them all with ``rig.``).
 :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` and
-:class:`~rs_localizer.tracking.rig.RigLocalizer` both use it.
+:class:`~rs_localizer.tracking.video.Localizer` both use it.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def gyro_if_consistent(
     gyro inconsistent with the image (counted ``gyro_disabled_inconsistent``): the frame is
     then solved without it. The single camera's
     (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) and the rig's
-    (:class:`~rs_localizer.tracking.rig.RigLocalizer`) rule."""
+    (:class:`~rs_localizer.tracking.video.Localizer`) rule."""
     if gyro is not None and check is not None and check.inconsistent:
         count("gyro_disabled_inconsistent", 1)
         return None
@@ -487,7 +487,7 @@ class GyroInput:
 class GyroReadouts:
     """The gyro read-outs a localizer offers, one camera's or a rig's
     (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
-    :class:`~rs_localizer.tracking.rig.RigLocalizer`): views of its :class:`GyroInput`
+    :class:`~rs_localizer.tracking.video.Localizer`): views of its :class:`GyroInput`
     (attribute ``gyro_input``)."""
 
     gyro_input: GyroInput

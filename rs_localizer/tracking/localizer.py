@@ -1,54 +1,38 @@
-"""One localizer of one or many cameras: what a camera's video and a rig's video share.
+"""What the localizer of a camera's or a rig's video
+(:class:`~rs_localizer.tracking.video.Localizer`; a camera alone is a rig of one) and the
+camera's adapter (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) share:
 
-:class:`VideoLocalizer` is the base of :class:`~rs_localizer.tracking.rig.RigLocalizer` (a
-rig: its rig frames are the body, orientation rig -> world, velocities in the rig frame), which
-also solves one camera's video as a rig of one (the camera's frames are the body; its adapter
-is :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`). It holds the code for:
-
+- the frame they take (:class:`CameraFrame`, of one camera, naming it in a rig) and the part
+  of what they return for a frame that both have (:class:`FrameOutput`);
 - the frames waiting for their fused twist (:class:`PendingTwists`): a posed frame's pose is
   out at once, its twist is final only when the fixed-lag smoother
   (:class:`~rs_localizer.tracking.fusion.TwistFilter`, inside the tracker path,
-  :class:`~rs_localizer.tracking.tracker.TrackerPath`: the camera's
-  :class:`~rs_localizer.tracking.tracker.RSTracker` or the rig's) releases its state;
-  :meth:`VideoLocalizer.flush` (the end of a video), :meth:`VideoLocalizer.flush_idle` (no
-  frame for ``tracking.max_gap`` s, wall clock), :meth:`VideoLocalizer.end_track` (the twists
-  still pending dropped) hand them out as :class:`FusedPose`;
+  :class:`~rs_localizer.tracking.tracker.TrackerPath`) releases its state, handed out as
+  :class:`FusedPose`;
 - each camera's image front end (:class:`CameraFrontend`, :func:`search_image`): the
   frozen-image check (:func:`same_image`), the search with the prediction (``process``), its
   one-time warning, the feedback of how the frame was solved (``observe``), and the rows the
-  estimator can use (:func:`finite_rows`);
-- the prediction a camera's front end searches with (:meth:`VideoLocalizer._predict`): the
-  track's prediction of the body at the frame's reference time while the track predicts,
-  else the last posed frame carried at its own twist
-  (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`), either seen by the camera (a
-  rig's through the camera's mounting);
-- a time reset of the clock (:class:`~rs_localizer.tracking.clock.VideoClock`) and ``reset``
-  (:meth:`VideoLocalizer._time_reset`: the subclass's part, then the gyro's timeline), and a
-  frame's gyro measurement over its cameras' readouts (:meth:`VideoLocalizer._gyro_readouts`).
+  estimator can use (:func:`finite_rows`, :func:`usable_rows`, :func:`too_few_points`).
 
 A video also checks the cameras' rolling-shutter timing (:class:`PendingTwists`,
-:meth:`VideoLocalizer.readout_values`): a frame's twist fitted over its readout must predict
-the next frames. When :data:`READOUT_CHECK_SHARE` or more of the last
-:data:`READOUT_CHECK_FRAMES` rolling-shutter frames were relocalized (the track's prediction,
-carried at the last twist, did not explain them) or had their twist refused by the fused
-twist's gate, the frames' motion is not the camera's: a wrong ``line_delay`` or readout
-direction, or intrinsics the rolling-shutter model bends into motion. The videos of
-``python -m benchmarks.bench_video`` (data/sample, shake, car, pan, walk) with their true
-timing have none of the last 30 contradicted; the same videos with the line delay doubled or
-halved, or the readout direction reversed, 20-29.
-
-Only a rig groups its cameras' frames into rig frames, weighs their disagreement and maps
-the body's pose through each camera's mounting (:mod:`rs_localizer.tracking.rig`).
+:meth:`Localizer.readout_values <rs_localizer.tracking.video.Localizer.readout_values>`): a
+frame's twist fitted over its readout must predict the next frames. When
+:data:`READOUT_CHECK_SHARE` or more of the last :data:`READOUT_CHECK_FRAMES` rolling-shutter
+frames were relocalized (the track's prediction, carried at the last twist, did not explain
+them) or had their twist refused by the fused twist's gate, the frames' motion is not the
+camera's: a wrong ``line_delay`` or readout direction, or intrinsics the rolling-shutter model
+bends into motion. The videos of ``python -m benchmarks.bench_video`` (data/sample, shake, car,
+pan, walk) with their true timing have none of the last 30 contradicted; the same videos with
+the line delay doubled or halved, or the readout direction reversed, 20-29.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -65,11 +49,8 @@ from ..estimation.options import EstimateOptions, points_needed
 from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
-from .clock import TimeReset, VideoClock
 from .fusion import FusedState
-from .gyro import readout_window
-from .gyro_input import GyroReadouts, SilentLog, TrackLog
-from .tracker import CarriedPrediction, TrackerOptions, TrackerPath
+from .gyro_input import SilentLog, TrackLog
 
 if TYPE_CHECKING:
     from ..estimation.result import RSPoseEstimate
@@ -79,12 +60,10 @@ __all__ = [
     "MAX_PENDING",
     "CameraFrame",
     "CameraFrontend",
+    "FrameOutput",
     "FusedPose",
     "ImageSearch",
-    "LocalizerOutput",
     "PendingTwists",
-    "VideoLocalizer",
-    "VideoSettings",
     "finite_rows",
     "image_sample",
     "same_image",
@@ -105,7 +84,7 @@ class CameraFrame:
     """One camera's frame of correspondences: what a video localizer takes, of one camera
     (:meth:`SequenceLocalizer.process <rs_localizer.tracking.sequence.SequenceLocalizer.process>`)
     or of one of a rig's cameras
-    (:meth:`RigLocalizer.add <rs_localizer.tracking.rig.RigLocalizer.add>`).
+    (:meth:`Localizer.add <rs_localizer.tracking.video.Localizer.add>`).
 
     Attributes:
         stamp_ns: the capture time (ns, camera clock) of row ``stamp_row`` (the header stamp).
@@ -117,7 +96,7 @@ class CameraFrame:
         tag: anything the caller wants back with the frame (e.g. its frame id): with its
             fused twist (one camera), in its rig frame's ``tags`` (a rig).
         camera_name: the camera's name in the rig
-            (:attr:`~rs_localizer.tracking.rig.RigSettings.mounts`); "" for one camera.
+            (:attr:`~rs_localizer.tracking.video.LocalizerSettings.mounts`); "" for one camera.
 
     Raises:
         ValueError: a stamp that is not a finite number within the int64 nanosecond range
@@ -215,7 +194,7 @@ def usable_rows(
     (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
     ``capped_points``, and ``warn("capped", text)``). A camera's video
     (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.valid_rows`), each camera of a
-    rig's images (:meth:`~rs_localizer.tracking.rig.RigLocalizer.process_image`) and the
+    rig's images (:meth:`~rs_localizer.tracking.video.Localizer.process_image`) and the
     node's per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
     uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
     if n_bad:
@@ -293,10 +272,11 @@ class FusedPose(PoseWithCovariance):
 
 
 @dataclass
-class LocalizerOutput:
-    """What became of a frame in a video localizer: one camera's frame
-    (:class:`~rs_localizer.tracking.sequence.SequenceOutput`) or a rig frame
-    (:class:`~rs_localizer.tracking.rig.RigOutput`), each adding its own fields to these.
+class FrameOutput:
+    """What became of a frame in a video: the fields a camera's frame
+    (:class:`~rs_localizer.tracking.sequence.SequenceOutput`) and a frame of the localizer
+    (:class:`~rs_localizer.tracking.video.LocalizerOutput`: a rig frame, a camera's frame
+    alone) share, each adding its own fields to these.
 
     Attributes:
         stamp_ns: the frame's reference time (ns): the time of the estimated pose (a rig
@@ -348,7 +328,7 @@ READOUT_CHECK_SHARE = 1.0 / 3.0
 
 
 def readout_warning(contradicted: int, rig: bool = False) -> str:
-    """The warning of a suspect rolling-shutter timing (:meth:`VideoLocalizer.readout_values`)
+    """The warning of a suspect rolling-shutter timing (:meth:`Localizer.readout_values`)
     of a camera's video or (``rig``) a rig's: ``contradicted`` of the last
     :data:`READOUT_CHECK_FRAMES` frames relocalized or their twist refused, and what to check
     (the node's parameters of a camera's or the rig cameras' timing)."""
@@ -466,7 +446,7 @@ class PendingTwists:
 
 class CameraFrontend:
     """One camera's image front end as a video drives it (:meth:`~rs_localizer.tracking.
-    sequence.SequenceLocalizer.process_image`, :meth:`~rs_localizer.tracking.rig.RigLocalizer.
+    sequence.SequenceLocalizer.process_image`, :meth:`~rs_localizer.tracking.video.Localizer.
     process_image`): the calls of :class:`~rs_localizer.correspondences.VideoFrontend`, its
     warnings logged, and the fingerprint of the camera's last image (kept when the front end
     is replaced).
@@ -592,249 +572,3 @@ def search_image(
     except Exception as e:
         return ImageSearch("frontend_error", error=e)
     return ImageSearch(found=found, seconds=time.perf_counter() - t0)
-
-
-class VideoSettings(Protocol):
-    """What :class:`VideoLocalizer` reads of its subclass's settings (a camera's
-    :class:`~rs_localizer.tracking.sequence.SequenceSettings`, a rig's
-    :class:`~rs_localizer.tracking.rig.RigSettings`): the estimator's ``options`` (None: the
-    defaults) and the ``tracking`` options (None: no tracking; a
-    :class:`~rs_localizer.tracking.tracker.TrackerOptions`, its ``max_gap`` s)."""
-
-    @property
-    def options(self) -> EstimateOptions | None: ...
-
-    @property
-    def tracking(self) -> TrackerOptions | None: ...
-
-
-#: a video's settings (:class:`VideoSettings`)
-Settings = TypeVar("Settings", bound=VideoSettings)
-#: which of the body's cameras sees a frame, as the subclass's hooks take it (a rig's camera)
-View = TypeVar("View")
-
-
-class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
-    """The video state a camera and a rig share (module docstring). A subclass sets up
-    :meth:`_init_video` and says where its track's fused states come from
-    (:meth:`_twist_source`) and how its track ends (:meth:`_forget_track`); its ``settings``
-    (``Settings``, a :class:`VideoSettings`) have ``tracking`` (None: no tracking) with
-    ``max_gap`` (s). ``View``: what names one of the body's cameras to the subclass's
-    prediction hooks.
-
-    Threads: :meth:`flush`, :meth:`flush_idle` and :meth:`end_track` take the localizer's lock
-    (the one its frames are processed under, where the subclass takes it).
-    """
-
-    settings: Settings
-    log: TrackLog
-    _rig = False  # (a rig's video: its warnings name rig frames and the cameras' parameters)
-    _twists: PendingTwists
-    _lock: threading.RLock
-    _carried: CarriedPrediction
-    _clock: VideoClock
-
-    def _init_video(self) -> None:
-        """The shared state: the pending twists, the lock, the last posed frame carried."""
-        self._twists = PendingTwists()
-        self._lock = threading.RLock()
-        self._carried = CarriedPrediction()
-        self._readout_warned = False  # (the timing check's warning is out)
-        self._gyro_time: float | None = None  # (s after its time: the last gyro window's middle)
-
-    # ---------------------------------------------------------------- the subclass's track
-    def _twist_source(self) -> TrackerPath | None:
-        """The tracker path whose ``flush()`` gives the fused states not yet final (oldest
-        first; the track goes on): the camera's tracker
-        (:class:`~rs_localizer.tracking.tracker.RSTracker`), the rig's
-        :class:`~rs_localizer.tracking.tracker.TrackerPath`; None without a track."""
-        raise NotImplementedError
-
-    def _forget_track(self, keep: bool) -> list:
-        """End the track (the next frame starts a new one); returns its fused states not yet
-        final when ``keep``, else []."""
-        raise NotImplementedError
-
-    def _timeline_ended(self, reset: TimeReset | None) -> list:
-        """What the subclass ends when the video's clock starts again (:meth:`_time_reset`;
-        ``reset`` None: the video is forgotten, :meth:`_forget_video`), before the gyro's
-        timeline starts again; returns what that hands out (a rig: its open rig frames solved
-        as they are on a jump ahead)."""
-        raise NotImplementedError
-
-    def _tracked_prediction(
-        self, ref: int, camera: CameraModel, view: View
-    ) -> tuple[bool, FusedState | None]:
-        """``(decided, state)``: whether the track decides the prediction of a frame at
-        reference time ``ref`` (ns) seen by ``camera`` (``view``: which), and its predicted
-        state of the body there (None: the frame is not predicted, it starts a new track).
-        Not decided: the last posed frame carried predicts it."""
-        raise NotImplementedError
-
-    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: View) -> RSModel:
-        """The model seen by ``camera`` (``view``: which of the body's cameras) of the
-        track's predicted body state."""
-        raise NotImplementedError
-
-    def _carried_in_camera(
-        self, model: RSModel, dt: float, camera: CameraModel, view: View
-    ) -> RSModel:
-        """The model seen by ``camera`` (``view``: which) of the last posed frame's ``model``
-        carried ``dt`` s later at its own twist."""
-        raise NotImplementedError
-
-    # ---------------------------------------------------------------- prediction
-    def _predict(self, ref: int, camera: CameraModel, view: View) -> RSModel | None:
-        """The prediction of a frame at reference time ``ref`` (ns) seen by ``camera``
-        (``view``: which of the body's cameras): its model
-        (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at the camera's reference row,
-        ``w``, ``t`` per unit RS coordinate), what its front end searches with. The track's
-        prediction while the track decides (:meth:`_tracked_prediction`), else the last posed
-        frame carried at its own twist; None when nothing predicts the frame."""
-        with self._lock:
-            decided, state = self._tracked_prediction(ref, camera, view)
-            if decided:
-                return None if state is None else self._state_in_camera(state, camera, view)
-            c = self._carried.carried(ref)
-            return None if c is None else self._carried_in_camera(c[0], c[1], camera, view)
-
-    # ---------------------------------------------------------------- time, gyro
-    def _time_reset(self, reset: TimeReset | None) -> list:
-        """The video's clock started again (``reset`` of :attr:`_clock`; None: the video is
-        forgotten): the subclass's part (:meth:`_timeline_ended`, its outputs returned), then
-        the gyro's timeline (its samples from ``reset.keep_from`` on kept; None: none)."""
-        out = self._timeline_ended(reset)
-        with self._lock:
-            self.gyro_input.restart(None if reset is None else reset.keep_from)
-        return out
-
-    def _forget_video(self) -> list:
-        """Forget the video (a subclass's ``reset``): :meth:`_time_reset` of None, the last
-        posed frame carried, the clock's frame times; returns :meth:`_timeline_ended`'s."""
-        with self._lock:
-            out = self._time_reset(None)
-            self._forget_last_pose()
-            self._clock.reset()
-        return out
-
-    def _gyro_readouts(
-        self, t0: int, readouts: list[tuple[CameraModel, float, float | None]]
-    ) -> GyroMeasurement | None:
-        """A frame's gyro measurement (:meth:`GyroInput.measurement`) from the first line of
-        its cameras' earliest readout to the last line of the latest, ``readouts`` per camera
-        ``(camera, s after t0 ns, the line read then)`` (:func:`readout_window`; None: the
-        reference line); the window's middle kept (``_gyro_time``, s after ``t0``)."""
-        if self.gyro_input.settings is None:
-            return None
-        first, last = [], []
-        for camera, t, line in readouts:
-            a, b = readout_window(camera, t, line)
-            first.append(a)
-            last.append(b)
-        self._gyro_time = 0.5 * (min(first) + max(last))
-        return self.gyro_input.measurement(
-            (t0 + int(round(min(first) * 1e9)), t0 + int(round(max(last) * 1e9)))
-        )
-
-    # ---------------------------------------------------------------- pending twists
-    @property
-    def pending(self) -> int:
-        """Frames whose fused twist is not final yet."""
-        return len(self._twists)
-
-    def twist_values(self) -> dict[str, int]:
-        """The fused twists handed out over the localizer's life: ``twists_own_frame`` (frames
-        whose twist is their own, :attr:`FusedPose.own_twist`: the filter refused the frame's
-        measurement or its fused twist was implausible) and ``twists_implausible`` (frames
-        whose fused twist was beyond the plausibility bounds, :attr:`FusedPose.implausible`;
-        never handed out)."""
-        return {
-            "twists_own_frame": self._twists.own_twists,
-            "twists_implausible": self._twists.implausible_twists,
-        }
-
-    def readout_values(self) -> dict[str, Any]:
-        """The check of the rolling-shutter timing (module docstring): ``readout_contradicted``
-        (of the last :data:`READOUT_CHECK_FRAMES` frames with a twist of their own, those
-        relocalized or whose twist the fused twist refused; ``-1`` before that many) and
-        ``readout_suspect`` (``"true"`` when they are at least :data:`READOUT_CHECK_SHARE` of
-        them, else ``"false"``)."""
-        share = self._twists.readout_share()
-        return {
-            "readout_contradicted": -1 if share is None else int(sum(self._twists.recent)),
-            "readout_suspect": str(share is not None and share >= READOUT_CHECK_SHARE).lower(),
-        }
-
-    def _fused(self, final: list) -> list[FusedPose]:
-        """The frames whose fused state is final: their pose with the fused twist
-        (:meth:`PendingTwists.release`), within the estimator's plausibility bounds
-        (``settings.options.plausibility``; the default options' when None). When the
-        rolling-shutter timing becomes suspect (:meth:`readout_values`) it is logged once
-        (``readout.suspect``)."""
-        out = self._twists.release(final, self._twist_bounds())
-        share = self._twists.readout_share() if out else None
-        if share is None:
-            return out
-        suspect = share >= READOUT_CHECK_SHARE
-        if suspect and not self._readout_warned:
-            self.log.warning(
-                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig)
-            )
-        self._readout_warned = suspect
-        return out
-
-    def _twist_bounds(self) -> tuple[float, float]:
-        """``(max_angular_velocity, max_linear_velocity)`` (rad/s, m/s) a published twist
-        must stay within: the estimator's plausibility bounds, which every estimate passed."""
-        opts = self.settings.options  # (SequenceSettings and RigSettings both carry one)
-        pl = (opts if opts is not None else EstimateOptions()).plausibility
-        return float(pl.max_angular_velocity), float(pl.max_linear_velocity)
-
-    def _end_track(self, keep: bool = False) -> list[FusedPose]:
-        """End the track: its frames still pending released with their fused twists as they
-        are now when ``keep``, else dropped."""
-        return self._track_ended(self._forget_track(keep))  # ([] unless keep)
-
-    def _track_ended(self, final: list) -> list[FusedPose]:
-        """A track ended (its twist source reset): its pending frames released with the fused
-        states ``final`` (oldest first; :meth:`_fused`), the others dropped."""
-        out = self._fused(final)
-        self._twists.clear()
-        return out
-
-    def _forget_last_pose(self) -> None:
-        """Forget the last posed frame carried (:class:`~rs_localizer.tracking.tracker.
-        CarriedPrediction`): the next frame is not predicted from it, however soon it comes
-        (:meth:`end_track` and a subclass's ``reset``: a new video)."""
-        with self._lock:
-            self._carried.reset()
-
-    def end_track(self) -> None:
-        """End the track (e.g. the node is deactivated): the twists still pending are dropped;
-        the next frame starts a new track and is not predicted. The gyro state is kept."""
-        with self._lock:
-            self._end_track()
-            self._forget_last_pose()
-
-    def flush(self) -> list[FusedPose]:
-        """The end of the video: the twists still pending, as they are now (the track goes
-        on)."""
-        with self._lock:
-            src = self._twist_source()
-            if src is None or not self._twists:
-                return []
-            return self._fused(src.flush())
-
-    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
-        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
-        without frames the track is over (the next frame more than ``max_gap`` later resets
-        it): the twists still pending, final now. Empty without tracking, with nothing
-        pending, or before that time."""
-        tracking = self.settings.tracking
-        if tracking is None or self._twist_source() is None:
-            return []
-        with self._lock:
-            src = self._twist_source()
-            if src is None or not self._twists.idle(tracking.max_gap, now):
-                return []
-            return self._fused(src.flush())

@@ -1,226 +1,81 @@
-"""A rig of rolling-shutter cameras through a video: frames grouped into rig frames by stamp,
-one pose per rig frame, tracked, with the rig's fused twist.
+"""What only a rig of several cameras runs, as units the localizer
+(:class:`~rs_localizer.tracking.video.Localizer`) holds and calls: a camera alone is a rig of
+one and runs none of it.
 
-Each camera of the rig sends its own frames (2D-3D correspondences, its own stamp, its own
-camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
-
-1. **groups** the frames into *rig frames* by the capture time of each frame's reference line
-   (:func:`~rs_localizer.camera.reference_stamp_ns`): a rig frame holds at most one
-   frame per camera, all within ``window`` s of its earliest (:attr:`RigSettings.window`). A
-   rig frame is solved once every camera is in it or has *moved past* it (its newest frame is
-   later than the rig frame's earliest plus ``window``) or has *stopped* (no frame for
-   ``stop_after`` s of stamp time while others go on): cameras are free to miss a rig frame
-   (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not waited for and
-   the rig runs on the others, and a camera that sends again joins again;
-2. **estimates** the rig's pose at the rig frame's time (its earliest reference time) with
-   :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
-   its own stamp offset);
-3. **tracks** on the camera tracker's path (:class:`~rs_localizer.tracking.tracker.
-   TrackerPath`, the rig's views its estimator): the twist filter's prediction at the rig
-   frame's time is the rig estimator's initial model
-   (:class:`~rs_localizer.estimation.InitialModel`, the points within ``gate_px``, or
-   ``gate_sigmas`` of the predicted rotation, up to ``max_gate_px``, explained by it): when
-   it explains enough points it seeds RANSAC, pre-rotates its samples and is verified with
-   at most ``tracked_max_iterations`` samples (``tracked``); otherwise the rig frame is
-   solved as without it (``relocalized``; again from scratch if that failed); a stamp going
-   back or a gap longer than ``max_gap`` starts the track again (``reset``).
-4. **fuses** the rig's twist with the camera tracker's filter
-   (:class:`~rs_localizer.tracking.fusion.TwistFilter`, fixed lag), the rig frame being the
-   filter's "camera": orientation rig -> world, position the rig origin, velocities in the
-   rig frame. The filter's measurement is the rig estimator's: its covariance and its
-   sensitivity to acceleration during the rig frame
-   (:attr:`~rs_localizer.estimation.result.RSPoseEstimate.covariance`,
-   :attr:`~rs_localizer.estimation.result.RSPoseEstimate.acceleration_sensitivity`), as a
-   camera's estimate is for the camera tracker.
-
-A rig of one camera at the identity mounting without a covariance
-(:attr:`RigSettings.single_camera`: the camera's frame is the rig's) is that camera's video:
-the camera's :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` is its adapter, and its
-frames are solved by this same class with the camera's policies. Each frame is solved at once
-on the camera's tracker (:class:`~rs_localizer.tracking.tracker.RSTracker` with the rig's
-:attr:`~RigSettings.solver`, ``options`` and ``tracking``: cold frames with ``options``,
-tracked ones with the tracked options and the prediction's twist as the motion prior where
-``tracking.prior_from_prediction`` asks for it, a prediction that does not hold solved cold;
-made again, the old track's twists out, when the solver, the options, the tracking options or
-the camera model object change), or alone without tracking
-(:func:`~rs_localizer.estimation.estimate_rs_pose` with the frame's scores), with the gyro's
-measurement over the camera's readout from its stamp; each estimate is in the rig's terms
-(:attr:`RigOutput.estimate`: the model's velocities per second, one view), the camera's own
-kept (:attr:`RigOutput.camera_estimate`). Its time policy is the camera's: every frame is
-taken (no ``out_of_order`` nor ``late``), a stamp going back or jumping ahead is a time reset
-of the gyro's timeline only (:meth:`RigLocalizer.check_time`; the track resets itself on such
-stamps). The last posed frame is carried (the prediction without tracking) for
-:meth:`RigLocalizer.add` as for :meth:`RigLocalizer.process_image`, a frozen image starts a new
-track at the next frame (:meth:`RigLocalizer.restart_track`), and a global-shutter solver's or
-camera's own twist is final (:attr:`RigOutput.twist_now`). Given the camera's ``options``
-(``EstimateOptions()``, not the default :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`),
-``tracking`` and ``imu``, its estimates, paths and fused twists are the camera's localizer's,
-bit for bit. The refusals of a rig frame posed from one camera while others run
-(:data:`RIG_REFUSALS`) have no other camera to wait for, nor does the disagreement of
-cameras. Its images (:meth:`RigLocalizer.process_image`) are taken as the camera's: an image
-with fewer correspondences than its solver needs is skipped before the estimator
-(``frontend_too_few_points``). What stays the rig's: its counters (``rig.*``,
-``<camera>.*``).
-
-With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
-each rig frame is solved with the gyro's measurement over the rig frame's capture times
-(from the first line of its earliest camera to the last line of its latest; in the rig frame
-through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which rejects a gyro the image
-contradicts. With ``imu.estimate_bias`` the gyro's bias is estimated online from the rotation
-between consecutive solved rig frames
-(:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
-"camera"), and the IMU's mounting is checked as a camera's
-(:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`,
-:func:`~rs_localizer.tracking.gyro_input.update_gyro_checks`): while the rotation between
-posed rig frames contradicts the gyro, rig frames are solved without it. Counted:
-``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``, ``rig.gyro_missing[.<reason>]``
-(:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`), ``rig.gyro_pairs_failed``,
-``rig.gyro_inconsistent_detections``, ``rig.gyro_disabled_inconsistent``,
-``rig.gyro_bias_rejected``.
-
-Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
-failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
-rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + skipped +
-pending``. Per solved rig frame and camera: its points, inliers and share of the rig's inliers
-(:class:`CameraShare`); a camera whose points are outliers far more often than the others'
-over several rig frames is named as one that *disagrees* with the rig (a mounting off by
-degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning;
-when its points are compared with one other camera's only, both are named
-(:meth:`RigLocalizer.camera_partner`): two cameras cannot tell which mounting is wrong.
-
-The rig publishes only what its cameras agree on. The estimator's consensus
-(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`) outvotes a camera whose points
-contradict the others' (the track's prediction decides, else the number of cameras, never
-the number of points; a tie is refused, ``cameras_disagree``); without a track every camera
-is also posed alone (``verify_cameras``). A rig frame posed from one camera's points alone
-while other cameras run is refused when the track contradicts it (``contradicts_track``; a
-tag of a second camera that the pose explains, :data:`CONFIRM_MIN_INLIERS`, makes it two), or
-when there is no track and two or more other cameras run (``unconfirmed``): :data:`RIG_REFUSALS`.
-A camera whose frames never join the others' (its clock or stamp offset likely wrong) is
-named with its apparent clock offsets (:meth:`RigLocalizer.camera_apart`,
-:meth:`RigLocalizer.clock_offsets`, a warning, ``<camera>.apart``); its stamps are not
-shifted (stamps alone give an offset only up to the frame period and cannot tell a clock
-error from cameras out of phase by design): its frames are posed alone only where the
-track agrees.
-
-Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
-(:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
-(:meth:`RigLocalizer.predict_camera`), keeps the rows the estimator can use as a single camera
-does (non-finite rows dropped, then at most :attr:`RigSettings.max_points`; counted per
-camera), then takes the frame as :meth:`RigLocalizer.add` does.
-
-Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
-
-    rig = RigLocalizer(RigSettings({"front": Mounting.from_pose(R_base_front, p_front),
-                                    "left": Mounting.from_pose(R_base_left, p_left)}))
-    for f in frames:
-        frame = CameraFrame(f.stamp_ns, camera[f.name], f.uv, f.xyz, camera_name=f.name)
-        for out in rig.add(frame):
-            if out.success:
-                ...  # out.estimate.pose: the rig's pose and its own twist at out.stamp_ns
-            for fused in out.fused:
-                ...  # an earlier rig frame's pose with its fused twist
-    for out in rig.close():  # the rig frames still open
-        ...
-    for fused in rig.flush():
-        ...
+- :class:`RigGrouping`, the **grouping** of the cameras' frames into *rig frames* by the capture
+  time of each frame's reference line (:func:`~rs_localizer.camera.reference_stamp_ns`): a
+  rig frame holds at most one frame per camera, all within ``window`` s of its earliest
+  (:attr:`~rs_localizer.tracking.video.LocalizerSettings.window`). A rig frame is solved once
+  every camera is in it or has *moved past* it (its newest frame is later than the rig frame's
+  earliest plus ``window``) or has *stopped* (no frame for ``stop_after`` s of stamp time while
+  others go on, or :data:`STOP_INTERVALS` of its own frame intervals): cameras are free to miss
+  a rig frame (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not
+  waited for and the rig runs on the others, and a camera that sends again joins again. A
+  camera's frame not later than its previous one is ``out_of_order``, one older than the last
+  rig frame solved ``late``.
+- :class:`CameraAgreement`, the cameras' **disagreement** with the rig: per solved rig frame
+  and camera its points and inliers; a camera whose points are outliers far more often than the
+  others' over several rig frames *disagrees* with the rig (a mounting off by degrees, or the
+  camera's matches are wrong), with a warning; when its points are compared with one other
+  camera's only, both are named (:meth:`CameraAgreement.partner`): two cameras cannot tell
+  which mounting is wrong. A camera whose frames never join the others' (its clock or stamp
+  offset likely wrong) is *apart*, named with its apparent clock offsets
+  (:meth:`RigGrouping.clock_offsets`, a warning); its stamps are not shifted (stamps alone give
+  an offset only up to the frame period and cannot tell a clock error from cameras out of phase
+  by design): its frames are posed alone only where the track agrees.
+- :func:`refusal`, the rule by which a rig frame posed from one camera's points alone while
+  other cameras run is refused (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`): when the
+  track contradicts it (``contradicts_track``; a tag of a second camera that the pose explains,
+  :data:`CONFIRM_MIN_INLIERS`, makes it two), or when there is no track and two or more other
+  cameras run (``unconfirmed``).
+- :class:`RigViews`, a rig frame's views as the tracker path's estimator
+  (:func:`solve_rig`: :func:`~rs_localizer.estimation.rig.estimate_rig_pose`, cold, tracked or
+  relocalized).
 """
 
 from __future__ import annotations
 
-import math
-import time
 from collections import Counter, deque
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
-from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
-from ..correspondences import Frontend, VideoFrontend
 from ..estimation.estimate import InitialModel, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
 from ..estimation.options import EstimateOptions
-from ..estimation.result import (
-    CAMERAS_DISAGREE,
-    CONTRADICTS_TRACK,
-    RIG_REFUSALS,
-    UNCONFIRMED,
-    RSPoseEstimate,
-)
-from ..estimation.rig import (
-    RIG_OPTIONS,
-    VOTE_MIN_POINTS,
-    RigView,
-    camera_estimate,
-    camera_model_of_rig,
-    estimate_rig_pose,
-)
-from ..frames import Mounting
+from ..estimation.result import CONTRADICTS_TRACK, UNCONFIRMED, RSPoseEstimate
+from ..estimation.rig import VOTE_MIN_POINTS, RigView, estimate_rig_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
-from ..solvers.registry import DEFAULT_SOLVER, solver_info
-from .clock import TimeReset, VideoClock
 from .fusion import FusedState
-from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
-from .localizer import (
-    FROZEN_IMAGE_LEVEL,
-    CameraFrame,
-    CameraFrontend,
-    FusedPose,
-    LocalizerOutput,
-    VideoLocalizer,
-    search_image,
-    too_few_points,
-    usable_rows,
-)
-from .tracker import (
-    STATES,
-    RSTracker,
-    Solve,
-    TrackerOptions,
-    TrackerPath,
-    carried_model,
-    model_from_state,
-)
+from .gyro_input import TrackLog
+from .localizer import CameraFrame
+from .tracker import Solve
 
 __all__ = [
+    "APART_HISTORY",
+    "APART_MIN",
+    "APART_SHARE",
+    "CONFIRM_MIN_INLIERS",
+    "CONTRADICTION_GATE",
+    "CONTRADICTION_MIN_DEG",
+    "CONTRADICTION_MIN_M",
     "MISSED_REASONS",
-    "RIG_PATHS",
-    "RIG_REFUSALS",
     "RIG_TRACKED_MAX_ITERATIONS",
-    "SINGLE_CAMERA_SOLVER",
-    "SKIP_REASONS",
-    "CameraShare",
+    "STOP_INTERVALS",
+    "CameraAgreement",
+    "OpenRigFrame",
     "RigGrouping",
-    "RigLocalizer",
-    "RigOutput",
-    "RigSettings",
+    "RigViews",
+    "alone_deg",
+    "refusal",
+    "rig_model",
+    "solve_rig",
 ]
 
-#: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
-SKIP_REASONS = {
-    "no_camera_info": "the frame has no camera model (its camera_info has not arrived): the "
-    "camera waits, the rig runs on the others",
-    "out_of_order": "the frame's stamp is not later than the camera's previous frame's",
-    "late": "the frame is older than the last rig frame solved (it came after the other "
-    "cameras had moved past it)",
-    "time_reset": "stamps went back by more than time_reset_ns: the rig frames waiting were "
-    "dropped and the rig started again",
-    "frontend_error": "an image: the camera's front end raised (RigLocalizer.process_image)",
-    "frozen_image": "an image: the camera's previous image again (a driver re-sending its last "
-    "frame, a stalled camera; the single-camera localizer's frozen_image rule)",
-    "frontend_too_few_points": "an image of a rig of one camera: its front end found fewer "
-    "correspondences than its solver needs (the single-camera localizer's rule: dropped before "
-    "the estimator)",
-    "bad_image": "an image message that does not decode (the node: unsupported encoding, "
-    "truncated data, a compressed payload that does not decode, an empty image)",
-    "image_size_mismatch": "an image whose size is not its camera_info's (the node)",
-    "bad_input": "a message with a readable stamp the caller could not read (the node: a cloud "
-    "without its u, v, x, y, z fields)",
-}
 #: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
 MISSED_REASONS = {
     "apart": "the camera had a frame within 2 x window of the rig frame but not within window: "
@@ -231,7 +86,7 @@ MISSED_REASONS = {
     "the others",
     "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
     "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
-    "skipped": "the camera's frame within 2 x window of the rig frame was skipped (RigLocalizer."
+    "skipped": "the camera's frame within 2 x window of the rig frame was skipped (Localizer."
     "drop: an image that did not decode, a front end error, a frozen image, an unreadable "
     "cloud; counted skipped.<reason>), not a frame apart",
 }
@@ -263,291 +118,16 @@ APART_SHARE = 0.8
 #: rig of 2 Hz cameras with the default 0.5 s is otherwise cut in two at every stamp (the
 #: first camera's frame solved alone, the others stopped)
 STOP_INTERVALS = 2.0
-
-#: the paths a rig frame can take (the camera tracker's)
-RIG_PATHS = STATES
-
-
-#: the default minimal solver of one camera (:attr:`RigSettings.solver` of a rig of one, and
-#: :attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`): the registry's default
-SINGLE_CAMERA_SOLVER = DEFAULT_SOLVER
-
 #: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
 #: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
 RIG_TRACKED_MAX_ITERATIONS = 200
 
 
-@dataclass(frozen=True)
-class RigSettings:
-    """The configuration of a :class:`RigLocalizer`.
+# ---------------------------------------------------------------------- grouping
+class OpenRigFrame:
+    """A rig frame being grouped: ``frames``, camera -> (its frame, its reference time ns);
+    ``lo`` and ``hi``, its earliest and latest reference times (ns)."""
 
-    Attributes:
-        mounts: camera name -> :class:`~rs_localizer.frames.Mounting` (the camera in the rig
-            frame); the order is the cameras' order in outputs.
-        window: s; the frames of one rig frame lie within this of its earliest (reference-line
-            capture times). Stamps further apart are different rig frames (``apart``).
-        stop_after: s of stamp time without a frame of a camera (while others send) after
-            which the rig stops waiting for it (``stopped``; also for a camera that never
-            sent, counted from the rig's first frame); at least :data:`STOP_INTERVALS` of the
-            camera's own frame intervals.
-        stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
-        time_reset_ns: a time reset (:mod:`~rs_localizer.tracking.clock`, the single
-            camera's policy): a camera's frame older than its previous frame by more than this
-            (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
-            rig frames dropped), and so does a frame newer than the rig's newest by more than
-            this (a gap in a bag, a clock jump: the open rig frames solved first); counted
-            ``rig.time_resets``. A rig of one camera takes the camera's policy: any step back
-            is a time reset, its frame solved (:meth:`RigLocalizer.check_time`).
-        options: the rig estimator's options, the single camera's
-            :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
-            iterations, confidence, inliers and seed, the refinement and the velocity bounds;
-            :func:`~rs_localizer.estimation.rig.estimate_rig_pose`; default
-            :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`). A rig of one camera
-            (:attr:`single_camera`) runs the single-camera estimator with them, all of them:
-            to get the camera's own results give it the camera's options (its default,
-            ``EstimateOptions()``: the default here differs in ``ransac.min_inliers``, 8
-            instead of 12).
-        tracking: the camera tracker's
-            :class:`~rs_localizer.tracking.tracker.TrackerOptions` (the gates, the explained
-            ratio, ``max_gap``, ``tracked_max_iterations``: default
-            :data:`RIG_TRACKED_MAX_ITERATIONS`, the twist filter's ``fusion``; a rig of one
-            camera reads them all as the camera does, ``tracked_max_iterations`` None being
-            ``options``' own); None: every rig frame alone, its own twist.
-        disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
-            at least ``disagree_min_points`` points whose inlier ratio is below
-            ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
-            ``disagree_history`` rig frames *disagrees* with the rig.
-        imu: a gyro on the rig: a :class:`~rs_localizer.tracking.gyro_input.GyroSettings`
-            whose ``R_cam_imu`` is the rotation IMU -> **rig** frame (``R_rig_imu``: the rig's
-            angular velocity is ``R_rig_imu (omega_imu - bias)``), ``time_offset`` s added to
-            the IMU stamps to get the cameras' clock; ``wait``, ``buffer``, ``max_rate``,
-            ``max_gap``, ``gyro_noise``, ``gyro_bias``, ``gyro_bias_sigma``,
-            ``estimate_bias``, ``bias_random_walk`` as for one camera. None: no gyro.
-        max_points: the most rows a camera's frame of :meth:`RigLocalizer.process_image`
-            gives the rig estimator, as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_points`: the front
-            end's rows with a NaN or inf dropped first, then the rest capped (highest scores
-            first, else spread over the image;
-            :func:`~rs_localizer.tracking.localizer.usable_rows`); None: no cap. Frames given
-            to :meth:`RigLocalizer.add` are taken as they are.
-        time_offsets: camera -> s added to its stamps to put its frames on the rig's clock
-            (default 0 for each camera): a camera whose driver stamps its frames late or
-            early (at the end of its transfer, on another clock) by a known, constant amount,
-            e.g. the apparent offset :meth:`RigLocalizer.camera_apart` reports for a camera
-            whose frames never join the others'. A camera's frame is then grouped, timed in
-            its rig frame and gyro-aligned at :meth:`reference_ns`; its
-            :class:`~rs_localizer.tracking.localizer.CameraFrame` keeps the stamp it was
-            given. At most 1 s each (a clock further off is another
-            clock: a time reset).
-        solver: the minimal solver of a rig of one camera (:attr:`single_camera`), any of
-            :mod:`rs_localizer.solvers.registry` as a camera's
-            (:attr:`~rs_localizer.tracking.sequence.SequenceSettings.solver`; default
-            :data:`SINGLE_CAMERA_SOLVER`); a rig of several cameras runs the rig estimator's
-            own.
-        check_gyro: check the gyro against the rotation between posed rig frames and solve
-            without it while they disagree (as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.check_gyro`; off only to
-            show what the check prevents).
-        frozen_image_level: a camera's image of :meth:`RigLocalizer.process_image` whose
-            pixel sample differs from its previous image's by at most this mean absolute
-            difference (gray levels) is the same picture again, skipped as ``frozen_image``
-            (as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.frozen_image_level`).
-            Negative: never.
-    """
-
-    mounts: dict
-    window: float = 0.015
-    stop_after: float = 0.5
-    stamp_row: float = 0.0
-    time_reset_ns: int = 10**9
-    options: EstimateOptions = RIG_OPTIONS
-    tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
-    disagree_ratio: float = 0.5
-    disagree_min_points: int = 12
-    disagree_frames: int = 3
-    disagree_history: int = 5
-    imu: GyroSettings | None = None
-    max_points: int | None = None
-    time_offsets: dict = field(default_factory=dict)
-    solver: str = SINGLE_CAMERA_SOLVER
-    check_gyro: bool = True
-    frozen_image_level: float = FROZEN_IMAGE_LEVEL
-
-    def __post_init__(self):
-        if not self.mounts:
-            raise ValueError("a rig needs at least one camera")
-        for name, m in self.mounts.items():
-            if not isinstance(m, Mounting):
-                raise ValueError(f"camera {name!r} has no mounting (a Mounting)")
-        offsets = {}
-        for name, dt in dict(self.time_offsets).items():
-            if name not in self.mounts:
-                raise ValueError(f"time_offsets: camera {name!r} is not in the rig")
-            if not (isinstance(dt, (int, float)) and math.isfinite(dt) and abs(dt) <= 1.0):
-                raise ValueError(f"time_offsets: {name!r} must be finite, at most 1 s, got {dt!r}")
-            offsets[name] = float(dt)
-        object.__setattr__(self, "time_offsets", offsets)
-        if not (np.isfinite(self.window) and self.window >= 0):
-            raise ValueError(f"window must be >= 0 s, got {self.window}")
-        if not (np.isfinite(self.stop_after) and self.stop_after > 0):
-            raise ValueError(f"stop_after must be > 0 s, got {self.stop_after}")
-        if not 1 <= self.disagree_frames <= self.disagree_history:
-            raise ValueError("need 1 <= disagree_frames <= disagree_history")
-
-    @property
-    def cameras(self) -> tuple:
-        """The cameras' names, in order."""
-        return tuple(self.mounts)
-
-    @property
-    def single_camera(self) -> bool:
-        """The rig is its one camera: a rig of one camera at the identity mounting without a
-        covariance (the camera's frame is the rig's). Its rig frames are solved as that
-        camera's own video (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`):
-        module docstring."""
-        if len(self.mounts) != 1:
-            return False
-        (m,) = self.mounts.values()
-        return bool(m.covariance is None and np.array_equal(m.R, np.eye(3)) and not np.any(m.c))
-
-    def reference_ns(self, name: str, stamp_ns: int, camera: CameraModel | None) -> int:
-        """ns, camera ``name``'s frame stamped ``stamp_ns`` on the rig's clock: the capture
-        time of its reference line (:func:`~rs_localizer.camera.reference_stamp_ns` from the
-        row ``stamp_row``; without a ``camera`` model, the stamp) plus its
-        :attr:`time_offsets` entry."""
-        t = stamp_ns if camera is None else reference_stamp_ns(stamp_ns, camera, self.stamp_row)
-        dt = self.time_offsets.get(name, 0.0)
-        return t if dt == 0.0 else t + int(round(dt * 1e9))
-
-    @property
-    def max_gap(self) -> float:
-        """s: the rig's one gap policy, ``tracking.max_gap`` (the
-        :class:`~rs_localizer.tracking.tracker.TrackerOptions` default, 0.5 s, without
-        tracking), as a camera's
-        :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`: rig frames further
-        apart share nothing across the gap (the track resets, the gyro's mount check and bias
-        estimator form no pair)."""
-        t = self.tracking
-        return float(t.max_gap if t is not None else TrackerOptions.max_gap)
-
-
-@dataclass(frozen=True)
-class CameraShare:
-    """One camera in a solved rig frame: its ``points``, ``inliers`` (reprojection error of the
-    rig's pose within ``threshold_px``), ``share`` of the rig's inliers (0-1) and inlier
-    ``ratio`` (inliers / points; NaN without points); ``outvoted``: the estimator's consensus
-    left its points out (:attr:`RigOutput.outvoted`)."""
-
-    points: int
-    inliers: int
-    share: float
-    ratio: float
-    outvoted: bool = False
-
-
-@dataclass
-class RigOutput(LocalizerOutput):
-    """A rig frame out of :class:`RigLocalizer`: a
-    :class:`~rs_localizer.tracking.localizer.LocalizerOutput` (``stamp_ns``, the rig frame's
-    time: its earliest reference-line capture time, the time of the pose; ``estimate``, the
-    rig estimator's result: when ``success``, the rig's pose and own twist at ``stamp_ns``
-    (``estimate.pose``, rig frame) with their covariances, what the twist filter fuses;
-    ``path``, :data:`RIG_PATHS`; ``fused``, :class:`~rs_localizer.tracking.localizer.FusedPose`
-    in the rig frame; ``gyro``, the rig frame's measurement in the rig frame (None also when
-    its samples are missing: ``rig.gyro_missing``); ``error``, ``compiled``, ``success``) with
-    the rig's own fields.
-
-    Attributes:
-        cameras: the cameras in it (rig order); missing: camera -> a key of
-            :data:`MISSED_REASONS` for the others.
-        stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
-        shares: camera -> :class:`CameraShare` (solved rig frames).
-        disagreeing: cameras that disagree with the rig now (module docstring).
-        tags: camera -> its frame's tag.
-        frames: camera -> its :class:`~rs_localizer.tracking.localizer.CameraFrame` (the rows
-            given to the estimator: the rig's inliers per camera index them; e.g. a camera's
-            debug image).
-        twist_now: the rig frame's own twist is its final twist, none comes in a later
-            ``fused``: no tracking, or a rig of one camera whose solver is a global-shutter
-            one or whose camera has no readout time (as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
-        gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
-        camera_estimate: a rig of one camera (:attr:`RigSettings.single_camera`): its
-            camera's own estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`'s, the
-            model's velocities per unit RS coordinate), the one ``estimate`` is made from;
-            None for a rig of several cameras or when the estimator did not run.
-    """
-
-    cameras: tuple = ()
-    missing: dict = field(default_factory=dict)
-    stamp_offsets: dict = field(default_factory=dict)
-    shares: dict = field(default_factory=dict)
-    disagreeing: tuple = ()
-    tags: dict = field(default_factory=dict)
-    frames: dict = field(default_factory=dict)
-    twist_now: bool = True
-    gyro_seconds: float = 0.0
-    camera_estimate: RSPoseEstimate | None = None
-
-    @property
-    def num_points(self) -> int:
-        """The rows given to the estimator, every camera's (:attr:`frames`) together."""
-        return sum(len(f.points2d) for f in self.frames.values())
-
-    @property
-    def outvoted(self) -> tuple:
-        """The cameras of :attr:`cameras` the estimator's consensus left out
-        (:attr:`~rs_localizer.estimation.result.RSPoseEstimate.disagreeing`): on a posed rig
-        frame those outvoted by the cameras that posed it, on ``cameras_disagree`` every
-        camera of the groups that contradict each other; () otherwise."""
-        est = self.estimate
-        if est is None:
-            return ()
-        return tuple(self.cameras[k] for k in est.disagreeing if k < len(self.cameras))
-
-
-# ---------------------------------------------------------------------- the rig model
-def _model_of(Ori, p, omega, v):
-    """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
-    in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
-    ``w = -omega``, ``t = w x C - v`` (:func:`~rs_localizer.pose.model_from_twist` with 1 s
-    per unit)."""
-    R = Ori.T
-    C = -R @ p
-    w, t = model_from_twist(C, omega, v, 1.0)
-    return R, C, w, t
-
-
-# ---------------------------------------------------------------------- bookkeeping
-def _same_mount(a: Mounting, b: Mounting) -> bool:
-    """Whether two mountings are the same (rotation, position and covariance)."""
-    if a is b:
-        return True
-    cov = (a.covariance is None) == (b.covariance is None) and (
-        a.covariance is None or np.array_equal(a.covariance, b.covariance)
-    )
-    return bool(cov and np.array_equal(a.R, b.R) and np.array_equal(a.c, b.c))
-
-
-class _Camera:
-    def __init__(self, name: str, mount: Mounting, history: int):
-        self.name, self.mount = name, mount
-        self.newest: int | None = None  # ns, newest stamp (reference time when known)
-        self.last_ref: int | None = None  # ns, the last accepted frame's reference time
-        self.recent: deque = deque(maxlen=8)  # reference times of the last frames
-        self.stopped = False
-        self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
-        self.dropped: deque = deque(maxlen=8)  # reference times of its last frames skipped
-        self.flags: deque = deque(maxlen=history)
-        self.disagrees = False
-        self.partner: str | None = None  # (two cameras that disagree: the other one)
-        self.last_share: CameraShare | None = None
-        self.apart_flags: deque = deque(maxlen=APART_HISTORY)  # (rig frames it was apart in)
-        self.apart = False
-
-
-class _Group:
     def __init__(self, name: str, frame: CameraFrame, ref: int):
         self.frames = {name: (frame, ref)}
         self.lo = self.hi = ref
@@ -560,442 +140,142 @@ class _Group:
         self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
 
 
-class _ImageInput:
-    """The image input's state (:meth:`RigLocalizer.process_image`): per camera its front end
-    (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
-    last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
-    time)`` -> ``(stamp, pixels, camera model)``)."""
+class _CameraTimes:
+    """One camera's frames as the grouping sees them."""
 
-    def __init__(self):
-        self.frontends: dict[str, CameraFrontend] = {}
-        self.waiting: dict = {}
+    def __init__(self, name: str):
+        self.name = name
+        self.newest: int | None = None  # ns, newest stamp (reference time when known)
+        self.last_ref: int | None = None  # ns, the last accepted frame's reference time
+        self.recent: deque = deque(maxlen=8)  # reference times of the last frames
+        self.stopped = False
+        self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
+        self.dropped: deque = deque(maxlen=8)  # reference times of its last frames skipped
 
 
-_NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
-
-
-class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
-    """A rig's video (module docstring).
+class RigGrouping:
+    """The grouping of a rig's cameras' frames into rig frames (module docstring): the rig
+    frames open, each camera's frame times, the rules of when a rig frame is complete and why a
+    camera is missing from it.
 
     Args:
-        settings: :class:`RigSettings`.
-        log: the :class:`~rs_localizer.tracking.gyro_input.TrackLog` (None: silent) of a
-            camera stopped or back, a camera that disagrees with the rig.
-        implementation: ``implementation()`` names the rig estimator's implementation a rig
-            frame runs on, ``"compiled"`` or ``"numpy"``
-            (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``),
-            asked once per rig frame; None: the estimator's default. A node whose kernels
-            compile in the background passes
-            :func:`rs_localizer.runtime.background.ready_implementation`: until the kernels
-            are ready the rig frames are solved on ``"numpy"`` (the refinement and covariance
-            in NumPy/SciPy) with the track, the gyro and the twist filter as on the compiled
-            kernels, a track under way going on across the switch (:attr:`RigOutput.compiled`,
-            counted ``rig.uncompiled``).
-        gyro_input: the gyro's :class:`~rs_localizer.tracking.gyro_input.GyroInput` (its
-            samples, bias, mount check, warnings and counters under the caller's names); None:
-            the rig's own, counted ``rig.gyro_*``.
-        camera_video: the rig of one camera is that camera's own video
-            (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer` runs its frames
-            through it): its warnings are worded for a camera (the rolling-shutter timing's
-            advice names the camera's ``rs.*`` parameters; a time reset is the caller's to
-            report, :meth:`check_time`), its fused twists carry their frame's own tag
-            rather than a camera -> tag dict, and its outputs' ``estimate`` is the camera's own
-            (:attr:`RigOutput.camera_estimate`: the model's velocities per unit RS coordinate,
-            not per second). Only for a rig of one (else ValueError).
+        cameras: the cameras' names, in the rig's order.
+        counts: the localizer's counters (``rig_frames``, ``<camera>.stopped``,
+            ``rig.skipped[.time_reset]``). log: its warnings (a camera stopped, back).
+        skip: ``skip(camera, reason)`` counts a camera's frame skipped.
 
-    Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
-    ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
-    (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
-    was found to disagree), ``.apart`` (times its frames were found apart from the others'),
-    ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`),
-    ``.points_dropped`` (rows of its images' correspondences with a NaN or inf),
-    ``.capped_clouds`` and ``.capped_points`` (its images' frames capped to
-    :attr:`RigSettings.max_points`, the rows left out; :meth:`process_image`);
-    ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
-    :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
-    ``rig.skipped.time_reset``, ``rig.time_resets`` (time resets,
-    :attr:`RigSettings.time_reset_ns`), ``rig.incomplete`` (solved without every camera),
-    ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation),
-    ``rig.track_outvote_undone`` (tracked rig frames whose prediction outvoted a camera into a
-    pose it contradicts itself, posed from the rig frame solved without it).
-    Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
+    Attributes:
+        open: the rig frames open, oldest first. first: ns, the first frame's time since the
+            start (or the last time reset), None before one. last_closed: ns, the time of the
+            last rig frame closed, None before one.
     """
 
-    _rig = True
-
     def __init__(
-        self,
-        settings: RigSettings,
-        log: TrackLog | None = None,
-        implementation: Callable[[], str] | None = None,
-        *,
-        gyro_input: GyroInput | None = None,
-        camera_video: bool = False,
+        self, cameras: tuple, counts: Counter, log: TrackLog, skip: Callable[[str, str], Any]
     ):
-        if camera_video and not settings.single_camera:
-            raise ValueError("camera_video needs a rig of one camera (RigSettings.single_camera)")
-        self.settings = settings
-        # (a camera's own video: its warnings and its fused twists' tags are the camera's)
-        self._rig = not camera_video
-        self._implementation = implementation
-        self._impl: str | None = None  # (the rig frame being solved: its implementation)
-        self.log: TrackLog = log if log is not None else SilentLog()
-        self.counts: Counter = Counter()
-        self._cams = {
-            n: _Camera(n, m, settings.disagree_history) for n, m in settings.mounts.items()
-        }
-        self._open: list[_Group] = []
-        self._first: int | None = None
-        self._last_closed: int | None = None
-        # (the rig frames waiting for their fused twist, their last camera frame's wall time;
-        # tracking/localizer.py)
-        self._init_video()
-        self._carried.max_gap = settings.max_gap  # (without tracking: the default, 0.5 s)
-        self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
-        # the tracker path (tracking/tracker.py: the time rule, the prediction, the twist
-        # filter), the rig's views its estimator; None without tracking. A rig of one's is its
-        # camera's tracker, made at its first frame and again when what it was made for
-        # changes (_track_key: solver, options, tracking, camera model)
-        self._single = settings.single_camera  # (a rig of one; its mountings stay)
-        self._track: TrackerPath | None = None if self._single else _new_track(settings)
-        self._track_key = self._track_camera = None
-        self._track_counts: Counter = Counter()  # (of the tracks ended)
-        self._track_over = False  # (restart_track: the next rig frame starts a new track)
-        # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
-        # of its mounting on the rig as a camera's, counted rig.gyro_* (or the caller's)
-        if gyro_input is None:
-            gyro_input = GyroInput(
-                self._count_gyro, self.log, what="rig frame", key="rig.gyro",
-                mount="IMU -> base_frame", used_key="gyro_used",
-            )  # fmt: skip
-        self.gyro_input = gyro_input
-        self.gyro_input.configure(
-            settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
-        )
-        # the time-reset policy (tracking/clock.py): a camera's step back by more than
-        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest; a
-        # rig of one's is its camera's (any step back)
-        back = 0 if self._single else settings.time_reset_ns
-        self._clock = VideoClock(settings.time_reset_ns, back)
-        self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
-        self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
+        self.cams = {n: _CameraTimes(n) for n in cameras}
+        self.open: list[OpenRigFrame] = []
+        self.first: int | None = None
+        self.last_closed: int | None = None
+        self.counts, self.log, self._skip = counts, log, skip
 
-    def _count_gyro(self, key: str, n: int = 1) -> None:
-        self.counts[f"rig.{key}"] += n
+    def last_ref(self, name: str) -> int | None:
+        """ns, the reference time of camera ``name``'s last frame taken (None: none since the
+        start or the last time reset)."""
+        return self.cams[name].last_ref
 
-    def configure(self, settings: RigSettings) -> None:
-        """Use ``settings`` from the next rig frame on, as a camera's
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.configure`: the estimator's
-        ``options``, ``tracking``, ``imu``, ``time_reset_ns`` and ``max_points``. The counts,
-        the rig frames open and the gyro samples are kept; the gyro's bias estimate and mount
-        check are kept while the gyro calibration they depend on stays the same, else started
-        again; other ``tracking`` options end the track (its twists still pending go out with
-        the next rig frame, :attr:`RigOutput.fused`) and the next rig frame starts a new one.
+    def stopped(self, name: str) -> bool:
+        """Camera ``name`` has stopped (no frame for ``stop_after`` s while others send)."""
+        return self.cams[name].stopped
 
-        A rig of one camera (:attr:`RigSettings.single_camera`) is configured as its camera's
-        video: its ``solver``, ``options`` or ``tracking`` changed, or a new camera model
-        object, end its track at its next frame (its twists still pending go out with it,
-        counted a reset); it has no rig frames open, so its ``stamp_row``, ``time_offsets``,
-        ``window`` and the rest may change too.
+    def waiting(self, name: str) -> bool:
+        """No frame of camera ``name`` yet (since the start or the last time reset)."""
+        return self.cams[name].newest is None
 
-        Raises:
-            ValueError: settings of another rig: other cameras or mountings, ``window``,
-                ``stop_after``, ``stamp_row``, ``time_offsets`` or disagreement rule (the rig
-                frames open and each camera's history were made with them: a new
-                :class:`RigLocalizer`).
-        """
-        old = self.settings
-        shape = ("window", "stop_after", "stamp_row", "time_offsets", "disagree_ratio",
-                 "disagree_min_points", "disagree_frames", "disagree_history")  # fmt: skip
-        changed = [] if self._single else [
-            k for k in shape if getattr(settings, k) != getattr(old, k)
-        ]  # fmt: skip
-        if settings.cameras != old.cameras or not all(
-            _same_mount(settings.mounts[n], old.mounts[n]) for n in old.cameras
-        ):
-            changed.insert(0, "mounts")
-        if changed:
-            raise ValueError(f"a configured rig keeps its {', '.join(changed)}")
-        with self._lock:
-            # (a rig of one: its camera's tracker is made again at its next frame when its
-            # solver, options or tracking changed, as the camera's)
-            if not self._single and settings.tracking != old.tracking:
-                # (the old track's twists: the old bounds)
-                self._carry += self._end_track(keep=True)
-                if self._track is not None:
-                    self._track_counts.update(self._track.track_counts())
-                self._track = _new_track(settings)
-            self.settings = settings
-            self._carried.max_gap = settings.max_gap
-            self._clock.time_reset_ns = settings.time_reset_ns
-            if not self._single:
-                self._clock.back_tolerance_ns = settings.time_reset_ns
-            self.gyro_input.configure(
-                settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
-            )
+    def pending(self, name: str) -> int:
+        """Camera ``name``'s frames in rig frames open."""
+        return sum(name in g.frames for g in self.open)
 
-    def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
-        """The gyro measurement over the rig frame's capture times (rig frame;
-        :meth:`~rs_localizer.tracking.localizer.VideoLocalizer._gyro_readouts` of its cameras,
-        each at its reference time after the rig frame's), waiting up to ``imu.wait`` for its
-        samples; None without a gyro or its samples (counted)."""
-        return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
+    def note_first(self, stamp: int) -> None:
+        """A frame came at ``stamp`` (ns): the first since the start or the last time reset
+        when none came before."""
+        if self.first is None:
+            self.first = stamp
 
-    def _gyro_done(self, out: RigOutput) -> None:
-        """The gyro's outcome of a rig frame (:meth:`~.gyro_input.GyroInput.solved`, a
-        camera's rule)."""
-        self.gyro_input.solved(out.stamp_ns, out.estimate, out.path in ("cold", "reset"))
+    def no_camera_info(self, name: str, stamp: int) -> None:
+        """Camera ``name``'s frame at ``stamp`` (ns) has no camera model: skipped
+        (``no_camera_info``), the camera counted as having sent a frame then."""
+        cam = self.cams[name]
+        cam.no_info.append(stamp)
+        self._skip(name, "no_camera_info")
+        cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
 
-    # ---------------------------------------------------------------- read-outs
-    @property
-    def cameras(self) -> tuple:
-        return self.settings.cameras
+    def skipped(self, name: str, t: int) -> None:
+        """Camera ``name``'s frame at ``t`` (ns) was skipped (counted by the caller): the
+        camera counts as having sent a frame then (the rig does not wait for it)."""
+        cam = self.cams[name]
+        cam.dropped.append(t)
+        if cam.last_ref is None or t > cam.last_ref:
+            cam.newest = t if cam.newest is None else max(cam.newest, t)
 
-    def camera_counts(self, name: str) -> dict:
-        """``received``, ``solved``, ``failed``, ``skipped``, ``pending`` of a camera
-        (received = the other four summed)."""
-        c = self.counts
-        pending = sum(name in g.frames for g in self._open)
-        keys = ("received", "solved", "failed", "skipped")
-        out = {k: c[f"{name}.{k}"] for k in keys}
-        out["pending"] = pending
-        return out
+    def solved_at_once(self, name: str, ref: int) -> None:
+        """A rig of one camera's frame at reference time ``ref`` (ns), solved at once (no rig
+        frame waits): its time noted, the last rig frame's."""
+        cam = self.cams[name]
+        cam.last_ref = cam.newest = ref
+        cam.recent.append(ref)
+        self.note_first(ref)  # (after a time reset)
+        self.counts["rig_frames"] += 1
+        self.last_closed = ref
 
-    def rig_counts(self) -> dict:
-        """``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending`` of the rig frames
-        (rig_frames = the other four summed)."""
-        c = self.counts
-        return {
-            "rig_frames": c["rig_frames"],
-            "solved": c["rig.solved"],
-            "failed": c["rig.failed"],
-            "skipped": c["rig.skipped"],
-            "pending": len(self._open),
-        }
-
-    def gyro_counts(self) -> dict[str, int]:
-        """The rig's gyro counts (``rig.gyro_*``, :mod:`~rs_localizer.tracking.gyro_input`) by
-        the names a camera's localizer counts them under, the rig frames for a camera's frames:
-        ``frames_with_gyro`` (rig frames posed with the gyro), ``gyro_rejected[.<reason>]``,
-        ``gyro_missing[.<reason>]``, ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
-        ``gyro_inconsistent_detections``, ``gyro_bias_rejected``; those never counted are left
-        out."""
-        out = {}
-        for k, v in sorted(self.counts.items()):
-            if k.startswith("rig.gyro_"):
-                k = k[len("rig.") :]
-                out["frames_with_gyro" if k == "gyro_used" else k] = v
-        return out
-
-    def camera_state(self, name: str) -> str:
-        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees`` (also the
-        partner of a camera that disagrees with it alone, :meth:`camera_partner`)."""
-        cam = self._cams[name]
-        if cam.disagrees or any(c.disagrees and c.partner == name for c in self._cams.values()):
-            return "disagrees"
-        if cam.stopped:
-            return "stopped"
-        return "waiting" if cam.newest is None else "running"
-
-    def last_share(self, name: str) -> CameraShare | None:
-        """The camera's :class:`CameraShare` in the last solved rig frame it was in."""
-        return self._cams[name].last_share
-
-    @property
-    def track_state(self) -> str:
-        """``tracking``, ``lost`` or ``disabled``."""
-        t = self._track
-        if self.settings.tracking is None:
-            return "disabled"
-        return "lost" if t is None else t.track_state
-
-    def tracking_values(self) -> dict:
-        """The rig's tracking, as a camera's video reports it: ``track_state``
-        (:attr:`track_state`), ``frames_tracked``, ``relocalizations`` and ``resets`` (over
-        the rig's tracks; a rig of one counts a new track made for other settings or another
-        camera model, or after :meth:`restart_track`, as a reset), ``twists_own_frame`` and
-        ``twists_implausible``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`),
-        ``readout_contradicted`` and ``readout_suspect``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
-        t = self._track
-        tc = self._track_counts
-        return {
-            "track_state": self.track_state,
-            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
-            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
-            "resets": tc["resets"] + (t.resets if t else 0),
-            **self.twist_values(),
-            **self.readout_values(),
-        }
-
-    # ---------------------------------------------------------------- frames
-    def add(self, frame: CameraFrame, reference_ns: int | None = None) -> list[RigOutput]:
-        """Take one camera's frame; returns the rig frames it completed, solved (oldest first;
-        often none, or one). ``reference_ns``: the frame's time on the rig's clock
-        (:meth:`RigSettings.reference_ns`) when the caller made it; None: made here.
-
-        A rig of one camera (:attr:`RigSettings.single_camera`) takes its frames as its
-        camera's video does: each is solved at once, whatever its stamp (no ``out_of_order``
-        nor ``late``): a stamp older than the previous one, or newer by more than
-        ``time_reset_ns``, is a time reset (:meth:`check_time`) that starts the gyro's
-        timeline again, and its track resets itself on such stamps (a step back, a gap over
-        ``max_gap``).
-
-        Raises:
-            ValueError: a camera not in the rig.
-        """
-        if frame.camera is None:
-            return self._add(frame, None)
-        if reference_ns is None:
-            s = self.settings
-            reference_ns = s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera)
-        return self._add(frame, reference_ns)
-
-    def _add(self, frame: CameraFrame, ref: int | None) -> list[RigOutput]:
-        """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
-        camera model)."""
-        name = frame.camera_name
-        cam = self._cams.get(name)
-        if cam is None:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        self.counts[f"{name}.received"] += 1
-        self._twists.note_frame()
-        stamp = self.settings.reference_ns(name, frame.stamp_ns, None)  # (+ its time offset)
-        if self._first is None:
-            self._first = stamp
-        if frame.camera is None:
-            cam.no_info.append(stamp)
-            self._skip(name, "no_camera_info")
-            cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
-            return self._ready()
-        if self._single:
-            self._step_alone(stamp)
-            cam.last_ref = cam.newest = ref
-            cam.recent.append(ref)
-            if self._first is None:  # (after a time reset)
-                self._first = ref
-            self.counts["rig_frames"] += 1
-            return [self._solve_alone(name, frame, ref)]
-        out: list[RigOutput] = []
-        reset = self._clock.step(ref, cam.last_ref)
-        if reset is not None:
-            if reset.reason == "stamp_jump":
-                self.counts[f"{name}.stamp_jumped_ahead"] += 1
-            out += self._time_reset(reset)
-        elif cam.last_ref is not None and ref <= cam.last_ref:
+    def take(self, name: str, frame: CameraFrame, ref: int, window: float) -> bool:
+        """Camera ``name``'s ``frame`` at reference time ``ref`` (ns) into the rig frame it
+        fits (within ``window`` s of its earliest), or a new one; False (skipped, counted) when
+        it is not later than the camera's previous frame (``out_of_order``) or older than the
+        last rig frame closed (``late``)."""
+        cam = self.cams[name]
+        if cam.last_ref is not None and ref <= cam.last_ref:
             self._skip(name, "out_of_order")
-            return out
-        if self._last_closed is not None and ref < self._last_closed:
+            return False
+        if self.last_closed is not None and ref < self.last_closed:
             self._skip(name, "late")
             cam.last_ref = ref
-            return out
+            return False
         cam.last_ref = ref
         cam.newest = ref if cam.newest is None else max(cam.newest, ref)
         cam.recent.append(ref)
-        if self._first is None:  # (after a time reset)
-            self._first = ref
+        self.note_first(ref)  # (after a time reset)
         if cam.stopped:
             cam.stopped = False
             self.log.info(f"rig camera {name!r} sends frames again")
-        window_ns = int(round(self.settings.window * 1e9))
-        for g in self._open:
+        window_ns = int(round(window * 1e9))
+        for g in self.open:
             if g.fits(name, ref, window_ns):
                 g.add(name, frame, ref)
                 break
         else:
-            self._open.append(_Group(name, frame, ref))
-            self._open.sort(key=lambda g: g.lo)
+            self.open.append(OpenRigFrame(name, frame, ref))
+            self.open.sort(key=lambda g: g.lo)
             self.counts["rig_frames"] += 1
-        return out + self._ready()
+        return True
 
-    def check_time(self, stamp_ns: int) -> str | None:
-        """A rig of one camera: note a frame's stamp (ns, the capture time of row
-        ``stamp_row``), as its camera's video does. A stamp older than the previous frame's,
-        or newer by more than ``time_reset_ns``, is a time reset: returns why (else None), and
-        the gyro's timeline starts again (on a stamp going back the samples buffered so far
-        are dropped, on a jump forward those older than the previous frame; the bias
-        estimator's and the gyro check's pairing restart; counted ``rig.time_resets``). Its
-        track resets itself on the same stamps. :meth:`add` notes each frame's stamp; calling
-        this first for the same stamp (to act on a reset before the frame is decoded) does
-        not count it twice.
-
-        Raises:
-            ValueError: a rig of several cameras (each camera's frame is checked as it is
-                added), a stamp beyond the int64 nanosecond range.
-        """
-        if not self._single:
-            raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
-        (name,) = self._cams
-        return self._step_alone(self.settings.reference_ns(name, checked_stamp(stamp_ns), None))
-
-    def _step_alone(self, stamp: int) -> str | None:
-        """:meth:`check_time` of a rig of one's stamp (ns, with its time offset)."""
-        reset = self._clock.step(stamp, self._clock.newest)
-        if reset is None:
-            return None
-        self._time_reset(reset)
-        return reset.detail
-
-    def restart_track(self) -> None:
-        """The next rig frame starts a new track, and nothing predicts a frame before it
-        (:meth:`predict_camera` gives None): the cameras moved by an unknown amount meanwhile
-        (a rig of one camera's frozen image, :meth:`process_image`: a prediction carried over
-        the frozen frames would misplace the front end's search). The track's twists still
-        pending go out with that rig frame, final as they are then; counted as a reset
-        (:meth:`tracking_values`)."""
-        with self._lock:
-            self._track_over = True
-
-    def _skip(self, name: str, reason: str) -> None:
-        self.counts[f"{name}.skipped"] += 1
-        self.counts[f"{name}.skipped.{reason}"] += 1
-
-    def _timeline_ended(self, reset: TimeReset | None) -> list[RigOutput]:
-        """A time reset's rig part (:mod:`~rs_localizer.tracking.clock`; None: :meth:`reset`;
-        the gyro's timeline starts again after it): the open rig frames solved as they are on
-        a jump ahead (``stamp_jump``, returned), else dropped (``time_reset``); the track and
-        the cameras' timelines started again; the old track's pending twists go out with the
-        next rig frame (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on
-        :meth:`reset`). A rig of one camera, as its camera's video: a time reset ends nothing
-        (its track resets itself on the same stamps); :meth:`reset` ends its track, its
-        twists still pending dropped."""
-        solved = []
-        if reset is not None:
-            self.counts["rig.time_resets"] += 1
-            if self._rig:  # (a camera's video: the caller reports it, check_time)
-                self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
-            if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
-                solved = self.close()
-        for g in self._open:
-            for n in g.frames:
-                self._skip(n, "time_reset")
-            self.counts["rig.skipped"] += 1
-            self.counts["rig.skipped.time_reset"] += 1
-        self._open = []
-        for cam in self._cams.values():
-            cam.newest = cam.last_ref = None
-            cam.recent.clear()
-            cam.stopped = False
-        self._first = self._last_closed = None
-        if not self._single:
-            self._carry += self._end_track(keep=True)
-        elif reset is None:
-            self._end_track()
-            self._track_over = False
-        return solved
-
-    def _ready(self) -> list[RigOutput]:
-        """Solve the open rig frames every camera has joined, moved past or stopped for."""
-        s = self.settings
-        now = max((c.newest for c in self._cams.values() if c.newest is not None), default=None)
+    def complete(self, window: float, stop_after: float) -> Iterator[OpenRigFrame]:
+        """The open rig frames every camera has joined, moved past (its newest frame later than
+        the rig frame's earliest plus ``window`` s) or stopped for (no frame for ``stop_after``
+        s, :meth:`stop_ns`; marked here, with a warning), oldest first, each taken out of
+        :attr:`open` as it is handed out."""
+        now = max((c.newest for c in self.cams.values() if c.newest is not None), default=None)
         if now is None:
-            return []
-        stop_ns = s.stop_after * 1e9
-        for cam in self._cams.values():
-            last = cam.newest if cam.newest is not None else self._first
+            return
+        stop_ns = stop_after * 1e9
+        for cam in self.cams.values():
+            last = cam.newest if cam.newest is not None else self.first
             # (stop_after first: the camera's own intervals only lengthen it)
-            if not cam.stopped and now - last > stop_ns and now - last > self._stop_ns(cam):
+            if (
+                not cam.stopped
+                and now - last > stop_ns
+                and now - last > self.stop_ns(cam, stop_after)
+            ):
                 cam.stopped = True
                 self.counts[f"{cam.name}.stopped"] += 1
                 self.log.warning(
@@ -1003,371 +283,46 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                     f"rig camera {cam.name!r}: no frame for {(now - last) * 1e-9:.2f} s "
                     "(stop_after): the rig runs on the other cameras",
                 )
-        window_ns = int(round(s.window * 1e9))
-        out = []
-        while self._open:
-            g = self._open[0]
+        window_ns = int(round(window * 1e9))
+        while self.open:
+            g = self.open[0]
             if not all(
                 n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + window_ns)
-                for n, c in self._cams.items()
+                for n, c in self.cams.items()
             ):
                 break
-            self._open.pop(0)
-            out.append(self._solve(g))
-        return out
+            self.open.pop(0)
+            yield g
 
-    def _stop_ns(self, cam: _Camera) -> float:
-        """ns without a frame of ``cam`` after which it counts as stopped: ``stop_after``, or
+    def stop_ns(self, cam: _CameraTimes, stop_after: float) -> float:
+        """ns without a frame of ``cam`` after which it counts as stopped: ``stop_after`` s, or
         :data:`STOP_INTERVALS` of its own frame intervals (the median over its recent frames;
         before it has two, the rig's cameras' together) when that is longer, so that a
         camera slower than ``1 / stop_after`` frames per second is not taken as stopped
         between its frames."""
         steps = _frame_steps(cam.recent)
         if not len(steps):
-            steps = np.concatenate([_frame_steps(c.recent) for c in self._cams.values()])
-        stop_ns = self.settings.stop_after * 1e9
+            steps = np.concatenate([_frame_steps(c.recent) for c in self.cams.values()])
+        stop_ns = stop_after * 1e9
         return max(stop_ns, STOP_INTERVALS * float(np.median(steps))) if len(steps) else stop_ns
 
-    def close(self) -> list[RigOutput]:
-        """Solve every rig frame still open (the end of a video), oldest first."""
-        out = []
-        while self._open:
-            out.append(self._solve(self._open.pop(0)))
-        return out
+    def close_all(self) -> Iterator[OpenRigFrame]:
+        """Every rig frame still open (the end of a video), oldest first, each taken out of
+        :attr:`open` as it is handed out."""
+        while self.open:
+            yield self.open.pop(0)
 
-    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
-        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
-        without a camera frame (:meth:`add`, :meth:`drop`) the video has stopped: the rig
-        frames whose fused twist is still pending, final now (a camera's
-        :meth:`~rs_localizer.tracking.localizer.VideoLocalizer.flush_idle`; the rig frames
-        still open stay open, and a frame more than ``max_gap`` later starts a new track).
-        Empty without tracking, with nothing pending, or before that time."""
-        return super().flush_idle(now)
+    def closed(self, g: OpenRigFrame) -> tuple:
+        """The rig frame ``g`` closed (no later frame joins one before it): its cameras (rig
+        order)."""
+        self.last_closed = g.lo
+        return tuple(n for n in self.cams if n in g.frames)
 
-    def reset(self) -> list[FusedPose]:
-        """Forget the video (the configuration stays): the rig frames open are dropped (counted
-        as ``time_reset``), the track ends, the last rig frame posed is forgotten (the next
-        frame is not predicted from it, without tracking either). Returns the track's twists
-        still pending (a rig of one camera drops them, as its camera's video does)."""
-        self._forget_video()
-        out, self._carry = self._carry, []
-        return out
-
-    # ---------------------------------------------------------------- images
-    def _image_input(self) -> _ImageInput:
-        img = self.__dict__.get("_img")
-        if img is None:
-            img = self._img = _ImageInput()
-        return img
-
-    def set_frontend(
-        self, name: str, frontend: Frontend | VideoFrontend | None, label: str | None = None
-    ) -> None:
-        """Use ``frontend`` for camera ``name``'s images (:meth:`process_image`; None: none): a
-        :class:`~rs_localizer.correspondences.VideoFrontend` as it is, a per-image
-        :class:`~rs_localizer.correspondences.Frontend` wrapped
-        (:func:`~rs_localizer.correspondences.video_frontend`). Every camera needs its own
-        front end object (a video front end keeps its last image's state); they may share a
-        map. ``label``: its name in warnings (default: its class name).
-
-        Raises:
-            ValueError: a camera not in the rig. TypeError: an object without ``process``.
-        """
-        if name not in self._cams:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        img = self._image_input()
-        fe = img.frontends.get(name)
-        if fe is None:  # (kept when its front end is replaced: its last image's fingerprint)
-            fe = img.frontends[name] = CameraFrontend(self.log)
-        fe.set(frontend, None if frontend is None else label or type(frontend).__name__)
-
-    def frontend(self, name: str) -> VideoFrontend | None:
-        """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
-        fe = self._image_input().frontends.get(name)
-        return None if fe is None else fe.frontend
-
-    def predict_camera(
-        self, name: str, stamp_ns: int, camera: CameraModel, *, reference_ns: int | None = None
-    ) -> RSModel | None:
-        """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
-        of row ``stamp_row``): the camera's model (:class:`~rs_localizer.pose.RSModel`
-        ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
-        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the rig's
-        predicted pose and twist at the frame's reference time mapped through the camera's
-        mounting (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`). The rig's
-        prediction is the twist filter's (tracking), or without tracking the last rig frame
-        posed through :meth:`process_image` carried at its own twist. None when nothing
-        predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
-        tracking) after the last, or not after it
-        (:func:`~rs_localizer.tracking.tracker.predictable`). ``reference_ns``: the frame's
-        time on the rig's clock (:meth:`RigSettings.reference_ns`) when the caller made it;
-        None: made here.
-
-        Raises:
-            ValueError: a camera not in the rig, a stamp beyond the int64 ns range.
-        """
-        cam = self._cams.get(name)
-        if cam is None:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        ref = reference_ns
-        if ref is None:
-            ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
-        return self._predict(ref, camera, cam)
-
-    def _filter_kernels(self, impl: str | None) -> None:
-        """The twist filter's steps for a rig frame on ``impl`` (None: the default): plain
-        Python on ``"numpy"``, so that nothing compiles while the kernels compile in the
-        background (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
-        if self._track is not None:
-            self._track.filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
-
-    def _tracked_prediction(
-        self, ref: int, camera: CameraModel, view: _Camera
-    ) -> tuple[bool, FusedState | None]:
-        """With tracking the twist filter decides (:meth:`predict_camera`); after
-        :meth:`restart_track` nothing predicts the next frame. A rig of one camera, as its
-        camera's video: its tracker decides while it has a state and tracks with the current
-        settings and this camera model, else the last posed frame carried predicts."""
-        if self._track_over:
-            return True, None
-        t = self._track
-        if self._single:
-            if t is None or not t.filter.initialized or self._track_key != self._key(camera):
-                return False, None
-            return True, t.predict(ref, self._implementation_now())
-        if t is None:
-            return False, None
-        if not t.predicts(ref):
-            return True, None
-        self._filter_kernels(None if self._implementation is None else self._implementation())
-        return True, t.predict(ref)
-
-    def _implementation_now(self) -> str:
-        """A rig of one's estimator implementation for its next frame (``implementation()``,
-        default: its solver's, :func:`~rs_localizer.estimation.implementation.
-        default_implementation`)."""
-        if self._implementation is None:
-            return default_implementation(self.settings.solver)
-        return self._implementation()
-
-    def _key(self, camera: CameraModel) -> tuple:
-        """What a rig of one's tracker is made for: its solver, options, tracking options and
-        camera model (a new object: a new track, as the camera's video)."""
-        s = self.settings
-        return (s.solver, s.options, s.tracking, id(camera))
-
-    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: _Camera) -> RSModel:
-        """The camera's model of the rig's predicted state, through its mounting (a rig of
-        one: the state's model in its camera, as the camera's own video has it)."""
-        if self._single:
-            return model_from_state(state, camera)
-        pred = state.pose
-        rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
-                        pred.linear_velocity)  # fmt: skip
-        return camera_model_of_rig(rig, view.mount, 0.0, camera.seconds_per_unit_r)
-
-    def _carried_in_camera(
-        self, model: RSModel, dt: float, camera: CameraModel, view: _Camera
-    ) -> RSModel:
-        """The camera's model of the last posed rig frame carried ``dt`` s, through its
-        mounting (a rig of one: its camera's own model carried, as the camera's video does)."""
-        if self._single:
-            return carried_model(model, dt, camera.seconds_per_unit_r)
-        return camera_model_of_rig(model, view.mount, dt, camera.seconds_per_unit_r)
-
-    def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
-        """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
-        :data:`SKIP_REASONS`: e.g. an image the caller could not decode); the camera still
-        counts as having sent a frame at that time (the rig does not wait for it). Returns the
-        rig frames that completes, solved (as :meth:`add`).
-
-        Raises:
-            ValueError: a camera not in the rig, an unknown reason.
-        """
-        cam = self._cams.get(name)
-        if cam is None:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        if reason not in SKIP_REASONS:
-            raise ValueError(
-                f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
-            )
-        stamp = checked_stamp(stamp_ns)
-        return self._drop(name, stamp, self.settings.reference_ns(name, stamp, camera), reason)
-
-    def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
-        """:meth:`drop` of a frame stamped ``stamp`` whose time is ``t`` (ns: its reference
-        time, or its stamp without a camera model)."""
-        cam = self._cams[name]
-        self.counts[f"{name}.received"] += 1
-        self._twists.note_frame()
-        self._skip(name, reason)
-        if self._first is None:
-            self._first = self.settings.reference_ns(name, stamp, None)
-        cam.dropped.append(t)
-        if cam.last_ref is None or t > cam.last_ref:
-            cam.newest = t if cam.newest is None else max(cam.newest, t)
-        return self._ready()
-
-    def process_image(
-        self,
-        name: str,
-        stamp_ns: int,
-        image: np.ndarray,
-        camera: CameraModel | None,
-        encoding: str = "bgr8",
-        tag: object = None,
-    ) -> list[RigOutput]:
-        """Take one camera's image: its front end's correspondences
-        (``frontend.process(image, camera, encoding, prediction)`` with the rig's
-        prediction for this camera, :meth:`predict_camera`, when the front end takes one), the
-        rows the estimator can use as a single camera's
-        (:func:`~rs_localizer.tracking.localizer.usable_rows`: those with a NaN or inf dropped,
-        counted ``<name>.points_dropped``; then at most :attr:`RigSettings.max_points`, highest
-        scores first, counted ``<name>.capped_clouds`` and ``<name>.capped_points``, with a
-        warning), then :meth:`add`; each camera's front end is told how its frame was solved
-        (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
-        the rig's estimate, :func:`~rs_localizer.estimation.rig.camera_estimate`: the rig
-        frame's success, the camera's inliers and its model from the rig's pose and its
-        mounting) when its rig frame is solved: with unsynchronized
-        cameras often after the camera's next image (a front end that searches around its last
-        solved markers still does; one that tracks the pixels of its last image matches them
-        by pixel and keeps those it finds). A camera's frame joins
-        its rig frame whatever its number of correspondences (even none: the rig is posed from
-        the others); an image whose front end raised (``frontend_error``) or that is the
-        camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`);
-        after a frozen image a rig of one camera's next frame starts a new track, searched
-        whole, as its camera's video does (:meth:`restart_track`). A rig of one camera takes
-        its images as its camera's video does: the stamp checked first
-        (:meth:`check_time`; after a time reset the image is not compared with the last
-        one), and an image whose front end found fewer correspondences than its solver needs
-        (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
-        marker's coplanar corners) skipped as ``frontend_too_few_points``.
-
-        Args:
-            name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
-            image: (H, W) or (H, W, C) uint8 in ``encoding``.
-            camera: the camera's model with its RS timing; None: not known yet (the frame is
-                skipped as ``no_camera_info``, the front end does not run).
-            tag: as :attr:`~rs_localizer.tracking.localizer.CameraFrame.tag`.
-        Returns:
-            the rig frames completed, solved (as :meth:`add`).
-        Raises:
-            ValueError: a camera not in the rig or without a front end (:meth:`set_frontend`),
-                a stamp beyond the int64 ns range.
-        """
-        img = self._image_input()
-        fe = img.frontends.get(name)
-        if name not in self._cams or fe is None or fe.frontend is None:
-            raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
-        stamp = checked_stamp(stamp_ns)
-        if camera is None:
-            frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
-            return self._observed(self._add(frame, None))
-        # (the frame's reference time, once: the prediction, the rig frame it joins)
-        ref = self.settings.reference_ns(name, stamp, camera)
-        view = self._cams[name]
-        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
-        # is not compared with the last one)
-        reset = self._single and self.check_time(stamp) is not None
-        r = search_image(
-            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
-            level=self.settings.frozen_image_level, check=not reset,
-        )  # fmt: skip
-        if r.failure == "frozen_image":
-            self.log.warning(
-                f"rig.frozen.{name}",
-                f"rig camera {name!r}: the image is the previous one again (mean difference "
-                f"{r.difference:.2f} gray levels): skipped",
-            )
-            if self._single:  # (its camera moved on unseen, :meth:`restart_track`)
-                self.restart_track()
-            return self._observed(self._drop(name, stamp, ref, r.failure))
-        if r.failure is not None:
-            e = r.error
-            self.log.warning(
-                f"rig.frontend.{name}",
-                f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
-            )
-            return self._observed(self._drop(name, stamp, ref, r.failure))
-        found = r.found
-        uv = np.asarray(found.points2d, float).reshape(-1, 2)
-        xyz = np.asarray(found.points, float).reshape(-1, 3)
-        if self._single:  # (its camera's rule: too few correspondences never reach the solver)
-            s = self.settings
-            if too_few_points(xyz, s.solver, s.options) is not None:
-                return self._observed(self._drop(name, stamp, ref, "frontend_too_few_points"))
-        uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
-        img.waiting[(name, ref)] = (stamp, uv, camera)
-        return self._observed(
-            self._add(CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name), ref)
-        )
-
-    def _usable_rows(
-        self, name: str, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Camera ``name``'s rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None
-        as the rig estimator takes them, as a single camera's
-        (:func:`~rs_localizer.tracking.localizer.usable_rows`): without those holding a NaN or
-        inf (counted ``<name>.points_dropped``), then at most :attr:`RigSettings.max_points`
-        (counted ``<name>.capped_clouds``, ``<name>.capped_points``; a warning)."""
-
-        def count(key: str, n: int) -> None:
-            self.counts[f"{name}.{key}"] += n
-
-        def warn(key: str, text: str) -> None:
-            self.log.warning(f"rig.{key}.{name}", f"rig camera {name!r}: {text}")
-
-        return usable_rows(uv, xyz, scores, self.settings.max_points, count, warn)
-
-    def _observed(self, outs: list[RigOutput]) -> list[RigOutput]:
-        """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)
-        and keep the last rig pose (the prediction without tracking)."""
-        img = self._image_input()
-        for out in outs:
-            est = out.estimate
-            alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
-            if not self._single:  # (posed: the prediction without tracking; a rig of one
-                # carries each frame posed as it is solved)
-                self._carried.update(out.stamp_ns, est)
-            for k, n in enumerate(out.cameras):
-                ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
-                item = img.waiting.pop((n, ref), None)
-                fe = img.frontends.get(n)
-                if item is None or fe is None or fe.frontend is None:
-                    continue
-                stamp, uv, camera = item
-                feedback = alone
-                if est is not None and alone is None:
-                    mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
-                    feedback = camera_estimate(est, k, camera, mount, off, uv)
-                fe.observe(stamp, uv, feedback)
-        if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
-            for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
-                del img.waiting[key]
-        return outs
-
-    def _twist_source(self) -> TrackerPath | None:
-        """The tracker path (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
-        return self._track
-
-    def _forget_track(self, keep: bool) -> list:
-        """The track ends (the twist filter and the inlier ratio start again; a rig of one's
-        tracker is dropped, its counters kept); returns the filter's fused states not yet final
-        when ``keep``."""
-        t = self._track
-        if self._single:
-            final = []
-            if t is not None:
-                self._track_counts.update(t.track_counts())
-                final = t.reset() if keep else []
-            self._track = self._track_key = self._track_camera = None
-            return final
-        final = [] if t is None else t.reset()
-        return final if keep else []
-
-    # ---------------------------------------------------------------- solving
-    def _missing_reason(self, cam: _Camera, g: _Group) -> str:
-        w2 = 2 * self.settings.window * 1e9
+    def missing_reason(self, name: str, g: OpenRigFrame, window: float) -> str:
+        """Why camera ``name`` is missing from rig frame ``g`` (a key of
+        :data:`MISSED_REASONS`; ``window`` s)."""
+        cam = self.cams[name]
+        w2 = 2 * window * 1e9
         if any(abs(r - g.lo) <= w2 for r in cam.no_info):
             return "no_camera_info"
         if any(abs(r - g.lo) <= w2 for r in cam.dropped):
@@ -1378,300 +333,20 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             return "apart"
         return "dropped"
 
-    def _closed(self, g: _Group) -> RigOutput:
-        """The rig frame ``g`` closed (no later frame joins one before it): its output with its
-        cameras, not solved yet."""
-        self._last_closed = g.lo
-        return RigOutput(stamp_ns=g.lo, cameras=tuple(n for n in self._cams if n in g.frames))
-
-    def _solve(self, g: _Group) -> RigOutput:
-        out = self._closed(g)
-        names = list(out.cameras)
-        out.fused, self._carry = self._carry, []
-        for n, c in self._cams.items():
-            if n not in g.frames:
-                reason = self._missing_reason(c, g)
-                out.missing[n] = reason
-                self.counts[f"{n}.missed.{reason}"] += 1
-        if out.missing:
-            self.counts["rig.incomplete"] += 1
-        self._update_apart(out)
-        if self._track_over:  # (restart_track: the old track's twists, final)
-            self._track_over = False
-            if self._track is not None:
-                out.fused += self._end_track(keep=True)
-                self._track_counts["resets"] += 1
-        views = []
-        for n in names:
-            frame, ref = g.frames[n]
-            m = self._cams[n].mount
-            off = (ref - g.lo) * 1e-9
-            out.stamp_offsets[n] = off
-            out.tags[n] = frame.tag
-            out.frames[n] = frame
-            view = RigView(frame.points2d, frame.points3d, frame.camera, m, off)
-            views.append(view)
-        self._impl = impl = None if self._implementation is None else self._implementation()
-        self._filter_kernels(impl)
-        out.compiled = impl != NUMPY
-        if not out.compiled:  # (while the kernels compile: tracked all the same)
-            self.counts["rig.uncompiled"] += 1
-        out.gyro = self._gyro = self._gyro_for(g, views)
-        try:
-            est, path = self._estimate(g.lo, views, out)
-        except Exception as e:  # (the estimator raised: the rig frame failed)
-            out.error = f"{type(e).__name__}: {e}"
-            self._count_rig(names, "error")
-            self._gyro_done(out)
-            return out
-        out.estimate, out.path = est, path
-        refusal = self._refusal(out, est) if est.success else None
-        if refusal == CONTRADICTS_TRACK and est.disagreeing:
-            # the prediction outvoted a camera into a pose it contradicts itself: it does not
-            # decide between these cameras; the rig frame solved without it stands if it
-            # poses more than one camera (cameras a little apart, posed jointly)
-            alone = self._run(views)
-            if alone.success and self._refusal(out, alone) is None:
-                est, refusal = alone, None
-                out.estimate, out.path = est, path = alone, "relocalized"
-                self.counts["rig.track_outvote_undone"] += 1
-        if refusal is not None:
-            est = out.estimate = replace(est, success=False, failure=refusal)
-            if refusal == CONTRADICTS_TRACK:
-                self.log.warning(
-                    "rig.contradicts_track",
-                    f"rig frame of camera {names[0]!r} alone refused: its pose contradicts the "
-                    "rig's track (its clock or stamp is likely off, or its matches are wrong)",
-                )
-        if not est.success:
-            if self._track is not None:
-                self._track.update(out.stamp_ns, est, path)  # (counted: a failure)
-            self._count_rig(names, est.failure or "error")
-            if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
-                n_pts = np.asarray(est.num_valid_per_view)
-                n_in = np.asarray(est.num_inliers_per_view)
-                self._update_disagreement(out, names, n_pts, n_in, views, est)
-            self._gyro_done(out)
-            return out
-        self._finish(out, est, path, names, views)
-        self._gyro_done(out)
-        return out
-
-    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> RigOutput:
-        """A rig of one camera's frame (reference time ``ref`` ns, the rig frame's time),
-        solved as its camera's video solves it: on its camera's tracker
-        (:meth:`~rs_localizer.tracking.tracker.RSTracker.process`, made again when its solver,
-        options, tracking options or camera model changed; after :meth:`restart_track` a new
-        track) or alone without tracking (:func:`~rs_localizer.estimation.estimate_rs_pose`;
-        the tracker dropped, its twists still pending with it), with the gyro's measurement
-        over the camera's readout from its stamp. The estimate in the rig's terms
-        (:func:`_camera_as_rig`; a camera's video: its own), the camera's own kept
-        (:attr:`RigOutput.camera_estimate`: the last posed frame carried, the front end's
-        feedback). A rolling-shutter frame's
-        twist is held for its fused twist; a global-shutter solver's or camera's is final
-        (:attr:`RigOutput.twist_now`)."""
-        s = self.settings
-        camera = frame.camera
-        self._last_closed = ref
-        out = RigOutput(stamp_ns=ref, cameras=(name,))
-        out.fused, self._carry = self._carry, []
-        out.stamp_offsets[name] = 0.0
-        out.tags[name] = frame.tag
-        out.frames[name] = frame
-        # (while the kernels compile in the background: the NumPy implementation, tracked and
-        # with the gyro all the same; runtime.background)
-        self._impl = impl = self._implementation_now()
-        out.compiled = impl != NUMPY
-        if not out.compiled:
-            self.counts["rig.uncompiled"] += 1
-        t0 = time.perf_counter()
-        gyro = None
-        if camera.line_delay > 0:
-            t = s.reference_ns(name, frame.stamp_ns, None)
-            gyro = self._gyro_readouts(t, [(camera, 0.0, s.stamp_row)])
-        out.gyro = self._gyro = gyro
-        out.gyro_seconds = time.perf_counter() - t0
-        uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
-        with self._lock:
-            # (ended: the frames of a track ended here, final; final: the tracker's states
-            # final now)
-            ended, final = [], []
-            try:
-                if s.tracking is not None:
-                    if self._track_over and self._track is not None:
-                        # (the camera moved on unseen: the track's pending twists are final,
-                        # the frame starts a new track, as after a gap)
-                        ended = self._end_track(keep=True)
-                        self._track_counts["resets"] += 1
-                    key = self._key(camera)
-                    if self._track is None or key != self._track_key:
-                        if self._track is not None:
-                            ended += self._end_track(keep=True)
-                            self._track_counts["resets"] += 1
-                        self._track = RSTracker(s.solver, s.options, s.tracking)
-                        self._track_key = key
-                        self._track_camera = camera  # (keeps id(camera) unique while in use)
-                    r = self._track.process(
-                        ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
-                    )
-                    est, out.path, final = r.estimate, r.state, r.final
-                else:
-                    self._end_track()
-                    est = estimate_rs_pose(uv, xyz, camera, solver=s.solver, options=s.options,
-                                           scores=scores, gyro=gyro,
-                                           implementation=impl)  # fmt: skip
-            except Exception as e:  # (the estimator raised: the frame failed)
-                out.fused += ended
-                out.error = f"{type(e).__name__}: {e}"
-                self._count_rig((name,), "error")
-                self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)
-                return out
-            self._track_over = False
-            spr = camera.seconds_per_unit_r
-            # (a camera's video reports the camera's own estimate)
-            out.camera_estimate = est
-            out.estimate = _camera_as_rig(est, spr) if self._rig else est
-            self._carried.update(ref, est)
-            self.gyro_input.solved(ref, est, out.path in ("cold", "reset"))
-            if not est.success:
-                self._count_rig((name,), est.failure or "error")
-                out.fused += ended + self._fused(final)
-                return out
-            self._count_rig((name,), None)
-            if out.path is not None:
-                self.counts[f"rig.path.{out.path}"] += 1
-            n_in, n_pts = int(est.num_inliers), len(uv)
-            share = CameraShare(n_pts, n_in, 1.0 if n_in else 0.0,
-                                n_in / n_pts if n_pts else float("nan"))  # fmt: skip
-            out.shares[name] = self._cams[name].last_share = share
-            out.twist_now = s.tracking is None or not solver_info(s.solver).rolling or spr <= 0
-            if not out.twist_now:  # (its fused twist comes when final)
-                tag = frame.tag if not self._rig else dict(out.tags)
-                self._twists.hold(ref, est, tag, out.path == "relocalized")
-            # (also with the frame's own twist final: an earlier track's, e.g. before the
-            # solver became a global-shutter one)
-            out.fused += ended + self._fused(final)
-        return out
-
-    def _count_rig(self, names, failure: str | None) -> None:
-        if failure is None:
-            self.counts["rig.solved"] += 1
-            for n in names:
-                self.counts[f"{n}.solved"] += 1
-            return
-        self.counts["rig.failed"] += 1
-        self.counts[f"rig.failed.{failure}"] += 1
-        for n in names:
-            self.counts[f"{n}.failed"] += 1
-
-    def _run(self, views, max_iterations=None, initial=None, prediction=None) -> RSPoseEstimate:
-        """The rig estimator on the rig frame's views; with neither an initial model nor a
-        prediction (no track to check it against) every camera is also posed alone
-        (``verify_cameras``)."""
-        options = self.settings.options
-        if max_iterations:
-            options = replace(
-                options, ransac=replace(options.ransac, max_iterations=max_iterations)
-            )
-        return estimate_rig_pose(
-            views,
-            options,
-            initial_model=initial,
-            gyro=self._gyro,
-            gyro_time=self._gyro_time,
-            prediction=prediction,
-            verify_cameras=initial is None and prediction is None,
-            implementation=self._impl,
-        )
-
-    def _estimate(self, stamp: int, views, out: RigOutput):
-        """The rig frame's estimate on the tracker path
-        (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
-        estimator). Returns (estimate, path)."""
-        self._prediction = None
-        if self._track is None:
-            return self._run(views), None
-        f = self._track.solve(stamp, _RigViews(self, views, out))
-        self._prediction = f.predicted
-        return f.estimate, f.path
-
-    def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
-        """Why a rig frame posed from one voting camera alone (the others' points
-        disagreeing, absent or too few) while another camera of the rig runs is refused
-        (:data:`RIG_REFUSALS`), or None: its pose contradicts the track's prediction
-        (``contradicts_track``) and no camera too small to vote confirms it (at least
-        :data:`CONFIRM_MIN_INLIERS` of its points inliers of the pose), or there is no
-        prediction and two or more other cameras run (``unconfirmed``)."""
-        valid = np.asarray(est.num_valid_per_view)
-        voting = [k for k in range(len(valid)) if valid[k] >= VOTE_MIN_POINTS]
-        posing = [k for k in voting if k not in est.disagreeing]
-        if len(posing) > 1:
-            return None
-        mine = {out.cameras[k] for k in posing} or set(out.cameras)
-        running = sum(not c.stopped and n not in mine for n, c in self._cams.items())
-        if running == 0:
-            return None  # (the rig runs on this camera alone)
-        pred = self._prediction
-        if pred is None:
-            return UNCONFIRMED if running >= 2 else None
-        inliers = np.asarray(est.num_inliers_per_view)
-        if posing and any(
-            valid[k] < VOTE_MIN_POINTS and inliers[k] >= CONFIRM_MIN_INLIERS
-            for k in range(len(valid))
-        ):
-            return None  # (posed by two cameras: the prediction does not outvote them)
-        return CONTRADICTS_TRACK if self._contradicts(est, pred) else None
-
-    @staticmethod
-    def _contradicts(est: RSPoseEstimate, pred) -> bool:
-        """The estimate's pose is further from the prediction than their covariances allow
-        (:data:`CONTRADICTION_GATE`) and at least :data:`CONTRADICTION_MIN_DEG` or
-        :data:`CONTRADICTION_MIN_M` away."""
-        pose = RSPose.from_model(est.model, 1.0)
-        d_rot = matrix_to_rotvec(pose.orientation @ pred.pose.orientation.T)
-        d_pos = pose.position - pred.pose.position
-        deg, dist = float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(d_pos))
-        if deg < CONTRADICTION_MIN_DEG and dist < CONTRADICTION_MIN_M:
-            return False
-        S = np.asarray(pred.covariance, float)[:6, :6]
-        if est.covariance is not None and np.isfinite(est.covariance[:6, :6]).all():
-            S = S + np.asarray(est.covariance, float)[:6, :6]
-        d = np.concatenate([d_rot, d_pos])
-        try:
-            nis = float(d @ np.linalg.solve(S, d))
-        except np.linalg.LinAlgError:
-            return True
-        return not nis <= float(chi2.ppf(CONTRADICTION_GATE, 6))
-
-    def _update_apart(self, out: RigOutput) -> None:
-        """Flag the cameras whose frames are kept apart from the others' (module docstring):
-        a camera missing as ``apart`` from a rig frame of others, or alone in one the others
-        missed as ``apart``; named (a warning with its apparent clock offsets,
-        :meth:`clock_offsets`) in :data:`APART_SHARE` of its last :data:`APART_HISTORY`."""
-        alone = len(out.cameras) == 1 and "apart" in out.missing.values()
-        for n, cam in self._cams.items():
-            if n in out.cameras:
-                cam.apart_flags.append(alone)
-            elif out.missing.get(n) == "apart":
-                cam.apart_flags.append(True)
-            else:
-                continue
-            f = cam.apart_flags
-            apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
-            if apart and not cam.apart:
-                self.counts[f"{n}.apart"] += 1
-                text = _offsets_text(self.clock_offsets(n))
-                self.log.warning(
-                    f"rig.apart.{n}",
-                    f"rig camera {n!r}: its frames never join the others' (window "
-                    f"{1e3 * self.settings.window:.0f} ms): stamps {text} (median of nearest "
-                    "stamps): its clock or stamp offset is likely wrong (a constant offset: "
-                    f"set its time offset, rig.{n}.time_offset in the node); its frames are "
-                    "posed alone only where the rig's track agrees",
-                )
-            elif cam.apart and not apart:
-                self.log.info(f"rig camera {n!r} joins the others' rig frames again")
-            cam.apart = apart
+    def restart(self) -> None:
+        """A time reset: the rig frames open dropped (counted ``time_reset``), every camera's
+        timeline started again."""
+        for g in self.open:
+            for n in g.frames:
+                self._skip(n, "time_reset")
+            self.counts["rig.skipped"] += 1
+            self.counts["rig.skipped.time_reset"] += 1
+        self.open = []
+        for cam in self.cams.values():
+            cam.newest = cam.last_ref = None
+            cam.recent.clear()
+            cam.stopped = False
+        self.first = self.last_closed = None
 
     def clock_offsets(self, name: str) -> dict:
         """Camera ``name``'s apparent clock offset against each other camera (other camera ->
@@ -1682,10 +357,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         Raises:
             KeyError: a camera not in the rig.
         """
-        cam = self._cams[name]
+        cam = self.cams[name]
         out = {}
         mine = np.array(cam.recent, dtype=np.int64)
-        for m, other in self._cams.items():
+        for m, other in self.cams.items():
             if m == name or not other.recent or not len(mine):
                 continue
             theirs = np.array(other.recent, dtype=np.int64)
@@ -1694,70 +369,126 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             out[m] = float(np.median(near)) * 1e-9
         return out
 
-    def camera_apart(self, name: str) -> dict | None:
-        """The camera's apparent clock offsets (:meth:`clock_offsets`) when its frames are
-        kept apart from the others' (module docstring: its clock or stamp offset is likely
-        wrong), else None.
+
+def _frame_steps(recent) -> np.ndarray:
+    """The positive intervals (ns) between a camera's recent frames' reference times."""
+    steps = np.diff(np.sort(np.asarray(recent, dtype=np.int64)))
+    return steps[steps > 0]
+
+
+# ---------------------------------------------------------------------- agreement
+class _CameraAgreement:
+    """One camera's agreement with the rig."""
+
+    def __init__(self, history: int):
+        self.flags: deque = deque(maxlen=history)
+        self.disagrees = False
+        self.partner: str | None = None  # (two cameras that disagree: the other one)
+        self.apart_flags: deque = deque(maxlen=APART_HISTORY)  # (rig frames it was apart in)
+        self.apart = False
+
+
+class CameraAgreement:
+    """The cameras' agreement with the rig (module docstring): which disagree with it, which
+    of them with one other camera alone (:meth:`partner`), whose frames are kept apart from the
+    others' (:meth:`apart`).
+
+    Args:
+        cameras: the cameras' names, in the rig's order. history: rig frames a camera's
+            disagreement looks back over (``disagree_history``).
+        frames: the rig's :class:`RigGrouping` (the cameras' apparent clock offsets).
+        counts: the localizer's counters (``<camera>.disagreements``, ``<camera>.apart``).
+        log: its warnings.
+    """
+
+    def __init__(
+        self, cameras: tuple, history: int, frames: RigGrouping, counts: Counter, log: TrackLog
+    ):
+        self.cams = {n: _CameraAgreement(history) for n in cameras}
+        self.frames, self.counts, self.log = frames, counts, log
+
+    def disagrees(self, name: str) -> bool:
+        """Camera ``name`` disagrees with the rig, or is the partner of one that disagrees with
+        it alone (:meth:`partner`)."""
+        cam = self.cams[name]
+        return cam.disagrees or any(c.disagrees and c.partner == name for c in self.cams.values())
+
+    def partner(self, name: str) -> str | None:
+        """The other camera when ``name`` is one of two cameras that disagree with each other
+        and no third camera tells which mounting is wrong (both are named), else None."""
+        cam = self.cams[name]
+        if cam.disagrees and cam.partner is not None:
+            return cam.partner
+        for n, c in self.cams.items():
+            if c.disagrees and c.partner == name:
+                return n
+        return None
+
+    def apart(self, name: str) -> bool:
+        """Camera ``name``'s frames are kept apart from the others' (its clock or stamp offset
+        is likely wrong).
 
         Raises:
             KeyError: a camera not in the rig.
         """
-        return self.clock_offsets(name) if self._cams[name].apart else None
+        return self.cams[name].apart
 
-    def camera_off_deg(self, out: RigOutput, frame: CameraFrame) -> float | None:
-        """deg between camera ``frame.camera_name``'s rotation posed alone from its frame in
-        rig frame ``out`` (the single-camera estimator) and where ``out``'s pose and the
-        camera's mounting put it: how far off a camera that disagrees with the others is
-        (a wrong mounting shows its own error). None when ``out`` was not posed, the camera
-        is not in it or its frame cannot be posed alone.
+    def update_apart(self, cameras: tuple, missing: dict, window: float) -> None:
+        """Flag the cameras whose frames are kept apart from the others' (module docstring),
+        given a rig frame's ``cameras`` and ``missing`` (camera -> a key of
+        :data:`MISSED_REASONS`; ``window`` s): a camera missing as ``apart`` from a rig frame of
+        others, or alone in one the others missed as ``apart``; named (a warning with its
+        apparent clock offsets, :meth:`RigGrouping.clock_offsets`) in :data:`APART_SHARE` of its
+        last :data:`APART_HISTORY`."""
+        alone = len(cameras) == 1 and "apart" in missing.values()
+        for n, cam in self.cams.items():
+            if n in cameras:
+                cam.apart_flags.append(alone)
+            elif missing.get(n) == "apart":
+                cam.apart_flags.append(True)
+            else:
+                continue
+            f = cam.apart_flags
+            apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
+            if apart and not cam.apart:
+                self.counts[f"{n}.apart"] += 1
+                text = _offsets_text(self.frames.clock_offsets(n))
+                self.log.warning(
+                    f"rig.apart.{n}",
+                    f"rig camera {n!r}: its frames never join the others' (window "
+                    f"{1e3 * window:.0f} ms): stamps {text} (median of nearest "
+                    "stamps): its clock or stamp offset is likely wrong (a constant offset: "
+                    f"set its time offset, rig.{n}.time_offset in the node); its frames are "
+                    "posed alone only where the rig's track agrees",
+                )
+            elif cam.apart and not apart:
+                self.log.info(f"rig camera {n!r} joins the others' rig frames again")
+            cam.apart = apart
 
-        Raises:
-            KeyError: a camera not in the rig.
-        """
-        n = frame.camera_name
-        m = self._cams[n].mount
-        if not out.success or n not in out.stamp_offsets or frame.camera is None:
-            return None
-        view = RigView(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
-        return _alone_deg(view, out.estimate)
-
-    def _finish(self, out: RigOutput, est, path, names, views) -> None:
-        self._count_rig(names, None)
-        if path is not None:
-            self.counts[f"rig.path.{path}"] += 1
-        # per camera: points, inliers, share; who disagrees
-        total_in = int(est.num_inliers)
-        for k in est.disagreeing:  # (outvoted by the cameras that posed the rig)
-            self.counts[f"{names[k]}.outvoted"] += 1
-        n_pts = np.asarray(est.num_valid_per_view)
-        n_in = np.asarray(est.num_inliers_per_view)
-        for k, n in enumerate(names):
-            pts, i = int(n_pts[k]), int(n_in[k])
-            share = CameraShare(pts, i, i / total_in if total_in else 0.0,
-                                i / pts if pts else float("nan"),
-                                k in est.disagreeing)  # fmt: skip
-            out.shares[n] = share
-            self._cams[n].last_share = share
-        self._update_disagreement(out, names, n_pts, n_in, views, est)
-        out.twist_now = self._track is None
-        if self._track is None:
-            return
-        ratio = total_in / max(int(n_pts.sum()), 1)
-        step = self._track.update(out.stamp_ns, est, path, ratio)
-        self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
-        out.fused += self._fused(step.final)
-
-    def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
+    def update(
+        self,
+        names: list,
+        n_pts: np.ndarray,
+        n_in: np.ndarray,
+        views: list,
+        est: RSPoseEstimate,
+        settings: Any,
+        implementation: str | None = None,
+    ) -> tuple:
         """Flag the cameras whose points fit the rig's pose far worse than the others' (module
-        docstring). The others' verdict names a camera alone when at least two other cameras
-        with points stand against it: when its points are compared with one other camera's
-        only, the two disagree and either mounting may be the wrong one (the camera with fewer
-        points is outvoted by the one with more, not shown wrong), so both are named
-        (:meth:`camera_partner`)."""
-        s = self.settings
+        docstring): rig frame's cameras ``names``, their points ``n_pts`` and inliers ``n_in``
+        (arrays), ``views`` and the estimate ``est`` (a camera found to disagree is posed alone
+        on ``implementation`` for its warning), the rule's ``settings``
+        (``disagree_ratio``, ``disagree_min_points``, ``disagree_frames``). The others' verdict
+        names a camera alone when at least two other cameras with points stand against it:
+        when its points are compared with one other camera's only, the two disagree and either
+        mounting may be the wrong one (the camera with fewer points is outvoted by the one with
+        more, not shown wrong), so both are named (:meth:`partner`). Returns the cameras that
+        disagree now (rig order)."""
+        s = settings
         strong = [j for j in range(len(names)) if int(n_pts[j]) >= s.disagree_min_points]
         for k, n in enumerate(names):
-            cam = self._cams[n]
+            cam = self.cams[n]
             pts = int(n_pts[k])
             if pts < s.disagree_min_points:
                 continue
@@ -1776,7 +507,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             cam.partner = witnesses[0] if cam.disagrees and single else None
             if cam.disagrees and (not was or cam.partner != was_partner):
                 self.counts[f"{n}.disagreements"] += 1
-                deg = _alone_deg(views[k], est, self._impl)
+                deg = alone_deg(views[k], est, implementation)
                 if cam.partner is None:
                     alone = (
                         ""
@@ -1787,7 +518,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                         f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
                         f"points fit the rig's pose ({100 * others:.0f} % of the others')"
                         f"{alone}: its mounting is likely wrong (or its matches are, or its "
-                        f"clock: its stamps are {_offsets_text(self.clock_offsets(n))})"
+                        f"clock: its stamps are {_offsets_text(self.frames.clock_offsets(n))})"
                     )
                 else:
                     p = cam.partner
@@ -1811,95 +542,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 self.log.warning(f"rig.disagrees.{n}", text)
             elif was and not cam.disagrees:
                 self.log.info(f"rig camera {n!r} agrees with the others again")
-        out.disagreeing = tuple(n for n in self._cams if self.camera_state(n) == "disagrees")
-
-    def camera_partner(self, name: str) -> str | None:
-        """The other camera when ``name`` is one of two cameras that disagree with each other
-        and no third camera tells which mounting is wrong (both are named: :meth:`camera_state`
-        is ``disagrees`` for both), else None."""
-        cam = self._cams[name]
-        if cam.disagrees and cam.partner is not None:
-            return cam.partner
-        for c in self._cams.values():
-            if c.disagrees and c.partner == name:
-                return c.name
-        return None
-
-
-class RigGrouping(RigLocalizer):
-    """The rig's grouping of its cameras' frames into rig frames, without solving them: a
-    :class:`RigLocalizer` whose rig frames, once complete, come out unsolved (a
-    :class:`RigOutput` with its cameras and no estimate). Every rule of the grouping is the
-    rig's own (:meth:`RigLocalizer.add`, :meth:`RigLocalizer.drop`: the window, a camera
-    stopped after ``stop_after`` or its own frame intervals, late and out-of-order frames,
-    time resets); what ``play --lockstep`` waits for
-    (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`)."""
-
-    def _solve(self, g: _Group) -> RigOutput:
-        return self._closed(g)
-
-
-class _RigViews:
-    """A rig frame's views as the tracker path's estimator (:class:`~rs_localizer.tracking.
-    tracker.PathEstimator`): :meth:`RigLocalizer._run` cold, tracked, or relocalized with the
-    prediction deciding between cameras that contradict each other."""
-
-    def __init__(self, rig: RigLocalizer, views: list, out: RigOutput):
-        self.rig, self.views, self.out = rig, views, out
-        self.focal = max(v.camera.mean_focal for v in views)
-        self.num_points = sum(len(v.uv) for v in views)
-        self.min_inliers = rig.settings.options.ransac.min_inliers
-
-    def ended(self, final: list) -> None:
-        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
-
-    def model(self, predicted: FusedState) -> RSModel:
-        pp = predicted.pose
-        return _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
-
-    def cold(self) -> Solve:
-        return Solve(self.rig._run(self.views))
-
-    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
-        tracking = self.rig.settings.tracking  # (set: the tracker path runs only with it)
-        n = None if tracking is None else tracking.tracked_max_iterations
-        n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
-        return Solve(self.rig._run(self.views, n, initial))
-
-    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
-        return Solve(self.rig._run(self.views, prediction=model))
-
-
-def _new_track(settings: RigSettings) -> TrackerPath | None:
-    """The tracker path of a rig of several cameras (None without tracking): the path alone,
-    its estimator the rig's (a rig of one's is its camera's tracker,
-    :class:`~rs_localizer.tracking.tracker.RSTracker`, made at its frames)."""
-    to = settings.tracking
-    return None if to is None else TrackerPath(to)
-
-
-def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEstimate:
-    """A camera's estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`) as the rig
-    estimate of a rig of one: the same pose, twist, covariances, inliers and record; the
-    model's velocities per second (the rig's ``w``, ``t``: the camera's over
-    ``seconds_per_unit_r`` s; a global shutter's zeros kept) and its ``model_covariance``
-    with them; the per-view fields of its one view."""
-    spr = float(seconds_per_unit_r)
-    model, cov = est.model, est.model_covariance
-    if spr > 0:
-        R, C, w, t = model
-        model = RSModel(R, C, w / spr, t / spr)
-        if cov is not None:
-            k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
-            cov = cov * k[:, None] * k[None, :]
-    return replace(
-        est,
-        model=model,
-        model_covariance=cov,
-        inliers_per_view=(est.inliers,),
-        num_inliers_per_view=(est.num_inliers,),
-        num_valid_per_view=(est.num_valid,),
-    )
+        return tuple(n for n in self.cams if self.disagrees(n))
 
 
 def _offsets_text(offsets: dict) -> str:
@@ -1907,7 +550,9 @@ def _offsets_text(offsets: dict) -> str:
     return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
 
 
-def _alone_deg(view: RigView, est: RSPoseEstimate, implementation=None) -> float | None:
+def alone_deg(
+    view: RigView, est: RSPoseEstimate, implementation: str | None = None
+) -> float | None:
     """deg between the camera's rotation posed alone (the single-camera estimator, on
     ``implementation``) and where the rig's pose and the camera's mounting put it; None when
     it is not posed alone (or the rig frame was not posed)."""
@@ -1924,7 +569,132 @@ def _alone_deg(view: RigView, est: RSPoseEstimate, implementation=None) -> float
     return float(rotation_angle_deg(alone.model.R, R_c))
 
 
-def _frame_steps(recent) -> np.ndarray:
-    """The positive intervals (ns) between a camera's recent frames' reference times."""
-    steps = np.diff(np.sort(np.asarray(recent, dtype=np.int64)))
-    return steps[steps > 0]
+# ---------------------------------------------------------------------- refusal
+def refusal(
+    est: RSPoseEstimate, cameras: tuple, frames: RigGrouping, prediction: FusedState | None
+) -> str | None:
+    """Why a rig frame of ``cameras`` posed (``est``) from one voting camera alone (the others'
+    points disagreeing, absent or too few) while another camera of the rig runs (``frames``:
+    the rig's cameras, stopped or not) is refused
+    (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`), or None: its pose contradicts the
+    track's ``prediction`` (``contradicts_track``) and no camera too small to vote confirms it
+    (at least :data:`CONFIRM_MIN_INLIERS` of its points inliers of the pose), or there is no
+    prediction and two or more other cameras run (``unconfirmed``)."""
+    valid = np.asarray(est.num_valid_per_view)
+    voting = [k for k in range(len(valid)) if valid[k] >= VOTE_MIN_POINTS]
+    posing = [k for k in voting if k not in est.disagreeing]
+    if len(posing) > 1:
+        return None
+    mine = {cameras[k] for k in posing} or set(cameras)
+    running = sum(not c.stopped and n not in mine for n, c in frames.cams.items())
+    if running == 0:
+        return None  # (the rig runs on this camera alone)
+    if prediction is None:
+        return UNCONFIRMED if running >= 2 else None
+    inliers = np.asarray(est.num_inliers_per_view)
+    if posing and any(
+        valid[k] < VOTE_MIN_POINTS and inliers[k] >= CONFIRM_MIN_INLIERS for k in range(len(valid))
+    ):
+        return None  # (posed by two cameras: the prediction does not outvote them)
+    return CONTRADICTS_TRACK if _contradicts(est, prediction) else None
+
+
+def _contradicts(est: RSPoseEstimate, pred) -> bool:
+    """The estimate's pose is further from the prediction than their covariances allow
+    (:data:`CONTRADICTION_GATE`) and at least :data:`CONTRADICTION_MIN_DEG` or
+    :data:`CONTRADICTION_MIN_M` away."""
+    pose = RSPose.from_model(est.model, 1.0)
+    d_rot = matrix_to_rotvec(pose.orientation @ pred.pose.orientation.T)
+    d_pos = pose.position - pred.pose.position
+    deg, dist = float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(d_pos))
+    if deg < CONTRADICTION_MIN_DEG and dist < CONTRADICTION_MIN_M:
+        return False
+    S = np.asarray(pred.covariance, float)[:6, :6]
+    if est.covariance is not None and np.isfinite(est.covariance[:6, :6]).all():
+        S = S + np.asarray(est.covariance, float)[:6, :6]
+    d = np.concatenate([d_rot, d_pos])
+    try:
+        nis = float(d @ np.linalg.solve(S, d))
+    except np.linalg.LinAlgError:
+        return True
+    return not nis <= float(chi2.ppf(CONTRADICTION_GATE, 6))
+
+
+# ---------------------------------------------------------------------- the rig's estimator
+def rig_model(
+    Ori: np.ndarray, p: np.ndarray, omega: np.ndarray, v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
+    in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
+    ``w = -omega``, ``t = w x C - v`` (:func:`~rs_localizer.pose.model_from_twist` with 1 s
+    per unit)."""
+    R = Ori.T
+    C = -R @ p
+    w, t = model_from_twist(C, omega, v, 1.0)
+    return R, C, w, t
+
+
+def solve_rig(
+    views: list,
+    options: EstimateOptions,
+    gyro: GyroMeasurement | None,
+    gyro_time: float | None,
+    implementation: str | None,
+    max_iterations: int | None = None,
+    initial: InitialModel | None = None,
+    prediction: RSModel | None = None,
+) -> RSPoseEstimate:
+    """The rig estimator (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`) on a rig
+    frame's views with ``options`` (RANSAC's samples capped to ``max_iterations`` when set),
+    the rig frame's ``gyro`` (its window's middle ``gyro_time`` s) on ``implementation``; with
+    neither an ``initial`` model nor a ``prediction`` (no track to check it against) every
+    camera is also posed alone (``verify_cameras``)."""
+    if max_iterations:
+        options = replace(options, ransac=replace(options.ransac, max_iterations=max_iterations))
+    return estimate_rig_pose(
+        views,
+        options,
+        initial_model=initial,
+        gyro=gyro,
+        gyro_time=gyro_time,
+        prediction=prediction,
+        verify_cameras=initial is None and prediction is None,
+        implementation=implementation,
+    )
+
+
+class RigViews:
+    """A rig frame's views as the tracker path's estimator (:class:`~rs_localizer.tracking.
+    tracker.PathEstimator`): the localizer's ``_run`` (:func:`solve_rig`) cold, tracked, or
+    relocalized with the prediction deciding between cameras that contradict each other.
+
+    Args:
+        rig: the :class:`~rs_localizer.tracking.video.Localizer` solving the rig frame.
+        views: its :class:`~rs_localizer.estimation.rig.RigView`\\ s. out: its output (the
+            fused twists of a track ended go there).
+    """
+
+    def __init__(self, rig: Any, views: list, out: Any):
+        self.rig, self.views, self.out = rig, views, out
+        self.focal = max(v.camera.mean_focal for v in views)
+        self.num_points = sum(len(v.uv) for v in views)
+        self.min_inliers = rig.settings.options.ransac.min_inliers
+
+    def ended(self, final: list) -> None:
+        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
+
+    def model(self, predicted: FusedState) -> RSModel:
+        pp = predicted.pose
+        return rig_model(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
+
+    def cold(self) -> Solve:
+        return Solve(self.rig._run(self.views))
+
+    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
+        tracking = self.rig.settings.tracking  # (set: the tracker path runs only with it)
+        n = None if tracking is None else tracking.tracked_max_iterations
+        n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
+        return Solve(self.rig._run(self.views, n, initial))
+
+    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
+        return Solve(self.rig._run(self.views, prediction=model))

@@ -1,8 +1,8 @@
 """The library's video entry point: one rolling-shutter camera's frames, in order, with its gyro.
 
 A camera alone is a rig of one: :class:`SequenceLocalizer` is the camera's adapter over a
-:class:`~rs_localizer.tracking.rig.RigLocalizer` of the one camera at the identity mounting
-(:attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`), whose code solves a camera's
+:class:`~rs_localizer.tracking.video.Localizer` of the one camera at the identity mounting
+(:attr:`~rs_localizer.tracking.video.LocalizerSettings.single_camera`), whose code solves a camera's
 frames and a rig's. That rig of one holds the camera's video state (in the spirit of OpenVINS'
 ``VioManager``, which its ROS wrappers and bag runner only drive):
 
@@ -85,15 +85,15 @@ from .localizer import (
     MAX_PENDING,
     CameraFrame,
     CameraFrontend,
+    FrameOutput,
     FusedPose,
-    LocalizerOutput,
     check_camera,
     search_image,
     too_few_points,
     usable_rows,
 )
-from .rig import SINGLE_CAMERA_SOLVER, RigLocalizer, RigSettings
 from .tracker import TrackerOptions
+from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerSettings
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -173,9 +173,9 @@ class SequenceSettings:
 
 
 @dataclass
-class SequenceOutput(LocalizerOutput):
+class SequenceOutput(FrameOutput):
     """What became of a frame in :meth:`SequenceLocalizer.process`: a
-    :class:`~rs_localizer.tracking.localizer.LocalizerOutput` (``stamp_ns``, the frame's
+    :class:`~rs_localizer.tracking.localizer.FrameOutput` (``stamp_ns``, the frame's
     reference time; ``estimate``, ``path``, ``fused``, ``gyro``, ``error``, ``compiled``,
     ``success``) with a camera's own fields.
 
@@ -212,15 +212,15 @@ _IDENTITY = Mounting(np.eye(3), np.zeros(3))
 _CAMERA = ""
 
 
-def rig_of_one(settings: SequenceSettings) -> RigSettings:
-    """The :class:`~rs_localizer.tracking.rig.RigSettings` of a camera's rig of one (the
+def rig_of_one(settings: SequenceSettings) -> LocalizerSettings:
+    """The :class:`~rs_localizer.tracking.video.LocalizerSettings` of a camera's rig of one (the
     camera, named ``""``, at the identity mounting:
-    :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`) that solves the frames of a
-    :class:`SequenceLocalizer` with ``settings``: its solver, estimator options (None: the
-    defaults, ``EstimateOptions()``), tracking, gyro and its check, ``stamp_row``,
+    :attr:`~rs_localizer.tracking.video.LocalizerSettings.single_camera`) that solves the
+    frames of a :class:`SequenceLocalizer` with ``settings``: its solver, estimator options
+    (None: the defaults, ``EstimateOptions()``), tracking, gyro and its check, ``stamp_row``,
     ``time_reset_ns``, ``max_points`` and ``frozen_image_level``."""
     options = settings.options if settings.options is not None else EstimateOptions()
-    return RigSettings(
+    return LocalizerSettings(
         {_CAMERA: _IDENTITY},
         stamp_row=settings.stamp_row,
         time_reset_ns=settings.time_reset_ns,
@@ -288,8 +288,8 @@ class SequenceLocalizer(GyroReadouts):
         # the gyro: its samples, bias, mount check and counters (the camera's names)
         self.gyro_input = GyroInput(self._count, self.log, stopped=stopped, span=imu_span)
         # the camera's rig of one: the tracker, the twists pending, the last posed frame
-        # carried, the clock, the gyro's use (tracking/rig.py)
-        self._rig = RigLocalizer(
+        # carried, the clock, the gyro's use (tracking/video.py)
+        self._rig = Localizer(
             rig_of_one(settings),
             self.log,
             lambda: implementation(self.settings.solver),
@@ -329,13 +329,13 @@ class SequenceLocalizer(GyroReadouts):
     def twist_values(self) -> dict[str, int]:
         """The fused twists handed out over the video's life: ``twists_own_frame`` and
         ``twists_implausible``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`)."""
+        (:meth:`~rs_localizer.tracking.video.Localizer.twist_values`)."""
         return self._rig.twist_values()
 
     def readout_values(self) -> dict[str, Any]:
         """The check of the rolling-shutter timing: ``readout_contradicted`` and
         ``readout_suspect``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
+        (:meth:`~rs_localizer.tracking.video.Localizer.readout_values`)."""
         return self._rig.readout_values()
 
     # ---------------------------------------------------------------- time
@@ -367,7 +367,7 @@ class SequenceLocalizer(GyroReadouts):
         bias estimator's and the gyro check's pairing restart. (The tracker resets itself on
         the same stamps.) :meth:`process` calls it; calling it first for the same stamp (to
         act on a reset before the frame is decoded) does not count it twice
-        (:meth:`RigLocalizer.check_time <rs_localizer.tracking.rig.RigLocalizer.check_time>`).
+        (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`).
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
@@ -442,8 +442,8 @@ class SequenceLocalizer(GyroReadouts):
             :class:`SequenceOutput`; a frame dropped before the estimator has ``failure``
             (``frontend_error``, ``frontend_too_few_points``, ``frozen_image``: the previous
             image again, see :attr:`SequenceSettings.frozen_image_level`; the next new image
-            starts a new track, :meth:`RigLocalizer.restart_track
-            <rs_localizer.tracking.rig.RigLocalizer.restart_track>`) and ``detail``.
+            starts a new track, :meth:`Localizer.restart_track
+            <rs_localizer.tracking.video.Localizer.restart_track>`) and ``detail``.
 
         Raises:
             ValueError: no front end (:meth:`set_frontend`), or a stamp beyond the int64
@@ -507,7 +507,7 @@ class SequenceLocalizer(GyroReadouts):
         or repeated, more than :attr:`SequenceSettings.max_gap` after the last solved
         frame: :func:`~rs_localizer.tracking.tracker.predictable`; or the first image after a
         ``frozen_image``). The rig of one's
-        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.predict_camera`).
+        (:meth:`~rs_localizer.tracking.video.Localizer.predict_camera`).
 
         ``stamp_ns`` may be the frame's :meth:`frame_time` (taken as it is).
 
@@ -542,7 +542,7 @@ class SequenceLocalizer(GyroReadouts):
 
     def _process(self, frame: CameraFrame, ft: FrameTime) -> SequenceOutput:
         """:meth:`process` of a frame with its times ``ft``: its rig of one's rig frame
-        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.add`) as the camera's output."""
+        (:meth:`~rs_localizer.tracking.video.Localizer.add`) as the camera's output."""
         if frame.camera_name != _CAMERA:
             frame = replace(frame, camera_name=_CAMERA)
         (r,) = self._rig.add(frame, ft.reference_ns)

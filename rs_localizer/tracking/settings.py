@@ -12,7 +12,7 @@ may pass a tree of their own.
   :class:`~rs_localizer.tracking.tracker.TrackerOptions`;
 - :func:`gyro_settings`: the gyro's use in the estimate
   (:class:`~rs_localizer.tracking.sequence.GyroSettings`) from a mounting quaternion;
-- :func:`rig_settings`: a rig's (:class:`~rs_localizer.tracking.rig.RigSettings`) from the
+- :func:`rig_settings`: a rig's (:class:`~rs_localizer.tracking.video.LocalizerSettings`) from the
   single camera's estimator and tracker options.
 """
 
@@ -26,9 +26,9 @@ import numpy as np
 
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting
-from .rig import RigSettings
 from .sequence import GyroSettings
 from .tracker import TrackerOptions
+from .video import LocalizerSettings
 
 __all__ = ["gyro_settings", "rig_settings", "with_fields"]
 
@@ -83,27 +83,27 @@ def rig_settings(
     imu: GyroSettings | None = None,
     max_points: int | None = None,
     time_offsets: Mapping[str, float] | None = None,
-) -> RigSettings:
+) -> LocalizerSettings:
     """A rig's settings with the single camera's estimator and tracker options as they are:
     ``options`` (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
     and seed, the refinement and the velocity bounds from them) and ``tracking`` (the gates,
-    explained ratio, ``max_gap``, the twist filter; :attr:`RigSettings.tracking`; None: every
+    explained ratio, ``max_gap``, the twist filter; :attr:`LocalizerSettings.tracking`; None: every
     rig frame alone).
 
     Args:
         mounts: camera name -> its mounting on the rig, in the cameras' order.
-        window, stop_after (s), stamp_row (px), time_reset_ns: see :class:`RigSettings`.
+        window, stop_after (s), stamp_row (px), time_reset_ns: see :class:`LocalizerSettings`.
         imu: a gyro on the rig (``R_cam_imu``: IMU -> rig), None: none; the rig solves a frame
             when its last camera arrives, so it never waits for samples (``wait`` set to 0).
         max_points: the most rows a camera's image gives the rig estimator, as for one camera
-            (:attr:`RigSettings.max_points`); None: no cap.
-        time_offsets: camera -> s added to its stamps (:attr:`RigSettings.time_offsets`);
+            (:attr:`LocalizerSettings.max_points`); None: no cap.
+        time_offsets: camera -> s added to its stamps (:attr:`LocalizerSettings.time_offsets`);
             None: none.
 
     Raises:
-        ValueError: from :class:`RigSettings` (e.g. no cameras).
+        ValueError: from :class:`LocalizerSettings` (e.g. no cameras).
     """
-    return RigSettings(
+    return LocalizerSettings(
         dict(mounts),
         window=window,
         stop_after=stop_after,

@@ -24,7 +24,7 @@ frame), ``tracked``, ``relocalized`` or ``reset``. A failed frame changes nothin
 counters: no state is made up for it, so a bad frame never becomes a pose or a twist.
 
 Steps 1-4 are :class:`TrackerPath`, the one tracker path of a camera and of a rig
-(:class:`~rs_localizer.tracking.rig.RigLocalizer`; a camera alone is a rig of one): only its
+(:class:`~rs_localizer.tracking.video.Localizer`; a camera alone is a rig of one): only its
 estimator (:class:`PathEstimator`) differs, one camera's view here, a rig's views there.
 
 :meth:`RSTracker.predict` gives the prediction of step 1 before the frame is estimated (the
@@ -111,11 +111,11 @@ class TrackerOptions:
             ``max_gap`` is set to the tracker's).
 
     The options of a camera's tracker and of a rig's
-    (:attr:`~rs_localizer.tracking.rig.RigSettings.tracking`); the rig estimator takes no
+    (:attr:`~rs_localizer.tracking.video.LocalizerSettings.tracking`); the rig estimator takes no
     motion prior and verifies its prediction with its own minimum of samples, so a rig of
     several cameras reads all of them but ``tracked_options``, ``tracked_min_iterations``,
     ``prior_from_prediction`` and ``prior_inflation`` (a rig of one camera, solved as the
-    camera, reads them all: :attr:`~rs_localizer.tracking.rig.RigSettings.single_camera`).
+    camera, reads them all: :attr:`~rs_localizer.tracking.video.LocalizerSettings.single_camera`).
     """
 
     gate_px: float = 20.0
@@ -351,7 +351,7 @@ class Solve:
 
 class PathEstimator(Protocol):
     """One frame's estimator on the tracker path (:meth:`TrackerPath.solve`): a camera's view
-    (:class:`RSTracker`) or a rig's views (:class:`~rs_localizer.tracking.rig.RigLocalizer`),
+    (:class:`RSTracker`) or a rig's views (:class:`~rs_localizer.tracking.video.Localizer`),
     the one part that differs between them.
 
     Attributes:

@@ -236,11 +236,11 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.frames import Mounting
 from rs_localizer.frontends import make_frontend
 from rs_localizer.sim.render.rig import vga_rig
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 SHAPES = {shapes!r}
 cams = vga_rig(2)
 mounts = {{c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}}
-rig = RigLocalizer(RigSettings(mounts))
+rig = Localizer(LocalizerSettings(mounts))
 for c in cams:
     rig.set_frontend(c.name, make_frontend("aruco", "apriltag_board"), "aruco")
 name = cams[0].name
@@ -259,7 +259,7 @@ print(json.dumps([rig.camera_counts(name), counts]))
 
 
 def test_rig_images_of_tiny_size_are_skipped_and_the_process_survives():
-    """The rig's library path (``RigLocalizer.process_image``, what the rig node calls) with
+    """The rig's library path (``Localizer.process_image``, what the rig node calls) with
     an AprilTag front end on each tiny image: the detector refuses it (a ValueError instead of
     the library's SIGFPE / SIGSEGV), the image is skipped as ``frontend_error`` and counted;
     the process survives."""

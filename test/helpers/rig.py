@@ -9,7 +9,7 @@ T0 = 1_700_000_000_000_000_000
 
 
 class Log:
-    """A logger for :class:`~rs_localizer.tracking.rig.RigLocalizer` that keeps its warnings
+    """A logger for :class:`~rs_localizer.tracking.video.Localizer` that keeps its warnings
     (``(key, text)``) and infos."""
 
     def __init__(self):

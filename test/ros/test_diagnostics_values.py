@@ -43,12 +43,12 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     from rs_localizer.ros.diagnostics import ERROR, RigInputs, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cams = default_rig(2)
     frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
     names = [c.name for c in cams]
     for f in frames:
         rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
@@ -86,7 +86,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     rig.add(CameraFrame(frames[-1].stamp_ns + 10**10, by[f.name], f.uv, f.xyz, camera_name=f.name))
     assert rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))[2]["time_resets"] == 1
 
-    silent = RigLocalizer(RigSettings(mounts_of(cams)))
+    silent = Localizer(LocalizerSettings(mounts_of(cams)))
     only = Counter({f"{names[1]}.received": 1})
     level, message, v = rig_diagnostics(silent, set(), RigInputs(only, absent=[names[0]]))
     assert level == ERROR and message.startswith(
@@ -109,7 +109,7 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking import fusion
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cams = default_rig(2)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
@@ -126,7 +126,9 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
 
     monkeypatch.setattr(fusion.TwistFilter, "update", corrupting)
     bounds = PlausibilityOptions(max_angular_velocity=30.0)
-    rig = RigLocalizer(RigSettings(mounts_of(cams), options=EstimateOptions(plausibility=bounds)))
+    rig = Localizer(
+        LocalizerSettings(mounts_of(cams), options=EstimateOptions(plausibility=bounds))
+    )
     fused = []
     for f in frames:
         for out in rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name)):
@@ -156,7 +158,7 @@ def test_a_suspect_readout_timing_warns():
     from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cfg = build_config(default_values())
     snap = FramePipeline(cfg).stats.snapshot()
@@ -176,7 +178,7 @@ def test_a_suspect_readout_timing_warns():
     for scale in (1.0, 2.0):
         by = {c.name: replace(c.camera, line_delay=scale * c.camera.line_delay) for c in cams}
         log = Log()
-        rig = RigLocalizer(RigSettings(mounts_of(cams)), log=log)
+        rig = Localizer(LocalizerSettings(mounts_of(cams)), log=log)
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
         rig.close()
@@ -204,14 +206,14 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.gyro_input import GyroSettings
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cams = default_rig(2)
     frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
     by = {c.name: c.camera for c in cams}
     rigs = {}
     for gyro in (None, GyroSettings(R_cam_imu=np.eye(3), wait=0.0)):
-        rig = rigs[gyro is not None] = RigLocalizer(RigSettings(mounts_of(cams), imu=gyro))
+        rig = rigs[gyro is not None] = Localizer(LocalizerSettings(mounts_of(cams), imu=gyro))
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     cfg = build_config({**default_values(), "imu.enabled": True})

@@ -459,8 +459,8 @@ def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
     (``t_ref_ns``, from the trajectory, not from the formula)."""
     import rs_localizer.camera as camera_mod
     import rs_localizer.ros.conversions as conversions_mod
-    import rs_localizer.tracking.rig as rig_mod
     import rs_localizer.tracking.sequence as sequence_mod
+    import rs_localizer.tracking.video as rig_mod
     from rs_localizer.correspondences import Correspondences
     from rs_localizer.frontends.shared import LoadedMaps
     from rs_localizer.ros.image_codec import image_fields

@@ -285,7 +285,7 @@ def test_lockstep_waits_for_a_node_that_says_it_compiles(imu_bag, ros_context, s
 
 def test_play_counts_rig_frames_as_the_rig_node(tmp_path, ros_domain, capsys):
     """``play`` of a rig bag prints its camera frames and the rig frames they form, the count
-    of the rig node's own grouping (``RigLocalizer`` through ``replay``: its ``rig_frames``)."""
+    of the rig node's own grouping (``Localizer`` through ``replay``: its ``rig_frames``)."""
     from rs_localizer.ros.bags.rig_bag import replay_rig
 
     bag = tmp_path / "rig"

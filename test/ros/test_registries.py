@@ -18,7 +18,7 @@ from rs_localizer.frontends.shared import MapCache
 from rs_localizer.ros import config as C
 from rs_localizer.ros import params as P
 from rs_localizer.solvers.registry import SOLVERS
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 PKG = Path(__file__).resolve().parents[2] / "rs_localizer"
 #: the modules a single camera never runs (tools/architecture_report.py's RIG_ONLY)
@@ -77,8 +77,10 @@ def test_a_front_end_added_to_the_registry_is_accepted_by_both_nodes(monkeypatch
     assert all(isinstance(f.frontend, _Dots) and f.frontend.scale == 3.5 for f in fe)
     assert np.array_equal(fe[0].frontend.points, pts) and cache.loads == 1  # (one map)
     assert fe[0].frontend is not fe[1].frontend  # (an object per camera)
-    rig = RigLocalizer(
-        RigSettings({n: Mounting.from_pose(np.eye(3), np.zeros(3) + i) for i, n in enumerate("ab")})
+    rig = Localizer(
+        LocalizerSettings(
+            {n: Mounting.from_pose(np.eye(3), np.zeros(3) + i) for i, n in enumerate("ab")}
+        )
     )
     for n, f in zip("ab", fe, strict=True):
         rig.set_frontend(n, f.frontend, cfg.frontend_kind)

@@ -427,7 +427,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     )
     from rs_localizer.ros.camera_input import UnreadFrame, hand_to_rig
     from rs_localizer.ros.config import rig_config
-    from rs_localizer.tracking.rig import RigLocalizer
+    from rs_localizer.tracking.video import Localizer
 
     b = bag_with_unread_clouds(tmp_path)
     n = {c: len(s) for c, s in b.stamps.items()}
@@ -457,7 +457,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     # the grouping: the rig mode's, each unread cloud with a stamp handed to it as the node does
     ends, formed = rig_frame_grouping(b.bag)
     values, cam_values = rig_parameter_values(b.bag)
-    rig = RigLocalizer(rig_config(values, cam_values).settings)
+    rig = Localizer(rig_config(values, cam_values).settings)
     truth = {}
     for f in read.items:
         k = len(hand_to_rig(rig, f))
@@ -482,7 +482,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     """A camera at 1 fps beside one at 30 fps (``rig.stop_after`` 0.5 s, shorter than its frame
     interval): the rig does not take it as stopped between its frames, and the
     frames ``play --lockstep`` waits after are those whose arrival completes a rig frame in
-    the rig mode solving them (a :class:`RigLocalizer` fed as the node feeds it)."""
+    the rig mode solving them (a :class:`Localizer` fed as the node feeds it)."""
     from helpers.rig_bags import rewrite_bag
 
     from rs_localizer.ros.bags.rig_bag import (
@@ -494,7 +494,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     from rs_localizer.ros.camera_input import hand_to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigLocalizer
+    from rs_localizer.tracking.video import Localizer
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=3.2, num_points=40, seed=3)
@@ -512,7 +512,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     ends, formed = rig_frame_grouping(bag)
     values, cam_values = rig_parameter_values(bag)
     assert float(values["rig.stop_after"]) < 1.0
-    rig = RigLocalizer(rig_config(values, cam_values).settings)
+    rig = Localizer(rig_config(values, cam_values).settings)
     truth, with_left = {}, 0
     for f in read_rig_frames(bag).items:
         outs = hand_to_rig(rig, f)

@@ -576,13 +576,13 @@ def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=21)
     shift = -20_000_000
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
     for s, f in sorted((f.stamp_ns + shift * (f.name == "left"), f) for f in frames):
         rig.add(CameraFrame(s, by[f.name], f.uv, f.xyz, camera_name=f.name))
     level, message, v = rig_diagnostics(rig, set())

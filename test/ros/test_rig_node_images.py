@@ -204,7 +204,7 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
     from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
-    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     for k in (2, 3):
         cams = default_rig(k)
@@ -212,7 +212,7 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
         bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
         mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
-        rig = RigLocalizer(RigSettings(mounts))
+        rig = Localizer(LocalizerSettings(mounts))
         by = {c.name: c.camera for c in cams}
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))

@@ -113,7 +113,7 @@ def test_a_cameras_time_offset_reaches_the_rig():
 
 def test_max_points_is_the_rigs_one_cap():
     """The one ``max_points`` parameter sets the rig's cap on its cameras' image rows
-    (``RigSettings.max_points``), 5000 by default; below what a pose needs it is refused."""
+    (``LocalizerSettings.max_points``), 5000 by default; below what a pose needs it is refused."""
     one = {"rig.cameras": ["a"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0]}
     assert rig_config(*_values(one)).settings.max_points == default_values()["max_points"]
     assert rig_config(*_values({**one, "max_points": 77})).settings.max_points == 77
@@ -205,7 +205,7 @@ def test_the_node_takes_a_mounting_covariance(ros_context):
 
 def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
     """The node's ``max_points`` caps each camera's clouds (its ``CameraInput``) and the rows
-    its front end finds in an image (the rig's ``RigSettings.max_points``) alike."""
+    its front end finds in an image (the rig's ``LocalizerSettings.max_points``) alike."""
     pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
 

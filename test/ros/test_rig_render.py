@@ -116,7 +116,7 @@ def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
 
 def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     """The frames after which ``play --lockstep`` waits are those whose arrival makes the rig
-    mode (RigLocalizer) solve rig frames: with a dropped frame and a camera that stops."""
+    mode (Localizer) solve rig frames: with a dropped frame and a camera that stops."""
     from rs_localizer.ros.bags.rig_bag import (
         read_rig_frames,
         rig_config,
@@ -125,7 +125,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
         write_rig_bag,
     )
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigLocalizer
+    from rs_localizer.tracking.video import Localizer
 
     cams = default_rig(3)
     cams[1] = type(cams[1])(**{**cams[1].__dict__, "drop": (3, 4)})
@@ -134,7 +134,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
     ends = rig_frame_ends(bag)
     values, cam_values = rig_parameter_values(bag)
-    rig = RigLocalizer(rig_config(values, cam_values).settings)
+    rig = Localizer(rig_config(values, cam_values).settings)
     truth = {}
     for f in read_rig_frames(bag).frames:
         k = len(rig.add(f))

@@ -9,11 +9,11 @@ from helpers.rig import mounts_of
 
 from rs_localizer.runtime import background as B
 from rs_localizer.sim.rig_video import default_rig
-from rs_localizer.tracking.rig import RigSettings
+from rs_localizer.tracking.video import LocalizerSettings
 
 
 def _rig():
-    return B.RigKernels(RigSettings(mounts_of(default_rig(3))))
+    return B.RigKernels(LocalizerSettings(mounts_of(default_rig(3))))
 
 
 def _wait():
@@ -83,7 +83,7 @@ def test_the_compiling_process_warms_up_what_it_is_handed(monkeypatch):
     monkeypatch.setattr(W, "warm_rig", lambda *a, **k: ran.append(("rig", a, k)))
     monkeypatch.setattr(W, "warm_up", lambda *a, **k: ran.append(("camera", a, k)))
     timing = {"front": (3e-5, None, "down")}
-    rig = B.RigKernels(RigSettings(mounts_of(default_rig(2))), timing)
+    rig = B.RigKernels(LocalizerSettings(mounts_of(default_rig(2))), timing)
     for kernels in (rig, B.CameraKernels("r6p_1lin", gyro=True)):
         stdin = type("In", (), {"buffer": io.BytesIO(pickle.dumps((kernels, 0)))})()
         monkeypatch.setattr(sys, "stdin", stdin)

@@ -1,4 +1,4 @@
-"""RigLocalizer: the rig publishes a pose only where its cameras agree with each other and with
+"""Localizer: the rig publishes a pose only where its cameras agree with each other and with
 the rig's track (a camera's clock off, a wrong mounting on the camera with the most points, a
 rig frame of one camera the track contradicts), against the rig's true trajectory
 (rs_localizer.sim.rig_video)."""
@@ -15,14 +15,14 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import RIG_REFUSALS, RigLocalizer, RigSettings
+from rs_localizer.tracking.video import RIG_REFUSALS, Localizer, LocalizerSettings
 
 
 def run(frames, cams, mounts=None, shift=None, log=None):
-    """The frames through a RigLocalizer in stamp order, camera ``c``'s stamps moved by
+    """The frames through a Localizer in stamp order, camera ``c``'s stamps moved by
     ``shift[c]`` s (its clock off); returns (rig, outputs)."""
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(RigSettings(mounts or mounts_of(cams)), log=log)
+    rig = Localizer(LocalizerSettings(mounts or mounts_of(cams)), log=log)
     shift = shift or {}
     stamped = sorted(
         ((f.stamp_ns + int(round(shift.get(f.name, 0.0) * 1e9)), f) for f in frames),
@@ -232,12 +232,12 @@ def test_a_tag_of_a_second_camera_the_pose_explains_confirms_it_against_an_off_p
     was refused as ``contradicts_track``, front taken to pose it alone: the left camera, too
     few points to vote, did not count). Left's 4 corners wrong (their world points moved
     0.5 m): not inliers, front poses alone and the prediction refuses it."""
-    import rs_localizer.tracking.rig as tracking_rig
+    import rs_localizer.tracking.video as tracking_video
 
     cams, frames, traj = video
     target = 12
     by = {c.name: c.camera for c in cams}
-    real = tracking_rig.RigLocalizer._estimate
+    real = tracking_video.Localizer._estimate
     turn = rotvec_to_matrix(np.radians([0.0, 0.0, 3.0]))
 
     def estimate(self, stamp, views, out):
@@ -248,8 +248,8 @@ def test_a_tag_of_a_second_camera_the_pose_explains_confirms_it_against_an_off_p
             self._prediction = replace(pred, pose=pose, covariance=1e-8 * np.eye(12))
         return got
 
-    monkeypatch.setattr(tracking_rig.RigLocalizer, "_estimate", estimate)
-    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    monkeypatch.setattr(tracking_video.Localizer, "_estimate", estimate)
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
     outs = []
     for f in sorted(frames, key=lambda f: f.stamp_ns):
         uv, xyz = f.uv, f.xyz

@@ -1,4 +1,4 @@
-"""RigLocalizer.process_image: every camera's 640x480 images of the marker room (rendered at the
+"""Localizer.process_image: every camera's 640x480 images of the marker room (rendered at the
 rig's motion composed with each camera's mounting, rs_localizer.sim.render.rig) through its own
 ArUco front end, the rig posed against the true trajectory; the rig's prediction handed to each
 camera's front end (and none after a reset); dropped images counted; and which camera is named
@@ -15,7 +15,7 @@ from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import SKIP_REASONS, RigLocalizer, RigSettings
+from rs_localizer.tracking.video import SKIP_REASONS, Localizer, LocalizerSettings
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def rendered():
 def aruco_rig(cams, **kw):
     from rs_localizer.frontends import make_frontend
 
-    rig = RigLocalizer(RigSettings(mounts_of(cams)), **kw)
+    rig = Localizer(LocalizerSettings(mounts_of(cams)), **kw)
     for c in cams:
         # (windows however much of the frame they cover: aruco_room is dense with markers)
         fe = make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
@@ -109,12 +109,14 @@ def test_dropped_images_are_counted_and_the_rig_runs_on(rendered):
     with pytest.raises(ValueError, match="unknown skip reason"):
         rig.drop("left", T0, None, "cosmic_ray")
     with pytest.raises(ValueError, match="no front end"):
-        RigLocalizer(RigSettings(mounts_of(cams))).process_image("left", T0, frames[0].image, None)
+        Localizer(LocalizerSettings(mounts_of(cams))).process_image(
+            "left", T0, frames[0].image, None
+        )
 
 
 def _run(frames, cams, mounts, log):
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(RigSettings(mounts), log=log)
+    rig = Localizer(LocalizerSettings(mounts), log=log)
     outs = []
     for f in frames:
         outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
@@ -174,8 +176,8 @@ def test_an_images_stamp_is_checked_once_and_its_reference_time_made_once(monkey
     them); every rig frame at the earliest reference time of its frames, the simulation's
     (``t_ref_ns``, from the trajectory)."""
     import rs_localizer.camera as camera_mod
-    import rs_localizer.tracking.rig as rig_mod
     import rs_localizer.tracking.sequence as sequence_mod
+    import rs_localizer.tracking.video as rig_mod
     from rs_localizer.correspondences import Correspondences
 
     cams = default_rig(3)
@@ -204,7 +206,7 @@ def test_an_images_stamp_is_checked_once_and_its_reference_time_made_once(monkey
             f = current["frame"]
             return Correspondences(f.uv, f.xyz)
 
-    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
     for c in cams:
         rig.set_frontend(c.name, Frontend(), "stub")
     by = {c.name: c.camera for c in cams}
@@ -249,7 +251,7 @@ def test_a_reset_forgets_the_last_rig_frame_posed():
         def pop_warning(self):
             return None
 
-    rig = RigLocalizer(RigSettings(mounts_of(cams), tracking=None))
+    rig = Localizer(LocalizerSettings(mounts_of(cams), tracking=None))
     for c in cams:
         rig.set_frontend(c.name, Frontend(), "stub")
     by = {c.name: c.camera for c in cams}
@@ -273,7 +275,7 @@ def test_a_reset_forgets_the_last_rig_frame_posed():
 
 
 def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
-    """``RigSettings.max_points`` 40, the front camera's front end returning its 102-120 rows
+    """``LocalizerSettings.max_points`` 40, the front camera's front end returning its 102-120 rows
     with 5 NaN rows added and a score per row: the NaN rows dropped first (counted
     ``front.points_dropped``), then the 40 highest-scored rows kept, as a single camera keeps
     them (:func:`usable_rows`): counted ``front.capped_clouds`` (every frame) and
@@ -312,7 +314,7 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
             return None
 
     log = Log()
-    rig = RigLocalizer(RigSettings(mounts_of(cams), max_points=40), log=log)
+    rig = Localizer(LocalizerSettings(mounts_of(cams), max_points=40), log=log)
     for c in cams:
         rig.set_frontend(c.name, Frontend(), "stub")
     by = {c.name: c.camera for c in cams}

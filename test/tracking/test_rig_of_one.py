@@ -1,5 +1,5 @@
-"""A camera alone is a rig of one: a RigLocalizer of one camera at the identity mounting
-(RigSettings.single_camera) given the camera's options solves every frame as the camera's own
+"""A camera alone is a rig of one: a Localizer of one camera at the identity mounting
+(LocalizerSettings.single_camera) given the camera's options solves every frame as the camera's own
 SequenceLocalizer does, bit for bit: each estimate (pose, twist, model, inliers, failure,
 covariances), its path and every fused twist, with tracking (the prediction's motion prior
 too), without, across a new configuration, with a gyro, and on rendered images through a front
@@ -23,9 +23,9 @@ from rs_localizer.sim.trajectory import (
 )
 from rs_localizer.tracking.gyro_input import GyroSettings
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 from rs_localizer.tracking.tracker import TrackerOptions
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 OPTS = EstimateOptions()  # (the camera's default options)
 IDENTITY = Mounting(np.eye(3), np.zeros(3))
@@ -90,7 +90,7 @@ def _compare(video, tracking, imu=None, frames=None, configure=None):
     seq = SequenceLocalizer(
         SequenceSettings(options=OPTS, tracking=tracking, imu=imu), imu_span=np.inf
     )
-    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, tracking=tracking, imu=imu))
+    rig = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS, tracking=tracking, imu=imu))
     assert rig.settings.single_camera
     if imu is not None:
         for t, w in samples:
@@ -170,15 +170,15 @@ def test_which_rigs_are_one_camera_and_a_rig_of_two_keeps_the_rig_estimator(vide
     of two cameras, even at the identity, runs the rig estimator."""
     frames, cam, _ = video
     turned = Mounting.from_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
-    assert RigSettings({"cam": IDENTITY}).single_camera
-    assert not RigSettings(
+    assert LocalizerSettings({"cam": IDENTITY}).single_camera
+    assert not LocalizerSettings(
         {"cam": Mounting(np.eye(3), np.zeros(3), np.eye(6) * 1e-6)}
     ).single_camera
-    assert not RigSettings({"cam": turned}).single_camera
-    assert not RigSettings({"cam": Mounting(np.eye(3), np.array([0.1, 0, 0]))}).single_camera
-    assert not RigSettings({"a": IDENTITY, "b": IDENTITY}).single_camera
-    one = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS))
-    two = RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY}, options=OPTS))
+    assert not LocalizerSettings({"cam": turned}).single_camera
+    assert not LocalizerSettings({"cam": Mounting(np.eye(3), np.array([0.1, 0, 0]))}).single_camera
+    assert not LocalizerSettings({"a": IDENTITY, "b": IDENTITY}).single_camera
+    one = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS))
+    two = Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}, options=OPTS))
     f = frames[0]
     (out,) = one.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, camera_name="cam"))
     assert out.success and out.estimate.solver == "r6p_1lin"
@@ -207,7 +207,7 @@ def test_a_rig_of_one_on_images_is_the_camera_on_them(tracking):
         return make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
 
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=tracking), frontend=aruco())
-    rig = RigLocalizer(RigSettings({c.name: IDENTITY}, options=OPTS, tracking=tracking))
+    rig = Localizer(LocalizerSettings({c.name: IDENTITY}, options=OPTS, tracking=tracking))
     rig.set_frontend(c.name, aruco())
     spr = c.camera.seconds_per_unit_r
     predicted = 0
@@ -229,10 +229,10 @@ def test_a_rig_of_one_on_images_is_the_camera_on_them(tracking):
 
 # ---------------------------------------------------------------------- the camera's policies
 def _pair(**kw):
-    """A camera's localizer and a rig of one (not its adapter: a RigLocalizer of its own) with
+    """A camera's localizer and a rig of one (not its adapter: a Localizer of its own) with
     the same settings ``kw``."""
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, **kw))
-    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, **kw))
+    rig = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS, **kw))
     return seq, rig
 
 
@@ -253,7 +253,7 @@ def _step(seq, rig, f, cam, stamp_ns=None):
 
 
 def test_a_rig_of_one_takes_the_camera_s_solver_and_its_global_shutter_twists(video):
-    """``RigSettings.solver``: a rig of one solved with the global-shutter P3P as the camera
+    """``LocalizerSettings.solver``: a rig of one solved with the global-shutter P3P as the camera
     is: the same estimates, each frame's own twist final at once (``twist_now``, nothing
     held); a camera without readout time (line delay 0) likewise on the default solver."""
     frames, cam, _ = video
@@ -344,7 +344,7 @@ def test_a_rig_of_one_s_frozen_image_starts_a_new_track(video):
         return make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
 
     seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=aruco())
-    rig = RigLocalizer(RigSettings({c.name: IDENTITY}, options=OPTS))
+    rig = Localizer(LocalizerSettings({c.name: IDENTITY}, options=OPTS))
     rig.set_frontend(c.name, aruco())
     paths = []
     for k, f in enumerate(frames):
@@ -369,7 +369,7 @@ def test_a_rig_of_one_s_frozen_image_starts_a_new_track(video):
 
 def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
     """Without tracking the last posed frame, carried at its own twist, predicts the next
-    frame of :meth:`RigLocalizer.add` as of :meth:`RigLocalizer.process_image`, as the
+    frame of :meth:`Localizer.add` as of :meth:`Localizer.process_image`, as the
     camera's."""
     frames, cam, _ = video
     seq, rig = _pair(tracking=None)
@@ -383,9 +383,9 @@ def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
 def test_only_a_rig_of_one_is_a_camera_s_video():
     """``camera_video`` and ``check_time`` are a rig of one's."""
     with pytest.raises(ValueError, match="rig of one"):
-        RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY}), camera_video=True)
+        Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}), camera_video=True)
     with pytest.raises(ValueError, match="rig of one"):
-        RigLocalizer(RigSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
+        Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
 
 
 def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(video):
@@ -412,7 +412,7 @@ def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(
 
     a, b = Rows(), Rows()
     seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=a)
-    rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS))
+    rig = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS))
     rig.set_frontend("cam", b)
     for k in range(8):
         a.k = b.k = k
@@ -430,7 +430,7 @@ def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(
 
 
 def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
-    """``RigSettings.frozen_image_level`` (a camera's ``frozen_image_level``): the same image
+    """``LocalizerSettings.frozen_image_level`` (a camera's ``frozen_image_level``): the same image
     twice is skipped as ``frozen_image`` at the default level, taken with a negative one."""
     from rs_localizer.correspondences import Correspondences
 
@@ -445,7 +445,9 @@ def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
 
     for level, taken in ((SequenceSettings.frozen_image_level, 1), (-1.0, 2)):
         fe = Rows()
-        rig = RigLocalizer(RigSettings({"cam": IDENTITY}, options=OPTS, frozen_image_level=level))
+        rig = Localizer(
+            LocalizerSettings({"cam": IDENTITY}, options=OPTS, frozen_image_level=level)
+        )
         rig.set_frontend("cam", fe)
         outs = []
         for k in range(2):

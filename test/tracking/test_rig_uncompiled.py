@@ -1,4 +1,4 @@
-"""RigLocalizer while its kernels compile (its ``implementation`` says ``"numpy"``): the rig
+"""Localizer while its kernels compile (its ``implementation`` says ``"numpy"``): the rig
 frames are tracked on the NumPy implementation as on the compiled one (the prediction, the
 gyro, the twist filter), against the rig's true trajectory, and the track goes on across
 the switch to the compiled implementation."""
@@ -11,8 +11,8 @@ from helpers.rig import T0, assert_balanced, mounts_of
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 NOISE = 0.003  # rad/s per gyro sample
 R_RIG_IMU = rotvec_to_matrix(np.array([0.3, -0.2, 1.0]))  # an IMU mounted turned on the rig
@@ -27,7 +27,7 @@ def test_rig_frames_tracked_on_numpy_and_the_track_goes_on_once_compiled():
     frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=120, seed=7)
     by = {c.name: c.camera for c in cams}
     state = {"impl": "numpy"}
-    rig = RigLocalizer(RigSettings(mounts_of(cams)), implementation=lambda: state["impl"])
+    rig = Localizer(LocalizerSettings(mounts_of(cams)), implementation=lambda: state["impl"])
     outs, fused = [], []
     for f in frames:
         for o in rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name)):
@@ -55,9 +55,9 @@ def test_rig_frames_tracked_on_numpy_and_the_track_goes_on_once_compiled():
 
 def _video_run(cams, frames, gyro, impl):
     """The rig video with its gyro samples, in arrival order (a frame 30 ms after its
-    stamp), through a RigLocalizer on ``impl``. Returns (rig, outputs, fused twists)."""
+    stamp), through a Localizer on ``impl``. Returns (rig, outputs, fused twists)."""
     imu = GyroSettings(R_cam_imu=R_RIG_IMU, gyro_noise=NOISE, gyro_bias_sigma=0.001)
-    rig = RigLocalizer(RigSettings(mounts_of(cams), imu=imu), implementation=lambda: impl)
+    rig = Localizer(LocalizerSettings(mounts_of(cams), imu=imu), implementation=lambda: impl)
     by = {c.name: c.camera for c in cams}
     events = [(f.stamp_ns + 30_000_000, 1, f) for f in frames]
     events += [(int(t), 0, w) for t, w in zip(*gyro, strict=True)]

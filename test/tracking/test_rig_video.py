@@ -1,4 +1,4 @@
-"""RigLocalizer: unsynchronized RS cameras on one rig through a video (simulated with
+"""Localizer: unsynchronized RS cameras on one rig through a video (simulated with
 rs_localizer.sim.rig_video), against the rig's true trajectory."""
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import MISSED_REASONS, SKIP_REASONS, RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import SequenceLocalizer
+from rs_localizer.tracking.video import MISSED_REASONS, SKIP_REASONS, Localizer, LocalizerSettings
 
 
 def run(frames, cams, settings=None, log=None, camera_of=None):
-    """Every frame through a RigLocalizer in the given order; returns (rig, outputs, fused)."""
+    """Every frame through a Localizer in the given order; returns (rig, outputs, fused)."""
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(settings or RigSettings(mounts_of(cams)), log=log)
+    rig = Localizer(settings or LocalizerSettings(mounts_of(cams)), log=log)
     outs, fused = [], []
     for f in frames:
         cam = by[f.name] if camera_of is None else camera_of(f)
@@ -112,7 +112,7 @@ def test_a_camera_whose_frames_stop_the_rig_runs_on_the_others():
     cams[2] = type(cams[2])(**{**cams[2].__dict__, "stop": 0.3})
     frames, _, traj = generate_rig_video(cams, duration=0.9, num_points=150, seed=4)
     log = Log()
-    settings = RigSettings(mounts_of(cams), stop_after=0.2)
+    settings = LocalizerSettings(mounts_of(cams), stop_after=0.2)
     rig, outs, _ = run(frames, cams, settings, log)
     assert all(o.success for o in outs)
     late = [o for o in outs if (o.stamp_ns - T0) * 1e-9 > 0.55]
@@ -147,7 +147,7 @@ def test_frames_too_far_apart_are_separate_rig_frames_counted():
     frame; each posed alone from its camera, the other counted missing as ``apart``."""
     cams = default_rig(2, offsets_s=(0.0, 0.0161))
     frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=150, seed=5)
-    rig, outs, _ = run(frames, cams, RigSettings(mounts_of(cams), window=0.010))
+    rig, outs, _ = run(frames, cams, LocalizerSettings(mounts_of(cams), window=0.010))
     assert all(len(o.cameras) == 1 for o in outs)
     assert rig.counts["front.missed.apart"] >= 10 and rig.counts["left.missed.apart"] >= 10
     assert rig.counts["rig.incomplete"] == len(outs)
@@ -156,7 +156,7 @@ def test_frames_too_far_apart_are_separate_rig_frames_counted():
     assert np.median([errors(o, traj)[0] for o in ok]) < 0.1
     assert_balanced(rig)
     # with a 20 ms window the same frames pair up
-    _, outs2, _ = run(frames, cams, RigSettings(mounts_of(cams), window=0.020))
+    _, outs2, _ = run(frames, cams, LocalizerSettings(mounts_of(cams), window=0.020))
     assert sum(len(o.cameras) == 2 for o in outs2) >= 10
 
 
@@ -191,7 +191,7 @@ def test_a_mounting_off_by_degrees_is_named():
     bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
     mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
     log = Log()
-    rig, outs, _ = run(frames, cams, RigSettings(mounts), log)
+    rig, outs, _ = run(frames, cams, LocalizerSettings(mounts), log)
     assert outs[-1].disagreeing == ("left",)
     assert rig.camera_state("left") == "disagrees" and rig.counts["left.disagreements"] == 1
     text = [t for k, t in log.warnings if k == "rig.disagrees.left"]
@@ -211,7 +211,7 @@ def test_stamps_going_back_start_the_rig_again(video):
     starts again, the track cold; a camera's frame older than its previous one (by less) is
     skipped as ``out_of_order``."""
     cams, frames, _ = video
-    settings = RigSettings(mounts_of(cams), time_reset_ns=200_000_000)
+    settings = LocalizerSettings(mounts_of(cams), time_reset_ns=200_000_000)
     rig, outs, _ = run(frames + frames, cams, settings)
     assert [o.path for o in outs].count("cold") == 2
     assert sum(o.success for o in outs) >= 34
@@ -257,7 +257,7 @@ def test_a_stamp_jump_ahead_starts_the_rig_again_as_for_one_camera(video):
     assert np.median(e[:, 0]) < 0.03 and np.median(e[:, 1]) < 0.003, np.median(e, axis=0)
     assert_balanced(rig)
     # a jump within time_reset_ns is no time reset: the track resets on the gap alone
-    rig2, outs2, _ = run(shifted, cams, RigSettings(mounts_of(cams), time_reset_ns=5 * 10**9))
+    rig2, outs2, _ = run(shifted, cams, LocalizerSettings(mounts_of(cams), time_reset_ns=5 * 10**9))
     assert rig2.counts["rig.time_resets"] == 0 and "reset" in [o.path for o in outs2]
 
 
@@ -265,12 +265,12 @@ def test_bad_settings():
     cams = default_rig(2)
     m = mounts_of(cams)
     with pytest.raises(ValueError, match="'left' has no mounting"):
-        RigSettings({"front": m["front"], "left": None})
+        LocalizerSettings({"front": m["front"], "left": None})
     with pytest.raises(ValueError, match="at least one camera"):
-        RigSettings({})
+        LocalizerSettings({})
     with pytest.raises(ValueError, match="rotation"):
         Mounting(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
-    rig = RigLocalizer(RigSettings(m))
+    rig = Localizer(LocalizerSettings(m))
     with pytest.raises(ValueError, match="'back' is not in the rig"):
         rig.add(
             CameraFrame(T0, cams[0].camera, np.zeros((0, 2)), np.zeros((0, 3)), camera_name="back")
@@ -290,8 +290,8 @@ def test_configure_takes_new_options_from_the_next_rig_frame(video):
 
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
-    settings = RigSettings(mounts_of(cams))
-    rig = RigLocalizer(settings)
+    settings = LocalizerSettings(mounts_of(cams))
+    rig = Localizer(settings)
     outs = []
     half = len(frames) // 2
     for f in frames[:half]:
@@ -454,7 +454,7 @@ def test_the_rig_and_one_camera_share_the_pending_twists_and_end_track(video):
     # and end_track; after end_track the rig has no prediction for a camera's next frame
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
-    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
     cut = len(frames) // 2
     for f in frames[:cut]:
         rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
@@ -479,6 +479,7 @@ def test_a_rig_and_a_camera_take_one_tracking_options_type(video, monkeypatch):
     camera's tracked frames take the same field (default: the options' own maximum)."""
     import rs_localizer.tracking.rig as rig_module
     from rs_localizer.estimation.options import EstimateOptions
+    from rs_localizer.estimation.rig import RIG_OPTIONS
     from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
 
     cams, frames, _ = video
@@ -490,11 +491,11 @@ def test_a_rig_and_a_camera_take_one_tracking_options_type(video, monkeypatch):
         return real(views, options, **kw)
 
     monkeypatch.setattr(rig_module, "estimate_rig_pose", spy)
-    cold = rig_module.RIG_OPTIONS.ransac.max_iterations
+    cold = RIG_OPTIONS.ransac.max_iterations
     for tracking, tracked in ((TrackerOptions(), rig_module.RIG_TRACKED_MAX_ITERATIONS),
                               (TrackerOptions(tracked_max_iterations=7), 7)):  # fmt: skip
         seen.clear()
-        _, outs, _ = run(frames, cams, RigSettings(mounts_of(cams), tracking=tracking))
+        _, outs, _ = run(frames, cams, LocalizerSettings(mounts_of(cams), tracking=tracking))
         assert any(o.path == "tracked" for o in outs)
         assert {n for t, n in seen if t} == {tracked}
         assert {n for t, n in seen if not t} == {cold}
@@ -523,7 +524,7 @@ def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video)
     rig, _, _ = run(late, cams)
     assert rig.counts["left.disagreements"] == 1 and rig.camera_state("left") == "disagrees"
     truth_rig, want, _ = run(frames, cams)
-    settings = RigSettings(mounts_of(cams), time_offsets={"left": -0.025})
+    settings = LocalizerSettings(mounts_of(cams), time_offsets={"left": -0.025})
     fixed, got, _ = run(late, cams, settings)
     assert fixed.counts == truth_rig.counts
     assert [o.cameras for o in got] == [o.cameras for o in want]
@@ -559,8 +560,8 @@ def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video)
         mm = 1e3 * np.linalg.norm(e.mount.position - mounts[n].position)
         assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e.std_deg, e.std_mm)
     with pytest.raises(ValueError, match="time_offsets"):
-        RigSettings(mounts_of(cams), time_offsets={"back": 0.01})
+        LocalizerSettings(mounts_of(cams), time_offsets={"back": 0.01})
     with pytest.raises(ValueError, match="at most 1 s"):
-        RigSettings(mounts_of(cams), time_offsets={"left": 2.0})
+        LocalizerSettings(mounts_of(cams), time_offsets={"left": 2.0})
     with pytest.raises(ValueError, match="keeps its time_offsets"):
-        RigLocalizer(RigSettings(mounts_of(cams))).configure(settings)
+        Localizer(LocalizerSettings(mounts_of(cams))).configure(settings)

@@ -1,4 +1,4 @@
-"""RigLocalizer with a gyro on the rig (simulated with rs_localizer.sim.rig_video): a right
+"""Localizer with a gyro on the rig (simulated with rs_localizer.sim.rig_video): a right
 gyro improves each rig frame's angular velocity against the true trajectory, a wrongly mounted
 one is rejected and counted, a biased one's bias is estimated online."""
 
@@ -16,8 +16,8 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
-from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 NOISE = 0.003  # rad/s per sample
 R_RIG_IMU = rotvec_to_matrix(np.array([0.3, -0.2, 1.0]))  # an IMU mounted turned on the rig
@@ -31,12 +31,12 @@ def video():
 
 
 def _run(video, imu=None, gyro=None, log=None):
-    """The frames and gyro samples (``(stamps, rates)``) through a RigLocalizer in the order
+    """The frames and gyro samples (``(stamps, rates)``) through a Localizer in the order
     they would arrive (a frame once its readout is over: 30 ms after its stamp). Returns
     (rig, outputs)."""
     cams, frames, _ = video
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
-    rig = RigLocalizer(RigSettings(mounts, imu=imu), log=log)
+    rig = Localizer(LocalizerSettings(mounts, imu=imu), log=log)
     by = {c.name: c.camera for c in cams}
     events = [(f.stamp_ns + 30_000_000, 1, f) for f in frames]
     if gyro is not None:
@@ -225,7 +225,7 @@ def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
     cams, frames, _ = video
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(R_cam_imu=R_RIG_IMU, buffer=100.0, estimate_bias=True)
-    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None))
+    rig = Localizer(LocalizerSettings(mounts, imu=imu, tracking=None))
     by = {c.name: c.camera for c in cams}
     stamps = [T0 + k * 5_000_000 for k in range(100)]  # (0.5 s at 200 Hz)
     for t in stamps:
@@ -256,7 +256,7 @@ def test_the_rigs_gap_is_passed_to_the_gyro_check_and_bias_estimator():
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(estimate_bias=True)
     to = TrackerOptions(max_gap=0.3)
-    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=to, stop_after=0.8))
+    rig = Localizer(LocalizerSettings(mounts, imu=imu, tracking=to, stop_after=0.8))
     assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.3
-    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None, stop_after=0.8))
+    rig = Localizer(LocalizerSettings(mounts, imu=imu, tracking=None, stop_after=0.8))
     assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.5

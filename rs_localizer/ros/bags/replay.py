@@ -55,7 +55,7 @@ if TYPE_CHECKING:
     from ...camera import CameraModel
     from ...estimation.result import RSPoseEstimate
     from ...pose import PoseWithCovariance
-    from ...tracking.rig import RigOutput
+    from ...tracking.video import LocalizerOutput
 
 __all__ = [
     "BAG_TIMING",
@@ -504,7 +504,7 @@ class ReplayRows:
         if res.solved:
             self._posed(row, res.output, res.out_stamp_ns, res.twist_now)
 
-    def add_rig(self, index: int, out: RigOutput, twist_now: bool) -> None:
+    def add_rig(self, index: int, out: LocalizerOutput, twist_now: bool) -> None:
         """A rig frame (``out``, solved or failed; ``twist_now``: its own twist is the one
         published, without tracking): its stamp is the rig frame's time, ``num_points`` the
         rows of all its cameras, ``failure`` the estimator's or the rig's reason (``error``:

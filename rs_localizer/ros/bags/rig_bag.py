@@ -1,6 +1,6 @@
 """Rig bags (several cameras, each its own timing) with ``rosbags``: written from a simulated
-rig video, replayed offline through the rig mode's :class:`~rs_localizer.tracking.rig.
-RigLocalizer` with the node's parameters.
+rig video, replayed offline through the rig mode's :class:`~rs_localizer.tracking.video.
+Localizer` with the node's parameters.
 
 A rig bag holds, per camera ``<c>``, ``<ns>/<c>/camera_info`` and ``<ns>/<c>/correspondences``
 (u, v, x, y, z, id) and, from ``render-bag --rig``, ``<ns>/<c>/image_raw`` (rgb8), each
@@ -55,7 +55,7 @@ from .bag_io import (
 if TYPE_CHECKING:
     from ...camera import CameraModel, Stamp
     from ...tracking.localizer import CameraFrame
-    from ...tracking.rig import RigSettings
+    from ...tracking.video import LocalizerSettings
     from ..camera_input import CameraInput, UnreadFrame
 
 __all__ = [
@@ -312,8 +312,8 @@ class RigReplay:
       published pose and twist (:func:`~rs_localizer.accuracy.summarize_errors`, with
       ``frame_fit``), as a camera's; ``own_twist``: the same of each rig frame's own twist
       (``frames``, ``angvel``, ``linvel``); ``solver``: the rig estimator's;
-    - ``outputs`` (every rig frame's :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused``
-      (the fused poses: the outputs', then ``flushed``, those still pending at the end);
+    - ``outputs`` (every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`),
+      ``fused`` (the fused poses: the outputs', then ``flushed``, those still pending at the end);
       ``twist_now``: without tracking, a rig frame's own twist is the one published;
     - ``counts``: ``rig``, its rig frames' ``rig_frames``, ``solved``, ``failed``,
       ``skipped``, ``pending``; per camera its frames' ``received``, ``solved``, ``failed``,
@@ -330,9 +330,9 @@ class RigReplay:
       others (the cameras' consensus outvoted it, or the rig names it as disagreeing), how
       far off it is: deg between its rotation posed alone and where the rig's pose and its
       mounting put it (NaN where it could not be posed alone;
-      :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
+      :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`); ``readout``: the
       check of the cameras' rolling-shutter timing on the video at its end
-      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`); ``notes``:
+      (:meth:`~rs_localizer.tracking.video.Localizer.readout_values`); ``notes``:
       warnings for the user, as a camera's replay has them (the node's map-fit check over
       the rig frames, :class:`~rs_localizer.ros.pipeline.MapFitCheck`);
     - ``mounts``: camera -> its :class:`~rs_localizer.frames.Mounting` (in the rig's
@@ -385,7 +385,7 @@ def replay_rig(
     progress: TextIO | None = None,
 ) -> RigReplay:
     """Every camera's frames of a rig bag, in log-time order, through the rig mode
-    (:class:`~rs_localizer.tracking.rig.RigLocalizer` with the configuration of
+    (:class:`~rs_localizer.tracking.video.Localizer` with the configuration of
     :func:`rig_parameter_values`), against the bag's ground truth. Each camera's clouds are
     read through its :class:`~rs_localizer.ros.camera_input.CameraInput`, as the rig node
     reads them (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): rows with a NaN
@@ -412,12 +412,12 @@ def replay_rig(
     from dataclasses import replace
 
     from ...frontends.shared import SHARED_MAPS
-    from ...tracking.rig import RigLocalizer
+    from ...tracking.video import Localizer
     from ..camera_input import UnreadFrame, hand_image_to_rig, hand_to_rig, rig_camera_inputs
     from ..pipeline import MapFitCheck
 
     values, _, cfg = rig_bag_config(bag, params_files, params)
-    rig = RigLocalizer(cfg.settings)
+    rig = Localizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras),
                     mounts={c.name: c.mount for c in cfg.cameras})  # fmt: skip
     own: Counter = Counter()  # (the node's counts: the cameras' inputs', "<camera>.<key>")
@@ -582,8 +582,8 @@ class _QuietLog:
 
 def _note_disagreeing(rig, outs: list, off_deg: dict) -> None:
     """For each posed rig frame of ``outs``, each of its cameras that disagrees with the others
-    (:attr:`~rs_localizer.tracking.rig.RigOutput.outvoted` or ``disagreeing``): how far off it
-    is (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg` on the camera's frame
+    (:attr:`~rs_localizer.tracking.video.LocalizerOutput.outvoted` or ``disagreeing``): how far
+    off it is (:meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg` on the camera's frame
     of the rig frame, NaN when it cannot be posed alone) appended to ``off_deg[camera]``."""
     for o in outs:
         if not o.success:
@@ -635,7 +635,7 @@ def is_rig_bag(
 class RigFrames:
     """What :func:`read_rig_frames` read: ``items`` (every camera's clouds in log-time order,
     as :func:`iter_rig_frames` yields them: a
-    :class:`~rs_localizer.tracking.rig.CameraFrame`, or an
+    :class:`~rs_localizer.tracking.localizer.CameraFrame`, or an
     :class:`~rs_localizer.ros.camera_input.UnreadFrame` for a cloud not read), ``values`` (the
     parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
     ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
@@ -643,18 +643,18 @@ class RigFrames:
     ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
     (an invalid stamp, no u, v, x, y, z fields: the rig node's
     ``<camera>.skipped.bad_input``); ``settings``: the rig's
-    :class:`~rs_localizer.tracking.rig.RigSettings` of those parameters (every mounting the
+    :class:`~rs_localizer.tracking.video.LocalizerSettings` of those parameters (every mounting the
     identity: not read)."""
 
     items: list
     values: dict
     cameras: dict
     counts: dict
-    settings: RigSettings | None = None
+    settings: LocalizerSettings | None = None
 
     @property
     def frames(self) -> list:
-        """The frames read (every :class:`~rs_localizer.tracking.rig.CameraFrame` of
+        """The frames read (every :class:`~rs_localizer.tracking.localizer.CameraFrame` of
         :attr:`items`), in log-time order."""
         from ..camera_input import UnreadFrame
 
@@ -781,7 +781,7 @@ def iter_rig_frames(
     ``bad_image``, ``image_size_mismatch``, ``frontend_error``).
 
     Yields:
-        :class:`~rs_localizer.tracking.rig.CameraFrame` (name, header stamp ns, model,
+        :class:`~rs_localizer.tracking.localizer.CameraFrame` (name, header stamp ns, model,
         pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
         :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
@@ -846,8 +846,8 @@ def rig_frame_grouping(
 
     The frames, read as the rig node reads them (:func:`read_rig_frames`: each cloud with the
     camera model of its stamp), go to the rig's own grouping
-    (:class:`~rs_localizer.tracking.rig.RigGrouping`, the rig mode's
-    :class:`~rs_localizer.tracking.rig.RigLocalizer` without solving), as the node hands them
+    (:class:`~rs_localizer.tracking.rig.RigGrouping`, run by the rig mode's
+    :class:`~rs_localizer.tracking.video.Localizer` without solving), as the node hands them
     on (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): by reference-line time, one frame
     per camera within ``rig.window`` of the rig frame's earliest; a rig frame is complete once
     every camera has joined it, sent a frame past it, or stopped (no frame for ``rig.stop_after``
@@ -855,7 +855,7 @@ def rig_frame_grouping(
     Frames without a camera model (received before their camera's first camera_info), out of
     order or late join no rig frame. A cloud that cannot be read but has a readable stamp
     joins none either but counts as the camera's frame at that time
-    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`); one without a readable stamp does
+    (:meth:`~rs_localizer.tracking.video.Localizer.drop`); one without a readable stamp does
     nothing.
     Rig frames still open at the end (completed only when the node closes) are in no entry.
 
@@ -867,17 +867,33 @@ def rig_frame_grouping(
         ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
         :func:`read_rig_frames`).
     """
-    from ...tracking.rig import RigGrouping
     from ..camera_input import hand_to_rig
 
     read = read_rig_frames(bag, params_files, params)
-    rig = RigGrouping(read.settings)
+    rig = _grouping_only(read.settings)
     out: dict[tuple[str, int], int] = {}
     for f in read.items:
         done = len(hand_to_rig(rig, f))
         if done:
             out[(f.camera_name, f.stamp_ns)] = out.get((f.camera_name, f.stamp_ns), 0) + done
     return out, int(rig.counts["rig_frames"])
+
+
+def _grouping_only(settings: LocalizerSettings):
+    """The rig mode's :class:`~rs_localizer.tracking.video.Localizer` with ``settings`` whose
+    rig frames, once complete, come out unsolved (a
+    :class:`~rs_localizer.tracking.video.LocalizerOutput` with its cameras and no estimate):
+    every rule of the grouping is the rig's own (:meth:`~rs_localizer.tracking.video.Localizer.
+    add`, :meth:`~rs_localizer.tracking.video.Localizer.drop`: the window, a camera stopped
+    after ``stop_after`` or its own frame intervals, late and out-of-order frames, time
+    resets)."""
+    from ...tracking.video import Localizer
+
+    class GroupingOnly(Localizer):
+        def _solve(self, g):
+            return self._closed(g)
+
+    return GroupingOnly(settings)
 
 
 def write_rig_outputs(
