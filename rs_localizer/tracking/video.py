@@ -211,6 +211,7 @@ __all__ = [
     "SINGLE_CAMERA_SOLVER",
     "SKIP_REASONS",
     "CameraShare",
+    "GroupingOnly",
     "Localizer",
     "LocalizerOutput",
     "LocalizerSettings",
@@ -1661,6 +1662,17 @@ class Localizer(GyroReadouts):
         and no third camera tells which mounting is wrong (both are named: :meth:`camera_state`
         is ``disagrees`` for both), else None."""
         return self._agreement.partner(name)
+
+
+class GroupingOnly(Localizer):
+    """A :class:`Localizer` whose rig frames, once complete, come out unsolved (a
+    :class:`LocalizerOutput` with its cameras and no estimate): every rule of the grouping is
+    the localizer's own (:meth:`Localizer.add`, :meth:`Localizer.drop`: the window, a camera
+    stopped after ``stop_after`` or its own frame intervals, late and out-of-order frames, time
+    resets). What ``play --lockstep`` groups a rig bag's frames with, without solving them."""
+
+    def _solve(self, g: OpenRigFrame) -> LocalizerOutput:
+        return self._closed(g)
 
 
 def _new_track(settings: LocalizerSettings) -> TrackerPath | None:

@@ -867,33 +867,17 @@ def rig_frame_grouping(
         ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
         :func:`read_rig_frames`).
     """
+    from ...tracking.video import GroupingOnly
     from ..camera_input import hand_to_rig
 
     read = read_rig_frames(bag, params_files, params)
-    rig = _grouping_only(read.settings)
+    rig = GroupingOnly(read.settings)
     out: dict[tuple[str, int], int] = {}
     for f in read.items:
         done = len(hand_to_rig(rig, f))
         if done:
             out[(f.camera_name, f.stamp_ns)] = out.get((f.camera_name, f.stamp_ns), 0) + done
     return out, int(rig.counts["rig_frames"])
-
-
-def _grouping_only(settings: LocalizerSettings):
-    """The rig mode's :class:`~rs_localizer.tracking.video.Localizer` with ``settings`` whose
-    rig frames, once complete, come out unsolved (a
-    :class:`~rs_localizer.tracking.video.LocalizerOutput` with its cameras and no estimate):
-    every rule of the grouping is the rig's own (:meth:`~rs_localizer.tracking.video.Localizer.
-    add`, :meth:`~rs_localizer.tracking.video.Localizer.drop`: the window, a camera stopped
-    after ``stop_after`` or its own frame intervals, late and out-of-order frames, time
-    resets)."""
-    from ...tracking.video import Localizer
-
-    class GroupingOnly(Localizer):
-        def _solve(self, g):
-            return self._closed(g)
-
-    return GroupingOnly(settings)
 
 
 def write_rig_outputs(
