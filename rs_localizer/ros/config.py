@@ -499,7 +499,8 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
         ConfigError: no cameras, a camera name that is not valid in a topic name or listed
             twice, a camera without a usable mounting (naming it), an unknown readout
             direction, estimator or tracking options their classes reject, ``max_points``
-            below what a pose needs.
+            below what a pose needs, an unknown ``solver`` for a rig of one camera at the
+            identity mounting (solved with it as its camera's video).
     """
     names = rig_camera_names(values["rig.cameras"])
     opts, tracking, imu = _estimation(values)
@@ -548,11 +549,15 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
             imu=imu,
             max_points=int(values["max_points"]),
             time_offsets=offsets,
+            solver=str(values["solver"]),
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None
+    if settings.single_camera and settings.solver not in SOLVERS:  # (its camera's solver)
+        raise ConfigError(f"unknown solver {settings.solver!r}; expected one of {list(SOLVERS)}")
     base = str(values["base_frame"]).strip() or "base_link"
-    return RigConfig(tuple(out), settings, base, reference_row, rig_unused(values))
+    unused = rig_unused(values, settings.single_camera)
+    return RigConfig(tuple(out), settings, base, reference_row, unused)
 
 
 #: the single camera's parameters that the rig mode does not use, with what the rig takes
@@ -576,33 +581,39 @@ _RIG_INSTEAD = (
 )
 
 
-def _rig_unused_group(name: str) -> int | None:
-    """The entry of :data:`RIG_UNUSED_PARAMETERS` that holds parameter ``name``, or None."""
+def _rig_unused_group(name: str, single: bool = False) -> int | None:
+    """The entry of :data:`RIG_UNUSED_PARAMETERS` that holds parameter ``name``, or None;
+    ``single``: a rig of one camera, which uses ``solver``."""
+    if single and name == "solver":
+        return None
     return next(
         (k for k, names in enumerate(RIG_UNUSED_PARAMETERS) if name.startswith(names)), None
     )
 
 
-def rig_unused(values: Mapping[str, Any]) -> tuple[str, ...]:
+def rig_unused(values: Mapping[str, Any], single: bool = False) -> tuple[str, ...]:
     """The parameters of :data:`RIG_UNUSED_PARAMETERS` whose value in ``values`` (name ->
     value, e.g. a parameter file shared with single-camera nodes) is not their default: set
-    for a single camera, without effect on a rig. In :data:`~.params.PARAMETERS` order."""
+    for a single camera, without effect on a rig. ``single``: the rig is one camera at the
+    identity mounting (:attr:`~rs_localizer.tracking.video.LocalizerSettings.single_camera`),
+    solved with ``solver`` as that camera's video: ``solver`` is used. In
+    :data:`~.params.PARAMETERS` order."""
     return tuple(
         name
         for name, par in PARAMETERS.items()
-        if _rig_unused_group(name) is not None
+        if _rig_unused_group(name, single) is not None
         and name in values
         and not same_value(values[name], par.default)
     )
 
 
-def rig_used_values(values: Mapping[str, Any]) -> dict:
+def rig_used_values(values: Mapping[str, Any], single: bool = False) -> dict:
     """``values`` (name -> value) with the single camera's parameters that a rig does not use
     (:func:`rig_unused`) at their defaults: what the rig mode checks as a single camera's
     configuration (its front end, queue and frames; :func:`build_config`), so that a value
     only a single camera uses (e.g. an incomplete ``camera.*`` fallback model) neither stops
-    nor changes a rig."""
-    return {**values, **{name: PARAMETERS[name].default for name in rig_unused(values)}}
+    nor changes a rig. ``single``: a rig of one camera (:func:`rig_unused`)."""
+    return {**values, **{name: PARAMETERS[name].default for name in rig_unused(values, single)}}
 
 
 def same_value(a: Any, b: Any) -> bool:
@@ -662,20 +673,22 @@ _RIG_RESTART = (
 )
 
 
-def rig_change_refused(names: Iterable[str]) -> str | None:
+def rig_change_refused(names: Iterable[str], single: bool = False) -> str | None:
     """Why a running rig refuses to change the parameters ``names`` (of
     :data:`~.params.PARAMETERS`) without a restart, one clause per parameter; None when it
     takes them all (:data:`RIG_RUN_TIME_PARAMETERS`). The others are its cameras' timing
     (``rs.*``), its frame (``base_frame``), its front ends, and the single camera's parameters
     the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``: a rig
     camera's intrinsics are its camera_info's; ``camera_frame``,
-    ``camera_to_base.*``: the mountings; ``landmarks_file``, ``republish_correspondences``)."""
+    ``camera_to_base.*``: the mountings; ``landmarks_file``, ``republish_correspondences``).
+    ``single``: a rig of one camera at the identity mounting, which takes ``solver`` as its
+    camera's video does (:func:`rig_unused`)."""
     why = []
     for name in names:
-        if name in RIG_RUN_TIME_PARAMETERS:
+        if name in RIG_RUN_TIME_PARAMETERS or (single and name == "solver"):
             continue
         reason = next((r for prefixes, r in _RIG_RESTART if name.startswith(prefixes)), None)
-        unused = _rig_unused_group(name)
+        unused = _rig_unused_group(name, single)
         if reason is not None:
             why.append(f"restart the node to change {name}: {reason}")
         elif unused is not None:

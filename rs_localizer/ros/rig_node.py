@@ -429,7 +429,7 @@ class RigCore(NodeCore):
             changed = [
                 n for n, v in overrides.items() if not same_value(v, self.get_parameter(n).value)
             ]
-            refused = rig_change_refused(changed)
+            refused = rig_change_refused(changed, self.config.settings.single_camera)
             if refused is not None:
                 raise ConfigError(refused)
         names = rig_camera_names(self.get_parameter("rig.cameras").value)
@@ -442,7 +442,8 @@ class RigCore(NodeCore):
             n: {k: self.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
             for n in names
         }
-        return rig_config(values, cams), build_config(rig_used_values(values))
+        config = rig_config(values, cams)
+        return config, build_config(rig_used_values(values, config.settings.single_camera))
 
     def _apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on
@@ -451,6 +452,9 @@ class RigCore(NodeCore):
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
         config, single = built
+        old = self.config.settings.solver
+        if config.settings.single_camera and config.settings.solver != old:
+            self.get_logger().info(f"solver: {old} -> {config.settings.solver}")
         with self._rig_lock:  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
@@ -727,9 +731,10 @@ class RigCore(NodeCore):
 
     def publish_output(self, out: LocalizerOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
-        final (or its own twist without tracking)."""
+        final (or its own twist when that is final at once: without tracking, or a rig of one
+        camera with a global shutter or a global-shutter solver)."""
         if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
-            own_twist = self.config.settings.tracking is None
+            own_twist = out.twist_now  # (no tracking, or a rig of one's global shutter)
             base, mf = self.config.base_frame, self.map_frame
             self._publish(
                 pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self._wanted)

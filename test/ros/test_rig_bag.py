@@ -240,6 +240,12 @@ def test_a_rig_names_the_single_cameras_parameters_it_does_not_use():
 
     defaults = {n: p.default for n, p in PARAMETERS.items()}
     assert rig_unused(defaults) == () and rig_unused_text(()) is None
+    # a rig of one camera at the identity mounting is solved with ``solver``: used, and a
+    # change of it taken at run time
+    assert rig_unused({**defaults, "solver": "p3p"}) == ("solver",)
+    assert rig_unused({**defaults, "solver": "p3p"}, single=True) == ()
+    assert rig_change_refused(["solver"], single=True) is None
+    assert rig_change_refused(["solver"]).startswith("solver is not used in the rig mode")
     assert rig_unused({**defaults, "camera.d": [0, 0, 0, 0, 0], "camera.fx": 0}) == ()
     changed = {**defaults, "camera_to_base.rotation": [0.0, 0.0, 0.0, 1.0], "solver": "p3p",
                "republish_correspondences": True, "max_points": 10}  # fmt: skip
@@ -281,20 +287,24 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
                  "-o", str(tmp_path / "calibrated.yaml")]) == 0  # fmt: skip
 
 
-def test_a_cameras_bag_replayed_as_a_rig_of_one_is_the_cameras_replay(sample_bag):
+@pytest.mark.parametrize("solver", [None, "p3p"])
+def test_a_cameras_bag_replayed_as_a_rig_of_one_is_the_cameras_replay(sample_bag, solver):
     """A camera alone is a rig of one: the sample bag (one camera) replayed through the rig
     mode with ``rig.cameras: [camera]`` at the identity mounting and the camera's RS timing
     gives the camera's replay, every row's pose and twist errors bit for bit (the rig's row is
     stamped at its reference time, the camera's at its header stamp; both publish at the
-    reference time)."""
+    reference time); with the parameter ``solver`` too, which the rig of one is solved with
+    (and does not name as unused)."""
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.bags.rig_bag import replay_rig
 
     timing = {"rs.line_delay": 3e-05, "rs.direction": "top_to_bottom",
               "rs.reference_row": 359.5, "rs.stamp_row": 0.0}  # fmt: skip
     rig = {"rig.cameras": ["camera"], "rig.camera.mounting": [0.0] * 6 + [1.0], **timing}
-    cam, one = replay(sample_bag), replay_rig(sample_bag, params=rig)
-    assert one.solved == len(cam.rows) == len(one.rows) == 30 and one.solver == "r6p_1lin"
+    chosen = {} if solver is None else {"solver": solver}
+    cam, one = replay(sample_bag, params=chosen), replay_rig(sample_bag, params={**rig, **chosen})
+    assert one.solver == cam.config.solver == (solver or "r6p_1lin")
+    assert one.solved == len(cam.rows) == len(one.rows) == 30 and not one.notes
     for a, b in zip(cam.rows, one.rows, strict=True):
         assert a["out_stamp_ns"] == b["out_stamp_ns"] and a["stamp_ns"] < b["stamp_ns"]
         assert {k: v for k, v in a.items() if k not in ("stamp_ns", "time_ms")} == {

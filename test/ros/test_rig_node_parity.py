@@ -367,3 +367,37 @@ def test_while_the_kernels_compile_the_rig_frames_are_tracked_and_fused(ros_cont
     finally:
         background._hold(False)
         h.close()
+
+
+def test_a_rig_of_one_is_solved_with_the_solver_parameter_and_publishes_its_twist(ros_context):
+    """A rig of one camera at the identity mounting is its camera's video: the node's
+    ``solver`` (here P3P, a global-shutter solver) is what its frames are solved with, and a
+    global shutter's own twist (zero) is final at once: published on ``odom`` with every pose,
+    tracking on, as the camera node publishes it. ``solver`` is not named as unused, and a
+    change of it at run time is taken."""
+    from rclpy.parameter import Parameter
+
+    cams = default_rig(1)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=3)
+    params = rig_parameters(cams, solver="p3p")
+    params = [p for p in params if p.name != "rig.front.mounting"]
+    params.append(Parameter("rig.front.mounting", value=[0.0] * 6 + [1.0]))
+    h = _harness(ros_context, cams, params)
+    try:
+        rig = h.node.rig
+        assert rig.settings.single_camera and rig.settings.solver == "p3p"
+        assert h.node.config.unused == ()
+        h.send_info(cams)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        n = int(v["rig_frames_solved"])
+        assert n == len(frames) == len(h.poses), v
+        assert h.wait(lambda: len(h.odom) == n), (len(h.odom), n)
+        for m in h.odom:
+            t = m.twist.twist
+            assert [t.angular.x, t.angular.y, t.angular.z, t.linear.x] == [0.0] * 4
+        res = h.node.set_parameters([Parameter("solver", value="r6p_1lin")])
+        assert res[0].successful, res[0].reason
+        assert h.node.rig.settings.solver == "r6p_1lin"
+    finally:
+        h.close()

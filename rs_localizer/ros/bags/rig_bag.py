@@ -514,13 +514,15 @@ def rig_frontends(
             f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
             "without a front end (frontend: none) its correspondences are read"
         )
-    single = build_config(rig_used_values(values))
+    single = build_config(rig_used_values(values, cfg.settings.single_camera))
     return {c.name: load_maps(single, owner=owner).frontend for c in cfg.cameras}
 
 
 def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
     """The rows, failures and summaries of ``res`` from its outputs and fused poses
-    (``twist_now``: no tracking, a rig frame's own twist is the one published)."""
+    (``twist_now``: no tracking, a rig frame's own twist is the one published; so it is for a
+    rig of one camera whose twist is final at once, a global shutter's,
+    :attr:`~rs_localizer.tracking.video.LocalizerOutput.twist_now`)."""
     from ..pipeline import FusedOutput
     from .replay import ReplayRows
 
@@ -530,7 +532,7 @@ def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
     for f in res.fused:  # (each rig frame's fused twist, added after the rig frame)
         fused_at.setdefault(f.pose.stamp_ns, []).append(FusedOutput(f.pose.stamp_ns, f, ""))
     for i, o in enumerate(res.outputs):
-        rows.add_rig(i, o, twist_now)
+        rows.add_rig(i, o, twist_now or o.twist_now)
         if o.success:
             q = o.estimate.pose
             own.append(frame_errors(q.orientation, q.position, q.angular_velocity,
