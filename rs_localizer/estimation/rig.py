@@ -126,7 +126,12 @@ from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
-from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
+from ..solvers.gr6p_1lin import (
+    gr6p_1lin,
+    gr6p_1lin_batch,
+    gr6p_1lin_batch_numpy,
+    still_solve_kernel,
+)
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .finalize import (
@@ -1253,16 +1258,34 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     # it on the sample's six points, from every camera it spans, as a generalized P3P would)
     S, Rg = samples[own[spread]], R[spread]
     for _ in range(rounds):
-        k = len(S)
-        held = (_identities(k), np.zeros((k, 6)))
-        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
-        if not b.valid.any():
+        v, Cg, valid = _held_solve(pool, S, Rg)
+        if not valid.any():
             return R, C, z, z.copy()
-        S, Cg = S[b.valid], b.C[b.valid]
-        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), Rg[b.valid])
+        S, Cg = S[valid], Cg[valid]
+        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
+
+
+def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
+    """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
+    time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
+    ``(w, t) = 0``): ``(v (H, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x) Rg``.
+    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` (the same solution
+    from the pose's six unknowns alone)."""
+    k = len(S)
+    if pool.numpy:
+        held = (_identities(k), np.zeros((k, 6)))
+        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
+        return b.v, b.C, b.valid
+    Xp = np.ascontiguousarray(np.einsum("hij,hnj->hni", Rg, pool.X[S]))
+    out = np.empty((k, 6))
+    ok = np.empty(k, dtype=np.bool_)
+    x = _kernel_arrays(pool)[1]
+    cam, Rm, cm, _ = _kernel_mountings(pool).views
+    still_solve_kernel(x, Xp, np.ascontiguousarray(S, dtype=np.int64), cam, Rm, cm, out, ok)
+    return out[:, 0:3], out[:, 3:6], ok
 
 
 @functools.lru_cache(maxsize=4)
