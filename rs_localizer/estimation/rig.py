@@ -121,7 +121,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import INLINE
-from ..camera import CameraModel
+from ..camera import CameraModel, _distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
@@ -587,7 +587,12 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
     if jacobian:
-        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+        args = None if numpy else _jacobian_args(cam)
+        if args is None:
+            A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+        else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
+            A = _distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
+            A = A.reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = focal
@@ -597,6 +602,32 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
 
 #: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
 _CAMERA_CONSTANTS: dict = {}
+
+
+#: the arguments of a distorted camera's compiled pixel Jacobian (:func:`_jacobian_args`): id ->
+#: (camera, arguments or None)
+_JACOBIAN_ARGS: dict = {}
+
+
+def _jacobian_args(cam: CameraModel) -> tuple | None:
+    """The arguments after the points of the compiled pixel Jacobian of a camera with
+    distortion (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s, the same arrays
+    and values), kept per camera object as :func:`_camera_constants`; None without
+    distortion."""
+    hit = _JACOBIAN_ARGS.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    out = None
+    if cam.has_distortion:
+        fisheye = cam.distortion_model == "equidistant"
+        d = np.zeros(8)
+        m = 4 if fisheye else 8
+        d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
+        out = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
+    if len(_JACOBIAN_ARGS) >= 64:
+        _JACOBIAN_ARGS.clear()
+    _JACOBIAN_ARGS[id(cam)] = (cam, out)
+    return out
 
 
 def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
