@@ -137,6 +137,7 @@ from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, p
 from .finalize import (
     FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
+    FINAL_TOL,
     GLOBAL_SHUTTER,
     MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
@@ -167,10 +168,14 @@ from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
+    OUT_ACC,
     OUT_C,
     OUT_COV,
+    OUT_GRAD,
+    OUT_INFO,
     OUT_R,
     OUT_SIZE,
+    OUT_SIZE_ACC,
     OUT_T,
     OUT_W,
     KernelMountings,
@@ -1657,9 +1662,8 @@ def _covariance(
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
-    sigma2, info = res.sigma**2, res.data_information
-    acc = res.acceleration_block if rolling else None
+    sigma, info, acc = _information(pool, model, k, rolling)
+    sigma2 = sigma**2
     H = info[:free, :free].copy()
     if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
@@ -1682,6 +1686,31 @@ def _covariance(
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
+    """``(sigma, J^T W J (12, 12), J^T W D (12, 6) or None)`` at ``model``: the refinement's
+    kernel with no step (:func:`~.finalize.frame_refinement` with ``max_iterations=0``, the
+    covariance and, ``rolling``, the acceleration block; Huber at ``k`` px over the points
+    within ``FINAL_CUTOFF`` thresholds). Compiled: its kernel called directly, with the same
+    arguments (as :func:`_refined`)."""
+    if pool.numpy:
+        res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
+        return res.sigma, res.data_information, res.acceleration_block if rolling else None
+    R0, C0, w0, t0 = model
+    out = np.empty(OUT_SIZE_ACC if rolling else OUT_SIZE)
+    f = np.float64
+    X, x, tau, views = _kernel_arrays(pool)
+    on, mu, Lam = _NO_PRIOR
+    sigma, _, _ = LM_REFINE_KERNEL(
+        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
+        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
+        X, x, tau, k, 12 if rolling else 6, FINAL_CUTOFF * k, 0, FINAL_TOL, True, out, on,
+        mu, Lam, 1.0, -1.0, rolling, views,
+    )  # fmt: skip
+    acc = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6) if rolling else None
+    return float(sigma), out[OUT_INFO:OUT_GRAD].reshape(12, 12), acc
 
 
 def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
