@@ -121,7 +121,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import INLINE
-from ..camera import CameraModel, _distortion_jacobian
+from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
@@ -596,7 +596,7 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         if args is None:
             A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
         else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
-            A = _distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
+            A = distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
             A = A.reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
