@@ -291,7 +291,7 @@ class CameraModel:
         Without distortion every ``A_i`` is ``K[:2, :2]``; with distortion the skew
         ``K[0, 1]`` is not used (OpenCV's projections ignore it). Equidistant points are taken in
         front of the camera (``z = 1``, as :meth:`distort`). ``compiled``: the same formulas in
-        one compiled call (:func:`_distortion_jacobian`; equal up to rounding)."""
+        one compiled call (:func:`distortion_jacobian`; equal up to rounding)."""
         xn = np.asarray(xn, dtype=np.float64).reshape(-1, 2)
         n = len(xn)
         if not self.has_distortion:
@@ -301,7 +301,7 @@ class CameraModel:
             d = np.zeros(8)
             m = 4 if fisheye else 8
             d[: min(m, len(self.D))] = np.ravel(self.D)[:m]
-            return _distortion_jacobian(
+            return distortion_jacobian(
                 np.ascontiguousarray(xn), d, fisheye, float(self.K[0, 0]), float(self.K[1, 1])
             )
         x, y = xn[:, 0], xn[:, 1]
@@ -630,7 +630,7 @@ def _rs_coordinates(p, x, K, axis, sign, d0, d1, r0):
 
 
 @njit(cache=True)
-def _distortion_jacobian(xn, d, fisheye, fx, fy):
+def distortion_jacobian(xn, d, fisheye, fx, fy):
     """:meth:`CameraModel.pixel_jacobian` with distortion, compiled: (N, 2, 2) at the (N, 2)
     undistorted normalized points ``xn``; ``d`` (8,) the equidistant model's k1..k4
     (``fisheye``) or OpenCV's k1, k2, p1, p2, k3, k4, k5, k6 (zeros beyond the model's)."""

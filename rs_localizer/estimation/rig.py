@@ -121,17 +121,23 @@ import numpy as np
 from numba import njit
 
 from .._so3 import INLINE
-from ..camera import CameraModel
+from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
-from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
+from ..solvers.gr6p_1lin import (
+    gr6p_1lin,
+    gr6p_1lin_batch,
+    gr6p_1lin_batch_numpy,
+    still_solve_kernel,
+)
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .finalize import (
     FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
+    FINAL_TOL,
     GLOBAL_SHUTTER,
     MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
@@ -162,10 +168,14 @@ from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
+    OUT_ACC,
     OUT_C,
     OUT_COV,
+    OUT_GRAD,
+    OUT_INFO,
     OUT_R,
     OUT_SIZE,
+    OUT_SIZE_ACC,
     OUT_T,
     OUT_W,
     KernelMountings,
@@ -582,7 +592,12 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
     if jacobian:
-        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+        args = None if numpy else _jacobian_args(cam)
+        if args is None:
+            A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+        else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
+            A = distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
+            A = A.reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = focal
@@ -592,6 +607,32 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
 
 #: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
 _CAMERA_CONSTANTS: dict = {}
+
+
+#: the arguments of a distorted camera's compiled pixel Jacobian (:func:`_jacobian_args`): id ->
+#: (camera, arguments or None)
+_JACOBIAN_ARGS: dict = {}
+
+
+def _jacobian_args(cam: CameraModel) -> tuple | None:
+    """The arguments after the points of the compiled pixel Jacobian of a camera with
+    distortion (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s, the same arrays
+    and values), kept per camera object as :func:`_camera_constants`; None without
+    distortion."""
+    hit = _JACOBIAN_ARGS.get(id(cam))
+    if hit is not None and hit[0] is cam:
+        return hit[1]
+    out = None
+    if cam.has_distortion:
+        fisheye = cam.distortion_model == "equidistant"
+        d = np.zeros(8)
+        m = 4 if fisheye else 8
+        d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
+        out = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
+    if len(_JACOBIAN_ARGS) >= 64:
+        _JACOBIAN_ARGS.clear()
+    _JACOBIAN_ARGS[id(cam)] = (cam, out)
+    return out
 
 
 def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
@@ -1253,16 +1294,34 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     # it on the sample's six points, from every camera it spans, as a generalized P3P would)
     S, Rg = samples[own[spread]], R[spread]
     for _ in range(rounds):
-        k = len(S)
-        held = (_identities(k), np.zeros((k, 6)))
-        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
-        if not b.valid.any():
+        v, Cg, valid = _held_solve(pool, S, Rg)
+        if not valid.any():
             return R, C, z, z.copy()
-        S, Cg = S[b.valid], b.C[b.valid]
-        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), Rg[b.valid])
+        S, Cg = S[valid], Cg[valid]
+        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
+
+
+def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
+    """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
+    time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
+    ``(w, t) = 0``): ``(v (H, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x) Rg``.
+    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` (the same solution
+    from the pose's six unknowns alone)."""
+    k = len(S)
+    if pool.numpy:
+        held = (_identities(k), np.zeros((k, 6)))
+        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
+        return b.v, b.C, b.valid
+    Xp = np.ascontiguousarray(np.einsum("hij,hnj->hni", Rg, pool.X[S]))
+    out = np.empty((k, 6))
+    ok = np.empty(k, dtype=np.bool_)
+    x = _kernel_arrays(pool)[1]
+    cam, Rm, cm, _ = _kernel_mountings(pool).views
+    still_solve_kernel(x, Xp, np.ascontiguousarray(S, dtype=np.int64), cam, Rm, cm, out, ok)
+    return out[:, 0:3], out[:, 3:6], ok
 
 
 @functools.lru_cache(maxsize=4)
@@ -1603,9 +1662,8 @@ def _covariance(
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
-    sigma2, info = res.sigma**2, res.data_information
-    acc = res.acceleration_block if rolling else None
+    sigma, info, acc = _information(pool, model, k, rolling)
+    sigma2 = sigma**2
     H = info[:free, :free].copy()
     if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
@@ -1628,6 +1686,31 @@ def _covariance(
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
+    """``(sigma, J^T W J (12, 12), J^T W D (12, 6) or None)`` at ``model``: the refinement's
+    kernel with no step (:func:`~.finalize.frame_refinement` with ``max_iterations=0``, the
+    covariance and, ``rolling``, the acceleration block; Huber at ``k`` px over the points
+    within ``FINAL_CUTOFF`` thresholds). Compiled: its kernel called directly, with the same
+    arguments (as :func:`_refined`)."""
+    if pool.numpy:
+        res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
+        return res.sigma, res.data_information, res.acceleration_block if rolling else None
+    R0, C0, w0, t0 = model
+    out = np.empty(OUT_SIZE_ACC if rolling else OUT_SIZE)
+    f = np.float64
+    X, x, tau, views = _kernel_arrays(pool)
+    on, mu, Lam = _NO_PRIOR
+    sigma, _, _ = LM_REFINE_KERNEL(
+        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
+        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
+        X, x, tau, k, 12 if rolling else 6, FINAL_CUTOFF * k, 0, FINAL_TOL, True, out, on,
+        mu, Lam, 1.0, -1.0, rolling, views,
+    )  # fmt: skip
+    acc = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6) if rolling else None
+    return float(sigma), out[OUT_INFO:OUT_GRAD].reshape(12, 12), acc
 
 
 def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:

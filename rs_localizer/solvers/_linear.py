@@ -44,9 +44,24 @@ def lstsq(A, b, u):
     m, n = A.shape
     if m == n:
         return solve_square(A, b, u, RANK_TOL)
+    return householder_lstsq(A, b, u, 0.0)
+
+
+@njit(cache=True)
+def householder_lstsq(A, b, u, unit):
+    """:func:`lstsq`'s Householder QR of A (m, n), m > n (A, b overwritten; False, u
+    untouched, if the numerical rank is below n).
+
+    ``unit``: 0.0, or 1.0 for a system that also has unknowns held at zero by rows of their
+    own (the identity on them, zero on A's columns, right-hand side zero: the rig solver's
+    velocities on a rig frame taken at one time), which are left out of A: their pivots, of
+    magnitude 1, join the rank test, and A's unknowns come out as the whole system's to the
+    bit (QR of the whole system leaves those rows and columns apart: their products with
+    A's entries are zeros)."""
+    m, n = A.shape
     # Householder on the transpose so that every inner loop runs over contiguous memory
     At = np.ascontiguousarray(A.T)
-    rmax = 0.0
+    rmax = unit
     for k in range(n):
         col = At[k]
         s = 0.0
@@ -77,6 +92,8 @@ def lstsq(A, b, u):
         col[k] = alpha
         if abs(alpha) > rmax:
             rmax = abs(alpha)
+    if unit > 0.0 and unit <= RANK_TOL * rmax:
+        return False
     for k in range(n):
         if abs(At[k, k]) <= RANK_TOL * rmax:
             return False
