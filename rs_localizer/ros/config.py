@@ -563,21 +563,18 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
 #: the single camera's parameters that the rig mode does not use, with what the rig takes
 #: in their place: its own estimator (``gr6p_1lin`` on every camera's points at once), each
 #: camera's camera_info (intrinsics), frame id and ``rig.<camera>.mounting``, clouds of
-#: correspondences or its front end's matches (no keypoints and landmarks), and no
-#: republished correspondences
+#: correspondences or its front end's matches (no keypoints and landmarks)
 RIG_UNUSED_PARAMETERS = (
     ("solver",),
     ("camera.",),
     ("camera_frame", "camera_to_base."),
     ("landmarks_file",),
-    ("republish_correspondences",),
 )
 _RIG_INSTEAD = (
     "the rig estimator solves every camera's points at once, gr6p_1lin",
     "each rig camera's intrinsics are those of its camera_info",
     "each rig camera's pose on the rig is rig.<camera>.mounting, in base_frame",
     "a rig camera's frames are correspondences clouds or its front end's matches",
-    "the rig node does not republish correspondences",
 )
 
 
@@ -647,14 +644,22 @@ def rig_unused_text(names: Iterable[str]) -> str | None:
 #: :class:`~rs_localizer.tracking.video.LocalizerSettings` (the estimator's options: ``ransac.*``,
 #: ``refine``, ``motion_prior.*``, ``correlated_noise.*``, the velocity bounds; ``tracking.*``;
 #: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap),
-#: ``queue_size`` and ``camera_info_wait`` (each camera's); the read-only ones among them are
+#: ``queue_size`` and ``camera_info_wait`` (each camera's), ``republish_correspondences``
+#: (each camera's ``<camera>/correspondences_out``); the read-only ones among them are
 #: refused by ROS
 RIG_RUN_TIME_PARAMETERS = frozenset(
     name
     for name, par in PARAMETERS.items()
     if (par.field or "").split(":")[0] in OPTION_GROUPS
     or name.startswith(("tracking.", "imu."))
-    or name in ("max_points", "queue_size", "time_reset_threshold", "camera_info_wait")
+    or name
+    in (
+        "max_points",
+        "queue_size",
+        "time_reset_threshold",
+        "camera_info_wait",
+        "republish_correspondences",
+    )
 )
 
 #: why a running rig refuses a change of the other parameters, by name prefix
@@ -680,7 +685,7 @@ def rig_change_refused(names: Iterable[str], single: bool = False) -> str | None
     (``rs.*``), its frame (``base_frame``), its front ends, and the single camera's parameters
     the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``: a rig
     camera's intrinsics are its camera_info's; ``camera_frame``,
-    ``camera_to_base.*``: the mountings; ``landmarks_file``, ``republish_correspondences``).
+    ``camera_to_base.*``: the mountings; ``landmarks_file``).
     ``single``: a rig of one camera at the identity mounting, which takes ``solver`` as its
     camera's video does (:func:`rig_unused`)."""
     why = []

@@ -43,7 +43,10 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     /diagnostics (one status: the rig's counts and every camera's, with warnings);
     path (the rig's poses), <c>/debug_image and <c>/markers (each camera as the rig's pose and
     its mounting put it): the single-camera node's visualization (:mod:`.visualization`,
-    ``viz.*``), built only when subscribed. After ``tracking.max_gap`` without camera frames
+    ``viz.*``), built only when subscribed; <c>/correspondences_out with a front end and
+    ``republish_correspondences``: what camera ``<c>``'s front end found in each image, as the
+    single-camera node's ``correspondences_out`` (stamped like the image, published even when
+    the rig frame then fails). After ``tracking.max_gap`` without camera frames
     the twists still pending are published (as by the single-camera node).
 
 The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
@@ -113,7 +116,8 @@ from .frame_queue import FrameQueue
 from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
+from .pointcloud import correspondence_cloud
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE
 from .visualization import NodeVisualization, rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
@@ -154,6 +158,8 @@ class _Taken:
     outs: list = field(default_factory=list)
     failure: str | None = None
     fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
+    # (republish_correspondences: (camera, cloud) of what its front end found in the image)
+    clouds: list = field(default_factory=list)
 
 
 def _declare_dynamic(node: Node, name: str, par) -> Any:
@@ -227,6 +233,8 @@ class RigCore(NodeCore):
             self.rig.set_frontend(n, fe, single.frontend_kind)
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self.queue_size = int(single.queue_size)
+        self.republish = bool(single.republish_correspondences)
+        self._corr_out: dict = {}  # (camera -> its correspondences_out, made when first needed)
         self._frames = FrameQueue(
             self._process,
             self._deliver,
@@ -312,6 +320,9 @@ class RigCore(NodeCore):
                 c.name: NodeVisualization(self, f"{c.name}/", ("debug_image", "markers"))
                 for c in self.config.cameras
             }
+        if self.republish and self.frontend_kind != "none":  # (else made when first needed)
+            for c in self.config.cameras:
+                self._corr_out_publisher(c.name)
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
@@ -462,6 +473,7 @@ class RigCore(NodeCore):
                 inp.max_points = config.settings.max_points
                 inp.wait = float(single.camera_info_wait)
         self.queue_size = single.queue_size
+        self.republish = bool(single.republish_correspondences)
 
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
@@ -530,6 +542,7 @@ class RigCore(NodeCore):
         # (the camera model of its stamp, waiting up to camera_info_wait for its camera_info:
         # outside the rig's lock, which the diagnostics take on the executor that delivers it)
         camera = frame_camera(self.inputs[name], stamp)
+        clouds = []
         with self._rig_lock:
             outs, skip, failure = [], None, None
             try:
@@ -540,6 +553,9 @@ class RigCore(NodeCore):
                         outs, skip = self._take_cloud(name, msg, stamp, camera)
                     else:
                         outs, skip = self._take_image(name, msg, stamp, camera)
+                        found = self.rig.last_correspondences(name)
+                        if self.republish and found is not None:
+                            clouds.append((name, self._found_cloud(found, msg, stamp, name)))
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"
                 self._log.warning(
@@ -553,7 +569,7 @@ class RigCore(NodeCore):
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
                 self._frame_time[name].append(time.perf_counter() - tic)
-        return _Taken(outs, None, [])
+        return _Taken(outs, None, [], clouds)
 
     def _not_read(self, name: str, kind: str, error: ValueError) -> str:
         """A frame whose stamp is out of range or whose cloud cannot be read: counted
@@ -565,9 +581,30 @@ class RigCore(NodeCore):
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input"
 
+    def _found_cloud(self, found, msg, stamp: int, name: str):
+        """What camera ``name``'s front end found in an image (``found``, a
+        :class:`~rs_localizer.correspondences.Correspondences`) as the single-camera node's
+        ``correspondences_out`` cloud: ``u, v, x, y, z, id`` (``score`` with scores), stamped
+        like the image (``stamp``), in its frame (its ``frame_id``, else the camera's name)."""
+        frame = msg.header.frame_id or name
+        return correspondence_cloud(found.points2d, found.points, found.ids,
+                                    found.valid_scores(), frame, stamp)  # fmt: skip
+
+    def _corr_out_publisher(self, name: str):
+        """Camera ``name``'s ``<camera>/correspondences_out`` (reliable), made when first
+        needed."""
+        pub = self._corr_out.get(name)
+        if pub is None:
+            topic = f"{name}/correspondences_out"
+            pub = self._corr_out[name] = self._make_publisher(PointCloud2, topic, RELIABLE)
+        return pub
+
     def _deliver(self, item, taken: _Taken) -> None:
-        """The worker, after the frame is counted: publish the rig frames it completed, log
-        the failed ones (each reason at most once per 5 s)."""
+        """The worker, after the frame is counted: publish what the camera's front end found
+        in its image (``republish_correspondences``), the rig frames it completed, log the
+        failed ones (each reason at most once per 5 s)."""
+        for name, cloud in taken.clouds:
+            self._corr_out_publisher(name).publish(cloud)
         for f in taken.fused:
             self._publish_fused(f)
         for out in taken.outs:

@@ -146,7 +146,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
-from ..correspondences import Frontend, VideoFrontend
+from ..correspondences import Correspondences, Frontend, VideoFrontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
@@ -505,11 +505,13 @@ class _ImageInput:
     """The image input's state (:meth:`Localizer.process_image`): per camera its front end
     (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
     last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
-    time)`` -> ``(stamp, pixels, camera model)``)."""
+    time)`` -> ``(stamp, pixels, camera model)``), per camera what its front end found in its
+    last image (None: not searched)."""
 
     def __init__(self):
         self.frontends: dict[str, CameraFrontend] = {}
         self.waiting: dict = {}
+        self.found: dict[str, Correspondences | None] = {}
 
 
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
@@ -1102,6 +1104,14 @@ class Localizer(GyroReadouts):
             fe = img.frontends[name] = CameraFrontend(self.log)
         fe.set(frontend, None if frontend is None else label or type(frontend).__name__)
 
+    def last_correspondences(self, name: str) -> Correspondences | None:
+        """What camera ``name``'s front end found in its last image of :meth:`process_image`
+        (every correspondence it returned, before the rows the estimator cannot use are
+        dropped or capped; also for an image then skipped as ``frontend_too_few_points``);
+        None before any, or when its last image was not searched (no camera model yet, a
+        frozen image, the front end raised)."""
+        return self._image_input().found.get(name)
+
     def frontend(self, name: str) -> VideoFrontend | None:
         """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
         fe = self._image_input().frontends.get(name)
@@ -1213,6 +1223,9 @@ class Localizer(GyroReadouts):
                 f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
             )
         stamp = checked_stamp(stamp_ns)
+        img = self.__dict__.get("_img")
+        if img is not None:  # (its last image was not searched)
+            img.found[name] = None
         return self._drop(name, stamp, self.settings.reference_ns(name, stamp, camera), reason)
 
     def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
@@ -1267,7 +1280,8 @@ class Localizer(GyroReadouts):
                 skipped as ``no_camera_info``, the front end does not run).
             tag: as :attr:`~rs_localizer.tracking.localizer.CameraFrame.tag`.
         Returns:
-            the rig frames completed, solved (as :meth:`add`).
+            the rig frames completed, solved (as :meth:`add`); what the front end found in
+            the image: :meth:`last_correspondences`.
         Raises:
             ValueError: a camera not in the rig or without a front end (:meth:`set_frontend`),
                 a stamp beyond the int64 ns range.
@@ -1277,6 +1291,7 @@ class Localizer(GyroReadouts):
         if name not in self._cams or fe is None or fe.frontend is None:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
         stamp = checked_stamp(stamp_ns)
+        img.found[name] = None
         if camera is None:
             frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
@@ -1306,7 +1321,7 @@ class Localizer(GyroReadouts):
                 f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
             return self._observed(self._drop(name, stamp, ref, r.failure))
-        found = r.found
+        found = img.found[name] = r.found
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         if self._single:  # (its camera's rule: too few correspondences never reach the solver)

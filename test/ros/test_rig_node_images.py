@@ -48,21 +48,39 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
     6 rig poses within 0.1 deg and 3 mm of the truth, each from the three cameras' markers;
     then an image of another size and one of an unknown encoding, counted
     ``skipped.image_size_mismatch`` and ``skipped.bad_image``; received = solved + failed +
-    skipped + pending per camera and per rig frame in the diagnostics. With the node's
+    skipped + pending per camera and per rig frame in the diagnostics. With
+    ``republish_correspondences``, each camera's ``correspondences_out`` holds what its front
+    end found in each image it searched, stamped like the image (the first image of each
+    camera, searched whole, gives the correspondences of the same front end run on it alone),
+    and nothing for the two images not searched. With the node's
     warm-up: on a numba cache without the rig's kernels they compile in the background and
     the rig frames are posed on the NumPy implementation meanwhile (the diagnostics say
     which)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from rs_localizer.ros.config import build_config, load_maps
     from rs_localizer.ros.conversions import pose_from_msg
+    from rs_localizer.ros.params import default_values
+    from rs_localizer.ros.pointcloud import read_correspondences
     from rs_localizer.ros.rig_node import RigLocalizerNode
     from rs_localizer.sim.rig_video import rig_truth
 
     cams, frames, motion = rendered
-    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room", warmup=True)
+    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room", warmup=True,
+                            republish_correspondences=True)  # fmt: skip
     node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     h = RigHarness(ros_context, cams, node)
+    clouds = {c.name: [] for c in cams}
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    for c in cams:
+        topic = f"/rig/{c.name}/correspondences_out"
+        h.probe.create_subscription(PointCloud2, topic, clouds[c.name].append, qos)
     try:
         assert h.matched(), "the rig node and the probe did not match"
+        topics = [f"/rig/{c.name}/correspondences_out" for c in cams]
+        assert h.wait(lambda: all(h.probe.count_publishers(t) == 1 for t in topics))
         h.send_info(cams)
         for f in frames:
             h.send(f.name, "image", image_msg(f.image, f.stamp_ns, f.name))
@@ -79,6 +97,23 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
             R, p, _, _ = rig_truth(motion, (stamp - T0) * 1e-9)
             Re, pe = pose_from_msg(m.pose)
             assert rotation_angle_deg(Re, R) < 0.1 and np.linalg.norm(pe - p) < 0.003
+        assert h.wait(lambda: all(len(clouds[c.name]) == 6 for c in cams)), {
+            n: len(m) for n, m in clouds.items()
+        }
+        values = {**default_values(), "frontend": "aruco", "frontend_map": "aruco_room"}
+        alone = load_maps(build_config(values), owner=clouds).frontend
+        for c in cams:
+            mine = [f for f in frames if f.name == c.name]
+            got = clouds[c.name]
+            assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got] == [
+                f.stamp_ns for f in mine
+            ]
+            assert all(m.header.frame_id == c.name for m in got)
+            first = read_correspondences(got[0])
+            want = alone.process(mine[0].image, c.camera, encoding="rgb8")
+            assert len(first.points2d) == len(want.points2d) > 0
+            assert np.allclose(first.points2d, want.points2d, atol=1e-3)
+            assert np.allclose(first.points, want.points, atol=1e-5)
         assert v["front.skipped.image_size_mismatch"] == "1", v
         assert v["left.skipped.bad_image"] == "1", v
         rig_sum = sum(int(v[f"rig_frames_{k}"]) for k in ("solved", "failed", "skipped", "pending"))
