@@ -205,6 +205,23 @@ def _bag_stream(
     )
 
 
+def _rig_grouping(path, params_files: list, params: Mapping[str, Any] | None) -> tuple:
+    """A rig bag's ``(namespace of its cameras' topics, future of its rig frame grouping)``
+    (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`, with the rig node's parameter
+    files and parameters): the grouping is read on another thread, beside the first messages
+    sent, since it reads the whole bag."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .rig_bag import rig_frame_grouping, rig_namespace, rig_parameter_values
+
+    cameras = rig_parameter_values(path, params_files, params)[0]["rig.cameras"]
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
+    ns = rig_namespace(path, [str(n) for n in cameras or ()])
+    grouping = (ns, pool.submit(rig_frame_grouping, path, params_files, params))
+    pool.shutdown(wait=False)
+    return grouping
+
+
 def play(
     path: str | os.PathLike | None,
     *,
@@ -313,17 +330,7 @@ def play(
         raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")
     params_files = list(params_files)
     rig = path is not None and is_rig_bag(path, params_files, params)
-    grouping = None
-    if rig:  # (its grouping is read beside the first messages sent: it reads the whole bag)
-        from concurrent.futures import ThreadPoolExecutor
-
-        from .rig_bag import rig_frame_grouping, rig_namespace, rig_parameter_values
-
-        cameras = rig_parameter_values(path, params_files, params)[0]["rig.cameras"]
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
-        ns = rig_namespace(path, [str(n) for n in cameras or ()])
-        grouping = (ns, pool.submit(rig_frame_grouping, path, params_files, params))
-        pool.shutdown(wait=False)
+    grouping = _rig_grouping(path, params_files, params) if rig else None
     own_context = context is None
     if own_context:
         context = rclpy.Context()
