@@ -35,7 +35,7 @@ from ..camera import CameraModel, Stamp
 from ..tracking.localizer import usable_rows
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
-from .pointcloud import read_correspondences
+from .pointcloud import Keypoints, read_correspondences, read_keypoints
 
 if TYPE_CHECKING:
     from ..tracking.localizer import CameraFrame
@@ -172,6 +172,22 @@ class CameraInput:
         c = read_correspondences(msg)
         return self.rows(c.uv, c.xyz, c.scores)
 
+    def read_keypoints(
+        self, msg: Any, landmarks: tuple | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The rows of a keypoints cloud (``sensor_msgs/PointCloud2``: u, v, id [, score];
+        :func:`~rs_localizer.ros.pointcloud.read_keypoints`) with the 3D points of their ids in
+        ``landmarks`` (:func:`landmark_rows`, unknown ids counted ``unknown_landmark_ids``), as
+        the estimator takes them (:meth:`rows`); none when no id is known.
+
+        Raises:
+            CloudError (a ValueError): a cloud that cannot be read. ValueError: no
+                ``landmarks`` (no ``landmarks_file`` loaded).
+        """
+        if landmarks is None:
+            raise ValueError("keypoints received but no landmarks_file is loaded")
+        return self.rows(*landmark_rows(read_keypoints(msg), landmarks, self.count))
+
     def rows(
         self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -273,8 +289,31 @@ def frame_camera(inp: CameraInput, stamp: Stamp | ValueError) -> CameraModel | N
     return None if isinstance(stamp, ValueError) else inp.camera_for(stamp)
 
 
+def landmark_rows(
+    kp: Keypoints, landmarks: tuple, count: Callable[..., Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The keypoints ``kp`` (u, v, id [, score]) whose id is in ``landmarks`` (``(ids (M,)
+    sorted, points (M, 3) m)``, the table of ``landmarks_file``), each with its landmark's 3D
+    point: ``(points2d (K, 2) px, points3d (K, 3) m, scores (K,) or None)``; the keypoints of
+    other ids left out, counted ``count("unknown_landmark_ids", n)``."""
+    ids, pts = landmarks
+    j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
+    known = ids[j] == kp.ids
+    n_unknown = int(np.count_nonzero(~known))
+    if n_unknown:
+        count("unknown_landmark_ids", n_unknown)
+    scores = None if kp.scores is None else kp.scores[known]
+    return kp.uv[known], pts[j[known]], scores
+
+
 def rig_cloud_frame(
-    name: str, inp: CameraInput, msg: Any, stamp: Stamp | ValueError, camera: CameraModel | None
+    name: str,
+    inp: CameraInput,
+    msg: Any,
+    stamp: Stamp | ValueError,
+    camera: CameraModel | None,
+    landmarks: tuple | None = None,
+    keypoints: bool = False,
 ) -> CameraFrame | UnreadFrame:
     """Camera ``name``'s correspondences cloud ``msg`` as the rig takes it, the rig node's and
     the rig bag reader's one path: ``stamp`` is its header stamp checked
@@ -283,13 +322,18 @@ def rig_cloud_frame(
     :class:`~rs_localizer.tracking.localizer.CameraFrame` (the cloud's rows through
     :meth:`CameraInput.read_cloud`; tagged with its ``frame_id``, else ``name``), or an
     :class:`UnreadFrame`: the stamp cannot be read (``stamp_ns`` None), or the cloud cannot
-    (no u, v, x, y, z fields, ...)."""
+    (no u, v, x, y, z fields, ...). ``keypoints``: ``msg`` is a keypoints cloud (u, v, id),
+    its rows the points of ``landmarks`` it names (:meth:`CameraInput.read_keypoints`; not
+    read without ``landmarks``; a frame without rows when none of its ids is known)."""
     from ..tracking.localizer import CameraFrame
 
     if isinstance(stamp, ValueError):
         return UnreadFrame(name, None, None, stamp)
     try:
-        uv, xyz, _ = inp.read_cloud(msg)
+        if keypoints:
+            uv, xyz, _ = inp.read_keypoints(msg, landmarks)
+        else:
+            uv, xyz, _ = inp.read_cloud(msg)
     except ValueError as e:
         return UnreadFrame(name, stamp, camera, e)
     tag = msg.header.frame_id or name

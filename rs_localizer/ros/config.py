@@ -562,19 +562,16 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
 
 #: the single camera's parameters that the rig mode does not use, with what the rig takes
 #: in their place: its own estimator (``gr6p_1lin`` on every camera's points at once), each
-#: camera's camera_info (intrinsics), frame id and ``rig.<camera>.mounting``, clouds of
-#: correspondences or its front end's matches (no keypoints and landmarks)
+#: camera's camera_info (intrinsics), frame id and ``rig.<camera>.mounting``
 RIG_UNUSED_PARAMETERS = (
     ("solver",),
     ("camera.",),
     ("camera_frame", "camera_to_base."),
-    ("landmarks_file",),
 )
 _RIG_INSTEAD = (
     "the rig estimator solves every camera's points at once, gr6p_1lin",
     "each rig camera's intrinsics are those of its camera_info",
     "each rig camera's pose on the rig is rig.<camera>.mounting, in base_frame",
-    "a rig camera's frames are correspondences clouds or its front end's matches",
 )
 
 
@@ -671,6 +668,7 @@ _RIG_RESTART = (
         "read-only rig.<camera>.line_delay, readout_time and direction)",
     ),
     (("base_frame",), "the cameras' mountings (rig.<camera>.mounting) are poses in base_frame"),
+    (("landmarks_file",), "the landmarks the cameras' keypoints name are loaded at start"),
     (
         ("frontend", "image_transport", "aruco.", "features."),
         "each camera's front end and image subscription are made at start",
@@ -682,10 +680,11 @@ def rig_change_refused(names: Iterable[str], single: bool = False) -> str | None
     """Why a running rig refuses to change the parameters ``names`` (of
     :data:`~.params.PARAMETERS`) without a restart, one clause per parameter; None when it
     takes them all (:data:`RIG_RUN_TIME_PARAMETERS`). The others are its cameras' timing
-    (``rs.*``), its frame (``base_frame``), its front ends, and the single camera's parameters
+    (``rs.*``), its frame (``base_frame``), its landmarks (``landmarks_file``), its front
+    ends, and the single camera's parameters
     the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``: a rig
     camera's intrinsics are its camera_info's; ``camera_frame``,
-    ``camera_to_base.*``: the mountings; ``landmarks_file``).
+    ``camera_to_base.*``: the mountings).
     ``single``: a rig of one camera at the identity mounting, which takes ``solver`` as its
     camera's video does (:func:`rig_unused`)."""
     why = []

@@ -537,7 +537,8 @@ def _rig_camera_values(
     frames never join the others', ``Localizer.camera_apart``) and then
     ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
     the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
-    ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, the node's
+    ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, ``unknown_landmark_ids``
+    (its keypoints' ids not in ``landmarks_file``), the node's
     ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
     worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
     returns the section, the camera's frames dropped from a full queue and its messages lost."""
@@ -559,6 +560,8 @@ def _rig_camera_values(
         values[f"{n}.{k}"] = v
     for k in ("capped_clouds", "points_dropped"):  # (the node's clouds, the rig's images)
         values[f"{n}.{k}"] = own.get(k, 0) + rig.counts.get(f"{n}.{k}", 0)
+    if inputs is not None:  # (its keypoints' ids not in the landmarks_file)
+        values[f"{n}.unknown_landmark_ids"] = own.get("unknown_landmark_ids", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
         state = "waiting"  # (its frames wait for the camera_info)

@@ -41,7 +41,7 @@ from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.localizer import CameraFrame
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraInput
+from .camera_input import CameraInput, landmark_rows
 from .config import LocalizerConfig
 from .pointcloud import CloudError, read_keypoints
 
@@ -638,16 +638,10 @@ class FramePipeline:
         if self.maps.landmarks is None:
             raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
         kp = read_keypoints(msg)
-        ids, pts = self.maps.landmarks
-        j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
-        known = ids[j] == kp.ids
-        n_unknown = int(np.count_nonzero(~known))
-        if n_unknown:
-            self.stats.add("unknown_landmark_ids", n_unknown)
-        if not known.any():
+        uv, xyz, scores = landmark_rows(kp, self.maps.landmarks, self.stats.add)
+        if not len(uv):
             raise _Drop("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
-        scores = None if kp.scores is None else kp.scores[known]
-        return kp.uv[known], pts[j[known]], scores
+        return uv, xyz, scores
 
     def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
         """The image of ``sensor_msgs/Image``, or ``CompressedImage``, decoded and checked

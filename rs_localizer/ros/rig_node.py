@@ -11,6 +11,9 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          rows with a NaN or inf dropped (``<c>.points_dropped``), then at most
                          ``max_points`` rows (``<c>.capped_clouds``), as by the single-camera
                          node
+    <c>/keypoints        sensor_msgs/PointCloud2  with ``landmarks_file``: u, v, id; each row
+                         the 3D point of its id in the landmarks (ids not there counted
+                         ``<c>.unknown_landmark_ids``), then as a correspondences cloud
     <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics, checked as by the
                          single-camera node (a rejected one is counted
                          ``<c>.camera_info_rejected.<reason>`` and logged, the camera's
@@ -214,13 +217,16 @@ class RigCore(NodeCore):
                 _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
         try:
             self.config, single = self._changed_configuration({}, check=False)
+            maps = load_maps(single, owner=self)  # (the landmarks, a front end)
             frontends = {}
             if single.frontend_kind != "none":
-                for c in self.config.cameras:  # (one map, a front end object per camera)
-                    frontends[c.name] = load_maps(single, owner=self).frontend
+                for k, c in enumerate(self.config.cameras):  # (one map, a front end each)
+                    frontends[c.name] = (maps if k == 0 else load_maps(single, owner=self)).frontend
         except ConfigError as e:
             SHARED_MAPS.release(self)
             raise RuntimeError(f"invalid parameters: {e}") from None
+        #: the landmarks of ``landmarks_file`` (``(ids, points)``) the cameras' keypoints name
+        self.landmarks = maps.landmarks
         self.map_frame = str(single.map_frame)
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
@@ -336,8 +342,9 @@ class RigCore(NodeCore):
             )
 
     def _create_frame_inputs(self) -> None:
-        """Per camera ``<c>/correspondences`` and, with a front end, ``<c>/image_raw`` (or
-        ``<c>/image_raw/compressed``); the diagnostics timer."""
+        """Per camera ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints`` and,
+        with a front end, ``<c>/image_raw`` (or ``<c>/image_raw/compressed``); the
+        diagnostics timer."""
         for c in self.config.cameras:
             self._frame_subs.append(
                 self.create_subscription(
@@ -349,6 +356,17 @@ class RigCore(NodeCore):
                     qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 )
             )
+            if self.landmarks is not None:  # (keypoints name the landmarks_file's points)
+                self._frame_subs.append(
+                    self.create_subscription(
+                        PointCloud2,
+                        f"{c.name}/keypoints",
+                        lambda msg, n=c.name: self._enqueue(n, "keypoints", msg),
+                        CLOUD_QOS,
+                        event_callbacks=self._lost_events(c.name, "keypoints"),
+                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                    )
+                )
             if self.frontend_kind != "none":
                 compressed = self.image_transport == "compressed"
                 topic = f"{c.name}/image_raw" + ("/compressed" if compressed else "")
@@ -549,8 +567,8 @@ class RigCore(NodeCore):
                 if isinstance(stamp, ValueError):
                     skip = self._not_read(name, kind, stamp)
                 else:
-                    if kind == "cloud":
-                        outs, skip = self._take_cloud(name, msg, stamp, camera)
+                    if kind in ("cloud", "keypoints"):
+                        outs, skip = self._take_cloud(name, msg, stamp, camera, kind)
                     else:
                         outs, skip = self._take_image(name, msg, stamp, camera)
                         found = self.rig.last_correspondences(name)
@@ -575,8 +593,8 @@ class RigCore(NodeCore):
         """A frame whose stamp is out of range or whose cloud cannot be read: counted
         ``<c>.bad_input`` and logged; returns the reason it is skipped for, ``bad_input``."""
         self.bad_input[name] += 1
-        if kind == "cloud":
-            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {error}")
+        if kind in ("cloud", "keypoints"):
+            self._log.warning(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
         else:
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input"
@@ -658,7 +676,7 @@ class RigCore(NodeCore):
         return self._log
 
     def _take_cloud(
-        self, name: str, msg, stamp: Stamp, camera: CameraModel | None
+        self, name: str, msg, stamp: Stamp, camera: CameraModel | None, kind: str = "cloud"
     ) -> tuple[list, str | None]:
         """A cloud of correspondences (its checked ``stamp``, ``camera`` the model of it) to
         the rig, its rows as the
@@ -670,12 +688,17 @@ class RigCore(NodeCore):
         ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
         as one whose clock is off); one whose stamp is out of range is counted by the node
         alone (:meth:`_not_read`). The cloud becomes the rig's frame as a rig bag's does in
-        ``replay`` (:func:`.camera_input.rig_cloud_frame`, :func:`.camera_input.hand_to_rig`)."""
-        item = rig_cloud_frame(name, self.inputs[name], msg, stamp, camera)
+        ``replay`` (:func:`.camera_input.rig_cloud_frame`, :func:`.camera_input.hand_to_rig`).
+        ``kind`` ``keypoints``: a keypoints cloud (u, v, id), its rows the points of the
+        ``landmarks_file`` it names (unknown ids counted ``<c>.unknown_landmark_ids``; none
+        known: a frame without rows, which the rig frame is posed without)."""
+        keypoints = kind == "keypoints"
+        item = rig_cloud_frame(name, self.inputs[name], msg, stamp, camera, self.landmarks,
+                               keypoints)  # fmt: skip
         if isinstance(item, UnreadFrame):
-            self._not_read(name, "cloud", item.error)
+            self._not_read(name, kind, item.error)
         else:
-            self._warn_no_info(name, "correspondences")
+            self._warn_no_info(name, "keypoints" if keypoints else "correspondences")
         return hand_to_rig(self.rig, item), None
 
     def _warn_no_info(self, name: str, kind: str) -> None:

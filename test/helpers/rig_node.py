@@ -60,6 +60,9 @@ class RigHarness:
                     PointCloud2, f"/rig/{c.name}/correspondences", qos
                 ),
                 "info": self.probe.create_publisher(CameraInfo, f"/rig/{c.name}/camera_info", qos),
+                "keypoints": self.probe.create_publisher(
+                    PointCloud2, f"/rig/{c.name}/keypoints", qos
+                ),
             }
             for c in cams
         }

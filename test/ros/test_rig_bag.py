@@ -178,8 +178,7 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
     capsys.readouterr()
     assert main(["replay", str(bag), "--quiet", "--json"]) == 0
     plain = json.loads(capsys.readouterr().out)
-    args = ["-p", "solver:=p3p", "-p", "camera.fx:=500.0", "-p", "camera_frame:=cam",
-            "-p", "landmarks_file:=/tmp/none.csv"]  # fmt: skip
+    args = ["-p", "solver:=p3p", "-p", "camera.fx:=500.0", "-p", "camera_frame:=cam"]
     assert main(["replay", str(bag), "--quiet", "--json", *args]) == 0
     out = capsys.readouterr()
     warnings = [x for x in out.err.splitlines() if x.startswith("warning: ")]
@@ -187,8 +186,7 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
         "warning: a single camera's parameters set but not used in the rig mode: solver (the "
         "rig estimator solves every camera's points at once, gr6p_1lin); camera.fx (each rig "
         "camera's intrinsics are those of its camera_info); camera_frame (each rig camera's "
-        "pose on the rig is rig.<camera>.mounting, in base_frame); landmarks_file (a rig "
-        "camera's frames are correspondences clouds or its front end's matches)",
+        "pose on the rig is rig.<camera>.mounting, in base_frame)",
     ], warnings
     assert json.loads(out.out)["rot_deg"] == plain["rot_deg"]
     # a front end needs the cameras' images, which a make-bag rig bag does not have

@@ -991,3 +991,50 @@ def test_a_frame_before_its_camera_info_waits_camera_info_wait(ros_context, wait
         assert {i.wait for i in h.node.inputs.values()} == {0.5}
     finally:
         h.close()
+
+
+def test_keypoints_with_the_landmarks_pose_the_rig_as_their_correspondences(ros_context, tmp_path):
+    """With ``landmarks_file``, each camera's ``keypoints`` (u, v, id) take the 3D points of
+    their ids in the landmarks: every rig frame is posed within 0.05 deg and 5 mm of the truth
+    (as from the same rows sent as correspondences), and every keypoint whose id is not in the
+    landmarks is counted ``<c>.unknown_landmark_ids``, the frame solved from the others."""
+    from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg
+    from rs_localizer.ros.pointcloud import keypoint_cloud
+
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.2, num_points=100, seed=21)
+    points, index = np.unique(np.concatenate([f.xyz for f in frames]), axis=0,
+                              return_inverse=True)  # fmt: skip
+    ids = 1000 + np.arange(len(points))
+    table = tmp_path / "landmarks.csv"
+    lines = [
+        ",".join([str(i), *map(repr, map(float, q))]) for i, q in zip(ids, points, strict=True)
+    ]
+    table.write_text("id,x,y,z\n" + "\n".join(lines) + "\n")
+    h = rig_harness(ros_context, cams, rig_parameters(cams, landmarks_file=str(table)))
+    try:
+        assert h.matched(("keypoints",), ("pose",))
+        h.send_info(cams)
+        start, unknown = 0, {c.name: 0 for c in cams}
+        for k, f in enumerate(frames):
+            rows = ids[index.ravel()[start : start + len(f.xyz)]]
+            start += len(f.xyz)
+            uv = f.uv
+            if k % 4 == 0:  # (two keypoints of ids the landmarks do not have)
+                uv, rows = np.vstack([uv, [[10.0, 10.0], [20.0, 20.0]]]), np.r_[rows, 7, 8]
+                unknown[f.name] += 2
+            cloud = keypoint_cloud(uv, rows, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
+            h.send(f.name, "keypoints", cloud)
+        n = len(frames) // 3
+        assert h.wait(lambda: len(h.poses) == n), len(h.poses)
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+            Re, pe = pose_from_msg(m.pose)
+            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        _, v = h.last_diag()
+        for c in cams:
+            assert v[f"{c.name}.unknown_landmark_ids"] == str(unknown[c.name]), v
+            assert v[f"{c.name}.solved"] == str(n) and v[f"{c.name}.skipped"] == "0", v
+    finally:
+        h.close()
