@@ -30,6 +30,18 @@ def rig_harness(ctx, cams, params) -> RigHarness:
     return h
 
 
+def assert_near_truth(poses, traj, deg: float = 0.05, m: float = 0.005) -> None:
+    """Every published pose (``PoseStamped``) within ``deg`` and ``m`` of the rig's true pose
+    at its stamp."""
+    from rs_localizer.ros.conversions import pose_from_msg
+
+    for msg in poses:
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+        Re, pe = pose_from_msg(msg.pose)
+        assert rotation_angle_deg(Re, R) < deg and np.linalg.norm(pe - p) < m
+
+
 def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context):
     """3 unsynchronized cameras, 0.5 s: one pose per rig frame for base_link within 0.05 deg
     and 5 mm of the truth, the fused twist on odom (child frame base_link), every camera's
@@ -42,14 +54,8 @@ def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context
         h.send_clouds(frames)
         assert h.wait(lambda: len(h.poses) == 15)
         assert h.wait(lambda: len(h.odom) >= 14)
-        for m in h.poses:
-            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
-            from rs_localizer.ros.conversions import pose_from_msg
-
-            Re, pe = pose_from_msg(m.pose)
-            assert m.header.frame_id == "map"
-            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        assert_near_truth(h.poses, traj)
+        assert all(m.header.frame_id == "map" for m in h.poses)
         assert all(o.child_frame_id == "base_link" for o in h.odom)
         st, v = h.last_diag()
         assert st.level == OK, st.message
@@ -224,7 +230,7 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu
 
-    from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg, quaternion_from_matrix
+    from rs_localizer.ros.conversions import ns_to_stamp, quaternion_from_matrix
     from rs_localizer.sim.rig_video import rig_gyro
 
     cams = default_rig(2)
@@ -257,11 +263,7 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
             h.send_clouds([f])
         n = len(frames) // 2
         assert h.wait(lambda: len(h.poses) == n)
-        for m in h.poses:
-            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
-            Re, pe = pose_from_msg(m.pose)
-            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        assert_near_truth(h.poses, traj)
         st, v = h.last_diag()
         assert st.level == OK, st.message
         assert v["frames_with_gyro"] == str(n), v
@@ -998,7 +1000,7 @@ def test_keypoints_with_the_landmarks_pose_the_rig_as_their_correspondences(ros_
     their ids in the landmarks: every rig frame is posed within 0.05 deg and 5 mm of the truth
     (as from the same rows sent as correspondences), and every keypoint whose id is not in the
     landmarks is counted ``<c>.unknown_landmark_ids``, the frame solved from the others."""
-    from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg
+    from rs_localizer.ros.conversions import ns_to_stamp
     from rs_localizer.ros.pointcloud import keypoint_cloud
 
     cams = default_rig(3)
@@ -1027,11 +1029,7 @@ def test_keypoints_with_the_landmarks_pose_the_rig_as_their_correspondences(ros_
             h.send(f.name, "keypoints", cloud)
         n = len(frames) // 3
         assert h.wait(lambda: len(h.poses) == n), len(h.poses)
-        for m in h.poses:
-            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
-            Re, pe = pose_from_msg(m.pose)
-            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        assert_near_truth(h.poses, traj)
         _, v = h.last_diag()
         for c in cams:
             assert v[f"{c.name}.unknown_landmark_ids"] == str(unknown[c.name]), v
