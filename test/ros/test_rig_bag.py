@@ -284,6 +284,71 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
                  "-o", str(tmp_path / "calibrated.yaml")]) == 0  # fmt: skip
 
 
+def test_a_recording_of_keypoints_is_replayed_with_the_landmarks(tmp_path, capsys):
+    """A recording whose cameras send keypoints (u, v, id; no correspondences) replayed with
+    ``landmarks_file``: each row takes its landmark's point, and the rig frames are the ones
+    of the correspondences the keypoints were made from, bit for bit (the table holds the
+    clouds' own points); ids not in the table are counted per camera, as the node counts
+    them; calibrate-rig reads the same frames."""
+    from rosbags.rosbag2 import Writer
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.bag_io import (
+        RosbagsMessages,
+        iter_messages,
+        storage_plugin,
+        typestore,
+    )
+    from rs_localizer.ros.bags.rig_bag import read_rig_frames, replay_rig
+    from rs_localizer.ros.conversions import stamp_to_ns
+    from rs_localizer.ros.pointcloud import read_correspondences
+
+    bag = tmp_path / "rig"
+    assert main(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--points", "80",
+                 "--quiet"]) == 0  # fmt: skip
+    ts, clouds = typestore(), []
+    for topic, mt, t, raw in iter_messages(bag):
+        if topic.endswith("/correspondences"):
+            clouds.append((topic, t, ts.deserialize_cdr(raw, mt)))
+    xyz = [read_correspondences(m).xyz.astype(np.float64) for _, _, m in clouds]
+    points, index = np.unique(np.concatenate(xyz), axis=0, return_inverse=True)
+    ids = 500 + np.arange(len(points))
+    lines = [
+        ",".join([str(i), *map(repr, map(float, q))]) for i, q in zip(ids, points, strict=True)
+    ]
+    table = tmp_path / "landmarks.csv"
+    table.write_text("id,x,y,z\n" + "\n".join(lines) + "\n")
+    rec, params = recording_of(bag, tmp_path / "recording", tmp_path / "rig.yaml")
+    keyed = tmp_path / "keypoints"
+    make = RosbagsMessages()
+    with Writer(keyed, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns, start, unknown = {}, 0, 0
+        for topic, mt, t, raw in iter_messages(rec):
+            if topic.endswith("/correspondences"):  # (as keypoints, one of an unknown id more)
+                m = ts.deserialize_cdr(raw, mt)
+                c = read_correspondences(m)
+                rows = ids[index.ravel()[start : start + len(c.uv)]]
+                start += len(c.uv)
+                uv, rows, unknown = np.vstack([c.uv, [[5.0, 5.0]]]), np.r_[rows, 3], unknown + 1
+                m = make.keypoints(uv, rows, stamp_to_ns(m.header.stamp), m.header.frame_id)
+                topic, raw = (
+                    topic.replace("/correspondences", "/keypoints"),
+                    ts.serialize_cdr(m, mt),
+                )
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, mt, typestore=ts)
+            w.write(conns[topic], t, raw)
+    a = replay_rig(rec, [params])
+    b = replay_rig(keyed, [params], {"landmarks_file": str(table)})
+    assert a.solved == b.solved == 8
+    for x, y in zip(a.outputs, b.outputs, strict=True):
+        assert np.array_equal(x.estimate.model.R, y.estimate.model.R)
+        assert np.array_equal(x.estimate.model.C, y.estimate.model.C)
+    assert sum(b.counts[n].get("unknown_landmark_ids", 0) for n in b.cameras) == unknown == 16
+    frames = read_rig_frames(keyed, [params], {"landmarks_file": str(table)}).frames
+    assert len(frames) == 16 and all(len(f.points2d) > 0 for f in frames)
+
+
 @pytest.mark.parametrize("solver", [None, "p3p"])
 def test_a_cameras_bag_replayed_as_a_rig_of_one_is_the_cameras_replay(sample_bag, solver):
     """A camera alone is a rig of one: the sample bag (one camera) replayed through the rig

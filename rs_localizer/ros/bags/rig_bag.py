@@ -430,24 +430,28 @@ def replay_rig(
     ns = rig_namespace(bag, res.cameras)
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     frontends = rig_frontends(bag, values, cfg, owner=res)
+    landmarks = rig_landmarks(values, cfg, owner=res)
     images = frontends is not None
     for n, fe in (frontends or {}).items():  # (each camera's own, as the rig node runs them)
         rig.set_frontend(n, fe, str(values["frontend"]).strip())
     bar = progress_bar(progress, None, unit=" rig frames")
     try:
-        source = rig_messages(bag, inputs, "image") if images else iter_rig_frames(bag, inputs)
+        if images:
+            source = rig_messages(bag, inputs, "image")
+        else:
+            source = iter_rig_frames(bag, inputs, landmarks=landmarks)
         for item in source:
             n = item[0] if images else item.camera_name
             own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
             own[f"{n}.taken"] += 1
-            stamp = item[2] if images else item.stamp_ns
+            stamp = item[3] if images else item.stamp_ns
             if stamp is None or isinstance(stamp, ValueError):  # (skipped by the node alone)
                 own[f"{n}.skipped.bad_input"] += 1
                 continue
             while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
                 rig.add_imu(*gyro.pop())
             if images:  # (tagged as a cloud's frame: its stamp and frame id)
-                _, msg, _, camera = item
+                _, _, msg, _, camera = item
                 tag = (stamp, msg.header.frame_id or n)
                 outs = hand_image_to_rig(rig, n, inputs[n], msg, stamp, camera, log, tag)[0]
             else:
@@ -469,7 +473,7 @@ def replay_rig(
     bar.close()
     res.counts = {"rig": rig.rig_counts()}
     for n in rig.cameras:
-        res.counts[n] = _camera_counts(rig, n, own)
+        res.counts[n] = _camera_counts(rig, n, own, landmarks is not None)
     res.readout = rig.readout_values()
     if cfg.settings.imu is not None:
         res.gyro_counts = rig.gyro_counts()
@@ -518,6 +522,23 @@ def rig_frontends(
     return {c.name: load_maps(single, owner=owner).frontend for c in cfg.cameras}
 
 
+def rig_landmarks(values: Mapping[str, Any], cfg: RigConfig, owner: object) -> tuple | None:
+    """The landmarks of the parameter ``landmarks_file`` that the cameras' keypoints name
+    (``(ids (M,), points (M, 3) m)``), loaded as the rig node loads them (on behalf of
+    ``owner``: release with ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``);
+    None without one.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a landmark table that does not load.
+    """
+    from ..config import build_config, load_maps, rig_used_values
+
+    if not str(values.get("landmarks_file", "")).strip():
+        return None
+    only = rig_used_values({**values, "frontend": "none"}, cfg.settings.single_camera)
+    return load_maps(build_config(only), owner=owner).landmarks
+
+
 def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
     """The rows, failures and summaries of ``res`` from its outputs and fused poses
     (``twist_now``: no tracking, a rig frame's own twist is the one published; so it is for a
@@ -546,14 +567,16 @@ def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
 
 
 #: the counts of a camera's rows a replay reports beside its frames' (the rig node's
-#: diagnostics' ``<camera>.points_dropped`` and ``<camera>.capped_clouds``)
+#: diagnostics' ``<camera>.points_dropped`` and ``<camera>.capped_clouds``; with
+#: ``landmarks_file`` also ``<camera>.unknown_landmark_ids``)
 ROW_COUNTS = ("points_dropped", "capped_clouds")
 
 
-def _camera_counts(rig, n: str, own: Counter) -> dict:
+def _camera_counts(rig, n: str, own: Counter, keypoints: bool = False) -> dict:
     """Camera ``n``'s counts in a replay, as the rig node's diagnostics give them: its frames'
     (:func:`~rs_localizer.ros.diagnostics.rig_camera_frames` of the rig's counts and the
-    node's ``own``), its rows' (:data:`ROW_COUNTS`), then ``skipped.<reason>`` for each
+    node's ``own``), its rows' (:data:`ROW_COUNTS`; with ``keypoints``, a replay with
+    ``landmarks_file``, also ``unknown_landmark_ids``), then ``skipped.<reason>`` for each
     reason it was skipped for (the node's and the rig's, e.g. ``bad_input``:
     clouds not read)."""
     from ..diagnostics import rig_camera_frames
@@ -562,6 +585,8 @@ def _camera_counts(rig, n: str, own: Counter) -> dict:
     out = rig_camera_frames(rig, n, mine)
     for k in ROW_COUNTS:
         out[k] = own[f"{n}.{k}"] + rig.counts[f"{n}.{k}"]
+    if keypoints:  # (ids not in the landmarks, as the rig node counts them)
+        out["unknown_landmark_ids"] = own[f"{n}.unknown_landmark_ids"]
     skips = {k for c in (own, rig.counts) for k in c if k.startswith(f"{n}.skipped.")}
     for k in sorted(skips):
         if own[k] + rig.counts[k]:
@@ -705,7 +730,8 @@ def read_rig_frames(
     inputs = rig_camera_inputs(cfg, _QuietLog(), count)
     owner = object()  # (the front ends' maps, released once read)
     try:
-        items = list(iter_rig_frames(bag, inputs, rig_frontends(bag, values, cfg, owner)))
+        frontends = rig_frontends(bag, values, cfg, owner)
+        items = list(iter_rig_frames(bag, inputs, frontends, rig_landmarks(values, cfg, owner)))
     finally:
         SHARED_MAPS.release(owner)
     for f in items:
@@ -740,15 +766,17 @@ def rig_namespace(bag: str | os.PathLike, cameras: Iterable[str] = ()) -> str:
 @dataclass(frozen=True)
 class RigTopics:
     """A rig bag's topics of the cameras ``names``: ``<namespace>/<camera>/camera_info``,
-    ``.../correspondences`` and ``.../image_raw`` (:meth:`of`: topic -> ``(kind, camera)``,
-    kind ``info``, ``cloud`` or ``image``)."""
+    ``.../correspondences``, ``.../keypoints`` and ``.../image_raw`` (:meth:`of`: topic ->
+    ``(kind, camera)``, kind ``info``, ``cloud``, ``keypoints`` or ``image``)."""
 
     namespace: str
     names: tuple
 
     def topic(self, name: str, kind: str) -> str:
-        """The topic of camera ``name``'s ``kind`` (``info``, ``cloud``, ``image``)."""
-        leaf = {"info": "camera_info", "cloud": "correspondences", "image": "image_raw"}[kind]
+        """The topic of camera ``name``'s ``kind`` (``info``, ``cloud``, ``keypoints``,
+        ``image``)."""
+        leaf = {"info": "camera_info", "cloud": "correspondences", "keypoints": "keypoints",
+                "image": "image_raw"}[kind]  # fmt: skip
         return f"{self.namespace}/{name}/{leaf}"
 
     def of(self, kinds: Iterable[str] = ("info", "cloud")) -> dict[str, tuple[str, str]]:
@@ -756,7 +784,10 @@ class RigTopics:
 
 
 def iter_rig_frames(
-    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], frontends: Mapping | None = None
+    bag: str | os.PathLike,
+    inputs: Mapping[str, CameraInput],
+    frontends: Mapping | None = None,
+    landmarks: tuple | None = None,
 ) -> Iterator[CameraFrame | UnreadFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
     its :class:`~rs_localizer.ros.camera_input.CameraInput`,
@@ -780,7 +811,10 @@ def iter_rig_frames(
     images (``.../image_raw``) are read instead, each frame the front end's correspondences
     on the whole image (:func:`~rs_localizer.ros.camera_input.rig_image_frame`; an image not
     read is an :class:`~rs_localizer.ros.camera_input.UnreadFrame` with its reason:
-    ``bad_image``, ``image_size_mismatch``, ``frontend_error``).
+    ``bad_image``, ``image_size_mismatch``, ``frontend_error``). With ``landmarks`` (the
+    table of ``landmarks_file``, :func:`rig_landmarks`) each camera's keypoints
+    (``.../keypoints``: u, v, id) are read too, beside its clouds, as the rig node reads them
+    (each row the 3D point of its id; unknown ids counted ``unknown_landmark_ids``).
 
     Yields:
         :class:`~rs_localizer.tracking.localizer.CameraFrame` (name, header stamp ns, model,
@@ -790,30 +824,32 @@ def iter_rig_frames(
     from ..camera_input import rig_cloud_frame, rig_image_frame
 
     if frontends is not None:
-        for n, msg, stamp, camera in rig_messages(bag, inputs, "image"):
+        for n, _, msg, stamp, camera in rig_messages(bag, inputs, "image"):
             yield rig_image_frame(n, inputs[n], msg, stamp, camera, frontends[n])
         return
-    for n, msg, stamp, camera in rig_messages(bag, inputs, "cloud"):
-        yield rig_cloud_frame(n, inputs[n], msg, stamp, camera)
+    kinds = ("cloud",) if landmarks is None else ("cloud", "keypoints")
+    for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
+        yield rig_cloud_frame(n, inputs[n], msg, stamp, camera, landmarks, kind == "keypoints")
 
 
 def rig_messages(
-    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], kind: str
-) -> Iterator[tuple[str, Any, Stamp | ValueError, CameraModel | None]]:
-    """Every camera's frame messages of ``kind`` (``cloud``: ``<namespace>/<camera>/
-    correspondences``, ``image``: ``.../image_raw``) of a rig bag in log-time order, each
+    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], *kinds: str
+) -> Iterator[tuple[str, str, Any, Stamp | ValueError, CameraModel | None]]:
+    """Every camera's frame messages of ``kinds`` (``cloud``: ``<namespace>/<camera>/
+    correspondences``, ``keypoints``: ``.../keypoints``, ``image``: ``.../image_raw``) of a
+    rig bag in log-time order, each
     camera's camera_infos given to its input (``inputs``: camera name -> its
     :class:`~rs_localizer.ros.camera_input.CameraInput`) as they come, as
     :func:`iter_rig_frames` reads them.
 
     Yields:
-        ``(camera name, message, its header stamp checked (ns) or the error of that check,
-        the camera model of that stamp or None)``
+        ``(camera name, kind, message, its header stamp checked (ns) or the error of that
+        check, the camera model of that stamp or None)``
         (:func:`~rs_localizer.ros.camera_input.frame_camera`).
     """
     from ..camera_input import frame_camera
 
-    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", kind))
+    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
     ts = typestore()
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
         k, n = topics[topic]
@@ -825,7 +861,7 @@ def rig_messages(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError as e:
             stamp = e
-        yield n, msg, stamp, frame_camera(inputs[n], stamp)
+        yield n, k, msg, stamp, frame_camera(inputs[n], stamp)
 
 
 def rig_frame_ends(
