@@ -357,8 +357,11 @@ class RigInputs:
     ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.points_dropped`` (non-finite
     rows of its clouds), ``<c>.camera_info_rejected[.<reason>]`` (camera_infos rejected, the
     single-camera node's reasons), ``<c>.stamp_jumped_ahead``
-    (frames that started the rig again) and ``<c>.messages_lost`` (lost by the middleware,
-    never received). ``latencies`` (s, a camera frame's arrival to the pose of the rig frame
+    (frames that started the rig again), ``<c>.unknown_landmark_ids`` (its keypoints' ids not
+    in ``landmarks_file``), ``<c>.frames_beside_frontend`` (clouds or keypoints received while
+    its front end runs on its images) and ``<c>.messages_lost`` (lost by the middleware,
+    never received). ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
+    frame's arrival to the pose of the rig frame
     it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
     rig), ``bad_input`` (camera -> frames not read: a stamp or a cloud), ``imu_rejected`` (reason
@@ -372,6 +375,7 @@ class RigInputs:
     bad_input: Mapping[str, int] = field(default_factory=dict)
     imu_rejected: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
+    frontend: bool = False
 
 
 def rig_diagnostics(
@@ -538,7 +542,8 @@ def _rig_camera_values(
     ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
     the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
     ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, ``unknown_landmark_ids``
-    (its keypoints' ids not in ``landmarks_file``), the node's
+    (its keypoints' ids not in ``landmarks_file``), with a front end
+    ``frames_beside_frontend``, the node's
     ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
     worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
     returns the section, the camera's frames dropped from a full queue and its messages lost."""
@@ -562,6 +567,8 @@ def _rig_camera_values(
         values[f"{n}.{k}"] = own.get(k, 0) + rig.counts.get(f"{n}.{k}", 0)
     if inputs is not None:  # (its keypoints' ids not in the landmarks_file)
         values[f"{n}.unknown_landmark_ids"] = own.get("unknown_landmark_ids", 0)
+        if inputs.frontend:  # (clouds solved as given, not from its images)
+            values[f"{n}.frames_beside_frontend"] = own.get("frames_beside_frontend", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
         state = "waiting"  # (its frames wait for the camera_info)

@@ -192,6 +192,7 @@ class RigCore(NodeCore):
 
     rig = None  # (None: not configured)
     config = None
+    _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _declare_parameters(self) -> None:
         super()._declare_parameters()
@@ -361,7 +362,7 @@ class RigCore(NodeCore):
                     self.create_subscription(
                         PointCloud2,
                         f"{c.name}/keypoints",
-                        lambda msg, n=c.name: self._enqueue(n, "keypoints", msg),
+                        lambda msg, n=c.name: self._on_cloud(n, msg, "keypoints"),
                         CLOUD_QOS,
                         event_callbacks=self._lost_events(c.name, "keypoints"),
                         qos_overriding_options=QoSOverridingOptions.with_default_policies(),
@@ -499,8 +500,24 @@ class RigCore(NodeCore):
         with self._acc:
             self._inputs[f"{name}.{key}"] += n
 
-    def _on_cloud(self, name: str, msg) -> None:
-        self._enqueue(name, "cloud", msg)
+    def _on_cloud(self, name: str, msg, kind: str = "cloud") -> None:
+        """A camera's correspondences or keypoints cloud, queued; beside its front end (which
+        runs on its images) counted ``<c>.frames_beside_frontend`` and, the first time, a
+        warning naming both topics: such a cloud is solved as given, not from the images and
+        the front end's map (as the single-camera node says)."""
+        if self.frontend_kind != "none":
+            self._count_input(name, "frames_beside_frontend")
+            if not self._warned_beside_frontend:
+                self._warned_beside_frontend = True  # (once per node)
+                leaf = "correspondences" if kind == "cloud" else kind
+                self.get_logger().warning(
+                    f"received {leaf} on {self.resolve_topic_name(f'{name}/{leaf}')} while "
+                    f"the {self.frontend_kind} front end runs on the camera's images: these "
+                    f"frames are solved from the given {leaf}, not from the images and the "
+                    f"front end's map (counted {name}.frames_beside_frontend; play a bag's "
+                    "images only: rs-localizer play --source image)"
+                )
+        self._enqueue(name, kind, msg)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:
         """Subscription callbacks: count the camera's frame and queue it for the worker. A full
@@ -818,7 +835,8 @@ class RigCore(NodeCore):
                     counts[f"{n}.messages_lost"] += k
             absent = [n for n in self.inputs if waited and counts[f"{n}.received"] == 0]
             inputs = RigInputs(counts, latencies, stamp_ages, frame_times, dict(self.bad_input),
-                               dict(self.imu_rejected), absent)  # fmt: skip
+                               dict(self.imu_rejected), absent,
+                               self.frontend_kind != "none")  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
         return self._status(self.config.base_frame, level, message, values)
 

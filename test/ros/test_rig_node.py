@@ -1036,3 +1036,29 @@ def test_keypoints_with_the_landmarks_pose_the_rig_as_their_correspondences(ros_
             assert v[f"{c.name}.solved"] == str(n) and v[f"{c.name}.skipped"] == "0", v
     finally:
         h.close()
+
+
+def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
+    """With a front end (which runs on the cameras' images), a camera's correspondences
+    cloud is solved as given and counted ``<c>.frames_beside_frontend``, as the
+    single-camera node counts its ``frames_beside_frontend``; without a front end the key is
+    not in the status."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=100, seed=4)
+    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
+    h = rig_harness(ros_context, cams, params)
+    try:
+        h.send_info(cams)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        for c in cams:
+            sent = sum(f.name == c.name for f in frames)
+            assert v[f"{c.name}.frames_beside_frontend"] == str(sent) == v[f"{c.name}.received"]
+    finally:
+        h.close()
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
+    try:
+        _, v = h.last_diag()
+        assert not any(k.endswith(".frames_beside_frontend") for k in v), v
+    finally:
+        h.close()
