@@ -2069,11 +2069,13 @@ def _consensus(
 
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes. When all agree with
     the joint estimate (:func:`_agreeing`: the common case, no extra work) it is returned as
-    is. Otherwise the rig is solved again (``solve``) on the cameras that disagree alone (and
-    the cameras too small to vote): if that pose explains none of the agreeing cameras, the
-    two groups contradict each other (e.g. a wrong mounting or stamp on one side), and the
-    group of more cameras, on a tie the group whose pose is nearer the ``prediction`` (by
-    :data:`PREDICTION_MARGIN`), poses the rig; the other group's cameras are
+    is. Cameras that disagree and are fewer than those that agree are outvoted at once (no
+    pose of their own can gather more cameras). Otherwise the rig is solved again
+    (``solve``) on the cameras that disagree alone (and the cameras too small to vote): if
+    that pose explains none of the agreeing cameras, the two groups contradict each other
+    (e.g. a wrong mounting or stamp on one side), and the group of more cameras, on a tie
+    the group whose pose is nearer the ``prediction`` (by :data:`PREDICTION_MARGIN`), poses
+    the rig; the other group's cameras are
     ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``,
     unless the two groups are near (:func:`_near`): then the joint estimate is returned.
     The joint estimate's point count never decides: a camera with most of the points is
@@ -2094,6 +2096,10 @@ def _consensus(
     rest = set(voters) - a
     if not rest:
         return est
+    if len(a) > len(rest):
+        # (the second pose's cameras are among the others, fewer than the agreeing ones,
+        # whatever it is: outvoted without solving it)
+        return _outvoted(est, pool, rest)
     sub = solve(_only(views, a))
     sub = _restored(sub, pool) if sub.success else sub
     b = _agreeing(sub, voters) if sub.success else set()
