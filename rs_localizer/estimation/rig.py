@@ -2077,7 +2077,10 @@ def _consensus(
     the group whose pose is nearer the ``prediction`` (by :data:`PREDICTION_MARGIN`), poses
     the rig; the other group's cameras are
     ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``,
-    unless the two groups are near (:func:`_near`): then the joint estimate is returned.
+    unless the two groups are near (:func:`_near`): then the joint estimate is returned. A
+    tie without a prediction is first checked with the joint estimate alone: when one pose
+    fitted from it explains every voting camera within the gate (:func:`_one_pose`), the
+    joint estimate is returned without solving the others.
     The joint estimate's point count never decides: a camera with most of the points is
     outvoted by two that agree with each other."""
     valid = np.asarray(est.num_valid_per_view)
@@ -2100,6 +2103,12 @@ def _consensus(
         # (the second pose's cameras are among the others, fewer than the agreeing ones,
         # whatever it is: outvoted without solving it)
         return _outvoted(est, pool, rest)
+    # as many cameras on each side and no prediction: when one pose fitted from the joint
+    # estimate explains every voting camera within the gate (as :func:`_near` accepts), the
+    # two groups are near, whatever the others' own pose
+    tried = len(a) == len(rest) and prediction is None
+    if tried and _one_pose(pool, est, voters, set(voters), threshold_px):
+        return est
     sub = solve(_only(views, a))
     sub = _restored(sub, pool) if sub.success else sub
     b = _agreeing(sub, voters) if sub.success else set()
@@ -2107,6 +2116,8 @@ def _consensus(
         # the others explain no consistent pose of their own, or one the agreeing cameras
         # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
         return est if b & a else _outvoted(est, pool, rest)
+    if len(b) < len(a):  # (outvoted whatever the pose of the second pose's cameras alone)
+        return _outvoted(est, pool, rest)
     if b != rest:  # (solved on the cameras that agree with the second pose only)
         sub = solve(_only(views, set(voters) - b))
         if not sub.success:
@@ -2115,7 +2126,7 @@ def _consensus(
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
-    if choice is None and _near(pool, est, sub, a, b, voters, threshold_px):
+    if choice is None and _near(pool, est, sub, a, b, voters, threshold_px, tried):
         return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice == 0:
         return _outvoted(est, pool, rest)
@@ -2136,7 +2147,21 @@ def _gated(pool: _Pool, est, voters, gate_px: float, model=None) -> set[int]:
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
 
-def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: float) -> bool:
+def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=None) -> bool:
+    """Whether one pose fitted from ``start``'s (default ``est``'s) with
+    :data:`CONTRADICTION_GATE` inlier thresholds as its threshold, every voting camera weighed
+    alike (:func:`_evened`), explains the cameras ``cams`` within that gate (:func:`_gated`,
+    ``est`` giving the valid point counts; ``est``'s motion model)."""
+    gate = CONTRADICTION_GATE * threshold_px
+    free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
+    model = (est if start is None else start).model
+    fit = _refine(_evened(pool, voters), None, model, gate, free=free)
+    return cams <= _gated(pool, est, voters, gate, fit)
+
+
+def _near(
+    pool: _Pool, first, second, a: set, b: set, voters, threshold_px: float, tried=False
+) -> bool:
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each
     explain the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or
     that one pose explains within them (:func:`_refine` from either pose with the gate as
@@ -2154,13 +2179,11 @@ def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: floa
     # stamp that is wrong leaves no such pose. Every voting camera weighs alike in the fit:
     # weighed by its points, a camera of 140 corners holds the fit to its own pose and one
     # of 12 stays beyond the gate where a pose between them explains both within it
-    free = 6 if first.motion_model == GLOBAL_SHUTTER else 12
-    even = _evened(pool, voters)
-    for start in (first, second):
-        fit = _refine(even, None, start.model, gate, free=free)
-        if a | b <= _gated(pool, first, voters, gate, fit):
-            return True
-    return False
+    # (``tried``: the fit from ``first`` already failed, :func:`_one_pose`)
+    return any(
+        _one_pose(pool, first, voters, a | b, threshold_px, start)
+        for start in ((second,) if tried else (first, second))
+    )
 
 
 def _evened(pool: _Pool, voters) -> _Pool:
