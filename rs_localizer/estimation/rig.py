@@ -1585,7 +1585,9 @@ def _final(
     largest inconsistency the cameras' consensus accepts between them), the one of the lower
     MSAC cost; unless the fit of the inliers alone (the points within the threshold, from
     ``model`` or from that one, the better) lowers the MSAC cost by more than
-    :data:`INLIER_FIT_SIGNIFICANCE` image variances.
+    :data:`INLIER_FIT_SIGNIFICANCE` image variances (tried only when some point lies between
+    one and :data:`FINAL_CUTOFF` thresholds of that model: otherwise the inliers are every
+    point its refinement weighed).
 
     RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
     refinement from the best of them stays near that camera's pose when another camera's
@@ -1598,8 +1600,9 @@ def _final(
     points the two differ by a few variances, and the fit over every point near the model,
     the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold)
-    when already computed, or None."""
+    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
+    or ``model`` itself when it is local optimization's refinement) when already computed,
+    or None."""
     out = (
         first
         if first is not None
@@ -1614,13 +1617,16 @@ def _final(
     c_out, c_wide = msac(out), msac(wide)
     best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
 
+    e = search.errors(best)
+    k = float(threshold_px)
+    if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
+        return best  # (no point the inliers' fit leaves out that the refinement weighs)
+
     def inliers_fit(m):
         fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
         return fit, msac(fit)
 
     tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
-    e = search.errors(best)
-    k = float(threshold_px)
     margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
 
@@ -2726,8 +2732,11 @@ def _estimate(
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
-        # (a refinement local optimization did not take is the final one's first, as it is)
-        first = refined[1] if refined is not None and refined[0] is model else None
+        # (local optimization's last refinement is the final one's first, whether it took it,
+        # or did not and the model is still the one it started from)
+        first = None
+        if refined is not None and (refined[0] is model or refined[1] is model):
+            first = refined[1]
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = _copies(model)
