@@ -120,7 +120,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE
+from .._so3 import INLINE, compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
@@ -1298,7 +1298,10 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
         if not valid.any():
             return R, C, z, z.copy()
         S, Cg = S[valid], Cg[valid]
-        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
+        if pool.numpy:
+            Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
+        else:  # (the compiled Rodrigues: the same rotations to rounding)
+            Rg = compose_rotvec(np.ascontiguousarray(v[valid]), np.ascontiguousarray(Rg[valid]))
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
