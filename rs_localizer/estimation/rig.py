@@ -1393,11 +1393,12 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
+    if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
+        cam, Rm, cm, _ = _kernel_mountings(pool).views
+        R, C, own = _lambda_twist_of(_bearings(pool), pool.X, samples, cam, Rm, cm)
+        return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
-    if pool.numpy:
-        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
-    else:
-        R_cam, C_cam, own = _lambda_twist_of(_bearings(pool), pool.X, samples)
+    R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
@@ -1407,9 +1408,11 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
 
 
 @njit(cache=True)
-def _lambda_twist_of(bearings, X, samples):
+def _lambda_twist_of(bearings, X, samples, cam, Rm, cm):
     """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3)."""
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
+    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
+    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`_p3p_on_rig`'s."""
     K = samples.shape[0]
     b = np.empty((K, 3, 3))
     P = np.empty((K, 3, 3))
@@ -1419,7 +1422,25 @@ def _lambda_twist_of(bearings, X, samples):
             for a in range(3):
                 b[k, j, a] = bearings[i, a]
                 P[k, j, a] = X[i, a]
-    return lambda_twist_batch(b, P)
+    R_cam, C_cam, own = lambda_twist_batch(b, P)
+    H = len(own)
+    R = np.empty((H, 3, 3))
+    C = np.empty((H, 3))
+    for h in range(H):
+        c = cam[samples[own[h], 0]]
+        for i in range(3):
+            for j in range(3):
+                R[h, i, j] = (
+                    Rm[c, 0, i] * R_cam[h, 0, j]
+                    + Rm[c, 1, i] * R_cam[h, 1, j]
+                    + (Rm[c, 2, i] * R_cam[h, 2, j])
+                )
+            C[h, i] = (
+                Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
+                + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
+                + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
+            )
+    return R, C, own
 
 
 def _refit(
