@@ -50,6 +50,7 @@ from ..estimation.refine import (
     RefineSettings,
     posterior_step,
     refine_rs_pose,
+    untruncated_variance,
 )
 from ..estimation.rig import camera_model_of_rig
 from ..estimation.scoring import exact_msac_scores
@@ -548,6 +549,9 @@ def warm_rig(
         np.zeros((6, 2)), np.zeros((1, 6, 3)), np.zeros((1, 6), i64), np.zeros(6, i64),
         np.eye(3)[None], np.zeros((1, 3)), np.empty((1, 6)), np.empty(1, dtype=np.bool_),
     )  # fmt: skip
+    # (the image variance by which the rig's final refinement judges the inliers' own fit,
+    # tried only on points between one and two thresholds of its model: none here)
+    untruncated_variance(1.0, 2.0)
     return posed
 
 
