@@ -130,7 +130,7 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
     gr6p_1lin_batch_numpy,
-    still_solve_kernel,
+    still_solve_rotated,
 )
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
@@ -1311,19 +1311,17 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
     time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
     ``(w, t) = 0``): ``(v (H, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x) Rg``.
-    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` (the same solution
+    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution
     from the pose's six unknowns alone)."""
     k = len(S)
     if pool.numpy:
         held = (_identities(k), np.zeros((k, 6)))
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         return b.v, b.C, b.valid
-    Xp = np.ascontiguousarray(np.einsum("hij,hnj->hni", Rg, pool.X[S]))
-    out = np.empty((k, 6))
-    ok = np.empty(k, dtype=np.bool_)
-    x = _kernel_arrays(pool)[1]
+    X, x = _kernel_arrays(pool)[:2]
     cam, Rm, cm, _ = _kernel_mountings(pool).views
-    still_solve_kernel(x, Xp, np.ascontiguousarray(S, dtype=np.int64), cam, Rm, cm, out, ok)
+    S = np.ascontiguousarray(S, dtype=np.int64)
+    out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg, dtype=np.float64), cam, Rm, cm)
     return out[:, 0:3], out[:, 3:6], ok
 
 
