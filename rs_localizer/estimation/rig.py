@@ -120,7 +120,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE
+from .._so3 import INLINE, compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
@@ -130,7 +130,7 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
     gr6p_1lin_batch_numpy,
-    still_solve_kernel,
+    still_solve_rotated,
 )
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
@@ -1298,7 +1298,10 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
         if not valid.any():
             return R, C, z, z.copy()
         S, Cg = S[valid], Cg[valid]
-        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
+        if pool.numpy:
+            Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
+        else:  # (the compiled Rodrigues: the same rotations to rounding)
+            Rg = compose_rotvec(np.ascontiguousarray(v[valid]), np.ascontiguousarray(Rg[valid]))
     R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
@@ -1308,19 +1311,17 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
     time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
     ``(w, t) = 0``): ``(v (H, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x) Rg``.
-    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` (the same solution
+    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution
     from the pose's six unknowns alone)."""
     k = len(S)
     if pool.numpy:
         held = (_identities(k), np.zeros((k, 6)))
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         return b.v, b.C, b.valid
-    Xp = np.ascontiguousarray(np.einsum("hij,hnj->hni", Rg, pool.X[S]))
-    out = np.empty((k, 6))
-    ok = np.empty(k, dtype=np.bool_)
-    x = _kernel_arrays(pool)[1]
+    X, x = _kernel_arrays(pool)[:2]
     cam, Rm, cm, _ = _kernel_mountings(pool).views
-    still_solve_kernel(x, Xp, np.ascontiguousarray(S, dtype=np.int64), cam, Rm, cm, out, ok)
+    S = np.ascontiguousarray(S, dtype=np.int64)
+    out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg, dtype=np.float64), cam, Rm, cm)
     return out[:, 0:3], out[:, 3:6], ok
 
 
@@ -1390,11 +1391,12 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
+    if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
+        cam, Rm, cm, _ = _kernel_mountings(pool).views
+        R, C, own = _lambda_twist_of(_bearings(pool), pool.X, samples, cam, Rm, cm)
+        return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
-    if pool.numpy:
-        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
-    else:
-        R_cam, C_cam, own = _lambda_twist_of(_bearings(pool), pool.X, samples)
+    R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
@@ -1404,9 +1406,11 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
 
 
 @njit(cache=True)
-def _lambda_twist_of(bearings, X, samples):
+def _lambda_twist_of(bearings, X, samples, cam, Rm, cm):
     """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3)."""
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
+    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
+    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`_p3p_on_rig`'s."""
     K = samples.shape[0]
     b = np.empty((K, 3, 3))
     P = np.empty((K, 3, 3))
@@ -1416,7 +1420,25 @@ def _lambda_twist_of(bearings, X, samples):
             for a in range(3):
                 b[k, j, a] = bearings[i, a]
                 P[k, j, a] = X[i, a]
-    return lambda_twist_batch(b, P)
+    R_cam, C_cam, own = lambda_twist_batch(b, P)
+    H = len(own)
+    R = np.empty((H, 3, 3))
+    C = np.empty((H, 3))
+    for h in range(H):
+        c = cam[samples[own[h], 0]]
+        for i in range(3):
+            for j in range(3):
+                R[h, i, j] = (
+                    Rm[c, 0, i] * R_cam[h, 0, j]
+                    + Rm[c, 1, i] * R_cam[h, 1, j]
+                    + (Rm[c, 2, i] * R_cam[h, 2, j])
+                )
+            C[h, i] = (
+                Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
+                + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
+                + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
+            )
+    return R, C, own
 
 
 def _refit(
@@ -1585,7 +1607,9 @@ def _final(
     largest inconsistency the cameras' consensus accepts between them), the one of the lower
     MSAC cost; unless the fit of the inliers alone (the points within the threshold, from
     ``model`` or from that one, the better) lowers the MSAC cost by more than
-    :data:`INLIER_FIT_SIGNIFICANCE` image variances.
+    :data:`INLIER_FIT_SIGNIFICANCE` image variances (tried only when some point lies between
+    one and :data:`FINAL_CUTOFF` thresholds of that model: otherwise the inliers are every
+    point its refinement weighed).
 
     RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
     refinement from the best of them stays near that camera's pose when another camera's
@@ -1598,8 +1622,9 @@ def _final(
     points the two differ by a few variances, and the fit over every point near the model,
     the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold)
-    when already computed, or None."""
+    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
+    or ``model`` itself when it is local optimization's refinement) when already computed,
+    or None."""
     out = (
         first
         if first is not None
@@ -1614,13 +1639,16 @@ def _final(
     c_out, c_wide = msac(out), msac(wide)
     best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
 
+    e = search.errors(best)
+    k = float(threshold_px)
+    if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
+        return best  # (no point the inliers' fit leaves out that the refinement weighs)
+
     def inliers_fit(m):
         fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
         return fit, msac(fit)
 
     tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
-    e = search.errors(best)
-    k = float(threshold_px)
     margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
 
@@ -2069,13 +2097,18 @@ def _consensus(
 
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes. When all agree with
     the joint estimate (:func:`_agreeing`: the common case, no extra work) it is returned as
-    is. Otherwise the rig is solved again (``solve``) on the cameras that disagree alone (and
-    the cameras too small to vote): if that pose explains none of the agreeing cameras, the
-    two groups contradict each other (e.g. a wrong mounting or stamp on one side), and the
-    group of more cameras, on a tie the group whose pose is nearer the ``prediction`` (by
-    :data:`PREDICTION_MARGIN`), poses the rig; the other group's cameras are
+    is. Cameras that disagree and are fewer than those that agree are outvoted at once (no
+    pose of their own can gather more cameras). Otherwise the rig is solved again
+    (``solve``) on the cameras that disagree alone (and the cameras too small to vote): if
+    that pose explains none of the agreeing cameras, the two groups contradict each other
+    (e.g. a wrong mounting or stamp on one side), and the group of more cameras, on a tie
+    the group whose pose is nearer the ``prediction`` (by :data:`PREDICTION_MARGIN`), poses
+    the rig; the other group's cameras are
     ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``,
-    unless the two groups are near (:func:`_near`): then the joint estimate is returned.
+    unless the two groups are near (:func:`_near`): then the joint estimate is returned. A
+    tie without a prediction is first checked with the joint estimate alone: when one pose
+    fitted from it explains every voting camera within the gate (:func:`_one_pose`), the
+    joint estimate is returned without solving the others.
     The joint estimate's point count never decides: a camera with most of the points is
     outvoted by two that agree with each other."""
     valid = np.asarray(est.num_valid_per_view)
@@ -2094,6 +2127,16 @@ def _consensus(
     rest = set(voters) - a
     if not rest:
         return est
+    if len(a) > len(rest):
+        # (the second pose's cameras are among the others, fewer than the agreeing ones,
+        # whatever it is: outvoted without solving it)
+        return _outvoted(est, pool, rest)
+    # as many cameras on each side and no prediction: when one pose fitted from the joint
+    # estimate explains every voting camera within the gate (as :func:`_near` accepts), the
+    # two groups are near, whatever the others' own pose
+    tried = len(a) == len(rest) and prediction is None
+    if tried and _one_pose(pool, est, voters, set(voters), threshold_px):
+        return est
     sub = solve(_only(views, a))
     sub = _restored(sub, pool) if sub.success else sub
     b = _agreeing(sub, voters) if sub.success else set()
@@ -2101,6 +2144,8 @@ def _consensus(
         # the others explain no consistent pose of their own, or one the agreeing cameras
         # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
         return est if b & a else _outvoted(est, pool, rest)
+    if len(b) < len(a):  # (outvoted whatever the pose of the second pose's cameras alone)
+        return _outvoted(est, pool, rest)
     if b != rest:  # (solved on the cameras that agree with the second pose only)
         sub = solve(_only(views, set(voters) - b))
         if not sub.success:
@@ -2109,7 +2154,7 @@ def _consensus(
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
-    if choice is None and _near(pool, est, sub, a, b, voters, threshold_px):
+    if choice is None and _near(pool, est, sub, a, b, voters, threshold_px, tried):
         return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice == 0:
         return _outvoted(est, pool, rest)
@@ -2130,7 +2175,21 @@ def _gated(pool: _Pool, est, voters, gate_px: float, model=None) -> set[int]:
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
 
-def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: float) -> bool:
+def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=None) -> bool:
+    """Whether one pose fitted from ``start``'s (default ``est``'s) with
+    :data:`CONTRADICTION_GATE` inlier thresholds as its threshold, every voting camera weighed
+    alike (:func:`_evened`), explains the cameras ``cams`` within that gate (:func:`_gated`,
+    ``est`` giving the valid point counts; ``est``'s motion model)."""
+    gate = CONTRADICTION_GATE * threshold_px
+    free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
+    model = (est if start is None else start).model
+    fit = _refine(_evened(pool, voters), None, model, gate, free=free)
+    return cams <= _gated(pool, est, voters, gate, fit)
+
+
+def _near(
+    pool: _Pool, first, second, a: set, b: set, voters, threshold_px: float, tried=False
+) -> bool:
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each
     explain the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or
     that one pose explains within them (:func:`_refine` from either pose with the gate as
@@ -2148,13 +2207,11 @@ def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: floa
     # stamp that is wrong leaves no such pose. Every voting camera weighs alike in the fit:
     # weighed by its points, a camera of 140 corners holds the fit to its own pose and one
     # of 12 stays beyond the gate where a pose between them explains both within it
-    free = 6 if first.motion_model == GLOBAL_SHUTTER else 12
-    even = _evened(pool, voters)
-    for start in (first, second):
-        fit = _refine(even, None, start.model, gate, free=free)
-        if a | b <= _gated(pool, first, voters, gate, fit):
-            return True
-    return False
+    # (``tried``: the fit from ``first`` already failed, :func:`_one_pose`)
+    return any(
+        _one_pose(pool, first, voters, a | b, threshold_px, start)
+        for start in ((second,) if tried else (first, second))
+    )
 
 
 def _evened(pool: _Pool, voters) -> _Pool:
@@ -2697,8 +2754,11 @@ def _estimate(
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
-        # (a refinement local optimization did not take is the final one's first, as it is)
-        first = refined[1] if refined is not None and refined[0] is model else None
+        # (local optimization's last refinement is the final one's first, whether it took it,
+        # or did not and the model is still the one it started from)
+        first = None
+        if refined is not None and (refined[0] is model or refined[1] is model):
+            first = refined[1]
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = _copies(model)

@@ -50,12 +50,13 @@ from ..estimation.refine import (
     RefineSettings,
     posterior_step,
     refine_rs_pose,
+    untruncated_variance,
 )
 from ..estimation.rig import camera_model_of_rig
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
 from ..pose import RSPose, model_from_twist
-from ..solvers.gr6p_1lin import still_solve_kernel
+from ..solvers.gr6p_1lin import still_solve_rotated
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
@@ -544,10 +545,13 @@ def warm_rig(
     # (the correction of a global-shutter sample's pose on its points in other cameras, which
     # these rolling-shutter frames never run: its kernel's signature, on points it refuses)
     i64 = np.int64
-    still_solve_kernel(
-        np.zeros((6, 2)), np.zeros((1, 6, 3)), np.zeros((1, 6), i64), np.zeros(6, i64),
-        np.eye(3)[None], np.zeros((1, 3)), np.empty((1, 6)), np.empty(1, dtype=np.bool_),
+    still_solve_rotated(
+        np.zeros((6, 2)), np.zeros((6, 3)), np.zeros((1, 6), i64), np.eye(3)[None],
+        np.zeros(6, i64), np.eye(3)[None], np.zeros((1, 3)),
     )  # fmt: skip
+    # (the image variance by which the rig's final refinement judges the inliers' own fit,
+    # tried only on points between one and two thresholds of its model: none here)
+    untruncated_variance(1.0, 2.0)
     return posed
 
 

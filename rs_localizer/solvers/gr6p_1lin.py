@@ -570,3 +570,20 @@ def rig_algebraic_error(
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (v, C, w, t)]
     return float(_rig_error(x, X, tau, cam, Rm, cm, *f))
+
+
+@njit(cache=True)
+def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
+    """:func:`still_solve_kernel` of K problems whose world points ``X[S[k]]`` (``X`` (P, 3),
+    ``S`` (K, N)) are pre-rotated by ``Rg[k]`` (K, 3, 3) here: ``(out (K, 6), ok (K,))``."""
+    K, N = S.shape[0], S.shape[1]
+    Xp = np.empty((K, N, 3))
+    for k in range(K):
+        for i in range(N):
+            p = S[k, i]
+            for a in range(3):
+                Xp[k, i, a] = Rg[k, a, 0] * X[p, 0] + Rg[k, a, 1] * X[p, 1] + Rg[k, a, 2] * X[p, 2]
+    out = np.empty((K, 6))
+    ok = np.empty(K, dtype=np.bool_)
+    still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok)
+    return out, ok
