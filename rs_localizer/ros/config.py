@@ -499,8 +499,8 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
         ConfigError: no cameras, a camera name that is not valid in a topic name or listed
             twice, a camera without a usable mounting (naming it), an unknown readout
             direction, estimator or tracking options their classes reject, ``max_points``
-            below what a pose needs, an unknown ``solver`` for a rig of one camera at the
-            identity mounting (solved with it as its camera's video).
+            below what a pose needs, an unknown ``solver`` (what a rig of one camera at the
+            identity mounting is solved with, as its camera's video).
     """
     names = rig_camera_names(values["rig.cameras"])
     opts, tracking, imu = _estimation(values)
@@ -553,8 +553,6 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None
-    if settings.single_camera and settings.solver not in SOLVERS:  # (its camera's solver)
-        raise ConfigError(f"unknown solver {settings.solver!r}; expected one of {list(SOLVERS)}")
     base = str(values["base_frame"]).strip() or "base_link"
     unused = rig_unused(values, settings.single_camera)
     return RigConfig(tuple(out), settings, base, reference_row, unused)

@@ -218,16 +218,13 @@ class RigCore(NodeCore):
                 _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
         try:
             self.config, single = self._changed_configuration({}, check=False)
-            maps = load_maps(single, owner=self)  # (the landmarks, a front end)
-            frontends = {}
-            if single.frontend_kind != "none":
-                for k, c in enumerate(self.config.cameras):  # (one map, a front end each)
-                    frontends[c.name] = (maps if k == 0 else load_maps(single, owner=self)).frontend
+            # (the landmarks and the front end's map loaded once, a front end object each)
+            loaded = {c.name: load_maps(single, owner=self) for c in self.config.cameras}
         except ConfigError as e:
             SHARED_MAPS.release(self)
             raise RuntimeError(f"invalid parameters: {e}") from None
         #: the landmarks of ``landmarks_file`` (``(ids, points)``) the cameras' keypoints name
-        self.landmarks = maps.landmarks
+        self.landmarks = next(iter(loaded.values())).landmarks
         self.map_frame = str(single.map_frame)
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
@@ -236,8 +233,9 @@ class RigCore(NodeCore):
         self.rig = Localizer(
             self.config.settings, log=self._log, implementation=ready_implementation
         )
-        for n, fe in frontends.items():
-            self.rig.set_frontend(n, fe, single.frontend_kind)
+        if single.frontend_kind != "none":
+            for n, maps in loaded.items():
+                self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self.queue_size = int(single.queue_size)
         self.republish = bool(single.republish_correspondences)
@@ -588,8 +586,8 @@ class RigCore(NodeCore):
                         outs, skip = self._take_cloud(name, msg, stamp, camera, kind)
                     else:
                         outs, skip = self._take_image(name, msg, stamp, camera)
-                        found = self.rig.last_correspondences(name)
-                        if self.republish and found is not None:
+                        found = self.rig.last_correspondences(name) if self.republish else None
+                        if found is not None:  # (also an image where it found nothing)
                             clouds.append((name, self._found_cloud(found, msg, stamp, name)))
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"

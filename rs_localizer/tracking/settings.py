@@ -28,7 +28,7 @@ from ..estimation.options import EstimateOptions
 from ..frames import Mounting
 from .sequence import GyroSettings
 from .tracker import TrackerOptions
-from .video import LocalizerSettings
+from .video import SINGLE_CAMERA_SOLVER, LocalizerSettings
 
 __all__ = ["gyro_settings", "rig_settings", "with_fields"]
 
@@ -83,7 +83,7 @@ def rig_settings(
     imu: GyroSettings | None = None,
     max_points: int | None = None,
     time_offsets: Mapping[str, float] | None = None,
-    solver: str | None = None,
+    solver: str = SINGLE_CAMERA_SOLVER,
 ) -> LocalizerSettings:
     """A rig's settings with the single camera's estimator and tracker options as they are:
     ``options`` (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
@@ -101,7 +101,7 @@ def rig_settings(
         time_offsets: camera -> s added to its stamps (:attr:`LocalizerSettings.time_offsets`);
             None: none.
         solver: the minimal solver of a rig of one camera (:attr:`LocalizerSettings.solver`:
-            what its frames are solved with, as the camera's own video); None: the default.
+            what its frames are solved with, as the camera's own video).
 
     Raises:
         ValueError: from :class:`LocalizerSettings` (e.g. no cameras).
@@ -117,5 +117,5 @@ def rig_settings(
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
         max_points=max_points,
         time_offsets=dict(time_offsets or {}),
-        **({} if solver is None else {"solver": solver}),
+        solver=solver,
     )
