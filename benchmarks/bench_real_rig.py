@@ -37,7 +37,9 @@ undistorted plane), then:
    ``estimate_absolute_pose`` (matched options) and OpenCV's ``solvePnP`` on the undistorted
    corners (``SOLVEPNP_IPPE`` when one tag is seen, ``SOLVEPNP_ITERATIVE`` otherwise; no
    RANSAC): the camera's rotation and position errors against the reference (the rig's
-   reference pose through the reference extrinsics) over the frames every method posed;
+   reference pose through the reference extrinsics) over the frames every method posed, and
+   apart those of them ours posed from a few corners on more than one plane (too few for
+   RANSAC: two tags on different planes);
 3. every camera's mounting calibrated from the recording
    (:func:`~rs_localizer.calibration.calibrate_mountings`, what ``rs-localizer calibrate-rig``
    runs; the first camera the reference, at its reference extrinsics; camera frames of at least
@@ -327,7 +329,8 @@ def opencv_pnp(uv: np.ndarray, X: np.ndarray, cam: CameraModel):
 def single_run(rig: RealRig, frames: int | None = None) -> dict:
     """Each camera alone, every frame of it with a reference pose: camera name -> list of
     ``{method: (rotation deg, position mm) or None}`` (``ours``, ``poselib``, ``opencv``) and
-    ``failure`` (ours: its reason, or None) and ``points``."""
+    ``failure`` (ours: its reason, or None), ``points`` and ``few`` (ours posed it from a few
+    points on more than one plane, too few for RANSAC)."""
     import poselib
 
     out: dict = {n: [] for n in rig.cameras}
@@ -349,6 +352,8 @@ def single_run(rig: RealRig, frames: int | None = None) -> dict:
                     "ours": errors(e.model.R, e.model.C, ref) if e.success else None,
                     "failure": None if e.success else e.failure,
                     "points": len(uv),
+                    # (posed from a few points on more than one plane, without RANSAC)
+                    "few": bool(e.success and e.few_points and not e.single_tag),
                     "poselib": errors(np.asarray(pose.R), np.asarray(pose.t), ref),
                     "opencv": errors(*cv, ref) if cv is not None else None,
                 }
@@ -727,6 +732,15 @@ def main(argv: list[str] | None = None) -> None:
                 print(
                     f"  {label:18s} {np.median(e[:, 0]):.3f} ({np.percentile(e[:, 0], 90):.3f})"
                     f"  {np.median(e[:, 1]):.1f} ({np.percentile(e[:, 1], 90):.1f})"
+                )
+            few = [r for r in ok if r["few"]]
+            if few:
+                o, p = (np.array([r[k] for r in few]) for k in ("ours", "poselib"))
+                print(
+                    f"  of them {len(few)} posed from a few corners on more than one plane "
+                    f"(too few for RANSAC): ours {np.median(o[:, 0]):.3f} deg, "
+                    f"{np.median(o[:, 1]):.1f} mm; PoseLib {np.median(p[:, 0]):.3f} deg, "
+                    f"{np.median(p[:, 1]):.1f} mm (medians)"
                 )
             refused = Counter((r["points"], r["failure"]) for r in rows if r["failure"])
             print(

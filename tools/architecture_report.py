@@ -48,7 +48,10 @@ RIG_ONLY = {
 #: what computes a pose from observations: (module, name) -> why it is one
 ESTIMATORS = {
     ("estimation/estimate.py", "estimate_rs_pose"): "one camera's frame: RANSAC + refinement",
-    ("estimation/single_tag.py", "single_tag_estimate"): "too few points but one marker: IPPE",
+    (
+        "estimation/single_tag.py",
+        "few_points_estimate",
+    ): "too few points: one marker (IPPE) or a few (SQPnP)",
     ("estimation/rig.py", "estimate_rig_pose"): "one rig frame of several cameras",
     ("tracking/tracker.py", "RSTracker"): "a camera's video: predicted RANSAC, relocalization",
     ("tracking/sequence.py", "SequenceLocalizer"): "a camera's video, the library entry point",

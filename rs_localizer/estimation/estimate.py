@@ -12,8 +12,8 @@ It runs three stages, one module each:
    covariance, the last checks, the outputs (:mod:`.result`).
 
 A frame of too few points for its solver but four or more coplanar ones (one square marker's
-corners), or of exactly four coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from
-them alone.
+corners) or six or more on more than one plane (a few markers' corners), or of exactly four
+coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from them alone.
 
 A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
 estimator turns it into a failed :class:`RSPoseEstimate` in one place.
@@ -73,7 +73,7 @@ from .result import (
     failed_estimate,
     physical_velocities,
 )
-from .single_tag import MIN_PLANAR_POINTS, planar_points, single_tag_estimate
+from .single_tag import MIN_PLANAR_POINTS, few_points, few_points_estimate, planar_points
 
 __all__ = [
     "SOLVERS",
@@ -175,11 +175,13 @@ def estimate_rs_pose(
             kernels compile in the background asks
             :func:`rs_localizer.runtime.warmup.ready_implementation` which one is ready.
 
-    A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones,
-    or exactly four coplanar ones (one square marker's corners), is posed from them alone
-    (:func:`~.single_tag.single_tag_estimate`: IPPE's two poses, the velocities held at
-    ``initial_model``'s or ``gyro``'s, the plane's ambiguity resolved by the image or
-    ``initial_model``, else ``ambiguous_tag``; ``RSPoseEstimate.single_tag``); compiled
+    A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones
+    or :data:`~.single_tag.MIN_SPREAD_POINTS` or more on more than one plane, or exactly four
+    coplanar ones (one square marker's corners), is posed from them alone
+    (:func:`~.single_tag.few_points_estimate`: IPPE's two poses of a plane or SQPnP's pose,
+    refined with the velocities held at ``initial_model``'s or ``gyro``'s, a plane's
+    ambiguity resolved by the image or ``initial_model``, else ``ambiguous_tag``;
+    ``RSPoseEstimate.few_points``, and ``single_tag`` for coplanar points); compiled
     implementation only.
 
     Returns:
@@ -242,7 +244,7 @@ def estimate_rs_pose(
         ignored=unused,
         compiled=compiled,
     )
-    if est.single_tag:  # (four corners cannot judge the gyro: its rate is held, not checked)
+    if est.few_points:  # (a few points cannot judge the gyro: its rate is held, not checked)
         return est
     img = image[0] if image else None
     chi2, image_inliers = np.inf, 0
@@ -320,12 +322,11 @@ def _estimate(
         fr, solver, opts, rng, prosac_order(fr, scores), scores is not None
     )
     min_inliers = points_needed(solver, opts)
-    if (
-        compiled
-        and (len(fr.x) < min_inliers or len(fr.x) == MIN_PLANAR_POINTS)
-        and planar_points(fr)
+    if compiled and (
+        (len(fr.x) < min_inliers and few_points(fr.X))
+        or (len(fr.x) == MIN_PLANAR_POINTS and planar_points(fr))
     ):
-        return _single_tag(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
+        return _few_points(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
     try:
         try:
             configure_frame(
@@ -426,7 +427,7 @@ def _estimate(
     return replace(est, solver=solver, **fields)
 
 
-def _single_tag(
+def _few_points(
     fr,
     camera: CameraModel,
     solver: str,
@@ -436,11 +437,11 @@ def _single_tag(
     timings: dict[str, float],
     ignored: tuple[str, ...],
 ) -> RSPoseEstimate:
-    """A frame of too few points for ``solver`` but at least four coplanar ones, or exactly
-    four coplanar ones whatever the solver (one square marker's corners: a minimal sample and
-    one point to check it cannot pose a tag whose corners fit a square only to a pixel) posed
-    from them alone (:func:`~.single_tag.single_tag_estimate`), or
-    its failure."""
+    """A frame of too few points for ``solver`` but at least four coplanar ones or
+    :data:`~.single_tag.MIN_SPREAD_POINTS` on more than one plane, or exactly four coplanar
+    ones whatever the solver (one square marker's corners: a minimal sample and one point to
+    check it cannot pose a tag whose corners fit a square only to a pixel) posed from them
+    alone (:func:`~.single_tag.few_points_estimate`), or its failure."""
     t_start = time.perf_counter()
     th_px = opts.ransac.threshold_px
     try:
@@ -451,13 +452,13 @@ def _single_tag(
         fr.motion_bounds = motion_bounds(
             opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
         )
-        fr.planar = True
-        est = single_tag_estimate(
+        fr.planar = planar_points(fr)
+        est = few_points_estimate(
             fr, solver, opts, initial_model, gyro is not None, timings, ignored
         )
     except EstimationFailed as failure:
         return failed_estimate(
             failure.reason, solver, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
         )
-    timings["single_tag"] = time.perf_counter() - t_start
+    timings["few_points"] = time.perf_counter() - t_start
     return est

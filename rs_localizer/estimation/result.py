@@ -218,13 +218,18 @@ class RSPoseEstimate(PoseWithCovariance):
             ``twist_covariance`` and velocity block of ``covariance`` (what the frame says of
             the motion: none, within it), or ``None`` and zero rows and columns where the
             camera has no readout time (unobserved); or
-            ``"predicted_motion"``: a frame of a few coplanar points (one marker's corners,
-            :mod:`.single_tag`) posed on the rolling-shutter model with the velocities held at
-            the tracker's prediction or the gyro's (not estimated from the frame: no
-            ``twist_covariance``; the (12, 12) ``covariance`` gives them the motion prior's).
-            A single-marker frame without either is ``"global_shutter"``.
+            ``"predicted_motion"``: a frame of a few points (one marker's corners, or a few
+            markers', :mod:`.single_tag`) posed on the rolling-shutter model with the
+            velocities held at the tracker's prediction or the gyro's (not estimated from the
+            frame: no ``twist_covariance``; the (12, 12) ``covariance`` gives them the motion
+            prior's).
+            Such a frame without either is ``"global_shutter"``.
         single_tag: the frame had too few points for the solver and was posed from a few
             coplanar ones, e.g. one square marker's four corners (:mod:`.single_tag`).
+        few_points: the frame had too few points for the solver and was posed from them
+            alone, without RANSAC (:func:`~.single_tag.few_points_estimate`): a few coplanar
+            ones (``single_tag`` too) or a few on more than one plane, e.g. two markers'
+            corners.
         ignored_inputs: the inputs given that this implementation could not use, by name
             (:data:`~rs_localizer.estimation.implementation.NUMPY_UNUSED` on the NumPy
             implementation; ``"gyro"`` for a gyro given to a global-shutter solver or camera);
@@ -278,6 +283,7 @@ class RSPoseEstimate(PoseWithCovariance):
     ignored_inputs: tuple[str, ...] = ()
     motion_model: str = "rolling_shutter"
     single_tag: bool = False
+    few_points: bool = False
     model_covariance: np.ndarray | None = None
     gyro_chi2: float = float("nan")
     inliers_per_view: tuple[np.ndarray, ...] = ()

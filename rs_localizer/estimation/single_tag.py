@@ -1,17 +1,22 @@
 """A frame with too few points for the robust estimator but a few coplanar ones, above all the
-four corners of one square marker (the most common AprilTag or ArUco scene): posed from them
-alone (:func:`single_tag_estimate`).
+four corners of one square marker (the most common AprilTag or ArUco scene), or a few on more
+than one plane (the corners of two or three markers on different walls or faces): posed from
+them alone (:func:`few_points_estimate`).
 
-OpenCV's IPPE (``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE``, Collins and Bartoli 2014) gives
-the two poses a plane admits; each is refined on the exact model (paper eq. 4) with the
-velocities held fixed: those of the tracker's prediction or the gyro where there is one, else
-zero (the global-shutter model). A plane seen small and nearly frontally is ambiguous (the two
-poses mirror each other about the line of sight and fit the corners equally well); the image
+Points on more than one plane (at least :data:`MIN_SPREAD_POINTS`) have one pose: OpenCV's
+SQPnP (``cv2.solvePnPGeneric`` with ``SOLVEPNP_SQPNP``, Terzakis and Lourakis 2020, the
+global minimum of the algebraic error) starts the fit. A plane has two: OpenCV's IPPE
+(``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE``, Collins and Bartoli 2014) gives the two poses
+a plane admits. Each start is refined on the exact model (paper eq. 4) with the velocities
+held fixed: those of the tracker's prediction or the gyro where there is one, else zero (the
+global-shutter model). A plane seen small and nearly frontally is ambiguous (the two poses
+mirror each other about the line of sight and fit the corners equally well); the image
 decides where the other pose fits clearly worse (:data:`AMBIGUITY_CHI2`), the prediction
 where it is clearly nearer one of them (:data:`PREDICTION_RATIO`); otherwise the frame is
 refused as ``ambiguous_tag``. The pose must pass the estimator's last checks
-(:func:`~.finalize.final_estimate`: plausible motion, every corner in front of the camera at
-its capture time), and the corners must fit it within the inlier threshold (their RMS error).
+(:func:`~.finalize.final_estimate`: plausible motion, every point in front of the camera at
+its capture time), and the points must fit it within the inlier threshold (their RMS error):
+none is rejected, so a wrong match fails the frame.
 
 The corners' errors (the fit, the ambiguity test, the inlier test, ``rmse_px``, the
 covariance) are in pixels of the measured image, as the robust estimator's: each corner's
@@ -51,16 +56,22 @@ __all__ = [
     "AMBIGUITY_CHI2",
     "MIN_CORNER_SIGMA_PX",
     "MIN_PLANAR_POINTS",
+    "MIN_SPREAD_POINTS",
     "PREDICTED_MOTION",
     "PREDICTION_RATIO",
     "SAME_POSE_DEG",
     "coplanar_points",
+    "few_points",
+    "few_points_estimate",
     "planar_points",
-    "single_tag_estimate",
 ]
 
 #: fewest coplanar points the path poses (one square marker's four corners)
 MIN_PLANAR_POINTS = 4
+#: fewest points on more than one plane the path poses: the 6 pose parameters fitted to them
+#: leave 2N - 6 = 6 residual degrees of freedom to judge the fit by (a marker's four corners,
+#: whose square shape is known, leave 2); two markers' corners are 8
+MIN_SPREAD_POINTS = 6
 #: the image alone decides between the two IPPE poses when the other one's sum of squared
 #: reprojection errors (after its own refinement) exceeds the better one's by at least this
 #: many corner noise variances (the variance from the better fit's residuals, 2N - 6 degrees
@@ -99,9 +110,17 @@ def coplanar_points(points3d: np.ndarray) -> bool:
 
 
 def planar_points(fr: Frame) -> bool:
-    """The frame's valid points can go to :func:`single_tag_estimate`
-    (:func:`coplanar_points`)."""
+    """The frame's valid points are one marker's or a plane's (:func:`coplanar_points`):
+    :func:`few_points_estimate` poses them from IPPE's two poses."""
     return coplanar_points(fr.X)
+
+
+def few_points(points3d: np.ndarray) -> bool:
+    """The (N, 3) world points (m) are what :func:`few_points_estimate` poses when they are
+    too few for the solver's robust estimate: :func:`coplanar_points`, or at least
+    :data:`MIN_SPREAD_POINTS` finite ones."""
+    X = np.asarray(points3d, dtype=np.float64).reshape(-1, 3)
+    return coplanar_points(X) or (len(X) >= MIN_SPREAD_POINTS and bool(np.isfinite(X).all()))
 
 
 def _fixed_velocities(
@@ -140,14 +159,26 @@ def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     X = np.asarray(fr.X, dtype=np.float64)
     centre = X.mean(axis=0)
     normal = np.linalg.svd(X - centre)[2][2]
-    X = X - np.outer((X - centre) @ normal, normal)
+    return _opencv_poses(X - np.outer((X - centre) @ normal, normal), fr.x, cv2.SOLVEPNP_IPPE)
+
+
+def _sqpnp(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pose ``(R, C)`` (world -> camera) of the frame's points on more than one plane from
+    their normalized image points: OpenCV's SQPnP (its global minimum; none when it fails)."""
+    return _opencv_poses(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
+
+
+def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The finite poses ``(R, C)`` (world -> camera) ``cv2.solvePnPGeneric`` gives with
+    ``flag`` for the (N, 3) world points ``X`` (m) and their (N, 2) normalized image points
+    ``x`` (none when it raises)."""
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-            np.ascontiguousarray(X),
-            np.ascontiguousarray(fr.x, dtype=np.float64),
+            np.ascontiguousarray(X, dtype=np.float64),
+            np.ascontiguousarray(x, dtype=np.float64),
             np.eye(3),
             None,
-            flags=cv2.SOLVEPNP_IPPE,
+            flags=flag,
         )
     except cv2.error:
         return []
@@ -210,7 +241,7 @@ def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> 
     return A @ cov @ A.T
 
 
-def single_tag_estimate(
+def few_points_estimate(
     fr: Frame,
     solver: str,
     opts: EstimateOptions,
@@ -219,19 +250,23 @@ def single_tag_estimate(
     timings: dict[str, float],
     ignored_inputs: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
-    """The pose of a frame of a few coplanar points (:func:`planar_points`; too few for
-    ``solver``'s robust estimate), e.g. one square marker's four corners.
+    """The pose of a frame of a few points (:func:`few_points`; too few for ``solver``'s
+    robust estimate): one square marker's four corners or a few coplanar points, or at least
+    :data:`MIN_SPREAD_POINTS` on more than one plane (e.g. two markers' corners).
 
-    IPPE's two poses are each refined (Levenberg-Marquardt on the 6 pose parameters, the
+    The starting poses, IPPE's two for coplanar points and SQPnP's one otherwise, are each
+    refined (Levenberg-Marquardt on the 6 pose parameters, the
     exact model at each point's measured capture time) with the velocities fixed: the
     prediction's ``(w, t)`` when ``initial_model`` explains every point within its
-    ``gate_px``, the gyro's angular velocity when ``fr.known_w`` is set, else zero. The better
-    fit is taken when the other one's squared errors exceed its own by
+    ``gate_px``, the gyro's angular velocity when ``fr.known_w`` is set, else zero. Of two
+    fits the better
+    is taken when the other one's squared errors exceed its own by
     :data:`AMBIGUITY_CHI2` corner noise variances; else the pose the prediction's rotation is
     nearer by :data:`PREDICTION_RATIO` (whether or not it explains the points: a prediction
     from frames long before, off by more than the gate, still tells two poses tens of degrees
     apart). Every point is an inlier when their RMS error is within the
-    threshold. The covariance is the pose fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
+    threshold (none is rejected: a wrong match fails the frame). The covariance is the pose
+    fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
     residuals with 2N - 6 degrees of freedom, at least :data:`MIN_CORNER_SIGMA_PX`); held
     velocities carry the motion prior's covariance in the (12, 12) ``covariance``
     (``opts.motion_prior``: a tracker's prediction), zero velocities none. The
@@ -245,22 +280,24 @@ def single_tag_estimate(
         gyro_used: ``fr.known_w`` is a gyro's (set on the estimate).
 
     Returns:
-        the successful :class:`RSPoseEstimate`: ``motion_model`` ``"global_shutter"`` (zero
+        the successful :class:`RSPoseEstimate`: ``few_points`` set, ``single_tag`` too for
+        coplanar points; ``motion_model`` ``"global_shutter"`` (zero
         velocities) or :data:`PREDICTED_MOTION`; ``initial_used`` when the prediction
         explained every point (it then gives the velocities);
         ``ransac_iterations`` 0.
 
     Raises:
-        EstimationFailed: ``too_few_points`` (not :func:`planar_points`),
-            ``degenerate_geometry`` (IPPE gives no pose), ``ambiguous_tag`` (neither the image
-            nor a prediction tells the two poses apart), ``too_few_inliers`` (the RMS error
-            is above the threshold), and those of :func:`~.finalize.final_estimate`.
+        EstimationFailed: ``too_few_points`` (not :func:`few_points`),
+            ``degenerate_geometry`` (no starting pose), ``ambiguous_tag`` (neither the
+            image nor a prediction tells IPPE's two poses apart), ``too_few_inliers`` (the RMS
+            error is above the threshold), and those of :func:`~.finalize.final_estimate`.
     """
-    if not planar_points(fr):
+    if not few_points(fr.X):
         raise EstimationFailed(TOO_FEW_POINTS)
+    planar = planar_points(fr)
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
-    for R0, C0 in _ippe(fr):
+    for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
         R, C, t, res, J = _fit(fr, R0, C0, w, b)
         if np.isfinite(R).all() and np.isfinite(res).all():
             fits.append((float(np.sqrt(res @ res / len(fr.x))), R, C, t, res, J))
@@ -315,6 +352,7 @@ def single_tag_estimate(
         motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
         condition_number=condition_number(H),
         planarity=float(planarity(fr.X)),
-        single_tag=True,
+        single_tag=planar,
+        few_points=True,
         twist_covariance=None,
     )

@@ -256,6 +256,7 @@ def _core_values(
         "clouds_capped": c.get("capped_clouds", 0),
         "unknown_landmark_ids": c.get("unknown_landmark_ids", 0),
         "camera_info_rejected": c.get("camera_info_rejected", 0),
+        "frames_few_points": c.get("frames_few_points", 0),
         "frames_single_tag": c.get("frames_single_tag", 0),
         "frames_failed_with_matches": c.get("frames_failed_with_matches", 0),
         "map_fit_doubtful": str(bool(c.get("map_fit_doubtful", 0))).lower(),

@@ -585,6 +585,8 @@ class FramePipeline:
                 f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg.solver}",
             )
         self.stats.solved(est.num_inliers, est.planar, est.condition_number)
+        if est.few_points:
+            self.stats.add("frames_few_points")
         if est.single_tag:
             self.stats.add("frames_single_tag")
         res.output, res.output_frame = est, res.frame_id

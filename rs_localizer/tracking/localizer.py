@@ -47,7 +47,7 @@ from ..correspondences import (
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions, points_needed
 from ..estimation.points import cap_points
-from ..estimation.single_tag import coplanar_points
+from ..estimation.single_tag import few_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
 from .fusion import FusedState
 from .gyro_input import SilentLog, TrackLog
@@ -172,11 +172,12 @@ def too_few_points(
     """The rule by which a camera's image is dropped before the estimator: the number of
     correspondences ``solver`` needs with ``options`` (None: the defaults;
     :func:`~rs_localizer.estimation.options.points_needed`) when the front end found fewer
-    (``points3d`` (N, 3) m, its rows) and they are not one marker's coplanar corners (which
-    the estimator poses alone, :func:`~rs_localizer.estimation.single_tag.coplanar_points`);
-    None when the frame goes on to the estimator."""
+    (``points3d`` (N, 3) m, its rows) and they are not one marker's coplanar corners or a few
+    markers' (which the estimator poses alone,
+    :func:`~rs_localizer.estimation.single_tag.few_points`); None when the frame goes on to
+    the estimator."""
     need = points_needed(solver, options if options is not None else EstimateOptions())
-    return need if len(points3d) < need and not coplanar_points(points3d) else None
+    return need if len(points3d) < need and not few_points(points3d) else None
 
 
 def usable_rows(

@@ -59,6 +59,14 @@ def test_each_camera_alone_is_posed_on_most_frames(rig):
         poselib = np.median([r["poselib"] for r in ok], axis=0)
         assert ours[0] < 0.2 and ours[1] < 4.0, name
         assert (ours < 1.7 * poselib).all(), name
+    # cam0's frames of two tags on different planes (8 corners, too few for RANSAC), posed
+    # from them alone (measured: 19, median 0.87 deg and 34 mm against PoseLib's 0.60 deg and
+    # 25 mm on the same corners)
+    few = [r for r in res["cam0"] if r["few"]]
+    assert len(few) >= 15 and all(r["points"] < 12 for r in few)
+    ours, poselib = (np.median([r[k] for r in few], axis=0) for k in ("ours", "poselib"))
+    assert ours[0] < 1.5 and ours[1] < 60.0
+    assert (ours < 2.0 * poselib).all()
 
 
 def test_the_calibrated_mounting_is_the_references_within_its_std(rig):

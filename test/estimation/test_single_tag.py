@@ -304,3 +304,80 @@ def test_a_fisheye_tag_is_judged_in_pixels_of_the_measured_image():
         ref = s2 * np.linalg.inv(J.T @ J)  # (the whitening is the lens's first order: ~1 %)
         np.testing.assert_allclose(e.covariance[:6, :6], ref, rtol=0.05, atol=0.01 * ref.max())
     assert outcomes == {"ambiguous", "posed"}
+
+
+def _two_walls(side=0.2):
+    """Two square tags' corners (8, 3) m: one on the floor, one on a wall 90 degrees to it."""
+    quarter = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    return np.concatenate([tag_corners(side), tag_corners(side) @ quarter.T + [0.0, 0.3, 0.15]])
+
+
+def _view(deg, C):
+    a = np.radians(deg)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    return R @ np.diag([1.0, -1.0, -1.0]), np.asarray(C, dtype=float)
+
+
+def test_two_tags_on_two_planes_are_posed_as_opencv_refines_them():
+    """Two tags on two planes (8 corners: fewer than ``min_inliers``), a global-shutter camera
+    without distortion: the pose against an independent computation, OpenCV's SQPnP refined
+    by ``cv2.solvePnPRefineLM`` (the same least squares of the corners' reprojection errors),
+    and within a degree and a centimetre of the truth."""
+    rng = np.random.default_rng(21)
+    cam = CameraModel(K=K, width=640, height=480)
+    X = _two_walls()
+    for k in range(5):
+        R, C = _view(30 + 5 * k, [0.05 * k, -0.02, 1.2])
+        uv = cam.project(X @ R.T + C) + rng.normal(0, 0.5, (8, 2))
+        e = estimate_rs_pose(uv, X, cam)
+        assert e.success, e.failure
+        assert e.few_points and not e.single_tag and not e.planar
+        assert e.num_inliers == 8 and e.ransac_iterations == 0
+        assert e.motion_model == "global_shutter" and e.twist_covariance is None
+        assert np.all(np.linalg.eigvalsh(e.pose_covariance) > 0)
+        x = (uv - K[:2, 2]) / K[0, 0]
+        _, rv, tv = cv2.solvePnP(X, x, np.eye(3), None, flags=cv2.SOLVEPNP_SQPNP)
+        rv, tv = cv2.solvePnPRefineLM(
+            X, x, np.eye(3), None, rv, tv, (cv2.TERM_CRITERIA_EPS, 100, 1e-15)
+        )
+        Rcv = cv2.Rodrigues(rv)[0]
+        assert rotation_angle_deg(e.model.R, Rcv) < 1e-5
+        np.testing.assert_allclose(e.model.C, tv.ravel(), atol=1e-7)
+        assert rotation_angle_deg(e.model.R, R) < 1.0
+        assert np.linalg.norm(e.model.R.T @ e.model.C - R.T @ C) < 0.01
+
+
+def test_a_few_points_hold_the_predicted_motion_and_refuse_a_wrong_match():
+    """A rolling-shutter camera turning at 1 rad/s sees two tags on two planes: with the
+    tracker's prediction its velocities are held and the pose is right; a corner 30 px off (a
+    wrong match) fails the frame as ``too_few_inliers`` (none is rejected); five points on two
+    planes stay ``too_few_points``."""
+    from rs_localizer.estimation.single_tag import MIN_SPREAD_POINTS
+
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    s = cam.seconds_per_unit_r
+    X = _two_walls()
+    R, C = _view(35, [0.0, 0.0, 1.2])
+    omega = np.array([0.2, 1.0, 0.0])
+    w, t = -s * omega, s * np.cross(C, omega)
+    uv = cam.project_rs(X, R, C, w, t) + np.random.default_rng(5).normal(0, 0.3, (8, 2))
+    e = estimate_rs_pose(uv, X, cam, initial_model=InitialModel((R, C, w, t)))
+    assert e.success and e.few_points and e.initial_used, e.failure
+    assert e.motion_model == "predicted_motion"
+    np.testing.assert_allclose(e.pose.angular_velocity, omega, rtol=1e-9)
+    assert rotation_angle_deg(e.model.R, R) < 0.5
+    # (without the prediction, held at zero: the rotation during the readout is in the pose)
+    still = estimate_rs_pose(uv, X, cam)
+    assert still.success and still.motion_model == "global_shutter"
+    assert rotation_angle_deg(e.model.R, R) < rotation_angle_deg(still.model.R, R)
+    wrong = uv.copy()  # (a wrong match)
+    wrong[5] += [30.0, 0.0]
+    bad = estimate_rs_pose(wrong, X, cam, initial_model=InitialModel((R, C, w, t)))
+    assert not bad.success and bad.failure == "too_few_inliers"
+    keep = [0, 1, 2, 4, 5, 6, 7][: MIN_SPREAD_POINTS - 1]  # (on both planes)
+    few = estimate_rs_pose(uv[keep], X[keep], cam)
+    assert not few.success and few.failure == "too_few_points"
+    more = [0, 1, 2, 4, 5, 6, 7][:MIN_SPREAD_POINTS]
+    assert estimate_rs_pose(
+        uv[more], X[more], cam, initial_model=InitialModel((R, C, w, t))
+    ).success
