@@ -709,6 +709,18 @@ def main(argv: list[str] | None = None) -> None:
             "  refused (cameras with tags, reason): "
             + ", ".join(f"{m} {f} {k}" for (m, f), k in sorted(refused.items()))
         )
+        one = [r for r in runs if r["cameras"] == 1]
+        both_one = [r for r in one if r["ours"] is not None]
+        if both_one:
+            o, p = (np.array([r[k] for r in both_one]) for k in ("ours", "poselib"))
+            print(
+                f"  rig frames with tags in one camera: posed {len(both_one)} of {len(one)} "
+                f"(as that camera alone: a few points); median rotation, position from the "
+                f"reference (its fit of the same corners: agreement, not accuracy): ours "
+                f"{np.median(o[:, 0]):.3f} deg, {np.median(o[:, 1]):.1f} mm; PoseLib "
+                f"generalized on the same {np.median(p[:, 0]):.3f} deg, "
+                f"{np.median(p[:, 1]):.1f} mm"
+            )
         if a.video:
             v = video_run(rig, a.frames, options, a.stop_after, a.max_gap)
             _print_video(rig, runs, v, share)

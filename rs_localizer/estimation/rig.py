@@ -134,6 +134,7 @@ from ..solvers.gr6p_1lin import (
 )
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
+from .estimate import estimate_rs_pose
 from .finalize import (
     FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
@@ -200,6 +201,7 @@ from .result import (
     output_covariance,
 )
 from .sensitivity import physical_sensitivity
+from .single_tag import few_points
 
 __all__ = [
     "AGREE_SHARE",
@@ -2002,6 +2004,9 @@ def estimate_rig_pose(
     numpy = implementation == NUMPY
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     pool = _Pool(views, numpy, cache)
+    alone = _one_camera_alone(views, pool, options, initial_model, gyro)
+    if alone is not None:
+        return alone
     settings = (options, initial_model, pre_rotation == "gp3p")
     threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
@@ -2015,6 +2020,99 @@ def estimate_rig_pose(
         lambda vs: _estimate_pool(_Pool(vs, numpy, cache), settings, gyro, gyro_time), prediction,
         verify_cameras,
     )  # fmt: skip
+
+
+def _one_camera_alone(
+    views: Sequence[RigView], pool: _Pool, options: EstimateOptions, initial_model, gyro
+) -> RSPoseEstimate | None:
+    """A rig frame whose points are all one camera's and too few for the rig's search (fewer
+    than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed as that camera alone
+    poses them
+    (:func:`~.estimate.estimate_rs_pose`'s few-points path,
+    :func:`~.single_tag.few_points_estimate`: one marker's corners or a few on more than one
+    plane, the velocities held at the rig's prediction or gyro mapped into the camera) and
+    mapped to the rig through the camera's mounting (:func:`rig_model_of_camera`, the
+    covariance to first order); None for any other rig frame (or on the NumPy
+    implementation, which has no few-points path) or a camera whose points that path does
+    not take."""
+    counts = pool.counts()
+    with_points = [c for c, n in enumerate(counts) if n]
+    # (fewer than the rig solver's sample and one more, or the options' min_inliers)
+    need = max(options.ransac.min_inliers, 7)
+    if pool.numpy or len(with_points) != 1 or len(pool.cam) >= need:
+        return None
+    c = with_points[0]
+    v, s = views[c], pool.slices[c]
+    if not few_points(pool.X[s]):
+        return None
+    spr = v.camera.seconds_per_unit_r
+    start = None
+    if initial_model is not None:
+        im = (
+            initial_model
+            if isinstance(initial_model, InitialModel)
+            else InitialModel(initial_model)
+        )
+        start = replace(im, model=v.camera_model(im.model))
+    cam_gyro = None
+    if gyro is not None:
+        Rc = v.mounting.R
+        cam_gyro = GyroMeasurement(
+            Rc @ gyro.angular_velocity, Rc @ gyro.covariance @ Rc.T,
+            None if gyro.rate_change is None else Rc @ gyro.rate_change,
+        )  # fmt: skip
+    est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
+                           gyro=cam_gyro)  # fmt: skip
+    if not est.success:
+        return _rig_estimate(pool, failure=est.failure)
+    model = rig_model_of_camera(est.model, v.mounting, v.stamp_offset, spr)
+    R, C, w, _ = model
+    cov = out = None
+    if est.model_covariance is not None:
+        J = _rig_model_jacobian(est.model, v.mounting, v.stamp_offset, spr)
+        cov = J @ est.model_covariance @ J.T
+        out = output_covariance(cov, R, C, w, 1.0)
+    inl = np.zeros(len(pool.cam), dtype=bool)
+    inl[s] = np.asarray(est.inliers, dtype=bool)[pool.row[s]]
+    return _rig_estimate(
+        pool,
+        model,
+        inl,
+        (None, None, None) if out is None else (out[0], out[1], None),
+        failure=None,
+        ransac_iterations=0,
+        rmse_px=est.rmse_px,
+        num_behind=est.num_behind,
+        model_covariance=cov,
+        motion_model=est.motion_model,
+        initial_explained=est.initial_explained,
+        initial_used=est.initial_used,
+        gyro_used=est.gyro_used,
+        planar=est.planar,
+        single_tag=est.single_tag,
+        few_points=True,
+    )
+
+
+def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
+    """(12, 12) the derivative of :func:`rig_model_of_camera`'s ``(delta, C, w, t)`` (the
+    rig's rotation perturbed on the left, ``R = expm([delta]x) R_0``) over the camera model's
+    ``(delta, C, w, t)`` at ``model``: central differences (step 1e-7), each an exact
+    evaluation of the map."""
+    R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
+    base = rig_model_of_camera(model, mounting, stamp_offset, spr)
+    h = 1e-7
+    J = np.zeros((12, 12))
+    for k in range(12):
+        cols = []
+        for sign in (1.0, -1.0):
+            d = np.zeros(12)
+            d[k] = sign * h
+            m = (rotvec_to_matrix(d[:3]) @ R0, C0 + d[3:6], w0 + d[6:9], t0 + d[9:12])
+            Rr, Cr, wr, tr = rig_model_of_camera(m, mounting, stamp_offset, spr)
+            cols.append(np.concatenate([matrix_to_rotvec(Rr @ base.R.T), Cr, wr, tr]))
+        J[:, k] = (cols[0] - cols[1]) / (2 * h)
+    return J
 
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:

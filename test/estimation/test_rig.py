@@ -1003,3 +1003,45 @@ def test_two_small_noisy_tags_are_posed_when_one_pose_explains_every_corner():
         assert est.num_inliers == 8, (seed, est.num_inliers_per_view)
         assert rotation_angle_deg(est.model.R, R_fit) < 0.05, seed
         assert np.linalg.norm(est.pose.position - (-R_fit.T @ C_fit)) < 0.005, seed
+
+
+def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
+    """A rig frame in which one camera of three sees one tag (4 corners: too few for the rig's
+    search) is posed as that camera alone poses it (the single camera's few-points path),
+    through its mounting: the rig's pose and pose covariance against an independent
+    computation, the camera's own estimate carried to the rig by ``frames.camera_to_base``;
+    and against the truth. Global-shutter cameras with equal stamps (no motion to hold)."""
+    from rs_localizer.camera import CameraModel
+    from rs_localizer.frames import camera_to_base
+
+    rng = np.random.default_rng(31)
+    cams, R_m, c_m, _ = make_rig(rng, 3)
+    cams = [CameraModel(K=c.K, width=c.width, height=c.height) for c in cams]
+    R = rotvec_to_matrix(np.array([0.1, -0.2, 0.05]))
+    C = np.array([0.05, -0.02, 0.1])
+    # (a 0.2 m tag 0.8 m in front of camera 1, 35 degrees off its axis)
+    a = np.radians(35)
+    tilt = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    s = 0.1
+    tag = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]]) @ tilt.T
+    Rc1, Cc1 = R_m[1] @ R, R_m[1] @ C + c_m[1]
+    X = (tag + [0.0, 0.0, 0.8] - Cc1) @ Rc1  # (world points: x_cam = Rc1 X + Cc1)
+    uv = cams[1].project(X @ Rc1.T + Cc1) + rng.normal(0, 0.3, (4, 2))
+    views = [
+        RigView(np.zeros((0, 2)), np.zeros((0, 3)), cams[0], Mounting(R_m[0], c_m[0])),
+        RigView(uv, X, cams[1], Mounting(R_m[1], c_m[1])),
+        RigView(np.zeros((0, 2)), np.zeros((0, 3)), cams[2], Mounting(R_m[2], c_m[2])),
+    ]
+    est = estimate_rig_pose(views)
+    assert est.success, est.failure
+    assert est.few_points and est.single_tag and est.num_inliers_per_view == (0, 4, 0)
+    assert est.motion_model == "global_shutter" and est.twist_covariance is None
+    alone = estimate_rs_pose(uv, X, cams[1], options=_opts(min_inliers=8))
+    assert alone.success and alone.single_tag
+    base = camera_to_base(alone, Mounting(R_m[1], c_m[1]))
+    assert rotation_angle_deg(est.pose.orientation, base.pose.orientation) < 1e-9
+    np.testing.assert_allclose(est.pose.position, base.pose.position, atol=1e-12)
+    np.testing.assert_allclose(est.pose_covariance, base.pose_covariance, rtol=1e-5, atol=1e-14)
+    assert rotation_angle_deg(est.model.R, R) < 3.0
+    # (the same frame on the NumPy implementation, which has no few-points path: refused)
+    assert estimate_rig_pose(views, implementation="numpy").failure == "too_few_points"
