@@ -1043,5 +1043,12 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
     np.testing.assert_allclose(est.pose.position, base.pose.position, atol=1e-12)
     np.testing.assert_allclose(est.pose_covariance, base.pose_covariance, rtol=1e-5, atol=1e-14)
     assert rotation_angle_deg(est.model.R, R) < 3.0
+    # (with the rig's prediction, taken into the camera: it explains every corner)
+    from rs_localizer.estimation import InitialModel
+
+    z = np.zeros(3)
+    pred = estimate_rig_pose(views, initial_model=InitialModel((R, C, z, z)))
+    assert pred.success and pred.initial_used and pred.few_points
+    assert rotation_angle_deg(pred.model.R, est.model.R) < 1e-6
     # (the same frame on the NumPy implementation, which has no few-points path: refused)
     assert estimate_rig_pose(views, implementation="numpy").failure == "too_few_points"
