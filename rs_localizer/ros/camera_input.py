@@ -257,10 +257,9 @@ class CameraInput:
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except cv.StampError as e:
-            return DroppedFrame(self.name, None, None, e, "bad_input" if self.rig else "bad_stamp")
+            return self._dropped(None, None, e)
         if not self.rig and kind != "image" and int(msg.width) * int(msg.height) == 0:
-            return DroppedFrame(self.name, stamp, None, ValueError("cloud has no points"),
-                                "empty_cloud")  # fmt: skip
+            return self._dropped(stamp, None, _Refused("empty_cloud", "cloud has no points"))
         return stamp
 
     def camera_of(self, stamp: Stamp | DroppedFrame) -> CameraModel | DroppedFrame | None:
@@ -274,9 +273,12 @@ class CameraInput:
             return None
         camera = self.camera_for(stamp)
         if camera is None and not self.rig:
-            return DroppedFrame(self.name, stamp, None, ValueError(
+            why = _Refused(
+                "no_camera_info",
                 f"no camera_info received (waited {self.wait:.3f} s) and no fallback "
-                "intrinsics (camera.fx <= 0)"), "no_camera_info")  # fmt: skip
+                "intrinsics (camera.fx <= 0)",
+            )
+            return self._dropped(stamp, None, why)
         return camera
 
     def take(
@@ -300,28 +302,35 @@ class CameraInput:
             (``unknown_landmarks``), an image refused by :meth:`decode` (``bad_image``,
             ``image_size_mismatch``).
         """
-        from .image_codec import ImageRejected
-
         for given in (stamp, camera):
             if isinstance(given, DroppedFrame):
                 return given
         tag = self.tag_of(msg)
-        if kind == "image":
-            try:
-                image, encoding = self.decode(msg, camera)
-            except ImageRejected as e:
-                return DroppedFrame(self.name, stamp, camera, e, e.reason)
-            return ImageFrame(self.name, stamp, camera, image, encoding, tag)
         try:
+            if kind == "image":
+                image, encoding = self.decode(msg, camera)
+                return ImageFrame(self.name, stamp, camera, image, encoding, tag)
             uv, xyz, scores = self._rows_of(msg, kind)
         except ValueError as e:
-            reason = "bad_input" if self.rig else getattr(e, "reason", None)
-            if reason is None:  # (not a refusal: a defect, the caller's internal_error)
+            # (a defect, the caller's internal_error; a rig drops any cloud it cannot read)
+            if not hasattr(e, "reason") and (kind == "image" or not self.rig):
                 raise
-            return DroppedFrame(self.name, stamp, camera, e, reason)
+            return self._dropped(stamp, camera, e)
         if self.rig:
             scores = None
         return CameraFrame(stamp, camera, uv, xyz, scores, tag, self.name)
+
+    def _dropped(
+        self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError
+    ) -> DroppedFrame:
+        """The frame dropped for ``error``'s ``reason``; a rig's stamp or cloud that cannot be
+        read (all but an image refused by :meth:`decode`): ``bad_input``."""
+        from .image_codec import ImageRejected
+
+        reason = getattr(error, "reason", "bad_input")
+        if self.rig and not isinstance(error, ImageRejected):
+            reason = "bad_input"
+        return DroppedFrame(self.name, stamp, camera, error, reason)
 
     def _rows_of(self, msg: Any, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """The rows of a cloud (:meth:`take`). Raises CloudError, :class:`_Refused`."""
