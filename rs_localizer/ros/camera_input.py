@@ -1,25 +1,28 @@
-"""One camera's inputs before the estimator, the same for the single-camera node and for each
-camera of the rig node: its camera_infos checked and kept by stamp, the camera model of a
-frame's stamp, the rows of a correspondences cloud as the estimator takes them (non-finite rows
-dropped, at most ``max_points``), an image decoded against the camera model.
+"""One camera's input stage before the localizer, the same for the single-camera node and for
+each camera of the rig node: its camera_infos checked and kept by stamp, and each frame message
+(a ``sensor_msgs/PointCloud2`` of correspondences or keypoints, a ``sensor_msgs/Image`` or
+``CompressedImage``) made what the localizer takes, or dropped for one reason.
 
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
 :class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode) and in the reader of a rig bag's
-frames (:func:`~rs_localizer.ros.bags.rig_bag.iter_rig_frames`: ``replay``, ``calibrate-rig``
-and the rig-frame grouping of ``play --lockstep``), both made by :func:`rig_camera_inputs`.
+frames (:func:`~rs_localizer.ros.bags.rig_bag.rig_messages`: ``replay``, ``calibrate-rig``
+and the rig-frame grouping of ``play --lockstep``), the rig's made by
+:func:`rig_camera_inputs`. A frame message goes through it in three steps:
+:meth:`CameraInput.check` (its header stamp checked, once), :meth:`CameraInput.camera_of` (the
+camera model of that stamp, from the camera_infos), :meth:`CameraInput.take` (the image decoded
+and checked against that model, or the cloud's rows as the estimator takes them: non-finite
+rows dropped, at most ``max_points``, a keypoint's 3D point from the landmarks). What comes out
+is a :class:`~rs_localizer.tracking.localizer.CameraFrame` (a cloud's rows), an
+:class:`ImageFrame` (the decoded image for the camera's front end) or a :class:`DroppedFrame`
+with its reason (:data:`DROP_REASONS`); :func:`to_rig` hands any of them to a rig.
+
 Its counts go to its owner's ``count(key, n)``: the single-camera node counts them as they
 are (``camera_info_rejected``, ``camera_info_rejected.<reason>``, ``points_dropped``,
-``capped_clouds``, ``capped_points``), the rig node per camera
+``capped_clouds``, ``capped_points``, ``unknown_landmark_ids``), the rig node per camera
 (``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to its owner's throttled
 log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
-
-A rig camera's cloud becomes the rig's frame in one place, :func:`rig_cloud_frame`, for the rig
-node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.localizer.CameraFrame`,
-or an :class:`UnreadFrame` (``bad_input``) that :func:`hand_to_rig` passes to the rig as a
-frame skipped (:meth:`~rs_localizer.tracking.video.Localizer.drop`); a rig camera's image
-reaches the rig in one place too, :func:`hand_image_to_rig`.
 """
 
 from __future__ import annotations
@@ -32,30 +35,89 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..camera import CameraModel, Stamp
-from ..tracking.localizer import usable_rows
+from ..tracking.localizer import CameraFrame, usable_rows
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .pointcloud import Keypoints, read_correspondences, read_keypoints
 
 if TYPE_CHECKING:
-    from ..tracking.localizer import CameraFrame
     from ..tracking.video import Localizer, LocalizerOutput
 
 __all__ = [
+    "DROP_REASONS",
     "CameraInput",
-    "UnreadFrame",
-    "frame_camera",
-    "hand_image_to_rig",
-    "hand_to_rig",
+    "DroppedFrame",
+    "ImageFrame",
+    "landmark_rows",
     "rig_camera_inputs",
-    "rig_cloud_frame",
-    "rig_image_frame",
+    "to_rig",
 ]
+
+#: the reasons :class:`CameraInput` drops a frame message for. The single camera's
+#: (``failed.<reason>``): ``bad_stamp``, ``empty_cloud``, ``no_camera_info``, a cloud's
+#: :data:`~rs_localizer.ros.pointcloud.CLOUD_REASONS`, ``no_landmarks``,
+#: ``unknown_landmarks``, ``bad_image``, ``image_size_mismatch``; a rig camera's
+#: (``<camera>.skipped.<reason>``): ``bad_input`` (a stamp or cloud that cannot be read),
+#: ``bad_image``, ``image_size_mismatch``
+DROP_REASONS = {
+    "bad_stamp": "the header stamp is out of range (negative, or past 2^31 s)",
+    "empty_cloud": "the cloud has no points",
+    "no_camera_info": "no camera_info before the frame (after camera_info_wait) and no "
+    "fallback intrinsics",
+    "no_landmarks": "keypoints received but no landmarks_file is loaded",
+    "unknown_landmarks": "none of the keypoints' ids is in the landmarks",
+    "bad_image": "the image does not decode, has an unsupported encoding or is too small",
+    "image_size_mismatch": "the image is another size than its camera_info's",
+    "bad_input": "a rig camera's message that cannot be read (its stamp or its cloud)",
+}
+
+
+class _Refused(ValueError):
+    """A frame message the stage refuses, for ``reason``."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class DroppedFrame:
+    """A camera's frame message that :class:`CameraInput` did not make a frame of.
+
+    Attributes:
+        camera_name: the camera (the rig's name; "" for the single camera).
+        stamp_ns: the message's checked header stamp; None: the stamp itself cannot be read
+            (no rig frame can take the frame: a rig never sees it).
+        camera: the camera model of that stamp (None: none yet, or no stamp).
+        error: why (its text is the log's and the result's detail).
+        reason: one of :data:`DROP_REASONS`.
+    """
+
+    camera_name: str
+    stamp_ns: Stamp | None
+    camera: CameraModel | None
+    error: ValueError
+    reason: str = "bad_input"
+
+
+@dataclass(frozen=True)
+class ImageFrame:
+    """A camera's image message decoded for its front end: ``image`` (H, W) or (H, W, C)
+    uint8 in ``encoding``, of the checked header stamp ``stamp_ns`` (ns) and the camera model
+    ``camera`` of that stamp (None: a rig camera's before its first camera_info), ``tag`` as
+    :attr:`~rs_localizer.tracking.localizer.CameraFrame.tag`."""
+
+    camera_name: str
+    stamp_ns: Stamp
+    camera: CameraModel | None
+    image: np.ndarray
+    encoding: str
+    tag: object = None
 
 
 class CameraInput:
-    """One camera's inputs (see the module docstring). :meth:`configure` before the first
-    camera_info.
+    """One camera's input stage (see the module docstring). :meth:`configure` before the
+    first camera_info.
 
     Args:
         log: the owner's log: ``info(text)``, ``error(text)`` and ``warning(key, text)``,
@@ -64,6 +126,13 @@ class CameraInput:
         label: put before every text logged and every warning key (a rig's cameras share one
             log: each camera's warnings are throttled apart).
         stopped: ``stopped()`` true ends a frame's wait for its camera_info (shutdown).
+        name: the camera's name in the rig ("" for the single camera): its frames'
+            ``camera_name``, and their tag without a ``frame_id``.
+        rig: take frames as a rig does: a frame without a camera model (before its
+            camera_info), an empty cloud, a keypoints cloud of no known id go on to the rig
+            (which counts them), not dropped; a stamp or cloud that cannot be read is dropped
+            as ``bad_input``; the rows go without their scores. Else as the single camera:
+            each of those dropped for its own reason (:data:`DROP_REASONS`).
 
     Threads: camera_infos on one thread, frames on another (the history is thread-safe).
     """
@@ -74,16 +143,26 @@ class CameraInput:
         count: Callable[[str, int], Any],
         label: str = "",
         stopped: Callable[[], bool] = lambda: False,
+        name: str = "",
+        rig: bool = False,
     ):
         self.log = log
         self.count = count
         self.label = label
+        self.name = name
+        self.rig = rig
         self.history = CameraInfoHistory()
         #: the camera model of the camera_info accepted last (None: none yet)
         self.newest: CameraModel | None = None
         self.max_points: int | None = None
         self.fallback: CameraModel | None = None
         self.wait = 0.0
+        #: the table of ``landmarks_file`` (``(ids (M,) sorted, points (M, 3) m)``) the
+        #: keypoints' ids name; None: none loaded
+        self.landmarks: tuple | None = None
+        #: the frames' tag before their own ``frame_id`` (the single camera's
+        #: ``camera_frame``); "": their ``frame_id``
+        self.frame_id = ""
         self._stopped = stopped
         self._make_camera: Callable[[Any], CameraModel] | None = None
 
@@ -93,6 +172,8 @@ class CameraInput:
         max_points: int | None = None,
         fallback: CameraModel | None = None,
         wait: float = 0.0,
+        landmarks: tuple | None = None,
+        frame_id: str = "",
     ) -> None:
         """Use ``make_camera(msg)`` (a camera_info's model with the camera's rolling-shutter
         timing; raises :class:`~rs_localizer.ros.conversions.CameraInfoError` or ValueError for
@@ -100,10 +181,12 @@ class CameraInput:
         rebuilt with it (one it rejects is dropped and logged as an error). ``max_points``: the
         cap on a cloud's rows (None: none); ``fallback``: the model of a frame before any
         camera_info (the parameters' intrinsics; None: none); ``wait``: s a frame waits for its
-        camera_info (:meth:`camera_for`). :attr:`newest` is the rebuilt model of the newest
-        camera_info kept."""
+        camera_info (:meth:`camera_of`); ``landmarks``: :attr:`landmarks`; ``frame_id``:
+        :attr:`frame_id`. :attr:`newest` is the rebuilt model of the newest camera_info
+        kept."""
         self._make_camera = make_camera
         self.max_points, self.fallback, self.wait = max_points, fallback, float(wait)
+        self.landmarks, self.frame_id = landmarks, frame_id
         for err in self.history.rebuild(make_camera):
             self.log.error(f"{self.label}camera_info unusable with the new parameters: {err}")
         kept = self.history.entries()
@@ -160,33 +243,107 @@ class CameraInput:
         self.history.wake()
 
     # ---------------------------------------------------------------- frames
-    def read_cloud(self, msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """The rows of a correspondences cloud (``sensor_msgs/PointCloud2``: u, v, x, y, z
-        [, score]; :func:`~rs_localizer.ros.pointcloud.read_correspondences`) as the estimator
-        takes them (:meth:`rows`): ``(points2d (N, 2) px, points3d (N, 3) m, scores (N,) or
-        None)``.
+    def tag_of(self, msg: Any) -> str:
+        """The tag of a frame message's frame: :attr:`frame_id`, else its header's
+        ``frame_id``, else the camera's name (``camera`` for the single camera)."""
+        return self.frame_id or msg.header.frame_id or self.name or "camera"
 
-        Raises:
-            CloudError (a ValueError) with its ``reason``: a cloud that cannot be read.
+    def check(self, msg: Any, kind: str) -> Stamp | DroppedFrame:
+        """A frame message's header stamp checked, the frame's one check of it
+        (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`): the stamp (ns), or a
+        :class:`DroppedFrame` (``stamp_ns`` None) for a stamp out of range (``bad_stamp``; a
+        rig's ``bad_input``); the single camera's cloud (``kind`` other than ``image``)
+        without points: ``empty_cloud``."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            return self._dropped(None, None, e)
+        if not self.rig and kind != "image" and int(msg.width) * int(msg.height) == 0:
+            return self._dropped(stamp, None, _Refused("empty_cloud", "cloud has no points"))
+        return stamp
+
+    def camera_of(self, stamp: Stamp | DroppedFrame) -> CameraModel | DroppedFrame | None:
+        """The camera model of a frame whose :meth:`check` gave ``stamp``
+        (:meth:`camera_for`: it may wait up to :attr:`wait` for its camera_info; the rig node
+        looks it up before it takes the rig's lock, so that camera_info and the diagnostics
+        are served meanwhile). None: a frame dropped by :meth:`check`, or a rig camera's before
+        any camera_info; the single camera's without one: a :class:`DroppedFrame`
+        (``no_camera_info``)."""
+        if isinstance(stamp, DroppedFrame):
+            return None
+        camera = self.camera_for(stamp)
+        if camera is None and not self.rig:
+            why = _Refused(
+                "no_camera_info",
+                f"no camera_info received (waited {self.wait:.3f} s) and no fallback "
+                "intrinsics (camera.fx <= 0)",
+            )
+            return self._dropped(stamp, None, why)
+        return camera
+
+    def take(
+        self, msg: Any, kind: str, stamp: Stamp | DroppedFrame, camera: CameraModel | None
+    ) -> CameraFrame | ImageFrame | DroppedFrame:
+        """A frame message as the localizer takes it, with ``stamp`` of :meth:`check` and
+        ``camera`` the model of that stamp (:meth:`camera_of`; a :class:`DroppedFrame` of
+        either is returned as it is). ``kind``: ``correspondences`` (or ``cloud``: u, v, x, y,
+        z [, score]; :func:`~rs_localizer.ros.pointcloud.read_correspondences`), ``keypoints``
+        (u, v, id [, score]: each the 3D point of its id in :attr:`landmarks`,
+        :func:`landmark_rows`) or ``image`` (``sensor_msgs/Image`` or ``CompressedImage``,
+        :meth:`decode`).
+
+        Returns:
+            an :class:`ImageFrame`; a :class:`~rs_localizer.tracking.localizer.CameraFrame`
+            of the cloud's rows as the estimator takes them (:meth:`rows`), tagged
+            :meth:`tag_of`; or a :class:`DroppedFrame`: a cloud that cannot be read
+            (a :data:`~rs_localizer.ros.pointcloud.CLOUD_REASONS` reason; a rig's
+            ``bad_input``), keypoints without :attr:`landmarks` (``no_landmarks``; a rig's
+            ``bad_input``) or, for the single camera, of no known id
+            (``unknown_landmarks``), an image refused by :meth:`decode` (``bad_image``,
+            ``image_size_mismatch``).
         """
-        c = read_correspondences(msg)
-        return self.rows(c.uv, c.xyz, c.scores)
+        for given in (stamp, camera):
+            if isinstance(given, DroppedFrame):
+                return given
+        tag = self.tag_of(msg)
+        try:
+            if kind == "image":
+                image, encoding = self.decode(msg, camera)
+                return ImageFrame(self.name, stamp, camera, image, encoding, tag)
+            uv, xyz, scores = self._rows_of(msg, kind)
+        except ValueError as e:
+            # (a defect, the caller's internal_error; a rig drops any cloud it cannot read)
+            if not hasattr(e, "reason") and (kind == "image" or not self.rig):
+                raise
+            return self._dropped(stamp, camera, e)
+        if self.rig:
+            scores = None
+        return CameraFrame(stamp, camera, uv, xyz, scores, tag, self.name)
 
-    def read_keypoints(
-        self, msg: Any, landmarks: tuple | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """The rows of a keypoints cloud (``sensor_msgs/PointCloud2``: u, v, id [, score];
-        :func:`~rs_localizer.ros.pointcloud.read_keypoints`) with the 3D points of their ids in
-        ``landmarks`` (:func:`landmark_rows`, unknown ids counted ``unknown_landmark_ids``), as
-        the estimator takes them (:meth:`rows`); none when no id is known.
+    def _dropped(
+        self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError
+    ) -> DroppedFrame:
+        """The frame dropped for ``error``'s ``reason``; a rig's stamp or cloud that cannot be
+        read (all but an image refused by :meth:`decode`): ``bad_input``."""
+        from .image_codec import ImageRejected
 
-        Raises:
-            CloudError (a ValueError): a cloud that cannot be read. ValueError: no
-                ``landmarks`` (no ``landmarks_file`` loaded).
-        """
-        if landmarks is None:
-            raise ValueError("keypoints received but no landmarks_file is loaded")
-        return self.rows(*landmark_rows(read_keypoints(msg), landmarks, self.count))
+        reason = getattr(error, "reason", "bad_input")
+        if self.rig and not isinstance(error, ImageRejected):
+            reason = "bad_input"
+        return DroppedFrame(self.name, stamp, camera, error, reason)
+
+    def _rows_of(self, msg: Any, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The rows of a cloud (:meth:`take`). Raises CloudError, :class:`_Refused`."""
+        if kind != "keypoints":
+            c = read_correspondences(msg)
+            return self.rows(c.uv, c.xyz, c.scores)
+        if self.landmarks is None:
+            raise _Refused("no_landmarks", "keypoints received but no landmarks_file is loaded")
+        kp = read_keypoints(msg)
+        uv, xyz, scores = landmark_rows(kp, self.landmarks, self.count)
+        if not len(uv) and not self.rig:
+            raise _Refused("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
+        return self.rows(uv, xyz, scores)
 
     def rows(
         self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
@@ -222,15 +379,16 @@ def rig_camera_inputs(
     count: Callable[[str, str, int], Any],
     stopped: Callable[[], bool] = lambda: False,
     wait: float = 0.0,
+    landmarks: tuple | None = None,
 ) -> dict[str, CameraInput]:
-    """Each camera of a rig its :class:`CameraInput`, configured as the rig node takes the
-    camera's inputs: its camera_infos made models with the camera's rolling-shutter timing
-    (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else the ``rs.*`` values)
-    and the rig's reference row, its clouds' rows capped to the rig's ``max_points``. The rig
-    node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the reader of a rig bag's frames
-    (:func:`~rs_localizer.ros.bags.rig_bag.iter_rig_frames`: ``replay``, ``calibrate-rig``,
-    the rig-frame grouping of ``play --lockstep``) both read their cameras through them, so
-    that both take the same rows of a cloud and count them alike.
+    """Each camera of a rig its :class:`CameraInput` (``rig`` true), configured as the rig
+    node takes the camera's inputs: its camera_infos made models with the camera's
+    rolling-shutter timing (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else
+    the ``rs.*`` values) and the rig's reference row, its clouds' rows capped to the rig's
+    ``max_points``. The rig node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the reader
+    of a rig bag's frames (:func:`~rs_localizer.ros.bags.rig_bag.rig_messages`: ``replay``,
+    ``calibrate-rig``, the rig-frame grouping of ``play --lockstep``) both read their cameras
+    through them, so that both take the same rows of a cloud and count them alike.
 
     Args:
         config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.
@@ -242,13 +400,15 @@ def rig_camera_inputs(
         wait: s a camera's frame waits for its camera_info (the node's ``camera_info_wait``,
             as a camera's: :meth:`CameraInput.camera_for`; a bag's reader: 0, its messages in
             log-time order).
+        landmarks: the table of ``landmarks_file`` the cameras' keypoints name (None: none).
 
     Returns:
         camera name -> its :class:`CameraInput`, in the order of ``rig.cameras``.
     """
     inputs = {}
     for c in config.cameras:
-        inp = CameraInput(log, partial(count, c.name), f"rig camera {c.name!r}: ", stopped)
+        inp = CameraInput(log, partial(count, c.name), f"rig camera {c.name!r}: ", stopped,
+                          name=c.name, rig=True)  # fmt: skip
         make_camera = partial(
             cv.camera_model_from_camera_info,
             line_delay=c.line_delay,
@@ -256,37 +416,9 @@ def rig_camera_inputs(
             readout=c.direction,
             reference_row=config.reference_row,
         )
-        inp.configure(make_camera, config.settings.max_points, wait=wait)
+        inp.configure(make_camera, config.settings.max_points, wait=wait, landmarks=landmarks)
         inputs[c.name] = inp
     return inputs
-
-
-@dataclass(frozen=True)
-class UnreadFrame:
-    """A rig camera's frame whose message cannot be read, skipped as ``reason``
-    (``bad_input``; the rig node's ``<camera>.skipped.bad_input`` and ``<camera>.bad_input``).
-
-    Attributes:
-        camera_name: the camera. stamp_ns: the message's checked header stamp; None: the stamp
-            itself cannot be read (no rig frame can take the frame: the rig never sees it).
-        camera: the camera model of that stamp (None: none yet, or no stamp).
-        error: why it was not read. reason: the rig's skip reason
-            (:data:`~rs_localizer.tracking.video.SKIP_REASONS`).
-    """
-
-    camera_name: str
-    stamp_ns: Stamp | None
-    camera: CameraModel | None
-    error: ValueError
-    reason: str = "bad_input"
-
-
-def frame_camera(inp: CameraInput, stamp: Stamp | ValueError) -> CameraModel | None:
-    """The camera model of a frame whose checked header stamp is ``stamp`` (or the error of
-    that check: None), :meth:`CameraInput.camera_for`: it may wait up to the input's ``wait``
-    for its camera_info (the rig node looks it up before it takes the rig's lock, so that
-    camera_info and the diagnostics are served meanwhile)."""
-    return None if isinstance(stamp, ValueError) else inp.camera_for(stamp)
 
 
 def landmark_rows(
@@ -306,133 +438,21 @@ def landmark_rows(
     return kp.uv[known], pts[j[known]], scores
 
 
-def rig_cloud_frame(
-    name: str,
-    inp: CameraInput,
-    msg: Any,
-    stamp: Stamp | ValueError,
-    camera: CameraModel | None,
-    landmarks: tuple | None = None,
-    keypoints: bool = False,
-) -> CameraFrame | UnreadFrame:
-    """Camera ``name``'s correspondences cloud ``msg`` as the rig takes it, the rig node's and
-    the rig bag reader's one path: ``stamp`` is its header stamp checked
-    (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`) or the error of that check,
-    ``camera`` the camera model of that stamp (:func:`frame_camera`). Returns a
-    :class:`~rs_localizer.tracking.localizer.CameraFrame` (the cloud's rows through
-    :meth:`CameraInput.read_cloud`; tagged with its ``frame_id``, else ``name``), or an
-    :class:`UnreadFrame`: the stamp cannot be read (``stamp_ns`` None), or the cloud cannot
-    (no u, v, x, y, z fields, ...). ``keypoints``: ``msg`` is a keypoints cloud (u, v, id),
-    its rows the points of ``landmarks`` it names (:meth:`CameraInput.read_keypoints`; not
-    read without ``landmarks``; a frame without rows when none of its ids is known)."""
-    from ..tracking.localizer import CameraFrame
-
-    if isinstance(stamp, ValueError):
-        return UnreadFrame(name, None, None, stamp)
-    try:
-        if keypoints:
-            uv, xyz, _ = inp.read_keypoints(msg, landmarks)
-        else:
-            uv, xyz, _ = inp.read_cloud(msg)
-    except ValueError as e:
-        return UnreadFrame(name, stamp, camera, e)
-    tag = msg.header.frame_id or name
-    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
-
-
-def rig_image_frame(
-    name: str,
-    inp: CameraInput,
-    msg: Any,
-    stamp: Stamp | ValueError,
-    camera: CameraModel | None,
-    frontend: Any,
-) -> CameraFrame | UnreadFrame:
-    """Camera ``name``'s image message ``msg`` as a frame of its front end's correspondences,
-    without a rig to predict it (what ``calibrate-rig`` reads from a rig bag's images; the rig
-    node and ``replay`` hand an image to the rig itself, :func:`hand_image_to_rig`): decoded
-    and checked against ``camera``, the model of its checked header stamp ``stamp``
-    (:meth:`CameraInput.decode`), the front end run on the whole image
-    (``frontend.process(image, camera, encoding)``, a
-    :class:`~rs_localizer.correspondences.Frontend`), its rows as a cloud's
-    (:meth:`CameraInput.rows`: non-finite rows dropped, at most ``max_points``).
-
-    Returns:
-        a :class:`~rs_localizer.tracking.localizer.CameraFrame` tagged with its ``frame_id``
-        (else ``name``; without ``camera``: no rows, as the rig takes a frame before its
-        camera_info), or an :class:`UnreadFrame` skipped as ``bad_input`` (the stamp cannot
-        be read), ``bad_image`` or ``image_size_mismatch`` (:meth:`CameraInput.decode`), or
-        ``frontend_error`` (the front end raised).
-    """
-    from ..tracking.localizer import CameraFrame
-    from .image_codec import ImageRejected
-
-    if isinstance(stamp, ValueError):
-        return UnreadFrame(name, None, None, stamp)
-    tag = msg.header.frame_id or name
-    if camera is None:
-        return CameraFrame(stamp, None, np.zeros((0, 2)), np.zeros((0, 3)), tag=tag,
-                           camera_name=name)  # fmt: skip
-    try:
-        image, encoding = inp.decode(msg, camera)
-    except ImageRejected as e:
-        return UnreadFrame(name, stamp, camera, e, e.reason)
-    try:
-        found = frontend.process(image, camera, encoding)
-    except Exception as e:  # (any front end's failure: the frame is left out, counted)
-        return UnreadFrame(name, stamp, camera, ValueError(f"{type(e).__name__}: {e}"),
-                           "frontend_error")  # fmt: skip
-    uv = np.asarray(found.points2d, float).reshape(-1, 2)
-    xyz = np.asarray(found.points, float).reshape(-1, 3)
-    uv, xyz, _ = inp.rows(uv, xyz, found.valid_scores())
-    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
-
-
-def hand_to_rig(rig: Localizer, item: CameraFrame | UnreadFrame) -> list[LocalizerOutput]:
-    """A camera's frame of :func:`rig_cloud_frame` to the rig; returns the rig frames it
-    completed, solved. A frame read: :meth:`~rs_localizer.tracking.video.Localizer.add`; an
-    :class:`UnreadFrame` with a stamp: counted received and skipped for its reason, the rig
+def to_rig(rig: Localizer, item: CameraFrame | ImageFrame | DroppedFrame) -> list[LocalizerOutput]:
+    """A rig camera's frame of :meth:`CameraInput.take` to the rig, the rig node's and the rig
+    bag reader's one path; returns the rig frames it completed, solved. A
+    :class:`~rs_localizer.tracking.localizer.CameraFrame`:
+    :meth:`~rs_localizer.tracking.video.Localizer.add`; an :class:`ImageFrame`: through the
+    camera's front end (:meth:`~rs_localizer.tracking.video.Localizer.process_image`); a
+    :class:`DroppedFrame` with a stamp: counted received and skipped for its reason, the rig
     no longer waiting for the camera at that time
     (:meth:`~rs_localizer.tracking.video.Localizer.drop`: a rig frame without it counts the
     camera ``missed.skipped``); one without a stamp: nothing (``[]``; its owner counts it)."""
-    if not isinstance(item, UnreadFrame):
+    if isinstance(item, ImageFrame):
+        return rig.process_image(item.camera_name, item.stamp_ns, item.image, item.camera,
+                                 item.encoding, item.tag)  # fmt: skip
+    if not isinstance(item, DroppedFrame):
         return rig.add(item)
     if item.stamp_ns is None:
         return []
     return rig.drop(item.camera_name, item.stamp_ns, item.camera, item.reason)
-
-
-def hand_image_to_rig(
-    rig: Localizer,
-    name: str,
-    inp: CameraInput,
-    msg: Any,
-    stamp: Stamp,
-    camera: CameraModel | None,
-    log: Any,
-    tag: object = None,
-) -> tuple[list[LocalizerOutput], tuple | None]:
-    """Camera ``name``'s image message ``msg`` (``sensor_msgs/Image`` or
-    ``CompressedImage``) to the rig, the rig node's and the rig bag replay's one path:
-    decoded and checked against ``camera``, the model of its checked header stamp ``stamp``
-    (:meth:`CameraInput.decode`); a message rejected there (``bad_image``,
-    ``image_size_mismatch``) is logged (``log.warning(key, text)``) and dropped for its reason
-    (:meth:`~rs_localizer.tracking.video.Localizer.drop`: the rig does not wait for the camera
-    at that time), any other goes through the camera's front end to the rig
-    (:meth:`~rs_localizer.tracking.video.Localizer.process_image`), tagged ``tag`` (None:
-    its ``frame_id``, else ``name``).
-
-    Returns:
-        (the rig frames it completed, solved; ``(image (H, W) or (H, W, C) uint8,
-        encoding)`` decoded, or None when rejected).
-    """
-    from .image_codec import ImageRejected
-
-    try:
-        image, encoding = inp.decode(msg, camera)
-    except ImageRejected as e:
-        log.warning(f"image.{name}", f"rig camera {name!r}: image dropped ({e.reason}): {e}")
-        return rig.drop(name, stamp, camera, e.reason), None
-    if tag is None:
-        tag = msg.header.frame_id or name
-    return rig.process_image(name, stamp, image, camera, encoding, tag), (image, encoding)

@@ -3,18 +3,19 @@ frame, and what ``rs-localizer replay`` does with each frame of a bag.
 
 :class:`FramePipeline` takes a frame message (``sensor_msgs/PointCloud2`` correspondences or
 keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messages, which have
-the same fields) and returns a :class:`FrameResult`: the checks (stamp, empty cloud), time
-resets, then the camera's input (:class:`.camera_input.CameraInput`, the rig node's cameras'
-too): the camera model of the frame's stamp (fed by :meth:`FramePipeline.add_camera_info`),
-the image decoded, the 2D-3D rows (cloud, landmark lookup or image front end) without the
-non-finite ones and capped to ``max_points``; then the camera's
-video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the library's video
-entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro measurement of the
-frame's readout when ``imu.enabled``, the online gyro bias, the check of the gyro against the
-image, the video tracker with ``tracking.enabled`` or else each frame alone), and what is to be
-published: the pose and the frame's own twist, and the fused twists that became final (a frame
-``tracking.lag`` frames back). :mod:`.outputs` turns a result into messages. Counters for the
-diagnostics are kept in :attr:`FramePipeline.stats`. No module-level ROS import.
+the same fields) and returns a :class:`FrameResult`. The camera's input stage
+(:class:`.camera_input.CameraInput`, each rig camera's too) checks its stamp (once) and an
+empty cloud; time resets; the stage gives the camera model of the frame's stamp (fed by
+:meth:`FramePipeline.add_camera_info`) and makes the frame: the image decoded, or the 2D-3D
+rows (cloud or landmark lookup) without the non-finite ones and capped to ``max_points``; then
+the camera's video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the
+library's video entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro
+measurement of the frame's readout when ``imu.enabled``, the online gyro bias, the check of the
+gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone),
+and what is to be published: the pose and the frame's own twist, and the fused twists that
+became final (a frame ``tracking.lag`` frames back). :mod:`.outputs` turns a result into
+messages. Counters for the diagnostics are kept in :attr:`FramePipeline.stats`. No module-level
+ROS import.
 """
 
 from __future__ import annotations
@@ -38,12 +39,10 @@ from ..runtime.background import ready_implementation
 from ..tracking.gyro import ImuBuffer
 from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
-from ..tracking.localizer import CameraFrame
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraInput, landmark_rows
+from .camera_input import CameraInput, DroppedFrame, ImageFrame
 from .config import LocalizerConfig
-from .pointcloud import CloudError, read_keypoints
 
 __all__ = [
     "FRAME_KINDS",
@@ -190,6 +189,14 @@ class _Drop(ValueError):
     def __init__(self, reason: str, message: str):
         super().__init__(message)
         self.reason = reason
+
+
+def _taken(value):
+    """``value`` of a :class:`.camera_input.CameraInput` step, raising :class:`_Drop` (its
+    reason and text) for a :class:`.camera_input.DroppedFrame`."""
+    if isinstance(value, DroppedFrame):
+        raise _Drop(value.reason, str(value.error))
+    return value
 
 
 class ThrottledLog:
@@ -426,7 +433,12 @@ class FramePipeline:
         )
         self.sequence.set_frontend(self.maps.frontend, config.frontend_kind)
         self.camera_input.configure(
-            config.camera_from_info, config.max_points, config.fallback, config.camera_info_wait
+            config.camera_from_info,
+            config.max_points,
+            config.fallback,
+            config.camera_info_wait,
+            self.maps.landmarks,
+            config.camera_frame,
         )
 
     @property
@@ -510,7 +522,7 @@ class FramePipeline:
         res = FrameResult()
         try:
             self._run(msg, kind, res)
-        except (_Drop, CloudError) as e:
+        except _Drop as e:
             res.failure, res.detail = e.reason, str(e)
         except Exception as e:  # (a defect: this frame is dropped, the next ones go on)
             drop = _Drop("internal_error", f"{type(e).__name__}: {e}")
@@ -518,26 +530,15 @@ class FramePipeline:
         return res
 
     def _run(self, msg: Any, kind: str, res: FrameResult) -> None:
-        """Fill ``res``; raises :class:`_Drop` or :class:`CloudError` for a dropped frame."""
+        """Fill ``res``; raises :class:`_Drop` for a dropped frame."""
         tic = time.perf_counter()
         cfg = self._config
-        res.frame_id = cfg.camera_frame or msg.header.frame_id or "camera"
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except cv.StampError as e:
-            raise _Drop("bad_stamp", str(e)) from None
+        inp = self.camera_input
+        res.frame_id = inp.tag_of(msg)
+        stamp = _taken(inp.check(msg, kind))
         res.stamp_ns = stamp
-        if kind != "image" and int(msg.width) * int(msg.height) == 0:
-            raise _Drop("empty_cloud", "cloud has no points")
         self._check_time(stamp)
-        camera = self.camera_input.camera_for(stamp)
-        if camera is None:
-            raise _Drop(
-                "no_camera_info",
-                "no camera_info received (waited "
-                f"{cfg.camera_info_wait:.3f} s) and no fallback intrinsics "
-                "(camera.fx <= 0)",
-            )
+        camera = _taken(inp.camera_of(stamp))
         res.camera = camera
         # (the frame's times, made once: its checked stamp and its reference time, taken as
         # they are from here on)
@@ -550,18 +551,22 @@ class FramePipeline:
                 "the reference row's offset) is outside [0, 2^31 s)",
             )
         res.out_stamp_ns = out_stamp
-        if kind == "image":
-            img, enc = self._decode(msg, camera, stamp, cfg, res)
+        if kind == "image" and self.sequence.frontend is None:
+            # (the node subscribes images only with a front end)
+            raise _Drop("no_frontend", "image received but frontend is none")
+        item = _taken(inp.take(msg, kind, stamp, camera))
+        if isinstance(item, ImageFrame):
+            res.image = (item.image, item.encoding, stamp)
             t_decoded = time.perf_counter()
-            out = self.sequence.process_image(ft, img, camera, enc, tag=res.frame_id)
+            out = self.sequence.process_image(ft, item.image, camera, item.encoding,
+                                              tag=item.tag)  # fmt: skip
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
         else:
-            uv, xyz, scores = self._extract(msg, kind)
             t_decoded = time.perf_counter()
-            frame = CameraFrame(stamp, camera, uv, xyz, scores, res.frame_id)
-            out = self.sequence.process(frame, ft)
+            uv, xyz = item.points2d, item.points3d
+            out = self.sequence.process(item, ft)
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")
@@ -624,43 +629,6 @@ class FramePipeline:
         self.stats.add("time_resets")
         self.log.warning("time_reset", f"time reset: {why}")
         self.camera_input.history.forget_after(stamp)
-
-    def _extract(self, msg, kind: str):
-        """The rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)`` of a cloud as
-        the estimator takes them (:meth:`.camera_input.CameraInput.rows`).
-
-        Raises:
-            _Drop, CloudError: a frame that gives no usable rows (with the reason).
-        """
-        if kind == "correspondences":
-            return self.camera_input.read_cloud(msg)
-        return self.camera_input.rows(*self._from_keypoints(msg))
-
-    def _from_keypoints(self, msg):
-        if self.maps.landmarks is None:
-            raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
-        kp = read_keypoints(msg)
-        uv, xyz, scores = landmark_rows(kp, self.maps.landmarks, self.stats.add)
-        if not len(uv):
-            raise _Drop("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
-        return uv, xyz, scores
-
-    def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
-        """The image of ``sensor_msgs/Image``, or ``CompressedImage``, decoded and checked
-        against the camera model's size and the front ends' smallest image by
-        :meth:`.camera_input.CameraInput.decode` (the rig node's cameras' too):
-        ``(array, encoding)``; a refused one is dropped under its reason (``bad_image``,
-        ``image_size_mismatch``), never given to the detector libraries."""
-        from .image_codec import ImageRejected
-
-        if self.sequence.frontend is None:  # (the node subscribes images only with a front end)
-            raise _Drop("no_frontend", "image received but frontend is none")
-        try:
-            img, enc = self.camera_input.decode(msg, camera)
-        except ImageRejected as e:
-            raise _Drop(e.reason, str(e)) from None
-        res.image = (img, enc, stamp)
-        return img, enc
 
     def _frontend_ran(self, out: Any, cfg: LocalizerConfig, res: FrameResult) -> None:
         """Account for the front end's run on an image frame (its correspondences to

@@ -92,15 +92,7 @@ from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
 from . import conversions as cv
-from .camera_input import (
-    CameraInput,
-    UnreadFrame,
-    frame_camera,
-    hand_image_to_rig,
-    hand_to_rig,
-    rig_camera_inputs,
-    rig_cloud_frame,
-)
+from .camera_input import CameraInput, DroppedFrame, ImageFrame, rig_camera_inputs, to_rig
 from .config import (
     LocalizerConfig,
     RigConfig,
@@ -139,17 +131,18 @@ INPUT_SKIP_REASONS = {
 
 @dataclass(frozen=True)
 class _Queued:
-    """A camera frame in the queue: the camera's ``name``, ``kind`` (``cloud``, ``image``),
-    the message, its arrival (``time.perf_counter``) and its header stamp, checked once as it
-    arrived (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`): a
-    :class:`~rs_localizer.camera.Stamp`, or the error of a stamp out of range (the frame is
+    """A camera frame in the queue: the camera's ``name``, ``kind`` (``cloud``,
+    ``keypoints``, ``image``), the message, its arrival (``time.perf_counter``) and its header
+    stamp, checked once as it arrived (:meth:`.camera_input.CameraInput.check`): a
+    :class:`~rs_localizer.camera.Stamp`, or the
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` of a stamp out of range (the frame is
     counted ``bad_input`` when the worker takes it)."""
 
     name: str
     kind: str
     msg: Any
     arrived: float
-    stamp: Stamp | ValueError
+    stamp: Stamp | DroppedFrame
 
 
 @dataclass
@@ -259,6 +252,7 @@ class RigCore(NodeCore):
             self._count_input,
             stopped=lambda: self._frames.stopping,
             wait=single.camera_info_wait,
+            landmarks=self.landmarks,
         )
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
@@ -525,10 +519,8 @@ class RigCore(NodeCore):
             self._inputs[f"{name}.received"] += 1
         if self._first_frame is None:
             self._first_frame = time.monotonic()
-        try:  # (the frame's one stamp check: the queue's grouping and the worker take it)
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError as e:
-            stamp = e
+        # (the frame's one stamp check: the queue's grouping and the worker take it)
+        stamp = self.inputs[name].check(msg, kind)
         size = self.queue_size * len(self.config.cameras)
         if self._put_frame(_Queued(name, kind, msg, time.perf_counter(), stamp), size):
             self._log.warning(
@@ -546,7 +538,7 @@ class RigCore(NodeCore):
         being solved."""
         if any(b.name == item.name for b in batch):
             return False
-        if isinstance(item.stamp, ValueError) or isinstance(batch[0].stamp, ValueError):
+        if isinstance(item.stamp, DroppedFrame) or isinstance(batch[0].stamp, DroppedFrame):
             return False  # (a stamp the worker will refuse: not grouped)
         return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
 
@@ -574,19 +566,17 @@ class RigCore(NodeCore):
         tic = time.perf_counter()
         # (the camera model of its stamp, waiting up to camera_info_wait for its camera_info:
         # outside the rig's lock, which the diagnostics take on the executor that delivers it)
-        camera = frame_camera(self.inputs[name], stamp)
+        camera = self.inputs[name].camera_of(stamp)
         clouds = []
         with self._rig_lock:
             outs, skip, failure = [], None, None
             try:
-                if isinstance(stamp, ValueError):
-                    skip = self._not_read(name, kind, stamp)
+                if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
+                    skip = self._not_taken(kind, stamp)
                 else:
-                    if kind in ("cloud", "keypoints"):
-                        outs, skip = self._take_cloud(name, msg, stamp, camera, kind)
-                    else:
-                        outs, skip = self._take_image(name, msg, stamp, camera)
-                        found = self.rig.last_correspondences(name) if self.republish else None
+                    outs = self._take(name, kind, msg, stamp, camera)
+                    if kind == "image" and self.republish:
+                        found = self.rig.last_correspondences(name)
                         if found is not None:  # (also an image where it found nothing)
                             clouds.append((name, self._found_cloud(found, msg, stamp, name)))
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
@@ -604,15 +594,63 @@ class RigCore(NodeCore):
                 self._frame_time[name].append(time.perf_counter() - tic)
         return _Taken(outs, None, [], clouds)
 
-    def _not_read(self, name: str, kind: str, error: ValueError) -> str:
-        """A frame whose stamp is out of range or whose cloud cannot be read: counted
-        ``<c>.bad_input`` and logged; returns the reason it is skipped for, ``bad_input``."""
+    def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
+        """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
+        through the camera's input stage (:meth:`.camera_input.CameraInput.take`, as a rig
+        bag's in ``replay``; :func:`.camera_input.to_rig`); returns the rig frames it
+        completed.
+
+        A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
+        ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
+        known: a frame without rows, which the rig frame is posed without): its rows as the
+        single-camera node takes them (the non-finite ones dropped, counted
+        ``<c>.points_dropped``; capped to ``max_points``, counted ``<c>.capped_clouds``). One
+        that cannot be read is counted ``<c>.skipped.bad_input`` and goes to the rig as a
+        frame skipped (:meth:`Localizer.drop`), so the rig frame without it counts the camera
+        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named as
+        one whose clock is off).
+
+        An image: decoded and checked against ``camera`` as by the single-camera node (a
+        message that does not decode or is smaller than the front ends take: ``bad_image``;
+        another size than the camera_info's: ``image_size_mismatch``; both logged and counted
+        ``<c>.skipped.<reason>``, the rig not waiting for the camera at that time), then the
+        camera's front end and the rig (:meth:`Localizer.process_image`: the front end's rows
+        as a cloud's, the non-finite ones dropped and the rest capped to ``max_points``,
+        counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
+        image kept for ``debug_image`` while someone watches."""
+        if kind == "image":
+            self._warn_no_info(name, "images")
+        item = self.inputs[name].take(msg, kind, stamp, camera)
+        if isinstance(item, DroppedFrame):
+            self._not_taken(kind, item)
+        elif kind != "image":
+            self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
+        viz = self.camera_viz.get(name)
+        if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
+            # (only while someone watches; drawn when the rig frame is published)
+            self._images.setdefault(name, deque(maxlen=4)).append(
+                (item.image, item.encoding, stamp)
+            )
+        return to_rig(self.rig, item)
+
+    def _not_taken(self, kind: str, item: DroppedFrame) -> str | None:
+        """A frame the camera's input stage dropped, logged: one whose stamp is out of range or
+        whose cloud cannot be read (``bad_input``) also counted ``<c>.bad_input``. Returns
+        the reason the node counts it skipped for itself (``bad_input`` for a stamp out of
+        range: the rig never sees the frame); None: the rig counts it
+        (:func:`.camera_input.to_rig`)."""
+        name, error = item.camera_name, item.error
+        if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
+            self._log.warning(
+                f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
+            )
+            return None
         self.bad_input[name] += 1
         if kind in ("cloud", "keypoints"):
             self._log.warning(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
         else:
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
-        return "bad_input"
+        return "bad_input" if item.stamp_ns is None else None
 
     def _found_cloud(self, found, msg, stamp: int, name: str):
         """What camera ``name``'s front end found in an image (``found``, a
@@ -690,32 +728,6 @@ class RigCore(NodeCore):
     def _throttled_log(self) -> ThrottledLog:
         return self._log
 
-    def _take_cloud(
-        self, name: str, msg, stamp: Stamp, camera: CameraModel | None, kind: str = "cloud"
-    ) -> tuple[list, str | None]:
-        """A cloud of correspondences (its checked ``stamp``, ``camera`` the model of it) to
-        the rig, its rows as the
-        single-camera node takes them (:meth:`.camera_input.CameraInput.read_cloud`: the
-        non-finite ones dropped, counted ``<c>.points_dropped``; capped to ``max_points``,
-        counted ``<c>.capped_clouds``). One that cannot be read is counted
-        ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
-        (:meth:`Localizer.drop`), so the rig frame without it counts the camera
-        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
-        as one whose clock is off); one whose stamp is out of range is counted by the node
-        alone (:meth:`_not_read`). The cloud becomes the rig's frame as a rig bag's does in
-        ``replay`` (:func:`.camera_input.rig_cloud_frame`, :func:`.camera_input.hand_to_rig`).
-        ``kind`` ``keypoints``: a keypoints cloud (u, v, id), its rows the points of the
-        ``landmarks_file`` it names (unknown ids counted ``<c>.unknown_landmark_ids``; none
-        known: a frame without rows, which the rig frame is posed without)."""
-        keypoints = kind == "keypoints"
-        item = rig_cloud_frame(name, self.inputs[name], msg, stamp, camera, self.landmarks,
-                               keypoints)  # fmt: skip
-        if isinstance(item, UnreadFrame):
-            self._not_read(name, kind, item.error)
-        else:
-            self._warn_no_info(name, "keypoints" if keypoints else "correspondences")
-        return hand_to_rig(self.rig, item), None
-
     def _warn_no_info(self, name: str, kind: str) -> None:
         if self.inputs[name].newest is None:
             self._log.warning(
@@ -740,28 +752,6 @@ class RigCore(NodeCore):
 
     def _on_image(self, name: str, msg) -> None:
         self._enqueue(name, "image", msg)
-
-    def _take_image(
-        self, name: str, msg, stamp: Stamp, camera: CameraModel | None
-    ) -> tuple[list, str | None]:
-        """An image (:func:`.camera_input.hand_image_to_rig`): decoded and checked against the
-        camera model of its stamp (``camera``) as by the single-camera node
-        (:meth:`.camera_input.CameraInput.decode`: a message that does not decode or is
-        smaller than the front ends take: ``bad_image``; another size than the camera_info's:
-        ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then the camera's
-        front end and the rig (:meth:`Localizer.process_image`: the front end's rows as a
-        cloud's, the non-finite ones dropped and the rest capped to ``max_points``, counted by
-        the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded image kept for
-        ``debug_image`` while someone watches."""
-        self._warn_no_info(name, "images")
-        outs, decoded = hand_image_to_rig(
-            self.rig, name, self.inputs[name], msg, stamp, camera, self._log
-        )
-        viz = self.camera_viz.get(name)
-        if decoded is not None and viz is not None and viz.wants("debug_image"):
-            # (only while someone watches; drawn when the rig frame is published)
-            self._images.setdefault(name, deque(maxlen=4)).append((*decoded, stamp))
-        return outs, None
 
     # ---------------------------------------------------------------- outputs
     def _publish_fused(self, f) -> None:

@@ -291,10 +291,10 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 
 
 def _rig_node_decode(msg, cam):
-    """The rig node's image step (``RigCore._take_image``) on ``msg`` with the camera's model
-    ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same form."""
+    """The rig node's image step (``RigCore._take`` of an image) on ``msg`` with the camera's
+    model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same
+    form."""
     from rs_localizer.ros.camera_input import CameraInput
-    from rs_localizer.ros.conversions import checked_stamp_ns
     from rs_localizer.ros.rig_node import RigCore
 
     got, logged = [], []
@@ -309,7 +309,7 @@ def _rig_node_decode(msg, cam):
             return []
 
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
-    camera_input = CameraInput(log, lambda key, n: None)
+    camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     core = SimpleNamespace(
         rig=Rig(),
@@ -319,9 +319,10 @@ def _rig_node_decode(msg, cam):
         camera_viz={},
         _images={},
     )
-    stamp = checked_stamp_ns(msg.header.stamp)
-    camera = camera_input.camera_for(stamp)
-    assert RigCore._take_image(core, "c", msg, stamp, camera) == ([], None)
+    core._not_taken = lambda kind, item: RigCore._not_taken(core, kind, item)
+    stamp = camera_input.check(msg, "image")
+    camera = camera_input.camera_of(stamp)
+    assert RigCore._take(core, "c", "image", msg, stamp, camera) == []
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

@@ -71,11 +71,11 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
     assert "warning: " + res.notes[0] in capsys.readouterr().err
     # the node's diagnostics: its worker's check over the rig frames the rig hands out
     from rs_localizer.ros.bags.rig_bag import read_rig_frames, rig_bag_config
-    from rs_localizer.ros.camera_input import hand_to_rig
+    from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.tracking.video import Localizer
 
     rig = Localizer(rig_bag_config(bag)[2].settings)
-    outs = [o for item in read_rig_frames(bag).items for o in hand_to_rig(rig, item)]
+    outs = [o for item in read_rig_frames(bag).items for o in to_rig(rig, item)]
     outs += rig.close()
     fit, counts = MapFitCheck("rig frames"), Counter()
     for o in outs:

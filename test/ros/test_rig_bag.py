@@ -497,7 +497,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
         rig_frame_grouping,
         rig_parameter_values,
     )
-    from rs_localizer.ros.camera_input import UnreadFrame, hand_to_rig
+    from rs_localizer.ros.camera_input import DroppedFrame, to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.tracking.video import Localizer
 
@@ -506,14 +506,14 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     bad = len(NO_X) + 1
 
     read = read_rig_frames(b.bag)
-    unread = [f for f in read.items if isinstance(f, UnreadFrame)]
+    unread = [f for f in read.items if isinstance(f, DroppedFrame)]
     assert [(f.camera_name, f.stamp_ns) for f in unread if f.stamp_ns is not None] == sorted(
         b.no_x, key=lambda x: x[1]
     )
     assert [f.camera_name for f in unread if f.stamp_ns is None] == ["left"]
     assert all(f.reason == "bad_input" for f in unread)
     assert len(read.frames) == len(b.frames) - bad
-    assert not any(isinstance(f, UnreadFrame) for f in read.frames)
+    assert not any(isinstance(f, DroppedFrame) for f in read.frames)
     assert read.counts["left"]["bad_input"] == bad and read.counts["front"]["bad_input"] == 0
 
     res = replay_rig(b.bag)
@@ -532,7 +532,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     rig = Localizer(rig_config(values, cam_values).settings)
     truth = {}
     for f in read.items:
-        k = len(hand_to_rig(rig, f))
+        k = len(to_rig(rig, f))
         if k:
             truth[(f.camera_name, f.stamp_ns)] = k
     assert ends == truth and formed == rig.counts["rig_frames"] == n["front"]
@@ -563,7 +563,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
         rig_parameter_values,
         write_rig_bag,
     )
-    from rs_localizer.ros.camera_input import hand_to_rig
+    from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
@@ -587,7 +587,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     rig = Localizer(rig_config(values, cam_values).settings)
     truth, with_left = {}, 0
     for f in read_rig_frames(bag).items:
-        outs = hand_to_rig(rig, f)
+        outs = to_rig(rig, f)
         with_left += sum("left" in o.cameras for o in outs)
         if outs:
             truth[(f.camera_name, f.stamp_ns)] = len(outs)

@@ -56,7 +56,7 @@ if TYPE_CHECKING:
     from ...camera import CameraModel, Stamp
     from ...tracking.localizer import CameraFrame
     from ...tracking.video import LocalizerSettings
-    from ..camera_input import CameraInput, UnreadFrame
+    from ..camera_input import CameraInput, DroppedFrame, ImageFrame
 
 __all__ = [
     "RigFrames",
@@ -393,16 +393,16 @@ def replay_rig(
     camera (:attr:`RigReplay.counts`: ``points_dropped``, ``capped_clouds``). A cloud that
     cannot be read (:func:`iter_rig_frames`) is counted received and ``skipped.bad_input``
     as the node counts it, and one with a readable stamp goes to the rig as a frame skipped
-    (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): each camera's counts are the rig
+    (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's counts are the rig
     node's on the same messages (taken as they come, none dropped from a full queue).
 
     With a front end (``frontend`` other than ``none``, its map ``frontend_map``; a
     ``render-bag --rig`` bag holds its ``markers.yaml``) each camera's images
     (``<namespace>/<camera>/image_raw``) are replayed instead, through the camera's own front
-    end as the rig node runs it
-    (:func:`~rs_localizer.ros.camera_input.hand_image_to_rig`: decoded and checked against
-    the camera model of its stamp, a rejected one skipped for its reason, the front end's
-    rows as a cloud's).
+    end as the rig node runs it (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`,
+    :func:`~rs_localizer.ros.camera_input.to_rig`: decoded and checked against the camera
+    model of its stamp, a rejected one skipped for its reason, the front end's rows as a
+    cloud's).
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
@@ -413,7 +413,7 @@ def replay_rig(
 
     from ...frontends.shared import SHARED_MAPS
     from ...tracking.video import Localizer
-    from ..camera_input import UnreadFrame, hand_image_to_rig, hand_to_rig, rig_camera_inputs
+    from ..camera_input import DroppedFrame, rig_camera_inputs, to_rig
     from ..pipeline import MapFitCheck
 
     values, _, cfg = rig_bag_config(bag, params_files, params)
@@ -425,39 +425,29 @@ def replay_rig(
     def count(name: str, key: str, n: int = 1) -> None:
         own[f"{name}.{key}"] += n
 
-    log = _QuietLog()
-    inputs = rig_camera_inputs(cfg, log, count)
     ns = rig_namespace(bag, res.cameras)
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     frontends = rig_frontends(bag, values, cfg, owner=res)
     landmarks = rig_landmarks(values, cfg, owner=res)
+    inputs = rig_camera_inputs(cfg, _QuietLog(), count, landmarks=landmarks)
     images = frontends is not None
     for n, fe in (frontends or {}).items():  # (each camera's own, as the rig node runs them)
         rig.set_frontend(n, fe, str(values["frontend"]).strip())
     bar = progress_bar(progress, None, unit=" rig frames")
     try:
-        if images:
-            source = rig_messages(bag, inputs, "image")
-        else:
-            source = iter_rig_frames(bag, inputs, landmarks=landmarks)
-        for item in source:
-            n = item[0] if images else item.camera_name
+        for item in iter_rig_frames(bag, inputs, images=images):
+            n = item.camera_name
             own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
             own[f"{n}.taken"] += 1
-            stamp = item[3] if images else item.stamp_ns
-            if stamp is None or isinstance(stamp, ValueError):  # (skipped by the node alone)
+            stamp = item.stamp_ns
+            if stamp is None:  # (a stamp out of range: skipped by the node alone)
                 own[f"{n}.skipped.bad_input"] += 1
                 continue
             while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
                 rig.add_imu(*gyro.pop())
-            if images:  # (tagged as a cloud's frame: its stamp and frame id)
-                _, _, msg, _, camera = item
-                tag = (stamp, msg.header.frame_id or n)
-                outs = hand_image_to_rig(rig, n, inputs[n], msg, stamp, camera, log, tag)[0]
-            else:
-                if not isinstance(item, UnreadFrame):
-                    item = replace(item, tag=(stamp, item.tag))
-                outs = hand_to_rig(rig, item)
+            if not isinstance(item, DroppedFrame):  # (tagged with its stamp and frame id)
+                item = replace(item, tag=(stamp, item.tag))
+            outs = to_rig(rig, item)
             _note_disagreeing(rig, outs, res.off_deg)
             res.outputs += outs
             res.fused += [f for o in outs for f in o.fused]
@@ -663,7 +653,7 @@ class RigFrames:
     """What :func:`read_rig_frames` read: ``items`` (every camera's clouds in log-time order,
     as :func:`iter_rig_frames` yields them: a
     :class:`~rs_localizer.tracking.localizer.CameraFrame`, or an
-    :class:`~rs_localizer.ros.camera_input.UnreadFrame` for a cloud not read), ``values`` (the
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` for a cloud not read), ``values`` (the
     parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
     ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
     (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
@@ -683,9 +673,9 @@ class RigFrames:
     def frames(self) -> list:
         """The frames read (every :class:`~rs_localizer.tracking.localizer.CameraFrame` of
         :attr:`items`), in log-time order."""
-        from ..camera_input import UnreadFrame
+        from ..camera_input import DroppedFrame
 
-        return [f for f in self.items if not isinstance(f, UnreadFrame)]
+        return [f for f in self.items if not isinstance(f, DroppedFrame)]
 
 
 #: the counts of a camera's rows and clouds :func:`read_rig_frames` reports
@@ -716,7 +706,7 @@ def read_rig_frames(
             node refuses (e.g. an unknown readout direction).
     """
     from ...frontends.shared import SHARED_MAPS
-    from ..camera_input import UnreadFrame, rig_camera_inputs
+    from ..camera_input import DroppedFrame, rig_camera_inputs
 
     values = rig_parameter_values(bag, params_files, params)[0]
     if not [str(n).strip() for n in values["rig.cameras"]]:
@@ -727,15 +717,16 @@ def read_rig_frames(
     def count(name: str, key: str, n: int = 1) -> None:
         counts[name][key] += n
 
-    inputs = rig_camera_inputs(cfg, _QuietLog(), count)
     owner = object()  # (the front ends' maps, released once read)
     try:
         frontends = rig_frontends(bag, values, cfg, owner)
-        items = list(iter_rig_frames(bag, inputs, frontends, rig_landmarks(values, cfg, owner)))
+        landmarks = rig_landmarks(values, cfg, owner)
+        inputs = rig_camera_inputs(cfg, _QuietLog(), count, landmarks=landmarks)
+        items = list(iter_rig_frames(bag, inputs, frontends))
     finally:
         SHARED_MAPS.release(owner)
     for f in items:
-        if isinstance(f, UnreadFrame):
+        if isinstance(f, DroppedFrame):
             count(f.camera_name, f.reason)
     rows = {}
     for n, c in counts.items():  # (READ_COUNTS, then the images' skip reasons counted)
@@ -787,54 +778,87 @@ def iter_rig_frames(
     bag: str | os.PathLike,
     inputs: Mapping[str, CameraInput],
     frontends: Mapping | None = None,
-    landmarks: tuple | None = None,
-) -> Iterator[CameraFrame | UnreadFrame]:
+    images: bool = False,
+) -> Iterator[CameraFrame | ImageFrame | DroppedFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
     its :class:`~rs_localizer.ros.camera_input.CameraInput`,
     :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), in log-time order, from
-    ``<namespace>/<camera>/correspondences``, read through the camera's input as the rig node
-    reads them: its camera_infos checked and kept by their stamps (one rejected is counted
-    ``camera_info_rejected.<reason>``, the previous ones stay) and each cloud given the model
-    of its own stamp (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_for`: the
-    newest camera_info stamped at or before it, the oldest for a cloud older than all; None
-    before the camera's first camera_info is received), its rows with a NaN or inf
+    ``<namespace>/<camera>/correspondences``, read through the camera's input stage as the
+    rig node reads them: its camera_infos checked and kept by their stamps (one rejected is
+    counted ``camera_info_rejected.<reason>``, the previous ones stay) and each cloud given
+    the model of its own stamp (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`:
+    the newest camera_info stamped at or before it, the oldest for a cloud older than all;
+    None before the camera's first camera_info is received), its rows with a NaN or inf
     dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
     first, counted ``capped_clouds``, ``capped_points``
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`). Each cloud becomes the
-    rig's frame as in the rig node (:func:`~rs_localizer.ros.camera_input.rig_cloud_frame`):
-    one that cannot be read (an invalid stamp, no x, y, z / u, v fields) is yielded as an
-    :class:`~rs_localizer.ros.camera_input.UnreadFrame` (``bad_input``), which the node
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (an
+    invalid stamp, no x, y, z / u, v fields) is yielded as a
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``bad_input``), which the node
     counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
-    skipped (:func:`~rs_localizer.ros.camera_input.hand_to_rig`).
+    skipped (:func:`~rs_localizer.ros.camera_input.to_rig`). With the cameras' landmarks
+    (``landmarks_file``, :func:`rig_landmarks`, given to :func:`rig_camera_inputs`) each
+    camera's keypoints (``.../keypoints``: u, v, id) are read too, beside its clouds, as the
+    rig node reads them (each row the 3D point of its id; unknown ids counted
+    ``unknown_landmark_ids``).
 
-    With ``frontends`` (camera name -> its front end, :func:`rig_frontends`) each camera's
-    images (``.../image_raw``) are read instead, each frame the front end's correspondences
-    on the whole image (:func:`~rs_localizer.ros.camera_input.rig_image_frame`; an image not
-    read is an :class:`~rs_localizer.ros.camera_input.UnreadFrame` with its reason:
-    ``bad_image``, ``image_size_mismatch``, ``frontend_error``). With ``landmarks`` (the
-    table of ``landmarks_file``, :func:`rig_landmarks`) each camera's keypoints
-    (``.../keypoints``: u, v, id) are read too, beside its clouds, as the rig node reads them
-    (each row the 3D point of its id; unknown ids counted ``unknown_landmark_ids``).
+    With ``images`` each camera's images (``.../image_raw``) are read instead, as
+    :class:`~rs_localizer.ros.camera_input.ImageFrame` (decoded and checked against the camera
+    model of their stamp; one refused is a ``DroppedFrame`` with its reason, ``bad_image``,
+    ``image_size_mismatch``), for the rig's front ends. With ``frontends`` (camera name -> its
+    front end, :func:`rig_frontends`) too, each image's frame is the front end's
+    correspondences on the whole image, without a rig to predict it (what ``calibrate-rig``
+    reads; :func:`_found_frame`).
 
     Yields:
         :class:`~rs_localizer.tracking.localizer.CameraFrame` (name, header stamp ns, model,
-        pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
-        :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
+        pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``),
+        :class:`~rs_localizer.ros.camera_input.ImageFrame` or
+        :class:`~rs_localizer.ros.camera_input.DroppedFrame`.
     """
-    from ..camera_input import rig_cloud_frame, rig_image_frame
+    from ..camera_input import ImageFrame
 
-    if frontends is not None:
-        for n, _, msg, stamp, camera in rig_messages(bag, inputs, "image"):
-            yield rig_image_frame(n, inputs[n], msg, stamp, camera, frontends[n])
-        return
-    kinds = ("cloud",) if landmarks is None else ("cloud", "keypoints")
+    if frontends is not None or images:
+        kinds: tuple = ("image",)
+    elif any(inp.landmarks is not None for inp in inputs.values()):
+        kinds = ("cloud", "keypoints")
+    else:
+        kinds = ("cloud",)
     for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
-        yield rig_cloud_frame(n, inputs[n], msg, stamp, camera, landmarks, kind == "keypoints")
+        item = inputs[n].take(msg, kind, stamp, camera)
+        if frontends is not None and isinstance(item, ImageFrame):
+            item = _found_frame(inputs[n], item, frontends[n])
+        yield item
+
+
+def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFrame | DroppedFrame:
+    """A camera's decoded image ``item`` as a frame of its front end's correspondences,
+    without a rig to predict it (``calibrate-rig``): ``frontend.process(image, camera,
+    encoding)`` (a :class:`~rs_localizer.correspondences.Frontend`) on the whole image, its
+    rows as a cloud's (:meth:`~rs_localizer.ros.camera_input.CameraInput.rows`: non-finite
+    rows dropped, at most ``max_points``). Without a camera model: a frame without rows, as
+    the rig takes a frame before its camera_info. A front end that raises: a
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``frontend_error``)."""
+    from ...tracking.localizer import CameraFrame
+    from ..camera_input import DroppedFrame
+
+    name, stamp, camera, tag = item.camera_name, item.stamp_ns, item.camera, item.tag
+    if camera is None:
+        return CameraFrame(stamp, None, np.zeros((0, 2)), np.zeros((0, 3)), tag=tag,
+                           camera_name=name)  # fmt: skip
+    try:
+        found = frontend.process(item.image, camera, item.encoding)
+    except Exception as e:  # (any front end's failure: the frame is left out, counted)
+        return DroppedFrame(name, stamp, camera, ValueError(f"{type(e).__name__}: {e}"),
+                            "frontend_error")  # fmt: skip
+    uv = np.asarray(found.points2d, float).reshape(-1, 2)
+    xyz = np.asarray(found.points, float).reshape(-1, 3)
+    uv, xyz, _ = inp.rows(uv, xyz, found.valid_scores())
+    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 
 def rig_messages(
     bag: str | os.PathLike, inputs: Mapping[str, CameraInput], *kinds: str
-) -> Iterator[tuple[str, str, Any, Stamp | ValueError, CameraModel | None]]:
+) -> Iterator[tuple[str, str, Any, Stamp | DroppedFrame, CameraModel | None]]:
     """Every camera's frame messages of ``kinds`` (``cloud``: ``<namespace>/<camera>/
     correspondences``, ``keypoints``: ``.../keypoints``, ``image``: ``.../image_raw``) of a
     rig bag in log-time order, each
@@ -843,11 +867,11 @@ def rig_messages(
     :func:`iter_rig_frames` reads them.
 
     Yields:
-        ``(camera name, kind, message, its header stamp checked (ns) or the error of that
-        check, the camera model of that stamp or None)``
-        (:func:`~rs_localizer.ros.camera_input.frame_camera`).
+        ``(camera name, kind, message, its header stamp checked (ns) or the
+        :class:`~rs_localizer.ros.camera_input.DroppedFrame` of that check, the camera model
+        of that stamp or None)`` (:meth:`~rs_localizer.ros.camera_input.CameraInput.check`,
+        :meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`).
     """
-    from ..camera_input import frame_camera
 
     topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
     ts = typestore()
@@ -857,11 +881,8 @@ def rig_messages(
         if k == "info":
             inputs[n].add_camera_info(msg)
             continue
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError as e:
-            stamp = e
-        yield n, k, msg, stamp, frame_camera(inputs[n], stamp)
+        stamp = inputs[n].check(msg, k)
+        yield n, k, msg, stamp, inputs[n].camera_of(stamp)
 
 
 def rig_frame_ends(
@@ -886,7 +907,7 @@ def rig_frame_grouping(
     camera model of its stamp), go to the rig's own grouping
     (:class:`~rs_localizer.tracking.rig.RigGrouping`, run by the rig mode's
     :class:`~rs_localizer.tracking.video.Localizer` without solving), as the node hands them
-    on (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): by reference-line time, one frame
+    on (:func:`~rs_localizer.ros.camera_input.to_rig`): by reference-line time, one frame
     per camera within ``rig.window`` of the rig frame's earliest; a rig frame is complete once
     every camera has joined it, sent a frame past it, or stopped (no frame for ``rig.stop_after``
     s or a few of its own frame intervals); a forward time jump completes the open ones.
@@ -906,13 +927,13 @@ def rig_frame_grouping(
         :func:`read_rig_frames`).
     """
     from ...tracking.video import GroupingOnly
-    from ..camera_input import hand_to_rig
+    from ..camera_input import to_rig
 
     read = read_rig_frames(bag, params_files, params)
     rig = GroupingOnly(read.settings)
     out: dict[tuple[str, int], int] = {}
     for f in read.items:
-        done = len(hand_to_rig(rig, f))
+        done = len(to_rig(rig, f))
         if done:
             out[(f.camera_name, f.stamp_ns)] = out.get((f.camera_name, f.stamp_ns), 0) + done
     return out, int(rig.counts["rig_frames"])
