@@ -714,8 +714,8 @@ def main(argv: list[str] | None = None) -> None:
         if both_one:
             o, p = (np.array([r[k] for r in both_one]) for k in ("ours", "poselib"))
             print(
-                f"  rig frames with tags in one camera: posed {len(both_one)} of {len(one)} "
-                f"(as that camera alone: a few points); median rotation, position from the "
+                f"  rig frames with tags in one camera: posed {len(both_one)} of {len(one)}; "
+                f"median rotation, position from the "
                 f"reference (its fit of the same corners: agreement, not accuracy): ours "
                 f"{np.median(o[:, 0]):.3f} deg, {np.median(o[:, 1]):.1f} mm; PoseLib "
                 f"generalized on the same {np.median(p[:, 0]):.3f} deg, "
