@@ -1271,7 +1271,7 @@ class Localizer(GyroReadouts):
         (:meth:`check_time`; after a time reset the image is not compared with the last
         one), and an image whose front end found fewer correspondences than its solver needs
         (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
-        marker's coplanar corners) skipped as ``frontend_too_few_points``.
+        marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
