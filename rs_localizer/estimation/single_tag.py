@@ -38,7 +38,7 @@ from scipy.optimize import least_squares
 from ..geometry import rotation_angle_deg, skew
 from ..pose import RSModel
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
-from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
+from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate, frame_refinement
 from .frame import Frame
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
@@ -191,10 +191,23 @@ def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndar
     return out
 
 
+#: the fit's loss: least squares (the compiled refinement's Huber loss at this scale, in
+#: normalized units, weighs every point alike: errors of a few points are far below it)
+_LEAST_SQUARES = 1e6
+#: the fit's relative cost decrease at which the compiled refinement stops (SciPy's
+#: ``ftol`` of the held-velocity fit)
+_FIT_TOL = 1e-12
+#: at most this many iterations of the compiled fit (SciPy's default for 6 parameters: 700)
+_FIT_ITERATIONS = 200
+
+
 def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
     velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
-    (R, C, t, (2N,) residuals, (2N, 6) Jacobian), normalized units."""
+    (R, C, t, (2N,) residuals, (2N, 6) Jacobian), normalized units. With the velocities at
+    zero (the global-shutter model) the compiled refinement of the pose alone
+    (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it; otherwise
+    SciPy's Levenberg-Marquardt on the held-velocity parametrization."""
     tau = fr.r - fr.r0
     X, x = fr.X, fr.x
     W = skew(w)
@@ -203,24 +216,31 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     def theta(p):
         return np.concatenate([p, w, np.cross(w, p[3:]) + b])
 
-    def jac(p):
-        J = exact_jacobian(theta(p), R0, X, x, tau, m)
-        return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
+    if not (np.any(w) or np.any(b)):
+        z = np.zeros(3)
+        ref = frame_refinement(fr, (R0, C0, z, z), _LEAST_SQUARES, False, cutoff=np.inf,
+                               max_iterations=_FIT_ITERATIONS, covariance=False,
+                               tol=_FIT_TOL)  # fmt: skip
+        R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
+    else:
 
-    sol = least_squares(
-        lambda p: exact_residuals(theta(p), R0, X, x, tau, m),
-        np.concatenate([np.zeros(3), C0]),
-        jac=jac,
-        method="lm",
-        xtol=1e-12,
-        ftol=1e-12,
-    )
-    p = sol.x
-    R = cv2.Rodrigues(p[:3])[0] @ R0
-    q = np.concatenate([np.zeros(3), p[3:]])
+        def jac(p):
+            J = exact_jacobian(theta(p), R0, X, x, tau, m)
+            return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
+
+        sol = least_squares(
+            lambda p: exact_residuals(theta(p), R0, X, x, tau, m),
+            np.concatenate([np.zeros(3), C0]),
+            jac=jac,
+            method="lm",
+            xtol=1e-12,
+            ftol=1e-12,
+        )
+        R, C = cv2.Rodrigues(sol.x[:3])[0] @ R0, sol.x[3:].copy()
+    q = np.concatenate([np.zeros(3), C])
     J = exact_jacobian(theta(q), R, X, x, tau, m)  # (at the refined pose, not the start's R0)
     J = np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
-    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau, m), J
+    return R, C, theta(q)[9:12], exact_residuals(theta(q), R, X, x, tau, m), J
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:
