@@ -483,6 +483,15 @@ def _stats(e: np.ndarray) -> str:
     return f"{np.median(e):7.3f} {np.percentile(e, 90):7.3f}"
 
 
+def _ours_and_poselib(rows: list) -> str:
+    """The median rotation and position errors of ``rows``' ``ours`` and ``poselib``."""
+    o, p = (np.array([r[k] for r in rows]) for k in ("ours", "poselib"))
+    return (
+        f"ours {np.median(o[:, 0]):.3f} deg, {np.median(o[:, 1]):.1f} mm; PoseLib "
+        f"{np.median(p[:, 0]):.3f} deg, {np.median(p[:, 1]):.1f} mm"
+    )
+
+
 def summary(res: list) -> dict:
     """Medians and 90th percentiles over the rig frames with tags in both cameras that both
     methods posed: ``{"ours": (rot (2,), pos (2,)), "poselib": ..., "posed", "both",
@@ -712,14 +721,10 @@ def main(argv: list[str] | None = None) -> None:
         one = [r for r in runs if r["cameras"] == 1]
         both_one = [r for r in one if r["ours"] is not None]
         if both_one:
-            o, p = (np.array([r[k] for r in both_one]) for k in ("ours", "poselib"))
             print(
                 f"  rig frames with tags in one camera: posed {len(both_one)} of {len(one)}; "
-                f"median rotation, position from the "
-                f"reference (its fit of the same corners: agreement, not accuracy): ours "
-                f"{np.median(o[:, 0]):.3f} deg, {np.median(o[:, 1]):.1f} mm; PoseLib "
-                f"generalized on the same {np.median(p[:, 0]):.3f} deg, "
-                f"{np.median(p[:, 1]):.1f} mm"
+                "median rotation, position from the reference (its fit of the same corners: "
+                f"agreement, not accuracy): {_ours_and_poselib(both_one)}"
             )
         if a.video:
             v = video_run(rig, a.frames, options, a.stop_after, a.max_gap)
@@ -747,12 +752,9 @@ def main(argv: list[str] | None = None) -> None:
                 )
             few = [r for r in ok if r["few"]]
             if few:
-                o, p = (np.array([r[k] for r in few]) for k in ("ours", "poselib"))
                 print(
                     f"  of them {len(few)} posed from a few corners on more than one plane "
-                    f"(too few for RANSAC): ours {np.median(o[:, 0]):.3f} deg, "
-                    f"{np.median(o[:, 1]):.1f} mm; PoseLib {np.median(p[:, 0]):.3f} deg, "
-                    f"{np.median(p[:, 1]):.1f} mm (medians)"
+                    f"(too few for RANSAC), medians: {_ours_and_poselib(few)}"
                 )
             refused = Counter((r["points"], r["failure"]) for r in rows if r["failure"])
             print(
