@@ -1441,6 +1441,66 @@ def _lambda_twist_of(bearings, X, samples, cam, Rm, cm):
     return R, C, own
 
 
+@njit(cache=True)
+def _still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds, th2,
+                 k, pool_counts):  # fmt: skip
+    """One global-shutter batch of the compiled search in one call: :func:`_sample` from its
+    uniform draws ``u`` (7, K) (``sampling``: :func:`_sampling_of`'s ``(counts, starts,
+    eligible, cdf, n)``; ``subset`` (S,) the sorted pool indices sampled among, or empty: the
+    whole pool), :func:`_hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
+    (M,) bool any True, the samples with points in those cameras corrected ``rounds`` times
+    by the rig solver with the velocities held at zero), the lowest MSAC cost among them
+    (:func:`_best_msac_kernel`, ``th2`` px^2) and its inliers (errors below ``k`` px;
+    ``pool_counts`` (M,): every camera's points in the pool). Returns ``(h, cost, errors (N,)
+    px, R (3, 3), C (3,), inliers (among ``subset`` when given), the cameras of 3 or more
+    points with no inlier (M,) bool)``; ``h`` -1 when no sample gave a model. The same
+    numbers as those steps called one by one, bit for bit."""
+    counts, starts, eligible, cdf, n = sampling
+    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
+    if len(subset):
+        for a in range(samples.shape[0]):
+            for b in range(6):
+                samples[a, b] = subset[samples[a, b]]
+    R, C, own = _lambda_twist_of(bearings, X, samples, cam, Rm, cm)
+    if len(own) == 0:
+        return -1, 0.0, np.zeros(0), np.eye(3), np.zeros(3), 0, np.zeros(len(counts), np.bool_)
+    spread = np.empty(len(own), dtype=np.int64)
+    m = 0
+    if missed.any():
+        for h in range(len(own)):
+            for j in range(6):
+                if missed[cam[samples[own[h], j]]]:
+                    spread[m] = h
+                    m += 1
+                    break
+    if m:
+        S = np.empty((m, 6), dtype=np.int64)
+        Rg = np.empty((m, 3, 3))
+        for i in range(m):
+            S[i] = samples[own[spread[i]]]
+            Rg[i] = R[spread[i]]
+        Cg = np.empty((0, 3))
+        for _ in range(rounds):
+            out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
+            if not ok.any():
+                Rg, Cg = np.empty((0, 3, 3)), np.empty((0, 3))
+                break
+            keep = np.flatnonzero(ok)
+            S = S[keep]
+            Cg = np.ascontiguousarray(out[keep, 3:6])
+            Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
+        R, C = np.concatenate((R, Rg)), np.concatenate((C, Cg))
+    z = np.zeros((len(R), 3))
+    h, cost, e = _best_msac_kernel(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2)
+    n_in, missed_now = _inliers_missed(e, k, cam, pool_counts)
+    if len(subset):
+        n_in = 0
+        for i in subset:
+            if e[i] < k:
+                n_in += 1
+    return h, cost, e, R[h].copy(), C[h].copy(), n_in, missed_now
+
+
 def _refit(
     pool: _Pool,
     inl: np.ndarray,
@@ -2445,6 +2505,9 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
+#: :func:`_still_batch`'s subset of no subset (every pool point sampled)
+_NO_SUBSET = np.zeros(0, dtype=np.int64)
+
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
 #: candidates and the one it returns
 _ERRORS_KEPT = 6
@@ -2455,10 +2518,11 @@ class _RigSearch(RansacLoop):
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``); ``score_models`` is MSAC on
-    every point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the
-    rig's local optimization runs once, after the search) and gives termination its inlier
-    ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
+    dropping models beyond the velocity bounds (``implausible``; a compiled global-shutter
+    batch is drawn, solved and scored in one call, :func:`_still_batch`); ``score_models``
+    is MSAC on every point's reprojection error in pixels; ``refine_model`` keeps the model as
+    it is (the rig's local optimization runs once, after the search) and gives termination its
+    inlier ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
     def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
@@ -2481,6 +2545,11 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
+        #: a global-shutter batch in one compiled call (:func:`_still_batch`); its last
+        #: result's inlier count and missed cameras for :meth:`refine_model`
+        self.fused = still and not generalized and not pool.numpy
+        self._fused: tuple = ()
+        self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -2503,6 +2572,8 @@ class _RigSearch(RansacLoop):
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
+        if self.fused:
+            return self._fused_batch(K)
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
@@ -2519,7 +2590,27 @@ class _RigSearch(RansacLoop):
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
+    def _fused_batch(self, K: int) -> tuple | None:
+        """A global-shutter batch of K samples in one compiled call (:func:`_still_batch`):
+        ``(cost, model)`` of the best, or None."""
+        pool, subset = self.pool, self.subset
+        u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
+        X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
+        missed = self._no_missed if self.missed is None else self.missed
+        rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
+        h, cost, self._e, R, C, n, missed = _still_batch(
+            u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+            _bearings(pool), X, x, tau, cam, Rm, cm, A, missed, rounds, self.th2,
+            self.threshold_px, self._counts,
+        )  # fmt: skip
+        if h < 0:
+            return None
+        self._cost, self._fused = float(cost), (n, missed)
+        return self._cost, (R, C, np.zeros(3), np.zeros(3))
+
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
+        if self.fused:  # (scored in generate_models' call)
+            return hyp
         pool = self.pool
         if pool.numpy:
             e = _errors_px(pool, *hyp)
@@ -2536,6 +2627,12 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        if self.fused:  # (counted in the batch's call, among the subset when given)
+            n, missed = self._fused
+            if not self.spread:
+                self.missed = missed if missed.any() else None
+            among = self._e if self.subset is None else self.subset
+            return self._cost, model, float(n / len(among))
         if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
             n, missed = _inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:
