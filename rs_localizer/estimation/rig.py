@@ -130,6 +130,7 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
     gr6p_1lin_batch_numpy,
+    solve_rotated,
     still_solve_rotated,
 )
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -162,6 +163,7 @@ from .plausibility import (
     final_model_check,
     final_model_check_numpy,
     image_degenerate,
+    motion_norms2,
     plausible_motion,
 )
 from .prior import MotionPrior, prior_arrays
@@ -580,11 +582,17 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         uv_g, X_g = uv[idx], X[idx]
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     x = cam.undistort(uv_g, compiled=not numpy)
+    spr, focal, jacobian = _camera_constants(cam)
+    stamp = float(v.stamp_offset)
+    args = None if numpy or not jacobian else _jacobian_args(cam)
+    if args is not None and spr == 0.0 and _kernel_ready(x):
+        # (a global shutter with distortion: the checks and rows below in one compiled call)
+        finite, tau, A = _global_shutter_rows(x, stamp, *args)
+        if finite:
+            return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx, focal, A)
     if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
-    spr, focal, jacobian = _camera_constants(cam)
-    stamp = float(v.stamp_offset)
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
         tau.fill(stamp + 0.0)
@@ -592,7 +600,6 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
     if jacobian:
-        args = None if numpy else _jacobian_args(cam)
         if args is None:
             A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
         else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
@@ -603,6 +610,21 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         A[:, 0] = A[:, 3] = focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             focal, A)  # fmt: skip
+
+
+@njit(cache=True)
+def _global_shutter_rows(x, stamp, d, fisheye, fx, fy):
+    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) undistorted points
+    ``x``: ``(every entry of x finite, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
+    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
+    ``d, fisheye, fx, fy``)``."""
+    n = x.shape[0]
+    tau = np.empty(n)
+    for i in range(n):
+        if not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
+            return False, tau, np.empty((0, 4))
+        tau[i] = stamp + 0.0
+    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
 
 
 #: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
@@ -2505,8 +2527,74 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
+@njit(cache=True)
+def _moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor, iterations,
+                  w2max, v2max, th2, k, pool_counts):  # fmt: skip
+    """One rolling-shutter batch of the compiled search without a gyro in one call, as
+    :func:`_still_batch` (its arguments, without ``missed`` and ``rounds``): the samples'
+    pre-rotations (Lambda Twist mapped to the rig, or ``anchor`` (3, 3) for every sample when
+    it is not empty), the rig solver on the pre-rotated samples (``iterations``,
+    :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
+    motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`_hypotheses`, then
+    ``generate_models``' bounds), the lowest MSAC cost among them. Returns :func:`_still_batch`'s
+    outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
+    valid solutions beyond the bounds; the rotations by the compiled Rodrigues
+    (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
+    counts, starts, eligible, cdf, n = sampling
+    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
+    if len(subset):
+        for a in range(samples.shape[0]):
+            for b in range(6):
+                samples[a, b] = subset[samples[a, b]]
+    if anchor.shape[0]:
+        R0 = np.empty((samples.shape[0], 3, 3))
+        for h in range(samples.shape[0]):
+            R0[h] = anchor
+        S = samples
+    else:
+        R0, _, own = _lambda_twist_of(bearings, X, samples, cam, Rm, cm)
+        S = np.empty((len(own), 6), dtype=np.int64)
+        for h in range(len(own)):
+            S[h] = samples[own[h]]
+    out, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
+    keep = np.empty(len(ok), dtype=np.int64)
+    m, beyond = 0, 0
+    for h in range(len(ok)):
+        if not ok[h]:
+            continue
+        wn2, vn2 = motion_norms2(out[h, 3], out[h, 4], out[h, 5], out[h, 6], out[h, 7],
+                                 out[h, 8], out[h, 9], out[h, 10], out[h, 11])  # fmt: skip
+        if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
+            continue
+        if wn2 <= w2max and vn2 <= v2max:
+            keep[m] = h
+            m += 1
+        else:
+            beyond += 1
+    if m == 0:
+        z = np.zeros(3)
+        return (-1, 0.0, np.zeros(0), np.eye(3), z, z, z, 0, np.zeros(len(counts), np.bool_),
+                beyond)  # fmt: skip
+    keep = keep[:m]
+    v = np.ascontiguousarray(out[keep, 0:3])
+    R = compose_rotvec(v, R0[keep])
+    C = np.ascontiguousarray(out[keep, 3:6])
+    w = np.ascontiguousarray(out[keep, 6:9])
+    t = np.ascontiguousarray(out[keep, 9:12])
+    h, cost, e = _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2)
+    n_in, missed = _inliers_missed(e, k, cam, pool_counts)
+    if len(subset):
+        n_in = 0
+        for i in subset:
+            if e[i] < k:
+                n_in += 1
+    return h, cost, e, R[h].copy(), C[h].copy(), w[h].copy(), t[h].copy(), n_in, missed, beyond
+
+
 #: :func:`_still_batch`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
+#: :func:`_moving_batch`'s anchor of none (P3P pre-rotates the samples)
+_NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
 #: candidates and the one it returns
@@ -2545,9 +2633,11 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
-        #: a global-shutter batch in one compiled call (:func:`_still_batch`); its last
-        #: result's inlier count and missed cameras for :meth:`refine_model`
-        self.fused = still and not generalized and not pool.numpy
+        #: a batch in one compiled call (:func:`_still_batch`, without a gyro
+        #: :func:`_moving_batch`); its last result's inlier count and missed cameras for
+        #: :meth:`refine_model`
+        self.fused = not (generalized or pool.numpy) and (still or prior is None)
+        self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
         self._fused: tuple = ()
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
 
@@ -2591,22 +2681,33 @@ class _RigSearch(RansacLoop):
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
     def _fused_batch(self, K: int) -> tuple | None:
-        """A global-shutter batch of K samples in one compiled call (:func:`_still_batch`):
-        ``(cost, model)`` of the best, or None."""
+        """A batch of K samples in one compiled call (:func:`_still_batch`,
+        :func:`_moving_batch`): ``(cost, model)`` of the best, or None."""
         pool, subset = self.pool, self.subset
         u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        missed = self._no_missed if self.missed is None else self.missed
-        rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-        h, cost, self._e, R, C, n, missed = _still_batch(
-            u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
-            _bearings(pool), X, x, tau, cam, Rm, cm, A, missed, rounds, self.th2,
-            self.threshold_px, self._counts,
-        )  # fmt: skip
+        args = (u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+        if self.still:
+            missed = self._no_missed if self.missed is None else self.missed
+            rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
+            h, cost, self._e, R, C, n, missed = _still_batch(
+                *args, missed, rounds, self.th2, self.threshold_px, self._counts
+            )
+            w, t = np.zeros(3), np.zeros(3)
+        else:
+            anchor = _NO_ANCHOR
+            if self.anchored and self.best is not None:
+                anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
+            h, cost, self._e, R, C, w, t, n, missed, beyond = _moving_batch(
+                *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
+                self.threshold_px, self._counts,
+            )  # fmt: skip
+            self.implausible += int(beyond)
         if h < 0:
             return None
         self._cost, self._fused = float(cost), (n, missed)
-        return self._cost, (R, C, np.zeros(3), np.zeros(3))
+        return self._cost, (R, C, w, t)
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         if self.fused:  # (scored in generate_models' call)
@@ -2629,7 +2730,7 @@ class _RigSearch(RansacLoop):
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         if self.fused:  # (counted in the batch's call, among the subset when given)
             n, missed = self._fused
-            if not self.spread:
+            if self.still and not self.spread:
                 self.missed = missed if missed.any() else None
             among = self._e if self.subset is None else self.subset
             return self._cost, model, float(n / len(among))
