@@ -165,6 +165,7 @@ from .plausibility import (
     image_degenerate,
     motion_norms2,
     plausible_motion,
+    views_degenerate,
 )
 from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
@@ -874,6 +875,12 @@ class _Pool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
         undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
         rays in one plane through its centre)."""
+        if not self.numpy:  # (the same tests in one compiled call, unless it needs eigenvalues)
+            code = views_degenerate(
+                self.X, self.uv, self.x, self.focal, _bounds(self), float(threshold_px)
+            )
+            if code >= 0:
+                return bool(code)
         if collinear_3d(self.X, compiled=not self.numpy):
             return True
         for s in self.slices:
@@ -913,6 +920,25 @@ def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
     z0 += C[h, 0] + ti * t[h, 0]
     z1 += C[h, 1] + ti * t[h, 1]
     z2 += C[h, 2] + ti * t[h, 2]
+    c_ = cam[i]
+    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+    if q2 <= 1e-9:
+        return np.inf, np.inf
+    ex = q0 / q2 - x[i, 0]
+    ey = q1 / q2 - x[i, 1]
+    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+
+
+@njit(cache=True, inline=INLINE)
+def _still_residual(R, C, X, cam, Rm, cm, x, A, h, i):
+    """:func:`_point_residual` of a model with ``w = t = 0`` (the rotation at every capture
+    time the identity): the same (2,) error, without the terms that add zeros."""
+    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
+    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
+    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
+    z0, z1, z2 = y0 + C[h, 0], y1 + C[h, 1], y2 + C[h, 2]
     c_ = cam[i]
     q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
     q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
@@ -1015,13 +1041,14 @@ def _pairwise_sum(a, lo, n):
 
 
 @njit(cache=True)
-def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
     """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
     or the first NaN). A model whose running cost already exceeds the best one's is left
     before its last points: the hypotheses' models and the points are finite, so that no
-    later point makes its cost NaN."""
+    later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the errors of
+    :func:`_still_residual`, the same)."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
     v = np.empty(N)
@@ -1036,7 +1063,10 @@ def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
         run = 0.0
         left = False
         for i in range(N):
-            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            if still:
+                d0, d1 = _still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
+            else:
+                d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
             e[i] = np.sqrt(d0**2 + d1**2)
             q = e[i] * e[i]
             v[i] = th2 if q > th2 else q
@@ -1513,7 +1543,7 @@ def _still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, misse
             Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
         R, C = np.concatenate((R, Rg)), np.concatenate((C, Cg))
     z = np.zeros((len(R), 3))
-    h, cost, e = _best_msac_kernel(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2)
+    h, cost, e = _best_msac_kernel(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2, True)
     n_in, missed_now = _inliers_missed(e, k, cam, pool_counts)
     if len(subset):
         n_in = 0
@@ -1858,12 +1888,7 @@ def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
     X, tau = pool.X, pool.tau
     if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
         # (the same check on every camera in one compiled call)
-        bounds = pool.__dict__.get("_bounds")
-        if bounds is None:
-            bounds = pool._bounds = np.array(
-                [(s.start, s.stop) for s in pool.slices], dtype=np.int64
-            ).reshape(-1, 2)
-        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds)
+        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, _bounds(pool))
         return int(code), int(behind)
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
@@ -1888,6 +1913,15 @@ def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
         code = max(code, k)
         behind += n
     return code, behind
+
+
+def _bounds(pool: _Pool) -> np.ndarray:
+    """(M, 2) int64: each camera's first and end row in the pool, built once per pool."""
+    b = pool.__dict__.get("_bounds")
+    if b is None:
+        b = pool._bounds = np.array([(s.start, s.stop) for s in pool.slices], np.int64)
+        b = pool._bounds = b.reshape(-1, 2)
+    return b
 
 
 def _rms(e: np.ndarray) -> float:
