@@ -1811,11 +1811,17 @@ def _covariance(
         Hinv = np.linalg.inv(H)
     except np.linalg.LinAlgError:
         return None, None
-    cov = np.zeros((12, 12))
-    cov[:free, :free] = sigma2 * Hinv
     if mounts and pool.has_mount_cov:
+        cov = np.zeros((12, 12))
+        cov[:free, :free] = sigma2 * Hinv
         cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
-    cov = 0.5 * (cov + cov.T)
+        cov = 0.5 * (cov + cov.T)
+    elif pool.numpy or not _kernel_ready(Hinv):
+        cov = np.zeros((12, 12))
+        cov[:free, :free] = sigma2 * Hinv
+        cov = 0.5 * (cov + cov.T)
+    else:  # (the same products and sums in one compiled call)
+        cov = _symmetric_covariance(Hinv, sigma2)
     if not np.isfinite(cov).all():
         return None, None
     G = None
@@ -1826,6 +1832,18 @@ def _covariance(
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+@njit(cache=True)
+def _symmetric_covariance(Hinv, sigma2):
+    """(12, 12): ``sigma2 * Hinv`` (free x free) in the upper left block, zeros elsewhere,
+    then ``0.5 * (cov + cov^T)``: :func:`_covariance`'s NumPy steps, the same arithmetic."""
+    f = Hinv.shape[0]
+    cov = np.zeros((12, 12))
+    for i in range(f):
+        for j in range(f):
+            cov[i, j] = 0.5 * (sigma2 * Hinv[i, j] + sigma2 * Hinv[j, i])
+    return cov
 
 
 def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
