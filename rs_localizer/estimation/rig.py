@@ -576,21 +576,24 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
+    spr, focal, jacobian = _camera_constants(cam)
+    stamp = float(v.stamp_offset)
+    args = None if numpy or not jacobian else _jacobian_args(cam)
+    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
+    if args is not None and spr == 0.0 and _kernel_ready(uv) and _kernel_ready(X):
+        # (a global shutter with distortion: the checks and rows below in one compiled call
+        # when every row is finite)
+        x = cam.undistort(uv)
+        if _kernel_ready(x):
+            finite, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
+            if finite:
+                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
     if _all_finite(uv, X, numpy):
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
         idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
-    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     x = cam.undistort(uv_g, compiled=not numpy)
-    spr, focal, jacobian = _camera_constants(cam)
-    stamp = float(v.stamp_offset)
-    args = None if numpy or not jacobian else _jacobian_args(cam)
-    if args is not None and spr == 0.0 and _kernel_ready(x):
-        # (a global shutter with distortion: the checks and rows below in one compiled call)
-        finite, tau, A = _global_shutter_rows(x, stamp, *args)
-        if finite:
-            return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx, focal, A)
     if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
@@ -614,18 +617,22 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
 
 
 @njit(cache=True)
-def _global_shutter_rows(x, stamp, d, fisheye, fx, fy):
-    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) undistorted points
-    ``x``: ``(every entry of x finite, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
-    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
-    ``d, fisheye, fx, fy``)``."""
+def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
+    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
+    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every entry of the three
+    finite, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians
+    of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
+    fisheye, fx, fy``)``."""
     n = x.shape[0]
+    idx = np.arange(n)
     tau = np.empty(n)
     for i in range(n):
-        if not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
-            return False, tau, np.empty((0, 4))
+        ok = np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]) and np.isfinite(x[i, 0])
+        ok = ok and np.isfinite(x[i, 1]) and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
+        if not (ok and np.isfinite(X[i, 2])):
+            return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
-    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
+    return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
 
 
 #: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
