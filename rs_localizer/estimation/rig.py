@@ -900,6 +900,20 @@ class _Pool:
 
 
 @njit(cache=True, inline=INLINE)
+def _camera_error(z0, z1, z2, c_, Rm, cm, x, A, i):
+    """The (2,) image error (px) of point ``i`` at ``z`` in the rig frame, seen by camera
+    ``c_`` through its mounting: :func:`_point_residual`'s last steps."""
+    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+    if q2 <= 1e-9:
+        return np.inf, np.inf
+    ex = q0 / q2 - x[i, 0]
+    ey = q1 / q2 - x[i, 1]
+    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+
+
+@njit(cache=True, inline=INLINE)
 def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
     """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
     the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
@@ -927,15 +941,7 @@ def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
     z0 += C[h, 0] + ti * t[h, 0]
     z1 += C[h, 1] + ti * t[h, 1]
     z2 += C[h, 2] + ti * t[h, 2]
-    c_ = cam[i]
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+    return _camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
 
 
 @njit(cache=True, inline=INLINE)
@@ -946,15 +952,7 @@ def _still_residual(R, C, X, cam, Rm, cm, x, A, h, i):
     y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
     y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
     z0, z1, z2 = y0 + C[h, 0], y1 + C[h, 1], y2 + C[h, 2]
-    c_ = cam[i]
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+    return _camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
 
 
 @njit(cache=True)
@@ -1514,12 +1512,8 @@ def _still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, misse
     px, R (3, 3), C (3,), inliers (among ``subset`` when given), the cameras of 3 or more
     points with no inlier (M,) bool)``; ``h`` -1 when no sample gave a model. The same
     numbers as those steps called one by one, bit for bit."""
-    counts, starts, eligible, cdf, n = sampling
-    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
-    if len(subset):
-        for a in range(samples.shape[0]):
-            for b in range(6):
-                samples[a, b] = subset[samples[a, b]]
+    counts = sampling[0]
+    samples = _batch_samples(u, sampling, subset)
     R, C, own = _lambda_twist_of(bearings, X, samples, cam, Rm, cm)
     if len(own) == 0:
         return -1, 0.0, np.zeros(0), np.eye(3), np.zeros(3), 0, np.zeros(len(counts), np.bool_)
@@ -1550,14 +1544,37 @@ def _still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, misse
             Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
         R, C = np.concatenate((R, Rg)), np.concatenate((C, Cg))
     z = np.zeros((len(R), 3))
-    h, cost, e = _best_msac_kernel(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2, True)
-    n_in, missed_now = _inliers_missed(e, k, cam, pool_counts)
+    h, cost, e, n_in, missed_now = _best_counted(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2,
+                                                 True, k, pool_counts, subset)  # fmt: skip
+    return h, cost, e, R[h].copy(), C[h].copy(), n_in, missed_now
+
+
+@njit(cache=True)
+def _batch_samples(u, sampling, subset):
+    """:func:`_sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) and
+    :func:`_sampling_of`'s ``sampling``, mapped through ``subset`` when it is not empty."""
+    counts, starts, eligible, cdf, n = sampling
+    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
+    if len(subset):
+        for a in range(samples.shape[0]):
+            for b in range(6):
+                samples[a, b] = subset[samples[a, b]]
+    return samples
+
+
+@njit(cache=True)
+def _best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, k, pool_counts, subset):
+    """:func:`_best_msac_kernel` of the models, then its best model's inliers (errors below
+    ``k`` px; among ``subset`` when it is not empty) and the cameras of 3 or more points
+    (``pool_counts``) with none: ``(h, cost, errors, inliers, those cameras (M,) bool)``."""
+    h, cost, e = _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still)
+    n_in, missed = _inliers_missed(e, k, cam, pool_counts)
     if len(subset):
         n_in = 0
         for i in subset:
             if e[i] < k:
                 n_in += 1
-    return h, cost, e, R[h].copy(), C[h].copy(), n_in, missed_now
+    return h, cost, e, n_in, missed
 
 
 def _refit(
@@ -2599,12 +2616,8 @@ def _moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anch
     outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
     valid solutions beyond the bounds; the rotations by the compiled Rodrigues
     (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
-    counts, starts, eligible, cdf, n = sampling
-    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
-    if len(subset):
-        for a in range(samples.shape[0]):
-            for b in range(6):
-                samples[a, b] = subset[samples[a, b]]
+    counts = sampling[0]
+    samples = _batch_samples(u, sampling, subset)
     if anchor.shape[0]:
         R0 = np.empty((samples.shape[0], 3, 3))
         for h in range(samples.shape[0]):
@@ -2640,13 +2653,8 @@ def _moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anch
     C = np.ascontiguousarray(out[keep, 3:6])
     w = np.ascontiguousarray(out[keep, 6:9])
     t = np.ascontiguousarray(out[keep, 9:12])
-    h, cost, e = _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2)
-    n_in, missed = _inliers_missed(e, k, cam, pool_counts)
-    if len(subset):
-        n_in = 0
-        for i in subset:
-            if e[i] < k:
-                n_in += 1
+    h, cost, e, n_in, missed = _best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False,
+                                             k, pool_counts, subset)  # fmt: skip
     return h, cost, e, R[h].copy(), C[h].copy(), w[h].copy(), t[h].copy(), n_in, missed, beyond
 
 
