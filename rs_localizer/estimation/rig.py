@@ -120,7 +120,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE, compose_rotvec
+from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
@@ -130,10 +130,8 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
     gr6p_1lin_batch_numpy,
-    solve_rotated,
     still_solve_rotated,
 )
-from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .finalize import (
     FAR_SIDE_LIMIT,
@@ -163,7 +161,6 @@ from .plausibility import (
     final_model_check,
     final_model_check_numpy,
     image_degenerate,
-    motion_norms2,
     plausible_motion,
     views_degenerate,
 )
@@ -201,6 +198,16 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     output_covariance,
+)
+from .rig_batch import (
+    best_msac,
+    inliers_missed,
+    lambda_twist_on_rig,
+    moving_batch,
+    pairwise_sum,
+    point_residual,
+    sample_kernel,
+    still_batch,
 )
 from .sensitivity import physical_sensitivity
 
@@ -899,72 +906,16 @@ class _Pool:
         return True
 
 
-@njit(cache=True, inline=INLINE)
-def _camera_error(z0, z1, z2, c_, Rm, cm, x, A, i):
-    """The (2,) image error (px) of point ``i`` at ``z`` in the rig frame, seen by camera
-    ``c_`` through its mounting: :func:`_point_residual`'s last steps."""
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
-
-
-@njit(cache=True, inline=INLINE)
-def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
-    """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
-    the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`_Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
-    camera. Inlined (numba permitting: ``INLINE``) into each kernel that needs it: the same
-    operations in each."""
-    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    ti = tau[i]
-    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    if th < 1e-12:
-        z0 = y0 + p1 * y2 - p2 * y1
-        z1 = y1 + p2 * y0 - p0 * y2
-        z2 = y2 + p0 * y1 - p1 * y0
-    else:
-        k0, k1, k2 = p0 / th, p1 / th, p2 / th
-        c, s = np.cos(th), np.sin(th)
-        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-    z0 += C[h, 0] + ti * t[h, 0]
-    z1 += C[h, 1] + ti * t[h, 1]
-    z2 += C[h, 2] + ti * t[h, 2]
-    return _camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
-
-
-@njit(cache=True, inline=INLINE)
-def _still_residual(R, C, X, cam, Rm, cm, x, A, h, i):
-    """:func:`_point_residual` of a model with ``w = t = 0`` (the rotation at every capture
-    time the identity): the same (2,) error, without the terms that add zeros."""
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    z0, z1, z2 = y0 + C[h, 0], y1 + C[h, 1], y2 + C[h, 2]
-    return _camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
-
-
 @njit(cache=True)
 def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
     normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
     :class:`_Pool`): to first order the error in the measured image; inf behind the camera;
-    :func:`_point_residual`)."""
+    :func:`~.rig_batch.point_residual`)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
-            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
             out[h, i, 0] = d0
             out[h, i, 1] = d1
 
@@ -984,111 +935,6 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
 
 
 @njit(cache=True)
-def _block_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
-    block: sequentially below 8, else in 8 interleaved partial sums."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    m = n - n % 8
-    while i < m:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True)
-def _pairwise_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
-    float64 row, to the bit): blocks of at most 128 (:func:`_block_sum`), larger ranges
-    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
-    stack)."""
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
-    vals = np.empty(128)
-    sp, vp = 1, 0
-    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
-    while sp > 0:
-        sp -= 1
-        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
-        if m <= 128:
-            vals[vp] = _block_sum(a, a0, m)
-            vp += 1
-        elif done:
-            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
-            vp -= 1
-        else:
-            n2 = m // 2
-            n2 -= n2 % 8
-            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
-            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
-            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
-            sp += 3
-    return vals[0]
-
-
-@njit(cache=True)
-def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
-    """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
-    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
-    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
-    or the first NaN). A model whose running cost already exceeds the best one's is left
-    before its last points: the hypotheses' models and the points are finite, so that no
-    later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the errors of
-    :func:`_still_residual`, the same)."""
-    H, N = R.shape[0], X.shape[0]
-    e = np.empty(N)
-    v = np.empty(N)
-    best_e = np.zeros(N)
-    best, best_cost = -1, 0.0
-    # a model is left once the plain running sum of its first capped squares exceeds the
-    # best cost by this factor: its pairwise sum over every point is then larger (each sum of
-    # N non-negative terms is within N * 2^-52 of the exact one), so it is not the argmin
-    stop = 1.0 + 1e-9
-    for h in range(H):
-        bound = best_cost * stop if best >= 0 and np.isfinite(best_cost) else np.inf
-        run = 0.0
-        left = False
-        for i in range(N):
-            if still:
-                d0, d1 = _still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
-            else:
-                d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            e[i] = np.sqrt(d0**2 + d1**2)
-            q = e[i] * e[i]
-            v[i] = th2 if q > th2 else q
-            run += v[i]
-            if run > bound:
-                left = True
-                break
-        if left:
-            continue
-        c = _pairwise_sum(v, 0, N)
-        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
-            best, best_cost = h, c
-            best_e[:] = e
-    return best, best_cost, best_e
-
-
-@njit(cache=True)
 def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
     squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
@@ -1103,7 +949,7 @@ def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
         e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
         q = e[i] * e[i]
         v[i] = th2 if q > th2 else q
-    return e, _pairwise_sum(v, 0, N)
+    return e, pairwise_sum(v, 0, N)
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
@@ -1189,7 +1035,7 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
         out = np.concatenate([first, rest], axis=1)
     else:  # (the same draws, in the same order, mapped in one compiled call)
         u = rng.random(7 * n_samples).reshape(7, n_samples)
-        out = _sample_kernel(u, cdf, eligible, counts, starts, n)
+        out = sample_kernel(u, cdf, eligible, counts, starts, n)
     return out if subset is None else subset[out]
 
 
@@ -1226,53 +1072,6 @@ def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     out = (counts.astype(np.int64), starts.astype(np.int64), eligible.astype(np.int64), cdf,
            len(cam))  # fmt: skip
     pool._sampling = (subset, out)
-    return out
-
-
-@njit(cache=True)
-def _sample_kernel(u, cdf, eligible, counts, starts, n):
-    """:func:`_sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
-    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
-    (:func:`_distinct3`), three distinct points of the ``n - 3`` others."""
-    S = u.shape[1]
-    out = np.empty((S, 6), dtype=np.int64)
-    for k in range(S):
-        j = 0
-        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
-            j += 1
-        cam = eligible[min(j, len(cdf) - 1)]
-        for part in range(2):
-            N = counts[cam] if part == 0 else n - 3
-            a = np.int64(u[1 + 3 * part, k] * N)
-            b = np.int64(u[2 + 3 * part, k] * (N - 1))
-            if b >= a:
-                b += 1
-            c = np.int64(u[3 + 3 * part, k] * (N - 2))
-            lo, hi = min(a, b), max(a, b)
-            if c >= lo:
-                c += 1
-            if c >= hi:
-                c += 1
-            if part == 0:
-                out[k, 0], out[k, 1], out[k, 2] = starts[cam] + a, starts[cam] + b, starts[cam] + c
-            else:
-                out[k, 3], out[k, 4], out[k, 5] = a, b, c
-        t0, t1, t2 = out[k, 0], out[k, 1], out[k, 2]  # (sorted: map onto the pool without them)
-        if t0 > t1:
-            t0, t1 = t1, t0
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t0 > t1:
-            t0, t1 = t1, t0
-        for i in range(3, 6):
-            r = out[k, i]
-            if r >= t0:
-                r += 1
-            if r >= t1:
-                r += 1
-            if r >= t2:
-                r += 1
-            out[k, i] = r
     return out
 
 
@@ -1450,7 +1249,7 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
         cam, Rm, cm, _ = _kernel_mountings(pool).views
-        R, C, own = _lambda_twist_of(_bearings(pool), pool.X, samples, cam, Rm, cm)
+        R, C, own = lambda_twist_on_rig(_bearings(pool), pool.X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
     R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
@@ -1460,121 +1259,6 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     R = RcT @ R_cam
     C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     return R, C, own
-
-
-@njit(cache=True)
-def _lambda_twist_of(bearings, X, samples, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
-    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
-    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`_p3p_on_rig`'s."""
-    K = samples.shape[0]
-    b = np.empty((K, 3, 3))
-    P = np.empty((K, 3, 3))
-    for k in range(K):
-        for j in range(3):
-            i = samples[k, j]
-            for a in range(3):
-                b[k, j, a] = bearings[i, a]
-                P[k, j, a] = X[i, a]
-    R_cam, C_cam, own = lambda_twist_batch(b, P)
-    H = len(own)
-    R = np.empty((H, 3, 3))
-    C = np.empty((H, 3))
-    for h in range(H):
-        c = cam[samples[own[h], 0]]
-        for i in range(3):
-            for j in range(3):
-                R[h, i, j] = (
-                    Rm[c, 0, i] * R_cam[h, 0, j]
-                    + Rm[c, 1, i] * R_cam[h, 1, j]
-                    + (Rm[c, 2, i] * R_cam[h, 2, j])
-                )
-            C[h, i] = (
-                Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
-                + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
-                + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
-            )
-    return R, C, own
-
-
-@njit(cache=True)
-def _still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds, th2,
-                 k, pool_counts):  # fmt: skip
-    """One global-shutter batch of the compiled search in one call: :func:`_sample` from its
-    uniform draws ``u`` (7, K) (``sampling``: :func:`_sampling_of`'s ``(counts, starts,
-    eligible, cdf, n)``; ``subset`` (S,) the sorted pool indices sampled among, or empty: the
-    whole pool), :func:`_hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
-    (M,) bool any True, the samples with points in those cameras corrected ``rounds`` times
-    by the rig solver with the velocities held at zero), the lowest MSAC cost among them
-    (:func:`_best_msac_kernel`, ``th2`` px^2) and its inliers (errors below ``k`` px;
-    ``pool_counts`` (M,): every camera's points in the pool). Returns ``(h, cost, errors (N,)
-    px, R (3, 3), C (3,), inliers (among ``subset`` when given), the cameras of 3 or more
-    points with no inlier (M,) bool)``; ``h`` -1 when no sample gave a model. The same
-    numbers as those steps called one by one, bit for bit."""
-    counts = sampling[0]
-    samples = _batch_samples(u, sampling, subset)
-    R, C, own = _lambda_twist_of(bearings, X, samples, cam, Rm, cm)
-    if len(own) == 0:
-        return -1, 0.0, np.zeros(0), np.eye(3), np.zeros(3), 0, np.zeros(len(counts), np.bool_)
-    spread = np.empty(len(own), dtype=np.int64)
-    m = 0
-    if missed.any():
-        for h in range(len(own)):
-            for j in range(6):
-                if missed[cam[samples[own[h], j]]]:
-                    spread[m] = h
-                    m += 1
-                    break
-    if m:
-        S = np.empty((m, 6), dtype=np.int64)
-        Rg = np.empty((m, 3, 3))
-        for i in range(m):
-            S[i] = samples[own[spread[i]]]
-            Rg[i] = R[spread[i]]
-        Cg = np.empty((0, 3))
-        for _ in range(rounds):
-            out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
-            if not ok.any():
-                Rg, Cg = np.empty((0, 3, 3)), np.empty((0, 3))
-                break
-            keep = np.flatnonzero(ok)
-            S = S[keep]
-            Cg = np.ascontiguousarray(out[keep, 3:6])
-            Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
-        R, C = np.concatenate((R, Rg)), np.concatenate((C, Cg))
-    z = np.zeros((len(R), 3))
-    h, cost, e, n_in, missed_now = _best_counted(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2,
-                                                 True, k, pool_counts, subset)  # fmt: skip
-    return h, cost, e, R[h].copy(), C[h].copy(), n_in, missed_now
-
-
-@njit(cache=True)
-def _batch_samples(u, sampling, subset):
-    """:func:`_sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) and
-    :func:`_sampling_of`'s ``sampling``, mapped through ``subset`` when it is not empty."""
-    counts, starts, eligible, cdf, n = sampling
-    samples = _sample_kernel(u, cdf, eligible, counts, starts, n)
-    if len(subset):
-        for a in range(samples.shape[0]):
-            for b in range(6):
-                samples[a, b] = subset[samples[a, b]]
-    return samples
-
-
-@njit(cache=True)
-def _best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, k, pool_counts, subset):
-    """:func:`_best_msac_kernel` of the models, then its best model's inliers (errors below
-    ``k`` px; among ``subset`` when it is not empty) and the cameras of 3 or more points
-    (``pool_counts``) with none: ``(h, cost, errors, inliers, those cameras (M,) bool)``."""
-    h, cost, e = _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still)
-    n_in, missed = _inliers_missed(e, k, cam, pool_counts)
-    if len(subset):
-        n_in = 0
-        for i in subset:
-            if e[i] < k:
-                n_in += 1
-    return h, cost, e, n_in, missed
 
 
 def _refit(
@@ -2603,64 +2287,9 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
-@njit(cache=True)
-def _moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor, iterations,
-                  w2max, v2max, th2, k, pool_counts):  # fmt: skip
-    """One rolling-shutter batch of the compiled search without a gyro in one call, as
-    :func:`_still_batch` (its arguments, without ``missed`` and ``rounds``): the samples'
-    pre-rotations (Lambda Twist mapped to the rig, or ``anchor`` (3, 3) for every sample when
-    it is not empty), the rig solver on the pre-rotated samples (``iterations``,
-    :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
-    motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`_hypotheses`, then
-    ``generate_models``' bounds), the lowest MSAC cost among them. Returns :func:`_still_batch`'s
-    outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
-    valid solutions beyond the bounds; the rotations by the compiled Rodrigues
-    (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
-    counts = sampling[0]
-    samples = _batch_samples(u, sampling, subset)
-    if anchor.shape[0]:
-        R0 = np.empty((samples.shape[0], 3, 3))
-        for h in range(samples.shape[0]):
-            R0[h] = anchor
-        S = samples
-    else:
-        R0, _, own = _lambda_twist_of(bearings, X, samples, cam, Rm, cm)
-        S = np.empty((len(own), 6), dtype=np.int64)
-        for h in range(len(own)):
-            S[h] = samples[own[h]]
-    out, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
-    keep = np.empty(len(ok), dtype=np.int64)
-    m, beyond = 0, 0
-    for h in range(len(ok)):
-        if not ok[h]:
-            continue
-        wn2, vn2 = motion_norms2(out[h, 3], out[h, 4], out[h, 5], out[h, 6], out[h, 7],
-                                 out[h, 8], out[h, 9], out[h, 10], out[h, 11])  # fmt: skip
-        if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
-            continue
-        if wn2 <= w2max and vn2 <= v2max:
-            keep[m] = h
-            m += 1
-        else:
-            beyond += 1
-    if m == 0:
-        z = np.zeros(3)
-        return (-1, 0.0, np.zeros(0), np.eye(3), z, z, z, 0, np.zeros(len(counts), np.bool_),
-                beyond)  # fmt: skip
-    keep = keep[:m]
-    v = np.ascontiguousarray(out[keep, 0:3])
-    R = compose_rotvec(v, R0[keep])
-    C = np.ascontiguousarray(out[keep, 3:6])
-    w = np.ascontiguousarray(out[keep, 6:9])
-    t = np.ascontiguousarray(out[keep, 9:12])
-    h, cost, e, n_in, missed = _best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False,
-                                             k, pool_counts, subset)  # fmt: skip
-    return h, cost, e, R[h].copy(), C[h].copy(), w[h].copy(), t[h].copy(), n_in, missed, beyond
-
-
-#: :func:`_still_batch`'s subset of no subset (every pool point sampled)
+#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
-#: :func:`_moving_batch`'s anchor of none (P3P pre-rotates the samples)
+#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
@@ -2673,11 +2302,11 @@ class _RigSearch(RansacLoop):
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``; a compiled global-shutter
-    batch is drawn, solved and scored in one call, :func:`_still_batch`); ``score_models``
-    is MSAC on every point's reprojection error in pixels; ``refine_model`` keeps the model as
-    it is (the rig's local optimization runs once, after the search) and gives termination its
-    inlier ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
+    dropping models beyond the velocity bounds (``implausible``; a compiled batch is drawn,
+    solved and scored in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
+    point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the rig's
+    local optimization runs once, after the search) and gives termination its inlier ratio
+    (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
     def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
@@ -2700,8 +2329,8 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
-        #: a batch in one compiled call (:func:`_still_batch`, without a gyro
-        #: :func:`_moving_batch`); its last result's inlier count and missed cameras for
+        #: a batch in one compiled call (:func:`~.rig_batch.still_batch`, without a gyro
+        #: :func:`~.rig_batch.moving_batch`); its last result's inlier count and missed cameras for
         #: :meth:`refine_model`
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
@@ -2748,8 +2377,8 @@ class _RigSearch(RansacLoop):
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
     def _fused_batch(self, K: int) -> tuple | None:
-        """A batch of K samples in one compiled call (:func:`_still_batch`,
-        :func:`_moving_batch`): ``(cost, model)`` of the best, or None."""
+        """A batch of K samples in one compiled call (:func:`~.rig_batch.still_batch`,
+        :func:`~.rig_batch.moving_batch`): ``(cost, model)`` of the best, or None."""
         pool, subset = self.pool, self.subset
         u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
@@ -2758,7 +2387,7 @@ class _RigSearch(RansacLoop):
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            h, cost, self._e, R, C, n, missed = _still_batch(
+            h, cost, self._e, R, C, n, missed = still_batch(
                 *args, missed, rounds, self.th2, self.threshold_px, self._counts
             )
             w, t = np.zeros(3), np.zeros(3)
@@ -2766,7 +2395,7 @@ class _RigSearch(RansacLoop):
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            h, cost, self._e, R, C, w, t, n, missed, beyond = _moving_batch(
+            h, cost, self._e, R, C, w, t, n, missed, beyond = moving_batch(
                 *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
                 self.threshold_px, self._counts,
             )  # fmt: skip
@@ -2787,7 +2416,7 @@ class _RigSearch(RansacLoop):
             self._e, self._cost = e[h], float(cost[h])
         else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
             f = [np.ascontiguousarray(a, dtype=np.float64) for a in hyp]
-            h, cost, self._e = _best_msac_kernel(
+            h, cost, self._e = best_msac(
                 *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A,
                 self.th2,
             )  # fmt: skip
@@ -2802,7 +2431,7 @@ class _RigSearch(RansacLoop):
             among = self._e if self.subset is None else self.subset
             return self._cost, model, float(n / len(among))
         if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
-            n, missed = _inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
+            n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:
                 self.missed = missed if missed.any() else None
             return self._cost, model, float(n / len(self._e))
@@ -2816,22 +2445,6 @@ class _RigSearch(RansacLoop):
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
         # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
         return self._cost, model, float(ratio)
-
-
-@njit(cache=True)
-def _inliers_missed(e, k, cam, counts):
-    """``(the number of errors e (N,) below k, (M,) bool: the cameras of at least 3 points
-    (``counts``) with none of them)``."""
-    hit = np.zeros(len(counts), dtype=np.int64)
-    n = 0
-    for i in range(len(e)):
-        if e[i] < k:
-            n += 1
-            hit[cam[i]] += 1
-    missed = np.empty(len(counts), dtype=np.bool_)
-    for c in range(len(counts)):
-        missed[c] = counts[c] >= 3 and hit[c] == 0
-    return n, missed
 
 
 def _rig_estimate(

@@ -1,4 +1,4 @@
-"""The rig's global-shutter RANSAC batch in one compiled call (``_still_batch``) against the same
+"""The rig's global-shutter RANSAC batch in one compiled call (``still_batch``) against the same
 batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
 cost): the same best model, cost, errors, inliers and missed cameras."""
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.rig_batch import moving_batch, still_batch
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import rig as sim_rig
@@ -67,7 +68,7 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     u = np.random.default_rng(7 + seed).random(7 * K).reshape(7, K)
-    hf, cf, ef, Rf, Cf, n, missed_f = rig_mod._still_batch(
+    hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
         u, rig_mod._sampling_of(pool, subset),
         rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
         cam, Rm, cm, A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th,
@@ -106,7 +107,7 @@ def _moving_frame(seed, counts):
 )
 def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts, anchored,
                                                                    w_max, guided):  # fmt: skip
-    """``_moving_batch`` against ``_sample``, ``_hypotheses`` (P3P or an anchor's rotation
+    """``moving_batch`` against ``_sample``, ``_hypotheses`` (P3P or an anchor's rotation
     pre-rotating the rig solver) and the motion bounds, scored in NumPy: the same best model
     (its rotation to rounding: the compiled Rodrigues), cost, errors, inliers, and the same
     number of solutions beyond the bounds."""
@@ -127,7 +128,7 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
         assert beyond > 0  # (the bounds drop some solutions)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     u = np.random.default_rng(seed).random(7 * K).reshape(7, K)
-    out = rig_mod._moving_batch(
+    out = moving_batch(
         u, rig_mod._sampling_of(pool, subset),
         rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
         cam, Rm, cm, A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations,
