@@ -50,6 +50,7 @@ __all__ = [
     "motion_bounds",
     "motion_norms2",
     "plausible_motion",
+    "views_degenerate",
 ]
 
 #: failure reasons of :func:`check_final_model`
@@ -313,6 +314,49 @@ def image_degenerate(
         rms(np.asarray(points_px, dtype=float).reshape(-1, 2)) < threshold_px
         or rms(np.asarray(points_normalized, dtype=float).reshape(-1, 2) * focal) < threshold_px
     )
+
+
+@njit(cache=True, nogil=True)
+def _line_rms_scaled(P, a, b, scale):
+    """:func:`line_rms` of ``scale * P[a:b]`` (P (N, 2)), the same arithmetic."""
+    n = b - a
+    if n < 3:
+        return 0.0
+    Q = np.empty((n, 2))
+    for i in range(n):
+        Q[i, 0], Q[i, 1] = P[a + i, 0] * scale, P[a + i, 1] * scale
+    S = _scatter(Q)
+    s00, s01, s11 = S[0, 0], S[0, 1], S[1, 1]
+    lam = 0.5 * (s00 + s11) - math.sqrt(max(0.25 * (s00 - s11) ** 2 + s01 * s01, 0.0))
+    return math.sqrt(max(lam, 0.0) / n)
+
+
+@njit(cache=True, nogil=True)
+def views_degenerate(X, points_px, points_normalized, focal, bounds, threshold_px, tol=1e-3):
+    """:func:`collinear_3d` of the world points X (N, 3), or else :func:`image_degenerate` of
+    every view's rows ``bounds[c, 0]:bounds[c, 1]`` of the pixels and normalized points (N, 2)
+    (the view's focal length: ``focal`` (N,) px at its first row; a view of fewer than 3 rows
+    counts as degenerate),
+    in one compiled call, the same arithmetic: 1 when the points are degenerate, 0 when not,
+    -1 when the collinearity test needs the scatter matrix's eigenvalues (then undecided)."""
+    if X.shape[0] < 3:
+        return 1
+    S = _scatter(X)
+    a, b, c, d, e, f = S[0, 0], S[0, 1], S[0, 2], S[1, 1], S[1, 2], S[2, 2]
+    tr = a + d + f  # (:func:`_clearly_spread`)
+    e2 = (a * d - b * b) + (a * f - c * c) + (d * f - e * e)
+    if not (tr > 0 and e2 > 30.0 * tol * tol * tr * tr):
+        return -1
+    for v in range(bounds.shape[0]):
+        lo, hi = bounds[v, 0], bounds[v, 1]
+        if hi - lo < 3:
+            continue
+        if _line_rms_scaled(points_px, lo, hi, 1.0) < threshold_px:
+            continue
+        if _line_rms_scaled(points_normalized, lo, hi, focal[lo]) < threshold_px:
+            continue
+        return 0
+    return 1
 
 
 @njit(cache=True, nogil=True)

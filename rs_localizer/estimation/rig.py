@@ -120,7 +120,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE, compose_rotvec
+from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
@@ -132,7 +132,6 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin_batch_numpy,
     still_solve_rotated,
 )
-from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .estimate import estimate_rs_pose
 from .finalize import (
@@ -164,6 +163,7 @@ from .plausibility import (
     final_model_check_numpy,
     image_degenerate,
     plausible_motion,
+    views_degenerate,
 )
 from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
@@ -199,6 +199,16 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     output_covariance,
+)
+from .rig_batch import (
+    best_msac,
+    inliers_missed,
+    lambda_twist_on_rig,
+    moving_batch,
+    pairwise_sum,
+    point_residual,
+    sample_kernel,
+    still_batch,
 )
 from .sensitivity import physical_sensitivity
 from .single_tag import few_points
@@ -575,18 +585,27 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
+    spr, focal, jacobian = _camera_constants(cam)
+    stamp = float(v.stamp_offset)
+    args = None if numpy or not jacobian else _jacobian_args(cam)
+    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
+    if args is not None and spr == 0.0 and _kernel_ready(uv) and _kernel_ready(X):
+        # (a global shutter with distortion: the checks and rows below in one compiled call
+        # when every row is finite)
+        x = cam.undistort(uv)
+        if _kernel_ready(x):
+            finite, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
+            if finite:
+                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
     if _all_finite(uv, X, numpy):
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
         idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
-    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     x = cam.undistort(uv_g, compiled=not numpy)
     if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
-    spr, focal, jacobian = _camera_constants(cam)
-    stamp = float(v.stamp_offset)
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
         tau.fill(stamp + 0.0)
@@ -594,7 +613,6 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - cam.r0) * spr
     if jacobian:
-        args = None if numpy else _jacobian_args(cam)
         if args is None:
             A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
         else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
@@ -605,6 +623,25 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         A[:, 0] = A[:, 3] = focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             focal, A)  # fmt: skip
+
+
+@njit(cache=True)
+def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
+    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
+    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every entry of the three
+    finite, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians
+    of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
+    fisheye, fx, fy``)``."""
+    n = x.shape[0]
+    idx = np.arange(n)
+    tau = np.empty(n)
+    for i in range(n):
+        ok = np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]) and np.isfinite(x[i, 0])
+        ok = ok and np.isfinite(x[i, 1]) and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
+        if not (ok and np.isfinite(X[i, 2])):
+            return False, idx, tau, np.empty((0, 4))
+        tau[i] = stamp + 0.0
+    return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
 
 
 #: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
@@ -854,6 +891,12 @@ class _Pool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
         undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
         rays in one plane through its centre)."""
+        if not self.numpy:  # (the same tests in one compiled call, unless it needs eigenvalues)
+            code = views_degenerate(
+                self.X, self.uv, self.x, self.focal, _bounds(self), float(threshold_px)
+            )
+            if code >= 0:
+                return bool(code)
         if collinear_3d(self.X, compiled=not self.numpy):
             return True
         for s in self.slices:
@@ -865,55 +908,16 @@ class _Pool:
         return True
 
 
-@njit(cache=True, inline=INLINE)
-def _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
-    """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
-    the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`_Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
-    camera. Inlined (numba permitting: ``INLINE``) into each kernel that needs it: the same
-    operations in each."""
-    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    ti = tau[i]
-    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    if th < 1e-12:
-        z0 = y0 + p1 * y2 - p2 * y1
-        z1 = y1 + p2 * y0 - p0 * y2
-        z2 = y2 + p0 * y1 - p1 * y0
-    else:
-        k0, k1, k2 = p0 / th, p1 / th, p2 / th
-        c, s = np.cos(th), np.sin(th)
-        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-    z0 += C[h, 0] + ti * t[h, 0]
-    z1 += C[h, 1] + ti * t[h, 1]
-    z2 += C[h, 2] + ti * t[h, 2]
-    c_ = cam[i]
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
-
-
 @njit(cache=True)
 def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
     normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
     :class:`_Pool`): to first order the error in the measured image; inf behind the camera;
-    :func:`_point_residual`)."""
+    :func:`~.rig_batch.point_residual`)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
-            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
             out[h, i, 0] = d0
             out[h, i, 1] = d1
 
@@ -933,107 +937,6 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
 
 
 @njit(cache=True)
-def _block_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
-    block: sequentially below 8, else in 8 interleaved partial sums."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    m = n - n % 8
-    while i < m:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True)
-def _pairwise_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
-    float64 row, to the bit): blocks of at most 128 (:func:`_block_sum`), larger ranges
-    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
-    stack)."""
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
-    vals = np.empty(128)
-    sp, vp = 1, 0
-    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
-    while sp > 0:
-        sp -= 1
-        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
-        if m <= 128:
-            vals[vp] = _block_sum(a, a0, m)
-            vp += 1
-        elif done:
-            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
-            vp -= 1
-        else:
-            n2 = m // 2
-            n2 -= n2 % 8
-            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
-            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
-            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
-            sp += 3
-    return vals[0]
-
-
-@njit(cache=True)
-def _best_msac_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
-    """The model of the lowest MSAC cost among H models (:func:`_errors_kernel`'s errors,
-    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
-    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
-    or the first NaN). A model whose running cost already exceeds the best one's is left
-    before its last points: the hypotheses' models and the points are finite, so that no
-    later point makes its cost NaN."""
-    H, N = R.shape[0], X.shape[0]
-    e = np.empty(N)
-    v = np.empty(N)
-    best_e = np.zeros(N)
-    best, best_cost = -1, 0.0
-    # a model is left once the plain running sum of its first capped squares exceeds the
-    # best cost by this factor: its pairwise sum over every point is then larger (each sum of
-    # N non-negative terms is within N * 2^-52 of the exact one), so it is not the argmin
-    stop = 1.0 + 1e-9
-    for h in range(H):
-        bound = best_cost * stop if best >= 0 and np.isfinite(best_cost) else np.inf
-        run = 0.0
-        left = False
-        for i in range(N):
-            d0, d1 = _point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            e[i] = np.sqrt(d0**2 + d1**2)
-            q = e[i] * e[i]
-            v[i] = th2 if q > th2 else q
-            run += v[i]
-            if run > bound:
-                left = True
-                break
-        if left:
-            continue
-        c = _pairwise_sum(v, 0, N)
-        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
-            best, best_cost = h, c
-            best_e[:] = e
-    return best, best_cost, best_e
-
-
-@njit(cache=True)
 def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
     squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
@@ -1048,7 +951,7 @@ def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
         e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
         q = e[i] * e[i]
         v[i] = th2 if q > th2 else q
-    return e, _pairwise_sum(v, 0, N)
+    return e, pairwise_sum(v, 0, N)
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
@@ -1134,7 +1037,7 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
         out = np.concatenate([first, rest], axis=1)
     else:  # (the same draws, in the same order, mapped in one compiled call)
         u = rng.random(7 * n_samples).reshape(7, n_samples)
-        out = _sample_kernel(u, cdf, eligible, counts, starts, n)
+        out = sample_kernel(u, cdf, eligible, counts, starts, n)
     return out if subset is None else subset[out]
 
 
@@ -1171,53 +1074,6 @@ def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     out = (counts.astype(np.int64), starts.astype(np.int64), eligible.astype(np.int64), cdf,
            len(cam))  # fmt: skip
     pool._sampling = (subset, out)
-    return out
-
-
-@njit(cache=True)
-def _sample_kernel(u, cdf, eligible, counts, starts, n):
-    """:func:`_sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
-    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
-    (:func:`_distinct3`), three distinct points of the ``n - 3`` others."""
-    S = u.shape[1]
-    out = np.empty((S, 6), dtype=np.int64)
-    for k in range(S):
-        j = 0
-        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
-            j += 1
-        cam = eligible[min(j, len(cdf) - 1)]
-        for part in range(2):
-            N = counts[cam] if part == 0 else n - 3
-            a = np.int64(u[1 + 3 * part, k] * N)
-            b = np.int64(u[2 + 3 * part, k] * (N - 1))
-            if b >= a:
-                b += 1
-            c = np.int64(u[3 + 3 * part, k] * (N - 2))
-            lo, hi = min(a, b), max(a, b)
-            if c >= lo:
-                c += 1
-            if c >= hi:
-                c += 1
-            if part == 0:
-                out[k, 0], out[k, 1], out[k, 2] = starts[cam] + a, starts[cam] + b, starts[cam] + c
-            else:
-                out[k, 3], out[k, 4], out[k, 5] = a, b, c
-        t0, t1, t2 = out[k, 0], out[k, 1], out[k, 2]  # (sorted: map onto the pool without them)
-        if t0 > t1:
-            t0, t1 = t1, t0
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t0 > t1:
-            t0, t1 = t1, t0
-        for i in range(3, 6):
-            r = out[k, i]
-            if r >= t0:
-                r += 1
-            if r >= t1:
-                r += 1
-            if r >= t2:
-                r += 1
-            out[k, i] = r
     return out
 
 
@@ -1395,7 +1251,7 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
         cam, Rm, cm, _ = _kernel_mountings(pool).views
-        R, C, own = _lambda_twist_of(_bearings(pool), pool.X, samples, cam, Rm, cm)
+        R, C, own = lambda_twist_on_rig(_bearings(pool), pool.X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
     R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
@@ -1404,42 +1260,6 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
     R = RcT @ R_cam
     C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
-    return R, C, own
-
-
-@njit(cache=True)
-def _lambda_twist_of(bearings, X, samples, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
-    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
-    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`_p3p_on_rig`'s."""
-    K = samples.shape[0]
-    b = np.empty((K, 3, 3))
-    P = np.empty((K, 3, 3))
-    for k in range(K):
-        for j in range(3):
-            i = samples[k, j]
-            for a in range(3):
-                b[k, j, a] = bearings[i, a]
-                P[k, j, a] = X[i, a]
-    R_cam, C_cam, own = lambda_twist_batch(b, P)
-    H = len(own)
-    R = np.empty((H, 3, 3))
-    C = np.empty((H, 3))
-    for h in range(H):
-        c = cam[samples[own[h], 0]]
-        for i in range(3):
-            for j in range(3):
-                R[h, i, j] = (
-                    Rm[c, 0, i] * R_cam[h, 0, j]
-                    + Rm[c, 1, i] * R_cam[h, 1, j]
-                    + (Rm[c, 2, i] * R_cam[h, 2, j])
-                )
-            C[h, i] = (
-                Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
-                + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
-                + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
-            )
     return R, C, own
 
 
@@ -1701,11 +1521,17 @@ def _covariance(
         Hinv = np.linalg.inv(H)
     except np.linalg.LinAlgError:
         return None, None
-    cov = np.zeros((12, 12))
-    cov[:free, :free] = sigma2 * Hinv
     if mounts and pool.has_mount_cov:
+        cov = np.zeros((12, 12))
+        cov[:free, :free] = sigma2 * Hinv
         cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
-    cov = 0.5 * (cov + cov.T)
+        cov = 0.5 * (cov + cov.T)
+    elif pool.numpy or not _kernel_ready(Hinv):
+        cov = np.zeros((12, 12))
+        cov[:free, :free] = sigma2 * Hinv
+        cov = 0.5 * (cov + cov.T)
+    else:  # (the same products and sums in one compiled call)
+        cov = _symmetric_covariance(Hinv, sigma2)
     if not np.isfinite(cov).all():
         return None, None
     G = None
@@ -1716,6 +1542,18 @@ def _covariance(
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+@njit(cache=True)
+def _symmetric_covariance(Hinv, sigma2):
+    """(12, 12): ``sigma2 * Hinv`` (free x free) in the upper left block, zeros elsewhere,
+    then ``0.5 * (cov + cov^T)``: :func:`_covariance`'s NumPy steps, the same arithmetic."""
+    f = Hinv.shape[0]
+    cov = np.zeros((12, 12))
+    for i in range(f):
+        for j in range(f):
+            cov[i, j] = 0.5 * (sigma2 * Hinv[i, j] + sigma2 * Hinv[j, i])
+    return cov
 
 
 def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
@@ -1778,12 +1616,7 @@ def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
     X, tau = pool.X, pool.tau
     if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
         # (the same check on every camera in one compiled call)
-        bounds = pool.__dict__.get("_bounds")
-        if bounds is None:
-            bounds = pool._bounds = np.array(
-                [(s.start, s.stop) for s in pool.slices], dtype=np.int64
-            ).reshape(-1, 2)
-        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds)
+        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, _bounds(pool))
         return int(code), int(behind)
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
@@ -1808,6 +1641,15 @@ def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
         code = max(code, k)
         behind += n
     return code, behind
+
+
+def _bounds(pool: _Pool) -> np.ndarray:
+    """(M, 2) int64: each camera's first and end row in the pool, built once per pool."""
+    b = pool.__dict__.get("_bounds")
+    if b is None:
+        b = pool._bounds = np.array([(s.start, s.stop) for s in pool.slices], np.int64)
+        b = pool._bounds = b.reshape(-1, 2)
+    return b
 
 
 def _rms(e: np.ndarray) -> float:
@@ -2543,6 +2385,11 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
+#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
+_NO_SUBSET = np.zeros(0, dtype=np.int64)
+#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
+_NO_ANCHOR = np.zeros((0, 3))
+
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
 #: candidates and the one it returns
 _ERRORS_KEPT = 6
@@ -2553,10 +2400,11 @@ class _RigSearch(RansacLoop):
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``); ``score_models`` is MSAC on
-    every point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the
-    rig's local optimization runs once, after the search) and gives termination its inlier
-    ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
+    dropping models beyond the velocity bounds (``implausible``; a compiled batch is drawn,
+    solved and scored in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
+    point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the rig's
+    local optimization runs once, after the search) and gives termination its inlier ratio
+    (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
     def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
@@ -2579,6 +2427,13 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
+        #: a batch in one compiled call (:func:`~.rig_batch.still_batch`, without a gyro
+        #: :func:`~.rig_batch.moving_batch`); its last result's inlier count and missed cameras for
+        #: :meth:`refine_model`
+        self.fused = not (generalized or pool.numpy) and (still or prior is None)
+        self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
+        self._fused: tuple = ()
+        self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -2601,6 +2456,8 @@ class _RigSearch(RansacLoop):
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
+        if self.fused:
+            return self._fused_batch(K)
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
@@ -2617,7 +2474,38 @@ class _RigSearch(RansacLoop):
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
+    def _fused_batch(self, K: int) -> tuple | None:
+        """A batch of K samples in one compiled call (:func:`~.rig_batch.still_batch`,
+        :func:`~.rig_batch.moving_batch`): ``(cost, model)`` of the best, or None."""
+        pool, subset = self.pool, self.subset
+        u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
+        X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
+        args = (u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+        if self.still:
+            missed = self._no_missed if self.missed is None else self.missed
+            rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
+            h, cost, self._e, R, C, n, missed = still_batch(
+                *args, missed, rounds, self.th2, self.threshold_px, self._counts
+            )
+            w, t = np.zeros(3), np.zeros(3)
+        else:
+            anchor = _NO_ANCHOR
+            if self.anchored and self.best is not None:
+                anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
+            h, cost, self._e, R, C, w, t, n, missed, beyond = moving_batch(
+                *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
+                self.threshold_px, self._counts,
+            )  # fmt: skip
+            self.implausible += int(beyond)
+        if h < 0:
+            return None
+        self._cost, self._fused = float(cost), (n, missed)
+        return self._cost, (R, C, w, t)
+
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
+        if self.fused:  # (scored in generate_models' call)
+            return hyp
         pool = self.pool
         if pool.numpy:
             e = _errors_px(pool, *hyp)
@@ -2626,7 +2514,7 @@ class _RigSearch(RansacLoop):
             self._e, self._cost = e[h], float(cost[h])
         else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
             f = [np.ascontiguousarray(a, dtype=np.float64) for a in hyp]
-            h, cost, self._e = _best_msac_kernel(
+            h, cost, self._e = best_msac(
                 *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A,
                 self.th2,
             )  # fmt: skip
@@ -2634,8 +2522,14 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        if self.fused:  # (counted in the batch's call, among the subset when given)
+            n, missed = self._fused
+            if self.still and not self.spread:
+                self.missed = missed if missed.any() else None
+            among = self._e if self.subset is None else self.subset
+            return self._cost, model, float(n / len(among))
         if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
-            n, missed = _inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
+            n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:
                 self.missed = missed if missed.any() else None
             return self._cost, model, float(n / len(self._e))
@@ -2649,22 +2543,6 @@ class _RigSearch(RansacLoop):
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
         # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
         return self._cost, model, float(ratio)
-
-
-@njit(cache=True)
-def _inliers_missed(e, k, cam, counts):
-    """``(the number of errors e (N,) below k, (M,) bool: the cameras of at least 3 points
-    (``counts``) with none of them)``."""
-    hit = np.zeros(len(counts), dtype=np.int64)
-    n = 0
-    for i in range(len(e)):
-        if e[i] < k:
-            n += 1
-            hit[cam[i]] += 1
-    missed = np.empty(len(counts), dtype=np.bool_)
-    for c in range(len(counts)):
-        missed[c] = counts[c] >= 3 and hit[c] == 0
-    return n, missed
 
 
 def _rig_estimate(

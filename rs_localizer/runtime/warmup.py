@@ -52,7 +52,7 @@ from ..estimation.refine import (
     refine_rs_pose,
     untruncated_variance,
 )
-from ..estimation.rig import camera_model_of_rig
+from ..estimation.rig import RigView, camera_model_of_rig, estimate_rig_pose
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
 from ..pose import RSPose, model_from_twist
@@ -542,9 +542,24 @@ def warm_rig(
             posed += sum(o.success for o in outs)
     posed += sum(o.success for o in loc.close())
     loc.flush()
-    # (the correction of a global-shutter sample's pose on its points in other cameras, which
-    # these rolling-shutter frames never run: its kernel's signature, on points it refuses)
-    i64 = np.int64
+    # (rig frames alone, with outliers, that these tracked frames are not: a global-shutter
+    # one (the search's compiled batch of those, with the correction of a sample's pose on its
+    # other cameras) and, with a gyro, a rolling-shutter one searched with P3P and the gyro)
+    views: dict = {True: [], False: []}
+    for name, m in settings.mounts.items():
+        for still in (True, False):
+            cam = replace(cams[name], line_delay=0.0) if still else cams[name]
+            rig = (np.eye(3), np.zeros(3), w, t)
+            model = camera_model_of_rig(rig, m, 0.0, cam.seconds_per_unit_r)
+            uv = cam.project_rs(points[name], *model) + rng.normal(0, 0.3, (60, 2))
+            uv[:6] += 40.0
+            ok = np.isfinite(uv).all(1)
+            views[still].append(RigView(uv[ok], points[name][ok], cam, m))
+    estimate_rig_pose(views[True], settings.options)
+    if settings.imu is not None:
+        gyro = GyroMeasurement(om, 1e-4 * np.eye(3))
+        estimate_rig_pose(views[False], settings.options, gyro=gyro)
+    i64 = np.int64  # (that correction's kernel alone: the generalized P3P's search calls it)
     still_solve_rotated(
         np.zeros((6, 2)), np.zeros((6, 3)), np.zeros((1, 6), i64), np.eye(3)[None],
         np.zeros(6, i64), np.eye(3)[None], np.zeros((1, 3)),

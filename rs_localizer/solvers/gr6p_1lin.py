@@ -587,3 +587,37 @@ def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
     ok = np.empty(K, dtype=np.bool_)
     still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok)
     return out, ok
+
+
+@njit(cache=True)
+def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
+    """:func:`gr6p_1lin_batch`'s kernel (no prior rows, ``v_init`` zero, its default
+    tolerance) on K problems whose world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are
+    pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times ``tau[S[k]]`` (``tau`` (P,) s) in
+    the cameras ``cam[S[k]]``; ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t, zeros where
+    not solved; ok (K,): solved, every entry finite)``, each rotation ``expm([v]x) R0[k]``."""
+    K, N = S.shape[0], S.shape[1]
+    xs = np.empty((K, N, 2))
+    Xp = np.empty((K, N, 3))
+    ts = np.empty((K, N))
+    cs = np.empty((K, N), dtype=np.int64)
+    for k in range(K):
+        for i in range(N):
+            p = S[k, i]
+            xs[k, i, 0], xs[k, i, 1], ts[k, i], cs[k, i] = x[p, 0], x[p, 1], tau[p], cam[p]
+            for a in range(3):
+                Xp[k, i, a] = R0[k, a, 0] * X[p, 0] + R0[k, a, 1] * X[p, 1] + R0[k, a, 2] * X[p, 2]
+    out = np.zeros((K, 12))
+    ok = np.zeros(K, dtype=np.bool_)
+    its = np.zeros(K, dtype=np.int64)
+    err = np.zeros(K)
+    use = np.zeros(1, dtype=np.bool_)[0]  # (a bool, as the batch's np.bool_, not a literal)
+    _solve(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)), np.zeros((1, 6, 6)),
+           np.zeros((1, 6)), use, out, ok, its, err)  # fmt: skip
+    for k in range(K):
+        for j in range(12):
+            if not np.isfinite(out[k, j]):
+                ok[k] = False
+        if not ok[k]:
+            out[k, :] = 0.0
+    return out, ok

@@ -14,6 +14,7 @@ from rs_localizer.estimation.plausibility import (
     image_degenerate,
     motion_bounds,
     plausible_motion,
+    views_degenerate,
 )
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame, paper_camera
@@ -58,6 +59,32 @@ def test_degenerate_points_equals_collinear_3d_or_image_degenerate():
                 assert got == ref
                 n += ref
     assert n > 0  # both outcomes occur
+
+
+def test_views_degenerate_equals_collinear_3d_or_every_view_image_degenerate():
+    """Two views' rows stacked (each with its own focal length): the compiled test is
+    ``collinear_3d(X) or`` every view of 3 or more rows ``image_degenerate``, or undecided
+    (-1) only where the collinearity test needs eigenvalues."""
+    rng = np.random.default_rng(4)
+    seen = set()
+    for _ in range(5):
+        sets = list(_point_sets(rng))
+        for (X, u, x), (_, u2, x2) in zip(sets, sets[1:] + sets[:1], strict=True):
+            for cut in (len(X) // 2, 2, len(X)):
+                X2, U, Xn = np.r_[X, X[::-1]], np.r_[u[:cut], u2], np.r_[x[:cut], x2]
+                X2 = X2[: len(U)]
+                focal = np.r_[np.full(cut, CAM.mean_focal), np.full(len(u2), 300.0)]
+                views = [(0, cut), (cut, len(U))]
+                ref = collinear_3d(X2) or all(
+                    b - a < 3 or image_degenerate(U[a:b], Xn[a:b], focal[a], 2.0) for a, b in views
+                )
+                got = views_degenerate(
+                    np.ascontiguousarray(X2), np.ascontiguousarray(U), np.ascontiguousarray(Xn),
+                    focal, np.array(views, dtype=np.int64), 2.0,
+                )  # fmt: skip
+                assert got == -1 or got == int(ref)
+                seen.add(got)
+    assert {0, 1} <= seen  # (both outcomes occur)
 
 
 @pytest.mark.parametrize("bounds", [None, (0.05, 0.02), (5.0, 5.0)])

@@ -1,0 +1,144 @@
+"""The rig's global-shutter RANSAC batch in one compiled call (``still_batch``) against the same
+batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
+correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
+cost): the same best model, cost, errors, inliers and missed cameras."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.rig_batch import moving_batch, still_batch
+from rs_localizer.frames import Mounting
+from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.sim import rig as sim_rig
+
+
+def _frame(seed, counts, turn_deg=0.0):
+    """A global-shutter rig frame (equal stamps, 0.5 px noise, 20 % outliers) of
+    ``len(counts)`` cameras; the last camera's given mounting turned ``turn_deg`` about y (its
+    points then missed by a model of the others)."""
+    rng = np.random.default_rng(seed)
+    rig = sim_rig.make_rig(len(counts), rng)
+    cams = tuple(
+        replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
+    )
+    truth = sim_rig.rig_motion(rng)
+    views = list(sim_rig.rig_frame(sim_rig.Rig(cams), truth, list(counts), rng, 0.5, 0.2).views)
+    if turn_deg:
+        m = views[-1].mounting
+        bad = rotvec_to_matrix(np.radians([0.0, turn_deg, 0.0]))
+        views[-1] = replace(views[-1], mounting=Mounting(bad @ m.R, m.c))
+    return views
+
+
+def _step_by_step(views, seed, K, missed, rounds, subset, th):
+    """The batch as the search ran it before: ``_sample``, ``_hypotheses_still``, then the
+    errors of every hypothesis in NumPy and the first lowest MSAC cost."""
+    pool = rig_mod._Pool(views)
+    samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
+    hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
+    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)
+    cost = np.minimum(e * e, th * th).sum(axis=1)
+    h = int(np.argmin(cost))
+    plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
+    return hyp, e[h], cost, h, pool, len(plain[0])
+
+
+@pytest.mark.parametrize(
+    ("seed", "counts", "turn", "missed", "rounds", "guided"),
+    [
+        (1, (30, 24, 12), 0.0, None, 1, False),
+        (2, (30, 24, 12), 3.0, (False, False, True), 1, False),
+        (3, (16, 20), 3.0, (True, True), 2, False),
+        (4, (30, 24, 12), 0.0, (True, False, True), 1, True),
+    ],
+)
+def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, missed, rounds,
+                                                         guided):  # fmt: skip
+    th, K = 2.0, 40
+    views = _frame(seed, counts, turn)
+    m = None if missed is None else np.array(missed)
+    pool0 = rig_mod._Pool(views)
+    subset = np.flatnonzero(np.arange(len(pool0.cam)) % 3 != 1) if guided else None
+    hyp, e, cost, h, pool, n_p3p = _step_by_step(views, 7 + seed, K, m, rounds, subset, th)
+    assert n_p3p > K // 2  # (P3P gave models; the correction added some for missed cameras)
+    assert (len(hyp[0]) > n_p3p) == (m is not None)
+    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    counts_all = np.bincount(pool.cam, minlength=len(counts))
+    u = np.random.default_rng(7 + seed).random(7 * K).reshape(7, K)
+    hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
+        u, rig_mod._sampling_of(pool, subset),
+        rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
+        cam, Rm, cm, A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th,
+        counts_all,
+    )  # fmt: skip
+    assert hf == h
+    assert cf == pytest.approx(cost[h], rel=1e-12)
+    np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(Rf, hyp[0][h])
+    np.testing.assert_array_equal(Cf, hyp[1][h])
+    inl = e < th
+    assert n == np.count_nonzero(inl if subset is None else inl[subset])
+    hit = np.bincount(pool.cam[inl], minlength=len(counts))
+    np.testing.assert_array_equal(missed_f, (counts_all >= 3) & (hit == 0))
+    if turn and len(counts) == 3:  # (the turned camera's points: none an inlier)
+        assert missed_f[-1]
+
+
+def _moving_frame(seed, counts):
+    """A rolling-shutter rig frame (readout 15-35 ms, stamps up to 10 ms apart, turning at
+    1.5 rad/s, moving at 1.5 m/s; 0.5 px noise, 20 % outliers)."""
+    rng = np.random.default_rng(seed)
+    rig = sim_rig.make_rig(len(counts), rng)
+    truth = sim_rig.rig_motion(rng, 1.5, 1.5)
+    return list(sim_rig.rig_frame(rig, truth, list(counts), rng, 0.5, 0.2).views), truth
+
+
+@pytest.mark.parametrize(
+    ("seed", "counts", "anchored", "w_max", "guided"),
+    [
+        (11, (36, 36, 36), False, np.inf, False),
+        (12, (30, 20), False, 2.0, False),
+        (13, (36, 36, 36), True, np.inf, False),
+        (14, (36, 24, 12), False, 2.0, True),
+    ],
+)
+def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts, anchored,
+                                                                   w_max, guided):  # fmt: skip
+    """``moving_batch`` against ``_sample``, ``_hypotheses`` (P3P or an anchor's rotation
+    pre-rotating the rig solver) and the motion bounds, scored in NumPy: the same best model
+    (its rotation to rounding: the compiled Rodrigues), cost, errors, inliers, and the same
+    number of solutions beyond the bounds."""
+    th, K, iterations, v_max = 2.0, 40, 3, 10.0
+    views, truth = _moving_frame(seed, counts)
+    pool = rig_mod._Pool(views)
+    subset = np.flatnonzero(np.arange(len(pool.cam)) % 3 != 1) if guided else None
+    anchor = (truth.R, truth.C) if anchored else None
+    samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
+    hyp = rig_mod._hypotheses(pool, samples, iterations, None, anchor)
+    ok = rig_mod._plausible_motion(pool, hyp[1], hyp[2], hyp[3], (w_max, v_max))
+    beyond = int(np.count_nonzero(~ok))
+    hyp = tuple(a[ok] for a in hyp)
+    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)
+    cost = np.minimum(e * e, th * th).sum(axis=1)
+    h = int(np.argmin(cost))
+    if w_max < np.inf:
+        assert beyond > 0  # (the bounds drop some solutions)
+    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    u = np.random.default_rng(seed).random(7 * K).reshape(7, K)
+    out = moving_batch(
+        u, rig_mod._sampling_of(pool, subset),
+        rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
+        cam, Rm, cm, A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations,
+        w_max**2, v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)),
+    )  # fmt: skip
+    hf, cf, ef, Rf, Cf, wf, tf, n, _, beyond_f = out
+    assert hf == h and beyond_f == beyond
+    assert cf == pytest.approx(cost[h], rel=1e-9)
+    np.testing.assert_allclose(ef, e[h], rtol=1e-8, atol=1e-8)
+    for got, want in zip((Rf, Cf, wf, tf), (a[h] for a in hyp), strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
+    inl = e[h] < th
+    assert n == np.count_nonzero(inl if subset is None else inl[subset])
