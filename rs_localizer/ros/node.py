@@ -95,8 +95,6 @@ class LocalizerCore(NodeCore):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
         self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed)
-        self.messages_lost = 0  # QoS message_lost events over the frame subscriptions
-        self._lost = {}
         self.pub_corr_out = None  # correspondences_out, created when first needed
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -146,7 +144,8 @@ class LocalizerCore(NodeCore):
 
     def _subscribe(self, msg_type, topic, kind: str, qos):
         """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
-        message_lost events are counted (``messages_lost``)."""
+        message_lost events are counted (``messages_lost``, the pipeline's
+        :class:`~.camera_input.CameraCounts`)."""
 
         def on_frame(msg):
             if kind == "image":
@@ -156,8 +155,7 @@ class LocalizerCore(NodeCore):
             self._enqueue(msg, kind)
 
         def on_lost(status):
-            self._lost[kind] = int(status.total_count)
-            self.messages_lost = sum(self._lost.values())
+            self.pipeline.stats.lost(kind, status.total_count)
 
         return self.create_subscription(
             msg_type,
@@ -372,7 +370,7 @@ class LocalizerCore(NodeCore):
             self.pipeline.stats.snapshot(),
             self.pipeline.tracking_values(),
             self.pipeline.camera_source(),
-            self.messages_lost,
+            self.pipeline.stats.messages_lost,
             latencies,
             stamp_ages,
             self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
