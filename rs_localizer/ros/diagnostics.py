@@ -1,8 +1,9 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
 without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder for one
 camera (:func:`diagnostic_status`) and a rig (:func:`rig_diagnostics`: the rig's keys and a
-section per camera, ``<c>.*``), sharing the estimator's path and the timing keys
-(:func:`timing_values`)."""
+section per camera, ``<c>.*``), sharing a camera's accounting (:func:`camera_section`: the
+single camera's flat keys, each rig camera's section), the estimator's path and the timing
+keys (:func:`timing_values`)."""
 
 from __future__ import annotations
 
@@ -26,10 +27,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ERROR",
+    "FRAME_ACCOUNTING",
     "IMU_IDLE_WARN_S",
     "OK",
     "WARN",
     "RigInputs",
+    "camera_section",
     "diagnostic_status",
     "rig_camera_frames",
     "rig_diagnostics",
@@ -413,17 +416,14 @@ class RigInputs:
     before they reach the rig, for :func:`rig_diagnostics`.
 
     ``counts``: the node's map-fit check over the rig frames
-    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``); per camera ``<c>.received``
-    (by the subscriptions), ``<c>.taken`` (handed on by the worker), ``<c>.skipped.<reason>``
-    (the node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
-    ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.points_dropped`` (non-finite
-    rows of its clouds), ``<c>.camera_info_rejected[.<reason>]`` (camera_infos rejected, the
-    single-camera node's reasons), ``<c>.stamp_jumped_ahead``
-    (frames that started the rig again), ``<c>.unknown_landmark_ids`` (its keypoints' ids not
-    in ``landmarks_file``), ``<c>.frames_beside_frontend`` (clouds or keypoints received while
-    its front end runs on its images) and ``<c>.messages_lost`` (lost by the middleware,
-    never received). ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
+    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
+    :class:`~rs_localizer.ros.camera_input.CameraCounts` after ``<c>.``: ``received`` (by
+    the subscriptions), ``taken`` (handed on by the worker), ``skipped.<reason>`` (the
+    node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
+    ``failed.internal_error``, its input stage's counts (``capped_clouds``,
+    ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
+    ``frames_beside_frontend`` and ``messages_lost`` (:func:`camera_section`).
+    ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
     frame's arrival to the pose of the rig frame
     it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
@@ -592,24 +592,20 @@ def rig_camera_frames(
 def _rig_camera_values(
     rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
 ) -> tuple[dict[str, Any], int, int]:
-    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``:
-    ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (the camera's frame
-    accounting, as the single-camera node's ``frames_*``), ``state``
+    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``: the
+    camera's accounting as the single camera's (:func:`camera_section`: its frames of
+    :func:`rig_camera_frames`, ``capped_clouds`` and ``points_dropped`` of the node's clouds
+    and the rig's images, ``Localizer.process_image``; with the node's ``inputs`` its counts,
+    the node's ``skipped.<reason>`` and ``failed.<reason>`` with the rig's, and
+    ``camera_frame_ms_median``, the worker's time per frame of this camera), then ``state``
     (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
     ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
-    ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``capped_clouds``
-    (frames capped to ``max_points``: the node's clouds and the rig's images,
-    ``Localizer.process_image``), ``points_dropped`` (their rows with a NaN or inf),
-    ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its
-    frames never join the others', ``Localizer.camera_apart``) and then
-    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
-    the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
-    ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, ``unknown_landmark_ids``
-    (its keypoints' ids not in ``landmarks_file``), with a front end
-    ``frames_beside_frontend``, the node's
-    ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
-    worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
-    returns the section, the camera's frames dropped from a full queue and its messages lost."""
+    ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted``
+    (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never
+    join the others', ``Localizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
+    apparent clock offset from each other camera, ms); with ``inputs`` also
+    ``stamp_jumped_ahead``. Appends the camera's warnings to ``warnings``; returns the
+    section, the camera's frames dropped from a full queue and its messages lost."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
