@@ -192,7 +192,6 @@ class RigCore(NodeCore):
 
     rig = None  # (None: not configured)
     config = None
-    _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _declare_parameters(self) -> None:
         super()._declare_parameters()
@@ -502,17 +501,9 @@ class RigCore(NodeCore):
         warning naming both topics: such a cloud is solved as given, not from the images and
         the front end's map (as the single-camera node says)."""
         if self.frontend_kind != "none":
-            self._count_input(name, "frames_beside_frontend")
-            if not self._warned_beside_frontend:
-                self._warned_beside_frontend = True  # (once per node)
-                leaf = "correspondences" if kind == "cloud" else kind
-                self.get_logger().warning(
-                    f"received {leaf} on {self.resolve_topic_name(f'{name}/{leaf}')} while "
-                    f"the {self.frontend_kind} front end runs on the camera's images: these "
-                    f"frames are solved from the given {leaf}, not from the images and the "
-                    f"front end's map (counted {name}.frames_beside_frontend; play a bag's "
-                    "images only: rs-localizer play --source image)"
-                )
+            leaf = "correspondences" if kind == "cloud" else kind
+            self._frame_beside_frontend(self.camera_counts[name], leaf, self.frontend_kind,
+                                        "the camera's images")  # fmt: skip
         self._enqueue(name, kind, msg)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:
