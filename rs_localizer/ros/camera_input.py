@@ -17,16 +17,19 @@ is a :class:`~rs_localizer.tracking.localizer.CameraFrame` (a cloud's rows), an
 :class:`ImageFrame` (the decoded image for the camera's front end) or a :class:`DroppedFrame`
 with its reason (:data:`DROP_REASONS`); :func:`to_rig` hands any of them to a rig.
 
-Its counts go to its owner's ``count(key, n)``: the single-camera node counts them as they
-are (``camera_info_rejected``, ``camera_info_rejected.<reason>``, ``points_dropped``,
-``capped_clouds``, ``capped_points``, ``unknown_landmark_ids``), the rig node per camera
-(``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to its owner's throttled
+Its counts go to its owner's ``count(key, n)``, the camera's :class:`CameraCounts` (the
+single-camera node's and each rig camera's: ``camera_info_rejected``,
+``camera_info_rejected.<reason>``, ``points_dropped``, ``capped_clouds``, ``capped_points``,
+``unknown_landmark_ids``; reported as they are for the single camera, after ``<camera>.`` for a
+rig's). Its warnings go to its owner's throttled
 log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
 """
 
 from __future__ import annotations
 
+import threading
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -45,6 +48,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DROP_REASONS",
+    "CameraCounts",
     "CameraInput",
     "DroppedFrame",
     "ImageFrame",
@@ -70,6 +74,77 @@ DROP_REASONS = {
     "image_size_mismatch": "the image is another size than its camera_info's",
     "bad_input": "a rig camera's message that cannot be read (its stamp or its cloud)",
 }
+
+
+class CameraCounts:
+    """One camera's counters (thread-safe), the same for the single-camera node (its
+    :class:`~rs_localizer.ros.pipeline.PipelineStats`), each camera of the rig node and of a rig
+    bag's ``replay``: counts by key (each key written once, here, without the camera's
+    prefix), the messages the middleware lost per input and the last ``kept`` times (s) of the
+    camera's frames. :attr:`prefix` is what its keys carry in a report of many cameras:
+    ``<name>.``, or "" for the single camera (``name`` "").
+
+    Typical keys: ``received``, ``taken``, ``skipped.<reason>``, ``failed.<reason>`` (a rig
+    camera's frames before the rig), ``points_dropped``, ``capped_clouds``, ``capped_points``,
+    ``unknown_landmark_ids``, ``camera_info_rejected[.<reason>]`` (:class:`CameraInput`'s),
+    ``frames_beside_frontend``, ``bad_input``."""
+
+    def __init__(self, name: str = "", kept: int = 1000):
+        self.name = name
+        self.prefix = f"{name}." if name else ""
+        self._lock = threading.Lock()
+        self._counts: Counter = Counter()
+        self._lost: dict[str, int] = {}
+        self._times: deque[float] = deque(maxlen=kept)
+
+    def add(self, key: str, n: int = 1) -> None:
+        """Add ``n`` to the counter ``key``."""
+        with self._lock:
+            self._counts[key] += n
+
+    def set(self, key: str, value: int) -> None:
+        """Set the counter ``key`` to ``value`` (a state, e.g. ``map_fit_doubtful``)."""
+        with self._lock:
+            self._counts[key] = value
+
+    def frame_done(self, seconds: float, *keys: str | None) -> None:
+        """A frame handled in ``seconds`` (s): its time kept and each of ``keys`` (None:
+        none) counted once, together (a snapshot sees all or none of them)."""
+        with self._lock:
+            for k in keys:
+                if k is not None:
+                    self._counts[k] += 1
+            self._times.append(seconds)
+
+    def lost(self, kind: str, total: int) -> None:
+        """The middleware's count of messages lost on the camera's ``kind`` input so far (a
+        QoS ``message_lost`` event's ``total_count``)."""
+        with self._lock:
+            self._lost[kind] = int(total)
+
+    @property
+    def messages_lost(self) -> int:
+        """Messages lost by the middleware over all the camera's inputs."""
+        with self._lock:
+            return sum(self._lost.values())
+
+    def counts(self) -> dict[str, int]:
+        """A consistent copy of the counts, keys without the prefix; with messages lost on
+        an input, ``messages_lost`` (their sum)."""
+        with self._lock:
+            out = dict(self._counts)
+            if self._lost:
+                out["messages_lost"] = out.get("messages_lost", 0) + sum(self._lost.values())
+            return out
+
+    def prefixed(self) -> dict[str, int]:
+        """:meth:`counts` with each key after :attr:`prefix`."""
+        return {self.prefix + k: v for k, v in self.counts().items()}
+
+    def frame_times(self) -> list[float]:
+        """The kept frame times (s), oldest first."""
+        with self._lock:
+            return list(self._times)
 
 
 class _Refused(ValueError):

@@ -68,6 +68,7 @@ class NodeCore:
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
+    _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -226,6 +227,24 @@ class NodeCore:
         """Publish ``(topic, message)`` pairs (:mod:`.outputs`)."""
         for topic, msg in messages:
             self._pubs[topic].publish(msg)
+
+    def _frame_beside_frontend(self, counts, leaf: str, frontend: str, images: str) -> None:
+        """A camera's ``leaf`` frame (``correspondences`` or ``keypoints``) while its
+        ``frontend`` front end runs on its ``images``: counted ``frames_beside_frontend`` in
+        the camera's ``counts`` (its :class:`~.camera_input.CameraCounts`) and, the first
+        time in the node, a warning naming both inputs (the frame is solved as given: the
+        front end and its map play no part)."""
+        counts.add("frames_beside_frontend")
+        if self._warned_beside_frontend:
+            return
+        self._warned_beside_frontend = True  # (once per node)
+        topic = self.resolve_topic_name(f"{counts.name}/{leaf}" if counts.name else leaf)
+        self.get_logger().warning(
+            f"received {leaf} on {topic} while the {frontend} front end runs on {images}: "
+            f"these frames are solved from the given {leaf}, not from the images and the "
+            f"front end's map (counted {counts.prefix}frames_beside_frontend; play a bag's "
+            "images only: rs-localizer play --source image)"
+        )
 
     def _delivery_failed(self, e: BaseException) -> None:
         self._throttled_log().warning(

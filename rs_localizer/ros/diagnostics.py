@@ -1,8 +1,9 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
 without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder for one
 camera (:func:`diagnostic_status`) and a rig (:func:`rig_diagnostics`: the rig's keys and a
-section per camera, ``<c>.*``), sharing the estimator's path and the timing keys
-(:func:`timing_values`)."""
+section per camera, ``<c>.*``), sharing a camera's accounting (:func:`camera_section`: the
+single camera's flat keys, each rig camera's section), the estimator's path and the timing
+keys (:func:`timing_values`)."""
 
 from __future__ import annotations
 
@@ -26,10 +27,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ERROR",
+    "FRAME_ACCOUNTING",
     "IMU_IDLE_WARN_S",
     "OK",
     "WARN",
     "RigInputs",
+    "camera_section",
     "diagnostic_status",
     "rig_camera_frames",
     "rig_diagnostics",
@@ -97,6 +100,68 @@ def _compile_values(unit: str) -> tuple[dict[str, Any], str]:
     return values, note
 
 
+#: a camera's frame accounting (received = the other four summed)
+FRAME_ACCOUNTING = ("received", "solved", "failed", "skipped", "pending")
+#: the single camera's names of the keys of its section that a rig camera's section names
+#: otherwise (``<c>.`` and the key)
+_FLAT_KEYS = {
+    "received": "frames_received",
+    "solved": "frames_solved",
+    "failed": "frames_failed",
+    "skipped": "frames_skipped",
+    "pending": "frames_pending",
+    "capped_clouds": "clouds_capped",
+}
+
+
+def camera_section(
+    name: str,
+    frames: Mapping[str, int],
+    counts: Mapping[str, int] | None,
+    reasons: Mapping[str, int] | None = None,
+    more: Mapping[str, int] | None = None,
+    frontend: bool = False,
+    frame_times: Sequence[float] | None = None,
+) -> dict[str, Any]:
+    """One camera's accounting values: the single camera's (``name`` "": its flat keys, the
+    frames' ``frames_<key>`` and ``clouds_capped``) and a rig camera's section (each key
+    ``<name>.<key>``), both of a camera's
+    :class:`~rs_localizer.ros.camera_input.CameraCounts`.
+
+    Values: the frame accounting ``frames`` (``received``, ``solved``, ``failed``,
+    ``skipped``, ``pending``; received = the other four summed); from the camera's own
+    ``counts`` (keys without prefix; None: none known, only the frames and the rows' counts of
+    ``more``): ``messages_lost`` (lost by the middleware), ``camera_info_rejected``,
+    ``unknown_landmark_ids`` (keypoints' ids not in ``landmarks_file``), with a
+    ``frontend`` ``frames_beside_frontend`` (clouds received while the front end runs on the
+    images), ``camera_info_rejected.<reason>``; ``points_dropped`` (rows with a NaN or inf)
+    and ``capped_clouds`` (clouds capped to ``max_points``); ``reasons``: the frames' counts
+    by reason (``failed.<reason>``, ``skipped.<reason>``, as given); with ``frame_times`` (s
+    per frame) ``camera_frame_ms_median``. ``more``: the camera's counts of another counter
+    (a rig's, keys without prefix), added to its rows' and camera_info counts."""
+    more = more or {}
+    own = counts or {}
+
+    def key(k: str) -> str:
+        return f"{name}.{k}" if name else _FLAT_KEYS.get(k, k)
+
+    values: dict[str, Any] = {key(k): v for k, v in frames.items()}
+    for k in ("capped_clouds", "points_dropped"):
+        values[key(k)] = own.get(k, 0) + more.get(k, 0)
+    if counts is not None:
+        for k in ("messages_lost", "camera_info_rejected", "unknown_landmark_ids"):
+            values[key(k)] = own.get(k, 0)
+        if frontend:
+            values[key("frames_beside_frontend")] = own.get("frames_beside_frontend", 0)
+    values.update({key(k): v for k, v in (reasons or {}).items()})
+    for k, v in sorted(own.items()):
+        if k.startswith("camera_info_rejected."):
+            values[key(k)] = v + more.get(k, 0)
+    if frame_times is not None:
+        values[key("camera_frame_ms_median")] = _median_ms(frame_times)
+    return values
+
+
 def diagnostic_status(
     cfg: LocalizerConfig,
     frames: FrameCounts,
@@ -145,26 +210,28 @@ def diagnostic_status(
     )
     compile_values, note = _compile_values("frames")
     message += note
-    values = _core_values(
-        cfg,
-        frames,
-        stats,
-        tracking,
-        camera_source,
-        messages_lost,
-        latencies,
-        stamp_ages,
-        compile_values,
-        frontend is not None,
+    accounting = {k: getattr(frames, k) for k in FRAME_ACCOUNTING}
+    section = camera_section(
+        "",
+        accounting,
+        {**c, "messages_lost": messages_lost},
+        {f"failed.{k}": v for k, v in failed.items()},
+        frontend=frontend is not None,
     )
+    values = _core_values(
+        cfg, section, stats, tracking, camera_source, latencies, stamp_ages, compile_values,
+        frontend is not None,
+    )  # fmt: skip
     if frontend is not None:
-        values.update(_frontend_values(cfg, frontend, stats))
+        values.update(_frontend_values(cfg, frontend, stats, section))
     if cfg.imu is not None:
         values.update(
             _imu_values(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s)
         )
-    values.update({f"failed.{k}": v for k, v in failed.items()})
-    prefixes = ("camera_info_rejected.", "gyro_missing.", "gyro_rejected.", "imu_rejected.")
+    values.update(
+        {k: v for k, v in section.items() if k.startswith(("failed.", "camera_info_rejected."))}
+    )
+    prefixes = ("gyro_missing.", "gyro_rejected.", "imu_rejected.")
     values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
     return level, message, values
 
@@ -225,37 +292,34 @@ def _level_and_message(
 
 def _core_values(
     cfg: LocalizerConfig,
-    frames: FrameCounts,
+    section: Mapping[str, Any],
     stats: StatsSnapshot,
     tracking: dict[str, Any],
     camera_source: str,
-    messages_lost: int,
     latencies: Sequence[float],
     stamp_ages: Sequence[float],
     compile_values: dict[str, Any],
     has_frontend: bool,
 ) -> dict[str, Any]:
-    """The values every status carries, through the stage times (see :func:`diagnostic_status`)."""
+    """The values every status carries, through the stage times (see
+    :func:`diagnostic_status`; ``section``: the camera's :func:`camera_section`)."""
     c = stats.counts
     inliers = stats.inliers
+
+    def of(*keys: str) -> dict[str, Any]:
+        return {k: section[k] for k in keys}
+
     values: dict[str, Any] = {
         "solver": cfg.solver,
         "camera": camera_source,
-        "frames_received": frames.received,
-        "frames_solved": frames.solved,
-        "frames_failed": frames.failed,
-        "frames_skipped": frames.skipped,
-        "frames_pending": frames.pending,
+        **of(*(_FLAT_KEYS[k] for k in FRAME_ACCOUNTING)),
         **compile_values,
         "frames_compiled": c.get("frames_compiled", 0),
         "frames_uncompiled": c.get("frames_uncompiled", 0),
         "queue_size": cfg.queue_size,
         "time_resets": c.get("time_resets", 0),
-        "messages_lost": messages_lost,
-        "points_dropped": c.get("points_dropped", 0),
-        "clouds_capped": c.get("capped_clouds", 0),
-        "unknown_landmark_ids": c.get("unknown_landmark_ids", 0),
-        "camera_info_rejected": c.get("camera_info_rejected", 0),
+        **of("messages_lost", "points_dropped", "clouds_capped"),
+        **of("unknown_landmark_ids", "camera_info_rejected"),
         "frames_few_points": c.get("frames_few_points", 0),
         "frames_single_tag": c.get("frames_single_tag", 0),
         "frames_failed_with_matches": c.get("frames_failed_with_matches", 0),
@@ -275,9 +339,10 @@ def _core_values(
 
 
 def _frontend_values(
-    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot
+    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot, section: Mapping
 ) -> dict[str, Any]:
-    """The front end's values of :func:`diagnostic_status` (with a ``frontend``)."""
+    """The front end's values of :func:`diagnostic_status` (with a ``frontend``; ``section``:
+    the camera's :func:`camera_section`)."""
     c = stats.counts
     values: dict[str, Any] = {}
     fe = stats.stage_times["frontend"]
@@ -286,7 +351,7 @@ def _frontend_values(
         {
             "frontend": cfg.frontend_kind,
             "image_frames": c.get("image_frames", 0),
-            "frames_beside_frontend": c.get("frames_beside_frontend", 0),
+            "frames_beside_frontend": section["frames_beside_frontend"],
             "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
             "frontend_correspondences_last": stats.frontend_last,
             "frontend_correspondences_mean": (
@@ -351,17 +416,14 @@ class RigInputs:
     before they reach the rig, for :func:`rig_diagnostics`.
 
     ``counts``: the node's map-fit check over the rig frames
-    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``); per camera ``<c>.received``
-    (by the subscriptions), ``<c>.taken`` (handed on by the worker), ``<c>.skipped.<reason>``
-    (the node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
-    ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.points_dropped`` (non-finite
-    rows of its clouds), ``<c>.camera_info_rejected[.<reason>]`` (camera_infos rejected, the
-    single-camera node's reasons), ``<c>.stamp_jumped_ahead``
-    (frames that started the rig again), ``<c>.unknown_landmark_ids`` (its keypoints' ids not
-    in ``landmarks_file``), ``<c>.frames_beside_frontend`` (clouds or keypoints received while
-    its front end runs on its images) and ``<c>.messages_lost`` (lost by the middleware,
-    never received). ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
+    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
+    :class:`~rs_localizer.ros.camera_input.CameraCounts` after ``<c>.``: ``received`` (by
+    the subscriptions), ``taken`` (handed on by the worker), ``skipped.<reason>`` (the
+    node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
+    ``failed.internal_error``, its input stage's counts (``capped_clouds``,
+    ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
+    ``frames_beside_frontend`` and ``messages_lost`` (:func:`camera_section`).
+    ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
     frame's arrival to the pose of the rig frame
     it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
@@ -530,46 +592,33 @@ def rig_camera_frames(
 def _rig_camera_values(
     rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
 ) -> tuple[dict[str, Any], int, int]:
-    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``:
-    ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (the camera's frame
-    accounting, as the single-camera node's ``frames_*``), ``state``
+    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``: the
+    camera's accounting as the single camera's (:func:`camera_section`: its frames of
+    :func:`rig_camera_frames`, ``capped_clouds`` and ``points_dropped`` of the node's clouds
+    and the rig's images, ``Localizer.process_image``; with the node's ``inputs`` its counts,
+    the node's ``skipped.<reason>`` and ``failed.<reason>`` with the rig's, and
+    ``camera_frame_ms_median``, the worker's time per frame of this camera), then ``state``
     (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
     ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
-    ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``capped_clouds``
-    (frames capped to ``max_points``: the node's clouds and the rig's images,
-    ``Localizer.process_image``), ``points_dropped`` (their rows with a NaN or inf),
-    ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its
-    frames never join the others', ``Localizer.camera_apart``) and then
-    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
-    the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
-    ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, ``unknown_landmark_ids``
-    (its keypoints' ids not in ``landmarks_file``), with a front end
-    ``frames_beside_frontend``, the node's
-    ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
-    worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
-    returns the section, the camera's frames dropped from a full queue and its messages lost."""
-    values: dict[str, Any] = {}
-    busy = lost = 0
-    own: dict[str, int] = {}
+    ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted``
+    (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never
+    join the others', ``Localizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
+    apparent clock offset from each other camera, ms); with ``inputs`` also
+    ``stamp_jumped_ahead``. Appends the camera's warnings to ``warnings``; returns the
+    section, the camera's frames dropped from a full queue and its messages lost."""
+    own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
-    c = rig_camera_frames(rig, n, own if inputs is not None else None)
-    if inputs is not None:
+    theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.")}
+    reasons = {k: v + theirs.get(k, 0) for k, v in (own or {}).items()
+               if k.startswith(("skipped.", "failed."))}  # fmt: skip
+    times = inputs.frame_times.get(n, ()) if inputs is not None else None
+    values = camera_section(n, rig_camera_frames(rig, n, own), own, reasons, theirs,
+                            inputs is not None and inputs.frontend, times)  # fmt: skip
+    busy = lost = 0
+    if own is not None:
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
-        values[f"{n}.messages_lost"] = lost
-        values[f"{n}.camera_info_rejected"] = own.get("camera_info_rejected", 0)
-        values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
-        for k, v in own.items():
-            if k.startswith(("skipped.", "failed.", "camera_info_rejected.")):
-                values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
-    for k, v in c.items():
-        values[f"{n}.{k}"] = v
-    for k in ("capped_clouds", "points_dropped"):  # (the node's clouds, the rig's images)
-        values[f"{n}.{k}"] = own.get(k, 0) + rig.counts.get(f"{n}.{k}", 0)
-    if inputs is not None:  # (its keypoints' ids not in the landmarks_file)
-        values[f"{n}.unknown_landmark_ids"] = own.get("unknown_landmark_ids", 0)
-        if inputs.frontend:  # (clouds solved as given, not from its images)
-            values[f"{n}.frames_beside_frontend"] = own.get("frames_beside_frontend", 0)
+        values[f"{n}.stamp_jumped_ahead"] = theirs.get("stamp_jumped_ahead", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
         state = "waiting"  # (its frames wait for the camera_info)
@@ -589,8 +638,6 @@ def _rig_camera_values(
     values[f"{n}.frames_apart"] = "yes" if apart is not None else "no"
     for m, off in (apart or {}).items():
         values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
-    if inputs is not None:
-        values[f"{n}.camera_frame_ms_median"] = _median_ms(inputs.frame_times.get(n, ()))
     if apart is not None:
         offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
         warnings.append(

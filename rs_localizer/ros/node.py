@@ -82,9 +82,7 @@ class LocalizerCore(NodeCore):
     the pipeline returns and reports diagnostics."""
 
     pipeline = None  # (None: before _init_state)
-    # (warnings given once per node: set on the instance when given)
-    _warned_beside_frontend = False
-    _warned_rs = False
+    _warned_rs = False  # (a warning given once per node: set on the instance when given)
 
     @property
     def cfg(self) -> LocalizerConfig | None:
@@ -95,8 +93,6 @@ class LocalizerCore(NodeCore):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
         self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed)
-        self.messages_lost = 0  # QoS message_lost events over the frame subscriptions
-        self._lost = {}
         self.pub_corr_out = None  # correspondences_out, created when first needed
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -146,18 +142,19 @@ class LocalizerCore(NodeCore):
 
     def _subscribe(self, msg_type, topic, kind: str, qos):
         """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
-        message_lost events are counted (``messages_lost``)."""
+        message_lost events are counted (``messages_lost``, the pipeline's
+        :class:`~.camera_input.CameraCounts`)."""
 
         def on_frame(msg):
             if kind == "image":
                 self.pipeline.stats.add("image_frames")
-            elif self.sub_image is not None:
-                self._frame_beside_frontend(kind)
+            elif self.sub_image is not None:  # (solved as given, not from the images)
+                self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
+                                            self.sub_image.topic_name)  # fmt: skip
             self._enqueue(msg, kind)
 
         def on_lost(status):
-            self._lost[kind] = int(status.total_count)
-            self.messages_lost = sum(self._lost.values())
+            self.pipeline.stats.lost(kind, status.total_count)
 
         return self.create_subscription(
             msg_type,
@@ -166,22 +163,6 @@ class LocalizerCore(NodeCore):
             qos,
             event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )
-
-    def _frame_beside_frontend(self, kind: str) -> None:
-        """A ``correspondences`` or ``keypoints`` frame while the front end runs on the
-        images: counted (``frames_beside_frontend``) and, the first time, a warning naming
-        both topics (the frame is solved as given: the front end and its map play no part)."""
-        self.pipeline.stats.add("frames_beside_frontend")
-        if self._warned_beside_frontend:
-            return
-        self._warned_beside_frontend = True  # (once per node)
-        topic = self.resolve_topic_name(kind)
-        self.get_logger().warning(
-            f"received {kind} on {topic} while the {self.cfg.frontend_kind} front end runs on "
-            f"{self.sub_image.topic_name}: these frames are solved from the given {kind}, "
-            "not from the images and the front end's map (counted frames_beside_frontend; "
-            "play a bag's images only: rs-localizer play --source image)"
         )
 
     def _create_frame_inputs(self):
@@ -372,7 +353,7 @@ class LocalizerCore(NodeCore):
             self.pipeline.stats.snapshot(),
             self.pipeline.tracking_values(),
             self.pipeline.camera_source(),
-            self.messages_lost,
+            self.pipeline.stats.messages_lost,
             latencies,
             stamp_ages,
             self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,

@@ -20,7 +20,6 @@ ROS import.
 
 from __future__ import annotations
 
-import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
@@ -41,7 +40,7 @@ from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraInput, DroppedFrame, ImageFrame
+from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame
 from .config import LocalizerConfig
 
 __all__ = [
@@ -240,32 +239,23 @@ class StatsSnapshot:
     stage_times: dict[str, list[float]]
 
 
-class PipelineStats:
-    """Counters of the pipeline for the diagnostics (thread-safe): ``counts`` (time_resets,
+class PipelineStats(CameraCounts):
+    """The single camera's counters for the diagnostics (thread-safe): its
+    :class:`~.camera_input.CameraCounts` (name "": keys as they are; time_resets,
     points_dropped, capped_clouds, capped_points, unknown_landmark_ids,
-    camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames), the last
-    1000 inlier counts and stage times (s: decode, frontend, estimate, publish), the planarity
-    of the last pose and the front end's last correspondence count."""
+    camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames,
+    frames_beside_frontend, ...; the messages lost per input), the last 1000 inlier counts
+    and stage times (s: decode, frontend, estimate, publish), the planarity of the last pose
+    and the front end's last correspondence count."""
 
     def __init__(self):
-        self._lock = threading.Lock()
-        self._counts: Counter = Counter()
+        super().__init__("", kept=_STATS_KEPT)
         self._inliers: deque[int] = deque(maxlen=_STATS_KEPT)
         self._stages = {
             k: deque(maxlen=_STATS_KEPT) for k in ("decode", "frontend", "estimate", "publish")
         }
         self._planar = (False, float("nan"))
         self._frontend_last = 0
-
-    def add(self, key: str, n: int = 1) -> None:
-        """Add ``n`` to the counter ``key``."""
-        with self._lock:
-            self._counts[key] += n
-
-    def set(self, key: str, value: int) -> None:
-        """Set the counter ``key`` to ``value`` (a state, e.g. ``map_fit_doubtful``)."""
-        with self._lock:
-            self._counts[key] = value
 
     def stage_time(self, stage: str, seconds: float) -> None:
         """Record the time (s) a frame spent in ``stage``."""

@@ -92,7 +92,14 @@ from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
 from . import conversions as cv
-from .camera_input import CameraInput, DroppedFrame, ImageFrame, rig_camera_inputs, to_rig
+from .camera_input import (
+    CameraCounts,
+    CameraInput,
+    DroppedFrame,
+    ImageFrame,
+    rig_camera_inputs,
+    to_rig,
+)
 from .config import (
     LocalizerConfig,
     RigConfig,
@@ -185,7 +192,6 @@ class RigCore(NodeCore):
 
     rig = None  # (None: not configured)
     config = None
-    _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _declare_parameters(self) -> None:
         super()._declare_parameters()
@@ -229,7 +235,6 @@ class RigCore(NodeCore):
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
-        self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self.queue_size = int(single.queue_size)
         self.republish = bool(single.republish_correspondences)
         self._corr_out: dict = {}  # (camera -> its correspondences_out, made when first needed)
@@ -243,8 +248,11 @@ class RigCore(NodeCore):
         )
         self._group_ns = int(self.config.settings.window * 1e9)
         self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
-        self._acc = threading.Lock()  # (the node's own counts, self._inputs)
-        self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
+        #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
+        #: received, handed on, skipped or failed before the rig, its input stage's counts,
+        #: its messages lost, the worker's time per frame
+        self.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
         self.inputs: dict[str, CameraInput] = rig_camera_inputs(
             self.config,
@@ -254,10 +262,7 @@ class RigCore(NodeCore):
             wait=single.camera_info_wait,
             landmarks=self.landmarks,
         )
-        self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
-        # (s, the worker's time per camera frame, per camera)
-        self._frame_time = {c.name: deque(maxlen=1000) for c in self.config.cameras}
         with self._timing_lock:
             self.latencies.clear()
             self.stamp_ages.clear()
@@ -383,8 +388,7 @@ class RigCore(NodeCore):
         middleware lost before the node saw them (never received; ``<c>.messages_lost``)."""
 
         def on_lost(status):
-            with self._acc:
-                self._lost[(name, kind)] = int(status.total_count)
+            self.camera_counts[name].lost(kind, status.total_count)
 
         return SubscriptionEventCallbacks(message_lost=on_lost)
 
@@ -489,8 +493,7 @@ class RigCore(NodeCore):
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
-        with self._acc:
-            self._inputs[f"{name}.{key}"] += n
+        self.camera_counts[name].add(key, n)
 
     def _on_cloud(self, name: str, msg, kind: str = "cloud") -> None:
         """A camera's correspondences or keypoints cloud, queued; beside its front end (which
@@ -498,25 +501,16 @@ class RigCore(NodeCore):
         warning naming both topics: such a cloud is solved as given, not from the images and
         the front end's map (as the single-camera node says)."""
         if self.frontend_kind != "none":
-            self._count_input(name, "frames_beside_frontend")
-            if not self._warned_beside_frontend:
-                self._warned_beside_frontend = True  # (once per node)
-                leaf = "correspondences" if kind == "cloud" else kind
-                self.get_logger().warning(
-                    f"received {leaf} on {self.resolve_topic_name(f'{name}/{leaf}')} while "
-                    f"the {self.frontend_kind} front end runs on the camera's images: these "
-                    f"frames are solved from the given {leaf}, not from the images and the "
-                    f"front end's map (counted {name}.frames_beside_frontend; play a bag's "
-                    "images only: rs-localizer play --source image)"
-                )
+            leaf = "correspondences" if kind == "cloud" else kind
+            self._frame_beside_frontend(self.camera_counts[name], leaf, self.frontend_kind,
+                                        "the camera's images")  # fmt: skip
         self._enqueue(name, kind, msg)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:
         """Subscription callbacks: count the camera's frame and queue it for the worker. A full
         queue (``queue_size`` frames per camera) drops its oldest frame (counted
         ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
-        with self._acc:
-            self._inputs[f"{name}.received"] += 1
+        self.camera_counts[name].add("received")
         if self._first_frame is None:
             self._first_frame = time.monotonic()
         # (the frame's one stamp check: the queue's grouping and the worker take it)
@@ -585,13 +579,12 @@ class RigCore(NodeCore):
                     "internal_error",
                     f"rig camera {name!r}: frame failed (internal_error): {type(e).__name__}: {e}",
                 )
-            with self._acc:
-                self._inputs[f"{name}.taken"] += 1
-                if skip is not None:
-                    self._inputs[f"{name}.skipped.{skip}"] += 1
-                if failure is not None:
-                    self._inputs[f"{name}.failed.{failure}"] += 1
-                self._frame_time[name].append(time.perf_counter() - tic)
+            self.camera_counts[name].frame_done(
+                time.perf_counter() - tic,
+                "taken",
+                None if skip is None else f"skipped.{skip}",
+                None if failure is None else f"failed.{failure}",
+            )
         return _Taken(outs, None, [], clouds)
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
@@ -645,7 +638,7 @@ class RigCore(NodeCore):
                 f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
             )
             return None
-        self.bad_input[name] += 1
+        self.camera_counts[name].add("bad_input")
         if kind in ("cloud", "keypoints"):
             self._log.warning(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
         else:
@@ -693,11 +686,10 @@ class RigCore(NodeCore):
         if out.estimate is None:
             return
         refused, warn = self._map_fit.update(out.num_points, out.estimate)
-        with self._acc:
-            if refused:
-                self._inputs["rig_frames_failed_with_matches"] += 1
-            if refused is not None:
-                self._inputs["map_fit_doubtful"] = int(self._map_fit.doubtful)
+        if refused:
+            self._rig_counts.add("rig_frames_failed_with_matches")
+        if refused is not None:
+            self._rig_counts.set("map_fit_doubtful", int(self._map_fit.doubtful))
         if warn:
             self._log.warning("map_fit", self._map_fit.text())
 
@@ -816,13 +808,13 @@ class RigCore(NodeCore):
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
         latencies, stamp_ages = self._timing_snapshot()
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
-            with self._acc:
-                counts = Counter(self._inputs)
-                frame_times = {n: list(d) for n, d in self._frame_time.items()}
-                for (n, _), k in self._lost.items():
-                    counts[f"{n}.messages_lost"] += k
+            counts = Counter(self._rig_counts.counts())
+            for cc in self.camera_counts.values():
+                counts.update(cc.prefixed())
+            frame_times = {n: cc.frame_times() for n, cc in self.camera_counts.items()}
+            bad_input = {n: counts[f"{n}.bad_input"] for n in self.camera_counts}
             absent = [n for n in self.inputs if waited and counts[f"{n}.received"] == 0]
-            inputs = RigInputs(counts, latencies, stamp_ages, frame_times, dict(self.bad_input),
+            inputs = RigInputs(counts, latencies, stamp_ages, frame_times, bad_input,
                                dict(self.imu_rejected), absent,
                                self.frontend_kind != "none")  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)

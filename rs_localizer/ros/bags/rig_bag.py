@@ -413,17 +413,17 @@ def replay_rig(
 
     from ...frontends.shared import SHARED_MAPS
     from ...tracking.video import Localizer
-    from ..camera_input import DroppedFrame, rig_camera_inputs, to_rig
+    from ..camera_input import CameraCounts, DroppedFrame, rig_camera_inputs, to_rig
     from ..pipeline import MapFitCheck
 
     values, _, cfg = rig_bag_config(bag, params_files, params)
     rig = Localizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras),
                     mounts={c.name: c.mount for c in cfg.cameras})  # fmt: skip
-    own: Counter = Counter()  # (the node's counts: the cameras' inputs', "<camera>.<key>")
+    own = {n: CameraCounts(n) for n in res.cameras}  # (the node's counts of each camera)
 
     def count(name: str, key: str, n: int = 1) -> None:
-        own[f"{name}.{key}"] += n
+        own[name].add(key, n)
 
     ns = rig_namespace(bag, res.cameras)
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
@@ -437,11 +437,11 @@ def replay_rig(
     try:
         for item in iter_rig_frames(bag, inputs, images=images):
             n = item.camera_name
-            own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
-            own[f"{n}.taken"] += 1
+            own[n].add("received")  # (as the node: every message, taken at once)
+            own[n].add("taken")
             stamp = item.stamp_ns
             if stamp is None:  # (a stamp out of range: skipped by the node alone)
-                own[f"{n}.skipped.bad_input"] += 1
+                own[n].add("skipped.bad_input")
                 continue
             while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
                 rig.add_imu(*gyro.pop())
@@ -463,7 +463,7 @@ def replay_rig(
     bar.close()
     res.counts = {"rig": rig.rig_counts()}
     for n in rig.cameras:
-        res.counts[n] = _camera_counts(rig, n, own, landmarks is not None)
+        res.counts[n] = _camera_counts(rig, n, own[n].counts(), landmarks is not None)
     res.readout = rig.readout_values()
     if cfg.settings.imu is not None:
         res.gyro_counts = rig.gyro_counts()
@@ -562,25 +562,24 @@ def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
 ROW_COUNTS = ("points_dropped", "capped_clouds")
 
 
-def _camera_counts(rig, n: str, own: Counter, keypoints: bool = False) -> dict:
+def _camera_counts(rig, n: str, own: Mapping[str, int], keypoints: bool = False) -> dict:
     """Camera ``n``'s counts in a replay, as the rig node's diagnostics give them: its frames'
     (:func:`~rs_localizer.ros.diagnostics.rig_camera_frames` of the rig's counts and the
-    node's ``own``), its rows' (:data:`ROW_COUNTS`; with ``keypoints``, a replay with
-    ``landmarks_file``, also ``unknown_landmark_ids``), then ``skipped.<reason>`` for each
-    reason it was skipped for (the node's and the rig's, e.g. ``bad_input``:
-    clouds not read)."""
+    node's ``own``, its :class:`~rs_localizer.ros.camera_input.CameraCounts`' counts), its
+    rows' (:data:`ROW_COUNTS`; with ``keypoints``, a replay with ``landmarks_file``, also
+    ``unknown_landmark_ids``), then ``skipped.<reason>`` for each reason it was skipped for
+    (the node's and the rig's, e.g. ``bad_input``: clouds not read)."""
     from ..diagnostics import rig_camera_frames
 
-    mine = {k[len(n) + 1 :]: v for k, v in own.items() if k.startswith(f"{n}.")}
-    out = rig_camera_frames(rig, n, mine)
+    out = rig_camera_frames(rig, n, own)
     for k in ROW_COUNTS:
-        out[k] = own[f"{n}.{k}"] + rig.counts[f"{n}.{k}"]
+        out[k] = own.get(k, 0) + rig.counts[f"{n}.{k}"]
     if keypoints:  # (ids not in the landmarks, as the rig node counts them)
-        out["unknown_landmark_ids"] = own[f"{n}.unknown_landmark_ids"]
-    skips = {k for c in (own, rig.counts) for k in c if k.startswith(f"{n}.skipped.")}
-    for k in sorted(skips):
-        if own[k] + rig.counts[k]:
-            out[k[len(n) + 1 :]] = own[k] + rig.counts[k]
+        out["unknown_landmark_ids"] = own.get("unknown_landmark_ids", 0)
+    theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.skipped.")}
+    for k in sorted({k for k in own if k.startswith("skipped.")} | set(theirs)):
+        if own.get(k, 0) + theirs.get(k, 0):
+            out[k] = own.get(k, 0) + theirs.get(k, 0)
     return out
 
 
@@ -706,16 +705,16 @@ def read_rig_frames(
             node refuses (e.g. an unknown readout direction).
     """
     from ...frontends.shared import SHARED_MAPS
-    from ..camera_input import DroppedFrame, rig_camera_inputs
+    from ..camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
 
     values = rig_parameter_values(bag, params_files, params)[0]
     if not [str(n).strip() for n in values["rig.cameras"]]:
         raise ValueError(f"{bag}: no rig.cameras (not a rig bag, and no --params-file with them)")
     values, cams, cfg = rig_bag_config(bag, params_files, params, mountings=False)
-    counts = {c.name: Counter() for c in cfg.cameras}
+    counts = {c.name: CameraCounts(c.name) for c in cfg.cameras}
 
     def count(name: str, key: str, n: int = 1) -> None:
-        counts[name][key] += n
+        counts[name].add(key, n)
 
     owner = object()  # (the front ends' maps, released once read)
     try:
@@ -729,8 +728,9 @@ def read_rig_frames(
         if isinstance(f, DroppedFrame):
             count(f.camera_name, f.reason)
     rows = {}
-    for n, c in counts.items():  # (READ_COUNTS, then the images' skip reasons counted)
-        rows[n] = {k: int(c[k]) for k in READ_COUNTS}
+    for n, cc in counts.items():  # (READ_COUNTS, then the images' skip reasons counted)
+        c = cc.counts()
+        rows[n] = {k: int(c.get(k, 0)) for k in READ_COUNTS}
         rows[n].update({k: int(v) for k, v in c.items() if k not in READ_COUNTS})
     return RigFrames(items, values, cams, rows, cfg.settings)
 
