@@ -204,10 +204,19 @@ _FIT_ITERATIONS = 200
 def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
     velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
-    (R, C, t, (2N,) residuals, (2N, 6) Jacobian), normalized units. With the velocities at
-    zero (the global-shutter model) the compiled refinement of the pose alone
-    (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it; otherwise
-    SciPy's Levenberg-Marquardt on the held-velocity parametrization."""
+    ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``, normalized units
+    (whitened into measured pixels over the focal length). With the velocities at zero (the
+    global-shutter model) the compiled refinement of the pose alone
+    (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it, its
+    information matrix and the frame's errors giving the rest; otherwise SciPy's
+    Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian."""
+    if not (np.any(w) or np.any(b)):
+        z = np.zeros(3)
+        ref = frame_refinement(fr, (R0, C0, z, z), _LEAST_SQUARES, False, cutoff=np.inf,
+                               max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL)  # fmt: skip
+        R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
+        e = fr.errors((R, C, z, z))
+        return R, C, z, float(e @ e), np.array(ref.data_information[:6, :6])
     tau = fr.r - fr.r0
     X, x = fr.X, fr.x
     W = skew(w)
@@ -216,31 +225,24 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     def theta(p):
         return np.concatenate([p, w, np.cross(w, p[3:]) + b])
 
-    if not (np.any(w) or np.any(b)):
-        z = np.zeros(3)
-        ref = frame_refinement(fr, (R0, C0, z, z), _LEAST_SQUARES, False, cutoff=np.inf,
-                               max_iterations=_FIT_ITERATIONS, covariance=False,
-                               tol=_FIT_TOL)  # fmt: skip
-        R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    else:
+    def jac(p):
+        J = exact_jacobian(theta(p), R0, X, x, tau, m)
+        return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
 
-        def jac(p):
-            J = exact_jacobian(theta(p), R0, X, x, tau, m)
-            return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
-
-        sol = least_squares(
-            lambda p: exact_residuals(theta(p), R0, X, x, tau, m),
-            np.concatenate([np.zeros(3), C0]),
-            jac=jac,
-            method="lm",
-            xtol=1e-12,
-            ftol=1e-12,
-        )
-        R, C = cv2.Rodrigues(sol.x[:3])[0] @ R0, sol.x[3:].copy()
+    sol = least_squares(
+        lambda p: exact_residuals(theta(p), R0, X, x, tau, m),
+        np.concatenate([np.zeros(3), C0]),
+        jac=jac,
+        method="lm",
+        xtol=1e-12,
+        ftol=1e-12,
+    )
+    R, C = cv2.Rodrigues(sol.x[:3])[0] @ R0, sol.x[3:].copy()
     q = np.concatenate([np.zeros(3), C])
     J = exact_jacobian(theta(q), R, X, x, tau, m)  # (at the refined pose, not the start's R0)
     J = np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
-    return R, C, theta(q)[9:12], exact_residuals(theta(q), R, X, x, tau, m), J
+    res = exact_residuals(theta(q), R, X, x, tau, m)
+    return R, C, theta(q)[9:12], float(res @ res), J.T @ J
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:
@@ -318,9 +320,9 @@ def few_points_estimate(
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
     for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
-        R, C, t, res, J = _fit(fr, R0, C0, w, b)
-        if np.isfinite(R).all() and np.isfinite(res).all():
-            fits.append((float(np.sqrt(res @ res / len(fr.x))), R, C, t, res, J))
+        R, C, t, sse, H = _fit(fr, R0, C0, w, b)
+        if np.isfinite(R).all() and np.isfinite(sse):
+            fits.append((float(np.sqrt(sse / len(fr.x))), R, C, t, sse, H))
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     fits.sort(key=lambda f: f[0])
@@ -337,12 +339,11 @@ def few_points_estimate(
         if not d[near] <= PREDICTION_RATIO * d[1 - near]:
             raise EstimationFailed(AMBIGUOUS_TAG)
         choice = fits[near]
-    rms, R, C, t, res, J = choice
+    rms, R, C, t, sse, H = choice
     if rms > th:
         raise EstimationFailed(TOO_FEW_INLIERS)
     moving = bool(np.any(w) or np.any(b))
-    sigma2 = max(float(res @ res) / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
-    H = J.T @ J
+    sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
     cov = np.zeros((12, 12))
     try:
         cov[:6, :6] = sigma2 * np.linalg.inv(H)
