@@ -187,7 +187,7 @@ def _square_fit_sse(uv: np.ndarray, X: np.ndarray, camera: CameraModel) -> float
         return float("nan")
     z = np.zeros(3)
     sse = [_fit(fr, R0, C0, z, z)[3] for R0, C0 in _ippe(fr)]
-    return min((float(r @ r) for r in sse), default=float("nan")) * fr.f**2
+    return min(sse, default=float("nan")) * fr.f**2
 
 
 def corner_noise(folder: Path = DATA) -> dict[str, tuple[int, float]]:
