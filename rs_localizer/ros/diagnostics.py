@@ -18,7 +18,7 @@ from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
 from ..tracking.localizer import readout_warning
 from .config import LocalizerConfig
-from .frame_queue import FrameCounts
+from .frame_queue import FRAME_ACCOUNTING, FrameCounts
 from .pipeline import StatsSnapshot
 
 if TYPE_CHECKING:
@@ -35,6 +35,7 @@ __all__ = [
     "camera_section",
     "diagnostic_status",
     "rig_camera_frames",
+    "rig_camera_section",
     "rig_diagnostics",
     "timing_values",
 ]
@@ -100,8 +101,6 @@ def _compile_values(unit: str) -> tuple[dict[str, Any], str]:
     return values, note
 
 
-#: a camera's frame accounting (received = the other four summed)
-FRAME_ACCOUNTING = ("received", "solved", "failed", "skipped", "pending")
 #: the single camera's names of the keys of its section that a rig camera's section names
 #: otherwise (``<c>.`` and the key)
 _FLAT_KEYS = {
@@ -116,9 +115,8 @@ _FLAT_KEYS = {
 
 def camera_section(
     name: str,
-    frames: Mapping[str, int],
+    frames: FrameCounts,
     counts: Mapping[str, int] | None,
-    reasons: Mapping[str, int] | None = None,
     more: Mapping[str, int] | None = None,
     frontend: bool = False,
     frame_times: Sequence[float] | None = None,
@@ -129,14 +127,17 @@ def camera_section(
     :class:`~rs_localizer.ros.camera_input.CameraCounts`.
 
     Values: the frame accounting ``frames`` (``received``, ``solved``, ``failed``,
-    ``skipped``, ``pending``; received = the other four summed); from the camera's own
+    ``skipped``, ``pending``; received = the other four summed; the single camera's
+    :class:`~rs_localizer.ros.frame_queue.FrameQueue` snapshot, a rig camera's
+    :func:`rig_camera_frames`); from the camera's own
     ``counts`` (keys without prefix; None: none known, only the frames and the rows' counts of
     ``more``): ``messages_lost`` (lost by the middleware), ``camera_info_rejected``,
     ``unknown_landmark_ids`` (keypoints' ids not in ``landmarks_file``), with a
     ``frontend`` ``frames_beside_frontend`` (clouds received while the front end runs on the
     images), ``camera_info_rejected.<reason>``; ``points_dropped`` (rows with a NaN or inf)
-    and ``capped_clouds`` (clouds capped to ``max_points``); ``reasons``: the frames' counts
-    by reason (``failed.<reason>``, ``skipped.<reason>``, as given); with ``frame_times`` (s
+    and ``capped_clouds`` (clouds capped to ``max_points``); the frames' counts by reason
+    (:meth:`~rs_localizer.ros.frame_queue.FrameCounts.reasons`: ``failed.<reason>``, then
+    ``skipped.<reason>``); with ``frame_times`` (s
     per frame) ``camera_frame_ms_median``. ``more``: the camera's counts of another counter
     (a rig's, keys without prefix), added to its rows' and camera_info counts."""
     more = more or {}
@@ -145,7 +146,7 @@ def camera_section(
     def key(k: str) -> str:
         return f"{name}.{k}" if name else _FLAT_KEYS.get(k, k)
 
-    values: dict[str, Any] = {key(k): v for k, v in frames.items()}
+    values: dict[str, Any] = {key(k): v for k, v in frames.accounting().items()}
     for k in ("capped_clouds", "points_dropped"):
         values[key(k)] = own.get(k, 0) + more.get(k, 0)
     if counts is not None:
@@ -153,7 +154,7 @@ def camera_section(
             values[key(k)] = own.get(k, 0)
         if frontend:
             values[key("frames_beside_frontend")] = own.get("frames_beside_frontend", 0)
-    values.update({key(k): v for k, v in (reasons or {}).items()})
+    values.update({key(k): v for k, v in frames.reasons().items()})
     for k, v in sorted(own.items()):
         if k.startswith("camera_info_rejected."):
             values[key(k)] = v + more.get(k, 0)
@@ -210,13 +211,8 @@ def diagnostic_status(
     )
     compile_values, note = _compile_values("frames")
     message += note
-    accounting = {k: getattr(frames, k) for k in FRAME_ACCOUNTING}
     section = camera_section(
-        "",
-        accounting,
-        {**c, "messages_lost": messages_lost},
-        {f"failed.{k}": v for k, v in failed.items()},
-        frontend=frontend is not None,
+        "", frames, {**c, "messages_lost": messages_lost}, frontend=frontend is not None
     )
     values = _core_values(
         cfg, section, stats, tracking, camera_source, latencies, stamp_ages, compile_values,
@@ -565,28 +561,50 @@ def _rig_level_and_message(
     return OK, f"{r['solved']} rig frames posed" + note
 
 
-def rig_camera_frames(
-    rig: Localizer, n: str, own: Mapping[str, int] | None = None
-) -> dict[str, int]:
-    """Camera ``n``'s frame accounting as the rig node reports it: ``received``, ``solved``,
-    ``failed``, ``skipped``, ``pending`` (received = the other four summed). The rig's
-    (:meth:`~rs_localizer.tracking.video.Localizer.camera_counts`), with the node's own
-    counts of the camera ``own`` (keys without the ``<c>.`` prefix, :class:`RigInputs`'
-    ``counts``; None: the rig's alone): ``received`` is then the node's (every message), the
-    node's ``skipped.<reason>`` and ``failed.internal_error`` are added to the rig's, and the
-    frames the node has not handed on yet (``received`` less ``taken`` and the frames dropped
-    from its queue) to ``pending``. The rig node's diagnostics and ``replay`` of a rig bag
-    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both count a camera's frames so."""
+def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = None) -> FrameCounts:
+    """Camera ``n``'s frame accounting as the rig node reports it (received = solved + failed
+    + skipped + pending). The rig's
+    (:meth:`~rs_localizer.tracking.video.Localizer.camera_counts`, its ``<c>.skipped.<reason>``
+    the skips by reason), with the node's own counts of the camera ``own`` (keys without the
+    ``<c>.`` prefix, :class:`RigInputs`' ``counts``; None: the rig's alone): ``received`` is
+    then the node's (every message), the node's ``skipped.<reason>`` and
+    ``failed.internal_error`` are added to the rig's (and its ``failed.<reason>`` are the
+    failures by reason), and the frames the node has not handed on yet (``received`` less
+    ``taken`` and the frames dropped from its queue) to ``pending``. The rig node's
+    diagnostics and ``replay`` of a rig bag (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`)
+    both count a camera's frames so."""
     c = rig.camera_counts(n)
-    if own is None:
-        return c
-    early = sum(v for k, v in own.items() if k.startswith("skipped."))
-    queued = early - own.get("skipped.bad_input", 0)
-    c["received"] = own.get("received", 0)
-    c["skipped"] += early
-    c["failed"] += own.get("failed.internal_error", 0)
-    c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
-    return c
+    skip = f"{n}.skipped."
+    skips = Counter({k[len(skip) :]: v for k, v in rig.counts.items() if k.startswith(skip)})
+    failures: dict[str, int] = {}
+    if own is not None:
+        early = {k[len("skipped.") :]: v for k, v in own.items() if k.startswith("skipped.")}
+        failures = {k[len("failed.") :]: v for k, v in own.items() if k.startswith("failed.")}
+        skips.update(early)
+        queued = sum(early.values()) - own.get("skipped.bad_input", 0)
+        c["received"] = own.get("received", 0)
+        c["skipped"] += sum(early.values())
+        c["failed"] += own.get("failed.internal_error", 0)
+        c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+    return FrameCounts(**c, failures=failures, skips=dict(skips))
+
+
+def rig_camera_section(
+    rig: Localizer,
+    n: str,
+    own: Mapping[str, int] | None,
+    frontend: bool = False,
+    frame_times: Sequence[float] | None = None,
+) -> dict[str, Any]:
+    """Camera ``n``'s accounting in a rig (:func:`camera_section`, each key ``<n>.<key>``):
+    its frames of :func:`rig_camera_frames` (the rig's and the node's ``own`` counts of the
+    camera, keys without the ``<n>.`` prefix; None: the rig's alone), its rows' counts of the
+    node's clouds and the rig's images (``Localizer.process_image``) summed, and with ``own``
+    its input stage's counts. The rig node's diagnostics and ``replay`` of a rig bag both
+    take a camera's accounting from it."""
+    theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.")}
+    frames = rig_camera_frames(rig, n, own)
+    return camera_section(n, frames, own, theirs, frontend, frame_times)
 
 
 def _rig_camera_values(
@@ -609,16 +627,12 @@ def _rig_camera_values(
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
-    theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.")}
-    reasons = {k: v + theirs.get(k, 0) for k, v in (own or {}).items()
-               if k.startswith(("skipped.", "failed."))}  # fmt: skip
     times = inputs.frame_times.get(n, ()) if inputs is not None else None
-    values = camera_section(n, rig_camera_frames(rig, n, own), own, reasons, theirs,
-                            inputs is not None and inputs.frontend, times)  # fmt: skip
+    values = rig_camera_section(rig, n, own, inputs is not None and inputs.frontend, times)
     busy = lost = 0
     if own is not None:
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
-        values[f"{n}.stamp_jumped_ahead"] = theirs.get("stamp_jumped_ahead", 0)
+        values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
         state = "waiting"  # (its frames wait for the camera_info)

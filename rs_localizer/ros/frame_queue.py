@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-__all__ = ["Failed", "FrameCounts", "FrameQueue", "Outcome"]
+__all__ = ["FRAME_ACCOUNTING", "Failed", "FrameCounts", "FrameQueue", "Outcome"]
 
 
 class Outcome(Protocol):
@@ -37,10 +37,17 @@ class Failed:
     detail: str
 
 
+#: a camera's frame accounting (received = the other four summed)
+FRAME_ACCOUNTING = ("received", "solved", "failed", "skipped", "pending")
+
+
 @dataclass(frozen=True)
 class FrameCounts:
-    """A consistent snapshot of the frame accounting: ``received == solved + failed +
-    skipped + pending``; ``failures`` counts each failure reason (their sum is ``failed``)."""
+    """A camera's frame accounting, the one form of both modes: ``received == solved +
+    failed + skipped + pending``; ``failures`` counts each failure reason (their sum is
+    ``failed``), ``skips`` each skip reason known (the rig camera's; the single camera's
+    queue counts its skips without reason). The single camera's is a :class:`FrameQueue`
+    snapshot, a rig camera's :func:`~rs_localizer.ros.diagnostics.rig_camera_frames`."""
 
     received: int = 0
     solved: int = 0
@@ -48,6 +55,18 @@ class FrameCounts:
     skipped: int = 0
     pending: int = 0
     failures: dict[str, int] = field(default_factory=dict)
+    skips: dict[str, int] = field(default_factory=dict)
+
+    def accounting(self) -> dict[str, int]:
+        """``received``, ``solved``, ``failed``, ``skipped``, ``pending``, in that order."""
+        return {k: getattr(self, k) for k in FRAME_ACCOUNTING}
+
+    def reasons(self) -> dict[str, int]:
+        """The counts by reason: ``failed.<reason>``, then ``skipped.<reason>``, each sorted
+        by reason."""
+        out = {f"failed.{k}": v for k, v in sorted(self.failures.items())}
+        out.update({f"skipped.{k}": v for k, v in sorted(self.skips.items())})
+        return out
 
 
 class FrameQueue:

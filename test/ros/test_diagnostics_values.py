@@ -234,3 +234,52 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     assert "rig frames solved without the gyro; check the imu topic" in message, message
     level, message, v = D.rig_diagnostics(rigs[False], set(), Counter())
     assert level == D.OK and not {k for k in v if "gyro" in k or k.startswith("imu_")}, v
+
+
+def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
+    """A rig camera's frame accounting (``rig_camera_frames``) is the rig's counts of the camera
+    with the node's own: received = solved + failed + skipped + pending, ``skipped`` and
+    ``failed`` the sums of their reasons, the node's and the rig's reasons both kept; the rig
+    node's diagnostics section and a rig bag replay's counts of the camera give the same
+    values."""
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros.bags.rig_bag import _camera_counts
+    from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames, rig_diagnostics
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    a, b = (c.name for c in cams)
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    sent = Counter()
+    for i, f in enumerate(frames):
+        sent[f.name] += 1
+        if f.name == b and i == 5:  # (an image the node could not decode, dropped by the rig)
+            rig.drop(b, f.stamp_ns, by[b], "bad_image")
+        else:
+            rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+    # (the node's counts: camera a's frames and 4 more: 1 of a stamp out of range, 1 whose
+    # handling raised, 1 dropped from a full queue, 1 still queued)
+    own = {a: Counter({"received": sent[a] + 4, "taken": sent[a] + 2, "skipped.bad_input": 1,
+                       "failed.internal_error": 1, "skipped.queue_full": 1}),
+           b: Counter({"received": sent[b], "taken": sent[b]})}  # fmt: skip
+    fa, fb = rig_camera_frames(rig, a, own[a]), rig_camera_frames(rig, b, own[b])
+    for fc in (fa, fb):
+        assert fc.received == fc.solved + fc.failed + fc.skipped + fc.pending, fc
+        assert sum(fc.skips.values()) == fc.skipped and sum(fc.failures.values()) == fc.failed
+    assert fa.received == sent[a] + 4 and fa.failures == {"internal_error": 1}
+    assert fa.skips == {"bad_input": 1, "queue_full": 1}
+    assert fa.pending == rig.camera_counts(a)["pending"] + 1
+    assert fb.skips == {"bad_image": 1} and fb.received == sent[b]
+    counts = Counter()
+    for n, c in own.items():
+        counts.update({f"{n}.{k}": v for k, v in c.items()})
+    v = rig_diagnostics(rig, set(), RigInputs(counts))[2]
+    for n in (a, b):
+        replayed = _camera_counts(rig, n, own[n])
+        assert replayed == {k: v[f"{n}.{k}"] for k in replayed}, (n, replayed, v)
+    assert list(_camera_counts(rig, a, own[a]))[-2:] == ["skipped.bad_input", "skipped.queue_full"]

@@ -563,23 +563,21 @@ ROW_COUNTS = ("points_dropped", "capped_clouds")
 
 
 def _camera_counts(rig, n: str, own: Mapping[str, int], keypoints: bool = False) -> dict:
-    """Camera ``n``'s counts in a replay, as the rig node's diagnostics give them: its frames'
-    (:func:`~rs_localizer.ros.diagnostics.rig_camera_frames` of the rig's counts and the
-    node's ``own``, its :class:`~rs_localizer.ros.camera_input.CameraCounts`' counts), its
-    rows' (:data:`ROW_COUNTS`; with ``keypoints``, a replay with ``landmarks_file``, also
+    """Camera ``n``'s counts in a replay, those of the rig node's diagnostics
+    (:func:`~rs_localizer.ros.diagnostics.rig_camera_section` of the rig's counts and the
+    node's ``own``, its :class:`~rs_localizer.ros.camera_input.CameraCounts`' counts) without
+    the ``<n>.`` prefix: its frames' (received, solved, failed, skipped, pending), its rows'
+    (:data:`ROW_COUNTS`; with ``keypoints``, a replay with ``landmarks_file``, also
     ``unknown_landmark_ids``), then ``skipped.<reason>`` for each reason it was skipped for
     (the node's and the rig's, e.g. ``bad_input``: clouds not read)."""
-    from ..diagnostics import rig_camera_frames
+    from ..diagnostics import rig_camera_section
+    from ..frame_queue import FRAME_ACCOUNTING
 
-    out = rig_camera_frames(rig, n, own)
-    for k in ROW_COUNTS:
-        out[k] = own.get(k, 0) + rig.counts[f"{n}.{k}"]
-    if keypoints:  # (ids not in the landmarks, as the rig node counts them)
-        out["unknown_landmark_ids"] = own.get("unknown_landmark_ids", 0)
-    theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.skipped.")}
-    for k in sorted({k for k in own if k.startswith("skipped.")} | set(theirs)):
-        if own.get(k, 0) + theirs.get(k, 0):
-            out[k] = own.get(k, 0) + theirs.get(k, 0)
+    section = rig_camera_section(rig, n, own)
+    keys = (*FRAME_ACCOUNTING, *ROW_COUNTS, *(("unknown_landmark_ids",) if keypoints else ()))
+    out = {k: section[f"{n}.{k}"] for k in keys}
+    skip = f"{n}.skipped."
+    out.update({k[len(n) + 1 :]: v for k, v in section.items() if k.startswith(skip) and v})
     return out
 
 
