@@ -97,6 +97,15 @@ class GyroMeasurement:
         object.__setattr__(self, "covariance", 0.5 * (S + S.T))
         object.__setattr__(self, "rate_change", d)
 
+    def rotated(self, R: np.ndarray) -> GyroMeasurement:
+        """The same measurement in another frame: ``R`` (3, 3) turns this one's frame's
+        vectors into that frame's (e.g. ``R_cam_imu``, or a camera's mounting ``R`` for a
+        gyro on the rig): the rate and its change turned, the covariance ``R S R^T``."""
+        R = np.asarray(R, dtype=float).reshape(3, 3)
+        return GyroMeasurement(
+            R @ self.angular_velocity, R @ self.covariance @ R.T, R @ self.rate_change
+        )
+
 
 _Estimate = TypeVar("_Estimate")
 

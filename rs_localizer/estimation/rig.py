@@ -1896,13 +1896,7 @@ def _one_camera_alone(
             else InitialModel(initial_model)
         )
         start = replace(im, model=v.camera_model(im.model))
-    cam_gyro = None
-    if gyro is not None:
-        Rc = v.mounting.R
-        cam_gyro = GyroMeasurement(
-            Rc @ gyro.angular_velocity, Rc @ gyro.covariance @ Rc.T,
-            None if gyro.rate_change is None else Rc @ gyro.rate_change,
-        )  # fmt: skip
+    cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
     est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
                            gyro=cam_gyro)  # fmt: skip
     if not est.success:

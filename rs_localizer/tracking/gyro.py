@@ -128,7 +128,7 @@ def gyro_measurement(
     cov = (noise**2 * float(c @ c) + bias_sigma**2) * np.eye(3)
     if bias_covariance is not None:
         cov = cov + checked_symmetric(bias_covariance, 3, "gyro bias covariance", definite=False)
-    return GyroMeasurement(R @ rate, R @ cov @ R.T, R @ _rate_change(t, om, a, b))
+    return GyroMeasurement(rate, cov, _rate_change(t, om, a, b)).rotated(R)
 
 
 def _rate_change(t: np.ndarray, om: np.ndarray, a: float, b: float) -> np.ndarray:
