@@ -297,7 +297,8 @@ def few_points_estimate(
 
     Args:
         fr: the prepared frame (:func:`~.frame.prepare_frame`), its threshold, timing and
-            velocity bounds set (:func:`~.frame.configure_frame`'s fields).
+            velocity bounds set (:func:`~.frame.configure_frame`'s fields), and ``planar``:
+            :func:`planar_points`.
         solver: the estimator's solver (recorded on the estimate).
         gyro_used: ``fr.known_w`` is a gyro's (set on the estimate).
 
@@ -314,9 +315,9 @@ def few_points_estimate(
             image nor a prediction tells IPPE's two poses apart), ``too_few_inliers`` (the RMS
             error is above the threshold), and those of :func:`~.finalize.final_estimate`.
     """
-    if not few_points(fr.X):
+    planar = fr.planar
+    if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
         raise EstimationFailed(TOO_FEW_POINTS)
-    planar = planar_points(fr)
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
     for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
