@@ -255,7 +255,7 @@ class VideoFrontend(Protocol):
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        prediction: Any = None,
+        prediction: RSModel | None = None,
     ) -> Any:
         """The frame's :class:`Correspondences`."""
         ...
@@ -315,7 +315,7 @@ class _PerImage(FrontendHooks):
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        prediction: Any = None,
+        prediction: RSModel | None = None,
     ) -> Any:
         return self.frontend.process(image, camera, encoding=encoding)
 
@@ -333,7 +333,7 @@ class _Unpredicted:
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        prediction: Any = None,
+        prediction: RSModel | None = None,
     ) -> Any:
         return self.frontend.process(image, camera, encoding=encoding)
 

@@ -28,6 +28,7 @@ from ..correspondences import (
     FrontendHooks,
     accepts_pixels_keyword,
 )
+from ..pose import RSModel
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
@@ -185,7 +186,7 @@ class ArucoFrontend(FrontendHooks):
         return corners, ids
 
     def predict_windows(
-        self, shape: tuple, camera: CameraModel | None, prediction: Any
+        self, shape: tuple, camera: CameraModel | None, prediction: RSModel | None
     ) -> tuple[list, set] | None:
         """Windows to search in a frame of ``shape`` (H, W) predicted at ``prediction`` (the
         frame's model ``(R, C, w, t)``, :class:`~rs_localizer.pose.RSModel`): every corner of
@@ -284,7 +285,7 @@ class ArucoFrontend(FrontendHooks):
         return np.asarray([best[i][1] for i in ids]), np.asarray(ids, np.int64)
 
     def _detect_frame(
-        self, gray: np.ndarray, camera: CameraModel | None, prediction: Any
+        self, gray: np.ndarray, camera: CameraModel | None, prediction: RSModel | None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Windowed detection when it applies (see ``windowed``), else full frame."""
         import time
@@ -388,7 +389,7 @@ class ArucoFrontend(FrontendHooks):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        prediction: Any = None,
+        prediction: RSModel | None = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
         (``points2d`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's

@@ -66,6 +66,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..correspondences import Correspondences, FrameFeedback, accepts_pixels_keyword
 from ..maps.features import FeatureMap
+from ..pose import RSModel
 from .features import FeatureFrontend, make_detector
 from .image import to_gray
 
@@ -261,7 +262,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        prediction: Any = None,
+        prediction: RSModel | None = None,
     ) -> Correspondences:
         """Correspondences of one frame (:class:`~rs_localizer.correspondences.Correspondences`:
         points2d (N, 2) distorted px, points (N, 3) world m, landmark ids (N,), scores (N,));
@@ -458,7 +459,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
             self._pending = None
 
     def _predict(
-        self, rows: np.ndarray, prediction: Any, cam: CameraModel | None
+        self, rows: np.ndarray, prediction: RSModel | None, cam: CameraModel | None
     ) -> np.ndarray | None:
         """(K, 2) px: where the map points ``rows`` land in this frame under its
         ``prediction`` (the model ``(R, C, w, t)``; each point at its own capture line,
@@ -613,7 +614,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
         threading.Thread(target=run, name="tracking-refresh").start()
         self._since_refresh = 0
 
-    def _join_refresh(self, gray: np.ndarray, prediction: Any, camera: CameraModel | None):
+    def _join_refresh(
+        self, gray: np.ndarray, prediction: RSModel | None, camera: CameraModel | None
+    ):
         """A finished refresh (detection and guided matching in its frame, done in the
         background): its matches followed by LK into this frame ``gray``, from their pixels
         under the frame's ``prediction``.
