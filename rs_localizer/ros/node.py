@@ -54,7 +54,7 @@ from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import NodeCore
 from .diagnostics import diagnostic_status
-from .frame_queue import FrameQueue
+from .frame_queue import FrameQueue, frame_accounting
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, FrameResult, log_warm_up
@@ -92,7 +92,8 @@ class LocalizerCore(NodeCore):
     def _init_state(self):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
-        self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed)
+        self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed,
+                                  counts_of=lambda _item: self.pipeline.stats)  # fmt: skip
         self.pub_corr_out = None  # correspondences_out, created when first needed
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -282,13 +283,18 @@ class LocalizerCore(NodeCore):
             self.pipeline.log.warning(
                 "skipped",
                 f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
-                f"frame [{self._frames.counts().skipped} skipped so far]",
+                f"frame [{self._frames.dropped} skipped so far]",
             )
 
     def _process(self, item) -> FrameResult:
-        """The worker: one frame through the pipeline (counted by the queue on return)."""
+        """The worker: one frame through the pipeline, counted in the camera's counts
+        (``solved`` or ``failed.<reason>``, with its time) in one step."""
         msg, kind, _arrival = item
-        return self.pipeline.process(msg, kind)
+        tic = time.perf_counter()
+        res = self.pipeline.process(msg, kind)
+        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
+        self.pipeline.stats.frame_done(time.perf_counter() - tic, outcome)
+        return res
 
     def _deliver(self, item, res):
         """The worker, after the frame is counted: publish what the pipeline returned (a
@@ -306,7 +312,7 @@ class LocalizerCore(NodeCore):
             self._publish(fused_messages(res.fused, cfg.map_frame, self._wanted))
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
-                self._frames.failures(res.failure),
+                self.pipeline.stats.get(f"failed.{res.failure}"),
             )
             return self.pipeline.log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
@@ -347,10 +353,11 @@ class LocalizerCore(NodeCore):
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
         latencies, stamp_ages = self._timing_snapshot()
+        stats = self.pipeline.stats.snapshot()
         level, message, values = diagnostic_status(
             self.cfg,
-            self._frames.counts(),
-            self.pipeline.stats.snapshot(),
+            frame_accounting(stats.counts),
+            stats,
             self.pipeline.tracking_values(),
             self.pipeline.camera_source(),
             self.pipeline.stats.messages_lost,

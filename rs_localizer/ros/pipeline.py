@@ -241,7 +241,10 @@ class StatsSnapshot:
 
 class PipelineStats(CameraCounts):
     """The single camera's counters for the diagnostics (thread-safe): its
-    :class:`~.camera_input.CameraCounts` (name "": keys as they are; time_resets,
+    :class:`~.camera_input.CameraCounts` (name "": keys as they are; the node's frame
+    accounting, counted by its queue and worker as a rig camera's: received, solved,
+    failed.<reason>, skipped.<reason> (:func:`.frame_queue.frame_accounting`; ``replay``
+    counts none of them); time_resets,
     points_dropped, capped_clouds, capped_points, unknown_landmark_ids,
     camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames,
     frames_beside_frontend, ...; the messages lost per input), the last 1000 inlier counts

@@ -243,7 +243,7 @@ class RigCore(NodeCore):
             self._deliver,
             self._delivery_failed,
             name="rs_localizer_rig_worker",
-            on_skip=self._queue_skipped,
+            counts_of=lambda item: self.camera_counts[item.name],
             group=self._same_rig_frame,
         )
         self._group_ns = int(self.config.settings.window * 1e9)
@@ -510,7 +510,6 @@ class RigCore(NodeCore):
         """Subscription callbacks: count the camera's frame and queue it for the worker. A full
         queue (``queue_size`` frames per camera) drops its oldest frame (counted
         ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
-        self.camera_counts[name].add("received")
         if self._first_frame is None:
             self._first_frame = time.monotonic()
         # (the frame's one stamp check: the queue's grouping and the worker take it)
@@ -521,7 +520,7 @@ class RigCore(NodeCore):
                 "queue_full",
                 f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
                 f"camera), dropped the oldest waiting frame "
-                f"[{self._frames.counts().skipped} dropped so far]",
+                f"[{self._frames.dropped} dropped so far]",
             )
 
     def _same_rig_frame(self, batch: list, item) -> bool:
@@ -548,10 +547,6 @@ class RigCore(NodeCore):
         """A stop was requested: wake a frame waiting for its camera's camera_info."""
         for inp in self.inputs.values():
             inp.wake()
-
-    def _queue_skipped(self, item, reason: str) -> None:
-        """A frame the queue dropped (with the queue's lock held): counted for its camera."""
-        self._count_input(item.name, f"skipped.{reason}")
 
     def _process(self, item) -> _Taken:
         """The worker: one camera frame to the rig; counted (handed on, or why not) together
