@@ -51,15 +51,16 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import LoadedMaps
+from .camera_input import CameraCounts, CameraInput
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
-from .core import NodeCore
+from .core import NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import diagnostic_status
-from .frame_queue import FrameQueue, frame_accounting
+from .frame_queue import frame_accounting
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
-from .pipeline import FramePipeline, FrameResult, log_warm_up
+from .pipeline import FramePipeline, log_warm_up
 from .pointcloud import correspondence_cloud
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
@@ -92,9 +93,7 @@ class LocalizerCore(NodeCore):
     def _init_state(self):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
-        self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed,
-                                  counts_of=lambda _item: self.pipeline.stats)  # fmt: skip
-        self.pub_corr_out = None  # correspondences_out, created when first needed
+        self._frames = self._new_queue()
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
     def _configure(self):
@@ -152,7 +151,7 @@ class LocalizerCore(NodeCore):
             elif self.sub_image is not None:  # (solved as given, not from the images)
                 self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
                                             self.sub_image.topic_name)  # fmt: skip
-            self._enqueue(msg, kind)
+            self._enqueue("", kind, msg)
 
         def on_lost(status):
             self.pipeline.stats.lost(kind, status.total_count)
@@ -275,39 +274,43 @@ class LocalizerCore(NodeCore):
             )
 
     # ------------------------------------------------------------------ frames
-    def _enqueue(self, msg, kind: str):
-        """Subscription callbacks: count the frame and queue it for the worker. A full queue
-        drops its oldest frame (``frames_skipped``): the newest frames are the ones solved."""
-        size = self.cfg.queue_size
-        if self._put_frame((msg, kind, time.perf_counter()), size):
-            self.pipeline.log.warning(
-                "skipped",
-                f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
-                f"frame [{self._frames.dropped} skipped so far]",
-            )
+    def _input_of(self, name: str) -> CameraInput:
+        return self.pipeline.camera_input
 
-    def _process(self, item) -> FrameResult:
-        """The worker: one frame through the pipeline, counted in the camera's counts
-        (``solved`` or ``failed.<reason>``, with its time) in one step."""
-        msg, kind, _arrival = item
-        tic = time.perf_counter()
-        res = self.pipeline.process(msg, kind)
-        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
-        self.pipeline.stats.frame_done(time.perf_counter() - tic, outcome)
-        return res
+    def _counts_of(self, name: str) -> CameraCounts:
+        return self.pipeline.stats
 
-    def _deliver(self, item, res):
-        """The worker, after the frame is counted: publish what the pipeline returned (a
-        failed frame: the fused twists it made final), log a failure."""
-        tic = time.perf_counter()
-        cfg = self.cfg
-        self.viz.hold_image(res.image if res.failure is None else None)
+    def _queue_limit(self) -> int:
+        return self.cfg.queue_size
+
+    def _warn_busy(self, size: int) -> None:
+        self.pipeline.log.warning(
+            "skipped",
+            f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
+            f"frame [{self._frames.dropped} skipped so far]",
+        )
+
+    def _take_frame(self, item: QueuedFrame, camera=None) -> TakenFrame:
+        """The worker: one frame through the pipeline (its stamp checked as it arrived),
+        counted ``solved`` or ``failed.<reason>``; with ``republish_correspondences`` what the
+        front end found in the image, as a ``correspondences_out`` cloud."""
+        res = self.pipeline.process(item.msg, item.kind, item.stamp)
+        clouds = []
         if res.correspondences is not None:
             c = res.correspondences
             cloud = correspondence_cloud(
                 c.points2d, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
             )
-            self._corr_out_publisher().publish(cloud)
+            clouds.append(("", cloud))
+        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
+        return TakenFrame((outcome,), res.failure, res, clouds=clouds)
+
+    def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
+        """The worker, after the frame is counted: publish what the pipeline returned (a
+        failed frame: the fused twists it made final), log a failure."""
+        tic = time.perf_counter()
+        cfg, res = self.cfg, taken.result
+        self.viz.hold_image(res.image if res.failure is None else None)
         if res.failure is not None:
             self._publish(fused_messages(res.fused, cfg.map_frame, self._wanted))
             text, n = (
@@ -333,7 +336,7 @@ class LocalizerCore(NodeCore):
             pose,
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
-        self._record_timing(item[2], res.stamp_ns)
+        self._record_timing(item.arrived, res.stamp_ns)
 
     def _throttled_log(self):
         return self.pipeline.log
@@ -344,11 +347,6 @@ class LocalizerCore(NodeCore):
         cfg = self.cfg
         if cfg is not None:
             self._publish(fused_messages(self.pipeline.flush_idle(), cfg.map_frame, self._wanted))
-
-    def _corr_out_publisher(self):
-        if self.pub_corr_out is None:
-            self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", RELIABLE)
-        return self.pub_corr_out
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
