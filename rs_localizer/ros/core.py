@@ -42,6 +42,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
@@ -114,7 +116,9 @@ class NodeCore:
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
     ``diagnostics_status()``, ``_flush_idle_track()`` and ``_throttled_log()`` (its warnings,
     each kind at most once per 5 s), and the worker's parts (module docstring):
-    ``_input_of(name)`` (the camera's :class:`~.camera_input.CameraInput`),
+    ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
+    arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
+    :class:`~.camera_input.CameraInput`),
     ``_counts_of(name)`` (its :class:`~.camera_input.CameraCounts`), ``_queue_limit()``
     and ``_warn_busy(size)``, ``_take_frame(item, camera)`` and
     ``_publish_taken(item, taken)``."""
@@ -229,6 +233,27 @@ class NodeCore:
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
+
+    def _subscribe_frames(self, name: str, kind: str, msg_type, topic: str, qos):
+        """Camera ``name``'s ``kind`` input on ``topic`` (QoS overridable as
+        ``qos_overrides.<topic>.subscription.*``): each message to the core's
+        ``_on_frame(name, kind, msg)``; its QoS ``message_lost`` events (messages the
+        middleware lost before the node saw them, never received) counted in the camera's
+        counts (``messages_lost``). Kept with the frame inputs (destroyed with them)."""
+
+        def on_lost(status):
+            self._counts_of(name).lost(kind, status.total_count)
+
+        sub = self.create_subscription(
+            msg_type,
+            topic,
+            lambda msg: self._on_frame(name, kind, msg),
+            qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        self._frame_subs.append(sub)
+        return sub
 
     # ---------------------------------------------------------------- the worker
     def _new_queue(self, name: str = "rs_localizer_worker", group=None) -> FrameQueue:

@@ -44,7 +44,6 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -140,44 +139,29 @@ class LocalizerCore(NodeCore):
             )
             self._info_subs.append(self.sub_imu)
 
-    def _subscribe(self, msg_type, topic, kind: str, qos):
-        """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
-        message_lost events are counted (``messages_lost``, the pipeline's
-        :class:`~.camera_input.CameraCounts`)."""
-
-        def on_frame(msg):
-            if kind == "image":
-                self.pipeline.stats.add("image_frames")
-            elif self.sub_image is not None:  # (solved as given, not from the images)
-                self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
-                                            self.sub_image.topic_name)  # fmt: skip
-            self._enqueue("", kind, msg)
-
-        def on_lost(status):
-            self.pipeline.stats.lost(kind, status.total_count)
-
-        return self.create_subscription(
-            msg_type,
-            topic,
-            on_frame,
-            qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )
+    def _on_frame(self, name: str, kind: str, msg) -> None:
+        """A frame message (subscription callback): an image counted ``image_frames``; a
+        cloud beside the front end ``frames_beside_frontend`` (solved as given, not from the
+        images); then queued (:meth:`.core.NodeCore._enqueue`)."""
+        if kind == "image":
+            self.pipeline.stats.add("image_frames")
+        elif self.sub_image is not None:
+            self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
+                                        self.sub_image.topic_name)  # fmt: skip
+        self._enqueue(name, kind, msg)
 
     def _create_frame_inputs(self):
         """The frame subscriptions, the diagnostics timer and the worker thread."""
-        self.sub_corr = self._subscribe(
-            PointCloud2, "correspondences", "correspondences", CLOUD_QOS
+        self.sub_corr = self._subscribe_frames(
+            "", "correspondences", PointCloud2, "correspondences", CLOUD_QOS
         )
-        self.sub_kp = self._subscribe(PointCloud2, "keypoints", "keypoints", CLOUD_QOS)
+        self.sub_kp = self._subscribe_frames("", "keypoints", PointCloud2, "keypoints", CLOUD_QOS)
         self.sub_image = None
         if self._maps().frontend is not None:  # (compressed: on image_transport's topic name)
             compressed = self.cfg.image_transport == "compressed"
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
-            self.sub_image = self._subscribe(msg_type, topic, "image", IMAGE_QOS)
-        self._frame_subs = [s for s in (self.sub_corr, self.sub_kp, self.sub_image) if s]
+            self.sub_image = self._subscribe_frames("", "image", msg_type, topic, IMAGE_QOS)
         self._start_frames()
 
     def _wake_worker(self):

@@ -79,10 +79,8 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import CameraModel, Stamp
@@ -304,53 +302,19 @@ class RigCore(NodeCore):
         with a front end, ``<c>/image_raw`` (or ``<c>/image_raw/compressed``); the
         diagnostics timer."""
         for c in self.config.cameras:
-            self._frame_subs.append(
-                self.create_subscription(
-                    PointCloud2,
-                    f"{c.name}/correspondences",
-                    lambda msg, n=c.name: self._on_cloud(n, msg),
-                    CLOUD_QOS,
-                    event_callbacks=self._lost_events(c.name, "cloud"),
-                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                )
-            )
+            n = c.name
+            self._subscribe_frames(n, "cloud", PointCloud2, f"{n}/correspondences", CLOUD_QOS)
             if self.landmarks is not None:  # (keypoints name the landmarks_file's points)
-                self._frame_subs.append(
-                    self.create_subscription(
-                        PointCloud2,
-                        f"{c.name}/keypoints",
-                        lambda msg, n=c.name: self._on_cloud(n, msg, "keypoints"),
-                        CLOUD_QOS,
-                        event_callbacks=self._lost_events(c.name, "keypoints"),
-                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                    )
-                )
+                self._subscribe_frames(n, "keypoints", PointCloud2, f"{n}/keypoints", CLOUD_QOS)
             if self.frontend_kind != "none":
                 compressed = self.image_transport == "compressed"
-                topic = f"{c.name}/image_raw" + ("/compressed" if compressed else "")
-                self._frame_subs.append(
-                    self.create_subscription(
-                        CompressedImage if compressed else Image,
-                        topic,
-                        lambda msg, n=c.name: self._on_image(n, msg),
-                        IMAGE_QOS,
-                        event_callbacks=self._lost_events(c.name, "image"),
-                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                    )
-                )
+                topic = f"{n}/image_raw" + ("/compressed" if compressed else "")
+                msg_type = CompressedImage if compressed else Image
+                self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
         self._start_frames()
-
-    def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
-        """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
-        middleware lost before the node saw them (never received; ``<c>.messages_lost``)."""
-
-        def on_lost(status):
-            self.camera_counts[name].lost(kind, status.total_count)
-
-        return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
@@ -455,12 +419,13 @@ class RigCore(NodeCore):
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
         self.camera_counts[name].add(key, n)
 
-    def _on_cloud(self, name: str, msg, kind: str = "cloud") -> None:
-        """A camera's correspondences or keypoints cloud, queued; beside its front end (which
-        runs on its images) counted ``<c>.frames_beside_frontend`` and, the first time, a
-        warning naming both topics: such a cloud is solved as given, not from the images and
-        the front end's map (as the single-camera node says)."""
-        if self.frontend_kind != "none":
+    def _on_frame(self, name: str, kind: str, msg) -> None:
+        """A camera's frame message (subscription callback), queued; a correspondences or
+        keypoints cloud beside its front end (which runs on its images) counted
+        ``<c>.frames_beside_frontend`` and, the first time, a warning naming both topics:
+        such a cloud is solved as given, not from the images and the front end's map (as the
+        single-camera node says)."""
+        if kind != "image" and self.frontend_kind != "none":
             leaf = "correspondences" if kind == "cloud" else kind
             self._frame_beside_frontend(self.camera_counts[name], leaf, self.frontend_kind,
                                         "the camera's images")  # fmt: skip
@@ -684,9 +649,6 @@ class RigCore(NodeCore):
         if reason is not None:
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
         return reason
-
-    def _on_image(self, name: str, msg) -> None:
-        self._enqueue(name, "image", msg)
 
     # ---------------------------------------------------------------- outputs
     def _publish_fused(self, f) -> None:

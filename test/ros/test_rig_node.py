@@ -701,7 +701,7 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
                 bad += 1
             else:
                 good.append(f.stamp_ns)
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
@@ -733,7 +733,7 @@ def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
             if f.name == "left" and 3 <= f.index <= 6:
                 cloud.fields = [x for x in cloud.fields if x.name != "x"]
                 bad += 1
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "4", v
         assert v["left.missed.skipped"] == str(bad) and "left.missed.apart" not in v, v
@@ -772,7 +772,7 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
             if leaf == "camera_info":
                 node.inputs[name].add_camera_info(ts.deserialize_cdr(raw, mt))
             elif leaf == "correspondences":
-                node._on_cloud(name, ts.deserialize_cdr(raw, mt))
+                node._on_frame(name, "cloud", ts.deserialize_cdr(raw, mt))
         v = _drained_values(node, b.cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
         for c in b.cams:
@@ -825,7 +825,7 @@ def test_each_camera_s_input_is_the_single_camera_node_s(ros_context):
             if f.name == "left":
                 uv, xyz = np.vstack([uv, nan_uv]), np.vstack([xyz, xyz[:30]])
             cloud = correspondence_cloud(uv, xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.camera_info_rejected"] == "2", v
         assert v["left.camera_info_rejected.bad_intrinsics"] == "1", v
@@ -866,7 +866,7 @@ def test_estimator_parameters_change_while_the_rig_runs(ros_context):
         for f in frames:
             if f.index // third == k:
                 stamp = ns_to_stamp(f.stamp_ns)
-                node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+                node._on_frame(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
                                                             stamp=stamp))  # fmt: skip
         return _drained_values(node, cams)
 
@@ -952,7 +952,7 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
         assert [node.inputs[c.name].max_points for c in cams] == [40, 40, 40]
         assert node.rig.settings.options == settings.options
         for f in frames:
-            node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+            node._on_frame(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
                                                         stamp=ns_to_stamp(f.stamp_ns)))  # fmt: skip
         v = _drained_values(node, cams)
         assert int(v["rig_frames_solved"]) == len(frames) // 3 and v["track_state"] == "disabled"
