@@ -43,14 +43,16 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamp
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_parameters
 from .frame_queue import FrameQueue
 from .params import PARAMETERS, ConfigError
+from .pointcloud import correspondence_cloud
 from .qos import RELIABLE, output_events
 from .status_msg import status_message
 
@@ -233,6 +235,32 @@ class NodeCore:
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
+
+    def _subscribe_info(self, name: str, qos_overriding=None):
+        """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
+        sensor-data QoS), each message to the camera's input stage
+        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp);
+        ``qos_overriding``: its ``QoSOverridingOptions`` (the single camera's; None: not
+        overridable). Kept with the configured inputs."""
+        sub = self.create_subscription(
+            CameraInfo,
+            f"{name}/camera_info" if name else "camera_info",
+            lambda msg: self._input_of(name).add_camera_info(msg),
+            qos_profile_sensor_data,
+            qos_overriding_options=qos_overriding,
+        )
+        self._info_subs.append(sub)
+        return sub
+
+    def _found_cloud(self, name: str, found, msg, stamp_ns: int):
+        """What camera ``name``'s front end found in an image message ``msg`` (``found``, a
+        :class:`~rs_localizer.correspondences.Correspondences`) as its
+        ``correspondences_out`` cloud: ``u, v, x, y, z, id`` (``score`` with scores), stamped
+        like the image (``stamp_ns``), in the frame's tag
+        (:meth:`.camera_input.CameraInput.tag_of`)."""
+        return correspondence_cloud(found.points2d, found.points, found.ids,
+                                    found.valid_scores(), self._input_of(name).tag_of(msg),
+                                    stamp_ns)  # fmt: skip
 
     def _subscribe_frames(self, name: str, kind: str, msg_type, topic: str, qos):
         """Camera ``name``'s ``kind`` input on ``topic`` (QoS overridable as

@@ -45,9 +45,8 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import LoadedMaps
 from .camera_input import CameraCounts, CameraInput
@@ -58,7 +57,6 @@ from .frame_queue import frame_accounting
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
-from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization
 
@@ -125,14 +123,7 @@ class LocalizerCore(NodeCore):
         """camera_info and, with imu.enabled (read-only), the gyro's imu; created before the
         frame inputs: a camera_info or IMU sample ready together with a frame is taken first."""
         qos = QoSOverridingOptions.with_default_policies()
-        self.sub_info = self.create_subscription(
-            CameraInfo,
-            "camera_info",
-            lambda msg: self.pipeline.add_camera_info(msg),
-            qos_profile_sensor_data,
-            qos_overriding_options=qos,
-        )
-        self._info_subs.append(self.sub_info)
+        self.sub_info = self._subscribe_info("", qos)
         if self.cfg.imu is not None:
             self.sub_imu = self.create_subscription(
                 Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
@@ -281,11 +272,7 @@ class LocalizerCore(NodeCore):
         res = self.pipeline.process(item.msg, item.kind, item.stamp)
         clouds = []
         if res.correspondences is not None:
-            c = res.correspondences
-            cloud = correspondence_cloud(
-                c.points2d, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
-            )
-            clouds.append(("", cloud))
+            clouds.append(("", self._found_cloud("", res.correspondences, item.msg, res.stamp_ns)))
         outcome = "solved" if res.failure is None else f"failed.{res.failure}"
         return TakenFrame((outcome,), res.failure, res, clouds=clouds)
 

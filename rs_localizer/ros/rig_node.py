@@ -80,8 +80,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import CameraModel, Stamp
 from ..frontends.shared import SHARED_MAPS
@@ -113,7 +112,6 @@ from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
-from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, rig_camera_views
 
@@ -288,14 +286,7 @@ class RigCore(NodeCore):
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
-            self._info_subs.append(
-                self.create_subscription(
-                    CameraInfo,
-                    f"{c.name}/camera_info",
-                    lambda msg, n=c.name: self.inputs[n].add_camera_info(msg),
-                    qos_profile_sensor_data,
-                )
-            )
+            self._subscribe_info(c.name)
 
     def _create_frame_inputs(self) -> None:
         """Per camera ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints`` and,
@@ -506,7 +497,7 @@ class RigCore(NodeCore):
         if kind == "image" and self.republish:
             found = self.rig.last_correspondences(name)
             if found is not None:  # (also an image where it found nothing)
-                clouds.append((name, self._found_cloud(found, msg, stamp, name)))
+                clouds.append((name, self._found_cloud(name, found, msg, stamp)))
         return TakenFrame(outs=outs, clouds=clouds)
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
@@ -566,15 +557,6 @@ class RigCore(NodeCore):
         else:
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input" if item.stamp_ns is None else None
-
-    def _found_cloud(self, found, msg, stamp: int, name: str):
-        """What camera ``name``'s front end found in an image (``found``, a
-        :class:`~rs_localizer.correspondences.Correspondences`) as the single-camera node's
-        ``correspondences_out`` cloud: ``u, v, x, y, z, id`` (``score`` with scores), stamped
-        like the image (``stamp``), in its frame (its ``frame_id``, else the camera's name)."""
-        frame = msg.header.frame_id or name
-        return correspondence_cloud(found.points2d, found.points, found.ids,
-                                    found.valid_scores(), frame, stamp)  # fmt: skip
 
     def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log
