@@ -102,6 +102,11 @@ class CameraCounts:
         with self._lock:
             self._counts[key] += n
 
+    def get(self, key: str) -> int:
+        """The counter ``key`` (0: never counted)."""
+        with self._lock:
+            return self._counts[key]
+
     def set(self, key: str, value: int) -> None:
         """Set the counter ``key`` to ``value`` (a state, e.g. ``map_fit_doubtful``)."""
         with self._lock:

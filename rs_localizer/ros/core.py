@@ -15,6 +15,15 @@ or by the managed node's transitions (:class:`~rs_localizer.ros.lifecycle.Manage
 ``_declare_parameters``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
 ``_create_frame_inputs``, ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``,
 ``_release_configured``.
+
+The worker is one for both: the subscription callbacks hand a camera's frame message to
+:meth:`NodeCore._enqueue` (its stamp checked by the camera's input stage, a
+:class:`QueuedFrame` queued; the queue counts it ``received`` in the camera's counts), the
+worker takes it (:meth:`NodeCore._process`: the core's ``_take_frame``, under the worker's
+lock, and the frame's outcome counted in the camera's counts in the same step), then
+publishes what it gave (:meth:`NodeCore._deliver`: the front end's ``correspondences_out``,
+then the core's ``_publish_taken``). The single camera is named "" (its topics and counts
+without prefix); a rig's cameras by their names.
 """
 
 from __future__ import annotations
@@ -25,21 +34,29 @@ import threading
 import time
 from collections import deque
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_parameters
+from .frame_queue import FrameQueue
 from .params import PARAMETERS, ConfigError
+from .pointcloud import correspondence_cloud
 from .qos import RELIABLE, output_events
 from .status_msg import status_message
 
-__all__ = ["NodeCore"]
+__all__ = ["NodeCore", "QueuedFrame", "TakenFrame"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
@@ -57,18 +74,65 @@ POSE_OUTPUTS = (
 FLUSH_PERIOD_S = 0.1
 
 
+@dataclass(frozen=True)
+class QueuedFrame:
+    """A camera's frame in the queue: the camera's ``name`` ("" for the single camera),
+    ``kind`` (``correspondences`` or ``cloud``, ``keypoints``, ``image``), the message, its
+    arrival (``time.perf_counter``) and its header stamp, checked once as it arrived
+    (:meth:`.camera_input.CameraInput.check`): a :class:`~rs_localizer.camera.Stamp`, or the
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` of a stamp out of range (or the
+    single camera's empty cloud)."""
+
+    name: str
+    kind: str
+    msg: Any
+    arrived: float
+    stamp: Any
+
+
+@dataclass
+class TakenFrame:
+    """The worker's outcome of one camera frame (:meth:`NodeCore._process`).
+
+    Attributes:
+        counted: the keys counted for it in its camera's counts (``solved``,
+            ``failed.<reason>``, a rig camera's ``skipped.<reason>``; None: none).
+        failure: the single camera's frame dropped for this reason (None: solved, or a rig
+            camera's frame, whose fate is the rig's).
+        result: the single camera's :class:`~rs_localizer.ros.pipeline.FrameResult`.
+        outs: the rig frames it completed (a rig camera's).
+        clouds: ``(camera, cloud)``: what the camera's front end found in the image, for its
+            ``correspondences_out`` (``republish_correspondences``).
+    """
+
+    counted: tuple = ()
+    failure: str | None = None
+    result: Any = None
+    outs: list = field(default_factory=list)
+    clouds: list = field(default_factory=list)
+
+
 class NodeCore:
     """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
     ``diagnostics_status()``, ``_flush_idle_track()`` and ``_throttled_log()`` (its warnings,
-    each kind at most once per 5 s)."""
+    each kind at most once per 5 s), and the worker's parts (module docstring):
+    ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
+    arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
+    :class:`~.camera_input.CameraInput`),
+    ``_counts_of(name)`` (its :class:`~.camera_input.CameraCounts`), ``_queue_limit()``
+    and ``_warn_busy(size)``, ``_take_frame(item, camera)`` and
+    ``_publish_taken(item, taken)``."""
 
     _frames = None  # (the frame queue: made by the core)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
+    #: counted for every frame the worker takes, whatever becomes of it (a rig camera's
+    #: ``taken``: the rig counts the rest); None: none
+    _taken_key: str | None = None
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -86,6 +150,10 @@ class NodeCore:
         self._frame_subs: list = []  # the frame inputs: made by activate
         self._diag_timer = self._flush_timer = None
         self._timing_lock = threading.Lock()
+        #: held by the worker while it takes a frame (the rig's diagnostics take it to see the
+        #: rig's and the cameras' counts of a frame at once)
+        self._worker_lock = threading.Lock()
+        self._corr_out: dict = {}  # camera -> its correspondences_out, made when first needed
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
 
@@ -168,12 +236,119 @@ class NodeCore:
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
 
-    def _put_frame(self, item, max_waiting: int) -> int:
-        """Subscription callbacks: queue ``item`` for the worker (at most ``max_waiting``
-        waiting); returns how many frames a full queue dropped (its oldest)."""
-        skipped = self._frames.put(item, max_waiting)
+    def _subscribe_info(self, name: str, qos_overriding=None):
+        """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
+        sensor-data QoS), each message to the camera's input stage
+        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp);
+        ``qos_overriding``: its ``QoSOverridingOptions`` (the single camera's; None: not
+        overridable). Kept with the configured inputs."""
+        sub = self.create_subscription(
+            CameraInfo,
+            f"{name}/camera_info" if name else "camera_info",
+            lambda msg: self._input_of(name).add_camera_info(msg),
+            qos_profile_sensor_data,
+            qos_overriding_options=qos_overriding,
+        )
+        self._info_subs.append(sub)
+        return sub
+
+    def _found_cloud(self, name: str, found, msg, stamp_ns: int):
+        """What camera ``name``'s front end found in an image message ``msg`` (``found``, a
+        :class:`~rs_localizer.correspondences.Correspondences`) as its
+        ``correspondences_out`` cloud: ``u, v, x, y, z, id`` (``score`` with scores), stamped
+        like the image (``stamp_ns``), in the frame's tag
+        (:meth:`.camera_input.CameraInput.tag_of`)."""
+        return correspondence_cloud(found.points2d, found.points, found.ids,
+                                    found.valid_scores(), self._input_of(name).tag_of(msg),
+                                    stamp_ns)  # fmt: skip
+
+    def _subscribe_frames(self, name: str, kind: str, msg_type, topic: str, qos):
+        """Camera ``name``'s ``kind`` input on ``topic`` (QoS overridable as
+        ``qos_overrides.<topic>.subscription.*``): each message to the core's
+        ``_on_frame(name, kind, msg)``; its QoS ``message_lost`` events (messages the
+        middleware lost before the node saw them, never received) counted in the camera's
+        counts (``messages_lost``). Kept with the frame inputs (destroyed with them)."""
+
+        def on_lost(status):
+            self._counts_of(name).lost(kind, status.total_count)
+
+        sub = self.create_subscription(
+            msg_type,
+            topic,
+            lambda msg: self._on_frame(name, kind, msg),
+            qos,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        self._frame_subs.append(sub)
+        return sub
+
+    # ---------------------------------------------------------------- the worker
+    def _new_queue(self, name: str = "rs_localizer_worker", group=None) -> FrameQueue:
+        """The frame queue of the worker (:meth:`_process`, :meth:`_deliver`), each frame
+        counted in its camera's counts; ``group``: :class:`~.frame_queue.FrameQueue`'s."""
+        return FrameQueue(self._process, self._deliver, self._delivery_failed, name,
+                          counts_of=lambda item: self._counts_of(item.name),
+                          group=group)  # fmt: skip
+
+    def _enqueue(self, name: str, kind: str, msg) -> None:
+        """Subscription callbacks: camera ``name``'s frame message, its stamp checked once
+        (:meth:`.camera_input.CameraInput.check`), queued for the worker (counted
+        ``received``). A full queue (``_queue_limit()`` frames) drops its oldest frame
+        (counted ``skipped.queue_full``; ``_warn_busy``): the newest frames are the ones
+        solved."""
+        stamp = self._input_of(name).check(msg, kind)
+        size = self._queue_limit()
+        item = QueuedFrame(name, kind, msg, time.perf_counter(), stamp)
+        skipped = self._frames.put(item, size)
         _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
-        return skipped
+        if skipped:
+            self._warn_busy(size)
+
+    def _camera_of(self, item: QueuedFrame) -> Any:
+        """The camera model of a queued frame, looked up before the worker's lock (a rig
+        camera's: it may wait for its camera_info); None by default (the core's
+        ``_take_frame`` finds it)."""
+        return None
+
+    def _process(self, item: QueuedFrame) -> TakenFrame:
+        """The worker: one camera frame taken (the core's ``_take_frame``, under the worker's
+        lock) and counted in its camera's counts in the same step (its time, ``_taken_key``
+        and the keys of its outcome), so that a diagnostics snapshot sees it once. An
+        exception is a defect: the frame is counted ``failed.internal_error`` and logged, the
+        node goes on."""
+        tic = time.perf_counter()
+        camera = self._camera_of(item)
+        with self._worker_lock:
+            try:
+                taken = self._take_frame(item, camera)
+            except Exception as e:
+                taken = TakenFrame(("failed.internal_error",), "internal_error")
+                self._throttled_log().warning(
+                    "internal_error",
+                    f"{self._input_of(item.name).label}frame failed (internal_error): "
+                    f"{type(e).__name__}: {e}",
+                )
+            counts = self._counts_of(item.name)
+            counts.frame_done(time.perf_counter() - tic, self._taken_key, *taken.counted)
+        return taken
+
+    def _deliver(self, item: QueuedFrame, taken: TakenFrame) -> None:
+        """The worker, after the frame is counted: what the camera's front end found in its
+        image to its ``correspondences_out`` (``republish_correspondences``), then what the
+        frame gave (the core's ``_publish_taken``)."""
+        for name, cloud in taken.clouds:
+            self._corr_out_publisher(name).publish(cloud)
+        self._publish_taken(item, taken)
+
+    def _corr_out_publisher(self, name: str = ""):
+        """Camera ``name``'s ``correspondences_out`` (``<name>/correspondences_out`` of a rig
+        camera; reliable), made when first needed."""
+        pub = self._corr_out.get(name)
+        if pub is None:
+            topic = f"{name}/correspondences_out" if name else "correspondences_out"
+            pub = self._corr_out[name] = self._make_publisher(PointCloud2, topic, RELIABLE)
+        return pub
 
     def _wake_worker(self) -> None:
         """A stop was requested: wake a worker waiting inside a frame (none by default)."""

@@ -128,7 +128,7 @@ def camera_section(
 
     Values: the frame accounting ``frames`` (``received``, ``solved``, ``failed``,
     ``skipped``, ``pending``; received = the other four summed; the single camera's
-    :class:`~rs_localizer.ros.frame_queue.FrameQueue` snapshot, a rig camera's
+    :func:`~rs_localizer.ros.frame_queue.frame_accounting` of its counts, a rig camera's
     :func:`rig_camera_frames`); from the camera's own
     ``counts`` (keys without prefix; None: none known, only the frames and the rows' counts of
     ``more``): ``messages_lost`` (lost by the middleware), ``camera_info_rejected``,

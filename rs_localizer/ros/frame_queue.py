@@ -5,21 +5,25 @@ stays free for camera_info, parameters and diagnostics however slow a frame is);
 thread takes them out in order and hands each to ``process``. When the queue is full the oldest
 waiting frame is dropped (skipped), so the newest frames are the ones solved.
 
-Accounting: every frame put is, at every instant, exactly one of solved, failed, skipped or
-pending (waiting, or taken by the worker and not yet counted), so ``received = solved +
-failed + skipped + pending`` holds in every :meth:`FrameQueue.counts` snapshot: a frame's
-outcome is counted in the same critical section that ends its pending state. No ROS import.
+Accounting: each frame is counted in its camera's counts (``counts_of(item)``, a
+:class:`~rs_localizer.ros.camera_input.CameraCounts`: the single camera's and each rig
+camera's alike): ``received`` as it is put, ``skipped.<reason>`` when the queue drops it, and
+its outcome by ``process`` (:meth:`~rs_localizer.ros.camera_input.CameraCounts.frame_done`,
+``solved`` or ``failed.<reason>``; a rig camera's ``taken``), so that every frame received is,
+at every instant, exactly one of solved, failed, skipped or pending (waiting, or taken by the
+worker and not yet counted): ``received = solved + failed + skipped + pending`` in every
+snapshot (:func:`frame_accounting` of the single camera's counts). No ROS import.
 """
 
 from __future__ import annotations
 
 import threading
-from collections import Counter, deque
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-__all__ = ["FRAME_ACCOUNTING", "Failed", "FrameCounts", "FrameQueue", "Outcome"]
+__all__ = ["FRAME_ACCOUNTING", "Failed", "FrameCounts", "FrameQueue", "Outcome", "frame_accounting"]
 
 
 class Outcome(Protocol):
@@ -46,8 +50,8 @@ class FrameCounts:
     """A camera's frame accounting, the one form of both modes: ``received == solved +
     failed + skipped + pending``; ``failures`` counts each failure reason (their sum is
     ``failed``), ``skips`` each skip reason known (the rig camera's; the single camera's
-    queue counts its skips without reason). The single camera's is a :class:`FrameQueue`
-    snapshot, a rig camera's :func:`~rs_localizer.ros.diagnostics.rig_camera_frames`."""
+    queue counts its skips without reason). The single camera's is :func:`frame_accounting`
+    of its counts, a rig camera's :func:`~rs_localizer.ros.diagnostics.rig_camera_frames`."""
 
     received: int = 0
     solved: int = 0
@@ -69,28 +73,52 @@ class FrameCounts:
         return out
 
 
+def frame_accounting(counts: Mapping[str, int]) -> FrameCounts:
+    """The frame accounting of a camera whose frames are solved one by one (the single
+    camera's) from its counts (keys without prefix, a
+    :meth:`~rs_localizer.ros.camera_input.CameraCounts.counts` snapshot): ``received``,
+    ``solved``, ``failed.<reason>`` and ``skipped.<reason>`` (the queue's skips, counted
+    without reason in :class:`FrameCounts`), the rest pending."""
+    failures = {k[len("failed.") :]: v for k, v in counts.items() if k.startswith("failed.")}
+    skipped = sum(v for k, v in counts.items() if k.startswith("skipped."))
+    received, solved, failed = (
+        counts.get("received", 0),
+        counts.get("solved", 0),
+        sum(failures.values()),
+    )
+    return FrameCounts(
+        received=received,
+        solved=solved,
+        failed=failed,
+        skipped=skipped,
+        pending=received - solved - failed - skipped,
+        failures=failures,
+    )
+
+
 class FrameQueue:
     """A bounded frame queue with one worker thread.
 
     Args:
-        process: ``process(item) -> outcome`` (an :class:`Outcome`), run on the worker thread
-            for each frame in arrival order; an exception counts the frame as failed with
-            reason ``internal_error`` (its outcome is then a :class:`Failed`).
-        deliver: ``deliver(item, outcome)``, run on the worker thread after the outcome is
-            counted (publishing: whoever receives a frame's output sees it counted); its
-            exceptions propagate to ``on_error`` (default: ignored) and do not change the
-            counts.
+        process: ``process(item) -> outcome``, run on the worker thread for each frame in
+            arrival order; it counts the frame's outcome in ``counts_of(item)`` (module
+            docstring). An exception counts the frame ``failed.internal_error`` (its outcome
+            is then a :class:`Failed`).
+        deliver: ``deliver(item, outcome)``, run on the worker thread after ``process``
+            (publishing: whoever receives a frame's output sees it counted); its exceptions
+            propagate to ``on_error`` (default: ignored) and do not change the counts.
         name: the worker thread's name.
+        counts_of: ``counts_of(item)``: the counts of the frame's camera (``add(key)``,
+            ``frame_done(seconds, *keys)``: a
+            :class:`~rs_localizer.ros.camera_input.CameraCounts`), where :meth:`put` counts
+            it ``received`` and a drop ``skipped.<reason>``: ``queue_full`` (:meth:`put`) or
+            ``stopped`` (:meth:`request_stop` with ``drop_queued``); None: not counted.
         group: ``group(batch, item) -> bool``: with it the worker takes, with the oldest
             waiting frame, every waiting frame that belongs with those it took (``batch``, a
             list, oldest first), e.g. the other cameras' frames of one rig frame; they are
             then solved one after another and no longer dropped by a full queue (still
             pending). A full queue drops its oldest frame with the waiting frames that belong
             with it. None: one frame at a time.
-        on_skip: ``on_skip(item, reason)`` for each frame dropped unsolved, ``reason``
-            ``queue_full`` (:meth:`put`) or ``stopped`` (:meth:`request_stop` with
-            ``drop_queued``), e.g. to count it per camera; called with the queue's lock held
-            (it must not call the queue).
     """
 
     def __init__(
@@ -99,56 +127,48 @@ class FrameQueue:
         deliver: Callable[[Any, Outcome], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
         name: str = "rs_localizer_worker",
-        on_skip: Callable[[Any, str], None] | None = None,
+        counts_of: Callable[[Any], Any] | None = None,
         group: Callable[[list, Any], bool] | None = None,
     ):
         self._process = process
         self._deliver = deliver
         self._on_error = on_error
         self._name = name
-        self._on_skip = on_skip
+        self._counts_of = counts_of
         self._group = group
         self._cond = threading.Condition()
         self._queue: deque = deque()
-        self._in_flight = 0  # frames the worker took and has not counted yet (pending)
+        self._in_flight = 0  # frames the worker took and has not finished yet
         self._stop = False
         self._worker: threading.Thread | None = None
-        self._received = self._solved = self._failed = self._skipped = 0
-        self._failures: Counter = Counter()
+        #: frames dropped unsolved so far (a full queue's and a stop's)
+        self.dropped = 0
+
+    def _count(self, item: Any, key: str) -> None:
+        if self._counts_of is not None:
+            self._counts_of(item).add(key)
 
     # ---------------------------------------------------------------- producer side
     def put(self, item: Any, max_waiting: int) -> int:
         """Count a received frame and queue it; when ``max_waiting`` frames already wait the
         oldest ones are dropped (counted as skipped). Returns how many were dropped."""
         with self._cond:
-            self._received += 1
+            self._count(item, "received")
             skipped = 0
             while self._queue and len(self._queue) >= max_waiting:
                 for dropped in self._take_group():
                     skipped += 1
-                    if self._on_skip is not None:
-                        self._on_skip(dropped, "queue_full")
-            self._skipped += skipped
+                    self._count(dropped, "skipped.queue_full")
+            self.dropped += skipped
             self._queue.append(item)
             self._cond.notify_all()
         return skipped
 
-    def counts(self) -> FrameCounts:
-        """A consistent snapshot of the accounting (see the module docstring)."""
+    @property
+    def pending(self) -> int:
+        """Frames waiting or taken by the worker and not finished (delivered) yet."""
         with self._cond:
-            return FrameCounts(
-                received=self._received,
-                solved=self._solved,
-                failed=self._failed,
-                skipped=self._skipped,
-                pending=len(self._queue) + self._in_flight,
-                failures=dict(self._failures),
-            )
-
-    def failures(self, reason: str) -> int:
-        """How many frames failed with ``reason`` so far."""
-        with self._cond:
-            return self._failures[reason]
+            return len(self._queue) + self._in_flight
 
     @property
     def stopping(self) -> bool:
@@ -169,10 +189,9 @@ class FrameQueue:
         with self._cond:
             self._stop = True
             if drop_queued:
-                self._skipped += len(self._queue)
-                if self._on_skip is not None:
-                    for item in self._queue:
-                        self._on_skip(item, "stopped")
+                self.dropped += len(self._queue)
+                for item in self._queue:
+                    self._count(item, "skipped.stopped")
                 self._queue.clear()
             self._cond.notify_all()
 
@@ -216,16 +235,14 @@ class FrameQueue:
             outcome = self._process(item)
         except Exception as e:
             outcome = Failed("internal_error", f"{type(e).__name__}: {e}")
-        with self._cond:  # (the outcome and the end of pending: one step)
-            if outcome.failure is None:
-                self._solved += 1
-            else:
-                self._failed += 1
-                self._failures[outcome.failure] += 1
-            self._in_flight -= 1
-        if self._deliver is not None:
-            try:
+            if self._counts_of is not None:
+                self._counts_of(item).frame_done(0.0, "failed.internal_error")
+        try:
+            if self._deliver is not None:
                 self._deliver(item, outcome)
-            except Exception as e:
-                if self._on_error is not None:
-                    self._on_error(e)
+        except Exception as e:
+            if self._on_error is not None:
+                self._on_error(e)
+        finally:
+            with self._cond:
+                self._in_flight -= 1

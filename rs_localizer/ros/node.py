@@ -44,22 +44,20 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import LoadedMaps
+from .camera_input import CameraCounts, CameraInput
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
-from .core import NodeCore
+from .core import NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import diagnostic_status
-from .frame_queue import FrameQueue
+from .frame_queue import frame_accounting
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
-from .pipeline import FramePipeline, FrameResult, log_warm_up
-from .pointcloud import correspondence_cloud
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE
+from .pipeline import FramePipeline, log_warm_up
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
@@ -92,8 +90,7 @@ class LocalizerCore(NodeCore):
     def _init_state(self):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
-        self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed)
-        self.pub_corr_out = None  # correspondences_out, created when first needed
+        self._frames = self._new_queue()
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
     def _configure(self):
@@ -126,58 +123,36 @@ class LocalizerCore(NodeCore):
         """camera_info and, with imu.enabled (read-only), the gyro's imu; created before the
         frame inputs: a camera_info or IMU sample ready together with a frame is taken first."""
         qos = QoSOverridingOptions.with_default_policies()
-        self.sub_info = self.create_subscription(
-            CameraInfo,
-            "camera_info",
-            lambda msg: self.pipeline.add_camera_info(msg),
-            qos_profile_sensor_data,
-            qos_overriding_options=qos,
-        )
-        self._info_subs.append(self.sub_info)
+        self.sub_info = self._subscribe_info("", qos)
         if self.cfg.imu is not None:
             self.sub_imu = self.create_subscription(
                 Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
             )
             self._info_subs.append(self.sub_imu)
 
-    def _subscribe(self, msg_type, topic, kind: str, qos):
-        """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
-        message_lost events are counted (``messages_lost``, the pipeline's
-        :class:`~.camera_input.CameraCounts`)."""
-
-        def on_frame(msg):
-            if kind == "image":
-                self.pipeline.stats.add("image_frames")
-            elif self.sub_image is not None:  # (solved as given, not from the images)
-                self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
-                                            self.sub_image.topic_name)  # fmt: skip
-            self._enqueue(msg, kind)
-
-        def on_lost(status):
-            self.pipeline.stats.lost(kind, status.total_count)
-
-        return self.create_subscription(
-            msg_type,
-            topic,
-            on_frame,
-            qos,
-            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )
+    def _on_frame(self, name: str, kind: str, msg) -> None:
+        """A frame message (subscription callback): an image counted ``image_frames``; a
+        cloud beside the front end ``frames_beside_frontend`` (solved as given, not from the
+        images); then queued (:meth:`.core.NodeCore._enqueue`)."""
+        if kind == "image":
+            self.pipeline.stats.add("image_frames")
+        elif self.sub_image is not None:
+            self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
+                                        self.sub_image.topic_name)  # fmt: skip
+        self._enqueue(name, kind, msg)
 
     def _create_frame_inputs(self):
         """The frame subscriptions, the diagnostics timer and the worker thread."""
-        self.sub_corr = self._subscribe(
-            PointCloud2, "correspondences", "correspondences", CLOUD_QOS
+        self.sub_corr = self._subscribe_frames(
+            "", "correspondences", PointCloud2, "correspondences", CLOUD_QOS
         )
-        self.sub_kp = self._subscribe(PointCloud2, "keypoints", "keypoints", CLOUD_QOS)
+        self.sub_kp = self._subscribe_frames("", "keypoints", PointCloud2, "keypoints", CLOUD_QOS)
         self.sub_image = None
         if self._maps().frontend is not None:  # (compressed: on image_transport's topic name)
             compressed = self.cfg.image_transport == "compressed"
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
-            self.sub_image = self._subscribe(msg_type, topic, "image", IMAGE_QOS)
-        self._frame_subs = [s for s in (self.sub_corr, self.sub_kp, self.sub_image) if s]
+            self.sub_image = self._subscribe_frames("", "image", msg_type, topic, IMAGE_QOS)
         self._start_frames()
 
     def _wake_worker(self):
@@ -274,39 +249,44 @@ class LocalizerCore(NodeCore):
             )
 
     # ------------------------------------------------------------------ frames
-    def _enqueue(self, msg, kind: str):
-        """Subscription callbacks: count the frame and queue it for the worker. A full queue
-        drops its oldest frame (``frames_skipped``): the newest frames are the ones solved."""
-        size = self.cfg.queue_size
-        if self._put_frame((msg, kind, time.perf_counter()), size):
-            self.pipeline.log.warning(
-                "skipped",
-                f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
-                f"frame [{self._frames.counts().skipped} skipped so far]",
-            )
+    def _input_of(self, name: str) -> CameraInput:
+        return self.pipeline.camera_input
 
-    def _process(self, item) -> FrameResult:
-        """The worker: one frame through the pipeline (counted by the queue on return)."""
-        msg, kind, _arrival = item
-        return self.pipeline.process(msg, kind)
+    def _counts_of(self, name: str) -> CameraCounts:
+        return self.pipeline.stats
 
-    def _deliver(self, item, res):
+    def _queue_limit(self) -> int:
+        return self.cfg.queue_size
+
+    def _warn_busy(self, size: int) -> None:
+        self.pipeline.log.warning(
+            "skipped",
+            f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
+            f"frame [{self._frames.dropped} skipped so far]",
+        )
+
+    def _take_frame(self, item: QueuedFrame, camera=None) -> TakenFrame:
+        """The worker: one frame through the pipeline (its stamp checked as it arrived),
+        counted ``solved`` or ``failed.<reason>``; with ``republish_correspondences`` what the
+        front end found in the image, as a ``correspondences_out`` cloud."""
+        res = self.pipeline.process(item.msg, item.kind, item.stamp)
+        clouds = []
+        if res.correspondences is not None:
+            clouds.append(("", self._found_cloud("", res.correspondences, item.msg, res.stamp_ns)))
+        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
+        return TakenFrame((outcome,), res.failure, res, clouds=clouds)
+
+    def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish what the pipeline returned (a
         failed frame: the fused twists it made final), log a failure."""
         tic = time.perf_counter()
-        cfg = self.cfg
+        cfg, res = self.cfg, taken.result
         self.viz.hold_image(res.image if res.failure is None else None)
-        if res.correspondences is not None:
-            c = res.correspondences
-            cloud = correspondence_cloud(
-                c.points2d, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
-            )
-            self._corr_out_publisher().publish(cloud)
         if res.failure is not None:
             self._publish(fused_messages(res.fused, cfg.map_frame, self._wanted))
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
-                self._frames.failures(res.failure),
+                self.pipeline.stats.get(f"failed.{res.failure}"),
             )
             return self.pipeline.log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
@@ -327,7 +307,7 @@ class LocalizerCore(NodeCore):
             pose,
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
-        self._record_timing(item[2], res.stamp_ns)
+        self._record_timing(item.arrived, res.stamp_ns)
 
     def _throttled_log(self):
         return self.pipeline.log
@@ -339,18 +319,14 @@ class LocalizerCore(NodeCore):
         if cfg is not None:
             self._publish(fused_messages(self.pipeline.flush_idle(), cfg.map_frame, self._wanted))
 
-    def _corr_out_publisher(self):
-        if self.pub_corr_out is None:
-            self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", RELIABLE)
-        return self.pub_corr_out
-
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
         latencies, stamp_ages = self._timing_snapshot()
+        stats = self.pipeline.stats.snapshot()
         level, message, values = diagnostic_status(
             self.cfg,
-            self._frames.counts(),
-            self.pipeline.stats.snapshot(),
+            frame_accounting(stats.counts),
+            stats,
             self.pipeline.tracking_values(),
             self.pipeline.camera_source(),
             self.pipeline.stats.messages_lost,

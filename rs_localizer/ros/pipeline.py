@@ -241,7 +241,10 @@ class StatsSnapshot:
 
 class PipelineStats(CameraCounts):
     """The single camera's counters for the diagnostics (thread-safe): its
-    :class:`~.camera_input.CameraCounts` (name "": keys as they are; time_resets,
+    :class:`~.camera_input.CameraCounts` (name "": keys as they are; the node's frame
+    accounting, counted by its queue and worker as a rig camera's: received, solved,
+    failed.<reason>, skipped.<reason> (:func:`.frame_queue.frame_accounting`; ``replay``
+    counts none of them); time_resets,
     points_dropped, capped_clouds, capped_points, unknown_landmark_ids,
     camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames,
     frames_beside_frontend, ...; the messages lost per input), the last 1000 inlier counts
@@ -505,13 +508,15 @@ class FramePipeline:
         return reason
 
     # ---------------------------------------------------------------- frames
-    def process(self, msg: Any, kind: str) -> FrameResult:
+    def process(self, msg: Any, kind: str, stamp: Any = None) -> FrameResult:
         """One frame through the pipeline (see the module docstring). ``kind``: one of
-        :data:`FRAME_KINDS`. Never raises: a dropped frame's result has ``failure`` and
-        ``detail`` set (an unexpected exception: ``internal_error``)."""
+        :data:`FRAME_KINDS`; ``stamp``: the message's :meth:`.camera_input.CameraInput.check`
+        when it was checked as it arrived (the node's queue), None: checked here. Never
+        raises: a dropped frame's result has ``failure`` and ``detail`` set (an unexpected
+        exception: ``internal_error``)."""
         res = FrameResult()
         try:
-            self._run(msg, kind, res)
+            self._run(msg, kind, res, stamp)
         except _Drop as e:
             res.failure, res.detail = e.reason, str(e)
         except Exception as e:  # (a defect: this frame is dropped, the next ones go on)
@@ -519,13 +524,13 @@ class FramePipeline:
             res.failure, res.detail = drop.reason, str(drop)
         return res
 
-    def _run(self, msg: Any, kind: str, res: FrameResult) -> None:
+    def _run(self, msg: Any, kind: str, res: FrameResult, checked: Any = None) -> None:
         """Fill ``res``; raises :class:`_Drop` for a dropped frame."""
         tic = time.perf_counter()
         cfg = self._config
         inp = self.camera_input
         res.frame_id = inp.tag_of(msg)
-        stamp = _taken(inp.check(msg, kind))
+        stamp = _taken(inp.check(msg, kind) if checked is None else checked)
         res.stamp_ns = stamp
         self._check_time(stamp)
         camera = _taken(inp.camera_of(stamp))

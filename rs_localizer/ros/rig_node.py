@@ -73,19 +73,14 @@ are refused with why (:func:`.config.rig_change_refused`). The managed node's ri
 from __future__ import annotations
 
 import contextlib
-import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass, field
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
-from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import CameraModel, Stamp
 from ..frontends.shared import SHARED_MAPS
@@ -111,15 +106,13 @@ from .config import (
     rig_used_values,
     same_value,
 )
-from .core import NodeCore
+from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
-from .frame_queue import FrameQueue
 from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
-from .pointcloud import correspondence_cloud
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
@@ -134,35 +127,6 @@ INPUT_SKIP_REASONS = {
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own
 :data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
-
-
-@dataclass(frozen=True)
-class _Queued:
-    """A camera frame in the queue: the camera's ``name``, ``kind`` (``cloud``,
-    ``keypoints``, ``image``), the message, its arrival (``time.perf_counter``) and its header
-    stamp, checked once as it arrived (:meth:`.camera_input.CameraInput.check`): a
-    :class:`~rs_localizer.camera.Stamp`, or the
-    :class:`~rs_localizer.ros.camera_input.DroppedFrame` of a stamp out of range (the frame is
-    counted ``bad_input`` when the worker takes it)."""
-
-    name: str
-    kind: str
-    msg: Any
-    arrived: float
-    stamp: Stamp | DroppedFrame
-
-
-@dataclass
-class _Taken:
-    """The worker's outcome of one camera frame: the rig frames it completed (solved). The
-    frame's own accounting is the rig's and the node's per camera counts, so for the queue it
-    is always done (``failure`` None)."""
-
-    outs: list = field(default_factory=list)
-    failure: str | None = None
-    fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
-    # (republish_correspondences: (camera, cloud) of what its front end found in the image)
-    clouds: list = field(default_factory=list)
 
 
 def _declare_dynamic(node: Node, name: str, par) -> Any:
@@ -238,16 +202,8 @@ class RigCore(NodeCore):
         self.queue_size = int(single.queue_size)
         self.republish = bool(single.republish_correspondences)
         self._corr_out: dict = {}  # (camera -> its correspondences_out, made when first needed)
-        self._frames = FrameQueue(
-            self._process,
-            self._deliver,
-            self._delivery_failed,
-            name="rs_localizer_rig_worker",
-            on_skip=self._queue_skipped,
-            group=self._same_rig_frame,
-        )
+        self._frames = self._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
         self._group_ns = int(self.config.settings.window * 1e9)
-        self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
         #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
         #: received, handed on, skipped or failed before the rig, its input stage's counts,
         #: its messages lost, the worker's time per frame
@@ -330,74 +286,33 @@ class RigCore(NodeCore):
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
-            self._info_subs.append(
-                self.create_subscription(
-                    CameraInfo,
-                    f"{c.name}/camera_info",
-                    lambda msg, n=c.name: self.inputs[n].add_camera_info(msg),
-                    qos_profile_sensor_data,
-                )
-            )
+            self._subscribe_info(c.name)
 
     def _create_frame_inputs(self) -> None:
         """Per camera ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints`` and,
         with a front end, ``<c>/image_raw`` (or ``<c>/image_raw/compressed``); the
         diagnostics timer."""
         for c in self.config.cameras:
-            self._frame_subs.append(
-                self.create_subscription(
-                    PointCloud2,
-                    f"{c.name}/correspondences",
-                    lambda msg, n=c.name: self._on_cloud(n, msg),
-                    CLOUD_QOS,
-                    event_callbacks=self._lost_events(c.name, "cloud"),
-                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                )
-            )
+            n = c.name
+            self._subscribe_frames(n, "cloud", PointCloud2, f"{n}/correspondences", CLOUD_QOS)
             if self.landmarks is not None:  # (keypoints name the landmarks_file's points)
-                self._frame_subs.append(
-                    self.create_subscription(
-                        PointCloud2,
-                        f"{c.name}/keypoints",
-                        lambda msg, n=c.name: self._on_cloud(n, msg, "keypoints"),
-                        CLOUD_QOS,
-                        event_callbacks=self._lost_events(c.name, "keypoints"),
-                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                    )
-                )
+                self._subscribe_frames(n, "keypoints", PointCloud2, f"{n}/keypoints", CLOUD_QOS)
             if self.frontend_kind != "none":
                 compressed = self.image_transport == "compressed"
-                topic = f"{c.name}/image_raw" + ("/compressed" if compressed else "")
-                self._frame_subs.append(
-                    self.create_subscription(
-                        CompressedImage if compressed else Image,
-                        topic,
-                        lambda msg, n=c.name: self._on_image(n, msg),
-                        IMAGE_QOS,
-                        event_callbacks=self._lost_events(c.name, "image"),
-                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                    )
-                )
+                topic = f"{n}/image_raw" + ("/compressed" if compressed else "")
+                msg_type = CompressedImage if compressed else Image
+                self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
         self._start_frames()
-
-    def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
-        """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
-        middleware lost before the node saw them (never received; ``<c>.messages_lost``)."""
-
-        def on_lost(status):
-            self.camera_counts[name].lost(kind, status.total_count)
-
-        return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
         next frame starts a new track."""
         if self.rig is None:
             return
-        with self._rig_lock:
+        with self._worker_lock:
             outs = self.rig.close()
             fused = self.rig.flush() + self.rig.reset()
         for out in outs:
@@ -481,7 +396,7 @@ class RigCore(NodeCore):
         old = self.config.settings.solver
         if config.settings.single_camera and config.settings.solver != old:
             self.get_logger().info(f"solver: {old} -> {config.settings.solver}")
-        with self._rig_lock:  # (between two camera frames of the worker)
+        with self._worker_lock:  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
             for inp in self.inputs.values():
@@ -495,34 +410,44 @@ class RigCore(NodeCore):
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
         self.camera_counts[name].add(key, n)
 
-    def _on_cloud(self, name: str, msg, kind: str = "cloud") -> None:
-        """A camera's correspondences or keypoints cloud, queued; beside its front end (which
-        runs on its images) counted ``<c>.frames_beside_frontend`` and, the first time, a
-        warning naming both topics: such a cloud is solved as given, not from the images and
-        the front end's map (as the single-camera node says)."""
-        if self.frontend_kind != "none":
+    def _on_frame(self, name: str, kind: str, msg) -> None:
+        """A camera's frame message (subscription callback), queued; a correspondences or
+        keypoints cloud beside its front end (which runs on its images) counted
+        ``<c>.frames_beside_frontend`` and, the first time, a warning naming both topics:
+        such a cloud is solved as given, not from the images and the front end's map (as the
+        single-camera node says)."""
+        if kind != "image" and self.frontend_kind != "none":
             leaf = "correspondences" if kind == "cloud" else kind
             self._frame_beside_frontend(self.camera_counts[name], leaf, self.frontend_kind,
                                         "the camera's images")  # fmt: skip
         self._enqueue(name, kind, msg)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:
-        """Subscription callbacks: count the camera's frame and queue it for the worker. A full
-        queue (``queue_size`` frames per camera) drops its oldest frame (counted
-        ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
-        self.camera_counts[name].add("received")
+        """Subscription callbacks: a camera's frame queued for the worker
+        (:meth:`.core.NodeCore._enqueue`: its stamp checked once, for the queue's grouping
+        and the worker; a full queue drops its oldest rig frame, counted
+        ``<c>.skipped.queue_full``)."""
         if self._first_frame is None:
             self._first_frame = time.monotonic()
-        # (the frame's one stamp check: the queue's grouping and the worker take it)
-        stamp = self.inputs[name].check(msg, kind)
-        size = self.queue_size * len(self.config.cameras)
-        if self._put_frame(_Queued(name, kind, msg, time.perf_counter(), stamp), size):
-            self._log.warning(
-                "queue_full",
-                f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
-                f"camera), dropped the oldest waiting frame "
-                f"[{self._frames.counts().skipped} dropped so far]",
-            )
+        super()._enqueue(name, kind, msg)
+
+    def _input_of(self, name: str) -> CameraInput:
+        return self.inputs[name]
+
+    def _counts_of(self, name: str) -> CameraCounts:
+        return self.camera_counts[name]
+
+    def _queue_limit(self) -> int:
+        """``queue_size`` frames per camera."""
+        return self.queue_size * len(self.config.cameras)
+
+    def _warn_busy(self, size: int) -> None:
+        self._log.warning(
+            "queue_full",
+            f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
+            f"camera), dropped the oldest waiting frame "
+            f"[{self._frames.dropped} dropped so far]",
+        )
 
     def _same_rig_frame(self, batch: list, item) -> bool:
         """Whether a waiting frame goes with the frames the worker takes (``batch``): another
@@ -536,7 +461,7 @@ class RigCore(NodeCore):
             return False  # (a stamp the worker will refuse: not grouped)
         return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
 
-    def _ref_ns(self, item: _Queued) -> int:
+    def _ref_ns(self, item: QueuedFrame) -> int:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
         stamp without one), as the rig groups it
         (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns`)."""
@@ -549,43 +474,31 @@ class RigCore(NodeCore):
         for inp in self.inputs.values():
             inp.wake()
 
-    def _queue_skipped(self, item, reason: str) -> None:
-        """A frame the queue dropped (with the queue's lock held): counted for its camera."""
-        self._count_input(item.name, f"skipped.{reason}")
+    _taken_key = "taken"  # (every frame the worker takes: the rig counts the rest)
 
-    def _process(self, item) -> _Taken:
-        """The worker: one camera frame to the rig; counted (handed on, or why not) together
-        with the rig's counts, so that a diagnostics snapshot sees it once."""
+    def _camera_of(self, item: QueuedFrame) -> CameraModel | None:
+        """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
+        camera_info: outside the worker's lock, which the diagnostics take on the executor
+        that delivers it."""
+        return self.inputs[item.name].camera_of(item.stamp)
+
+    def _take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
+        """The worker: one camera frame to the rig (:meth:`_take`), or why not (a stamp out
+        of range: counted ``skipped.bad_input``; the rig never sees it), under the worker's
+        lock with its count, so that a diagnostics snapshot sees the rig's and the camera's
+        counts of it at once; with ``republish_correspondences`` what the camera's front end
+        found in an image."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
-        tic = time.perf_counter()
-        # (the camera model of its stamp, waiting up to camera_info_wait for its camera_info:
-        # outside the rig's lock, which the diagnostics take on the executor that delivers it)
-        camera = self.inputs[name].camera_of(stamp)
+        if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
+            skip = self._not_taken(kind, stamp)
+            return TakenFrame((None if skip is None else f"skipped.{skip}",))
         clouds = []
-        with self._rig_lock:
-            outs, skip, failure = [], None, None
-            try:
-                if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
-                    skip = self._not_taken(kind, stamp)
-                else:
-                    outs = self._take(name, kind, msg, stamp, camera)
-                    if kind == "image" and self.republish:
-                        found = self.rig.last_correspondences(name)
-                        if found is not None:  # (also an image where it found nothing)
-                            clouds.append((name, self._found_cloud(found, msg, stamp, name)))
-            except Exception as e:  # (a defect: the frame is counted, the node goes on)
-                failure = "internal_error"
-                self._log.warning(
-                    "internal_error",
-                    f"rig camera {name!r}: frame failed (internal_error): {type(e).__name__}: {e}",
-                )
-            self.camera_counts[name].frame_done(
-                time.perf_counter() - tic,
-                "taken",
-                None if skip is None else f"skipped.{skip}",
-                None if failure is None else f"failed.{failure}",
-            )
-        return _Taken(outs, None, [], clouds)
+        outs = self._take(name, kind, msg, stamp, camera)
+        if kind == "image" and self.republish:
+            found = self.rig.last_correspondences(name)
+            if found is not None:  # (also an image where it found nothing)
+                clouds.append((name, self._found_cloud(name, found, msg, stamp)))
+        return TakenFrame(outs=outs, clouds=clouds)
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
         """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
@@ -645,32 +558,9 @@ class RigCore(NodeCore):
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input" if item.stamp_ns is None else None
 
-    def _found_cloud(self, found, msg, stamp: int, name: str):
-        """What camera ``name``'s front end found in an image (``found``, a
-        :class:`~rs_localizer.correspondences.Correspondences`) as the single-camera node's
-        ``correspondences_out`` cloud: ``u, v, x, y, z, id`` (``score`` with scores), stamped
-        like the image (``stamp``), in its frame (its ``frame_id``, else the camera's name)."""
-        frame = msg.header.frame_id or name
-        return correspondence_cloud(found.points2d, found.points, found.ids,
-                                    found.valid_scores(), frame, stamp)  # fmt: skip
-
-    def _corr_out_publisher(self, name: str):
-        """Camera ``name``'s ``<camera>/correspondences_out`` (reliable), made when first
-        needed."""
-        pub = self._corr_out.get(name)
-        if pub is None:
-            topic = f"{name}/correspondences_out"
-            pub = self._corr_out[name] = self._make_publisher(PointCloud2, topic, RELIABLE)
-        return pub
-
-    def _deliver(self, item, taken: _Taken) -> None:
-        """The worker, after the frame is counted: publish what the camera's front end found
-        in its image (``republish_correspondences``), the rig frames it completed, log the
-        failed ones (each reason at most once per 5 s)."""
-        for name, cloud in taken.clouds:
-            self._corr_out_publisher(name).publish(cloud)
-        for f in taken.fused:
-            self._publish_fused(f)
+    def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
+        """The worker, after the frame is counted: publish the rig frames it completed, log
+        the failed ones (each reason at most once per 5 s)."""
         for out in taken.outs:
             self._check_map_fit(out)
             self._log_failure(out)
@@ -742,9 +632,6 @@ class RigCore(NodeCore):
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
         return reason
 
-    def _on_image(self, name: str, msg) -> None:
-        self._enqueue(name, "image", msg)
-
     # ---------------------------------------------------------------- outputs
     def _publish_fused(self, f) -> None:
         """twist and odom of an earlier rig frame whose fused twist is final (the
@@ -756,12 +643,12 @@ class RigCore(NodeCore):
         """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
         frames the track is over (the next frame starts a new one): publish the twists still
         pending (:meth:`Localizer.flush_idle`)."""
-        if self.rig is None or not self._rig_lock.acquire(blocking=False):
+        if self.rig is None or not self._worker_lock.acquire(blocking=False):
             return  # (the worker is on a frame: not idle)
         try:
             fused = self.rig.flush_idle()
         finally:
-            self._rig_lock.release()
+            self._worker_lock.release()
         for f in fused:
             self._publish_fused(f)
 
@@ -807,7 +694,7 @@ class RigCore(NodeCore):
         first = self._first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
         latencies, stamp_ages = self._timing_snapshot()
-        with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
+        with self._worker_lock:  # (waits for the frame the worker is on: one consistent count)
             counts = Counter(self._rig_counts.counts())
             for cc in self.camera_counts.values():
                 counts.update(cc.prefixed())

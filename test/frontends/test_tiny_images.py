@@ -176,7 +176,7 @@ import numpy as np
 from rs_localizer.camera import CameraModel
 from rs_localizer.ros import config as C, params as P
 from rs_localizer.ros.bags.bag_io import RosbagsMessages
-from rs_localizer.ros.frame_queue import FrameQueue
+from rs_localizer.ros.frame_queue import FrameQueue, frame_accounting
 from rs_localizer.ros.pipeline import FramePipeline
 SHAPES = {shapes!r}
 msgs = RosbagsMessages()
@@ -196,14 +196,19 @@ for k, (h, w) in enumerate(SHAPES):
     assert pipe.add_camera_info(msgs.camera_info(cam, 0, "cam")) is not None
     img = msgs.image(rng.integers(0, 256, (h, w), dtype=np.uint8), stamp, "cam")
     results = []
-    q = FrameQueue(lambda m: pipe.process(m, "image"), lambda m, r: results.append(r))
+    def process(m):
+        r = pipe.process(m, "image")
+        pipe.stats.frame_done(0.0, "solved" if r.failure is None else "failed." + r.failure)
+        return r
+
+    q = FrameQueue(process, lambda m, r: results.append(r), counts_of=lambda m: pipe.stats)
     q.start()
     q.put(img, 10)
     end = time.monotonic() + 60
-    while q.counts().pending and time.monotonic() < end:
+    while q.pending and time.monotonic() < end:
         time.sleep(0.01)
     q.stop()
-    c = q.counts()
+    c = frame_accounting(pipe.stats.counts())
     (res,) = results
     out[key] = [res.failure, res.detail, c.received, c.solved + c.failed + c.skipped + c.pending,
                 c.failures]

@@ -29,6 +29,7 @@ def test_lifecycle_churn_while_frames_stream(ros_context, sample_bag):
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
     from rs_localizer.ros.bags.bag_io import iter_messages
+    from rs_localizer.ros.frame_queue import frame_accounting
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
 
     OK = TransitionCallbackReturn.SUCCESS
@@ -65,7 +66,7 @@ def test_lifecycle_churn_while_frames_stream(ros_context, sample_bag):
                 k += 1
                 ex.spin_once(timeout_sec=0.03)
             assert node.trigger_deactivate() == OK
-            c = node._frames.counts()
+            c = frame_accounting(node.pipeline.stats.counts())
             assert c.received == c.solved + c.failed + c.skipped + c.pending, (cycle, c)
             assert c.pending == 0, (cycle, c)
             solved.append(c.solved)

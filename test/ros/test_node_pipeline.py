@@ -17,8 +17,9 @@ from rs_localizer.ros import config as C
 from rs_localizer.ros import param_files as F
 from rs_localizer.ros import params as P
 from rs_localizer.ros.camera_info_history import CameraInfoHistory, calibration_key
+from rs_localizer.ros.camera_input import CameraCounts
 from rs_localizer.ros.config import load_maps
-from rs_localizer.ros.frame_queue import FrameQueue
+from rs_localizer.ros.frame_queue import FrameQueue, frame_accounting
 
 ROS_FREE = (
     "rs_localizer.ros.params",
@@ -225,23 +226,29 @@ class _Outcome:
 
 
 def test_frame_accounting_holds_in_every_snapshot():
-    """received = solved + failed + skipped + pending in every snapshot, sampled from another
-    thread while frames stream in faster than they are processed."""
+    """received = solved + failed + skipped + pending in every snapshot of the camera's counts
+    (the queue's received and skipped, the worker's outcome: a raising ``process`` counted
+    ``failed.internal_error``), sampled from another thread while frames stream in faster than
+    they are processed."""
+    counts = CameraCounts()
 
     def process(k):
         time.sleep(0.0005 * (k % 3))
         if k % 7 == 0:
             raise RuntimeError("boom")
-        return _Outcome(None if k % 5 else "no_camera_info")
+        out = _Outcome(None if k % 5 else "no_camera_info")
+        counts.frame_done(0.0, "solved" if out.failure is None else f"failed.{out.failure}")
+        return out
 
     delivered = []
-    q = FrameQueue(process, lambda k, o: delivered.append((k, o.failure)))
+    q = FrameQueue(process, lambda k, o: delivered.append((k, o.failure)),
+                   counts_of=lambda k: counts)  # fmt: skip
     q.start()
     samples, stop = [], threading.Event()
 
     def sample():
         while not stop.is_set():
-            samples.append(q.counts())
+            samples.append(frame_accounting(counts.counts()))
 
     reader = threading.Thread(target=sample)
     reader.start()
@@ -251,20 +258,21 @@ def test_frame_accounting_holds_in_every_snapshot():
             if k % 50 == 0:
                 time.sleep(0.002)
         end = time.monotonic() + 20
-        while q.counts().pending and time.monotonic() < end:
+        while q.pending and time.monotonic() < end:
             time.sleep(0.01)
     finally:
         stop.set()
         reader.join()
         q.stop()
-    final = q.counts()
+    final = frame_accounting(counts.counts())
     assert len(samples) > 100
     for c in samples + [final]:
         assert c.received == c.solved + c.failed + c.skipped + c.pending, c
-        assert c.failed == sum(c.failures.values()), c
+        assert c.pending >= 0 and c.failed == sum(c.failures.values()), c
     assert final.received == 1500 and final.pending == 0
     assert final.skipped > 0 and final.solved > 0
     assert final.failed > 0 and set(final.failures) <= {"internal_error", "no_camera_info"}
+    assert final.skipped == q.dropped == counts.get("skipped.queue_full")
     assert len(delivered) == final.solved + final.failed
     assert [k for k, _ in delivered] == sorted(k for k, _ in delivered)  # in order
     assert all(f == "internal_error" for k, f in delivered if k % 7 == 0)
@@ -273,25 +281,34 @@ def test_frame_accounting_holds_in_every_snapshot():
 def test_frame_queue_drops_the_oldest_and_stops():
     gate = threading.Event()
     done = []
-    q = FrameQueue(lambda k: (gate.wait(5), _Outcome())[1], lambda k, o: done.append(k))
+    counts = CameraCounts()
+
+    def process(k):
+        gate.wait(5)
+        counts.frame_done(0.0, "solved")
+        return _Outcome()
+
+    q = FrameQueue(process, lambda k, o: done.append(k), counts_of=lambda k: counts)
     q.start()
     q.put(0, 2)
-    while q.counts().pending != 1 or q.counts().received != 1:
+    while q.pending != 1 or counts.get("received") != 1:
         time.sleep(0.001)
     time.sleep(0.05)  # (the worker is on frame 0)
     assert [q.put(k, 2) for k in (1, 2, 3, 4)] == [0, 0, 1, 1]  # 1 and 2 dropped
-    c = q.counts()
-    assert (c.received, c.skipped, c.pending) == (5, 2, 3)
+    c = frame_accounting(counts.counts())
+    assert (c.received, c.skipped, c.pending, q.pending) == (5, 2, 3, 3)
     gate.set()
     end = time.monotonic() + 5
-    while q.counts().pending and time.monotonic() < end:
+    while q.pending and time.monotonic() < end:
         time.sleep(0.01)
     assert done == [0, 3, 4]
     q.stop(drop_queued=True)
     q.put(5, 2)
     q.request_stop(drop_queued=True)  # (stopped: the frame waiting is dropped)
-    c = q.counts()
+    c = frame_accounting(counts.counts())
     assert (c.received, c.solved, c.skipped, c.pending) == (6, 3, 3, 0)
+    assert counts.counts() == {"received": 6, "solved": 3, "skipped.queue_full": 2,
+                               "skipped.stopped": 1}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------- pipeline

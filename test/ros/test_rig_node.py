@@ -315,8 +315,8 @@ def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounte
                 f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
             )
             h.send(f.name, "cloud", cloud, taken=False)
-        q = h.node._frames
-        assert h.wait(lambda: q.counts().received == 45 and q.counts().pending == 0)
+        q, counts = h.node._frames, h.node.camera_counts.values()
+        assert h.wait(lambda: sum(c.get("received") for c in counts) == 45 and q.pending == 0)
         h.node._end_video()  # (the open rig frames solved, as at the end of a video)
         st, v = h.last_diag()
         statuses = [{kv.key: kv.value for kv in s.values} for s in h.diag]
@@ -486,11 +486,13 @@ def test_max_points_caps_every_camera_s_cloud(ros_context):
 def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
     """With ``group`` the worker takes the other cameras' frames of the oldest frame's rig
     frame with it, and a full queue drops whole rig frames (the oldest frame and those that
-    go with it), never the rest of the one being solved; every snapshot balances."""
+    go with it), never the rest of the one being solved; every snapshot of a camera's
+    counts balances, received = solved + skipped + pending."""
     import threading
     from dataclasses import dataclass
 
-    from rs_localizer.ros.frame_queue import FrameQueue
+    from rs_localizer.ros.camera_input import CameraCounts
+    from rs_localizer.ros.frame_queue import FrameQueue, frame_accounting
 
     @dataclass
     class Done:
@@ -500,22 +502,24 @@ def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
     started = {k: threading.Event() for k in gates}
     solved = []
 
+    counts = {n: CameraCounts(n) for n in "xab"}
+
     def process(item):
         if item in gates:
             started[item].set()
             assert gates[item].wait(5)
         solved.append(item)
+        counts[item[0]].frame_done(0.0, "solved")
         return Done()
 
     def group(batch, item):
         return item[1] == batch[0][1] and all(b[0] != item[0] for b in batch)
 
     def balanced():
-        c = q.counts()
-        return c.received == c.solved + c.failed + c.skipped + c.pending
+        cs = [frame_accounting(c.counts()) for c in counts.values()]
+        return all(c.pending >= 0 for c in cs) and sum(c.pending for c in cs) == q.pending
 
-    skipped = []
-    q = FrameQueue(process, on_skip=lambda item, why: skipped.append((item, why)), group=group)
+    q = FrameQueue(process, counts_of=lambda item: counts[item[0]], group=group)
     q.start()
     try:
         q.put(("x", 0), 10)
@@ -524,19 +528,23 @@ def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
         q.put(("b", 1), 10)
         gates[("x", 0)].set()  # (the worker takes a1 and b1 together and stops on a1)
         assert started[("a", 1)].wait(5)
-        assert q.counts().pending == 2 and balanced()
+        assert q.pending == 2 and balanced()
         for item in [("a", 2), ("b", 2), ("a", 3)]:
             q.put(item, 2)  # (b1 is the worker's: the full queue drops rig frame 2, a2 and b2)
             assert balanced()
         gates[("a", 1)].set()
         for _ in range(500):
-            if q.counts().pending == 0:
+            if q.pending == 0:
                 break
             threading.Event().wait(0.01)
-        c = q.counts()
-        assert (c.received, c.solved, c.skipped, c.pending) == (6, 4, 2, 0), c
+        got = {n: c.counts() for n, c in counts.items()}
+        assert got == {
+            "x": {"received": 1, "solved": 1},
+            "a": {"received": 3, "solved": 2, "skipped.queue_full": 1},
+            "b": {"received": 2, "solved": 1, "skipped.queue_full": 1},
+        }, got
         assert solved == [("x", 0), ("a", 1), ("b", 1), ("a", 3)], solved
-        assert skipped == [(("a", 2), "queue_full"), (("b", 2), "queue_full")]
+        assert q.dropped == 2 and balanced()
     finally:
         q.stop()
 
@@ -630,7 +638,7 @@ def _drained_values(node, cams) -> dict:
     import time
 
     for _ in range(3000):
-        if node._frames.counts().pending == 0:
+        if node._frames.pending == 0:
             break
         time.sleep(0.01)
     node._end_video()
@@ -693,7 +701,7 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
                 bad += 1
             else:
                 good.append(f.stamp_ns)
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
@@ -725,7 +733,7 @@ def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
             if f.name == "left" and 3 <= f.index <= 6:
                 cloud.fields = [x for x in cloud.fields if x.name != "x"]
                 bad += 1
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "4", v
         assert v["left.missed.skipped"] == str(bad) and "left.missed.apart" not in v, v
@@ -764,7 +772,7 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
             if leaf == "camera_info":
                 node.inputs[name].add_camera_info(ts.deserialize_cdr(raw, mt))
             elif leaf == "correspondences":
-                node._on_cloud(name, ts.deserialize_cdr(raw, mt))
+                node._on_frame(name, "cloud", ts.deserialize_cdr(raw, mt))
         v = _drained_values(node, b.cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
         for c in b.cams:
@@ -817,7 +825,7 @@ def test_each_camera_s_input_is_the_single_camera_node_s(ros_context):
             if f.name == "left":
                 uv, xyz = np.vstack([uv, nan_uv]), np.vstack([xyz, xyz[:30]])
             cloud = correspondence_cloud(uv, xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
-            node._on_cloud(f.name, cloud)
+            node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
         assert v["left.camera_info_rejected"] == "2", v
         assert v["left.camera_info_rejected.bad_intrinsics"] == "1", v
@@ -858,7 +866,7 @@ def test_estimator_parameters_change_while_the_rig_runs(ros_context):
         for f in frames:
             if f.index // third == k:
                 stamp = ns_to_stamp(f.stamp_ns)
-                node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+                node._on_frame(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
                                                             stamp=stamp))  # fmt: skip
         return _drained_values(node, cams)
 
@@ -944,7 +952,7 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
         assert [node.inputs[c.name].max_points for c in cams] == [40, 40, 40]
         assert node.rig.settings.options == settings.options
         for f in frames:
-            node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+            node._on_frame(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
                                                         stamp=ns_to_stamp(f.stamp_ns)))  # fmt: skip
         v = _drained_values(node, cams)
         assert int(v["rig_frames_solved"]) == len(frames) // 3 and v["track_state"] == "disabled"
