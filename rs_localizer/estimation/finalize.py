@@ -73,6 +73,8 @@ __all__ = [
     "final_refinement",
     "frame_refinement",
     "image_alone",
+    "inconsistent_fit",
+    "last_checks",
     "motion_chi2",
     "motion_significant",
     "posterior_if_consistent",
@@ -760,6 +762,123 @@ def fit_is_inconsistent(
     return False
 
 
+def last_checks(
+    fr: RefinementView,
+    model: Model,
+    inliers: np.ndarray,
+    w_max2: float,
+    v_max2: float,
+    compiled: bool = True,
+) -> tuple[str | None, int]:
+    """The last word on a final model of a camera's or a rig's frame (``fr``, its
+    :meth:`~.frame.RefinementView.views`): finite, moving within the squared bounds
+    ``w_max2``, ``v_max2`` (per unit of the frame's time), every one of the (N,) ``inliers``
+    in front of its camera at its capture time (:func:`~.plausibility.final_check`, one
+    compiled call). Returns (the failure: ``implausible_motion``, ``cheirality`` or None;
+    the number of all points behind their cameras, 0 with ``implausible_motion``).
+    """
+    R, C, w, t = model
+    code, behind = final_check(
+        R, C, w, t, fr.X, fr.r - fr.r0, inliers, w_max2, v_max2, compiled=compiled,
+        views=fr.views(),
+    )  # fmt: skip
+    return (None, IMPLAUSIBLE_MOTION, CHEIRALITY)[code], behind
+
+
+def inconsistent_fit(
+    X: np.ndarray,
+    inliers: np.ndarray,
+    model: Model,
+    views: tuple | None,
+    rolling: bool,
+    threshold: float,
+    errors: Callable[[], np.ndarray],
+    condition: Callable[[], float],
+    view_planar: Callable[[int], bool],
+    compiled: bool = True,
+    *,
+    support_share: float = 0.0,
+    flat: float | None = None,
+) -> bool:
+    """Whether a final fit is one no rigid camera, or rigid rig of cameras, explains
+    (``consistent_fit``, :func:`final_estimate`; a camera is one view at the identity mounting,
+    ``views`` None), by :func:`fit_is_inconsistent`'s tests. The views that support the fit
+    are those whose inlier ratio is at least ``support_share`` times the best view's (a rig's
+    cameras' consensus: an outvoted camera's points, or a few of them explained by chance, do
+    not count against it):
+
+    - a supporting view whose inliers are one plane of its non-planar points must not see
+      more than :data:`FAR_SIDE_LIMIT` of its other points beyond that plane (the plane seen
+      from behind, from its camera's centre);
+    - a fit of fewer than :data:`MIRRORED_FIT_FRACTION` of the supporting views' valid points,
+      not coplanar, must pass the fraction, conditioning and near-miss tests over those points.
+
+    Args:
+        X: (N, 3) m, the valid world points (a rig's stacked by camera); inliers: (N,) bool.
+        model: ``(R, C, w, t)``, world -> camera (rig with ``views``).
+        views: None, or a rig's ``(R_mount (M, 3, 3), c_mount (M, 3), rows (M, 2))``
+            (:func:`~.plausibility.final_check`).
+        rolling: a rolling-shutter fit (the near-miss test is skipped otherwise).
+        threshold: the inlier threshold in the units of ``errors`` (0 skips the near-miss
+            test). errors: called only for the near-miss test: the (N,) errors of the fit.
+        condition: called only for the partial-fit tests: the condition number of the fit's
+            information matrix (NaN: unknown).
+        view_planar: ``view_planar(m)``: view m's points are coplanar.
+        compiled: False: the planarity in NumPy. flat: the inliers' planarity
+            (:func:`~.degeneracy.planarity`) when known, for a single view.
+    """
+    R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
+    if views is None:
+        Rm, cm, rows = np.eye(3)[None], np.zeros((1, 3)), ((0, len(X)),)
+    else:
+        Rm, cm, rows = views
+    sizes = [int(b) - int(a) for a, b in rows]
+    counts = [int(np.count_nonzero(inliers[a:b])) for a, b in rows]
+    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
+    best = max(ratio, default=0.0)
+    supporting, n, n_inl = [], 0, 0
+    for m, (a, b) in enumerate(rows):
+        if ratio[m] == 0.0 or ratio[m] < support_share * best:
+            continue
+        supporting.append(m)
+        n, n_inl = n + sizes[m], n_inl + counts[m]
+        # (the planarity of the view's points only when its inliers are one plane; every
+        # point an inlier, or fewer than 3: not a plane seen from behind)
+        if counts[m] == sizes[m] or counts[m] < 3:
+            continue
+        Xm, im = X[a:b], inliers[a:b]
+        f = flat if flat is not None and views is None else planarity(Xm, im, compiled)
+        if f >= PLANAR_TOLERANCE or view_planar(m):
+            continue
+        if views is None:
+            centre = camera_position(R, C)
+        else:
+            centre = camera_position(Rm[m] @ R, Rm[m] @ C + cm[m])
+        if far_side_fraction(Xm, im, centre) > FAR_SIDE_LIMIT:
+            return True
+    if n_inl >= MIRRORED_FIT_FRACTION * n:
+        return False
+    if views is None:
+        support = None
+    else:
+        support = np.zeros(len(inliers), dtype=bool)
+        for m in supporting:
+            support[int(rows[m][0]) : int(rows[m][1])] = True
+    if (
+        view_planar(0)
+        if support is None
+        else planarity(X[support], compiled=compiled) < PLANAR_TOLERANCE
+    ):
+        return False
+    if support is None:
+        Xs, inl_s, err = X, inliers, errors
+    else:
+        Xs, inl_s = X[support], inliers[support]
+        err = lambda: errors()[support]  # noqa: E731
+    # (the far-side test is each view's, above)
+    return fit_is_inconsistent(Xs, inl_s, np.zeros(3), 1.0, condition(), rolling, threshold, err)
+
+
 def solved_estimate(
     fr: Any,
     solver: str,
@@ -870,30 +989,27 @@ def final_estimate(
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
     )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    code, n_behind = final_check(
-        R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max, compiled=compiled
-    )
-    if code:
-        raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
+    failure, n_behind = last_checks(fr, final.model, inl, w2max, v2max, compiled)
+    if failure is not None:
+        raise EstimationFailed(failure)
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled)
     position = camera_position(R, C)
     n_free = 12 if rolling else 6
     info = final.information
     cond = condition_number(info[:n_free, :n_free], compiled) if info is not None else float("nan")
-    if (
-        consistent_fit
-        and not fr.planar
-        and fit_is_inconsistent(
-            fr.X,
-            inl,
-            position,
-            flat,
-            cond,
-            rolling,
-            threshold,
-            lambda: fr.errors(final.model, compiled),
-        )
+    if consistent_fit and inconsistent_fit(
+        fr.X,
+        inl,
+        final.model,
+        None,
+        rolling,
+        threshold,
+        lambda: fr.errors(final.model, compiled),
+        lambda: cond,
+        lambda m: fr.planar,
+        compiled,
+        flat=flat,
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
     cov = None

@@ -80,6 +80,13 @@ class RefinementView(Protocol):
         units of the refinement's threshold; ``inf`` behind the camera."""
         ...
 
+    def views(self) -> tuple | None:
+        """The cameras that see the points: ``None``, one camera at the identity mounting
+        (:class:`Frame`), or a rig's ``(R_mount (M, 3, 3), c_mount (M, 3), rows (M, 2)
+        int64)``, camera m's mounting and its points ``rows[m, 0]:rows[m, 1]`` (stacked by
+        camera; :func:`~.plausibility.final_check`)."""
+        ...
+
 
 class Frame:
     """Validated, normalized correspondences of one frame (rows shuffled, see
@@ -180,6 +187,10 @@ class Frame:
             return exact_errors(R, C, w, t, self.X, self.x, tau, self.W)
         m = (np.asarray(a, dtype=float)[None] for a in (R, C, w, t))
         return np.sqrt(exact_errors2_numpy(*m, self.X, self.x, tau)[0])
+
+    def views(self) -> None:
+        """One camera at the identity mounting (:meth:`RefinementView.views`)."""
+        return None
 
     def head(self, m: int) -> Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the

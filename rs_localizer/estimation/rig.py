@@ -123,7 +123,7 @@ from numba import njit
 from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
-from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
@@ -132,18 +132,17 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin_batch_numpy,
     still_solve_rotated,
 )
-from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
+from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from .estimate import estimate_rs_pose
 from .finalize import (
-    FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
     FINAL_TOL,
     GLOBAL_SHUTTER,
-    MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
-    fit_is_inconsistent,
     frame_refinement,
     image_alone,
+    inconsistent_fit,
+    last_checks,
     rolling_shutter_check,
     still_fallback,
 )
@@ -159,8 +158,6 @@ from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
-    final_model_check,
-    final_model_check_numpy,
     image_degenerate,
     plausible_motion,
     views_degenerate,
@@ -189,9 +186,7 @@ from .refine import (
 )
 from .result import (
     CAMERAS_DISAGREE,
-    CHEIRALITY,
     DEGENERATE_GEOMETRY,
-    IMPLAUSIBLE_MOTION,
     INCONSISTENT_FIT,
     RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
@@ -834,6 +829,11 @@ class _Pool:
     @property
     def compiled(self) -> bool:
         return not self.numpy
+
+    def views(self) -> tuple:
+        """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
+        3), rows (M, 2))``, each camera's mounting and its rows in the pool."""
+        return self.R_mount, self.c_mount, _bounds(self)
 
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:func:`_mountings`, checked for the
@@ -1604,43 +1604,19 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
     return out
 
 
-def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
-    """:func:`~.plausibility.final_check` of the rig's model on the pool's points through
-    their cameras' mountings (``inl``: the inliers), each camera's points the pool's slice of
-    them (stacked by camera: the same points as its selection by camera index)."""
-    check = final_model_check_numpy if pool.numpy else final_model_check
-    Rm = pool.R_mount
-    # (every camera's products at once: the same values as camera by camera, to the bit)
-    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
-    code, behind = 0, 0
-    X, tau = pool.X, pool.tau
-    if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
-        # (the same check on every camera in one compiled call)
-        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, _bounds(pool))
-        return int(code), int(behind)
-    for c, s in enumerate(pool.slices):
-        if s.stop == s.start:
-            continue
-        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
-        code, behind = max(code, int(k)), behind + int(n)
-    return code, behind
+def _condition(pool: _Pool, model, threshold_px: float, free: int) -> float:
+    """The condition number of the information matrix of ``model`` on the pool (the
+    refinement's ``J^T W J`` at it, Huber at ``threshold_px``; NaN: none)."""
+    info = frame_refinement(
+        pool, model, threshold_px, free == 12, None, False, max_iterations=0, covariance=False
+    ).data_information
+    compiled = not pool.numpy
+    return condition_number(info[:free, :free], compiled) if info is not None else float("nan")
 
 
-@njit(cache=True)
-def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
-    """:func:`~.plausibility.final_model_check` of each camera c's model ``(RcR[c], RcC[c],
-    Rcw[c], Rct[c])`` on its rows ``bounds[c, 0]:bounds[c, 1]`` of the pool's points (without
-    motion bounds): (the largest code, the number of points behind their cameras)."""
-    code, behind = 0, 0
-    for c in range(bounds.shape[0]):
-        a, b = bounds[c, 0], bounds[c, 1]
-        if b == a:
-            continue
-        k, n = final_model_check(RcR[c], RcC[c], Rcw[c], Rct[c], X[a:b], tau[a:b], inl[a:b],
-                                 np.inf, np.inf)  # fmt: skip
-        code = max(code, k)
-        behind += n
-    return code, behind
+def _view_planar(pool: _Pool, c: int) -> bool:
+    """Camera c's points in the pool are coplanar."""
+    return planarity(pool.X[pool.slices[c]], compiled=not pool.numpy) < PLANAR_TOLERANCE
 
 
 def _bounds(pool: _Pool) -> np.ndarray:
@@ -2576,68 +2552,6 @@ def _rig_estimate(
     )
 
 
-def _inconsistent_fit(
-    pool: _Pool, model, e: np.ndarray, inl: np.ndarray, threshold_px: float, free: int
-) -> bool:
-    """Whether the rig frame's final fit is one no rigid rig explains, by a single camera's
-    tests (:func:`~.finalize.fit_is_inconsistent`, ``consistent_fit``), which a mirrored map
-    (or mirrored images) fails: a wall of it fitted from behind by one camera, with the other
-    cameras' points unexplained. The cameras that support the fit are those whose inlier ratio
-    is at least :data:`AGREE_SHARE` times the best camera's, as in the cameras' consensus (an
-    outvoted camera's points, or a few of them explained by chance, do not count against it):
-
-    - a supporting camera whose inliers are one plane of its non-planar points must not see
-      more than :data:`~.finalize.FAR_SIDE_LIMIT` of its other points beyond that plane (the
-      plane seen from behind);
-    - a fit of fewer than :data:`~.finalize.MIRRORED_FIT_FRACTION` of the supporting cameras'
-      valid points of a non-planar rig frame must pass the single camera's fraction,
-      conditioning and near-miss tests over those points (the condition number of the fit's
-      information matrix, computed only then; errors in px and ``threshold_px``).
-
-    ``e``: (N,) the model's errors (px) over the pool; ``inl``: its inliers; ``free``: 12
-    (rolling shutter) or 6."""
-    R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
-    compiled = not pool.numpy
-    sizes, counts = pool.counts(), pool.counts(inl)
-    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
-    best = max(ratio, default=0.0)
-    supporting, n, n_inl = [], 0, 0
-    for c, s in enumerate(pool.slices):
-        if ratio[c] == 0.0 or ratio[c] < AGREE_SHARE * best:
-            continue
-        supporting.append(s)
-        n, n_inl = n + sizes[c], n_inl + counts[c]
-        # (the planarity of the camera's points only when its inliers are one plane; every
-        # point an inlier, or fewer than 3: not a plane seen from behind)
-        if counts[c] == sizes[c] or counts[c] < 3:
-            continue
-        X, ic = pool.X[s], inl[s]
-        if planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
-            continue
-        if planarity(X, compiled=compiled) >= PLANAR_TOLERANCE:
-            Rm, cm = pool.R_mount[c], pool.c_mount[c]
-            centre = camera_position(Rm @ R, Rm @ C + cm)
-            if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
-                return True
-    if n_inl >= MIRRORED_FIT_FRACTION * n:
-        return False
-    support = np.zeros(len(inl), dtype=bool)
-    for s in supporting:
-        support[s] = True
-    if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
-        return False
-    rolling = free == 12
-    info = frame_refinement(
-        pool, model, threshold_px, rolling, None, False, max_iterations=0, covariance=False
-    ).data_information
-    cond = condition_number(info[:free, :free], compiled) if info is not None else float("nan")
-    flat = 1.0  # (the far-side test is each camera's, above)
-    return fit_is_inconsistent(
-        pool.X[support], inl[support], np.zeros(3), flat, cond, rolling, float(threshold_px),
-        lambda: e[support],
-    )  # fmt: skip
-
-
 def _estimate(
     pool: _Pool,
     options: EstimateOptions,
@@ -2740,15 +2654,17 @@ def _estimate(
     # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
     if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
-    if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
-        return failed(IMPLAUSIBLE_MOTION, drawn)
-    # (every inlier in front of its camera at its capture time, each camera's own model)
-    code, behind = _final_check(pool, R, C, w, t, inl)
-    if code == 2:
-        return failed(CHEIRALITY, drawn, behind)
-    if options.plausibility.consistent_fit and _inconsistent_fit(
-        pool, (R, C, w, t), e, inl, threshold_px, free
-    ):
+    # (the camera's last checks on every camera's model)
+    failure, behind = last_checks(
+        pool, (R, C, w, t), inl, search._w2max, search._v2max, not pool.numpy
+    )
+    if failure is not None:
+        return failed(failure, drawn, behind)
+    if options.plausibility.consistent_fit and inconsistent_fit(
+        pool.X, inl, (R, C, w, t), pool.views(), free == 12, threshold_px, lambda: e,
+        lambda: _condition(pool, (R, C, w, t), threshold_px, free),
+        lambda m: _view_planar(pool, m), not pool.numpy, support_share=AGREE_SHARE,
+    ):  # fmt: skip
         return failed(INCONSISTENT_FIT, drawn)
     cov, G = (
         _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
