@@ -71,6 +71,7 @@ __all__ = [
     "ImageAlone",
     "final_estimate",
     "final_refinement",
+    "final_sensitivity",
     "frame_refinement",
     "image_alone",
     "inconsistent_fit",
@@ -683,7 +684,7 @@ def refine_final_model(
         raise EstimationFailed(TOO_FEW_INLIERS)
     final.inliers, final.rmse_px = inl_ref, float(rms * fr.f)
     if want_sens:
-        final.sensitivity = _sensitivity(fr, final, ref, th)
+        final.sensitivity = final_sensitivity(fr, final.model, final.covariance, ref, th)
     corr = opts.correlated_noise
     if final.covariance is not None and corr.sigma_px > 0 and ref.sigma > 0:
         # the same estimate's covariance under white + correlated image error (on the final
@@ -705,20 +706,42 @@ def refine_final_model(
     return final
 
 
-def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> np.ndarray:
-    """Acceleration sensitivity on the final refinement's points (all, truncated) and its
-    (posterior) H, with ``J^T W D`` from its last Jacobian."""
-    cov = final.covariance
+def final_sensitivity(
+    fr: RefinementView,
+    model: Model,
+    covariance: np.ndarray | None,
+    ref: RefineResult,
+    th: float,
+    rate_prior: tuple[float, np.ndarray] | None = None,
+) -> np.ndarray | None:
+    """The acceleration sensitivity (12, 6) of a final model of a camera's or a rig's frame
+    (``fr``; :func:`~.sensitivity.acceleration_sensitivity`) on the final refinement's points
+    (all, truncated at :data:`FINAL_CUTOFF` thresholds ``th``) from the final refinement
+    ``ref`` (:func:`frame_refinement` with its ``J^T W D`` block) at ``model``: its (posterior)
+    ``H^-1 = covariance / sigma^2`` (``covariance``: the refinement's (12, 12), finite, or None:
+    computed again from the points, a camera's alone).
+
+    ``rate_prior``: a gyro's ``(time (s after the frame's reference time), information (3, 3)
+    on w)`` when the refinement was maximum a posteriori with it (a rig's): a frame that
+    accelerates turns at the measured rate at that time, so the gyro's rows add
+    ``sigma^2 P time`` per unit of angular acceleration to ``J^T W D``. None where the normal
+    matrix is singular or the result not finite."""
+    block = ref.acceleration_block
+    if rate_prior is not None and block is not None and covariance is not None:
+        time, info = rate_prior
+        block = block.copy()
+        block[6:9, 0:3] += ref.sigma**2 * time * info
     return acceleration_sensitivity(
-        *final.model,
+        *model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
         fr.spr,
         th,
         cutoff=FINAL_CUTOFF * th,
-        normal_inverse=None if cov is None else cov / ref.sigma**2,
-        acceleration_block=ref.acceleration_block,
+        normal_inverse=None if covariance is None else covariance / ref.sigma**2,
+        acceleration_block=block,
+        compiled=fr.compiled,
     )
 
 

@@ -136,9 +136,9 @@ from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
-    FINAL_TOL,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
+    final_sensitivity,
     frame_refinement,
     image_alone,
     inconsistent_fit,
@@ -166,14 +166,10 @@ from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
-    OUT_ACC,
     OUT_C,
     OUT_COV,
-    OUT_GRAD,
-    OUT_INFO,
     OUT_R,
     OUT_SIZE,
-    OUT_SIZE_ACC,
     OUT_T,
     OUT_W,
     KernelMountings,
@@ -205,7 +201,6 @@ from .rig_batch import (
     sample_kernel,
     still_batch,
 )
-from .sensitivity import physical_sensitivity
 from .single_tag import few_points
 
 __all__ = [
@@ -1484,101 +1479,42 @@ def _covariance(
     mounts: bool = False,
     errors: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
-    acceleration, from one Jacobian (the refinement's kernel at the model, no step:
-    :func:`~.refine.refine_rs_pose` with ``max_iterations=0``).
-
-    The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
-    ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
-    variance (px^2) of the errors inside the threshold, corrected for the truncation
-    (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero rows and
-    columns for w and t). The sensitivity (12, 6) is ``(J^T W J)^-1 J^T W D`` over the same
-    points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
-    through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
-    + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
-    with ``free=6``. ``prior`` (a gyro, ``free=12``): the posterior covariance ``sigma^2 (J^T W
-    J + sigma^2 P)^-1`` (``P`` the gyro's information on ``w``), and the sensitivity with that
-    matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
-    ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
-    ``mounts``: the covariance adds each camera's mounting uncertainty
+    """The covariance of ``(delta, C, w, t)`` at the final model and the estimate's
+    sensitivity to acceleration, as a single camera's final stage computes them: the final
+    refinement's (:func:`~.finalize.frame_refinement` at the model, no step: ``sigma^2 (J^T W
+    J)^-1`` over the points within ``FINAL_CUTOFF`` thresholds, Huber weights at
+    ``threshold_px``, ``sigma^2`` the image variance (px^2) inside it corrected for the
+    truncation; ``free=6``: of the pose alone), with ``prior`` (a gyro, ``free=12``) the
+    posterior ``sigma^2 (J^T W J + sigma^2 P)^-1``, and the sensitivity from its ``J^T W D``
+    (:func:`~.finalize.final_sensitivity`, with the gyro's rows at its ``time``; ``None``
+    with ``free=6``). ``mounts``: the covariance adds each camera's mounting uncertainty
     (:attr:`RigView.mounting`'s ``covariance``) to first order, ``A Sigma_m A^T`` with
     ``A = (J^T W J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the
     image errors' analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`).
     ``errors``: the model's (N,) errors (px) when already computed. Returns
-    ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
-    (:func:`~.refine.refine_rs_pose_numpy`)."""
-    k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
+    ``(None, None)`` with 6 or fewer inliers, or where not finite."""
+    k = float(threshold_px)
     e = pool.errors(model) if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    sigma, info, acc = _information(pool, model, k, rolling)
-    sigma2 = sigma**2
-    H = info[:free, :free].copy()
-    if prior is not None and rolling:
-        H[6:9, 6:9] += sigma2 * prior.info
-    try:
-        Hinv = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return None, None
-    if mounts and pool.has_mount_cov:
-        cov = np.zeros((12, 12))
-        cov[:free, :free] = sigma2 * Hinv
-        cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
-        cov = 0.5 * (cov + cov.T)
-    elif pool.numpy or not _kernel_ready(Hinv):
-        cov = np.zeros((12, 12))
-        cov[:free, :free] = sigma2 * Hinv
-        cov = 0.5 * (cov + cov.T)
-    else:  # (the same products and sums in one compiled call)
-        cov = _symmetric_covariance(Hinv, sigma2)
-    if not np.isfinite(cov).all():
+    motion = prior.motion if prior is not None and rolling else None
+    ref = frame_refinement(pool, model, k, rolling, motion, rolling, max_iterations=0)
+    cov = ref.covariance
+    if cov is None or not np.isfinite(cov).all():
         return None, None
     G = None
     if rolling:
-        JD = acc.copy()
-        if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
-            JD[6:9, 0:3] += sigma2 * prior.time * prior.info
-        G = Hinv @ JD
-        G = G if np.isfinite(G).all() else None
+        rate = None if motion is None else (prior.time, prior.info)
+        G = final_sensitivity(pool, model, cov, ref, k, rate)
+    if mounts and pool.has_mount_cov:
+        Hinv = cov[:free, :free] / ref.sigma**2
+        cov = cov.copy()
+        cov[:free, :free] += _mounting_covariance(pool, model, e, k, FINAL_CUTOFF * k, free, Hinv)
+        cov = 0.5 * (cov + cov.T)
+        if not np.isfinite(cov).all():
+            return None, None
     return cov, G
-
-
-@njit(cache=True)
-def _symmetric_covariance(Hinv, sigma2):
-    """(12, 12): ``sigma2 * Hinv`` (free x free) in the upper left block, zeros elsewhere,
-    then ``0.5 * (cov + cov^T)``: :func:`_covariance`'s NumPy steps, the same arithmetic."""
-    f = Hinv.shape[0]
-    cov = np.zeros((12, 12))
-    for i in range(f):
-        for j in range(f):
-            cov[i, j] = 0.5 * (sigma2 * Hinv[i, j] + sigma2 * Hinv[j, i])
-    return cov
-
-
-def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
-    """``(sigma, J^T W J (12, 12), J^T W D (12, 6) or None)`` at ``model``: the refinement's
-    kernel with no step (:func:`~.finalize.frame_refinement` with ``max_iterations=0``, the
-    covariance and, ``rolling``, the acceleration block; Huber at ``k`` px over the points
-    within ``FINAL_CUTOFF`` thresholds). Compiled: its kernel called directly, with the same
-    arguments (as :func:`_refined`)."""
-    if pool.numpy:
-        res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
-        return res.sigma, res.data_information, res.acceleration_block if rolling else None
-    R0, C0, w0, t0 = model
-    out = np.empty(OUT_SIZE_ACC if rolling else OUT_SIZE)
-    f = np.float64
-    X, x, tau, views = _kernel_arrays(pool)
-    on, mu, Lam = _NO_PRIOR
-    sigma, _, _ = LM_REFINE_KERNEL(
-        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
-        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        X, x, tau, k, 12 if rolling else 6, FINAL_CUTOFF * k, 0, FINAL_TOL, True, out, on,
-        mu, Lam, 1.0, -1.0, rolling, views,
-    )  # fmt: skip
-    acc = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6) if rolling else None
-    return float(sigma), out[OUT_INFO:OUT_GRAD].reshape(12, 12), acc
 
 
 def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
@@ -2687,9 +2623,7 @@ def _estimate(
         num_behind=behind,
         model_covariance=cov,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
-        acceleration_sensitivity=(
-            None if G is None else physical_sensitivity(G, R, C, w, 1.0, not pool.numpy)
-        ),
+        acceleration_sensitivity=G,
         initial_explained=explained,
         initial_used=seeded is not None,
         gyro_used=prior is not None,
