@@ -206,7 +206,7 @@ def frame_refinement(
         model,
         fr.X,
         fr.x,
-        fr.r - fr.r0,
+        fr.r if fr.r0 == 0.0 else fr.r - fr.r0,  # (r - 0.0 is r, to the bit)
         th,
         _settings(
             rolling,

@@ -162,16 +162,9 @@ from .plausibility import (
     plausible_motion,
     views_degenerate,
 )
-from .prior import MotionPrior, prior_arrays
+from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
-    LM_REFINE_KERNEL,
-    OUT_C,
-    OUT_COV,
-    OUT_R,
-    OUT_SIZE,
-    OUT_T,
-    OUT_W,
     KernelMountings,
     Mountings,
     exact_jacobian,
@@ -1358,45 +1351,13 @@ def _refine(
     k = float(threshold_px)
     cut = None if cutoff_px is None else max(float(cutoff_px), k)
     motion = prior.motion if prior is not None and free == 12 else None
-    if not pool.numpy:
-        cutoff = FINAL_CUTOFF * k if cut is None else float(cut)
-        return _refined(pool, model, k, free == 12, motion, cutoff, int(max_iterations))
     res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
                            max_iterations=max_iterations, covariance=False,
                            tol=RIG_REFINE_TOL)  # fmt: skip
-    return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
-
-
-#: the refinement kernel's arrays of no motion prior (:func:`~.prior.prior_arrays`; the
-#: kernel only reads them)
-_NO_PRIOR = prior_arrays(None)
-
-
-#: the velocities a global-shutter refinement starts from (and keeps)
-_NO_VELOCITY = np.zeros(3)
-
-
-def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
-    """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
-    the pool (errors in px through the mountings, time tau, one second per unit, without the
-    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly: a rig frame
-    refines several times, and on a few dozen points the wrappers' checks and result object
-    cost about as much as the kernel. Returns copies of the refined ``(R, C, w, t)``."""
-    R0, C0, w0, t0 = model
-    on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
-    out = np.empty(OUT_SIZE)
-    f = np.float64
-    X, x, tau, views = _kernel_arrays(pool)
-    LM_REFINE_KERNEL(
-        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
-        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        X, x, tau, k, 12 if rolling else 6, cutoff, iterations,
-        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, views,
-    )  # fmt: skip
-    # (views of this call's own buffer: no other model shares it)
-    return (out[OUT_R:OUT_C].reshape(3, 3), out[OUT_C:OUT_W], out[OUT_W:OUT_T],
-            out[OUT_T:OUT_COV])  # fmt: skip
+    if pool.numpy:
+        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
+    # (views of the refinement's own buffer: no other model shares it)
+    return res.R, res.C, res.w, res.t
 
 
 def _kernel_arrays(pool: _Pool) -> tuple:
