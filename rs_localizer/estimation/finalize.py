@@ -35,6 +35,9 @@ from .refine import (
     RefineResult,
     RefineSettings,
     exact_errors,
+    exact_jacobian,
+    exact_mounting_jacobian,
+    huber_weights,
     posterior_step,
     refine_backend,
 )
@@ -69,6 +72,7 @@ __all__ = [
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
+    "final_covariance",
     "final_estimate",
     "final_refinement",
     "final_sensitivity",
@@ -676,7 +680,7 @@ def refine_final_model(
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
-        final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
+        final.covariance = final_covariance(fr, final.model, ref, th, rolling)
         final.information = ref.data_information
     errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl_ref, n_ref, rms = final_inliers(errors, th)
@@ -704,6 +708,58 @@ def refine_final_model(
             fr.W[inl].reshape(-1, 2, 2) if len(fr.W) else None,
         )
     return final
+
+
+def final_covariance(
+    fr: RefinementView,
+    model: Model,
+    ref: RefineResult,
+    th: float,
+    rolling: bool,
+    errors: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The (12, 12) covariance over ``(delta, C, w, t)`` of a final model of a camera's or a
+    rig's frame (``fr``) at ``model``: its final refinement's ``ref`` (``sigma^2 H^-1``, the
+    posterior's with a prior; :func:`frame_refinement`), None where it is missing or not
+    finite; with cameras whose mountings have covariances
+    (:meth:`~.frame.RefinementView.mounting_covariances`, a rig's) their share added to first
+    order, ``A Sigma_m A^T`` per camera, ``A = H^-1 J^T W J_m`` the model's sensitivity to
+    its mounting (``J``, ``J_m``: the image errors' analytic Jacobians over the model and the
+    mounting, :func:`~.refine.exact_jacobian`, :func:`~.refine.exact_mounting_jacobian`, on
+    the points within :data:`FINAL_CUTOFF` thresholds ``th``, ``W`` their Huber weights),
+    then symmetrized. ``rolling``: over the 12 parameters, else the pose's 6. ``errors``:
+    the model's (N,) errors (``fr.errors``) when already computed."""
+    cov = ref.covariance
+    if cov is None or not np.isfinite(cov).all():
+        return None
+    mounted = fr.mounting_covariances()
+    if mounted is None:
+        return cov
+    mountings, mount_cov = mounted
+    th = float(th)
+    free = 12 if rolling else 6
+    e = fr.errors(model) if errors is None else errors
+    idx = np.flatnonzero(e < FINAL_CUTOFF * th)
+    sub = mountings.take(idx)
+    R0, C0, w0, t0 = model
+    theta = np.concatenate([np.zeros(3), C0, w0, t0])
+    X, x, tau = fr.X[idx], fr.x[idx], (fr.r - fr.r0)[idx]
+    W = np.repeat(huber_weights(e[idx], th), 2)
+    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
+    Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
+    rows = np.repeat(sub.cam, 2)
+    Hinv = cov[:free, :free] / ref.sigma**2
+    share = np.zeros((free, free))
+    for c, mc in enumerate(mount_cov):
+        on = rows == c
+        if mc is None or not on.any():
+            continue
+        A = Hinv @ (WJ[on].T @ Jm[on])
+        share += A @ mc @ A.T
+    cov = cov.copy()
+    cov[:free, :free] += share
+    cov = 0.5 * (cov + cov.T)
+    return cov if np.isfinite(cov).all() else None
 
 
 def final_sensitivity(

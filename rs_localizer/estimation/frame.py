@@ -87,6 +87,13 @@ class RefinementView(Protocol):
         camera; :func:`~.plausibility.final_check`)."""
         ...
 
+    def mounting_covariances(self) -> tuple | None:
+        """``(the points' :class:`~.refine.Mountings`, each camera's mounting covariance
+        (6, 6) over its rotation on the rig (rad) and its centre (m), or None)`` where some
+        camera's mounting has one (:func:`~.finalize.final_covariance` adds their share), else
+        None (a camera alone)."""
+        ...
+
 
 class Frame:
     """Validated, normalized correspondences of one frame (rows shuffled, see
@@ -190,6 +197,10 @@ class Frame:
 
     def views(self) -> None:
         """One camera at the identity mounting (:meth:`RefinementView.views`)."""
+        return None
+
+    def mounting_covariances(self) -> None:
+        """A camera alone: no mounting (:meth:`RefinementView.mounting_covariances`)."""
         return None
 
     def head(self, m: int) -> Frame:

@@ -138,6 +138,7 @@ from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
+    final_covariance,
     final_sensitivity,
     frame_refinement,
     image_alone,
@@ -167,9 +168,6 @@ from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     KernelMountings,
     Mountings,
-    exact_jacobian,
-    exact_mounting_jacobian,
-    huber_weights,
     image_variance,
     kernel_mountings,
 )
@@ -823,6 +821,12 @@ class _Pool:
         3), rows (M, 2))``, each camera's mounting and its rows in the pool."""
         return self.R_mount, self.c_mount, _bounds(self)
 
+    def mounting_covariances(self) -> tuple | None:
+        """``(the pool's :class:`~.refine.Mountings`, each camera's mounting covariance (6, 6)
+        or None)`` when some camera's mounting has one, else None
+        (:meth:`~.frame.RefinementView.mounting_covariances`)."""
+        return (_mountings(self), self.mount_cov) if self.has_mount_cov else None
+
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:func:`_mountings`, checked for the
         compiled kernel: :func:`_kernel_mountings`)."""
@@ -1437,23 +1441,16 @@ def _covariance(
     threshold_px: float,
     free: int = 12,
     prior: _GyroPrior | None = None,
-    mounts: bool = False,
     errors: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The covariance of ``(delta, C, w, t)`` at the final model and the estimate's
-    sensitivity to acceleration, as a single camera's final stage computes them: the final
-    refinement's (:func:`~.finalize.frame_refinement` at the model, no step: ``sigma^2 (J^T W
-    J)^-1`` over the points within ``FINAL_CUTOFF`` thresholds, Huber weights at
-    ``threshold_px``, ``sigma^2`` the image variance (px^2) inside it corrected for the
-    truncation; ``free=6``: of the pose alone), with ``prior`` (a gyro, ``free=12``) the
-    posterior ``sigma^2 (J^T W J + sigma^2 P)^-1``, and the sensitivity from its ``J^T W D``
-    (:func:`~.finalize.final_sensitivity`, with the gyro's rows at its ``time``; ``None``
-    with ``free=6``). ``mounts``: the covariance adds each camera's mounting uncertainty
-    (:attr:`RigView.mounting`'s ``covariance``) to first order, ``A Sigma_m A^T`` with
-    ``A = (J^T W J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the
-    image errors' analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`).
-    ``errors``: the model's (N,) errors (px) when already computed. Returns
-    ``(None, None)`` with 6 or fewer inliers, or where not finite."""
+    """The covariance of ``(delta, C, w, t)`` at the final model, the mountings' uncertainty
+    included, and the estimate's sensitivity to acceleration, as a single camera's final stage
+    computes them (:func:`~.finalize.final_covariance`, :func:`~.finalize.final_sensitivity`)
+    from the final refinement's Jacobian at the model (:func:`~.finalize.frame_refinement`, no
+    step; ``free=6``: of the pose alone, no sensitivity), with ``prior`` (a gyro, ``free=12``)
+    the posterior, its rows in the sensitivity at the gyro's ``time``. ``errors``: the model's
+    (N,) errors (px) when already computed. Returns ``(None, None)`` with 6 or fewer inliers,
+    or where not finite."""
     k = float(threshold_px)
     e = pool.errors(model) if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
@@ -1461,44 +1458,14 @@ def _covariance(
     rolling = free == 12
     motion = prior.motion if prior is not None and rolling else None
     ref = frame_refinement(pool, model, k, rolling, motion, rolling, max_iterations=0)
-    cov = ref.covariance
-    if cov is None or not np.isfinite(cov).all():
+    cov = final_covariance(pool, model, ref, k, rolling, e)
+    if cov is None:
         return None, None
     G = None
     if rolling:
         rate = None if motion is None else (prior.time, prior.info)
-        G = final_sensitivity(pool, model, cov, ref, k, rate)
-    if mounts and pool.has_mount_cov:
-        Hinv = cov[:free, :free] / ref.sigma**2
-        cov = cov.copy()
-        cov[:free, :free] += _mounting_covariance(pool, model, e, k, FINAL_CUTOFF * k, free, Hinv)
-        cov = 0.5 * (cov + cov.T)
-        if not np.isfinite(cov).all():
-            return None, None
+        G = final_sensitivity(pool, model, ref.covariance, ref, k, rate)
     return cov, G
-
-
-def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
-    """(free, free) the mountings' share of the model's covariance (:func:`_covariance`),
-    with the analytic Jacobians over the model and over each camera's mounting on the points
-    within ``cut`` px (errors ``e`` px, Huber weights at ``k``)."""
-    idx = np.flatnonzero(e < cut)
-    sub = _mountings(pool).take(idx)
-    R0, C0, w0, t0 = model
-    theta = np.concatenate([np.zeros(3), C0, w0, t0])
-    X, x, tau = pool.X[idx], pool.x[idx], pool.tau[idx]
-    W = np.repeat(huber_weights(e[idx], k), 2)
-    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
-    Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
-    rows = np.repeat(pool.cam[idx], 2)
-    out = np.zeros((free, free))
-    for c, mc in enumerate(pool.mount_cov):
-        on = rows == c
-        if mc is None or not on.any():
-            continue
-        A = Hinv @ (WJ[on].T @ Jm[on])
-        out += A @ mc @ A.T
-    return out
 
 
 def _condition(pool: _Pool, model, threshold_px: float, free: int) -> float:
@@ -2564,7 +2531,7 @@ def _estimate(
     ):  # fmt: skip
         return failed(INCONSISTENT_FIT, drawn)
     cov, G = (
-        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
+        _covariance(pool, (R, C, w, t), threshold_px, free, prior, errors=e)
         if refine
         else (None, None)
     )
