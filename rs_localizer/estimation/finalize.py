@@ -1,6 +1,15 @@
 """The last stage of the estimator: the final refinement of RANSAC's model on the exact
 constant-velocity model (paper eq. 4) with its covariance (:func:`refine_final_model`), the
-last checks and the outputs (:func:`final_estimate`)."""
+last checks and the outputs (:func:`final_estimate`).
+
+A camera's frame and a rig frame's cameras go through the same functions: they take the
+frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`, one view at
+the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the refinement
+(:func:`frame_refinement`), the covariance with the mountings' uncertainty
+(:func:`final_covariance`), the acceleration sensitivity (:func:`final_sensitivity`), the last
+checks (:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points)
+and the consistent-fit test (:func:`inconsistent_fit`, view by view), the global-shutter
+fallback and the gyro's image-alone check."""
 
 from __future__ import annotations
 

@@ -48,10 +48,10 @@ Model = RSModel
 
 
 class RefinementView(Protocol):
-    """What the final stage's refinements (:func:`~.finalize.frame_refinement`,
-    :func:`~.finalize.image_alone`, :func:`~.finalize.rolling_shutter_check`,
-    :func:`~.finalize.still_final`) read of the points they fit: one camera's :class:`Frame`
-    or a rig frame's cameras stacked (:mod:`~.rig`).
+    """What the final stage (:mod:`~.finalize`: the refinements, the covariance, the
+    sensitivity, the last checks) reads of the points it fits: one camera's :class:`Frame`,
+    one view at the identity mounting, or a rig frame's cameras stacked (:mod:`~.rig`), each
+    camera a view with its mounting and its rows.
 
     Attributes:
         X: (N, 3) world points (m). x: (N, 2) normalized undistorted image points (a rig's:

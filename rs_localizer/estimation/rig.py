@@ -38,27 +38,28 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
   by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
   that raises the MSAC cost of all points is not taken;
-- the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
-  point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
-  re-selected at each iteration; on a frame of several cameras also from the model first fitted
-  with a wider threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone
-  where its cost is significantly lower, :func:`_final`): a single camera's compiled refinement
-  (:func:`~rs_localizer.estimation.refine.refine_rs_pose`, analytic Jacobian) with each point
-  seen through its camera's mounting at its own time, errors in its camera's pixels; its
-  covariance ``sigma^2 (J^T W J)^-1`` over
-  ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``), ``sigma^2`` the per-axis image variance
-  of the inliers' errors (px^2, corrected for the threshold's truncation,
-  :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
-  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance` with one
-  second per unit of ``tau``), and from the same Jacobian the estimate's sensitivity to the
-  rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
-  :mod:`~rs_localizer.estimation.sensitivity`);
-- the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
-  on one 3D line, plausible motion, every inlier in front of its camera at its capture
-  time (:func:`~rs_localizer.estimation.plausibility.final_check` on each camera's own
-  model), and, with ``plausibility.consistent_fit``, a fit a rigid rig can give
-  (``inconsistent_fit``, :func:`_inconsistent_fit`: a single camera's tests, which a mirrored
-  map fails).
+- the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
+  rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
+  (each point seen through its camera's mounting at its own time, errors in its camera's
+  pixels, one second per unit of ``tau``; a camera alone is one view at the identity
+  mounting): the final refinement (:func:`~.finalize.frame_refinement`: Levenberg-Marquardt
+  on the exact model over every point within ``FINAL_CUTOFF`` inlier thresholds, Huber loss
+  at the threshold, the set re-selected at each iteration); its covariance ``sigma^2 (J^T W
+  J)^-1`` over ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``, ``sigma^2`` the per-axis
+  image variance of the inliers' errors in px^2, corrected for the threshold's truncation)
+  with the mountings' uncertainty (:func:`~.finalize.final_covariance`), the pose and twist
+  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance`), the
+  sensitivity to the rig's acceleration during the frame
+  (:func:`~.finalize.final_sensitivity`); the last checks (:data:`RIG_FAILURE_REASONS`):
+  enough inliers, not on one 3D line, plausible motion and every inlier in front of its camera
+  at its capture time (:func:`~.finalize.last_checks`, each camera's own model), and with
+  ``plausibility.consistent_fit`` a fit a rigid rig can give
+  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails). The rig's
+  own part is what several cameras need and one does not: the choice between refinements
+  (:func:`_final`: on a frame of several cameras also the refinement from the model first
+  fitted with a wider threshold, the one of the lower MSAC cost kept, or the fit of the
+  inliers alone where its cost is significantly lower: cameras whose mountings disagree), and
+  the estimate's per-camera fields (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
