@@ -158,6 +158,7 @@ from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_defaul
 from .local_optimization import initial_model_seed
 from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
+from .outputs import final_inliers
 from .plausibility import (
     collinear_3d,
     image_degenerate,
@@ -1493,12 +1494,6 @@ def _bounds(pool: _Pool) -> np.ndarray:
     return b
 
 
-def _rms(e: np.ndarray) -> float:
-    """``float(np.sqrt(np.mean(e ** 2)))`` of a non-empty (N,) array (``np.mean``'s sum
-    divided by N, the same numbers)."""
-    return math.sqrt(float(np.add.reduce(e * e)) / len(e))
-
-
 def _copies(model) -> tuple:
     """Float64 copies of a model's ``(R, C, w, t)``."""
     f = float
@@ -2511,8 +2506,10 @@ def _estimate(
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = _copies(model)
-    inl = e < threshold_px
-    if int(inl.sum()) < r.min_inliers:
+    # (the inliers and their RMS error as a camera's final model's)
+    selected = final_inliers.py_func if pool.numpy else final_inliers
+    inl, n_inl, rms = selected(e, threshold_px)
+    if n_inl < r.min_inliers:
         if still and not spread:  # (every sample corrected across the cameras: docstring)
             return _estimate(pool, options, initial_model, generalized, prior, True, True)
         return failed(TOO_FEW_INLIERS, drawn)
@@ -2548,7 +2545,7 @@ def _estimate(
         out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=_rms(e[inl]),
+        rmse_px=float(rms),
         num_behind=behind,
         model_covariance=cov,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
