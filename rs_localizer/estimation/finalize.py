@@ -810,46 +810,6 @@ def final_sensitivity(
     )
 
 
-def fit_is_inconsistent(
-    X: np.ndarray,
-    inliers: np.ndarray,
-    position: np.ndarray,
-    flat: float,
-    condition: float,
-    rolling: bool,
-    threshold: float,
-    errors: Callable[[], np.ndarray],
-) -> bool:
-    """Whether a final fit of a non-planar frame is one no rigid camera explains (the four
-    tests of :func:`final_estimate`'s ``consistent_fit``; the NumPy implementation uses it
-    too).
-
-    Args:
-        X: (N, 3) m, the frame's valid world points; inliers: (N,) bool, the fit's inliers.
-        position: (3,) m, the camera centre in the world at the reference line.
-        flat: the inliers' planarity (:func:`~.degeneracy.planarity`).
-        condition: the condition number of the fit's information matrix (NaN: unknown).
-        rolling: a rolling-shutter solver (the near-miss test is skipped for P3P).
-        threshold: the inlier threshold, normalized units (0 skips the near-miss test).
-        errors: called only for the near-miss test: the (N,) reprojection errors of the fit,
-            normalized units.
-    """
-    n_inl = int(np.count_nonzero(inliers))
-    n = len(X)
-    if flat < PLANAR_TOLERANCE and far_side_fraction(X, inliers, position) > FAR_SIDE_LIMIT:
-        return True
-    if n_inl < PARTIAL_FIT_FRACTION * n and condition > PARTIAL_FIT_CONDITION:
-        return True
-    if n_inl < MIRRORED_FIT_FRACTION * n and condition > MIRRORED_FIT_CONDITION:
-        return True
-    if rolling and threshold > 0 and n_inl < MIRRORED_FIT_FRACTION * n:
-        e = errors()
-        near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
-        if near > NEAR_MISS_RATIO * n_inl:
-            return True
-    return False
-
-
 def last_checks(
     fr: RefinementView,
     model: Model,
@@ -890,16 +850,20 @@ def inconsistent_fit(
 ) -> bool:
     """Whether a final fit is one no rigid camera, or rigid rig of cameras, explains
     (``consistent_fit``, :func:`final_estimate`; a camera is one view at the identity mounting,
-    ``views`` None), by :func:`fit_is_inconsistent`'s tests. The views that support the fit
-    are those whose inlier ratio is at least ``support_share`` times the best view's (a rig's
-    cameras' consensus: an outvoted camera's points, or a few of them explained by chance, do
-    not count against it):
+    ``views`` None; the tests of :func:`final_estimate`'s ``consistent_fit``). The views that
+    support the fit are those whose inlier ratio is at least ``support_share`` times the best
+    view's (a rig's cameras' consensus: an outvoted camera's points, or a few of them explained
+    by chance, do not count against it):
 
     - a supporting view whose inliers are one plane of its non-planar points must not see
       more than :data:`FAR_SIDE_LIMIT` of its other points beyond that plane (the plane seen
       from behind, from its camera's centre);
     - a fit of fewer than :data:`MIRRORED_FIT_FRACTION` of the supporting views' valid points,
-      not coplanar, must pass the fraction, conditioning and near-miss tests over those points.
+      not coplanar, must not explain fewer than :data:`PARTIAL_FIT_FRACTION` of them with a
+      condition number above :data:`PARTIAL_FIT_CONDITION`, nor have a condition number above
+      :data:`MIRRORED_FIT_CONDITION`, nor (rolling shutter, ``threshold`` > 0) more near
+      misses (errors between ``threshold`` and :data:`NEAR_MISS_WINDOW` times it) than
+      :data:`NEAR_MISS_RATIO` of its inliers.
 
     Args:
         X: (N, 3) m, the valid world points (a rig's stacked by camera); inliers: (N,) bool.
@@ -946,25 +910,27 @@ def inconsistent_fit(
             return True
     if n_inl >= MIRRORED_FIT_FRACTION * n:
         return False
-    if views is None:
-        support = None
-    else:
+    support = slice(None)  # (the supporting views' points)
+    if views is not None:
         support = np.zeros(len(inliers), dtype=bool)
         for m in supporting:
             support[int(rows[m][0]) : int(rows[m][1])] = True
     if (
         view_planar(0)
-        if support is None
+        if views is None
         else planarity(X[support], compiled=compiled) < PLANAR_TOLERANCE
     ):
         return False
-    if support is None:
-        Xs, inl_s, err = X, inliers, errors
-    else:
-        Xs, inl_s = X[support], inliers[support]
-        err = lambda: errors()[support]  # noqa: E731
-    # (the far-side test is each view's, above)
-    return fit_is_inconsistent(Xs, inl_s, np.zeros(3), 1.0, condition(), rolling, threshold, err)
+    cond = condition()
+    if n_inl < PARTIAL_FIT_FRACTION * n and cond > PARTIAL_FIT_CONDITION:
+        return True
+    if cond > MIRRORED_FIT_CONDITION:
+        return True
+    if not (rolling and threshold > 0):
+        return False
+    e = errors()[support]
+    near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
+    return bool(near > NEAR_MISS_RATIO * n_inl)
 
 
 def solved_estimate(
