@@ -88,6 +88,7 @@ __all__ = [
     "frame_refinement",
     "image_alone",
     "inconsistent_fit",
+    "information_condition",
     "last_checks",
     "motion_chi2",
     "motion_significant",
@@ -833,6 +834,18 @@ def last_checks(
     return (None, IMPLAUSIBLE_MOTION, CHEIRALITY)[code], behind
 
 
+def information_condition(
+    information: np.ndarray | None, rolling: bool, compiled: bool = True
+) -> float:
+    """The condition number (:func:`~.degeneracy.condition_number`) of a final refinement's
+    (12, 12) ``information`` (``RefineResult.data_information``) over its free parameters
+    (``rolling``: the 12, else the pose's 6); NaN without one."""
+    if information is None:
+        return float("nan")
+    n_free = 12 if rolling else 6
+    return condition_number(information[:n_free, :n_free], compiled)
+
+
 def inconsistent_fit(
     X: np.ndarray,
     inliers: np.ndarray,
@@ -1049,9 +1062,7 @@ def final_estimate(
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled)
     position = camera_position(R, C)
-    n_free = 12 if rolling else 6
-    info = final.information
-    cond = condition_number(info[:n_free, :n_free], compiled) if info is not None else float("nan")
+    cond = information_condition(final.information, rolling, compiled)
     if consistent_fit and inconsistent_fit(
         fr.X,
         inl,

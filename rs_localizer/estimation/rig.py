@@ -133,7 +133,7 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin_batch_numpy,
     still_solve_rotated,
 )
-from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .degeneracy import PLANAR_TOLERANCE, planarity
 from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
@@ -144,6 +144,7 @@ from .finalize import (
     frame_refinement,
     image_alone,
     inconsistent_fit,
+    information_condition,
     last_checks,
     rolling_shutter_check,
     still_fallback,
@@ -1437,49 +1438,6 @@ def _final(
     return tight if c_tight < c_best - margin else best
 
 
-def _covariance(
-    pool: _Pool,
-    model,
-    threshold_px: float,
-    free: int = 12,
-    prior: _GyroPrior | None = None,
-    errors: np.ndarray | None = None,
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The covariance of ``(delta, C, w, t)`` at the final model, the mountings' uncertainty
-    included, and the estimate's sensitivity to acceleration, as a single camera's final stage
-    computes them (:func:`~.finalize.final_covariance`, :func:`~.finalize.final_sensitivity`)
-    from the final refinement's Jacobian at the model (:func:`~.finalize.frame_refinement`, no
-    step; ``free=6``: of the pose alone, no sensitivity), with ``prior`` (a gyro, ``free=12``)
-    the posterior, its rows in the sensitivity at the gyro's ``time``. ``errors``: the model's
-    (N,) errors (px) when already computed. Returns ``(None, None)`` with 6 or fewer inliers,
-    or where not finite."""
-    k = float(threshold_px)
-    e = pool.errors(model) if errors is None else errors
-    if np.count_nonzero(e < k) <= 6:
-        return None, None
-    rolling = free == 12
-    motion = prior.motion if prior is not None and rolling else None
-    ref = frame_refinement(pool, model, k, rolling, motion, rolling, max_iterations=0)
-    cov = final_covariance(pool, model, ref, k, rolling, e)
-    if cov is None:
-        return None, None
-    G = None
-    if rolling:
-        rate = None if motion is None else (prior.time, prior.info)
-        G = final_sensitivity(pool, model, ref.covariance, ref, k, rate)
-    return cov, G
-
-
-def _condition(pool: _Pool, model, threshold_px: float, free: int) -> float:
-    """The condition number of the information matrix of ``model`` on the pool (the
-    refinement's ``J^T W J`` at it, Huber at ``threshold_px``; NaN: none)."""
-    info = frame_refinement(
-        pool, model, threshold_px, free == 12, None, False, max_iterations=0, covariance=False
-    ).data_information
-    compiled = not pool.numpy
-    return condition_number(info[:free, :free], compiled) if info is not None else float("nan")
-
-
 def _view_planar(pool: _Pool, c: int) -> bool:
     """Camera c's points in the pool are coplanar."""
     return planarity(pool.X[pool.slices[c]], compiled=not pool.numpy) < PLANAR_TOLERANCE
@@ -2522,17 +2480,27 @@ def _estimate(
     )
     if failure is not None:
         return failed(failure, drawn, behind)
+    # (the final refinement's Jacobian at the model, no step, as a camera's final refinement
+    # gives it: its information, its covariance, its J^T W D)
+    ref, compiled = None, not pool.numpy
+    rolling = free == 12
+    if refine and n_inl > 6:
+        motion = prior.motion if prior is not None and rolling else None
+        ref = frame_refinement(pool, (R, C, w, t), threshold_px, rolling, motion, rolling,
+                               max_iterations=0)  # fmt: skip
     if options.plausibility.consistent_fit and inconsistent_fit(
-        pool.X, inl, (R, C, w, t), pool.views(), free == 12, threshold_px, lambda: e,
-        lambda: _condition(pool, (R, C, w, t), threshold_px, free),
-        lambda m: _view_planar(pool, m), not pool.numpy, support_share=AGREE_SHARE,
+        pool.X, inl, (R, C, w, t), pool.views(), rolling, threshold_px, lambda: e,
+        lambda: information_condition(None if ref is None else ref.data_information, rolling,
+                                      compiled),
+        lambda m: _view_planar(pool, m), compiled, support_share=AGREE_SHARE,
     ):  # fmt: skip
         return failed(INCONSISTENT_FIT, drawn)
-    cov, G = (
-        _covariance(pool, (R, C, w, t), threshold_px, free, prior, errors=e)
-        if refine
-        else (None, None)
-    )
+    cov = G = None
+    if ref is not None:
+        cov = final_covariance(pool, (R, C, w, t), ref, threshold_px, rolling, e)
+    if cov is not None and rolling:
+        rate = None if prior is None else (prior.time, prior.info)
+        G = final_sensitivity(pool, (R, C, w, t), ref.covariance, ref, threshold_px, rate)
     out = (
         (None, None, None)
         if cov is None
