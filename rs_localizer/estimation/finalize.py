@@ -1,6 +1,15 @@
 """The last stage of the estimator: the final refinement of RANSAC's model on the exact
 constant-velocity model (paper eq. 4) with its covariance (:func:`refine_final_model`), the
-last checks and the outputs (:func:`final_estimate`)."""
+last checks and the outputs (:func:`final_estimate`).
+
+A camera's frame and a rig frame's cameras go through the same functions: they take the
+frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`, one view at
+the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the refinement
+(:func:`frame_refinement`), the covariance with the mountings' uncertainty
+(:func:`final_covariance`), the acceleration sensitivity (:func:`final_sensitivity`), the last
+checks (:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points)
+and the consistent-fit test (:func:`inconsistent_fit`, view by view), the global-shutter
+fallback and the gyro's image-alone check."""
 
 from __future__ import annotations
 
@@ -35,6 +44,9 @@ from .refine import (
     RefineResult,
     RefineSettings,
     exact_errors,
+    exact_jacobian,
+    exact_mounting_jacobian,
+    huber_weights,
     posterior_step,
     refine_backend,
 )
@@ -69,10 +81,15 @@ __all__ = [
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
+    "final_covariance",
     "final_estimate",
     "final_refinement",
+    "final_sensitivity",
     "frame_refinement",
     "image_alone",
+    "inconsistent_fit",
+    "information_condition",
+    "last_checks",
     "motion_chi2",
     "motion_significant",
     "posterior_if_consistent",
@@ -203,7 +220,7 @@ def frame_refinement(
         model,
         fr.X,
         fr.x,
-        fr.r - fr.r0,
+        fr.r if fr.r0 == 0.0 else fr.r - fr.r0,  # (r - 0.0 is r, to the bit)
         th,
         _settings(
             rolling,
@@ -673,7 +690,7 @@ def refine_final_model(
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
-        final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
+        final.covariance = final_covariance(fr, final.model, ref, th, rolling)
         final.information = ref.data_information
     errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl_ref, n_ref, rms = final_inliers(errors, th)
@@ -681,7 +698,7 @@ def refine_final_model(
         raise EstimationFailed(TOO_FEW_INLIERS)
     final.inliers, final.rmse_px = inl_ref, float(rms * fr.f)
     if want_sens:
-        final.sensitivity = _sensitivity(fr, final, ref, th)
+        final.sensitivity = final_sensitivity(fr, final.model, final.covariance, ref, th)
     corr = opts.correlated_noise
     if final.covariance is not None and corr.sigma_px > 0 and ref.sigma > 0:
         # the same estimate's covariance under white + correlated image error (on the final
@@ -703,61 +720,230 @@ def refine_final_model(
     return final
 
 
-def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> np.ndarray:
-    """Acceleration sensitivity on the final refinement's points (all, truncated) and its
-    (posterior) H, with ``J^T W D`` from its last Jacobian."""
-    cov = final.covariance
+def final_covariance(
+    fr: RefinementView,
+    model: Model,
+    ref: RefineResult,
+    th: float,
+    rolling: bool,
+    errors: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The (12, 12) covariance over ``(delta, C, w, t)`` of a final model of a camera's or a
+    rig's frame (``fr``) at ``model``: its final refinement's ``ref`` (``sigma^2 H^-1``, the
+    posterior's with a prior; :func:`frame_refinement`), None where it is missing or not
+    finite; with cameras whose mountings have covariances
+    (:meth:`~.frame.RefinementView.mounting_covariances`, a rig's) their share added to first
+    order, ``A Sigma_m A^T`` per camera, ``A = H^-1 J^T W J_m`` the model's sensitivity to
+    its mounting (``J``, ``J_m``: the image errors' analytic Jacobians over the model and the
+    mounting, :func:`~.refine.exact_jacobian`, :func:`~.refine.exact_mounting_jacobian`, on
+    the points within :data:`FINAL_CUTOFF` thresholds ``th``, ``W`` their Huber weights),
+    then symmetrized. ``rolling``: over the 12 parameters, else the pose's 6. ``errors``:
+    the model's (N,) errors (``fr.errors``) when already computed."""
+    cov = ref.covariance
+    if cov is None or not np.isfinite(cov).all():
+        return None
+    mounted = fr.mounting_covariances()
+    if mounted is None:
+        return cov
+    mountings, mount_cov = mounted
+    th = float(th)
+    free = 12 if rolling else 6
+    e = fr.errors(model) if errors is None else errors
+    idx = np.flatnonzero(e < FINAL_CUTOFF * th)
+    sub = mountings.take(idx)
+    R0, C0, w0, t0 = model
+    theta = np.concatenate([np.zeros(3), C0, w0, t0])
+    X, x, tau = fr.X[idx], fr.x[idx], (fr.r - fr.r0)[idx]
+    W = np.repeat(huber_weights(e[idx], th), 2)
+    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
+    Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
+    rows = np.repeat(sub.cam, 2)
+    Hinv = cov[:free, :free] / ref.sigma**2
+    share = np.zeros((free, free))
+    for c, mc in enumerate(mount_cov):
+        on = rows == c
+        if mc is None or not on.any():
+            continue
+        A = Hinv @ (WJ[on].T @ Jm[on])
+        share += A @ mc @ A.T
+    cov = cov.copy()
+    cov[:free, :free] += share
+    cov = 0.5 * (cov + cov.T)
+    return cov if np.isfinite(cov).all() else None
+
+
+def final_sensitivity(
+    fr: RefinementView,
+    model: Model,
+    covariance: np.ndarray | None,
+    ref: RefineResult,
+    th: float,
+    rate_prior: tuple[float, np.ndarray] | None = None,
+) -> np.ndarray | None:
+    """The acceleration sensitivity (12, 6) of a final model of a camera's or a rig's frame
+    (``fr``; :func:`~.sensitivity.acceleration_sensitivity`) on the final refinement's points
+    (all, truncated at :data:`FINAL_CUTOFF` thresholds ``th``) from the final refinement
+    ``ref`` (:func:`frame_refinement` with its ``J^T W D`` block) at ``model``: its (posterior)
+    ``H^-1 = covariance / sigma^2`` (``covariance``: the refinement's (12, 12), finite, or None:
+    computed again from the points, a camera's alone).
+
+    ``rate_prior``: a gyro's ``(time (s after the frame's reference time), information (3, 3)
+    on w)`` when the refinement was maximum a posteriori with it (a rig's): a frame that
+    accelerates turns at the measured rate at that time, so the gyro's rows add
+    ``sigma^2 P time`` per unit of angular acceleration to ``J^T W D``. None where the normal
+    matrix is singular or the result not finite."""
+    block = ref.acceleration_block
+    if rate_prior is not None and block is not None and covariance is not None:
+        time, info = rate_prior
+        block = block.copy()
+        block[6:9, 0:3] += ref.sigma**2 * time * info
     return acceleration_sensitivity(
-        *final.model,
+        *model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
         fr.spr,
         th,
         cutoff=FINAL_CUTOFF * th,
-        normal_inverse=None if cov is None else cov / ref.sigma**2,
-        acceleration_block=ref.acceleration_block,
+        normal_inverse=None if covariance is None else covariance / ref.sigma**2,
+        acceleration_block=block,
+        compiled=fr.compiled,
     )
 
 
-def fit_is_inconsistent(
+def last_checks(
+    fr: RefinementView,
+    model: Model,
+    inliers: np.ndarray,
+    w_max2: float,
+    v_max2: float,
+    compiled: bool = True,
+) -> tuple[str | None, int]:
+    """The last word on a final model of a camera's or a rig's frame (``fr``, its
+    :meth:`~.frame.RefinementView.views`): finite, moving within the squared bounds
+    ``w_max2``, ``v_max2`` (per unit of the frame's time), every one of the (N,) ``inliers``
+    in front of its camera at its capture time (:func:`~.plausibility.final_check`, one
+    compiled call). Returns (the failure: ``implausible_motion``, ``cheirality`` or None;
+    the number of all points behind their cameras, 0 with ``implausible_motion``).
+    """
+    R, C, w, t = model
+    code, behind = final_check(
+        R, C, w, t, fr.X, fr.r - fr.r0, inliers, w_max2, v_max2, compiled=compiled,
+        views=fr.views(),
+    )  # fmt: skip
+    return (None, IMPLAUSIBLE_MOTION, CHEIRALITY)[code], behind
+
+
+def information_condition(
+    information: np.ndarray | None, rolling: bool, compiled: bool = True
+) -> float:
+    """The condition number (:func:`~.degeneracy.condition_number`) of a final refinement's
+    (12, 12) ``information`` (``RefineResult.data_information``) over its free parameters
+    (``rolling``: the 12, else the pose's 6); NaN without one."""
+    if information is None:
+        return float("nan")
+    n_free = 12 if rolling else 6
+    return condition_number(information[:n_free, :n_free], compiled)
+
+
+def inconsistent_fit(
     X: np.ndarray,
     inliers: np.ndarray,
-    position: np.ndarray,
-    flat: float,
-    condition: float,
+    model: Model,
+    views: tuple | None,
     rolling: bool,
     threshold: float,
     errors: Callable[[], np.ndarray],
+    condition: Callable[[], float],
+    view_planar: Callable[[int], bool],
+    compiled: bool = True,
+    *,
+    support_share: float = 0.0,
+    flat: float | None = None,
 ) -> bool:
-    """Whether a final fit of a non-planar frame is one no rigid camera explains (the four
-    tests of :func:`final_estimate`'s ``consistent_fit``; the NumPy implementation uses it
-    too).
+    """Whether a final fit is one no rigid camera, or rigid rig of cameras, explains
+    (``consistent_fit``, :func:`final_estimate`; a camera is one view at the identity mounting,
+    ``views`` None; the tests of :func:`final_estimate`'s ``consistent_fit``). The views that
+    support the fit are those whose inlier ratio is at least ``support_share`` times the best
+    view's (a rig's cameras' consensus: an outvoted camera's points, or a few of them explained
+    by chance, do not count against it):
+
+    - a supporting view whose inliers are one plane of its non-planar points must not see
+      more than :data:`FAR_SIDE_LIMIT` of its other points beyond that plane (the plane seen
+      from behind, from its camera's centre);
+    - a fit of fewer than :data:`MIRRORED_FIT_FRACTION` of the supporting views' valid points,
+      not coplanar, must not explain fewer than :data:`PARTIAL_FIT_FRACTION` of them with a
+      condition number above :data:`PARTIAL_FIT_CONDITION`, nor have a condition number above
+      :data:`MIRRORED_FIT_CONDITION`, nor (rolling shutter, ``threshold`` > 0) more near
+      misses (errors between ``threshold`` and :data:`NEAR_MISS_WINDOW` times it) than
+      :data:`NEAR_MISS_RATIO` of its inliers.
 
     Args:
-        X: (N, 3) m, the frame's valid world points; inliers: (N,) bool, the fit's inliers.
-        position: (3,) m, the camera centre in the world at the reference line.
-        flat: the inliers' planarity (:func:`~.degeneracy.planarity`).
-        condition: the condition number of the fit's information matrix (NaN: unknown).
-        rolling: a rolling-shutter solver (the near-miss test is skipped for P3P).
-        threshold: the inlier threshold, normalized units (0 skips the near-miss test).
-        errors: called only for the near-miss test: the (N,) reprojection errors of the fit,
-            normalized units.
+        X: (N, 3) m, the valid world points (a rig's stacked by camera); inliers: (N,) bool.
+        model: ``(R, C, w, t)``, world -> camera (rig with ``views``).
+        views: None, or a rig's ``(R_mount (M, 3, 3), c_mount (M, 3), rows (M, 2))``
+            (:func:`~.plausibility.final_check`).
+        rolling: a rolling-shutter fit (the near-miss test is skipped otherwise).
+        threshold: the inlier threshold in the units of ``errors`` (0 skips the near-miss
+            test). errors: called only for the near-miss test: the (N,) errors of the fit.
+        condition: called only for the partial-fit tests: the condition number of the fit's
+            information matrix (NaN: unknown).
+        view_planar: ``view_planar(m)``: view m's points are coplanar.
+        compiled: False: the planarity in NumPy. flat: the inliers' planarity
+            (:func:`~.degeneracy.planarity`) when known, for a single view.
     """
-    n_inl = int(np.count_nonzero(inliers))
-    n = len(X)
-    if flat < PLANAR_TOLERANCE and far_side_fraction(X, inliers, position) > FAR_SIDE_LIMIT:
-        return True
-    if n_inl < PARTIAL_FIT_FRACTION * n and condition > PARTIAL_FIT_CONDITION:
-        return True
-    if n_inl < MIRRORED_FIT_FRACTION * n and condition > MIRRORED_FIT_CONDITION:
-        return True
-    if rolling and threshold > 0 and n_inl < MIRRORED_FIT_FRACTION * n:
-        e = errors()
-        near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
-        if near > NEAR_MISS_RATIO * n_inl:
+    R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
+    if views is None:
+        Rm, cm, rows = np.eye(3)[None], np.zeros((1, 3)), ((0, len(X)),)
+    else:
+        Rm, cm, rows = views
+    sizes = [int(b) - int(a) for a, b in rows]
+    counts = [int(np.count_nonzero(inliers[a:b])) for a, b in rows]
+    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
+    best = max(ratio, default=0.0)
+    supporting, n, n_inl = [], 0, 0
+    for m, (a, b) in enumerate(rows):
+        if ratio[m] == 0.0 or ratio[m] < support_share * best:
+            continue
+        supporting.append(m)
+        n, n_inl = n + sizes[m], n_inl + counts[m]
+        # (the planarity of the view's points only when its inliers are one plane; every
+        # point an inlier, or fewer than 3: not a plane seen from behind)
+        if counts[m] == sizes[m] or counts[m] < 3:
+            continue
+        Xm, im = X[a:b], inliers[a:b]
+        f = flat if flat is not None and views is None else planarity(Xm, im, compiled)
+        if f >= PLANAR_TOLERANCE or view_planar(m):
+            continue
+        if views is None:
+            centre = camera_position(R, C)
+        else:
+            centre = camera_position(Rm[m] @ R, Rm[m] @ C + cm[m])
+        if far_side_fraction(Xm, im, centre) > FAR_SIDE_LIMIT:
             return True
-    return False
+    if n_inl >= MIRRORED_FIT_FRACTION * n:
+        return False
+    support = slice(None)  # (the supporting views' points)
+    if views is not None:
+        support = np.zeros(len(inliers), dtype=bool)
+        for m in supporting:
+            support[int(rows[m][0]) : int(rows[m][1])] = True
+    if (
+        view_planar(0)
+        if views is None
+        else planarity(X[support], compiled=compiled) < PLANAR_TOLERANCE
+    ):
+        return False
+    cond = condition()
+    if n_inl < PARTIAL_FIT_FRACTION * n and cond > PARTIAL_FIT_CONDITION:
+        return True
+    if cond > MIRRORED_FIT_CONDITION:
+        return True
+    if not (rolling and threshold > 0):
+        return False
+    e = errors()[support]
+    near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
+    return bool(near > NEAR_MISS_RATIO * n_inl)
 
 
 def solved_estimate(
@@ -870,30 +1056,25 @@ def final_estimate(
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
     )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    code, n_behind = final_check(
-        R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max, compiled=compiled
-    )
-    if code:
-        raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
+    failure, n_behind = last_checks(fr, final.model, inl, w2max, v2max, compiled)
+    if failure is not None:
+        raise EstimationFailed(failure)
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled)
     position = camera_position(R, C)
-    n_free = 12 if rolling else 6
-    info = final.information
-    cond = condition_number(info[:n_free, :n_free], compiled) if info is not None else float("nan")
-    if (
-        consistent_fit
-        and not fr.planar
-        and fit_is_inconsistent(
-            fr.X,
-            inl,
-            position,
-            flat,
-            cond,
-            rolling,
-            threshold,
-            lambda: fr.errors(final.model, compiled),
-        )
+    cond = information_condition(final.information, rolling, compiled)
+    if consistent_fit and inconsistent_fit(
+        fr.X,
+        inl,
+        final.model,
+        None,
+        rolling,
+        threshold,
+        lambda: fr.errors(final.model, compiled),
+        lambda: cond,
+        lambda m: fr.planar,
+        compiled,
+        flat=flat,
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
     cov = None

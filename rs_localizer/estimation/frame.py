@@ -48,10 +48,10 @@ Model = RSModel
 
 
 class RefinementView(Protocol):
-    """What the final stage's refinements (:func:`~.finalize.frame_refinement`,
-    :func:`~.finalize.image_alone`, :func:`~.finalize.rolling_shutter_check`,
-    :func:`~.finalize.still_final`) read of the points they fit: one camera's :class:`Frame`
-    or a rig frame's cameras stacked (:mod:`~.rig`).
+    """What the final stage (:mod:`~.finalize`: the refinements, the covariance, the
+    sensitivity, the last checks) reads of the points it fits: one camera's :class:`Frame`,
+    one view at the identity mounting, or a rig frame's cameras stacked (:mod:`~.rig`), each
+    camera a view with its mounting and its rows.
 
     Attributes:
         X: (N, 3) world points (m). x: (N, 2) normalized undistorted image points (a rig's:
@@ -78,6 +78,20 @@ class RefinementView(Protocol):
     def errors(self, model: Model) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time, in the
         units of the refinement's threshold; ``inf`` behind the camera."""
+        ...
+
+    def views(self) -> tuple | None:
+        """The cameras that see the points: ``None``, one camera at the identity mounting
+        (:class:`Frame`), or a rig's ``(R_mount (M, 3, 3), c_mount (M, 3), rows (M, 2)
+        int64)``, camera m's mounting and its points ``rows[m, 0]:rows[m, 1]`` (stacked by
+        camera; :func:`~.plausibility.final_check`)."""
+        ...
+
+    def mounting_covariances(self) -> tuple | None:
+        """``(the points' :class:`~.refine.Mountings`, each camera's mounting covariance
+        (6, 6) over its rotation on the rig (rad) and its centre (m), or None)`` where some
+        camera's mounting has one (:func:`~.finalize.final_covariance` adds their share), else
+        None (a camera alone)."""
         ...
 
 
@@ -180,6 +194,14 @@ class Frame:
             return exact_errors(R, C, w, t, self.X, self.x, tau, self.W)
         m = (np.asarray(a, dtype=float)[None] for a in (R, C, w, t))
         return np.sqrt(exact_errors2_numpy(*m, self.X, self.x, tau)[0])
+
+    def views(self) -> None:
+        """One camera at the identity mounting (:meth:`RefinementView.views`)."""
+        return None
+
+    def mounting_covariances(self) -> None:
+        """A camera alone: no mounting (:meth:`RefinementView.mounting_covariances`)."""
+        return None
 
     def head(self, m: int) -> Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the

@@ -24,15 +24,11 @@ checks here keep such models out:
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from ..geometry import exact_camera_points
-
-if TYPE_CHECKING:
-    from .refine import Mountings
 
 __all__ = [
     "CHEIRALITY",
@@ -515,43 +511,72 @@ def final_check(
     v_max2: float = np.inf,
     *,
     compiled: bool = True,
-    mountings: Mountings | None = None,
+    views: tuple | None = None,
 ) -> tuple[int, int]:
-    """:func:`final_model_check` of a camera's model, or of a rig's on each of its cameras:
-    each point's depth at its own capture time under the exact constant-velocity model (paper
-    eq. 4, Kukelova, Albl, Sugimoto, Pajdla, ACCV 2018) and the model's velocities.
+    """The last check of a final model, of one camera or of a rig of cameras (``views``): a
+    finite model moving within the bounds, and each point's depth at its own capture time
+    under the exact constant-velocity model (paper eq. 4, Kukelova, Albl, Sugimoto, Pajdla,
+    ACCV 2018) in front of its camera (:func:`final_model_check`).
 
     Args:
-        R (3, 3), C, w, t (3,): the model (world -> camera, or world -> rig with
-            ``mountings``), velocities per unit of ``tau``; X (N, 3) world points (m); tau
-            (N,) their capture times minus the reference time; mask (N,) bool: the inliers
-            (one not in front of its camera is a cheirality failure); w_max2, v_max2: the
-            squared bounds on ``|w|`` and ``|w x C - t|`` per unit of ``tau``
-            (:func:`motion_bounds`; infinite: not checked).
-        compiled: False: :func:`final_model_check_numpy`.
-        mountings: a rig's :class:`~.refine.Mountings` (``cam`` (N,) each point's camera,
-            ``R_mount`` (M, 3, 3), ``c_mount`` (M, 3): ``x_cam = R_mount x_rig + c_mount``):
-            each camera's points are checked with its own model ``(R_c R, R_c C + c_c,
-            R_c w, R_c t)`` (``expm(tau [R_c w]x) R_c = R_c expm(tau [w]x)``; the bounds
-            then apply to each camera's model). ``None``: one camera at the identity.
+        R (3, 3), C, w, t (3,): the model (world -> camera, or world -> rig with ``views``),
+            velocities per unit of ``tau``; X (N, 3) world points (m); tau (N,) their capture
+            times minus the reference time; mask (N,) bool: the inliers (one not in front of
+            its camera is a cheirality failure); w_max2, v_max2: the squared bounds on ``|w|``
+            and ``|w x C - t|`` of the model per unit of ``tau`` (:func:`motion_bounds`;
+            infinite: not checked).
+        compiled: False: in NumPy (:func:`final_model_check_numpy`).
+        views: ``None``: one camera at the identity mounting. A rig's views ``(R_mount (M, 3,
+            3), c_mount (M, 3), rows (M, 2) int64)``: camera m (``x_cam = R_mount[m] x_rig +
+            c_mount[m]``) sees the points ``rows[m, 0]:rows[m, 1]`` (the points stacked by
+            camera) and checks them with its own model ``(R_m R, R_m C + c_m, R_m w, R_m t)``
+            (``expm(tau [R_m w]x) R_m = R_m expm(tau [w]x)``); the bounds apply to the rig's
+            model.
     Returns:
-        (0 plausible, 1 implausible motion, 2 cheirality: with ``mountings`` the largest of
-        the cameras' codes; the number of all points not in front of their camera at their
-        capture times).
+        (0 plausible, 1 not finite or implausible motion, 2 cheirality; the number of all
+        points not in front of their camera at their capture times, 0 with code 1).
     """
     check = final_model_check if compiled else final_model_check_numpy
-    if mountings is None:
+    if views is None:
         return check(R, C, w, t, X, tau, mask, w_max2, v_max2)
+    if compiled:
+        ok = finite_model(R, C, w, t) and _plausible1(C, w, t, w_max2, v_max2)
+    else:
+        ok = all(np.isfinite(a).all() for a in (R, C, w, t))
+        wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
+        ok = ok and wn2 <= w_max2 and vn2 <= v_max2
+    if not ok:
+        return 1, 0
+    Rm, cm, rows = views
     # (every camera's products at once: the same values as camera by camera, to the bit)
-    Rm = mountings.R_mount
-    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + mountings.c_mount, Rm @ w, Rm @ t
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + cm, Rm @ w, Rm @ t
+    if compiled and mask.dtype == np.bool_ and mask.flags.c_contiguous:
+        code, behind = _views_final_check(RcR, RcC, Rcw, Rct, X, tau, mask, rows)
+        return int(code), int(behind)
     code, behind = 0, 0
-    for c in range(len(Rm)):
-        on = mountings.cam == c
-        if not on.any():
+    for m in range(len(rows)):
+        a, b = int(rows[m, 0]), int(rows[m, 1])
+        if b == a:
             continue
-        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[on], tau[on], mask[on], w_max2, v_max2)
+        k, n = check(RcR[m], RcC[m], Rcw[m], Rct[m], X[a:b], tau[a:b], mask[a:b], np.inf, np.inf)
         code, behind = max(code, int(k)), behind + int(n)
+    return code, behind
+
+
+@njit(cache=True)
+def _views_final_check(RcR, RcC, Rcw, Rct, X, tau, mask, rows):
+    """:func:`final_model_check` of each camera m's model ``(RcR[m], RcC[m], Rcw[m],
+    Rct[m])`` on its points ``rows[m, 0]:rows[m, 1]`` (without motion bounds): (the largest
+    code, the number of points behind their cameras); :func:`final_check`'s ``views``."""
+    code, behind = 0, 0
+    for m in range(rows.shape[0]):
+        a, b = rows[m, 0], rows[m, 1]
+        if b == a:
+            continue
+        k, n = final_model_check(RcR[m], RcC[m], Rcw[m], Rct[m], X[a:b], tau[a:b], mask[a:b],
+                                 np.inf, np.inf)  # fmt: skip
+        code = max(code, k)
+        behind += n
     return code, behind
 
 

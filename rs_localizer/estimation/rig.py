@@ -38,27 +38,28 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
   by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
   that raises the MSAC cost of all points is not taken;
-- the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
-  point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
-  re-selected at each iteration; on a frame of several cameras also from the model first fitted
-  with a wider threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone
-  where its cost is significantly lower, :func:`_final`): a single camera's compiled refinement
-  (:func:`~rs_localizer.estimation.refine.refine_rs_pose`, analytic Jacobian) with each point
-  seen through its camera's mounting at its own time, errors in its camera's pixels; its
-  covariance ``sigma^2 (J^T W J)^-1`` over
-  ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``), ``sigma^2`` the per-axis image variance
-  of the inliers' errors (px^2, corrected for the threshold's truncation,
-  :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
-  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance` with one
-  second per unit of ``tau``), and from the same Jacobian the estimate's sensitivity to the
-  rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
-  :mod:`~rs_localizer.estimation.sensitivity`);
-- the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
-  on one 3D line, plausible motion, every inlier in front of its camera at its capture
-  time (:func:`~rs_localizer.estimation.plausibility.final_check` on each camera's own
-  model), and, with ``plausibility.consistent_fit``, a fit a rigid rig can give
-  (``inconsistent_fit``, :func:`_inconsistent_fit`: a single camera's tests, which a mirrored
-  map fails).
+- the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
+  rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
+  (each point seen through its camera's mounting at its own time, errors in its camera's
+  pixels, one second per unit of ``tau``; a camera alone is one view at the identity
+  mounting): the final refinement (:func:`~.finalize.frame_refinement`: Levenberg-Marquardt
+  on the exact model over every point within ``FINAL_CUTOFF`` inlier thresholds, Huber loss
+  at the threshold, the set re-selected at each iteration); its covariance ``sigma^2 (J^T W
+  J)^-1`` over ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``, ``sigma^2`` the per-axis
+  image variance of the inliers' errors in px^2, corrected for the threshold's truncation)
+  with the mountings' uncertainty (:func:`~.finalize.final_covariance`), the pose and twist
+  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance`), the
+  sensitivity to the rig's acceleration during the frame
+  (:func:`~.finalize.final_sensitivity`); the last checks (:data:`RIG_FAILURE_REASONS`):
+  enough inliers, not on one 3D line, plausible motion and every inlier in front of its camera
+  at its capture time (:func:`~.finalize.last_checks`, each camera's own model), and with
+  ``plausibility.consistent_fit`` a fit a rigid rig can give
+  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails). The rig's
+  own part is what several cameras need and one does not: the choice between refinements
+  (:func:`_final`: on a frame of several cameras also the refinement from the model first
+  fitted with a wider threshold, the one of the lower MSAC cost kept, or the fit of the
+  inliers alone where its cost is significantly lower: cameras whose mountings disagree), and
+  the estimate's per-camera fields (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
@@ -123,7 +124,7 @@ from numba import njit
 from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
-from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
@@ -132,18 +133,19 @@ from ..solvers.gr6p_1lin import (
     gr6p_1lin_batch_numpy,
     still_solve_rotated,
 )
-from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
+from .degeneracy import PLANAR_TOLERANCE, planarity
 from .estimate import estimate_rs_pose
 from .finalize import (
-    FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
-    FINAL_TOL,
     GLOBAL_SHUTTER,
-    MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
-    fit_is_inconsistent,
+    final_covariance,
+    final_sensitivity,
     frame_refinement,
     image_alone,
+    inconsistent_fit,
+    information_condition,
+    last_checks,
     rolling_shutter_check,
     still_fallback,
 )
@@ -157,41 +159,24 @@ from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_defaul
 from .local_optimization import initial_model_seed
 from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
+from .outputs import final_inliers
 from .plausibility import (
     collinear_3d,
-    final_model_check,
-    final_model_check_numpy,
     image_degenerate,
     plausible_motion,
     views_degenerate,
 )
-from .prior import MotionPrior, prior_arrays
+from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
-    LM_REFINE_KERNEL,
-    OUT_ACC,
-    OUT_C,
-    OUT_COV,
-    OUT_GRAD,
-    OUT_INFO,
-    OUT_R,
-    OUT_SIZE,
-    OUT_SIZE_ACC,
-    OUT_T,
-    OUT_W,
     KernelMountings,
     Mountings,
-    exact_jacobian,
-    exact_mounting_jacobian,
-    huber_weights,
     image_variance,
     kernel_mountings,
 )
 from .result import (
     CAMERAS_DISAGREE,
-    CHEIRALITY,
     DEGENERATE_GEOMETRY,
-    IMPLAUSIBLE_MOTION,
     INCONSISTENT_FIT,
     RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
@@ -210,7 +195,6 @@ from .rig_batch import (
     sample_kernel,
     still_batch,
 )
-from .sensitivity import physical_sensitivity
 from .single_tag import few_points
 
 __all__ = [
@@ -835,6 +819,17 @@ class _Pool:
     def compiled(self) -> bool:
         return not self.numpy
 
+    def views(self) -> tuple:
+        """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
+        3), rows (M, 2))``, each camera's mounting and its rows in the pool."""
+        return self.R_mount, self.c_mount, _bounds(self)
+
+    def mounting_covariances(self) -> tuple | None:
+        """``(the pool's :class:`~.refine.Mountings`, each camera's mounting covariance (6, 6)
+        or None)`` when some camera's mounting has one, else None
+        (:meth:`~.frame.RefinementView.mounting_covariances`)."""
+        return (_mountings(self), self.mount_cov) if self.has_mount_cov else None
+
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:func:`_mountings`, checked for the
         compiled kernel: :func:`_kernel_mountings`)."""
@@ -1363,45 +1358,13 @@ def _refine(
     k = float(threshold_px)
     cut = None if cutoff_px is None else max(float(cutoff_px), k)
     motion = prior.motion if prior is not None and free == 12 else None
-    if not pool.numpy:
-        cutoff = FINAL_CUTOFF * k if cut is None else float(cut)
-        return _refined(pool, model, k, free == 12, motion, cutoff, int(max_iterations))
     res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
                            max_iterations=max_iterations, covariance=False,
                            tol=RIG_REFINE_TOL)  # fmt: skip
-    return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
-
-
-#: the refinement kernel's arrays of no motion prior (:func:`~.prior.prior_arrays`; the
-#: kernel only reads them)
-_NO_PRIOR = prior_arrays(None)
-
-
-#: the velocities a global-shutter refinement starts from (and keeps)
-_NO_VELOCITY = np.zeros(3)
-
-
-def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
-    """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
-    the pool (errors in px through the mountings, time tau, one second per unit, without the
-    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly: a rig frame
-    refines several times, and on a few dozen points the wrappers' checks and result object
-    cost about as much as the kernel. Returns copies of the refined ``(R, C, w, t)``."""
-    R0, C0, w0, t0 = model
-    on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
-    out = np.empty(OUT_SIZE)
-    f = np.float64
-    X, x, tau, views = _kernel_arrays(pool)
-    LM_REFINE_KERNEL(
-        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
-        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        X, x, tau, k, 12 if rolling else 6, cutoff, iterations,
-        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, views,
-    )  # fmt: skip
-    # (views of this call's own buffer: no other model shares it)
-    return (out[OUT_R:OUT_C].reshape(3, 3), out[OUT_C:OUT_W], out[OUT_W:OUT_T],
-            out[OUT_T:OUT_COV])  # fmt: skip
+    if pool.numpy:
+        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
+    # (views of the refinement's own buffer: no other model shares it)
+    return res.R, res.C, res.w, res.t
 
 
 def _kernel_arrays(pool: _Pool) -> tuple:
@@ -1475,172 +1438,9 @@ def _final(
     return tight if c_tight < c_best - margin else best
 
 
-def _covariance(
-    pool: _Pool,
-    model,
-    threshold_px: float,
-    free: int = 12,
-    prior: _GyroPrior | None = None,
-    mounts: bool = False,
-    errors: np.ndarray | None = None,
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
-    acceleration, from one Jacobian (the refinement's kernel at the model, no step:
-    :func:`~.refine.refine_rs_pose` with ``max_iterations=0``).
-
-    The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
-    ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
-    variance (px^2) of the errors inside the threshold, corrected for the truncation
-    (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero rows and
-    columns for w and t). The sensitivity (12, 6) is ``(J^T W J)^-1 J^T W D`` over the same
-    points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
-    through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
-    + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
-    with ``free=6``. ``prior`` (a gyro, ``free=12``): the posterior covariance ``sigma^2 (J^T W
-    J + sigma^2 P)^-1`` (``P`` the gyro's information on ``w``), and the sensitivity with that
-    matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
-    ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
-    ``mounts``: the covariance adds each camera's mounting uncertainty
-    (:attr:`RigView.mounting`'s ``covariance``) to first order, ``A Sigma_m A^T`` with
-    ``A = (J^T W J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the
-    image errors' analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`).
-    ``errors``: the model's (N,) errors (px) when already computed. Returns
-    ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
-    (:func:`~.refine.refine_rs_pose_numpy`)."""
-    k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
-    e = pool.errors(model) if errors is None else errors
-    if np.count_nonzero(e < k) <= 6:
-        return None, None
-    rolling = free == 12
-    sigma, info, acc = _information(pool, model, k, rolling)
-    sigma2 = sigma**2
-    H = info[:free, :free].copy()
-    if prior is not None and rolling:
-        H[6:9, 6:9] += sigma2 * prior.info
-    try:
-        Hinv = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return None, None
-    if mounts and pool.has_mount_cov:
-        cov = np.zeros((12, 12))
-        cov[:free, :free] = sigma2 * Hinv
-        cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
-        cov = 0.5 * (cov + cov.T)
-    elif pool.numpy or not _kernel_ready(Hinv):
-        cov = np.zeros((12, 12))
-        cov[:free, :free] = sigma2 * Hinv
-        cov = 0.5 * (cov + cov.T)
-    else:  # (the same products and sums in one compiled call)
-        cov = _symmetric_covariance(Hinv, sigma2)
-    if not np.isfinite(cov).all():
-        return None, None
-    G = None
-    if rolling:
-        JD = acc.copy()
-        if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
-            JD[6:9, 0:3] += sigma2 * prior.time * prior.info
-        G = Hinv @ JD
-        G = G if np.isfinite(G).all() else None
-    return cov, G
-
-
-@njit(cache=True)
-def _symmetric_covariance(Hinv, sigma2):
-    """(12, 12): ``sigma2 * Hinv`` (free x free) in the upper left block, zeros elsewhere,
-    then ``0.5 * (cov + cov^T)``: :func:`_covariance`'s NumPy steps, the same arithmetic."""
-    f = Hinv.shape[0]
-    cov = np.zeros((12, 12))
-    for i in range(f):
-        for j in range(f):
-            cov[i, j] = 0.5 * (sigma2 * Hinv[i, j] + sigma2 * Hinv[j, i])
-    return cov
-
-
-def _information(pool: _Pool, model, k: float, rolling: bool) -> tuple:
-    """``(sigma, J^T W J (12, 12), J^T W D (12, 6) or None)`` at ``model``: the refinement's
-    kernel with no step (:func:`~.finalize.frame_refinement` with ``max_iterations=0``, the
-    covariance and, ``rolling``, the acceleration block; Huber at ``k`` px over the points
-    within ``FINAL_CUTOFF`` thresholds). Compiled: its kernel called directly, with the same
-    arguments (as :func:`_refined`)."""
-    if pool.numpy:
-        res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
-        return res.sigma, res.data_information, res.acceleration_block if rolling else None
-    R0, C0, w0, t0 = model
-    out = np.empty(OUT_SIZE_ACC if rolling else OUT_SIZE)
-    f = np.float64
-    X, x, tau, views = _kernel_arrays(pool)
-    on, mu, Lam = _NO_PRIOR
-    sigma, _, _ = LM_REFINE_KERNEL(
-        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
-        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
-        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
-        X, x, tau, k, 12 if rolling else 6, FINAL_CUTOFF * k, 0, FINAL_TOL, True, out, on,
-        mu, Lam, 1.0, -1.0, rolling, views,
-    )  # fmt: skip
-    acc = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6) if rolling else None
-    return float(sigma), out[OUT_INFO:OUT_GRAD].reshape(12, 12), acc
-
-
-def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
-    """(free, free) the mountings' share of the model's covariance (:func:`_covariance`),
-    with the analytic Jacobians over the model and over each camera's mounting on the points
-    within ``cut`` px (errors ``e`` px, Huber weights at ``k``)."""
-    idx = np.flatnonzero(e < cut)
-    sub = _mountings(pool).take(idx)
-    R0, C0, w0, t0 = model
-    theta = np.concatenate([np.zeros(3), C0, w0, t0])
-    X, x, tau = pool.X[idx], pool.x[idx], pool.tau[idx]
-    W = np.repeat(huber_weights(e[idx], k), 2)
-    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
-    Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
-    rows = np.repeat(pool.cam[idx], 2)
-    out = np.zeros((free, free))
-    for c, mc in enumerate(pool.mount_cov):
-        on = rows == c
-        if mc is None or not on.any():
-            continue
-        A = Hinv @ (WJ[on].T @ Jm[on])
-        out += A @ mc @ A.T
-    return out
-
-
-def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
-    """:func:`~.plausibility.final_check` of the rig's model on the pool's points through
-    their cameras' mountings (``inl``: the inliers), each camera's points the pool's slice of
-    them (stacked by camera: the same points as its selection by camera index)."""
-    check = final_model_check_numpy if pool.numpy else final_model_check
-    Rm = pool.R_mount
-    # (every camera's products at once: the same values as camera by camera, to the bit)
-    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
-    code, behind = 0, 0
-    X, tau = pool.X, pool.tau
-    if not pool.numpy and _kernel_ready(inl) and inl.dtype == np.bool_:
-        # (the same check on every camera in one compiled call)
-        code, behind = _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, _bounds(pool))
-        return int(code), int(behind)
-    for c, s in enumerate(pool.slices):
-        if s.stop == s.start:
-            continue
-        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
-        code, behind = max(code, int(k)), behind + int(n)
-    return code, behind
-
-
-@njit(cache=True)
-def _final_checks(RcR, RcC, Rcw, Rct, X, tau, inl, bounds):
-    """:func:`~.plausibility.final_model_check` of each camera c's model ``(RcR[c], RcC[c],
-    Rcw[c], Rct[c])`` on its rows ``bounds[c, 0]:bounds[c, 1]`` of the pool's points (without
-    motion bounds): (the largest code, the number of points behind their cameras)."""
-    code, behind = 0, 0
-    for c in range(bounds.shape[0]):
-        a, b = bounds[c, 0], bounds[c, 1]
-        if b == a:
-            continue
-        k, n = final_model_check(RcR[c], RcC[c], Rcw[c], Rct[c], X[a:b], tau[a:b], inl[a:b],
-                                 np.inf, np.inf)  # fmt: skip
-        code = max(code, k)
-        behind += n
-    return code, behind
+def _view_planar(pool: _Pool, c: int) -> bool:
+    """Camera c's points in the pool are coplanar."""
+    return planarity(pool.X[pool.slices[c]], compiled=not pool.numpy) < PLANAR_TOLERANCE
 
 
 def _bounds(pool: _Pool) -> np.ndarray:
@@ -1650,12 +1450,6 @@ def _bounds(pool: _Pool) -> np.ndarray:
         b = pool._bounds = np.array([(s.start, s.stop) for s in pool.slices], np.int64)
         b = pool._bounds = b.reshape(-1, 2)
     return b
-
-
-def _rms(e: np.ndarray) -> float:
-    """``float(np.sqrt(np.mean(e ** 2)))`` of a non-empty (N,) array (``np.mean``'s sum
-    divided by N, the same numbers)."""
-    return math.sqrt(float(np.add.reduce(e * e)) / len(e))
 
 
 def _copies(model) -> tuple:
@@ -2576,68 +2370,6 @@ def _rig_estimate(
     )
 
 
-def _inconsistent_fit(
-    pool: _Pool, model, e: np.ndarray, inl: np.ndarray, threshold_px: float, free: int
-) -> bool:
-    """Whether the rig frame's final fit is one no rigid rig explains, by a single camera's
-    tests (:func:`~.finalize.fit_is_inconsistent`, ``consistent_fit``), which a mirrored map
-    (or mirrored images) fails: a wall of it fitted from behind by one camera, with the other
-    cameras' points unexplained. The cameras that support the fit are those whose inlier ratio
-    is at least :data:`AGREE_SHARE` times the best camera's, as in the cameras' consensus (an
-    outvoted camera's points, or a few of them explained by chance, do not count against it):
-
-    - a supporting camera whose inliers are one plane of its non-planar points must not see
-      more than :data:`~.finalize.FAR_SIDE_LIMIT` of its other points beyond that plane (the
-      plane seen from behind);
-    - a fit of fewer than :data:`~.finalize.MIRRORED_FIT_FRACTION` of the supporting cameras'
-      valid points of a non-planar rig frame must pass the single camera's fraction,
-      conditioning and near-miss tests over those points (the condition number of the fit's
-      information matrix, computed only then; errors in px and ``threshold_px``).
-
-    ``e``: (N,) the model's errors (px) over the pool; ``inl``: its inliers; ``free``: 12
-    (rolling shutter) or 6."""
-    R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
-    compiled = not pool.numpy
-    sizes, counts = pool.counts(), pool.counts(inl)
-    ratio = [k / max(m, 1) for k, m in zip(counts, sizes, strict=True)]
-    best = max(ratio, default=0.0)
-    supporting, n, n_inl = [], 0, 0
-    for c, s in enumerate(pool.slices):
-        if ratio[c] == 0.0 or ratio[c] < AGREE_SHARE * best:
-            continue
-        supporting.append(s)
-        n, n_inl = n + sizes[c], n_inl + counts[c]
-        # (the planarity of the camera's points only when its inliers are one plane; every
-        # point an inlier, or fewer than 3: not a plane seen from behind)
-        if counts[c] == sizes[c] or counts[c] < 3:
-            continue
-        X, ic = pool.X[s], inl[s]
-        if planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
-            continue
-        if planarity(X, compiled=compiled) >= PLANAR_TOLERANCE:
-            Rm, cm = pool.R_mount[c], pool.c_mount[c]
-            centre = camera_position(Rm @ R, Rm @ C + cm)
-            if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
-                return True
-    if n_inl >= MIRRORED_FIT_FRACTION * n:
-        return False
-    support = np.zeros(len(inl), dtype=bool)
-    for s in supporting:
-        support[s] = True
-    if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
-        return False
-    rolling = free == 12
-    info = frame_refinement(
-        pool, model, threshold_px, rolling, None, False, max_iterations=0, covariance=False
-    ).data_information
-    cond = condition_number(info[:free, :free], compiled) if info is not None else float("nan")
-    flat = 1.0  # (the far-side test is each camera's, above)
-    return fit_is_inconsistent(
-        pool.X[support], inl[support], np.zeros(3), flat, cond, rolling, float(threshold_px),
-        lambda: e[support],
-    )  # fmt: skip
-
-
 def _estimate(
     pool: _Pool,
     options: EstimateOptions,
@@ -2732,29 +2464,43 @@ def _estimate(
         model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = _copies(model)
-    inl = e < threshold_px
-    if int(inl.sum()) < r.min_inliers:
+    # (the inliers and their RMS error as a camera's final model's)
+    selected = final_inliers.py_func if pool.numpy else final_inliers
+    inl, n_inl, rms = selected(e, threshold_px)
+    if n_inl < r.min_inliers:
         if still and not spread:  # (every sample corrected across the cameras: docstring)
             return _estimate(pool, options, initial_model, generalized, prior, True, True)
         return failed(TOO_FEW_INLIERS, drawn)
     # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
     if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
-    if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
-        return failed(IMPLAUSIBLE_MOTION, drawn)
-    # (every inlier in front of its camera at its capture time, each camera's own model)
-    code, behind = _final_check(pool, R, C, w, t, inl)
-    if code == 2:
-        return failed(CHEIRALITY, drawn, behind)
-    if options.plausibility.consistent_fit and _inconsistent_fit(
-        pool, (R, C, w, t), e, inl, threshold_px, free
-    ):
-        return failed(INCONSISTENT_FIT, drawn)
-    cov, G = (
-        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
-        if refine
-        else (None, None)
+    # (the camera's last checks on every camera's model)
+    failure, behind = last_checks(
+        pool, (R, C, w, t), inl, search._w2max, search._v2max, not pool.numpy
     )
+    if failure is not None:
+        return failed(failure, drawn, behind)
+    # (the final refinement's Jacobian at the model, no step, as a camera's final refinement
+    # gives it: its information, its covariance, its J^T W D)
+    ref, compiled = None, not pool.numpy
+    rolling = free == 12
+    if refine and n_inl > 6:
+        motion = prior.motion if prior is not None and rolling else None
+        ref = frame_refinement(pool, (R, C, w, t), threshold_px, rolling, motion, rolling,
+                               max_iterations=0)  # fmt: skip
+    if options.plausibility.consistent_fit and inconsistent_fit(
+        pool.X, inl, (R, C, w, t), pool.views(), rolling, threshold_px, lambda: e,
+        lambda: information_condition(None if ref is None else ref.data_information, rolling,
+                                      compiled),
+        lambda m: _view_planar(pool, m), compiled, support_share=AGREE_SHARE,
+    ):  # fmt: skip
+        return failed(INCONSISTENT_FIT, drawn)
+    cov = G = None
+    if ref is not None:
+        cov = final_covariance(pool, (R, C, w, t), ref, threshold_px, rolling, e)
+    if cov is not None and rolling:
+        rate = None if prior is None else (prior.time, prior.info)
+        G = final_sensitivity(pool, (R, C, w, t), ref.covariance, ref, threshold_px, rate)
     out = (
         (None, None, None)
         if cov is None
@@ -2767,13 +2513,11 @@ def _estimate(
         out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=_rms(e[inl]),
+        rmse_px=float(rms),
         num_behind=behind,
         model_covariance=cov,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
-        acceleration_sensitivity=(
-            None if G is None else physical_sensitivity(G, R, C, w, 1.0, not pool.numpy)
-        ),
+        acceleration_sensitivity=G,
         initial_explained=explained,
         initial_used=seeded is not None,
         gyro_used=prior is not None,

@@ -200,6 +200,7 @@ def acceleration_sensitivity(
     normal_inverse: np.ndarray | None = None,
     max_points: int | None = None,
     acceleration_block: np.ndarray | None = None,
+    compiled: bool = True,
 ) -> np.ndarray | None:
     """First-order change of a frame's estimate per unit of in-readout acceleration.
 
@@ -221,7 +222,10 @@ def acceleration_sensitivity(
             half as much of the acceleration's effect as all of them; the estimator uses all.
         acceleration_block: optional (12, 6) ``J^T W D`` at the estimate over the same
             points (``RefineResult.acceleration_block`` of the refinement that produced it),
-            used with ``normal_inverse`` instead of another pass over the points.
+            used with ``normal_inverse`` instead of another pass over the points (then a
+            camera's or a rig's, whose ``J^T W D`` is over its cameras' points).
+        compiled: False: with ``normal_inverse`` and ``acceleration_block``, the conversion
+            in NumPy (:func:`physical_sensitivity`; nothing compiles).
     Returns:
         (12, 6): rows as ``RSPoseEstimate.covariance`` (rotation, position, angular velocity,
         linear velocity), columns per (angular acceleration [rad/s^2], linear acceleration
@@ -241,7 +245,7 @@ def acceleration_sensitivity(
     if Hinv is not None and acceleration_block is not None:
         B = np.asarray(acceleration_block, dtype=f64)
         if B.shape == (12, 6) and np.isfinite(B).all():
-            out = physical_sensitivity(Hinv @ B, R, C, w, s)
+            out = physical_sensitivity(Hinv @ B, R, C, w, s, compiled)
             return out if np.isfinite(out).all() else None
     n = len(X)
     m = n if (Hinv is None or max_points is None) else min(n, max(int(max_points), 1))

@@ -39,12 +39,12 @@ def test_true_frames_with_most_points_outliers_are_still_solved():
 
 
 def test_near_misses_make_a_partial_fit_inconsistent():
-    """The near-miss rule of :func:`fit_is_inconsistent` (shared by the compiled and the
-    uncompiled path) on a 3D cloud: 100 inliers of 300, the other 200 points either just
-    missing (1-5 thresholds) or anywhere (far beyond)."""
+    """The near-miss rule of :func:`inconsistent_fit` (shared by the compiled and the
+    uncompiled path, a camera and a rig) on a 3D cloud: 100 inliers of 300, the other 200
+    points either just missing (1-5 thresholds) or anywhere (far beyond)."""
     import numpy as np
 
-    from rs_localizer.estimation.finalize import NEAR_MISS_WINDOW, fit_is_inconsistent
+    from rs_localizer.estimation.finalize import NEAR_MISS_WINDOW, inconsistent_fit
 
     rng = np.random.default_rng(0)
     X = rng.uniform(-1, 1, (300, 3)) + [0, 0, 5]
@@ -53,11 +53,25 @@ def test_near_misses_make_a_partial_fit_inconsistent():
     th = 1e-3
     e = np.where(inl, 0.5 * th, rng.uniform(1.5 * th, 0.9 * NEAR_MISS_WINDOW * th, 300))
     far = np.where(inl, 0.5 * th, rng.uniform(20 * th, 100 * th, 300))
-    args = (X, inl, np.zeros(3), 1.0, 10.0, True)
-    assert fit_is_inconsistent(*args, th, lambda: e)
-    assert not fit_is_inconsistent(*args, th, lambda: far)
-    assert not fit_is_inconsistent(*args, 0.0, lambda: e)  # threshold 0: the test is off
-    assert not fit_is_inconsistent(X, inl, np.zeros(3), 1.0, 10.0, False, th, lambda: e)  # P3P
+    z = np.zeros(3)
+
+    def inconsistent(errors, threshold=th, rolling=True, views=None, order=slice(None)):
+        model = (np.eye(3), z, z, z)
+        return inconsistent_fit(
+            X[order], inl[order], model, views, rolling, threshold, lambda: errors[order],
+            lambda: 10.0, lambda m: False,
+        )  # fmt: skip
+
+    assert inconsistent(e)
+    assert not inconsistent(far)
+    assert not inconsistent(e, threshold=0.0)  # threshold 0: the test is off
+    assert not inconsistent(e, rolling=False)  # P3P
+    # the points shuffled between two cameras of a rig (at the identity mounting), each
+    # explaining a third of its own: the same rule over both
+    rig = (np.stack([np.eye(3)] * 2), np.zeros((2, 3)), np.array([[0, 150], [150, 300]]))
+    order = rng.permutation(300)
+    assert inconsistent(e, views=rig, order=order)
+    assert not inconsistent(far, views=rig, order=order)
 
 
 #: seeds of :func:`_reflected_box` whose P3P fit (12-14 of the 60 points, 11-14 m from the true

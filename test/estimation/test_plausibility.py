@@ -246,3 +246,54 @@ def test_scoring_counts_points_behind_the_camera_as_outliers():
     R, C, z3 = np.eye(3), np.zeros(3), np.zeros(3)
     _, inl, c = msac_evaluate(x, X, x[:, 1].copy(), np.array([0.0, 1.0]), R, C, z3, z3, 1e-6)
     assert c == 15 and not inl[:5].any() and inl[5:].all()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_final_check_of_a_rig_checks_each_camera_at_its_mounting(compiled):
+    """A rig's model checked with its views (``final_check(..., views=)``): a point is behind
+    its camera when its depth in that camera at its capture time (the rig's exact model, then
+    the mounting, by the matrix exponential) is not positive; the bounds apply to the rig's
+    model; a camera alone (``views=None``) is one view at the identity mounting."""
+    from scipy.linalg import expm
+
+    from rs_localizer.estimation.plausibility import final_check
+
+    rng = np.random.default_rng(5)
+    R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    C = np.array([0.2, -0.1, 0.3])
+    w, t = np.array([0.5, 1.0, -0.2]), np.array([0.1, 0.0, 0.2])
+    # two cameras looking opposite ways along the rig's z, 10 cm apart
+    Rm = np.stack([np.eye(3), Rotation.from_rotvec([0.0, np.pi, 0.0]).as_matrix()])
+    cm = np.array([[0.05, 0.0, 0.0], [-0.05, 0.0, 0.0]])
+    rows = np.array([[0, 30], [30, 50]], dtype=np.int64)
+    X = rng.uniform(-8, 8, (50, 3))
+    tau = rng.uniform(-0.02, 0.02, 50)
+    W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    cam = np.repeat([0, 1], [30, 20])
+    z = np.array(
+        [
+            (Rm[c] @ (expm(s * W) @ R @ p + C + s * t) + cm[c])[2]
+            for c, p, s in zip(cam, X, tau, strict=True)
+        ]
+    )
+    views = (Rm, cm, rows)
+    mask = z > 0
+    assert 0 < mask.sum() < 50
+    code, behind = final_check(R, C, w, t, X, tau, mask, compiled=compiled, views=views)
+    assert (code, behind) == (0, int((z <= 0).sum()))
+    one_behind = mask.copy()
+    one_behind[np.flatnonzero(~mask)[0]] = True
+    assert final_check(R, C, w, t, X, tau, one_behind, compiled=compiled, views=views)[0] == 2
+    # the rig's angular speed |w| = 1.14 rad/s against bounds of 1 and 2 rad/s
+    assert final_check(R, C, w, t, X, tau, mask, 1.0, compiled=compiled, views=views) == (1, 0)
+    assert final_check(R, C, w, t, X, tau, mask, 4.0, compiled=compiled, views=views)[0] == 0
+    assert final_check(R * np.nan, C, w, t, X, tau, mask, compiled=compiled, views=views) == (1, 0)
+    # one camera at the identity mounting: the camera's own check
+    one = (np.eye(3)[None], np.zeros((1, 3)), np.array([[0, 50]], dtype=np.int64))
+    z0 = np.array([(expm(s * W) @ R @ p + C + s * t)[2] for p, s in zip(X, tau, strict=True)])
+    m0 = z0 > 0
+    assert (
+        final_check(R, C, w, t, X, tau, m0, compiled=compiled, views=one)
+        == final_check(R, C, w, t, X, tau, m0, compiled=compiled)
+        == (0, int((~m0).sum()))
+    )
