@@ -166,7 +166,7 @@ from .plausibility import (
     views_degenerate,
 )
 from .prior import MotionPrior, prior_arrays
-from .ransac import RansacLoop, required_iterations, seeded_rng
+from .ransac import RansacLoop, batch_sizes, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
     OUT_ACC,
@@ -204,11 +204,11 @@ from .rig_batch import (
     best_msac,
     inliers_missed,
     lambda_twist_on_rig,
-    moving_batch,
+    moving_search,
     pairwise_sum,
     point_residual,
     sample_kernel,
-    still_batch,
+    still_search,
 )
 from .sensitivity import physical_sensitivity
 from .single_tag import few_points
@@ -2379,9 +2379,29 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
-#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
+#: the random streams of the last seeds (:func:`_search_draws`): seed -> draws
+_DRAWS: dict = {}
+
+
+def _search_draws(seed, n: int) -> np.ndarray:
+    """The first ``n`` uniform draws of ``seeded_rng(seed)`` (read-only; kept for the last
+    few int seeds: every search of a seed starts from the same stream, and a batch by batch
+    search draws its batches from it in turn), or of a new generator for any other seed."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        return seeded_rng(seed).random(n)
+    hit = _DRAWS.get(int(seed))
+    if hit is None or len(hit) < n:
+        if len(_DRAWS) >= 8:
+            _DRAWS.clear()
+        hit = seeded_rng(seed).random(n)
+        hit.flags.writeable = False
+        _DRAWS[int(seed)] = hit
+    return hit
+
+
+#: :func:`~.rig_batch.still_search`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
-#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
+#: :func:`~.rig_batch.moving_search`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
@@ -2394,8 +2414,8 @@ class _RigSearch(RansacLoop):
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``; a compiled batch is drawn,
-    solved and scored in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
+    dropping models beyond the velocity bounds (``implausible``; a compiled search draws,
+    solves and scores every batch in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
     point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the rig's
     local optimization runs once, after the search) and gives termination its inlier ratio
     (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
@@ -2405,7 +2425,7 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset = anchored, subset
-        self.rng = _search_rng(r.seed)
+        self._seed, self._rng = r.seed, None
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
@@ -2421,13 +2441,19 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
-        #: a batch in one compiled call (:func:`~.rig_batch.still_batch`, without a gyro
-        #: :func:`~.rig_batch.moving_batch`); its last result's inlier count and missed cameras for
-        #: :meth:`refine_model`
+        #: the whole search in one compiled call (:meth:`_fused_search`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
-        self._fused: tuple = ()
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
+        self._log_miss = float(np.log(1 - r.confidence))
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The search's random generator (:func:`_search_rng`; the compiled search reads the
+        same stream from :func:`_search_draws` instead)."""
+        if self._rng is None:
+            self._rng = _search_rng(self._seed)
+        return self._rng
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -2448,10 +2474,15 @@ class _RigSearch(RansacLoop):
                 return e
         return self.pool.errors(model)
 
+    def search(self, estimator, r: RansacOptions) -> None:
+        """:meth:`~.ransac.RansacLoop.search`; a compiled search runs in one call
+        (:meth:`_fused_search`)."""
+        if not self.fused:
+            return super().search(estimator, r)
+        return self._fused_search(r)
+
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
-        if self.fused:
-            return self._fused_batch(K)
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
@@ -2468,38 +2499,45 @@ class _RigSearch(RansacLoop):
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
-    def _fused_batch(self, K: int) -> tuple | None:
-        """A batch of K samples in one compiled call (:func:`~.rig_batch.still_batch`,
-        :func:`~.rig_batch.moving_batch`): ``(cost, model)`` of the best, or None."""
+    def _fused_search(self, r: RansacOptions) -> None:
+        """The search in one compiled call (:func:`~.rig_batch.still_search`, without a gyro
+        :func:`~.rig_batch.moving_search`): the batches of :func:`~.ransac.batch_sizes`, each
+        stopping after the first sample at which termination is reached (a new best's inlier
+        ratio counted at once, as PoseLib's loop does after every sample), on the seed's
+        random stream (:func:`_search_draws`: the draws a batch by batch search takes)."""
         pool, subset = self.pool, self.subset
-        u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        args = (u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
-                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+        args = (_search_draws(r.seed, 7 * int(r.max_iterations)), _sampling_of(pool, subset),
+                _NO_SUBSET if subset is None else subset, _bearings(pool), X, x, tau, cam, Rm,
+                cm, A)  # fmt: skip
+        state = np.array([self.score, self.needed, self._log_miss])
+        limits = np.array([self.batches.batch_size, r.min_iterations, r.max_iterations])
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            h, cost, self._e, R, C, n, missed = still_batch(
-                *args, missed, rounds, self.th2, self.threshold_px, self._counts
-            )
+            it, h, cost, e, R, C, n, missed = still_search(
+                *args, missed, rounds, self.th2, self.threshold_px, self._counts, state, limits,
+                not self.spread,
+            )  # fmt: skip
             w, t = np.zeros(3), np.zeros(3)
+            if not self.spread:
+                self.missed = missed if missed.any() else None
         else:
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            h, cost, self._e, R, C, w, t, n, missed, beyond = moving_batch(
+            it, h, cost, e, R, C, w, t, n, beyond = moving_search(
                 *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
-                self.threshold_px, self._counts,
+                self.threshold_px, self._counts, state, limits,
             )  # fmt: skip
             self.implausible += int(beyond)
-        if h < 0:
-            return None
-        self._cost, self._fused = float(cost), (n, missed)
-        return self._cost, (R, C, w, t)
+        self.iterations += int(it)
+        if h >= 0:
+            self._e, self.score, self.best = e, float(cost), (R, C, w, t)
+            among = len(e) if subset is None else len(subset)
+            self.needed = required_iterations(n / among, self.s, self.confidence)
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
-        if self.fused:  # (scored in generate_models' call)
-            return hyp
         pool = self.pool
         if pool.numpy:
             e = _errors_px(pool, *hyp)
@@ -2516,12 +2554,6 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
-        if self.fused:  # (counted in the batch's call, among the subset when given)
-            n, missed = self._fused
-            if self.still and not self.spread:
-                self.missed = missed if missed.any() else None
-            among = self._e if self.subset is None else self.subset
-            return self._cost, model, float(n / len(among))
         if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
             n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:
