@@ -33,7 +33,10 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
-  random stream; no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
+  random stream; compiled, the whole search is one call (:mod:`.rig_batch`) that checks
+  termination after every sample, as PoseLib's loop does (a batch stops at the first sample
+  at which the samples drawn reach ``ransac.min_iterations`` and what the best model's inlier
+  ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
   some moved beyond the bounds;
 - local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
   by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step

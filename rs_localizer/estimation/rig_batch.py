@@ -1,12 +1,17 @@
-"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): a batch of
-minimal samples drawn, solved and scored in one numba call, as :mod:`.batch` does for one camera.
+"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): the whole search
+in one numba call (:func:`still_search`, :func:`moving_search`: the batches of
+:func:`~.ransac.batch_sizes` on the seed's random stream), each batch of minimal samples drawn,
+solved and scored in turn, as :mod:`.batch` does for one camera. Termination is checked after
+every sample (:func:`required_samples` of the best model's inlier ratio, as PoseLib's loop does):
+a batch stops at the first sample at which the samples drawn reach ``min_iterations`` and what
+termination asks for.
 
 :func:`still_batch` (a global-shutter rig frame: Lambda Twist P3P of one camera's 3 points
 mapped to the rig, corrected on the sample's 6 points by the rig solver with the velocities
 held at zero where the best model misses a camera) and :func:`moving_batch` (a rolling-shutter
 one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
-:func:`best_msac`: the MSAC cost of every model on every point's reprojection error in pixels
+:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
 through its camera's mounting (:func:`point_residual`), summed as ``np.sum`` sums, the lowest
 kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
 implementation) calls the same kernels one by one.
