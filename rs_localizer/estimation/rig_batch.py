@@ -39,6 +39,7 @@ __all__ = [
     "model_cost",
     "moving_batch",
     "moving_search",
+    "next_batch",
     "pairwise_sum",
     "point_residual",
     "required_samples",
@@ -520,6 +521,21 @@ def batch_size(batch, it, needed, min_it, max_it):
 
 
 @njit(cache=True)
+def next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it):
+    """The next batch of a search that has drawn ``it`` samples: its uniform draws (7, K) from
+    offset ``o`` of the stream ``draws`` (K :func:`batch_size`; 0 when termination, the
+    ``max_it`` samples or the stream end the search), the next offset, and the batch's
+    ``state`` (:func:`still_batch`'s)."""
+    K = 0
+    if it < max_it and (it < needed or it < min_it):
+        K = batch_size(batch, it, needed, min_it, max_it)
+        if o + 7 * K > len(draws):
+            K = 0
+    u = draws[o : o + 7 * K].reshape((7, K))
+    return u, o + 7 * K, np.array([best_cost, it, min_it, needed, log_miss])
+
+
+@njit(cache=True)
 def still_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds,
                  th2, k, pool_counts, state, limits, follow):  # fmt: skip
     """A global-shutter rig search in one call: the batches of :func:`~.ransac.batch_sizes`
@@ -542,13 +558,10 @@ def still_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, m
     it, o, found, n_best = 0, 0, -1, 0
     e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
     missed_now = missed.copy()
-    while it < max_it and (it < needed or it < min_it):
-        K = batch_size(batch, it, needed, min_it, max_it)
-        if o + 7 * K > len(draws):
+    while True:
+        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
+        if u.shape[1] == 0:
             break
-        u = draws[o : o + 7 * K].reshape((7, K))
-        o += 7 * K
-        st = np.array([best_cost, it, min_it, needed, log_miss])
         drawn, h, cost, e, R, C, n, m = still_batch(u, sampling, subset, bearings, X, x, tau,
                                                     cam, Rm, cm, A, missed_now, rounds, th2, k,
                                                     pool_counts, st)  # fmt: skip
@@ -579,13 +592,10 @@ def moving_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, 
     it, o, found, n_best, beyond = 0, 0, -1, 0, 0
     e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
     w_best, t_best = np.zeros(3), np.zeros(3)
-    while it < max_it and (it < needed or it < min_it):
-        K = batch_size(batch, it, needed, min_it, max_it)
-        if o + 7 * K > len(draws):
+    while True:
+        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
+        if u.shape[1] == 0:
             break
-        u = draws[o : o + 7 * K].reshape((7, K))
-        o += 7 * K
-        st = np.array([best_cost, it, min_it, needed, log_miss])
         pre = anchor
         if anchor.shape[0] and found >= 0:
             pre = R_best
