@@ -169,7 +169,7 @@ from .plausibility import (
     views_degenerate,
 )
 from .prior import MotionPrior, prior_arrays
-from .ransac import RansacLoop, batch_sizes, required_iterations, seeded_rng
+from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     LM_REFINE_KERNEL,
     OUT_ACC,

@@ -45,8 +45,8 @@ __all__ = [
     "required_samples",
     "sample_kernel",
     "still_batch",
-    "still_search",
     "still_residual",
+    "still_search",
 ]
 
 
