@@ -24,7 +24,7 @@ from numba import njit
 
 from .._so3 import INLINE, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
-from ..solvers.lambda_twist import lambda_twist_batch
+from ..solvers.lambda_twist import MAX_SOLUTIONS, _solve_into
 from .plausibility import motion_norms2
 
 __all__ = [
@@ -40,6 +40,7 @@ __all__ = [
     "moving_batch",
     "moving_search",
     "next_batch",
+    "p3p_on_rig_into",
     "pairwise_sum",
     "point_residual",
     "required_samples",
@@ -271,39 +272,56 @@ def sample_kernel(u, cdf, eligible, counts, starts, n):
 
 
 @njit(cache=True)
-def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
-    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
-    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s."""
-    K = samples.shape[0]
-    b = np.empty((K, 3, 3))
-    P = np.empty((K, 3, 3))
-    for k in range(K):
-        for j in range(3):
-            i = samples[k, j]
-            for a in range(3):
-                b[k, j, a] = bearings[i, a]
-                P[k, j, a] = X[i, a]
-    R_cam, C_cam, own = lambda_twist_batch(b, P)
-    H = len(own)
-    R = np.empty((H, 3, 3))
-    C = np.empty((H, 3))
-    for h in range(H):
-        c = cam[samples[own[h], 0]]
+def p3p_on_rig_into(bearings, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
+    """Lambda Twist (:func:`~rs_localizer.solvers.lambda_twist.lambda_twist`'s solutions, in
+    its order) on the first 3 points of one ``sample`` (>= 3 pool indices) of the pool's
+    bearings (N, 3) and world points (N, 3), mapped to the rig through the first point's
+    camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)): the n <= 4 rotations
+    and positions written to ``R[off:off + n]`` (3, 3) and ``C[off:off + n]`` (3,); returns
+    n. ``b``, ``P`` (3, 3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers."""
+    for j in range(3):
+        i = sample[j]
+        for a in range(3):
+            b[j, a] = bearings[i, a]
+            P[j, a] = X[i, a]
+    n = _solve_into(b, P, R_cam, C_cam, np.int64(0))
+    c = cam[sample[0]]
+    for h in range(n):
         for i in range(3):
             for j in range(3):
-                R[h, i, j] = (
+                R[off + h, i, j] = (
                     Rm[c, 0, i] * R_cam[h, 0, j]
                     + Rm[c, 1, i] * R_cam[h, 1, j]
                     + (Rm[c, 2, i] * R_cam[h, 2, j])
                 )
-            C[h, i] = (
+            C[off + h, i] = (
                 Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
                 + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
                 + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
             )
-    return R, C, own
+    return n
+
+
+@njit(cache=True)
+def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
+    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
+    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
+    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s
+    (:func:`p3p_on_rig_into` sample by sample)."""
+    K = samples.shape[0]
+    R = np.empty((MAX_SOLUTIONS * K, 3, 3))
+    C = np.empty((MAX_SOLUTIONS * K, 3))
+    own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    m = 0
+    for k in range(K):
+        n = p3p_on_rig_into(bearings, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
+        for j in range(n):
+            own[m + j] = k
+        m += n
+    return R[:m].copy(), C[:m].copy(), own[:m].copy()
 
 
 @njit(cache=True)
@@ -359,8 +377,9 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
     counts = sampling[0]
     samples = batch_samples(u, sampling, subset)
     K, N = samples.shape[0], X.shape[0]
-    R, C, own = lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm)
-    H = len(own)
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    R, C = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     z = np.zeros((1, 3))
     e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
     best_cost, it0, min_it, needed, log_miss = state[0], state[1], state[2], state[3], state[4]
@@ -369,14 +388,13 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
     missed_best = np.zeros(len(counts), np.bool_)
     R_best, C_best = np.eye(3), np.zeros(3)
     spread = missed.any()
-    p, drawn = 0, K
+    drawn = K
     for j in range(K):
-        q = p
-        while q < H and own[q] == j:
-            q += 1
-        # the sample's P3P models, then (a point in a missed camera) their corrections
-        Rg, Cg = R[p:q], C[p:q]
-        for r in range(rounds + 1 if spread and q > p else 1):
+        # the sample's P3P models (solved as it is drawn), then (a point in a missed camera)
+        # their corrections
+        q = p3p_on_rig_into(bearings, X, samples[j], cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
+        Rg, Cg = R[:q], C[:q]
+        for r in range(rounds + 1 if spread and q > 0 else 1):
             if r == 1:
                 hit = False
                 for i in range(6):
@@ -384,8 +402,8 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
                         hit = True
                 if not hit:
                     break
-                S = np.empty((q - p, 6), dtype=np.int64)
-                for h in range(q - p):
+                S = np.empty((q, 6), dtype=np.int64)
+                for h in range(q):
                     S[h] = samples[j]
             if r >= 1:
                 out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
@@ -406,7 +424,6 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
                     R_best, C_best = Rg[h].copy(), Cg[h].copy()
                     n_best, missed_best = counted(e, k, cam, pool_counts, subset)
                     needed = required_samples(n_best, among, 3, log_miss)
-        p = q
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
