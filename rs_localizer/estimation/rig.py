@@ -1936,21 +1936,32 @@ def _one_camera_alone(
 def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
     """(12, 12) the derivative of :func:`rig_model_of_camera`'s ``(delta, C, w, t)`` (the
     rig's rotation perturbed on the left, ``R = expm([delta]x) R_0``) over the camera model's
-    ``(delta, C, w, t)`` at ``model``: central differences (step 1e-7), each an exact
-    evaluation of the map."""
-    R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
-    base = rig_model_of_camera(model, mounting, stamp_offset, spr)
-    h = 1e-7
+    ``(delta, C, w, t)`` at ``model``, analytic: with ``E = expm(-s [w]x)`` (``s`` the
+    stamp offset, ``w`` the rig's angular velocity) and the mounting's ``R_c``, ``delta =
+    E R_c^T delta_cam - (s / spr) J_l(-s w) R_c^T dw_cam``, ``dC = R_c^T (dC_cam - (s / spr)
+    dt_cam)``, ``dw = R_c^T dw_cam / spr``, ``dt = R_c^T dt_cam / spr`` (``J_l`` the left
+    Jacobian of SO(3): ``expm([a + d]x) = expm([J_l(a) d]x) expm([a]x)`` to first order); a
+    global-shutter camera (``spr <= 0``): the velocities' rows and columns zero."""
+    Rt = np.asarray(mounting.R, dtype=float).T
     J = np.zeros((12, 12))
-    for k in range(12):
-        cols = []
-        for sign in (1.0, -1.0):
-            d = np.zeros(12)
-            d[k] = sign * h
-            m = (rotvec_to_matrix(d[:3]) @ R0, C0 + d[3:6], w0 + d[6:9], t0 + d[9:12])
-            Rr, Cr, wr, tr = rig_model_of_camera(m, mounting, stamp_offset, spr)
-            cols.append(np.concatenate([matrix_to_rotvec(Rr @ base.R.T), Cr, wr, tr]))
-        J[:, k] = (cols[0] - cols[1]) / (2 * h)
+    J[3:6, 3:6] = Rt
+    spr, s = float(spr), float(stamp_offset)
+    if spr <= 0:
+        J[0:3, 0:3] = Rt
+        return J
+    a = -s * (Rt @ np.asarray(model[2], dtype=float) / spr)  # (-s w, the rig's w)
+    J[0:3, 0:3] = rotvec_to_matrix(a) @ Rt
+    th2 = float(a @ a)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    if th2 < 1e-12:  # (Taylor: 1/2 - t^2/24, 1/6 - t^2/120)
+        c2, c3 = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        c2, c3 = (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / (th2 * th)
+    Jl = np.eye(3) + c2 * K + c3 * (K @ K)
+    J[0:3, 6:9] = (-s / spr) * (Jl @ Rt)
+    J[3:6, 9:12] = (-s / spr) * Rt
+    J[6:9, 6:9] = J[9:12, 9:12] = Rt / spr
     return J
 
 
