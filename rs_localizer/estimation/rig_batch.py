@@ -24,7 +24,7 @@ from numba import njit
 
 from .._so3 import INLINE, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
-from ..solvers.lambda_twist import MAX_SOLUTIONS, _solve_into
+from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 
 __all__ = [
@@ -284,7 +284,7 @@ def p3p_on_rig_into(bearings, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 
         for a in range(3):
             b[j, a] = bearings[i, a]
             P[j, a] = X[i, a]
-    n = _solve_into(b, P, R_cam, C_cam, np.int64(0))
+    n = lambda_twist_into(b, P, R_cam, C_cam, np.int64(0))
     c = cam[sample[0]]
     for h in range(n):
         for i in range(3):
