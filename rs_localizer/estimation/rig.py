@@ -33,7 +33,10 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
-  random stream; no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
+  random stream; compiled, the whole search is one call (:mod:`.rig_batch`) that checks
+  termination after every sample, as PoseLib's loop does (a batch stops at the first sample
+  at which the samples drawn reach ``ransac.min_iterations`` and what the best model's inlier
+  ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
   some moved beyond the bounds;
 - local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
   by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
@@ -189,11 +192,11 @@ from .rig_batch import (
     best_msac,
     inliers_missed,
     lambda_twist_on_rig,
-    moving_batch,
+    moving_search,
     pairwise_sum,
     point_residual,
     sample_kernel,
-    still_batch,
+    still_search,
 )
 from .single_tag import few_points
 
@@ -1727,21 +1730,32 @@ def _one_camera_alone(
 def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
     """(12, 12) the derivative of :func:`rig_model_of_camera`'s ``(delta, C, w, t)`` (the
     rig's rotation perturbed on the left, ``R = expm([delta]x) R_0``) over the camera model's
-    ``(delta, C, w, t)`` at ``model``: central differences (step 1e-7), each an exact
-    evaluation of the map."""
-    R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
-    base = rig_model_of_camera(model, mounting, stamp_offset, spr)
-    h = 1e-7
+    ``(delta, C, w, t)`` at ``model``, analytic: with ``E = expm(-s [w]x)`` (``s`` the
+    stamp offset, ``w`` the rig's angular velocity) and the mounting's ``R_c``, ``delta =
+    E R_c^T delta_cam - (s / spr) J_l(-s w) R_c^T dw_cam``, ``dC = R_c^T (dC_cam - (s / spr)
+    dt_cam)``, ``dw = R_c^T dw_cam / spr``, ``dt = R_c^T dt_cam / spr`` (``J_l`` the left
+    Jacobian of SO(3): ``expm([a + d]x) = expm([J_l(a) d]x) expm([a]x)`` to first order); a
+    global-shutter camera (``spr <= 0``): the velocities' rows and columns zero."""
+    Rt = np.asarray(mounting.R, dtype=float).T
     J = np.zeros((12, 12))
-    for k in range(12):
-        cols = []
-        for sign in (1.0, -1.0):
-            d = np.zeros(12)
-            d[k] = sign * h
-            m = (rotvec_to_matrix(d[:3]) @ R0, C0 + d[3:6], w0 + d[6:9], t0 + d[9:12])
-            Rr, Cr, wr, tr = rig_model_of_camera(m, mounting, stamp_offset, spr)
-            cols.append(np.concatenate([matrix_to_rotvec(Rr @ base.R.T), Cr, wr, tr]))
-        J[:, k] = (cols[0] - cols[1]) / (2 * h)
+    J[3:6, 3:6] = Rt
+    spr, s = float(spr), float(stamp_offset)
+    if spr <= 0:
+        J[0:3, 0:3] = Rt
+        return J
+    a = -s * (Rt @ np.asarray(model[2], dtype=float) / spr)  # (-s w, the rig's w)
+    J[0:3, 0:3] = rotvec_to_matrix(a) @ Rt
+    th2 = float(a @ a)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    if th2 < 1e-12:  # (Taylor: 1/2 - t^2/24, 1/6 - t^2/120)
+        c2, c3 = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        c2, c3 = (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / (th2 * th)
+    Jl = np.eye(3) + c2 * K + c3 * (K @ K)
+    J[0:3, 6:9] = (-s / spr) * (Jl @ Rt)
+    J[3:6, 9:12] = (-s / spr) * Rt
+    J[6:9, 6:9] = J[9:12, 9:12] = Rt / spr
     return J
 
 
@@ -2173,9 +2187,29 @@ def _search_rng(seed) -> np.random.Generator:
     return hit[1]
 
 
-#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
+#: the random streams of the last seeds (:func:`_search_draws`): seed -> draws
+_DRAWS: dict = {}
+
+
+def _search_draws(seed, n: int) -> np.ndarray:
+    """The first ``n`` uniform draws of ``seeded_rng(seed)`` (read-only; kept for the last
+    few int seeds: every search of a seed starts from the same stream, and a batch by batch
+    search draws its batches from it in turn), or of a new generator for any other seed."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
+        return seeded_rng(seed).random(n)
+    hit = _DRAWS.get(int(seed))
+    if hit is None or len(hit) < n:
+        if len(_DRAWS) >= 8:
+            _DRAWS.clear()
+        hit = seeded_rng(seed).random(n)
+        hit.flags.writeable = False
+        _DRAWS[int(seed)] = hit
+    return hit
+
+
+#: :func:`~.rig_batch.still_search`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
-#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
+#: :func:`~.rig_batch.moving_search`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
@@ -2188,8 +2222,8 @@ class _RigSearch(RansacLoop):
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``; a compiled batch is drawn,
-    solved and scored in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
+    dropping models beyond the velocity bounds (``implausible``; a compiled search draws,
+    solves and scores every batch in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
     point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the rig's
     local optimization runs once, after the search) and gives termination its inlier ratio
     (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
@@ -2199,7 +2233,7 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset = anchored, subset
-        self.rng = _search_rng(r.seed)
+        self._seed, self._rng = r.seed, None
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
@@ -2215,13 +2249,19 @@ class _RigSearch(RansacLoop):
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
         self.missed = self._counts >= 3 if spread and still else None
-        #: a batch in one compiled call (:func:`~.rig_batch.still_batch`, without a gyro
-        #: :func:`~.rig_batch.moving_batch`); its last result's inlier count and missed cameras for
-        #: :meth:`refine_model`
+        #: the whole search in one compiled call (:meth:`_fused_search`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
-        self._fused: tuple = ()
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
+        self._log_miss = float(np.log(1 - r.confidence))
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The search's random generator (:func:`_search_rng`; the compiled search reads the
+        same stream from :func:`_search_draws` instead)."""
+        if self._rng is None:
+            self._rng = _search_rng(self._seed)
+        return self._rng
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -2242,10 +2282,15 @@ class _RigSearch(RansacLoop):
                 return e
         return self.pool.errors(model)
 
+    def search(self, estimator, r: RansacOptions) -> None:
+        """:meth:`~.ransac.RansacLoop.search`; a compiled search runs in one call
+        (:meth:`_fused_search`)."""
+        if not self.fused:
+            return super().search(estimator, r)
+        return self._fused_search(r)
+
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
-        if self.fused:
-            return self._fused_batch(K)
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
@@ -2262,38 +2307,45 @@ class _RigSearch(RansacLoop):
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
-    def _fused_batch(self, K: int) -> tuple | None:
-        """A batch of K samples in one compiled call (:func:`~.rig_batch.still_batch`,
-        :func:`~.rig_batch.moving_batch`): ``(cost, model)`` of the best, or None."""
+    def _fused_search(self, r: RansacOptions) -> None:
+        """The search in one compiled call (:func:`~.rig_batch.still_search`, without a gyro
+        :func:`~.rig_batch.moving_search`): the batches of :func:`~.ransac.batch_sizes`, each
+        stopping after the first sample at which termination is reached (a new best's inlier
+        ratio counted at once, as PoseLib's loop does after every sample), on the seed's
+        random stream (:func:`_search_draws`: the draws a batch by batch search takes)."""
         pool, subset = self.pool, self.subset
-        u = self.rng.random(7 * K).reshape(7, K)  # (_sample's draws)
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        args = (u, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
-                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+        args = (_search_draws(r.seed, 7 * int(r.max_iterations)), _sampling_of(pool, subset),
+                _NO_SUBSET if subset is None else subset, _bearings(pool), X, x, tau, cam, Rm,
+                cm, A)  # fmt: skip
+        state = np.array([self.score, self.needed, self._log_miss])
+        limits = np.array([self.batches.batch_size, r.min_iterations, r.max_iterations])
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            h, cost, self._e, R, C, n, missed = still_batch(
-                *args, missed, rounds, self.th2, self.threshold_px, self._counts
-            )
+            it, h, cost, e, R, C, n, missed = still_search(
+                *args, missed, rounds, self.th2, self.threshold_px, self._counts, state, limits,
+                not self.spread,
+            )  # fmt: skip
             w, t = np.zeros(3), np.zeros(3)
+            if not self.spread:
+                self.missed = missed if missed.any() else None
         else:
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            h, cost, self._e, R, C, w, t, n, missed, beyond = moving_batch(
+            it, h, cost, e, R, C, w, t, n, beyond = moving_search(
                 *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
-                self.threshold_px, self._counts,
+                self.threshold_px, self._counts, state, limits,
             )  # fmt: skip
             self.implausible += int(beyond)
-        if h < 0:
-            return None
-        self._cost, self._fused = float(cost), (n, missed)
-        return self._cost, (R, C, w, t)
+        self.iterations += int(it)
+        if h >= 0:
+            self._e, self.score, self.best = e, float(cost), (R, C, w, t)
+            among = len(e) if subset is None else len(subset)
+            self.needed = required_iterations(n / among, self.s, self.confidence)
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
-        if self.fused:  # (scored in generate_models' call)
-            return hyp
         pool = self.pool
         if pool.numpy:
             e = _errors_px(pool, *hyp)
@@ -2310,12 +2362,6 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
-        if self.fused:  # (counted in the batch's call, among the subset when given)
-            n, missed = self._fused
-            if self.still and not self.spread:
-                self.missed = missed if missed.any() else None
-            among = self._e if self.subset is None else self.subset
-            return self._cost, model, float(n / len(among))
         if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
             n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:

@@ -1,12 +1,17 @@
-"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): a batch of
-minimal samples drawn, solved and scored in one numba call, as :mod:`.batch` does for one camera.
+"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): the whole search
+in one numba call (:func:`still_search`, :func:`moving_search`: the batches of
+:func:`~.ransac.batch_sizes` on the seed's random stream), each batch of minimal samples drawn,
+solved and scored in turn, as :mod:`.batch` does for one camera. Termination is checked after
+every sample (:func:`required_samples` of the best model's inlier ratio, as PoseLib's loop does):
+a batch stops at the first sample at which the samples drawn reach ``min_iterations`` and what
+termination asks for.
 
 :func:`still_batch` (a global-shutter rig frame: Lambda Twist P3P of one camera's 3 points
 mapped to the rig, corrected on the sample's 6 points by the rig solver with the velocities
 held at zero where the best model misses a camera) and :func:`moving_batch` (a rolling-shutter
 one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
-:func:`best_msac`: the MSAC cost of every model on every point's reprojection error in pixels
+:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
 through its camera's mounting (:func:`point_residual`), summed as ``np.sum`` sums, the lowest
 kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
 implementation) calls the same kernels one by one.
@@ -19,23 +24,30 @@ from numba import njit
 
 from .._so3 import INLINE, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
-from ..solvers.lambda_twist import lambda_twist_batch
+from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 
 __all__ = [
     "batch_samples",
-    "best_counted",
+    "batch_size",
     "best_msac",
     "block_sum",
     "camera_error",
+    "counted",
     "inliers_missed",
     "lambda_twist_on_rig",
+    "model_cost",
     "moving_batch",
+    "moving_search",
+    "next_batch",
+    "p3p_on_rig_into",
     "pairwise_sum",
     "point_residual",
+    "required_samples",
     "sample_kernel",
     "still_batch",
     "still_residual",
+    "still_search",
 ]
 
 
@@ -158,42 +170,54 @@ def pairwise_sum(a, lo, n):
 
 
 @njit(cache=True)
+def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
+    """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
+    ``np.sum`` sums), its (N,) errors written into ``e`` (``v`` (N,): the capped squares);
+    -1 when the plain running sum of its first capped squares exceeds ``bound`` (a model then
+    left before its last points: see :func:`best_msac`). ``still``: every ``w`` and ``t``
+    zero (:func:`still_residual`)."""
+    N = X.shape[0]
+    run = 0.0
+    for i in range(N):
+        if still:
+            d0, d1 = still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
+        else:
+            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+        e[i] = np.sqrt(d0**2 + d1**2)
+        q = e[i] * e[i]
+        v[i] = th2 if q > th2 else q
+        run += v[i]
+        if run > bound:
+            return -1.0
+    return pairwise_sum(v, 0, N)
+
+
+#: a model is left once the plain running sum of its first capped squares exceeds the best
+#: cost by this factor (:func:`model_cost`): its pairwise sum over every point is then larger
+#: (each sum of N non-negative terms is within N * 2^-52 of the exact one), so it is not the
+#: lowest
+STOP = 1.0 + 1e-9
+
+
+@njit(cache=True)
 def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
     """The model of the lowest MSAC cost among H models (:func:`~.rig._errors_kernel`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
     or the first NaN). A model whose running cost already exceeds the best one's is left
-    before its last points: the hypotheses' models and the points are finite, so that no
-    later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the errors of
-    :func:`still_residual`, the same)."""
+    before its last points (:data:`STOP`): the hypotheses' models and the points are finite,
+    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the
+    errors of :func:`still_residual`, the same)."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
     v = np.empty(N)
     best_e = np.zeros(N)
     best, best_cost = -1, 0.0
-    # a model is left once the plain running sum of its first capped squares exceeds the
-    # best cost by this factor: its pairwise sum over every point is then larger (each sum of
-    # N non-negative terms is within N * 2^-52 of the exact one), so it is not the argmin
-    stop = 1.0 + 1e-9
     for h in range(H):
-        bound = best_cost * stop if best >= 0 and np.isfinite(best_cost) else np.inf
-        run = 0.0
-        left = False
-        for i in range(N):
-            if still:
-                d0, d1 = still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
-            else:
-                d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            e[i] = np.sqrt(d0**2 + d1**2)
-            q = e[i] * e[i]
-            v[i] = th2 if q > th2 else q
-            run += v[i]
-            if run > bound:
-                left = True
-                break
-        if left:
+        bound = best_cost * STOP if best >= 0 and np.isfinite(best_cost) else np.inf
+        c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v)
+        if c < 0:
             continue
-        c = pairwise_sum(v, 0, N)
         if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
             best, best_cost = h, c
             best_e[:] = e
@@ -248,90 +272,162 @@ def sample_kernel(u, cdf, eligible, counts, starts, n):
 
 
 @njit(cache=True)
-def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
-    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
-    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s."""
-    K = samples.shape[0]
-    b = np.empty((K, 3, 3))
-    P = np.empty((K, 3, 3))
-    for k in range(K):
-        for j in range(3):
-            i = samples[k, j]
-            for a in range(3):
-                b[k, j, a] = bearings[i, a]
-                P[k, j, a] = X[i, a]
-    R_cam, C_cam, own = lambda_twist_batch(b, P)
-    H = len(own)
-    R = np.empty((H, 3, 3))
-    C = np.empty((H, 3))
-    for h in range(H):
-        c = cam[samples[own[h], 0]]
+def p3p_on_rig_into(bearings, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
+    """Lambda Twist (:func:`~rs_localizer.solvers.lambda_twist.lambda_twist`'s solutions, in
+    its order) on the first 3 points of one ``sample`` (>= 3 pool indices) of the pool's
+    bearings (N, 3) and world points (N, 3), mapped to the rig through the first point's
+    camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)): the n <= 4 rotations
+    and positions written to ``R[off:off + n]`` (3, 3) and ``C[off:off + n]`` (3,); returns
+    n. ``b``, ``P`` (3, 3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers."""
+    for j in range(3):
+        i = sample[j]
+        for a in range(3):
+            b[j, a] = bearings[i, a]
+            P[j, a] = X[i, a]
+    n = lambda_twist_into(b, P, R_cam, C_cam, np.int64(0))
+    c = cam[sample[0]]
+    for h in range(n):
         for i in range(3):
             for j in range(3):
-                R[h, i, j] = (
+                R[off + h, i, j] = (
                     Rm[c, 0, i] * R_cam[h, 0, j]
                     + Rm[c, 1, i] * R_cam[h, 1, j]
                     + (Rm[c, 2, i] * R_cam[h, 2, j])
                 )
-            C[h, i] = (
+            C[off + h, i] = (
                 Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
                 + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
                 + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
             )
-    return R, C, own
+    return n
+
+
+@njit(cache=True)
+def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
+    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
+    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
+    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
+    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s
+    (:func:`p3p_on_rig_into` sample by sample)."""
+    K = samples.shape[0]
+    R = np.empty((MAX_SOLUTIONS * K, 3, 3))
+    C = np.empty((MAX_SOLUTIONS * K, 3))
+    own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    m = 0
+    for k in range(K):
+        n = p3p_on_rig_into(bearings, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
+        for j in range(n):
+            own[m + j] = k
+        m += n
+    return R[:m].copy(), C[:m].copy(), own[:m].copy()
+
+
+@njit(cache=True)
+def required_samples(n_in, among, s, log_miss):
+    """:func:`~.ransac.required_iterations` of ``n_in`` inliers among ``among`` points for
+    samples of ``s`` points, ``log_miss`` ``log(1 - confidence)``."""
+    ratio = n_in / among
+    if ratio <= 0:
+        return np.inf
+    p = ratio ** np.float64(s)
+    if p >= 1:
+        return 0.0
+    return log_miss / np.log1p(-p)
+
+
+@njit(cache=True)
+def counted(e, k, cam, pool_counts, subset):
+    """The inliers of errors ``e`` (N,) px (below ``k``; among ``subset`` when it is not
+    empty) and the cameras of 3 or more points (``pool_counts``) with none: ``(inliers,
+    those cameras (M,) bool)``."""
+    n_in, missed = inliers_missed(e, k, cam, pool_counts)
+    if len(subset):
+        n_in = 0
+        for i in subset:
+            if e[i] < k:
+                n_in += 1
+    return n_in, missed
 
 
 @njit(cache=True)
 def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds, th2,
-                 k, pool_counts):  # fmt: skip
+                k, pool_counts, state):  # fmt: skip
     """One global-shutter batch of the compiled search in one call: :func:`~.rig._sample` from its
     uniform draws ``u`` (7, K) (``sampling``: :func:`~.rig._sampling_of`'s ``(counts, starts,
     eligible, cdf, n)``; ``subset`` (S,) the sorted pool indices sampled among, or empty: the
     whole pool), :func:`~.rig._hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
     (M,) bool any True, the samples with points in those cameras corrected ``rounds`` times
-    by the rig solver with the velocities held at zero), the lowest MSAC cost among them
-    (:func:`best_msac`, ``th2`` px^2) and its inliers (errors below ``k`` px;
-    ``pool_counts`` (M,): every camera's points in the pool). Returns ``(h, cost, errors (N,)
-    px, R (3, 3), C (3,), inliers (among ``subset`` when given), the cameras of 3 or more
-    points with no inlier (M,) bool)``; ``h`` -1 when no sample gave a model. The same
-    numbers as those steps called one by one, bit for bit."""
+    by the rig solver with the velocities held at zero), each sample's models scored in turn
+    (:func:`model_cost`, ``th2`` px^2) against the search's best, and its new best's inliers
+    (errors below ``k`` px; ``pool_counts`` (M,): every camera's points in the pool).
+
+    ``state``: the search's ``(best cost (inf: none), samples drawn, min_iterations, samples
+    termination asks for, log(1 - confidence))``: the batch stops after the first sample at
+    which the samples drawn reach both ``min_iterations`` and what termination asks for at
+    the best model's inlier ratio (:func:`required_samples`, updated at each new best), as
+    PoseLib's loop checks after every sample.
+
+    Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers (among
+    ``subset`` when given), the cameras of 3 or more points with no inlier (M,) bool)`` of
+    the batch's best model, the first of the lowest cost below the search's best; ``h`` -1
+    when no model beat it. The same best model as the batch's steps called one by one on the
+    samples drawn, bit for bit."""
     counts = sampling[0]
     samples = batch_samples(u, sampling, subset)
-    R, C, own = lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm)
-    if len(own) == 0:
-        return -1, 0.0, np.zeros(0), np.eye(3), np.zeros(3), 0, np.zeros(len(counts), np.bool_)
-    spread = np.empty(len(own), dtype=np.int64)
-    m = 0
-    if missed.any():
-        for h in range(len(own)):
-            for j in range(6):
-                if missed[cam[samples[own[h], j]]]:
-                    spread[m] = h
-                    m += 1
+    K, N = samples.shape[0], X.shape[0]
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    R, C = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    z = np.zeros((1, 3))
+    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
+    best_cost, it0, min_it, needed, log_miss = state[0], state[1], state[2], state[3], state[4]
+    among = len(subset) if len(subset) else N
+    found, n_best = -1, 0
+    missed_best = np.zeros(len(counts), np.bool_)
+    R_best, C_best = np.eye(3), np.zeros(3)
+    spread = missed.any()
+    drawn = K
+    for j in range(K):
+        # the sample's P3P models (solved as it is drawn), then (a point in a missed camera)
+        # their corrections
+        q = p3p_on_rig_into(bearings, X, samples[j], cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
+        Rg, Cg = R[:q], C[:q]
+        for r in range(rounds + 1 if spread and q > 0 else 1):
+            if r == 1:
+                hit = False
+                for i in range(6):
+                    if missed[cam[samples[j, i]]]:
+                        hit = True
+                if not hit:
                     break
-    if m:
-        S = np.empty((m, 6), dtype=np.int64)
-        Rg = np.empty((m, 3, 3))
-        for i in range(m):
-            S[i] = samples[own[spread[i]]]
-            Rg[i] = R[spread[i]]
-        Cg = np.empty((0, 3))
-        for _ in range(rounds):
-            out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
-            if not ok.any():
-                Rg, Cg = np.empty((0, 3, 3)), np.empty((0, 3))
-                break
-            keep = np.flatnonzero(ok)
-            S = S[keep]
-            Cg = np.ascontiguousarray(out[keep, 3:6])
-            Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
-        R, C = np.concatenate((R, Rg)), np.concatenate((C, Cg))
-    z = np.zeros((len(R), 3))
-    h, cost, e, n_in, missed_now = best_counted(R, C, z, z, X, tau, cam, Rm, cm, x, A, th2,
-                                                 True, k, pool_counts, subset)  # fmt: skip
-    return h, cost, e, R[h].copy(), C[h].copy(), n_in, missed_now
+                S = np.empty((q, 6), dtype=np.int64)
+                for h in range(q):
+                    S[h] = samples[j]
+            if r >= 1:
+                out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
+                if not ok.any():
+                    break
+                keep = np.flatnonzero(ok)
+                S = S[keep]
+                Cg = out[keep, 3:6]
+                Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
+                if r < rounds:
+                    continue
+            for h in range(Rg.shape[0]):
+                bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
+                c = model_cost(Rg, Cg, z, z, X, tau, cam, Rm, cm, x, A, th2, True, h, bound, e, v)
+                if c >= 0 and c < best_cost:
+                    best_cost, found = c, h
+                    best_e[:] = e
+                    R_best, C_best = Rg[h].copy(), Cg[h].copy()
+                    n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                    needed = required_samples(n_best, among, 3, log_miss)
+        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
+            drawn = j + 1
+            break
+    return drawn, found, best_cost, best_e, R_best, C_best, n_best, missed_best
 
 
 @njit(cache=True)
@@ -348,73 +444,72 @@ def batch_samples(u, sampling, subset):
 
 
 @njit(cache=True)
-def best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, k, pool_counts, subset):
-    """:func:`best_msac` of the models, then its best model's inliers (errors below
-    ``k`` px; among ``subset`` when it is not empty) and the cameras of 3 or more points
-    (``pool_counts``) with none: ``(h, cost, errors, inliers, those cameras (M,) bool)``."""
-    h, cost, e = best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still)
-    n_in, missed = inliers_missed(e, k, cam, pool_counts)
-    if len(subset):
-        n_in = 0
-        for i in subset:
-            if e[i] < k:
-                n_in += 1
-    return h, cost, e, n_in, missed
-
-
-@njit(cache=True)
 def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor, iterations,
-                  w2max, v2max, th2, k, pool_counts):  # fmt: skip
+                  w2max, v2max, th2, k, pool_counts, state):  # fmt: skip
     """One rolling-shutter batch of the compiled search without a gyro in one call, as
-    :func:`still_batch` (its arguments, without ``missed`` and ``rounds``): the samples'
-    pre-rotations (Lambda Twist mapped to the rig, or ``anchor`` (3, 3) for every sample when
-    it is not empty), the rig solver on the pre-rotated samples (``iterations``,
+    :func:`still_batch` (its arguments, without ``missed`` and ``rounds``; its termination,
+    at samples of 6 points): the samples' pre-rotations (Lambda Twist mapped to the rig, or
+    ``anchor`` (3, 3) for every sample when it is not empty), the rig solver on the
+    pre-rotated samples (``iterations``,
     :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
     motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`~.rig._hypotheses`, then
-    ``generate_models``' bounds), the lowest MSAC cost among them. Returns :func:`still_batch`'s
+    ``generate_models``' bounds), each sample's scored in turn. Returns :func:`still_batch`'s
     outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
-    valid solutions beyond the bounds; the rotations by the compiled Rodrigues
-    (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
+    valid solutions of the samples drawn beyond the bounds; the rotations by the compiled
+    Rodrigues (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
     counts = sampling[0]
     samples = batch_samples(u, sampling, subset)
+    K, N = samples.shape[0], X.shape[0]
     if anchor.shape[0]:
-        R0 = np.empty((samples.shape[0], 3, 3))
-        for h in range(samples.shape[0]):
+        R0 = np.empty((K, 3, 3))
+        for h in range(K):
             R0[h] = anchor
         S = samples
+        own = np.arange(K)
     else:
         R0, _, own = lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm)
         S = np.empty((len(own), 6), dtype=np.int64)
         for h in range(len(own)):
             S[h] = samples[own[h]]
     out, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
-    keep = np.empty(len(ok), dtype=np.int64)
-    m, beyond = 0, 0
-    for h in range(len(ok)):
-        if not ok[h]:
-            continue
-        wn2, vn2 = motion_norms2(out[h, 3], out[h, 4], out[h, 5], out[h, 6], out[h, 7],
-                                 out[h, 8], out[h, 9], out[h, 10], out[h, 11])  # fmt: skip
-        if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
-            continue
-        if wn2 <= w2max and vn2 <= v2max:
-            keep[m] = h
-            m += 1
-        else:
-            beyond += 1
-    if m == 0:
-        z = np.zeros(3)
-        return (-1, 0.0, np.zeros(0), np.eye(3), z, z, z, 0, np.zeros(len(counts), np.bool_),
-                beyond)  # fmt: skip
-    keep = keep[:m]
-    v = np.ascontiguousarray(out[keep, 0:3])
-    R = compose_rotvec(v, R0[keep])
-    C = np.ascontiguousarray(out[keep, 3:6])
-    w = np.ascontiguousarray(out[keep, 6:9])
-    t = np.ascontiguousarray(out[keep, 9:12])
-    h, cost, e, n_in, missed = best_counted(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False,
-                                             k, pool_counts, subset)  # fmt: skip
-    return h, cost, e, R[h].copy(), C[h].copy(), w[h].copy(), t[h].copy(), n_in, missed, beyond
+    H = len(ok)
+    R = compose_rotvec(np.ascontiguousarray(out[:, 0:3]), R0)
+    C = np.ascontiguousarray(out[:, 3:6])
+    w = np.ascontiguousarray(out[:, 6:9])
+    t = np.ascontiguousarray(out[:, 9:12])
+    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
+    best_cost, it0, min_it, needed, log_miss = state[0], state[1], state[2], state[3], state[4]
+    among = len(subset) if len(subset) else N
+    found, n_best, beyond = -1, 0, 0
+    missed_best = np.zeros(len(counts), np.bool_)
+    R_best, C_best, w_best, t_best = np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    h, drawn = 0, K
+    for j in range(K):
+        while h < H and own[h] == j:
+            if ok[h]:
+                wn2, vn2 = motion_norms2(C[h, 0], C[h, 1], C[h, 2], w[h, 0], w[h, 1], w[h, 2],
+                                         t[h, 0], t[h, 1], t[h, 2])  # fmt: skip
+                if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
+                    pass
+                elif wn2 <= w2max and vn2 <= v2max:
+                    bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
+                    c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, h, bound,
+                                   e, v)  # fmt: skip
+                    if c >= 0 and c < best_cost:
+                        best_cost, found = c, h
+                        best_e[:] = e
+                        R_best, C_best = R[h].copy(), C[h].copy()
+                        w_best, t_best = w[h].copy(), t[h].copy()
+                        n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                        needed = required_samples(n_best, among, 6, log_miss)
+                else:
+                    beyond += 1
+            h += 1
+        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
+            drawn = j + 1
+            break
+    return (drawn, found, best_cost, best_e, R_best, C_best, w_best, t_best, n_best, missed_best,
+            beyond)  # fmt: skip
 
 
 @njit(cache=True)
@@ -431,3 +526,103 @@ def inliers_missed(e, k, cam, counts):
     for c in range(len(counts)):
         missed[c] = counts[c] >= 3 and hit[c] == 0
     return n, missed
+
+
+@njit(cache=True)
+def batch_size(batch, it, needed, min_it, max_it):
+    """:func:`~.ransac.batch_sizes`' next batch: ``batch`` samples, but no more than
+    ``max_it`` in all nor than termination still asks for (``needed``), at least
+    ``min_it`` in all."""
+    ask = int(np.ceil(min(needed, np.float64(max_it))))
+    return min(batch, max_it - it, max(ask - it, min_it - it, 1))
+
+
+@njit(cache=True)
+def next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it):
+    """The next batch of a search that has drawn ``it`` samples: its uniform draws (7, K) from
+    offset ``o`` of the stream ``draws`` (K :func:`batch_size`; 0 when termination, the
+    ``max_it`` samples or the stream end the search), the next offset, and the batch's
+    ``state`` (:func:`still_batch`'s)."""
+    K = 0
+    if it < max_it and (it < needed or it < min_it):
+        K = batch_size(batch, it, needed, min_it, max_it)
+        if o + 7 * K > len(draws):
+            K = 0
+    u = draws[o : o + 7 * K].reshape((7, K))
+    return u, o + 7 * K, np.array([best_cost, it, min_it, needed, log_miss])
+
+
+@njit(cache=True)
+def still_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds,
+                 th2, k, pool_counts, state, limits, follow):  # fmt: skip
+    """A global-shutter rig search in one call: the batches of :func:`~.ransac.batch_sizes`
+    (``limits``: ``(batch_size, min_iterations, max_iterations)``; the first batch
+    ``batch_size``, each next one twice as large, none more than termination asks for), each
+    :func:`still_batch` on its ``7 K`` consecutive uniform ``draws`` (the random stream's, in
+    the order :func:`~.rig._sample` takes them; at least ``7 max_iterations``), until
+    termination (``state``: ``(the best cost so far (inf: none), samples termination asks for,
+    log(1 - confidence))``). ``missed``: the cameras whose points samples are corrected on
+    at the start; ``follow``: after each batch with a new best, the cameras its model
+    explains none of (none: no correction) instead.
+
+    Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers, missed
+    (M,) bool)``: the best model found (``h`` -1: none beat ``state``'s cost), and the
+    cameras the last batch's samples were corrected on."""
+    best_cost, needed, log_miss = state[0], state[1], state[2]
+    batch, min_it, max_it = max(limits[0], 1), limits[1], limits[2]
+    N = X.shape[0]
+    among = len(subset) if len(subset) else N
+    it, o, found, n_best = 0, 0, -1, 0
+    e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
+    missed_now = missed.copy()
+    while True:
+        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
+        if u.shape[1] == 0:
+            break
+        drawn, h, cost, e, R, C, n, m = still_batch(u, sampling, subset, bearings, X, x, tau,
+                                                    cam, Rm, cm, A, missed_now, rounds, th2, k,
+                                                    pool_counts, st)  # fmt: skip
+        it += drawn
+        if h >= 0:
+            best_cost, found, n_best = cost, h, n
+            e_best, R_best, C_best = e, R, C
+            needed = required_samples(n, among, 3, log_miss)
+            if follow:
+                missed_now = m
+        batch *= 2
+    return it, found, best_cost, e_best, R_best, C_best, n_best, missed_now
+
+
+@njit(cache=True)
+def moving_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor,
+                  iterations, w2max, v2max, th2, k, pool_counts, state, limits):  # fmt: skip
+    """A rolling-shutter rig search without a gyro in one call, as :func:`still_search`, each
+    batch :func:`moving_batch`: with ``anchor`` (3, 3) not empty (a prediction's rotation),
+    each batch pre-rotated by the best model's rotation so far (the anchor's before any).
+    Returns :func:`still_search`'s outputs with the best model's ``w`` and ``t`` (3,) after
+    its ``C`` and the number of solutions beyond the motion bounds, without the missed
+    cameras."""
+    best_cost, needed, log_miss = state[0], state[1], state[2]
+    batch, min_it, max_it = max(limits[0], 1), limits[1], limits[2]
+    N = X.shape[0]
+    among = len(subset) if len(subset) else N
+    it, o, found, n_best, beyond = 0, 0, -1, 0, 0
+    e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
+    w_best, t_best = np.zeros(3), np.zeros(3)
+    while True:
+        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
+        if u.shape[1] == 0:
+            break
+        pre = anchor
+        if anchor.shape[0] and found >= 0:
+            pre = R_best
+        out = moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, pre,
+                           iterations, w2max, v2max, th2, k, pool_counts, st)  # fmt: skip
+        it += out[0]
+        beyond += out[10]
+        if out[1] >= 0:
+            best_cost, found, n_best = out[2], out[1], out[8]
+            e_best, R_best, C_best, w_best, t_best = out[3], out[4], out[5], out[6], out[7]
+            needed = required_samples(n_best, among, 6, log_miss)
+        batch *= 2
+    return it, found, best_cost, e_best, R_best, C_best, w_best, t_best, n_best, beyond

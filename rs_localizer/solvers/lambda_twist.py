@@ -47,7 +47,7 @@ from numba import njit
 
 from .._so3 import INLINE
 
-__all__ = ["MAX_SOLUTIONS", "lambda_twist", "lambda_twist_batch"]
+__all__ = ["MAX_SOLUTIONS", "lambda_twist", "lambda_twist_batch", "lambda_twist_into"]
 
 #: at most 4 solutions per triplet (two lines of D0, each meeting a conic twice)
 MAX_SOLUTIONS = 4
@@ -184,9 +184,13 @@ def _refine(l1, l2, l3, a12, a13, a23, b12, b13, b23):
 
 
 @njit(cache=True)
-def _solve_into(y, X, Rout, tout, off):
-    """Lambda Twist on one triplet; writes the n <= 4 solutions to ``Rout[off:off + n]``,
-    ``tout[off:off + n]`` and returns n. y: (3, 3) bearings (rows, any length), X: (3, 3)."""
+def lambda_twist_into(y, X, Rout, tout, off):
+    """Lambda Twist on one triplet into the caller's buffers (for kernels that solve one
+    sample at a time, :func:`lambda_twist` without its arrays): writes the n <= 4 solutions
+    ``X_cam = R X + t`` to ``Rout[off:off + n]`` (3, 3) and ``tout[off:off + n]`` (3,) and
+    returns n (0 for degenerate input). y: (3, 3) float64 bearings (rows, any length), X:
+    (3, 3) float64 world points; ``off`` an int64 (a literal int compiles another
+    specialization)."""
     # unit bearings (sec. 3.1)
     n1 = math.sqrt(y[0, 0] ** 2 + y[0, 1] ** 2 + y[0, 2] ** 2)
     n2 = math.sqrt(y[1, 0] ** 2 + y[1, 1] ** 2 + y[1, 2] ** 2)
@@ -376,8 +380,8 @@ def lambda_twist(bearings, X):
     """
     R = np.empty((MAX_SOLUTIONS, 3, 3))
     t = np.empty((MAX_SOLUTIONS, 3))
-    # (a non-literal offset: the same compiled _solve_into as lambda_twist_batch's)
-    n = _solve_into(bearings, X, R, t, np.int64(0))
+    # (a non-literal offset: the same compiled lambda_twist_into as lambda_twist_batch's)
+    n = lambda_twist_into(bearings, X, R, t, np.int64(0))
     return R[:n].copy(), t[:n].copy()
 
 
@@ -397,11 +401,11 @@ def lambda_twist_batch(bearings, X):
     R = np.empty((MAX_SOLUTIONS * K, 3, 3))
     t = np.empty((MAX_SOLUTIONS * K, 3))
     own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
-    # (an int64 from the start: numba would otherwise also compile _solve_into for the literal
-    # 0 it sees first)
+    # (an int64 from the start: numba would otherwise also compile lambda_twist_into for the
+    # literal 0 it sees first)
     m = np.int64(0)
     for k in range(K):
-        n = _solve_into(bearings[k], X[k], R, t, m)
+        n = lambda_twist_into(bearings[k], X[k], R, t, m)
         for j in range(n):
             own[m + j] = k
         m += n

@@ -12,6 +12,7 @@ from rs_localizer.estimation import (
     RansacOptions,
     estimate_rs_pose,
 )
+from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.rig import (
     RIG_FAILURE_REASONS,
     RigView,
@@ -1052,3 +1053,31 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
     assert rotation_angle_deg(pred.model.R, est.model.R) < 1e-6
     # (the same frame on the NumPy implementation, which has no few-points path: refused)
     assert estimate_rig_pose(views, implementation="numpy").failure == "too_few_points"
+
+
+@pytest.mark.parametrize(("stamp_offset", "spr"), [(0.0, 0.0), (0.004, 3e-5), (-0.01, 2e-5)])
+def test_the_rig_model_jacobian_is_the_maps_central_differences(stamp_offset, spr):
+    """``_rig_model_jacobian`` (analytic: a rig frame posed by one camera maps that camera's
+    covariance to the rig with it) against central differences of ``rig_model_of_camera``
+    itself (the camera's rotation perturbed on the left, the rig's rotation error measured on
+    the left), for a global-shutter and two rolling-shutter cameras."""
+    rng = np.random.default_rng(3)
+    mount = Mounting(rotvec_to_matrix(rng.normal(size=3)), 0.1 * rng.normal(size=3))
+    model = (rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3),
+             3e-5 * rng.normal(size=3), 3e-5 * rng.normal(size=3))  # fmt: skip
+    base = rig_mod.rig_model_of_camera(model, mount, stamp_offset, spr)
+    h, J = 1e-7, np.zeros((12, 12))
+    for k in range(12):
+        d = np.zeros(12)
+        d[k] = h
+        cols = []
+        for step in (d, -d):
+            m = (rotvec_to_matrix(step[:3]) @ model[0], model[1] + step[3:6],
+                 model[2] + step[6:9], model[3] + step[9:12])  # fmt: skip
+            R, C, w, t = rig_mod.rig_model_of_camera(m, mount, stamp_offset, spr)
+            cols.append(np.concatenate([matrix_to_rotvec(R @ base.R.T), C, w, t]))
+        J[:, k] = (cols[0] - cols[1]) / (2 * h)
+    got = rig_mod._rig_model_jacobian(model, mount, stamp_offset, spr)
+    np.testing.assert_allclose(got, J, rtol=1e-6, atol=1e-8 * np.abs(J).max())
+    if spr == 0.0:
+        assert not got[6:, :].any() and not got[:, 6:].any()

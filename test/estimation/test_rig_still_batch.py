@@ -1,7 +1,9 @@
-"""The rig's global-shutter RANSAC batch in one compiled call (``still_batch``) against the same
-batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
+"""The rig's RANSAC batches in one compiled call (``still_batch``, ``moving_batch``) against the
+same batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
-cost): the same best model, cost, errors, inliers and missed cameras."""
+cost): the same best model, cost, errors, inliers and missed cameras; and their termination
+after the first sample at which the samples drawn reach what the best model's inlier ratio
+asks for (``required_iterations``), against the same steps on the samples drawn."""
 
 from dataclasses import replace
 
@@ -9,10 +11,15 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.ransac import required_iterations
 from rs_localizer.estimation.rig_batch import moving_batch, still_batch
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import rig as sim_rig
+
+#: a batch's search state of no best model and no termination before its last sample:
+#: ``(best cost, samples drawn, min_iterations, samples asked for, log(1 - confidence))``
+_NO_STOP = np.array([np.inf, 0.0, np.inf, np.inf, np.log(1e-4)])
 
 
 def _frame(seed, counts, turn_deg=0.0):
@@ -68,13 +75,13 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     u = np.random.default_rng(7 + seed).random(7 * K).reshape(7, K)
-    hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
+    drawn, hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
         u, rig_mod._sampling_of(pool, subset),
         rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
         cam, Rm, cm, A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th,
-        counts_all,
+        counts_all, _NO_STOP,
     )  # fmt: skip
-    assert hf == h
+    assert drawn == K and hf >= 0
     assert cf == pytest.approx(cost[h], rel=1e-12)
     np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(Rf, hyp[0][h])
@@ -133,12 +140,58 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
         rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
         cam, Rm, cm, A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations,
         w_max**2, v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)),
+        _NO_STOP,
     )  # fmt: skip
-    hf, cf, ef, Rf, Cf, wf, tf, n, _, beyond_f = out
-    assert hf == h and beyond_f == beyond
+    drawn, hf, cf, ef, Rf, Cf, wf, tf, n, _, beyond_f = out
+    assert drawn == K and hf >= 0 and beyond_f == beyond
     assert cf == pytest.approx(cost[h], rel=1e-9)
     np.testing.assert_allclose(ef, e[h], rtol=1e-8, atol=1e-8)
     for got, want in zip((Rf, Cf, wf, tf), (a[h] for a in hyp), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
     inl = e[h] < th
     assert n == np.count_nonzero(inl if subset is None else inl[subset])
+
+
+@pytest.mark.parametrize(("seed", "counts", "moving"), [(21, (30, 24, 12), False),
+                                                       (22, (36, 24), True)])  # fmt: skip
+def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, moving):
+    """With ``min_iterations`` 5 the batch draws samples until the first at which the samples
+    drawn reach ``required_iterations`` of the best model's inlier ratio among them; that best
+    model, recomputed step by step on the first ``drawn`` samples alone (scored in NumPy), is
+    the batch's, and on fewer samples termination would not have been reached."""
+    th, K, min_it = 2.0, 60, 5
+    views = _moving_frame(seed, counts)[0] if moving else _frame(seed, counts)
+    pool = rig_mod._Pool(views)
+    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    pool_counts = np.bincount(pool.cam, minlength=len(counts))
+    u = np.random.default_rng(seed).random(7 * K).reshape(7, K)
+    state = np.array([np.inf, 0.0, min_it, np.inf, np.log(1 - 0.9999)])
+    args = (u, rig_mod._sampling_of(pool, None), rig_mod._NO_SUBSET, rig_mod._bearings(pool), X,
+            x, tau, cam, Rm, cm, A)  # fmt: skip
+    if moving:
+        out = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th, th,
+                           pool_counts, state)  # fmt: skip
+        drawn, hf, cf, n = out[0], out[1], out[2], out[8]
+    else:
+        out = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th, pool_counts, state)
+        drawn, hf, cf, n = out[0], out[1], out[2], out[6]
+    assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
+    samples = rig_mod._sample(np.random.default_rng(seed), pool, K)
+    numpy_pool = rig_mod._Pool(views, numpy=True)
+    s = 6 if moving else 3
+
+    def best_of(j):  # (the lowest MSAC cost among the first j samples' models, its inliers)
+        S = samples[:j]
+        hyp = (rig_mod._hypotheses(pool, S, 3) if moving
+               else rig_mod._hypotheses_still(pool, S))  # fmt: skip
+        e = rig_mod._errors_px(numpy_pool, *hyp)
+        cost = np.minimum(e * e, th * th).sum(axis=1)
+        h = int(np.argmin(cost))
+        return cost[h], int(np.count_nonzero(e[h] < th))
+
+    c_drawn, n_drawn = best_of(drawn)
+    assert cf == pytest.approx(c_drawn, rel=1e-9) and n == n_drawn
+    assert drawn >= required_iterations(n / len(pool.cam), s, 0.9999)
+    if drawn > min_it:
+        n_before = best_of(drawn - 1)[1]
+        assert drawn - 1 < required_iterations(n_before / len(pool.cam), s, 0.9999)
