@@ -51,6 +51,7 @@ from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_parameters
 from .frame_queue import FrameQueue
+from .outputs import fused_messages
 from .params import PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
 from .qos import RELIABLE, output_events
@@ -116,8 +117,9 @@ class NodeCore:
     """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
-    ``diagnostics_status()``, ``_flush_idle_track()`` and ``_throttled_log()`` (its warnings,
-    each kind at most once per 5 s), and the worker's parts (module docstring):
+    ``_camera_names()``, ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
+    ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_throttled_log()``
+    (its warnings, each kind at most once per 5 s), and the worker's parts (module docstring):
     ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
     arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
     :class:`~.camera_input.CameraInput`),
@@ -350,8 +352,16 @@ class NodeCore:
             pub = self._corr_out[name] = self._make_publisher(PointCloud2, topic, RELIABLE)
         return pub
 
+    def _camera_names(self) -> list[str]:
+        """The names of the node's cameras ("" for the single camera), each with its input
+        stage (``_input_of``) and counts (``_counts_of``); none before ``configure``."""
+        raise NotImplementedError
+
     def _wake_worker(self) -> None:
-        """A stop was requested: wake a worker waiting inside a frame (none by default)."""
+        """A stop was requested: wake a frame waiting for its camera's camera_info
+        (:meth:`.camera_input.CameraInput.wake`, every camera's)."""
+        for name in self._camera_names():
+            self._input_of(name).wake()
 
     def _stop_worker(self, drop_queued: bool = False) -> None:
         """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
@@ -379,8 +389,33 @@ class NodeCore:
         """After :meth:`_destroy_frame_inputs` (nothing by default)."""
 
     def _end_video(self) -> None:
-        """The end of the frame inputs: publish what the track still holds (nothing by
-        default)."""
+        """The end of the frame inputs: what the track still holds (the core's
+        ``_close_track()``, under the worker's lock: the results it completes, each to
+        ``_publish_closed``, and the twists still pending, fused outputs) published; the
+        next frame starts a new track."""
+        with self._worker_lock:
+            closed, fused = self._close_track()
+        for out in closed:
+            self._publish_closed(out)
+        self._publish_fused(fused)
+
+    def _close_track(self) -> tuple[list, list]:
+        """``(results, fused)``: what :meth:`_end_video` publishes (none by default: the
+        single camera's track is dropped with its frame inputs, nothing is left)."""
+        return [], []
+
+    def _flush_idle_track(self) -> None:
+        """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
+        frame starts a new one): publish the twists still pending (the core's
+        ``_idle_twists()``, fused outputs; none while the worker is on a frame)."""
+        self._publish_fused(self._idle_twists())
+
+    def _publish_fused(self, fused) -> None:
+        """twist and odom of the frames whose fused twist is final (``fused``:
+        :class:`~rs_localizer.ros.pipeline.FusedOutput` s, :func:`.outputs.fused_messages`
+        in the core's ``_map_frame()``)."""
+        if fused:
+            self._publish(fused_messages(fused, self._map_frame(), self._wanted))
 
     def _release_inputs(self) -> None:
         """The part of ``_release_configured`` both cores share: the camera_info and imu
@@ -445,6 +480,13 @@ class NodeCore:
         """The node's ``DiagnosticStatus`` (named after the node)."""
         name = f"rs_localizer: {self.get_fully_qualified_name()}"
         return status_message(name, hardware_id, level, message, values)
+
+    def diagnostics_status(self) -> DiagnosticStatus:
+        """The node's status: the core's ``_diagnostics(latencies, stamp_ages)`` (s, the last
+        1000 poses: :meth:`_timing_snapshot`) -> ``(hardware_id, level, message, values)``,
+        named after the node (:meth:`_status`)."""
+        latencies, stamp_ages = self._timing_snapshot()
+        return self._status(*self._diagnostics(latencies, stamp_ages))
 
     def publish_diagnostics(self) -> None:
         """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""
