@@ -132,9 +132,6 @@ class NodeCore:
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
-    #: counted for every frame the worker takes, whatever becomes of it (a rig camera's
-    #: ``taken``: the rig counts the rest); None: none
-    _taken_key: str | None = None
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -315,8 +312,8 @@ class NodeCore:
 
     def _process(self, item: QueuedFrame) -> TakenFrame:
         """The worker: one camera frame taken (the core's ``_take_frame``, under the worker's
-        lock) and counted in its camera's counts in the same step (its time, ``_taken_key``
-        and the keys of its outcome), so that a diagnostics snapshot sees it once. An
+        lock) and counted in its camera's counts in the same step (its time and the keys of
+        its outcome), so that a diagnostics snapshot sees it once. An
         exception is a defect: the frame is counted ``failed.internal_error`` and logged, the
         node goes on."""
         tic = time.perf_counter()
@@ -332,7 +329,7 @@ class NodeCore:
                     f"{type(e).__name__}: {e}",
                 )
             counts = self._counts_of(item.name)
-            counts.frame_done(time.perf_counter() - tic, self._taken_key, *taken.counted)
+            counts.frame_done(time.perf_counter() - tic, *taken.counted)
         return taken
 
     def _deliver(self, item: QueuedFrame, taken: TakenFrame) -> None:

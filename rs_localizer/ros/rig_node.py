@@ -468,8 +468,6 @@ class RigCore(NodeCore):
     def _camera_names(self) -> list[str]:
         return list(getattr(self, "inputs", ()))
 
-    _taken_key = "taken"  # (every frame the worker takes: the rig counts the rest)
-
     def _camera_of(self, item: QueuedFrame) -> CameraModel | None:
         """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
         camera_info: outside the worker's lock, which the diagnostics take on the executor
