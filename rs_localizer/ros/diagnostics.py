@@ -279,11 +279,17 @@ def _level_and_message(
             else "waiting for frames"
         )
     if c.get("map_fit_doubtful", 0) and level != OK:
-        message += (
-            "; most frames with many matches refused: does the map fit this place? mirrored "
-            "or another room?"
-        )
+        message += _map_fit_note("frames")
     return level, message
+
+
+def _map_fit_note(unit: str) -> str:
+    """The message's note while the map-fit check doubts the map (``unit``: what is solved,
+    ``frames`` or ``rig frames``; :class:`~rs_localizer.ros.pipeline.MapFitCheck`)."""
+    return (
+        f"; most {unit} with many matches refused: does the map fit this place? mirrored or "
+        "another room?"
+    )
 
 
 def _core_values(
@@ -529,10 +535,7 @@ def rig_diagnostics(
         failed = f"{r['failed']} rig frames failed ({why})"
     level, message = _rig_level_and_message(r, warnings, failed, busy, lost, note)
     if values.get("map_fit_doubtful") == "true" and level != OK:  # (as a camera's)
-        message += (
-            "; most rig frames with many matches refused: does the map fit this place? "
-            "mirrored or another room?"
-        )
+        message += _map_fit_note("rig frames")
     absent = list(inputs.absent) if inputs is not None else []
     if absent and r["solved"] == 0:  # (a camera silent: named first)
         rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
