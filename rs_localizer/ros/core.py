@@ -56,6 +56,7 @@ from .params import PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
 from .qos import RELIABLE, output_events
 from .status_msg import status_message
+from .visualization import NodeVisualization
 
 __all__ = ["NodeCore", "QueuedFrame", "TakenFrame"]
 
@@ -130,7 +131,7 @@ class NodeCore:
     _frames = None  # (the frame queue: made by the core)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
-    camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
+    camera_viz: Mapping = MappingProxyType({})  # (each camera's: made with the outputs)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _make_publisher(self, msg_type, topic, qos):
@@ -222,6 +223,26 @@ class NodeCore:
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
                     "wheels): not publishing /tf"
                 )
+
+    def _create_views(self) -> None:
+        """The debug views (:class:`.visualization.NodeVisualization`, built only while
+        subscribed), once per node (the first declares the ``viz.*`` parameters; a rig's
+        camera names are read-only, so they stay the cameras' of every configure): ``viz``,
+        the ``path`` of the node's poses, and in ``camera_viz`` each camera's
+        ``debug_image`` and ``markers`` (a rig camera's ``<c>/debug_image``); the single
+        camera's ("") are its ``viz`` with the path (one drawing thread, the path its
+        poses)."""
+        if self.viz is not None:
+            return
+        names = self._camera_names()
+        if names == [""]:
+            self.viz = NodeVisualization(self)
+            self.camera_viz = {"": self.viz}
+            return
+        self.viz = NodeVisualization(self, topics=("path",))
+        self.camera_viz = {
+            n: NodeVisualization(self, f"{n}/", ("debug_image", "markers")) for n in names
+        }
 
     def _start_frames(self) -> None:
         """After the frame subscriptions: the diagnostics timer (``diagnostics_period``), the
@@ -497,7 +518,7 @@ class NodeCore:
     # ---------------------------------------------------------------- the end
     def _close_viz(self) -> None:
         """Stop the drawing threads of the visualizations (before the node is destroyed)."""
-        for viz in [self.viz, *self.camera_viz.values()]:
+        for viz in dict.fromkeys([self.viz, *self.camera_viz.values()]):  # (each once)
             if viz is not None:
                 viz.close()
 

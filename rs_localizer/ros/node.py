@@ -57,7 +57,6 @@ from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
 
@@ -113,8 +112,7 @@ class LocalizerCore(NodeCore):
 
     def _create_outputs(self):
         self._create_pose_outputs()
-        if self.viz is None:  # (declares the viz.* parameters: once)
-            self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
+        self._create_views()  # (debug_image, markers, path; viz.* parameters)
         if self.cfg.republish_correspondences and self._maps().frontend is not None:
             self._corr_out_publisher()
 

@@ -112,7 +112,7 @@ from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization, rig_camera_views
+from .visualization import rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
@@ -272,13 +272,7 @@ class RigCore(NodeCore):
 
     def _create_outputs(self) -> None:
         self._create_pose_outputs()
-        if self.viz is None:  # (declares the viz.* parameters: once; the camera names are
-            # read-only, so they stay the cameras' of every configure)
-            self.viz = NodeVisualization(self, topics=("path",))  # (the rig's poses)
-            self.camera_viz = {
-                c.name: NodeVisualization(self, f"{c.name}/", ("debug_image", "markers"))
-                for c in self.config.cameras
-            }
+        self._create_views()  # (path: the rig's poses; each camera's debug_image, markers)
         if self.republish and self.frontend_kind != "none":  # (else made when first needed)
             for c in self.config.cameras:
                 self._corr_out_publisher(c.name)
