@@ -9,10 +9,11 @@ Accounting: each frame is counted in its camera's counts (``counts_of(item)``, a
 :class:`~rs_localizer.ros.camera_input.CameraCounts`: the single camera's and each rig
 camera's alike): ``received`` as it is put, ``skipped.<reason>`` when the queue drops it, and
 its outcome by ``process`` (:meth:`~rs_localizer.ros.camera_input.CameraCounts.frame_done`,
-``solved`` or ``failed.<reason>``; a rig camera's ``taken``), so that every frame received is,
-at every instant, exactly one of solved, failed, skipped or pending (waiting, or taken by the
-worker and not yet counted): ``received = solved + failed + skipped + pending`` in every
-snapshot (:func:`frame_accounting` of the single camera's counts). No ROS import.
+``solved`` or ``failed.<reason>``; a rig camera's frame handed on is the rig's to count), so
+that every frame received is, at every instant, exactly one of solved, failed, skipped or
+pending (waiting, or taken by the worker and not yet counted): ``received = solved + failed +
+skipped + pending`` in every snapshot (:func:`frame_accounting` of the camera's counts, a rig
+camera's with the rig's). No ROS import.
 """
 
 from __future__ import annotations
