@@ -84,10 +84,11 @@ class CameraCounts:
     camera's frames. :attr:`prefix` is what its keys carry in a report of many cameras:
     ``<name>.``, or "" for the single camera (``name`` "").
 
-    Typical keys: ``received``, ``taken``, ``skipped.<reason>``, ``failed.<reason>`` (a rig
-    camera's frames before the rig), ``points_dropped``, ``capped_clouds``, ``capped_points``,
-    ``unknown_landmark_ids``, ``camera_info_rejected[.<reason>]`` (:class:`CameraInput`'s),
-    ``frames_beside_frontend``, ``bad_input``."""
+    Typical keys: ``received``, ``solved`` (the single camera's), ``skipped.<reason>``,
+    ``failed.<reason>`` (a rig camera's: before the rig), ``points_dropped``,
+    ``capped_clouds``, ``capped_points``, ``unknown_landmark_ids``,
+    ``camera_info_rejected[.<reason>]`` (:class:`CameraInput`'s), ``frames_beside_frontend``,
+    ``bad_input``."""
 
     def __init__(self, name: str = "", kept: int = 1000):
         self.name = name

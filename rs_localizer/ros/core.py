@@ -51,10 +51,12 @@ from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_parameters
 from .frame_queue import FrameQueue
+from .outputs import fused_messages
 from .params import PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
 from .qos import RELIABLE, output_events
 from .status_msg import status_message
+from .visualization import NodeVisualization
 
 __all__ = ["NodeCore", "QueuedFrame", "TakenFrame"]
 
@@ -116,8 +118,9 @@ class NodeCore:
     """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
-    ``diagnostics_status()``, ``_flush_idle_track()`` and ``_throttled_log()`` (its warnings,
-    each kind at most once per 5 s), and the worker's parts (module docstring):
+    ``_camera_names()``, ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
+    ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_throttled_log()``
+    (its warnings, each kind at most once per 5 s), and the worker's parts (module docstring):
     ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
     arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
     :class:`~.camera_input.CameraInput`),
@@ -128,11 +131,8 @@ class NodeCore:
     _frames = None  # (the frame queue: made by the core)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
-    camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
+    camera_viz: Mapping = MappingProxyType({})  # (each camera's: made with the outputs)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
-    #: counted for every frame the worker takes, whatever becomes of it (a rig camera's
-    #: ``taken``: the rig counts the rest); None: none
-    _taken_key: str | None = None
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -224,6 +224,26 @@ class NodeCore:
                     "wheels): not publishing /tf"
                 )
 
+    def _create_views(self) -> None:
+        """The debug views (:class:`.visualization.NodeVisualization`, built only while
+        subscribed), once per node (the first declares the ``viz.*`` parameters; a rig's
+        camera names are read-only, so they stay the cameras' of every configure): ``viz``,
+        the ``path`` of the node's poses, and in ``camera_viz`` each camera's
+        ``debug_image`` and ``markers`` (a rig camera's ``<c>/debug_image``); the single
+        camera's ("") are its ``viz`` with the path (one drawing thread, the path its
+        poses)."""
+        if self.viz is not None:
+            return
+        names = self._camera_names()
+        if names == [""]:
+            self.viz = NodeVisualization(self)
+            self.camera_viz = {"": self.viz}
+            return
+        self.viz = NodeVisualization(self, topics=("path",))
+        self.camera_viz = {
+            n: NodeVisualization(self, f"{n}/", ("debug_image", "markers")) for n in names
+        }
+
     def _start_frames(self) -> None:
         """After the frame subscriptions: the diagnostics timer (``diagnostics_period``), the
         idle-track timer and the worker thread."""
@@ -313,8 +333,8 @@ class NodeCore:
 
     def _process(self, item: QueuedFrame) -> TakenFrame:
         """The worker: one camera frame taken (the core's ``_take_frame``, under the worker's
-        lock) and counted in its camera's counts in the same step (its time, ``_taken_key``
-        and the keys of its outcome), so that a diagnostics snapshot sees it once. An
+        lock) and counted in its camera's counts in the same step (its time and the keys of
+        its outcome), so that a diagnostics snapshot sees it once. An
         exception is a defect: the frame is counted ``failed.internal_error`` and logged, the
         node goes on."""
         tic = time.perf_counter()
@@ -330,7 +350,7 @@ class NodeCore:
                     f"{type(e).__name__}: {e}",
                 )
             counts = self._counts_of(item.name)
-            counts.frame_done(time.perf_counter() - tic, self._taken_key, *taken.counted)
+            counts.frame_done(time.perf_counter() - tic, *taken.counted)
         return taken
 
     def _deliver(self, item: QueuedFrame, taken: TakenFrame) -> None:
@@ -350,8 +370,16 @@ class NodeCore:
             pub = self._corr_out[name] = self._make_publisher(PointCloud2, topic, RELIABLE)
         return pub
 
+    def _camera_names(self) -> list[str]:
+        """The names of the node's cameras ("" for the single camera), each with its input
+        stage (``_input_of``) and counts (``_counts_of``); none before ``configure``."""
+        raise NotImplementedError
+
     def _wake_worker(self) -> None:
-        """A stop was requested: wake a worker waiting inside a frame (none by default)."""
+        """A stop was requested: wake a frame waiting for its camera's camera_info
+        (:meth:`.camera_input.CameraInput.wake`, every camera's)."""
+        for name in self._camera_names():
+            self._input_of(name).wake()
 
     def _stop_worker(self, drop_queued: bool = False) -> None:
         """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
@@ -379,8 +407,33 @@ class NodeCore:
         """After :meth:`_destroy_frame_inputs` (nothing by default)."""
 
     def _end_video(self) -> None:
-        """The end of the frame inputs: publish what the track still holds (nothing by
-        default)."""
+        """The end of the frame inputs: what the track still holds (the core's
+        ``_close_track()``, under the worker's lock: the results it completes, each to
+        ``_publish_closed``, and the twists still pending, fused outputs) published; the
+        next frame starts a new track."""
+        with self._worker_lock:
+            closed, fused = self._close_track()
+        for out in closed:
+            self._publish_closed(out)
+        self._publish_fused(fused)
+
+    def _close_track(self) -> tuple[list, list]:
+        """``(results, fused)``: what :meth:`_end_video` publishes (none by default: the
+        single camera's track is dropped with its frame inputs, nothing is left)."""
+        return [], []
+
+    def _flush_idle_track(self) -> None:
+        """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
+        frame starts a new one): publish the twists still pending (the core's
+        ``_idle_twists()``, fused outputs; none while the worker is on a frame)."""
+        self._publish_fused(self._idle_twists())
+
+    def _publish_fused(self, fused) -> None:
+        """twist and odom of the frames whose fused twist is final (``fused``:
+        :class:`~rs_localizer.ros.pipeline.FusedOutput` s, :func:`.outputs.fused_messages`
+        in the core's ``_map_frame()``)."""
+        if fused:
+            self._publish(fused_messages(fused, self._map_frame(), self._wanted))
 
     def _release_inputs(self) -> None:
         """The part of ``_release_configured`` both cores share: the camera_info and imu
@@ -446,6 +499,13 @@ class NodeCore:
         name = f"rs_localizer: {self.get_fully_qualified_name()}"
         return status_message(name, hardware_id, level, message, values)
 
+    def diagnostics_status(self) -> DiagnosticStatus:
+        """The node's status: the core's ``_diagnostics(latencies, stamp_ages)`` (s, the last
+        1000 poses: :meth:`_timing_snapshot`) -> ``(hardware_id, level, message, values)``,
+        named after the node (:meth:`_status`)."""
+        latencies, stamp_ages = self._timing_snapshot()
+        return self._status(*self._diagnostics(latencies, stamp_ages))
+
     def publish_diagnostics(self) -> None:
         """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""
         if self.pub_diag is None:
@@ -458,7 +518,7 @@ class NodeCore:
     # ---------------------------------------------------------------- the end
     def _close_viz(self) -> None:
         """Stop the drawing threads of the visualizations (before the node is destroyed)."""
-        for viz in [self.viz, *self.camera_viz.values()]:
+        for viz in dict.fromkeys([self.viz, *self.camera_viz.values()]):  # (each once)
             if viz is not None:
                 viz.close()
 

@@ -18,7 +18,7 @@ from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
 from ..tracking.localizer import readout_warning
 from .config import LocalizerConfig
-from .frame_queue import FRAME_ACCOUNTING, FrameCounts
+from .frame_queue import FRAME_ACCOUNTING, FrameCounts, frame_accounting
 from .pipeline import StatsSnapshot
 
 if TYPE_CHECKING:
@@ -279,11 +279,17 @@ def _level_and_message(
             else "waiting for frames"
         )
     if c.get("map_fit_doubtful", 0) and level != OK:
-        message += (
-            "; most frames with many matches refused: does the map fit this place? mirrored "
-            "or another room?"
-        )
+        message += _map_fit_note("frames")
     return level, message
+
+
+def _map_fit_note(unit: str) -> str:
+    """The message's note while the map-fit check doubts the map (``unit``: what is solved,
+    ``frames`` or ``rig frames``; :class:`~rs_localizer.ros.pipeline.MapFitCheck`)."""
+    return (
+        f"; most {unit} with many matches refused: does the map fit this place? mirrored or "
+        "another room?"
+    )
 
 
 def _core_values(
@@ -414,7 +420,7 @@ class RigInputs:
     ``counts``: the node's map-fit check over the rig frames
     (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
     :class:`~rs_localizer.ros.camera_input.CameraCounts` after ``<c>.``: ``received`` (by
-    the subscriptions), ``taken`` (handed on by the worker), ``skipped.<reason>`` (the
+    the subscriptions), ``skipped.<reason>`` (the
     node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
     ``failed.internal_error``, its input stage's counts (``capped_clouds``,
     ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
@@ -529,10 +535,7 @@ def rig_diagnostics(
         failed = f"{r['failed']} rig frames failed ({why})"
     level, message = _rig_level_and_message(r, warnings, failed, busy, lost, note)
     if values.get("map_fit_doubtful") == "true" and level != OK:  # (as a camera's)
-        message += (
-            "; most rig frames with many matches refused: does the map fit this place? "
-            "mirrored or another room?"
-        )
+        message += _map_fit_note("rig frames")
     absent = list(inputs.absent) if inputs is not None else []
     if absent and r["solved"] == 0:  # (a camera silent: named first)
         rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
@@ -563,30 +566,19 @@ def _rig_level_and_message(
 
 def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = None) -> FrameCounts:
     """Camera ``n``'s frame accounting as the rig node reports it (received = solved + failed
-    + skipped + pending). The rig's
+    + skipped + pending): the rig's
     (:meth:`~rs_localizer.tracking.video.Localizer.camera_counts`, its ``<c>.skipped.<reason>``
-    the skips by reason), with the node's own counts of the camera ``own`` (keys without the
-    ``<c>.`` prefix, :class:`RigInputs`' ``counts``; None: the rig's alone): ``received`` is
-    then the node's (every message), the node's ``skipped.<reason>`` and
-    ``failed.internal_error`` are added to the rig's (and its ``failed.<reason>`` are the
-    failures by reason), and the frames the node has not handed on yet (``received`` less
-    ``taken`` and the frames dropped from its queue) to ``pending``. The rig node's
-    diagnostics and ``replay`` of a rig bag (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`)
-    both count a camera's frames so."""
-    c = rig.camera_counts(n)
+    the skips by reason) alone, or with the node's own counts of the camera ``own`` (keys
+    without the ``<c>.`` prefix, :class:`RigInputs`' ``counts``) the single camera's
+    accounting of them with the rig's (:func:`~rs_localizer.ros.frame_queue.frame_accounting`:
+    ``received`` the node's, every message; the node's ``skipped.<reason>`` and
+    ``failed.<reason>`` with the rig's; the frames the node or the rig still holds
+    ``pending``). The rig node's diagnostics and ``replay`` of a rig bag
+    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both count a camera's frames so."""
     skip = f"{n}.skipped."
-    skips = Counter({k[len(skip) :]: v for k, v in rig.counts.items() if k.startswith(skip)})
-    failures: dict[str, int] = {}
-    if own is not None:
-        early = {k[len("skipped.") :]: v for k, v in own.items() if k.startswith("skipped.")}
-        failures = {k[len("failed.") :]: v for k, v in own.items() if k.startswith("failed.")}
-        skips.update(early)
-        queued = sum(early.values()) - own.get("skipped.bad_input", 0)
-        c["received"] = own.get("received", 0)
-        c["skipped"] += sum(early.values())
-        c["failed"] += own.get("failed.internal_error", 0)
-        c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
-    return FrameCounts(**c, failures=failures, skips=dict(skips))
+    skips = {k[len(skip) :]: v for k, v in rig.counts.items() if k.startswith(skip)}
+    handed = FrameCounts(**rig.camera_counts(n), skips=skips)
+    return handed if own is None else frame_accounting(own, handed)
 
 
 def rig_camera_section(

@@ -9,16 +9,17 @@ Accounting: each frame is counted in its camera's counts (``counts_of(item)``, a
 :class:`~rs_localizer.ros.camera_input.CameraCounts`: the single camera's and each rig
 camera's alike): ``received`` as it is put, ``skipped.<reason>`` when the queue drops it, and
 its outcome by ``process`` (:meth:`~rs_localizer.ros.camera_input.CameraCounts.frame_done`,
-``solved`` or ``failed.<reason>``; a rig camera's ``taken``), so that every frame received is,
-at every instant, exactly one of solved, failed, skipped or pending (waiting, or taken by the
-worker and not yet counted): ``received = solved + failed + skipped + pending`` in every
-snapshot (:func:`frame_accounting` of the single camera's counts). No ROS import.
+``solved`` or ``failed.<reason>``; a rig camera's frame handed on is the rig's to count), so
+that every frame received is, at every instant, exactly one of solved, failed, skipped or
+pending (waiting, or taken by the worker and not yet counted): ``received = solved + failed +
+skipped + pending`` in every snapshot (:func:`frame_accounting` of the camera's counts, a rig
+camera's with the rig's). No ROS import.
 """
 
 from __future__ import annotations
 
 import threading
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -50,8 +51,9 @@ class FrameCounts:
     """A camera's frame accounting, the one form of both modes: ``received == solved +
     failed + skipped + pending``; ``failures`` counts each failure reason (their sum is
     ``failed``), ``skips`` each skip reason known (the rig camera's; the single camera's
-    queue counts its skips without reason). The single camera's is :func:`frame_accounting`
-    of its counts, a rig camera's :func:`~rs_localizer.ros.diagnostics.rig_camera_frames`."""
+    queue counts its skips without reason): :func:`frame_accounting` of the camera's counts
+    (a rig camera's with the rig's,
+    :func:`~rs_localizer.ros.diagnostics.rig_camera_frames`)."""
 
     received: int = 0
     solved: int = 0
@@ -73,19 +75,30 @@ class FrameCounts:
         return out
 
 
-def frame_accounting(counts: Mapping[str, int]) -> FrameCounts:
-    """The frame accounting of a camera whose frames are solved one by one (the single
-    camera's) from its counts (keys without prefix, a
-    :meth:`~rs_localizer.ros.camera_input.CameraCounts.counts` snapshot): ``received``,
-    ``solved``, ``failed.<reason>`` and ``skipped.<reason>`` (the queue's skips, counted
-    without reason in :class:`FrameCounts`), the rest pending."""
+def frame_accounting(counts: Mapping[str, int], handed: FrameCounts | None = None) -> FrameCounts:
+    """A camera's frame accounting, the single camera's and a rig camera's alike, from its
+    counts (keys without prefix, a :meth:`~rs_localizer.ros.camera_input.CameraCounts.counts`
+    snapshot: ``received``, ``solved``, ``failed.<reason>`` and ``skipped.<reason>``, the
+    node's) and, for a camera whose frames the node hands on to a rig, ``handed``: the rig's
+    accounting of the frames it was handed (its ``solved``, ``failed``, ``skipped`` and
+    ``skips`` by reason; None: the node solves them itself). ``solved``, ``failed`` and
+    ``skipped`` are the node's and the rig's summed, the failures by reason the node's, the
+    rest of ``received`` pending (queued, being solved or in an open rig frame). Skips by
+    reason: with ``handed`` the node's and the rig's (a rig camera's section lists them);
+    without, none (the single camera's status counts its skips without reason)."""
     failures = {k[len("failed.") :]: v for k, v in counts.items() if k.startswith("failed.")}
-    skipped = sum(v for k, v in counts.items() if k.startswith("skipped."))
-    received, solved, failed = (
-        counts.get("received", 0),
-        counts.get("solved", 0),
-        sum(failures.values()),
+    skips = Counter(
+        {k[len("skipped.") :]: v for k, v in counts.items() if k.startswith("skipped.")}
     )
+    received = counts.get("received", 0)
+    solved, failed, skipped = counts.get("solved", 0), sum(failures.values()), sum(skips.values())
+    if handed is not None:
+        solved, failed, skipped = (
+            solved + handed.solved,
+            failed + handed.failed,
+            skipped + handed.skipped,
+        )
+        skips.update(handed.skips)
     return FrameCounts(
         received=received,
         solved=solved,
@@ -93,6 +106,7 @@ def frame_accounting(counts: Mapping[str, int]) -> FrameCounts:
         skipped=skipped,
         pending=received - solved - failed - skipped,
         failures=failures,
+        skips=dict(skips) if handed is not None else {},
     )
 
 

@@ -43,7 +43,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
@@ -54,11 +53,10 @@ from .config import LocalizerConfig, build_config, default_timing_note, load_map
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import diagnostic_status
 from .frame_queue import frame_accounting
-from .outputs import frame_messages, fused_messages
+from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
 
@@ -114,8 +112,7 @@ class LocalizerCore(NodeCore):
 
     def _create_outputs(self):
         self._create_pose_outputs()
-        if self.viz is None:  # (declares the viz.* parameters: once)
-            self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
+        self._create_views()  # (debug_image, markers, path; viz.* parameters)
         if self.cfg.republish_correspondences and self._maps().frontend is not None:
             self._corr_out_publisher()
 
@@ -154,9 +151,6 @@ class LocalizerCore(NodeCore):
             msg_type = CompressedImage if compressed else Image
             self.sub_image = self._subscribe_frames("", "image", msg_type, topic, IMAGE_QOS)
         self._start_frames()
-
-    def _wake_worker(self):
-        self.pipeline.camera_input.wake()  # (a frame waiting for its camera_info)
 
     def _frame_inputs_destroyed(self):
         """After the frame inputs' end (the frames still queued dropped): the track is
@@ -283,7 +277,7 @@ class LocalizerCore(NodeCore):
         cfg, res = self.cfg, taken.result
         self.viz.hold_image(res.image if res.failure is None else None)
         if res.failure is not None:
-            self._publish(fused_messages(res.fused, cfg.map_frame, self._wanted))
+            self._publish_fused(res.fused)
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
                 self.pipeline.stats.get(f"failed.{res.failure}"),
@@ -312,16 +306,18 @@ class LocalizerCore(NodeCore):
     def _throttled_log(self):
         return self.pipeline.log
 
-    def _flush_idle_track(self):
-        """Timer: after ``tracking.max_gap`` without frames the track is over (the next frame
-        resets it): publish the twists still pending."""
-        cfg = self.cfg
-        if cfg is not None:
-            self._publish(fused_messages(self.pipeline.flush_idle(), cfg.map_frame, self._wanted))
+    def _idle_twists(self) -> list:
+        return self.pipeline.flush_idle()  # (none unconfigured)
+
+    def _map_frame(self) -> str:
+        return self.cfg.map_frame
+
+    def _camera_names(self) -> list[str]:
+        return [""]
 
     # ------------------------------------------------------------------ diagnostics
-    def diagnostics_status(self) -> DiagnosticStatus:
-        latencies, stamp_ages = self._timing_snapshot()
+    def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
+        """The camera's status (:func:`.diagnostics.diagnostic_status`)."""
         stats = self.pipeline.stats.snapshot()
         level, message, values = diagnostic_status(
             self.cfg,
@@ -338,7 +334,7 @@ class LocalizerCore(NodeCore):
             self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
             frontend=self._maps().frontend,
         )
-        return self._status(self.cfg.camera_frame or "camera", level, message, values)
+        return self.cfg.camera_frame or "camera", level, message, values
 
 
 class RSLocalizerNode(LocalizerCore, Node):

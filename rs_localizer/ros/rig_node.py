@@ -77,7 +77,6 @@ import time
 from collections import Counter, deque
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
@@ -109,11 +108,11 @@ from .config import (
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
-from .outputs import fused_messages, pose_messages
+from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization, rig_camera_views
+from .visualization import rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
@@ -273,13 +272,7 @@ class RigCore(NodeCore):
 
     def _create_outputs(self) -> None:
         self._create_pose_outputs()
-        if self.viz is None:  # (declares the viz.* parameters: once; the camera names are
-            # read-only, so they stay the cameras' of every configure)
-            self.viz = NodeVisualization(self, topics=("path",))  # (the rig's poses)
-            self.camera_viz = {
-                c.name: NodeVisualization(self, f"{c.name}/", ("debug_image", "markers"))
-                for c in self.config.cameras
-            }
+        self._create_views()  # (path: the rig's poses; each camera's debug_image, markers)
         if self.republish and self.frontend_kind != "none":  # (else made when first needed)
             for c in self.config.cameras:
                 self._corr_out_publisher(c.name)
@@ -307,18 +300,15 @@ class RigCore(NodeCore):
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
         self._start_frames()
 
-    def _end_video(self) -> None:
-        """Solve the rig frames still open and publish them and the twists still pending; the
-        next frame starts a new track."""
+    def _close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
+        """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
+        twists still pending (none unconfigured)."""
         if self.rig is None:
-            return
-        with self._worker_lock:
-            outs = self.rig.close()
-            fused = self.rig.flush() + self.rig.reset()
-        for out in outs:
-            self.publish_output(out)
-        for f in fused:
-            self._publish_fused(f)
+            return [], []
+        return self.rig.close(), self._fused_outputs(self.rig.flush() + self.rig.reset())
+
+    def _publish_closed(self, out: LocalizerOutput) -> None:
+        self.publish_output(out)
 
     def _release_configured(self) -> None:
         """Drop what configure made: publishers, subscriptions, front ends and their map, the
@@ -469,12 +459,8 @@ class RigCore(NodeCore):
             item.name, item.stamp, self.inputs[item.name].newest
         )
 
-    def _wake_worker(self) -> None:
-        """A stop was requested: wake a frame waiting for its camera's camera_info."""
-        for inp in self.inputs.values():
-            inp.wake()
-
-    _taken_key = "taken"  # (every frame the worker takes: the rig counts the rest)
+    def _camera_names(self) -> list[str]:
+        return list(getattr(self, "inputs", ()))
 
     def _camera_of(self, item: QueuedFrame) -> CameraModel | None:
         """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
@@ -633,24 +619,24 @@ class RigCore(NodeCore):
         return reason
 
     # ---------------------------------------------------------------- outputs
-    def _publish_fused(self, f) -> None:
-        """twist and odom of an earlier rig frame whose fused twist is final (the
-        single-camera node's messages, :func:`.outputs.fused_messages`)."""
-        fused = [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame)]
-        self._publish(fused_messages(fused, self.map_frame, self._wanted))
+    def _fused_outputs(self, fused) -> list[FusedOutput]:
+        """The rig frames whose fused twist is final (``TrackedFrame`` s) as the single-camera
+        node's fused outputs (:func:`.outputs.fused_messages`: of ``base_frame``)."""
+        return [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame) for f in fused]
 
-    def _flush_idle_track(self) -> None:
-        """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
-        frames the track is over (the next frame starts a new one): publish the twists still
-        pending (:meth:`Localizer.flush_idle`)."""
+    def _idle_twists(self) -> list[FusedOutput]:
+        """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
+        ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
+        while the worker is on a frame (not idle)."""
         if self.rig is None or not self._worker_lock.acquire(blocking=False):
-            return  # (the worker is on a frame: not idle)
+            return []
         try:
-            fused = self.rig.flush_idle()
+            return self._fused_outputs(self.rig.flush_idle())
         finally:
             self._worker_lock.release()
-        for f in fused:
-            self._publish_fused(f)
+
+    def _map_frame(self) -> str:
+        return self.map_frame
 
     def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
@@ -685,15 +671,13 @@ class RigCore(NodeCore):
             )
             if self.viz is not None:
                 self._publish_viz(out)
-        for f in out.fused:
-            self._publish_fused(f)
+        self._publish_fused(self._fused_outputs(out.fused))
 
-    def diagnostics_status(self) -> DiagnosticStatus:
+    def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
         waiting = {n for n, i in self.inputs.items() if i.newest is None}
         first = self._first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
-        latencies, stamp_ages = self._timing_snapshot()
         with self._worker_lock:  # (waits for the frame the worker is on: one consistent count)
             counts = Counter(self._rig_counts.counts())
             for cc in self.camera_counts.values():
@@ -705,7 +689,7 @@ class RigCore(NodeCore):
                                dict(self.imu_rejected), absent,
                                self.frontend_kind != "none")  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
-        return self._status(self.config.base_frame, level, message, values)
+        return self.config.base_frame, level, message, values
 
 
 class RigLocalizerNode(RigCore, Node):

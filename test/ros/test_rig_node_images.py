@@ -219,10 +219,12 @@ def test_one_diagnostics_converter_for_both_nodes():
         assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
     with pytest.raises(ValueError, match="unknown diagnostic level"):
         status_message("n", "hw", "FINE", "m", {})
-    # (the nodes' shared core converts both statuses; neither node builds a message itself)
+    # (the nodes' shared core converts both statuses; neither node builds a message itself,
+    # each gives its status's values)
     assert "status_message(" in inspect.getsource(core)
+    assert "self._status(*self._diagnostics(" in inspect.getsource(core.NodeCore)
     for mod in (single, rig_node):
-        assert "self._status(" in inspect.getsource(mod)
+        assert "def _diagnostics(" in inspect.getsource(mod)
         assert "status_message(" not in inspect.getsource(mod)
         assert "DiagnosticStatus()" not in inspect.getsource(mod)
 

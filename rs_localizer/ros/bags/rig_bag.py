@@ -438,7 +438,6 @@ def replay_rig(
         for item in iter_rig_frames(bag, inputs, images=images):
             n = item.camera_name
             own[n].add("received")  # (as the node: every message, taken at once)
-            own[n].add("taken")
             stamp = item.stamp_ns
             if stamp is None:  # (a stamp out of range: skipped by the node alone)
                 own[n].add("skipped.bad_input")
