@@ -38,11 +38,19 @@ from scipy.optimize import least_squares
 from ..geometry import rotation_angle_deg, skew
 from ..pose import RSModel
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
-from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate, frame_refinement
+from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
 from .frame import Frame
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
-from .refine import exact_errors, exact_jacobian, exact_residuals
+from .refine import (
+    KernelMountings,
+    RefineSettings,
+    exact_errors,
+    exact_jacobian,
+    exact_residuals,
+    kernel_mountings,
+    refine_rs_pose,
+)
 from .result import (
     AMBIGUOUS_TAG,
     DEGENERATE_GEOMETRY,
@@ -199,9 +207,22 @@ _LEAST_SQUARES = 1e6
 _FIT_TOL = 1e-12
 #: at most this many iterations of the compiled fit (SciPy's default for 6 parameters: 700)
 _FIT_ITERATIONS = 200
+#: the compiled fit's settings (:func:`~.finalize.frame_refinement`'s with these: the pose
+#: alone, no cutoff, with the information matrix)
+_FIT_SETTINGS = RefineSettings(
+    rolling_shutter=False, max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL, cutoff=np.inf
+)
 
 
-def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
+def _fit(
+    fr: Frame,
+    R0: np.ndarray,
+    C0: np.ndarray,
+    w: np.ndarray,
+    b: np.ndarray,
+    tau: np.ndarray | None = None,
+    mountings: KernelMountings | None = None,
+):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
     velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
     ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``, normalized units
@@ -209,15 +230,20 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     global-shutter model) the compiled refinement of the pose alone
     (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it, its
     information matrix and the frame's errors giving the rest; otherwise SciPy's
-    Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian."""
+    Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian.
+    ``tau``: the frame's ``r - r0`` and ``mountings``: its :meth:`~.frame.Frame.mountings`
+    checked once (:func:`~.refine.kernel_mountings`), when the caller fits several starts
+    (None: from the frame)."""
+    tau = fr.r - fr.r0 if tau is None else tau
     if not (np.any(w) or np.any(b)):
         z = np.zeros(3)
-        ref = frame_refinement(fr, (R0, C0, z, z), _LEAST_SQUARES, False, cutoff=np.inf,
-                               max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL)  # fmt: skip
+        # (the compiled refinement as :func:`~.finalize.frame_refinement` runs it, with the
+        # frame's mountings checked once for every start)
+        ref = refine_rs_pose((R0, C0, z, z), fr.X, fr.x, tau, _LEAST_SQUARES, _FIT_SETTINGS,
+                             mountings=mountings)  # fmt: skip
         R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-        e = fr.errors((R, C, z, z))
+        e = exact_errors(R, C, z, z, fr.X, fr.x, tau, fr.W)
         return R, C, z, float(e @ e), np.array(ref.data_information[:6, :6])
-    tau = fr.r - fr.r0
     X, x = fr.X, fr.x
     W = skew(w)
     m = fr.mountings()  # (each corner's error whitened into measured pixels; None: plain)
@@ -320,8 +346,11 @@ def few_points_estimate(
         raise EstimationFailed(TOO_FEW_POINTS)
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
+    tau = fr.r - fr.r0
+    m = fr.mountings()
+    km = None if m is None else kernel_mountings(m, len(fr.x))
     for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
-        R, C, t, sse, H = _fit(fr, R0, C0, w, b)
+        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau, km)
         if np.isfinite(R).all() and np.isfinite(sse):
             fits.append((float(np.sqrt(sse / len(fr.x))), R, C, t, sse, H))
     if not fits:
