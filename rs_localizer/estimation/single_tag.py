@@ -29,8 +29,6 @@ corner noise measured on real tags.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
@@ -71,6 +69,7 @@ __all__ = [
     "coplanar_points",
     "few_points",
     "few_points_estimate",
+    "few_points_planarity",
     "planar_points",
 ]
 
@@ -129,6 +128,23 @@ def few_points(points3d: np.ndarray) -> bool:
     :data:`MIN_SPREAD_POINTS` finite ones."""
     X = np.asarray(points3d, dtype=np.float64).reshape(-1, 3)
     return coplanar_points(X) or (len(X) >= MIN_SPREAD_POINTS and bool(np.isfinite(X).all()))
+
+
+def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
+    """:func:`~.degeneracy.planarity` of the frame's points (one compiled call for the choice
+    and the estimate) when :func:`few_points_estimate` poses the frame: fewer valid points
+    than ``min_inliers`` (the solver's) and :func:`few_points`, or exactly
+    :data:`MIN_PLANAR_POINTS` coplanar ones (one square marker's corners, whatever the
+    solver); None otherwise."""
+    n = len(fr.x)
+    if not (n < min_inliers or n == MIN_PLANAR_POINTS):
+        return None
+    flat = float(planarity(fr.X))
+    if n >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE:
+        return flat
+    if n < min_inliers and n >= MIN_SPREAD_POINTS and np.isfinite(fr.X).all():
+        return flat
+    return None
 
 
 def _fixed_velocities(
@@ -297,6 +313,9 @@ def few_points_estimate(
     gyro_used: bool,
     timings: dict[str, float],
     ignored_inputs: tuple[str, ...] = (),
+    *,
+    flat: float | None = None,
+    name: str | None = None,
 ) -> RSPoseEstimate:
     """The pose of a frame of a few points (:func:`few_points`; too few for ``solver``'s
     robust estimate): one square marker's four corners or a few coplanar points, or at least
@@ -325,8 +344,11 @@ def few_points_estimate(
         fr: the prepared frame (:func:`~.frame.prepare_frame`), its threshold, timing and
             velocity bounds set (:func:`~.frame.configure_frame`'s fields), and ``planar``:
             :func:`planar_points`.
-        solver: the estimator's solver (recorded on the estimate).
+        solver: the estimator's solver.
         gyro_used: ``fr.known_w`` is a gyro's (set on the estimate).
+        flat: :func:`~.degeneracy.planarity` of the frame's points when the caller has it
+            (:func:`few_points_planarity`; None: computed here).
+        name: the solver recorded on the estimate (None: ``solver``).
 
     Returns:
         the successful :class:`RSPoseEstimate`: ``few_points`` set, ``single_tag`` too for
@@ -374,6 +396,7 @@ def few_points_estimate(
         raise EstimationFailed(TOO_FEW_INLIERS)
     moving = bool(np.any(w) or np.any(b))
     sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    flat = float(planarity(fr.X)) if flat is None else flat
     cov = np.zeros((12, 12))
     try:
         cov[:6, :6] = sigma2 * np.linalg.inv(H)
@@ -387,7 +410,7 @@ def few_points_estimate(
         float(rms * fr.f),
         covariance=cov,
     )
-    est = final_estimate(
+    return final_estimate(
         fr,
         solver if moving else "p3p",
         final,
@@ -396,13 +419,10 @@ def few_points_estimate(
         timings,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
-    )
-    return replace(
-        est,
-        solver=solver,
+        flat=flat,
+        condition=condition_number(H),
+        solver=solver if name is None else name,
         motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
-        condition_number=condition_number(H),
-        planarity=float(planarity(fr.X)),
         single_tag=planar,
         few_points=True,
         twist_covariance=None,
