@@ -297,7 +297,8 @@ def prepare_frame(
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u.take(rows, axis=0)
     if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
-        fr.W = np.ascontiguousarray(camera.pixel_jacobian(fr.x).reshape(-1, 4) / fr.f)
+        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+        fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 
 
