@@ -29,6 +29,8 @@ corner noise measured on real tags.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
@@ -180,16 +182,32 @@ def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     least-squares plane first: OpenCV's IPPE returns no pose for points a millimetre off one
     plane (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
     (:func:`_fit`) then starts from these poses on the points as given."""
-    X = np.asarray(fr.X, dtype=np.float64)
+    X = np.ascontiguousarray(fr.X, dtype=np.float64)
+    return _opencv_poses(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+
+
+@lru_cache(maxsize=256)
+def _on_plane(points: bytes) -> np.ndarray:
+    """(N, 3) the world points (float64 bytes, N x 3 row-major; m) projected onto their
+    least-squares plane (read-only), for :func:`_ippe`: kept for the next frames of the same
+    marker, whose corners are the same points in the same order."""
+    X = np.frombuffer(points, dtype=np.float64).reshape(-1, 3)
     centre = X.mean(axis=0)
     normal = np.linalg.svd(X - centre)[2][2]
-    return _opencv_poses(X - np.outer((X - centre) @ normal, normal), fr.x, cv2.SOLVEPNP_IPPE)
+    P = X - np.outer((X - centre) @ normal, normal)
+    P.flags.writeable = False
+    return P
 
 
 def _sqpnp(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     """The pose ``(R, C)`` (world -> camera) of the frame's points on more than one plane from
     their normalized image points: OpenCV's SQPnP (its global minimum; none when it fails)."""
     return _opencv_poses(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
+
+
+#: the camera matrix of normalized image points (read only)
+_IDENTITY = np.eye(3)
+_IDENTITY.flags.writeable = False
 
 
 def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -200,7 +218,7 @@ def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndar
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             np.ascontiguousarray(X, dtype=np.float64),
             np.ascontiguousarray(x, dtype=np.float64),
-            np.eye(3),
+            _IDENTITY,
             None,
             flags=flag,
         )
@@ -251,7 +269,7 @@ def _fit(
     checked once (:func:`~.refine.kernel_mountings`), when the caller fits several starts
     (None: from the frame)."""
     tau = fr.r - fr.r0 if tau is None else tau
-    if not (np.any(w) or np.any(b)):
+    if not (w.any() or b.any()):
         z = np.zeros(3)
         # (the compiled refinement as :func:`~.finalize.frame_refinement` runs it, with the
         # frame's mountings checked once for every start)
@@ -394,7 +412,7 @@ def few_points_estimate(
     rms, R, C, t, sse, H = choice
     if rms > th:
         raise EstimationFailed(TOO_FEW_INLIERS)
-    moving = bool(np.any(w) or np.any(b))
+    moving = bool(w.any() or b.any())
     sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
     flat = float(planarity(fr.X)) if flat is None else flat
     cov = np.zeros((12, 12))
