@@ -182,6 +182,18 @@ class Frame:
             np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
         )
 
+    def kernel_mountings(self) -> KernelMountings | None:
+        """:meth:`mountings` of every point in the refinement kernel's form, as
+        :func:`~.refine.kernel_mountings` checks and converts them (the same arrays' values),
+        built directly (a frame refined several times: :mod:`.single_tag`); None as there."""
+        if not len(self.W) or not self.compiled:
+            return None
+        n = len(self.W)
+        scale = np.ascontiguousarray(self.W, dtype=np.float64)
+        return KernelMountings(
+            n, (np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale)
+        )
+
     def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time
         (:func:`~.refine.exact_errors`: normalized units, in pixels of the measured image over

@@ -29,6 +29,7 @@ corner noise measured on real tags.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import cv2
@@ -48,7 +49,6 @@ from .refine import (
     exact_errors,
     exact_jacobian,
     exact_residuals,
-    kernel_mountings,
     refine_rs_pose,
 )
 from .result import (
@@ -387,12 +387,11 @@ def few_points_estimate(
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
     tau = fr.r - fr.r0
-    m = fr.mountings()
-    km = None if m is None else kernel_mountings(m, len(fr.x))
+    km = fr.kernel_mountings()
     for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
         R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau, km)
-        if np.isfinite(R).all() and np.isfinite(sse):
-            fits.append((float(np.sqrt(sse / len(fr.x))), R, C, t, sse, H))
+        if np.isfinite(R).all() and math.isfinite(sse):
+            fits.append((math.sqrt(sse / len(fr.x)), R, C, t, sse, H))
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     fits.sort(key=lambda f: f[0])
