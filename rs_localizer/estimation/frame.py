@@ -293,10 +293,11 @@ def prepare_frame(
     if rng is not None:
         rows = rng.permutation(rows)
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
-    x, r, r0e = camera.normalize(u.take(rows, axis=0), compiled)
+    u_px = u.take(rows, axis=0)
+    x, r, r0e = camera.normalize(u_px, compiled)
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
-        rows, x, r, r0e = rows[good], x[good], r[good], r0e[good]
+        rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),
@@ -307,7 +308,7 @@ def prepare_frame(
         camera.mean_focal,
     )
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
-    fr.u_px = u.take(rows, axis=0)
+    fr.u_px = u_px
     if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
         J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
