@@ -649,6 +649,19 @@ def _rs_coordinates(p, x, K, axis, sign, d0, d1, r0):
 
 
 @njit(cache=True)
+def _fisheye_scales(r, th, k):
+    """``(s, g)`` of the equidistant model's distortion Jacobian ``s I + g x x^T`` at a point
+    of undistorted radius ``r`` and angle ``th = arctan(r)`` from the optical axis, ``k`` its
+    k1..k4 (first four entries): ``s = theta_d / r``, ``g = s'(r) / r`` (1, 0 at the axis)."""
+    t2 = th * th
+    poly = 1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))
+    dpoly = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+    if r < 1e-8:
+        return 1.0, 0.0
+    return th * poly / r, ((dpoly / (1 + r * r) * r - th * poly) / (r * r)) / r
+
+
+@njit(cache=True)
 def distortion_jacobian(xn, d, fisheye, fx, fy):
     """:meth:`CameraModel.pixel_jacobian` with distortion, compiled: (N, 2, 2) at the (N, 2)
     undistorted normalized points ``xn``; ``d`` (8,) the equidistant model's k1..k4
@@ -660,15 +673,7 @@ def distortion_jacobian(xn, d, fisheye, fx, fy):
         r2 = x * x + y * y
         if fisheye:
             r = np.sqrt(r2)
-            th = np.arctan(r)
-            t2 = th * th
-            poly = 1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))
-            dpoly = 1 + t2 * (3 * d[0] + t2 * (5 * d[1] + t2 * (7 * d[2] + t2 * 9 * d[3])))
-            if r < 1e-8:
-                sc, g = 1.0, 0.0
-            else:
-                sc = th * poly / r
-                g = ((dpoly / (1 + r * r) * r - th * poly) / (r * r)) / r
+            sc, g = _fisheye_scales(r, np.arctan(r), d)
             a00, a01, a11 = sc + g * x * x, g * x * y, sc + g * y * y
             a10 = a01
         else:
@@ -698,16 +703,7 @@ def fisheye_jacobian(xn, th, k, fx, fy):
     J = np.empty((n, 2, 2))
     for i in range(n):
         x, y = xn[i, 0], xn[i, 1]
-        r = np.sqrt(x * x + y * y)
-        t = th[i]
-        t2 = t * t
-        poly = 1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))
-        dpoly = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
-        if r < 1e-8:
-            sc, g = 1.0, 0.0
-        else:
-            sc = t * poly / r
-            g = ((dpoly / (1 + r * r) * r - t * poly) / (r * r)) / r
+        sc, g = _fisheye_scales(np.sqrt(x * x + y * y), th[i], k)
         J[i, 0, 0], J[i, 0, 1] = (sc + g * x * x) * fx, (g * x * y) * fx
         J[i, 1, 0], J[i, 1, 1] = (g * x * y) * fy, (sc + g * y * y) * fy
     return J
