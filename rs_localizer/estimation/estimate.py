@@ -66,7 +66,7 @@ from .options import (
 )
 from .plausibility import motion_bounds
 from .prior import MotionPrior
-from .ransac import Ransac, prosac_order, seeded_rng
+from .ransac import Ransac, SeededShuffle, prosac_order
 from .result import (
     DEGENERATE_GEOMETRY,
     EstimationFailed,
@@ -348,9 +348,9 @@ def _estimate(
     ``name``: the solver a few-points frame's estimate records (None: ``solver``)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    rng = seeded_rng(opts.ransac.seed)
+    shuffle = SeededShuffle(opts.ransac.seed)  # (the generator built when RANSAC runs)
     fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=compiled
+        points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle, compiled=compiled
     )
     if gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
@@ -361,6 +361,7 @@ def _estimate(
         return _few_points(
             fr, camera, solver, opts, initial_model, gyro, timings, ignored, flat, name or solver
         )
+    rng = shuffle.generator()
     search = (Ransac if compiled else NumpyRansac)(fr, solver, opts, rng, order, scores is not None)
     try:
         try:

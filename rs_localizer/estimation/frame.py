@@ -271,7 +271,8 @@ def prepare_frame(
 
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
-    ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization)
+    ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization;
+    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`)
     and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
     the measured, distorted line), with each point's whitening :attr:`Frame.W`.
 
