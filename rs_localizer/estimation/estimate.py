@@ -32,6 +32,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
+from .degeneracy import PLANAR_TOLERANCE
 from .finalize import (
     ImageAlone,
     final_estimate,
@@ -65,7 +66,7 @@ from .options import (
 )
 from .plausibility import motion_bounds
 from .prior import MotionPrior
-from .ransac import Ransac, prosac_order, seeded_rng
+from .ransac import Ransac, SeededShuffle, prosac_order
 from .result import (
     DEGENERATE_GEOMETRY,
     EstimationFailed,
@@ -73,7 +74,7 @@ from .result import (
     failed_estimate,
     physical_velocities,
 )
-from .single_tag import MIN_PLANAR_POINTS, few_points, few_points_estimate, planar_points
+from .single_tag import MIN_PLANAR_POINTS, few_points_estimate, few_points_planarity
 
 __all__ = [
     "SOLVERS",
@@ -193,24 +194,55 @@ def estimate_rs_pose(
         ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
             without it, or arrays that are not (N, 2) / (N, 3) / (N,).
     """
+    return _estimate_rs_pose(
+        points2d,
+        points3d,
+        camera,
+        solver,
+        options,
+        scores,
+        initial_model,
+        gyro,
+        point_sigma,
+        implementation,
+        solver,
+    )
+
+
+def _estimate_rs_pose(
+    points2d: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    solver: str,
+    options: EstimateOptions | None,
+    scores: np.ndarray | None,
+    initial_model: InitialModel | None,
+    gyro: GyroMeasurement | None,
+    point_sigma: np.ndarray | None,
+    implementation: str | None,
+    name: str,
+) -> RSPoseEstimate:
+    """:func:`estimate_rs_pose` with ``solver``, its estimate recorded as ``name``'s (a
+    global shutter's frame of a rolling-shutter solver runs the global-shutter one)."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
     if camera.line_delay <= 0 and solver_info(solver).rolling:
         # a global shutter: every row at one time, nothing to fit the velocities to
-        est = estimate_rs_pose(
+        est = _estimate_rs_pose(
             points2d,
             points3d,
             camera,
             GS_SOLVER,
             opts,
             scores,
-            initial_model=initial_model,
-            gyro=gyro,
-            point_sigma=point_sigma,
-            implementation=implementation,
+            initial_model,
+            gyro,
+            point_sigma,
+            implementation,
+            name,
         )
-        return replace(est, solver=solver)
+        return est if est.solver == name else replace(est, solver=name)
     compiled = resolve_implementation(implementation, solver) == COMPILED
     unused: tuple[str, ...] = ()
     if not compiled:
@@ -229,6 +261,7 @@ def estimate_rs_pose(
             point_sigma=point_sigma,
             ignored=ignored,
             compiled=compiled,
+            name=name,
         )
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior, compiled))
     image: list[ImageAlone | None] = []
@@ -243,6 +276,7 @@ def estimate_rs_pose(
         point_sigma=point_sigma,
         ignored=unused,
         compiled=compiled,
+        name=name,
     )
     if est.few_points:  # (a few points cannot judge the gyro: its rate is held, not checked)
         return est
@@ -298,6 +332,7 @@ def _estimate(
     point_sigma: np.ndarray | None = None,
     ignored: tuple[str, ...] = (),
     compiled: bool = True,
+    name: str | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
     a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
@@ -309,24 +344,25 @@ def _estimate(
     ``ignored_inputs``. ``compiled=False``: the NumPy implementation (:mod:`.numpy_impl`:
     the same stages with their compiled steps in NumPy and SciPy; the gyro only through the
     motion prior and ``image``, not in the minimal samples; without ``scores``,
-    ``point_sigma``, single-tag frames and the global-shutter model of still frames)."""
+    ``point_sigma``, single-tag frames and the global-shutter model of still frames).
+    ``name``: the solver a few-points frame's estimate records (None: ``solver``)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
-    rng = seeded_rng(opts.ransac.seed)
+    shuffle = SeededShuffle(opts.ransac.seed)  # (the generator built when RANSAC runs)
     fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=compiled
+        points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle, compiled=compiled
     )
     if gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
-    search = (Ransac if compiled else NumpyRansac)(
-        fr, solver, opts, rng, prosac_order(fr, scores), scores is not None
-    )
+    order = prosac_order(fr, scores)
     min_inliers = points_needed(solver, opts)
-    if compiled and (
-        (len(fr.x) < min_inliers and few_points(fr.X))
-        or (len(fr.x) == MIN_PLANAR_POINTS and planar_points(fr))
-    ):
-        return _few_points(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
+    flat = few_points_planarity(fr, min_inliers) if compiled else None
+    if flat is not None:
+        return _few_points(
+            fr, camera, solver, opts, initial_model, gyro, timings, ignored, flat, name or solver
+        )
+    rng = shuffle.generator()
+    search = (Ransac if compiled else NumpyRansac)(fr, solver, opts, rng, order, scores is not None)
     try:
         try:
             configure_frame(
@@ -436,12 +472,16 @@ def _few_points(
     gyro: GyroMeasurement | None,
     timings: dict[str, float],
     ignored: tuple[str, ...],
+    flat: float,
+    name: str,
 ) -> RSPoseEstimate:
     """A frame of too few points for ``solver`` but at least four coplanar ones or
     :data:`~.single_tag.MIN_SPREAD_POINTS` on more than one plane, or exactly four coplanar
     ones whatever the solver (one square marker's corners: a minimal sample and one point to
     check it cannot pose a tag whose corners fit a square only to a pixel) posed from them
-    alone (:func:`~.single_tag.few_points_estimate`), or its failure."""
+    alone (:func:`~.single_tag.few_points_estimate`), or its failure; ``flat``: the points'
+    planarity (:func:`~.single_tag.few_points_planarity`), ``name``: the solver the estimate
+    records."""
     t_start = time.perf_counter()
     th_px = opts.ransac.threshold_px
     try:
@@ -452,13 +492,14 @@ def _few_points(
         fr.motion_bounds = motion_bounds(
             opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
         )
-        fr.planar = planar_points(fr)
+        fr.planar = bool(len(fr.x) >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE)
         est = few_points_estimate(
-            fr, solver, opts, initial_model, gyro is not None, timings, ignored
-        )
+            fr, solver, opts, initial_model, gyro is not None, timings, ignored,
+            flat=flat, name=name,
+        )  # fmt: skip
     except EstimationFailed as failure:
         return failed_estimate(
-            failure.reason, solver, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
+            failure.reason, name, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
         )
     timings["few_points"] = time.perf_counter() - t_start
     return est

@@ -957,6 +957,7 @@ def solved_estimate(
     covariances: tuple | None,
     flat: float,
     condition: float,
+    /,
     **fields: Any,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of a checked final model, for the compiled and
@@ -972,7 +973,8 @@ def solved_estimate(
             world-frame ones).
         covariances: ``(12x12, pose 6x6, twist 6x6)`` in ROS order, or None.
         flat: the inliers' planarity; condition: the information matrix's condition number.
-        fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...).
+        fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...), or fields
+            set here (``solver``, ``motion_model``, ``twist_covariance``, ...) to other values.
     """
     R, C, w, t = model
     om, vc = velocities[0], velocities[1]
@@ -983,25 +985,23 @@ def solved_estimate(
             twist_cov = None
     mask = np.zeros(fr.num_rows, dtype=bool)
     mask[fr.rows[inliers]] = True
-    return RSPoseEstimate(
-        success=True,
-        failure=None,
-        solver=solver,
-        model=RSModel(R, C, w, t),
-        pose=RSPose(R.T, position, om, vc),
-        inliers=mask,
-        num_valid=len(fr.x),
-        num_dropped=fr.num_rows - len(fr.x) + num_behind,
-        num_behind=num_behind,
-        covariance=cov,
-        pose_covariance=pose_cov,
-        twist_covariance=twist_cov,
-        planar=bool(flat < PLANAR_TOLERANCE),
-        planarity=flat,
-        condition_number=condition,
-        motion_model=ROLLING_SHUTTER if solver_info(solver).rolling else GLOBAL_SHUTTER,
-        **fields,
-    )
+    given = {
+        "solver": solver,
+        "model": RSModel(R, C, w, t),
+        "pose": RSPose(R.T, position, om, vc),
+        "inliers": mask,
+        "num_valid": len(fr.x),
+        "num_dropped": fr.num_rows - len(fr.x) + num_behind,
+        "num_behind": num_behind,
+        "covariance": cov,
+        "pose_covariance": pose_cov,
+        "twist_covariance": twist_cov,
+        "planar": bool(flat < PLANAR_TOLERANCE),
+        "planarity": flat,
+        "condition_number": condition,
+        "motion_model": ROLLING_SHUTTER if solver_info(solver).rolling else GLOBAL_SHUTTER,
+    }
+    return RSPoseEstimate(success=True, failure=None, **(given | fields))
 
 
 def final_estimate(
@@ -1011,11 +1011,16 @@ def final_estimate(
     iterations: int,
     initial: tuple[int, bool],
     timings: dict[str, float],
+    /,
     consistent_fit: bool = False,
     gyro_used: bool = False,
     threshold: float = 0.0,
     ignored_inputs: tuple[str, ...] = (),
     compiled: bool = True,
+    *,
+    flat: float | None = None,
+    condition: float | None = None,
+    **fields: Any,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
@@ -1045,7 +1050,10 @@ def final_estimate(
     ``gyro_used``: the model was solved with a gyro measurement (set on the estimate);
     ``ignored_inputs``: the estimate's (inputs given that were not used); ``compiled=False``:
     the checks and outputs in NumPy (the estimator's NumPy implementation, which the estimate
-    records).
+    records); ``flat``: the inliers' planarity and ``condition``: the condition number the
+    estimate reports, when the caller has them (None: :func:`~.degeneracy.planarity` of the
+    inliers, :func:`information_condition` of ``final.information``); ``fields``: other
+    values of the estimate's fields (:func:`solved_estimate`).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -1060,9 +1068,10 @@ def final_estimate(
     if failure is not None:
         raise EstimationFailed(failure)
     rolling = solver_info(solver).rolling
-    flat = planarity(fr.X, inl, compiled)
+    flat = planarity(fr.X, inl, compiled) if flat is None else flat
     position = camera_position(R, C)
     cond = information_condition(final.information, rolling, compiled)
+    cond = cond if condition is None else condition
     if consistent_fit and inconsistent_fit(
         fr.X,
         inl,
@@ -1102,4 +1111,5 @@ def final_estimate(
         ignored_inputs=ignored_inputs,
         model_covariance=final.covariance,
         **({} if compiled else {"implementation": NUMPY}),
+        **fields,
     )

@@ -182,6 +182,18 @@ class Frame:
             np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
         )
 
+    def kernel_mountings(self) -> KernelMountings | None:
+        """:meth:`mountings` of every point in the refinement kernel's form, as
+        :func:`~.refine.kernel_mountings` checks and converts them (the same arrays' values),
+        built directly (a frame refined several times: :mod:`.single_tag`); None as there."""
+        if not len(self.W) or not self.compiled:
+            return None
+        n = len(self.W)
+        scale = np.ascontiguousarray(self.W, dtype=np.float64)
+        return KernelMountings(
+            n, (np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale)
+        )
+
     def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time
         (:func:`~.refine.exact_errors`: normalized units, in pixels of the measured image over
@@ -259,7 +271,8 @@ def prepare_frame(
 
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
-    ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization)
+    ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization;
+    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`)
     and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
     the measured, distorted line), with each point's whitening :attr:`Frame.W`.
 
@@ -281,10 +294,11 @@ def prepare_frame(
     if rng is not None:
         rows = rng.permutation(rows)
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
-    x, r, r0e = camera.normalize(u.take(rows, axis=0), compiled)
+    u_px = u.take(rows, axis=0)
+    x, r, r0e = camera.normalize(u_px, compiled)
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
-        rows, x, r, r0e = rows[good], x[good], r[good], r0e[good]
+        rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),
@@ -295,9 +309,10 @@ def prepare_frame(
         camera.mean_focal,
     )
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
-    fr.u_px = u.take(rows, axis=0)
+    fr.u_px = u_px
     if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
-        fr.W = np.ascontiguousarray(camera.pixel_jacobian(fr.x).reshape(-1, 4) / fr.f)
+        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+        fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 
 

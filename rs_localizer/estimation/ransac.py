@@ -61,6 +61,44 @@ def seeded_rng(seed: int | np.integer | None) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
+@functools.lru_cache(maxsize=64)
+def _seeded_permutation(seed: int, n: int) -> np.ndarray:
+    """``seeded_rng(seed).permutation(n)`` (read-only)."""
+    p = seeded_rng(seed).permutation(n)
+    p.flags.writeable = False
+    return p
+
+
+class SeededShuffle:
+    """A frame's shuffle by ``seeded_rng(seed)`` (:func:`~.frame.prepare_frame`'s
+    ``rng.permutation(rows)``, the same rows) and that generator after it
+    (:meth:`generator`, the same stream), the generator built only when a search draws from
+    it: a frame of a few points draws nothing more (for an int seed the shuffle of ``n``
+    rows is kept; other seeds draw from the generator)."""
+
+    def __init__(self, seed: int | np.integer | None):
+        self.seed = seed
+        self._n: int | None = None
+        self._rng: np.random.Generator | None = None
+        if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
+            self._rng = seeded_rng(seed)
+
+    def permutation(self, rows: np.ndarray) -> np.ndarray:
+        """(n,) the rows shuffled, as the generator's first ``permutation`` shuffles them."""
+        if self._rng is not None:
+            return self._rng.permutation(rows)
+        self._n = len(rows)
+        return rows.take(_seeded_permutation(int(self.seed), self._n))
+
+    def generator(self) -> np.random.Generator:
+        """The generator, past the shuffle (:meth:`permutation`) when it was drawn."""
+        if self._rng is None:
+            self._rng = seeded_rng(self.seed)
+            if self._n is not None:
+                self._rng.permutation(self._n)
+        return self._rng
+
+
 def required_iterations(inlier_ratio: float, s: int, confidence: float) -> float:
     """Samples of size ``s`` to draw for one all-inlier sample with probability
     ``confidence`` at ``inlier_ratio`` (RANSAC's adaptive termination; ``inf`` at 0)."""

@@ -29,7 +29,8 @@ corner noise measured on real tags.
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -38,11 +39,18 @@ from scipy.optimize import least_squares
 from ..geometry import rotation_angle_deg, skew
 from ..pose import RSModel
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
-from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate, frame_refinement
+from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
 from .frame import Frame
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
-from .refine import exact_errors, exact_jacobian, exact_residuals
+from .refine import (
+    KernelMountings,
+    RefineSettings,
+    exact_errors,
+    exact_jacobian,
+    exact_residuals,
+    refine_rs_pose,
+)
 from .result import (
     AMBIGUOUS_TAG,
     DEGENERATE_GEOMETRY,
@@ -63,6 +71,7 @@ __all__ = [
     "coplanar_points",
     "few_points",
     "few_points_estimate",
+    "few_points_planarity",
     "planar_points",
 ]
 
@@ -123,6 +132,23 @@ def few_points(points3d: np.ndarray) -> bool:
     return coplanar_points(X) or (len(X) >= MIN_SPREAD_POINTS and bool(np.isfinite(X).all()))
 
 
+def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
+    """:func:`~.degeneracy.planarity` of the frame's points (one compiled call for the choice
+    and the estimate) when :func:`few_points_estimate` poses the frame: fewer valid points
+    than ``min_inliers`` (the solver's) and :func:`few_points`, or exactly
+    :data:`MIN_PLANAR_POINTS` coplanar ones (one square marker's corners, whatever the
+    solver); None otherwise."""
+    n = len(fr.x)
+    if not (n < min_inliers or n == MIN_PLANAR_POINTS):
+        return None
+    flat = float(planarity(fr.X))
+    if n >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE:
+        return flat
+    if n < min_inliers and n >= MIN_SPREAD_POINTS and np.isfinite(fr.X).all():
+        return flat
+    return None
+
+
 def _fixed_velocities(
     fr: Frame, initial_model: InitialModel | None, known_w: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, RSModel | None, int]:
@@ -156,16 +182,32 @@ def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     least-squares plane first: OpenCV's IPPE returns no pose for points a millimetre off one
     plane (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
     (:func:`_fit`) then starts from these poses on the points as given."""
-    X = np.asarray(fr.X, dtype=np.float64)
+    X = np.ascontiguousarray(fr.X, dtype=np.float64)
+    return _opencv_poses(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+
+
+@lru_cache(maxsize=256)
+def _on_plane(points: bytes) -> np.ndarray:
+    """(N, 3) the world points (float64 bytes, N x 3 row-major; m) projected onto their
+    least-squares plane (read-only), for :func:`_ippe`: kept for the next frames of the same
+    marker, whose corners are the same points in the same order."""
+    X = np.frombuffer(points, dtype=np.float64).reshape(-1, 3)
     centre = X.mean(axis=0)
     normal = np.linalg.svd(X - centre)[2][2]
-    return _opencv_poses(X - np.outer((X - centre) @ normal, normal), fr.x, cv2.SOLVEPNP_IPPE)
+    P = X - np.outer((X - centre) @ normal, normal)
+    P.flags.writeable = False
+    return P
 
 
 def _sqpnp(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     """The pose ``(R, C)`` (world -> camera) of the frame's points on more than one plane from
     their normalized image points: OpenCV's SQPnP (its global minimum; none when it fails)."""
     return _opencv_poses(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
+
+
+#: the camera matrix of normalized image points (read only)
+_IDENTITY = np.eye(3)
+_IDENTITY.flags.writeable = False
 
 
 def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -176,7 +218,7 @@ def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndar
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             np.ascontiguousarray(X, dtype=np.float64),
             np.ascontiguousarray(x, dtype=np.float64),
-            np.eye(3),
+            _IDENTITY,
             None,
             flags=flag,
         )
@@ -199,9 +241,22 @@ _LEAST_SQUARES = 1e6
 _FIT_TOL = 1e-12
 #: at most this many iterations of the compiled fit (SciPy's default for 6 parameters: 700)
 _FIT_ITERATIONS = 200
+#: the compiled fit's settings (:func:`~.finalize.frame_refinement`'s with these: the pose
+#: alone, no cutoff, with the information matrix)
+_FIT_SETTINGS = RefineSettings(
+    rolling_shutter=False, max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL, cutoff=np.inf
+)
 
 
-def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
+def _fit(
+    fr: Frame,
+    R0: np.ndarray,
+    C0: np.ndarray,
+    w: np.ndarray,
+    b: np.ndarray,
+    tau: np.ndarray | None = None,
+    mountings: KernelMountings | None = None,
+):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
     velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
     ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``, normalized units
@@ -209,15 +264,20 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     global-shutter model) the compiled refinement of the pose alone
     (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it, its
     information matrix and the frame's errors giving the rest; otherwise SciPy's
-    Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian."""
-    if not (np.any(w) or np.any(b)):
+    Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian.
+    ``tau``: the frame's ``r - r0`` and ``mountings``: its :meth:`~.frame.Frame.mountings`
+    checked once (:func:`~.refine.kernel_mountings`), when the caller fits several starts
+    (None: from the frame)."""
+    tau = fr.r - fr.r0 if tau is None else tau
+    if not (w.any() or b.any()):
         z = np.zeros(3)
-        ref = frame_refinement(fr, (R0, C0, z, z), _LEAST_SQUARES, False, cutoff=np.inf,
-                               max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL)  # fmt: skip
+        # (the compiled refinement as :func:`~.finalize.frame_refinement` runs it, with the
+        # frame's mountings checked once for every start)
+        ref = refine_rs_pose((R0, C0, z, z), fr.X, fr.x, tau, _LEAST_SQUARES, _FIT_SETTINGS,
+                             mountings=mountings)  # fmt: skip
         R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-        e = fr.errors((R, C, z, z))
+        e = exact_errors(R, C, z, z, fr.X, fr.x, tau, fr.W)
         return R, C, z, float(e @ e), np.array(ref.data_information[:6, :6])
-    tau = fr.r - fr.r0
     X, x = fr.X, fr.x
     W = skew(w)
     m = fr.mountings()  # (each corner's error whitened into measured pixels; None: plain)
@@ -271,6 +331,9 @@ def few_points_estimate(
     gyro_used: bool,
     timings: dict[str, float],
     ignored_inputs: tuple[str, ...] = (),
+    *,
+    flat: float | None = None,
+    name: str | None = None,
 ) -> RSPoseEstimate:
     """The pose of a frame of a few points (:func:`few_points`; too few for ``solver``'s
     robust estimate): one square marker's four corners or a few coplanar points, or at least
@@ -299,8 +362,11 @@ def few_points_estimate(
         fr: the prepared frame (:func:`~.frame.prepare_frame`), its threshold, timing and
             velocity bounds set (:func:`~.frame.configure_frame`'s fields), and ``planar``:
             :func:`planar_points`.
-        solver: the estimator's solver (recorded on the estimate).
+        solver: the estimator's solver.
         gyro_used: ``fr.known_w`` is a gyro's (set on the estimate).
+        flat: :func:`~.degeneracy.planarity` of the frame's points when the caller has it
+            (:func:`few_points_planarity`; None: computed here).
+        name: the solver recorded on the estimate (None: ``solver``).
 
     Returns:
         the successful :class:`RSPoseEstimate`: ``few_points`` set, ``single_tag`` too for
@@ -320,10 +386,12 @@ def few_points_estimate(
         raise EstimationFailed(TOO_FEW_POINTS)
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
+    tau = fr.r - fr.r0
+    km = fr.kernel_mountings()
     for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
-        R, C, t, sse, H = _fit(fr, R0, C0, w, b)
-        if np.isfinite(R).all() and np.isfinite(sse):
-            fits.append((float(np.sqrt(sse / len(fr.x))), R, C, t, sse, H))
+        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau, km)
+        if np.isfinite(R).all() and math.isfinite(sse):
+            fits.append((math.sqrt(sse / len(fr.x)), R, C, t, sse, H))
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     fits.sort(key=lambda f: f[0])
@@ -343,8 +411,9 @@ def few_points_estimate(
     rms, R, C, t, sse, H = choice
     if rms > th:
         raise EstimationFailed(TOO_FEW_INLIERS)
-    moving = bool(np.any(w) or np.any(b))
+    moving = bool(w.any() or b.any())
     sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    flat = float(planarity(fr.X)) if flat is None else flat
     cov = np.zeros((12, 12))
     try:
         cov[:6, :6] = sigma2 * np.linalg.inv(H)
@@ -358,7 +427,7 @@ def few_points_estimate(
         float(rms * fr.f),
         covariance=cov,
     )
-    est = final_estimate(
+    return final_estimate(
         fr,
         solver if moving else "p3p",
         final,
@@ -367,13 +436,10 @@ def few_points_estimate(
         timings,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
-    )
-    return replace(
-        est,
-        solver=solver,
+        flat=flat,
+        condition=condition_number(H),
+        solver=solver if name is None else name,
         motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
-        condition_number=condition_number(H),
-        planarity=float(planarity(fr.X)),
         single_tag=planar,
         few_points=True,
         twist_covariance=None,
