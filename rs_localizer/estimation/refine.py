@@ -1039,6 +1039,8 @@ def exact_errors(R, C, w, t, X, x, tau, W=None):
 
 #: w = t = 0 of global-shutter refinement (read only by the kernel)
 _ZERO3 = np.zeros(3)
+#: the mean and information of no prior (read only by the kernel)
+_NO_PRIOR_MEAN, _NO_PRIOR_INFORMATION = np.zeros(6), np.zeros((6, 6))
 
 
 class RefineResult:
@@ -1183,7 +1185,10 @@ def refine_rs_pose(
     nf = 12 if rolling_shutter else 6
     want_acc = bool(acceleration_block and covariance and rolling_shutter)
     out = np.empty(OUT_SIZE_ACC if want_acc else OUT_SIZE)
-    on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
+    if prior is None or not rolling_shutter or not seconds_per_unit_r > 0:
+        on, mu, Lam = False, _NO_PRIOR_MEAN, _NO_PRIOR_INFORMATION  # (prior_arrays(None)'s)
+    else:
+        on, mu, Lam = prior_arrays(prior)
     noise2 = -1.0 if noise is None else float(noise) ** 2
     if mountings is None:
         views = None

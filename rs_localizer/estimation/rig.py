@@ -59,10 +59,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   ``plausibility.consistent_fit`` a fit a rigid rig can give
   (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails). The rig's
   own part is what several cameras need and one does not: the choice between refinements
-  (:func:`_final`: on a frame of several cameras also the refinement from the model first
-  fitted with a wider threshold, the one of the lower MSAC cost kept, or the fit of the
-  inliers alone where its cost is significantly lower: cameras whose mountings disagree), and
-  the estimate's per-camera fields (:func:`_rig_estimate`);
+  (:func:`_final`: on a frame of several cameras, unless the first refinement explains every
+  point within the threshold, also the refinement from the model first fitted with a wider
+  threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone where its
+  cost is significantly lower: cameras whose mountings disagree), and the estimate's
+  per-camera fields (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
@@ -1393,11 +1394,12 @@ def _final(
     re-selected at each iteration) from ``model`` and from ``model`` first fitted with
     :data:`CONTRADICTION_GATE` thresholds as its threshold (every camera's points within the
     largest inconsistency the cameras' consensus accepts between them), the one of the lower
-    MSAC cost; unless the fit of the inliers alone (the points within the threshold, from
-    ``model`` or from that one, the better) lowers the MSAC cost by more than
-    :data:`INLIER_FIT_SIGNIFICANCE` image variances (tried only when some point lies between
-    one and :data:`FINAL_CUTOFF` thresholds of that model: otherwise the inliers are every
-    point its refinement weighed).
+    MSAC cost (the first alone when every point of the frame lies within the threshold of it:
+    no point a few thresholds away for the wider fit to take in); unless the fit of the
+    inliers alone (the points within the threshold, from ``model`` or from that one, the
+    better) lowers the MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances
+    (tried only when some point lies between one and :data:`FINAL_CUTOFF` thresholds of that
+    model: otherwise the inliers are every point its refinement weighed).
 
     RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
     refinement from the best of them stays near that camera's pose when another camera's
@@ -1418,9 +1420,12 @@ def _final(
         if first is not None
         else _refine(pool, None, model, threshold_px, free=free, prior=prior)
     )
-    if prior is not None or np.count_nonzero(search._counts) < 2:
+    if prior is not None or search.cameras < 2:
         return out
     msac = search.cost
+    k = float(threshold_px)
+    if search.errors(out).max() < k:
+        return out  # (every point within the threshold: none a few thresholds away)
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
 
@@ -1428,7 +1433,6 @@ def _final(
     best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
 
     e = search.errors(best)
-    k = float(threshold_px)
     if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
         return best  # (no point the inliers' fit leaves out that the refinement weighs)
 
@@ -2248,6 +2252,8 @@ class _RigSearch(RansacLoop):
         #: more points, whatever the best model (every sample corrected)
         self.spread = spread
         self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+        #: the number of cameras with points in the pool
+        self.cameras = int(np.count_nonzero(self._counts))
         self.missed = self._counts >= 3 if spread and still else None
         #: the whole search in one compiled call (:meth:`_fused_search`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
