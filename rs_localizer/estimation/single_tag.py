@@ -128,8 +128,19 @@ def few_points(points3d: np.ndarray) -> bool:
     """The (N, 3) world points (m) are what :func:`few_points_estimate` poses when they are
     too few for the solver's robust estimate: :func:`coplanar_points`, or at least
     :data:`MIN_SPREAD_POINTS` finite ones."""
-    X = np.asarray(points3d, dtype=np.float64).reshape(-1, 3)
-    return coplanar_points(X) or (len(X) >= MIN_SPREAD_POINTS and bool(np.isfinite(X).all()))
+    X = np.ascontiguousarray(points3d, dtype=np.float64).reshape(-1, 3)
+    return _posed_planarity(X) is not None
+
+
+def _posed_planarity(X: np.ndarray) -> float | None:
+    """:func:`~.degeneracy.planarity` of the (N, 3) world points ``X`` (m) when
+    :func:`few_points_estimate` poses them (:func:`coplanar_points`, or at least
+    :data:`MIN_SPREAD_POINTS` finite ones), else None: the one rule of :func:`few_points` and
+    :func:`few_points_planarity`."""
+    if len(X) < MIN_PLANAR_POINTS or not np.isfinite(X).all():
+        return None
+    flat = float(planarity(X))
+    return flat if flat < PLANAR_TOLERANCE or len(X) >= MIN_SPREAD_POINTS else None
 
 
 def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
@@ -141,12 +152,8 @@ def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
     n = len(fr.x)
     if not (n < min_inliers or n == MIN_PLANAR_POINTS):
         return None
-    flat = float(planarity(fr.X))
-    if n >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE:
-        return flat
-    if n < min_inliers and n >= MIN_SPREAD_POINTS and np.isfinite(fr.X).all():
-        return flat
-    return None
+    # (exactly four points and enough for the solver: posed only as one marker, coplanar)
+    return _posed_planarity(fr.X)
 
 
 def _fixed_velocities(
