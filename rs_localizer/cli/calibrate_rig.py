@@ -142,7 +142,7 @@ def short_video_warning(name: str, frames: int) -> str:
 def rows_note(name: str, counts: dict, max_points: int) -> str:
     """The line on camera ``name``'s rows and clouds left out of its frames: ``counts``
     (``points_dropped``, ``capped_clouds``, ``capped_points``, ``bad_input`` of
-    :attr:`~rs_localizer.ros.bags.rig_bag.RigFrames.counts`) as ``replay`` names them."""
+    :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`) as ``replay`` names them."""
     return (
         f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
         + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
@@ -265,7 +265,7 @@ def _optical_frame_id(bag, camera: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
-    from ..ros.bags.rig_bag import read_rig_frames
+    from ..ros.bags.bag_frames import read_rig_frames
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None

@@ -106,7 +106,7 @@ def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
     configuration the node would refuse."""
     if not params_files:
         return None
-    from ..ros.bags.rig_bag import rig_parameter_values
+    from ..ros.bags.bag_frames import rig_parameter_values
     from ..ros.config import rig_config
     from ..ros.params import ConfigError
 

@@ -228,12 +228,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_rig(args: argparse.Namespace) -> int:
-    """``make-bag --rig N``: a rig bag (:func:`rs_localizer.ros.bags.rig_bag.write_rig_bag`)."""
+    """``make-bag --rig N``: a rig bag (:func:`rs_localizer.ros.bags.bag_io.write_rig_bag`)."""
     if not 1 <= args.rig <= 4:
         raise A.CliError(f"--rig takes 1 to 4 cameras, got {args.rig}")
     if args.scene != "corridor" or args.motion != "walk" or args.imu_time_offset != 0:
         raise A.CliError("--rig walks the corridor: without --scene, --motion or --imu-time-offset")
-    from ..ros.bags.rig_bag import write_rig_bag
+    from ..ros.bags.bag_io import write_rig_bag
     from ..sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(args.rig)

@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
 
     params = A.param_overrides(args.param)
     if args.params_file or params:
-        from ..ros.bags.rig_bag import is_rig_bag
+        from ..ros.bags.bag_frames import is_rig_bag
 
         try:
             rig = is_rig_bag(bag, args.params_file, params)

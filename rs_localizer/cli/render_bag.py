@@ -17,7 +17,7 @@ the ground truth is stamped with the reference line's capture time.
 
 :func:`render_rig_bag` (``--rig N``) renders a rig of N unsynchronized rolling-shutter cameras
 (:mod:`rs_localizer.sim.render.rig`) into a rig bag
-(:func:`rs_localizer.ros.bags.rig_bag.write_rig_bag`: per camera its images, camera_info and
+(:func:`rs_localizer.ros.bags.bag_io.write_rig_bag`: per camera its images, camera_info and
 the front end's correspondences, the rig's ground truth, ``rig_params.yaml``), which
 ``replay``, ``play`` and ``calibrate-rig`` read like a ``make-bag --rig`` bag.
 
@@ -356,7 +356,7 @@ def render_rig_bag(
         (cameras outside 1-4, a scene without markers, an unknown motion or storage).
     """
     from ..maps.markers import write_marker_map
-    from ..ros.bags.rig_bag import write_rig_bag
+    from ..ros.bags.bag_io import write_rig_bag
     from ..sim.render.rig import render_rig_video, rendered_rig, rig_trajectory
     from ..sim.render.scene import Scene, load_scene
 

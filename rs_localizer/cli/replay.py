@@ -1,5 +1,6 @@
-"""``rs-localizer replay``: the localizer node's per-frame pipeline over a bag, offline (the
-node's parameters and outputs, no ROS graph)."""
+"""``rs-localizer replay``: the localizer node over a bag, offline (the node's parameters and
+outputs, no ROS graph): a camera's frames through its per-frame pipeline, a rig bag's cameras
+through the rig mode, reported alike."""
 
 from __future__ import annotations
 
@@ -213,8 +214,11 @@ _REPLAY_OVERRIDES = (
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay the bag; returns 0, or 1 when no frame was solved. Raises CliError for a bag,
-    parameter file, landmark file or output that cannot be used (before any frame)."""
+    """Replay the bag, a camera's or a rig's (:func:`rs_localizer.ros.bags.replay.replay`; a
+    rig bag is reported a rig frame for a frame, with each camera's counts, each rig frame's
+    own twist and the cameras that disagree with the others); returns 0, or 1 when no frame
+    was solved. Raises CliError for a bag, parameter file, landmark file or output that
+    cannot be used (before any frame), or a single camera's option given for a rig bag."""
     bag = A.bag_dir(args.bag, require_messages=True)
     for f in getattr(args, "params_file", []):
         if not isinstance(A.yaml_file(f, "parameter file"), dict):
@@ -223,58 +227,97 @@ def run(args: argparse.Namespace) -> int:
         A.input_file(args.landmarks, "landmark CSV (id,x,y,z)")
     params = A.param_overrides(getattr(args, "param", []))
     params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
-    from ..ros.bags.rig_bag import is_rig_bag
+    from ..ros.bags.bag_frames import is_rig_bag
 
     if args.debug_outputs and not args.out:
         raise A.CliError("--debug-outputs writes into the --out bag: give --out DIR")
-    if is_rig_bag(bag, getattr(args, "params_file", []), params):
+    rig = is_rig_bag(bag, getattr(args, "params_file", []), params)
+    if rig:
         _no_camera_options(args)
-        return _run_rig(args, bag, params)
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
         A.output_file(args.csv, True, "CSV file")
     from ..ros.bags.replay import replay
+    from ..ros.params import ConfigError
 
-    res = replay(
-        bag,
-        params_files=getattr(args, "params_file", []),
-        params=params,
-        source=getattr(args, "source", None),
-        out_bag=out_bag,
-        out_csv=args.csv,
-        storage=args.storage,
-        overwrite=args.overwrite,
-        progress=None if args.quiet else sys.stderr,
-        debug_outputs=args.debug_outputs,
-        path_length=args.path_length,
-        image_topic=args.image_topic,
-        imu_topic=getattr(args, "imu_topic", None),
-    )
-    n = len(res.rows)
-    solver = res.config.solver
+    try:
+        res = replay(
+            bag,
+            params_files=getattr(args, "params_file", []),
+            params=params,
+            source=getattr(args, "source", None),
+            out_bag=out_bag,
+            out_csv=args.csv,
+            storage=args.storage,
+            overwrite=args.overwrite,
+            progress=None if args.quiet else sys.stderr,
+            debug_outputs=args.debug_outputs,
+            path_length=args.path_length,
+            image_topic=args.image_topic,
+            imu_topic=getattr(args, "imu_topic", None),
+        )
+    except ConfigError as e:
+        if not rig:
+            raise
+        raise A.CliError(f"invalid parameters: {e}") from None
+    _print_report(args, res)
+    return 0 if res.solved else 1
+
+
+def _print_report(args: argparse.Namespace, res) -> None:
+    """A replay's report (a camera's; a rig's a rig frame for a frame, with its cameras):
+    the warnings, frames solved and failures, each camera's counts, the gyro, the cameras
+    that disagree, the errors against ground truth, the files written; with ``--json`` the
+    summary as JSON on stdout, the rest on stderr."""
+    from ..accuracy import format_summary
+
+    n, solver = len(res.rows), res.solver or "rig"
+    unit = "rig frames" if res.cameras else "frames"
     text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
     for note in res.notes:
         print(f"warning: {note}", file=sys.stderr)
-    tracked = res.config.tracking is not None
-    print(_solved_line(solver, res.solved, n, "frames", res.failures, tracked), file=text)
-    if res.config.imu is not None:
-        how = "estimated" if res.config.imu.estimate_bias else "imu.gyro_bias"
+    line = _solved_line(solver, res.solved, n, unit, res.failures, res.tracked)
+    if res.cameras:
+        line = line.replace(" rig frames", f" rig frames of {len(res.cameras)} cameras", 1)
+    print(line, file=text)
+    for name in res.cameras:
+        c = res.camera_counts[name]
+        print(f"  {name}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
+    gyro = bool(res.parameters["imu.enabled"])
+    if gyro:
+        how = "estimated" if res.parameters["imu.estimate_bias"] else "imu.gyro_bias"
         bias = None if res.gyro_bias is None else (res.gyro_bias, res.gyro_bias_std)
-        _print_gyro(res.counts, bias, how, "frames", text)
-    _print_accuracy(solver, res.summary, n, text)
-    if res.out_bag:
+        _print_gyro(res.counts, bias, how, unit, text)
+    for name, d in res.disagreeing.items():
         print(
-            f"estimates: {res.out_bag}"
-            + (" (with debug_image, markers, path)" if args.debug_outputs else ""),
+            f"  camera {name} disagrees with the others in {d['rig_frames']} rig frames (median "
+            f"{d['median_deg']:.2f} deg off: its rotation posed alone against the rig's pose "
+            "through its mounting; a wrong mounting shows its own error, a wrong clock or line "
+            "delay a varying one)",
             file=text,
         )
+    _print_accuracy(solver, res.summary, n, text)
+    if res.cameras and res.own_twist.get("frames") and res.tracked:
+        own = format_summary(solver, res.own_twist, n).split("; ", 1)[-1]
+        print(f"  each rig frame's own twist: {own}", file=text)
+    if res.out_bag:
+        viz = "debug_image, markers, path"
+        if res.cameras:
+            viz = ", ".join(f"{n}/debug_image, {n}/markers" for n in res.cameras) + ", path"
+        print(f"estimates: {res.out_bag}" + (f" (with {viz})" if args.debug_outputs else ""),
+              file=text)  # fmt: skip
     if res.out_csv:
         print(f"csv: {res.out_csv}", file=text)
     if args.json:
+        more = {}
+        if res.cameras:
+            more = {"own_twist": res.own_twist, "disagreeing": res.disagreeing,
+                    "counts": res.camera_counts}  # fmt: skip
+            if gyro:
+                more["gyro"] = res.counts
         report = _report(solver, n, res.solved, res.failures, res.summary, res.out_bag,
-                         res.out_csv)  # fmt: skip
+                         res.out_csv, **more)  # fmt: skip
         print(json.dumps(report, indent=2))
-    return 0 if res.solved else 1
 
 
 def _solved_line(solver: str, solved: int, n: int, unit: str, failures: dict, tracked: bool) -> str:
@@ -368,85 +411,3 @@ def _no_camera_options(args: argparse.Namespace) -> None:
     for dest, flag, why in _RIG_REFUSED_OPTIONS:
         if getattr(args, dest, None) is not None:
             raise A.CliError(f"{flag} does not apply to a rig bag: {why}")
-
-
-def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
-    """A rig bag (``make-bag --rig``, ``render-bag --rig``): every camera through the rig
-    mode (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`), reported as a camera's replay is,
-    a rig frame for a frame (rig frames solved, failures, the gyro, the errors of the
-    published pose and twist, ``--out`` with ``--debug-outputs`` the rig node's
-    visualization topics, ``--csv``, ``--json``), with each camera's counts
-    (its frames and its rows' ``points_dropped``, ``capped_clouds``), each rig frame's own
-    twist and the cameras that disagree with the others. Returns 0, or 1 when no rig frame
-    was posed."""
-    out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
-    if args.csv:
-        A.output_file(args.csv, True, "CSV file")
-    from ..accuracy import format_summary
-    from ..ros.bags.replay import write_csv
-    from ..ros.bags.rig_bag import replay_rig, rig_parameter_values, write_rig_outputs
-    from ..ros.params import ConfigError
-
-    try:
-        res = replay_rig(
-            bag,
-            getattr(args, "params_file", []),
-            params,
-            progress=None if args.quiet else sys.stderr,
-        )
-    except ConfigError as e:
-        raise A.CliError(f"invalid parameters: {e}") from None
-    values = rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]
-    n, solver = len(res.rows), res.solver or "rig"
-    text = sys.stderr if args.json else sys.stdout
-    for note in res.notes:
-        print(f"warning: {note}", file=sys.stderr)
-    line = _solved_line(solver, res.solved, n, "rig frames", res.failures, not res.twist_now)
-    print(line.replace(" rig frames", f" rig frames of {len(res.cameras)} cameras", 1),
-          file=text)  # fmt: skip
-    for name in res.cameras:
-        c = res.counts[name]
-        print(f"  {name}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
-    if values["imu.enabled"]:
-        how = "estimated" if values["imu.estimate_bias"] else "imu.gyro_bias"
-        bias = None if res.gyro_bias is None else (res.gyro_bias, res.gyro_bias_std)
-        _print_gyro(res.gyro_counts, bias, how, "rig frames", text)
-    if res.readout.get("readout_suspect") == "true":
-        from ..tracking.localizer import readout_warning
-
-        print(
-            f"warning: {readout_warning(res.readout['readout_contradicted'], rig=True)}",
-            file=sys.stderr,
-        )
-    for name, d in res.disagreeing.items():
-        print(
-            f"  camera {name} disagrees with the others in {d['rig_frames']} rig frames (median "
-            f"{d['median_deg']:.2f} deg off: its rotation posed alone against the rig's pose "
-            "through its mounting; a wrong mounting shows its own error, a wrong clock or line "
-            "delay a varying one)",
-            file=text,
-        )
-    _print_accuracy(solver, res.summary, n, text)
-    if res.own_twist.get("frames") and not res.twist_now:
-        own = format_summary(solver, res.own_twist, n).split("; ", 1)[-1]
-        print(f"  each rig frame's own twist: {own}", file=text)
-    if out_bag is not None:
-        base = str(values["base_frame"]).strip() or "base_link"
-        write_rig_outputs(res, out_bag, str(values["map_frame"]), base, args.storage, True,
-                          debug_bag=bag if args.debug_outputs else None,
-                          path_length=args.path_length)  # fmt: skip
-        viz = ", ".join(f"{n}/debug_image, {n}/markers" for n in res.cameras) + ", path"
-        print(f"estimates: {out_bag}" + (f" (with {viz})" if args.debug_outputs else ""),
-              file=text)  # fmt: skip
-    if args.csv:
-        write_csv(args.csv, res.rows)
-        print(f"csv: {args.csv}", file=text)
-    if args.json:
-        more = {"own_twist": res.own_twist, "disagreeing": res.disagreeing,
-                "counts": res.counts}  # fmt: skip
-        if values["imu.enabled"]:
-            more["gyro"] = res.gyro_counts
-        report = _report(solver, n, res.solved, res.failures, res.summary, out_bag, args.csv,
-                         **more)  # fmt: skip
-        print(json.dumps(report, indent=2))
-    return 0 if res.solved else 1

@@ -69,7 +69,7 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
         assert 1e3 * np.sqrt(np.trace(C[:3, :3])) == pytest.approx(got["std_mm"], rel=1e-4)
         assert np.degrees(np.sqrt(np.trace(C[3:, 3:]))) == pytest.approx(got["std_deg"], rel=1e-4)
     # the node's configuration reads it back as each mounting's covariance
-    from rs_localizer.ros.bags.rig_bag import rig_parameter_values
+    from rs_localizer.ros.bags.bag_frames import rig_parameter_values
     from rs_localizer.ros.config import rig_config
 
     cfg = rig_config(*rig_parameter_values(None, [out]))
@@ -184,7 +184,7 @@ def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     camera sees the map, it is refused by name (one line, exit 2)."""
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
-    from rs_localizer.ros.bags.rig_bag import write_rig_bag
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     ring = ("front", "left", "back", "right")
@@ -248,7 +248,8 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
     The rows dropped and capped are counted per camera, printed for the left camera alone
     and given for each in the JSON; the mountings are still calibrated."""
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.rig_bag import read_rig_frames, write_rig_bag
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(2)
@@ -348,7 +349,7 @@ def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
 
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
-    from rs_localizer.ros.bags.rig_bag import read_rig_frames
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames
     from rs_localizer.ros.param_files import read_params_file
 
     bag = tmp_path / "rendered"

@@ -71,7 +71,7 @@ def bag_with_unread_clouds(tmp_path, duration: float = 0.5, seed: int = 7) -> Un
     ``x`` field (their stamps readable: the rig node hands them to the rig as frames skipped,
     ``bad_input``) and whose left cloud :data:`BAD_STAMP` has ``nanosec`` 1.5e9 (a stamp no ROS
     time holds: the node counts it alone)."""
-    from rs_localizer.ros.bags.rig_bag import write_rig_bag
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(2)

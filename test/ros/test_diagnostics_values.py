@@ -243,7 +243,7 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
     values."""
     from helpers.rig import mounts_of
 
-    from rs_localizer.ros.bags.rig_bag import _camera_counts
+    from rs_localizer.ros.bags.rig_bag import camera_counts
     from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
@@ -279,6 +279,6 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
         counts.update({f"{n}.{k}": v for k, v in c.items()})
     v = rig_diagnostics(rig, set(), RigInputs(counts))[2]
     for n in (a, b):
-        replayed = _camera_counts(rig, n, own[n])
+        replayed = camera_counts(rig, n, own[n])
         assert replayed == {k: v[f"{n}.{k}"] for k in replayed}, (n, replayed, v)
-    assert list(_camera_counts(rig, a, own[a]))[-2:] == ["skipped.bad_input", "skipped.queue_full"]
+    assert list(camera_counts(rig, a, own[a]))[-2:] == ["skipped.bad_input", "skipped.queue_full"]

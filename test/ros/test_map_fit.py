@@ -38,7 +38,7 @@ def _mirrored_rig_bag(tmp_path, mirror: bool):
 
     import numpy as np
 
-    from rs_localizer.ros.bags.rig_bag import write_rig_bag
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(2)
@@ -58,19 +58,18 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
     from collections import Counter
 
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.rig_bag import replay_rig
     from rs_localizer.ros.diagnostics import OK, RigInputs, rig_diagnostics
     from rs_localizer.ros.pipeline import MapFitCheck
 
     bag, _, _ = _mirrored_rig_bag(tmp_path, True)
-    res = replay_rig(bag)
+    res = replay(bag, progress=None)
     assert res.solved == 0 and len(res.outputs) >= 10
     assert len(res.notes) == 1 and "does the map fit this place?" in res.notes[0], res.notes
     assert "rig frames with 20 or more correspondences" in res.notes[0], res.notes
     assert main(["replay", str(bag), "--quiet"]) == 1
     assert "warning: " + res.notes[0] in capsys.readouterr().err
     # the node's diagnostics: its worker's check over the rig frames the rig hands out
-    from rs_localizer.ros.bags.rig_bag import read_rig_frames, rig_bag_config
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_bag_config
     from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.tracking.video import Localizer
 
@@ -87,5 +86,5 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
     assert v["map_fit_doubtful"] == "true" and level != OK
     assert "does the map fit this place? mirrored or another room?" in message, message
     right, _, _ = _mirrored_rig_bag(tmp_path, False)
-    res = replay_rig(right)
+    res = replay(right, progress=None)
     assert res.solved == len(res.outputs) and res.notes == []

@@ -286,14 +286,14 @@ def test_lockstep_waits_for_a_node_that_says_it_compiles(imu_bag, ros_context, s
 def test_play_counts_rig_frames_as_the_rig_node(tmp_path, ros_domain, capsys):
     """``play`` of a rig bag prints its camera frames and the rig frames they form, the count
     of the rig node's own grouping (``Localizer`` through ``replay``: its ``rig_frames``)."""
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import replay
 
     bag = tmp_path / "rig"
     assert cli(["make-bag", str(bag), "--rig", "3", "--frames", "5", "--quiet"]) == 0
     capsys.readouterr()
     assert cli(["play", str(bag), "--rate", "0", "--wait", "0"]) == 0
     out = capsys.readouterr().out
-    n_rig = replay_rig(bag).counts["rig"]["rig_frames"]
+    n_rig = replay(bag, progress=None).camera_counts["rig"]["rig_frames"]
     assert n_rig == 5
     assert "15 camera frames" in out and f"({n_rig} rig frames: the camera frames grouped" in out
 

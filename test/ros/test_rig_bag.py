@@ -16,7 +16,7 @@ pytest.importorskip("rosbags")
 def test_make_bag_rig_and_replay(tmp_path, capsys):
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import bag_topics
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.param_files import read_params_file
     from rs_localizer.sim.rig_video import default_rig
 
@@ -48,7 +48,9 @@ def test_make_bag_rig_and_replay(tmp_path, capsys):
     from rs_localizer.ros.conversions import matrix_from_quaternion, quaternion_from_matrix
 
     R = matrix_from_quaternion(m[3:]) @ rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
-    res = replay_rig(bag, params={"rig.left.mounting": m[:3] + list(quaternion_from_matrix(R))})
+    res = replay(
+        bag, params={"rig.left.mounting": m[:3] + list(quaternion_from_matrix(R))}, progress=None
+    )
     assert res.outputs[-1].disagreeing == ("left",)
 
 
@@ -95,7 +97,8 @@ def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tm
     frame still posed; without ``max_points`` no cloud is capped and the rig gets every
     finite row of each cloud."""
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.rig_bag import replay_rig, write_rig_bag
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(2)
@@ -111,21 +114,21 @@ def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tm
     cap = min(rows.values()) - 10
     assert cap >= 20  # (enough for a pose; well below every cloud)
 
-    full = replay_rig(bag)
+    full = replay(bag, progress=None)
     for c in ("front", "left"):
-        assert full.counts[c]["received"] == n[c]
-        assert full.counts[c]["capped_clouds"] == 0
-    assert full.counts["front"]["points_dropped"] == 0
-    assert full.counts["left"]["points_dropped"] == 3 * n["left"]
+        assert full.camera_counts[c]["received"] == n[c]
+        assert full.camera_counts[c]["capped_clouds"] == 0
+    assert full.camera_counts["front"]["points_dropped"] == 0
+    assert full.camera_counts["left"]["points_dropped"] == 3 * n["left"]
     for o in full.outputs:
         for c, f in o.frames.items():
             assert len(f.points2d) == rows[(c, f.stamp_ns)]
             assert np.isfinite(f.points2d).all()
 
-    capped = replay_rig(bag, params={"max_points": cap})
+    capped = replay(bag, params={"max_points": cap}, progress=None)
     for c in ("front", "left"):
-        assert capped.counts[c]["capped_clouds"] == n[c]
-    assert capped.counts["left"]["points_dropped"] == 3 * n["left"]
+        assert capped.camera_counts[c]["capped_clouds"] == n[c]
+    assert capped.camera_counts["left"]["points_dropped"] == 3 * n["left"]
     assert capped.solved == len(capped.outputs) == full.solved == len(full.outputs)
     assert all(len(f.points2d) == cap for o in capped.outputs for f in o.frames.values())
 
@@ -138,19 +141,16 @@ def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tm
     assert f"points_dropped {3 * n['left']}, capped_clouds {n['left']}" in out
 
 
-def test_replay_refuses_a_camera_without_mounting(tmp_path):
+def test_replay_refuses_a_camera_without_mounting(tmp_path, capsys):
     from rs_localizer.cli import main
-    from rs_localizer.cli.args import CliError
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "2", "--frames", "2", "--points", "60",
                  "--quiet"]) == 0  # fmt: skip
-    with pytest.raises(CliError, match="rig camera 'back' has no mounting"):
-        from rs_localizer.cli.replay import _run_rig  # (the CLI's rig path, as main calls it)
-
-        args = type("A", (), dict(out=None, csv=None, debug_outputs=False, quiet=True,
-                                  json=False))()  # fmt: skip
-        _run_rig(args, bag, {"rig.cameras": ["front", "left", "back"]})
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--quiet", "-p", "rig.cameras:=[front, left, back]"]) == 2
+    err = capsys.readouterr().err
+    assert "invalid parameters: " in err and "rig camera 'back' has no mounting" in err, err
 
 
 def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_parameters(
@@ -162,6 +162,7 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
     the front end too (a rig bag is replayed from its clouds), and the rig frames are posed
     as without them."""
     from rs_localizer.cli import main
+    from rs_localizer.ros.bags.replay import replay
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "2", "--frames", "4", "--points", "80",
@@ -175,6 +176,9 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
         capsys.readouterr()
         assert main(["replay", str(bag), "--quiet", *option]) == 2
         assert says in capsys.readouterr().err, option
+    for given in ({"source": "image"}, {"image_topic": "/cam/image_raw"}, {"imu_topic": "/imu"}):
+        with pytest.raises(ValueError, match=f"{next(iter(given))}: not for a rig bag"):
+            replay(bag, progress=None, **given)  # (the library's replay too)
     capsys.readouterr()
     assert main(["replay", str(bag), "--quiet", "--json"]) == 0
     plain = json.loads(capsys.readouterr().out)
@@ -201,14 +205,14 @@ def test_replay_of_a_rendered_rig_bag_runs_each_cameras_front_end_on_its_images(
     than its camera_info's skipped for that reason and counted for its camera, the rig frame
     posed without it."""
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import replay
 
     bag = tmp_path / "rig"
     assert main(["render-bag", str(bag), "--rig", "2", "--frames", "4", "--supersample", "1",
                  "--quiet"]) == 0  # fmt: skip
     params = {"frontend": "aruco", "frontend_map": str(bag / "markers.yaml")}
-    clouds, images = replay_rig(bag), replay_rig(bag, params=params)
-    assert images.solved == clouds.solved == 4 and images.counts == clouds.counts
+    clouds, images = replay(bag, progress=None), replay(bag, params=params, progress=None)
+    assert images.solved == clouds.solved == 4 and images.camera_counts == clouds.camera_counts
     assert [o.cameras for o in images.outputs] == [o.cameras for o in clouds.outputs]
     for a, b in zip(images.outputs, clouds.outputs, strict=True):
         assert {n: len(f.points2d) for n, f in a.frames.items()} == {
@@ -218,9 +222,9 @@ def test_replay_of_a_rendered_rig_bag_runs_each_cameras_front_end_on_its_images(
         assert a.tags == b.tags  # (each camera frame's stamp and frame id)
     # the back camera's second image cut to 320 px wide: skipped, the rig frame posed alone
     cut_bag = rewrite_bag(bag, tmp_path / "cut", cut_image("back", 1))
-    res = replay_rig(cut_bag, params=params)
-    assert res.counts["back"]["skipped.image_size_mismatch"] == 1
-    assert res.counts["back"]["received"] == 4 and res.solved == 4
+    res = replay(cut_bag, params=params, progress=None)
+    assert res.camera_counts["back"]["skipped.image_size_mismatch"] == 1
+    assert res.camera_counts["back"]["received"] == 4 and res.solved == 4
     assert sum("back" not in o.cameras for o in res.outputs) == 1
 
 
@@ -262,8 +266,9 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
     parameters name ``rig.cameras``: replayed and calibrated as the simulated bag it was
     made from; the bag's namespace is found from the cameras' camera_info topics."""
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.bag_io import iter_messages
-    from rs_localizer.ros.bags.rig_bag import is_rig_bag, replay_rig, rig_namespace
+    from rs_localizer.ros.bags.bag_frames import is_rig_bag
+    from rs_localizer.ros.bags.bag_io import iter_messages, rig_namespace
+    from rs_localizer.ros.bags.replay import replay
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--points", "80",
@@ -272,8 +277,8 @@ def test_a_recording_of_a_rigs_cameras_is_replayed_with_the_rig_nodes_parameters
     assert not is_rig_bag(rec) and is_rig_bag(rec, [params])
     assert rig_namespace(rec, ["front", "left"]) == "" and rig_namespace(bag) == "/rig"
     assert list(iter_messages(rec, {"/ground_truth/pose"})) == []  # (none of those topics)
-    a, b = replay_rig(bag), replay_rig(rec, [params])
-    assert b.solved == a.solved == 8 and b.counts == a.counts
+    a, b = replay(bag, progress=None), replay(rec, params_files=[params], progress=None)
+    assert b.solved == a.solved == 8 and b.camera_counts == a.camera_counts
     assert a.summary["frames"] == 8 and b.summary["frames"] == 0  # (no ground truth)
     for x, y in zip(a.outputs, b.outputs, strict=True):
         assert np.array_equal(x.estimate.model.R, y.estimate.model.R)
@@ -293,13 +298,14 @@ def test_a_recording_of_keypoints_is_replayed_with_the_landmarks(tmp_path, capsy
     from rosbags.rosbag2 import Writer
 
     from rs_localizer.cli import main
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames
     from rs_localizer.ros.bags.bag_io import (
         RosbagsMessages,
         iter_messages,
         storage_plugin,
         typestore,
     )
-    from rs_localizer.ros.bags.rig_bag import read_rig_frames, replay_rig
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.conversions import stamp_to_ns
     from rs_localizer.ros.pointcloud import read_correspondences
 
@@ -338,13 +344,14 @@ def test_a_recording_of_keypoints_is_replayed_with_the_landmarks(tmp_path, capsy
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, mt, typestore=ts)
             w.write(conns[topic], t, raw)
-    a = replay_rig(rec, [params])
-    b = replay_rig(keyed, [params], {"landmarks_file": str(table)})
+    a = replay(rec, params_files=[params], progress=None)
+    b = replay(keyed, params_files=[params], params={"landmarks_file": str(table)}, progress=None)
     assert a.solved == b.solved == 8
     for x, y in zip(a.outputs, b.outputs, strict=True):
         assert np.array_equal(x.estimate.model.R, y.estimate.model.R)
         assert np.array_equal(x.estimate.model.C, y.estimate.model.C)
-    assert sum(b.counts[n].get("unknown_landmark_ids", 0) for n in b.cameras) == unknown == 16
+    unread = sum(b.camera_counts[n].get("unknown_landmark_ids", 0) for n in b.cameras)
+    assert unread == unknown == 16
     frames = read_rig_frames(keyed, [params], {"landmarks_file": str(table)}).frames
     assert len(frames) == 16 and all(len(f.points2d) > 0 for f in frames)
 
@@ -358,13 +365,13 @@ def test_a_cameras_bag_replayed_as_a_rig_of_one_is_the_cameras_replay(sample_bag
     reference time); with the parameter ``solver`` too, which the rig of one is solved with
     (and does not name as unused)."""
     from rs_localizer.ros.bags.replay import replay
-    from rs_localizer.ros.bags.rig_bag import replay_rig
 
     timing = {"rs.line_delay": 3e-05, "rs.direction": "top_to_bottom",
               "rs.reference_row": 359.5, "rs.stamp_row": 0.0}  # fmt: skip
     rig = {"rig.cameras": ["camera"], "rig.camera.mounting": [0.0] * 6 + [1.0], **timing}
     chosen = {} if solver is None else {"solver": solver}
-    cam, one = replay(sample_bag, params=chosen), replay_rig(sample_bag, params={**rig, **chosen})
+    cam = replay(sample_bag, params=chosen)
+    one = replay(sample_bag, params={**rig, **chosen}, progress=None)
     assert one.solver == cam.config.solver == (solver or "r6p_1lin")
     assert one.solved == len(cam.rows) == len(one.rows) == 30 and not one.notes
     for a, b in zip(cam.rows, one.rows, strict=True):
@@ -381,7 +388,7 @@ def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     within 1.5x those of the replay without the gyro (12 frames)."""
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import bag_topics
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.param_files import read_params_file
 
     bag = tmp_path / "rig"
@@ -393,12 +400,12 @@ def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     capsys.readouterr()
     assert main(["replay", str(bag), "--quiet"]) == 0
     assert "gyro: 12 rig frames used it, 0 contradicted by the image" in capsys.readouterr().out
-    with_gyro = replay_rig(bag)
-    without = replay_rig(bag, params={"imu.enabled": False})
+    with_gyro = replay(bag, progress=None)
+    without = replay(bag, params={"imu.enabled": False}, progress=None)
     assert all(o.estimate.gyro_used for o in with_gyro.outputs)
     assert not any(o.estimate.gyro_used for o in without.outputs)
     assert with_gyro.solved == without.solved == 12
-    assert with_gyro.gyro_counts["frames_with_gyro"] == 12 and without.gyro_counts == {}
+    assert with_gyro.counts["frames_with_gyro"] == 12 and without.counts == {}
     a, b = with_gyro.summary, without.summary
     for k in ("rot_deg", "pos_m", "angvel"):  # (angvel: the fused twist's)
         assert a[k]["median"] < 1.5 * b[k]["median"], k
@@ -435,12 +442,10 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
     ``skipped.no_camera_info``) and joins no rig frame."""
     from dataclasses import replace
 
-    from rs_localizer.ros.bags.rig_bag import (
-        read_rig_frames,
-        replay_rig,
-        rig_frame_grouping,
-        write_rig_bag,
-    )
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(2)
@@ -474,9 +479,9 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
     front = [f for f in read.frames if f.camera_name == "front"]
     assert front[0].camera is None and all(f.camera is not None for f in front[1:])
     # the grouping play --lockstep waits on is the replay's (the node's reading)
-    res = replay_rig(bag)
-    assert res.counts["front"]["skipped"] == 1  # (no camera model)
-    assert rig_frame_grouping(bag)[1] == res.counts["rig"]["rig_frames"]
+    res = replay(bag, progress=None)
+    assert res.camera_counts["front"]["skipped"] == 1  # (no camera model)
+    assert rig_frame_grouping(bag)[1] == res.camera_counts["rig"]["rig_frames"]
 
 
 def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_path, capsys):
@@ -491,12 +496,9 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     from helpers.rig_bags import BAD_STAMP, NO_X, bag_with_unread_clouds
 
     from rs_localizer.cli import main
-    from rs_localizer.ros.bags.rig_bag import (
-        read_rig_frames,
-        replay_rig,
-        rig_frame_grouping,
-        rig_parameter_values,
-    )
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.ros.camera_input import DroppedFrame, to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.tracking.video import Localizer
@@ -516,13 +518,14 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     assert not any(isinstance(f, DroppedFrame) for f in read.frames)
     assert read.counts["left"]["bad_input"] == bad and read.counts["front"]["bad_input"] == 0
 
-    res = replay_rig(b.bag)
-    left = res.counts["left"]
+    res = replay(b.bag, progress=None)
+    left = res.camera_counts["left"]
     assert left["received"] == n["left"] and left["skipped.bad_input"] == bad, left
     assert left["received"] == left["solved"] + left["failed"] + left["skipped"] + left["pending"]
-    assert left["skipped"] == bad and "skipped.bad_input" not in res.counts["front"]
-    assert res.counts["front"]["received"] == res.counts["front"]["solved"] == n["front"]
-    assert res.solved == len(res.outputs) == res.counts["rig"]["rig_frames"] == n["front"]
+    assert left["skipped"] == bad and "skipped.bad_input" not in res.camera_counts["front"]
+    front = res.camera_counts["front"]
+    assert front["received"] == front["solved"] == n["front"]
+    assert res.solved == len(res.outputs) == res.camera_counts["rig"]["rig_frames"] == n["front"]
     missing = [o for o in res.outputs if "left" not in o.cameras]
     assert len(missing) == bad  # (the stamp the rig cannot read: its rig frame without left)
 
@@ -557,12 +560,9 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     the rig mode solving them (a :class:`Localizer` fed as the node feeds it)."""
     from helpers.rig_bags import rewrite_bag
 
-    from rs_localizer.ros.bags.rig_bag import (
-        read_rig_frames,
-        rig_frame_grouping,
-        rig_parameter_values,
-        write_rig_bag,
-    )
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
@@ -611,8 +611,7 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth, typestore
-    from rs_localizer.ros.bags.replay import CSV_COLUMNS
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import CSV_COLUMNS, replay
     from rs_localizer.ros.conversions import matrix_from_quaternion
 
     bag, cam = tmp_path / "rig", tmp_path / "cam"
@@ -643,7 +642,7 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
         )
         p = np.array([float(r[f"p{a}"]) for a in "xyz"])
         assert float(r["err_pos_m"]) == pytest.approx(np.linalg.norm(p - gt.position[t]), abs=1e-7)
-    res = replay_rig(bag)
+    res = replay(bag, progress=None)
     ts = typestore()
     got: dict = {}
     for topic, mt, _, raw in iter_messages(out):
@@ -651,7 +650,8 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
     assert {k: len(v) for k, v in got.items()} == {
         "pose": 10, "twist_single_frame": 10, "pose_with_covariance": 10, "twist": 10, "odom": 10
     }  # fmt: skip
-    fused = {f.pose.stamp_ns: f.pose.angular_velocity for f in res.fused}
+    fused = [f for o in res.outputs for f in o.fused] + res.flushed
+    fused = {f.pose.stamp_ns: f.pose.angular_velocity for f in fused}
     for m in got["twist"]:
         stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
         w = [m.twist.angular.x, m.twist.angular.y, m.twist.angular.z]
@@ -662,7 +662,7 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
     twists = [ts.deserialize_cdr(raw, mt)
               for _, mt, _, raw in iter_messages(out, {"/rs_localizer/twist"})]  # fmt: skip
     assert len(twists) == 10
-    no_track = replay_rig(bag, params={"tracking.enabled": False})
+    no_track = replay(bag, params={"tracking.enabled": False}, progress=None)
     own = {o.stamp_ns: o.estimate.pose.angular_velocity for o in no_track.outputs}
     for m in twists:
         stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec

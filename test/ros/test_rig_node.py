@@ -754,12 +754,12 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
     from rclpy.parameter import Parameter
 
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
-    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.param_files import read_params_file
     from rs_localizer.ros.rig_node import RigLocalizerNode
 
     b = bag_with_unread_clouds(tmp_path)
-    res = replay_rig(b.bag)
+    res = replay(b.bag, progress=None)
     values = {**read_params_file(b.bag / "rig_params.yaml"), "warmup": False,
               "publish_tf": False, "queue_size": len(b.frames)}  # fmt: skip
     params = [Parameter(k, value=v) for k, v in values.items()]
@@ -776,12 +776,12 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
         v = _drained_values(node, b.cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
         for c in b.cams:
-            for k, want in res.counts[c.name].items():
+            for k, want in res.camera_counts[c.name].items():
                 assert int(v[f"{c.name}.{k}"]) == want, (c.name, k, v)
         keys = {"rig_frames": "rig_frames", "solved": "rig_frames_solved",
                 "failed": "rig_frames_failed", "skipped": "rig_frames_skipped",
                 "pending": "rig_frames_pending"}  # fmt: skip
-        assert {k: int(v[key]) for k, key in keys.items()} == res.counts["rig"], v
+        assert {k: int(v[key]) for k, key in keys.items()} == res.camera_counts["rig"], v
     finally:
         node.destroy_node()
 

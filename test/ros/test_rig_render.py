@@ -78,16 +78,16 @@ def test_render_bag_rig_writes_every_camera_and_replays(rendered_rig_bag, capsys
 
 @pytest.mark.slow  # (renders the rig bag)
 def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
-    """``read_rig_frames`` (calibrate-rig) and ``replay_rig`` read the frames through
+    """``read_rig_frames`` (calibrate-rig) and ``replay`` read a rig's frames through
     ``iter_rig_frames``: every correspondences message once, with its camera's model."""
-    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
-    from rs_localizer.ros.bags.rig_bag import (
-        _QuietLog,
+    from rs_localizer.ros.bags.bag_frames import (
+        QuietLog,
         iter_rig_frames,
         read_rig_frames,
-        replay_rig,
         rig_bag_config,
     )
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.camera_input import rig_camera_inputs
 
     bag = rendered_rig_bag
@@ -107,23 +107,20 @@ def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
         assert f.camera.line_delay == pytest.approx(c["line_delay"])
         assert f.camera.readout == c["direction"]
     cfg = rig_bag_config(bag)[2]
-    again = list(iter_rig_frames(bag, rig_camera_inputs(cfg, _QuietLog(), lambda *a: None)))
+    again = list(iter_rig_frames(bag, rig_camera_inputs(cfg, QuietLog(), lambda *a: None)))
     assert len(again) == len(frames) == 3 * FRAMES
-    res = replay_rig(bag)
+    res = replay(bag, progress=None)
     for n in by:
-        assert res.counts[n]["received"] == FRAMES
+        assert res.camera_counts[n]["received"] == FRAMES
 
 
 def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     """The frames after which ``play --lockstep`` waits are those whose arrival makes the rig
     mode (Localizer) solve rig frames: with a dropped frame and a camera that stops."""
-    from rs_localizer.ros.bags.rig_bag import (
-        read_rig_frames,
-        rig_config,
-        rig_frame_ends,
-        rig_parameter_values,
-        write_rig_bag,
-    )
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.rig_bag import rig_frame_ends
+    from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
 

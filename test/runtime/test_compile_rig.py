@@ -45,9 +45,9 @@ compile_kernels(what["solvers"], rig=None, **kw)
 without = signatures()
 compile_kernels(what["solvers"], rig=what["rig"], **kw)
 with_rig = signatures()
-from rs_localizer.ros.bags.rig_bag import replay_rig
+from rs_localizer.ros.bags.replay import replay
 
-res = replay_rig(bag)
+res = replay(bag, progress=None)
 after = signatures()
 print(json.dumps({"without": without, "with_rig": with_rig, "after": after,
                   "solved": res.solved}))

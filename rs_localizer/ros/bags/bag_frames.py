@@ -1,23 +1,70 @@
-"""Frames of a bag as 2D-3D correspondences (offline, rosbags; no middleware), and its gyro.
+"""Frames of a bag as 2D-3D correspondences (offline, rosbags; no middleware), and its gyro:
+a camera's, or every camera's of a rig bag.
 
 :func:`read_bag_frames` turns every frame of a bag into ``(stamp_ns, points2d, points3d,
 scores)``: from a correspondence cloud, from keypoints with the bag's landmark map, or from
 images through an image front end (ArUco or feature map). :func:`read_gyro` reads the angular
 velocity of ``sensor_msgs/Imu`` messages. Used by ``rs-localizer calibrate-readout``.
+
+A rig bag's cameras (:func:`is_rig_bag`: ``make-bag --rig``, ``render-bag --rig``, or a
+recording with the rig node's parameters, :func:`rig_parameter_values`) are read as the rig
+node reads them: :func:`iter_rig_frames` (each camera's messages through its
+:class:`~rs_localizer.ros.camera_input.CameraInput`, what ``replay`` runs) and
+:func:`read_rig_frames` (all of them, without mountings: ``calibrate-rig``, ``play
+--lockstep``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ...camera import CameraModel
 from .. import conversions as cv
-from .bag_io import CAMERA_INFO, IMAGE, IMU, bag_topics, iter_messages, read_bag_info, typestore
+from ..config import RigConfig, rig_config
+from ..param_files import read_params_file
+from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
+from .bag_io import (
+    CAMERA_INFO,
+    IMAGE,
+    IMU,
+    RigTopics,
+    bag_topics,
+    iter_messages,
+    read_bag_info,
+    rig_namespace,
+    typestore,
+)
 
-__all__ = ["SOURCES", "BagFrames", "read_bag_frames", "read_gyro"]
+if TYPE_CHECKING:
+    import os
+
+    from ...camera import Stamp
+    from ...tracking.localizer import CameraFrame
+    from ...tracking.video import LocalizerSettings
+    from ..camera_input import CameraInput, DroppedFrame, ImageFrame
+
+__all__ = [
+    "READ_COUNTS",
+    "SOURCES",
+    "BagFrames",
+    "QuietLog",
+    "RigFrames",
+    "is_rig_bag",
+    "iter_rig_frames",
+    "read_bag_frames",
+    "read_gyro",
+    "read_rig_frames",
+    "rig_bag_config",
+    "rig_frontends",
+    "rig_landmarks",
+    "rig_messages",
+    "rig_parameter_values",
+]
 
 #: where the correspondences of a frame come from
 SOURCES = ("correspondences", "keypoints", "image")
@@ -175,3 +222,333 @@ def read_gyro(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{path}: {topic} has no messages")
     order = np.argsort(t)
     return np.asarray(t, dtype=np.int64)[order], np.asarray(om, dtype=float)[order]
+
+
+def rig_parameter_values(
+    bag: str | os.PathLike | None,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> tuple[dict, dict]:
+    """``(values, camera values)`` for :func:`~rs_localizer.ros.config.rig_config`: the
+    defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
+    then ``params``."""
+    values = default_values()
+    values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
+                   for k, p in RIG_PARAMETERS.items()})  # fmt: skip
+    tree: dict[str, Any] = {}
+    own = None if bag is None else Path(bag) / "rig_params.yaml"
+    for f in ([own] if own is not None and own.is_file() else []) + list(params_files):
+        tree.update(read_params_file(f))
+    tree.update(params or {})
+    values.update({k: v for k, v in tree.items() if k in values})
+    cams = {}
+    for n in values["rig.cameras"]:
+        cams[n] = {k: tree.get(f"rig.{n}.{k}", p.default) for k, p in RIG_CAMERA_PARAMETERS.items()}
+        cams[n]["mounting"] = tree.get(f"rig.{n}.mounting")
+    return values, cams
+
+
+#: the mounting every camera is read with where the mountings play no part (the frames of a
+#: rig bag read for ``calibrate-rig`` and ``play --lockstep``): the identity
+_ANY_MOUNTING = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+
+
+def rig_bag_config(
+    bag: str | os.PathLike | None,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+    *,
+    mountings: bool = True,
+) -> tuple[dict, dict, RigConfig]:
+    """``(values, camera values, config)``: the parameter values of
+    :func:`rig_parameter_values` and the rig's configuration of them
+    (:func:`~rs_localizer.ros.config.rig_config`), as the rig node takes them.
+
+    ``mountings`` False: the cameras' mountings are not read (the config's are the identity;
+    the camera values keep the parameters' own), for readers of the cameras' frames alone
+    (:func:`read_rig_frames`): a rig without mountings yet is read as well.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
+            no ``rig.cameras``).
+    """
+    values, cams = rig_parameter_values(bag, params_files, params)
+    given = cams
+    if not mountings:
+        given = {str(n).strip(): {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
+                 for n, c in cams.items()}  # fmt: skip
+    return values, cams, rig_config(values, given)
+
+
+def is_rig_bag(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> bool:
+    """The bag is a rig's: its ``sequence.json`` has a ``rig`` entry (``make-bag --rig``,
+    ``render-bag --rig``), or the parameter files and ``params`` name ``rig.cameras`` (a
+    recording of a rig's cameras, replayed with the rig node's parameters)."""
+    if "rig" in read_bag_info(bag):
+        return True
+    if not params_files and not (params or {}).get("rig.cameras"):
+        return False
+    values = rig_parameter_values(None, params_files, params)[0]
+    return any(str(n).strip() for n in values["rig.cameras"] or ())
+
+
+def rig_frontends(
+    bag: str | os.PathLike, values: Mapping[str, Any], cfg: RigConfig, owner: object
+) -> dict | None:
+    """Each camera's front end of the parameter ``values`` (``frontend``, ``frontend_map``,
+    ``aruco.*``, ...; one map loaded, a front end object per camera, as the rig node makes
+    them, on behalf of ``owner``: release with
+    ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``), camera name -> front end;
+    None when ``frontend`` is ``none`` (the bag's correspondences are read instead).
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a front end for a bag without the cameras'
+            images (``<namespace>/<camera>/image_raw``), or whose map does not load.
+    """
+    from ..config import build_config, load_maps, rig_used_values
+
+    kind = str(values.get("frontend", "none")).strip() or "none"
+    if kind == "none":
+        return None
+    names = tuple(c.name for c in cfg.cameras)
+    wanted = RigTopics(rig_namespace(bag, names), names).of(("image",))
+    if not set(wanted) & set(bag_topics(bag)):
+        raise ConfigError(
+            f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
+            "without a front end (frontend: none) its correspondences are read"
+        )
+    single = build_config(rig_used_values(values, cfg.settings.single_camera))
+    return {c.name: load_maps(single, owner=owner).frontend for c in cfg.cameras}
+
+
+def rig_landmarks(values: Mapping[str, Any], cfg: RigConfig, owner: object) -> tuple | None:
+    """The landmarks of the parameter ``landmarks_file`` that the cameras' keypoints name
+    (``(ids (M,), points (M, 3) m)``), loaded as the rig node loads them (on behalf of
+    ``owner``: release with ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``);
+    None without one.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a landmark table that does not load.
+    """
+    from ..config import build_config, load_maps, rig_used_values
+
+    if not str(values.get("landmarks_file", "")).strip():
+        return None
+    only = rig_used_values({**values, "frontend": "none"}, cfg.settings.single_camera)
+    return load_maps(build_config(only), owner=owner).landmarks
+
+
+class QuietLog:
+    """The cameras' inputs' log in a replay: nothing logged (what they drop is counted)."""
+
+    def info(self, text: str) -> None:
+        pass
+
+    def error(self, text: str) -> None:
+        pass
+
+    def warning(self, key: str, text: str) -> None:
+        pass
+
+
+@dataclass
+class RigFrames:
+    """What :func:`read_rig_frames` read: ``items`` (every camera's clouds in log-time order,
+    as :func:`iter_rig_frames` yields them: a
+    :class:`~rs_localizer.tracking.localizer.CameraFrame`, or an
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` for a cloud not read), ``values`` (the
+    parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
+    ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
+    (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
+    ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
+    (an invalid stamp, no u, v, x, y, z fields: the rig node's
+    ``<camera>.skipped.bad_input``); ``settings``: the rig's
+    :class:`~rs_localizer.tracking.video.LocalizerSettings` of those parameters (every mounting the
+    identity: not read)."""
+
+    items: list
+    values: dict
+    cameras: dict
+    counts: dict
+    settings: LocalizerSettings | None = None
+
+    @property
+    def frames(self) -> list:
+        """The frames read (every :class:`~rs_localizer.tracking.localizer.CameraFrame` of
+        :attr:`items`), in log-time order."""
+        from ..camera_input import DroppedFrame
+
+        return [f for f in self.items if not isinstance(f, DroppedFrame)]
+
+
+#: the counts of a camera's rows and clouds :func:`read_rig_frames` reports
+READ_COUNTS = ("points_dropped", "capped_clouds", "capped_points", "bad_input")
+
+
+def read_rig_frames(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> RigFrames:
+    """Every camera's frames of a rig bag, without mountings (what ``calibrate-rig`` reads).
+
+    The cameras are ``rig.cameras`` of :func:`rig_parameter_values` (the bag's
+    ``rig_params.yaml``, the parameter files, ``params``), configured as the rig node
+    configures them (:func:`rig_bag_config`, the mountings not read); each camera's frames
+    are read through its :class:`~rs_localizer.ros.camera_input.CameraInput`
+    (:func:`iter_rig_frames`), as the rig node and ``replay`` read them: each cloud with the
+    model of the camera_info of its stamp (None before the camera's first camera_info), its
+    rows with a NaN or inf dropped, then at most ``max_points`` rows, counted per camera
+    (:attr:`RigFrames.counts`); a cloud that cannot be read (an invalid stamp, no u, v, x, y,
+    z fields) is in no frame, counted ``bad_input`` for its camera (as the rig node's
+    ``<camera>.skipped.bad_input``).
+
+    Raises:
+        ValueError: no ``rig.cameras``;
+            :class:`~rs_localizer.ros.params.ConfigError` (a ValueError): parameters the rig
+            node refuses (e.g. an unknown readout direction).
+    """
+    from ...frontends.shared import SHARED_MAPS
+    from ..camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
+
+    values = rig_parameter_values(bag, params_files, params)[0]
+    if not [str(n).strip() for n in values["rig.cameras"]]:
+        raise ValueError(f"{bag}: no rig.cameras (not a rig bag, and no --params-file with them)")
+    values, cams, cfg = rig_bag_config(bag, params_files, params, mountings=False)
+    counts = {c.name: CameraCounts(c.name) for c in cfg.cameras}
+
+    def count(name: str, key: str, n: int = 1) -> None:
+        counts[name].add(key, n)
+
+    owner = object()  # (the front ends' maps, released once read)
+    try:
+        frontends = rig_frontends(bag, values, cfg, owner)
+        landmarks = rig_landmarks(values, cfg, owner)
+        inputs = rig_camera_inputs(cfg, QuietLog(), count, landmarks=landmarks)
+        items = list(iter_rig_frames(bag, inputs, frontends))
+    finally:
+        SHARED_MAPS.release(owner)
+    for f in items:
+        if isinstance(f, DroppedFrame):
+            count(f.camera_name, f.reason)
+    rows = {}
+    for n, cc in counts.items():  # (READ_COUNTS, then the images' skip reasons counted)
+        c = cc.counts()
+        rows[n] = {k: int(c.get(k, 0)) for k in READ_COUNTS}
+        rows[n].update({k: int(v) for k, v in c.items() if k not in READ_COUNTS})
+    return RigFrames(items, values, cams, rows, cfg.settings)
+
+
+def iter_rig_frames(
+    bag: str | os.PathLike,
+    inputs: Mapping[str, CameraInput],
+    frontends: Mapping | None = None,
+    images: bool = False,
+) -> Iterator[CameraFrame | ImageFrame | DroppedFrame]:
+    """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
+    its :class:`~rs_localizer.ros.camera_input.CameraInput`,
+    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), in log-time order, from
+    ``<namespace>/<camera>/correspondences``, read through the camera's input stage as the
+    rig node reads them: its camera_infos checked and kept by their stamps (one rejected is
+    counted ``camera_info_rejected.<reason>``, the previous ones stay) and each cloud given
+    the model of its own stamp (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`:
+    the newest camera_info stamped at or before it, the oldest for a cloud older than all;
+    None before the camera's first camera_info is received), its rows with a NaN or inf
+    dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
+    first, counted ``capped_clouds``, ``capped_points``
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (an
+    invalid stamp, no x, y, z / u, v fields) is yielded as a
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``bad_input``), which the node
+    counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
+    skipped (:func:`~rs_localizer.ros.camera_input.to_rig`). With the cameras' landmarks
+    (``landmarks_file``, :func:`rig_landmarks`, given to :func:`rig_camera_inputs`) each
+    camera's keypoints (``.../keypoints``: u, v, id) are read too, beside its clouds, as the
+    rig node reads them (each row the 3D point of its id; unknown ids counted
+    ``unknown_landmark_ids``).
+
+    With ``images`` each camera's images (``.../image_raw``) are read instead, as
+    :class:`~rs_localizer.ros.camera_input.ImageFrame` (decoded and checked against the camera
+    model of their stamp; one refused is a ``DroppedFrame`` with its reason, ``bad_image``,
+    ``image_size_mismatch``), for the rig's front ends. With ``frontends`` (camera name -> its
+    front end, :func:`rig_frontends`) too, each image's frame is the front end's
+    correspondences on the whole image, without a rig to predict it (what ``calibrate-rig``
+    reads; :func:`_found_frame`).
+
+    Yields:
+        :class:`~rs_localizer.tracking.localizer.CameraFrame` (name, header stamp ns, model,
+        pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``),
+        :class:`~rs_localizer.ros.camera_input.ImageFrame` or
+        :class:`~rs_localizer.ros.camera_input.DroppedFrame`.
+    """
+    from ..camera_input import ImageFrame
+
+    if frontends is not None or images:
+        kinds: tuple = ("image",)
+    elif any(inp.landmarks is not None for inp in inputs.values()):
+        kinds = ("cloud", "keypoints")
+    else:
+        kinds = ("cloud",)
+    for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
+        item = inputs[n].take(msg, kind, stamp, camera)
+        if frontends is not None and isinstance(item, ImageFrame):
+            item = _found_frame(inputs[n], item, frontends[n])
+        yield item
+
+
+def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFrame | DroppedFrame:
+    """A camera's decoded image ``item`` as a frame of its front end's correspondences,
+    without a rig to predict it (``calibrate-rig``): ``frontend.process(image, camera,
+    encoding)`` (a :class:`~rs_localizer.correspondences.Frontend`) on the whole image, its
+    rows as a cloud's (:meth:`~rs_localizer.ros.camera_input.CameraInput.rows`: non-finite
+    rows dropped, at most ``max_points``). Without a camera model: a frame without rows, as
+    the rig takes a frame before its camera_info. A front end that raises: a
+    :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``frontend_error``)."""
+    from ...tracking.localizer import CameraFrame
+    from ..camera_input import DroppedFrame
+
+    name, stamp, camera, tag = item.camera_name, item.stamp_ns, item.camera, item.tag
+    if camera is None:
+        return CameraFrame(stamp, None, np.zeros((0, 2)), np.zeros((0, 3)), tag=tag,
+                           camera_name=name)  # fmt: skip
+    try:
+        found = frontend.process(item.image, camera, item.encoding)
+    except Exception as e:  # (any front end's failure: the frame is left out, counted)
+        return DroppedFrame(name, stamp, camera, ValueError(f"{type(e).__name__}: {e}"),
+                            "frontend_error")  # fmt: skip
+    uv = np.asarray(found.points2d, float).reshape(-1, 2)
+    xyz = np.asarray(found.points, float).reshape(-1, 3)
+    uv, xyz, _ = inp.rows(uv, xyz, found.valid_scores())
+    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
+
+
+def rig_messages(
+    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], *kinds: str
+) -> Iterator[tuple[str, str, Any, Stamp | DroppedFrame, CameraModel | None]]:
+    """Every camera's frame messages of ``kinds`` (``cloud``: ``<namespace>/<camera>/
+    correspondences``, ``keypoints``: ``.../keypoints``, ``image``: ``.../image_raw``) of a
+    rig bag in log-time order, each
+    camera's camera_infos given to its input (``inputs``: camera name -> its
+    :class:`~rs_localizer.ros.camera_input.CameraInput`) as they come, as
+    :func:`iter_rig_frames` reads them.
+
+    Yields:
+        ``(camera name, kind, message, its header stamp checked (ns) or the
+        :class:`~rs_localizer.ros.camera_input.DroppedFrame` of that check, the camera model
+        of that stamp or None)`` (:meth:`~rs_localizer.ros.camera_input.CameraInput.check`,
+        :meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`).
+    """
+
+    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
+    ts = typestore()
+    for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
+        k, n = topics[topic]
+        msg = ts.deserialize_cdr(raw, msgtype)
+        if k == "info":
+            inputs[n].add_camera_info(msg)
+            continue
+        stamp = inputs[n].check(msg, k)
+        yield n, k, msg, stamp, inputs[n].camera_of(stamp)

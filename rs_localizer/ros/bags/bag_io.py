@@ -6,6 +6,11 @@ and reading them back.
   ``<ns>/correspondences``, ``<ns>/keypoints``, ``<ns>/camera_info``, ``/ground_truth/pose`` and
   ``/ground_truth/twist``, plus ``landmarks.csv`` (the map for the keypoints topic) and
   ``sequence.json`` (RS timing and generation settings) in the bag directory.
+* :func:`write_rig_bag` writes a simulated rig video (several cameras, each its own timing) as
+  a rig bag: per camera ``<ns>/<camera>/camera_info``, ``.../correspondences`` and, rendered,
+  ``.../image_raw``, the rig's ground truth, ``sequence.json`` with a ``rig`` entry and
+  ``rig_params.yaml`` (the rig node's parameter file); :class:`RigTopics` and
+  :func:`rig_namespace` name a rig bag's topics.
 * :class:`RosbagsMessages` builds messages of the Jazzy typestore (rendered sequences).
 * :func:`read_bag_info`, :func:`iter_messages`, :func:`bag_topics`, :func:`load_ground_truth`
   read bags.
@@ -16,7 +21,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -32,13 +39,16 @@ from ..pointcloud import correspondence_array, is_dense, keypoint_array, pack_cl
 __all__ = [
     "GT_POSE",
     "GT_TWIST",
+    "RigTopics",
     "RosbagsMessages",
     "bag_topics",
     "iter_messages",
     "load_ground_truth",
     "read_bag_info",
+    "rig_namespace",
     "storage_plugin",
     "typestore",
+    "write_rig_bag",
     "write_sequence_bag",
     "write_sequence_json",
 ]
@@ -442,6 +452,215 @@ class RosbagsMessages:
 
     def cdr(self, msg: Any, msgtype: str) -> bytes:
         return self.ts.serialize_cdr(msg, msgtype)
+
+
+def _mounting(cam) -> list[float]:
+    q = cv.quaternion_from_matrix(cam.R_rig_cam)
+    return [float(x) for x in (*cam.p_rig_cam, *q)]
+
+
+def write_rig_bag(
+    path: str | os.PathLike,
+    frames: Iterable[Any],
+    cameras: list,
+    trajectory: Any,
+    *,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    namespace: str = "/rig",
+    base_frame: str = "base_link",
+    map_frame: str = "map",
+    stamp_row: float = 0.0,
+    storage: str = "mcap",
+    overwrite: bool = False,
+    settings: dict | None = None,
+    generator: str = "rs-localizer make-bag --rig",
+    compress: bool = False,
+    extra: dict | None = None,
+    imu: tuple | None = None,
+) -> Path:
+    """Write a simulated rig video as a rig bag (module docstring); returns its path.
+
+    Args:
+        frames: camera frames in stamp order, each with ``name``, ``stamp_ns``, ``t_ref_ns``,
+            ``uv`` (N, 2) px, ``xyz`` (N, 3) m, optionally ``ids`` (N,) (default 0..N-1) and
+            ``image`` ((H, W, 3) uint8 RGB: then ``<ns>/<c>/image_raw`` is written too):
+            :func:`rs_localizer.sim.rig_video.generate_rig_video`,
+            :func:`rs_localizer.sim.render.rig.render_rig_video`; an iterator is consumed
+            as it is written.
+        cameras: the rig's cameras (``name``, ``camera``, ``R_rig_cam``, ``p_rig_cam``,
+            ``offset``, ``fps``). trajectory: the rig's motion (``pose(t)``,
+            ``velocity_body(t)``; rig time 0 at ``t0_ns``).
+        generator, settings, extra: recorded in ``sequence.json`` (``extra``: further
+            top-level entries, e.g. the front end). compress: zstd (mcap chunks, sqlite3
+            messages).
+        imu: optional ``(t_ns (M,), omega (M, 3) rad/s, R_rig_imu (3, 3))``, a gyro on the
+            rig (:func:`rs_localizer.sim.rig_video.rig_gyro`) written on ``<namespace>/imu``
+            at its stamps.
+
+    Log times: camera_info at stamp + 1 ms, the image, the cloud and the ground truth at
+    stamp + 2 ms.
+
+    Raises:
+        FileExistsError: ``path`` exists and not ``overwrite``.
+    """
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
+
+    path = Path(path)
+    if path.exists():
+        if not overwrite:
+            raise FileExistsError(f"{path} exists (use --overwrite)")
+        shutil.rmtree(path)
+    ns = namespace.rstrip("/")
+    M = RosbagsMessages()
+    topics = {}
+    for c in cameras:
+        topics[f"{c.name}/camera_info"] = f"{ns}/{c.name}/camera_info"
+        topics[f"{c.name}/correspondences"] = f"{ns}/{c.name}/correspondences"
+    by = {c.name: c for c in cameras}
+    writer = Writer(path, version=9, storage_plugin=storage_plugin(storage))
+    if compress:
+        writer.set_compression(
+            CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE,
+            CompressionFormat.ZSTD,
+        )
+    n_frames = 0
+    with writer as w:
+        conns = {}
+        for c in cameras:
+            conns[f"{c.name}/camera_info"] = w.add_connection(
+                topics[f"{c.name}/camera_info"], CAMERA_INFO, typestore=M.ts
+            )
+            conns[f"{c.name}/correspondences"] = w.add_connection(
+                topics[f"{c.name}/correspondences"], PC2, typestore=M.ts
+            )
+        gt_pose = w.add_connection(GT_POSE, POSE, typestore=M.ts)
+        gt_twist = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
+        if imu is not None:  # (a gyro on the rig)
+            c_imu = w.add_connection(f"{ns}/imu", IMU, typestore=M.ts)
+            for t_ns, om in zip(imu[0], imu[1], strict=True):
+                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, np.zeros(3), int(t_ns), "imu_link"), IMU))
+        written = set()
+        for f in frames:
+            n_frames += 1
+            cam = by[f.name]
+            frame_id = f"{f.name}_optical_frame"
+            info = M.camera_info(cam.camera, f.stamp_ns, frame_id)
+            w.write(
+                conns[f"{f.name}/camera_info"], f.stamp_ns + 1_000_000, M.cdr(info, CAMERA_INFO)
+            )
+            t_log = f.stamp_ns + 2_000_000
+            image = getattr(f, "image", None)
+            if image is not None:
+                key = f"{f.name}/image_raw"
+                if key not in conns:
+                    topics[key] = f"{ns}/{f.name}/image_raw"
+                    conns[key] = w.add_connection(topics[key], IMAGE, typestore=M.ts)
+                w.write(conns[key], t_log, M.cdr(M.image(image, f.stamp_ns, frame_id), IMAGE))
+            ids = getattr(f, "ids", None)
+            ids = np.arange(len(f.uv), dtype=np.uint32) if ids is None else ids.astype(np.uint32)
+            cloud = M.cloud(f.uv, f.xyz, ids, f.stamp_ns, frame_id)
+            w.write(conns[f"{f.name}/correspondences"], t_log, M.cdr(cloud, PC2))
+            if f.t_ref_ns in written:
+                continue
+            written.add(f.t_ref_ns)
+            t = (f.t_ref_ns - t0_ns) * 1e-9
+            R, p = trajectory.pose(t)
+            om, v = trajectory.velocity_body(t)
+            w.write(gt_pose, t_log, M.cdr(M.pose(R, p, f.t_ref_ns, map_frame), POSE))
+            w.write(gt_twist, t_log, M.cdr(M.twist(om, v, f.t_ref_ns, base_frame), TWIST))
+    rig = {
+        "namespace": ns,
+        "base_frame": base_frame,
+        "cameras": [
+            {
+                "name": c.name,
+                "mounting": _mounting(c),
+                "line_delay": c.camera.line_delay,
+                "direction": c.camera.readout,
+                "offset_s": c.offset,
+                "fps": c.fps,
+            }
+            for c in cameras
+        ],
+    }
+    if imu is not None:
+        q = cv.quaternion_from_matrix(np.asarray(imu[2], dtype=float))
+        rig["imu"] = {"topic": f"{ns}/imu", "rotation": [float(x) for x in q]}
+    meta = {
+        "generator": generator,
+        "topics": {**topics, "gt_pose": GT_POSE, "gt_twist": GT_TWIST},
+        "frames": n_frames,
+        "map_frame": map_frame,
+        "rs": {"stamp_row": float(stamp_row)},
+        "rig": rig,
+        "settings": settings or {},
+        **(extra or {}),
+    }
+    (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+    (path / "rig_params.yaml").write_text(_params_yaml(rig, stamp_row))
+    return path
+
+
+def _params_yaml(rig: dict, stamp_row: float) -> str:
+    """The node's parameter file of a rig bag's ``rig`` entry."""
+    import yaml
+
+    cams = {
+        c["name"]: {
+            "mounting": [round(float(x), 9) + 0.0 for x in c["mounting"]],
+            "line_delay": float(c["line_delay"]),
+            "direction": c["direction"],
+        }
+        for c in rig["cameras"]
+    }
+    body = {
+        "base_frame": rig["base_frame"],
+        "rs": {"stamp_row": float(stamp_row)},
+        "rig": {"cameras": [c["name"] for c in rig["cameras"]], **cams},
+    }
+    if "imu" in rig:
+        body["imu"] = {"enabled": True, "rotation": [round(x, 12) for x in rig["imu"]["rotation"]]}
+    tree = {"/**/rs_localizer": {"ros__parameters": body}}
+    return yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
+
+
+def rig_namespace(bag: str | os.PathLike, cameras: Iterable[str] = ()) -> str:
+    """The namespace of a rig bag's camera topics, without a trailing slash:
+    ``sequence.json``'s ``rig.namespace`` (``make-bag --rig``, ``render-bag --rig``); else,
+    for a recording of the ``cameras``, the namespace ``<ns>`` under which the bag holds the
+    most of their ``<ns>/<camera>/camera_info`` topics (``""`` for ``/front/camera_info``,
+    ``/robot`` for ``/robot/front/camera_info``: the rig node's topics, which are relative to
+    its namespace); else ``/rig``."""
+    info = read_bag_info(bag).get("rig")
+    if info is not None:
+        return str(info.get("namespace", "/rig")).rstrip("/")
+    found: Counter = Counter()
+    for topic in bag_topics(bag) if cameras else ():
+        for n in cameras:
+            leaf = f"/{n}/camera_info"
+            if topic.endswith(leaf):
+                found[topic[: -len(leaf)]] += 1
+    return found.most_common(1)[0][0] if found else "/rig"
+
+
+@dataclass(frozen=True)
+class RigTopics:
+    """A rig bag's topics of the cameras ``names``: ``<namespace>/<camera>/camera_info``,
+    ``.../correspondences``, ``.../keypoints`` and ``.../image_raw`` (:meth:`of`: topic ->
+    ``(kind, camera)``, kind ``info``, ``cloud``, ``keypoints`` or ``image``)."""
+
+    namespace: str
+    names: tuple
+
+    def topic(self, name: str, kind: str) -> str:
+        """The topic of camera ``name``'s ``kind`` (``info``, ``cloud``, ``keypoints``,
+        ``image``)."""
+        leaf = {"info": "camera_info", "cloud": "correspondences", "keypoints": "keypoints",
+                "image": "image_raw"}[kind]  # fmt: skip
+        return f"{self.namespace}/{name}/{leaf}"
+
+    def of(self, kinds: Iterable[str] = ("info", "cloud")) -> dict[str, tuple[str, str]]:
+        return {self.topic(n, k): (k, n) for n in self.names for k in kinds}
 
 
 def progress_bar(

@@ -212,7 +212,9 @@ def _rig_grouping(path, params_files: list, params: Mapping[str, Any] | None) ->
     sent, since it reads the whole bag."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from .rig_bag import rig_frame_grouping, rig_namespace, rig_parameter_values
+    from .bag_frames import rig_parameter_values
+    from .bag_io import rig_namespace
+    from .rig_bag import rig_frame_grouping
 
     cameras = rig_parameter_values(path, params_files, params)[0]["rig.cameras"]
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
@@ -263,7 +265,7 @@ def play(
             ``PlayResult.timeouts`` and reported through ``log``. While the node says it
             compiles its kernels (its log on ``/rosout``, ``compile_state`` on
             ``/diagnostics``) the wait goes on, up to ``compile_wait`` s in all.
-            A rig bag (:func:`~rs_localizer.ros.bags.rig_bag.is_rig_bag`) waits only after the
+            A rig bag (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`) waits only after the
             camera frames that complete a rig frame
             (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), for the rig's pose
             (``<ns>/pose``; ``PlayResult.rig_frames`` counts them).
@@ -324,7 +326,7 @@ def play(
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from .rig_bag import is_rig_bag
+    from .bag_frames import is_rig_bag
 
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")

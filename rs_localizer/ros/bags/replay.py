@@ -1,15 +1,19 @@
-"""Offline replay: the localizer node over every frame of a bag, without middleware.
+"""Offline replay: the localizer node over every frame of a bag, without middleware; a camera's
+bag, or a rig bag's cameras (a camera alone is a rig of one).
 
-The frames go through the node's own per-frame pipeline
+A camera's frames go through the node's own per-frame pipeline
 (:class:`~rs_localizer.ros.pipeline.FramePipeline`) configured from the node's parameters
 (:mod:`..params`; :mod:`..param_files`: defaults, then ROS 2 parameter files, then
 overrides), so a replay publishes what the node would: the pose, the frame's own twist
 (``twist_single_frame``) and, with tracking (the default), the fused twist on ``twist`` and
-``odom`` when it is final. The outputs are written as a bag (``/rs_localizer/<topic>``) and a
-CSV (one line per frame), and compared with the bag's ground truth (``/ground_truth/*``) when
-it has one. With ``debug_outputs`` the output bag also gets the node's visualization topics
-(``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`), to open in
-Foxglove or RViz.
+``odom`` when it is final. A rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.
+is_rig_bag`) go through the rig mode as the rig node runs it
+(:class:`~rs_localizer.ros.bags.rig_bag.RigRun`), a rig frame for a frame. Either way the
+outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
+frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth (``/ground_truth/*``)
+when it has one and, with ``debug_outputs``, the node's visualization topics in the output bag
+(``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`; of a rig,
+``<camera>/debug_image`` and ``<camera>/markers`` per camera), to open in Foxglove or RViz.
 """
 
 from __future__ import annotations
@@ -20,21 +24,27 @@ import math
 import os
 import shutil
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_errors
+from ...accuracy import (
+    GroundTruth,
+    frame_errors,
+    frame_fit_summary,
+    summarize_errors,
+)
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
-from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..outputs import frame_messages, fused_messages
+from ..config import LocalizerConfig, RigConfig, build_config, default_timing_note, load_maps
+from ..outputs import frame_messages, fused_messages, pose_messages
 from ..param_files import parameter_values, read_params_file
-from ..pipeline import FramePipeline, FrameResult, FusedOutput
+from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
+from .bag_frames import is_rig_bag
 from .bag_io import (
     CAMERA_INFO,
     COMPRESSED_IMAGE,
@@ -42,20 +52,22 @@ from .bag_io import (
     IMAGE,
     IMU,
     OUT_TYPES,
+    RigTopics,
     bag_topics,
     iter_messages,
     load_ground_truth,
     progress_bar,
     read_bag_info,
+    rig_namespace,
     storage_plugin,
     typestore,
 )
+from .rig_bag import RigRun, disagreeing
 
 if TYPE_CHECKING:
     from ...camera import CameraModel
     from ...estimation.result import RSPoseEstimate
     from ...pose import PoseWithCovariance
-    from ...tracking.video import LocalizerOutput
 
 __all__ = [
     "BAG_TIMING",
@@ -87,34 +99,80 @@ def to_cdr(msg: Any, msgtype: str, ts: Any) -> bytes:
 
 @dataclass
 class ReplayResult:
-    """Outcome of :func:`replay`: ``rows`` (one dict per frame, the CSV's columns),
-    ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
-    of the published pose and twist), ``failures`` (reason -> frames), the files written, the
-    configuration and parameter values used, the maps loaded for it (``maps``: the landmarks
-    and the front end, :class:`~rs_localizer.frontends.shared.LoadedMaps`), and the pipeline's
-    counters (``counts``: e.g. ``frames_with_gyro``, ``gyro_rejected``,
-    ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the node's diagnostics),
-    ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used,
-    the online estimate with ``imu.estimate_bias``; None without ``imu.enabled``)."""
+    """Outcome of :func:`replay`, of a camera's bag or a rig bag (a rig frame for a frame):
+    ``rows`` (one dict per frame, the CSV's columns, :class:`ReplayRows`), ``summary``
+    (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors` of the
+    published pose and twist, with ``frame_fit``), ``failures`` (reason -> frames), the files
+    written, the configuration (a camera's :class:`~rs_localizer.ros.config.LocalizerConfig`,
+    a rig's :class:`~rs_localizer.ros.config.RigConfig`) and parameter values used, the maps
+    loaded for a camera (``maps``: the landmarks and the front end,
+    :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
+    their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
+    twist), and the counters (``counts``: a camera's pipeline's, e.g. ``frames_with_gyro``,
+    ``gyro_rejected``, ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the
+    node's diagnostics; a rig's gyro counts by the same names), ``gyro_bias`` and
+    ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used, the online
+    estimate with ``imu.estimate_bias``; None without ``imu.enabled``), ``readout`` (the check
+    of the rolling-shutter timing on the video at its end, ``readout_suspect``,
+    ``readout_contradicted``: :meth:`~rs_localizer.tracking.video.Localizer.readout_values`;
+    a camera's with its tracking's other values), ``notes`` (warnings for the user).
+
+    A rig bag's replay also has (empty for a camera's):
+
+    - ``cameras``: the cameras' names (rig order); ``camera_counts``: ``rig``, its rig frames'
+      ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its frames'
+      ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (received = the other
+      four summed), its rows' ``points_dropped`` (rows with a NaN or inf) and
+      ``capped_clouds`` (clouds capped to ``max_points``), then ``skipped.<reason>`` for each
+      reason its frames were skipped for (e.g. ``bad_input``: clouds not read;
+      ``no_camera_info``), as the rig node's diagnostics count them ``<camera>.received``,
+      ..., ``<camera>.skipped.<reason>`` (:func:`~rs_localizer.ros.bags.rig_bag.camera_counts`);
+    - ``own_twist``: the errors of each rig frame's own twist (``frames``, ``angvel``,
+      ``linvel``); ``off_deg``: camera -> one entry per posed rig frame in which it disagreed
+      with the others (the cameras' consensus outvoted it, or the rig names it as
+      disagreeing), how far off it is: deg between its rotation posed alone and where the
+      rig's pose and its mounting put it (NaN where it could not be posed alone;
+      :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`), summed up by
+      :attr:`disagreeing`;
+    - ``outputs``: every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`
+      (each camera frame tagged with ``(its header stamp ns, its frame id)``); ``flushed``:
+      the fused poses still pending at the end of the video.
+    """
 
     rows: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
     failures: dict = field(default_factory=dict)
     out_bag: Path | None = None
     out_csv: Path | None = None
-    config: LocalizerConfig | None = None
+    config: LocalizerConfig | RigConfig | None = None
     maps: LoadedMaps | None = None
     parameters: dict = field(default_factory=dict)
+    solver: str = ""
+    tracked: bool = False
     counts: dict = field(default_factory=dict)
     gyro_bias: np.ndarray | None = None
     gyro_bias_std: np.ndarray | None = None
     #: warnings about the replay's set-up for the user (e.g. a default line delay on images)
     notes: list = field(default_factory=list)
+    readout: dict = field(default_factory=dict)
+    cameras: tuple = ()
+    camera_counts: dict = field(default_factory=dict)
+    own_twist: dict = field(default_factory=dict)
+    off_deg: dict = field(default_factory=dict)
+    outputs: list = field(default_factory=list)
+    flushed: list = field(default_factory=list)
 
     @property
     def solved(self) -> int:
-        """Frames with a pose."""
+        """Frames (rig frames) with a pose."""
         return sum(1 for r in self.rows if r["success"])
+
+    @property
+    def disagreeing(self) -> dict:
+        """camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera of a rig that
+        disagreed with the others in N posed rig frames, X the median of :attr:`off_deg`
+        (:func:`~rs_localizer.ros.bags.rig_bag.disagreeing`)."""
+        return disagreeing(self.off_deg)
 
 
 def replay_parameters(
@@ -204,98 +262,360 @@ def replay(
     imu_topic: str | None = None,
     log: Any = None,
 ) -> ReplayResult:
-    """Run the localizer node's per-frame pipeline over every frame of a bag, offline.
+    """Run the localizer node over every frame of a bag, offline: a camera's frames through
+    its per-frame pipeline, or a rig bag's cameras through the rig mode
+    (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`: ``make-bag --rig``, ``render-bag
+    --rig``, or a recording with ``rig.cameras`` in the parameters;
+    :class:`~rs_localizer.ros.bags.rig_bag.RigRun`), a rig frame for a frame.
 
     Args:
         path: bag directory (make-bag or render-bag output, or a recording), or its storage
             file (then its directory is read, with its sequence.json).
         params_files: the node's ROS 2 parameter files (later ones win; see
-            :func:`..param_files.read_params_file` for the sections read).
+            :func:`..param_files.read_params_file` for the sections read; a rig bag's own
+            ``rig_params.yaml`` comes first).
         params: overrides by parameter name (``{"solver": "p3p", "tracking.enabled": False}``).
-            RS timing and the keypoints' landmarks that nothing sets come from the bag
+            A camera's RS timing and keypoints' landmarks that nothing sets come from the bag
             (:func:`replay_parameters`).
-        source: the frames: ``correspondences`` (``*/correspondences``), ``keypoints``
+        source: a camera's frames: ``correspondences`` (``*/correspondences``), ``keypoints``
             (``*/keypoints`` + ``landmarks_file``) or ``image`` (an image topic through the
             front end of the ``frontend`` parameter); None: ``image`` when ``frontend`` is not
-            ``none``, else ``correspondences``.
+            ``none``, else ``correspondences``. (A rig's cameras: their images with a front
+            end, else their correspondences and, with ``landmarks_file``, keypoints.)
         out_bag: write the outputs here (``/rs_localizer/pose``, ``twist``,
             ``twist_single_frame``, ``pose_with_covariance``, ``odom``: the node's messages,
-            each logged at the bag time of the frame that made it final). out_csv: one line
-            per frame (:data:`CSV_COLUMNS`: the pose, the twist on ``twist`` and the frame's own
-            twist, errors against ground truth). storage: ``mcap`` or ``sqlite3``.
+            each logged at the bag time of the frame that made it final; a rig frame's at its
+            time). out_csv: one line per frame (:data:`CSV_COLUMNS`: the pose, the twist on
+            ``twist`` and the frame's own twist, errors against ground truth). storage:
+            ``mcap`` or ``sqlite3``.
         debug_outputs: (needs ``out_bag``) add, for every solved frame,
             ``/rs_localizer/debug_image`` (stamped like the input frame, drawn on the input
             image in image mode, else on the bag's image of the same stamp on ``image_topic``
             -- default: its ``sensor_msgs/Image`` topic in the frame topic's namespace, else
             the first one -- or on a blank canvas), ``/rs_localizer/markers`` and
-            ``/rs_localizer/path`` (the last ``path_length`` poses), as the node publishes them.
+            ``/rs_localizer/path`` (the last ``path_length`` poses), as the node publishes them;
+            of a rig, ``path`` and per camera ``<camera>/debug_image`` (on the bag's
+            ``<namespace>/<camera>/image_raw`` of its stamp) and ``<camera>/markers``, the
+            camera as the rig's pose and its mounting put it, as the rig node draws them.
         image_topic: with ``source`` image the frames' topic (default: the bag's image topic,
             as ``sequence.json`` names it).
         imu_topic: with ``imu.enabled`` the ``sensor_msgs/Imu`` topic whose gyro the frames
-            use (default: the bag's only IMU topic); all its samples are buffered first.
+            use (default: the bag's only IMU topic; a rig's ``<namespace>/imu``); all its
+            samples are buffered first.
         progress: stream for the progress bar (None: none). log: logger for the pipeline's
             warnings (None: silent).
 
     Raises:
         ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
-            ``imu.enabled`` without one IMU topic (or ``imu_topic`` not one); invalid
-            parameters (a :class:`~rs_localizer.ros.params.ConfigError`).
+            ``imu.enabled`` without one IMU topic (or ``imu_topic`` not one); ``source``,
+            ``image_topic`` or ``imu_topic`` for a rig bag; invalid parameters (a
+            :class:`~rs_localizer.ros.params.ConfigError`; for a rig also a front end for a
+            bag without camera images).
         FileExistsError: ``out_bag`` exists and not ``overwrite``.
     """
     path = Path(path)
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
     params_files = list(params_files)
-    values, cfg, maps, source = _replay_config(path, params_files, params, source)
+    if debug_outputs and out_bag is None:
+        raise ValueError("debug outputs need an output bag (--out)")
+    if is_rig_bag(path, params_files, params):
+        given = [n for n, v in (("source", source), ("image_topic", image_topic),
+                                ("imu_topic", imu_topic)) if v is not None]  # fmt: skip
+        if given:
+            raise ValueError(f"{', '.join(given)}: not for a rig bag (its cameras' topics are "
+                             "<namespace>/<camera>/..., its gyro's <namespace>/imu)")  # fmt: skip
+        run: _CameraReplay | _RigReplay = _RigReplay(path, params_files, params)
+    else:
+        run = _CameraReplay(path, params_files, params, source, image_topic, imu_topic,
+                            debug_outputs, log)  # fmt: skip
+    result = run.result
     ts = typestore()
-    topics = bag_topics(path)
-    frame_topic, info_topic, viz_topic, imu_topic = _replay_topics(
-        path, topics, cfg, source, image_topic, imu_topic, debug_outputs, out_bag
-    )
-    if cfg.imu is not None:
-        # (offline every sample is buffered before the frames: no waiting)
-        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
-    gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
-    n_frames = _count(path, frame_topic)
-    result = ReplayResult(config=cfg, maps=maps, parameters=values)
-    note = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
-    if note is not None:
-        result.notes.append(note)
-    note = _imu_mount_note(cfg, read_bag_info(path))
-    if note is not None:
-        result.notes.append(note)
+    gt = load_ground_truth(path) if GT_POSE in bag_topics(path) else GroundTruth()
     writer, conns = None, {}
     if out_bag is not None:
         writer, conns = open_out_bag(Path(out_bag), storage, overwrite, ts)
         result.out_bag = Path(out_bag)
-    viz = DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
+    viz = None
+    if debug_outputs:
+        images = _BagImages(path, run.image_topics)
+        viz = DebugWriter(writer, conns, ts, path_length, run.map_frame, run.views, images)
     rows = ReplayRows(gt)
-    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
-    _run_frames(
-        path,
-        ts,
-        pipeline,
-        cfg,
-        source,
-        (frame_topic, info_topic, viz_topic, imu_topic),
-        rows,
-        writer,
-        conns,
-        viz,
-        n_frames,
-        progress,
-    )
-    _summarize(result, rows, pipeline, out_csv)
-    tracking = pipeline.tracking_values()
-    if tracking.get("readout_suspect") == "true":
-        result.notes.append(readout_warning(tracking["readout_contradicted"]))
+    steps = run.steps(progress, viz is not None)
+    try:
+        for s in steps:
+            if s.row is not None:
+                rows.add(s.row, s.pose, s.out_stamp_ns, s.twist_now)
+            rows.fused(s.fused)
+            write_messages(writer, conns, ts, s.t_log, s.messages)
+            if viz is not None and s.views:
+                viz.frame(s)
+    finally:
+        steps.close()
+        if viz is not None:
+            viz.images.close()
+        if writer is not None:
+            writer.close()
+    result.rows, result.failures, result.summary = rows.summary()
+    run.finish(rows)  # (its counts, and its warnings of the video, e.g. the map-fit check's)
+    bias = run.engine.gyro_bias_values()
+    if bias is not None:
+        result.gyro_bias, result.gyro_bias_std = bias
+    result.readout = run.readout_values()
+    if result.readout.get("readout_suspect") == "true":
+        text = readout_warning(result.readout["readout_contradicted"], rig=bool(result.cameras))
+        result.notes.append(text)
+    if out_csv is not None:
+        result.out_csv = Path(out_csv)
+        write_csv(result.out_csv, result.rows)
     return result
+
+
+@dataclass
+class _View:
+    """A camera's drawing of a posed frame (``<prefix>debug_image``, ``<prefix>markers``):
+    its estimate (camera frame), rows ``uv`` (N, 2) px and ``X`` (N, 3) m, camera model,
+    header stamp (ns), frame id, the stamp of its pose (ns) and its image ((image, encoding),
+    None: the bag's of its stamp, :class:`_BagImages`)."""
+
+    prefix: str
+    estimate: RSPoseEstimate
+    uv: np.ndarray
+    X: np.ndarray
+    camera: CameraModel
+    stamp_ns: int
+    frame_id: str
+    ref_stamp_ns: int
+    image: tuple | None = None
+
+
+@dataclass
+class _Step:
+    """What one frame (a camera's frame or a rig frame) gives the output path of
+    :func:`replay`: its ``row`` (:class:`ReplayRows`; None: the end of the video, only the
+    fused twists still pending), the published ``pose`` when posed (its ``out_stamp_ns``;
+    ``twist_now``: its own twist is final), the ``fused`` twists of earlier frames now final,
+    the output ``messages`` logged at ``t_log`` (ns), the ``estimate`` on the path and the
+    cameras' ``views`` (debug outputs)."""
+
+    t_log: int
+    messages: list
+    fused: list
+    row: dict | None = None
+    pose: PoseWithCovariance | None = None
+    out_stamp_ns: int | None = None
+    twist_now: bool = False
+    estimate: RSPoseEstimate | None = None
+    views: list = field(default_factory=list)
+
+
+class _CameraReplay:
+    """A camera's bag through the node's per-frame pipeline (:func:`replay`): configured (and
+    its topics found) on construction, its frames' :class:`_Step` from :meth:`steps`."""
+
+    def __init__(self, path: Path, params_files: list, params, source, image_topic, imu_topic,
+                 debug_outputs: bool, log: Any):  # fmt: skip
+        values, cfg, maps, source = _replay_config(path, params_files, params, source)
+        topics = bag_topics(path)
+        self.topics = _replay_topics(path, topics, cfg, source, image_topic, imu_topic,
+                                     debug_outputs)  # fmt: skip
+        if cfg.imu is not None:
+            # (offline every sample is buffered before the frames: no waiting)
+            cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
+        self.path, self.cfg, self.source = path, cfg, source
+        self.map_frame, self.views = cfg.map_frame, ("",)
+        viz_topic = self.topics[2]
+        self.image_topics = {viz_topic: ""} if viz_topic else {}
+        self.result = ReplayResult(config=cfg, maps=maps, parameters=values, solver=cfg.solver,
+                                   tracked=cfg.tracking is not None)  # fmt: skip
+        note = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
+        if note is not None:
+            self.result.notes.append(note)
+        note = _imu_mount_note(cfg, read_bag_info(path))
+        if note is not None:
+            self.result.notes.append(note)
+        self.pipeline = self.engine = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
+
+    def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
+        """The IMU samples buffered (with ``imu.enabled``), then every frame (and camera_info)
+        of the bag, in log-time order, through the pipeline, each frame's :class:`_Step`; then
+        the twists still pending at the end of the video."""
+        path, cfg, pipeline = self.path, self.cfg, self.pipeline
+        frame_topic, info_topic, _, imu_topic = self.topics
+        ts = typestore()
+        if cfg.imu is not None:
+            for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+                pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
+        bar = progress_bar(progress, _count(path, frame_topic))
+        wanted = OUT_TYPES.__contains__
+        try:
+            i = 0
+            t_log = 0
+            for topic, msgtype, t_log, raw in iter_messages(path, {frame_topic, info_topic}):
+                msg = ts.deserialize_cdr(raw, msgtype)
+                if topic == info_topic:
+                    pipeline.add_camera_info(msg)
+                    continue
+                res = pipeline.process(msg, self.source)
+                step = _Step(t_log, frame_messages(res, cfg.map_frame, wanted), res.fused,
+                             _camera_row(i, res, cfg.solver))  # fmt: skip
+                if res.solved:
+                    step.pose, step.out_stamp_ns = res.output, res.out_stamp_ns
+                    step.twist_now, step.estimate = res.twist_now, res.estimate
+                    if views:
+                        step.views = [_camera_view(res)]
+                i += 1
+                yield step
+                bar.update()
+            last = pipeline.flush()  # (the end of the video: the twists still pending)
+            yield _Step(t_log, fused_messages(last, cfg.map_frame), last)
+        finally:
+            bar.close()
+
+    def finish(self, rows: ReplayRows) -> None:
+        """The pipeline's counts and the map-fit check's warning into the result."""
+        result, pipeline = self.result, self.pipeline
+        result.counts = pipeline.stats.snapshot().counts
+        if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
+            result.notes.append(pipeline.map_fit_text())
+
+    def readout_values(self) -> dict:
+        """The tracking's values, with the check of the rolling-shutter timing."""
+        return self.pipeline.tracking_values()
+
+
+def _camera_row(index: int, res: FrameResult, solver: str) -> dict:
+    """The row of a camera's frame (the pipeline's result ``res``, solved by ``solver``), its
+    pose and twists left to :meth:`ReplayRows.add`."""
+    row = {
+        "frame": index,
+        "stamp_ns": res.stamp_ns,
+        "success": res.solved,
+        "failure": res.failure or "",
+        "solver": solver,
+    }
+    if res.out_stamp_ns is not None:
+        row["out_stamp_ns"] = res.out_stamp_ns
+    est = res.estimate
+    if est is not None:
+        row["time_ms"] = res.times.get("estimate", float("nan")) * 1e3
+        row["num_points"] = len(res.points2d)
+        row["num_inliers"] = est.num_inliers
+        row["rmse_px"] = est.rmse_px
+    return row
+
+
+def _camera_view(res: FrameResult) -> _View:
+    """The drawing of a camera's solved frame: on its decoded input image (image mode), else
+    on the bag's image of its stamp."""
+    image = res.image
+    image = image[:2] if image is not None and int(image[2]) == res.stamp_ns else None
+    return _View("", res.estimate, res.points2d, res.points3d, res.camera, res.stamp_ns,
+                 res.frame_id, res.out_stamp_ns, image)  # fmt: skip
+
+
+class _RigReplay:
+    """A rig bag's cameras through the rig mode (:class:`~rs_localizer.ros.bags.rig_bag.
+    RigRun`) for :func:`replay`: each rig frame's :class:`_Step` from :meth:`steps`, the
+    rig frame's pose in ``map_frame`` and its twist in ``base_frame``, as the rig node
+    publishes them."""
+
+    def __init__(self, path: Path, params_files: list, params):
+        self.run = run = RigRun(path, params_files, params)
+        self.engine = run.rig
+        values = run.values
+        self.map_frame = str(values["map_frame"])
+        self.base_frame = str(values["base_frame"]).strip() or "base_link"
+        self.views = tuple(f"{n}/" for n in run.cameras)
+        present = bag_topics(path)
+        names = run.cameras
+        self.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(rig_namespace(path, names),
+                             names).of(("image",)).items() if t in present}  # fmt: skip
+        self.twist_now = run.cfg.settings.tracking is None
+        self.result = ReplayResult(config=run.cfg, parameters=values, cameras=run.cameras,
+                                   tracked=not self.twist_now)  # fmt: skip
+        self.fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end)
+
+    def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
+        """Each rig frame's :class:`_Step` as the rig poses it or fails, logged at its time;
+        then the fused twists still pending at the end of the video."""
+        from ..visualization import rig_camera_views
+
+        run, result, base, mf = self.run, self.result, self.base_frame, self.map_frame
+        wanted = OUT_TYPES.__contains__
+        t = 0
+        for i, o in enumerate(run.outputs(progress)):
+            result.outputs.append(o)
+            t, est = o.stamp_ns, o.estimate
+            if est is not None:
+                result.solver = result.solver or est.solver
+                self.fit.update(o.num_points, est)
+            fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in o.fused]
+            msgs = pose_messages(est, t, mf, base, self.twist_now, (), wanted) if o.success else []
+            step = _Step(t, msgs + fused_messages(fused, mf, wanted), fused, _rig_row(i, o))
+            if o.success:
+                step.pose, step.out_stamp_ns, step.estimate = est, t, est
+                step.twist_now = self.twist_now or o.twist_now
+                drawn = rig_camera_views(o, run.mounts) if views else ()
+                step.views = [
+                    _View(f"{n}/", view, f.points2d, f.points3d, f.camera, f.stamp_ns,
+                          _frame_id(f.tag, n), ref)
+                    for n, f, view, ref in drawn
+                ]  # fmt: skip
+            yield step
+        result.flushed = run.flushed
+        fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in run.flushed]
+        yield _Step(t, fused_messages(fused, mf, wanted), fused)
+
+    def finish(self, rows: ReplayRows) -> None:
+        """The cameras' and the rig's counts, the gyro's, the rig frames' own twist, the
+        cameras' disagreement and the warnings of the video into the result."""
+        run, result, rig = self.run, self.result, self.run.rig
+        result.camera_counts = run.camera_counts()
+        result.off_deg = run.off_deg
+        result.own_twist = rows.own_twist()
+        if run.cfg.settings.imu is not None:
+            result.counts = rig.gyro_counts()
+        if self.fit.doubtful:
+            result.notes.append(self.fit.text())
+        if run.cfg.unused_text:  # (a parameter file shared with single-camera nodes)
+            result.notes.append(run.cfg.unused_text)
+
+    def readout_values(self) -> dict:
+        """The check of the cameras' rolling-shutter timing on the video."""
+        return self.run.rig.readout_values()
+
+
+def _rig_row(index: int, o: Any) -> dict:
+    """The row of a rig frame (``o``, a :class:`~rs_localizer.tracking.video.LocalizerOutput`,
+    solved or failed): its stamp the rig frame's time, ``num_points`` the rows of all its
+    cameras, ``failure`` the estimator's or the rig's reason (``error``: the estimator raised),
+    ``solver`` the estimator's; its pose and twists left to :meth:`ReplayRows.add`."""
+    est = o.estimate
+    row = {
+        "frame": index,
+        "stamp_ns": o.stamp_ns,
+        "out_stamp_ns": o.stamp_ns,
+        "success": o.success,
+        "failure": "" if o.success else (est.failure if est is not None else "error"),
+        "solver": est.solver if est is not None else "",
+    }
+    if est is not None:
+        row["num_points"] = o.num_points
+        row["num_inliers"] = est.num_inliers
+        row["rmse_px"] = est.rmse_px
+    return row
+
+
+def _frame_id(tag: Any, name: str) -> str:
+    """A rig camera frame's frame id (its tag ``(stamp, frame id)``; else the camera's name)."""
+    return (tag[1] if isinstance(tag, tuple) else tag) or name
 
 
 def _replay_config(
     path: Path, params_files, params, source: str | None
 ) -> tuple[dict[str, Any], LocalizerConfig, LoadedMaps, str]:
-    """Stage 1 of :func:`replay`: ``(parameter values, configuration, its maps loaded,
+    """A camera's replay's ``(parameter values, configuration, its maps loaded,
     source)``; ``source`` None becomes ``image`` with a front end, else ``correspondences``.
 
     Raises:
@@ -325,14 +645,13 @@ def _replay_topics(
     image_topic: str | None,
     imu_topic: str | None,
     debug_outputs: bool,
-    out_bag: Any,
 ) -> tuple[str, str | None, str | None, str | None]:
-    """Stage 2 of :func:`replay`: the bag topics ``(frames, camera_info, images to draw the
+    """A camera's replay's bag topics ``(frames, camera_info, images to draw the
     debug image on or None, IMU or None)``.
 
     Raises:
-        ValueError: no frame topic; ``debug_outputs`` without ``out_bag``; ``imu.enabled``
-            without one IMU topic (or ``imu_topic`` not one).
+        ValueError: no frame topic; ``imu.enabled`` without one IMU topic (or ``imu_topic``
+            not one).
     """
     info = read_bag_info(path)
     frame_topic = _frame_topic(topics, source, cfg, info, image_topic)
@@ -340,8 +659,6 @@ def _replay_topics(
     if frame_topic is None:
         what = f"*/{source}" if source != "image" else f"{cfg.image_transport} image"
         raise ValueError(f"{path}: no {what} topic (topics: {sorted(topics)})")
-    if debug_outputs and out_bag is None:
-        raise ValueError("debug outputs need an output bag (--out)")
     if debug_outputs and source != "image" and image_topic is None:
         images = [t for t, mt in topics.items() if mt == IMAGE]
         ns = frame_topic.rsplit("/", 1)[0] + "/"
@@ -380,82 +697,6 @@ def open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple
     return writer, conns
 
 
-def _run_frames(
-    path: Path,
-    ts: Any,
-    pipeline: FramePipeline,
-    cfg: LocalizerConfig,
-    source: str,
-    topics: tuple[str, str | None, str | None, str | None],
-    rows: ReplayRows,
-    writer: Any,
-    conns: dict,
-    viz: DebugWriter | None,
-    n_frames: int,
-    progress: TextIO | None,
-) -> None:
-    """Stage 4 of :func:`replay`: the IMU samples buffered (with ``cfg.imu``), then every frame
-    (and camera_info, and image to draw on) of the bag, in log-time order, through
-    ``pipeline``; the rows and the outputs recorded, then the twists still pending at the end
-    of the video. The debug outputs and the output bag are closed in any case."""
-    frame_topic, info_topic, viz_topic, imu_topic = topics
-    if cfg.imu is not None:
-        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
-            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
-    bar = progress_bar(progress, n_frames)
-    try:
-        i = 0
-        t_log = 0
-        wanted = OUT_TYPES.__contains__
-        for topic, msgtype, t_log, raw in iter_messages(
-            path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
-        ):
-            msg = ts.deserialize_cdr(raw, msgtype)
-            if topic == viz_topic:
-                viz.add_image(msg)
-                continue
-            if topic == info_topic:
-                pipeline.add_camera_info(msg)
-                continue
-            i += 1
-            res = pipeline.process(msg, source)
-            rows.add(i - 1, res, cfg.solver)
-            msgs = frame_messages(res, cfg.map_frame, wanted)
-            rows.fused(res.fused)
-            write_messages(writer, conns, ts, t_log, msgs)
-            if viz is not None and res.solved:
-                if res.image is not None:
-                    viz.add_decoded(*res.image)
-                viz.frame(res, t_log)
-            bar.update()
-        last = pipeline.flush()  # (the end of the video: the twists still pending)
-        rows.fused(last)
-        write_messages(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
-    finally:
-        bar.close()
-        if viz is not None:
-            viz.flush()
-        if writer is not None:
-            writer.close()
-
-
-def _summarize(
-    result: ReplayResult, rows: ReplayRows, pipeline: FramePipeline, out_csv: Any
-) -> None:
-    """Stage 5 of :func:`replay`: the rows, counts, gyro bias, failures and error summary
-    into ``result``; the CSV written to ``out_csv`` (None: none)."""
-    result.rows, result.failures, result.summary = rows.summary()
-    result.counts = pipeline.stats.snapshot().counts
-    if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
-        result.notes.append(pipeline.map_fit_text())
-    bias = pipeline.gyro_bias_values()
-    if bias is not None:
-        result.gyro_bias, result.gyro_bias_std = bias
-    if out_csv is not None:
-        result.out_csv = Path(out_csv)
-        write_csv(result.out_csv, result.rows)
-
-
 def write_messages(
     writer: Any, conns: dict, ts: Any, t_log: int, messages: Iterable[tuple[str, Any]]
 ) -> None:
@@ -474,64 +715,33 @@ def _xyz(prefix: str, v) -> dict:
 
 class ReplayRows:
     """The rows of a replay's CSV and summary, one per frame (a camera's frame, or a rig
-    frame of :func:`~rs_localizer.ros.bags.rig_bag.replay_rig`): the pose when solved, the
-    published twist (the frame's own, or the fused one when it comes) and the errors against
-    ground truth (``gt``). Columns: :data:`CSV_COLUMNS`."""
+    frame): the pose when solved, the published twist (the frame's own, or the fused one when
+    it comes) and the errors against ground truth (``gt``). Columns: :data:`CSV_COLUMNS`."""
 
     def __init__(self, gt: GroundTruth):
         self.gt = gt
         self.rows: list[dict] = []
         self.waiting: dict[int, tuple] = {}  # out stamp -> (row, orientation, position)
+        self.own: list[dict] = []  # the errors of each posed frame's own twist
 
-    def add(self, index: int, res: FrameResult, solver: str) -> None:
-        """A camera's frame (the node's pipeline's result ``res``, solved by ``solver``)."""
-        row = {
-            "frame": index,
-            "stamp_ns": res.stamp_ns,
-            "success": res.solved,
-            "failure": res.failure or "",
-            "solver": solver,
-        }
-        if res.out_stamp_ns is not None:
-            row["out_stamp_ns"] = res.out_stamp_ns
-        est = res.estimate
-        if est is not None:
-            row["time_ms"] = res.times.get("estimate", float("nan")) * 1e3
-            row["num_points"] = len(res.points2d)
-            row["num_inliers"] = est.num_inliers
-            row["rmse_px"] = est.rmse_px
+    def add(
+        self, row: dict, out: PoseWithCovariance | None, stamp: int | None, twist_now: bool
+    ) -> None:
+        """A frame's ``row`` (``frame``, ``stamp_ns``, ``success``, ``failure``, ``solver``,
+        ``out_stamp_ns``, ``time_ms``, ``num_points``, ``num_inliers``, ``rmse_px``: those it
+        has) and, when posed, its published pose ``out`` at ``stamp`` (ns; ``twist_now``: its
+        own twist is the one published, else the fused one comes with :meth:`fused`)."""
         self.rows.append(row)
-        if res.solved:
-            self._posed(row, res.output, res.out_stamp_ns, res.twist_now)
-
-    def add_rig(self, index: int, out: LocalizerOutput, twist_now: bool) -> None:
-        """A rig frame (``out``, solved or failed; ``twist_now``: its own twist is the one
-        published, without tracking): its stamp is the rig frame's time, ``num_points`` the
-        rows of all its cameras, ``failure`` the estimator's or the rig's reason (``error``:
-        the estimator raised)."""
-        est = out.estimate
-        row = {
-            "frame": index,
-            "stamp_ns": out.stamp_ns,
-            "out_stamp_ns": out.stamp_ns,
-            "success": out.success,
-            "failure": "" if out.success else (est.failure if est is not None else "error"),
-            "solver": est.solver if est is not None else "",
-        }
-        if est is not None:
-            row["num_points"] = out.num_points
-            row["num_inliers"] = est.num_inliers
-            row["rmse_px"] = est.rmse_px
-        self.rows.append(row)
-        if out.success:
-            self._posed(row, est, out.stamp_ns, twist_now)
-
-    def _posed(self, row: dict, out: PoseWithCovariance, stamp: int, twist_now: bool) -> None:
+        if out is None:
+            return
         q = cv.quaternion_from_matrix(out.pose.orientation)
         row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
         row.update(_xyz("p", out.pose.position))
         row.update(_xyz("single_w", out.pose.angular_velocity))
         row.update(_xyz("single_v", out.pose.linear_velocity))
+        self.own.append(frame_errors(out.pose.orientation, out.pose.position,
+                                     out.pose.angular_velocity, out.pose.linear_velocity,
+                                     self.gt, stamp))  # fmt: skip
         self.waiting[stamp] = (row, out.pose.orientation, out.pose.position)
         if twist_now:
             self._twist(stamp, out.pose.angular_velocity, out.pose.linear_velocity)
@@ -554,6 +764,12 @@ class ReplayRows:
         err = frame_errors(R, p, w, v, self.gt, stamp)
         if err:
             row.update({f"err_{k}": val for k, val in err.items()})
+
+    def own_twist(self) -> dict:
+        """The errors of the posed frames' own twists against ground truth (``frames``,
+        ``angvel``, ``linvel`` of :func:`~rs_localizer.accuracy.summarize_errors`)."""
+        s = summarize_errors(self.own)
+        return {k: v for k, v in s.items() if k in ("frames", "angvel", "linvel")}
 
     def pose_pairs(self) -> tuple[list, list]:
         """The solved frames' poses ``(R, p)`` and their ground truth's, for the rigid fit of
@@ -595,14 +811,12 @@ class ReplayRows:
 
 
 class DebugWriter:
-    """Writes the visualization topics of solved frames into the replay's output bag,
-    ``/rs_localizer/<prefix><topic>`` for each of ``topics`` (of
-    :data:`~rs_localizer.ros.visualization.VIZ_TOPICS`; None: all), drawn by the node's
-    :class:`~rs_localizer.ros.visualization.VisualizationBuilder`. A camera's replay gives it
-    each solved frame (:meth:`frame`): that frame's debug image waits until the next frame (or
-    the end), so that the bag's image with the same stamp has been read whatever the order of
-    equal log times. A rig's replay writes each topic itself (:meth:`debug_image`,
-    :meth:`markers`, :meth:`path`)."""
+    """Writes the visualization topics of posed frames into the replay's output bag, drawn by
+    the node's :class:`~rs_localizer.ros.visualization.VisualizationBuilder`:
+    ``/rs_localizer/path`` and, for each camera prefix of ``cameras`` (a camera's ``""``; a
+    rig's ``"<camera>/"``), ``/rs_localizer/<prefix>debug_image`` and ``<prefix>markers``.
+    ``images``: the bag's images to draw on (:class:`_BagImages`, by camera prefix; None:
+    only those a frame brings)."""
 
     def __init__(
         self,
@@ -611,93 +825,102 @@ class DebugWriter:
         ts: Any,
         path_length: int,
         map_frame: str,
-        prefix: str = "",
-        topics: Iterable[str] | None = None,
+        cameras: Iterable[str] = ("",),
+        images: _BagImages | None = None,
     ):
         from ..visualization import VIZ_TOPICS, VisualizationBuilder
 
         self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
-        self.types, self.prefix = VIZ_TOPICS, prefix
-        for name in VIZ_TOPICS if topics is None else topics:
-            conns[prefix + name] = writer.add_connection(
-                f"/rs_localizer/{prefix}{name}", VIZ_TOPICS[name], typestore=ts
+        self.types, self.images = VIZ_TOPICS, images
+        names = [p + n for p in cameras for n in ("debug_image", "markers")] + ["path"]
+        for name in names:
+            conns[name] = writer.add_connection(
+                f"/rs_localizer/{name}", VIZ_TOPICS[name.rsplit("/", 1)[-1]], typestore=ts
             )
         self.builder = VisualizationBuilder(path_length)
-        self.images = {}  # header stamp (ns) -> (image, encoding), the last few
-        self.pending = None
-
-    def add_image(self, msg: Any) -> None:
-        from ..image_codec import ImageRejected, decode_image
-
-        try:
-            self.add_decoded(*decode_image(msg), cv.stamp_to_ns(msg.header.stamp))
-        except ImageRejected:
-            return
-
-    def add_decoded(self, image: np.ndarray, encoding: str, stamp_ns: int) -> None:
-        self.images[int(stamp_ns)] = (image, encoding)
-        while len(self.images) > 8:
-            self.images.pop(next(iter(self.images)))
 
     def _write(self, name: str, t_log: int, msg: Any) -> None:
-        self.writer.write(
-            self.conns[self.prefix + name], t_log, to_cdr(msg, self.types[name], self.ts)
-        )
+        kind = name.rsplit("/", 1)[-1]
+        self.writer.write(self.conns[name], t_log, to_cdr(msg, self.types[kind], self.ts))
 
-    def markers(
-        self,
-        est: RSPoseEstimate,
-        X: np.ndarray,
-        camera: CameraModel,
-        out_stamp_ns: int,
-        t_log: int,
-    ) -> None:
-        """``markers`` of a frame posed at ``out_stamp_ns``, logged at ``t_log``."""
-        self._write(
-            "markers", t_log, self.builder.markers(est, X, camera, out_stamp_ns, self.map_frame)
-        )
+    def frame(self, step: _Step) -> None:
+        """A posed frame's (a camera's or a rig's) ``path``, then each of its cameras'
+        ``debug_image`` (drawn on its view's image, else on the bag's of its stamp, else on a
+        blank canvas) and ``markers``, logged at its ``t_log``."""
+        t_log = step.t_log
+        self.builder.add_pose(step.estimate, step.out_stamp_ns, self.map_frame)
+        self._write("path", t_log, self.builder.path(step.out_stamp_ns, self.map_frame))
+        for v in step.views:
+            image = v.image
+            if image is None and self.images is not None:
+                image = self.images.take(v.prefix, v.stamp_ns)
+            img, enc = (None, None) if image is None else image
+            if img is not None and img.shape[:2] != (v.camera.height, v.camera.width):
+                img, enc = None, None  # (not of the camera's size: a blank canvas)
+            self._write(v.prefix + "debug_image", t_log, self.builder.debug_image(
+                v.estimate, v.uv, v.X, v.camera, v.stamp_ns, v.frame_id, img, enc))  # fmt: skip
+            self._write(v.prefix + "markers", t_log, self.builder.markers(
+                v.estimate, v.X, v.camera, v.ref_stamp_ns, self.map_frame))  # fmt: skip
 
-    def path(self, est: RSPoseEstimate, out_stamp_ns: int, t_log: int) -> None:
-        """The pose of ``est`` at ``out_stamp_ns`` added to the path, and ``path`` written."""
-        self.builder.add_pose(est, out_stamp_ns, self.map_frame)
-        self._write("path", t_log, self.builder.path(out_stamp_ns, self.map_frame))
 
-    def debug_image(
-        self,
-        est: RSPoseEstimate,
-        uv: np.ndarray,
-        X: np.ndarray,
-        camera: CameraModel,
-        stamp_ns: int,
-        frame_id: str,
-        t_log: int,
-        image: tuple | None = None,
-    ) -> None:
-        """``debug_image`` of a frame stamped ``stamp_ns``, drawn on ``image`` ((image,
-        encoding) of the same stamp; None, or not of the camera's size: a blank canvas)."""
-        img, enc = (None, None) if image is None else image
-        if img is not None and img.shape[:2] != (camera.height, camera.width):
-            img, enc = None, None
-        self._write(
-            "debug_image",
-            t_log,
-            self.builder.debug_image(est, uv, X, camera, stamp_ns, frame_id, img, enc),
-        )
+class _BagImages:
+    """The images of a bag that the posed frames' debug images are drawn on (``topics``:
+    topic -> camera prefix), read from the bag as they are asked for, in frame order
+    (:meth:`take`). Each image read is kept undecoded by ``(prefix, header stamp)``, at most
+    :attr:`MAX_HELD` per camera (the oldest dropped), and decoded when asked for, once."""
 
-    def frame(self, res: FrameResult, t_log: int) -> None:
-        self.flush()
-        self.markers(res.estimate, res.points3d, res.camera, res.out_stamp_ns, t_log)
-        self.path(res.estimate, res.out_stamp_ns, t_log)
-        self.pending = (res, t_log)
+    MAX_HELD = 16
 
-    def flush(self) -> None:
-        """Write the debug image of the frame still waiting (if any)."""
-        if self.pending is None:
-            return
-        res, t_log = self.pending
-        self.pending = None
-        self.debug_image(res.estimate, res.points2d, res.points3d, res.camera, res.stamp_ns,
-                         res.frame_id, t_log, self.images.get(res.stamp_ns))  # fmt: skip
+    def __init__(self, bag: str | os.PathLike, topics: Mapping[str, str]):
+        self.topics = dict(topics)
+        self.held: dict[str, dict[int, Any]] = {k: {} for k in self.topics.values()}
+        self.newest: dict[str, int] = {}  # prefix -> the newest stamp of its images read
+        self.ts = typestore()
+        self._messages = iter_messages(bag, set(self.topics)) if self.topics else iter(())
+
+    def take(self, key: str, stamp_ns: int) -> tuple | None:
+        """``(image, encoding)`` of camera ``key``'s image stamped ``stamp_ns`` (None: the bag
+        has none, or it cannot be decoded). The bag is read on until it is found, an image of
+        that camera stamped later is read, or the bag ends."""
+        from ..image_codec import ImageRejected, decode_image
+
+        held = self.held.get(key)
+        if held is None:
+            return None
+        while stamp_ns not in held and self.newest.get(key, stamp_ns - 1) < stamp_ns:
+            if not self._read():
+                break
+        msg = held.pop(stamp_ns, None)
+        if msg is None:
+            return None
+        try:
+            return decode_image(msg)
+        except ImageRejected:
+            return None
+
+    def close(self) -> None:
+        """Close the bag (the images not read are not read)."""
+        close = getattr(self._messages, "close", None)
+        if close is not None:
+            close()
+
+    def _read(self) -> bool:
+        item = next(self._messages, None)
+        if item is None:
+            return False
+        topic, msgtype, _, raw = item
+        key = self.topics[topic]
+        msg = self.ts.deserialize_cdr(raw, msgtype)
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError:
+            return True
+        self.newest[key] = max(self.newest.get(key, stamp), stamp)
+        held = self.held[key]
+        held[stamp] = msg
+        while len(held) > self.MAX_HELD:
+            held.pop(min(held))
+        return True
 
 
 def _count(path, topic) -> int:
