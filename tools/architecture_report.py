@@ -37,7 +37,9 @@ RIG_ONLY = {
         "estimator on the track"
     ),
     "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
-    "ros/bags/rig_bag.py": "rig bags: written from a simulated rig video, read for replay",
+    "ros/bags/rig_bag.py": (
+        "a rig bag's run in replay (RigRun), each camera's counts, disagreement, the grouping"
+    ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
     "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",

@@ -6,7 +6,7 @@ each camera of the rig node: its camera_infos checked and kept by stamp, and eac
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
 :class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode) and in the reader of a rig bag's
-frames (:func:`~rs_localizer.ros.bags.rig_bag.rig_messages`: ``replay``, ``calibrate-rig``
+frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``, ``calibrate-rig``
 and the rig-frame grouping of ``play --lockstep``), the rig's made by
 :func:`rig_camera_inputs`. A frame message goes through it in three steps:
 :meth:`CameraInput.check` (its header stamp checked, once), :meth:`CameraInput.camera_of` (the
@@ -467,7 +467,7 @@ def rig_camera_inputs(
     rolling-shutter timing (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else
     the ``rs.*`` values) and the rig's reference row, its clouds' rows capped to the rig's
     ``max_points``. The rig node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the reader
-    of a rig bag's frames (:func:`~rs_localizer.ros.bags.rig_bag.rig_messages`: ``replay``,
+    of a rig bag's frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``,
     ``calibrate-rig``, the rig-frame grouping of ``play --lockstep``) both read their cameras
     through them, so that both take the same rows of a cloud and count them alike.
 
