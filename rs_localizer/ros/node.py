@@ -88,6 +88,7 @@ class LocalizerCore(NodeCore):
     def _init_state(self):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
+        self._log = self.pipeline.log
         self._frames = self._new_queue()
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -253,7 +254,7 @@ class LocalizerCore(NodeCore):
         return self.cfg.queue_size
 
     def _warn_busy(self, size: int) -> None:
-        self.pipeline.log.warning(
+        self._log.warning(
             "skipped",
             f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
             f"frame [{self._frames.dropped} skipped so far]",
@@ -282,7 +283,7 @@ class LocalizerCore(NodeCore):
                 f"frame dropped ({res.failure}): {res.detail}",
                 self.pipeline.stats.get(f"failed.{res.failure}"),
             )
-            return self.pipeline.log.warning(res.failure, text, n)
+            return self._log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
         messages = frame_messages(res, cfg.map_frame, self._wanted)
         self._publish(messages)
@@ -302,9 +303,6 @@ class LocalizerCore(NodeCore):
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
         self._record_timing(item.arrived, res.stamp_ns)
-
-    def _throttled_log(self):
-        return self.pipeline.log
 
     def _idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)
@@ -347,11 +345,4 @@ class RSLocalizerNode(LocalizerCore, Node):
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
-        self._declare_parameters()
-        self._init_state()
-        self._configure()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._create_outputs()
-        self._create_info_inputs()
-        self._create_frame_inputs()
-        self._log_ready()
+        self._start_unmanaged()
