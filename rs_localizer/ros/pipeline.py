@@ -145,26 +145,22 @@ def log_warm_up(
     from ..runtime.jit_cache import cache_state
     from ..runtime.warmup import DEFAULT_JOBS, warm_up
 
+    st = cache_state()  # (before a background compile starts)
+    cache = f"{st['dir']} ({st['mode']}" + (
+        f", {st['seeded']} files copied from the package)" if st["seeded"] else ")"
+    )
+
     def warm() -> tuple[float, str]:
+        logger.info(f"warm-up ({solver}): numba cache {cache}")
         dt, est = warm_up(solver, options, tracking, jobs=DEFAULT_JOBS, log=logger.info, gyro=gyro)
         return dt, "ok" if est.success else str(est.failure)
 
     def failed(text: str) -> None:  # (e.g. a corrupt numba cache: frames would fail on them)
-        if background:
-            fall_back_uncompiled(solver, f"warm-up: {text}", logger.warning)
-
-    st = cache_state()  # (before a background compile starts)
-
-    def cache_line() -> None:
-        logger.info(
-            f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
-            + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
-            + ")"
-        )
+        fall_back_uncompiled(solver, f"warm-up: {text}", logger.warning)
 
     kernels = CameraKernels(solver, options, tracking, gyro)
     warm_kernels(kernels, solver, warm, logger, background, "`rs-localizer compile`",
-                 before=cache_line, failed=failed)  # fmt: skip
+                 failed if background else None)  # fmt: skip
 
 
 def warm_kernels(
@@ -174,7 +170,6 @@ def warm_kernels(
     logger: Any,
     background: bool,
     hint: str,
-    before: Callable[[], None] | None = None,
     failed: Callable[[str], None] | None = None,
 ) -> None:
     """The node's warm-up of one camera's or a rig's kernels, written once: with
@@ -182,7 +177,7 @@ def warm_kernels(
     or :class:`~rs_localizer.runtime.background.RigKernels`) not in numba's cache, they
     compile in another process
     (:func:`~rs_localizer.runtime.background.start_background_compile`) and nothing waits;
-    else ``before()``, then ``warm()`` (-> ``(s, outcome)``: the warm-up's time and what it
+    else ``warm()`` (-> ``(s, outcome)``: the warm-up's time and what it
     gave) with each kernel compiled logged, and the line ``warm-up (<label>): <s> s,
     <outcome>, compiled N kernels (<hint> after installing avoids this)`` (or ``kernels from
     the cache``) to ``logger`` (``info``/``warning``). Never raises: a failure is logged as
@@ -196,8 +191,6 @@ def warm_kernels(
                 return
         except Exception as e:
             logger.warning(f"background compile ({label}) failed to start: {e}")
-    if before is not None:
-        before()
     try:
         with compile_progress(logger.info) as prog:
             seconds, outcome = warm()
