@@ -96,20 +96,18 @@ class LocalizerCore(NodeCore):
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
         the JIT warm-up. Raises RuntimeError for invalid parameters."""
         try:
-            cfg = build_config(self._param_values({}))
-            maps = load_maps(cfg, owner=self, current=self._maps())
+            cfg, maps = self._changed_configuration({})
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self._apply_config(cfg, maps)
+        self._warm_up(cfg, background=True)
+
+    def _warm_up(self, cfg: LocalizerConfig, background: bool = False) -> None:
+        """With ``warmup``, the kernels of ``cfg``'s solver, tracking and gyro compiled or
+        loaded (:func:`.pipeline.log_warm_up`; ``background``: its)."""
         if self.get_parameter("warmup").value:
-            log_warm_up(
-                cfg.solver,
-                cfg.options,
-                cfg.tracking,
-                self.get_logger(),
-                cfg.imu is not None,
-                background=True,
-            )
+            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.get_logger(),
+                        cfg.imu is not None, background)  # fmt: skip
 
     def _create_outputs(self):
         self._create_pose_outputs()
@@ -229,14 +227,7 @@ class LocalizerCore(NodeCore):
         cfg, maps = built
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
             self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
-            if self.get_parameter("warmup").value:
-                log_warm_up(
-                    overrides["solver"],
-                    cfg.options,
-                    cfg.tracking,
-                    self.get_logger(),
-                    cfg.imu is not None,
-                )
+            self._warm_up(cfg)
         self._apply_config(cfg, maps)
         if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.get_logger().info(
