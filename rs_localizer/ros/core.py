@@ -11,8 +11,9 @@ node destroyed. A core adds what differs: its frame inputs, what the worker does
 :class:`~rs_localizer.tracking.video.Localizer`), what it publishes and its status.
 
 A core's phases, run by :class:`RSLocalizerNode` / :class:`RigLocalizerNode` at construction
-or by the managed node's transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`):
-``_declare_parameters``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
+(:meth:`NodeCore._start_unmanaged`) or by the managed node's transitions
+(:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`): ``_declare_parameters``,
+``_init_state``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
 ``_create_frame_inputs``, ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``,
 ``_release_configured``.
 
@@ -119,8 +120,9 @@ class NodeCore:
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
     ``_camera_names()``, ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
-    ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_throttled_log()``
-    (its warnings, each kind at most once per 5 s), and the worker's parts (module docstring):
+    ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_log`` (its
+    :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per period), and
+    the worker's parts (module docstring):
     ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
     arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
     :class:`~.camera_input.CameraInput`),
@@ -129,6 +131,7 @@ class NodeCore:
     ``_publish_taken(item, taken)``."""
 
     _frames = None  # (the frame queue: made by the core)
+    _log = None  # (the core's ThrottledLog: made by the core)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (each camera's: made with the outputs)
@@ -141,6 +144,28 @@ class NodeCore:
 
     def _declare_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
+
+    def _init_state(self) -> None:
+        """The core's state before ``configure`` (nothing by default: the rig's is made with
+        its parameters)."""
+
+    def _start_unmanaged(self) -> None:
+        """The construction of a node that is not managed
+        (:class:`~rs_localizer.ros.node.RSLocalizerNode`,
+        :class:`~rs_localizer.ros.rig_node.RigLocalizerNode`): every phase at once, the
+        parameter changes taken (:meth:`_on_set_parameters`) once configured.
+
+        Raises:
+            RuntimeError: invalid parameters (the message names them).
+        """
+        self._declare_parameters()
+        self._init_state()
+        self._configure()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._create_outputs()
+        self._create_info_inputs()
+        self._create_frame_inputs()
+        self._log_ready()
 
     def _init_plumbing(self) -> None:
         """The state of the shared plumbing before the inputs exist."""
@@ -344,7 +369,7 @@ class NodeCore:
                 taken = self._take_frame(item, camera)
             except Exception as e:
                 taken = TakenFrame(("failed.internal_error",), "internal_error")
-                self._throttled_log().warning(
+                self._log.warning(
                     "internal_error",
                     f"{self._input_of(item.name).label}frame failed (internal_error): "
                     f"{type(e).__name__}: {e}",
@@ -475,9 +500,7 @@ class NodeCore:
         )
 
     def _delivery_failed(self, e: BaseException) -> None:
-        self._throttled_log().warning(
-            "internal_error", f"publishing failed: {type(e).__name__}: {e}"
-        )
+        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
 
     def _record_timing(self, arrived: float, stamp_ns: int) -> None:
         """A pose published: its latency from the frame's arrival (``time.perf_counter``) and

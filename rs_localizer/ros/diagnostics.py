@@ -1,9 +1,11 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
-without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder for one
-camera (:func:`diagnostic_status`) and a rig (:func:`rig_diagnostics`: the rig's keys and a
-section per camera, ``<c>.*``), sharing a camera's accounting (:func:`camera_section`: the
-single camera's flat keys, each rig camera's section), the estimator's path and the timing
-keys (:func:`timing_values`)."""
+without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder
+(:func:`status`) lays out both modes' statuses from a description without the mode
+(:class:`StatusParts`), with one level and message rule: one camera's
+(:func:`diagnostic_status`: flat keys) and a rig's (:func:`rig_diagnostics`: the rig's keys
+and a section per camera, ``<c>.*``), sharing a camera's accounting (:func:`camera_section`:
+the single camera's flat keys, each rig camera's section), the estimator's path, the map-fit
+check, the gyro's values (:class:`GyroState`) and the timing keys (:func:`timing_values`)."""
 
 from __future__ import annotations
 
@@ -31,12 +33,15 @@ __all__ = [
     "IMU_IDLE_WARN_S",
     "OK",
     "WARN",
+    "GyroState",
     "RigInputs",
+    "StatusParts",
     "camera_section",
     "diagnostic_status",
     "rig_camera_frames",
     "rig_camera_section",
     "rig_diagnostics",
+    "status",
     "timing_values",
 ]
 
@@ -101,6 +106,8 @@ def _compile_values(unit: str) -> tuple[dict[str, Any], str]:
     return values, note
 
 
+_INFO_REJECTED = "camera_info_rejected."
+
 #: the single camera's names of the keys of its section that a rig camera's section names
 #: otherwise (``<c>.`` and the key)
 _FLAT_KEYS = {
@@ -156,7 +163,7 @@ def camera_section(
             values[key("frames_beside_frontend")] = own.get("frames_beside_frontend", 0)
     values.update({key(k): v for k, v in frames.reasons().items()})
     for k, v in sorted(own.items()):
-        if k.startswith("camera_info_rejected."):
+        if k.startswith(_INFO_REJECTED):
             values[key(k)] = v + more.get(k, 0)
     if frame_times is not None:
         values[key("camera_frame_ms_median")] = _median_ms(frame_times)
@@ -178,7 +185,8 @@ def diagnostic_status(
     imu_idle_s: float | None = None,
     frontend: FrontendHooks | None = None,
 ) -> tuple[int, str, dict[str, Any]]:
-    """``(level, message, values)`` of the localizer's status.
+    """``(level, message, values)`` of one camera's status: its :class:`StatusParts` laid out
+    by :func:`status`.
 
     Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped,
     a message was lost or the gyro is left out because the rotation between frames contradicts
@@ -206,81 +214,187 @@ def diagnostic_status(
     """
     c = stats.counts
     failed = dict(sorted(frames.failures.items()))
-    level, message = _level_and_message(
-        cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s, tracking
-    )
-    compile_values, note = _compile_values("frames")
-    message += note
+    has_frontend = frontend is not None
     section = camera_section(
-        "", frames, {**c, "messages_lost": messages_lost}, frontend=frontend is not None
+        "", frames, {**c, "messages_lost": messages_lost}, frontend=has_frontend
     )
-    values = _core_values(
-        cfg, section, stats, tracking, camera_source, latencies, stamp_ages, compile_values,
-        frontend is not None,
-    )  # fmt: skip
-    if frontend is not None:
-        values.update(_frontend_values(cfg, frontend, stats, section))
+    inliers = stats.inliers
+    lead = f"{frames.solved}/{frames.received} frames solved" + (
+        f", {frames.skipped} skipped (busy)" if frames.skipped else ""
+    )
+
+    def of(*keys: str) -> dict[str, Any]:
+        return {k: section[k] for k in keys}
+
+    gyro = None
     if cfg.imu is not None:
-        values.update(
-            _imu_values(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s)
-        )
-    values.update(
-        {k: v for k, v in section.items() if k.startswith(("failed.", "camera_info_rejected."))}
-    )
+        gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s,
+                         bool(frames.received))  # fmt: skip
+    parts = StatusParts(
+        unit="frames",
+        accounting=of(*(_FLAT_KEYS[k] for k in FRAME_ACCOUNTING)),
+        solved=frames.solved,
+        nothing="no frame solved" + (f" ({failed})" if failed else ""),
+        nothing_solved=bool(frames.received and not frames.solved),
+        summary=lead if frames.received else "waiting for frames",
+        lead=lead,
+        warnings=[""] if frames.failed or messages_lost or frames.skipped else [],
+        head={"solver": cfg.solver, "camera": camera_source},
+        path={
+            "frames_compiled": c.get("frames_compiled", 0),
+            "frames_uncompiled": c.get("frames_uncompiled", 0),
+            "queue_size": cfg.queue_size,
+            "time_resets": c.get("time_resets", 0),
+            **of("messages_lost", "points_dropped", "clouds_capped"),
+            **of("unknown_landmark_ids", "camera_info_rejected"),
+            "frames_few_points": c.get("frames_few_points", 0),
+            "frames_single_tag": c.get("frames_single_tag", 0),
+        },
+        map_fit=c,
+        tracking={
+            "inliers_last": inliers[-1] if inliers else 0,
+            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
+            "planar": str(stats.planar).lower(),
+            **tracking,
+            "condition_number_last": f"{stats.condition_number:.3g}",
+        },
+        timing=(latencies, stamp_ages),
+        times={
+            f"{k}_ms_median": f"{np.median(d) * 1e3:.3f}" if d else "nan"
+            for k, d in stats.stage_times.items()
+            if has_frontend or k != "frontend"
+        },
+        frontend=_frontend_values(cfg, frontend, stats, section) if has_frontend else {},
+        gyro=gyro,
+        reasons={k: v for k, v in section.items() if k.startswith(("failed.", _INFO_REJECTED))},
+        counts=c,
+    )  # fmt: skip
+    return status(parts)
+
+
+@dataclass
+class GyroState:
+    """A gyro's part of a status (with ``imu.enabled``): ``settings``, its ``counts`` by a
+    camera's names (a rig's: the rig frames for its frames;
+    :meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`), the buffered samples'
+    ``rate_hz``, ``bias`` ``(bias (3,), std (3,))`` rad/s in the IMU frame (None: the
+    configured ``imu.gyro_bias``, ``imu.gyro_bias_sigma``), whether the rotation between
+    frames contradicts it (``inconsistent``), ``idle_s`` (s since the last usable sample; None:
+    unknown) and whether frames arrived (``arrived``)."""
+
+    settings: GyroSettings
+    counts: Mapping[str, int]
+    rate_hz: float | None
+    bias: tuple[Sequence[float], Sequence[float]] | None
+    inconsistent: bool
+    idle_s: float | None
+    arrived: bool
+
+
+@dataclass
+class StatusParts:
+    """A status described without its mode (one camera or a rig), laid out by :func:`status`.
+
+    Values, in publishing order: ``head``, the frame ``accounting``, the estimator's path
+    (:func:`_compile_values`), ``path`` (what follows it), with ``map_fit`` (counts) the
+    map-fit check's ``<unit>_failed_with_matches`` and ``map_fit_doubtful``, ``tracking``, with
+    ``timing`` (``(latencies, stamp_ages)``, s) :func:`timing_values`, ``times`` (worker
+    times), ``frontend``, with ``gyro`` its values (:func:`_imu_values`), ``reasons`` (failures
+    by reason), ``sections`` (each rig camera's ``<c>.*``), then the ``gyro_missing.<reason>``,
+    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` of ``counts``.
+
+    The message (:func:`_level_and_message`): ``unit`` what is solved (``frames``, ``rig
+    frames``); ``nothing`` the message when ``nothing_solved``; ``summary`` the OK message;
+    ``warnings`` the mode's own (before the gyro's and the readout check's), ``trailing`` and
+    ``failed`` after them (not in the ERROR's list); ``lead``: one camera's count, which its
+    message names with its first warning only (an empty warning: the count says it);
+    ``solved`` and ``absent`` (cameras that sent nothing: ERROR while nothing is solved)."""
+
+    unit: str
+    accounting: dict[str, Any]
+    solved: int
+    nothing: str
+    nothing_solved: bool
+    summary: str
+    lead: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    trailing: list[str] = field(default_factory=list)
+    failed: str = ""
+    head: dict[str, Any] = field(default_factory=dict)
+    path: dict[str, Any] = field(default_factory=dict)
+    map_fit: Mapping[str, int] | None = None
+    tracking: dict[str, Any] = field(default_factory=dict)
+    timing: tuple[Sequence[float], Sequence[float]] | None = None
+    times: dict[str, Any] = field(default_factory=dict)
+    frontend: dict[str, Any] = field(default_factory=dict)
+    gyro: GyroState | None = None
+    reasons: dict[str, Any] = field(default_factory=dict)
+    sections: dict[str, Any] = field(default_factory=dict)
+    counts: Mapping[str, int] = field(default_factory=dict)
+    absent: Sequence[str] = ()
+
+
+def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
+    """``(level, message, values)`` of a camera's or a rig's status from its
+    :class:`StatusParts` (values in its order; level and message :func:`_level_and_message`,
+    with the map-fit check's note while it doubts the map and the level is not OK, then the
+    estimator path's note off the compiled path)."""
+    compile_values, note = _compile_values(p.unit)
+    values: dict[str, Any] = {**p.head, **p.accounting, **compile_values, **p.path}
+    if p.map_fit is not None:
+        key = p.unit.replace(" ", "_") + "_failed_with_matches"
+        values[key] = p.map_fit.get(key, 0)
+        values["map_fit_doubtful"] = str(bool(p.map_fit.get("map_fit_doubtful", 0))).lower()
+    values.update(p.tracking)
+    if p.timing is not None:
+        values.update(timing_values(*p.timing))
+    values.update(p.times)
+    values.update(p.frontend)
+    if p.gyro is not None:
+        values.update(_imu_values(p.gyro))
+    values.update(p.reasons)
+    values.update(p.sections)
     prefixes = ("gyro_missing.", "gyro_rejected.", "imu_rejected.")
-    values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
+    values.update({k: v for k, v in sorted(p.counts.items()) if k.startswith(prefixes)})
+    level, message = _level_and_message(p, values)
+    if values.get("map_fit_doubtful") == "true" and level != OK:
+        message += _map_fit_note(p.unit)
+    message += note
+    if p.absent and p.solved == 0:  # (a camera silent: named first)
+        rest = "" if level == OK else message.removeprefix(f"{p.nothing}: ")
+        rest = "" if rest == p.nothing else rest
+        level = ERROR
+        message = f"{p.nothing}: no frame from camera {', '.join(p.absent)}"
+        message += f"; {rest}" if rest else ""
     return level, message, values
 
 
-def _level_and_message(
-    cfg: LocalizerConfig,
-    frames: FrameCounts,
-    c: dict[str, int],
-    failed: dict[str, int],
-    messages_lost: int,
-    gyro_inconsistent: bool,
-    imu_idle_s: float | None,
-    tracking: dict[str, Any] | None = None,
-) -> tuple[int, str]:
-    """The status level and message of :func:`diagnostic_status` (before the compile note)."""
-    if frames.received and not frames.solved:
-        level, message = ERROR, "no frame solved" + (f" ({failed})" if failed else "")
-    elif frames.failed or messages_lost or frames.skipped:
-        level = WARN
-        message = f"{frames.solved}/{frames.received} frames solved" + (
-            f", {frames.skipped} skipped (busy)" if frames.skipped else ""
+def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, str]:
+    """The level and message of :func:`status` (before its notes): ERROR while nothing is
+    solved (``p.nothing``; a rig's goes on with its warnings and ``failed``), WARN with a
+    warning (the mode's ``warnings``; the gyro contradicting the image; the rolling-shutter
+    timing suspect, ``readout_suspect``; no usable IMU sample for :data:`IMU_IDLE_WARN_S`
+    while frames arrive; then ``trailing`` and ``failed``), else OK (``p.summary``). One
+    camera's message (``p.lead``) is its count and its first warning; a rig's, every
+    warning."""
+    ws = [*p.warnings]
+    g, unit = p.gyro, p.unit
+    if g is not None and g.inconsistent:
+        ws.append(
+            "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
+            f"{unit} solved without it"
         )
-    elif gyro_inconsistent and cfg.imu is not None:
-        level = WARN
-        message = (
-            f"{frames.solved}/{frames.received} frames solved; the gyro contradicts the image "
-            "(check imu.rotation, imu.time_offset): frames solved without it"
-        )
-    elif (tracking or {}).get("readout_suspect") == "true":
-        level = WARN
-        message = f"{frames.solved}/{frames.received} frames solved; " + readout_warning(
-            tracking["readout_contradicted"]
-        )
-    elif (
-        cfg.imu is not None
-        and frames.received
-        and imu_idle_s is not None
-        and imu_idle_s > IMU_IDLE_WARN_S
-    ):
-        level = WARN
-        message = f"{frames.solved}/{frames.received} frames solved; " + _imu_idle_text(
-            imu_idle_s, c.get("imu_rejected", 0), "frames"
-        )
-    else:
-        level = OK
-        message = (
-            f"{frames.solved}/{frames.received} frames solved"
-            if frames.received
-            else "waiting for frames"
-        )
-    if c.get("map_fit_doubtful", 0) and level != OK:
-        message += _map_fit_note("frames")
-    return level, message
+    if values.get("readout_suspect") == "true":
+        ws.append(readout_warning(values["readout_contradicted"], rig=unit == "rig frames"))
+    if g is not None and g.arrived and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
+        ws.append(_imu_idle_text(g.idle_s, g.counts.get("imu_rejected", 0), unit))
+    if p.nothing_solved:
+        why = [] if p.lead is not None else [*ws, p.failed] if p.failed else ws
+        return ERROR, p.nothing + (f": {'; '.join(why)}" if why else "")
+    if p.lead is not None:
+        return (WARN, p.lead + (f"; {ws[0]}" if ws[0] else "")) if ws else (OK, p.summary)
+    ws += [*p.trailing, p.failed] if p.failed else p.trailing
+    return (WARN, "; ".join(ws)) if ws else (OK, p.summary)
 
 
 def _map_fit_note(unit: str) -> str:
@@ -290,54 +404,6 @@ def _map_fit_note(unit: str) -> str:
         f"; most {unit} with many matches refused: does the map fit this place? mirrored or "
         "another room?"
     )
-
-
-def _core_values(
-    cfg: LocalizerConfig,
-    section: Mapping[str, Any],
-    stats: StatsSnapshot,
-    tracking: dict[str, Any],
-    camera_source: str,
-    latencies: Sequence[float],
-    stamp_ages: Sequence[float],
-    compile_values: dict[str, Any],
-    has_frontend: bool,
-) -> dict[str, Any]:
-    """The values every status carries, through the stage times (see
-    :func:`diagnostic_status`; ``section``: the camera's :func:`camera_section`)."""
-    c = stats.counts
-    inliers = stats.inliers
-
-    def of(*keys: str) -> dict[str, Any]:
-        return {k: section[k] for k in keys}
-
-    values: dict[str, Any] = {
-        "solver": cfg.solver,
-        "camera": camera_source,
-        **of(*(_FLAT_KEYS[k] for k in FRAME_ACCOUNTING)),
-        **compile_values,
-        "frames_compiled": c.get("frames_compiled", 0),
-        "frames_uncompiled": c.get("frames_uncompiled", 0),
-        "queue_size": cfg.queue_size,
-        "time_resets": c.get("time_resets", 0),
-        **of("messages_lost", "points_dropped", "clouds_capped"),
-        **of("unknown_landmark_ids", "camera_info_rejected"),
-        "frames_few_points": c.get("frames_few_points", 0),
-        "frames_single_tag": c.get("frames_single_tag", 0),
-        "frames_failed_with_matches": c.get("frames_failed_with_matches", 0),
-        "map_fit_doubtful": str(bool(c.get("map_fit_doubtful", 0))).lower(),
-        "inliers_last": inliers[-1] if inliers else 0,
-        "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
-        "planar": str(stats.planar).lower(),
-        **tracking,
-        "condition_number_last": f"{stats.condition_number:.3g}",
-        **timing_values(latencies, stamp_ages),
-    }
-    for k, d in stats.stage_times.items():
-        if k == "frontend" and not has_frontend:
-            continue
-        values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
-    return values
 
 
 def _frontend_values(
@@ -379,36 +445,26 @@ def _imu_idle_text(idle_s: float, rejected: int, unit: str) -> str:
     )
 
 
-def _imu_values(
-    imu: GyroSettings,
-    c: Mapping[str, int],
-    imu_rate_hz: float | None,
-    gyro_bias: tuple[Sequence[float], Sequence[float]] | None,
-    gyro_inconsistent: bool,
-    imu_idle_s: float | None,
-) -> dict[str, Any]:
-    """The gyro's values of a camera's or a rig's status (``imu``: its gyro settings; ``c``:
-    its counts by a camera's names, :func:`diagnostic_status`)."""
-    values: dict[str, Any] = {}
-    bias, std = gyro_bias or (imu.gyro_bias, np.full(3, imu.gyro_bias_sigma))
-    values.update(
-        {
-            "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
-            "frames_with_gyro": c.get("frames_with_gyro", 0),
-            "gyro_rejected": c.get("gyro_rejected", 0),
-            "gyro_missing": c.get("gyro_missing", 0),
-            "imu_rejected": c.get("imu_rejected", 0),
-            "imu_idle_s": "nan" if imu_idle_s is None else f"{imu_idle_s:.1f}",
-            "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
-            "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
-            "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
-            "gyro_inconsistent": str(bool(gyro_inconsistent)).lower(),
-            "gyro_disabled_inconsistent": c.get("gyro_disabled_inconsistent", 0),
-            "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
-            "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
-        }
-    )
-    return values
+def _imu_values(g: GyroState) -> dict[str, Any]:
+    """The gyro's values of a camera's or a rig's status (:class:`GyroState`; keys
+    :func:`diagnostic_status`)."""
+    c, imu = g.counts, g.settings
+    bias, std = g.bias or (imu.gyro_bias, np.full(3, imu.gyro_bias_sigma))
+    return {
+        "imu_rate_hz": f"{g.rate_hz or 0.0:.1f}",
+        "frames_with_gyro": c.get("frames_with_gyro", 0),
+        "gyro_rejected": c.get("gyro_rejected", 0),
+        "gyro_missing": c.get("gyro_missing", 0),
+        "imu_rejected": c.get("imu_rejected", 0),
+        "imu_idle_s": "nan" if g.idle_s is None else f"{g.idle_s:.1f}",
+        "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
+        "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
+        "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
+        "gyro_inconsistent": str(bool(g.inconsistent)).lower(),
+        "gyro_disabled_inconsistent": c.get("gyro_disabled_inconsistent", 0),
+        "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
+        "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
+    }
 
 
 # ---------------------------------------------------------------------- a rig of cameras
@@ -447,40 +503,43 @@ def rig_diagnostics(
     rig: Localizer, waiting_info: set, inputs: Counter | RigInputs | None = None
 ) -> tuple[int, str, dict]:
     """``(level, message, values)`` of a rig's status (``rig``: a
-    :class:`~rs_localizer.tracking.video.Localizer`), built from the pieces of
-    :func:`diagnostic_status`: level :data:`OK`,
+    :class:`~rs_localizer.tracking.video.Localizer`): its :class:`StatusParts` laid out by
+    :func:`status`, as one camera's. Level :data:`OK`,
     ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
     consensus outvoted a camera in its last rig frame; a camera's frames never join the
     others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
     off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
     ``ERROR`` (rig frames formed and none was posed, or a camera sent nothing for
     ``rig.stop_after`` and none was posed; the message goes on with the cameras'
-    warnings and the failures by reason). Values: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``,
-    ``time_resets`` (stamps going back or jumping ahead, as a camera's),
-    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's),
-    ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter timing,
-    as a camera's: WARN while suspect), the
+    warnings and the failures by reason). Values, in publishing order: ``rig_frames``,
+    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, the
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
     ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
-    on the compiled one; the message then says so), and a section per camera ``<c>``
-    (:func:`_rig_camera_values`); with a gyro the single-camera node's gyro values, the rig
-    frames for its frames (:func:`_rig_gyro_values`: ``imu_rate_hz``, ``frames_with_gyro``,
-    ``gyro_rejected[.<reason>]``, ``gyro_missing[.<reason>]``, ``imu_rejected``,
+    on the compiled one; the message then says so), ``time_resets`` (stamps going back or
+    jumping ahead, as a camera's), ``rig_frames_failed_with_matches`` and
+    ``map_fit_doubtful`` (the single-camera node's map-fit check over the rig frames,
+    :class:`~rs_localizer.ros.pipeline.MapFitCheck`; the message says so while doubtful and
+    the level is not OK), ``track_state``,
+    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's),
+    ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter timing,
+    as a camera's: WARN while suspect), the single-camera node's timing keys
+    (:func:`timing_values`) and ``camera_frame_ms_median``; with a gyro the single-camera
+    node's gyro values, the rig frames for its frames (``imu_rate_hz``,
+    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing``, ``imu_rejected``,
     ``imu_idle_s``, ``gyro_bias`` and ``gyro_bias_std`` (rad/s, IMU frame),
     ``gyro_bias_rejected``, ``gyro_inconsistent`` (``true`` while the rotation between rig
     frames contradicts the gyro and rig frames are solved without it: WARN, as for one
     camera), ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
     ``gyro_inconsistent_detections``; WARN also without a usable IMU sample for
-    :data:`IMU_IDLE_WARN_S` while rig frames arrive); ``rig_frames_failed.<reason>``
-    for each failure reason of the rig estimator (or ``error``: it raised); the single-camera
-    node's timing keys (:func:`timing_values`) and ``camera_frame_ms_median``;
-    ``rig_frames_failed_with_matches`` and ``map_fit_doubtful`` (the single-camera node's
-    map-fit check over the rig frames, :class:`~rs_localizer.ros.pipeline.MapFitCheck`; the
-    message says so while doubtful and the level is not OK);
-    ``imu_rejected.<reason>`` counts.
+    :data:`IMU_IDLE_WARN_S` while rig frames arrive, or when the image rejects the gyro more
+    often than it uses it); ``rig_frames_failed.<reason>`` for each failure reason of the
+    rig estimator (or ``error``: it raised); a section per camera ``<c>``
+    (:func:`_rig_camera_values`, with ``<c>.bad_input``); then ``gyro_missing.<reason>``,
+    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` counts. The timing keys,
+    ``camera_frame_ms_median``, the map-fit keys, ``<c>.bad_input`` and
+    ``imu_rejected.<reason>`` come with ``inputs``.
 
     ``inputs``: the node's own counts and times (:class:`RigInputs`; a Counter: its
     ``counts`` alone); then ``<c>.received`` is the subscriptions' count, the node's skips and
@@ -488,80 +547,65 @@ def rig_diagnostics(
     if isinstance(inputs, Counter):
         inputs = RigInputs(counts=inputs)
     r = rig.rig_counts()
-    values: dict[str, Any] = {
-        "rig_frames": r["rig_frames"],
-        "rig_frames_solved": r["solved"],
-        "rig_frames_failed": r["failed"],
-        "rig_frames_skipped": r["skipped"],
-        "rig_frames_pending": r["pending"],
-        "track_state": rig.track_state,
-        "time_resets": rig.counts.get("rig.time_resets", 0),
-        **rig.twist_values(),
-        **rig.readout_values(),
-    }
-    compile_values, note = _compile_values("rig frames")
-    values.update(compile_values, rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0))
-    for k, v in sorted(rig.counts.items()):
-        if k.startswith("rig.failed."):
-            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
     warnings: list[str] = []
+    sections: dict[str, Any] = {}
     busy = lost = 0
     for n in rig.cameras:
         section, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
-        values.update(section)
+        sections.update(section)
         busy, lost = busy + busy_n, lost + lost_n
-    values.update(_rig_gyro_values(rig, inputs, warnings))
-    if values["readout_suspect"] == "true":
-        warnings.append(readout_warning(values["readout_contradicted"], rig=True))
-    if inputs is not None:
-        values.update(timing_values(inputs.latencies, inputs.stamp_ages))
-        frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]
-        values["camera_frame_ms_median"] = _median_ms(frames)
-        values["rig_frames_failed_with_matches"] = inputs.counts.get(
-            "rig_frames_failed_with_matches", 0
-        )
-        values["map_fit_doubtful"] = str(bool(inputs.counts.get("map_fit_doubtful", 0))).lower()
-        for n, k in inputs.bad_input.items():
-            values[f"{n}.bad_input"] = k
-        for why, k in sorted(inputs.imu_rejected.items()):
-            values[f"imu_rejected.{why}"] = k
+    gyro = _rig_gyro(rig, inputs, warnings)
+    trailing = []
+    if busy:
+        trailing.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        trailing.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
+    reasons = {
+        f"rig_frames_failed.{k[len('rig.failed.') :]}": v
+        for k, v in sorted(rig.counts.items())
+        if k.startswith("rig.failed.")
+    }
     failed = ""
     if r["failed"]:
-        why = ", ".join(
-            f"{k[len('rig_frames_failed.') :]} {v}"
-            for k, v in values.items()
-            if k.startswith("rig_frames_failed.")
-        )
+        why = ", ".join(f"{k[len('rig_frames_failed.') :]} {v}" for k, v in reasons.items())
         failed = f"{r['failed']} rig frames failed ({why})"
-    level, message = _rig_level_and_message(r, warnings, failed, busy, lost, note)
-    if values.get("map_fit_doubtful") == "true" and level != OK:  # (as a camera's)
-        message += _map_fit_note("rig frames")
-    absent = list(inputs.absent) if inputs is not None else []
-    if absent and r["solved"] == 0:  # (a camera silent: named first)
-        rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
-        rest = "" if rest == "no rig frame posed" else rest
-        level = ERROR
-        message = f"no rig frame posed: no frame from camera {', '.join(absent)}"
-        message += f"; {rest}" if rest else ""
-    return level, message, values
-
-
-def _rig_level_and_message(
-    r: dict[str, int], warnings: list[str], failed: str, busy: int, lost: int, note: str
-) -> tuple[int, str]:
-    """The level and message of :func:`rig_diagnostics` (but for a silent camera)."""
-    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
-        why = "; ".join([*warnings, failed] if failed else warnings)
-        return ERROR, "no rig frame posed" + (f": {why}" if why else "") + note
-    if busy:
-        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    if failed:
-        warnings.append(failed)
-    if warnings:
-        return WARN, "; ".join(warnings) + note
-    return OK, f"{r['solved']} rig frames posed" + note
+    counts = dict(gyro.counts) if gyro is not None else {}
+    if inputs is not None:
+        counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
+    parts = StatusParts(
+        unit="rig frames",
+        accounting={
+            "rig_frames": r["rig_frames"],
+            "rig_frames_solved": r["solved"],
+            "rig_frames_failed": r["failed"],
+            "rig_frames_skipped": r["skipped"],
+            "rig_frames_pending": r["pending"],
+        },
+        solved=r["solved"],
+        nothing="no rig frame posed",
+        nothing_solved=r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0,
+        summary=f"{r['solved']} rig frames posed",
+        warnings=warnings,
+        trailing=trailing,
+        failed=failed,
+        path={
+            "rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
+            "time_resets": rig.counts.get("rig.time_resets", 0),
+        },
+        map_fit=inputs.counts if inputs is not None else None,
+        tracking={"track_state": rig.track_state, **rig.twist_values(), **rig.readout_values()},
+        timing=(inputs.latencies, inputs.stamp_ages) if inputs is not None else None,
+        times={},
+        gyro=gyro,
+        reasons=reasons,
+        sections=sections,
+        counts=counts,
+        absent=list(inputs.absent) if inputs is not None else [],
+    )
+    if inputs is not None:
+        frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]
+        parts.times["camera_frame_ms_median"] = _median_ms(frames)
+    return status(parts)
 
 
 def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = None) -> FrameCounts:
@@ -574,7 +618,7 @@ def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = No
     ``received`` the node's, every message; the node's ``skipped.<reason>`` and
     ``failed.<reason>`` with the rig's; the frames the node or the rig still holds
     ``pending``). The rig node's diagnostics and ``replay`` of a rig bag
-    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both count a camera's frames so."""
+    (:func:`~rs_localizer.ros.bags.replay.replay`) both count a camera's frames so."""
     skip = f"{n}.skipped."
     skips = {k[len(skip) :]: v for k, v in rig.counts.items() if k.startswith(skip)}
     handed = FrameCounts(**rig.camera_counts(n), skips=skips)
@@ -614,8 +658,9 @@ def _rig_camera_values(
     (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never
     join the others', ``Localizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
     apparent clock offset from each other camera, ms); with ``inputs`` also
-    ``stamp_jumped_ahead``. Appends the camera's warnings to ``warnings``; returns the
-    section, the camera's frames dropped from a full queue and its messages lost."""
+    ``stamp_jumped_ahead`` and ``bad_input`` (its frames not read: a stamp or a cloud).
+    Appends the camera's warnings to ``warnings``; returns the section, the camera's frames
+    dropped from a full queue and its messages lost."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
@@ -670,36 +715,27 @@ def _rig_camera_values(
         warnings.append(f"camera {n} stopped")
     if n in waiting_info:
         warnings.append(f"camera {n} waits for its camera_info")
+    if inputs is not None and n in inputs.bad_input:
+        values[f"{n}.bad_input"] = inputs.bad_input[n]
     return values, busy, lost
 
 
-def _rig_gyro_values(
-    rig: Localizer, inputs: RigInputs | None, warnings: list[str]
-) -> dict[str, Any]:
-    """The rig's gyro values of :func:`rig_diagnostics` (with a gyro on the rig): a camera's
-    (:func:`_imu_values`, the rig's counts by a camera's names,
-    :meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`, the rig frames for its
-    frames) with ``gyro_missing.<reason>`` and ``gyro_rejected.<reason>``; appends its
-    warnings to ``warnings``: the gyro contradicts the image (a wrong mounting), the image
-    rejects it more often than it uses it, or no usable IMU sample for
-    :data:`IMU_IDLE_WARN_S` while rig frames arrive."""
+def _rig_gyro(rig: Localizer, inputs: RigInputs | None, warnings: list[str]) -> GyroState | None:
+    """The rig's gyro for :func:`rig_diagnostics` (None without a gyro on the rig): a
+    camera's :class:`GyroState` of the rig's counts by a camera's names
+    (:meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`, the rig frames for its
+    frames, ``gyro_missing.<reason>`` and ``gyro_rejected.<reason>`` with them); appends the
+    rig's own gyro warning to ``warnings``: the image rejects the gyro more often than it uses
+    it (while the gyro is not found to contradict the image)."""
     imu = rig.settings.imu
     if imu is None:
-        return {}
+        return None
     c = rig.gyro_counts()
     c["imu_rejected"] = sum(inputs.imu_rejected.values()) if inputs is not None else 0
     buf = rig.imu
     idle = buf.idle_seconds() if buf is not None else None
     rate = buf.rate_hz() if buf is not None else None
-    values = _imu_values(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle)
-    values.update({k: v for k, v in c.items() if k.startswith(("gyro_missing.", "gyro_rejected."))})
-    if rig.gyro_inconsistent:  # (the single-camera node's warning)
-        warnings.append(
-            "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
-            "frames solved without it"
-        )
-    elif c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
+    if not rig.gyro_inconsistent and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
         warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    if rig.counts["rig_frames"] and idle is not None and idle > IMU_IDLE_WARN_S:
-        warnings.append(_imu_idle_text(idle, c["imu_rejected"], "rig frames"))
-    return values
+    return GyroState(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle,
+                     bool(rig.counts["rig_frames"]))  # fmt: skip

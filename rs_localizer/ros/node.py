@@ -88,6 +88,7 @@ class LocalizerCore(NodeCore):
     def _init_state(self):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
+        self._log = self.pipeline.log
         self._frames = self._new_queue()
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -95,20 +96,18 @@ class LocalizerCore(NodeCore):
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
         the JIT warm-up. Raises RuntimeError for invalid parameters."""
         try:
-            cfg = build_config(self._param_values({}))
-            maps = load_maps(cfg, owner=self, current=self._maps())
+            cfg, maps = self._changed_configuration({})
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self._apply_config(cfg, maps)
+        self._warm_up(cfg, background=True)
+
+    def _warm_up(self, cfg: LocalizerConfig, background: bool = False) -> None:
+        """With ``warmup``, the kernels of ``cfg``'s solver, tracking and gyro compiled or
+        loaded (:func:`.pipeline.log_warm_up`; ``background``: its)."""
         if self.get_parameter("warmup").value:
-            log_warm_up(
-                cfg.solver,
-                cfg.options,
-                cfg.tracking,
-                self.get_logger(),
-                cfg.imu is not None,
-                background=True,
-            )
+            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.get_logger(),
+                        cfg.imu is not None, background)  # fmt: skip
 
     def _create_outputs(self):
         self._create_pose_outputs()
@@ -228,14 +227,7 @@ class LocalizerCore(NodeCore):
         cfg, maps = built
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
             self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
-            if self.get_parameter("warmup").value:
-                log_warm_up(
-                    overrides["solver"],
-                    cfg.options,
-                    cfg.tracking,
-                    self.get_logger(),
-                    cfg.imu is not None,
-                )
+            self._warm_up(cfg)
         self._apply_config(cfg, maps)
         if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.get_logger().info(
@@ -253,7 +245,7 @@ class LocalizerCore(NodeCore):
         return self.cfg.queue_size
 
     def _warn_busy(self, size: int) -> None:
-        self.pipeline.log.warning(
+        self._log.warning(
             "skipped",
             f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
             f"frame [{self._frames.dropped} skipped so far]",
@@ -282,7 +274,7 @@ class LocalizerCore(NodeCore):
                 f"frame dropped ({res.failure}): {res.detail}",
                 self.pipeline.stats.get(f"failed.{res.failure}"),
             )
-            return self.pipeline.log.warning(res.failure, text, n)
+            return self._log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
         messages = frame_messages(res, cfg.map_frame, self._wanted)
         self._publish(messages)
@@ -302,9 +294,6 @@ class LocalizerCore(NodeCore):
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
         self._record_timing(item.arrived, res.stamp_ns)
-
-    def _throttled_log(self):
-        return self.pipeline.log
 
     def _idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)
@@ -347,11 +336,4 @@ class RSLocalizerNode(LocalizerCore, Node):
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
-        self._declare_parameters()
-        self._init_state()
-        self._configure()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._create_outputs()
-        self._create_info_inputs()
-        self._create_frame_inputs()
-        self._log_ready()
+        self._start_unmanaged()

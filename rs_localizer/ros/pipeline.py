@@ -140,46 +140,85 @@ def log_warm_up(
     uncompiled path while they compile in the background
     (:func:`~rs_localizer.runtime.background.start_background_compile`), and a warm-up that fails (a
     corrupt cache) leaves the frames on the uncompiled path. Never raises (a failure is
-    logged)."""
-    from ..runtime.background import (
-        CameraKernels,
-        fall_back_uncompiled,
-        start_background_compile,
-    )
-    from ..runtime.jit_cache import cache_state, compile_progress
+    logged). Its steps are :func:`warm_kernels`' (the rig node's too)."""
+    from ..runtime.background import CameraKernels, fall_back_uncompiled
+    from ..runtime.jit_cache import cache_state
     from ..runtime.warmup import DEFAULT_JOBS, warm_up
 
-    st = cache_state()
+    st = cache_state()  # (before a background compile starts)
+    cache = f"{st['dir']} ({st['mode']}" + (
+        f", {st['seeded']} files copied from the package)" if st["seeded"] else ")"
+    )
+
+    def warm() -> tuple[float, str]:
+        logger.info(f"warm-up ({solver}): numba cache {cache}")
+        dt, est = warm_up(solver, options, tracking, jobs=DEFAULT_JOBS, log=logger.info, gyro=gyro)
+        return dt, "ok" if est.success else str(est.failure)
+
+    def failed(text: str) -> None:  # (e.g. a corrupt numba cache: frames would fail on them)
+        fall_back_uncompiled(solver, f"warm-up: {text}", logger.warning)
+
     kernels = CameraKernels(solver, options, tracking, gyro)
+    warm_kernels(kernels, solver, warm, logger, background, "`rs-localizer compile`",
+                 failed if background else None)  # fmt: skip
+
+
+def warm_kernels(
+    kernels: Any,
+    label: str,
+    warm: Callable[[], tuple[float, str]],
+    logger: Any,
+    background: bool,
+    hint: str,
+    failed: Callable[[str], None] | None = None,
+) -> None:
+    """The node's warm-up of one camera's or a rig's kernels, written once: with
+    ``background`` and ``kernels`` (a :class:`~rs_localizer.runtime.background.CameraKernels`
+    or :class:`~rs_localizer.runtime.background.RigKernels`) not in numba's cache, they
+    compile in another process
+    (:func:`~rs_localizer.runtime.background.start_background_compile`) and nothing waits;
+    else ``warm()`` (-> ``(s, outcome)``: the warm-up's time and what it
+    gave) with each kernel compiled logged, and the line ``warm-up (<label>): <s> s,
+    <outcome>, compiled N kernels (<hint> after installing avoids this)`` (or ``kernels from
+    the cache``) to ``logger`` (``info``/``warning``). Never raises: a failure is logged as
+    ``warm-up (<label>) failed: ...`` and its text handed to ``failed``."""
+    from ..runtime.background import start_background_compile
+    from ..runtime.jit_cache import compile_progress
+
     if background and not kernels.cached():
         try:
             if start_background_compile(kernels, logger.info, logger.warning):
                 return
         except Exception as e:
-            logger.warning(f"background compile ({solver}) failed to start: {e}")
-    logger.info(
-        f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
-        + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
-        + ")"
-    )
+            logger.warning(f"background compile ({label}) failed to start: {e}")
     try:
         with compile_progress(logger.info) as prog:
-            dt, est = warm_up(
-                solver, options, tracking, jobs=DEFAULT_JOBS, log=logger.info, gyro=gyro
-            )
-        logger.info(
-            f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
-            + (
-                f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
-                "installing avoids this)"
-                if prog.kernels
-                else ", kernels from the cache"
-            )
-        )
+            seconds, outcome = warm()
     except Exception as e:
-        logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
-        if background:  # (e.g. a corrupt numba cache: frames would fail on the kernels)
-            fall_back_uncompiled(solver, f"warm-up: {type(e).__name__}: {e}", logger.warning)
+        text = f"{type(e).__name__}: {e}"
+        logger.warning(f"warm-up ({label}) failed: {text}")
+        if failed is not None:
+            failed(text)
+        return
+    done = (
+        f"compiled {len(prog.kernels)} kernels ({hint} after installing avoids this)"
+        if prog.kernels
+        else "kernels from the cache"
+    )
+    logger.info(f"warm-up ({label}): {seconds:.2f} s, {outcome}, {done}")
+
+
+def take_gyro_sample(msg: Any, add: Callable[[int, Any], str | None]) -> str | None:
+    """A ``sensor_msgs/Imu``'s gyro sample handed on, for one camera and a rig alike: its
+    stamp (ns) and angular velocity ``(x, y, z)`` (rad/s, the IMU's frame;
+    :func:`.conversions.gyro_sample`) to ``add``, which returns None or why it rejected the
+    sample; a message without a usable sample: its reason (``no_angular_velocity``,
+    ``bad_stamp``). Returns None or the reason (counted ``imu_rejected.<reason>``)."""
+    try:
+        stamp, omega = cv.gyro_sample(msg)
+    except cv.ImuError as e:
+        return e.reason
+    return add(stamp, omega)
 
 
 class _Drop(ValueError):
@@ -493,12 +532,7 @@ class FramePipeline:
         if buf is None:
             return "disabled"
         dropped = buf.dropped
-        try:
-            stamp, omega = cv.gyro_sample(msg)
-        except cv.ImuError as e:
-            reason = e.reason
-        else:
-            reason = self.sequence.add_imu(stamp, omega)
+        reason = take_gyro_sample(msg, self.sequence.add_imu)
         for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
             buf.dropped - dropped
         ):

@@ -85,7 +85,6 @@ from ..camera import CameraModel, Stamp
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
-from . import conversions as cv
 from .camera_input import (
     CameraCounts,
     CameraInput,
@@ -110,7 +109,7 @@ from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
+from .pipeline import FusedOutput, MapFitCheck, ThrottledLog, take_gyro_sample, warm_kernels
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import rig_camera_views
 
@@ -238,37 +237,21 @@ class RigCore(NodeCore):
         on the NumPy implementation (tracked, with the gyro, as on the compiled one) until
         they are loaded. Logged with the kernels compiled and the time. Without ``warmup``
         the first rig frame pays for them while the cameras' frames queue (a full queue drops
-        them). Never raises (a failure is logged)."""
-        from ..runtime.background import RigKernels, start_background_compile
-        from ..runtime.jit_cache import compile_progress
+        them). Never raises (a failure is logged; the frames compile instead): the single
+        camera's :func:`.pipeline.warm_kernels`."""
+        from ..runtime.background import RigKernels
         from ..runtime.warmup import warm_rig
 
-        log = self.get_logger()
         timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
+
+        def warm() -> tuple[float, str]:
+            tic = time.perf_counter()
+            posed = warm_rig(self.config.settings, timing)
+            return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
+
         kernels = RigKernels(self.config.settings, timing)
-        if not kernels.cached():
-            try:
-                if start_background_compile(kernels, log=log.info, warn=log.warning):
-                    return
-            except Exception as e:
-                log.warning(f"background compile (rig) failed to start: {e}")
-        tic = time.perf_counter()
-        try:
-            with compile_progress(log.info) as prog:
-                posed = warm_rig(self.config.settings, timing)
-        except Exception as e:  # (e.g. a corrupt numba cache: the frames compile instead)
-            log.warning(f"warm-up (rig) failed: {type(e).__name__}: {e}")
-            return
-        kernels = (
-            f"compiled {len(prog.kernels)} kernels (`rs-localizer compile --params-file` after "
-            "installing avoids this)"
-            if prog.kernels
-            else "kernels from the cache"
-        )
-        log.info(
-            f"warm-up (rig): {time.perf_counter() - tic:.2f} s, {posed} synthetic rig frames "
-            f"posed, {kernels}"
-        )
+        warm_kernels(kernels, "rig", warm, self.get_logger(), True,
+                     "`rs-localizer compile --params-file`")  # fmt: skip
 
     def _create_outputs(self) -> None:
         self._create_pose_outputs()
@@ -593,9 +576,6 @@ class RigCore(NodeCore):
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
-    def _throttled_log(self) -> ThrottledLog:
-        return self._log
-
     def _warn_no_info(self, name: str, kind: str) -> None:
         if self.inputs[name].newest is None:
             self._log.warning(
@@ -608,12 +588,7 @@ class RigCore(NodeCore):
     def _on_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
         ``imu_rejected.<reason>``, as the single-camera node's)."""
-        try:
-            stamp, omega = cv.gyro_sample(msg)
-        except cv.ImuError as e:
-            reason = e.reason
-        else:
-            reason = self.rig.add_imu(stamp, omega)
+        reason = take_gyro_sample(msg, self.rig.add_imu)
         if reason is not None:
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
         return reason
@@ -703,13 +678,7 @@ class RigLocalizerNode(RigCore, Node):
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
-        self._declare_parameters()
-        self._configure()
-        self._create_outputs()
-        self._create_info_inputs()
-        self._create_frame_inputs()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._log_ready()
+        self._start_unmanaged()
 
     def _before_destroy(self) -> None:
         """Destroying the node: solve the rig frames still open and publish them and the

@@ -32,7 +32,8 @@ def test_stamp_age_leaves_out_stamps_of_another_clock():
 def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     """The rig's status comes from the same builder: given the same latencies and stamp ages
     as a camera's, its timing keys are the camera's, character for character, and equal the
-    medians and percentiles computed here; each camera's section has its own worker time
+    medians and percentiles computed here, and the keys both statuses have come in the same
+    order; each camera's section has its own worker time
     (``<c>.camera_frame_ms_median``) beside the rig-wide one; per camera ``received = solved
     + failed + skipped + pending`` with the node's own counts folded in; a camera that sent
     nothing is named in an ERROR while no rig frame is posed; a time reset of the rig is
@@ -68,6 +69,8 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     keys = ("latency_ms_last", "latency_ms_median", "latency_ms_p99", "stamp_age_ms_last",
             "stamp_age_ms_median", "stamps_off_clock")  # fmt: skip
     assert {k: v[k] for k in keys} == {k: camera[k] for k in keys}
+    shared = [k for k in v if k in camera]  # (one layout: the keys of both in one order)
+    assert shared == [k for k in camera if k in v] and "map_fit_doubtful" in shared, shared
     assert v["latency_ms_median"] == f"{np.median(lat) * 1e3:.3f}" == "5.500"
     assert v["latency_ms_p99"] == f"{np.percentile(lat, 99) * 1e3:.3f}"
     assert v["stamp_age_ms_median"] == "20.000" and v["stamps_off_clock"] == 1
@@ -197,7 +200,8 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     node's gyro keys (the same set as a camera's with a gyro, the rig frames for its frames),
     every rig frame counted without samples, and the camera's WARN once no usable IMU sample
     has come for ``IMU_IDLE_WARN_S`` while rig frames arrive (its text, rig frames for
-    frames). Without a gyro, no gyro key."""
+    frames), the keys it shares with the camera's in the camera's order. Without a gyro, no
+    gyro key."""
     import numpy as np
     from helpers.rig import mounts_of
 
@@ -222,6 +226,7 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     camera_gyro = {k for k in camera if "gyro" in k or k.startswith("imu_")}
     level, message, v = D.rig_diagnostics(rigs[True], set(), Counter())
     rig_gyro = {k for k in v if "gyro" in k or k.startswith("imu_")}
+    assert [k for k in v if k in camera] == [k for k in camera if k in v]  # (one layout)
     posed = v["rig_frames_solved"]
     assert posed > 0 and level == D.OK, message
     assert rig_gyro - {"gyro_missing.no_samples"} == camera_gyro, rig_gyro ^ camera_gyro
@@ -282,3 +287,144 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
         replayed = camera_counts(rig, n, own[n])
         assert replayed == {k: v[f"{n}.{k}"] for k in replayed}, (n, replayed, v)
     assert list(camera_counts(rig, a, own[a]))[-2:] == ["skipped.bad_input", "skipped.queue_full"]
+
+
+# fmt: off
+#: the keys of the single camera's status in publishing order (each state of
+#: ``_pinned_states`` has some of them)
+_ORDER = (
+    "solver", "camera", "frames_received", "frames_solved", "frames_failed", "frames_skipped",
+    "frames_pending", "compiled", "compile_state", "compile_failures", "compile_error",
+    "frames_compiled", "frames_uncompiled", "queue_size", "time_resets", "messages_lost",
+    "points_dropped", "clouds_capped", "unknown_landmark_ids", "camera_info_rejected",
+    "frames_few_points", "frames_single_tag", "frames_failed_with_matches", "map_fit_doubtful",
+    "inliers_last", "inliers_mean", "planar", "track_state", "readout_suspect",
+    "condition_number_last", "latency_ms_last", "latency_ms_median", "latency_ms_p99",
+    "stamp_age_ms_last", "stamp_age_ms_median", "stamps_off_clock", "decode_ms_median",
+    "frontend_ms_median", "estimate_ms_median", "publish_ms_median", "frontend", "image_frames",
+    "frames_beside_frontend", "frontend_ms_last", "frontend_correspondences_last",
+    "frontend_correspondences_mean", "frontend_ms_p99", "frontend_frames_global",
+    "frontend_few_match_frames", "imu_rate_hz", "frames_with_gyro", "gyro_rejected",
+    "gyro_missing", "imu_rejected", "imu_idle_s", "gyro_bias", "gyro_bias_std",
+    "gyro_bias_rejected", "gyro_inconsistent", "gyro_disabled_inconsistent", "gyro_pairs_failed",
+    "gyro_inconsistent_detections", "failed.too_few_points", "camera_info_rejected.distortion",
+    "gyro_rejected.too_far", "imu_rejected.stamp_back",
+)
+#: the fresh state's values (the others': these with their own)
+_FRESH = {
+    "solver": "r6p_1lin", "camera": "camera_info", "frames_received": 0, "frames_solved": 0,
+    "frames_failed": 0, "frames_skipped": 0, "frames_pending": 0, "compiled": "false",
+    "compile_state": "compiling", "compile_failures": 0, "compile_error": "",
+    "frames_compiled": 0, "frames_uncompiled": 0, "queue_size": 5, "time_resets": 0,
+    "messages_lost": 0, "points_dropped": 0, "clouds_capped": 0, "unknown_landmark_ids": 0,
+    "camera_info_rejected": 0, "frames_few_points": 0, "frames_single_tag": 0,
+    "frames_failed_with_matches": 0, "map_fit_doubtful": "false", "inliers_last": 0,
+    "inliers_mean": "0", "planar": "false", "track_state": "lost", "condition_number_last": "nan",
+    "latency_ms_last": "nan", "latency_ms_median": "nan", "latency_ms_p99": "nan",
+    "stamp_age_ms_last": "nan", "stamp_age_ms_median": "nan", "stamps_off_clock": 0,
+    "decode_ms_median": "nan", "estimate_ms_median": "nan", "publish_ms_median": "nan",
+}
+#: the single camera's status on three states (``_pinned_states``): level, message and
+#: every key's value (the latencies' p99 of 10 and 30 ms is 29.8 ms; a stamp age of
+#: 95.6e6 s is another clock's; 90 front-end points over 4 runs: 22.5)
+_PINNED = {
+    "fresh": (0, (
+        "waiting for frames; kernels compiling in the background: frames on the uncompiled "
+        "path"
+    ), _FRESH),
+    "mixed": (1, (
+        "3/6 frames solved, 1 skipped (busy); most frames with many matches refused: does "
+        "the map fit this place? mirrored or another room?; kernels compiling in the "
+        "background: frames on the uncompiled path"
+    ), {**_FRESH, **{
+        "camera": "parameters", "frames_received": 6, "frames_solved": 3, "frames_failed": 1,
+        "frames_skipped": 1, "frames_pending": 1, "time_resets": 1, "messages_lost": 2,
+        "points_dropped": 4, "camera_info_rejected": 1, "frames_few_points": 1,
+        "frames_failed_with_matches": 1, "map_fit_doubtful": "true", "inliers_last": 31,
+        "inliers_mean": "25.5", "planar": "true", "track_state": "tracking",
+        "readout_suspect": "false", "condition_number_last": "1.23e+03",
+        "latency_ms_last": "30.000", "latency_ms_median": "20.000", "latency_ms_p99": "29.800",
+        "stamp_age_ms_last": "20.000", "stamp_age_ms_median": "20.000", "stamps_off_clock": 1,
+        "decode_ms_median": "1.000", "estimate_ms_median": "3.000", "publish_ms_median": "0.500",
+        "failed.too_few_points": 1, "camera_info_rejected.distortion": 1,
+    }}),
+    "gyro": (1, (
+        "4/4 frames solved; the gyro contradicts the image (check imu.rotation, "
+        "imu.time_offset): frames solved without it; kernels compiling in the background: "
+        "frames on the uncompiled path"
+    ), {**_FRESH, **{
+        "frames_received": 4, "frames_solved": 4, "inliers_last": 25, "inliers_mean": "25.0",
+        "track_state": "tracking", "condition_number_last": "50", "latency_ms_last": "5.000",
+        "latency_ms_median": "5.000", "latency_ms_p99": "5.000", "stamp_age_ms_last": "6.000",
+        "stamp_age_ms_median": "6.000", "decode_ms_median": "1.000",
+        "frontend_ms_median": "15.000", "estimate_ms_median": "2.000",
+        "publish_ms_median": "0.500", "frontend": "aruco", "image_frames": 4,
+        "frames_beside_frontend": 0, "frontend_ms_last": "20.000",
+        "frontend_correspondences_last": 22, "frontend_correspondences_mean": "22.5",
+        "frontend_ms_p99": "19.900", "frontend_frames_global": 4, "frontend_few_match_frames": 2,
+        "imu_rate_hz": "200.0", "frames_with_gyro": 2, "gyro_rejected": 1, "gyro_missing": 0,
+        "imu_rejected": 2, "imu_idle_s": "0.0", "gyro_bias": "0.00100 -0.00200 0.00000",
+        "gyro_bias_std": "0.01000 0.01000 0.01000", "gyro_bias_rejected": 0,
+        "gyro_inconsistent": "true", "gyro_disabled_inconsistent": 1, "gyro_pairs_failed": 0,
+        "gyro_inconsistent_detections": 0, "gyro_rejected.too_far": 1,
+        "imu_rejected.stamp_back": 2,
+    }}),
+}
+# fmt: on
+
+
+def _pinned_states():
+    """Three states of one camera: fresh (no frame yet); frames solved, failed, skipped and
+    pending with messages lost, a camera_info rejected and the map-fit check doubting the map;
+    a gyro the image contradicts, beside an ArUco front end."""
+    from dataclasses import replace
+
+    from rs_localizer.ros.frame_queue import frame_accounting
+    from rs_localizer.ros.pipeline import StatsSnapshot
+
+    class Frontend:
+        few_match_frames = 2
+
+        def summary(self):
+            return None
+
+    cfg = build_config(default_values())
+    gyro_cfg = replace(
+        build_config({**default_values(), "imu.enabled": True}), frontend_kind="aruco"
+    )
+    none = {"decode": [], "frontend": [], "estimate": [], "publish": []}
+    fresh = StatsSnapshot({}, [], False, float("nan"), 0, none)
+    yield "fresh", (cfg, FrameCounts(), fresh, {"track_state": "lost"}, "camera_info", 0, [], [])
+    c = {"received": 6, "solved": 3, "failed.too_few_points": 1, "skipped.queue_full": 1,
+         "camera_info_rejected": 1, "camera_info_rejected.distortion": 1, "points_dropped": 4,
+         "frames_failed_with_matches": 1, "map_fit_doubtful": 1, "frames_few_points": 1,
+         "time_resets": 1}  # fmt: skip
+    times = {"decode": [0.001], "frontend": [], "estimate": [0.002, 0.004], "publish": [5e-4]}
+    snap = StatsSnapshot(c, [20, 31], True, 1234.5, 0, times)
+    tracking = {"track_state": "tracking", "readout_suspect": "false"}
+    yield "mixed", (cfg, frame_accounting(c), snap, tracking, "parameters", 2, [0.01, 0.03],
+                    [0.02, 95.6e6])  # fmt: skip
+    g = {"received": 4, "solved": 4, "image_frames": 4, "frontend_runs": 4, "frontend_points": 90,
+         "frames_with_gyro": 2, "gyro_rejected": 1, "gyro_rejected.too_far": 1, "imu_rejected": 2,
+         "imu_rejected.stamp_back": 2, "gyro_disabled_inconsistent": 1}  # fmt: skip
+    times = {"decode": [0.001], "frontend": [0.01, 0.02], "estimate": [0.002], "publish": [5e-4]}
+    snap = StatsSnapshot(g, [25], False, 50.0, 22, times)
+    bias = ((0.001, -0.002, 0.0), (0.01, 0.01, 0.01))
+    yield "gyro", (gyro_cfg, frame_accounting(g), snap, {"track_state": "tracking"}, "camera_info",
+                   0, [0.005], [0.006], 200.0, bias, True, 0.01, Frontend())  # fmt: skip
+
+
+def test_the_single_cameras_status_keeps_its_keys_order_values_and_message(monkeypatch):
+    """One camera's published status on three states (:func:`_pinned_states`), while the
+    kernels compile in the background: its level, message and every key with its value are
+    those of :data:`_PINNED`, its keys in the order of :data:`_ORDER`."""
+    from rs_localizer.ros import diagnostics as D
+
+    monkeypatch.setattr(D, "compiled_ready", lambda: False)
+    monkeypatch.setattr(D, "background_state",
+                        lambda: {"state": "compiling", "failures": 0, "reason": None})  # fmt: skip
+    for name, args in _pinned_states():
+        level, message, values = D.diagnostic_status(*args)
+        assert (level, message) == _PINNED[name][:2], (name, message)
+        assert list(values) == [k for k in _ORDER if k in values], name
+        assert values == _PINNED[name][2], name
