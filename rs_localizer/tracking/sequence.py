@@ -358,7 +358,7 @@ class SequenceLocalizer(GyroReadouts):
             return stamp_ns
         stamp = checked_stamp(stamp_ns)
         check_camera(camera)
-        return FrameTime.of(stamp, camera, self.settings.stamp_row)
+        return self._rig.frame_time(_CAMERA, stamp, camera)
 
     def check_time(self, stamp_ns: int) -> str | None:
         """Note a frame's stamp (ns). A stamp older than the previous frame's, or newer by more
@@ -530,7 +530,7 @@ class SequenceLocalizer(GyroReadouts):
         check_camera(frame.camera)
         ft = frame_time
         if ft is None:
-            ft = FrameTime.of(frame.stamp_ns, frame.camera, self.settings.stamp_row)
+            ft = self._rig.frame_time(_CAMERA, frame.stamp_ns, frame.camera)
         elif ft.stamp_ns != frame.stamp_ns:
             raise ValueError(
                 f"frame time of stamp {ft.stamp_ns} ns given for a frame of {frame.stamp_ns} ns"

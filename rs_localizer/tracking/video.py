@@ -145,7 +145,7 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
+from ..camera import CameraModel, FrameTime, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, Frontend, VideoFrontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
@@ -1160,7 +1160,7 @@ class Localizer(GyroReadouts):
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         ref = reference_ns
         if ref is None:
-            ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
+            ref = self.frame_time(name, stamp_ns, camera).reference_ns
         return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
@@ -1314,7 +1314,7 @@ class Localizer(GyroReadouts):
             frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
-        ref = self.settings.reference_ns(name, stamp, camera)
+        ref = self.frame_time(name, stamp, camera).reference_ns
         r = self._search(fe, name, stamp, image, camera, encoding, ref)
         if r.failure == "frozen_image":
             self.log.warning(
@@ -1340,6 +1340,21 @@ class Localizer(GyroReadouts):
         return self._observed(
             self._add(CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name), ref)
         )
+
+    def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
+        """The times of camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time of row
+        ``stamp_row``): its stamp checked and its time on the rig's clock
+        (:class:`~rs_localizer.camera.FrameTime`: ``stamp_ns``;
+        ``reference_ns``, :meth:`LocalizerSettings.reference_ns`: its reference line's
+        capture time plus the camera's time offset, the stamp without a camera model). Made
+        once per frame: :meth:`process_image`, :meth:`predict_camera`, and a camera's
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.frame_time`.
+
+        Raises:
+            ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
+        """
+        stamp = checked_stamp(stamp_ns)
+        return FrameTime(stamp, self.settings.reference_ns(name, stamp, camera))
 
     def search_image(
         self,
@@ -1381,7 +1396,7 @@ class Localizer(GyroReadouts):
         stamp = checked_stamp(stamp_ns)
         ref = reference_ns
         if ref is None:
-            ref = self.settings.reference_ns(name, stamp, camera)
+            ref = self.frame_time(name, stamp, camera).reference_ns
         return self._search(fe, name, stamp, image, camera, encoding, ref)
 
     def _search(
