@@ -531,11 +531,15 @@ class ImageSearch:
 
     Attributes:
         failure: None (searched), ``frozen_image`` (the camera's last image again: not
-            searched) or ``frontend_error`` (the front end raised).
+            searched), ``frontend_error`` (the front end raised) or, for a camera alone
+            (:meth:`~rs_localizer.tracking.video.Localizer.search_image`),
+            ``frontend_too_few_points`` (searched: fewer correspondences than its solver
+            needs, :func:`too_few_points`).
         difference: gray levels, the mean absolute difference from the last image
             (``frozen_image``). error: the front end's exception (``frontend_error``).
         found: the front end's :class:`~rs_localizer.correspondences.Correspondences`
             (searched). seconds: s spent in the front end's search.
+        need: the correspondences the solver needs (``frontend_too_few_points``), else None.
     """
 
     failure: str | None = None
@@ -543,6 +547,7 @@ class ImageSearch:
     error: Exception | None = None
     found: Correspondences | None = None
     seconds: float = 0.0
+    need: int | None = None
 
 
 def search_image(

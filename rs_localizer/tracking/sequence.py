@@ -24,13 +24,16 @@ frames and a rig's. That rig of one holds the camera's video state (in the spiri
   (the track resets, the front end gets no prediction, the gyro check and the bias estimator
   form no pair);
 - the prediction of each frame (:meth:`predict`): the tracker's, the one its estimator
-  starts from, is what the front end searches with (no front end keeps a pose).
+  starts from, is what the front end searches with (no front end keeps a pose);
+- the optional image front end (:meth:`set_frontend`) and its search by the camera's rules
+  (:meth:`Localizer.search_image <rs_localizer.tracking.video.Localizer.search_image>`: the
+  stamp checked first, the frozen-image check, an image whose front end found fewer
+  correspondences than the solver needs dropped before the estimator).
 
 The adapter itself keeps what is the camera's own: its settings, its frames' times
-(:meth:`frame_time`), its counters and the optional image front end (:meth:`set_frontend`)
-with its feedback: what :meth:`process_image` calls on it is the
-:class:`~rs_localizer.correspondences.VideoFrontend` protocol, and an image whose front end
-found fewer correspondences than the solver needs is dropped before the estimator.
+(:meth:`frame_time`), its counters, its outputs (:class:`SequenceOutput`, with why an image
+was dropped) and the front end's feedback: what :meth:`process_image` calls on the front end
+is the :class:`~rs_localizer.correspondences.VideoFrontend` protocol.
 
 API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspondences ->
 :class:`SequenceOutput`), :meth:`process_image` (an image, through the front end ->
@@ -84,12 +87,9 @@ from .localizer import (
     FROZEN_IMAGE_LEVEL,
     MAX_PENDING,
     CameraFrame,
-    CameraFrontend,
     FrameOutput,
     FusedPose,
     check_camera,
-    search_image,
-    too_few_points,
     usable_rows,
 )
 from .tracker import TrackerOptions
@@ -296,8 +296,9 @@ class SequenceLocalizer(GyroReadouts):
             gyro_input=self.gyro_input,
             camera_video=True,
         )
-        # the front end and the fingerprint of the previous image (tracking/localizer.py)
-        self._camera_frontend = CameraFrontend(self.log, frontend_name)
+        # the front end and the fingerprint of the previous image: the rig of one's camera's
+        # (Localizer.camera_frontend)
+        self._camera_frontend = self._rig.camera_frontend(_CAMERA)
         self.set_frontend(frontend, frontend_name)
 
     def _count_here(self, key: str, n: int = 1) -> None:
@@ -357,7 +358,7 @@ class SequenceLocalizer(GyroReadouts):
             return stamp_ns
         stamp = checked_stamp(stamp_ns)
         check_camera(camera)
-        return FrameTime.of(stamp, camera, self.settings.stamp_row)
+        return self._rig.frame_time(_CAMERA, stamp, camera)
 
     def check_time(self, stamp_ns: int) -> str | None:
         """Note a frame's stamp (ns). A stamp older than the previous frame's, or newer by more
@@ -456,13 +457,10 @@ class SequenceLocalizer(GyroReadouts):
         name = fe.label
         if fe.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        reset = self._rig.check_time(stamp)
-        s = self.settings
         out = SequenceOutput(stamp_ns=t.reference_ns)
-        r = search_image(
-            fe, stamp, image, camera, encoding, lambda: self.predict(t, camera),
-            level=s.frozen_image_level, check=not reset,
-        )  # fmt: skip
+        # (the rig of one's rules: the stamp checked first, the frozen image, too few points)
+        r = self._rig.search_image(_CAMERA, stamp, image, camera, encoding,
+                                   reference_ns=t.reference_ns)  # fmt: skip
         if r.failure == FRONTEND_FAILURES[2]:
             out.failure = r.failure
             out.detail = (
@@ -470,21 +468,20 @@ class SequenceLocalizer(GyroReadouts):
                 "levels over one pixel in 64): a driver re-sending its last frame or a stalled "
                 "camera; the next new image is searched whole"
             )
-            # (the camera moved on unseen: the next new image starts a new track)
-            self._rig.restart_track()
             return out
-        if r.failure is not None:
+        if r.failure == FRONTEND_FAILURES[0]:
             e = r.error
             out.failure, out.detail = r.failure, f"{name}: {type(e).__name__}: {e}"
             return out
         found = out.correspondences = r.found
         out.frontend_seconds = r.seconds
         uv, xyz, scores = found.points2d, found.points, found.valid_scores()
-        need = too_few_points(xyz, s.solver, s.options)
-        if need is not None:
+        if r.failure is not None:
             what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
-            out.failure = FRONTEND_FAILURES[1]
-            out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
+            out.failure = r.failure
+            out.detail = (
+                f"{name} front end found {what}: {len(uv)} correspondences, {r.need} needed"
+            )
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
         res = self._process(CameraFrame(stamp, camera, uv, xyz, scores, tag), t)
@@ -533,7 +530,7 @@ class SequenceLocalizer(GyroReadouts):
         check_camera(frame.camera)
         ft = frame_time
         if ft is None:
-            ft = FrameTime.of(frame.stamp_ns, frame.camera, self.settings.stamp_row)
+            ft = self._rig.frame_time(_CAMERA, frame.stamp_ns, frame.camera)
         elif ft.stamp_ns != frame.stamp_ns:
             raise ValueError(
                 f"frame time of stamp {ft.stamp_ns} ns given for a frame of {frame.stamp_ns} ns"

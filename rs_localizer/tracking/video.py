@@ -145,7 +145,7 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
+from ..camera import CameraModel, FrameTime, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, Frontend, VideoFrontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
@@ -177,6 +177,7 @@ from .localizer import (
     CameraFrontend,
     FrameOutput,
     FusedPose,
+    ImageSearch,
     PendingTwists,
     readout_warning,
     search_image,
@@ -394,6 +395,15 @@ class LocalizerSettings:
         return t if dt == 0.0 else t + int(round(dt * 1e9))
 
     @property
+    def back_tolerance_ns(self) -> int:
+        """ns a camera's stamp may go back from its previous frame's without a time reset (the
+        frame ``out_of_order``, skipped): ``time_reset_ns`` for a rig of several cameras, whose
+        grouping skips a camera's late frame while the others go on; 0 for a rig of one
+        (:attr:`single_camera`), which takes every frame as its camera's video does, so that
+        any step back is a time reset (:mod:`~rs_localizer.tracking.clock`)."""
+        return 0 if self.single_camera else self.time_reset_ns
+
+    @property
     def max_gap(self) -> float:
         """s: the rig's one gap policy, ``tracking.max_gap`` (the
         :class:`~rs_localizer.tracking.tracker.TrackerOptions` default, 0.5 s, without
@@ -546,6 +556,17 @@ class Localizer(GyroReadouts):
             (:attr:`LocalizerOutput.camera_estimate`: the model's velocities per unit RS coordinate,
             not per second). Only for a rig of one (else ValueError).
 
+    One camera and a rig share one clock and time-reset policy, one gyro input, one twist
+    queue and one front-end driver per camera (:meth:`search_image`). A rig of one
+    (:attr:`LocalizerSettings.single_camera`) differs only where a camera alone differs from
+    a rig: nothing to group (each frame solved at once, any step back a time reset:
+    :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the camera's own, so its
+    tracker is its camera's (:class:`~rs_localizer.tracking.tracker.RSTracker`, made per
+    solver, options, tracking and camera model; it resets itself on a time reset, predicts
+    in the camera's terms and is dropped when its track ends) where a rig's is the tracker
+    path over the rig estimator; and no other camera sees what it misses (a frozen image
+    restarts its track, an image with too few correspondences never reaches its solver).
+
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
@@ -624,10 +645,9 @@ class Localizer(GyroReadouts):
             settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
         )
         # the time-reset policy (tracking/clock.py): a camera's step back by more than
-        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest; a
-        # rig of one's is its camera's (any step back)
-        back = 0 if self._single else settings.time_reset_ns
-        self._clock = VideoClock(settings.time_reset_ns, back)
+        # back_tolerance_ns (less: its frame out of order; a rig of one: any step back), a
+        # jump ahead of the rig's newest
+        self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
@@ -658,6 +678,7 @@ class Localizer(GyroReadouts):
         old = self.settings
         shape = ("window", "stop_after", "stamp_row", "time_offsets", "disagree_ratio",
                  "disagree_min_points", "disagree_frames", "disagree_history")  # fmt: skip
+        # (a rig of one has no grouping nor disagreement: nothing open depends on them)
         changed = [] if self._single else [
             k for k in shape if getattr(settings, k) != getattr(old, k)
         ]  # fmt: skip
@@ -668,8 +689,9 @@ class Localizer(GyroReadouts):
         if changed:
             raise ValueError(f"a configured rig keeps its {', '.join(changed)}")
         with self._lock:
-            # (a rig of one: its camera's tracker is made again at its next frame when its
-            # solver, options or tracking changed, as the camera's)
+            # (a rig's track path ends here; a rig of one's camera tracker is made again at its
+            # next frame when its solver, options, tracking or camera model changed, a reset,
+            # as the camera's: _solve_alone)
             if not self._single and settings.tracking != old.tracking:
                 # (the old track's twists: the old bounds)
                 self._carry += self._end_track(keep=True)
@@ -679,8 +701,7 @@ class Localizer(GyroReadouts):
             self.settings = settings
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = settings.time_reset_ns
-            if not self._single:
-                self._clock.back_tolerance_ns = settings.time_reset_ns
+            self._clock.back_tolerance_ns = settings.back_tolerance_ns
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
@@ -962,7 +983,7 @@ class Localizer(GyroReadouts):
         if frame.camera is None:
             self._frames.no_camera_info(name, stamp)
             return self._ready()
-        if self._single:
+        if self._single:  # (no other camera to wait for: no grouping, every frame solved)
             self._step_alone(stamp)
             self._frames.solved_at_once(name, ref)
             return [self._solve_alone(name, frame, ref)]
@@ -1035,6 +1056,8 @@ class Localizer(GyroReadouts):
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
                 solved = self.close()
         self._frames.restart()
+        # (a rig's track path ends with its timeline; a rig of one's camera tracker resets
+        # itself on the same stamps, counted there, so a time reset leaves it)
         if not self._single:
             self._carry += self._end_track(keep=True)
         elif reset is None:
@@ -1096,12 +1119,7 @@ class Localizer(GyroReadouts):
         Raises:
             ValueError: a camera not in the rig. TypeError: an object without ``process``.
         """
-        if name not in self._cams:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        img = self._image_input()
-        fe = img.frontends.get(name)
-        if fe is None:  # (kept when its front end is replaced: its last image's fingerprint)
-            fe = img.frontends[name] = CameraFrontend(self.log)
+        fe = self.camera_frontend(name)
         fe.set(frontend, None if frontend is None else label or type(frontend).__name__)
 
     def last_correspondences(self, name: str) -> Correspondences | None:
@@ -1142,7 +1160,7 @@ class Localizer(GyroReadouts):
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         ref = reference_ns
         if ref is None:
-            ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
+            ref = self.frame_time(name, stamp_ns, camera).reference_ns
         return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
@@ -1162,7 +1180,7 @@ class Localizer(GyroReadouts):
         if self._track_over:
             return True, None
         t = self._track
-        if self._single:
+        if self._single:  # (its camera tracker: made per camera model and settings)
             if t is None or not t.filter.initialized or self._track_key != self._key(camera):
                 return False, None
             return True, t.predict(ref, self._implementation_now())
@@ -1296,25 +1314,16 @@ class Localizer(GyroReadouts):
             frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
-        ref = self.settings.reference_ns(name, stamp, camera)
-        view = self._cams[name]
-        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
-        # is not compared with the last one)
-        reset = self._single and self.check_time(stamp) is not None
-        r = search_image(
-            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
-            level=self.settings.frozen_image_level, check=not reset,
-        )  # fmt: skip
+        ref = self.frame_time(name, stamp, camera).reference_ns
+        r = self._search(fe, name, stamp, image, camera, encoding, ref)
         if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{r.difference:.2f} gray levels): skipped",
             )
-            if self._single:  # (its camera moved on unseen, :meth:`restart_track`)
-                self.restart_track()
             return self._observed(self._drop(name, stamp, ref, r.failure))
-        if r.failure is not None:
+        if r.failure == "frontend_error":
             e = r.error
             self.log.warning(
                 f"rig.frontend.{name}",
@@ -1322,17 +1331,122 @@ class Localizer(GyroReadouts):
             )
             return self._observed(self._drop(name, stamp, ref, r.failure))
         found = img.found[name] = r.found
+        if r.failure is not None:  # (frontend_too_few_points: a rig of one's)
+            return self._observed(self._drop(name, stamp, ref, r.failure))
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
-        if self._single:  # (its camera's rule: too few correspondences never reach the solver)
-            s = self.settings
-            if too_few_points(xyz, s.solver, s.options) is not None:
-                return self._observed(self._drop(name, stamp, ref, "frontend_too_few_points"))
         uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)
         return self._observed(
             self._add(CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name), ref)
         )
+
+    def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
+        """The times of camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time of row
+        ``stamp_row``): its stamp checked and its time on the rig's clock
+        (:class:`~rs_localizer.camera.FrameTime`: ``stamp_ns``;
+        ``reference_ns``, :meth:`LocalizerSettings.reference_ns`: its reference line's
+        capture time plus the camera's time offset, the stamp without a camera model). Made
+        once per frame: :meth:`process_image`, :meth:`predict_camera`, and a camera's
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.frame_time`.
+
+        Raises:
+            ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
+        """
+        stamp = checked_stamp(stamp_ns)
+        return FrameTime(stamp, self.settings.reference_ns(name, stamp, camera))
+
+    def search_image(
+        self,
+        name: str,
+        stamp_ns: int,
+        image: np.ndarray,
+        camera: CameraModel,
+        encoding: str = "bgr8",
+        *,
+        reference_ns: int | None = None,
+    ) -> ImageSearch:
+        """Camera ``name``'s image stamped ``stamp_ns`` (ns, capture time of row
+        ``stamp_row``) through its front end (:meth:`set_frontend`), before the estimator, by
+        the rules of its video (:func:`~rs_localizer.tracking.localizer.search_image`: the
+        frozen-image check, then the front end's search with :meth:`predict_camera`); what
+        :meth:`process_image` and a camera's
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image` run.
+        ``reference_ns``: the frame's time on the rig's clock when the caller made it (None:
+        made here).
+
+        A rig of one camera adds its camera's rules, which a rig of several does not have:
+        the stamp is checked first (:meth:`check_time`; after a time reset the image is not
+        compared with the last one), a frozen image makes its next frame start a new track
+        (:meth:`restart_track`: the camera moved by an unknown amount unseen, while a rig's
+        other cameras keep its track), and an image with fewer correspondences than its
+        solver needs fails ``frontend_too_few_points``
+        (:func:`~rs_localizer.tracking.localizer.too_few_points`; a rig frame is posed from
+        its other cameras' points as well).
+
+        Returns:
+            :class:`~rs_localizer.tracking.localizer.ImageSearch`.
+        Raises:
+            ValueError: a camera not in the rig or without a front end, a stamp beyond the
+                int64 ns range.
+        """
+        fe = self._image_input().frontends.get(name)
+        if name not in self._cams or fe is None or fe.frontend is None:
+            raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
+        stamp = checked_stamp(stamp_ns)
+        ref = reference_ns
+        if ref is None:
+            ref = self.frame_time(name, stamp, camera).reference_ns
+        return self._search(fe, name, stamp, image, camera, encoding, ref)
+
+    def _search(
+        self,
+        fe: CameraFrontend,
+        name: str,
+        stamp: int,
+        image: np.ndarray,
+        camera: CameraModel,
+        encoding: str,
+        ref: int,
+    ) -> ImageSearch:
+        """:meth:`search_image` with camera ``name``'s front end ``fe`` and the frame's
+        reference time ``ref`` (ns)."""
+        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
+        # is not compared with the last one)
+        reset = self._single and self.check_time(stamp) is not None
+        view = self._cams[name]
+        r = search_image(
+            fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
+            level=self.settings.frozen_image_level, check=not reset,
+        )  # fmt: skip
+        if not self._single:
+            return r
+        if r.failure == "frozen_image":  # (its camera moved on unseen)
+            self.restart_track()
+        elif r.failure is None:  # (too few correspondences never reach its solver)
+            s = self.settings
+            xyz = np.asarray(r.found.points, float).reshape(-1, 3)
+            r.need = too_few_points(xyz, s.solver, s.options)
+            if r.need is not None:
+                r.failure = "frontend_too_few_points"
+        return r
+
+    def camera_frontend(self, name: str) -> CameraFrontend:
+        """Camera ``name``'s front end driver
+        (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: its front end, label and
+        last image's fingerprint; made without a front end, labelled ``frontend``, at the
+        first call).
+
+        Raises:
+            ValueError: a camera not in the rig.
+        """
+        if name not in self._cams:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        img = self._image_input()
+        fe = img.frontends.get(name)
+        if fe is None:  # (kept when its front end is replaced: its last image's fingerprint)
+            fe = img.frontends[name] = CameraFrontend(self.log)
+        return fe
 
     def _usable_rows(
         self, name: str, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
@@ -1387,7 +1501,7 @@ class Localizer(GyroReadouts):
         tracker is dropped, its counters kept); returns the filter's fused states not yet final
         when ``keep``."""
         t = self._track
-        if self._single:
+        if self._single:  # (its camera tracker is made again at its next frame)
             final = []
             if t is not None:
                 self._track_counts.update(t.track_counts())
