@@ -34,6 +34,7 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from ..geometry import rotation_angle_deg, skew
@@ -44,12 +45,15 @@ from .frame import Frame
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
 from .refine import (
-    KernelMountings,
-    RefineSettings,
+    LM_REFINE_KERNEL,
+    OUT_C,
+    OUT_GRAD,
+    OUT_INFO,
+    OUT_SIZE,
+    OUT_W,
     exact_errors,
     exact_jacobian,
     exact_residuals,
-    refine_rs_pose,
 )
 from .result import (
     AMBIGUOUS_TAG,
@@ -183,20 +187,24 @@ def _fixed_velocities(
     return w, b, pred, explained
 
 
-def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The (at most two) IPPE poses ``(R, C)`` (world -> camera) of the frame's coplanar
-    points from their normalized image points. The points are projected onto their
-    least-squares plane first: OpenCV's IPPE returns no pose for points a millimetre off one
-    plane (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
-    (:func:`_fit`) then starts from these poses on the points as given."""
-    X = np.ascontiguousarray(fr.X, dtype=np.float64)
-    return _opencv_poses(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+def _starts(fr: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """The starting poses of the frame's points as OpenCV gives them: ``(rotation vectors
+    (k, 3), translations (k, 3))`` (world -> camera, k <= 2, none when it fails), IPPE's two
+    poses of coplanar points (:attr:`~.frame.Frame.planar`) or SQPnP's one of points on more
+    than one plane (:func:`_opencv_starts`). IPPE poses the points projected onto their
+    least-squares plane: OpenCV's IPPE returns no pose for points a millimetre off one plane
+    (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
+    (:func:`_fit_starts`, :func:`_fit`) then starts from these poses on the points as given."""
+    if fr.planar:
+        X = np.ascontiguousarray(fr.X, dtype=np.float64)
+        return _opencv_starts(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+    return _opencv_starts(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
 
 
 @lru_cache(maxsize=256)
 def _on_plane(points: bytes) -> np.ndarray:
     """(N, 3) the world points (float64 bytes, N x 3 row-major; m) projected onto their
-    least-squares plane (read-only), for :func:`_ippe`: kept for the next frames of the same
+    least-squares plane (read-only), for :func:`_starts`: kept for the next frames of the same
     marker, whose corners are the same points in the same order."""
     X = np.frombuffer(points, dtype=np.float64).reshape(-1, 3)
     centre = X.mean(axis=0)
@@ -206,21 +214,18 @@ def _on_plane(points: bytes) -> np.ndarray:
     return P
 
 
-def _sqpnp(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The pose ``(R, C)`` (world -> camera) of the frame's points on more than one plane from
-    their normalized image points: OpenCV's SQPnP (its global minimum; none when it fails)."""
-    return _opencv_poses(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
-
-
 #: the camera matrix of normalized image points (read only)
 _IDENTITY = np.eye(3)
 _IDENTITY.flags.writeable = False
+#: no starting pose: ``(rotation vectors (0, 3), translations (0, 3))``
+_NO_STARTS = (np.zeros((0, 3)), np.zeros((0, 3)))
 
 
-def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The finite poses ``(R, C)`` (world -> camera) ``cv2.solvePnPGeneric`` gives with
-    ``flag`` for the (N, 3) world points ``X`` (m) and their (N, 2) normalized image points
-    ``x`` (none when it raises)."""
+def _opencv_starts(X: np.ndarray, x: np.ndarray, flag: int) -> tuple[np.ndarray, np.ndarray]:
+    """The poses ``cv2.solvePnPGeneric`` gives with ``flag`` for the (N, 3) world points ``X``
+    (m) and their (N, 2) normalized image points ``x``: ``(rotation vectors (k, 3),
+    translations (k, 3))`` (world -> camera; none when it raises). Not checked for finite
+    values (:func:`_fit_starts` and :func:`_rotation_of` skip those that are not)."""
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             np.ascontiguousarray(X, dtype=np.float64),
@@ -230,14 +235,42 @@ def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndar
             flags=flag,
         )
     except cv2.error:
-        return []
-    out = []
-    for rv, tv in zip(rvecs[:n], tvecs[:n], strict=True):
-        R, _ = cv2.Rodrigues(np.asarray(rv, dtype=float))
-        C = np.asarray(tv, dtype=float).ravel()
-        if np.isfinite(R).all() and np.isfinite(C).all():
-            out.append((R, C))
-    return out
+        return _NO_STARTS
+    if n <= 0:
+        return _NO_STARTS
+    rv = np.array(rvecs[:n], dtype=np.float64).reshape(n, 3)
+    return rv, np.array(tvecs[:n], dtype=np.float64).reshape(n, 3)
+
+
+@njit(cache=True)
+def _rodrigues(r, R):
+    """Write into ``R`` (3, 3) the rotation of the rotation vector ``r`` (3,) (rad) as OpenCV's
+    ``cv2.Rodrigues`` computes it, the same operations in the same order (its values to the
+    bit): ``cos(theta) I + (1 - cos(theta)) u u^T + sin(theta) [u]x``, ``u = r / theta``; the
+    identity below ``theta`` = machine epsilon."""
+    rx, ry, rz = r[0], r[1], r[2]
+    theta = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if theta < 2.220446049250313e-16:  # (DBL_EPSILON)
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = 1.0 if i == j else 0.0
+        return
+    c, s = math.cos(theta), math.sin(theta)
+    c1, itheta = 1.0 - c, 1.0 / theta
+    rx, ry, rz = rx * itheta, ry * itheta, rz * itheta
+    rrt = (rx * rx, rx * ry, rx * rz, rx * ry, ry * ry, ry * rz, rx * rz, ry * rz, rz * rz)
+    r_x = (0.0, -rz, ry, rz, 0.0, -rx, -ry, rx, 0.0)
+    for k in range(9):
+        eye = 1.0 if k % 4 == 0 else 0.0
+        R[k // 3, k % 3] = c * eye + c1 * rrt[k] + s * r_x[k]
+
+
+def _rotation_of(rv: np.ndarray) -> np.ndarray | None:
+    """(3, 3) the rotation of the rotation vector ``rv`` (3,) (:func:`_rodrigues`), None
+    when it is not finite."""
+    R = np.empty((3, 3))
+    _rodrigues(np.ascontiguousarray(rv, dtype=np.float64), R)
+    return R if np.isfinite(R).all() else None
 
 
 #: the fit's loss: least squares (the compiled refinement's Huber loss at this scale, in
@@ -248,11 +281,110 @@ _LEAST_SQUARES = 1e6
 _FIT_TOL = 1e-12
 #: at most this many iterations of the compiled fit (SciPy's default for 6 parameters: 700)
 _FIT_ITERATIONS = 200
-#: the compiled fit's settings (:func:`~.finalize.frame_refinement`'s with these: the pose
-#: alone, no cutoff, with the information matrix)
-_FIT_SETTINGS = RefineSettings(
-    rolling_shutter=False, max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL, cutoff=np.inf
-)
+
+
+@njit(cache=True)
+def _best_first(R, rms):
+    """The order of m fits by their RMS errors ``rms`` (m,) (a stable sort: ties in their
+    order), without the second when its rotation (``R`` (m, 3, 3)) is within
+    :data:`SAME_POSE_DEG` of the first's (both IPPE poses refined to the same one: no
+    ambiguity): (<= m,) int64 indices, best first."""
+    m = rms.shape[0]
+    order = np.arange(m)
+    for a in range(1, m):
+        b = a
+        while b > 0 and rms[order[b]] < rms[order[b - 1]]:
+            order[b - 1], order[b] = order[b], order[b - 1]
+            b -= 1
+    if m > 1:  # (the angle of R_a^T R_b, geometry.rotation_angle_deg)
+        A, B = R[order[0]], R[order[1]]
+        c = 0.0
+        for i in range(3):
+            c += A[0, i] * B[0, i] + A[1, i] * B[1, i] + A[2, i] * B[2, i]
+        if math.degrees(math.acos(min(max((c - 1.0) / 2.0, -1.0), 1.0))) < SAME_POSE_DEG:
+            return order[:1]
+    return order
+
+
+@njit(cache=True)
+def _fit_starts(rv, tv, X, x, tau, W, views, out, sse):
+    """The global-shutter fit of the frame's points (the velocities zero) from each of k
+    starting poses, in one compiled call: start ``j`` (rotation vector ``rv[j]`` (3,) rad,
+    :func:`_rodrigues`, translation ``tv[j]`` (3,) m, as OpenCV gives them) refined on the
+    (N, 3) world points ``X``, (N, 2) normalized points ``x`` and (N,) times ``tau`` with
+    the frame's kernel mountings ``views`` (None: the plain errors) by the compiled
+    refinement (:func:`~.refine.refine_rs_pose`'s kernel: the pose alone, least squares
+    (:data:`_LEAST_SQUARES`), every point, at most :data:`_FIT_ITERATIONS` iterations to
+    :data:`_FIT_TOL`, the information matrix), its result written into ``out[j]`` (the
+    refinement's layout, :data:`~.refine.OUT_R`) and its sum of squared errors (whitened by
+    ``W`` (N, 4), :attr:`~.frame.Frame.W`; normalized units) into ``sse[j]``. Starts that
+    are not finite are skipped. Returns the indices of the finite fits in
+    :func:`_best_first`'s order."""
+    k, n = rv.shape[0], X.shape[0]
+    z = np.zeros(3)
+    mu, lam = np.zeros(6), np.zeros((6, 6))
+    R0 = np.empty((3, 3))
+    index = np.empty(k, dtype=np.int64)
+    R = np.empty((k, 3, 3))
+    rms = np.empty(k)
+    m = 0
+    for j in range(k):
+        _rodrigues(rv[j], R0)
+        C0 = tv[j].copy()
+        if not (np.isfinite(R0).all() and np.isfinite(C0).all()):
+            continue
+        LM_REFINE_KERNEL(
+            R0, C0, z, z, X, x, tau, _LEAST_SQUARES, 6, np.inf, _FIT_ITERATIONS, _FIT_TOL,
+            True, out[j], False, mu, lam, 1.0, -1.0, False, views,
+        )  # fmt: skip
+        for a in range(3):
+            for b in range(3):
+                R[m, a, b] = out[j, 3 * a + b]
+        e = exact_errors(R[m], out[j, OUT_C:OUT_W], z, z, X, x, tau, W)
+        sse[j] = np.dot(e, e)
+        if np.isfinite(R[m]).all() and math.isfinite(sse[j]):
+            index[m], rms[m] = j, math.sqrt(sse[j] / n)
+            m += 1
+    return index[_best_first(R[:m], rms[:m])]
+
+
+def _fits(fr: Frame, w: np.ndarray, b: np.ndarray) -> list[tuple]:
+    """The fits of the frame's points from each starting pose (:func:`_starts`) with the
+    velocities held (:func:`_fixed_velocities`' ``w``, ``b``): ``(RMS error, R, C, t, sum of
+    squared errors, (6, 6) J^T J)`` (normalized units, whitened into measured pixels over the
+    focal length) of each finite one, in :func:`_best_first`'s order. With the velocities at
+    zero (the global-shutter model) every start is fitted in one compiled call
+    (:func:`_fit_starts`), else each by :func:`_fit`."""
+    rv, tv = _starts(fr)
+    n = len(fr.x)
+    X, x = fr.X, fr.x
+    tau = fr.r - fr.r0
+    if not (w.any() or b.any()):
+        out, sse = np.empty((len(rv), OUT_SIZE)), np.empty(len(rv))
+        km = fr.kernel_mountings()
+        kept = _fit_starts(
+            rv, tv, np.ascontiguousarray(X, dtype=np.float64),
+            np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(tau, dtype=np.float64),
+            np.ascontiguousarray(fr.W, dtype=np.float64), None if km is None else km.views,
+            out, sse,
+        )  # fmt: skip
+        z = np.zeros(3)
+        return [
+            (math.sqrt(sse[j] / n), out[j, :OUT_C].reshape(3, 3), out[j, OUT_C:OUT_W], z,
+             float(sse[j]), out[j, OUT_INFO:OUT_GRAD].reshape(12, 12)[:6, :6])
+            for j in kept.tolist()
+        ]  # fmt: skip
+    fits = []
+    for r0, C0 in zip(rv, tv, strict=True):
+        R0 = _rotation_of(r0)
+        if R0 is None or not np.isfinite(C0).all():
+            continue
+        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau)
+        if np.isfinite(R).all() and math.isfinite(sse):
+            fits.append((math.sqrt(sse / n), R, C, t, sse, H))
+    rms = np.array([f[0] for f in fits])
+    order = _best_first(np.array([f[1] for f in fits]).reshape(-1, 3, 3), rms)
+    return [fits[j] for j in order.tolist()]
 
 
 def _fit(
@@ -261,30 +393,14 @@ def _fit(
     C0: np.ndarray,
     w: np.ndarray,
     b: np.ndarray,
-    tau: np.ndarray | None = None,
-    mountings: KernelMountings | None = None,
+    tau: np.ndarray,
 ):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
-    velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
-    ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``, normalized units
-    (whitened into measured pixels over the focal length). With the velocities at zero (the
-    global-shutter model) the compiled refinement of the pose alone
-    (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it, its
-    information matrix and the frame's errors giving the rest; otherwise SciPy's
+    velocity fixed and not both zero (``t = w x C + b``, :func:`_fixed_velocities`), from
+    ``(R0, C0)``: ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``,
+    normalized units (whitened into measured pixels over the focal length): SciPy's
     Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian.
-    ``tau``: the frame's ``r - r0`` and ``mountings``: its :meth:`~.frame.Frame.mountings`
-    checked once (:func:`~.refine.kernel_mountings`), when the caller fits several starts
-    (None: from the frame)."""
-    tau = fr.r - fr.r0 if tau is None else tau
-    if not (w.any() or b.any()):
-        z = np.zeros(3)
-        # (the compiled refinement as :func:`~.finalize.frame_refinement` runs it, with the
-        # frame's mountings checked once for every start)
-        ref = refine_rs_pose((R0, C0, z, z), fr.X, fr.x, tau, _LEAST_SQUARES, _FIT_SETTINGS,
-                             mountings=mountings)  # fmt: skip
-        R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-        e = exact_errors(R, C, z, z, fr.X, fr.x, tau, fr.W)
-        return R, C, z, float(e @ e), np.array(ref.data_information[:6, :6])
+    ``tau``: the frame's ``r - r0``. (Zero velocities: :func:`_fit_starts`.)"""
     X, x = fr.X, fr.x
     W = skew(w)
     m = fr.mountings()  # (each corner's error whitened into measured pixels; None: plain)
@@ -392,18 +508,9 @@ def few_points_estimate(
     if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
         raise EstimationFailed(TOO_FEW_POINTS)
     w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
-    fits = []
-    tau = fr.r - fr.r0
-    km = fr.kernel_mountings()
-    for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
-        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau, km)
-        if np.isfinite(R).all() and math.isfinite(sse):
-            fits.append((math.sqrt(sse / len(fr.x)), R, C, t, sse, H))
+    fits = _fits(fr, w, b)
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
-    fits.sort(key=lambda f: f[0])
-    if len(fits) > 1 and rotation_angle_deg(fits[0][1], fits[1][1]) < SAME_POSE_DEG:
-        fits = fits[:1]  # (both IPPE poses refine to the same one: no ambiguity)
     th, n = float(fr.threshold), len(fr.x)
     sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
     choice = fits[0]
