@@ -187,7 +187,7 @@ def _square_fit_sse(uv: np.ndarray, X: np.ndarray, camera: CameraModel) -> float
         return float("nan")
     fr.planar = True
     z = np.zeros(3)
-    fits = _fits(fr, z, z)  # (the better first)
+    fits = _fits(fr, z, z, False)  # (the better first)
     return fits[0][4] * fr.f**2 if fits else float("nan")
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -47,10 +48,8 @@ from .prior import MotionPrior
 from .refine import (
     LM_REFINE_KERNEL,
     OUT_C,
-    OUT_GRAD,
     OUT_INFO,
     OUT_SIZE,
-    OUT_W,
     exact_errors,
     exact_jacobian,
     exact_residuals,
@@ -72,9 +71,11 @@ __all__ = [
     "PREDICTED_MOTION",
     "PREDICTION_RATIO",
     "SAME_POSE_DEG",
+    "FewPointsModel",
     "coplanar_points",
     "few_points",
     "few_points_estimate",
+    "few_points_model",
     "few_points_planarity",
     "planar_points",
 ]
@@ -307,25 +308,15 @@ def _best_first(R, rms):
 
 
 @njit(cache=True)
-def _fit_starts(rv, tv, X, x, tau, W, views, out, sse):
-    """The global-shutter fit of the frame's points (the velocities zero) from each of k
-    starting poses, in one compiled call: start ``j`` (rotation vector ``rv[j]`` (3,) rad,
-    :func:`_rodrigues`, translation ``tv[j]`` (3,) m, as OpenCV gives them) refined on the
-    (N, 3) world points ``X``, (N, 2) normalized points ``x`` and (N,) times ``tau`` with
-    the frame's kernel mountings ``views`` (None: the plain errors) by the compiled
-    refinement (:func:`~.refine.refine_rs_pose`'s kernel: the pose alone, least squares
-    (:data:`_LEAST_SQUARES`), every point, at most :data:`_FIT_ITERATIONS` iterations to
-    :data:`_FIT_TOL`, the information matrix), its result written into ``out[j]`` (the
-    refinement's layout, :data:`~.refine.OUT_R`) and its sum of squared errors (whitened by
-    ``W`` (N, 4), :attr:`~.frame.Frame.W`; normalized units) into ``sse[j]``. Starts that
-    are not finite are skipped. Returns the indices of the finite fits in
-    :func:`_best_first`'s order."""
+def _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse):
+    """:func:`_fit_starts` with the frame's kernel mountings ``views`` (None: the plain
+    errors)."""
     k, n = rv.shape[0], X.shape[0]
     z = np.zeros(3)
     mu, lam = np.zeros(6), np.zeros((6, 6))
+    out = np.empty(OUT_SIZE)
     R0 = np.empty((3, 3))
     index = np.empty(k, dtype=np.int64)
-    R = np.empty((k, 3, 3))
     rms = np.empty(k)
     m = 0
     for j in range(k):
@@ -335,45 +326,61 @@ def _fit_starts(rv, tv, X, x, tau, W, views, out, sse):
             continue
         LM_REFINE_KERNEL(
             R0, C0, z, z, X, x, tau, _LEAST_SQUARES, 6, np.inf, _FIT_ITERATIONS, _FIT_TOL,
-            True, out[j], False, mu, lam, 1.0, -1.0, False, views,
+            True, out, False, mu, lam, 1.0, -1.0, False, views,
         )  # fmt: skip
         for a in range(3):
+            C[j, a] = out[OUT_C + a]
             for b in range(3):
-                R[m, a, b] = out[j, 3 * a + b]
-        e = exact_errors(R[m], out[j, OUT_C:OUT_W], z, z, X, x, tau, W)
+                R[j, a, b] = out[3 * a + b]
+        for a in range(6):
+            for b in range(6):
+                H[j, a, b] = out[OUT_INFO + 12 * a + b]
+        e = exact_errors(R[j], C[j], z, z, X, x, tau, W)
         sse[j] = np.dot(e, e)
-        if np.isfinite(R[m]).all() and math.isfinite(sse[j]):
+        if np.isfinite(R[j]).all() and math.isfinite(sse[j]):
             index[m], rms[m] = j, math.sqrt(sse[j] / n)
             m += 1
-    return index[_best_first(R[:m], rms[:m])]
+    return index[:m][_best_first(R[index[:m]], rms[:m])]
 
 
-def _fits(fr: Frame, w: np.ndarray, b: np.ndarray) -> list[tuple]:
+@njit(cache=True)
+def _fit_starts(rv, tv, X, x, tau, W, R, C, H, sse):
+    """The global-shutter fit of the frame's points (the velocities zero) from each of k
+    starting poses, in one compiled call: start ``j`` (rotation vector ``rv[j]`` (3,) rad,
+    :func:`_rodrigues`, translation ``tv[j]`` (3,) m, as OpenCV gives them) refined on the
+    (N, 3) world points ``X``, (N, 2) normalized points ``x`` and (N,) times ``tau``, each
+    point's error whitened by ``W`` (N, 4) (:attr:`~.frame.Frame.W`, the refinement's
+    mountings as :meth:`~.frame.Frame.kernel_mountings` gives them; (0, 4): the plain
+    errors), by the compiled refinement (:func:`~.refine.refine_rs_pose`'s kernel: the pose
+    alone, least squares (:data:`_LEAST_SQUARES`), every point, at most
+    :data:`_FIT_ITERATIONS` iterations to :data:`_FIT_TOL`). Writes its rotation into
+    ``R[j]`` (3, 3), its translation into ``C[j]`` (3,), ``J^T J`` of the pose at the fit
+    into ``H[j]`` (6, 6) and its sum of squared errors (normalized units) into ``sse[j]``.
+    Starts that are not finite are skipped. Returns the indices of the finite fits in
+    :func:`_best_first`'s order."""
+    if W.shape[0] == 0:
+        return _fit_all(rv, tv, X, x, tau, W, None, R, C, H, sse)
+    n = X.shape[0]
+    views = (np.zeros(n, dtype=np.int64), np.eye(3).reshape((1, 3, 3)), np.zeros((1, 3)), W)
+    return _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse)
+
+
+def _fits(fr: Frame, w: np.ndarray, b: np.ndarray, moving: bool) -> list[tuple]:
     """The fits of the frame's points from each starting pose (:func:`_starts`) with the
-    velocities held (:func:`_fixed_velocities`' ``w``, ``b``): ``(RMS error, R, C, t, sum of
-    squared errors, (6, 6) J^T J)`` (normalized units, whitened into measured pixels over the
-    focal length) of each finite one, in :func:`_best_first`'s order. With the velocities at
-    zero (the global-shutter model) every start is fitted in one compiled call
-    (:func:`_fit_starts`), else each by :func:`_fit`."""
+    velocities held (:func:`_fixed_velocities`' ``w``, ``b``; ``moving``: not both zero):
+    ``(RMS error, R, C, t, sum of squared errors, (6, 6) J^T J)`` (normalized units, whitened
+    into measured pixels over the focal length) of each finite one, in :func:`_best_first`'s
+    order. With the velocities at zero (the global-shutter model) every start is fitted in
+    one compiled call (:func:`_fit_starts`), else each by :func:`_fit`."""
     rv, tv = _starts(fr)
     n = len(fr.x)
-    X, x = fr.X, fr.x
     tau = fr.r - fr.r0
-    if not (w.any() or b.any()):
-        out, sse = np.empty((len(rv), OUT_SIZE)), np.empty(len(rv))
-        km = fr.kernel_mountings()
-        kept = _fit_starts(
-            rv, tv, np.ascontiguousarray(X, dtype=np.float64),
-            np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(tau, dtype=np.float64),
-            np.ascontiguousarray(fr.W, dtype=np.float64), None if km is None else km.views,
-            out, sse,
-        )  # fmt: skip
+    if not moving:
+        k = len(rv)
+        R, C, H, sse = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6, 6)), np.empty(k)
+        kept = _fit_starts(rv, tv, fr.X, fr.x, tau, fr.W, R, C, H, sse)
         z = np.zeros(3)
-        return [
-            (math.sqrt(sse[j] / n), out[j, :OUT_C].reshape(3, 3), out[j, OUT_C:OUT_W], z,
-             float(sse[j]), out[j, OUT_INFO:OUT_GRAD].reshape(12, 12)[:6, :6])
-            for j in kept.tolist()
-        ]  # fmt: skip
+        return [(math.sqrt(sse[j] / n), R[j], C[j], z, float(sse[j]), H[j]) for j in kept.tolist()]
     fits = []
     for r0, C0 in zip(rv, tv, strict=True):
         R0 = _rotation_of(r0)
@@ -446,6 +453,73 @@ def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> 
     return A @ cov @ A.T
 
 
+class FewPointsModel(NamedTuple):
+    """The pose of a frame of a few points before the last checks (:func:`few_points_model`).
+
+    Attributes:
+        final: the :class:`~.finalize.FinalModel`: the model, every point an inlier, the RMS
+            error (px), the (12, 12) covariance.
+        information: (6, 6) ``J^T J`` of the pose at the fit (normalized units).
+        moving: the velocities are held at a prediction's or a gyro's (not zero).
+        initial: (points the prediction explained, -1 without one; whether it gave the
+            velocities), :func:`~.finalize.final_estimate`'s ``initial``.
+    """
+
+    final: FinalModel
+    information: np.ndarray
+    moving: bool
+    initial: tuple[int, bool]
+
+
+def few_points_model(
+    fr: Frame, opts: EstimateOptions, initial_model: InitialModel | None
+) -> FewPointsModel:
+    """:func:`few_points_estimate`'s model of the frame, before the last checks (its
+    arguments as there; ``opts.motion_prior``: the held velocities' covariance).
+
+    Raises:
+        EstimationFailed: ``too_few_points``, ``degenerate_geometry``, ``ambiguous_tag``,
+            ``too_few_inliers`` (:func:`few_points_estimate`).
+    """
+    planar = fr.planar
+    if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
+        raise EstimationFailed(TOO_FEW_POINTS)
+    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
+    moving = bool(w.any() or b.any())
+    fits = _fits(fr, w, b, moving)
+    if not fits:
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    th, n = float(fr.threshold), len(fr.x)
+    sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    choice = fits[0]
+    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
+        if initial_model is None:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
+        near = int(np.argmin(d))
+        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        choice = fits[near]
+    rms, R, C, t, sse, H = choice
+    if rms > th:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    cov = np.zeros((12, 12))
+    try:
+        cov[:6, :6] = sigma2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        raise EstimationFailed(DEGENERATE_GEOMETRY) from None
+    if moving:
+        cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
+    final = FinalModel(
+        RSModel(R, C, w.copy(), t.copy()),
+        np.ones(n, dtype=bool),
+        float(rms * fr.f),
+        covariance=cov,
+    )
+    return FewPointsModel(final, H, moving, (explained, pred is not None))
+
+
 def few_points_estimate(
     fr: Frame,
     solver: str,
@@ -504,57 +578,22 @@ def few_points_estimate(
             image nor a prediction tells IPPE's two poses apart), ``too_few_inliers`` (the RMS
             error is above the threshold), and those of :func:`~.finalize.final_estimate`.
     """
-    planar = fr.planar
-    if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
-        raise EstimationFailed(TOO_FEW_POINTS)
-    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
-    fits = _fits(fr, w, b)
-    if not fits:
-        raise EstimationFailed(DEGENERATE_GEOMETRY)
-    th, n = float(fr.threshold), len(fr.x)
-    sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
-    choice = fits[0]
-    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
-        if initial_model is None:
-            raise EstimationFailed(AMBIGUOUS_TAG)
-        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
-        near = int(np.argmin(d))
-        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
-            raise EstimationFailed(AMBIGUOUS_TAG)
-        choice = fits[near]
-    rms, R, C, t, sse, H = choice
-    if rms > th:
-        raise EstimationFailed(TOO_FEW_INLIERS)
-    moving = bool(w.any() or b.any())
-    sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    fit = few_points_model(fr, opts, initial_model)
     flat = float(planarity(fr.X)) if flat is None else flat
-    cov = np.zeros((12, 12))
-    try:
-        cov[:6, :6] = sigma2 * np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        raise EstimationFailed(DEGENERATE_GEOMETRY) from None
-    if moving:
-        cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
-    final = FinalModel(
-        RSModel(R, C, w.copy(), t.copy()),
-        np.ones(n, dtype=bool),
-        float(rms * fr.f),
-        covariance=cov,
-    )
     return final_estimate(
         fr,
-        solver if moving else "p3p",
-        final,
+        solver if fit.moving else "p3p",
+        fit.final,
         0,
-        (explained, pred is not None),
+        fit.initial,
         timings,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
         flat=flat,
-        condition=condition_number(H),
+        condition=condition_number(fit.information),
         solver=solver if name is None else name,
-        motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
-        single_tag=planar,
+        motion_model=PREDICTED_MOTION if fit.moving else GLOBAL_SHUTTER,
+        single_tag=fr.planar,
         few_points=True,
         twist_covariance=None,
     )
