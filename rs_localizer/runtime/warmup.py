@@ -149,7 +149,8 @@ def warm_up(
     before the first real frame: :func:`~rs_localizer.estimation.estimate_rs_pose` on a
     60-point 3D scene with and without scores (the two input paths of the node), on a small
     distant object (the motion prior's MAP step) and on a planar scene (MAP refinement and
-    damped hypotheses) for solvers that take one; with ``tracking`` (the video tracker's
+    damped hypotheses) for solvers that take one, and on one tag's four corners (the
+    few-points path, with and without distortion); with ``tracking`` (the video tracker's
     options, None: every frame alone) also an
     :class:`~rs_localizer.tracking.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
@@ -196,6 +197,11 @@ def _run(solver, options, tracking, gyro: bool = True, impl: str | None = None) 
         cam, uv, X, scores = synthetic_problem(scene=scene)
         for g in gyros:
             estimate_rs_pose(uv, X, cam, scores=scores, gyro=g, **kw)
+    # (four coplanar points, one tag's corners: the few-points path's fits, of the errors
+    # whitened by the lens and of the plain ones)
+    cam, uv, X, _ = synthetic_problem(4, scene="planar")
+    for c in (cam, replace(cam, D=np.zeros(0))):
+        estimate_rs_pose(uv, X, c, **kw)
     if tracking is not None:
         track_videos(solver, options, tracking, gyro=gyro)
     return est
