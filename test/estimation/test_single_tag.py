@@ -402,13 +402,8 @@ def test_the_fits_kernel_is_opencvs_rotation_and_the_refinement_of_each_start():
         Q = np.empty((3, 3))
         _rodrigues(np.ascontiguousarray(r, dtype=float), Q)
         assert np.array_equal(Q, cv2.Rodrigues(r)[0])
-    fisheye = CameraModel(
-        K=np.array([[283.943, 0, 421.079], [0, 284.986, 400.527], [0, 0, 1]]),
-        D=[0.00132, 0.03049, -0.02875, 0.0034],
-        width=848,
-        height=800,
-        distortion_model="equidistant",
-    )
+    lens = {"D": [0.00132, 0.03049, -0.02875, 0.0034], "distortion_model": "equidistant"}
+    fisheye = CameraModel(K=K, width=640, height=480, **lens)
     settings = RefineSettings(rolling_shutter=False, max_iterations=200, tol=1e-12)
     X, z, kinds = tag_corners(0.2), np.zeros(3), set()
     for cam in (fisheye, CameraModel(K=K, width=640, height=480)):
