@@ -180,14 +180,15 @@ def _square_fit_sse(uv: np.ndarray, X: np.ndarray, camera: CameraModel) -> float
     alone from them (the better of IPPE's two refined poses, zero velocities); NaN when a
     corner does not undistort."""
     from rs_localizer.estimation.frame import prepare_frame
-    from rs_localizer.estimation.single_tag import _fit, _ippe
+    from rs_localizer.estimation.single_tag import _fits
 
     fr = prepare_frame(uv, X, camera, 1e6)
     if len(fr.x) < 4:
         return float("nan")
+    fr.planar = True
     z = np.zeros(3)
-    sse = [_fit(fr, R0, C0, z, z)[3] for R0, C0 in _ippe(fr)]
-    return min(sse, default=float("nan")) * fr.f**2
+    fits = _fits(fr, z, z, False)  # (the better first)
+    return fits[0][4] * fr.f**2 if fits else float("nan")
 
 
 def corner_noise(folder: Path = DATA) -> dict[str, tuple[int, float]]:

@@ -27,14 +27,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
 from ..camera import CameraModel
+from ..pose import RSModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import (
+    GLOBAL_SHUTTER,
     ImageAlone,
+    checked_final,
     final_estimate,
     image_alone,
     prior_at_rest,
@@ -74,12 +78,19 @@ from .result import (
     failed_estimate,
     physical_velocities,
 )
-from .single_tag import MIN_PLANAR_POINTS, few_points_estimate, few_points_planarity
+from .single_tag import (
+    MIN_PLANAR_POINTS,
+    PREDICTED_MOTION,
+    few_points_estimate,
+    few_points_model,
+    few_points_planarity,
+)
 
 __all__ = [
     "SOLVERS",
     "CorrelatedNoise",
     "EstimateOptions",
+    "FewPointsPose",
     "GyroMeasurement",
     "InitialModel",
     "LocalOptimizationOptions",
@@ -89,6 +100,7 @@ __all__ = [
     "RansacOptions",
     "RefineOptions",
     "estimate_rs_pose",
+    "few_points_pose",
     "physical_velocities",
     "points_needed",
     "sample_size",
@@ -483,16 +495,8 @@ def _few_points(
     planarity (:func:`~.single_tag.few_points_planarity`), ``name``: the solver the estimate
     records."""
     t_start = time.perf_counter()
-    th_px = opts.ransac.threshold_px
     try:
-        if fr.degenerate(np.ones(len(fr.x), dtype=bool), th_px):
-            raise EstimationFailed(DEGENERATE_GEOMETRY)
-        fr.threshold = th_px / fr.f
-        fr.spr = spr = camera.seconds_per_unit_r
-        fr.motion_bounds = motion_bounds(
-            opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
-        )
-        fr.planar = bool(len(fr.x) >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE)
+        _configure_few_points(fr, camera, opts, flat)
         est = few_points_estimate(
             fr, solver, opts, initial_model, gyro is not None, timings, ignored,
             flat=flat, name=name,
@@ -503,3 +507,97 @@ def _few_points(
         )
     timings["few_points"] = time.perf_counter() - t_start
     return est
+
+
+def _configure_few_points(fr, camera: CameraModel, opts: EstimateOptions, flat: float) -> None:
+    """Check that the few points of ``fr`` fix a pose and set its threshold, timing, velocity
+    bounds and ``planar`` (:func:`_few_points`; ``flat``: their planarity).
+
+    Raises:
+        EstimationFailed: ``degenerate_geometry`` (:meth:`~.frame.Frame.degenerate`).
+    """
+    th_px = opts.ransac.threshold_px
+    if fr.degenerate(np.ones(len(fr.x), dtype=bool), th_px):
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    fr.threshold = th_px / fr.f
+    fr.spr = spr = camera.seconds_per_unit_r
+    fr.motion_bounds = motion_bounds(
+        opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
+    )
+    fr.planar = bool(len(fr.x) >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE)
+
+
+class FewPointsPose(NamedTuple):
+    """The fields of :func:`estimate_rs_pose`'s estimate of a frame of a few points that a
+    rig frame posed by that camera alone takes (:func:`few_points_pose`), the same values;
+    ``model``, ``model_covariance`` and ``inliers`` None on a failure."""
+
+    success: bool
+    failure: str | None
+    model: RSModel | None = None
+    model_covariance: np.ndarray | None = None
+    inliers: np.ndarray | None = None
+    rmse_px: float = float("nan")
+    num_behind: int = 0
+    motion_model: str = GLOBAL_SHUTTER
+    initial_explained: int = -1
+    initial_used: bool = False
+    gyro_used: bool = False
+    planar: bool = False
+    single_tag: bool = False
+
+
+def few_points_pose(
+    points2d: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    options: EstimateOptions | None = None,
+    initial_model: InitialModel | None = None,
+    solver: str = "r6p_1lin",
+) -> FewPointsPose | None:
+    """:func:`estimate_rs_pose`'s estimate of the frame (its arguments as there, without a
+    gyro, the default implementation) when it poses it from a few points
+    (:func:`~.single_tag.few_points_estimate`), without the outputs derived from the model
+    (pose, velocities, covariances in ROS order, condition number): a
+    :class:`FewPointsPose` of the estimate's own values, or of its failure; None when the
+    estimator would not take its few-points path (too many points for ``solver``, points it
+    does not pose, the NumPy implementation), nor compute anything of that estimate.
+
+    Raises:
+        ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
+    """
+    if camera.line_delay <= 0 and solver_info(solver).rolling:
+        solver = GS_SOLVER  # (a global shutter: :func:`_estimate_rs_pose`)
+    if resolve_implementation(None, solver) != COMPILED:
+        return None
+    opts = options or EstimateOptions()
+    fr = prepare_frame(
+        points2d, points3d, camera, opts.plausibility.max_point_norm,
+        SeededShuffle(opts.ransac.seed),
+    )  # fmt: skip
+    flat = few_points_planarity(fr, points_needed(solver, opts))
+    if flat is None:
+        return None
+    try:
+        _configure_few_points(fr, camera, opts, flat)
+        fit = few_points_model(fr, opts, initial_model)
+        n_behind = checked_final(fr, fit.final)
+    except EstimationFailed as failure:
+        return FewPointsPose(False, failure.reason)
+    final = fit.final
+    inliers = np.zeros(fr.num_rows, dtype=bool)
+    inliers[fr.rows] = True  # (every point: :func:`~.single_tag.few_points_model`)
+    return FewPointsPose(
+        True,
+        None,
+        final.model,
+        final.covariance,
+        inliers,
+        final.rmse_px,
+        n_behind,
+        PREDICTED_MOTION if fit.moving else GLOBAL_SHUTTER,
+        *fit.initial,
+        False,
+        bool(flat < PLANAR_TOLERANCE),
+        fr.planar,
+    )

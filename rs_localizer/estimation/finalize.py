@@ -81,6 +81,7 @@ __all__ = [
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
+    "checked_final",
     "final_covariance",
     "final_estimate",
     "final_refinement",
@@ -1004,6 +1005,25 @@ def solved_estimate(
     return RSPoseEstimate(success=True, failure=None, **(given | fields))
 
 
+def checked_final(fr: Frame, final: FinalModel, compiled: bool = True) -> int:
+    """The last checks of :func:`final_estimate` on ``final`` (:func:`last_checks` within
+    the frame's :attr:`~.frame.Frame.motion_bounds`): the number of the frame's points behind
+    the camera.
+
+    Raises:
+        EstimationFailed: ``implausible_motion``, ``cheirality``.
+    """
+    bounds = fr.motion_bounds
+    w2max, v2max = (
+        (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+    )
+    # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
+    failure, n_behind = last_checks(fr, final.model, final.inliers, w2max, v2max, compiled)
+    if failure is not None:
+        raise EstimationFailed(failure)
+    return n_behind
+
+
 def final_estimate(
     fr: Frame,
     solver: str,
@@ -1059,14 +1079,7 @@ def final_estimate(
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
     (R, C, w, t), inl = final.model, final.inliers
-    bounds = fr.motion_bounds
-    w2max, v2max = (
-        (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
-    )
-    # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    failure, n_behind = last_checks(fr, final.model, inl, w2max, v2max, compiled)
-    if failure is not None:
-        raise EstimationFailed(failure)
+    n_behind = checked_final(fr, final, compiled)
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled) if flat is None else flat
     position = camera_position(R, C)

@@ -138,7 +138,7 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .estimate import estimate_rs_pose
+from .estimate import estimate_rs_pose, few_points_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
@@ -1673,7 +1673,8 @@ def _one_camera_alone(
     poses them
     (:func:`~.estimate.estimate_rs_pose`'s few-points path,
     :func:`~.single_tag.few_points_estimate`: one marker's corners or a few on more than one
-    plane, the velocities held at the rig's prediction or gyro mapped into the camera) and
+    plane, the velocities held at the rig's prediction or gyro mapped into the camera; the
+    fields taken of that estimate alone, :func:`~.estimate.few_points_pose`, without a gyro) and
     mapped to the rig through the camera's mounting (:func:`rig_model_of_camera`, the
     covariance to first order); None for any other rig frame (or on the NumPy
     implementation, which has no few-points path) or a camera whose points that path does
@@ -1697,9 +1698,13 @@ def _one_camera_alone(
             else InitialModel(initial_model)
         )
         start = replace(im, model=v.camera_model(im.model))
-    cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
-    est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
-                           gyro=cam_gyro)  # fmt: skip
+    est = None
+    if gyro is None or v.camera.line_delay <= 0:  # (a global shutter's estimate ignores a gyro)
+        est = few_points_pose(v.uv, v.X, v.camera, options, start)
+    if est is None:
+        cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
+        est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
+                               gyro=cam_gyro)  # fmt: skip
     if not est.success:
         return _rig_estimate(pool, failure=est.failure)
     model = rig_model_of_camera(est.model, v.mounting, v.stamp_offset, spr)

@@ -31,9 +31,11 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import NamedTuple
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from ..geometry import rotation_angle_deg, skew
@@ -44,12 +46,13 @@ from .frame import Frame
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
 from .refine import (
-    KernelMountings,
-    RefineSettings,
+    LM_REFINE_KERNEL,
+    OUT_C,
+    OUT_INFO,
+    OUT_SIZE,
     exact_errors,
     exact_jacobian,
     exact_residuals,
-    refine_rs_pose,
 )
 from .result import (
     AMBIGUOUS_TAG,
@@ -68,9 +71,11 @@ __all__ = [
     "PREDICTED_MOTION",
     "PREDICTION_RATIO",
     "SAME_POSE_DEG",
+    "FewPointsModel",
     "coplanar_points",
     "few_points",
     "few_points_estimate",
+    "few_points_model",
     "few_points_planarity",
     "planar_points",
 ]
@@ -183,20 +188,24 @@ def _fixed_velocities(
     return w, b, pred, explained
 
 
-def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The (at most two) IPPE poses ``(R, C)`` (world -> camera) of the frame's coplanar
-    points from their normalized image points. The points are projected onto their
-    least-squares plane first: OpenCV's IPPE returns no pose for points a millimetre off one
-    plane (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
-    (:func:`_fit`) then starts from these poses on the points as given."""
-    X = np.ascontiguousarray(fr.X, dtype=np.float64)
-    return _opencv_poses(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+def _starts(fr: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """The starting poses of the frame's points as OpenCV gives them: ``(rotation vectors
+    (k, 3), translations (k, 3))`` (world -> camera, k <= 2, none when it fails), IPPE's two
+    poses of coplanar points (:attr:`~.frame.Frame.planar`) or SQPnP's one of points on more
+    than one plane (:func:`_opencv_starts`). IPPE poses the points projected onto their
+    least-squares plane: OpenCV's IPPE returns no pose for points a millimetre off one plane
+    (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
+    (:func:`_fit_starts`, :func:`_fit`) then starts from these poses on the points as given."""
+    if fr.planar:
+        X = np.ascontiguousarray(fr.X, dtype=np.float64)
+        return _opencv_starts(_on_plane(X.tobytes()), fr.x, cv2.SOLVEPNP_IPPE)
+    return _opencv_starts(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
 
 
 @lru_cache(maxsize=256)
 def _on_plane(points: bytes) -> np.ndarray:
     """(N, 3) the world points (float64 bytes, N x 3 row-major; m) projected onto their
-    least-squares plane (read-only), for :func:`_ippe`: kept for the next frames of the same
+    least-squares plane (read-only), for :func:`_starts`: kept for the next frames of the same
     marker, whose corners are the same points in the same order."""
     X = np.frombuffer(points, dtype=np.float64).reshape(-1, 3)
     centre = X.mean(axis=0)
@@ -206,21 +215,18 @@ def _on_plane(points: bytes) -> np.ndarray:
     return P
 
 
-def _sqpnp(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The pose ``(R, C)`` (world -> camera) of the frame's points on more than one plane from
-    their normalized image points: OpenCV's SQPnP (its global minimum; none when it fails)."""
-    return _opencv_poses(fr.X, fr.x, cv2.SOLVEPNP_SQPNP)
-
-
 #: the camera matrix of normalized image points (read only)
 _IDENTITY = np.eye(3)
 _IDENTITY.flags.writeable = False
+#: no starting pose: ``(rotation vectors (0, 3), translations (0, 3))``
+_NO_STARTS = (np.zeros((0, 3)), np.zeros((0, 3)))
 
 
-def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The finite poses ``(R, C)`` (world -> camera) ``cv2.solvePnPGeneric`` gives with
-    ``flag`` for the (N, 3) world points ``X`` (m) and their (N, 2) normalized image points
-    ``x`` (none when it raises)."""
+def _opencv_starts(X: np.ndarray, x: np.ndarray, flag: int) -> tuple[np.ndarray, np.ndarray]:
+    """The poses ``cv2.solvePnPGeneric`` gives with ``flag`` for the (N, 3) world points ``X``
+    (m) and their (N, 2) normalized image points ``x``: ``(rotation vectors (k, 3),
+    translations (k, 3))`` (world -> camera; none when it raises). Not checked for finite
+    values (:func:`_fit_starts` and :func:`_rotation_of` skip those that are not)."""
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             np.ascontiguousarray(X, dtype=np.float64),
@@ -230,14 +236,42 @@ def _opencv_poses(X: np.ndarray, x: np.ndarray, flag: int) -> list[tuple[np.ndar
             flags=flag,
         )
     except cv2.error:
-        return []
-    out = []
-    for rv, tv in zip(rvecs[:n], tvecs[:n], strict=True):
-        R, _ = cv2.Rodrigues(np.asarray(rv, dtype=float))
-        C = np.asarray(tv, dtype=float).ravel()
-        if np.isfinite(R).all() and np.isfinite(C).all():
-            out.append((R, C))
-    return out
+        return _NO_STARTS
+    if n <= 0:
+        return _NO_STARTS
+    rv = np.array(rvecs[:n], dtype=np.float64).reshape(n, 3)
+    return rv, np.array(tvecs[:n], dtype=np.float64).reshape(n, 3)
+
+
+@njit(cache=True)
+def _rodrigues(r, R):
+    """Write into ``R`` (3, 3) the rotation of the rotation vector ``r`` (3,) (rad) as OpenCV's
+    ``cv2.Rodrigues`` computes it, the same operations in the same order (its values to the
+    bit): ``cos(theta) I + (1 - cos(theta)) u u^T + sin(theta) [u]x``, ``u = r / theta``; the
+    identity below ``theta`` = machine epsilon."""
+    rx, ry, rz = r[0], r[1], r[2]
+    theta = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if theta < 2.220446049250313e-16:  # (DBL_EPSILON)
+        for i in range(3):
+            for j in range(3):
+                R[i, j] = 1.0 if i == j else 0.0
+        return
+    c, s = math.cos(theta), math.sin(theta)
+    c1, itheta = 1.0 - c, 1.0 / theta
+    rx, ry, rz = rx * itheta, ry * itheta, rz * itheta
+    rrt = (rx * rx, rx * ry, rx * rz, rx * ry, ry * ry, ry * rz, rx * rz, ry * rz, rz * rz)
+    r_x = (0.0, -rz, ry, rz, 0.0, -rx, -ry, rx, 0.0)
+    for k in range(9):
+        eye = 1.0 if k % 4 == 0 else 0.0
+        R[k // 3, k % 3] = c * eye + c1 * rrt[k] + s * r_x[k]
+
+
+def _rotation_of(rv: np.ndarray) -> np.ndarray | None:
+    """(3, 3) the rotation of the rotation vector ``rv`` (3,) (:func:`_rodrigues`), None
+    when it is not finite."""
+    R = np.empty((3, 3))
+    _rodrigues(np.ascontiguousarray(rv, dtype=np.float64), R)
+    return R if np.isfinite(R).all() else None
 
 
 #: the fit's loss: least squares (the compiled refinement's Huber loss at this scale, in
@@ -248,11 +282,116 @@ _LEAST_SQUARES = 1e6
 _FIT_TOL = 1e-12
 #: at most this many iterations of the compiled fit (SciPy's default for 6 parameters: 700)
 _FIT_ITERATIONS = 200
-#: the compiled fit's settings (:func:`~.finalize.frame_refinement`'s with these: the pose
-#: alone, no cutoff, with the information matrix)
-_FIT_SETTINGS = RefineSettings(
-    rolling_shutter=False, max_iterations=_FIT_ITERATIONS, tol=_FIT_TOL, cutoff=np.inf
-)
+
+
+@njit(cache=True)
+def _best_first(R, rms):
+    """The order of m fits by their RMS errors ``rms`` (m,) (a stable sort: ties in their
+    order), without the second when its rotation (``R`` (m, 3, 3)) is within
+    :data:`SAME_POSE_DEG` of the first's (both IPPE poses refined to the same one: no
+    ambiguity): (<= m,) int64 indices, best first."""
+    m = rms.shape[0]
+    order = np.arange(m)
+    for a in range(1, m):
+        b = a
+        while b > 0 and rms[order[b]] < rms[order[b - 1]]:
+            order[b - 1], order[b] = order[b], order[b - 1]
+            b -= 1
+    if m > 1:  # (the angle of R_a^T R_b, geometry.rotation_angle_deg)
+        A, B = R[order[0]], R[order[1]]
+        c = 0.0
+        for i in range(3):
+            c += A[0, i] * B[0, i] + A[1, i] * B[1, i] + A[2, i] * B[2, i]
+        if math.degrees(math.acos(min(max((c - 1.0) / 2.0, -1.0), 1.0))) < SAME_POSE_DEG:
+            return order[:1]
+    return order
+
+
+@njit(cache=True)
+def _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse):
+    """:func:`_fit_starts` with the frame's kernel mountings ``views`` (None: the plain
+    errors)."""
+    k, n = rv.shape[0], X.shape[0]
+    z = np.zeros(3)
+    mu, lam = np.zeros(6), np.zeros((6, 6))
+    out = np.empty(OUT_SIZE)
+    R0 = np.empty((3, 3))
+    index = np.empty(k, dtype=np.int64)
+    rms = np.empty(k)
+    m = 0
+    for j in range(k):
+        _rodrigues(rv[j], R0)
+        C0 = tv[j].copy()
+        if not (np.isfinite(R0).all() and np.isfinite(C0).all()):
+            continue
+        LM_REFINE_KERNEL(
+            R0, C0, z, z, X, x, tau, _LEAST_SQUARES, 6, np.inf, _FIT_ITERATIONS, _FIT_TOL,
+            True, out, False, mu, lam, 1.0, -1.0, False, views,
+        )  # fmt: skip
+        for a in range(3):
+            C[j, a] = out[OUT_C + a]
+            for b in range(3):
+                R[j, a, b] = out[3 * a + b]
+        for a in range(6):
+            for b in range(6):
+                H[j, a, b] = out[OUT_INFO + 12 * a + b]
+        e = exact_errors(R[j], C[j], z, z, X, x, tau, W)
+        sse[j] = np.dot(e, e)
+        if np.isfinite(R[j]).all() and math.isfinite(sse[j]):
+            index[m], rms[m] = j, math.sqrt(sse[j] / n)
+            m += 1
+    return index[:m][_best_first(R[index[:m]], rms[:m])]
+
+
+@njit(cache=True)
+def _fit_starts(rv, tv, X, x, tau, W, R, C, H, sse):
+    """The global-shutter fit of the frame's points (the velocities zero) from each of k
+    starting poses, in one compiled call: start ``j`` (rotation vector ``rv[j]`` (3,) rad,
+    :func:`_rodrigues`, translation ``tv[j]`` (3,) m, as OpenCV gives them) refined on the
+    (N, 3) world points ``X``, (N, 2) normalized points ``x`` and (N,) times ``tau``, each
+    point's error whitened by ``W`` (N, 4) (:attr:`~.frame.Frame.W`, the refinement's
+    mountings as :meth:`~.frame.Frame.kernel_mountings` gives them; (0, 4): the plain
+    errors), by the compiled refinement (:func:`~.refine.refine_rs_pose`'s kernel: the pose
+    alone, least squares (:data:`_LEAST_SQUARES`), every point, at most
+    :data:`_FIT_ITERATIONS` iterations to :data:`_FIT_TOL`). Writes its rotation into
+    ``R[j]`` (3, 3), its translation into ``C[j]`` (3,), ``J^T J`` of the pose at the fit
+    into ``H[j]`` (6, 6) and its sum of squared errors (normalized units) into ``sse[j]``.
+    Starts that are not finite are skipped. Returns the indices of the finite fits in
+    :func:`_best_first`'s order."""
+    if W.shape[0] == 0:
+        return _fit_all(rv, tv, X, x, tau, W, None, R, C, H, sse)
+    n = X.shape[0]
+    views = (np.zeros(n, dtype=np.int64), np.eye(3).reshape((1, 3, 3)), np.zeros((1, 3)), W)
+    return _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse)
+
+
+def _fits(fr: Frame, w: np.ndarray, b: np.ndarray, moving: bool) -> list[tuple]:
+    """The fits of the frame's points from each starting pose (:func:`_starts`) with the
+    velocities held (:func:`_fixed_velocities`' ``w``, ``b``; ``moving``: not both zero):
+    ``(RMS error, R, C, t, sum of squared errors, (6, 6) J^T J)`` (normalized units, whitened
+    into measured pixels over the focal length) of each finite one, in :func:`_best_first`'s
+    order. With the velocities at zero (the global-shutter model) every start is fitted in
+    one compiled call (:func:`_fit_starts`), else each by :func:`_fit`."""
+    rv, tv = _starts(fr)
+    n = len(fr.x)
+    tau = fr.r - fr.r0
+    if not moving:
+        k = len(rv)
+        R, C, H, sse = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6, 6)), np.empty(k)
+        kept = _fit_starts(rv, tv, fr.X, fr.x, tau, fr.W, R, C, H, sse)
+        z = np.zeros(3)
+        return [(math.sqrt(sse[j] / n), R[j], C[j], z, float(sse[j]), H[j]) for j in kept.tolist()]
+    fits = []
+    for r0, C0 in zip(rv, tv, strict=True):
+        R0 = _rotation_of(r0)
+        if R0 is None or not np.isfinite(C0).all():
+            continue
+        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau)
+        if np.isfinite(R).all() and math.isfinite(sse):
+            fits.append((math.sqrt(sse / n), R, C, t, sse, H))
+    rms = np.array([f[0] for f in fits])
+    order = _best_first(np.array([f[1] for f in fits]).reshape(-1, 3, 3), rms)
+    return [fits[j] for j in order.tolist()]
 
 
 def _fit(
@@ -261,30 +400,14 @@ def _fit(
     C0: np.ndarray,
     w: np.ndarray,
     b: np.ndarray,
-    tau: np.ndarray | None = None,
-    mountings: KernelMountings | None = None,
+    tau: np.ndarray,
 ):
     """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
-    velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
-    ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``, normalized units
-    (whitened into measured pixels over the focal length). With the velocities at zero (the
-    global-shutter model) the compiled refinement of the pose alone
-    (:func:`~.finalize.frame_refinement`, no robust loss, every point) fits it, its
-    information matrix and the frame's errors giving the rest; otherwise SciPy's
+    velocity fixed and not both zero (``t = w x C + b``, :func:`_fixed_velocities`), from
+    ``(R0, C0)``: ``(R, C, t, the sum of squared errors, (6, 6) J^T J at the fit)``,
+    normalized units (whitened into measured pixels over the focal length): SciPy's
     Levenberg-Marquardt on the held-velocity parametrization, with the analytic Jacobian.
-    ``tau``: the frame's ``r - r0`` and ``mountings``: its :meth:`~.frame.Frame.mountings`
-    checked once (:func:`~.refine.kernel_mountings`), when the caller fits several starts
-    (None: from the frame)."""
-    tau = fr.r - fr.r0 if tau is None else tau
-    if not (w.any() or b.any()):
-        z = np.zeros(3)
-        # (the compiled refinement as :func:`~.finalize.frame_refinement` runs it, with the
-        # frame's mountings checked once for every start)
-        ref = refine_rs_pose((R0, C0, z, z), fr.X, fr.x, tau, _LEAST_SQUARES, _FIT_SETTINGS,
-                             mountings=mountings)  # fmt: skip
-        R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-        e = exact_errors(R, C, z, z, fr.X, fr.x, tau, fr.W)
-        return R, C, z, float(e @ e), np.array(ref.data_information[:6, :6])
+    ``tau``: the frame's ``r - r0``. (Zero velocities: :func:`_fit_starts`.)"""
     X, x = fr.X, fr.x
     W = skew(w)
     m = fr.mountings()  # (each corner's error whitened into measured pixels; None: plain)
@@ -328,6 +451,73 @@ def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> 
     A[3:6, 0:3] = -s * np.eye(3)
     A[3:6, 3:6] = s * skew(np.asarray(C, dtype=float))
     return A @ cov @ A.T
+
+
+class FewPointsModel(NamedTuple):
+    """The pose of a frame of a few points before the last checks (:func:`few_points_model`).
+
+    Attributes:
+        final: the :class:`~.finalize.FinalModel`: the model, every point an inlier, the RMS
+            error (px), the (12, 12) covariance.
+        information: (6, 6) ``J^T J`` of the pose at the fit (normalized units).
+        moving: the velocities are held at a prediction's or a gyro's (not zero).
+        initial: (points the prediction explained, -1 without one; whether it gave the
+            velocities), :func:`~.finalize.final_estimate`'s ``initial``.
+    """
+
+    final: FinalModel
+    information: np.ndarray
+    moving: bool
+    initial: tuple[int, bool]
+
+
+def few_points_model(
+    fr: Frame, opts: EstimateOptions, initial_model: InitialModel | None
+) -> FewPointsModel:
+    """:func:`few_points_estimate`'s model of the frame, before the last checks (its
+    arguments as there; ``opts.motion_prior``: the held velocities' covariance).
+
+    Raises:
+        EstimationFailed: ``too_few_points``, ``degenerate_geometry``, ``ambiguous_tag``,
+            ``too_few_inliers`` (:func:`few_points_estimate`).
+    """
+    planar = fr.planar
+    if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
+        raise EstimationFailed(TOO_FEW_POINTS)
+    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
+    moving = bool(w.any() or b.any())
+    fits = _fits(fr, w, b, moving)
+    if not fits:
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    th, n = float(fr.threshold), len(fr.x)
+    sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    choice = fits[0]
+    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
+        if initial_model is None:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
+        near = int(np.argmin(d))
+        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        choice = fits[near]
+    rms, R, C, t, sse, H = choice
+    if rms > th:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    cov = np.zeros((12, 12))
+    try:
+        cov[:6, :6] = sigma2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        raise EstimationFailed(DEGENERATE_GEOMETRY) from None
+    if moving:
+        cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
+    final = FinalModel(
+        RSModel(R, C, w.copy(), t.copy()),
+        np.ones(n, dtype=bool),
+        float(rms * fr.f),
+        covariance=cov,
+    )
+    return FewPointsModel(final, H, moving, (explained, pred is not None))
 
 
 def few_points_estimate(
@@ -388,66 +578,22 @@ def few_points_estimate(
             image nor a prediction tells IPPE's two poses apart), ``too_few_inliers`` (the RMS
             error is above the threshold), and those of :func:`~.finalize.final_estimate`.
     """
-    planar = fr.planar
-    if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
-        raise EstimationFailed(TOO_FEW_POINTS)
-    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
-    fits = []
-    tau = fr.r - fr.r0
-    km = fr.kernel_mountings()
-    for R0, C0 in _ippe(fr) if planar else _sqpnp(fr):
-        R, C, t, sse, H = _fit(fr, R0, C0, w, b, tau, km)
-        if np.isfinite(R).all() and math.isfinite(sse):
-            fits.append((math.sqrt(sse / len(fr.x)), R, C, t, sse, H))
-    if not fits:
-        raise EstimationFailed(DEGENERATE_GEOMETRY)
-    fits.sort(key=lambda f: f[0])
-    if len(fits) > 1 and rotation_angle_deg(fits[0][1], fits[1][1]) < SAME_POSE_DEG:
-        fits = fits[:1]  # (both IPPE poses refine to the same one: no ambiguity)
-    th, n = float(fr.threshold), len(fr.x)
-    sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
-    choice = fits[0]
-    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
-        if initial_model is None:
-            raise EstimationFailed(AMBIGUOUS_TAG)
-        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
-        near = int(np.argmin(d))
-        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
-            raise EstimationFailed(AMBIGUOUS_TAG)
-        choice = fits[near]
-    rms, R, C, t, sse, H = choice
-    if rms > th:
-        raise EstimationFailed(TOO_FEW_INLIERS)
-    moving = bool(w.any() or b.any())
-    sigma2 = max(sse / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    fit = few_points_model(fr, opts, initial_model)
     flat = float(planarity(fr.X)) if flat is None else flat
-    cov = np.zeros((12, 12))
-    try:
-        cov[:6, :6] = sigma2 * np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        raise EstimationFailed(DEGENERATE_GEOMETRY) from None
-    if moving:
-        cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
-    final = FinalModel(
-        RSModel(R, C, w.copy(), t.copy()),
-        np.ones(n, dtype=bool),
-        float(rms * fr.f),
-        covariance=cov,
-    )
     return final_estimate(
         fr,
-        solver if moving else "p3p",
-        final,
+        solver if fit.moving else "p3p",
+        fit.final,
         0,
-        (explained, pred is not None),
+        fit.initial,
         timings,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
         flat=flat,
-        condition=condition_number(H),
+        condition=condition_number(fit.information),
         solver=solver if name is None else name,
-        motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
-        single_tag=planar,
+        motion_model=PREDICTED_MOTION if fit.moving else GLOBAL_SHUTTER,
+        single_tag=fr.planar,
         few_points=True,
         twist_covariance=None,
     )

@@ -40,6 +40,7 @@ from ..estimation.batch import fused_kernels, prerotated_batch, ransac_batch
 from ..estimation.estimate import (
     EstimateOptions,
     GyroMeasurement,
+    InitialModel,
     RSPoseEstimate,
     estimate_rs_pose,
 )
@@ -55,7 +56,7 @@ from ..estimation.refine import (
 from ..estimation.rig import RigView, camera_model_of_rig, estimate_rig_pose
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
-from ..pose import RSPose, model_from_twist
+from ..pose import RSModel, RSPose, model_from_twist
 from ..solvers.gr6p_1lin import still_solve_rotated
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -149,7 +150,9 @@ def warm_up(
     before the first real frame: :func:`~rs_localizer.estimation.estimate_rs_pose` on a
     60-point 3D scene with and without scores (the two input paths of the node), on a small
     distant object (the motion prior's MAP step) and on a planar scene (MAP refinement and
-    damped hypotheses) for solvers that take one; with ``tracking`` (the video tracker's
+    damped hypotheses) for solvers that take one, and on one tag's four corners (the
+    few-points path, with and without distortion, and with a prediction's velocities held);
+    with ``tracking`` (the video tracker's
     options, None: every frame alone) also an
     :class:`~rs_localizer.tracking.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
@@ -196,6 +199,16 @@ def _run(solver, options, tracking, gyro: bool = True, impl: str | None = None) 
         cam, uv, X, scores = synthetic_problem(scene=scene)
         for g in gyros:
             estimate_rs_pose(uv, X, cam, scores=scores, gyro=g, **kw)
+    # (four coplanar points, one tag's corners: the few-points path's fits, of the errors
+    # whitened by the lens and of the plain ones, and with the velocities held at a
+    # prediction's)
+    cam, uv, X, _ = synthetic_problem(4, scene="planar")
+    for c in (cam, replace(cam, D=np.zeros(0))):
+        tag = estimate_rs_pose(uv, X, c, **kw)
+    if tag.success:
+        R, C, w, t = tag.model
+        held = InitialModel(RSModel(R, C, w + 1e-4, t + 1e-4), gate_px=1e6)
+        estimate_rs_pose(uv, X, cam, initial_model=held, **kw)
     if tracking is not None:
         track_videos(solver, options, tracking, gyro=gyro)
     return est

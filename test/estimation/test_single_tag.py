@@ -381,3 +381,111 @@ def test_a_few_points_hold_the_predicted_motion_and_refuse_a_wrong_match():
     assert estimate_rs_pose(
         uv[more], X[more], cam, initial_model=InitialModel((R, C, w, t))
     ).success
+
+
+def test_the_fits_kernel_is_opencvs_rotation_and_the_refinement_of_each_start():
+    """The compiled fits of a tag's IPPE starts (``_fit_starts``) against the separate steps
+    they stand for: each start's rotation by ``cv2.Rodrigues``, refined by ``refine_rs_pose``
+    (the pose alone, least squares, every point, the frame's mountings), its sum of squared
+    errors by ``exact_errors``: the same numbers to the bit, on a fisheye (errors whitened
+    into measured pixels) and a pinhole camera (plain errors); the fits ordered by that sum,
+    the second dropped only when it is the first's rotation."""
+    from scipy.spatial.transform import Rotation
+
+    from rs_localizer.estimation.frame import prepare_frame
+    from rs_localizer.estimation.refine import RefineSettings, exact_errors, refine_rs_pose
+    from rs_localizer.estimation.single_tag import SAME_POSE_DEG, _fit_starts, _rodrigues, _starts
+
+    rng = np.random.default_rng(5)
+    scales = np.repeat([1e-6, 1.0, 3.0], 100)[:, None]  # (tiny, common and large angles)
+    for r in [np.zeros(3), np.full(3, 1e-17), *rng.normal(0, 1, (300, 3)) * scales]:
+        Q = np.empty((3, 3))
+        _rodrigues(np.ascontiguousarray(r, dtype=float), Q)
+        assert np.array_equal(Q, cv2.Rodrigues(r)[0])
+    lens = {"D": [0.00132, 0.03049, -0.02875, 0.0034], "distortion_model": "equidistant"}
+    fisheye = CameraModel(K=K, width=640, height=480, **lens)
+    settings = RefineSettings(rolling_shutter=False, max_iterations=200, tol=1e-12)
+    X, z, kinds = tag_corners(0.2), np.zeros(3), set()
+    for cam in (fisheye, CameraModel(K=K, width=640, height=480)):
+        for _ in range(8):
+            R = Rotation.from_rotvec(rng.normal(0, 0.4, 3)).as_matrix() @ np.diag([1.0, -1, -1])
+            C = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(0.8, 3.0)])
+            uv = cam.project(X @ R.T + C) + rng.normal(0, 0.3, (4, 2))
+            fr = prepare_frame(uv, X, cam, 1e6)
+            fr.planar = True
+            rv, tv = _starts(fr)
+            k, tau = len(rv), fr.r - fr.r0
+            Rk, Ck, Hk, sse = (
+                np.empty((k, 3, 3)),
+                np.empty((k, 3)),
+                np.empty((k, 6, 6)),
+                np.empty(k),
+            )
+            kept = _fit_starts(rv, tv, fr.X, fr.x, tau, fr.W, Rk, Ck, Hk, sse)
+            mountings = fr.kernel_mountings()
+            kinds.add(mountings is None)
+            for j in range(k):
+                start = (cv2.Rodrigues(rv[j])[0], tv[j], z, z)
+                ref = refine_rs_pose(start, fr.X, fr.x, tau, 1e6, settings, mountings=mountings)
+                assert np.array_equal(ref.R, Rk[j]) and np.array_equal(ref.C, Ck[j])
+                assert np.array_equal(ref.data_information[:6, :6], Hk[j])
+                e = exact_errors(ref.R, ref.C, z, z, fr.X, fr.x, tau, fr.W)
+                assert float(e @ e) == sse[j]
+            assert list(kept) == sorted(kept, key=lambda j: sse[j]) and 1 <= len(kept) <= k
+            if len(kept) < k:
+                assert rotation_angle_deg(Rk[0], Rk[1]) < SAME_POSE_DEG
+    assert kinds == {True, False}
+
+
+def test_the_rigs_few_points_pose_is_the_estimates_own_fields():
+    """``few_points_pose`` (what a rig frame posed by one camera's few points takes of that
+    camera's estimate) against ``estimate_rs_pose`` on the same frames: one tag seen by a
+    global and a rolling shutter, with and without a prediction (held velocities), an
+    ambiguous tag, a wrong match, two tags on two planes: the same fields to the bit, the same
+    failures; None on points the estimator does not pose from a few (a 3D cloud of 12)."""
+    from rs_localizer.estimation.estimate import FewPointsPose, few_points_pose
+
+    rng = np.random.default_rng(8)
+    gs = CameraModel(K=K, width=640, height=480)
+    rs = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    R, C = _view(35, [0.05, -0.02, 0.8])
+    moving = InitialModel((R, C, np.array([1e-4, -2e-4, 3e-4]), np.array([2e-4, 1e-4, -1e-4])))
+    cases = []
+    for cam in (gs, rs):
+        uv = cam.project_rs(tag_corners(0.2), R, C) + rng.normal(0, 0.3, (4, 2))
+        cases += [(uv, tag_corners(0.2), cam, None), (uv, tag_corners(0.2), cam, moving)]
+        wrong = uv.copy()
+        wrong[0] += 30.0
+        cases.append((wrong, tag_corners(0.2), cam, None))
+        cam_f, Xf, Rf, Cf, uvf = _frontal_small_tag(rng)
+        cases += [
+            (uvf, Xf, cam_f, None),
+            (uvf, Xf, cam_f, InitialModel((Rf, Cf, np.zeros(3), np.zeros(3)))),
+        ]
+        X2 = _two_walls()
+        cases.append((cam.project_rs(X2, R, C) + rng.normal(0, 0.3, (8, 2)), X2, cam, None))
+    cloud = rng.uniform(-1, 1, (12, 3)) + [0, 0, 4]
+    cases.append((gs.project(cloud), cloud, gs, None))
+    outcomes = set()
+    for uv, X, cam, im in cases:
+        est = estimate_rs_pose(uv, X, cam, initial_model=im)
+        fp = few_points_pose(uv, X, cam, initial_model=im)
+        if fp is None:
+            assert not est.few_points and len(X) == 12
+            outcomes.add("none")
+            continue
+        assert isinstance(fp, FewPointsPose)
+        assert (fp.success, fp.failure) == (est.success, est.failure)
+        outcomes.add(fp.failure or fp.motion_model)
+        if not fp.success:
+            continue
+        for name in FewPointsPose._fields:
+            got, want = getattr(fp, name), getattr(est, name)
+            if name == "model":
+                assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+            elif isinstance(want, np.ndarray):
+                assert np.array_equal(got, want), name
+            else:
+                assert got == want, name
+    assert {"none", "global_shutter", "predicted_motion", "ambiguous_tag"} <= outcomes
+    assert "too_few_inliers" in outcomes
