@@ -20,7 +20,7 @@ from .plausibility import (
     plausible_motion,
 )
 from .prior import MotionPrior
-from .refine import KernelMountings, Mountings, exact_errors
+from .refine import KernelMountings, Mountings, exact_errors, kernel_mountings_of
 from .result import (
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
@@ -185,13 +185,14 @@ class Frame:
     def kernel_mountings(self) -> KernelMountings | None:
         """:meth:`mountings` of every point in the refinement kernel's form, as
         :func:`~.refine.kernel_mountings` checks and converts them (the same arrays' values),
-        built directly (a frame refined several times: :mod:`.single_tag`); None as there."""
+        built directly (:func:`~.refine.kernel_mountings_of`; a frame refined several times:
+        :mod:`.single_tag`); None as there."""
         if not len(self.W) or not self.compiled:
             return None
         n = len(self.W)
         scale = np.ascontiguousarray(self.W, dtype=np.float64)
-        return KernelMountings(
-            n, (np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale)
+        return kernel_mountings_of(
+            np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale
         )
 
     def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:

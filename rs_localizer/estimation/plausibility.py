@@ -45,6 +45,7 @@ __all__ = [
     "image_degenerate",
     "motion_bounds",
     "motion_norms2",
+    "plausible_models",
     "plausible_motion",
     "views_degenerate",
 ]
@@ -80,6 +81,7 @@ def plausible_motion(
     ws: np.ndarray,
     ts: np.ndarray,
     bounds: tuple[float, float] | None,
+    compiled: bool = True,
 ) -> bool | np.ndarray:
     """Which models move plausibly.
 
@@ -91,9 +93,15 @@ def plausible_motion(
         Rs (K, 3, 3) rotations (unused, for a uniform signature), Cs, ws, ts (K, 3) or (3,).
         bounds: ``(w_max, v_max)`` from :func:`motion_bounds`, or ``None`` (only finiteness
             is checked).
+        compiled: False: in NumPy (:func:`plausible_models`; nothing compiles).
     Returns:
         (K,) bool, or a bool for single (3,) vectors; ``False`` for non-finite parameters.
     """
+    if not compiled:
+        one = np.ndim(ws) == 1
+        Cs, ws, ts = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (Cs, ws, ts))
+        ok = plausible_models(Cs, ws, ts, bounds)
+        return bool(ok[0]) if one else ok
     if np.ndim(ws) == 1:  # one model (every LO candidate): one compiled call
         f64 = np.float64
         w2max, v2max = (
@@ -112,6 +120,20 @@ def plausible_motion(
     if bounds is None:
         return _plausible(Cs, ws, ts, np.inf, np.inf)
     return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+
+
+def plausible_models(
+    C: np.ndarray, w: np.ndarray, t: np.ndarray, bounds: tuple[float, float] | None
+) -> np.ndarray:
+    """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
+    and ``|w x C - t| <= v_max`` (:func:`plausible_motion` in NumPy, nothing compiled; the
+    squared norms by :func:`motion_norms2`'s own code, on the (H,) columns)."""
+    ok = np.isfinite(C).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(t).all(axis=1)
+    if bounds is None:
+        return ok
+    with np.errstate(invalid="ignore", over="ignore"):
+        wn2, vn2 = motion_norms2.py_func(*C.T, *w.T, *t.T)
+        return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
 @njit(cache=True, nogil=True)

@@ -45,7 +45,14 @@ __all__ = [
     "prosac_order",
     "required_iterations",
     "seeded_rng",
+    "seeded_stream",
 ]
+
+
+def _int_seed(seed) -> bool:
+    """Whether ``seed`` is an int (a NumPy integer too, not a bool): a seed whose streams
+    :func:`seeded_stream` keeps."""
+    return isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)
 
 
 @functools.lru_cache(maxsize=16)
@@ -56,17 +63,29 @@ def _seed_sequence(seed: int) -> np.random.SeedSequence:
 def seeded_rng(seed: int | np.integer | None) -> np.random.Generator:
     """``np.random.default_rng(seed)`` (the same stream) without hashing an int seed again on
     every frame (~6 us of ~20 at this call's cache state); other seeds as NumPy takes them."""
-    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+    if _int_seed(seed):
         return np.random.Generator(np.random.PCG64(_seed_sequence(int(seed))))
     return np.random.default_rng(seed)
 
 
 @functools.lru_cache(maxsize=64)
-def _seeded_permutation(seed: int, n: int) -> np.ndarray:
-    """``seeded_rng(seed).permutation(n)`` (read-only)."""
-    p = seeded_rng(seed).permutation(n)
-    p.flags.writeable = False
-    return p
+def _seeded_stream(seed: int, kind: str, n: int) -> np.ndarray:
+    rng = seeded_rng(seed)
+    out = rng.permutation(n) if kind == "permutation" else rng.random(n)
+    out.flags.writeable = False
+    return out
+
+
+def seeded_stream(seed: int | np.integer | None, kind: str, n: int) -> np.ndarray:
+    """The start of ``seeded_rng(seed)``'s stream: its first ``permutation(n)`` (``kind``
+    ``"permutation"``: a frame's shuffle, :class:`SeededShuffle`) or its first ``n`` uniform
+    draws in [0, 1) (``"random"``: a compiled rig search's, :mod:`.rig_batch`), (n,) and
+    read-only. Kept for the last int seeds and sizes (every frame of a seed starts from the
+    same stream); any other seed draws from a new generator."""
+    if not _int_seed(seed):
+        rng = seeded_rng(seed)
+        return rng.permutation(n) if kind == "permutation" else rng.random(n)
+    return _seeded_stream(int(seed), kind, int(n))
 
 
 class SeededShuffle:
@@ -80,7 +99,7 @@ class SeededShuffle:
         self.seed = seed
         self._n: int | None = None
         self._rng: np.random.Generator | None = None
-        if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
+        if not _int_seed(seed):
             self._rng = seeded_rng(seed)
 
     def permutation(self, rows: np.ndarray) -> np.ndarray:
@@ -88,7 +107,7 @@ class SeededShuffle:
         if self._rng is not None:
             return self._rng.permutation(rows)
         self._n = len(rows)
-        return rows.take(_seeded_permutation(int(self.seed), self._n))
+        return rows.take(seeded_stream(self.seed, "permutation", self._n))
 
     def generator(self) -> np.random.Generator:
         """The generator, past the shuffle (:meth:`permutation`) when it was drawn."""

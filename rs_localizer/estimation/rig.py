@@ -118,7 +118,6 @@ from __future__ import annotations
 import copy
 import functools
 import math
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -161,7 +160,7 @@ from .gyro import (
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed
-from .numpy_impl import p3p_roots, plausible_models
+from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
 from .plausibility import (
@@ -171,12 +170,12 @@ from .plausibility import (
     views_degenerate,
 )
 from .prior import MotionPrior
-from .ransac import RansacLoop, required_iterations, seeded_rng
+from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
     Mountings,
     image_variance,
-    kernel_mountings,
+    kernel_mountings_of,
 )
 from .result import (
     CAMERAS_DISAGREE,
@@ -199,6 +198,7 @@ from .rig_batch import (
     sample_kernel,
     still_search,
 )
+from .sampling import draw_samples_numpy
 from .single_tag import few_points
 
 __all__ = [
@@ -976,17 +976,6 @@ def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
     return out
 
 
-def _plausible_motion(pool: _Pool, C, w, t, bounds) -> bool | np.ndarray:
-    """:func:`~.plausibility.plausible_motion` of one model (C, w, t (3,)) or H (H, 3);
-    ``pool.numpy``: in NumPy (nothing compiles)."""
-    if not pool.numpy:
-        return plausible_motion(None, C, w, t, bounds)
-    one = np.ndim(w) == 1
-    C, w, t = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (C, w, t))
-    ok = plausible_models(C, w, t, bounds)
-    return bool(ok[0]) if one else ok
-
-
 def _rig_solver(pool: _Pool):
     """The rig solver's batch of :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`
     (``pool.numpy``: its NumPy form)."""
@@ -1006,19 +995,6 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     )  # fmt: skip
 
 
-def _distinct3(rng, N: np.ndarray) -> np.ndarray:
-    """(S, 3) three distinct uniform integers in ``[0, N[s])`` per row (``N`` (S,) >= 3)."""
-    S = len(N)
-    a = (rng.random(S) * N).astype(np.int64)
-    b = (rng.random(S) * (N - 1)).astype(np.int64)
-    b += b >= a
-    c = (rng.random(S) * (N - 2)).astype(np.int64)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    c += c >= lo
-    c += c >= hi
-    return np.stack([a, b, c], axis=1)
-
-
 def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
     proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
@@ -1026,9 +1002,13 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     (S, 6)."""
     counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
     if pool.numpy:
+        # (three distinct points of the camera, then three of the n - 3 others: the camera's
+        # draws without replacement, the same uniforms in the same order as the kernel's)
         cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
-        first = starts[cams][:, None] + _distinct3(rng, counts[cams])
-        rest = _distinct3(rng, np.full(n_samples, n - 3))
+        first = starts[cams][:, None] + draw_samples_numpy(
+            rng.random((3, n_samples)).T, counts[cams]
+        )
+        rest = draw_samples_numpy(rng.random((3, n_samples)).T, n - 3)
         # map 0..n-4 onto the pool without the first three
         taken = np.sort(first, axis=1)
         for j in range(3):
@@ -1109,7 +1089,7 @@ def _hypotheses(
     if prior is not None:
         rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
     b = _prerotated_solve(pool, S, R0, pool.tau[S], iterations, rows)
-    ok = b.valid & _plausible_motion(pool, b.C, b.w, b.t, bounds)
+    ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds, pool.compiled)
     if not ok.any():
         return None
     return np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok]), b.C[ok], b.w[ok], b.t[ok]
@@ -1319,20 +1299,12 @@ def _mountings(pool: _Pool) -> Mountings:
 
 
 def _kernel_mountings(pool: _Pool) -> KernelMountings:
-    """:func:`_mountings` checked and in the refinement kernel's form
-    (:func:`~.refine.kernel_mountings`), once per pool: every refinement and the covariance
-    of a rig frame take it."""
+    """:func:`_mountings` in the refinement kernel's form
+    (:func:`~.refine.kernel_mountings_of`: the pool's own arrays, consistent by construction),
+    once per pool: every refinement and the covariance of a rig frame take it."""
     m = pool.__dict__.get("_kernel_mountings")
     if m is None:
-        f = np.float64
-        Rm, cm = np.ascontiguousarray(pool.R_mount, f), np.ascontiguousarray(pool.c_mount, f)
-        n, cam, A = len(pool.X), pool.cam, pool.A
-        if cam.dtype == np.int64 and A.dtype == f and A.flags.c_contiguous and A.shape == (n, 4):
-            # (the pool's own arrays, already in the kernel's form and consistent: each
-            # camera index in range, one row of A per point)
-            m = KernelMountings(n, (np.ascontiguousarray(cam), Rm, cm, A))
-        else:
-            m = kernel_mountings(_mountings(pool), n)
+        m = kernel_mountings_of(pool.cam, pool.R_mount, pool.c_mount, pool.A)
         pool._kernel_mountings = m
     return m
 
@@ -2173,44 +2145,6 @@ def _search_batches_of(r: RansacOptions) -> RansacOptions:
     return hit[1]
 
 
-#: each thread's random generator of its last search's seed (:func:`_search_rng`)
-_RNGS = threading.local()
-
-
-def _search_rng(seed) -> np.random.Generator:
-    """``seeded_rng(seed)``'s generator (the same stream from its start): for an int seed
-    this thread's generator of the last such seed, set back to its seeded state (a search
-    draws from it until it ends, before the thread's next search starts), else a new one."""
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
-        return seeded_rng(seed)
-    hit = getattr(_RNGS, "last", None)
-    if hit is None or hit[0] != int(seed):
-        rng = seeded_rng(seed)
-        hit = _RNGS.last = (int(seed), rng, rng.bit_generator.state)
-    hit[1].bit_generator.state = hit[2]
-    return hit[1]
-
-
-#: the random streams of the last seeds (:func:`_search_draws`): seed -> draws
-_DRAWS: dict = {}
-
-
-def _search_draws(seed, n: int) -> np.ndarray:
-    """The first ``n`` uniform draws of ``seeded_rng(seed)`` (read-only; kept for the last
-    few int seeds: every search of a seed starts from the same stream, and a batch by batch
-    search draws its batches from it in turn), or of a new generator for any other seed."""
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
-        return seeded_rng(seed).random(n)
-    hit = _DRAWS.get(int(seed))
-    if hit is None or len(hit) < n:
-        if len(_DRAWS) >= 8:
-            _DRAWS.clear()
-        hit = seeded_rng(seed).random(n)
-        hit.flags.writeable = False
-        _DRAWS[int(seed)] = hit
-    return hit
-
-
 #: :func:`~.rig_batch.still_search`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
 #: :func:`~.rig_batch.moving_search`'s anchor of none (P3P pre-rotates the samples)
@@ -2263,10 +2197,10 @@ class _RigSearch(RansacLoop):
 
     @property
     def rng(self) -> np.random.Generator:
-        """The search's random generator (:func:`_search_rng`; the compiled search reads the
-        same stream from :func:`_search_draws` instead)."""
+        """The search's random generator (:func:`~.ransac.seeded_rng`; the compiled search
+        reads the same stream from :func:`~.ransac.seeded_stream` instead)."""
         if self._rng is None:
-            self._rng = _search_rng(self._seed)
+            self._rng = seeded_rng(self._seed)
         return self._rng
 
     def cost(self, model) -> float:
@@ -2309,7 +2243,7 @@ class _RigSearch(RansacLoop):
         )  # fmt: skip
         if hyp is None:
             return None
-        ok = _plausible_motion(pool, hyp[1], hyp[2], hyp[3], self.bounds)
+        ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds, pool.compiled)
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
@@ -2318,12 +2252,13 @@ class _RigSearch(RansacLoop):
         :func:`~.rig_batch.moving_search`): the batches of :func:`~.ransac.batch_sizes`, each
         stopping after the first sample at which termination is reached (a new best's inlier
         ratio counted at once, as PoseLib's loop does after every sample), on the seed's
-        random stream (:func:`_search_draws`: the draws a batch by batch search takes)."""
+        random stream (:func:`~.ransac.seeded_stream`: the draws a batch by batch search
+        takes)."""
         pool, subset = self.pool, self.subset
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        args = (_search_draws(r.seed, 7 * int(r.max_iterations)), _sampling_of(pool, subset),
-                _NO_SUBSET if subset is None else subset, _bearings(pool), X, x, tau, cam, Rm,
-                cm, A)  # fmt: skip
+        draws = seeded_stream(r.seed, "random", 7 * int(r.max_iterations))
+        args = (draws, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
         state = np.array([self.score, self.needed, self._log_miss])
         limits = np.array([self.batches.batch_size, r.min_iterations, r.max_iterations])
         if self.still:

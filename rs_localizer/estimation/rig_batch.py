@@ -228,7 +228,7 @@ def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
 def sample_kernel(u, cdf, eligible, counts, starts, n):
     """:func:`~.rig._sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
     NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
-    (:func:`~.rig._distinct3`), three distinct points of the ``n - 3`` others."""
+    (:func:`~.sampling.draw_samples`' draws), three distinct points of the ``n - 3`` others."""
     S = u.shape[1]
     out = np.empty((S, 6), dtype=np.int64)
     for k in range(S):
