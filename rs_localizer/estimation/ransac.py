@@ -23,6 +23,7 @@ from collections.abc import Iterator
 from typing import Any, Protocol
 
 import numpy as np
+from numba import njit
 
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
@@ -42,8 +43,10 @@ __all__ = [
     "RansacEstimator",
     "RansacLoop",
     "batch_sizes",
+    "next_batch_size",
     "prosac_order",
     "required_iterations",
+    "required_samples",
     "seeded_rng",
     "seeded_stream",
 ]
@@ -120,13 +123,39 @@ class SeededShuffle:
 
 def required_iterations(inlier_ratio: float, s: int, confidence: float) -> float:
     """Samples of size ``s`` to draw for one all-inlier sample with probability
-    ``confidence`` at ``inlier_ratio`` (RANSAC's adaptive termination; ``inf`` at 0)."""
+    ``confidence`` at ``inlier_ratio`` (RANSAC's adaptive termination; ``inf`` at 0):
+    :func:`required_samples` with ``log(1 - confidence)``."""
+    return required_samples(inlier_ratio, s, np.log(1 - confidence))
+
+
+def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
+    """:func:`required_iterations` with ``log_miss`` ``log(1 - confidence)``, the formula once
+    for a camera's search and, compiled (:data:`required_samples_kernel`), a rig's
+    (:mod:`.rig_batch`)."""
     if inlier_ratio <= 0:
         return np.inf
-    p = inlier_ratio**s
+    p = inlier_ratio ** np.float64(s)
     if p >= 1:
+        return 0.0
+    return log_miss / np.log1p(-p)
+
+
+def next_batch_size(batch: int, it: int, needed: float, min_it: int, max_it: int) -> int:
+    """The next batch of a search that has drawn ``it`` samples (:func:`batch_sizes`'
+    rule, once for a camera's search and, compiled (:data:`next_batch_size_kernel`), a rig's):
+    0 once ``max_it`` samples are drawn or both ``min_it`` and what termination asks for
+    (``needed``); else ``batch`` samples, but no more than ``max_it`` in all nor than
+    termination still asks for, at least ``min_it`` in all."""
+    if not (it < max_it and (it < needed or it < min_it)):
         return 0
-    return np.log(1 - confidence) / np.log1p(-p)
+    ask = int(np.ceil(min(needed, np.float64(max_it))))
+    return min(batch, max_it - it, max(ask - it, min_it - it, 1))
+
+
+#: :func:`required_samples` and :func:`next_batch_size` compiled (the rig's search kernels,
+#: :mod:`.rig_batch`; compiled on their first call there)
+required_samples_kernel = njit(cache=True)(required_samples)
+next_batch_size_kernel = njit(cache=True)(next_batch_size)
 
 
 def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
@@ -154,19 +183,12 @@ def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
     ``r.batch_size``, each next one twice as large, but none more than termination still asks
     for (at least ``r.min_iterations`` in all). The caller adds each to ``loop.iterations``."""
     batch = max(int(r.batch_size), 1)
-    while loop.iterations < r.max_iterations and (
-        loop.iterations < loop.needed or loop.iterations < r.min_iterations
-    ):
+    while True:
         # batches double (fewer calls), but draw no more samples than termination asks for
-        yield min(
-            batch,
-            r.max_iterations - loop.iterations,
-            max(
-                int(np.ceil(min(loop.needed, r.max_iterations))) - loop.iterations,
-                r.min_iterations - loop.iterations,
-                1,
-            ),
-        )
+        K = next_batch_size(batch, loop.iterations, loop.needed, r.min_iterations, r.max_iterations)
+        if K == 0:
+            return
+        yield K
         batch *= 2
 
 

@@ -152,6 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
+from .frame import varying_pixel_jacobian
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -192,8 +193,8 @@ from .rig_batch import (
     best_msac,
     inliers_missed,
     lambda_twist_on_rig,
+    model_cost,
     moving_search,
-    pairwise_sum,
     point_residual,
     sample_kernel,
     still_search,
@@ -664,17 +665,12 @@ def _jacobian_args(cam: CameraModel) -> tuple | None:
 
 def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
     """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
-    point)`` of a camera (distortion, or fx != fy, or skew), kept per camera object (a
+    point, :func:`~.frame.varying_pixel_jacobian`)`` of a camera, kept per camera object (a
     frozen dataclass a rig's frames share: its properties cost as much as a view's arrays)."""
     hit = _CAMERA_CONSTANTS.get(id(cam))
     if hit is not None and hit[0] is cam:
         return hit[1]
-    K = cam.K
-    out = (
-        cam.seconds_per_unit_r,
-        float(cam.mean_focal),
-        bool(cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0),
-    )
+    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam))
     if len(_CAMERA_CONSTANTS) >= 64:
         _CAMERA_CONSTANTS.clear()
     _CAMERA_CONSTANTS[id(cam)] = (cam, out)
@@ -908,54 +904,35 @@ class _Pool:
 
 
 @njit(cache=True)
-def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
-    """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
-    normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`_Pool`): to first order the error in the measured image; inf behind the camera;
-    :func:`~.rig_batch.point_residual`)."""
-    H, N = R.shape[0], X.shape[0]
-    for h in range(H):
-        for i in range(N):
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            out[h, i, 0] = d0
-            out[h, i, 1] = d1
-
-
-@njit(cache=True)
 def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
-    """(H, N) the norms of :func:`_residuals_kernel`'s image errors (px; inf behind the
-    camera)."""
+    """(H, N) the image errors (px) of N points under H models: the norms of
+    :func:`~.rig_batch.point_residual` (predicted minus measured, the normalized difference
+    times the point's 2x2 pixel Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order
+    the error in the measured image); inf behind the camera."""
     H, N = R.shape[0], X.shape[0]
-    d = np.empty((H, N, 2))
-    _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, d)
     out = np.empty((H, N))
     for h in range(H):
         for i in range(N):
-            out[h, i] = np.sqrt(d[h, i, 0] ** 2 + d[h, i, 1] ** 2)
+            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            out[h, i] = np.sqrt(d0**2 + d1**2)
     return out
 
 
 @njit(cache=True)
 def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
-    squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
-    ``t`` (3,)."""
+    squares capped at ``th2``, summed as ``np.sum`` sums them:
+    :func:`~.rig_batch.model_cost`); ``R`` (3, 3), ``C``, ``w``, ``t`` (3,)."""
     N = X.shape[0]
-    d = np.empty((1, N, 2))
-    _residuals_kernel(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
-                      X, tau, cam, Rm, cm, x, A, d)  # fmt: skip
-    e = np.empty(N)
-    v = np.empty(N)
-    for i in range(N):
-        e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
-        q = e[i] * e[i]
-        v[i] = th2 if q > th2 else q
-    return e, pairwise_sum(v, 0, N)
+    e, v = np.empty(N), np.empty(N)
+    cost = model_cost(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
+                      X, tau, cam, Rm, cm, x, A, th2, False, 0, np.inf, e, v)  # fmt: skip
+    return e, cost
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
-    """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
-    rig's points at each observation's capture time
+    """:func:`~.rig_batch.point_residual` in NumPy on every point of the pool (nothing
+    compiles): the rig's points at each observation's capture time
     (:func:`~rs_localizer.geometry.exact_camera_points`) seen through their camera's mounting
     (the pool is stacked by camera: one matrix product per camera), the normalized errors
     times the pixel Jacobians; inf behind the camera. Returns (H, N, 2)."""
