@@ -33,6 +33,7 @@ from ..geometry import exact_camera_points
 __all__ = [
     "CHEIRALITY",
     "IMPLAUSIBLE_MOTION",
+    "all_finite",
     "check_final_model",
     "collinear_3d",
     "degenerate_points",
@@ -168,6 +169,12 @@ def _plausible1(C, w, t, w_max2, v_max2):
         return False
     wn2, vn2 = motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2)
     return wn2 <= w_max2 and vn2 <= v_max2
+
+
+def all_finite(*arrays: np.ndarray) -> bool:
+    """Whether every entry of the arrays is finite, in NumPy (nothing compiles): a model's
+    ``(R, C, w, t)`` as :func:`finite_model` tests it compiled, or any arrays."""
+    return all(np.isfinite(a).all() for a in arrays)
 
 
 @njit(cache=True, nogil=True)
@@ -512,7 +519,7 @@ def final_model_check_numpy(
     v_max2: float,
 ) -> tuple[int, int]:
     """:func:`final_model_check` in NumPy (the estimator's NumPy implementation)."""
-    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+    if not all_finite(R, C, w, t):
         return 1, 0
     wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
     if not (wn2 <= w_max2 and vn2 <= v_max2):
@@ -564,7 +571,7 @@ def final_check(
     if compiled:
         ok = finite_model(R, C, w, t) and _plausible1(C, w, t, w_max2, v_max2)
     else:
-        ok = all(np.isfinite(a).all() for a in (R, C, w, t))
+        ok = all_finite(R, C, w, t)
         wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
         ok = ok and wn2 <= w_max2 and vn2 <= v_max2
     if not ok:

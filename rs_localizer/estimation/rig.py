@@ -165,6 +165,7 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
 from .plausibility import (
+    all_finite,
     collinear_3d,
     image_degenerate,
     plausible_motion,
@@ -574,9 +575,9 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    spr, focal, jacobian = _camera_constants(cam)
+    spr, focal, jacobian, args = _camera_constants(cam)
     stamp = float(v.stamp_offset)
-    args = None if numpy or not jacobian else _jacobian_args(cam)
+    args = None if numpy else args  # (a distorted camera's, compiled)
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     if args is not None and spr == 0.0 and _kernel_ready(uv) and _kernel_ready(X):
         # (a global shutter with distortion: the checks and rows below in one compiled call
@@ -637,40 +638,24 @@ def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
 _CAMERA_CONSTANTS: dict = {}
 
 
-#: the arguments of a distorted camera's compiled pixel Jacobian (:func:`_jacobian_args`): id ->
-#: (camera, arguments or None)
-_JACOBIAN_ARGS: dict = {}
-
-
-def _jacobian_args(cam: CameraModel) -> tuple | None:
-    """The arguments after the points of the compiled pixel Jacobian of a camera with
-    distortion (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s, the same arrays
-    and values), kept per camera object as :func:`_camera_constants`; None without
-    distortion."""
-    hit = _JACOBIAN_ARGS.get(id(cam))
+def _camera_constants(cam: CameraModel) -> tuple[float, float, bool, tuple | None]:
+    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
+    point (:func:`~.frame.varying_pixel_jacobian`), the arguments after the points of its
+    compiled pixel Jacobian)`` of a camera, kept per camera object (a frozen dataclass a
+    rig's frames share: its properties cost as much as a view's arrays). The arguments are
+    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s (the same arrays and values)
+    for a camera with distortion, else None."""
+    hit = _CAMERA_CONSTANTS.get(id(cam))
     if hit is not None and hit[0] is cam:
         return hit[1]
-    out = None
+    args = None
     if cam.has_distortion:
         fisheye = cam.distortion_model == "equidistant"
         d = np.zeros(8)
         m = 4 if fisheye else 8
         d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
-        out = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
-    if len(_JACOBIAN_ARGS) >= 64:
-        _JACOBIAN_ARGS.clear()
-    _JACOBIAN_ARGS[id(cam)] = (cam, out)
-    return out
-
-
-def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
-    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
-    point, :func:`~.frame.varying_pixel_jacobian`)`` of a camera, kept per camera object (a
-    frozen dataclass a rig's frames share: its properties cost as much as a view's arrays)."""
-    hit = _CAMERA_CONSTANTS.get(id(cam))
-    if hit is not None and hit[0] is cam:
-        return hit[1]
-    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam))
+        args = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
+    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam), args)
     if len(_CAMERA_CONSTANTS) >= 64:
         _CAMERA_CONSTANTS.clear()
     _CAMERA_CONSTANTS[id(cam)] = (cam, out)
@@ -703,7 +688,7 @@ def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
     """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
     in NumPy, nothing compiles)."""
     if numpy or not (_kernel_ready(a) and _kernel_ready(b)):
-        return bool(np.isfinite(a).all() and np.isfinite(b).all())
+        return all_finite(a, b)
     return bool(_finite_kernel(a, b))
 
 
