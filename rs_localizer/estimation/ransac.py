@@ -55,7 +55,7 @@ __all__ = [
 def _int_seed(seed) -> bool:
     """Whether ``seed`` is an int (a NumPy integer too, not a bool): a seed whose streams
     :func:`seeded_stream` keeps."""
-    return isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)
+    return type(seed) is int or (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool))
 
 
 @functools.lru_cache(maxsize=16)
@@ -134,7 +134,7 @@ def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
     (:mod:`.rig_batch`)."""
     if inlier_ratio <= 0:
         return np.inf
-    p = inlier_ratio ** np.float64(s)
+    p = inlier_ratio ** float(s)  # (a float power, compiled too: pow(), not repeated products)
     if p >= 1:
         return 0.0
     return log_miss / np.log1p(-p)
