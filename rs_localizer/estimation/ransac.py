@@ -6,7 +6,10 @@ drawn, the adaptive termination: :func:`required_iterations`, the batches:
 :func:`batch_sizes`) and asks a :class:`RansacEstimator` for the rest
 (``generate_models``: a batch of hypotheses from minimal samples, ``score_models``,
 ``refine_model``: a new best). The single camera's :class:`Ransac` is its own estimator; the
-rig's is in :mod:`.rig`. Both draw from :func:`seeded_rng`.
+rig's is in :mod:`.rig`. Both draw from one seeded random stream (:func:`seeded_rng`; the
+start of it kept per seed by :func:`seeded_stream`: a frame's shuffle, a compiled rig
+search's draws), and both terminate by one rule (:func:`required_samples`,
+:func:`next_batch_size`, compiled in the rig's search kernels).
 
 :class:`Ransac` holds the search's state (the best model, its score and inliers, the
 hypotheses drawn, the adaptive termination) and draws batches of minimal samples from a
