@@ -35,6 +35,7 @@ from .outputs import final_inliers
 from .plausibility import (
     CHEIRALITY,
     IMPLAUSIBLE_MOTION,
+    all_finite,
     final_check,
     finite_model,
 )
@@ -411,7 +412,7 @@ def _finite_fit(fr: RefinementView, ref: RefineResult) -> bool:
     """The refinement ``ref`` of ``fr`` gave a finite model and a finite covariance (checked
     in Python where ``fr`` is not compiled: nothing compiles)."""
     m = (ref.R, ref.C, ref.w, ref.t)
-    finite = bool(finite_model(*m)) if fr.compiled else all(np.isfinite(a).all() for a in m)
+    finite = bool(finite_model(*m)) if fr.compiled else all_finite(*m)
     cov = ref.covariance
     return finite and cov is not None and bool(np.isfinite(cov).all())
 

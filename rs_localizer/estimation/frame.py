@@ -20,7 +20,7 @@ from .plausibility import (
     plausible_motion,
 )
 from .prior import MotionPrior
-from .refine import KernelMountings, Mountings, exact_errors
+from .refine import KernelMountings, Mountings, exact_errors, kernel_mountings_of
 from .result import (
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
@@ -36,6 +36,7 @@ __all__ = [
     "RefinementView",
     "configure_frame",
     "prepare_frame",
+    "varying_pixel_jacobian",
 ]
 
 #: RANSAC and local optimization score points at their measured capture times
@@ -185,13 +186,14 @@ class Frame:
     def kernel_mountings(self) -> KernelMountings | None:
         """:meth:`mountings` of every point in the refinement kernel's form, as
         :func:`~.refine.kernel_mountings` checks and converts them (the same arrays' values),
-        built directly (a frame refined several times: :mod:`.single_tag`); None as there."""
+        built directly (:func:`~.refine.kernel_mountings_of`; a frame refined several times:
+        :mod:`.single_tag`); None as there."""
         if not len(self.W) or not self.compiled:
             return None
         n = len(self.W)
         scale = np.ascontiguousarray(self.W, dtype=np.float64)
-        return KernelMountings(
-            n, (np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale)
+        return kernel_mountings_of(
+            np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale
         )
 
     def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:
@@ -258,6 +260,17 @@ class Frame:
         return bool(test(self.X, self.u_px, self.x, mask, float(self.f), float(threshold_px)))
 
 
+def varying_pixel_jacobian(camera: CameraModel) -> bool:
+    """Whether the camera's pixel Jacobian
+    (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`) varies from point to point or
+    is not the focal length times the identity: lens
+    distortion, ``fx != fy`` or a skew. Then each point's error is whitened by its own
+    Jacobian (a frame's :attr:`Frame.W`, a rig camera's ``A``); else the plain errors times the
+    focal length are the errors in px."""
+    K = camera.K
+    return bool(camera.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0)
+
+
 def prepare_frame(
     points2d: np.ndarray,
     points3d: np.ndarray,
@@ -310,7 +323,7 @@ def prepare_frame(
     )
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
-    if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
+    if varying_pixel_jacobian(camera):
         J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr

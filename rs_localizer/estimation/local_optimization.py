@@ -14,7 +14,7 @@ from ..solvers.registry import sample_size, solver_info
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .hypotheses import nonminimal_models
 from .options import EstimateOptions, InitialModel
-from .plausibility import finite_model
+from .plausibility import all_finite, finite_model
 from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
@@ -106,11 +106,6 @@ def local_optimization(
     return best_score, model, best_inl
 
 
-def _finite(*arrays) -> bool:
-    """:func:`~.plausibility.finite_model` in NumPy."""
-    return all(np.isfinite(a).all() for a in arrays)
-
-
 def seed_from_initial_model(
     fr: Frame,
     solver: str,
@@ -135,7 +130,7 @@ def seed_from_initial_model(
         (explained, seed, anchor) as :func:`initial_model_seed`; the pull onto the explained
         points is :func:`_pull_in`.
     """
-    finite = finite_model if errors2 is None else _finite
+    finite = finite_model if errors2 is None else all_finite
     if errors2 is None:
 
         def errors2(m: Model) -> np.ndarray:
@@ -168,7 +163,7 @@ def initial_model_seed(
     errors: Callable[[Model], np.ndarray],
     evaluate: Callable[[Model, np.ndarray], tuple[float, np.ndarray]],
     pull: Callable[[Scored, np.ndarray], Scored],
-    finite: Callable[..., bool] = _finite,
+    finite: Callable[..., bool] = all_finite,
 ) -> tuple[int, Scored | None, bool]:
     """Test an initial model (a tracker's prediction, :class:`InitialModel`) on every point:
     the decision a single camera (:func:`seed_from_initial_model`) and a rig

@@ -69,7 +69,7 @@ from .frame import Frame, Model
 from .hypotheses import ScoredBatch, hypothesis_iterations
 from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions
-from .plausibility import motion_norms2
+from .plausibility import plausible_models
 from .prior import prior_arrays
 from .ransac import Ransac
 from .refine import (
@@ -104,20 +104,6 @@ def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
     return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
-
-
-def plausible_models(
-    C: np.ndarray, w: np.ndarray, t: np.ndarray, bounds: tuple[float, float] | None
-) -> np.ndarray:
-    """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
-    and ``|w x C - t| <= v_max`` (:func:`~.plausibility.plausible_motion`; the squared norms
-    by :func:`~.plausibility.motion_norms2`'s own code, on the (H,) columns)."""
-    ok = np.isfinite(C).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(t).all(axis=1)
-    if bounds is None:
-        return ok
-    with np.errstate(invalid="ignore", over="ignore"):
-        wn2, vn2 = motion_norms2.py_func(*C.T, *w.T, *t.T)
-        return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
 def p3p_roots(X3: np.ndarray, x3: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

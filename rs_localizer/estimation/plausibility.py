@@ -33,6 +33,7 @@ from ..geometry import exact_camera_points
 __all__ = [
     "CHEIRALITY",
     "IMPLAUSIBLE_MOTION",
+    "all_finite",
     "check_final_model",
     "collinear_3d",
     "degenerate_points",
@@ -45,6 +46,7 @@ __all__ = [
     "image_degenerate",
     "motion_bounds",
     "motion_norms2",
+    "plausible_models",
     "plausible_motion",
     "views_degenerate",
 ]
@@ -80,6 +82,7 @@ def plausible_motion(
     ws: np.ndarray,
     ts: np.ndarray,
     bounds: tuple[float, float] | None,
+    compiled: bool = True,
 ) -> bool | np.ndarray:
     """Which models move plausibly.
 
@@ -91,9 +94,15 @@ def plausible_motion(
         Rs (K, 3, 3) rotations (unused, for a uniform signature), Cs, ws, ts (K, 3) or (3,).
         bounds: ``(w_max, v_max)`` from :func:`motion_bounds`, or ``None`` (only finiteness
             is checked).
+        compiled: False: in NumPy (:func:`plausible_models`; nothing compiles).
     Returns:
         (K,) bool, or a bool for single (3,) vectors; ``False`` for non-finite parameters.
     """
+    if not compiled:
+        one = np.ndim(ws) == 1
+        Cs, ws, ts = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (Cs, ws, ts))
+        ok = plausible_models(Cs, ws, ts, bounds)
+        return bool(ok[0]) if one else ok
     if np.ndim(ws) == 1:  # one model (every LO candidate): one compiled call
         f64 = np.float64
         w2max, v2max = (
@@ -112,6 +121,20 @@ def plausible_motion(
     if bounds is None:
         return _plausible(Cs, ws, ts, np.inf, np.inf)
     return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+
+
+def plausible_models(
+    C: np.ndarray, w: np.ndarray, t: np.ndarray, bounds: tuple[float, float] | None
+) -> np.ndarray:
+    """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
+    and ``|w x C - t| <= v_max`` (:func:`plausible_motion` in NumPy, nothing compiled; the
+    squared norms by :func:`motion_norms2`'s own code, on the (H,) columns)."""
+    ok = np.isfinite(C).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(t).all(axis=1)
+    if bounds is None:
+        return ok
+    with np.errstate(invalid="ignore", over="ignore"):
+        wn2, vn2 = motion_norms2.py_func(*C.T, *w.T, *t.T)
+        return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
 @njit(cache=True, nogil=True)
@@ -146,6 +169,12 @@ def _plausible1(C, w, t, w_max2, v_max2):
         return False
     wn2, vn2 = motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2)
     return wn2 <= w_max2 and vn2 <= v_max2
+
+
+def all_finite(*arrays: np.ndarray) -> bool:
+    """Whether every entry of the arrays is finite, in NumPy (nothing compiles): a model's
+    ``(R, C, w, t)`` as :func:`finite_model` tests it compiled, or any arrays."""
+    return all(np.isfinite(a).all() for a in arrays)
 
 
 @njit(cache=True, nogil=True)
@@ -490,7 +519,7 @@ def final_model_check_numpy(
     v_max2: float,
 ) -> tuple[int, int]:
     """:func:`final_model_check` in NumPy (the estimator's NumPy implementation)."""
-    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+    if not all_finite(R, C, w, t):
         return 1, 0
     wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
     if not (wn2 <= w_max2 and vn2 <= v_max2):
@@ -542,7 +571,7 @@ def final_check(
     if compiled:
         ok = finite_model(R, C, w, t) and _plausible1(C, w, t, w_max2, v_max2)
     else:
-        ok = all(np.isfinite(a).all() for a in (R, C, w, t))
+        ok = all_finite(R, C, w, t)
         wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
         ok = ok and wn2 <= w_max2 and vn2 <= v_max2
     if not ok:

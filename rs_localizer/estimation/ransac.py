@@ -6,7 +6,10 @@ drawn, the adaptive termination: :func:`required_iterations`, the batches:
 :func:`batch_sizes`) and asks a :class:`RansacEstimator` for the rest
 (``generate_models``: a batch of hypotheses from minimal samples, ``score_models``,
 ``refine_model``: a new best). The single camera's :class:`Ransac` is its own estimator; the
-rig's is in :mod:`.rig`. Both draw from :func:`seeded_rng`.
+rig's is in :mod:`.rig`. Both draw from one seeded random stream (:func:`seeded_rng`; the
+start of it kept per seed by :func:`seeded_stream`: a frame's shuffle, a compiled rig
+search's draws), and both terminate by one rule (:func:`required_samples`,
+:func:`next_batch_size`, compiled in the rig's search kernels).
 
 :class:`Ransac` holds the search's state (the best model, its score and inliers, the
 hypotheses drawn, the adaptive termination) and draws batches of minimal samples from a
@@ -23,6 +26,7 @@ from collections.abc import Iterator
 from typing import Any, Protocol
 
 import numpy as np
+from numba import njit
 
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
@@ -42,10 +46,19 @@ __all__ = [
     "RansacEstimator",
     "RansacLoop",
     "batch_sizes",
+    "next_batch_size",
     "prosac_order",
     "required_iterations",
+    "required_samples",
     "seeded_rng",
+    "seeded_stream",
 ]
+
+
+def _int_seed(seed) -> bool:
+    """Whether ``seed`` is an int (a NumPy integer too, not a bool): a seed whose streams
+    :func:`seeded_stream` keeps."""
+    return type(seed) is int or (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool))
 
 
 @functools.lru_cache(maxsize=16)
@@ -56,17 +69,29 @@ def _seed_sequence(seed: int) -> np.random.SeedSequence:
 def seeded_rng(seed: int | np.integer | None) -> np.random.Generator:
     """``np.random.default_rng(seed)`` (the same stream) without hashing an int seed again on
     every frame (~6 us of ~20 at this call's cache state); other seeds as NumPy takes them."""
-    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+    if _int_seed(seed):
         return np.random.Generator(np.random.PCG64(_seed_sequence(int(seed))))
     return np.random.default_rng(seed)
 
 
 @functools.lru_cache(maxsize=64)
-def _seeded_permutation(seed: int, n: int) -> np.ndarray:
-    """``seeded_rng(seed).permutation(n)`` (read-only)."""
-    p = seeded_rng(seed).permutation(n)
-    p.flags.writeable = False
-    return p
+def _seeded_stream(seed: int, kind: str, n: int) -> np.ndarray:
+    rng = seeded_rng(seed)
+    out = rng.permutation(n) if kind == "permutation" else rng.random(n)
+    out.flags.writeable = False
+    return out
+
+
+def seeded_stream(seed: int | np.integer | None, kind: str, n: int) -> np.ndarray:
+    """The start of ``seeded_rng(seed)``'s stream: its first ``permutation(n)`` (``kind``
+    ``"permutation"``: a frame's shuffle, :class:`SeededShuffle`) or its first ``n`` uniform
+    draws in [0, 1) (``"random"``: a compiled rig search's, :mod:`.rig_batch`), (n,) and
+    read-only. Kept for the last int seeds and sizes (every frame of a seed starts from the
+    same stream); any other seed draws from a new generator."""
+    if not _int_seed(seed):
+        rng = seeded_rng(seed)
+        return rng.permutation(n) if kind == "permutation" else rng.random(n)
+    return _seeded_stream(int(seed), kind, int(n))
 
 
 class SeededShuffle:
@@ -80,7 +105,7 @@ class SeededShuffle:
         self.seed = seed
         self._n: int | None = None
         self._rng: np.random.Generator | None = None
-        if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)):
+        if not _int_seed(seed):
             self._rng = seeded_rng(seed)
 
     def permutation(self, rows: np.ndarray) -> np.ndarray:
@@ -88,7 +113,7 @@ class SeededShuffle:
         if self._rng is not None:
             return self._rng.permutation(rows)
         self._n = len(rows)
-        return rows.take(_seeded_permutation(int(self.seed), self._n))
+        return rows.take(seeded_stream(self.seed, "permutation", self._n))
 
     def generator(self) -> np.random.Generator:
         """The generator, past the shuffle (:meth:`permutation`) when it was drawn."""
@@ -101,13 +126,39 @@ class SeededShuffle:
 
 def required_iterations(inlier_ratio: float, s: int, confidence: float) -> float:
     """Samples of size ``s`` to draw for one all-inlier sample with probability
-    ``confidence`` at ``inlier_ratio`` (RANSAC's adaptive termination; ``inf`` at 0)."""
+    ``confidence`` at ``inlier_ratio`` (RANSAC's adaptive termination; ``inf`` at 0):
+    :func:`required_samples` with ``log(1 - confidence)``."""
+    return required_samples(inlier_ratio, s, np.log(1 - confidence))
+
+
+def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
+    """:func:`required_iterations` with ``log_miss`` ``log(1 - confidence)``, the formula once
+    for a camera's search and, compiled (:data:`required_samples_kernel`), a rig's
+    (:mod:`.rig_batch`)."""
     if inlier_ratio <= 0:
         return np.inf
-    p = inlier_ratio**s
+    p = inlier_ratio ** float(s)  # (a float power, compiled too: pow(), not repeated products)
     if p >= 1:
+        return 0.0
+    return log_miss / np.log1p(-p)
+
+
+def next_batch_size(batch: int, it: int, needed: float, min_it: int, max_it: int) -> int:
+    """The next batch of a search that has drawn ``it`` samples (:func:`batch_sizes`'
+    rule, once for a camera's search and, compiled (:data:`next_batch_size_kernel`), a rig's):
+    0 once ``max_it`` samples are drawn or both ``min_it`` and what termination asks for
+    (``needed``); else ``batch`` samples, but no more than ``max_it`` in all nor than
+    termination still asks for, at least ``min_it`` in all."""
+    if not (it < max_it and (it < needed or it < min_it)):
         return 0
-    return np.log(1 - confidence) / np.log1p(-p)
+    ask = int(np.ceil(min(needed, np.float64(max_it))))
+    return min(batch, max_it - it, max(ask - it, min_it - it, 1))
+
+
+#: :func:`required_samples` and :func:`next_batch_size` compiled (the rig's search kernels,
+#: :mod:`.rig_batch`; compiled on their first call there)
+required_samples_kernel = njit(cache=True)(required_samples)
+next_batch_size_kernel = njit(cache=True)(next_batch_size)
 
 
 def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
@@ -135,19 +186,12 @@ def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
     ``r.batch_size``, each next one twice as large, but none more than termination still asks
     for (at least ``r.min_iterations`` in all). The caller adds each to ``loop.iterations``."""
     batch = max(int(r.batch_size), 1)
-    while loop.iterations < r.max_iterations and (
-        loop.iterations < loop.needed or loop.iterations < r.min_iterations
-    ):
+    while True:
         # batches double (fewer calls), but draw no more samples than termination asks for
-        yield min(
-            batch,
-            r.max_iterations - loop.iterations,
-            max(
-                int(np.ceil(min(loop.needed, r.max_iterations))) - loop.iterations,
-                r.min_iterations - loop.iterations,
-                1,
-            ),
-        )
+        K = next_batch_size(batch, loop.iterations, loop.needed, r.min_iterations, r.max_iterations)
+        if K == 0:
+            return
+        yield K
         batch *= 2
 
 

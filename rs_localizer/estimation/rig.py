@@ -118,7 +118,6 @@ from __future__ import annotations
 import copy
 import functools
 import math
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -153,6 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
+from .frame import varying_pixel_jacobian
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -161,22 +161,23 @@ from .gyro import (
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed
-from .numpy_impl import p3p_roots, plausible_models
+from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
 from .plausibility import (
+    all_finite,
     collinear_3d,
     image_degenerate,
     plausible_motion,
     views_degenerate,
 )
 from .prior import MotionPrior
-from .ransac import RansacLoop, required_iterations, seeded_rng
+from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
     Mountings,
     image_variance,
-    kernel_mountings,
+    kernel_mountings_of,
 )
 from .result import (
     CAMERAS_DISAGREE,
@@ -193,12 +194,13 @@ from .rig_batch import (
     best_msac,
     inliers_missed,
     lambda_twist_on_rig,
+    model_cost,
     moving_search,
-    pairwise_sum,
     point_residual,
     sample_kernel,
     still_search,
 )
+from .sampling import draw_samples_numpy
 from .single_tag import few_points
 
 __all__ = [
@@ -573,9 +575,9 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    spr, focal, jacobian = _camera_constants(cam)
+    spr, focal, jacobian, args = _camera_constants(cam)
     stamp = float(v.stamp_offset)
-    args = None if numpy or not jacobian else _jacobian_args(cam)
+    args = None if numpy else args  # (a distorted camera's, compiled)
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
     if args is not None and spr == 0.0 and _kernel_ready(uv) and _kernel_ready(X):
         # (a global shutter with distortion: the checks and rows below in one compiled call
@@ -636,45 +638,24 @@ def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
 _CAMERA_CONSTANTS: dict = {}
 
 
-#: the arguments of a distorted camera's compiled pixel Jacobian (:func:`_jacobian_args`): id ->
-#: (camera, arguments or None)
-_JACOBIAN_ARGS: dict = {}
-
-
-def _jacobian_args(cam: CameraModel) -> tuple | None:
-    """The arguments after the points of the compiled pixel Jacobian of a camera with
-    distortion (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s, the same arrays
-    and values), kept per camera object as :func:`_camera_constants`; None without
-    distortion."""
-    hit = _JACOBIAN_ARGS.get(id(cam))
+def _camera_constants(cam: CameraModel) -> tuple[float, float, bool, tuple | None]:
+    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
+    point (:func:`~.frame.varying_pixel_jacobian`), the arguments after the points of its
+    compiled pixel Jacobian)`` of a camera, kept per camera object (a frozen dataclass a
+    rig's frames share: its properties cost as much as a view's arrays). The arguments are
+    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s (the same arrays and values)
+    for a camera with distortion, else None."""
+    hit = _CAMERA_CONSTANTS.get(id(cam))
     if hit is not None and hit[0] is cam:
         return hit[1]
-    out = None
+    args = None
     if cam.has_distortion:
         fisheye = cam.distortion_model == "equidistant"
         d = np.zeros(8)
         m = 4 if fisheye else 8
         d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
-        out = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
-    if len(_JACOBIAN_ARGS) >= 64:
-        _JACOBIAN_ARGS.clear()
-    _JACOBIAN_ARGS[id(cam)] = (cam, out)
-    return out
-
-
-def _camera_constants(cam: CameraModel) -> tuple[float, float, bool]:
-    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
-    point)`` of a camera (distortion, or fx != fy, or skew), kept per camera object (a
-    frozen dataclass a rig's frames share: its properties cost as much as a view's arrays)."""
-    hit = _CAMERA_CONSTANTS.get(id(cam))
-    if hit is not None and hit[0] is cam:
-        return hit[1]
-    K = cam.K
-    out = (
-        cam.seconds_per_unit_r,
-        float(cam.mean_focal),
-        bool(cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0),
-    )
+        args = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
+    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam), args)
     if len(_CAMERA_CONSTANTS) >= 64:
         _CAMERA_CONSTANTS.clear()
     _CAMERA_CONSTANTS[id(cam)] = (cam, out)
@@ -707,7 +688,7 @@ def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
     """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
     in NumPy, nothing compiles)."""
     if numpy or not (_kernel_ready(a) and _kernel_ready(b)):
-        return bool(np.isfinite(a).all() and np.isfinite(b).all())
+        return all_finite(a, b)
     return bool(_finite_kernel(a, b))
 
 
@@ -908,54 +889,35 @@ class _Pool:
 
 
 @njit(cache=True)
-def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
-    """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
-    normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`_Pool`): to first order the error in the measured image; inf behind the camera;
-    :func:`~.rig_batch.point_residual`)."""
-    H, N = R.shape[0], X.shape[0]
-    for h in range(H):
-        for i in range(N):
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            out[h, i, 0] = d0
-            out[h, i, 1] = d1
-
-
-@njit(cache=True)
 def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
-    """(H, N) the norms of :func:`_residuals_kernel`'s image errors (px; inf behind the
-    camera)."""
+    """(H, N) the image errors (px) of N points under H models: the norms of
+    :func:`~.rig_batch.point_residual` (predicted minus measured, the normalized difference
+    times the point's 2x2 pixel Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order
+    the error in the measured image); inf behind the camera."""
     H, N = R.shape[0], X.shape[0]
-    d = np.empty((H, N, 2))
-    _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, d)
     out = np.empty((H, N))
     for h in range(H):
         for i in range(N):
-            out[h, i] = np.sqrt(d[h, i, 0] ** 2 + d[h, i, 1] ** 2)
+            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
+            out[h, i] = np.sqrt(d0**2 + d1**2)
     return out
 
 
 @njit(cache=True)
 def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
-    squares capped at ``th2``, summed as ``np.sum`` sums them); ``R`` (3, 3), ``C``, ``w``,
-    ``t`` (3,)."""
+    squares capped at ``th2``, summed as ``np.sum`` sums them:
+    :func:`~.rig_batch.model_cost`); ``R`` (3, 3), ``C``, ``w``, ``t`` (3,)."""
     N = X.shape[0]
-    d = np.empty((1, N, 2))
-    _residuals_kernel(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
-                      X, tau, cam, Rm, cm, x, A, d)  # fmt: skip
-    e = np.empty(N)
-    v = np.empty(N)
-    for i in range(N):
-        e[i] = np.sqrt(d[0, i, 0] ** 2 + d[0, i, 1] ** 2)
-        q = e[i] * e[i]
-        v[i] = th2 if q > th2 else q
-    return e, pairwise_sum(v, 0, N)
+    e, v = np.empty(N), np.empty(N)
+    cost = model_cost(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
+                      X, tau, cam, Rm, cm, x, A, th2, False, 0, np.inf, e, v)  # fmt: skip
+    return e, cost
 
 
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
-    """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
-    rig's points at each observation's capture time
+    """:func:`~.rig_batch.point_residual` in NumPy on every point of the pool (nothing
+    compiles): the rig's points at each observation's capture time
     (:func:`~rs_localizer.geometry.exact_camera_points`) seen through their camera's mounting
     (the pool is stacked by camera: one matrix product per camera), the normalized errors
     times the pixel Jacobians; inf behind the camera. Returns (H, N, 2)."""
@@ -974,17 +936,6 @@ def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
         out = np.stack([A[:, 0] * ex + A[:, 1] * ey, A[:, 2] * ex + A[:, 3] * ey], axis=-1)
     out[~(z > 1e-9)] = np.inf
     return out
-
-
-def _plausible_motion(pool: _Pool, C, w, t, bounds) -> bool | np.ndarray:
-    """:func:`~.plausibility.plausible_motion` of one model (C, w, t (3,)) or H (H, 3);
-    ``pool.numpy``: in NumPy (nothing compiles)."""
-    if not pool.numpy:
-        return plausible_motion(None, C, w, t, bounds)
-    one = np.ndim(w) == 1
-    C, w, t = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (C, w, t))
-    ok = plausible_models(C, w, t, bounds)
-    return bool(ok[0]) if one else ok
 
 
 def _rig_solver(pool: _Pool):
@@ -1006,19 +957,6 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     )  # fmt: skip
 
 
-def _distinct3(rng, N: np.ndarray) -> np.ndarray:
-    """(S, 3) three distinct uniform integers in ``[0, N[s])`` per row (``N`` (S,) >= 3)."""
-    S = len(N)
-    a = (rng.random(S) * N).astype(np.int64)
-    b = (rng.random(S) * (N - 1)).astype(np.int64)
-    b += b >= a
-    c = (rng.random(S) * (N - 2)).astype(np.int64)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    c += c >= lo
-    c += c >= hi
-    return np.stack([a, b, c], axis=1)
-
-
 def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
     proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
@@ -1026,9 +964,13 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     (S, 6)."""
     counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
     if pool.numpy:
+        # (three distinct points of the camera, then three of the n - 3 others: the camera's
+        # draws without replacement, the same uniforms in the same order as the kernel's)
         cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
-        first = starts[cams][:, None] + _distinct3(rng, counts[cams])
-        rest = _distinct3(rng, np.full(n_samples, n - 3))
+        first = starts[cams][:, None] + draw_samples_numpy(
+            rng.random((3, n_samples)).T, counts[cams]
+        )
+        rest = draw_samples_numpy(rng.random((3, n_samples)).T, n - 3)
         # map 0..n-4 onto the pool without the first three
         taken = np.sort(first, axis=1)
         for j in range(3):
@@ -1109,7 +1051,7 @@ def _hypotheses(
     if prior is not None:
         rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
     b = _prerotated_solve(pool, S, R0, pool.tau[S], iterations, rows)
-    ok = b.valid & _plausible_motion(pool, b.C, b.w, b.t, bounds)
+    ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds, pool.compiled)
     if not ok.any():
         return None
     return np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok]), b.C[ok], b.w[ok], b.t[ok]
@@ -1319,20 +1261,12 @@ def _mountings(pool: _Pool) -> Mountings:
 
 
 def _kernel_mountings(pool: _Pool) -> KernelMountings:
-    """:func:`_mountings` checked and in the refinement kernel's form
-    (:func:`~.refine.kernel_mountings`), once per pool: every refinement and the covariance
-    of a rig frame take it."""
+    """:func:`_mountings` in the refinement kernel's form
+    (:func:`~.refine.kernel_mountings_of`: the pool's own arrays, consistent by construction),
+    once per pool: every refinement and the covariance of a rig frame take it."""
     m = pool.__dict__.get("_kernel_mountings")
     if m is None:
-        f = np.float64
-        Rm, cm = np.ascontiguousarray(pool.R_mount, f), np.ascontiguousarray(pool.c_mount, f)
-        n, cam, A = len(pool.X), pool.cam, pool.A
-        if cam.dtype == np.int64 and A.dtype == f and A.flags.c_contiguous and A.shape == (n, 4):
-            # (the pool's own arrays, already in the kernel's form and consistent: each
-            # camera index in range, one row of A per point)
-            m = KernelMountings(n, (np.ascontiguousarray(cam), Rm, cm, A))
-        else:
-            m = kernel_mountings(_mountings(pool), n)
+        m = kernel_mountings_of(pool.cam, pool.R_mount, pool.c_mount, pool.A)
         pool._kernel_mountings = m
     return m
 
@@ -2178,44 +2112,6 @@ def _search_batches_of(r: RansacOptions) -> RansacOptions:
     return hit[1]
 
 
-#: each thread's random generator of its last search's seed (:func:`_search_rng`)
-_RNGS = threading.local()
-
-
-def _search_rng(seed) -> np.random.Generator:
-    """``seeded_rng(seed)``'s generator (the same stream from its start): for an int seed
-    this thread's generator of the last such seed, set back to its seeded state (a search
-    draws from it until it ends, before the thread's next search starts), else a new one."""
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
-        return seeded_rng(seed)
-    hit = getattr(_RNGS, "last", None)
-    if hit is None or hit[0] != int(seed):
-        rng = seeded_rng(seed)
-        hit = _RNGS.last = (int(seed), rng, rng.bit_generator.state)
-    hit[1].bit_generator.state = hit[2]
-    return hit[1]
-
-
-#: the random streams of the last seeds (:func:`_search_draws`): seed -> draws
-_DRAWS: dict = {}
-
-
-def _search_draws(seed, n: int) -> np.ndarray:
-    """The first ``n`` uniform draws of ``seeded_rng(seed)`` (read-only; kept for the last
-    few int seeds: every search of a seed starts from the same stream, and a batch by batch
-    search draws its batches from it in turn), or of a new generator for any other seed."""
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool):
-        return seeded_rng(seed).random(n)
-    hit = _DRAWS.get(int(seed))
-    if hit is None or len(hit) < n:
-        if len(_DRAWS) >= 8:
-            _DRAWS.clear()
-        hit = seeded_rng(seed).random(n)
-        hit.flags.writeable = False
-        _DRAWS[int(seed)] = hit
-    return hit
-
-
 #: :func:`~.rig_batch.still_search`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
 #: :func:`~.rig_batch.moving_search`'s anchor of none (P3P pre-rotates the samples)
@@ -2268,10 +2164,10 @@ class _RigSearch(RansacLoop):
 
     @property
     def rng(self) -> np.random.Generator:
-        """The search's random generator (:func:`_search_rng`; the compiled search reads the
-        same stream from :func:`_search_draws` instead)."""
+        """The search's random generator (:func:`~.ransac.seeded_rng`; the compiled search
+        reads the same stream from :func:`~.ransac.seeded_stream` instead)."""
         if self._rng is None:
-            self._rng = _search_rng(self._seed)
+            self._rng = seeded_rng(self._seed)
         return self._rng
 
     def cost(self, model) -> float:
@@ -2314,7 +2210,7 @@ class _RigSearch(RansacLoop):
         )  # fmt: skip
         if hyp is None:
             return None
-        ok = _plausible_motion(pool, hyp[1], hyp[2], hyp[3], self.bounds)
+        ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds, pool.compiled)
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
@@ -2323,12 +2219,13 @@ class _RigSearch(RansacLoop):
         :func:`~.rig_batch.moving_search`): the batches of :func:`~.ransac.batch_sizes`, each
         stopping after the first sample at which termination is reached (a new best's inlier
         ratio counted at once, as PoseLib's loop does after every sample), on the seed's
-        random stream (:func:`_search_draws`: the draws a batch by batch search takes)."""
+        random stream (:func:`~.ransac.seeded_stream`: the draws a batch by batch search
+        takes)."""
         pool, subset = self.pool, self.subset
         X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        args = (_search_draws(r.seed, 7 * int(r.max_iterations)), _sampling_of(pool, subset),
-                _NO_SUBSET if subset is None else subset, _bearings(pool), X, x, tau, cam, Rm,
-                cm, A)  # fmt: skip
+        draws = seeded_stream(r.seed, "random", 7 * int(r.max_iterations))
+        args = (draws, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
         state = np.array([self.score, self.needed, self._log_miss])
         limits = np.array([self.batches.batch_size, r.min_iterations, r.max_iterations])
         if self.still:

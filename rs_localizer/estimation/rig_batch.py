@@ -2,9 +2,9 @@
 in one numba call (:func:`still_search`, :func:`moving_search`: the batches of
 :func:`~.ransac.batch_sizes` on the seed's random stream), each batch of minimal samples drawn,
 solved and scored in turn, as :mod:`.batch` does for one camera. Termination is checked after
-every sample (:func:`required_samples` of the best model's inlier ratio, as PoseLib's loop does):
-a batch stops at the first sample at which the samples drawn reach ``min_iterations`` and what
-termination asks for.
+every sample (:func:`~.ransac.required_samples` of the best model's inlier ratio, as
+PoseLib's loop does): a batch stops at the first sample at which the samples drawn reach
+``min_iterations`` and what termination asks for (:func:`~.ransac.next_batch_size`).
 
 :func:`still_batch` (a global-shutter rig frame: Lambda Twist P3P of one camera's 3 points
 mapped to the rig, corrected on the sample's 6 points by the rig solver with the velocities
@@ -26,10 +26,10 @@ from .._so3 import INLINE, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
+from .ransac import next_batch_size_kernel, required_samples_kernel
 
 __all__ = [
     "batch_samples",
-    "batch_size",
     "best_msac",
     "block_sum",
     "camera_error",
@@ -43,7 +43,6 @@ __all__ = [
     "p3p_on_rig_into",
     "pairwise_sum",
     "point_residual",
-    "required_samples",
     "sample_kernel",
     "still_batch",
     "still_residual",
@@ -228,7 +227,7 @@ def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
 def sample_kernel(u, cdf, eligible, counts, starts, n):
     """:func:`~.rig._sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
     NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
-    (:func:`~.rig._distinct3`), three distinct points of the ``n - 3`` others."""
+    (:func:`~.sampling.draw_samples`' draws), three distinct points of the ``n - 3`` others."""
     S = u.shape[1]
     out = np.empty((S, 6), dtype=np.int64)
     for k in range(S):
@@ -325,19 +324,6 @@ def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
 
 
 @njit(cache=True)
-def required_samples(n_in, among, s, log_miss):
-    """:func:`~.ransac.required_iterations` of ``n_in`` inliers among ``among`` points for
-    samples of ``s`` points, ``log_miss`` ``log(1 - confidence)``."""
-    ratio = n_in / among
-    if ratio <= 0:
-        return np.inf
-    p = ratio ** np.float64(s)
-    if p >= 1:
-        return 0.0
-    return log_miss / np.log1p(-p)
-
-
-@njit(cache=True)
 def counted(e, k, cam, pool_counts, subset):
     """The inliers of errors ``e`` (N,) px (below ``k``; among ``subset`` when it is not
     empty) and the cameras of 3 or more points (``pool_counts``) with none: ``(inliers,
@@ -366,7 +352,7 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
     ``state``: the search's ``(best cost (inf: none), samples drawn, min_iterations, samples
     termination asks for, log(1 - confidence))``: the batch stops after the first sample at
     which the samples drawn reach both ``min_iterations`` and what termination asks for at
-    the best model's inlier ratio (:func:`required_samples`, updated at each new best), as
+    the best model's inlier ratio (:func:`~.ransac.required_samples`, updated at each new best), as
     PoseLib's loop checks after every sample.
 
     Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers (among
@@ -423,7 +409,7 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
                     best_e[:] = e
                     R_best, C_best = Rg[h].copy(), Cg[h].copy()
                     n_best, missed_best = counted(e, k, cam, pool_counts, subset)
-                    needed = required_samples(n_best, among, 3, log_miss)
+                    needed = required_samples_kernel(n_best / among, 3, log_miss)
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
@@ -501,7 +487,7 @@ def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, ancho
                         R_best, C_best = R[h].copy(), C[h].copy()
                         w_best, t_best = w[h].copy(), t[h].copy()
                         n_best, missed_best = counted(e, k, cam, pool_counts, subset)
-                        needed = required_samples(n_best, among, 6, log_miss)
+                        needed = required_samples_kernel(n_best / among, 6, log_miss)
                 else:
                     beyond += 1
             h += 1
@@ -529,25 +515,14 @@ def inliers_missed(e, k, cam, counts):
 
 
 @njit(cache=True)
-def batch_size(batch, it, needed, min_it, max_it):
-    """:func:`~.ransac.batch_sizes`' next batch: ``batch`` samples, but no more than
-    ``max_it`` in all nor than termination still asks for (``needed``), at least
-    ``min_it`` in all."""
-    ask = int(np.ceil(min(needed, np.float64(max_it))))
-    return min(batch, max_it - it, max(ask - it, min_it - it, 1))
-
-
-@njit(cache=True)
 def next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it):
     """The next batch of a search that has drawn ``it`` samples: its uniform draws (7, K) from
-    offset ``o`` of the stream ``draws`` (K :func:`batch_size`; 0 when termination, the
-    ``max_it`` samples or the stream end the search), the next offset, and the batch's
-    ``state`` (:func:`still_batch`'s)."""
-    K = 0
-    if it < max_it and (it < needed or it < min_it):
-        K = batch_size(batch, it, needed, min_it, max_it)
-        if o + 7 * K > len(draws):
-            K = 0
+    offset ``o`` of the stream ``draws`` (K :func:`~.ransac.next_batch_size`; 0 when
+    termination, the ``max_it`` samples or the stream end the search), the next offset, and
+    the batch's ``state`` (:func:`still_batch`'s)."""
+    K = next_batch_size_kernel(batch, it, needed, min_it, max_it)
+    if o + 7 * K > len(draws):
+        K = 0
     u = draws[o : o + 7 * K].reshape((7, K))
     return u, o + 7 * K, np.array([best_cost, it, min_it, needed, log_miss])
 
@@ -586,7 +561,7 @@ def still_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, m
         if h >= 0:
             best_cost, found, n_best = cost, h, n
             e_best, R_best, C_best = e, R, C
-            needed = required_samples(n, among, 3, log_miss)
+            needed = required_samples_kernel(n / among, 3, log_miss)
             if follow:
                 missed_now = m
         batch *= 2
@@ -623,6 +598,6 @@ def moving_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, 
         if out[1] >= 0:
             best_cost, found, n_best = out[2], out[1], out[8]
             e_best, R_best, C_best, w_best, t_best = out[3], out[4], out[5], out[6], out[7]
-            needed = required_samples(n_best, among, 6, log_miss)
+            needed = required_samples_kernel(n_best / among, 6, log_miss)
         batch *= 2
     return it, found, best_cost, e_best, R_best, C_best, w_best, t_best, n_best, beyond

@@ -59,9 +59,10 @@ def draw_samples(u, pool):
     return out
 
 
-def draw_samples_numpy(u: np.ndarray, pool: int) -> np.ndarray:
+def draw_samples_numpy(u: np.ndarray, pool: int | np.ndarray) -> np.ndarray:
     """:func:`draw_samples` in NumPy, all K samples at once (the NumPy implementation): the
-    same (K, s) indices from the same ``u``. (The chosen indices are distinct and sorted, so
+    same (K, s) indices from the same ``u``; ``pool`` may also be (K,) int64, each sample's
+    own range (a rig's samples in their cameras). (The chosen indices are distinct and sorted, so
     the kernel's walk over them, which stops at the first one above the pick, steps over
     exactly those at or below it: one comparison per chosen index.)"""
     K, s = u.shape

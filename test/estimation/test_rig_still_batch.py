@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
 from rs_localizer.estimation.rig_batch import moving_batch, still_batch
 from rs_localizer.frames import Mounting
@@ -125,7 +126,7 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     anchor = (truth.R, truth.C) if anchored else None
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
     hyp = rig_mod._hypotheses(pool, samples, iterations, None, anchor)
-    ok = rig_mod._plausible_motion(pool, hyp[1], hyp[2], hyp[3], (w_max, v_max))
+    ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
     e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)
