@@ -1661,7 +1661,7 @@ def _one_camera_alone(
     v, s = views[c], pool.slices[c]
     if not few_points(pool.X[s]):
         return None
-    spr = v.camera.seconds_per_unit_r
+    spr = _camera_constants(v.camera)[0]  # (its seconds_per_unit_r, kept per camera)
     start = None
     if initial_model is not None:
         im = (
