@@ -397,9 +397,10 @@ def camera_model_of_rig(
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     Rc, cc = mounting.R, mounting.c
     s, spr = float(stamp_offset), float(seconds_per_unit_r)
-    return RSModel(
-        Rc @ rotvec_to_matrix(s * w) @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t)
-    )
+    a = s * w
+    # (expm(0) = I exactly, and R_c I = R_c: a mounting's rotation is finite)
+    Rs = Rc @ rotvec_to_matrix(a) if a.any() else Rc
+    return RSModel(Rs @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t))
 
 
 def camera_estimate(
@@ -476,7 +477,12 @@ def rig_model_of_camera(
     t = Rc.T @ tk / spr if spr > 0 else np.zeros(3)
     s = float(stamp_offset)
     R1, C1 = Rc.T @ Rk, Rc.T @ (Ck - cc)
-    return RSModel(rotvec_to_matrix(-s * w) @ R1, C1 - s * t, w, t)
+    a = -s * w
+    # (expm(0) = I exactly, and I R1 = R1 when R1 is finite: a global shutter's, or a camera
+    # at the rig's reference time)
+    if a.any() or not np.isfinite(R1).all():
+        R1 = rotvec_to_matrix(a) @ R1
+    return RSModel(R1, C1 - s * t, w, t)
 
 
 def _label(c: int, v: RigView) -> str:
@@ -720,6 +726,26 @@ def _selected_per_camera(mask, cam, M):
     return out
 
 
+#: the mountings' stacks of :func:`_mounting_stacks`: ids -> (mountings, R (M, 3, 3), c (M, 3))
+_MOUNTING_STACKS: dict = {}
+
+
+def _mounting_stacks(views: Sequence[RigView], parts: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
+    (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
+    share them; read only, as every pool's)."""
+    key = tuple(id(v.mounting) for v in views)
+    hit = _MOUNTING_STACKS.get(key)
+    if hit is not None and all(a is v.mounting for a, v in zip(hit[0], views, strict=True)):
+        return hit[1], hit[2]
+    R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
+    c = np.array([q[1] for q in parts]).reshape(-1, 3)
+    if len(_MOUNTING_STACKS) >= 64:
+        _MOUNTING_STACKS.clear()
+    _MOUNTING_STACKS[key] = (tuple(v.mounting for v in views), R, c)
+    return R, c
+
+
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
     out, a = [], 0
@@ -764,8 +790,7 @@ class _Pool:
             part = _view_part(c, v, self.numpy)
             cache[id(v)] = (v, c, part)
             parts.append(part)
-        self.R_mount = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
-        self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
+        self.R_mount, self.c_mount = _mounting_stacks(views, parts)
         self.mount_cov = [q[2] for q in parts]
         #: some camera's mounting has a covariance
         self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
@@ -776,7 +801,14 @@ class _Pool:
         self._sizes_valid = tuple(int(k) for k in n)
         #: every input row of every camera is valid (the pool's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
-        if parts:
+        if len(parts) == 1:  # (one camera: its arrays copied, as concatenated alone)
+            q = parts[0]
+            self.cam = np.zeros(n[0], dtype=np.int64)
+            self.focal = np.empty(n[0])
+            self.focal.fill(q[9])
+            self.x, self.X, self.uv = q[4].copy(), q[5].copy(), q[6].copy()
+            self.tau, self.row, self.A = q[7].copy(), q[8].copy(), q[10].copy()
+        elif parts:
             self.cam = np.empty(sum(n), dtype=np.int64)
             self.focal = np.empty(len(self.cam))
             for c, (q, s) in enumerate(zip(parts, self.slices, strict=True)):
@@ -863,6 +895,8 @@ class _Pool:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
         if mask is None:
             return self._sizes_valid
+        if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one camera: all its points)
+            return (int(np.count_nonzero(mask)),)
         if self.numpy or mask.dtype != np.bool_ or not _kernel_ready(mask):
             return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
         return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
@@ -1374,7 +1408,11 @@ def _final(
         fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
         return fit, msac(fit)
 
-    tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
+    # (``best`` is ``model`` itself when local optimization's refinement was the first and
+    # the wider fit did not lower its cost: the same refinement from the same start, once)
+    fits = inliers_fit(model)
+    fits = (fits, fits if best is model else inliers_fit(best))
+    tight, c_tight = min(fits, key=lambda fc: fc[1])
     margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
 
@@ -1623,7 +1661,7 @@ def _one_camera_alone(
     v, s = views[c], pool.slices[c]
     if not few_points(pool.X[s]):
         return None
-    spr = v.camera.seconds_per_unit_r
+    spr = _camera_constants(v.camera)[0]  # (its seconds_per_unit_r, kept per camera)
     start = None
     if initial_model is not None:
         im = (

@@ -272,6 +272,50 @@ def test_camera_model_of_the_rig_is_the_camera_truth_and_inverts():
             np.testing.assert_allclose(a, b, atol=1e-12)
 
 
+def test_a_camera_at_the_rig_time_or_global_shutter_maps_by_its_mounting_alone():
+    """No rotation between the camera's reference line and the rig's reference time (a zero
+    stamp offset, or a camera that does not move: zero velocities, a global shutter): each
+    map is the mounting's rigid transform exactly, ``R_cam = R_c R``, ``C_cam = R_c C + c_c``
+    and back ``R = R_c^T R_cam``."""
+    from rs_localizer.estimation.rig import camera_model_of_rig, rig_model_of_camera
+
+    rng = np.random.default_rng(21)
+    _, R_m, c_m, _ = make_rig(rng, 2)
+    R, C, w, t = rig_truth(rng)
+    m = Mounting(R_m[1], c_m[1])
+    cam = camera_model_of_rig((R, C, w, t), m, 0.0, 2e-5)
+    np.testing.assert_array_equal(cam.R, R_m[1] @ R)
+    np.testing.assert_array_equal(cam.C, R_m[1] @ C + c_m[1])
+    np.testing.assert_array_equal(cam.w, 2e-5 * (R_m[1] @ w))
+    still = camera_model_of_rig((R, C, np.zeros(3), np.zeros(3)), m, 0.004, 0.0)
+    np.testing.assert_array_equal(still.R, R_m[1] @ R)
+    back = rig_model_of_camera(still, m, 0.004, 0.0)
+    np.testing.assert_array_equal(back.R, R_m[1].T @ (R_m[1] @ R))
+    np.testing.assert_allclose(back.R, R, atol=1e-14)
+    np.testing.assert_allclose(back.C, C, atol=1e-14)
+    assert not back.w.any() and not back.t.any()
+    # (a moving camera off the rig's time still turns by its rotation over the offset)
+    moved = camera_model_of_rig((R, C, w, t), m, 0.004, 2e-5)
+    np.testing.assert_allclose(moved.R, R_m[1] @ rotvec_to_matrix(0.004 * w) @ R, atol=1e-15)
+    assert not np.allclose(moved.R, R_m[1] @ R, atol=1e-6)
+
+
+def test_a_rig_frame_takes_its_own_mountings_when_they_change():
+    """The same cameras' views given new mounting objects pose the rig through the new
+    mountings (the stacked mountings are kept per mounting object, not per camera)."""
+    rng = np.random.default_rng(22)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], rig_truth(rng))
+    first = rig_mod._Pool(views)
+    turned = Mounting(rotvec_to_matrix(np.array([0.0, 0.1, 0.0])) @ R_m[1], c_m[1] + 0.05)
+    moved = [views[0], replace(views[1], mounting=turned)]
+    second = rig_mod._Pool(moved)
+    np.testing.assert_array_equal(first.R_mount[1], R_m[1])
+    np.testing.assert_array_equal(second.R_mount, np.stack([R_m[0], turned.R]))
+    np.testing.assert_array_equal(second.c_mount, np.stack([c_m[0], turned.c]))
+    np.testing.assert_array_equal(rig_mod._Pool(views).R_mount, np.stack(R_m[:2]))
+
+
 def test_a_camera_without_mounting_is_named():
     rng = np.random.default_rng(13)
     cams, R_m, c_m, stamps = make_rig(rng, 2)
