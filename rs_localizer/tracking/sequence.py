@@ -74,6 +74,7 @@ from ..camera import (
     MAX_STAMP_NS,
     CameraModel,
     FrameTime,
+    Stamp,
     checked_stamp,
     reference_stamp_ns,
 )
@@ -358,7 +359,13 @@ class SequenceLocalizer(GyroReadouts):
             return stamp_ns
         stamp = checked_stamp(stamp_ns)
         check_camera(camera)
-        return self._rig.frame_time(_CAMERA, stamp, camera)
+        return self._frame_time(stamp, camera)
+
+    def _frame_time(self, stamp: Stamp, camera: CameraModel) -> FrameTime:
+        """:meth:`frame_time` of a checked ``stamp`` seen by a checked ``camera``: its rig of
+        one's (:meth:`LocalizerSettings.reference_ns
+        <rs_localizer.tracking.video.LocalizerSettings.reference_ns>`)."""
+        return FrameTime(stamp, self._rig.settings.reference_ns(_CAMERA, stamp, camera))
 
     def check_time(self, stamp_ns: int) -> str | None:
         """Note a frame's stamp (ns). A stamp older than the previous frame's, or newer by more
@@ -366,8 +373,9 @@ class SequenceLocalizer(GyroReadouts):
         timeline starts again: on a stamp going back the samples buffered so far (the old
         timeline's) are dropped, on a jump forward those older than the previous frame; the
         bias estimator's and the gyro check's pairing restart. (The tracker resets itself on
-        the same stamps.) :meth:`process` calls it; calling it first for the same stamp (to
-        act on a reset before the frame is decoded) does not count it twice
+        the same stamps.) :meth:`process` (an image: :meth:`process_image`) calls it; called
+        first for the frame's stamp (to act on a reset before the frame is decoded), the frame
+        takes it as noted: a frame is noted once
         (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`).
 
         Raises:
@@ -458,9 +466,8 @@ class SequenceLocalizer(GyroReadouts):
         if fe.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
         out = SequenceOutput(stamp_ns=t.reference_ns)
-        # (the rig of one's rules: the stamp checked first, the frozen image, too few points)
-        r = self._rig.search_image(_CAMERA, stamp, image, camera, encoding,
-                                   reference_ns=t.reference_ns)  # fmt: skip
+        # (the rig of one's rules: the time noted first, the frozen image, too few points)
+        r = self._rig.search_image(_CAMERA, t, image, camera, encoding)
         if r.failure == FRONTEND_FAILURES[2]:
             out.failure = r.failure
             out.detail = (
@@ -529,8 +536,8 @@ class SequenceLocalizer(GyroReadouts):
         """
         check_camera(frame.camera)
         ft = frame_time
-        if ft is None:
-            ft = self._rig.frame_time(_CAMERA, frame.stamp_ns, frame.camera)
+        if ft is None:  # (the frame's stamp: checked, a CameraFrame's)
+            ft = self._frame_time(frame.stamp_ns, frame.camera)
         elif ft.stamp_ns != frame.stamp_ns:
             raise ValueError(
                 f"frame time of stamp {ft.stamp_ns} ns given for a frame of {frame.stamp_ns} ns"

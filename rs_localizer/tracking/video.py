@@ -648,6 +648,7 @@ class Localizer(GyroReadouts):
         # back_tolerance_ns (less: its frame out of order; a rig of one: any step back), a
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
+        self._noted: int | None = None  # (a rig of one: the frame time noted last, _note_alone)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
@@ -702,6 +703,7 @@ class Localizer(GyroReadouts):
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = settings.time_reset_ns
             self._clock.back_tolerance_ns = settings.back_tolerance_ns
+            self._noted = None  # (the next frame noted on the clock again, with these)
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
@@ -832,6 +834,7 @@ class Localizer(GyroReadouts):
             out = self._time_reset(None)
             self._forget_last_pose()
             self._clock.reset()
+            self._noted = None
         return out
 
     def _gyro_readouts(
@@ -970,23 +973,24 @@ class Localizer(GyroReadouts):
         return self._add(frame, reference_ns)
 
     def _add(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
-        """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
-        camera model)."""
+        """:meth:`add` of a frame (its stamp checked: a
+        :class:`~rs_localizer.tracking.localizer.CameraFrame`'s) with its reference time
+        ``ref`` (ns; None without a camera model)."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        stamp = self.settings.reference_ns(name, frame.stamp_ns, None)  # (+ its time offset)
+        stamp = self._on_clock(name, frame.stamp_ns)
         self._frames.note_first(stamp)
         if frame.camera is None:
             self._frames.no_camera_info(name, stamp)
             return self._ready()
         if self._single:  # (no other camera to wait for: no grouping, every frame solved)
-            self._step_alone(stamp)
+            self._note_alone(stamp)
             self._frames.solved_at_once(name, ref)
-            return [self._solve_alone(name, frame, ref)]
+            return [self._solve_alone(name, frame, ref, stamp)]
         out: list[LocalizerOutput] = []
         reset = self._clock.step(ref, self._frames.last_ref(name))
         if reset is not None:
@@ -1004,9 +1008,9 @@ class Localizer(GyroReadouts):
         the gyro's timeline starts again (on a stamp going back the samples buffered so far
         are dropped, on a jump forward those older than the previous frame; the bias
         estimator's and the gyro check's pairing restart; counted ``rig.time_resets``). Its
-        track resets itself on the same stamps. :meth:`add` notes each frame's stamp; calling
-        this first for the same stamp (to act on a reset before the frame is decoded) does
-        not count it twice.
+        track resets itself on the same stamps. :meth:`add` (an image: :meth:`search_image`)
+        notes each frame's stamp; called first for the frame's stamp (to act on a reset
+        before the frame is decoded), the frame takes it as noted: a frame is noted once.
 
         Raises:
             ValueError: a rig of several cameras (each camera's frame is checked as it is
@@ -1015,11 +1019,26 @@ class Localizer(GyroReadouts):
         if not self._single:
             raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
         (name,) = self._cams
-        return self._step_alone(self.settings.reference_ns(name, checked_stamp(stamp_ns), None))
+        return self._note_alone(self._on_clock(name, checked_stamp(stamp_ns)))
 
-    def _step_alone(self, stamp: int) -> str | None:
-        """:meth:`check_time` of a rig of one's stamp (ns, with its time offset)."""
-        reset = self._clock.step(stamp, self._clock.newest)
+    def _on_clock(self, name: str, stamp: Stamp) -> int:
+        """ns: camera ``name``'s checked ``stamp`` on the rig's clock, its
+        :attr:`LocalizerSettings.time_offsets` entry added (not its reference time): the time
+        the video's clock and the rig's first frame note, a rig of one's gyro window starts
+        from (:meth:`LocalizerSettings.reference_ns` without a camera model)."""
+        return self.settings.reference_ns(name, stamp, None)
+
+    def _note_alone(self, t: int) -> str | None:
+        """A rig of one's frame at ``t`` (ns, :meth:`_on_clock`) noted on the video's clock,
+        once per frame: :meth:`check_time` notes it ahead of the frame (the node, to act on a
+        time reset before the frame is decoded), then the frame's image search
+        (:meth:`search_image`) and :meth:`add` take it as noted. Returns the time reset's
+        detail (None: none, or noted already). (A time the clock noted last is its newest
+        again: noting it twice would change nothing.)"""
+        if t == self._noted:
+            return None
+        self._noted = t
+        reset = self._clock.step(t, self._clock.newest)
         if reset is None:
             return None
         self._time_reset(reset)
@@ -1240,19 +1259,19 @@ class Localizer(GyroReadouts):
             raise ValueError(
                 f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
             )
-        stamp = checked_stamp(stamp_ns)
+        t = self.frame_time(name, stamp_ns, camera)
         img = self.__dict__.get("_img")
         if img is not None:  # (its last image was not searched)
             img.found[name] = None
-        return self._drop(name, stamp, self.settings.reference_ns(name, stamp, camera), reason)
+        return self._drop(name, t.stamp_ns, t.reference_ns, reason)
 
     def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
-        """:meth:`drop` of a frame stamped ``stamp`` whose time is ``t`` (ns: its reference
-        time, or its stamp without a camera model)."""
+        """:meth:`drop` of a frame stamped ``stamp`` (checked) whose time is ``t`` (ns: its
+        reference time, or its stamp without a camera model)."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         self._skip(name, reason)
-        self._frames.note_first(self.settings.reference_ns(name, stamp, None))
+        self._frames.note_first(self._on_clock(name, stamp))
         self._frames.skipped(name, t)
         return self._ready()
 
@@ -1308,14 +1327,13 @@ class Localizer(GyroReadouts):
         fe = img.frontends.get(name)
         if name not in self._cams or fe is None or fe.frontend is None:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
-        stamp = checked_stamp(stamp_ns)
+        t = self.frame_time(name, stamp_ns, camera)  # (once: the prediction, its rig frame)
+        stamp, ref = t.stamp_ns, t.reference_ns
         img.found[name] = None
         if camera is None:
             frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
-        # (the frame's reference time, once: the prediction, the rig frame it joins)
-        ref = self.frame_time(name, stamp, camera).reference_ns
-        r = self._search(fe, name, stamp, image, camera, encoding, ref)
+        r = self._search(fe, name, t, image, camera, encoding)
         if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
@@ -1347,8 +1365,8 @@ class Localizer(GyroReadouts):
         (:class:`~rs_localizer.camera.FrameTime`: ``stamp_ns``;
         ``reference_ns``, :meth:`LocalizerSettings.reference_ns`: its reference line's
         capture time plus the camera's time offset, the stamp without a camera model). Made
-        once per frame: :meth:`process_image`, :meth:`predict_camera`, and a camera's
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.frame_time`.
+        once per frame, where it enters (:meth:`process_image`, :meth:`drop`,
+        :meth:`search_image`, :meth:`predict_camera`) and handed on.
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
@@ -1359,21 +1377,18 @@ class Localizer(GyroReadouts):
     def search_image(
         self,
         name: str,
-        stamp_ns: int,
+        stamp_ns: int | FrameTime,
         image: np.ndarray,
         camera: CameraModel,
         encoding: str = "bgr8",
-        *,
-        reference_ns: int | None = None,
     ) -> ImageSearch:
         """Camera ``name``'s image stamped ``stamp_ns`` (ns, capture time of row
-        ``stamp_row``) through its front end (:meth:`set_frontend`), before the estimator, by
-        the rules of its video (:func:`~rs_localizer.tracking.localizer.search_image`: the
+        ``stamp_row``; or the frame's :meth:`frame_time` when the caller made it, taken as it
+        is) through its front end (:meth:`set_frontend`), before the estimator, by the rules
+        of its video (:func:`~rs_localizer.tracking.localizer.search_image`: the
         frozen-image check, then the front end's search with :meth:`predict_camera`); what
         :meth:`process_image` and a camera's
         :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image` run.
-        ``reference_ns``: the frame's time on the rig's clock when the caller made it (None:
-        made here).
 
         A rig of one camera adds its camera's rules, which a rig of several does not have:
         the stamp is checked first (:meth:`check_time`; after a time reset the image is not
@@ -1393,27 +1408,24 @@ class Localizer(GyroReadouts):
         fe = self._image_input().frontends.get(name)
         if name not in self._cams or fe is None or fe.frontend is None:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
-        stamp = checked_stamp(stamp_ns)
-        ref = reference_ns
-        if ref is None:
-            ref = self.frame_time(name, stamp, camera).reference_ns
-        return self._search(fe, name, stamp, image, camera, encoding, ref)
+        t = stamp_ns if isinstance(stamp_ns, FrameTime) else self.frame_time(name, stamp_ns, camera)
+        return self._search(fe, name, t, image, camera, encoding)
 
     def _search(
         self,
         fe: CameraFrontend,
         name: str,
-        stamp: int,
+        t: FrameTime,
         image: np.ndarray,
         camera: CameraModel,
         encoding: str,
-        ref: int,
     ) -> ImageSearch:
-        """:meth:`search_image` with camera ``name``'s front end ``fe`` and the frame's
-        reference time ``ref`` (ns)."""
-        # (a rig of one, as its camera: its stamp checked first; after a time reset its image
-        # is not compared with the last one)
-        reset = self._single and self.check_time(stamp) is not None
+        """:meth:`search_image` with camera ``name``'s front end ``fe`` and the frame's times
+        ``t`` (its stamp checked, its reference time)."""
+        stamp, ref = t.stamp_ns, t.reference_ns
+        # (a rig of one, as its camera: its time noted first, unless check_time noted it;
+        # after a time reset its image is not compared with the last one)
+        reset = self._single and self._note_alone(self._on_clock(name, stamp)) is not None
         view = self._cams[name]
         r = search_image(
             fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
@@ -1592,9 +1604,12 @@ class Localizer(GyroReadouts):
         self._gyro_done(out)
         return out
 
-    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> LocalizerOutput:
-        """A rig of one camera's frame (reference time ``ref`` ns, the rig frame's time),
-        solved as its camera's video solves it: on its camera's tracker
+    def _solve_alone(
+        self, name: str, frame: CameraFrame, ref: int, on_clock: int
+    ) -> LocalizerOutput:
+        """A rig of one camera's frame (reference time ``ref`` ns, the rig frame's time; its
+        stamp on the rig's clock ``on_clock`` ns, :meth:`_on_clock`), solved as its camera's
+        video solves it: on its camera's tracker
         (:meth:`~rs_localizer.tracking.tracker.RSTracker.process`, made again when its solver,
         options, tracking options or camera model changed; after :meth:`restart_track` a new
         track) or alone without tracking (:func:`~rs_localizer.estimation.estimate_rs_pose`;
@@ -1621,8 +1636,7 @@ class Localizer(GyroReadouts):
         t0 = time.perf_counter()
         gyro = None
         if camera.line_delay > 0:
-            t = s.reference_ns(name, frame.stamp_ns, None)
-            gyro = self._gyro_readouts(t, [(camera, 0.0, s.stamp_row)])
+            gyro = self._gyro_readouts(on_clock, [(camera, 0.0, s.stamp_row)])
         out.gyro = self._gyro = gyro
         out.gyro_seconds = time.perf_counter() - t0
         uv, xyz, scores = frame.points2d, frame.points3d, frame.scores

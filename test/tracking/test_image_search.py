@@ -79,3 +79,50 @@ def test_frame_time_is_the_reference_line_plus_the_camera_offset():
     assert seq.frame_time(T0, CAMERA) == FrameTime.of(T0, CAMERA, 100.0)
     # (the reference line, the centre row 239.5, read 139.5 rows of 30 us after row 100)
     assert ref - T0 == round(139.5 * 3e-5 * 1e9)
+
+
+def _spy(monkeypatch):
+    """The times each frame is noted on a video's clock and the stamps whose reference time is
+    computed (``reference_stamp_ns``, the one rule of it)."""
+    from rs_localizer.tracking import video
+    from rs_localizer.tracking.clock import VideoClock
+
+    steps, refs = [], []
+    step, ref = VideoClock.step, video.reference_stamp_ns
+    monkeypatch.setattr(VideoClock, "step", lambda c, t, p: steps.append(t) or step(c, t, p))
+    monkeypatch.setattr(video, "reference_stamp_ns", lambda s, *a: refs.append(s) or ref(s, *a))
+    return steps, refs
+
+
+def test_a_frames_time_is_noted_once_and_its_reference_time_made_once(monkeypatch):
+    """A camera's frame, cloud or image, noted on its video's clock once and its reference time
+    computed once, whether the caller notes its stamp first (``check_time``, as the node does
+    before it looks up the frame's camera) or not; the time resets the same either way."""
+    from rs_localizer.camera import checked_stamp
+    from rs_localizer.tracking.localizer import CameraFrame
+
+    rng = np.random.default_rng(3)
+    xyz = np.c_[rng.uniform(-1, 1, (12, 2)), rng.uniform(4, 8, 12)]
+    uv = xyz[:, :2] / xyz[:, 2:] * 500 + [320, 240]
+    # (a step back and a jump ahead of more than time_reset_ns: two time resets)
+    stamps = [T0, T0 + 33_000_000, T0 - 10**9, T0 - 10**9 + 33_000_000, T0 + 20 * 10**9]
+    resets = {}
+    for kind in ("cloud", "image"):
+        for noted_first in (True, False):
+            steps, refs = _spy(monkeypatch)
+            seq = SequenceLocalizer(SequenceSettings(), frontend=FivePoints(), frontend_name="f")
+            why = []
+            for k, s in enumerate(stamps):
+                stamp = checked_stamp(s)  # (the node's entry)
+                if noted_first:
+                    why.append(seq.check_time(stamp))
+                ft = seq.frame_time(stamp, CAMERA)
+                if kind == "image":
+                    seq.process_image(ft, _image(k), CAMERA)
+                else:
+                    seq.process(CameraFrame(stamp, CAMERA, uv, xyz), ft)
+                assert steps == stamps[: k + 1] and refs == stamps[: k + 1]
+            if noted_first:
+                assert [w is not None for w in why] == [False, False, True, False, True]
+            resets[kind, noted_first] = seq._rig.counts["rig.time_resets"]
+    assert set(resets.values()) == {2}
