@@ -27,7 +27,7 @@ frames and a rig's. That rig of one holds the camera's video state (in the spiri
   starts from, is what the front end searches with (no front end keeps a pose);
 - the optional image front end (:meth:`set_frontend`) and its search by the camera's rules
   (:meth:`Localizer.search_image <rs_localizer.tracking.video.Localizer.search_image>`: the
-  stamp checked first, the frozen-image check, an image whose front end found fewer
+  time noted first, the frozen-image check, an image whose front end found fewer
   correspondences than the solver needs dropped before the estimator).
 
 The adapter itself keeps what is the camera's own: its settings, its frames' times

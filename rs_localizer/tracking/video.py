@@ -1304,7 +1304,7 @@ class Localizer(GyroReadouts):
         camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`);
         after a frozen image a rig of one camera's next frame starts a new track, searched
         whole, as its camera's video does (:meth:`restart_track`). A rig of one camera takes
-        its images as its camera's video does: the stamp checked first
+        its images as its camera's video does: its time noted first
         (:meth:`check_time`; after a time reset the image is not compared with the last
         one), and an image whose front end found fewer correspondences than its solver needs
         (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
@@ -1391,11 +1391,11 @@ class Localizer(GyroReadouts):
         :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image` run.
 
         A rig of one camera adds its camera's rules, which a rig of several does not have:
-        the stamp is checked first (:meth:`check_time`; after a time reset the image is not
-        compared with the last one), a frozen image makes its next frame start a new track
-        (:meth:`restart_track`: the camera moved by an unknown amount unseen, while a rig's
-        other cameras keep its track), and an image with fewer correspondences than its
-        solver needs fails ``frontend_too_few_points``
+        its time is noted first (:meth:`check_time`, unless the caller noted it already; after
+        a time reset noted here the image is not compared with the last one), a frozen image
+        makes its next frame start a new track (:meth:`restart_track`: the camera moved by an
+        unknown amount unseen, while a rig's other cameras keep its track), and an image with
+        fewer correspondences than its solver needs fails ``frontend_too_few_points``
         (:func:`~rs_localizer.tracking.localizer.too_few_points`; a rig frame is posed from
         its other cameras' points as well).
 
