@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import READOUT_DIRECTIONS, CameraModel, _rs_coordinates
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
@@ -36,6 +36,7 @@ __all__ = [
     "RefinementView",
     "configure_frame",
     "prepare_frame",
+    "undistorted_frame",
     "varying_pixel_jacobian",
 ]
 
@@ -309,6 +310,59 @@ def prepare_frame(
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
     u_px = u.take(rows, axis=0)
     x, r, r0e = camera.normalize(u_px, compiled)
+    return _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
+
+
+def undistorted_frame(
+    points2d: np.ndarray,
+    points3d: np.ndarray,
+    undistorted: np.ndarray,
+    jacobians: np.ndarray | None,
+    camera: CameraModel,
+    max_point_norm: float,
+    rng: np.random.Generator | None = None,
+) -> Frame | None:
+    """:func:`prepare_frame`'s frame (compiled) of correspondences already undistorted: the
+    same frame, the same values, without undistorting them again (a rig frame's camera,
+    :mod:`~.rig`).
+
+    Args:
+        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+        undistorted: (N, 2) every row's undistorted normalized point
+            (:meth:`~rs_localizer.camera.CameraModel.undistort`, compiled; each point's own).
+        jacobians: (N, 4) every row's row-major pixel Jacobian as
+            :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian_exact` gives it at that
+            point (None: computed here, when the camera's varies,
+            :func:`varying_pixel_jacobian`).
+        camera, max_point_norm (m), rng: as :func:`prepare_frame`'s.
+    Returns:
+        the :class:`Frame`, or None when :func:`prepare_frame` would leave a row out (a
+        non-finite pixel, point or undistorted point, a point beyond ``max_point_norm``).
+    """
+    u = np.asarray(points2d, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        return None
+    if len(undistorted) != len(u) or not valid_rows(u, X, max_point_norm).all():
+        return None
+    rows = np.arange(len(u))  # (np.flatnonzero of every row)
+    if rng is not None:
+        rows = rng.permutation(rows)
+    u_px = u.take(rows, axis=0)
+    x = undistorted.take(rows, axis=0)
+    if not np.isfinite(x).all():
+        return None
+    axis, sign, d = READOUT_DIRECTIONS[camera.readout]  # (CameraModel.normalize's r, r0e)
+    r, r0e = _rs_coordinates(u_px, x, camera.K, axis, sign, d[0], d[1], camera.r0)
+    J = None if jacobians is None else jacobians.take(rows, axis=0)
+    return _frame(u, X, rows, u_px, x, r, r0e, camera, True, J)
+
+
+def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool, J=None) -> Frame:
+    """The :class:`Frame` of :func:`prepare_frame` from its (N, 2) pixels ``u``, (N, 3) points
+    ``X``, valid rows ``rows`` (shuffled) and their pixels ``u_px``, normalized points ``x``,
+    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`);
+    ``J``: the rows' pixel Jacobians (n, 4) when at hand (None: computed)."""
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
@@ -324,7 +378,8 @@ def prepare_frame(
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
     if varying_pixel_jacobian(camera):
-        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+        if J is None or len(J) != len(fr.x):
+            J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 
