@@ -205,7 +205,7 @@ class RSPose:
         else:
             z = (model_twist if compiled else model_twist.py_func)(C, w, t, s)
             om, v = z[3:6], z[0:3]
-        return cls(R.T, -R.T @ C, om, v, stamp_ns)
+        return cls._trusted(R.T, -R.T @ C, om, v, stamp_ns)
 
     def model(self, seconds_per_unit_r: float) -> RSModel:
         """The solver's model of this pose (the inverse of :meth:`from_model`): ``R = O^T``,

@@ -348,38 +348,64 @@ def undistorted_frame(
     rows = np.arange(len(u))  # (np.flatnonzero of every row)
     if rng is not None:
         rows = rng.permutation(rows)
-    u_px = u.take(rows, axis=0)
     x = undistorted.take(rows, axis=0)
     if not np.isfinite(x).all():
         return None
-    axis, sign, d = READOUT_DIRECTIONS[camera.readout]  # (CameraModel.normalize's r, r0e)
-    r, r0e = _rs_coordinates(u_px, x, camera.K, axis, sign, d[0], d[1], camera.r0)
-    J = None if jacobians is None else jacobians.take(rows, axis=0)
-    return _frame(u, X, rows, u_px, x, r, r0e, camera, True, J)
+    u_px = u.take(rows, axis=0)
+    r0, focal, varying, (axis, sign, d) = _camera_values(camera)
+    # (CameraModel.normalize's r and r0e, finite: the pixels are)
+    r, r0e = _rs_coordinates(u_px, x, camera.K, axis, sign, d[0], d[1], r0)
+    fr = Frame(x, X.take(rows, axis=0), r, r0e, r0, np.array(d), focal)
+    fr.rows, fr.num_rows, fr.compiled, fr.u_px = rows, len(u), True, u_px
+    if varying:  # (:func:`_frame`'s whitening)
+        J = camera.pixel_jacobian_exact(x) if jacobians is None else jacobians.take(rows, axis=0)
+        fr.W = np.ascontiguousarray(J.reshape(-1, 4) / focal)
+    return fr
 
 
-def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool, J=None) -> Frame:
+#: the cameras' values of :func:`_camera_values`: id -> (camera, values)
+_CAMERA_VALUES: dict = {}
+
+
+def _camera_values(camera: CameraModel) -> tuple:
+    """``(r0, mean_focal, varying_pixel_jacobian, READOUT_DIRECTIONS entry)`` of a camera (its
+    properties' values), kept per camera object (frozen; a rig's frames share it)."""
+    hit = _CAMERA_VALUES.get(id(camera))
+    if hit is not None and hit[0] is camera:
+        return hit[1]
+    out = (
+        camera.r0,
+        camera.mean_focal,
+        varying_pixel_jacobian(camera),
+        READOUT_DIRECTIONS[camera.readout],
+    )
+    if len(_CAMERA_VALUES) >= 64:
+        _CAMERA_VALUES.clear()
+    _CAMERA_VALUES[id(camera)] = (camera, out)
+    return out
+
+
+def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool) -> Frame:
     """The :class:`Frame` of :func:`prepare_frame` from its (N, 2) pixels ``u``, (N, 3) points
     ``X``, valid rows ``rows`` (shuffled) and their pixels ``u_px``, normalized points ``x``,
-    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`);
-    ``J``: the rows' pixel Jacobians (n, 4) when at hand (None: computed)."""
+    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`)."""
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
+    r0, focal, varying, (_, _, d) = _camera_values(camera)
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),
         np.ascontiguousarray(r),
         np.ascontiguousarray(r0e),
-        camera.r0,
-        camera.readout_vector,
-        camera.mean_focal,
+        r0,
+        np.array(d),  # (camera.readout_vector)
+        focal,
     )
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
-    if varying_pixel_jacobian(camera):
-        if J is None or len(J) != len(fr.x):
-            J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+    if varying:
+        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 

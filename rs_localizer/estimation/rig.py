@@ -2351,7 +2351,7 @@ def _rig_estimate(
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
-    return RSPoseEstimate(
+    return RSPoseEstimate._trusted(
         success=record.get("failure") is None,
         solver=RIG_SOLVER,
         model=RSModel(R, C, w, t),
