@@ -199,7 +199,9 @@ class RSPose:
         s = float(seconds_per_unit_r)
         if not (np.isfinite(s) and s >= 0):
             raise ValueError(f"seconds_per_unit_r must be finite and >= 0, got {s}")
-        R, C, w, t = (np.asarray(x, dtype=float) for x in model)
+        R, C, w, t = model
+        R, C = np.asarray(R, dtype=float), np.asarray(C, dtype=float)
+        w, t = np.asarray(w, dtype=float), np.asarray(t, dtype=float)
         if s == 0:
             om, v = np.zeros(3), np.zeros(3)
         else:

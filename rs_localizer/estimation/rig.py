@@ -1700,6 +1700,7 @@ def _one_camera_alone(
         model,
         inl,
         (None, None, None) if out is None else (out[0], out[1], None),
+        True,  # (rig_model_of_camera's new arrays)
         failure=None,
         ransac_iterations=0,
         rmse_px=est.rmse_px,
@@ -2337,16 +2338,18 @@ def _rig_estimate(
     model=None,
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
+    fresh: bool = False,
     **record,
 ) -> RSPoseEstimate:
     """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R,
     C, w, t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the
     ROS pose and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the
-    identity and zeros, no inliers); ``record``: the other fields by name."""
+    identity and zeros, no inliers); ``record``: the other fields by name. ``fresh``: the
+    model's arrays are float64, contiguous and the caller's own (taken, not copied)."""
     if model is None:
         z = np.zeros(3)
         model = (np.eye(3), z, z, z.copy())
-    R, C, w, t = _copies(model)
+    R, C, w, t = model if fresh else _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)

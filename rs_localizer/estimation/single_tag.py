@@ -149,9 +149,11 @@ def posed_planarity(X: np.ndarray) -> float | None:
     C-contiguous) when :func:`few_points_estimate` poses them (:func:`coplanar_points`, or at
     least :data:`MIN_SPREAD_POINTS` finite ones), else None: the one rule of
     :func:`few_points` and :func:`few_points_planarity`."""
-    if len(X) < MIN_PLANAR_POINTS or not np.isfinite(X).all():
+    if len(X) < MIN_PLANAR_POINTS:
         return None
     flat = float(planarity(X))
+    if flat != flat:  # (NaN: a point not finite)
+        return None
     return flat if flat < PLANAR_TOLERANCE or len(X) >= MIN_SPREAD_POINTS else None
 
 
