@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import READOUT_DIRECTIONS, CameraModel, _rs_coordinates
+from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
@@ -353,8 +353,11 @@ def undistorted_frame(
         return None
     u_px = u.take(rows, axis=0)
     r0, focal, varying, (axis, sign, d) = _camera_values(camera)
-    # (CameraModel.normalize's r and r0e, finite: the pixels are)
-    r, r0e = _rs_coordinates(u_px, x, camera.K, axis, sign, d[0], d[1], r0)
+    # (CameraModel.normalize's r and r0e, its NumPy formulas: the same values as its
+    # compiled ones; finite, as the pixels are)
+    K = camera.K
+    r = sign * (u_px[:, axis] - K[axis, 2]) / K[axis, axis]
+    r0e = r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
     fr = Frame(x, X.take(rows, axis=0), r, r0e, r0, np.array(d), focal)
     fr.rows, fr.num_rows, fr.compiled, fr.u_px = rows, len(u), True, u_px
     if varying:  # (:func:`_frame`'s whitening)
