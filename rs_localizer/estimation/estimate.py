@@ -569,8 +569,10 @@ def few_points_pose(
     A caller that has undistorted the points already (a rig frame's camera, :mod:`~.rig`)
     passes what it has, and the estimate is the same: ``undistorted``: ``(x (N, 2), A (N, 4)
     or None)``, every row's undistorted normalized point and pixel Jacobian
-    (:func:`~.frame.undistorted_frame`); ``flat``: the points' planarity in their given
-    order (:func:`~.single_tag.posed_planarity`; :func:`~.single_tag.few_points_planarity`).
+    (:func:`~.frame.undistorted_frame`; a row it cannot take: the frame is prepared as
+    without it); ``flat``: the points' planarity in their given order
+    (:func:`~.single_tag.posed_planarity`), taken with ``undistorted`` only
+    (:func:`~.single_tag.few_points_planarity`).
 
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
