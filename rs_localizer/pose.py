@@ -199,13 +199,15 @@ class RSPose:
         s = float(seconds_per_unit_r)
         if not (np.isfinite(s) and s >= 0):
             raise ValueError(f"seconds_per_unit_r must be finite and >= 0, got {s}")
-        R, C, w, t = (np.asarray(x, dtype=float) for x in model)
+        R, C, w, t = model
+        R, C = np.asarray(R, dtype=float), np.asarray(C, dtype=float)
+        w, t = np.asarray(w, dtype=float), np.asarray(t, dtype=float)
         if s == 0:
             om, v = np.zeros(3), np.zeros(3)
         else:
             z = (model_twist if compiled else model_twist.py_func)(C, w, t, s)
             om, v = z[3:6], z[0:3]
-        return cls(R.T, -R.T @ C, om, v, stamp_ns)
+        return cls._trusted(R.T, -R.T @ C, om, v, stamp_ns)
 
     def model(self, seconds_per_unit_r: float) -> RSModel:
         """The solver's model of this pose (the inverse of :meth:`from_model`): ``R = O^T``,

@@ -48,7 +48,7 @@ from .finalize import (
     still_final,
     unobserved_twist,
 )
-from .frame import configure_frame, prepare_frame
+from .frame import configure_frame, prepare_frame, undistorted_frame
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -554,6 +554,9 @@ def few_points_pose(
     options: EstimateOptions | None = None,
     initial_model: InitialModel | None = None,
     solver: str = "r6p_1lin",
+    *,
+    undistorted: tuple | None = None,
+    flat: float | None = None,
 ) -> FewPointsPose | None:
     """:func:`estimate_rs_pose`'s estimate of the frame (its arguments as there, without a
     gyro, the default implementation) when it poses it from a few points
@@ -563,6 +566,14 @@ def few_points_pose(
     estimator would not take its few-points path (too many points for ``solver``, points it
     does not pose, the NumPy implementation), nor compute anything of that estimate.
 
+    A caller that has undistorted the points already (a rig frame's camera, :mod:`~.rig`)
+    passes what it has, and the estimate is the same: ``undistorted``: ``(x (N, 2), A (N, 4)
+    or None)``, every row's undistorted normalized point and pixel Jacobian
+    (:func:`~.frame.undistorted_frame`; a row it cannot take: the frame is prepared as
+    without it); ``flat``: the points' planarity in their given order
+    (:func:`~.single_tag.posed_planarity`), taken with ``undistorted`` only
+    (:func:`~.single_tag.few_points_planarity`).
+
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
     """
@@ -571,11 +582,13 @@ def few_points_pose(
     if resolve_implementation(None, solver) != COMPILED:
         return None
     opts = options or EstimateOptions()
-    fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm,
-        SeededShuffle(opts.ransac.seed),
-    )  # fmt: skip
-    flat = few_points_planarity(fr, points_needed(solver, opts))
+    max_norm, rng = opts.plausibility.max_point_norm, SeededShuffle(opts.ransac.seed)
+    fr = None
+    if undistorted is not None:
+        fr = undistorted_frame(points2d, points3d, *undistorted, camera, max_norm, rng)
+    if fr is None:  # (every row of the frame: the given planarity is of its points)
+        fr, flat = prepare_frame(points2d, points3d, camera, max_norm, rng), None
+    flat = few_points_planarity(fr, points_needed(solver, opts), flat)
     if flat is None:
         return None
     try:

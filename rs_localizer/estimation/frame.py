@@ -9,7 +9,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
@@ -36,6 +36,7 @@ __all__ = [
     "RefinementView",
     "configure_frame",
     "prepare_frame",
+    "undistorted_frame",
     "varying_pixel_jacobian",
 ]
 
@@ -309,21 +310,104 @@ def prepare_frame(
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
     u_px = u.take(rows, axis=0)
     x, r, r0e = camera.normalize(u_px, compiled)
+    return _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
+
+
+def undistorted_frame(
+    points2d: np.ndarray,
+    points3d: np.ndarray,
+    undistorted: np.ndarray,
+    jacobians: np.ndarray | None,
+    camera: CameraModel,
+    max_point_norm: float,
+    rng: np.random.Generator | None = None,
+) -> Frame | None:
+    """:func:`prepare_frame`'s frame (compiled) of correspondences already undistorted: the
+    same frame, the same values, without undistorting them again (a rig frame's camera,
+    :mod:`~.rig`).
+
+    Args:
+        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+        undistorted: (N, 2) every row's undistorted normalized point
+            (:meth:`~rs_localizer.camera.CameraModel.undistort`, compiled; each point's own).
+        jacobians: (N, 4) every row's row-major pixel Jacobian as
+            :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian_exact` gives it at that
+            point (None: computed here, when the camera's varies,
+            :func:`varying_pixel_jacobian`).
+        camera, max_point_norm (m), rng: as :func:`prepare_frame`'s.
+    Returns:
+        the :class:`Frame`, or None when :func:`prepare_frame` would leave a row out (a
+        non-finite pixel, point or undistorted point, a point beyond ``max_point_norm``).
+    """
+    u = np.asarray(points2d, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        return None
+    if len(undistorted) != len(u) or not valid_rows(u, X, max_point_norm).all():
+        return None
+    rows = np.arange(len(u))  # (np.flatnonzero of every row)
+    if rng is not None:
+        rows = rng.permutation(rows)
+    x = undistorted.take(rows, axis=0)
+    if not np.isfinite(x).all():
+        return None
+    u_px = u.take(rows, axis=0)
+    r0, focal, varying, (axis, sign, d) = _camera_values(camera)
+    # (CameraModel.normalize's r and r0e, its NumPy formulas: the same values as its
+    # compiled ones; finite, as the pixels are)
+    K = camera.K
+    r = sign * (u_px[:, axis] - K[axis, 2]) / K[axis, axis]
+    r0e = r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
+    fr = Frame(x, X.take(rows, axis=0), r, r0e, r0, np.array(d), focal)
+    fr.rows, fr.num_rows, fr.compiled, fr.u_px = rows, len(u), True, u_px
+    if varying:  # (:func:`_frame`'s whitening)
+        J = camera.pixel_jacobian_exact(x) if jacobians is None else jacobians.take(rows, axis=0)
+        fr.W = np.ascontiguousarray(J.reshape(-1, 4) / focal)
+    return fr
+
+
+#: the cameras' values of :func:`_camera_values`: id -> (camera, values)
+_CAMERA_VALUES: dict = {}
+
+
+def _camera_values(camera: CameraModel) -> tuple:
+    """``(r0, mean_focal, varying_pixel_jacobian, READOUT_DIRECTIONS entry)`` of a camera (its
+    properties' values), kept per camera object (frozen; a rig's frames share it)."""
+    hit = _CAMERA_VALUES.get(id(camera))
+    if hit is not None and hit[0] is camera:
+        return hit[1]
+    out = (
+        camera.r0,
+        camera.mean_focal,
+        varying_pixel_jacobian(camera),
+        READOUT_DIRECTIONS[camera.readout],
+    )
+    if len(_CAMERA_VALUES) >= 64:
+        _CAMERA_VALUES.clear()
+    _CAMERA_VALUES[id(camera)] = (camera, out)
+    return out
+
+
+def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool) -> Frame:
+    """The :class:`Frame` of :func:`prepare_frame` from its (N, 2) pixels ``u``, (N, 3) points
+    ``X``, valid rows ``rows`` (shuffled) and their pixels ``u_px``, normalized points ``x``,
+    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`)."""
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
+    r0, focal, varying, (_, _, d) = _camera_values(camera)
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),
         np.ascontiguousarray(r),
         np.ascontiguousarray(r0e),
-        camera.r0,
-        camera.readout_vector,
-        camera.mean_focal,
+        r0,
+        np.array(d),  # (camera.readout_vector)
+        focal,
     )
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
-    if varying_pixel_jacobian(camera):
+    if varying:
         J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr

@@ -6,7 +6,7 @@ t per unit RS coordinate) to the camera's physical velocities and the output cov
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 
 import numpy as np
 
@@ -295,6 +295,44 @@ class RSPoseEstimate(PoseWithCovariance):
     def num_inliers(self) -> int:
         """Inliers of the final model (0 on failure)."""
         return int(np.count_nonzero(self.inliers))
+
+    @classmethod
+    def _trusted(cls, **values) -> RSPoseEstimate:
+        """The estimate of these fields by name (``success`` given, every other field not
+        given at its default), as the constructor builds it (no copies, no checks), without
+        the frozen dataclass' field-by-field ``object.__setattr__`` (a rig frame posed by one
+        camera's few points: the estimate costs as much as its mapping to the rig).
+
+        Raises:
+            TypeError: a name that is no field, or no ``success``."""
+        names, plain, factories = _estimate_fields(cls)
+        if not values.keys() <= names or "success" not in values:
+            raise TypeError(f"{cls.__name__}: unknown or missing fields {sorted(values)}")
+        est = object.__new__(cls)
+        d = est.__dict__
+        d.update(plain)
+        for name, factory in factories:
+            if name not in values:
+                d[name] = factory()
+        d.update(values)
+        return est
+
+
+#: per estimate class: (its field names, {name: default}, ((name, default factory), ...))
+_ESTIMATE_FIELDS: dict = {}
+
+
+def _estimate_fields(cls) -> tuple:
+    """:meth:`RSPoseEstimate._trusted`'s fields of ``cls`` (kept per class)."""
+    hit = _ESTIMATE_FIELDS.get(cls)
+    if hit is None:
+        fs = [f for f in fields(cls) if f.init]
+        plain = {f.name: f.default for f in fs if f.default is not MISSING}
+        factories = tuple(
+            (f.name, f.default_factory) for f in fs if f.default_factory is not MISSING
+        )
+        hit = _ESTIMATE_FIELDS[cls] = (frozenset(f.name for f in fs), plain, factories)
+    return hit
 
 
 def failed_estimate(

@@ -201,7 +201,7 @@ from .rig_batch import (
     still_search,
 )
 from .sampling import draw_samples_numpy
-from .single_tag import few_points
+from .single_tag import posed_planarity
 
 __all__ = [
     "AGREE_SHARE",
@@ -1659,7 +1659,8 @@ def _one_camera_alone(
         return None
     c = with_points[0]
     v, s = views[c], pool.slices[c]
-    if not few_points(pool.X[s]):
+    flat = posed_planarity(pool.X[s])  # (single_tag.few_points's rule)
+    if flat is None:
         return None
     spr = _camera_constants(v.camera)[0]  # (its seconds_per_unit_r, kept per camera)
     start = None
@@ -1672,7 +1673,13 @@ def _one_camera_alone(
         start = replace(im, model=v.camera_model(im.model))
     est = None
     if gyro is None or v.camera.line_delay <= 0:  # (a global shutter's estimate ignores a gyro)
-        est = few_points_pose(v.uv, v.X, v.camera, options, start)
+        # (the pool's undistorted points and pixel Jacobians of every row: the frame's;
+        # an equidistant camera's Jacobian is computed again, with NumPy's arctangent)
+        seen = None
+        if pool.all_valid:
+            A = None if v.camera.distortion_model == "equidistant" else pool.A[s]
+            seen = (pool.x[s], A)
+        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen, flat=flat)
     if est is None:
         cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
         est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
@@ -1693,6 +1700,7 @@ def _one_camera_alone(
         model,
         inl,
         (None, None, None) if out is None else (out[0], out[1], None),
+        True,  # (rig_model_of_camera's new arrays)
         failure=None,
         ransac_iterations=0,
         rmse_px=est.rmse_px,
@@ -2330,21 +2338,23 @@ def _rig_estimate(
     model=None,
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
+    fresh: bool = False,
     **record,
 ) -> RSPoseEstimate:
     """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R,
     C, w, t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the
     ROS pose and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the
-    identity and zeros, no inliers); ``record``: the other fields by name."""
+    identity and zeros, no inliers); ``record``: the other fields by name. ``fresh``: the
+    model's arrays are float64, contiguous and the caller's own (taken, not copied)."""
     if model is None:
         z = np.zeros(3)
         model = (np.eye(3), z, z, z.copy())
-    R, C, w, t = _copies(model)
+    R, C, w, t = model if fresh else _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
-    return RSPoseEstimate(
+    return RSPoseEstimate._trusted(
         success=record.get("failure") is None,
         solver=RIG_SOLVER,
         model=RSModel(R, C, w, t),

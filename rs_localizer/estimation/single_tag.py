@@ -78,6 +78,7 @@ __all__ = [
     "few_points_model",
     "few_points_planarity",
     "planar_points",
+    "posed_planarity",
 ]
 
 #: fewest coplanar points the path poses (one square marker's four corners)
@@ -134,31 +135,48 @@ def few_points(points3d: np.ndarray) -> bool:
     too few for the solver's robust estimate: :func:`coplanar_points`, or at least
     :data:`MIN_SPREAD_POINTS` finite ones."""
     X = np.ascontiguousarray(points3d, dtype=np.float64).reshape(-1, 3)
-    return _posed_planarity(X) is not None
+    return posed_planarity(X) is not None
 
 
-def _posed_planarity(X: np.ndarray) -> float | None:
-    """:func:`~.degeneracy.planarity` of the (N, 3) world points ``X`` (m) when
-    :func:`few_points_estimate` poses them (:func:`coplanar_points`, or at least
-    :data:`MIN_SPREAD_POINTS` finite ones), else None: the one rule of :func:`few_points` and
-    :func:`few_points_planarity`."""
-    if len(X) < MIN_PLANAR_POINTS or not np.isfinite(X).all():
+#: how far (absolute) a planarity of points in one order must be from
+#: :data:`~.degeneracy.PLANAR_TOLERANCE` to stand for their planarity in any other order
+#: (:func:`few_points_planarity`): the order changes it by rounding alone, ~1e-16
+_ORDER_MARGIN = 1e-9
+
+
+def posed_planarity(X: np.ndarray) -> float | None:
+    """:func:`~.degeneracy.planarity` of the (N, 3) world points ``X`` (m, float64,
+    C-contiguous) when :func:`few_points_estimate` poses them (:func:`coplanar_points`, or at
+    least :data:`MIN_SPREAD_POINTS` finite ones), else None: the one rule of
+    :func:`few_points` and :func:`few_points_planarity`."""
+    if len(X) < MIN_PLANAR_POINTS:
         return None
     flat = float(planarity(X))
+    if flat != flat:  # (NaN: a point not finite)
+        return None
     return flat if flat < PLANAR_TOLERANCE or len(X) >= MIN_SPREAD_POINTS else None
 
 
-def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
+def few_points_planarity(fr: Frame, min_inliers: int, flat: float | None = None) -> float | None:
     """:func:`~.degeneracy.planarity` of the frame's points (one compiled call for the choice
     and the estimate) when :func:`few_points_estimate` poses the frame: fewer valid points
     than ``min_inliers`` (the solver's) and :func:`few_points`, or exactly
     :data:`MIN_PLANAR_POINTS` coplanar ones (one square marker's corners, whatever the
-    solver); None otherwise."""
+    solver); None otherwise.
+
+    ``flat``: the planarity of the same points in another order when the caller has it
+    (:func:`posed_planarity` of a rig camera's points before the frame shuffled them): taken
+    instead when it is farther than :data:`_ORDER_MARGIN` from
+    :data:`~.degeneracy.PLANAR_TOLERANCE` (the order changes the planarity by rounding alone,
+    so the two fall on the same side of it); the value returned is then that one, for a
+    caller that only compares it with the tolerance."""
     n = len(fr.x)
     if not (n < min_inliers or n == MIN_PLANAR_POINTS):
         return None
+    if flat is not None and n >= MIN_PLANAR_POINTS and abs(flat - PLANAR_TOLERANCE) > _ORDER_MARGIN:
+        return flat if flat < PLANAR_TOLERANCE or n >= MIN_SPREAD_POINTS else None
     # (exactly four points and enough for the solver: posed only as one marker, coplanar)
-    return _posed_planarity(fr.X)
+    return posed_planarity(fr.X)
 
 
 def _fixed_velocities(
