@@ -434,13 +434,20 @@ class CameraModel:
         """
         p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
         x = self.undistort(p, compiled)
+        return (x, *self.rs_coordinates(p, x, compiled))
+
+    def rs_coordinates(
+        self, points_px: np.ndarray, x: np.ndarray, compiled: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(r, r0_eff)`` of :meth:`normalize` for pixels ``points_px`` (N, 2) float64 whose
+        undistorted normalized points ``x`` (N, 2) are known (``compiled=False``: in NumPy, the
+        same formulas): (N,) RS coordinates of the measured lines and (N,) ``r0 - (r - d.x)``."""
         axis, sign, d = READOUT_DIRECTIONS[self.readout]
         if not compiled:
             K = self.K
-            r = sign * (p[:, axis] - K[axis, 2]) / K[axis, axis]
-            return x, r, self.r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
-        r, r0e = _rs_coordinates(p, x, self.K, axis, sign, d[0], d[1], self.r0)
-        return x, r, r0e
+            r = sign * (points_px[:, axis] - K[axis, 2]) / K[axis, axis]
+            return r, self.r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
+        return _rs_coordinates(points_px, x, self.K, axis, sign, d[0], d[1], self.r0)
 
     def project_rs(
         self,

@@ -352,12 +352,9 @@ def undistorted_frame(
     if not np.isfinite(x).all():
         return None
     u_px = u.take(rows, axis=0)
-    r0, focal, varying, (axis, sign, d) = _camera_values(camera)
-    # (CameraModel.normalize's r and r0e, its NumPy formulas: the same values as its
-    # compiled ones; finite, as the pixels are)
-    K = camera.K
-    r = sign * (u_px[:, axis] - K[axis, 2]) / K[axis, axis]
-    r0e = r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
+    r0, focal, varying, (_, _, d) = _camera_values(camera)
+    # (CameraModel.normalize's r and r0e in NumPy: the same values as its compiled ones)
+    r, r0e = camera.rs_coordinates(u_px, x, compiled=False)
     fr = Frame(x, X.take(rows, axis=0), r, r0e, r0, np.array(d), focal)
     fr.rows, fr.num_rows, fr.compiled, fr.u_px = rows, len(u), True, u_px
     if varying:  # (:func:`_frame`'s whitening)
