@@ -352,15 +352,10 @@ def undistorted_frame(
     if not np.isfinite(x).all():
         return None
     u_px = u.take(rows, axis=0)
-    r0, focal, varying, (_, _, d) = _camera_values(camera)
     # (CameraModel.normalize's r and r0e in NumPy: the same values as its compiled ones)
     r, r0e = camera.rs_coordinates(u_px, x, compiled=False)
-    fr = Frame(x, X.take(rows, axis=0), r, r0e, r0, np.array(d), focal)
-    fr.rows, fr.num_rows, fr.compiled, fr.u_px = rows, len(u), True, u_px
-    if varying:  # (:func:`_frame`'s whitening)
-        J = camera.pixel_jacobian_exact(x) if jacobians is None else jacobians.take(rows, axis=0)
-        fr.W = np.ascontiguousarray(J.reshape(-1, 4) / focal)
-    return fr
+    J = None if jacobians is None else jacobians.take(rows, axis=0)
+    return _frame(u, X, rows, u_px, x, r, r0e, camera, True, J)
 
 
 #: the cameras' values of :func:`_camera_values`: id -> (camera, values)
@@ -385,10 +380,14 @@ def _camera_values(camera: CameraModel) -> tuple:
     return out
 
 
-def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool) -> Frame:
+def _frame(
+    u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool, J: np.ndarray | None = None
+) -> Frame:
     """The :class:`Frame` of :func:`prepare_frame` from its (N, 2) pixels ``u``, (N, 3) points
     ``X``, valid rows ``rows`` (shuffled) and their pixels ``u_px``, normalized points ``x``,
-    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`)."""
+    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`); ``J``:
+    (N, 4) the rows' pixel Jacobians when known (every row finite; None: computed here when
+    the camera's varies)."""
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
@@ -405,7 +404,8 @@ def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool) -> 
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
     if varying:
-        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+        if J is None:
+            J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 
