@@ -154,7 +154,13 @@ def posed_planarity(X: np.ndarray) -> float | None:
     flat = float(planarity(X))
     if flat != flat:  # (NaN: a point not finite)
         return None
-    return flat if flat < PLANAR_TOLERANCE or len(X) >= MIN_SPREAD_POINTS else None
+    return _posed(flat, len(X))
+
+
+def _posed(flat: float, n: int) -> float | None:
+    """The planarity ``flat`` of ``n`` finite points when :func:`few_points_estimate` poses
+    them (coplanar, or at least :data:`MIN_SPREAD_POINTS`), else None."""
+    return flat if flat < PLANAR_TOLERANCE or n >= MIN_SPREAD_POINTS else None
 
 
 def few_points_planarity(fr: Frame, min_inliers: int, flat: float | None = None) -> float | None:
@@ -174,7 +180,7 @@ def few_points_planarity(fr: Frame, min_inliers: int, flat: float | None = None)
     if not (n < min_inliers or n == MIN_PLANAR_POINTS):
         return None
     if flat is not None and n >= MIN_PLANAR_POINTS and abs(flat - PLANAR_TOLERANCE) > _ORDER_MARGIN:
-        return flat if flat < PLANAR_TOLERANCE or n >= MIN_SPREAD_POINTS else None
+        return _posed(flat, n)
     # (exactly four points and enough for the solver: posed only as one marker, coplanar)
     return posed_planarity(fr.X)
 
