@@ -62,7 +62,7 @@ SCENE = "apriltag_rig_room"
 
 def render(m: int, frames: int, scale: float, fps: float = 30.0, seed: int = 0) -> dict:
     """Render a rig of ``m`` cameras for ``frames`` frames each: {"cameras": the rig,
-    "trajectory", "frames": {(name, k): RigRenderedFrame}, "render_ms", "frontend_ms":
+    "trajectory", "frames": {(name, k): RigFrameSim}, "render_ms", "frontend_ms":
     median CPU ms per camera frame}."""
     from rs_localizer.sim.render.rig import render_rig_video, rendered_rig, rig_trajectory
     from rs_localizer.sim.render.scene import load_scene

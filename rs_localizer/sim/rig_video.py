@@ -14,16 +14,26 @@ cameras on one body would measure. Ground truth: the rig's pose and velocities a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..camera import CameraModel
 from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
-from .trajectory import R_FORWARD, Scene, Trajectory, default_camera, make_scene, project_rs
+from .trajectory import (
+    R_FORWARD,
+    Scene,
+    Trajectory,
+    default_camera,
+    imu_samples,
+    make_scene,
+    project_rs,
+)
 
 __all__ = [
+    "PLACES",
     "MountedTrajectory",
     "RigCameraSim",
     "RigFrameSim",
@@ -35,42 +45,24 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class RigTrajectory:
-    """The rig's motion: ``orientation(t)`` (..., 3, 3) rig -> world and ``position(t)``
-    (..., 3) m, the rig origin in the world; the base frame is x forward, y left, z up. The
-    camera walk ``base`` (:class:`~rs_localizer.sim.trajectory.Trajectory`, or a renderer
-    motion of :func:`~rs_localizer.sim.render.motion.make_motion`; optical-frame axes) turned
-    into it: ``R_rig(t) = R_cam(t) R_FORWARD^T``."""
-
-    base: Trajectory = field(default_factory=Trajectory)
-
-    def orientation(self, t: float | np.ndarray) -> np.ndarray:
-        return self.base.orientation(t) @ R_FORWARD.T
-
-    def position(self, t: float | np.ndarray) -> np.ndarray:
-        return self.base.position(t)
-
-    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.orientation(t), self.position(t)
-
-    #: (angular (rad/s), linear (m/s) velocity) in the rig frame, by central differences
-    velocity_body = Trajectory.velocity_body
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MountedTrajectory:
-    """A camera's trajectory: the rig's (``rig``) with the camera's mounting (``R_rig_cam``
-    (3, 3) optical frame -> rig, ``p_rig_cam`` (3,) m); ``pose(t)``: (orientation (..., 3, 3)
-    camera -> world, position (..., 3) m) at rig time(s) ``t`` (s); what the renderer takes."""
+    """A body's trajectory carried by another's: the carrier's motion ``base`` (``pose(t)``)
+    with the body fixed on it, turned by ``R_base_body`` (3, 3) body -> carrier and at
+    ``p_base_body`` (3,) m in the carrier's frame (None: at its origin). ``pose(t)``:
+    (orientation (..., 3, 3) body -> world, position (..., 3) m) at time(s) ``t`` (s); what
+    the renderer and :func:`~rs_localizer.sim.trajectory.project_rs` take. A camera on the
+    rig (:meth:`RigCameraSim.on`), the rig on the camera walk (:class:`RigTrajectory`)."""
 
-    rig: RigTrajectory
-    R_rig_cam: np.ndarray
-    p_rig_cam: np.ndarray
+    base: Any
+    R_base_body: np.ndarray
+    p_base_body: np.ndarray | None = None
 
     def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        R, p = self.rig.pose(t)
-        return R @ self.R_rig_cam, p + R @ self.p_rig_cam
+        R, p = self.base.pose(t)
+        if self.p_base_body is None:
+            return R @ self.R_base_body, p
+        return R @ self.R_base_body, p + R @ self.p_base_body
 
     def orientation(self, t: float | np.ndarray) -> np.ndarray:
         return self.pose(t)[0]
@@ -78,8 +70,18 @@ class MountedTrajectory:
     def position(self, t: float | np.ndarray) -> np.ndarray:
         return self.pose(t)[1]
 
-    #: (angular (rad/s), linear (m/s) velocity) in the camera frame, by central differences
+    #: (angular (rad/s), linear (m/s) velocity) in the body frame, by central differences
     velocity_body = Trajectory.velocity_body
+
+
+class RigTrajectory(MountedTrajectory):
+    """The rig's motion (base frame x forward, y left, z up): the camera walk ``base``
+    (:class:`~rs_localizer.sim.trajectory.Trajectory` by default, or a renderer motion of
+    :func:`~rs_localizer.sim.render.motion.make_motion`; optical-frame axes) turned into it,
+    ``R_rig(t) = R_cam(t) R_FORWARD^T``, the rig's origin at the camera's centre."""
+
+    def __init__(self, base: Any = None):
+        super().__init__(Trajectory() if base is None else base, R_FORWARD.T)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,13 +113,47 @@ class RigCameraSim:
         and ``p_rig_cam``)."""
         return Mounting.from_pose(self.R_rig_cam, self.p_rig_cam)
 
+    def on(self, rig: Any) -> MountedTrajectory:
+        """The camera's trajectory: the rig's motion ``rig`` with its mounting."""
+        return MountedTrajectory(rig, np.asarray(self.R_rig_cam, float), np.asarray(self.p_rig_cam))
+
+    @classmethod
+    def facing(
+        cls,
+        name: str,
+        camera: CameraModel,
+        yaw_deg: float,
+        position: tuple | np.ndarray,
+        offset: float = 0.0,
+        fps: float = 30.0,
+    ) -> RigCameraSim:
+        """``camera`` turned ``yaw_deg`` about the base z axis from looking forward (along x),
+        its optical centre at ``position`` (m, base frame); ``offset``, ``fps`` as the
+        attributes."""
+        R = rotvec_to_matrix(np.array([0.0, 0.0, np.radians(yaw_deg)])) @ R_FORWARD
+        return cls(name, camera, R, np.array(position, float), offset, float(fps))
+
+
+#: name -> (yaw deg about the base z axis, optical centre (m) in the base frame) of the
+#: simulated rigs' cameras (:func:`default_rig`, :func:`~rs_localizer.sim.render.rig.rendered_rig`)
+PLACES = {
+    "front": (0.0, (0.15, 0.0, 0.10)),
+    "left": (90.0, (0.0, 0.12, 0.12)),
+    "right": (-90.0, (0.0, -0.12, 0.12)),
+    "back": (180.0, (-0.15, 0.0, 0.10)),
+}
+
 
 @dataclass
 class RigFrameSim:
-    """One camera frame. ``stamp_ns``: capture time of line ``stamp_row`` (the header stamp);
-    ``t_ref_ns``: of the camera's reference line. ``inlier`` (N,): False for the synthetic
-    outliers. ``orientation`` (3, 3) rig -> world and ``position`` (3,) m: the rig at
-    ``t_ref_ns``."""
+    """One camera frame of a rig video, simulated (:func:`generate_rig_video`) or rendered
+    (:func:`~rs_localizer.sim.render.rig.render_rig_video`). ``stamp_ns``: capture time of line
+    ``stamp_row`` (the header stamp); ``t_ref_ns``: of the camera's reference line. ``uv``
+    (N, 2) px, ``xyz`` (N, 3) m (map frame): its correspondences. ``orientation`` (3, 3) rig ->
+    world and ``position`` (3,) m: the rig at ``t_ref_ns``. ``inlier`` (N,): False for the
+    synthetic outliers (None: rendered). Rendered: ``image`` (H, W, 3) uint8 RGB, ``ids``
+    (N,) the front end's (marker corners: ``4 * marker id + corner``), ``render_s`` and
+    ``frontend_s`` the CPU time of rendering and of the front end, s."""
 
     name: str
     index: int
@@ -125,18 +161,18 @@ class RigFrameSim:
     t_ref_ns: int
     uv: np.ndarray
     xyz: np.ndarray
-    inlier: np.ndarray
     orientation: np.ndarray
     position: np.ndarray
-
-
-def _yaw(deg: float) -> np.ndarray:
-    return rotvec_to_matrix(np.array([0.0, 0.0, np.radians(deg)]))
+    inlier: np.ndarray | None = None
+    image: np.ndarray | None = None
+    ids: np.ndarray | None = None
+    render_s: float = 0.0
+    frontend_s: float = 0.0
 
 
 def default_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008, 0.003)) -> list:
-    """``num_cameras`` (1-4) cameras looking front, left, right and back, 10-20 cm off the rig
-    origin, 1280x720 with different line delays (30, 25, 20 us/line, 28 us/row) and readout
+    """``num_cameras`` (1-4) cameras looking front, left, right and back (:data:`PLACES`),
+    1280x720 with different line delays (30, 25, 20 us/line, 28 us/row) and readout
     directions (top-down, bottom-up, left-right, top-down), first frames ``offsets_s`` apart.
 
     Raises:
@@ -144,17 +180,11 @@ def default_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008, 0.0
     """
     if not 1 <= num_cameras <= 4:
         raise ValueError(f"num_cameras must be 1-4, got {num_cameras}")
-    spec = [
-        ("front", 0.0, (0.15, 0.0, 0.10), 30e-6, "top_to_bottom"),
-        ("left", 90.0, (0.0, 0.12, 0.12), 25e-6, "bottom_to_top"),
-        ("right", -90.0, (0.0, -0.12, 0.12), 20e-6, "left_to_right"),
-        ("back", 180.0, (-0.15, 0.0, 0.10), 28e-6, "top_to_bottom"),
-    ]
-    out = []
-    for k, (name, yaw, pos, delay, readout) in enumerate(spec[:num_cameras]):
-        cam = default_camera(line_delay=delay, readout=readout)
-        out.append(RigCameraSim(name, cam, _yaw(yaw) @ R_FORWARD, np.array(pos), offsets_s[k % 4]))
-    return out
+    spec = [("front", 30e-6, "top_to_bottom"), ("left", 25e-6, "bottom_to_top"),
+            ("right", 20e-6, "left_to_right"), ("back", 28e-6, "top_to_bottom")]  # fmt: skip
+    cams = [(name, default_camera(line_delay=delay, readout=readout), *PLACES[name])
+            for name, delay, readout in spec[:num_cameras]]  # fmt: skip
+    return [RigCameraSim.facing(*c, offsets_s[k % 4]) for k, c in enumerate(cams)]
 
 
 def rig_truth(trajectory: RigTrajectory, t: float) -> tuple:
@@ -193,9 +223,7 @@ def generate_rig_video(
     frames = []
     for rc in cameras:
         cam = rc.camera
-        mounted = MountedTrajectory(
-            trajectory, np.asarray(rc.R_rig_cam, float), np.asarray(rc.p_rig_cam)
-        )
+        mounted = rc.on(trajectory)
         lim = np.array([cam.width, cam.height]) / np.diag(cam.K)[:2]
         k = 0
         while True:
@@ -222,18 +250,9 @@ def generate_rig_video(
                 R, p = trajectory.pose(t_ref)
                 stamp = t_first + float(cam.line_time(stamp_row))
                 frames.append(
-                    RigFrameSim(
-                        rc.name,
-                        k,
-                        t0_ns + int(round(stamp * 1e9)),
-                        t0_ns + int(round(t_ref * 1e9)),
-                        noisy,
-                        xyz,
-                        inlier,
-                        R,
-                        p,
-                    )
-                )
+                    RigFrameSim(rc.name, k, t0_ns + int(round(stamp * 1e9)),
+                                t0_ns + int(round(t_ref * 1e9)), noisy, xyz, R, p, inlier)
+                )  # fmt: skip
             k += 1
     order = {rc.name: i for i, rc in enumerate(cameras)}
     frames.sort(key=lambda f: (f.stamp_ns, order[f.name]))
@@ -254,8 +273,9 @@ def rig_gyro(
     """A gyro on the rig: its samples over ``[-margin, duration + margin]`` s of rig time.
 
     ``omega_imu = R_rig_imu^T omega_rig + bias + n`` (``omega_rig`` the trajectory's angular
-    velocity in the rig frame, :func:`rig_truth`; ``n`` Gaussian, ``noise`` rad/s per axis),
-    stamped ``t0_ns + t * 1e9`` ns as :func:`generate_rig_video`'s frames.
+    velocity in the rig frame, :func:`rig_truth`; ``n`` Gaussian, ``noise`` rad/s per axis):
+    the gyro of :func:`~rs_localizer.sim.trajectory.imu_samples` at the rig's origin, stamped
+    ``t0_ns + t * 1e9`` ns as :func:`generate_rig_video`'s frames.
 
     Args:
         trajectory: the rig's. duration: s. rate_hz: samples per second.
@@ -264,10 +284,8 @@ def rig_gyro(
     Returns:
         (stamps (M,) int64 ns, rates (M, 3) rad/s, IMU frame).
     """
-    rng = np.random.default_rng(seed)
-    t = np.arange(-margin, duration + margin, 1.0 / rate_hz)
-    w, _ = trajectory.velocity_body(t)
     R = np.eye(3) if R_rig_imu is None else np.asarray(R_rig_imu, dtype=float)
     b = np.zeros(3) if bias is None else np.asarray(bias, dtype=float)
-    rates = w @ R + b + rng.normal(0.0, noise, (len(t), 3))
+    t, rates, _ = imu_samples(trajectory, -margin, duration + margin, rate_hz, seed, noise, b,
+                              R_imu_camera=R.T)  # fmt: skip
     return t0_ns + np.round(t * 1e9).astype(np.int64), rates

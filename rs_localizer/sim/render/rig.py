@@ -29,18 +29,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...geometry import rotvec_to_matrix
 from ..rig import LAYOUTS, READOUTS
-from ..rig_video import MountedTrajectory, RigCameraSim, RigTrajectory
-from ..trajectory import R_FORWARD
+from ..rig_video import PLACES, RigCameraSim, RigFrameSim, RigTrajectory
 from .motion import make_motion
 from .renderer import NoiseModel, Renderer, camera_preset
 from .scene import Scene, load_scene
 
 __all__ = [
-    "RIG_MOUNTS",
+    "RIG_TIMING",
     "RigCameraImage",
-    "RigRenderedFrame",
     "render_rig_frames",
     "render_rig_images",
     "render_rig_video",
@@ -49,39 +46,14 @@ __all__ = [
     "vga_rig",
 ]
 
-#: name -> (yaw deg about the base z axis, optical centre (m) in the base frame, frame readout
-#: time s, first-frame offset s) of the rendered rig's cameras
-RIG_MOUNTS = {
-    "front": (0.0, (0.15, 0.0, 0.10), 0.030, 0.000),
-    "left": (90.0, (0.0, 0.12, 0.12), 0.025, 0.004),
-    "right": (-90.0, (0.0, -0.12, 0.12), 0.020, 0.009),
-    "back": (180.0, (-0.15, 0.0, 0.10), 0.028, 0.002),
+#: name -> (frame readout time s, first-frame offset s) of the rendered rig's cameras (placed
+#: as :data:`~rs_localizer.sim.rig_video.PLACES`)
+RIG_TIMING = {
+    "front": (0.030, 0.000),
+    "left": (0.025, 0.004),
+    "right": (0.020, 0.009),
+    "back": (0.028, 0.002),
 }
-
-
-@dataclass
-class RigRenderedFrame:
-    """One rendered camera frame of a rig.
-
-    ``stamp_ns``: capture time of line ``stamp_row`` (the header stamp); ``t_ref_ns``: of the
-    camera's reference line. ``image``: (H, W, 3) uint8 RGB. ``uv`` (N, 2) px, ``xyz`` (N, 3)
-    m (map frame), ``ids`` (N,): the front end's correspondences of the image (marker
-    corners: ``4 * marker id + corner``). ``orientation`` (3, 3) rig -> world and ``position``
-    (3,) m: the rig at ``t_ref_ns``. ``cpu_s``: CPU time of rendering (``render_s``) and of the
-    front end (``frontend_s``), s."""
-
-    name: str
-    index: int
-    stamp_ns: int
-    t_ref_ns: int
-    image: np.ndarray
-    uv: np.ndarray
-    xyz: np.ndarray
-    ids: np.ndarray
-    orientation: np.ndarray
-    position: np.ndarray
-    render_s: float = 0.0
-    frontend_s: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,13 +74,6 @@ class RigCameraImage:
     render_s: float = 0.0
 
 
-def _camera_on_rig(name, camera, yaw_deg, position, offset, fps) -> RigCameraSim:
-    """``camera`` turned ``yaw_deg`` about the base z axis from looking forward, its optical
-    centre at ``position`` (m, base frame)."""
-    R = rotvec_to_matrix(np.array([0.0, 0.0, np.radians(yaw_deg)])) @ R_FORWARD
-    return RigCameraSim(name, camera, R, np.array(position, float), offset, float(fps))
-
-
 def vga_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008)) -> list:
     """``num_cameras`` (1-3) 640x480 cameras (the renderer's ``vga`` preset, 30 ms readout)
     looking front, 35 deg left and 35 deg right, 5-15 cm off the rig origin, readouts
@@ -126,7 +91,7 @@ def vga_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008)) -> lis
         ("right", -35.0, (0.0, -0.08, 0.06), "left_to_right"),
     ]
     return [
-        _camera_on_rig(name, camera_preset("vga", readout=readout), yaw, pos, offsets_s[k], 30.0)
+        RigCameraSim.facing(name, camera_preset("vga", readout=readout), yaw, pos, offsets_s[k])
         for k, (name, yaw, pos, readout) in enumerate(spec[:num_cameras])
     ]
 
@@ -140,7 +105,8 @@ def rendered_rig(
     """``num_cameras`` (1-4) cameras laid out as :data:`rs_localizer.sim.rig.LAYOUTS` (2:
     front, back; 3: front, left, right; 4: front, right, back, left), each the ``camera``
     preset (default 640x480, mild plumb_bob distortion; a sequence: one preset per camera, in
-    layout order, e.g. ``("hd", "vga", "vga")``) with its :data:`RIG_MOUNTS` readout
+    layout order, e.g. ``("hd", "vga", "vga")``) placed as
+    :data:`~rs_localizer.sim.rig_video.PLACES`, with its :data:`RIG_TIMING` readout
     time (30, 25, 20, 28 ms: front, left, right, back) over its lines, the readout directions
     of :data:`rs_localizer.sim.rig.READOUTS` in layout order (top-down, left-right, bottom-up,
     right-left), and first frames 0-9 ms apart (unsynchronized).
@@ -160,11 +126,11 @@ def rendered_rig(
         )
     out = []
     for k, name in enumerate(names):
-        if name not in RIG_MOUNTS:
-            raise ValueError(f"unknown rig camera {name!r}; expected one of {sorted(RIG_MOUNTS)}")
-        yaw, pos, readout_time, offset = RIG_MOUNTS[name]
+        if name not in RIG_TIMING:
+            raise ValueError(f"unknown rig camera {name!r}; expected one of {sorted(RIG_TIMING)}")
+        readout_time, offset = RIG_TIMING[name]
         cam = camera_preset(presets[k], readout_time=readout_time, readout=READOUTS[k % 4])
-        out.append(_camera_on_rig(name, cam, yaw, pos, offset, fps))
+        out.append(RigCameraSim.facing(name, cam, *PLACES[name], offset, fps))
     return out
 
 
@@ -222,12 +188,7 @@ def render_rig_images(
         Renderer(scene, c.camera, supersample=supersample, noise=NoiseModel() if noise else None)
         for c in cameras
     ]
-    mounted = [
-        MountedTrajectory(
-            trajectory, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float)
-        )
-        for c in cameras
-    ]
+    mounted = [c.on(trajectory) for c in cameras]
     for stamp, ci, k, t_first in jobs:
         tic = time.process_time()
         fr = renderers[ci].render(
@@ -289,7 +250,7 @@ def render_rig_video(
     supersample: int = 2,
     noise: bool = True,
     seed: int = 0,
-) -> Iterator[RigRenderedFrame]:
+) -> Iterator[RigFrameSim]:
     """Yield every camera's rendered frames (``frames`` per camera; :func:`render_rig_images`),
     sorted by stamp, each with its front end's correspondences and the rig's pose at its
     reference line.
@@ -320,17 +281,9 @@ def render_rig_video(
         tic = time.process_time()
         uv, xyz, ids = fe.process(f.image, camera)
         R, p = trajectory.pose(f.t_ref)
-        yield RigRenderedFrame(
-            f.name,
-            f.index,
-            f.stamp_ns,
-            f.t_ref_ns,
-            f.image,
-            np.asarray(uv, float).reshape(-1, 2),
-            np.asarray(xyz, float).reshape(-1, 3),
-            np.asarray(ids, np.uint32).reshape(-1),
-            R,
-            p,
-            f.render_s,
-            time.process_time() - tic,
-        )
+        yield RigFrameSim(
+            f.name, f.index, f.stamp_ns, f.t_ref_ns,
+            np.asarray(uv, float).reshape(-1, 2), np.asarray(xyz, float).reshape(-1, 3), R, p,
+            image=f.image, ids=np.asarray(ids, np.uint32).reshape(-1), render_s=f.render_s,
+            frontend_s=time.process_time() - tic,
+        )  # fmt: skip
