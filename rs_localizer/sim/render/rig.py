@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -37,7 +36,6 @@ from .scene import Scene, load_scene
 
 __all__ = [
     "RIG_TIMING",
-    "RigCameraImage",
     "render_rig_frames",
     "render_rig_images",
     "render_rig_video",
@@ -54,24 +52,6 @@ RIG_TIMING = {
     "right": (0.020, 0.009),
     "back": (0.028, 0.002),
 }
-
-
-@dataclass(frozen=True, eq=False)
-class RigCameraImage:
-    """One camera's rendered image of a rig (:func:`render_rig_images`).
-
-    ``stamp_ns``: capture time of line ``stamp_row`` (the header stamp; row 0: its first line
-    read unless it reads bottom-up); ``t_ref_ns``: of the camera's reference line, ``t_ref``
-    the same in s of rig time (the rig's pose there is the frame's truth). ``image``:
-    (H, W, 3) uint8 RGB (or (H, W) mono8). ``render_s``: CPU time of rendering it, s."""
-
-    name: str
-    index: int
-    stamp_ns: int
-    t_ref_ns: int
-    image: np.ndarray
-    t_ref: float
-    render_s: float = 0.0
 
 
 def vga_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008)) -> list:
@@ -161,9 +141,12 @@ def render_rig_images(
     noise: bool = True,
     seed: int = 0,
     mono: bool = False,
-) -> Iterator[RigCameraImage]:
+) -> Iterator[RigFrameSim]:
     """Yield every camera's rendered images (``frames`` per camera), sorted by stamp (then by
-    camera, in ``cameras`` order), each rendered when it is asked for.
+    camera, in ``cameras`` order), each rendered when it is asked for: a
+    :class:`~rs_localizer.sim.rig_video.RigFrameSim` with its ``image`` ((H, W, 3) uint8 RGB,
+    or (H, W) mono8), ``render_s`` (CPU s), the rig's pose at its reference line and no
+    correspondences.
 
     Camera c's frame k has its first line read at rig time ``c.offset + k / c.fps`` (rig time
     t is stamped ``t0_ns + t * 1e9`` ns; the header stamp is the capture time of line
@@ -194,15 +177,13 @@ def render_rig_images(
         fr = renderers[ci].render(
             mounted[ci], t_first, index=k, mono=mono, rng=np.random.default_rng([seed, ci, k])
         )
-        yield RigCameraImage(
-            cameras[ci].name,
-            k,
-            int(t0_ns) + int(round(stamp * 1e9)),
-            int(t0_ns) + int(round(fr.t_ref * 1e9)),
-            fr.image,
-            fr.t_ref,
-            time.process_time() - tic,
-        )
+        render_s = time.process_time() - tic
+        R, p = trajectory.pose(fr.t_ref)
+        yield RigFrameSim(
+            cameras[ci].name, k, int(t0_ns) + int(round(stamp * 1e9)),
+            int(t0_ns) + int(round(fr.t_ref * 1e9)), np.zeros((0, 2)), np.zeros((0, 3)), R, p,
+            image=fr.image, render_s=render_s,
+        )  # fmt: skip
 
 
 def render_rig_frames(
@@ -216,7 +197,7 @@ def render_rig_frames(
     supersample: int = 1,
     noise: bool = True,
     mono: bool = False,
-) -> tuple[list[RigCameraImage], RigTrajectory]:
+) -> tuple[list[RigFrameSim], RigTrajectory]:
     """Render ``frames`` frames of every camera, stamped at their row 0, sorted by stamp:
     :func:`render_rig_images` along the renderer's ``motion`` preset over the rendered time,
     around ``scene``'s viewpoint.
@@ -280,10 +261,7 @@ def render_rig_video(
         camera, fe = by_name[f.name]
         tic = time.process_time()
         uv, xyz, ids = fe.process(f.image, camera)
-        R, p = trajectory.pose(f.t_ref)
-        yield RigFrameSim(
-            f.name, f.index, f.stamp_ns, f.t_ref_ns,
-            np.asarray(uv, float).reshape(-1, 2), np.asarray(xyz, float).reshape(-1, 3), R, p,
-            image=f.image, ids=np.asarray(ids, np.uint32).reshape(-1), render_s=f.render_s,
-            frontend_s=time.process_time() - tic,
-        )  # fmt: skip
+        f.uv, f.xyz = np.asarray(uv, float).reshape(-1, 2), np.asarray(xyz, float).reshape(-1, 3)
+        f.ids = np.asarray(ids, np.uint32).reshape(-1)
+        f.frontend_s = time.process_time() - tic
+        yield f
