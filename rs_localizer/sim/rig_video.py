@@ -30,6 +30,7 @@ from .trajectory import (
     imu_samples,
     make_scene,
     project_rs,
+    truth_at,
 )
 
 __all__ = [
@@ -187,12 +188,9 @@ def default_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008, 0.0
     return [RigCameraSim.facing(*c, offsets_s[k % 4]) for k, c in enumerate(cams)]
 
 
-def rig_truth(trajectory: RigTrajectory, t: float) -> tuple:
-    """(orientation (3, 3) rig -> world, position (3,) m, angular velocity (3,) rad/s, linear
-    velocity (3,) m/s; velocities in the rig frame) at rig time ``t`` (s)."""
-    R, p = trajectory.pose(t)
-    w, v = trajectory.velocity_body(t)
-    return R, p, w, v
+#: (orientation (3, 3) rig -> world, position (3,) m, angular velocity (3,) rad/s, linear
+#: velocity (3,) m/s; velocities in the rig frame) of a rig's trajectory at rig time ``t`` (s)
+rig_truth = truth_at
 
 
 def generate_rig_video(

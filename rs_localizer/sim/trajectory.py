@@ -41,6 +41,7 @@ __all__ = [
     "make_scene",
     "make_trajectory",
     "project_rs",
+    "truth_at",
 ]
 
 #: camera looking along world +x with z up: columns are the camera x (right), y (down),
@@ -390,14 +391,22 @@ class SequenceConfig:
     drop_frames: tuple = ()
 
 
+def truth_at(trajectory: Trajectory, t: float) -> tuple:
+    """(orientation (3, 3) body -> world, position (3,) m, angular velocity (3,) rad/s, linear
+    velocity (3,) m/s; velocities in the body frame) of ``trajectory`` (a camera's, a rig's)
+    at ``t`` (s)."""
+    R, p = trajectory.pose(t)
+    w, v = trajectory.velocity_body(t)
+    return R, p, w, v
+
+
 def ground_truth(
     camera: CameraModel, trajectory: Trajectory, t_first_line: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
-    """(orientation, position, angular_velocity, linear_velocity, t_ref) at the reference line."""
+    """(orientation, position, angular_velocity, linear_velocity, t_ref) at the reference line
+    (:func:`truth_at`)."""
     t_ref = t_first_line + float(camera.line_time(camera.reference_line))
-    R, p = trajectory.pose(t_ref)
-    w, v = trajectory.velocity_body(t_ref)
-    return R, p, w, v, t_ref
+    return (*truth_at(trajectory, t_ref), t_ref)
 
 
 def generate_sequence(
