@@ -245,29 +245,31 @@ def per_frame_rates(
 def _robust_slope(x, y, lags: int = 2, iterations: int = 20):
     """Slope s of ``y = s x`` (x, y (n, 3) per sample) by Huber-weighted least squares, its
     HAC standard deviation and the residual RMS. Returns (s, std, rms)."""
-    n = len(x)
-    wts = np.ones(n)
+    wts = np.ones(len(x))
     s = float(np.sum(x * y) / max(np.sum(x * x), 1e-300))
     for _ in range(iterations):
-        r = y - s * x
-        rn = np.linalg.norm(r, axis=1)
-        scale = 1.4826 * np.median(rn) / np.sqrt(2.0) + 1e-300  # per-component sigma
-        k = 3.0 * scale * np.sqrt(3.0)
-        wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))
+        wts = _huber_weights(y - s * x)
         s_new = float(np.sum(wts[:, None] * x * y) / max(np.sum(wts[:, None] * x * x), 1e-300))
         if abs(s_new - s) <= 1e-12 * max(abs(s), 1e-300):
             s = s_new
             break
         s = s_new
     r = y - s * x
-    u = wts * np.sum(x * r, axis=1)  # score per sample
-    A = float(np.sum(wts[:, None] * x * x))
+    std = _hac_std(wts * np.sum(x * r, axis=1), float(np.sum(wts[:, None] * x * x)), lags, 1)
+    return s, std, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
+def _hac_std(u: np.ndarray, A: float, lags: int, p: int) -> float:
+    """The sandwich standard deviation ``sqrt(V) / A`` of a scalar parameter fitted with
+    ``p`` parameters from the (n,) scores ``u`` per sample (``A`` the weighted sum of the
+    squared derivatives): ``V`` Newey-West (Bartlett kernel over ``lags``: neighbouring
+    samples share frames), inflated by ``n / (n - p)``; inf when ``A`` is not positive."""
+    n = len(u)
     V = float(u @ u)
     for lag in range(1, min(lags, n - 1) + 1):
         V += 2.0 * (1.0 - lag / (lags + 1.0)) * float(u[lag:] @ u[:-lag])
-    V = max(V, 0.0) * n / max(n - 1, 1)
-    std = float(np.sqrt(V) / A) if A > 0 else float("inf")
-    return s, std, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+    V = max(V, 0.0) * n / max(n - p, 1)
+    return float(np.sqrt(V) / A) if A > 0 else float("inf")
 
 
 def _simpson_samples(stamps, Os, ws, max_dt: float, uniformity: float):
@@ -344,18 +346,8 @@ def _offset_std(t, y, t_imu, om_imu, d, s, R, c, lags: int = 2, h: float = 0.02)
         - _rates_at(t - d * 1e9 - h * 1e9, t_imu, om_imu)
     ) / (2 * h)
     g = -s * alpha @ R.T  # d(prediction)/d(offset)
-    rn = np.linalg.norm(r, axis=1)
-    scale = 1.4826 * np.median(rn) / np.sqrt(2.0) + 1e-300
-    k = 3.0 * scale * np.sqrt(3.0)
-    wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))
-    u = wts * np.sum(g * r, axis=1)
-    A = float(np.sum(wts[:, None] * g * g))
-    n = len(u)
-    V = float(u @ u)
-    for lag in range(1, min(lags, n - 1) + 1):
-        V += 2.0 * (1.0 - lag / (lags + 1.0)) * float(u[lag:] @ u[:-lag])
-    V = max(V, 0.0) * n / max(n - 2, 1)
-    return float(np.sqrt(V) / A) if A > 0 else float("inf")
+    wts = _huber_weights(r)
+    return _hac_std(wts * np.sum(g * r, axis=1), float(np.sum(wts[:, None] * g * g)), lags, 2)
 
 
 def _lines_to_reference(camera: CameraModel, stamp_row: float) -> float:
