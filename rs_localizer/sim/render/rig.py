@@ -1,6 +1,7 @@
 """Rendered rigs of rolling-shutter cameras (ROS-free): every camera's images at its
 mounting-composed poses with its own timing (:func:`render_rig_images`, the one rendering
-core), and a rig's rendered video with an image front end's correspondences
+core; each a :class:`~rs_localizer.sim.rig_video.RigFrameSim`, as the simulated rig video's
+frames), and a rig's rendered video with an image front end's correspondences
 (:func:`render_rig_video`, for ``render-bag --rig`` and the rendered-rig benchmark).
 
 The rig (base frame x forward, y left, z up, REP 103) moves along a motion preset of the
