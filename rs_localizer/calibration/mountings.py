@@ -224,12 +224,13 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     return mounts
 
 
-def _camera_axes(R_wc: np.ndarray) -> np.ndarray:
-    """(6, 6) block-diagonal map of a (rotation, position) error in world axes to the axes of
-    the camera with orientation ``R_wc`` (3, 3) (camera -> world)."""
+def _turned(R: np.ndarray) -> np.ndarray:
+    """(6, 6) block-diagonal ``diag(R, R)``: a (rotation, position) error turned by ``R``
+    (3, 3); ``R_wc^T`` of a camera of orientation ``R_wc`` (camera -> world) takes it from
+    world axes to the camera's, ``R_wc`` back."""
     T = np.zeros((6, 6))
-    T[:3, :3] = R_wc.T
-    T[3:, 3:] = R_wc.T
+    T[:3, :3] = R
+    T[3:, 3:] = R
     return T
 
 
@@ -271,7 +272,7 @@ def _adjust(
     covs: dict = {}
     for _, seen in rig_frames:
         for n, (R_wc, _, c6, _) in seen.items():
-            T = _camera_axes(R_wc)
+            T = _turned(R_wc.T)
             covs.setdefault(n, []).append(T @ np.asarray(c6, dtype=float)[:6, :6] @ T.T)
     whiten = {}
     for n, cs in covs.items():
@@ -315,7 +316,7 @@ def _adjust(
             # the typical covariance's shape, scaled to the size of the frame's own (its
             # mean variance in the typical's whitened units): a frame of few inliers
             # counts less, its own shape (noisy with few points) is not used
-            Wn = whiten[n] @ _camera_axes(Oc)
+            Wn = whiten[n] @ _turned(Oc.T)
             size = np.trace(Wn @ np.asarray(c6, dtype=float)[:6, :6] @ Wn.T) / 6.0
             obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), twist))
     G, F = len(R0g), len(free)
@@ -431,10 +432,7 @@ def _mounting_covariance(
         e_cam = []
         for i in rows:
             Oc, Wh = obs[i][3], obs[i][5]
-            T = np.zeros((6, 6))
-            T[:3, :3] = Oc
-            T[3:, 3:] = Oc
-            Z[6 * i : 6 * i + 6] = Wh @ T
+            Z[6 * i : 6 * i + 6] = Wh @ _turned(Oc)
             e = np.linalg.solve(Wh, r[i])
             e_cam.append(np.concatenate([Oc.T @ e[:3], Oc.T @ e[3:]]))
         B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
