@@ -41,8 +41,9 @@ filter: ``success``, ``pose``, the covariances and the acceleration sensitivity.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol, runtime_checkable
+import math
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 from numba import njit
@@ -52,6 +53,7 @@ __all__ = [
     "PoseWithCovariance",
     "RSModel",
     "RSPose",
+    "frozen_instance",
     "model_from_twist",
     "model_twist",
     "model_twist_jacobian",
@@ -140,6 +142,46 @@ def _zeros3() -> np.ndarray:
     return np.zeros(3)
 
 
+#: per dataclass: (its init fields' names, those without a default, {name: default},
+#: ((name, default factory), ...)), for :func:`frozen_instance`
+_FROZEN_FIELDS: dict = {}
+
+
+def frozen_instance(cls: type, values: dict[str, Any]) -> Any:
+    """The instance of the frozen dataclass ``cls`` whose fields hold ``values`` (by name;
+    every field not given at its default), as its constructor builds it (no copies, no
+    checks of the values), without the constructor's field-by-field
+    ``object.__setattr__``: the results built on every frame (:meth:`RSPose._trusted`,
+    ``RSPoseEstimate._trusted``) cost a few dictionary stores. The values must not be
+    changed afterwards.
+
+    Raises:
+        TypeError: a name that is no field of ``cls``, or a field without a default not given
+            (as the constructor)."""
+    hit = _FROZEN_FIELDS.get(cls)
+    if hit is None:
+        fs = [f for f in fields(cls) if f.init]
+        hit = _FROZEN_FIELDS[cls] = (
+            frozenset(f.name for f in fs),
+            frozenset(f.name for f in fs if f.default is MISSING and f.default_factory is MISSING),
+            {f.name: f.default for f in fs if f.default is not MISSING},
+            tuple((f.name, f.default_factory) for f in fs if f.default_factory is not MISSING),
+        )
+    names, required, plain, factories = hit
+    given = values.keys()
+    if not (given <= names and required <= given):
+        raise TypeError(f"{cls.__name__}: unknown or missing fields in {sorted(values)}")
+    obj = object.__new__(cls)
+    d = obj.__dict__
+    if len(values) < len(names):  # (the defaults of the fields not given)
+        d.update(plain)
+        for name, factory in factories:
+            if name not in values:
+                d[name] = factory()
+    d.update(values)
+    return obj
+
+
 @dataclass(frozen=True, eq=False)
 class RSPose:
     """A camera's pose and twist at one time (see the module docstring for frames and units).
@@ -166,19 +208,19 @@ class RSPose:
         linear_velocity: np.ndarray,
         stamp_ns: int | None = None,
     ) -> RSPose:
-        """An RSPose of these arrays (as the constructor: no copies, no checks), built without
-        the frozen dataclass' field-by-field ``object.__setattr__`` (the twist filter's hot
-        path: it hands out a state per frame and per prediction). The arrays must not be
-        changed afterwards."""
-        pose = object.__new__(cls)
-        pose.__dict__.update(
-            orientation=orientation,
-            position=position,
-            angular_velocity=angular_velocity,
-            linear_velocity=linear_velocity,
-            stamp_ns=stamp_ns,
+        """An RSPose of these arrays (as the constructor: no copies, no checks) by
+        :func:`frozen_instance` (the twist filter's and the estimators' hot paths: a state per
+        frame and per prediction). The arrays must not be changed afterwards."""
+        return frozen_instance(
+            cls,
+            {
+                "orientation": orientation,
+                "position": position,
+                "angular_velocity": angular_velocity,
+                "linear_velocity": linear_velocity,
+                "stamp_ns": stamp_ns,
+            },
         )
-        return pose
 
     @classmethod
     def from_model(
@@ -197,17 +239,17 @@ class RSPose:
             ValueError: ``seconds_per_unit_r`` negative or not finite.
         """
         s = float(seconds_per_unit_r)
-        if not (np.isfinite(s) and s >= 0):
+        if not (math.isfinite(s) and s >= 0):
             raise ValueError(f"seconds_per_unit_r must be finite and >= 0, got {s}")
         R, C, w, t = model
-        R, C = np.asarray(R, dtype=float), np.asarray(C, dtype=float)
-        w, t = np.asarray(w, dtype=float), np.asarray(t, dtype=float)
+        Rt, C = np.asarray(R, dtype=float).T, np.asarray(C, dtype=float)
         if s == 0:
             om, v = np.zeros(3), np.zeros(3)
         else:
+            w, t = np.asarray(w, dtype=float), np.asarray(t, dtype=float)
             z = (model_twist if compiled else model_twist.py_func)(C, w, t, s)
             om, v = z[3:6], z[0:3]
-        return cls._trusted(R.T, -R.T @ C, om, v, stamp_ns)
+        return cls._trusted(Rt, -Rt @ C, om, v, stamp_ns)
 
     def model(self, seconds_per_unit_r: float) -> RSModel:
         """The solver's model of this pose (the inverse of :meth:`from_model`): ``R = O^T``,

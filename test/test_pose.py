@@ -1,12 +1,18 @@
 """The model <-> twist conversion of rs_localizer.pose (written once: the kernels, the NumPy
 code and the pose types use it) against the camera's motion differentiated numerically, its
-Jacobian against finite differences, the compiled kernel against its plain-Python code."""
+Jacobian against finite differences, the compiled kernel against its plain-Python code; the
+results built without their constructor (``frozen_instance``) against the constructor's."""
+
+import dataclasses
 
 import numpy as np
+import pytest
 
+from rs_localizer.estimation.result import RSPoseEstimate
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.pose import (
     RSPose,
+    frozen_instance,
     model_from_twist,
     model_twist,
     model_twist_jacobian,
@@ -97,3 +103,37 @@ def test_from_model_compiled_twist_is_the_python_twist():
         b = RSPose.from_model((R, C, w, t), 1.0, compiled=True)
         for name in ("orientation", "position", "angular_velocity", "linear_velocity"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_frozen_instance_is_what_the_constructor_builds():
+    """``frozen_instance`` (the results' construction without the frozen dataclass'
+    field-by-field stores) gives an object equal to the constructor's, field by field: the
+    values given, the defaults and default factories of the others; an unknown field or a
+    missing required one raises TypeError as the constructor does."""
+    R, C, w, t = _model(3)
+    pose = frozen_instance(
+        RSPose,
+        {"orientation": R, "position": C, "angular_velocity": w, "linear_velocity": t},
+    )
+    want = RSPose(R, C, w, t)
+    for f in dataclasses.fields(RSPose):
+        assert getattr(pose, f.name) is getattr(want, f.name)
+    given = {"success": True, "solver": "p3p", "rmse_px": 0.25, "pose": pose, "num_valid": 4}
+    est, ref = frozen_instance(RSPoseEstimate, given), RSPoseEstimate(**given)
+    for f in dataclasses.fields(RSPoseEstimate):
+        a, b = getattr(est, f.name), getattr(ref, f.name)
+        if isinstance(b, np.ndarray):
+            assert a is not b and a.dtype == b.dtype and np.array_equal(a, b)
+        elif f.name == "model":  # (a new identity model of each)
+            assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+        elif isinstance(b, float) and b != b:
+            assert a != a
+        else:
+            assert a == b
+    assert est.timings is not ref.timings  # (a factory's default: a new dict each)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        est.success = False
+    with pytest.raises(TypeError):
+        frozen_instance(RSPoseEstimate, {"success": True, "no_such_field": 1})
+    with pytest.raises(TypeError):
+        frozen_instance(RSPoseEstimate, {"solver": "p3p"})

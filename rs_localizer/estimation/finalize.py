@@ -990,7 +990,7 @@ def solved_estimate(
     given = {
         "solver": solver,
         "model": RSModel(R, C, w, t),
-        "pose": RSPose(R.T, position, om, vc),
+        "pose": RSPose._trusted(R.T, position, om, vc),
         "inliers": mask,
         "num_valid": len(fr.x),
         "num_dropped": fr.num_rows - len(fr.x) + num_behind,
@@ -1003,7 +1003,7 @@ def solved_estimate(
         "condition_number": condition,
         "motion_model": ROLLING_SHUTTER if solver_info(solver).rolling else GLOBAL_SHUTTER,
     }
-    return RSPoseEstimate(success=True, failure=None, **(given | fields))
+    return RSPoseEstimate._trusted(success=True, failure=None, **(given | fields))
 
 
 def checked_final(fr: Frame, final: FinalModel, compiled: bool = True) -> int:

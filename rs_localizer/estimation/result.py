@@ -6,12 +6,18 @@ t per unit RS coordinate) to the camera's physical velocities and the output cov
 
 from __future__ import annotations
 
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..geometry import skew
-from ..pose import PoseWithCovariance, RSModel, model_twist, model_twist_jacobian
+from ..pose import (
+    PoseWithCovariance,
+    RSModel,
+    frozen_instance,
+    model_twist,
+    model_twist_jacobian,
+)
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
@@ -299,40 +305,13 @@ class RSPoseEstimate(PoseWithCovariance):
     @classmethod
     def _trusted(cls, **values) -> RSPoseEstimate:
         """The estimate of these fields by name (``success`` given, every other field not
-        given at its default), as the constructor builds it (no copies, no checks), without
-        the frozen dataclass' field-by-field ``object.__setattr__`` (a rig frame posed by one
-        camera's few points: the estimate costs as much as its mapping to the rig).
+        given at its default), as the constructor builds it (no copies, no checks), by
+        :func:`~rs_localizer.pose.frozen_instance` (an estimate per frame: its construction
+        costs a few attribute stores).
 
         Raises:
             TypeError: a name that is no field, or no ``success``."""
-        names, plain, factories = _estimate_fields(cls)
-        if not values.keys() <= names or "success" not in values:
-            raise TypeError(f"{cls.__name__}: unknown or missing fields {sorted(values)}")
-        est = object.__new__(cls)
-        d = est.__dict__
-        d.update(plain)
-        for name, factory in factories:
-            if name not in values:
-                d[name] = factory()
-        d.update(values)
-        return est
-
-
-#: per estimate class: (its field names, {name: default}, ((name, default factory), ...))
-_ESTIMATE_FIELDS: dict = {}
-
-
-def _estimate_fields(cls) -> tuple:
-    """:meth:`RSPoseEstimate._trusted`'s fields of ``cls`` (kept per class)."""
-    hit = _ESTIMATE_FIELDS.get(cls)
-    if hit is None:
-        fs = [f for f in fields(cls) if f.init]
-        plain = {f.name: f.default for f in fs if f.default is not MISSING}
-        factories = tuple(
-            (f.name, f.default_factory) for f in fs if f.default_factory is not MISSING
-        )
-        hit = _ESTIMATE_FIELDS[cls] = (frozenset(f.name for f in fs), plain, factories)
-    return hit
+        return frozen_instance(cls, values)
 
 
 def failed_estimate(

@@ -187,15 +187,16 @@ def few_points_planarity(fr: Frame, min_inliers: int, flat: float | None = None)
 
 def _fixed_velocities(
     fr: Frame, initial_model: InitialModel | None, known_w: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, RSModel | None, int]:
+) -> tuple[np.ndarray, np.ndarray, bool, RSModel | None, int]:
     """The velocities held in the fit, as ``(w, b)`` per unit r with the model's
     ``t = w x C + b`` (``b = -s v``: the camera's own linear velocity ``v`` held, whatever its
     fitted ``C``): the prediction's if it explains every point within its ``gate_px``, with
     the gyro's angular velocity instead of the prediction's when ``known_w`` is set, else
-    zero; the prediction if it explains them (else ``None``), and how many points it explains
-    (-1: none given)."""
+    zero; whether they are not both zero (the fit is on the rolling-shutter model); the
+    prediction if it explains them (else ``None``), and how many points it explains (-1:
+    none given)."""
     w, b = np.zeros(3), np.zeros(3)
-    pred, explained = None, -1
+    pred, explained, held = None, -1, False
     if initial_model is not None:
         m = initial_model.model
         e = exact_errors(
@@ -207,9 +208,10 @@ def _fixed_velocities(
             if fr.spr > 0:
                 w = np.array(m.w, dtype=float)
                 b = np.array(m.t, dtype=float) - np.cross(w, np.asarray(m.C, dtype=float))
+                held = True
     if known_w is not None and fr.spr > 0:
-        w = np.array(known_w, dtype=float)
-    return w, b, pred, explained
+        w, held = np.array(known_w, dtype=float), True
+    return w, b, held and bool(w.any() or b.any()), pred, explained
 
 
 def _starts(fr: Frame) -> tuple[np.ndarray, np.ndarray]:
@@ -477,6 +479,14 @@ def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> 
     return A @ cov @ A.T
 
 
+def _every_point(n: int) -> np.ndarray:
+    """(n,) bool, every point an inlier (``np.ones(n, dtype=bool)``'s array at a third of its
+    cost)."""
+    mask = np.empty(n, dtype=bool)
+    mask.fill(True)
+    return mask
+
+
 class FewPointsModel(NamedTuple):
     """The pose of a frame of a few points before the last checks (:func:`few_points_model`).
 
@@ -508,8 +518,7 @@ def few_points_model(
     planar = fr.planar
     if not (planar or len(fr.x) >= MIN_SPREAD_POINTS):  # (not few_points)
         raise EstimationFailed(TOO_FEW_POINTS)
-    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
-    moving = bool(w.any() or b.any())
+    w, b, moving, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = _fits(fr, w, b, moving)
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
@@ -536,8 +545,8 @@ def few_points_model(
     if moving:
         cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
     final = FinalModel(
-        RSModel(R, C, w.copy(), t.copy()),
-        np.ones(n, dtype=bool),
+        RSModel(R, C, w, t.copy()),  # (w: _fixed_velocities' own array)
+        _every_point(n),
         float(rms * fr.f),
         covariance=cov,
     )
