@@ -376,12 +376,17 @@ class SequenceLocalizer(GyroReadouts):
         the same stamps.) :meth:`process` (an image: :meth:`process_image`) calls it; called
         first for the frame's stamp (to act on a reset before the frame is decoded), the frame
         takes it as noted: a frame is noted once
-        (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`).
+        (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`), and
+        after a time reset noted here the frame's image is not compared with the last one, as
+        when :meth:`process_image` notes it (:attr:`SequenceSettings.frozen_image_level`).
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
         """
-        return self._rig.check_time(stamp_ns)
+        why = self._rig.check_time(stamp_ns)
+        if why is not None:  # (a new timeline: its first image is no repeat of the last)
+            self._camera_frontend.last_sample = None
+        return why
 
     # ---------------------------------------------------------------- images
     @property
