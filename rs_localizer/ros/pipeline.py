@@ -11,11 +11,12 @@ rows (cloud or landmark lookup) without the non-finite ones and capped to ``max_
 the camera's video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the
 library's video entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro
 measurement of the frame's readout when ``imu.enabled``, the online gyro bias, the check of the
-gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone),
-and what is to be published: the pose and the frame's own twist, and the fused twists that
-became final (a frame ``tracking.lag`` frames back). :mod:`.outputs` turns a result into
-messages. Counters for the diagnostics are kept in :attr:`FramePipeline.stats`. No module-level
-ROS import.
+gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone;
+a cloud's frame goes to its rig of one as a rig camera's frame goes to its rig,
+:func:`.camera_input.to_rig`, an image through the front end first), and what is to be
+published: the pose and the frame's own twist, and the fused twists that became final (a frame
+``tracking.lag`` frames back). :mod:`.outputs` turns a result into messages. Counters for the
+diagnostics are kept in :attr:`FramePipeline.stats`. No module-level ROS import.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame
+from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame, to_rig
 from .config import LocalizerConfig
 
 __all__ = [
@@ -592,10 +593,11 @@ class FramePipeline:
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
-        else:
+        else:  # (as a rig camera's frame: to the camera's rig of one, to_rig)
             t_decoded = time.perf_counter()
             uv, xyz = item.points2d, item.points3d
-            out = self.sequence.process(item, ft)
+            (r,) = to_rig(self.sequence.rig, item, ft.reference_ns)
+            out = self.sequence.output_of(r)
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")

@@ -94,7 +94,7 @@ from .localizer import (
     usable_rows,
 )
 from .tracker import TrackerOptions
-from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerSettings
+from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerOutput, LocalizerSettings
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -555,6 +555,25 @@ class SequenceLocalizer(GyroReadouts):
         if frame.camera_name != _CAMERA:
             frame = replace(frame, camera_name=_CAMERA)
         (r,) = self._rig.add(frame, ft.reference_ns)
+        return self.output_of(r)
+
+    @property
+    def rig(self) -> Localizer:
+        """The camera's rig of one (:func:`rig_of_one`: the camera named ``""`` at the
+        identity mounting), whose :meth:`~rs_localizer.tracking.video.Localizer.add` solves
+        its frames: a caller that takes the camera's frames as it takes a rig camera's may
+        hand a frame of the camera (a
+        :class:`~rs_localizer.tracking.localizer.CameraFrame` named ``""``, with its camera
+        model) to it directly, the rig frame it gives made the camera's output by
+        :meth:`output_of`, as :meth:`process` gives it."""
+        return self._rig
+
+    @staticmethod
+    def output_of(r: LocalizerOutput) -> SequenceOutput:
+        """The camera's output (:class:`SequenceOutput`) of its rig of one's rig frame ``r``
+        (a :class:`~rs_localizer.tracking.video.LocalizerOutput`): the camera's own estimate
+        (its ``camera_estimate``), its path, fused twists, gyro measurement, error, implementation,
+        whether its own twist is final and the gyro's time."""
         return SequenceOutput(
             stamp_ns=r.stamp_ns,
             estimate=r.camera_estimate,
