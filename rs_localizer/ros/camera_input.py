@@ -539,7 +539,7 @@ def to_rig(
         return rig.process_image(item.camera_name, item.stamp_ns, item.image, item.camera,
                                  item.encoding, item.tag)  # fmt: skip
     if not isinstance(item, DroppedFrame):
-        return rig.add(item, reference_ns)
+        return rig.add(item) if reference_ns is None else rig.add(item, reference_ns)
     if item.stamp_ns is None:
         return []
     return rig.drop(item.camera_name, item.stamp_ns, item.camera, item.reason)

@@ -53,6 +53,7 @@ __all__ = [
     "PipelineStats",
     "StatsSnapshot",
     "ThrottledLog",
+    "fused_outputs",
     "log_warm_up",
 ]
 
@@ -341,6 +342,23 @@ class FusedOutput:
     stamp_ns: int
     source: PoseWithCovariance
     frame_id: str
+
+
+def fused_outputs(
+    fused: list, frame_id: str | None = None, mounting: Any = None
+) -> list[FusedOutput]:
+    """twist / odom of the frames whose fused state is final, a camera's or a rig's alike
+    (:class:`~rs_localizer.tracking.localizer.FusedPose` s): each frame's own pose (as
+    published) with its fused twist and their covariances, stamped with the frame's time, in
+    ``frame_id`` (None: each frame's tag, the camera's frame); ``mounting``: the camera's
+    :class:`~rs_localizer.frames.Mounting` on the robot, each frame moved to ``frame_id``
+    (:func:`~rs_localizer.frames.camera_to_base`; None: as it is)."""
+    out = []
+    for f in fused:
+        src: PoseWithCovariance = f if mounting is None else camera_to_base(f, mounting)
+        frame = cast(str, f.tag) if frame_id is None else frame_id  # (a tag is a frame_id)
+        out.append(FusedOutput(f.pose.stamp_ns, src, frame))
+    return out
 
 
 @dataclass
@@ -683,16 +701,11 @@ class FramePipeline:
         self.sequence.end_track()
 
     def _fused_outputs(self, fused: list[FusedPose], cfg: LocalizerConfig) -> list[FusedOutput]:
-        """twist / odom of the frames whose fused state is final: the frame's own pose (as
-        published) with the fused twist and its covariance, stamped with the frame's time."""
-        out = []
-        for f in fused:
-            src: PoseWithCovariance = f
-            frame = cast(str, f.tag)  # (each frame's tag is its frame_id)
-            if cfg.mounting is not None:
-                src, frame = camera_to_base(src, cfg.mounting), cfg.base_frame
-            out.append(FusedOutput(f.pose.stamp_ns, src, frame))
-        return out
+        """twist / odom of the frames whose fused state is final (:func:`fused_outputs`: in
+        the camera's frame, or with ``mounting`` the robot's ``base_frame``)."""
+        if cfg.mounting is None:
+            return fused_outputs(fused)
+        return fused_outputs(fused, cfg.base_frame, cfg.mounting)
 
     def flush_idle(self, now: float | None = None) -> list[FusedOutput]:
         """After ``tracking.max_gap`` s (wall clock) without frames the track is over (the

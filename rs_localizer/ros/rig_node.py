@@ -108,7 +108,14 @@ from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput, MapFitCheck, ThrottledLog, take_gyro_sample, warm_kernels
+from .pipeline import (
+    FusedOutput,
+    MapFitCheck,
+    ThrottledLog,
+    fused_outputs,
+    take_gyro_sample,
+    warm_kernels,
+)
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import rig_camera_views
 
@@ -289,7 +296,9 @@ class RigCore(NodeCore):
         twists still pending (none unconfigured)."""
         if self.rig is None:
             return [], []
-        return self.rig.close(), self._fused_outputs(self.rig.flush() + self.rig.reset())
+        return self.rig.close(), fused_outputs(
+            self.rig.flush() + self.rig.reset(), self.config.base_frame
+        )
 
     def _publish_closed(self, out: LocalizerOutput) -> None:
         self.publish_output(out)
@@ -561,11 +570,6 @@ class RigCore(NodeCore):
         return reason
 
     # ---------------------------------------------------------------- outputs
-    def _fused_outputs(self, fused) -> list[FusedOutput]:
-        """The rig frames whose fused twist is final (``TrackedFrame`` s) as the single-camera
-        node's fused outputs (:func:`.outputs.fused_messages`: of ``base_frame``)."""
-        return [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame) for f in fused]
-
     def _idle_twists(self) -> list[FusedOutput]:
         """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
         ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
@@ -573,7 +577,7 @@ class RigCore(NodeCore):
         if self.rig is None or not self._worker_lock.acquire(blocking=False):
             return []
         try:
-            return self._fused_outputs(self.rig.flush_idle())
+            return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
         finally:
             self._worker_lock.release()
 
@@ -613,7 +617,7 @@ class RigCore(NodeCore):
             )
             if self.viz is not None:
                 self._publish_viz(out)
-        self._publish_fused(self._fused_outputs(out.fused))
+        self._publish_fused(fused_outputs(out.fused, self.config.base_frame))
 
     def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
