@@ -519,11 +519,17 @@ def landmark_rows(
     return kp.uv[known], pts[j[known]], scores
 
 
-def to_rig(rig: Localizer, item: CameraFrame | ImageFrame | DroppedFrame) -> list[LocalizerOutput]:
+def to_rig(
+    rig: Localizer,
+    item: CameraFrame | ImageFrame | DroppedFrame,
+    reference_ns: int | None = None,
+) -> list[LocalizerOutput]:
     """A rig camera's frame of :meth:`CameraInput.take` to the rig, the rig node's and the rig
-    bag reader's one path; returns the rig frames it completed, solved. A
+    bag reader's one path (and the single camera's frames of correspondences, to its rig of
+    one); returns the rig frames it completed, solved. A
     :class:`~rs_localizer.tracking.localizer.CameraFrame`:
-    :meth:`~rs_localizer.tracking.video.Localizer.add`; an :class:`ImageFrame`: through the
+    :meth:`~rs_localizer.tracking.video.Localizer.add` (``reference_ns``: the frame's time on
+    the rig's clock when the caller made it; None: made there); an :class:`ImageFrame`: through the
     camera's front end (:meth:`~rs_localizer.tracking.video.Localizer.process_image`); a
     :class:`DroppedFrame` with a stamp: counted received and skipped for its reason, the rig
     no longer waiting for the camera at that time
@@ -533,7 +539,7 @@ def to_rig(rig: Localizer, item: CameraFrame | ImageFrame | DroppedFrame) -> lis
         return rig.process_image(item.camera_name, item.stamp_ns, item.image, item.camera,
                                  item.encoding, item.tag)  # fmt: skip
     if not isinstance(item, DroppedFrame):
-        return rig.add(item)
+        return rig.add(item) if reference_ns is None else rig.add(item, reference_ns)
     if item.stamp_ns is None:
         return []
     return rig.drop(item.camera_name, item.stamp_ns, item.camera, item.reason)

@@ -29,6 +29,7 @@ without prefix); a rig's cameras by their names.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
@@ -119,22 +120,39 @@ class NodeCore:
     """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
-    ``_camera_names()``, ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
+    ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
     ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_log`` (its
-    :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per period), and
-    the worker's parts (module docstring):
-    ``_on_frame(name, kind, msg)`` (a frame message arrived: counted as the core counts
-    arrivals, then :meth:`_enqueue`), ``_input_of(name)`` (the camera's
-    :class:`~.camera_input.CameraInput`),
-    ``_counts_of(name)`` (its :class:`~.camera_input.CameraCounts`), ``_queue_limit()``
-    and ``_warn_busy(size)``, ``_take_frame(item, camera)`` and
-    ``_publish_taken(item, taken)``."""
+    :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per period), its
+    cameras as data (:attr:`inputs`, :attr:`camera_counts`, :attr:`queue_size`,
+    :attr:`images_of`, :attr:`frontend_kind`), and the worker's parts (module docstring):
+    ``_warn_busy(size)``, ``_take_frame(item, camera)`` and ``_publish_taken(item, taken)``.
+
+    Attributes:
+        inputs: camera name ("" for the single camera) -> its
+            :class:`~.camera_input.CameraInput` (its camera_infos, its frames' stamps and
+            rows); empty before ``configure`` (a rig's) .
+        camera_counts: camera name -> its :class:`~.camera_input.CameraCounts` (the frame
+            accounting of its frames).
+        queue_size: frames per camera the queue holds (``queue_size``).
+        images_of: camera name -> where its front end's images come from, as a warning names
+            them (its image topic; absent: no front end on its images).
+        frontend_kind: the front end on the images (``frontend``).
+    """
 
     _frames = None  # (the frame queue: made by the core)
     _log = None  # (the core's ThrottledLog: made by the core)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (each camera's: made with the outputs)
+    inputs: Mapping = MappingProxyType({})  # (made by the core)
+    camera_counts: Mapping = MappingProxyType({})  # (made by the core)
+    queue_size = 0
+    images_of: Mapping = MappingProxyType({})  # (made with the frame inputs)
+    frontend_kind = "none"
+    #: the single camera counts its image frames (``image_frames``)
+    _count_image_frames = False
+    _first_frame: float | None = None  # (monotonic s: the first frame received)
+    _unmanaged = False  # (every phase at construction: :meth:`_start_unmanaged`)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
 
     def _make_publisher(self, msg_type, topic, qos):
@@ -158,6 +176,7 @@ class NodeCore:
         Raises:
             RuntimeError: invalid parameters (the message names them).
         """
+        self._unmanaged = True
         self._declare_parameters()
         self._init_state()
         self._configure()
@@ -336,14 +355,32 @@ class NodeCore:
                           counts_of=lambda item: self._counts_of(item.name),
                           group=group)  # fmt: skip
 
+    def _on_frame(self, name: str, kind: str, msg) -> None:
+        """Camera ``name``'s frame message (subscription callback), queued
+        (:meth:`_enqueue`); the single camera's image counted ``image_frames``; a
+        correspondences or keypoints cloud of a camera whose front end runs on its images
+        (:attr:`images_of`) counted ``frames_beside_frontend`` and, the first time, a warning
+        naming both inputs (:meth:`_frame_beside_frontend`: such a cloud is solved as given,
+        not from the images and the front end's map)."""
+        if kind == "image":
+            if self._count_image_frames:
+                self._counts_of(name).add("image_frames")
+        elif name in self.images_of:
+            leaf = "correspondences" if kind == "cloud" else kind
+            self._frame_beside_frontend(self._counts_of(name), leaf, self.frontend_kind,
+                                        self.images_of[name])  # fmt: skip
+        self._enqueue(name, kind, msg)
+
     def _enqueue(self, name: str, kind: str, msg) -> None:
         """Subscription callbacks: camera ``name``'s frame message, its stamp checked once
         (:meth:`.camera_input.CameraInput.check`), queued for the worker (counted
-        ``received``). A full queue (``_queue_limit()`` frames) drops its oldest frame
-        (counted ``skipped.queue_full``; ``_warn_busy``): the newest frames are the ones
-        solved."""
+        ``received``; the first frame's time noted). A full queue (:attr:`queue_size` frames
+        per camera) drops its oldest frame (counted ``skipped.queue_full``; ``_warn_busy``):
+        the newest frames are the ones solved."""
+        if self._first_frame is None:
+            self._first_frame = time.monotonic()
         stamp = self._input_of(name).check(msg, kind)
-        size = self._queue_limit()
+        size = self.queue_size * len(self.inputs)
         item = QueuedFrame(name, kind, msg, time.perf_counter(), stamp)
         skipped = self._frames.put(item, size)
         _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
@@ -397,8 +434,17 @@ class NodeCore:
 
     def _camera_names(self) -> list[str]:
         """The names of the node's cameras ("" for the single camera), each with its input
-        stage (``_input_of``) and counts (``_counts_of``); none before ``configure``."""
-        raise NotImplementedError
+        stage (:meth:`_input_of`) and counts (:meth:`_counts_of`); none before a rig's
+        ``configure``."""
+        return list(self.inputs)
+
+    def _input_of(self, name: str):
+        """Camera ``name``'s :class:`~.camera_input.CameraInput` (:attr:`inputs`)."""
+        return self.inputs[name]
+
+    def _counts_of(self, name: str):
+        """Camera ``name``'s :class:`~.camera_input.CameraCounts` (:attr:`camera_counts`)."""
+        return self.camera_counts[name]
 
     def _wake_worker(self) -> None:
         """A stop was requested: wake a frame waiting for its camera's camera_info
@@ -546,7 +592,11 @@ class NodeCore:
                 viz.close()
 
     def _before_destroy(self) -> None:
-        """:meth:`destroy_node`, the worker stopped: a last publication (nothing by default)."""
+        """:meth:`destroy_node`, the worker stopped: a node that is not managed publishes what
+        its track still holds (:meth:`_end_video`; a managed node did at deactivate)."""
+        if self._unmanaged:
+            with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
+                self._end_video()
 
     def destroy_node(self) -> None:
         """Stop the worker thread (the frame it is on is finished), :meth:`_before_destroy`,

@@ -48,7 +48,6 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import LoadedMaps
-from .camera_input import CameraCounts, CameraInput
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import diagnostic_status
@@ -78,6 +77,7 @@ class LocalizerCore(NodeCore):
     the pipeline returns and reports diagnostics."""
 
     pipeline = None  # (None: before _init_state)
+    _count_image_frames = True
     _warned_rs = False  # (a warning given once per node: set on the instance when given)
 
     @property
@@ -89,6 +89,8 @@ class LocalizerCore(NodeCore):
         self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
         self._log = self.pipeline.log
+        self.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
+        self.camera_counts = {"": self.pipeline.stats}
         self._frames = self._new_queue()
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
 
@@ -126,17 +128,6 @@ class LocalizerCore(NodeCore):
             )
             self._info_subs.append(self.sub_imu)
 
-    def _on_frame(self, name: str, kind: str, msg) -> None:
-        """A frame message (subscription callback): an image counted ``image_frames``; a
-        cloud beside the front end ``frames_beside_frontend`` (solved as given, not from the
-        images); then queued (:meth:`.core.NodeCore._enqueue`)."""
-        if kind == "image":
-            self.pipeline.stats.add("image_frames")
-        elif self.sub_image is not None:
-            self._frame_beside_frontend(self.pipeline.stats, kind, self.cfg.frontend_kind,
-                                        self.sub_image.topic_name)  # fmt: skip
-        self._enqueue(name, kind, msg)
-
     def _create_frame_inputs(self):
         """The frame subscriptions, the diagnostics timer and the worker thread."""
         self.sub_corr = self._subscribe_frames(
@@ -149,12 +140,14 @@ class LocalizerCore(NodeCore):
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
             self.sub_image = self._subscribe_frames("", "image", msg_type, topic, IMAGE_QOS)
+            self.images_of = {"": self.sub_image.topic_name}
         self._start_frames()
 
     def _frame_inputs_destroyed(self):
         """After the frame inputs' end (the frames still queued dropped): the track is
         dropped too (nothing is left for :meth:`_end_video` to publish)."""
         self.sub_corr = self.sub_kp = self.sub_image = None
+        self.images_of = {}
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
 
     def _release_configured(self):
@@ -194,6 +187,7 @@ class LocalizerCore(NodeCore):
         old_fe = self._maps().frontend
         # (the RS timing may have changed: camera models rebuilt)
         self.pipeline.configure(cfg, maps)
+        self.queue_size, self.frontend_kind = cfg.queue_size, cfg.frontend_kind
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
@@ -235,15 +229,6 @@ class LocalizerCore(NodeCore):
             )
 
     # ------------------------------------------------------------------ frames
-    def _input_of(self, name: str) -> CameraInput:
-        return self.pipeline.camera_input
-
-    def _counts_of(self, name: str) -> CameraCounts:
-        return self.pipeline.stats
-
-    def _queue_limit(self) -> int:
-        return self.cfg.queue_size
-
     def _warn_busy(self, size: int) -> None:
         self._log.warning(
             "skipped",
@@ -300,9 +285,6 @@ class LocalizerCore(NodeCore):
 
     def _map_frame(self) -> str:
         return self.cfg.map_frame
-
-    def _camera_names(self) -> list[str]:
-        return [""]
 
     # ------------------------------------------------------------------ diagnostics
     def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:

@@ -11,11 +11,12 @@ rows (cloud or landmark lookup) without the non-finite ones and capped to ``max_
 the camera's video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the
 library's video entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro
 measurement of the frame's readout when ``imu.enabled``, the online gyro bias, the check of the
-gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone),
-and what is to be published: the pose and the frame's own twist, and the fused twists that
-became final (a frame ``tracking.lag`` frames back). :mod:`.outputs` turns a result into
-messages. Counters for the diagnostics are kept in :attr:`FramePipeline.stats`. No module-level
-ROS import.
+gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone;
+a cloud's frame goes to its rig of one as a rig camera's frame goes to its rig,
+:func:`.camera_input.to_rig`, an image through the front end first), and what is to be
+published: the pose and the frame's own twist, and the fused twists that became final (a frame
+``tracking.lag`` frames back). :mod:`.outputs` turns a result into messages. Counters for the
+diagnostics are kept in :attr:`FramePipeline.stats`. No module-level ROS import.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame
+from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame, to_rig
 from .config import LocalizerConfig
 
 __all__ = [
@@ -52,6 +53,7 @@ __all__ = [
     "PipelineStats",
     "StatsSnapshot",
     "ThrottledLog",
+    "fused_outputs",
     "log_warm_up",
 ]
 
@@ -342,6 +344,23 @@ class FusedOutput:
     frame_id: str
 
 
+def fused_outputs(
+    fused: list, frame_id: str | None = None, mounting: Any = None
+) -> list[FusedOutput]:
+    """twist / odom of the frames whose fused state is final, a camera's or a rig's alike
+    (:class:`~rs_localizer.tracking.localizer.FusedPose` s): each frame's own pose (as
+    published) with its fused twist and their covariances, stamped with the frame's time, in
+    ``frame_id`` (None: each frame's tag, the camera's frame); ``mounting``: the camera's
+    :class:`~rs_localizer.frames.Mounting` on the robot, each frame moved to ``frame_id``
+    (:func:`~rs_localizer.frames.camera_to_base`; None: as it is)."""
+    out = []
+    for f in fused:
+        src: PoseWithCovariance = f if mounting is None else camera_to_base(f, mounting)
+        frame = cast(str, f.tag) if frame_id is None else frame_id  # (a tag is a frame_id)
+        out.append(FusedOutput(f.pose.stamp_ns, src, frame))
+    return out
+
+
 @dataclass
 class FrameResult:
     """What became of one frame.
@@ -592,10 +611,11 @@ class FramePipeline:
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
-        else:
+        else:  # (as a rig camera's frame: to the camera's rig of one, to_rig)
             t_decoded = time.perf_counter()
             uv, xyz = item.points2d, item.points3d
-            out = self.sequence.process(item, ft)
+            (r,) = to_rig(self.sequence.rig, item, ft.reference_ns)
+            out = self.sequence.output_of(r)
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")
@@ -681,16 +701,11 @@ class FramePipeline:
         self.sequence.end_track()
 
     def _fused_outputs(self, fused: list[FusedPose], cfg: LocalizerConfig) -> list[FusedOutput]:
-        """twist / odom of the frames whose fused state is final: the frame's own pose (as
-        published) with the fused twist and its covariance, stamped with the frame's time."""
-        out = []
-        for f in fused:
-            src: PoseWithCovariance = f
-            frame = cast(str, f.tag)  # (each frame's tag is its frame_id)
-            if cfg.mounting is not None:
-                src, frame = camera_to_base(src, cfg.mounting), cfg.base_frame
-            out.append(FusedOutput(f.pose.stamp_ns, src, frame))
-        return out
+        """twist / odom of the frames whose fused state is final (:func:`fused_outputs`: in
+        the camera's frame, or with ``mounting`` the robot's ``base_frame``)."""
+        if cfg.mounting is None:
+            return fused_outputs(fused)
+        return fused_outputs(fused, cfg.base_frame, cfg.mounting)
 
     def flush_idle(self, now: float | None = None) -> list[FusedOutput]:
         """After ``tracking.max_gap`` s (wall clock) without frames the track is over (the

@@ -72,7 +72,6 @@ are refused with why (:func:`.config.rig_change_refused`). The managed node's ri
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections import Counter, deque
 from typing import Any
@@ -109,7 +108,14 @@ from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput, MapFitCheck, ThrottledLog, take_gyro_sample, warm_kernels
+from .pipeline import (
+    FusedOutput,
+    MapFitCheck,
+    ThrottledLog,
+    fused_outputs,
+    take_gyro_sample,
+    warm_kernels,
+)
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import rig_camera_views
 
@@ -268,6 +274,7 @@ class RigCore(NodeCore):
         """Per camera ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints`` and,
         with a front end, ``<c>/image_raw`` (or ``<c>/image_raw/compressed``); the
         diagnostics timer."""
+        self.images_of = {}
         for c in self.config.cameras:
             n = c.name
             self._subscribe_frames(n, "cloud", PointCloud2, f"{n}/correspondences", CLOUD_QOS)
@@ -278,6 +285,7 @@ class RigCore(NodeCore):
                 topic = f"{n}/image_raw" + ("/compressed" if compressed else "")
                 msg_type = CompressedImage if compressed else Image
                 self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
+                self.images_of = {**self.images_of, n: "the camera's images"}
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
@@ -288,7 +296,9 @@ class RigCore(NodeCore):
         twists still pending (none unconfigured)."""
         if self.rig is None:
             return [], []
-        return self.rig.close(), self._fused_outputs(self.rig.flush() + self.rig.reset())
+        return self.rig.close(), fused_outputs(
+            self.rig.flush() + self.rig.reset(), self.config.base_frame
+        )
 
     def _publish_closed(self, out: LocalizerOutput) -> None:
         self.publish_output(out)
@@ -383,37 +393,6 @@ class RigCore(NodeCore):
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
         self.camera_counts[name].add(key, n)
 
-    def _on_frame(self, name: str, kind: str, msg) -> None:
-        """A camera's frame message (subscription callback), queued; a correspondences or
-        keypoints cloud beside its front end (which runs on its images) counted
-        ``<c>.frames_beside_frontend`` and, the first time, a warning naming both topics:
-        such a cloud is solved as given, not from the images and the front end's map (as the
-        single-camera node says)."""
-        if kind != "image" and self.frontend_kind != "none":
-            leaf = "correspondences" if kind == "cloud" else kind
-            self._frame_beside_frontend(self.camera_counts[name], leaf, self.frontend_kind,
-                                        "the camera's images")  # fmt: skip
-        self._enqueue(name, kind, msg)
-
-    def _enqueue(self, name: str, kind: str, msg) -> None:
-        """Subscription callbacks: a camera's frame queued for the worker
-        (:meth:`.core.NodeCore._enqueue`: its stamp checked once, for the queue's grouping
-        and the worker; a full queue drops its oldest rig frame, counted
-        ``<c>.skipped.queue_full``)."""
-        if self._first_frame is None:
-            self._first_frame = time.monotonic()
-        super()._enqueue(name, kind, msg)
-
-    def _input_of(self, name: str) -> CameraInput:
-        return self.inputs[name]
-
-    def _counts_of(self, name: str) -> CameraCounts:
-        return self.camera_counts[name]
-
-    def _queue_limit(self) -> int:
-        """``queue_size`` frames per camera."""
-        return self.queue_size * len(self.config.cameras)
-
     def _warn_busy(self, size: int) -> None:
         self._log.warning(
             "queue_full",
@@ -441,9 +420,6 @@ class RigCore(NodeCore):
         return self.config.settings.reference_ns(
             item.name, item.stamp, self.inputs[item.name].newest
         )
-
-    def _camera_names(self) -> list[str]:
-        return list(getattr(self, "inputs", ()))
 
     def _camera_of(self, item: QueuedFrame) -> CameraModel | None:
         """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
@@ -594,11 +570,6 @@ class RigCore(NodeCore):
         return reason
 
     # ---------------------------------------------------------------- outputs
-    def _fused_outputs(self, fused) -> list[FusedOutput]:
-        """The rig frames whose fused twist is final (``TrackedFrame`` s) as the single-camera
-        node's fused outputs (:func:`.outputs.fused_messages`: of ``base_frame``)."""
-        return [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame) for f in fused]
-
     def _idle_twists(self) -> list[FusedOutput]:
         """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
         ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
@@ -606,7 +577,7 @@ class RigCore(NodeCore):
         if self.rig is None or not self._worker_lock.acquire(blocking=False):
             return []
         try:
-            return self._fused_outputs(self.rig.flush_idle())
+            return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
         finally:
             self._worker_lock.release()
 
@@ -646,7 +617,7 @@ class RigCore(NodeCore):
             )
             if self.viz is not None:
                 self._publish_viz(out)
-        self._publish_fused(self._fused_outputs(out.fused))
+        self._publish_fused(fused_outputs(out.fused, self.config.base_frame))
 
     def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
@@ -679,9 +650,3 @@ class RigLocalizerNode(RigCore, Node):
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
         self._start_unmanaged()
-
-    def _before_destroy(self) -> None:
-        """Destroying the node: solve the rig frames still open and publish them and the
-        pending twists."""
-        with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
-            self._end_video()

@@ -94,7 +94,7 @@ from .localizer import (
     usable_rows,
 )
 from .tracker import TrackerOptions
-from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerSettings
+from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerOutput, LocalizerSettings
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -376,12 +376,17 @@ class SequenceLocalizer(GyroReadouts):
         the same stamps.) :meth:`process` (an image: :meth:`process_image`) calls it; called
         first for the frame's stamp (to act on a reset before the frame is decoded), the frame
         takes it as noted: a frame is noted once
-        (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`).
+        (:meth:`Localizer.check_time <rs_localizer.tracking.video.Localizer.check_time>`), and
+        after a time reset noted here the frame's image is not compared with the last one, as
+        when :meth:`process_image` notes it (:attr:`SequenceSettings.frozen_image_level`).
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
         """
-        return self._rig.check_time(stamp_ns)
+        why = self._rig.check_time(stamp_ns)
+        if why is not None:  # (a new timeline: its first image is no repeat of the last)
+            self._camera_frontend.last_sample = None
+        return why
 
     # ---------------------------------------------------------------- images
     @property
@@ -550,6 +555,25 @@ class SequenceLocalizer(GyroReadouts):
         if frame.camera_name != _CAMERA:
             frame = replace(frame, camera_name=_CAMERA)
         (r,) = self._rig.add(frame, ft.reference_ns)
+        return self.output_of(r)
+
+    @property
+    def rig(self) -> Localizer:
+        """The camera's rig of one (:func:`rig_of_one`: the camera named ``""`` at the
+        identity mounting), whose :meth:`~rs_localizer.tracking.video.Localizer.add` solves
+        its frames: a caller that takes the camera's frames as it takes a rig camera's may
+        hand a frame of the camera (a
+        :class:`~rs_localizer.tracking.localizer.CameraFrame` named ``""``, with its camera
+        model) to it directly, the rig frame it gives made the camera's output by
+        :meth:`output_of`, as :meth:`process` gives it."""
+        return self._rig
+
+    @staticmethod
+    def output_of(r: LocalizerOutput) -> SequenceOutput:
+        """The camera's output (:class:`SequenceOutput`) of its rig of one's rig frame ``r``
+        (a :class:`~rs_localizer.tracking.video.LocalizerOutput`): the camera's own estimate
+        (its ``camera_estimate``), its path, fused twists, gyro measurement, error, implementation,
+        whether its own twist is final and the gyro's time."""
         return SequenceOutput(
             stamp_ns=r.stamp_ns,
             estimate=r.camera_estimate,

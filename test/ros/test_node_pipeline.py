@@ -529,3 +529,39 @@ def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
         assert res.out_stamp_ns == f.t_ref_ns and res.estimate is not None
         assert checks == [f.stamp_ns], k
         assert len(refs) == 1, (k, refs)
+
+
+def test_an_image_after_a_time_reset_is_not_compared_with_the_last_one(msgs, sequence):
+    """The pipeline notes a frame's time before its image is searched (a time reset acted on
+    first); the image after a reset is then taken as the library takes it from
+    ``SequenceLocalizer.process_image`` alone: not compared with the image before the reset
+    (a new timeline), so the same picture again is searched, not refused ``frozen_image``;
+    without a reset it is refused."""
+    from rs_localizer.ros.pipeline import FramePipeline
+    from rs_localizer.tracking.sequence import SequenceLocalizer
+
+    _, _, cam = sequence
+    cfg = C.build_config(
+        {**P.default_values(), "camera_info_wait": 0.0, "time_reset_threshold": 1.0}
+    )
+    image = np.random.default_rng(1).integers(0, 256, (cam.height, cam.width), np.uint8)
+    stamps = [2 * 10**9, 2 * 10**9 + 10**8, 10**9, 10**9 + 10**8]  # (a step back: a reset)
+
+    class Finds:
+        """A front end finding 3 points (too few for a pose) in any image."""
+
+        def process(self, image, camera, encoding, prediction=None):
+            from rs_localizer.correspondences import Correspondences
+
+            return Correspondences(np.zeros((3, 2)), np.zeros((3, 3)), np.arange(3))
+
+    pipe = FramePipeline(cfg)
+    pipe.sequence.set_frontend(Finds(), "test")
+    pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
+    node = [pipe.process(msgs.image(image, t, "cam"), "image").failure for t in stamps]
+    lib = SequenceLocalizer(frontend=Finds(), frontend_name="test")
+    alone = [lib.process_image(t, image, cam, "mono8").failure for t in stamps]
+    few, frozen = "frontend_too_few_points", "frozen_image"
+    assert alone == [few, frozen, few, frozen]
+    assert node == alone
+    assert pipe.stats.snapshot().counts["time_resets"] == 1
