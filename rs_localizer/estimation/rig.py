@@ -152,7 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import varying_pixel_jacobian
+from .frame import camera_values
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -578,10 +578,11 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         )
     cam = v.camera
     if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
+        z2, focal = np.zeros((0, 2)), camera_values(cam).focal
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    spr, focal, jacobian, args = _camera_constants(cam)
+    k = camera_values(cam)  # (kept per camera object)
+    spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
     stamp = float(v.stamp_offset)
     args = None if numpy else args  # (a distorted camera's, compiled)
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
@@ -607,13 +608,9 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         tau.fill(stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
-        tau = stamp + (r - cam.r0) * spr
+        tau = stamp + (r - k.r0) * spr
     if jacobian:
-        if args is None:
-            A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
-        else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
-            A = distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
-            A = A.reshape(-1, 4)
+        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = focal
@@ -638,34 +635,6 @@ def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
             return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-#: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
-_CAMERA_CONSTANTS: dict = {}
-
-
-def _camera_constants(cam: CameraModel) -> tuple[float, float, bool, tuple | None]:
-    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
-    point (:func:`~.frame.varying_pixel_jacobian`), the arguments after the points of its
-    compiled pixel Jacobian)`` of a camera, kept per camera object (a frozen dataclass a
-    rig's frames share: its properties cost as much as a view's arrays). The arguments are
-    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s (the same arrays and values)
-    for a camera with distortion, else None."""
-    hit = _CAMERA_CONSTANTS.get(id(cam))
-    if hit is not None and hit[0] is cam:
-        return hit[1]
-    args = None
-    if cam.has_distortion:
-        fisheye = cam.distortion_model == "equidistant"
-        d = np.zeros(8)
-        m = 4 if fisheye else 8
-        d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
-        args = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
-    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam), args)
-    if len(_CAMERA_CONSTANTS) >= 64:
-        _CAMERA_CONSTANTS.clear()
-    _CAMERA_CONSTANTS[id(cam)] = (cam, out)
-    return out
 
 
 @njit(cache=True)
@@ -1662,7 +1631,7 @@ def _one_camera_alone(
     flat = posed_planarity(pool.X[s])  # (single_tag.few_points's rule)
     if flat is None:
         return None
-    spr = _camera_constants(v.camera)[0]  # (its seconds_per_unit_r, kept per camera)
+    spr = camera_values(v.camera).spr
     start = None
     if initial_model is not None:
         im = (
