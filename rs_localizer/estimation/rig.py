@@ -196,7 +196,6 @@ from .rig_batch import (
     lambda_twist_on_rig,
     model_cost,
     moving_search,
-    point_residual,
     sample_kernel,
     still_search,
 )
@@ -823,30 +822,13 @@ class _Pool:
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
-        if self.numpy:
-            return _errors_px(self, *_one(model))[0]
-        R, C, w, t = model
-        f = np.float64
-        return _errors_kernel(
-            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
-            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
-            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
-        )[0]  # fmt: skip
+        return _errors_px(self, *_one(model))[0][0]
 
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
         the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        if self.numpy:
-            e = _errors_px(self, *_one(model))[0]
-            return e, float(np.minimum(e**2, th2).sum())
-        R, C, w, t = model
-        f = np.float64
-        e, cost = _errors_cost_kernel(
-            np.ascontiguousarray(R, dtype=f), np.ascontiguousarray(C, dtype=f),
-            np.ascontiguousarray(w, dtype=f), np.ascontiguousarray(t, dtype=f),
-            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2,
-        )  # fmt: skip
-        return e, float(cost)
+        e, cost = _errors_px(self, *_one(model), th2)
+        return e[0], float(cost[0])
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -892,29 +874,17 @@ class _Pool:
 
 
 @njit(cache=True)
-def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
-    """(H, N) the image errors (px) of N points under H models: the norms of
-    :func:`~.rig_batch.point_residual` (predicted minus measured, the normalized difference
-    times the point's 2x2 pixel Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order
-    the error in the measured image); inf behind the camera."""
+def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """``(errors (H, N), costs (H,))``: the image errors (px) of N points under H models ``R``
+    (H, 3, 3), ``C``, ``w``, ``t`` (H, 3), the norms of :func:`~.rig_batch.point_residual`
+    (predicted minus measured, the normalized difference times the point's 2x2 pixel
+    Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order the error in the measured
+    image; inf behind the camera), and each model's MSAC cost (the squares capped at ``th2``,
+    summed as ``np.sum`` sums them: :func:`~.rig_batch.model_cost`)."""
     H, N = R.shape[0], X.shape[0]
-    out = np.empty((H, N))
+    e, v, cost = np.empty((H, N)), np.empty(N), np.empty(H)
     for h in range(H):
-        for i in range(N):
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            out[h, i] = np.sqrt(d0**2 + d1**2)
-    return out
-
-
-@njit(cache=True)
-def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
-    """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
-    squares capped at ``th2``, summed as ``np.sum`` sums them:
-    :func:`~.rig_batch.model_cost`); ``R`` (3, 3), ``C``, ``w``, ``t`` (3,)."""
-    N = X.shape[0]
-    e, v = np.empty(N), np.empty(N)
-    cost = model_cost(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
-                      X, tau, cam, Rm, cm, x, A, th2, False, 0, np.inf, e, v)  # fmt: skip
+        cost[h] = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, h, np.inf, e[h], v)
     return e, cost
 
 
@@ -947,16 +917,18 @@ def _rig_solver(pool: _Pool):
     return gr6p_1lin_batch_numpy if pool.numpy else gr6p_1lin_batch
 
 
-def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
+def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
-    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time;
-    inf for a point behind its camera. Returns (H, N)."""
+    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
+    (inf for a point behind its camera), and their MSAC costs at ``th2`` px^2. Returns
+    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`)."""
     if pool.numpy:
         d = _residuals_numpy(pool, R, C, w, t)
-        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        e = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        return e, np.minimum(e**2, th2).sum(axis=1)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     return _errors_kernel(
-        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A
+        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A, th2
     )  # fmt: skip
 
 
@@ -1117,7 +1089,7 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     from the pose's six unknowns alone)."""
     k = len(S)
     if pool.numpy:
-        held = (_identities(k), np.zeros((k, 6)))
+        held = (np.broadcast_to(np.eye(6), (k, 6, 6)), np.zeros((k, 6)))  # ((w, t) = 0)
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         return b.v, b.C, b.valid
     X, x = _kernel_arrays(pool)[:2]
@@ -1125,19 +1097,6 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     S = np.ascontiguousarray(S, dtype=np.int64)
     out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg, dtype=np.float64), cam, Rm, cm)
     return out[:, 0:3], out[:, 3:6], ok
-
-
-@functools.lru_cache(maxsize=4)
-def _identity_stack(n: int) -> np.ndarray:
-    """(n, 6, 6) identities (:func:`_identities`; shared, never written: writeable only so
-    that the rig solver's kernel takes them as any other prior rows)."""
-    return np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
-
-
-def _identities(k: int) -> np.ndarray:
-    """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
-    stack built for a power of two at least ``k``: a search corrects every batch's samples."""
-    return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
@@ -1413,7 +1372,7 @@ def _one(model):
 
 def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior):
     """The rig's steps of :func:`~.local_optimization.initial_model_seed`: the errors in px
-    (:func:`_errors_px`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
+    (:meth:`_Pool.errors`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
     explained points: :func:`_refine` on every point (at most 10 iterations, Huber at the
     threshold, truncated at ``gate`` px), kept where it lowers the MSAC score."""
     k = float(threshold_px)
@@ -2271,8 +2230,7 @@ class _RigSearch(RansacLoop):
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         pool = self.pool
         if pool.numpy:
-            e = _errors_px(pool, *hyp)
-            cost = np.minimum(e * e, self.th2).sum(axis=1)
+            e, cost = _errors_px(pool, *hyp, self.th2)
             h = int(np.argmin(cost))
             self._e, self._cost = e[h], float(cost[h])
         else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
