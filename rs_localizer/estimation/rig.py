@@ -1172,12 +1172,11 @@ def _refit(
     model,
     threshold_px: float,
     rounds: int = 2,
-    free=12,
     prior: _GyroPrior | None = None,
 ):
-    """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times
-    (``free``: unused, the signature of :func:`_refine`); ``prior``: a gyro's rows join the
-    solve (weighted by :func:`_equation_noise` at ``threshold_px``)."""
+    """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times;
+    ``prior``: a gyro's rows join the solve (weighted by :func:`_equation_noise` at
+    ``threshold_px``)."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
@@ -1235,7 +1234,6 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
 
 def _refine(
     pool: _Pool,
-    inl: np.ndarray,
     model,
     threshold_px: float,
     max_iterations: int = 20,
@@ -1245,12 +1243,11 @@ def _refine(
 ):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
-    truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
-    :func:`_refit`): a single camera's final refinement
-    (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
+    truncated beyond: the set re-selected at each iteration): a single camera's final
+    refinement (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
     :data:`RIG_REFINE_TOL`) with each point seen through its camera's mounting at its own
-    capture time, errors in px. 12 parameters: a
-    rotation update left of R, C, w, t (``free=6``: the pose alone, w and t kept at zero).
+    capture time, errors in px. 12 parameters: a rotation update left of R, C, w, t
+    (``free=6``: the pose alone, w and t kept at zero).
     ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains ``sigma^2 (w -
     w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the starting
     model's errors inside the threshold. With ``pool.numpy``:
@@ -1311,11 +1308,7 @@ def _final(
     alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
     or ``model`` itself when it is local optimization's refinement) when already computed,
     or None."""
-    out = (
-        first
-        if first is not None
-        else _refine(pool, None, model, threshold_px, free=free, prior=prior)
-    )
+    out = first if first is not None else _refine(pool, model, threshold_px, free=free, prior=prior)
     if prior is not None or search.cameras < 2:
         return out
     msac = search.cost
@@ -1323,7 +1316,7 @@ def _final(
     if search.errors(out).max() < k:
         return out  # (every point within the threshold: none a few thresholds away)
     gate = CONTRADICTION_GATE * threshold_px
-    wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
+    wide = _refine(pool, _refine(pool, model, gate, free=free), threshold_px, free=free)
 
     c_out, c_wide = msac(out), msac(wide)
     best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
@@ -1333,7 +1326,7 @@ def _final(
         return best  # (no point the inliers' fit leaves out that the refinement weighs)
 
     def inliers_fit(m):
-        fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
+        fit = _refine(pool, m, threshold_px, free=free, cutoff_px=threshold_px)
         return fit, msac(fit)
 
     # (``best`` is ``model`` itself when local optimization's refinement was the first and
@@ -1382,7 +1375,7 @@ def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior)
         return np.minimum(e * e, th2).sum(), e < k
 
     def pull(seed, near: np.ndarray):
-        pulled = _refine(pool, None, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
+        pulled = _refine(pool, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
         scored = evaluate(pulled, pool.errors(pulled))
         return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
 
@@ -1631,17 +1624,16 @@ def _one_camera_alone(
         True,  # (rig_model_of_camera's new arrays)
         failure=None,
         ransac_iterations=0,
-        rmse_px=est.rmse_px,
-        num_behind=est.num_behind,
         model_covariance=cov,
-        motion_model=est.motion_model,
-        initial_explained=est.initial_explained,
-        initial_used=est.initial_used,
-        gyro_used=est.gyro_used,
-        planar=est.planar,
-        single_tag=est.single_tag,
         few_points=True,
+        **{k: getattr(est, k) for k in _CAMERA_FIELDS},
     )
+
+
+#: the fields of a camera's estimate a rig frame posed by that camera alone takes as they are
+#: (:func:`_one_camera_alone`)
+_CAMERA_FIELDS = ("rmse_px", "num_behind", "motion_model", "initial_explained", "initial_used",
+                  "gyro_used", "planar", "single_tag")  # fmt: skip
 
 
 def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
@@ -1842,7 +1834,7 @@ def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=No
     gate = CONTRADICTION_GATE * threshold_px
     free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
     model = (est if start is None else start).model
-    fit = _refine(_evened(pool, voters), None, model, gate, free=free)
+    fit = _refine(_evened(pool, voters), model, gate, free=free)
     return cams <= _gated(pool, est, voters, gate, fit)
 
 
@@ -2377,9 +2369,11 @@ def _estimate(
     refined = None  # (the last refinement: (its start, its result))
     for _ in range(LO_ROUNDS):
         for step in steps:
-            # (the refinement selects its points itself: the inliers are the refit's alone)
-            inl = pool.errors(model) < threshold_px if step is _refit else None
-            cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
+            if step is _refit:  # (the refinement selects its points itself)
+                inl = pool.errors(model) < threshold_px
+                cand = _refit(pool, inl, model, threshold_px, prior=prior)
+            else:
+                cand = _refine(pool, model, threshold_px, free=free, prior=prior)
             refined = (model, cand) if step is _refine else None
             cost = search.cost(cand)
             if cost <= best_cost:
