@@ -413,7 +413,7 @@ def _frame(
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
-    r0, focal, varying, d = camera_values(camera)[:4]
+    r0, focal, varying, d, _, _ = camera_values(camera)
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),
