@@ -297,13 +297,7 @@ class CameraModel:
         if not self.has_distortion:
             return np.broadcast_to(self.K[:2, :2], (n, 2, 2)).copy()
         if compiled:
-            fisheye = self.distortion_model == "equidistant"
-            d = np.zeros(8)
-            m = 4 if fisheye else 8
-            d[: min(m, len(self.D))] = np.ravel(self.D)[:m]
-            return distortion_jacobian(
-                np.ascontiguousarray(xn), d, fisheye, float(self.K[0, 0]), float(self.K[1, 1])
-            )
+            return distortion_jacobian(np.ascontiguousarray(xn), *self.jacobian_arguments)
         x, y = xn[:, 0], xn[:, 1]
         r2 = x * x + y * y
         J = np.empty((n, 2, 2))
@@ -344,6 +338,25 @@ class CameraModel:
         J[:, 0] *= self.K[0, 0]
         J[:, 1] *= self.K[1, 1]
         return J
+
+    @property
+    def jacobian_arguments(self) -> tuple | None:
+        """The arguments after the points of :func:`distortion_jacobian` for this camera's
+        compiled :meth:`pixel_jacobian`: ``(d (8,) the distortion coefficients (the first 4
+        of an ``equidistant`` model's, the rest zero), whether the model is ``equidistant``,
+        fx, fy (px))``; None without distortion. Built once per camera (read only: every
+        call shares the array)."""
+        cached = self.__dict__.get("_jacobian_arguments", False)
+        if cached is False:
+            cached = None
+            if self.has_distortion:
+                fisheye = self.distortion_model == "equidistant"
+                d = np.zeros(8)
+                m = 4 if fisheye else 8
+                d[: min(m, len(self.D))] = np.ravel(self.D)[:m]
+                cached = (d, fisheye, float(self.K[0, 0]), float(self.K[1, 1]))
+            object.__setattr__(self, "_jacobian_arguments", cached)
+        return cached
 
     def pixel_jacobian_exact(self, xn: np.ndarray) -> np.ndarray:
         """:meth:`pixel_jacobian` (its NumPy formulas, the same numbers to the bit), faster on a

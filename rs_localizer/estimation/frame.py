@@ -5,7 +5,7 @@ normalized (:func:`prepare_frame`), then checked and configured for its solver
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -32,8 +32,10 @@ from .scoring import exact_errors2_numpy, msac_evaluate
 
 __all__ = [
     "SCORE_AT_MEASURED_TIME",
+    "CameraValues",
     "Frame",
     "RefinementView",
+    "camera_values",
     "configure_frame",
     "prepare_frame",
     "undistorted_frame",
@@ -358,21 +360,41 @@ def undistorted_frame(
     return _frame(u, X, rows, u_px, x, r, r0e, camera, True, J)
 
 
-#: the cameras' values of :func:`_camera_values`: id -> (camera, values)
+class CameraValues(NamedTuple):
+    """A camera's values the estimators read on every frame (its properties' values, kept per
+    camera object by :func:`camera_values`): ``r0`` (its reference RS coordinate), ``focal``
+    (its mean focal length, px), ``varying`` (:func:`varying_pixel_jacobian`), ``readout``
+    (its readout direction's ``d`` of :data:`~rs_localizer.camera.READOUT_DIRECTIONS`),
+    ``spr`` (its seconds per unit r, s), ``jacobian`` (its
+    :attr:`~rs_localizer.camera.CameraModel.jacobian_arguments`, None without
+    distortion)."""
+
+    r0: float
+    focal: float
+    varying: bool
+    readout: tuple
+    spr: float
+    jacobian: tuple | None
+
+
+#: the cameras' values of :func:`camera_values`: id -> (camera, values)
 _CAMERA_VALUES: dict = {}
 
 
-def _camera_values(camera: CameraModel) -> tuple:
-    """``(r0, mean_focal, varying_pixel_jacobian, READOUT_DIRECTIONS entry)`` of a camera (its
-    properties' values), kept per camera object (frozen; a rig's frames share it)."""
+def camera_values(camera: CameraModel) -> CameraValues:
+    """The camera's :class:`CameraValues`, kept per camera object (a frozen dataclass that a
+    camera's frames and a rig's frames share: its properties cost as much as a frame's
+    arrays)."""
     hit = _CAMERA_VALUES.get(id(camera))
     if hit is not None and hit[0] is camera:
         return hit[1]
-    out = (
+    out = CameraValues(
         camera.r0,
         camera.mean_focal,
         varying_pixel_jacobian(camera),
-        READOUT_DIRECTIONS[camera.readout],
+        READOUT_DIRECTIONS[camera.readout][2],
+        camera.seconds_per_unit_r,
+        camera.jacobian_arguments,
     )
     if len(_CAMERA_VALUES) >= 64:
         _CAMERA_VALUES.clear()
@@ -391,7 +413,7 @@ def _frame(
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
-    r0, focal, varying, (_, _, d) = _camera_values(camera)
+    r0, focal, varying, d, _, _ = camera_values(camera)
     fr = Frame(
         np.ascontiguousarray(x),
         X.take(rows, axis=0),

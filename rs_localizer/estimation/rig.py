@@ -152,7 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import varying_pixel_jacobian
+from .frame import camera_values
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -196,7 +196,6 @@ from .rig_batch import (
     lambda_twist_on_rig,
     model_cost,
     moving_search,
-    point_residual,
     sample_kernel,
     still_search,
 )
@@ -578,10 +577,11 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         )
     cam = v.camera
     if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2, focal = np.zeros((0, 2)), _camera_constants(cam)[1]
+        z2, focal = np.zeros((0, 2)), camera_values(cam).focal
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    spr, focal, jacobian, args = _camera_constants(cam)
+    k = camera_values(cam)  # (kept per camera object)
+    spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
     stamp = float(v.stamp_offset)
     args = None if numpy else args  # (a distorted camera's, compiled)
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
@@ -607,13 +607,9 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         tau.fill(stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
-        tau = stamp + (r - cam.r0) * spr
+        tau = stamp + (r - k.r0) * spr
     if jacobian:
-        if args is None:
-            A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
-        else:  # (CameraModel.pixel_jacobian's compiled call, its arguments built once)
-            A = distortion_jacobian(np.ascontiguousarray(x, dtype=np.float64), *args)
-            A = A.reshape(-1, 4)
+        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = focal
@@ -638,34 +634,6 @@ def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
             return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-#: the cameras' constants of :func:`_camera_constants`: id -> (camera, constants)
-_CAMERA_CONSTANTS: dict = {}
-
-
-def _camera_constants(cam: CameraModel) -> tuple[float, float, bool, tuple | None]:
-    """``(seconds_per_unit_r, mean_focal, whether its pixel Jacobian varies from point to
-    point (:func:`~.frame.varying_pixel_jacobian`), the arguments after the points of its
-    compiled pixel Jacobian)`` of a camera, kept per camera object (a frozen dataclass a
-    rig's frames share: its properties cost as much as a view's arrays). The arguments are
-    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`'s (the same arrays and values)
-    for a camera with distortion, else None."""
-    hit = _CAMERA_CONSTANTS.get(id(cam))
-    if hit is not None and hit[0] is cam:
-        return hit[1]
-    args = None
-    if cam.has_distortion:
-        fisheye = cam.distortion_model == "equidistant"
-        d = np.zeros(8)
-        m = 4 if fisheye else 8
-        d[: min(m, len(cam.D))] = np.ravel(cam.D)[:m]
-        args = (d, fisheye, float(cam.K[0, 0]), float(cam.K[1, 1]))
-    out = (cam.seconds_per_unit_r, float(cam.mean_focal), varying_pixel_jacobian(cam), args)
-    if len(_CAMERA_CONSTANTS) >= 64:
-        _CAMERA_CONSTANTS.clear()
-    _CAMERA_CONSTANTS[id(cam)] = (cam, out)
-    return out
 
 
 @njit(cache=True)
@@ -854,30 +822,13 @@ class _Pool:
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
-        if self.numpy:
-            return _errors_px(self, *_one(model))[0]
-        R, C, w, t = model
-        f = np.float64
-        return _errors_kernel(
-            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
-            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
-            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
-        )[0]  # fmt: skip
+        return _errors_px(self, *_one(model))[0][0]
 
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
         the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        if self.numpy:
-            e = _errors_px(self, *_one(model))[0]
-            return e, float(np.minimum(e**2, th2).sum())
-        R, C, w, t = model
-        f = np.float64
-        e, cost = _errors_cost_kernel(
-            np.ascontiguousarray(R, dtype=f), np.ascontiguousarray(C, dtype=f),
-            np.ascontiguousarray(w, dtype=f), np.ascontiguousarray(t, dtype=f),
-            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2,
-        )  # fmt: skip
-        return e, float(cost)
+        e, cost = _errors_px(self, *_one(model), th2)
+        return e[0], float(cost[0])
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -923,29 +874,17 @@ class _Pool:
 
 
 @njit(cache=True)
-def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
-    """(H, N) the image errors (px) of N points under H models: the norms of
-    :func:`~.rig_batch.point_residual` (predicted minus measured, the normalized difference
-    times the point's 2x2 pixel Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order
-    the error in the measured image); inf behind the camera."""
+def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
+    """``(errors (H, N), costs (H,))``: the image errors (px) of N points under H models ``R``
+    (H, 3, 3), ``C``, ``w``, ``t`` (H, 3), the norms of :func:`~.rig_batch.point_residual`
+    (predicted minus measured, the normalized difference times the point's 2x2 pixel
+    Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order the error in the measured
+    image; inf behind the camera), and each model's MSAC cost (the squares capped at ``th2``,
+    summed as ``np.sum`` sums them: :func:`~.rig_batch.model_cost`)."""
     H, N = R.shape[0], X.shape[0]
-    out = np.empty((H, N))
+    e, v, cost = np.empty((H, N)), np.empty(N), np.empty(H)
     for h in range(H):
-        for i in range(N):
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-            out[h, i] = np.sqrt(d0**2 + d1**2)
-    return out
-
-
-@njit(cache=True)
-def _errors_cost_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
-    """One model's (N,) errors (:func:`_errors_kernel`'s, px) and their MSAC cost (the
-    squares capped at ``th2``, summed as ``np.sum`` sums them:
-    :func:`~.rig_batch.model_cost`); ``R`` (3, 3), ``C``, ``w``, ``t`` (3,)."""
-    N = X.shape[0]
-    e, v = np.empty(N), np.empty(N)
-    cost = model_cost(R.reshape(1, 3, 3), C.reshape(1, 3), w.reshape(1, 3), t.reshape(1, 3),
-                      X, tau, cam, Rm, cm, x, A, th2, False, 0, np.inf, e, v)  # fmt: skip
+        cost[h] = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, h, np.inf, e[h], v)
     return e, cost
 
 
@@ -978,16 +917,18 @@ def _rig_solver(pool: _Pool):
     return gr6p_1lin_batch_numpy if pool.numpy else gr6p_1lin_batch
 
 
-def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
+def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
-    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time;
-    inf for a point behind its camera. Returns (H, N)."""
+    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
+    (inf for a point behind its camera), and their MSAC costs at ``th2`` px^2. Returns
+    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`)."""
     if pool.numpy:
         d = _residuals_numpy(pool, R, C, w, t)
-        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        e = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        return e, np.minimum(e**2, th2).sum(axis=1)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     return _errors_kernel(
-        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A
+        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A, th2
     )  # fmt: skip
 
 
@@ -1148,7 +1089,7 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     from the pose's six unknowns alone)."""
     k = len(S)
     if pool.numpy:
-        held = (_identities(k), np.zeros((k, 6)))
+        held = (np.broadcast_to(np.eye(6), (k, 6, 6)), np.zeros((k, 6)))  # ((w, t) = 0)
         b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         return b.v, b.C, b.valid
     X, x = _kernel_arrays(pool)[:2]
@@ -1156,19 +1097,6 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     S = np.ascontiguousarray(S, dtype=np.int64)
     out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg, dtype=np.float64), cam, Rm, cm)
     return out[:, 0:3], out[:, 3:6], ok
-
-
-@functools.lru_cache(maxsize=4)
-def _identity_stack(n: int) -> np.ndarray:
-    """(n, 6, 6) identities (:func:`_identities`; shared, never written: writeable only so
-    that the rig solver's kernel takes them as any other prior rows)."""
-    return np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
-
-
-def _identities(k: int) -> np.ndarray:
-    """(k, 6, 6) identities (the prior rows that hold the velocities at zero), a view of one
-    stack built for a power of two at least ``k``: a search corrects every batch's samples."""
-    return _identity_stack(1 << max(int(k) - 1, 1).bit_length())[:k]
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
@@ -1244,12 +1172,11 @@ def _refit(
     model,
     threshold_px: float,
     rounds: int = 2,
-    free=12,
     prior: _GyroPrior | None = None,
 ):
-    """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times
-    (``free``: unused, the signature of :func:`_refine`); ``prior``: a gyro's rows join the
-    solve (weighted by :func:`_equation_noise` at ``threshold_px``)."""
+    """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times;
+    ``prior``: a gyro's rows join the solve (weighted by :func:`_equation_noise` at
+    ``threshold_px``)."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
@@ -1307,7 +1234,6 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
 
 def _refine(
     pool: _Pool,
-    inl: np.ndarray,
     model,
     threshold_px: float,
     max_iterations: int = 20,
@@ -1317,12 +1243,11 @@ def _refine(
 ):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
-    truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
-    :func:`_refit`): a single camera's final refinement
-    (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
+    truncated beyond: the set re-selected at each iteration): a single camera's final
+    refinement (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
     :data:`RIG_REFINE_TOL`) with each point seen through its camera's mounting at its own
-    capture time, errors in px. 12 parameters: a
-    rotation update left of R, C, w, t (``free=6``: the pose alone, w and t kept at zero).
+    capture time, errors in px. 12 parameters: a rotation update left of R, C, w, t
+    (``free=6``: the pose alone, w and t kept at zero).
     ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains ``sigma^2 (w -
     w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the starting
     model's errors inside the threshold. With ``pool.numpy``:
@@ -1383,11 +1308,7 @@ def _final(
     alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
     or ``model`` itself when it is local optimization's refinement) when already computed,
     or None."""
-    out = (
-        first
-        if first is not None
-        else _refine(pool, None, model, threshold_px, free=free, prior=prior)
-    )
+    out = first if first is not None else _refine(pool, model, threshold_px, free=free, prior=prior)
     if prior is not None or search.cameras < 2:
         return out
     msac = search.cost
@@ -1395,7 +1316,7 @@ def _final(
     if search.errors(out).max() < k:
         return out  # (every point within the threshold: none a few thresholds away)
     gate = CONTRADICTION_GATE * threshold_px
-    wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
+    wide = _refine(pool, _refine(pool, model, gate, free=free), threshold_px, free=free)
 
     c_out, c_wide = msac(out), msac(wide)
     best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
@@ -1405,7 +1326,7 @@ def _final(
         return best  # (no point the inliers' fit leaves out that the refinement weighs)
 
     def inliers_fit(m):
-        fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
+        fit = _refine(pool, m, threshold_px, free=free, cutoff_px=threshold_px)
         return fit, msac(fit)
 
     # (``best`` is ``model`` itself when local optimization's refinement was the first and
@@ -1444,7 +1365,7 @@ def _one(model):
 
 def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior):
     """The rig's steps of :func:`~.local_optimization.initial_model_seed`: the errors in px
-    (:func:`_errors_px`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
+    (:meth:`_Pool.errors`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
     explained points: :func:`_refine` on every point (at most 10 iterations, Huber at the
     threshold, truncated at ``gate`` px), kept where it lowers the MSAC score."""
     k = float(threshold_px)
@@ -1454,7 +1375,7 @@ def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior)
         return np.minimum(e * e, th2).sum(), e < k
 
     def pull(seed, near: np.ndarray):
-        pulled = _refine(pool, None, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
+        pulled = _refine(pool, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
         scored = evaluate(pulled, pool.errors(pulled))
         return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
 
@@ -1662,7 +1583,7 @@ def _one_camera_alone(
     flat = posed_planarity(pool.X[s])  # (single_tag.few_points's rule)
     if flat is None:
         return None
-    spr = _camera_constants(v.camera)[0]  # (its seconds_per_unit_r, kept per camera)
+    spr = camera_values(v.camera).spr
     start = None
     if initial_model is not None:
         im = (
@@ -1703,17 +1624,16 @@ def _one_camera_alone(
         True,  # (rig_model_of_camera's new arrays)
         failure=None,
         ransac_iterations=0,
-        rmse_px=est.rmse_px,
-        num_behind=est.num_behind,
         model_covariance=cov,
-        motion_model=est.motion_model,
-        initial_explained=est.initial_explained,
-        initial_used=est.initial_used,
-        gyro_used=est.gyro_used,
-        planar=est.planar,
-        single_tag=est.single_tag,
         few_points=True,
+        **{k: getattr(est, k) for k in _CAMERA_FIELDS},
     )
+
+
+#: the fields of a camera's estimate a rig frame posed by that camera alone takes as they are
+#: (:func:`_one_camera_alone`)
+_CAMERA_FIELDS = ("rmse_px", "num_behind", "motion_model", "initial_explained", "initial_used",
+                  "gyro_used", "planar", "single_tag")  # fmt: skip
 
 
 def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
@@ -1914,7 +1834,7 @@ def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=No
     gate = CONTRADICTION_GATE * threshold_px
     free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
     model = (est if start is None else start).model
-    fit = _refine(_evened(pool, voters), None, model, gate, free=free)
+    fit = _refine(_evened(pool, voters), model, gate, free=free)
     return cams <= _gated(pool, est, voters, gate, fit)
 
 
@@ -2302,8 +2222,7 @@ class _RigSearch(RansacLoop):
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         pool = self.pool
         if pool.numpy:
-            e = _errors_px(pool, *hyp)
-            cost = np.minimum(e * e, self.th2).sum(axis=1)
+            e, cost = _errors_px(pool, *hyp, self.th2)
             h = int(np.argmin(cost))
             self._e, self._cost = e[h], float(cost[h])
         else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
@@ -2450,9 +2369,11 @@ def _estimate(
     refined = None  # (the last refinement: (its start, its result))
     for _ in range(LO_ROUNDS):
         for step in steps:
-            # (the refinement selects its points itself: the inliers are the refit's alone)
-            inl = pool.errors(model) < threshold_px if step is _refit else None
-            cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
+            if step is _refit:  # (the refinement selects its points itself)
+                inl = pool.errors(model) < threshold_px
+                cand = _refit(pool, inl, model, threshold_px, prior=prior)
+            else:
+                cand = _refine(pool, model, threshold_px, free=free, prior=prior)
             refined = (model, cand) if step is _refine else None
             cost = search.cost(cand)
             if cost <= best_cost:

@@ -27,6 +27,7 @@ from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 from .ransac import next_batch_size_kernel, required_samples_kernel
+from .sampling import draw_sample
 
 __all__ = [
     "batch_samples",
@@ -226,38 +227,24 @@ def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
 @njit(cache=True)
 def sample_kernel(u, cdf, eligible, counts, starts, n):
     """:func:`~.rig._sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
-    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
-    (:func:`~.sampling.draw_samples`' draws), three distinct points of the ``n - 3`` others."""
+    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it, three
+    distinct points of the ``n - 3`` others (:func:`~.sampling.draw_sample`'s draws)."""
     S = u.shape[1]
     out = np.empty((S, 6), dtype=np.int64)
+    chosen = np.empty(3, dtype=np.int64)
+    v = u.T  # (the draws of sample k in row k)
     for k in range(S):
         j = 0
         while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
             j += 1
         cam = eligible[min(j, len(cdf) - 1)]
-        for part in range(2):
-            N = counts[cam] if part == 0 else n - 3
-            a = np.int64(u[1 + 3 * part, k] * N)
-            b = np.int64(u[2 + 3 * part, k] * (N - 1))
-            if b >= a:
-                b += 1
-            c = np.int64(u[3 + 3 * part, k] * (N - 2))
-            lo, hi = min(a, b), max(a, b)
-            if c >= lo:
-                c += 1
-            if c >= hi:
-                c += 1
-            if part == 0:
-                out[k, 0], out[k, 1], out[k, 2] = starts[cam] + a, starts[cam] + b, starts[cam] + c
-            else:
-                out[k, 3], out[k, 4], out[k, 5] = a, b, c
-        t0, t1, t2 = out[k, 0], out[k, 1], out[k, 2]  # (sorted: map onto the pool without them)
-        if t0 > t1:
-            t0, t1 = t1, t0
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t0 > t1:
-            t0, t1 = t1, t0
+        draw_sample(v, k, 1, 3, counts[cam], chosen, out, 0)
+        s0 = starts[cam]
+        for i in range(3):
+            out[k, i] += s0
+        # (the three sorted: the others mapped onto the pool without them)
+        t0, t1, t2 = chosen[0] + s0, chosen[1] + s0, chosen[2] + s0
+        draw_sample(v, k, 4, 3, n - 3, chosen, out, 3)
         for i in range(3, 6):
             r = out[k, i]
             if r >= t0:

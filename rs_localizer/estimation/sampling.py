@@ -45,18 +45,27 @@ def draw_samples(u, pool):
     out = np.empty((K, s), dtype=np.int64)
     chosen = np.empty(s, dtype=np.int64)  # sorted ascending
     for k in range(K):
-        for j in range(s):
-            c = min(int(u[k, j] * (pool - j)), pool - j - 1)
-            # the c-th index not chosen yet: step over the chosen ones at or below it
-            pos = 0
-            while pos < j and chosen[pos] <= c:
-                c += 1
-                pos += 1
-            for m in range(j, pos, -1):
-                chosen[m] = chosen[m - 1]
-            chosen[pos] = c
-            out[k, j] = c
+        draw_sample(u, k, 0, s, pool, chosen, out, 0)
     return out
+
+
+@njit(cache=True, inline=INLINE)
+def draw_sample(u, k, j0, s, pool, chosen, out, o0):
+    """Sample ``k`` of :func:`draw_samples`: ``s`` distinct indices of ``range(pool)`` into
+    ``out[k, o0:o0 + s]`` from the uniform numbers ``u[k, j0:j0 + s]``, the j-th the
+    ``floor(u[k, j0 + j] * (pool - j))``-th index not chosen yet; ``chosen`` (at least s)
+    ends holding them sorted ascending."""
+    for j in range(s):
+        c = min(int(u[k, j0 + j] * (pool - j)), pool - j - 1)
+        # the c-th index not chosen yet: step over the chosen ones at or below it
+        pos = 0
+        while pos < j and chosen[pos] <= c:
+            c += 1
+            pos += 1
+        for m in range(j, pos, -1):
+            chosen[m] = chosen[m - 1]
+        chosen[pos] = c
+        out[k, o0 + j] = c
 
 
 def draw_samples_numpy(u: np.ndarray, pool: int | np.ndarray) -> np.ndarray:

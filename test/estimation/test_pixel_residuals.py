@@ -155,7 +155,7 @@ def test_rig_errors_are_measured_image_pixels():
     R, C, uv, X = _fisheye_scene(n, noise, 9)
     view = RigView(uv=uv, X=X, camera=FISHEYE)
     pool = _Pool([view])
-    e = _errors_px(pool, R[None], C[None], np.zeros((1, 3)), np.zeros((1, 3)))[0]
+    e = _errors_px(pool, R[None], C[None], np.zeros((1, 3)), np.zeros((1, 3)))[0][0]
     # first order: within a few % at 3 px (the focal length alone: up to ~2x off here)
     np.testing.assert_allclose(e, err[pool.row], rtol=0.05, atol=1e-3)
 

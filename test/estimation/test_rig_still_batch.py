@@ -47,7 +47,7 @@ def _step_by_step(views, seed, K, missed, rounds, subset, th):
     pool = rig_mod._Pool(views)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
     hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
-    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)
+    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)[0]
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
@@ -129,7 +129,7 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
-    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)
+    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)[0]
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     if w_max < np.inf:
@@ -185,7 +185,7 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
         S = samples[:j]
         hyp = (rig_mod._hypotheses(pool, S, 3) if moving
                else rig_mod._hypotheses_still(pool, S))  # fmt: skip
-        e = rig_mod._errors_px(numpy_pool, *hyp)
+        e = rig_mod._errors_px(numpy_pool, *hyp)[0]
         cost = np.minimum(e * e, th * th).sum(axis=1)
         h = int(np.argmin(cost))
         return cost[h], int(np.count_nonzero(e[h] < th))
