@@ -136,7 +136,7 @@ class ReplayResult:
       :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`), summed up by
       :attr:`disagreeing`;
     - ``outputs``: every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`
-      (each camera frame tagged with ``(its header stamp ns, its frame id)``); ``flushed``:
+      (each camera frame tagged with its frame id, as the rig node tags it); ``flushed``:
       the fused poses still pending at the end of the video.
     """
 
@@ -563,7 +563,7 @@ class _RigReplay:
                 drawn = rig_camera_views(o, run.mounts) if views else ()
                 step.views = [
                     _View(f"{n}/", view, f.points2d, f.points3d, f.camera, f.stamp_ns,
-                          _frame_id(f.tag, n), ref)
+                          f.tag or n, ref)
                     for n, f, view, ref in drawn
                 ]  # fmt: skip
             yield step
@@ -609,11 +609,6 @@ def _rig_row(index: int, o: Any) -> dict:
         row["num_inliers"] = est.num_inliers
         row["rmse_px"] = est.rmse_px
     return row
-
-
-def _frame_id(tag: Any, name: str) -> str:
-    """A rig camera frame's frame id (its tag ``(stamp, frame id)``; else the camera's name)."""
-    return (tag[1] if isinstance(tag, tuple) else tag) or name
 
 
 def _replay_config(
