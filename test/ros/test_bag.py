@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -64,6 +65,9 @@ def test_make_bag_contents(small_bags, storage):
         "/ground_truth/pose": 4,
         "/ground_truth/twist": 4,
     }
+    # (the bag's index, as replay reads it: each topic's type and count of the messages read)
+    read = Counter((t, mt) for t, mt, _, _ in bag_io.iter_messages(path))
+    assert bag_io.bag_connections(path) == {t: (mt, n) for (t, mt), n in read.items()}
     info = bag_io.read_bag_info(path)
     assert info["rs"]["line_delay"] == pytest.approx(30e-6)
     assert info["rs"]["reference_row"] == pytest.approx(359.5)

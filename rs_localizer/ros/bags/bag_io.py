@@ -12,8 +12,8 @@ and reading them back.
   ``rig_params.yaml`` (the rig node's parameter file); :class:`RigTopics` and
   :func:`rig_namespace` name a rig bag's topics.
 * :class:`RosbagsMessages` builds messages of the Jazzy typestore (rendered sequences).
-* :func:`read_bag_info`, :func:`iter_messages`, :func:`bag_topics`, :func:`load_ground_truth`
-  read bags.
+* :func:`read_bag_info`, :func:`iter_messages`, :func:`bag_topics`, :func:`bag_connections`,
+  :func:`load_ground_truth` read bags.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ __all__ = [
     "GT_TWIST",
     "RigTopics",
     "RosbagsMessages",
+    "bag_connections",
     "bag_topics",
     "iter_messages",
     "load_ground_truth",
@@ -301,10 +302,19 @@ def iter_messages(
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
     """topic -> msgtype of every connection of the bag at ``path``."""
+    return {t: mt for t, (mt, _) in bag_connections(path).items()}
+
+
+def bag_connections(path: str | os.PathLike) -> dict[str, tuple[str, int]]:
+    """topic -> ``(msgtype, messages)`` of the bag at ``path``, from its index (no message
+    read): a topic on several connections has the last one's msgtype and all their messages."""
     from rosbags.rosbag2 import Reader
 
+    out: dict[str, tuple[str, int]] = {}
     with Reader(path) as r:
-        return {c.topic: c.msgtype for c in r.connections}
+        for c in r.connections:
+            out[c.topic] = (c.msgtype, out.get(c.topic, ("", 0))[1] + c.msgcount)
+    return out
 
 
 def load_ground_truth(

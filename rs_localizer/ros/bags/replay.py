@@ -53,6 +53,7 @@ from .bag_io import (
     IMU,
     OUT_TYPES,
     RigTopics,
+    bag_connections,
     bag_topics,
     iter_messages,
     load_ground_truth,
@@ -135,7 +136,7 @@ class ReplayResult:
       :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`), summed up by
       :attr:`disagreeing`;
     - ``outputs``: every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`
-      (each camera frame tagged with ``(its header stamp ns, its frame id)``); ``flushed``:
+      (each camera frame tagged with its frame id, as the rig node tags it); ``flushed``:
       the fused poses still pending at the end of the video.
     """
 
@@ -331,7 +332,7 @@ def replay(
                             debug_outputs, log)  # fmt: skip
     result = run.result
     ts = typestore()
-    gt = load_ground_truth(path) if GT_POSE in bag_topics(path) else GroundTruth()
+    gt = load_ground_truth(path) if GT_POSE in run.bag_topics else GroundTruth()
     writer, conns = None, {}
     if out_bag is not None:
         writer, conns = open_out_bag(Path(out_bag), storage, overwrite, ts)
@@ -411,14 +412,17 @@ class _Step:
 
 class _CameraReplay:
     """A camera's bag through the node's per-frame pipeline (:func:`replay`): configured (and
-    its topics found) on construction, its frames' :class:`_Step` from :meth:`steps`."""
+    its topics found: ``bag_topics``, the bag's topic -> msgtype, read once) on construction,
+    its frames' :class:`_Step` from :meth:`steps`."""
 
     def __init__(self, path: Path, params_files: list, params, source, image_topic, imu_topic,
                  debug_outputs: bool, log: Any):  # fmt: skip
         values, cfg, maps, source = _replay_config(path, params_files, params, source)
-        topics = bag_topics(path)
+        counted = bag_connections(path)  # (the bag's topics, read once)
+        self.bag_topics = topics = {t: mt for t, (mt, _) in counted.items()}
         self.topics = _replay_topics(path, topics, cfg, source, image_topic, imu_topic,
                                      debug_outputs)  # fmt: skip
+        self.frames_total = counted[self.topics[0]][1]
         if cfg.imu is not None:
             # (offline every sample is buffered before the frames: no waiting)
             cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
@@ -446,7 +450,7 @@ class _CameraReplay:
         if cfg.imu is not None:
             for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
                 pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
-        bar = progress_bar(progress, _count(path, frame_topic))
+        bar = progress_bar(progress, self.frames_total)
         wanted = OUT_TYPES.__contains__
         try:
             i = 0
@@ -518,7 +522,7 @@ class _RigReplay:
     """A rig bag's cameras through the rig mode (:class:`~rs_localizer.ros.bags.rig_bag.
     RigRun`) for :func:`replay`: each rig frame's :class:`_Step` from :meth:`steps`, the
     rig frame's pose in ``map_frame`` and its twist in ``base_frame``, as the rig node
-    publishes them."""
+    publishes them; ``bag_topics``: the bag's topic -> msgtype."""
 
     def __init__(self, path: Path, params_files: list, params):
         self.run = run = RigRun(path, params_files, params)
@@ -527,7 +531,7 @@ class _RigReplay:
         self.map_frame = str(values["map_frame"])
         self.base_frame = str(values["base_frame"]).strip() or "base_link"
         self.views = tuple(f"{n}/" for n in run.cameras)
-        present = bag_topics(path)
+        self.bag_topics = present = bag_topics(path)
         names = run.cameras
         self.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(rig_namespace(path, names),
                              names).of(("image",)).items() if t in present}  # fmt: skip
@@ -559,7 +563,7 @@ class _RigReplay:
                 drawn = rig_camera_views(o, run.mounts) if views else ()
                 step.views = [
                     _View(f"{n}/", view, f.points2d, f.points3d, f.camera, f.stamp_ns,
-                          _frame_id(f.tag, n), ref)
+                          f.tag or n, ref)
                     for n, f, view, ref in drawn
                 ]  # fmt: skip
             yield step
@@ -605,11 +609,6 @@ def _rig_row(index: int, o: Any) -> dict:
         row["num_inliers"] = est.num_inliers
         row["rmse_px"] = est.rmse_px
     return row
-
-
-def _frame_id(tag: Any, name: str) -> str:
-    """A rig camera frame's frame id (its tag ``(stamp, frame id)``; else the camera's name)."""
-    return (tag[1] if isinstance(tag, tuple) else tag) or name
 
 
 def _replay_config(
@@ -921,13 +920,6 @@ class _BagImages:
         while len(held) > self.MAX_HELD:
             held.pop(min(held))
         return True
-
-
-def _count(path, topic) -> int:
-    from rosbags.rosbag2 import Reader
-
-    with Reader(path) as r:
-        return sum(c.msgcount for c in r.connections if c.topic == topic)
 
 
 CSV_COLUMNS = [

@@ -124,12 +124,11 @@ class RigRun:
     def outputs(self, progress: TextIO | None = None) -> Iterator[LocalizerOutput]:
         """Every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`, solved or
         failed, in order as the cameras' frames (in log-time order) complete them, then those
-        the end of the video closes; each camera frame tagged with ``(its header stamp ns, its
-        frame id)``. Afterwards :attr:`flushed` holds the fused poses still pending."""
-        from dataclasses import replace
-
+        the end of the video closes; each camera frame tagged with its frame id, as the rig
+        node tags it (:meth:`~rs_localizer.ros.camera_input.CameraInput.tag_of`). Afterwards
+        :attr:`flushed` holds the fused poses still pending."""
         from ...frontends.shared import SHARED_MAPS
-        from ..camera_input import DroppedFrame, to_rig
+        from ..camera_input import to_rig
 
         rig, own, gyro = self.rig, self.own, self.gyro
         bar = progress_bar(progress, None, unit=" rig frames")
@@ -143,8 +142,6 @@ class RigRun:
                     continue
                 while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
                     rig.add_imu(*gyro.pop())
-                if not isinstance(item, DroppedFrame):  # (tagged with its stamp and frame id)
-                    item = replace(item, tag=(stamp, item.tag))
                 outs = to_rig(rig, item)
                 _note_disagreeing(rig, outs, self.off_deg)
                 bar.update(len(outs))
