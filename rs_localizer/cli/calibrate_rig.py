@@ -150,23 +150,6 @@ def rows_note(name: str, counts: dict, max_points: int) -> str:
     )  # fmt: skip
 
 
-def _mounting7(mount) -> list[float]:
-    from ..ros import conversions as cv
-
-    q = cv.quaternion_from_matrix(mount.R.T)
-    return [round(float(x), 9) + 0.0 for x in (*mount.position, *q)]
-
-
-def _covariance36(mount) -> list[float] | None:
-    """The mounting's covariance as the node's ``rig.<camera>.mounting_covariance``: 36
-    numbers, row by row over x, y, z (m), rot x, rot y, rot z (rad) in the rig frame; None
-    without one."""
-    if mount.covariance is None:
-        return None
-    P = [3, 4, 5, 0, 1, 2]  # (Mounting.covariance: rotation first)
-    return [float(f"{x:.6g}") + 0.0 for x in mount.covariance[np.ix_(P, P)].ravel()]
-
-
 def params_yaml(
     values: dict,
     cams: dict,
@@ -181,13 +164,13 @@ def params_yaml(
     RS timing it was read with and its ``time_offset`` (``time_offsets``: camera -> s, those
     calibrated with or estimated; None: those it was read with); ``notes``: comment lines on
     top."""
-    import yaml
+    from ..ros.config import mounting_covariance_values, mounting_values, rig_parameter_file
 
     body_cams = {}
     for n in names:
-        entry = {"mounting": _mounting7(mountings[n])}
+        entry = {"mounting": mounting_values(mountings[n])}
         if mountings[n].covariance is not None:
-            entry["mounting_covariance"] = _covariance36(mountings[n])
+            entry["mounting_covariance"] = mounting_covariance_values(mountings[n])
         for k in ("line_delay", "readout_time", "direction"):
             v = cams[n].get(k)
             if v not in (None, "", -1.0):
@@ -196,14 +179,7 @@ def params_yaml(
         if dt:
             entry["time_offset"] = round(float(dt), 7) + 0.0
         body_cams[n] = entry
-    body = {
-        "base_frame": base_frame,
-        "rs": {"stamp_row": float(values["rs.stamp_row"])},
-        "rig": {"cameras": list(names), **body_cams},
-    }
-    tree = {"/**/rs_localizer": {"ros__parameters": body}}
-    head = "".join(f"# {line}\n" for line in notes)
-    return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
+    return rig_parameter_file(base_frame, values["rs.stamp_row"], body_cams, notes=notes)
 
 
 #: a calibrated mounting further than this many of its std (rotation or position) from the
@@ -266,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_rig_frames
+    from ..ros.config import mounting_covariance_values, mounting_values
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
@@ -322,12 +299,12 @@ def run(args: argparse.Namespace) -> int:
     for n in names:
         e = est[n]
         report[n] = {
-            "mounting": _mounting7(e.mount),
+            "mounting": mounting_values(e.mount),
             "frames": e.frames,
             "rejected": e.rejected,
             "std_deg": e.std_deg,
             "std_mm": e.std_mm,
-            "mounting_covariance": _covariance36(e.mount),
+            "mounting_covariance": mounting_covariance_values(e.mount),
             "scatter_deg": e.scatter_deg,
             "scatter_mm": e.scatter_mm,
             "time_offset": e.time_offset,

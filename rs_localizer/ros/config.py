@@ -46,8 +46,11 @@ __all__ = [
     "estimate_options",
     "imu_config",
     "load_maps",
+    "mounting_covariance_values",
+    "mounting_values",
     "rig_change_refused",
     "rig_config",
+    "rig_parameter_file",
     "rig_unused",
     "rig_unused_text",
     "rig_used_values",
@@ -488,6 +491,49 @@ def rig_mounting(n: str, m: Any, cov_values: Any = None) -> Mounting:
         return Mounting.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov)
     except ValueError as e:
         raise ConfigError(f"rig.{n}.mounting: {e}") from None
+
+
+def mounting_values(m: Mounting) -> list[float]:
+    """A mounting as the node's ``rig.<camera>.mounting``, what :func:`rig_mounting` reads:
+    x, y, z (m, the camera's optical centre in ``base_frame``), qx, qy, qz, qw (its optical
+    frame's orientation in ``base_frame``), each rounded to 9 decimals."""
+    q = cv.quaternion_from_matrix(m.R.T)
+    return [round(float(x), 9) + 0.0 for x in (*m.position, *q)]
+
+
+def mounting_covariance_values(m: Mounting) -> list[float] | None:
+    """A mounting's covariance as the node's ``rig.<camera>.mounting_covariance``, what
+    :func:`rig_mounting` reads: 36 numbers (6 significant digits), row by row over x, y, z
+    (m), rot x, rot y, rot z (rad) in the rig frame; None without one."""
+    if m.covariance is None:
+        return None
+    P = [3, 4, 5, 0, 1, 2]  # (Mounting.covariance: rotation first)
+    return [float(f"{x:.6g}") + 0.0 for x in m.covariance[np.ix_(P, P)].ravel()]
+
+
+def rig_parameter_file(
+    base_frame: str,
+    stamp_row: float,
+    cameras: Mapping[str, Mapping[str, Any]],
+    extra: Mapping[str, Any] | None = None,
+    notes: Iterable[str] = (),
+) -> str:
+    """The text of a rig node's parameter file (YAML for ``--params-file``, every node
+    name): ``base_frame``, ``rs.stamp_row``, ``rig.cameras`` (the keys of ``cameras``, in
+    order) and each camera's parameters (``cameras[name]``: ``mounting``,
+    ``mounting_covariance``, ``line_delay``, ...), then the ``extra`` groups (e.g. ``imu``);
+    ``notes``: comment lines on top."""
+    import yaml
+
+    body: dict[str, Any] = {
+        "base_frame": base_frame,
+        "rs": {"stamp_row": float(stamp_row)},
+        "rig": {"cameras": list(cameras), **{n: dict(v) for n, v in cameras.items()}},
+        **(extra or {}),
+    }
+    tree = {"/**/rs_localizer": {"ros__parameters": body}}
+    head = "".join(f"# {line}\n" for line in notes)
+    return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
 
 
 def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:

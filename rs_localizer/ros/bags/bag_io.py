@@ -613,7 +613,7 @@ def write_rig_bag(
 
 def _params_yaml(rig: dict, stamp_row: float) -> str:
     """The node's parameter file of a rig bag's ``rig`` entry."""
-    import yaml
+    from ..config import rig_parameter_file
 
     cams = {
         c["name"]: {
@@ -623,15 +623,10 @@ def _params_yaml(rig: dict, stamp_row: float) -> str:
         }
         for c in rig["cameras"]
     }
-    body = {
-        "base_frame": rig["base_frame"],
-        "rs": {"stamp_row": float(stamp_row)},
-        "rig": {"cameras": [c["name"] for c in rig["cameras"]], **cams},
-    }
+    extra = {}
     if "imu" in rig:
-        body["imu"] = {"enabled": True, "rotation": [round(x, 12) for x in rig["imu"]["rotation"]]}
-    tree = {"/**/rs_localizer": {"ros__parameters": body}}
-    return yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
+        extra["imu"] = {"enabled": True, "rotation": [round(x, 12) for x in rig["imu"]["rotation"]]}
+    return rig_parameter_file(rig["base_frame"], stamp_row, cams, extra)
 
 
 def rig_namespace(bag: str | os.PathLike, cameras: Iterable[str] = ()) -> str:
