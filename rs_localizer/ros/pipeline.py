@@ -606,8 +606,8 @@ class FramePipeline:
         if isinstance(item, ImageFrame):
             res.image = (item.image, item.encoding, stamp)
             t_decoded = time.perf_counter()
-            out = self.sequence.process_image(ft, item.image, camera, item.encoding,
-                                              tag=item.tag)  # fmt: skip
+            # (as a rig camera's image: to the camera's rig of one, to_rig)
+            out = self.sequence.image_output(ft, to_rig(self.sequence.rig, item, ft.reference_ns))
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds

@@ -540,6 +540,9 @@ class ImageSearch:
         found: the front end's :class:`~rs_localizer.correspondences.Correspondences`
             (searched). seconds: s spent in the front end's search.
         need: the correspondences the solver needs (``frontend_too_few_points``), else None.
+        points2d: (M, 2) px and points3d: (M, 3) m, the rows of ``found`` given to the
+            estimator (:func:`usable_rows`; set by
+            :meth:`~rs_localizer.tracking.video.Localizer.process_image`), else None.
     """
 
     failure: str | None = None
@@ -548,6 +551,8 @@ class ImageSearch:
     found: Correspondences | None = None
     seconds: float = 0.0
     need: int | None = None
+    points2d: np.ndarray | None = None
+    points3d: np.ndarray | None = None
 
 
 def search_image(

@@ -296,6 +296,7 @@ class SequenceLocalizer(GyroReadouts):
             lambda: implementation(self.settings.solver),
             gyro_input=self.gyro_input,
             camera_video=True,
+            count=self._count,
         )
         # the front end and the fingerprint of the previous image: the rig of one's camera's
         # (Localizer.camera_frontend)
@@ -465,42 +466,43 @@ class SequenceLocalizer(GyroReadouts):
                 :class:`~rs_localizer.camera.CameraModel`.
         """
         t = self.frame_time(stamp_ns, camera)
-        stamp = t.stamp_ns
-        fe = self._camera_frontend
-        name = fe.label
-        if fe.frontend is None:
+        if self._camera_frontend.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        out = SequenceOutput(stamp_ns=t.reference_ns)
-        # (the rig of one's rules: the time noted first, the frozen image, too few points)
-        r = self._rig.search_image(_CAMERA, t, image, camera, encoding)
+        outs = self._rig.process_image(_CAMERA, t, image, camera, encoding, tag)
+        return self.image_output(t, outs)
+
+    def image_output(self, frame_time: FrameTime, outs: list[LocalizerOutput]) -> SequenceOutput:
+        """The camera's output (:class:`SequenceOutput`) of its image with times
+        ``frame_time`` given to its rig of one
+        (:meth:`~rs_localizer.tracking.video.Localizer.process_image`, which returned ``outs``):
+        the rig frame as :meth:`output_of` gives it, with the front end's correspondences,
+        seconds and the rows given to the estimator; an image skipped before the estimator
+        (no rig frame) as its ``failure`` with a ``detail`` text, stamped with its reference
+        time."""
+        r = self._rig.last_search(_CAMERA)
+        if outs:
+            (rig_frame,) = outs
+            res = self.output_of(rig_frame)
+            res.correspondences, res.frontend_seconds = r.found, r.seconds
+            res.points2d, res.points3d = r.points2d, r.points3d
+            return res
+        out = SequenceOutput(stamp_ns=frame_time.reference_ns, failure=r.failure)
         if r.failure == FRONTEND_FAILURES[2]:
-            out.failure = r.failure
             out.detail = (
                 f"the image is the previous one again (mean difference {r.difference:.2f} gray "
                 "levels over one pixel in 64): a driver re-sending its last frame or a stalled "
                 "camera; the next new image is searched whole"
             )
             return out
+        name = self._camera_frontend.label
         if r.failure == FRONTEND_FAILURES[0]:
-            e = r.error
-            out.failure, out.detail = r.failure, f"{name}: {type(e).__name__}: {e}"
+            out.detail = f"{name}: {type(r.error).__name__}: {r.error}"
             return out
-        found = out.correspondences = r.found
-        out.frontend_seconds = r.seconds
-        uv, xyz, scores = found.points2d, found.points, found.valid_scores()
-        if r.failure is not None:
-            what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
-            out.failure = r.failure
-            out.detail = (
-                f"{name} front end found {what}: {len(uv)} correspondences, {r.need} needed"
-            )
-            return out
-        uv, xyz, scores = self.valid_rows(uv, xyz, scores)
-        res = self._process(CameraFrame(stamp, camera, uv, xyz, scores, tag), t)
-        fe.observe(stamp, uv, res.estimate)
-        res.correspondences, res.frontend_seconds = found, out.frontend_seconds
-        res.points2d, res.points3d = uv, xyz
-        return res
+        out.correspondences, out.frontend_seconds = r.found, r.seconds
+        n = len(r.found.points2d)
+        what = f"{n // 4} markers" if name == "aruco" else f"{n} matches"
+        out.detail = f"{name} front end found {what}: {n} correspondences, {r.need} needed"
+        return out
 
     def predict(self, stamp_ns: int | FrameTime, camera: CameraModel) -> RSModel | None:
         """The prediction of a frame at ``stamp_ns`` (ns, header stamp: the capture time of
