@@ -91,7 +91,6 @@ from .localizer import (
     FrameOutput,
     FusedPose,
     check_camera,
-    usable_rows,
 )
 from .tracker import TrackerOptions
 from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerOutput, LocalizerSettings
@@ -143,7 +142,7 @@ class SequenceSettings:
             frames misplaced the optical flow's tracks). Negative: never.
         max_points: the most rows a frame of :meth:`SequenceLocalizer.process_image` gives
             the estimator (spread over the image, :func:`~rs_localizer.estimation.points.
-            cap_points`; also :meth:`SequenceLocalizer.valid_rows`); None: no cap.
+            cap_points`; :func:`~rs_localizer.tracking.localizer.usable_rows`); None: no cap.
         check_gyro: check the gyro against the rotation between solved frames and solve
             without it while they disagree (the node always does; off only to show what the
             check prevents).
@@ -192,7 +191,7 @@ class SequenceOutput(FrameOutput):
         correspondences: what the front end made of the image (before non-finite rows are
             dropped and the cap), or None (no image, or the front end raised).
         points2d, points3d: (M, 2) px and (M, 3) m, the rows the estimator was given (after
-            :meth:`SequenceLocalizer.valid_rows`); None when it did not run.
+            :func:`~rs_localizer.tracking.localizer.usable_rows`); None when it did not run.
         frontend_seconds: s spent in the front end.
     """
 
@@ -249,7 +248,8 @@ class SequenceLocalizer(GyroReadouts):
             ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing[.<reason>]``,
             ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
             ``gyro_inconsistent_detections``, ``gyro_bias_rejected``; ``points_dropped``,
-            ``capped_clouds``, ``capped_points`` of :meth:`valid_rows`); None: counted in
+            ``capped_clouds``, ``capped_points`` of an image's rows,
+            :func:`~rs_localizer.tracking.localizer.usable_rows`); None: counted in
             :attr:`counts`.
         stopped: ``stopped()`` true ends a frame's wait for its gyro samples (shutdown).
         imu_span: s of gyro samples kept (default ``imu.buffer``; ``inf`` when every sample is
@@ -418,15 +418,6 @@ class SequenceLocalizer(GyroReadouts):
         """
         self._camera_frontend.set(frontend, name)
 
-    def valid_rows(
-        self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without
-        those holding a NaN or inf (counted as ``points_dropped``; before the cap, so that the
-        cap keeps valid rows), then capped to ``max_points`` (counted as ``capped_clouds``,
-        ``capped_points``; :func:`~rs_localizer.tracking.localizer.usable_rows`)."""
-        return usable_rows(uv, xyz, scores, self.settings.max_points, self._count, self.log.warning)
-
     def process_image(
         self,
         stamp_ns: int | FrameTime,
@@ -438,11 +429,15 @@ class SequenceLocalizer(GyroReadouts):
         """Localize one image of the video: the front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)``, with the frame's
         :meth:`predict`; its one-time warning logged), the rows the estimator can use
-        (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
-        solved (``frontend.observe`` with its estimate, a
-        :class:`~rs_localizer.correspondences.FrameFeedback`; an error there is logged,
-        the frame goes on). The calls are those of
-        :class:`~rs_localizer.correspondences.VideoFrontend`.
+        (:func:`~rs_localizer.tracking.localizer.usable_rows`, counted by ``count``), solved as
+        :meth:`process` solves a frame, then the front end told how the frame was solved
+        (``frontend.observe`` with its estimate, a
+        :class:`~rs_localizer.correspondences.FrameFeedback`; an error there is logged, the
+        frame goes on). The calls are those of
+        :class:`~rs_localizer.correspondences.VideoFrontend`. Its rig of one's
+        (:meth:`Localizer.process_image
+        <rs_localizer.tracking.video.Localizer.process_image>`, as a rig camera's image), made
+        the camera's output by :meth:`image_output`.
 
         Args:
             stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``, or the frame's
