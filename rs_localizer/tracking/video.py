@@ -74,7 +74,11 @@ a rig frame posed from one camera while others run
 (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`), the cameras' disagreement. Its images
 (:meth:`Localizer.process_image`) are taken as the camera's: an image with fewer
 correspondences than its solver needs is skipped before the estimator
-(``frontend_too_few_points``). Its counters are the rig's (``rig.*``, ``<camera>.*``).
+(``frontend_too_few_points``). Its counters are the rig's (``rig.*``, ``<camera>.*``). As its
+camera's own video (``camera_video``: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
+the node's single camera) an image skipped before the estimator is its caller's to count and
+report (:meth:`Localizer.last_search`), and its images' rows are counted by the caller's
+``count``.
 
 With a gyro on the rig (:attr:`LocalizerSettings.imu`; samples fed by
 :meth:`Localizer.add_imu`) each rig frame is solved with the gyro's measurement over the rig
