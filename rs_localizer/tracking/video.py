@@ -1420,8 +1420,8 @@ class Localizer(GyroReadouts):
         is) through its front end (:meth:`set_frontend`), before the estimator, by the rules
         of its video (:func:`~rs_localizer.tracking.localizer.search_image`: the
         frozen-image check, then the front end's search with :meth:`predict_camera`); what
-        :meth:`process_image` and a camera's
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image` run.
+        :meth:`process_image` runs on a rig camera's image and a camera's alike
+        (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image`).
 
         A rig of one camera adds its camera's rules, which a rig of several does not have:
         its time is noted first (:meth:`check_time`, unless the caller noted it already; after
