@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..camera import CameraModel, Stamp
+from ..camera import CameraModel, FrameTime, Stamp
 from ..tracking.localizer import CameraFrame, usable_rows
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
@@ -530,14 +530,16 @@ def to_rig(
     :class:`~rs_localizer.tracking.localizer.CameraFrame`:
     :meth:`~rs_localizer.tracking.video.Localizer.add` (``reference_ns``: the frame's time on
     the rig's clock when the caller made it; None: made there); an :class:`ImageFrame`: through the
-    camera's front end (:meth:`~rs_localizer.tracking.video.Localizer.process_image`); a
+    camera's front end (:meth:`~rs_localizer.tracking.video.Localizer.process_image`, with
+    ``reference_ns`` as well; the single camera's images go to its rig of one so); a
     :class:`DroppedFrame` with a stamp: counted received and skipped for its reason, the rig
     no longer waiting for the camera at that time
     (:meth:`~rs_localizer.tracking.video.Localizer.drop`: a rig frame without it counts the
     camera ``missed.skipped``); one without a stamp: nothing (``[]``; its owner counts it)."""
     if isinstance(item, ImageFrame):
-        return rig.process_image(item.camera_name, item.stamp_ns, item.image, item.camera,
-                                 item.encoding, item.tag)  # fmt: skip
+        t = item.stamp_ns if reference_ns is None else FrameTime(item.stamp_ns, reference_ns)
+        return rig.process_image(item.camera_name, t, item.image, item.camera, item.encoding,
+                                 item.tag)  # fmt: skip
     if not isinstance(item, DroppedFrame):
         return rig.add(item) if reference_ns is None else rig.add(item, reference_ns)
     if item.stamp_ns is None:

@@ -603,19 +603,19 @@ class FramePipeline:
             # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
         item = _taken(inp.take(msg, kind, stamp, camera))
+        t_decoded = time.perf_counter()
+        # (as a rig camera's frame: to the camera's rig of one, to_rig; an image through its
+        # front end first)
+        outs = to_rig(self.sequence.rig, item, ft.reference_ns)
         if isinstance(item, ImageFrame):
             res.image = (item.image, item.encoding, stamp)
-            t_decoded = time.perf_counter()
-            out = self.sequence.process_image(ft, item.image, camera, item.encoding,
-                                              tag=item.tag)  # fmt: skip
+            out = self.sequence.image_output(ft, outs)
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
-        else:  # (as a rig camera's frame: to the camera's rig of one, to_rig)
-            t_decoded = time.perf_counter()
+        else:
             uv, xyz = item.points2d, item.points3d
-            (r,) = to_rig(self.sequence.rig, item, ft.reference_ns)
-            out = self.sequence.output_of(r)
+            out = self.sequence.output_of(outs[0])
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")

@@ -193,9 +193,8 @@ def usable_rows(
     ``count("points_dropped", n)``; before the cap, so that the cap keeps valid rows), then
     at most ``max_points`` of them (None: no cap) spread over the image
     (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
-    ``capped_points``, and ``warn("capped", text)``). A camera's video
-    (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.valid_rows`), each camera of a
-    rig's images (:meth:`~rs_localizer.tracking.video.Localizer.process_image`) and the
+    ``capped_points``, and ``warn("capped", text)``). Each camera's images, a camera video's
+    and a rig's (:meth:`~rs_localizer.tracking.video.Localizer.process_image`), and the
     node's per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
     uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
     if n_bad:
@@ -540,6 +539,9 @@ class ImageSearch:
         found: the front end's :class:`~rs_localizer.correspondences.Correspondences`
             (searched). seconds: s spent in the front end's search.
         need: the correspondences the solver needs (``frontend_too_few_points``), else None.
+        points2d: (M, 2) px and points3d: (M, 3) m, the rows of ``found`` given to the
+            estimator (:func:`usable_rows`; set by
+            :meth:`~rs_localizer.tracking.video.Localizer.process_image`), else None.
     """
 
     failure: str | None = None
@@ -548,6 +550,8 @@ class ImageSearch:
     found: Correspondences | None = None
     seconds: float = 0.0
     need: int | None = None
+    points2d: np.ndarray | None = None
+    points3d: np.ndarray | None = None
 
 
 def search_image(

@@ -91,7 +91,6 @@ from .localizer import (
     FrameOutput,
     FusedPose,
     check_camera,
-    usable_rows,
 )
 from .tracker import TrackerOptions
 from .video import SINGLE_CAMERA_SOLVER, Localizer, LocalizerOutput, LocalizerSettings
@@ -143,7 +142,7 @@ class SequenceSettings:
             frames misplaced the optical flow's tracks). Negative: never.
         max_points: the most rows a frame of :meth:`SequenceLocalizer.process_image` gives
             the estimator (spread over the image, :func:`~rs_localizer.estimation.points.
-            cap_points`; also :meth:`SequenceLocalizer.valid_rows`); None: no cap.
+            cap_points`; :func:`~rs_localizer.tracking.localizer.usable_rows`); None: no cap.
         check_gyro: check the gyro against the rotation between solved frames and solve
             without it while they disagree (the node always does; off only to show what the
             check prevents).
@@ -192,7 +191,7 @@ class SequenceOutput(FrameOutput):
         correspondences: what the front end made of the image (before non-finite rows are
             dropped and the cap), or None (no image, or the front end raised).
         points2d, points3d: (M, 2) px and (M, 3) m, the rows the estimator was given (after
-            :meth:`SequenceLocalizer.valid_rows`); None when it did not run.
+            :func:`~rs_localizer.tracking.localizer.usable_rows`); None when it did not run.
         frontend_seconds: s spent in the front end.
     """
 
@@ -249,7 +248,8 @@ class SequenceLocalizer(GyroReadouts):
             ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing[.<reason>]``,
             ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
             ``gyro_inconsistent_detections``, ``gyro_bias_rejected``; ``points_dropped``,
-            ``capped_clouds``, ``capped_points`` of :meth:`valid_rows`); None: counted in
+            ``capped_clouds``, ``capped_points`` of an image's rows,
+            :func:`~rs_localizer.tracking.localizer.usable_rows`); None: counted in
             :attr:`counts`.
         stopped: ``stopped()`` true ends a frame's wait for its gyro samples (shutdown).
         imu_span: s of gyro samples kept (default ``imu.buffer``; ``inf`` when every sample is
@@ -296,6 +296,7 @@ class SequenceLocalizer(GyroReadouts):
             lambda: implementation(self.settings.solver),
             gyro_input=self.gyro_input,
             camera_video=True,
+            count=self._count,
         )
         # the front end and the fingerprint of the previous image: the rig of one's camera's
         # (Localizer.camera_frontend)
@@ -417,15 +418,6 @@ class SequenceLocalizer(GyroReadouts):
         """
         self._camera_frontend.set(frontend, name)
 
-    def valid_rows(
-        self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without
-        those holding a NaN or inf (counted as ``points_dropped``; before the cap, so that the
-        cap keeps valid rows), then capped to ``max_points`` (counted as ``capped_clouds``,
-        ``capped_points``; :func:`~rs_localizer.tracking.localizer.usable_rows`)."""
-        return usable_rows(uv, xyz, scores, self.settings.max_points, self._count, self.log.warning)
-
     def process_image(
         self,
         stamp_ns: int | FrameTime,
@@ -437,11 +429,15 @@ class SequenceLocalizer(GyroReadouts):
         """Localize one image of the video: the front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)``, with the frame's
         :meth:`predict`; its one-time warning logged), the rows the estimator can use
-        (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
-        solved (``frontend.observe`` with its estimate, a
-        :class:`~rs_localizer.correspondences.FrameFeedback`; an error there is logged,
-        the frame goes on). The calls are those of
-        :class:`~rs_localizer.correspondences.VideoFrontend`.
+        (:func:`~rs_localizer.tracking.localizer.usable_rows`, counted by ``count``), solved as
+        :meth:`process` solves a frame, then the front end told how the frame was solved
+        (``frontend.observe`` with its estimate, a
+        :class:`~rs_localizer.correspondences.FrameFeedback`; an error there is logged, the
+        frame goes on). The calls are those of
+        :class:`~rs_localizer.correspondences.VideoFrontend`. Its rig of one's
+        (:meth:`Localizer.process_image
+        <rs_localizer.tracking.video.Localizer.process_image>`, as a rig camera's image), made
+        the camera's output by :meth:`image_output`.
 
         Args:
             stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``, or the frame's
@@ -465,42 +461,43 @@ class SequenceLocalizer(GyroReadouts):
                 :class:`~rs_localizer.camera.CameraModel`.
         """
         t = self.frame_time(stamp_ns, camera)
-        stamp = t.stamp_ns
-        fe = self._camera_frontend
-        name = fe.label
-        if fe.frontend is None:
+        if self._camera_frontend.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        out = SequenceOutput(stamp_ns=t.reference_ns)
-        # (the rig of one's rules: the time noted first, the frozen image, too few points)
-        r = self._rig.search_image(_CAMERA, t, image, camera, encoding)
+        outs = self._rig.process_image(_CAMERA, t, image, camera, encoding, tag)
+        return self.image_output(t, outs)
+
+    def image_output(self, frame_time: FrameTime, outs: list[LocalizerOutput]) -> SequenceOutput:
+        """The camera's output (:class:`SequenceOutput`) of its image with times
+        ``frame_time`` given to its rig of one
+        (:meth:`~rs_localizer.tracking.video.Localizer.process_image`, which returned ``outs``):
+        the rig frame as :meth:`output_of` gives it, with the front end's correspondences,
+        seconds and the rows given to the estimator; an image skipped before the estimator
+        (no rig frame) as its ``failure`` with a ``detail`` text, stamped with its reference
+        time."""
+        r = self._rig.last_search(_CAMERA)
+        if outs:
+            (rig_frame,) = outs
+            res = self.output_of(rig_frame)
+            res.correspondences, res.frontend_seconds = r.found, r.seconds
+            res.points2d, res.points3d = r.points2d, r.points3d
+            return res
+        out = SequenceOutput(stamp_ns=frame_time.reference_ns, failure=r.failure)
         if r.failure == FRONTEND_FAILURES[2]:
-            out.failure = r.failure
             out.detail = (
                 f"the image is the previous one again (mean difference {r.difference:.2f} gray "
                 "levels over one pixel in 64): a driver re-sending its last frame or a stalled "
                 "camera; the next new image is searched whole"
             )
             return out
+        name = self._camera_frontend.label
         if r.failure == FRONTEND_FAILURES[0]:
-            e = r.error
-            out.failure, out.detail = r.failure, f"{name}: {type(e).__name__}: {e}"
+            out.detail = f"{name}: {type(r.error).__name__}: {r.error}"
             return out
-        found = out.correspondences = r.found
-        out.frontend_seconds = r.seconds
-        uv, xyz, scores = found.points2d, found.points, found.valid_scores()
-        if r.failure is not None:
-            what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
-            out.failure = r.failure
-            out.detail = (
-                f"{name} front end found {what}: {len(uv)} correspondences, {r.need} needed"
-            )
-            return out
-        uv, xyz, scores = self.valid_rows(uv, xyz, scores)
-        res = self._process(CameraFrame(stamp, camera, uv, xyz, scores, tag), t)
-        fe.observe(stamp, uv, res.estimate)
-        res.correspondences, res.frontend_seconds = found, out.frontend_seconds
-        res.points2d, res.points3d = uv, xyz
-        return res
+        out.correspondences, out.frontend_seconds = r.found, r.seconds
+        n = len(r.found.points2d)
+        what = f"{n // 4} markers" if name == "aruco" else f"{n} matches"
+        out.detail = f"{name} front end found {what}: {n} correspondences, {r.need} needed"
+        return out
 
     def predict(self, stamp_ns: int | FrameTime, camera: CameraModel) -> RSModel | None:
         """The prediction of a frame at ``stamp_ns`` (ns, header stamp: the capture time of

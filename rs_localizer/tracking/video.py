@@ -74,7 +74,11 @@ a rig frame posed from one camera while others run
 (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`), the cameras' disagreement. Its images
 (:meth:`Localizer.process_image`) are taken as the camera's: an image with fewer
 correspondences than its solver needs is skipped before the estimator
-(``frontend_too_few_points``). Its counters are the rig's (``rig.*``, ``<camera>.*``).
+(``frontend_too_few_points``). Its counters are the rig's (``rig.*``, ``<camera>.*``). As its
+camera's own video (``camera_video``: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
+the node's single camera) an image skipped before the estimator is its caller's to count and
+report (:meth:`Localizer.last_search`), and its images' rows are counted by the caller's
+``count``.
 
 With a gyro on the rig (:attr:`LocalizerSettings.imu`; samples fed by
 :meth:`Localizer.add_imu`) each rig frame is solved with the gyro's measurement over the rig
@@ -516,12 +520,13 @@ class _ImageInput:
     (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
     last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
     time)`` -> ``(stamp, pixels, camera model)``), per camera what its front end found in its
-    last image (None: not searched)."""
+    last image (None: not searched) and its last search (:meth:`Localizer.last_search`)."""
 
     def __init__(self):
         self.frontends: dict[str, CameraFrontend] = {}
         self.waiting: dict = {}
         self.found: dict[str, Correspondences | None] = {}
+        self.searched: dict[str, ImageSearch | None] = {}
 
 
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
@@ -554,7 +559,14 @@ class Localizer(GyroReadouts):
             report, :meth:`check_time`), its fused twists carry their frame's own tag
             rather than a camera -> tag dict, and its outputs' ``estimate`` is the camera's own
             (:attr:`LocalizerOutput.camera_estimate`: the model's velocities per unit RS coordinate,
-            not per second). Only for a rig of one (else ValueError).
+            not per second). Only for a rig of one (else ValueError). Its images
+            (:meth:`process_image`) are its camera's: an image the front end failed on,
+            found the previous one again or found too few correspondences in is not the
+            rig's to count (no frame received nor skipped, the idle timer not reset, no
+            warning): the caller reads the failure from :meth:`last_search` and reports it.
+        count: a camera video's counter of its images' rows (``count(key, n)``:
+            ``points_dropped``, ``capped_clouds``, ``capped_points``, under the caller's names;
+            its capping warned as ``capped``); None: counted ``<camera>.points_dropped`` etc.
 
     One camera and a rig share one clock and time-reset policy, one gyro input, one twist
     queue and one front-end driver per camera (:meth:`search_image`). A rig of one
@@ -596,6 +608,7 @@ class Localizer(GyroReadouts):
         *,
         gyro_input: GyroInput | None = None,
         camera_video: bool = False,
+        count: Callable[[str, int], Any] | None = None,
     ):
         if camera_video and not settings.single_camera:
             raise ValueError(
@@ -604,6 +617,7 @@ class Localizer(GyroReadouts):
         self.settings = settings
         # (a camera's own video: its warnings and its fused twists' tags are the camera's)
         self._rig = not camera_video
+        self._rows_count = count  # (a camera video's: its rows counted under its names)
         self._implementation = implementation
         self._impl: str | None = None  # (the rig frame being solved: its implementation)
         self.log: TrackLog = log if log is not None else SilentLog()
@@ -1149,6 +1163,14 @@ class Localizer(GyroReadouts):
         frozen image, the front end raised)."""
         return self._image_input().found.get(name)
 
+    def last_search(self, name: str) -> ImageSearch | None:
+        """Camera ``name``'s last image of :meth:`process_image` as searched
+        (:class:`~rs_localizer.tracking.localizer.ImageSearch`: its failure, the frozen image's
+        difference, the front end's error, correspondences, seconds and the points its solver
+        needs; ``points2d`` (M, 2) px, ``points3d`` (M, 3) m, the rows given to the
+        estimator); None before any, or without a camera model."""
+        return self._image_input().searched.get(name)
+
     def frontend(self, name: str) -> VideoFrontend | None:
         """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
         fe = self._image_input().frontends.get(name)
@@ -1278,7 +1300,7 @@ class Localizer(GyroReadouts):
     def process_image(
         self,
         name: str,
-        stamp_ns: int,
+        stamp_ns: int | FrameTime,
         image: np.ndarray,
         camera: CameraModel | None,
         encoding: str = "bgr8",
@@ -1309,9 +1331,13 @@ class Localizer(GyroReadouts):
         one), and an image whose front end found fewer correspondences than its solver needs
         (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
         marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
+        A camera's own video (``camera_video``) returns no rig frame for an image skipped
+        before the estimator and counts nothing for it (its caller reports the failure,
+        :meth:`last_search`); its rows are counted by its ``count`` and carry their scores.
 
         Args:
-            name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
+            name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``,
+                or the frame's :meth:`frame_time` when the caller made it (taken as it is).
             image: (H, W) or (H, W, C) uint8 in ``encoding``.
             camera: the camera's model with its RS timing; None: not known yet (the frame is
                 skipped as ``no_camera_info``, the front end does not run).
@@ -1327,13 +1353,18 @@ class Localizer(GyroReadouts):
         fe = img.frontends.get(name)
         if name not in self._cams or fe is None or fe.frontend is None:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
-        t = self.frame_time(name, stamp_ns, camera)  # (once: the prediction, its rig frame)
+        t = stamp_ns  # (once: the prediction, its rig frame)
+        if not isinstance(t, FrameTime):
+            t = self.frame_time(name, stamp_ns, camera)
         stamp, ref = t.stamp_ns, t.reference_ns
-        img.found[name] = None
+        img.found[name] = img.searched[name] = None
         if camera is None:
             frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
-        r = self._search(fe, name, t, image, camera, encoding)
+        r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
+        if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
+            img.found[name] = r.found
+            return []
         if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
@@ -1353,11 +1384,13 @@ class Localizer(GyroReadouts):
             return self._observed(self._drop(name, stamp, ref, r.failure))
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
-        uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
+        uv, xyz, scores = self._usable_rows(name, uv, xyz, found.valid_scores())
+        r.points2d, r.points3d = uv, xyz
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        return self._observed(
-            self._add(CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name), ref)
-        )
+        if self._rig:  # (a rig's cameras' frames without their scores)
+            scores = None
+        frame = CameraFrame(stamp, camera, uv, xyz, scores, tag, camera_name=name)
+        return self._observed(self._add(frame, ref))
 
     def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
         """The times of camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time of row
@@ -1387,8 +1420,8 @@ class Localizer(GyroReadouts):
         is) through its front end (:meth:`set_frontend`), before the estimator, by the rules
         of its video (:func:`~rs_localizer.tracking.localizer.search_image`: the
         frozen-image check, then the front end's search with :meth:`predict_camera`); what
-        :meth:`process_image` and a camera's
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image` run.
+        :meth:`process_image` runs on a rig camera's image and a camera's alike
+        (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image`).
 
         A rig of one camera adds its camera's rules, which a rig of several does not have:
         its time is noted first (:meth:`check_time`, unless the caller noted it already; after
@@ -1468,6 +1501,10 @@ class Localizer(GyroReadouts):
         (:func:`~rs_localizer.tracking.localizer.usable_rows`): without those holding a NaN or
         inf (counted ``<name>.points_dropped``), then at most :attr:`LocalizerSettings.max_points`
         (counted ``<name>.capped_clouds``, ``<name>.capped_points``; a warning)."""
+
+        if self._rows_count is not None:  # (a camera's video: under its caller's names)
+            return usable_rows(uv, xyz, scores, self.settings.max_points, self._rows_count,
+                               self.log.warning)  # fmt: skip
 
         def count(key: str, n: int) -> None:
             self.counts[f"{name}.{key}"] += n
