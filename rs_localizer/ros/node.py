@@ -217,11 +217,14 @@ class LocalizerCore(NodeCore):
 
     def _apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
         """The pipeline reconfigured (:meth:`_apply_config`); a solver change logged (and its
-        kernels warmed up with ``warmup``), reloaded landmarks logged."""
+        kernels warmed up with ``warmup``: loaded from numba's cache, or, not cached and the
+        solver has a NumPy implementation, compiled in another process while its frames are
+        solved uncompiled, as at start: the parameter service answers at once), reloaded
+        landmarks logged."""
         cfg, maps = built
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
             self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
-            self._warm_up(cfg)
+            self._warm_up(cfg, background=True)
         self._apply_config(cfg, maps)
         if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.get_logger().info(

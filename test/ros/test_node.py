@@ -1128,3 +1128,39 @@ def test_flood_accounting(tmp_path, ros_context, frames):
     finally:
         alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
+
+
+def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monkeypatch):
+    """A solver changed at run time warms up its kernels as the node's start does: kernels
+    not in numba's cache compile in another process (``background``) while the frames go on
+    uncompiled, instead of in the parameter callback, which would hold the node's executor
+    (no diagnostics, camera_info or parameter answers) for the whole compile."""
+    from types import SimpleNamespace
+
+    import rs_localizer.ros.node as N
+
+    calls = []
+    monkeypatch.setattr(N, "log_warm_up", lambda *a, **k: calls.append((a[0], a[-1], k)))
+    old = _config_of({})
+    new = _config_of({"solver": "p3p"})
+    logs = []
+    fake = SimpleNamespace(
+        cfg=old,
+        get_logger=lambda: SimpleNamespace(info=logs.append, warning=logs.append),
+        get_parameter=lambda name: SimpleNamespace(value=True),
+        _apply_config=lambda cfg, maps: None,
+    )
+    fake._warm_up = lambda cfg, background=False: N.LocalizerCore._warm_up(fake, cfg, background)
+    N.LocalizerCore._apply_change(fake, (new, None), {"solver": "p3p"})
+    assert calls == [("p3p", True, {})]
+    assert logs == [f"solver: {old.solver} -> p3p"]
+
+
+def _config_of(overrides):
+    """The node's configuration of its default parameters with ``overrides``."""
+    from rs_localizer.ros import config as C
+    from rs_localizer.ros import params as P
+
+    values = {k: p.default for k, p in P.PARAMETERS.items()}
+    values.update(overrides)
+    return C.build_config(values)
