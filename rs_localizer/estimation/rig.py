@@ -1580,9 +1580,6 @@ def _one_camera_alone(
         return None
     c = with_points[0]
     v, s = views[c], pool.slices[c]
-    flat = posed_planarity(pool.X[s])  # (single_tag.few_points's rule)
-    if flat is None:
-        return None
     spr = camera_values(v.camera).spr
     start = None
     if initial_model is not None:
@@ -1600,8 +1597,10 @@ def _one_camera_alone(
         if pool.all_valid:
             A = None if v.camera.distortion_model == "equidistant" else pool.A[s]
             seen = (pool.x[s], A)
-        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen, flat=flat)
+        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen)
     if est is None:
+        if posed_planarity(pool.X[s]) is None:  # (single_tag.few_points's rule)
+            return None
         cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
         est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
                                gyro=cam_gyro)  # fmt: skip
