@@ -200,7 +200,7 @@ from .rig_batch import (
     still_search,
 )
 from .sampling import draw_samples_numpy
-from .single_tag import posed_planarity
+from .single_tag import MIN_PLANAR_POINTS, posed_planarity
 
 __all__ = [
     "AGREE_SHARE",
@@ -1577,6 +1577,8 @@ def _one_camera_alone(
     # (fewer than the rig solver's sample and one more, or the options' min_inliers)
     need = max(options.ransac.min_inliers, 7)
     if pool.numpy or len(with_points) != 1 or len(pool.cam) >= need:
+        return None
+    if len(pool.cam) < MIN_PLANAR_POINTS:  # (too few for any pose: posed_planarity's rule)
         return None
     c = with_points[0]
     v, s = views[c], pool.slices[c]
