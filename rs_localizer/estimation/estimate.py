@@ -556,7 +556,6 @@ def few_points_pose(
     solver: str = "r6p_1lin",
     *,
     undistorted: tuple | None = None,
-    flat: float | None = None,
 ) -> FewPointsPose | None:
     """:func:`estimate_rs_pose`'s estimate of the frame (its arguments as there, without a
     gyro, the default implementation) when it poses it from a few points
@@ -570,9 +569,7 @@ def few_points_pose(
     passes what it has, and the estimate is the same: ``undistorted``: ``(x (N, 2), A (N, 4)
     or None)``, every row's undistorted normalized point and pixel Jacobian
     (:func:`~.frame.undistorted_frame`; a row it cannot take: the frame is prepared as
-    without it); ``flat``: the points' planarity in their given order
-    (:func:`~.single_tag.posed_planarity`), taken with ``undistorted`` only
-    (:func:`~.single_tag.few_points_planarity`).
+    without it).
 
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
@@ -586,9 +583,9 @@ def few_points_pose(
     fr = None
     if undistorted is not None:
         fr = undistorted_frame(points2d, points3d, *undistorted, camera, max_norm, rng)
-    if fr is None:  # (every row of the frame: the given planarity is of its points)
-        fr, flat = prepare_frame(points2d, points3d, camera, max_norm, rng), None
-    flat = few_points_planarity(fr, points_needed(solver, opts), flat)
+    if fr is None:
+        fr = prepare_frame(points2d, points3d, camera, max_norm, rng)
+    flat = few_points_planarity(fr, points_needed(solver, opts))
     if flat is None:
         return None
     try:

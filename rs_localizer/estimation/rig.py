@@ -200,7 +200,7 @@ from .rig_batch import (
     still_search,
 )
 from .sampling import draw_samples_numpy
-from .single_tag import posed_planarity
+from .single_tag import MIN_PLANAR_POINTS, posed_planarity
 
 __all__ = [
     "AGREE_SHARE",
@@ -1578,11 +1578,10 @@ def _one_camera_alone(
     need = max(options.ransac.min_inliers, 7)
     if pool.numpy or len(with_points) != 1 or len(pool.cam) >= need:
         return None
+    if len(pool.cam) < MIN_PLANAR_POINTS:  # (too few for any pose: posed_planarity's rule)
+        return None
     c = with_points[0]
     v, s = views[c], pool.slices[c]
-    flat = posed_planarity(pool.X[s])  # (single_tag.few_points's rule)
-    if flat is None:
-        return None
     spr = camera_values(v.camera).spr
     start = None
     if initial_model is not None:
@@ -1600,8 +1599,10 @@ def _one_camera_alone(
         if pool.all_valid:
             A = None if v.camera.distortion_model == "equidistant" else pool.A[s]
             seen = (pool.x[s], A)
-        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen, flat=flat)
+        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen)
     if est is None:
+        if posed_planarity(pool.X[s]) is None:  # (single_tag.few_points's rule)
+            return None
         cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
         est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
                                gyro=cam_gyro)  # fmt: skip

@@ -138,12 +138,6 @@ def few_points(points3d: np.ndarray) -> bool:
     return posed_planarity(X) is not None
 
 
-#: how far (absolute) a planarity of points in one order must be from
-#: :data:`~.degeneracy.PLANAR_TOLERANCE` to stand for their planarity in any other order
-#: (:func:`few_points_planarity`): the order changes it by rounding alone, ~1e-16
-_ORDER_MARGIN = 1e-9
-
-
 def posed_planarity(X: np.ndarray) -> float | None:
     """:func:`~.degeneracy.planarity` of the (N, 3) world points ``X`` (m, float64,
     C-contiguous) when :func:`few_points_estimate` poses them (:func:`coplanar_points`, or at
@@ -163,24 +157,15 @@ def _posed(flat: float, n: int) -> float | None:
     return flat if flat < PLANAR_TOLERANCE or n >= MIN_SPREAD_POINTS else None
 
 
-def few_points_planarity(fr: Frame, min_inliers: int, flat: float | None = None) -> float | None:
+def few_points_planarity(fr: Frame, min_inliers: int) -> float | None:
     """:func:`~.degeneracy.planarity` of the frame's points (one compiled call for the choice
     and the estimate) when :func:`few_points_estimate` poses the frame: fewer valid points
     than ``min_inliers`` (the solver's) and :func:`few_points`, or exactly
     :data:`MIN_PLANAR_POINTS` coplanar ones (one square marker's corners, whatever the
-    solver); None otherwise.
-
-    ``flat``: the planarity of the same points in another order when the caller has it
-    (:func:`posed_planarity` of a rig camera's points before the frame shuffled them): taken
-    instead when it is farther than :data:`_ORDER_MARGIN` from
-    :data:`~.degeneracy.PLANAR_TOLERANCE` (the order changes the planarity by rounding alone,
-    so the two fall on the same side of it); the value returned is then that one, for a
-    caller that only compares it with the tolerance."""
+    solver); None otherwise."""
     n = len(fr.x)
     if not (n < min_inliers or n == MIN_PLANAR_POINTS):
         return None
-    if flat is not None and n >= MIN_PLANAR_POINTS and abs(flat - PLANAR_TOLERANCE) > _ORDER_MARGIN:
-        return _posed(flat, n)
     # (exactly four points and enough for the solver: posed only as one marker, coplanar)
     return posed_planarity(fr.X)
 

@@ -569,6 +569,10 @@ def warm_rig(
             ok = np.isfinite(uv).all(1)
             views[still].append(RigView(uv[ok], points[name][ok], cam, m))
     estimate_rig_pose(views[True], settings.options)
+    # (one camera's four corners alone: a rig frame posed by that camera's few-points path,
+    # its frame taken from the rig's undistorted points)
+    cam, uv, X, _ = synthetic_problem(4, scene="planar")
+    estimate_rig_pose([RigView(uv, X, cam)], settings.options)
     if settings.imu is not None:
         gyro = GyroMeasurement(om, 1e-4 * np.eye(3))
         estimate_rig_pose(views[False], settings.options, gyro=gyro)

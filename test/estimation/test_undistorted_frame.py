@@ -10,11 +10,9 @@ import numpy as np
 import pytest
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation.degeneracy import planarity
 from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, few_points_pose
 from rs_localizer.estimation.frame import prepare_frame, undistorted_frame
 from rs_localizer.estimation.ransac import SeededShuffle
-from rs_localizer.estimation.single_tag import few_points_planarity
 from rs_localizer.geometry import rotvec_to_matrix
 
 K = np.array([[600.0, 0.0, 640.0], [0.0, 604.0, 400.0], [0.0, 0.0, 1.0]])
@@ -94,10 +92,9 @@ def test_undistorted_frame_refuses_what_the_preparation_leaves_out():
 
 @pytest.mark.parametrize("name", sorted(CAMERAS))
 def test_few_points_pose_of_undistorted_points_is_the_same(name):
-    """``few_points_pose`` given the undistorted points, the pixel Jacobians and the points'
-    planarity in their given order returns the same fields to the bit as without them (its own
-    preparation), on one tag, two tags and with a prediction; a NaN row falls back to the
-    preparation (still the same)."""
+    """``few_points_pose`` given the undistorted points and the pixel Jacobians returns the same
+    fields to the bit as without them (its own preparation), on one tag, two tags and with a
+    prediction; a NaN row falls back to the preparation (still the same)."""
     cam = CAMERAS[name]
     rng = np.random.default_rng(11)
     opts = EstimateOptions()
@@ -112,7 +109,7 @@ def test_few_points_pose_of_undistorted_points_is_the_same(name):
         A = None if A is None else A.reshape(-1, 4)
         im = InitialModel((R, C, np.full(3, 1e-4), np.full(3, -1e-4))) if pred else None
         want = few_points_pose(uv, X, cam, opts, im)
-        got = few_points_pose(uv, X, cam, opts, im, undistorted=(x, A), flat=planarity(X))
+        got = few_points_pose(uv, X, cam, opts, im, undistorted=(x, A))
         assert (want is None) == (got is None)
         if want is None:
             continue
@@ -127,15 +124,24 @@ def test_few_points_pose_of_undistorted_points_is_the_same(name):
     assert seen >= 3
 
 
-def test_a_planarity_near_the_tolerance_is_computed_again():
-    """The planarity of the points in another order stands for the frame's only away from the
-    tolerance: near it (where the order's rounding could cross it) the frame's own is used."""
-    cam = CAMERAS["pinhole"]
-    X, R, C = _corners(np.random.default_rng(2), 4)
-    uv = cam.project_rs(X, R, C)
-    fr = undistorted_frame(uv, X, cam.undistort(uv), None, cam, 1e3, SeededShuffle(0))
-    own = few_points_planarity(fr, 7)
-    assert own == planarity(fr.X) and own < 0.05
-    assert few_points_planarity(fr, 7, 0.01) == 0.01
-    assert few_points_planarity(fr, 7, 0.05 + 1e-12) == own
-    assert few_points_planarity(fr, 7, 0.2) is None  # (4 points, not coplanar: not posed)
+def test_arrays_of_another_layout_give_the_same_frame():
+    """Read-only or Fortran-ordered arrays (taken in NumPy, not by the compiled call) give the
+    same frame to the bit as C-ordered writeable ones, with and without the Jacobians."""
+    cam = CAMERAS["plumb_bob_rs"]
+    rng = np.random.default_rng(7)
+    X, R, C = _corners(rng, 8)
+    uv = cam.project_rs(X, R, C) + rng.normal(0, 0.3, (8, 2))
+    x = cam.undistort(uv)
+    A = cam.pixel_jacobian_exact(x).reshape(-1, 4)
+    for jac in (A, None):
+        want = _frame_fields(undistorted_frame(uv, X, x, jac, cam, 1e3, SeededShuffle(1)))
+        ro = [a.copy() for a in (uv, X, x)]
+        for a in ro:
+            a.flags.writeable = False
+        for u2, X2, x2 in (ro, [np.asfortranarray(a) for a in (uv, X, x)]):
+            fr = undistorted_frame(u2, X2, x2, jac, cam, 1e3, SeededShuffle(1))
+            for k, v in _frame_fields(fr).items():
+                if isinstance(v, np.ndarray):
+                    assert np.array_equal(v, want[k]) and v.dtype == want[k].dtype, k
+                else:
+                    assert v == want[k], k
