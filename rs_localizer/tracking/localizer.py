@@ -479,14 +479,14 @@ class CameraFrontend:
         if label is not None:
             self.label = label
 
-    def frozen(self, image: np.ndarray, level: float, check: bool = True) -> float | None:
+    def frozen(self, image: np.ndarray, level: float) -> float | None:
         """Note the camera's image (H, W) or (H, W, C) uint8; the mean absolute difference
         (gray levels) from its last image when it is the same picture again
-        (:func:`same_image` within ``level``), else None (also when not ``check`` or
-        ``level`` < 0: never)."""
+        (:func:`same_image` within ``level``), else None (also with ``level`` < 0: never, and
+        without a last image: the first, or the first after a time reset)."""
         sample = image_sample(image)
         prev, self.last_sample = self.last_sample, sample
-        if not check or level < 0:
+        if level < 0:
             return None
         return same_image(prev, sample, level)
 
@@ -563,15 +563,14 @@ def search_image(
     prediction: Callable[[], RSModel | None],
     *,
     level: float = FROZEN_IMAGE_LEVEL,
-    check: bool = True,
 ) -> ImageSearch:
     """A camera's image through its front end ``fe``, before the estimator: the frozen-image
-    check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``: the front end told
-    that its tracks are stale, ``observe(stamp_ns, None, None)``), the frame's prediction
+    check (:meth:`CameraFrontend.frozen` within ``level``: the front end told that its tracks
+    are stale, ``observe(stamp_ns, None, None)``), the frame's prediction
     (``prediction()``: the video's model of the frame seen by ``camera``, None when nothing
     predicts it; asked only for an image that is searched), the front end's search with it.
     What a camera's video and each camera of a rig run on an image."""
-    diff = fe.frozen(image, level, check)
+    diff = fe.frozen(image, level)
     if diff is not None:
         fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
         return ImageSearch("frozen_image", difference=diff)

@@ -384,10 +384,7 @@ class SequenceLocalizer(GyroReadouts):
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
         """
-        why = self._rig.check_time(stamp_ns)
-        if why is not None:  # (a new timeline: its first image is no repeat of the last)
-            self._camera_frontend.last_sample = None
-        return why
+        return self._rig.check_time(stamp_ns)
 
     # ---------------------------------------------------------------- images
     @property

@@ -1047,8 +1047,10 @@ class Localizer(GyroReadouts):
         once per frame: :meth:`check_time` notes it ahead of the frame (the node, to act on a
         time reset before the frame is decoded), then the frame's image search
         (:meth:`search_image`) and :meth:`add` take it as noted. Returns the time reset's
-        detail (None: none, or noted already). (A time the clock noted last is its newest
-        again: noting it twice would change nothing.)"""
+        detail (None: none, or noted already); on a time reset the camera's last image is
+        forgotten: a new timeline's first image is not compared with it (frozen image). (A
+        time the clock noted last is its newest again: noting it twice would change
+        nothing.)"""
         if t == self._noted:
             return None
         self._noted = t
@@ -1056,6 +1058,9 @@ class Localizer(GyroReadouts):
         if reset is None:
             return None
         self._time_reset(reset)
+        img = self.__dict__.get("_img")
+        for fe in () if img is None else img.frontends.values():
+            fe.last_sample = None
         return reset.detail
 
     def restart_track(self) -> None:
@@ -1425,7 +1430,7 @@ class Localizer(GyroReadouts):
 
         A rig of one camera adds its camera's rules, which a rig of several does not have:
         its time is noted first (:meth:`check_time`, unless the caller noted it already; after
-        a time reset noted here the image is not compared with the last one), a frozen image
+        a time reset the image is not compared with the last one), a frozen image
         makes its next frame start a new track (:meth:`restart_track`: the camera moved by an
         unknown amount unseen, while a rig's other cameras keep its track), and an image with
         fewer correspondences than its solver needs fails ``frontend_too_few_points``
@@ -1456,13 +1461,12 @@ class Localizer(GyroReadouts):
         """:meth:`search_image` with camera ``name``'s front end ``fe`` and the frame's times
         ``t`` (its stamp checked, its reference time)."""
         stamp, ref = t.stamp_ns, t.reference_ns
-        # (a rig of one, as its camera: its time noted first, unless check_time noted it;
-        # after a time reset its image is not compared with the last one)
-        reset = self._single and self._note_alone(self._on_clock(name, stamp)) is not None
+        if self._single:  # (as its camera: its time noted first, unless check_time noted it)
+            self._note_alone(self._on_clock(name, stamp))
         view = self._cams[name]
         r = search_image(
             fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),
-            level=self.settings.frozen_image_level, check=not reset,
+            level=self.settings.frozen_image_level,
         )  # fmt: skip
         if not self._single:
             return r
