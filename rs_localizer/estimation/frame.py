@@ -38,6 +38,7 @@ __all__ = [
     "RefinementView",
     "camera_values",
     "configure_frame",
+    "kernel_ready",
     "prepare_frame",
     "undistorted_frame",
     "varying_pixel_jacobian",
@@ -354,7 +355,7 @@ def undistorted_frame(
     r0, focal, varying, d, _, _ = camera_values(camera)
     J = jacobians if varying else None  # (a camera whose Jacobian does not vary: no W)
     arrays = (u, X, undistorted) if J is None else (u, X, undistorted, J)
-    if rows.dtype == np.int64 and all(_kernel_ready(a) for a in arrays):
+    if rows.dtype == np.int64 and all(kernel_ready(a) for a in arrays):
         # (the rows taken, checked and their RS coordinates in one compiled call: the same
         # formulas, the same values)
         axis, sign, _ = READOUT_DIRECTIONS[camera.readout]
@@ -392,12 +393,13 @@ _NOT_FINITE, _TAKEN, _LEFT_OUT = 0, 1, 2
 _NO_JACOBIANS = np.zeros((0, 4))
 
 
-def _kernel_ready(a: np.ndarray) -> bool:
-    """Whether ``a`` is a C-contiguous, writeable float64 array: the type
-    :func:`_undistorted_rows` is compiled for (another would compile another specialization
-    on a rig frame)."""
+def kernel_ready(a: np.ndarray) -> bool:
+    """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
+    small kernels of a frame's preparation (:func:`_undistorted_rows`, the rig's view
+    preparation, :mod:`~.rig`) are compiled for and warmed up with (another layout or a
+    read-only array would compile another specialization during a frame)."""
     f = a.flags
-    return bool(f.c_contiguous and f.writeable and a.dtype == np.float64)
+    return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
 
 
 @njit(cache=True)

@@ -152,7 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import camera_values
+from .frame import camera_values, kernel_ready
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -585,11 +585,11 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     stamp = float(v.stamp_offset)
     args = None if numpy else args  # (a distorted camera's, compiled)
     # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
-    if args is not None and spr == 0.0 and _kernel_ready(uv) and _kernel_ready(X):
+    if args is not None and spr == 0.0 and kernel_ready(uv) and kernel_ready(X):
         # (a global shutter with distortion: the checks and rows below in one compiled call
         # when every row is finite)
         x = cam.undistort(uv)
-        if _kernel_ready(x):
+        if kernel_ready(x):
             finite, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
             if finite:
                 return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
@@ -650,18 +650,10 @@ def _finite_kernel(a, b):
     return True
 
 
-def _kernel_ready(a: np.ndarray) -> bool:
-    """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
-    small kernels here are compiled for (the warm-up compiles those; another layout or a
-    read-only array would compile another specialization on a rig frame)."""
-    f = a.flags
-    return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
-
-
 def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
     """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
     in NumPy, nothing compiles)."""
-    if numpy or not (_kernel_ready(a) and _kernel_ready(b)):
+    if numpy or not (kernel_ready(a) and kernel_ready(b)):
         return all_finite(a, b)
     return bool(_finite_kernel(a, b))
 
@@ -848,7 +840,7 @@ class _Pool:
             return self._sizes_valid
         if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one camera: all its points)
             return (int(np.count_nonzero(mask)),)
-        if self.numpy or mask.dtype != np.bool_ or not _kernel_ready(mask):
+        if self.numpy or mask.dtype != np.bool_ or not kernel_ready(mask):
             return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
         return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
 
