@@ -47,7 +47,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
@@ -56,7 +56,7 @@ from .frame_queue import FrameQueue
 from .outputs import fused_messages
 from .params import PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
-from .qos import RELIABLE, output_events
+from .qos import CLOUD_QOS, IMAGE_QOS, RELIABLE, output_events
 from .status_msg import status_message
 from .visualization import NodeVisualization
 
@@ -121,11 +121,13 @@ class NodeCore:
     ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
     :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
     ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
-    ``_idle_twists()`` (:meth:`_flush_idle_track`), ``_map_frame()`` and ``_log`` (its
+    ``_idle_twists()`` (:meth:`_flush_idle_track`) and ``_log`` (its
     :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per period), its
-    cameras as data (:attr:`inputs`, :attr:`camera_counts`, :attr:`queue_size`,
-    :attr:`images_of`, :attr:`frontend_kind`), and the worker's parts (module docstring):
-    ``_warn_busy(size)``, ``_take_frame(item, camera)`` and ``_publish_taken(item, taken)``.
+    cameras and outputs as data (:attr:`inputs`, :attr:`camera_counts`, :attr:`queue_size`,
+    :attr:`images_of`, :attr:`frontend_kind`, :attr:`image_transport`, :attr:`landmarks`,
+    :attr:`republish`, :attr:`map_frame`; the mode's topics and texts as the class
+    attributes below), and the worker's parts (module docstring): ``_take_frame(item,
+    camera)`` and ``_publish_taken(item, taken)``.
 
     Attributes:
         inputs: camera name ("" for the single camera) -> its
@@ -137,6 +139,12 @@ class NodeCore:
         images_of: camera name -> where its front end's images come from, as a warning names
             them (its image topic; absent: no front end on its images).
         frontend_kind: the front end on the images (``frontend``).
+        image_transport: ``raw`` or ``compressed`` (``image_transport``).
+        landmarks: the table of ``landmarks_file`` (``(ids, points)``) keypoints name (None:
+            none).
+        republish: ``republish_correspondences``: what a front end found in an image to its
+            camera's ``correspondences_out``.
+        map_frame: the frame the poses and fused twists are published in (``map_frame``).
     """
 
     _frames = None  # (the frame queue: made by the core)
@@ -149,6 +157,29 @@ class NodeCore:
     queue_size = 0
     images_of: Mapping = MappingProxyType({})  # (made with the frame inputs)
     frontend_kind = "none"
+    image_transport = "raw"
+    landmarks = None
+    republish = False
+    map_frame = "map"
+    _configured = False  # (configure done: the node's configuration in use)
+    #: the mode's frame inputs (:meth:`_subscribe_frame_inputs`), under each camera's name (a
+    #: rig camera's ``<c>/``): the kind its correspondences clouds are queued as, its image
+    #: topic, whether its keypoints are subscribed without a ``landmarks_file``, whether its
+    #: ``image/compressed`` topic is the resolved image topic's, what a warning names its
+    #: images as (None: the image topic) and whether its ``camera_info`` QoS is overridable
+    _cloud_kind = "cloud"
+    _image_topic = "image_raw"
+    _keypoints_always = False
+    _resolve_compressed = False
+    _images_text: str | None = "the camera's images"
+    _info_qos_overridable = False
+    #: the full queue's warning (:meth:`_warn_busy`): its key and its text, formatted with
+    #: ``size`` (frames), ``queue_size`` (per camera) and ``dropped`` (so far)
+    _busy_key = "queue_full"
+    _busy_text = (
+        "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
+        "the oldest waiting frame [{dropped} dropped so far]"
+    )
     #: the single camera counts its image frames (``image_frames``)
     _count_image_frames = False
     _first_frame: float | None = None  # (monotonic s: the first frame received)
@@ -212,7 +243,7 @@ class NodeCore:
 
     def _has_configuration(self) -> bool:
         """Whether the node is configured (a managed node before ``configure`` is not)."""
-        raise NotImplementedError
+        return self._configured
 
     def _changed_configuration(self, overrides: dict):
         """The configuration the node would run with after the change ``overrides`` (name ->
@@ -248,6 +279,53 @@ class NodeCore:
             return SetParametersResult(successful=False, reason=str(e))
         self._apply_change(built, overrides)
         return SetParametersResult(successful=True)
+
+    def _create_outputs(self) -> None:
+        """The outputs: the pose outputs and ``/diagnostics`` (:meth:`_create_pose_outputs`),
+        the debug views (:meth:`_create_views`) and, with a front end and
+        ``republish_correspondences``, each camera's ``correspondences_out`` (else made when
+        first needed)."""
+        self._create_pose_outputs()
+        self._create_views()
+        if self.republish and self.frontend_kind != "none":
+            for name in self._camera_names():
+                self._corr_out_publisher(name)
+
+    def _create_info_inputs(self) -> None:
+        """Each camera's ``camera_info`` (:meth:`_subscribe_info`), created before the frame
+        inputs: a camera_info ready together with a frame is taken first."""
+        overriding = QoSOverridingOptions.with_default_policies
+        for name in self._camera_names():
+            self._subscribe_info(name, overriding() if self._info_qos_overridable else None)
+
+    def _create_frame_inputs(self) -> None:
+        """The frame subscriptions (:meth:`_subscribe_frame_inputs`), then the diagnostics
+        timer, the idle-track timer and the worker thread (:meth:`_start_frames`)."""
+        self._subscribe_frame_inputs()
+        self._start_frames()
+
+    def _subscribe_frame_inputs(self) -> None:
+        """Each camera's frame inputs (a rig camera's under ``<c>/``; :meth:`_subscribe_frames`):
+        ``correspondences``; ``keypoints`` (a rig's: with a ``landmarks_file``); with a front
+        end its images (``image`` of the single camera, ``<c>/image_raw`` of a rig camera;
+        ``image_transport: compressed``: that topic + ``/compressed``, sensor_msgs/
+        CompressedImage), noted in :attr:`images_of`."""
+        images = {}
+        for n in self._camera_names():
+            p = f"{n}/" if n else ""
+            self._subscribe_frames(n, self._cloud_kind, PointCloud2, f"{p}correspondences",
+                                   CLOUD_QOS)  # fmt: skip
+            if self._keypoints_always or self.landmarks is not None:
+                self._subscribe_frames(n, "keypoints", PointCloud2, f"{p}keypoints", CLOUD_QOS)
+            if self.frontend_kind == "none":
+                continue
+            topic, msg_type = p + self._image_topic, Image
+            if self.image_transport == "compressed":  # (on image_transport's topic name)
+                resolved = self.resolve_topic_name(topic) if self._resolve_compressed else topic
+                topic, msg_type = resolved + "/compressed", CompressedImage
+            sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
+            images[n] = self._images_text or sub.topic_name
+        self.images_of = images
 
     def _create_pose_outputs(self) -> None:
         """The publishers of the pose outputs (:data:`POSE_OUTPUTS`), ``/tf`` with
@@ -299,6 +377,13 @@ class NodeCore:
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
+
+    def _warn_busy(self, size: int) -> None:
+        """A full queue of ``size`` frames dropped its oldest (:meth:`_enqueue`): a throttled
+        warning (the mode's :attr:`_busy_key` and :attr:`_busy_text`)."""
+        text = self._busy_text.format(size=size, queue_size=self.queue_size,
+                                      dropped=self._frames.dropped)  # fmt: skip
+        self._log.warning(self._busy_key, text)
 
     def _subscribe_info(self, name: str, qos_overriding=None):
         """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
@@ -467,6 +552,7 @@ class NodeCore:
         for sub in self._frame_subs:
             self.destroy_subscription(sub)
         self._frame_subs = []
+        self.images_of = {}
         for timer in (self._diag_timer, self._flush_timer):
             if timer is not None:
                 self.destroy_timer(timer)
@@ -502,9 +588,9 @@ class NodeCore:
     def _publish_fused(self, fused) -> None:
         """twist and odom of the frames whose fused twist is final (``fused``:
         :class:`~rs_localizer.ros.pipeline.FusedOutput` s, :func:`.outputs.fused_messages`
-        in the core's ``_map_frame()``)."""
+        in :attr:`map_frame`)."""
         if fused:
-            self._publish(fused_messages(fused, self._map_frame(), self._wanted))
+            self._publish(fused_messages(fused, self.map_frame, self._wanted))
 
     def _release_inputs(self) -> None:
         """The part of ``_release_configured`` both cores share: the camera_info and imu

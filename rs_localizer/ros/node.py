@@ -45,7 +45,7 @@ from typing import Any
 
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import Imu
 
 from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
@@ -55,7 +55,7 @@ from .frame_queue import frame_accounting
 from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
+from .qos import IMU_QOS
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
 
@@ -78,6 +78,18 @@ class LocalizerCore(NodeCore):
 
     pipeline = None  # (None: before _init_state)
     _count_image_frames = True
+    # (the single camera's topics and texts: :class:`~rs_localizer.ros.core.NodeCore`'s)
+    _cloud_kind = "correspondences"
+    _image_topic = "image"
+    _keypoints_always = True
+    _resolve_compressed = True
+    _images_text = None
+    _info_qos_overridable = True
+    _busy_key = "skipped"
+    _busy_text = (
+        "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
+        "[{dropped} skipped so far]"
+    )
     _warned_rs = False  # (a warning given once per node: set on the instance when given)
 
     @property
@@ -92,7 +104,7 @@ class LocalizerCore(NodeCore):
         self.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
         self.camera_counts = {"": self.pipeline.stats}
         self._frames = self._new_queue()
-        self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
+        self._configured = False
 
     def _configure(self):
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
@@ -111,43 +123,20 @@ class LocalizerCore(NodeCore):
             log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.get_logger(),
                         cfg.imu is not None, background)  # fmt: skip
 
-    def _create_outputs(self):
-        self._create_pose_outputs()
-        self._create_views()  # (debug_image, markers, path; viz.* parameters)
-        if self.cfg.republish_correspondences and self._maps().frontend is not None:
-            self._corr_out_publisher()
-
     def _create_info_inputs(self):
-        """camera_info and, with imu.enabled (read-only), the gyro's imu; created before the
-        frame inputs: a camera_info or IMU sample ready together with a frame is taken first."""
-        qos = QoSOverridingOptions.with_default_policies()
-        self.sub_info = self._subscribe_info("", qos)
+        """camera_info (:meth:`.core.NodeCore._create_info_inputs`) and, with imu.enabled
+        (read-only), the gyro's imu; created before the frame inputs: a camera_info or IMU
+        sample ready together with a frame is taken first."""
+        super()._create_info_inputs()
         if self.cfg.imu is not None:
-            self.sub_imu = self.create_subscription(
+            qos = QoSOverridingOptions.with_default_policies()
+            self._info_subs.append(self.create_subscription(
                 Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
-            )
-            self._info_subs.append(self.sub_imu)
-
-    def _create_frame_inputs(self):
-        """The frame subscriptions, the diagnostics timer and the worker thread."""
-        self.sub_corr = self._subscribe_frames(
-            "", "correspondences", PointCloud2, "correspondences", CLOUD_QOS
-        )
-        self.sub_kp = self._subscribe_frames("", "keypoints", PointCloud2, "keypoints", CLOUD_QOS)
-        self.sub_image = None
-        if self._maps().frontend is not None:  # (compressed: on image_transport's topic name)
-            compressed = self.cfg.image_transport == "compressed"
-            topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
-            msg_type = CompressedImage if compressed else Image
-            self.sub_image = self._subscribe_frames("", "image", msg_type, topic, IMAGE_QOS)
-            self.images_of = {"": self.sub_image.topic_name}
-        self._start_frames()
+            ))  # fmt: skip
 
     def _frame_inputs_destroyed(self):
         """After the frame inputs' end (the frames still queued dropped): the track is
         dropped too (nothing is left for :meth:`_end_video` to publish)."""
-        self.sub_corr = self.sub_kp = self.sub_image = None
-        self.images_of = {}
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
 
     def _release_configured(self):
@@ -172,8 +161,8 @@ class LocalizerCore(NodeCore):
         landmarks = self._maps().landmarks
         if landmarks:
             text += f", {len(landmarks[0])} landmarks from {cfg.landmarks_file}"
-        if self.sub_image is not None:
-            text += f", {cfg.frontend_kind} front end on {self.sub_image.topic_name} (map "
+        if "" in self.images_of:
+            text += f", {cfg.frontend_kind} front end on {self.images_of['']} (map "
             text += f"{cfg.frontend_map})"
         self.get_logger().info(text)
 
@@ -188,6 +177,9 @@ class LocalizerCore(NodeCore):
         # (the RS timing may have changed: camera models rebuilt)
         self.pipeline.configure(cfg, maps)
         self.queue_size, self.frontend_kind = cfg.queue_size, cfg.frontend_kind
+        self.image_transport, self.landmarks = cfg.image_transport, maps.landmarks
+        self.republish, self.map_frame = bool(cfg.republish_correspondences), cfg.map_frame
+        self._configured = True
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
@@ -205,9 +197,6 @@ class LocalizerCore(NodeCore):
         if note is not None and not self._warned_rs:
             self._warned_rs = True  # (once per node)
             self.get_logger().warning(note)
-
-    def _has_configuration(self) -> bool:
-        return self.cfg is not None
 
     def _changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, LoadedMaps]:
         """The configuration of the parameters with ``overrides`` and the maps it names
@@ -232,13 +221,6 @@ class LocalizerCore(NodeCore):
             )
 
     # ------------------------------------------------------------------ frames
-    def _warn_busy(self, size: int) -> None:
-        self._log.warning(
-            "skipped",
-            f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
-            f"frame [{self._frames.dropped} skipped so far]",
-        )
-
     def _take_frame(self, item: QueuedFrame, camera=None) -> TakenFrame:
         """The worker: one frame through the pipeline (its stamp checked as it arrived),
         counted ``solved`` or ``failed.<reason>``; with ``republish_correspondences`` what the
@@ -285,9 +267,6 @@ class LocalizerCore(NodeCore):
 
     def _idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)
-
-    def _map_frame(self) -> str:
-        return self.cfg.map_frame
 
     # ------------------------------------------------------------------ diagnostics
     def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:

@@ -78,7 +78,7 @@ from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
-from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import Imu
 
 from ..camera import CameraModel, Stamp
 from ..frontends.shared import SHARED_MAPS
@@ -116,7 +116,7 @@ from .pipeline import (
     take_gyro_sample,
     warm_kernels,
 )
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
+from .qos import IMU_QOS
 from .visualization import rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
@@ -168,7 +168,6 @@ class RigCore(NodeCore):
         self._init_plumbing()
         self._outputs = []
         self.viz, self.camera_viz = None, {}  # (path; each camera's debug_image, markers)
-        self._configured = False
 
     def _configure(self) -> None:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
@@ -259,37 +258,15 @@ class RigCore(NodeCore):
         warm_kernels(kernels, "rig", warm, self.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
 
-    def _create_outputs(self) -> None:
-        self._create_pose_outputs()
-        self._create_views()  # (path: the rig's poses; each camera's debug_image, markers)
-        if self.republish and self.frontend_kind != "none":  # (else made when first needed)
-            for c in self.config.cameras:
-                self._corr_out_publisher(c.name)
-
-    def _create_info_inputs(self) -> None:
-        for c in self.config.cameras:
-            self._subscribe_info(c.name)
-
-    def _create_frame_inputs(self) -> None:
-        """Per camera ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints`` and,
-        with a front end, ``<c>/image_raw`` (or ``<c>/image_raw/compressed``); the
-        diagnostics timer."""
-        self.images_of = {}
-        for c in self.config.cameras:
-            n = c.name
-            self._subscribe_frames(n, "cloud", PointCloud2, f"{n}/correspondences", CLOUD_QOS)
-            if self.landmarks is not None:  # (keypoints name the landmarks_file's points)
-                self._subscribe_frames(n, "keypoints", PointCloud2, f"{n}/keypoints", CLOUD_QOS)
-            if self.frontend_kind != "none":
-                compressed = self.image_transport == "compressed"
-                topic = f"{n}/image_raw" + ("/compressed" if compressed else "")
-                msg_type = CompressedImage if compressed else Image
-                self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
-                self.images_of = {**self.images_of, n: "the camera's images"}
+    def _subscribe_frame_inputs(self) -> None:
+        """Each camera's frame inputs (:meth:`.core.NodeCore._subscribe_frame_inputs`:
+        ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints``, with a front end
+        ``<c>/image_raw`` or ``<c>/image_raw/compressed``), then with ``imu.enabled`` the rig's
+        ``imu`` (its rejected samples counted anew)."""
+        super()._subscribe_frame_inputs()
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
-        self._start_frames()
 
     def _close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
         """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
@@ -332,9 +309,6 @@ class RigCore(NodeCore):
             self.get_logger().warning(self.config.unused_text)
 
     # ---------------------------------------------------------------- parameters
-    def _has_configuration(self) -> bool:
-        return self._configured
-
     def _changed_configuration(
         self, overrides: dict, check: bool = True
     ) -> tuple[RigConfig, LocalizerConfig]:
@@ -392,14 +366,6 @@ class RigCore(NodeCore):
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
         self.camera_counts[name].add(key, n)
-
-    def _warn_busy(self, size: int) -> None:
-        self._log.warning(
-            "queue_full",
-            f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
-            f"camera), dropped the oldest waiting frame "
-            f"[{self._frames.dropped} dropped so far]",
-        )
 
     def _same_rig_frame(self, batch: list, item) -> bool:
         """Whether a waiting frame goes with the frames the worker takes (``batch``): another
@@ -580,9 +546,6 @@ class RigCore(NodeCore):
             return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
         finally:
             self._worker_lock.release()
-
-    def _map_frame(self) -> str:
-        return self.map_frame
 
     def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
