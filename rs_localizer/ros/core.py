@@ -3,14 +3,18 @@
 :class:`NodeCore` is the base of the camera's :class:`~rs_localizer.ros.node.LocalizerCore`
 and the rig's :class:`~rs_localizer.ros.rig_node.RigCore`: the output publishers (``pose``,
 ``twist``, ``pose_with_covariance``, ``odom``, ``twist_single_frame``, ``/tf``,
-``/diagnostics``), the frame queue's worker and the timers (diagnostics, the idle track's
-flush) started and stopped with the frame inputs, the subscriptions destroyed, the
-visualizations closed, the latency and stamp-age record, the diagnostics published and the
-node destroyed. A core adds what differs: its frame inputs, what the worker does with a frame
-(a camera's :class:`~rs_localizer.ros.pipeline.FramePipeline`, or the rig's cameras and its
+``/diagnostics``, ``correspondences_out``), each camera's ``camera_info`` and frame
+subscriptions (the mode's topic names as data: ``correspondences``, ``keypoints``, ``image``
+of the single camera; ``<c>/correspondences``, ``<c>/keypoints``, ``<c>/image_raw`` of a rig
+camera), the frame queue's worker and the timers (diagnostics, the idle track's flush)
+started and stopped with the frame inputs, the subscriptions destroyed, the visualizations
+closed, the latency and stamp-age record, the diagnostics published and the node destroyed.
+A core adds what differs: its configuration, what the worker does with a frame (a camera's
+:class:`~rs_localizer.ros.pipeline.FramePipeline`, or the rig's cameras and its
 :class:`~rs_localizer.tracking.video.Localizer`), what it publishes and its status.
 
-A core's phases, run by :class:`RSLocalizerNode` / :class:`RigLocalizerNode` at construction
+A core's phases, run by :class:`~rs_localizer.ros.node.RSLocalizerNode` /
+:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` at construction
 (:meth:`NodeCore._start_unmanaged`) or by the managed node's transitions
 (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`): ``_declare_parameters``,
 ``_init_state``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
@@ -194,9 +198,27 @@ class NodeCore:
     def _declare_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
 
+    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
+        """The node (``node_name`` and ``kwargs`` to the rclpy ``Node`` or ``LifecycleNode``
+        it is mixed into), then its start (:meth:`_start`).
+
+        Raises:
+            RuntimeError: a node that is not managed, with invalid parameters (the message
+                names them).
+        """
+        super().__init__(node_name, **kwargs)
+        self._start()
+
+    def _start(self) -> None:
+        """The node's start (a node that is not managed: :meth:`_start_unmanaged`; the
+        managed node's: :meth:`.lifecycle.ManagedTransitions._start`)."""
+        self._start_unmanaged()
+
     def _init_state(self) -> None:
-        """The core's state before ``configure`` (nothing by default: the rig's is made with
+        """The core's state before ``configure``: the shared plumbing's
+        (:meth:`_init_plumbing`; the camera's adds its pipeline, the rig's state is made with
         its parameters)."""
+        self._init_plumbing()
 
     def _start_unmanaged(self) -> None:
         """The construction of a node that is not managed

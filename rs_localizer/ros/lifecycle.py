@@ -39,8 +39,6 @@ phases that the camera's and the rig's cores (:class:`~.node.LocalizerCore`,
 
 from __future__ import annotations
 
-from typing import Any
-
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from .node import LocalizerCore
@@ -68,6 +66,20 @@ class ManagedTransitions:
     """
 
     _outputs: list
+    #: the mode in the log line of the start (``unconfigured (lifecycle node...)``)
+    _mode_note = ""
+
+    def _start(self) -> None:
+        """The managed node's start (in the core's construction): the parameters declared,
+        the core's state before ``configure``, parameter changes taken (checked at
+        ``configure``); nothing configured."""
+        self._declare_parameters()
+        self._init_state()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._outputs = []
+        self.get_logger().info(
+            f"unconfigured (lifecycle node{self._mode_note}: configure, then activate)"
+        )
 
     def _configured_as(self) -> str:
         raise NotImplementedError
@@ -130,14 +142,6 @@ class RSLocalizerLifecycleNode(ManagedTransitions, LocalizerCore, LifecycleNode)
     """The managed localizer node (see the module docstring). ``node_name`` and ``kwargs`` go to
     :class:`rclpy.lifecycle.LifecycleNode`."""
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
-        LifecycleNode.__init__(self, node_name, **kwargs)
-        self._declare_parameters()
-        self._init_state()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._outputs = []
-        self.get_logger().info("unconfigured (lifecycle node: configure, then activate)")
-
     def _configured_as(self) -> str:
         return f"solver {self.cfg.solver}"
 
@@ -146,11 +150,7 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
     """The rig mode as a managed node (see the module docstring). ``node_name`` and ``kwargs``
     go to :class:`rclpy.lifecycle.LifecycleNode`."""
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
-        LifecycleNode.__init__(self, node_name, **kwargs)
-        self._declare_parameters()
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.get_logger().info("unconfigured (lifecycle node, rig mode: configure, then activate)")
+    _mode_note = ", rig mode"
 
     def _configured_as(self) -> str:
         return f"rig of {len(self.config.cameras)} cameras"

@@ -41,7 +41,6 @@ Publications (reliable, depth 10):
 from __future__ import annotations
 
 import time
-from typing import Any
 
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -98,7 +97,7 @@ class LocalizerCore(NodeCore):
         return None if self.pipeline is None else self.pipeline.config
 
     def _init_state(self):
-        self._init_plumbing()
+        super()._init_state()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
         self._log = self.pipeline.log
         self.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
@@ -297,7 +296,3 @@ class RSLocalizerNode(LocalizerCore, Node):
     Raises:
         RuntimeError: invalid parameters (the message names the parameter).
     """
-
-    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
-        Node.__init__(self, node_name, **kwargs)
-        self._start_unmanaged()

@@ -165,9 +165,6 @@ class RigCore(NodeCore):
         super()._declare_parameters()
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
         _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
-        self._init_plumbing()
-        self._outputs = []
-        self.viz, self.camera_viz = None, {}  # (path; each camera's debug_image, markers)
 
     def _configure(self) -> None:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
@@ -609,7 +606,3 @@ class RigLocalizerNode(RigCore, Node):
         RuntimeError: invalid parameters, e.g. a camera without ``rig.<camera>.mounting``
             (the message names it).
     """
-
-    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
-        Node.__init__(self, node_name, **kwargs)
-        self._start_unmanaged()
