@@ -1070,3 +1070,37 @@ def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
         assert not any(k.endswith(".frames_beside_frontend") for k in v), v
     finally:
         h.close()
+
+
+def test_each_camera_subscribes_its_topics_under_its_name(ros_context, tmp_path):
+    """Each rig camera's inputs under ``<c>/``: ``camera_info`` and ``correspondences``;
+    ``keypoints`` only with a ``landmarks_file``; with a front end its images on
+    ``<c>/image_raw`` (``sensor_msgs/Image``), with ``image_transport: compressed`` on
+    ``<c>/image_raw/compressed`` (``sensor_msgs/CompressedImage``); the rig's ``imu`` with
+    ``imu.enabled``. The topics and types are read from the node's subscriptions."""
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cams = default_rig(2)
+    table = tmp_path / "landmarks.csv"
+    table.write_text("id,x,y,z\n1,0.0,0.0,1.0\n")
+    cases = [
+        ({}, {"camera_info": "CameraInfo", "correspondences": "PointCloud2"}),
+        ({"landmarks_file": str(table)}, {"keypoints": "PointCloud2"}),
+        ({"frontend": "aruco", "frontend_map": "aruco_room"}, {"image_raw": "Image"}),
+        ({"frontend": "aruco", "frontend_map": "aruco_room", "image_transport": "compressed"},
+         {"image_raw/compressed": "CompressedImage"}),
+    ]  # fmt: skip
+    for extra, added in cases:
+        want = {"/rig/imu": "Imu"} if extra == {} else {}
+        for c in cams:
+            for leaf, kind in {"camera_info": "CameraInfo", "correspondences": "PointCloud2",
+                               **added}.items():  # fmt: skip
+                want[f"/rig/{c.name}/{leaf}"] = kind
+        params = rig_parameters(cams, **({"imu.enabled": True} if extra == {} else extra))
+        node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                                parameter_overrides=params)  # fmt: skip
+        try:
+            got = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+        finally:
+            node.destroy_node()
+        assert {t: k for t, k in got.items() if t.startswith("/rig/")} == want, (extra, got)
