@@ -58,9 +58,21 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._so3 import INLINE
 from ..geometry import cross
-from ._common import DegenerateInputError, RSBatch, RSSolution
-from ._linear import PATIENCE, RANK_TOL, cross_into, householder_lstsq, lstsq
+from ._common import RSBatch, RSSolution
+from ._linear import (
+    PATIENCE,
+    RANK_TOL,
+    cross_into,
+    eq6_rows,
+    householder_lstsq,
+    keep_best,
+    lstsq,
+    prior_into,
+    run_batch_with_prior,
+    run_single,
+)
 
 __all__ = [
     "gr6p_1lin",
@@ -120,6 +132,20 @@ def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
     return np.sqrt(acc / n)
 
 
+@njit(cache=True, inline=INLINE)
+def _mounted_rows(xi, yi, X0, X1, X2, Rm, cm, c, F, d):
+    """A point x = (xi, yi) of camera c with world point X: the elimination rows turned into
+    the rig frame, ``F = R_c^T E`` (2, 3), and the right-hand sides ``d = -F . X - E . c_c``
+    (2,) of the module docstring (the part without ``v_hat``)."""
+    # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's identity
+    # case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
+    for j in range(3):
+        F[0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
+        F[1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
+    d[0] = -(F[0, 0] * X0 + F[0, 1] * X1 + F[0, 2] * X2) - (-cm[c, 1] + yi * cm[c, 2])
+    d[1] = -(F[1, 0] * X0 + F[1, 1] * X1 + F[1, 2] * X2) - (cm[c, 0] - xi * cm[c, 2])
+
+
 @njit(cache=True)
 def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
     """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
@@ -135,18 +161,8 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
     vhat = np.empty(3)
     for k in range(K):
         for i in range(N):
-            c = cam[k, i]
-            xi, yi = x[k, i, 0], x[k, i, 1]
             X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
-            # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's
-            # identity case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
-            for j in range(3):
-                F[i, 0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
-                F[i, 1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
-            ec0 = -cm[c, 1] + yi * cm[c, 2]
-            ec1 = cm[c, 0] - xi * cm[c, 2]
-            d[i, 0] = -(F[i, 0, 0] * X0 + F[i, 0, 1] * X1 + F[i, 0, 2] * X2) - ec0
-            d[i, 1] = -(F[i, 1, 0] * X0 + F[i, 1, 1] * X1 + F[i, 1, 2] * X2) - ec1
+            _mounted_rows(x[k, i, 0], x[k, i, 1], X0, X1, X2, Rm, cm, cam[k, i], F[i], d[i])
         for a in range(3):
             vhat[a] = v_init[k, a]
         best = np.inf
@@ -155,47 +171,16 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
         its[k] = 0
         for it in range(iterations):
             for i in range(N):
-                ti = tau[k, i]
-                X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
-                Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
-                Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
-                Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
-                for qq in range(2):
-                    row = A[2 * i + qq]
-                    f0, f1, f2 = F[i, qq, 0], F[i, qq, 1], F[i, qq, 2]
-                    cross_into(X0, X1, X2, f0, f1, f2, row, 0)
-                    row[3] = f0
-                    row[4] = f1
-                    row[5] = f2
-                    cross_into(Z0, Z1, Z2, f0, f1, f2, row, 6)
-                    row[6] *= ti
-                    row[7] *= ti
-                    row[8] *= ti
-                    row[9] = ti * f0
-                    row[10] = ti * f1
-                    row[11] = ti * f2
-                    b[2 * i + qq] = d[i, qq]
+                eq6_rows(A, i, X[k, i, 0], X[k, i, 1], X[k, i, 2], vhat, F[i], tau[k, i])
+                b[2 * i] = d[i, 0]
+                b[2 * i + 1] = d[i, 1]
             if use_prior:
-                for a in range(6):
-                    row = A[2 * N + a]
-                    for j in range(6):
-                        row[j] = 0.0
-                        row[6 + j] = P[k, a, j]
-                    b[2 * N + a] = q[k, a]
+                prior_into(A, b, 2 * N, P, q, k)
             if not lstsq(A, b, u):
                 break
             e = _rig_error(x[k], X[k], tau[k], cam[k], Rm, cm, u[0:3], u[3:6], u[6:9], u[9:12])
-            its[k] = it + 1
-            # stop as r6p_1lin: converged, or no new best by more than tol for PATIENCE steps
-            stale = 0 if e < best - tol else stale + 1
-            if e < best:
-                best = e
-                for a in range(12):
-                    out[k, a] = u[a]
-                ok[k] = True
-            for a in range(3):
-                vhat[a] = u[a]
-            if e <= tol or stale >= PATIENCE:
+            best, stale, stop = keep_best(k, it, u, e, tol, best, stale, out, ok, its, vhat)
+            if stop:
                 break
         err[k] = best
 
@@ -219,26 +204,21 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
     tau = np.zeros(N)
     xk = np.empty((N, 2))
     ck = np.empty(N, dtype=np.int64)
+    F = np.empty((2, 3))
+    d = np.empty(2)
     for k in range(K):
         for i in range(N):
             p = S[k, i]
             c = cam[p]
-            xi, yi = x[p, 0], x[p, 1]
-            xk[i, 0], xk[i, 1], ck[i] = xi, yi, c
+            xk[i, 0], xk[i, 1], ck[i] = x[p, 0], x[p, 1], c
             X0, X1, X2 = Xp[k, i, 0], Xp[k, i, 1], Xp[k, i, 2]
-            ec0 = -cm[c, 1] + yi * cm[c, 2]
-            ec1 = cm[c, 0] - xi * cm[c, 2]
+            _mounted_rows(x[p, 0], x[p, 1], X0, X1, X2, Rm, cm, c, F, d)
             for qq in range(2):
                 row = A[2 * i + qq]
-                # (as _solve's F = R_c^T E and right-hand side, to the bit)
-                for j in range(3):
-                    if qq == 0:
-                        row[3 + j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
-                    else:
-                        row[3 + j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
-                f0, f1, f2 = row[3], row[4], row[5]
+                f0, f1, f2 = F[qq, 0], F[qq, 1], F[qq, 2]
+                row[3], row[4], row[5] = f0, f1, f2
                 cross_into(X0, X1, X2, f0, f1, f2, row, 0)
-                b[2 * i + qq] = -(f0 * X0 + f1 * X1 + f2 * X2) - (ec0 if qq == 0 else ec1)
+                b[2 * i + qq] = d[qq]
         ok[k] = False
         for a in range(6):
             out[k, a] = 0.0
@@ -287,11 +267,22 @@ def _lstsq_stack(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, ok
 
 
-def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
-    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same rows,
-    iteration, stopping rule (converged, or ``PATIENCE`` steps without a new best by more
-    than ``tol``) and best iterate; ``P``, ``q`` (K, 6, 6), (K, 6) or None: the prior rows.
-    Returns (out (K, 12), ok (K,), its (K,), err (K,))."""
+def _solve_numpy(
+    x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err
+):
+    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same
+    arguments, rows, iteration, stopping rule (converged, or ``PATIENCE`` steps without a new
+    best by more than ``tol``) and best iterate, each linear solve by :func:`_lstsq_stack`."""
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        r = _iterate_numpy(
+            x, X, tau, cam, Rm, cm, iterations, tol, v_init, P if use_prior else None, q
+        )
+    out[:], ok[:], its[:], err[:] = r
+
+
+def _iterate_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
+    """:func:`_solve_numpy`'s iteration; ``P``, ``q`` (K, 6, 6), (K, 6) or None: the prior
+    rows. Returns (out (K, 12), ok (K,), its (K,), err (K,))."""
     K, N = x.shape[0], x.shape[1]
     Rc, cc = Rm[cam], cm[cam]  # (K, N, 3, 3), (K, N, 3)
     xi, yi = x[..., 0:1], x[..., 1:2]
@@ -386,15 +377,6 @@ def _check(x, X, tau, cam, R_mount, c_mount, batched):
     return x, X, tau, cam, Rm, cm
 
 
-def _v0(v_init, K):
-    if v_init is None:
-        return np.zeros((K, 3))
-    v0 = np.array(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)), order="C")
-    if not np.isfinite(v0).all():
-        raise ValueError(f"{NAME}: v_init contains NaN or inf")
-    return v0
-
-
 _NO_P, _NO_Q = np.zeros((1, 6, 6)), np.zeros((1, 6))
 
 
@@ -436,26 +418,11 @@ def gr6p_1lin(
             points, every tau equal).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
-    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
-        raise ValueError(f"{NAME}: inputs contain NaN or inf")
-    if iterations < 1:
-        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
-    v0 = _v0(v_init, 1)
-    out = np.zeros((1, 12))
-    ok = np.zeros(1, dtype=np.bool_)
-    its = np.zeros(1, dtype=np.int64)
-    err = np.zeros(1)
-    _solve(
-        x[None], X[None], tau[None], cam[None], Rm, cm, int(iterations), float(tol), v0,
-        _NO_P, _NO_Q, np.bool_(False), out, ok, its, err,
+    kernel, _ = _kernels(_solve, cam[None], Rm, cm)
+    return run_single(
+        kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
+        degenerate="collinear or duplicated points, or every observation at the same time?",
     )  # fmt: skip
-    if not ok[0] or not np.isfinite(out[0]).all():
-        raise DegenerateInputError(
-            f"{NAME}: the correspondences do not determine a solution (rank-deficient system; "
-            "collinear or duplicated points, or every observation at the same time?)"
-        )
-    u = out[0]
-    return RSSolution(u[0:3], u[3:6], u[6:9], u[9:12], None, int(its[0]), float(err[0]))
 
 
 def gr6p_1lin_batch(
@@ -486,7 +453,7 @@ def gr6p_1lin_batch(
         ValueError: wrong shapes, N < 6, camera index out of range, non-finite mountings,
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, True)
+    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, _solve)
 
 
 def gr6p_1lin_batch_numpy(
@@ -510,42 +477,35 @@ def gr6p_1lin_batch_numpy(
     Raises:
         ValueError: as :func:`gr6p_1lin_batch`.
     """
-    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, False)
+    return _batch(
+        x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, _solve_numpy
+    )
 
 
-def _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, compiled):
-    """:func:`gr6p_1lin_batch` (``compiled``: the numba kernel :func:`_solve`) and
+def _kernels(solve, cam, Rm, cm):
+    """``solve`` (:func:`_solve` or :func:`_solve_numpy`) on the cameras ``cam`` at the
+    mountings ``Rm``, ``cm`` as the single camera's kernels of :mod:`._linear` (the
+    observation times passed as its ``r``, ``r0`` unused): ``(kernel, solve with prior)``."""
+
+    def with_prior(x, X, tau, r0, iterations, tol, v_init, P, q, use, out, ok, its, err):
+        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use, out, ok, its, err)
+
+    def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
+        # (the prior's types, a non-literal flag: one compiled _solve for both)
+        no = np.bool_(False)
+        with_prior(x, X, tau, r0, iterations, tol, v_init, _NO_P, _NO_Q, no, out, ok, its, err)
+
+    return kernel, with_prior
+
+
+def _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, solve):
+    """:func:`gr6p_1lin_batch` (``solve``: the numba kernel :func:`_solve`) and
     :func:`gr6p_1lin_batch_numpy` (:func:`_solve_numpy`): one set of checks and outputs."""
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    K = x.shape[0]
-    if iterations < 1:
-        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
-    v0 = _v0(v_init, K)
-    n_it, tol = int(iterations), float(tol)
-    P = q = None
-    if prior_rows is not None:
-        P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
-        q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
-        if P.shape != (K, 6, 6) or q.shape != (K, 6):
-            raise ValueError(
-                f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-                f"got {P.shape} and {q.shape}"
-            )
-    if compiled:
-        out = np.zeros((K, 12))
-        ok = np.zeros(K, dtype=np.bool_)
-        its = np.zeros(K, dtype=np.int64)
-        err = np.zeros(K)
-        use = np.bool_(P is not None)
-        if P is None:
-            P, q = _NO_P, _NO_Q
-        _solve(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q, use, out, ok, its, err)
-    else:
-        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            out, ok, its, err = _solve_numpy(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q)
-    ok &= np.isfinite(out).all(axis=1)
-    out[~ok] = 0.0
-    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
+    kernel, with_prior = _kernels(solve, cam, Rm, cm)
+    return run_batch_with_prior(
+        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows
+    )
 
 
 def rig_algebraic_error(
