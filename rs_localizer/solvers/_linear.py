@@ -192,6 +192,44 @@ def rows_E(x, i, E):
     E[1, 2] = -x[i, 0]
 
 
+def lstsq_stack(
+    A: np.ndarray, b: np.ndarray, normal_equations: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m) in
+    NumPy (the NumPy implementations' linear solves): square systems (minimal samples) by
+    NumPy's stacked LU solve (singular ones one by one, ``ok`` False); others by their normal
+    equations solved so (``normal_equations``), else by NumPy's stacked Householder QR, ``ok``
+    False where the triangular factor's smallest pivot is at most ``RANK_TOL`` times its
+    largest (rank loss); ``ok`` False too where a value is not finite.
+    Returns (u (K, 12), NaN where not ok; ok (K,))."""
+    if normal_equations and A.shape[1] != A.shape[2]:
+        A, b = np.einsum("kmi,kmj->kij", A, A), np.einsum("kmi,km->ki", A, b)
+    u = np.full(b.shape[:1] + (12,), np.nan)
+    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
+    if not ok.any():
+        return u, ok
+    idx = np.flatnonzero(ok)
+    if A.shape[1] == A.shape[2]:
+        try:
+            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
+        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
+            for k in idx:
+                try:
+                    u[k] = np.linalg.solve(A[k], b[k])
+                except np.linalg.LinAlgError:
+                    ok[k] = False
+    else:
+        Q, R = np.linalg.qr(A[idx])
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
+        rhs = np.einsum("kmi,km->ki", Q, b[idx])
+        if full.any():
+            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
+        ok[idx[~full]] = False
+    ok &= np.isfinite(u).all(axis=1)
+    return u, ok
+
+
 def run_single(
     kernel: Callable,
     name: str,

@@ -63,12 +63,12 @@ from ..geometry import cross
 from ._common import RSBatch, RSSolution
 from ._linear import (
     PATIENCE,
-    RANK_TOL,
     cross_into,
     eq6_rows,
     householder_lstsq,
     keep_best,
     lstsq,
+    lstsq_stack,
     prior_into,
     run_batch_with_prior,
     run_single,
@@ -235,54 +235,14 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
                 ok[k] = True
 
 
-def _lstsq_stack(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m):
-    square systems (minimal samples) by NumPy's stacked LU solve (singular ones one by one,
-    ``ok`` False), others by its stacked Householder QR, ``ok`` False where the triangular
-    factor's smallest pivot is at most ``RANK_TOL`` times its largest (rank loss); ``ok``
-    False too where a value is not finite. Returns (u (K, 12), ok (K,))."""
-    u = np.full(b.shape[:1] + (12,), np.nan)
-    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
-    if not ok.any():
-        return u, ok
-    idx = np.flatnonzero(ok)
-    if A.shape[1] == A.shape[2]:
-        try:
-            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
-        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
-            for k in idx:
-                try:
-                    u[k] = np.linalg.solve(A[k], b[k])
-                except np.linalg.LinAlgError:
-                    ok[k] = False
-    else:
-        Q, R = np.linalg.qr(A[idx])
-        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
-        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
-        rhs = np.einsum("kmi,km->ki", Q, b[idx])
-        if full.any():
-            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
-        ok[idx[~full]] = False
-    ok &= np.isfinite(u).all(axis=1)
-    return u, ok
-
-
+@np.errstate(invalid="ignore", over="ignore", divide="ignore")
 def _solve_numpy(
     x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err
 ):
     """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same
     arguments, rows, iteration, stopping rule (converged, or ``PATIENCE`` steps without a new
-    best by more than ``tol``) and best iterate, each linear solve by :func:`_lstsq_stack`."""
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        r = _iterate_numpy(
-            x, X, tau, cam, Rm, cm, iterations, tol, v_init, P if use_prior else None, q
-        )
-    out[:], ok[:], its[:], err[:] = r
-
-
-def _iterate_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
-    """:func:`_solve_numpy`'s iteration; ``P``, ``q`` (K, 6, 6), (K, 6) or None: the prior
-    rows. Returns (out (K, 12), ok (K,), its (K,), err (K,))."""
+    best by more than ``tol``) and best iterate, the linear solves by
+    :func:`~._linear.lstsq_stack`."""
     K, N = x.shape[0], x.shape[1]
     Rc, cc = Rm[cam], cm[cam]  # (K, N, 3, 3), (K, N, 3)
     xi, yi = x[..., 0:1], x[..., 1:2]
@@ -298,13 +258,12 @@ def _iterate_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
     te = tau[:, :, None, None]
     rows[..., 9:12] = te * F
     b = (-np.einsum("knqj,knj->knq", F, X) - ec).reshape(K, 2 * N)
-    if P is not None:
+    if use_prior:
         extra = np.zeros((K, 6, 12))
         extra[:, :, 6:12] = P
         b = np.concatenate([b, q], axis=1)
     vhat = np.array(v_init, dtype=float)
-    out, ok = np.zeros((K, 12)), np.zeros(K, dtype=bool)
-    its, err = np.zeros(K, dtype=np.int64), np.full(K, np.inf)
+    err[:] = np.inf
     stale, active = np.zeros(K, dtype=np.int64), np.ones(K, dtype=bool)
     for it in range(iterations):
         k = np.flatnonzero(active)
@@ -313,9 +272,9 @@ def _iterate_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
         Z = X[k] + cross(vhat[k][:, None, :], X[k])
         rows[k, :, :, 6:9] = te[k] * cross(Z[:, :, None, :], F[k])
         A = rows[k].reshape(len(k), 2 * N, 12)
-        if P is not None:
+        if use_prior:
             A = np.concatenate([A, extra[k]], axis=1)
-        u, good = _lstsq_stack(A, b[k])
+        u, good = lstsq_stack(A, b[k])
         active[k[~good]] = False  # (rank loss: the compiled solver stops there)
         k, u = k[good], u[good]
         # the RMS algebraic error of the rig eq. 5 at the iterate (_rig_error)
@@ -332,7 +291,6 @@ def _iterate_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
         out[k[better]], err[k[better]], ok[k[better]] = u[better], e[better], True
         vhat[k] = u[:, 0:3]
         active[k[(e <= tol) | (stale[k] >= PATIENCE)]] = False
-    return out, ok, its, err
 
 
 def _mountings(R_mount, c_mount, cam, name):
