@@ -77,7 +77,6 @@ from ._linear import (
 __all__ = [
     "gr6p_1lin",
     "gr6p_1lin_batch",
-    "gr6p_1lin_batch_numpy",
     "rig_algebraic_error",
     "rig_times",
 ]
@@ -394,6 +393,7 @@ def gr6p_1lin_batch(
     v_init: np.ndarray | None = None,
     tol: float = 1e-12,
     prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+    numpy: bool = False,
 ) -> RSBatch:
     """Batched :func:`gr6p_1lin` for K problems (RANSAC hypotheses) on one rig.
 
@@ -404,6 +404,10 @@ def gr6p_1lin_batch(
         prior_rows: ``None``, or ``(P (K, 6, 6), q (K, 6))``: every linear solve then minimizes
             ``|A u - b|^2 + |P[k] (w, t) - q[k]|^2`` (a linearized motion prior on the rig's
             velocities, in the units of tau), as ``r6p_1lin_batch``.
+        numpy: solve in NumPy, nothing compiled (the rig estimator's NumPy implementation):
+            the same iteration and outputs, each linear solve by NumPy's stacked LU solve for
+            square systems, its stacked QR otherwise (as the compiled one: Gaussian
+            elimination, Householder QR; the solutions agree to rounding).
     Returns:
         :class:`RSBatch` with (K, 3) v, C, w, t and a (K,) ``valid`` mask (False for rank loss
         or non-finite input, never raises for those).
@@ -411,32 +415,10 @@ def gr6p_1lin_batch(
         ValueError: wrong shapes, N < 6, camera index out of range, non-finite mountings,
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, _solve)
-
-
-def gr6p_1lin_batch_numpy(
-    x: np.ndarray,
-    X: np.ndarray,
-    tau: np.ndarray,
-    cam: np.ndarray,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
-    iterations: int = 5,
-    v_init: np.ndarray | None = None,
-    tol: float = 1e-12,
-    prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
-) -> RSBatch:
-    """:func:`gr6p_1lin_batch` in NumPy, nothing compiled (the rig estimator's NumPy
-    implementation): the same arguments, iteration and outputs, each linear solve by NumPy's
-    stacked LU solve for square systems, its stacked QR otherwise (as the compiled one:
-    Gaussian elimination, Householder QR; the solutions agree to rounding). A problem with a
-    single set of points (K = 1) is :func:`gr6p_1lin`'s, with ``valid`` False where it raises.
-
-    Raises:
-        ValueError: as :func:`gr6p_1lin_batch`.
-    """
-    return _batch(
-        x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, _solve_numpy
+    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
+    kernel, with_prior = _kernels(_solve_numpy if numpy else _solve, cam, Rm, cm)
+    return run_batch_with_prior(
+        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows
     )
 
 
@@ -454,16 +436,6 @@ def _kernels(solve, cam, Rm, cm):
         with_prior(x, X, tau, r0, iterations, tol, v_init, _NO_P, _NO_Q, no, out, ok, its, err)
 
     return kernel, with_prior
-
-
-def _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, solve):
-    """:func:`gr6p_1lin_batch` (``solve``: the numba kernel :func:`_solve`) and
-    :func:`gr6p_1lin_batch_numpy` (:func:`_solve_numpy`): one set of checks and outputs."""
-    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    kernel, with_prior = _kernels(solve, cam, Rm, cm)
-    return run_batch_with_prior(
-        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows
-    )
 
 
 def rig_algebraic_error(
