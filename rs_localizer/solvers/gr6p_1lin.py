@@ -292,27 +292,9 @@ def _solve_numpy(
         active[k[(e <= tol) | (stale[k] >= PATIENCE)]] = False
 
 
-def _mountings(R_mount, c_mount, cam, name):
-    """Validated (M, 3, 3), (M, 3) float64 mountings and int64 camera indices."""
-    Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
-    cm = np.ascontiguousarray(c_mount, dtype=np.float64)
-    if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
-        raise ValueError(f"{name}: R_mount must have shape (M, 3, 3), got {Rm.shape}")
-    if cm.shape != (len(Rm), 3):
-        raise ValueError(f"{name}: c_mount must have shape ({len(Rm)}, 3), got {cm.shape}")
-    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
-        raise ValueError(f"{name}: mountings contain NaN or inf")
-    cam_a = np.asarray(cam)
-    if cam_a.size and not np.issubdtype(cam_a.dtype, np.integer):
-        raise ValueError(f"{name}: cam must hold integer camera indices, got {cam_a.dtype}")
-    cam_a = np.ascontiguousarray(cam_a, dtype=np.int64)
-    if cam_a.size and (cam_a.min() < 0 or cam_a.max() >= len(Rm)):
-        raise ValueError(f"{name}: cam indices must lie in [0, {len(Rm)}), got {cam_a.min()}..")
-    return Rm, cm, cam_a
-
-
 def _check(x, X, tau, cam, R_mount, c_mount, batched):
-    """Shapes (N or K, N) of the inputs; float64 contiguous copies."""
+    """Shapes (N or K, N) of the inputs, the mountings (M, 3, 3), (M, 3) finite, camera
+    indices in range; float64 (int64 for ``cam``) contiguous copies."""
     x = np.ascontiguousarray(x, dtype=np.float64)
     X = np.ascontiguousarray(X, dtype=np.float64)
     lead = x.shape[:-1]
@@ -327,8 +309,20 @@ def _check(x, X, tau, cam, R_mount, c_mount, batched):
     tau = np.ascontiguousarray(tau, dtype=np.float64)
     if tau.shape != lead:
         raise ValueError(f"{NAME}: tau must have shape {lead}, got {tau.shape}")
-    cam = np.broadcast_to(np.asarray(cam), lead) if np.ndim(cam) == 0 else cam
-    Rm, cm, cam = _mountings(R_mount, c_mount, cam, NAME)
+    Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
+    cm = np.ascontiguousarray(c_mount, dtype=np.float64)
+    if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
+        raise ValueError(f"{NAME}: R_mount must have shape (M, 3, 3), got {Rm.shape}")
+    if cm.shape != (len(Rm), 3):
+        raise ValueError(f"{NAME}: c_mount must have shape ({len(Rm)}, 3), got {cm.shape}")
+    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+        raise ValueError(f"{NAME}: mountings contain NaN or inf")
+    cam = np.asarray(np.broadcast_to(np.asarray(cam), lead) if np.ndim(cam) == 0 else cam)
+    if cam.size and not np.issubdtype(cam.dtype, np.integer):
+        raise ValueError(f"{NAME}: cam must hold integer camera indices, got {cam.dtype}")
+    cam = np.ascontiguousarray(cam, dtype=np.int64)
+    if cam.size and (cam.min() < 0 or cam.max() >= len(Rm)):
+        raise ValueError(f"{NAME}: cam indices must lie in [0, {len(Rm)}), got {cam.min()}..")
     if cam.shape != lead:
         raise ValueError(f"{NAME}: cam must have shape {lead}, got {cam.shape}")
     return x, X, tau, cam, Rm, cm
