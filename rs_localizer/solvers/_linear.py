@@ -125,62 +125,6 @@ def eq5_error(x, X, r, r0, v, C, w, t):
     return np.sqrt(acc / n)
 
 
-@njit(cache=True, inline=INLINE)
-def eq6_rows(A, i, X0, X1, X2, vhat, E, tau):
-    """Rows 2i, 2i + 1 of A (., 12) of the linear iteration of paper sec. 3.3 (eq. 6) for a
-    world point X seen at ``tau`` with elimination rows E (2, 3): with ``Z = X + v_hat x X``,
-    ``[X x e | e | tau (Z x e) | tau e]`` for each row e of E, the coefficients of
-    ``[v; C; w; t]``."""
-    Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
-    Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
-    Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
-    for qq in range(2):
-        row = A[2 * i + qq]
-        e0, e1, e2 = E[qq, 0], E[qq, 1], E[qq, 2]
-        cross_into(X0, X1, X2, e0, e1, e2, row, 0)
-        row[3] = e0
-        row[4] = e1
-        row[5] = e2
-        cross_into(Z0, Z1, Z2, e0, e1, e2, row, 6)
-        row[6] *= tau
-        row[7] *= tau
-        row[8] *= tau
-        row[9] = tau * e0
-        row[10] = tau * e1
-        row[11] = tau * e2
-
-
-@njit(cache=True, inline=INLINE)
-def prior_into(A, b, n, P, q, k):
-    """The 6 rows ``P[k] (w, t) = q[k]`` of a linearized motion prior (P (K, 6, 6), q (K, 6))
-    into rows n..n+5 of a 12-column system A, b (zero on v and C)."""
-    for a in range(6):
-        row = A[n + a]
-        for j in range(6):
-            row[j] = 0.0
-            row[6 + j] = P[k, a, j]
-        b[n + a] = q[k, a]
-
-
-@njit(cache=True, inline=INLINE)
-def keep_best(k, it, u, e, tol, best, stale, out, ok, its, vhat):
-    """Bookkeeping of one step ``it`` of the linear iteration (sec. 3.3) of problem k with
-    solution u and algebraic error e: steps run into ``its[k]``, u into ``out[k]`` (and
-    ``ok[k]``) if e is the lowest yet, ``v_hat`` (3,) from u. Returns ``(best, stale, stop)``:
-    stop when converged (e <= tol) or when the error has not improved on the best by more
-    than tol for PATIENCE steps (the fixed-point error is not always monotone)."""
-    its[k] = it + 1
-    stale = 0 if e < best - tol else stale + 1
-    if e < best:
-        best = e
-        for a in range(out.shape[1]):
-            out[k, a] = u[a]
-        ok[k] = True
-    for a in range(3):
-        vhat[a] = u[a]
-    return best, stale, e <= tol or stale >= PATIENCE
-
-
 @njit(cache=True)
 def rows_E(x, i, E):
     """The two elimination rows for point i into E (2, 3)."""

@@ -58,18 +58,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE
 from ..geometry import cross
 from ._common import RSBatch, RSSolution
 from ._linear import (
     PATIENCE,
     cross_into,
-    eq6_rows,
     householder_lstsq,
-    keep_best,
     lstsq,
     lstsq_stack,
-    prior_into,
     run_batch_with_prior,
     run_single,
 )
@@ -131,20 +127,6 @@ def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
     return np.sqrt(acc / n)
 
 
-@njit(cache=True, inline=INLINE)
-def _mounted_rows(xi, yi, X0, X1, X2, Rm, cm, c, F, d):
-    """A point x = (xi, yi) of camera c with world point X: the elimination rows turned into
-    the rig frame, ``F = R_c^T E`` (2, 3), and the right-hand sides ``d = -F . X - E . c_c``
-    (2,) of the module docstring (the part without ``v_hat``)."""
-    # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's identity
-    # case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
-    for j in range(3):
-        F[0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
-        F[1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
-    d[0] = -(F[0, 0] * X0 + F[0, 1] * X1 + F[0, 2] * X2) - (-cm[c, 1] + yi * cm[c, 2])
-    d[1] = -(F[1, 0] * X0 + F[1, 1] * X1 + F[1, 2] * X2) - (cm[c, 0] - xi * cm[c, 2])
-
-
 @njit(cache=True)
 def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
     """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
@@ -160,8 +142,18 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
     vhat = np.empty(3)
     for k in range(K):
         for i in range(N):
+            c = cam[k, i]
+            xi, yi = x[k, i, 0], x[k, i, 1]
             X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
-            _mounted_rows(x[k, i, 0], x[k, i, 1], X0, X1, X2, Rm, cm, cam[k, i], F[i], d[i])
+            # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's
+            # identity case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
+            for j in range(3):
+                F[i, 0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
+                F[i, 1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
+            ec0 = -cm[c, 1] + yi * cm[c, 2]
+            ec1 = cm[c, 0] - xi * cm[c, 2]
+            d[i, 0] = -(F[i, 0, 0] * X0 + F[i, 0, 1] * X1 + F[i, 0, 2] * X2) - ec0
+            d[i, 1] = -(F[i, 1, 0] * X0 + F[i, 1, 1] * X1 + F[i, 1, 2] * X2) - ec1
         for a in range(3):
             vhat[a] = v_init[k, a]
         best = np.inf
@@ -170,16 +162,47 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
         its[k] = 0
         for it in range(iterations):
             for i in range(N):
-                eq6_rows(A, i, X[k, i, 0], X[k, i, 1], X[k, i, 2], vhat, F[i], tau[k, i])
-                b[2 * i] = d[i, 0]
-                b[2 * i + 1] = d[i, 1]
+                ti = tau[k, i]
+                X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+                Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
+                Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
+                Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
+                for qq in range(2):
+                    row = A[2 * i + qq]
+                    f0, f1, f2 = F[i, qq, 0], F[i, qq, 1], F[i, qq, 2]
+                    cross_into(X0, X1, X2, f0, f1, f2, row, 0)
+                    row[3] = f0
+                    row[4] = f1
+                    row[5] = f2
+                    cross_into(Z0, Z1, Z2, f0, f1, f2, row, 6)
+                    row[6] *= ti
+                    row[7] *= ti
+                    row[8] *= ti
+                    row[9] = ti * f0
+                    row[10] = ti * f1
+                    row[11] = ti * f2
+                    b[2 * i + qq] = d[i, qq]
             if use_prior:
-                prior_into(A, b, 2 * N, P, q, k)
+                for a in range(6):
+                    row = A[2 * N + a]
+                    for j in range(6):
+                        row[j] = 0.0
+                        row[6 + j] = P[k, a, j]
+                    b[2 * N + a] = q[k, a]
             if not lstsq(A, b, u):
                 break
             e = _rig_error(x[k], X[k], tau[k], cam[k], Rm, cm, u[0:3], u[3:6], u[6:9], u[9:12])
-            best, stale, stop = keep_best(k, it, u, e, tol, best, stale, out, ok, its, vhat)
-            if stop:
+            its[k] = it + 1
+            # stop as r6p_1lin: converged, or no new best by more than tol for PATIENCE steps
+            stale = 0 if e < best - tol else stale + 1
+            if e < best:
+                best = e
+                for a in range(12):
+                    out[k, a] = u[a]
+                ok[k] = True
+            for a in range(3):
+                vhat[a] = u[a]
+            if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
 
@@ -203,21 +226,26 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
     tau = np.zeros(N)
     xk = np.empty((N, 2))
     ck = np.empty(N, dtype=np.int64)
-    F = np.empty((2, 3))
-    d = np.empty(2)
     for k in range(K):
         for i in range(N):
             p = S[k, i]
             c = cam[p]
-            xk[i, 0], xk[i, 1], ck[i] = x[p, 0], x[p, 1], c
+            xi, yi = x[p, 0], x[p, 1]
+            xk[i, 0], xk[i, 1], ck[i] = xi, yi, c
             X0, X1, X2 = Xp[k, i, 0], Xp[k, i, 1], Xp[k, i, 2]
-            _mounted_rows(x[p, 0], x[p, 1], X0, X1, X2, Rm, cm, c, F, d)
+            ec0 = -cm[c, 1] + yi * cm[c, 2]
+            ec1 = cm[c, 0] - xi * cm[c, 2]
             for qq in range(2):
                 row = A[2 * i + qq]
-                f0, f1, f2 = F[qq, 0], F[qq, 1], F[qq, 2]
-                row[3], row[4], row[5] = f0, f1, f2
+                # (as _solve's F = R_c^T E and right-hand side, to the bit)
+                for j in range(3):
+                    if qq == 0:
+                        row[3 + j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
+                    else:
+                        row[3 + j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
+                f0, f1, f2 = row[3], row[4], row[5]
                 cross_into(X0, X1, X2, f0, f1, f2, row, 0)
-                b[2 * i + qq] = d[qq]
+                b[2 * i + qq] = -(f0 * X0 + f1 * X1 + f2 * X2) - (ec0 if qq == 0 else ec1)
         ok[k] = False
         for a in range(6):
             out[k, a] = 0.0

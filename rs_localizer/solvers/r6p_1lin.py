@@ -19,11 +19,10 @@ from numba import njit
 
 from ._common import RSBatch, RSSolution
 from ._linear import (
+    PATIENCE,
+    cross_into,
     eq5_error,
-    eq6_rows,
-    keep_best,
     lstsq,
-    prior_into,
     rows_E,
     run_batch_with_prior,
     run_single,
@@ -55,17 +54,47 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
             for i in range(N):
                 tau = r[k, i] - r0
                 X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+                Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
+                Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
+                Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
                 rows_E(x[k], i, E)
-                eq6_rows(A, i, X0, X1, X2, vhat, E, tau)
                 for qq in range(2):
-                    b[2 * i + qq] = -(E[qq, 0] * X0 + E[qq, 1] * X1 + E[qq, 2] * X2)
+                    row = A[2 * i + qq]
+                    e0, e1, e2 = E[qq, 0], E[qq, 1], E[qq, 2]
+                    cross_into(X0, X1, X2, e0, e1, e2, row, 0)
+                    row[3] = e0
+                    row[4] = e1
+                    row[5] = e2
+                    cross_into(Z0, Z1, Z2, e0, e1, e2, row, 6)
+                    row[6] *= tau
+                    row[7] *= tau
+                    row[8] *= tau
+                    row[9] = tau * e0
+                    row[10] = tau * e1
+                    row[11] = tau * e2
+                    b[2 * i + qq] = -(e0 * X0 + e1 * X1 + e2 * X2)
             if use_prior:
-                prior_into(A, b, 2 * N, P, q, k)
+                for a in range(6):
+                    row = A[2 * N + a]
+                    for j in range(6):
+                        row[j] = 0.0
+                        row[6 + j] = P[k, a, j]
+                    b[2 * N + a] = q[k, a]
             if not lstsq(A, b, u):
                 break
             e = eq5_error(x[k], X[k], r[k], r0, u[0:3], u[3:6], u[6:9], u[9:12])
-            best, stale, stop = keep_best(k, it, u, e, tol, best, stale, out, ok, its, vhat)
-            if stop:
+            its[k] = it + 1
+            # stop when converged, or when the error has not improved on the best by more than
+            # tol for PATIENCE iterations (the fixed-point error is not always monotone)
+            stale = 0 if e < best - tol else stale + 1
+            if e < best:
+                best = e
+                for a in range(12):
+                    out[k, a] = u[a]
+                ok[k] = True
+            for a in range(3):
+                vhat[a] = u[a]
+            if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
 
