@@ -188,16 +188,19 @@ def run_single(
     v_init: np.ndarray | None,
     with_R_rs: bool = False,
     degenerate: str = "collinear, coplanar-degenerate or duplicated points?",
+    checked: bool = False,
 ) -> RSSolution:
     """Validate one problem, run ``kernel`` on it as a batch of one, build an RSSolution
-    (``degenerate``: the likely causes of rank loss, for the error message).
+    (``degenerate``: the likely causes of rank loss, for the error message; ``checked``: x,
+    X, r already checked as :func:`check_inputs` does, by the caller).
 
     Raises:
         ValueError: bad shapes, too few points, NaN/inf (from :func:`check_inputs`), or a
             non-positive iteration count.
         DegenerateInputError: the linear system lost rank (collinear/duplicated points...).
     """
-    x, X, r, r0 = check_inputs(x, X, r, r0, min_points, name)
+    if not checked:
+        x, X, r, r0 = check_inputs(x, X, r, r0, min_points, name)
     if iterations < 1:
         raise ValueError(f"{name}: iterations must be >= 1, got {iterations}")
     v0 = np.zeros((1, 3)) if v_init is None else np.asarray(v_init, dtype=float).reshape(1, 3)
@@ -238,9 +241,12 @@ def run_batch(
     tol: float,
     v_init: np.ndarray | None,
     with_R_rs: bool = False,
+    checked: bool = False,
 ) -> RSBatch:
-    """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)."""
-    x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
+    """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)
+    (``checked``: already checked as :func:`check_batch` does, by the caller)."""
+    if not checked:
+        x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
     K = x.shape[0]
     if iterations < 1:
         raise ValueError(f"{name}: iterations must be >= 1, got {iterations}")
@@ -282,6 +288,7 @@ def run_batch_with_prior(
     tol: float,
     v_init: np.ndarray | None,
     prior_rows: tuple[np.ndarray, np.ndarray] | None,
+    checked: bool = False,
 ) -> RSBatch:
     """:func:`run_batch` of a 12-parameter solver whose linear solves can take the rows of a
     linearized motion prior on (w, t): ``kernel`` without them (``prior_rows`` None), else
@@ -292,7 +299,9 @@ def run_batch_with_prior(
         ValueError: as :func:`run_batch`, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
     if prior_rows is None:
-        return run_batch(kernel, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+        return run_batch(
+            kernel, name, 12, min_points, x, X, r, r0, iterations, tol, v_init, checked=checked
+        )
     P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
     q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
     K = np.shape(x)[0]
@@ -305,7 +314,9 @@ def run_batch_with_prior(
     def with_prior(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
 
-    return run_batch(with_prior, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+    return run_batch(
+        with_prior, name, 12, min_points, x, X, r, r0, iterations, tol, v_init, checked=checked
+    )
 
 
 def alternating_solver(

@@ -356,7 +356,7 @@ def _check(x, X, tau, cam, R_mount, c_mount, batched):
     return x, X, tau, cam, Rm, cm
 
 
-_NO_P, _NO_Q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+_NO_PRIOR = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.bool_(False))
 
 
 def gr6p_1lin(
@@ -397,10 +397,13 @@ def gr6p_1lin(
             points, every tau equal).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
+    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
+        raise ValueError(f"{NAME}: inputs contain NaN or inf")
     kernel, _ = _kernels(_solve, cam[None], Rm, cm)
     return run_single(
         kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
         degenerate="collinear or duplicated points, or every observation at the same time?",
+        checked=True,
     )  # fmt: skip
 
 
@@ -440,8 +443,9 @@ def gr6p_1lin_batch(
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
     kernel, with_prior = _kernels(_solve_numpy if numpy else _solve, cam, Rm, cm)
     return run_batch_with_prior(
-        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows
-    )
+        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows,
+        checked=True,
+    )  # fmt: skip
 
 
 def _kernels(solve, cam, Rm, cm):
@@ -454,8 +458,7 @@ def _kernels(solve, cam, Rm, cm):
 
     def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
         # (the prior's types, a non-literal flag: one compiled _solve for both)
-        no = np.bool_(False)
-        with_prior(x, X, tau, r0, iterations, tol, v_init, _NO_P, _NO_Q, no, out, ok, its, err)
+        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
 
     return kernel, with_prior
 
