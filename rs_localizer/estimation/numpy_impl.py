@@ -63,6 +63,7 @@ import numpy as np
 
 from ..geometry import cross, rotvec_to_matrix
 from ..pose import RSModel
+from ..solvers._linear import lstsq_stack
 from ..solvers.registry import solver_info
 from .finalize import FINAL_CUTOFF, FinalModel
 from .frame import Frame, Model
@@ -176,7 +177,7 @@ def _r6p_1lin(x, X, tau, iterations: int):
     for _ in range(iterations):
         Z = X + cross(vhat[:, None, :], X)
         A[..., 6:9] = te * cross(Z[:, :, None, :], E)
-        u, good = _solve_stack(A.reshape(K, 2 * n, 12), b)
+        u, good = lstsq_stack(A.reshape(K, 2 * n, 12), b, normal_equations=True)
         vn, Cn, wn, tn = u[:, None, 0:3], u[:, None, 3:6], u[:, None, 6:9], u[:, None, 9:12]
         # algebraic error of eq. 5 at the iterate
         vX = X + cross(vn, X)
@@ -187,28 +188,6 @@ def _r6p_1lin(x, X, tau, iterations: int):
         out[better], best[better], ok[better] = u[better], err[better], True
         vhat = np.where(good[:, None], u[:, 0:3], vhat)
     return out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok
-
-
-def _solve_stack(A: np.ndarray, b: np.ndarray):
-    """Solutions of K systems A (K, m, 12) u = b (K, m): ``np.linalg.solve`` on the stacked
-    square systems (m = 12, minimal samples), else on their normal equations (least squares).
-    Returns (u (K, 12), ok (K,)), NaN where singular or not finite."""
-    if A.shape[1] != A.shape[2]:
-        A, b = np.einsum("kmi,kmj->kij", A, A), np.einsum("kmi,km->ki", A, b)
-    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
-    u = np.full(b.shape[:1] + (12,), np.nan)
-    if not ok.any():
-        return u, ok
-    try:
-        u[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
-    except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
-        for k in np.flatnonzero(ok):
-            try:
-                u[k] = np.linalg.solve(A[k], b[k])
-            except np.linalg.LinAlgError:
-                ok[k] = False
-    ok &= np.isfinite(u).all(axis=1)
-    return u, ok
 
 
 def _hypotheses(

@@ -95,7 +95,7 @@ the threshold on the points within the cutoff, selected again after a fit), the 
 and acceleration block from the analytic Jacobian
 (:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma; OpenCV's P3P
 (:func:`~.numpy_impl.p3p_roots`, every root), the rig solver's NumPy form
-(:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch_numpy`), the scoring, checks and
+(:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` with ``numpy``), the scoring, checks and
 outputs in NumPy (the single camera's NumPy implementation's). A rig node takes it while its
 kernels compile in the background (:mod:`rs_localizer.runtime.background`): on a cold cache
 its first rig frame compiles nothing.
@@ -133,7 +133,6 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
-    gr6p_1lin_batch_numpy,
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
@@ -903,12 +902,6 @@ def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
     return out
 
 
-def _rig_solver(pool: _Pool):
-    """The rig solver's batch of :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`
-    (``pool.numpy``: its NumPy form)."""
-    return gr6p_1lin_batch_numpy if pool.numpy else gr6p_1lin_batch
-
-
 def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
     with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
@@ -1030,8 +1023,9 @@ def _prerotated_solve(pool: _Pool, S: np.ndarray, R0: np.ndarray, tau: np.ndarra
     ``R0`` (H, 3, 3) at capture times ``tau`` (H, 6) s, ``rows`` its prior rows or None; each
     solution's rotation is ``expm([v]x) R0``."""
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
-    return _rig_solver(pool)(
-        pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations, prior_rows=rows
+    return gr6p_1lin_batch(
+        pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
+        prior_rows=rows, numpy=pool.numpy,
     )  # fmt: skip
 
 
@@ -1178,9 +1172,10 @@ def _refit(
             rows = None
             if prior is not None:
                 rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
-            b = _rig_solver(pool)(
+            b = gr6p_1lin_batch(
                 pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
                 pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
+                numpy=pool.numpy,
             )  # fmt: skip
             if not b.valid[0]:
                 return model

@@ -136,6 +136,44 @@ def rows_E(x, i, E):
     E[1, 2] = -x[i, 0]
 
 
+def lstsq_stack(
+    A: np.ndarray, b: np.ndarray, normal_equations: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m) in
+    NumPy (the NumPy implementations' linear solves): square systems (minimal samples) by
+    NumPy's stacked LU solve (singular ones one by one, ``ok`` False); others by their normal
+    equations solved so (``normal_equations``), else by NumPy's stacked Householder QR, ``ok``
+    False where the triangular factor's smallest pivot is at most ``RANK_TOL`` times its
+    largest (rank loss); ``ok`` False too where a value is not finite.
+    Returns (u (K, 12), NaN where not ok; ok (K,))."""
+    if normal_equations and A.shape[1] != A.shape[2]:
+        A, b = np.einsum("kmi,kmj->kij", A, A), np.einsum("kmi,km->ki", A, b)
+    u = np.full(b.shape[:1] + (12,), np.nan)
+    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
+    if not ok.any():
+        return u, ok
+    idx = np.flatnonzero(ok)
+    if A.shape[1] == A.shape[2]:
+        try:
+            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
+        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
+            for k in idx:
+                try:
+                    u[k] = np.linalg.solve(A[k], b[k])
+                except np.linalg.LinAlgError:
+                    ok[k] = False
+    else:
+        Q, R = np.linalg.qr(A[idx])
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
+        rhs = np.einsum("kmi,km->ki", Q, b[idx])
+        if full.any():
+            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
+        ok[idx[~full]] = False
+    ok &= np.isfinite(u).all(axis=1)
+    return u, ok
+
+
 def run_single(
     kernel: Callable,
     name: str,
@@ -149,15 +187,20 @@ def run_single(
     tol: float,
     v_init: np.ndarray | None,
     with_R_rs: bool = False,
+    degenerate: str = "collinear, coplanar-degenerate or duplicated points?",
+    checked: bool = False,
 ) -> RSSolution:
-    """Validate one problem, run ``kernel`` on it as a batch of one, build an RSSolution.
+    """Validate one problem, run ``kernel`` on it as a batch of one, build an RSSolution
+    (``degenerate``: the likely causes of rank loss, for the error message; ``checked``: x,
+    X, r already checked as :func:`check_inputs` does, by the caller).
 
     Raises:
         ValueError: bad shapes, too few points, NaN/inf (from :func:`check_inputs`), or a
             non-positive iteration count.
         DegenerateInputError: the linear system lost rank (collinear/duplicated points...).
     """
-    x, X, r, r0 = check_inputs(x, X, r, r0, min_points, name)
+    if not checked:
+        x, X, r, r0 = check_inputs(x, X, r, r0, min_points, name)
     if iterations < 1:
         raise ValueError(f"{name}: iterations must be >= 1, got {iterations}")
     v0 = np.zeros((1, 3)) if v_init is None else np.asarray(v_init, dtype=float).reshape(1, 3)
@@ -171,7 +214,7 @@ def run_single(
     if not ok[0] or not np.isfinite(out[0]).all():
         raise DegenerateInputError(
             f"{name}: the correspondences do not determine a solution (rank-deficient system; "
-            "collinear, coplanar-degenerate or duplicated points?)"
+            f"{degenerate})"
         )
     u = out[0]
     return RSSolution(
@@ -198,9 +241,12 @@ def run_batch(
     tol: float,
     v_init: np.ndarray | None,
     with_R_rs: bool = False,
+    checked: bool = False,
 ) -> RSBatch:
-    """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)."""
-    x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
+    """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)
+    (``checked``: already checked as :func:`check_batch` does, by the caller)."""
+    if not checked:
+        x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
     K = x.shape[0]
     if iterations < 1:
         raise ValueError(f"{name}: iterations must be >= 1, got {iterations}")
@@ -242,6 +288,7 @@ def run_batch_with_prior(
     tol: float,
     v_init: np.ndarray | None,
     prior_rows: tuple[np.ndarray, np.ndarray] | None,
+    checked: bool = False,
 ) -> RSBatch:
     """:func:`run_batch` of a 12-parameter solver whose linear solves can take the rows of a
     linearized motion prior on (w, t): ``kernel`` without them (``prior_rows`` None), else
@@ -252,7 +299,9 @@ def run_batch_with_prior(
         ValueError: as :func:`run_batch`, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
     if prior_rows is None:
-        return run_batch(kernel, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+        return run_batch(
+            kernel, name, 12, min_points, x, X, r, r0, iterations, tol, v_init, checked=checked
+        )
     P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
     q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
     K = np.shape(x)[0]
@@ -265,7 +314,9 @@ def run_batch_with_prior(
     def with_prior(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
 
-    return run_batch(with_prior, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+    return run_batch(
+        with_prior, name, 12, min_points, x, X, r, r0, iterations, tol, v_init, checked=checked
+    )
 
 
 def alternating_solver(

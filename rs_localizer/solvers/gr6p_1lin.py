@@ -59,13 +59,20 @@ import numpy as np
 from numba import njit
 
 from ..geometry import cross
-from ._common import DegenerateInputError, RSBatch, RSSolution
-from ._linear import PATIENCE, RANK_TOL, cross_into, householder_lstsq, lstsq
+from ._common import RSBatch, RSSolution
+from ._linear import (
+    PATIENCE,
+    cross_into,
+    householder_lstsq,
+    lstsq,
+    lstsq_stack,
+    run_batch_with_prior,
+    run_single,
+)
 
 __all__ = [
     "gr6p_1lin",
     "gr6p_1lin_batch",
-    "gr6p_1lin_batch_numpy",
     "rig_algebraic_error",
     "rig_times",
 ]
@@ -255,43 +262,14 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
                 ok[k] = True
 
 
-def _lstsq_stack(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m):
-    square systems (minimal samples) by NumPy's stacked LU solve (singular ones one by one,
-    ``ok`` False), others by its stacked Householder QR, ``ok`` False where the triangular
-    factor's smallest pivot is at most ``RANK_TOL`` times its largest (rank loss); ``ok``
-    False too where a value is not finite. Returns (u (K, 12), ok (K,))."""
-    u = np.full(b.shape[:1] + (12,), np.nan)
-    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
-    if not ok.any():
-        return u, ok
-    idx = np.flatnonzero(ok)
-    if A.shape[1] == A.shape[2]:
-        try:
-            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
-        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
-            for k in idx:
-                try:
-                    u[k] = np.linalg.solve(A[k], b[k])
-                except np.linalg.LinAlgError:
-                    ok[k] = False
-    else:
-        Q, R = np.linalg.qr(A[idx])
-        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
-        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
-        rhs = np.einsum("kmi,km->ki", Q, b[idx])
-        if full.any():
-            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
-        ok[idx[~full]] = False
-    ok &= np.isfinite(u).all(axis=1)
-    return u, ok
-
-
-def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
-    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same rows,
-    iteration, stopping rule (converged, or ``PATIENCE`` steps without a new best by more
-    than ``tol``) and best iterate; ``P``, ``q`` (K, 6, 6), (K, 6) or None: the prior rows.
-    Returns (out (K, 12), ok (K,), its (K,), err (K,))."""
+@np.errstate(invalid="ignore", over="ignore", divide="ignore")
+def _solve_numpy(
+    x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err
+):
+    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same
+    arguments, rows, iteration, stopping rule (converged, or ``PATIENCE`` steps without a new
+    best by more than ``tol``) and best iterate, the linear solves by
+    :func:`~._linear.lstsq_stack`."""
     K, N = x.shape[0], x.shape[1]
     Rc, cc = Rm[cam], cm[cam]  # (K, N, 3, 3), (K, N, 3)
     xi, yi = x[..., 0:1], x[..., 1:2]
@@ -307,13 +285,12 @@ def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
     te = tau[:, :, None, None]
     rows[..., 9:12] = te * F
     b = (-np.einsum("knqj,knj->knq", F, X) - ec).reshape(K, 2 * N)
-    if P is not None:
+    if use_prior:
         extra = np.zeros((K, 6, 12))
         extra[:, :, 6:12] = P
         b = np.concatenate([b, q], axis=1)
     vhat = np.array(v_init, dtype=float)
-    out, ok = np.zeros((K, 12)), np.zeros(K, dtype=bool)
-    its, err = np.zeros(K, dtype=np.int64), np.full(K, np.inf)
+    err[:] = np.inf
     stale, active = np.zeros(K, dtype=np.int64), np.ones(K, dtype=bool)
     for it in range(iterations):
         k = np.flatnonzero(active)
@@ -322,9 +299,9 @@ def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
         Z = X[k] + cross(vhat[k][:, None, :], X[k])
         rows[k, :, :, 6:9] = te[k] * cross(Z[:, :, None, :], F[k])
         A = rows[k].reshape(len(k), 2 * N, 12)
-        if P is not None:
+        if use_prior:
             A = np.concatenate([A, extra[k]], axis=1)
-        u, good = _lstsq_stack(A, b[k])
+        u, good = lstsq_stack(A, b[k])
         active[k[~good]] = False  # (rank loss: the compiled solver stops there)
         k, u = k[good], u[good]
         # the RMS algebraic error of the rig eq. 5 at the iterate (_rig_error)
@@ -341,30 +318,11 @@ def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
         out[k[better]], err[k[better]], ok[k[better]] = u[better], e[better], True
         vhat[k] = u[:, 0:3]
         active[k[(e <= tol) | (stale[k] >= PATIENCE)]] = False
-    return out, ok, its, err
-
-
-def _mountings(R_mount, c_mount, cam, name):
-    """Validated (M, 3, 3), (M, 3) float64 mountings and int64 camera indices."""
-    Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
-    cm = np.ascontiguousarray(c_mount, dtype=np.float64)
-    if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
-        raise ValueError(f"{name}: R_mount must have shape (M, 3, 3), got {Rm.shape}")
-    if cm.shape != (len(Rm), 3):
-        raise ValueError(f"{name}: c_mount must have shape ({len(Rm)}, 3), got {cm.shape}")
-    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
-        raise ValueError(f"{name}: mountings contain NaN or inf")
-    cam_a = np.asarray(cam)
-    if cam_a.size and not np.issubdtype(cam_a.dtype, np.integer):
-        raise ValueError(f"{name}: cam must hold integer camera indices, got {cam_a.dtype}")
-    cam_a = np.ascontiguousarray(cam_a, dtype=np.int64)
-    if cam_a.size and (cam_a.min() < 0 or cam_a.max() >= len(Rm)):
-        raise ValueError(f"{name}: cam indices must lie in [0, {len(Rm)}), got {cam_a.min()}..")
-    return Rm, cm, cam_a
 
 
 def _check(x, X, tau, cam, R_mount, c_mount, batched):
-    """Shapes (N or K, N) of the inputs; float64 contiguous copies."""
+    """Shapes (N or K, N) of the inputs, the mountings (M, 3, 3), (M, 3) finite, camera
+    indices in range; float64 (int64 for ``cam``) contiguous copies."""
     x = np.ascontiguousarray(x, dtype=np.float64)
     X = np.ascontiguousarray(X, dtype=np.float64)
     lead = x.shape[:-1]
@@ -379,23 +337,26 @@ def _check(x, X, tau, cam, R_mount, c_mount, batched):
     tau = np.ascontiguousarray(tau, dtype=np.float64)
     if tau.shape != lead:
         raise ValueError(f"{NAME}: tau must have shape {lead}, got {tau.shape}")
-    cam = np.broadcast_to(np.asarray(cam), lead) if np.ndim(cam) == 0 else cam
-    Rm, cm, cam = _mountings(R_mount, c_mount, cam, NAME)
+    Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
+    cm = np.ascontiguousarray(c_mount, dtype=np.float64)
+    if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
+        raise ValueError(f"{NAME}: R_mount must have shape (M, 3, 3), got {Rm.shape}")
+    if cm.shape != (len(Rm), 3):
+        raise ValueError(f"{NAME}: c_mount must have shape ({len(Rm)}, 3), got {cm.shape}")
+    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+        raise ValueError(f"{NAME}: mountings contain NaN or inf")
+    cam = np.asarray(np.broadcast_to(np.asarray(cam), lead) if np.ndim(cam) == 0 else cam)
+    if cam.size and not np.issubdtype(cam.dtype, np.integer):
+        raise ValueError(f"{NAME}: cam must hold integer camera indices, got {cam.dtype}")
+    cam = np.ascontiguousarray(cam, dtype=np.int64)
+    if cam.size and (cam.min() < 0 or cam.max() >= len(Rm)):
+        raise ValueError(f"{NAME}: cam indices must lie in [0, {len(Rm)}), got {cam.min()}..")
     if cam.shape != lead:
         raise ValueError(f"{NAME}: cam must have shape {lead}, got {cam.shape}")
     return x, X, tau, cam, Rm, cm
 
 
-def _v0(v_init, K):
-    if v_init is None:
-        return np.zeros((K, 3))
-    v0 = np.array(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)), order="C")
-    if not np.isfinite(v0).all():
-        raise ValueError(f"{NAME}: v_init contains NaN or inf")
-    return v0
-
-
-_NO_P, _NO_Q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+_NO_PRIOR = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.bool_(False))
 
 
 def gr6p_1lin(
@@ -438,24 +399,12 @@ def gr6p_1lin(
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
     if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
         raise ValueError(f"{NAME}: inputs contain NaN or inf")
-    if iterations < 1:
-        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
-    v0 = _v0(v_init, 1)
-    out = np.zeros((1, 12))
-    ok = np.zeros(1, dtype=np.bool_)
-    its = np.zeros(1, dtype=np.int64)
-    err = np.zeros(1)
-    _solve(
-        x[None], X[None], tau[None], cam[None], Rm, cm, int(iterations), float(tol), v0,
-        _NO_P, _NO_Q, np.bool_(False), out, ok, its, err,
+    kernel, _ = _kernels(_solve, cam[None], Rm, cm)
+    return run_single(
+        kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
+        degenerate="collinear or duplicated points, or every observation at the same time?",
+        checked=True,
     )  # fmt: skip
-    if not ok[0] or not np.isfinite(out[0]).all():
-        raise DegenerateInputError(
-            f"{NAME}: the correspondences do not determine a solution (rank-deficient system; "
-            "collinear or duplicated points, or every observation at the same time?)"
-        )
-    u = out[0]
-    return RSSolution(u[0:3], u[3:6], u[6:9], u[9:12], None, int(its[0]), float(err[0]))
 
 
 def gr6p_1lin_batch(
@@ -469,6 +418,7 @@ def gr6p_1lin_batch(
     v_init: np.ndarray | None = None,
     tol: float = 1e-12,
     prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+    numpy: bool = False,
 ) -> RSBatch:
     """Batched :func:`gr6p_1lin` for K problems (RANSAC hypotheses) on one rig.
 
@@ -479,6 +429,10 @@ def gr6p_1lin_batch(
         prior_rows: ``None``, or ``(P (K, 6, 6), q (K, 6))``: every linear solve then minimizes
             ``|A u - b|^2 + |P[k] (w, t) - q[k]|^2`` (a linearized motion prior on the rig's
             velocities, in the units of tau), as ``r6p_1lin_batch``.
+        numpy: solve in NumPy, nothing compiled (the rig estimator's NumPy implementation):
+            the same iteration and outputs, each linear solve by NumPy's stacked LU solve for
+            square systems, its stacked QR otherwise (as the compiled one: Gaussian
+            elimination, Householder QR; the solutions agree to rounding).
     Returns:
         :class:`RSBatch` with (K, 3) v, C, w, t and a (K,) ``valid`` mask (False for rank loss
         or non-finite input, never raises for those).
@@ -486,66 +440,27 @@ def gr6p_1lin_batch(
         ValueError: wrong shapes, N < 6, camera index out of range, non-finite mountings,
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, True)
-
-
-def gr6p_1lin_batch_numpy(
-    x: np.ndarray,
-    X: np.ndarray,
-    tau: np.ndarray,
-    cam: np.ndarray,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
-    iterations: int = 5,
-    v_init: np.ndarray | None = None,
-    tol: float = 1e-12,
-    prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
-) -> RSBatch:
-    """:func:`gr6p_1lin_batch` in NumPy, nothing compiled (the rig estimator's NumPy
-    implementation): the same arguments, iteration and outputs, each linear solve by NumPy's
-    stacked LU solve for square systems, its stacked QR otherwise (as the compiled one:
-    Gaussian elimination, Householder QR; the solutions agree to rounding). A problem with a
-    single set of points (K = 1) is :func:`gr6p_1lin`'s, with ``valid`` False where it raises.
-
-    Raises:
-        ValueError: as :func:`gr6p_1lin_batch`.
-    """
-    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, False)
-
-
-def _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, compiled):
-    """:func:`gr6p_1lin_batch` (``compiled``: the numba kernel :func:`_solve`) and
-    :func:`gr6p_1lin_batch_numpy` (:func:`_solve_numpy`): one set of checks and outputs."""
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    K = x.shape[0]
-    if iterations < 1:
-        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
-    v0 = _v0(v_init, K)
-    n_it, tol = int(iterations), float(tol)
-    P = q = None
-    if prior_rows is not None:
-        P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
-        q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
-        if P.shape != (K, 6, 6) or q.shape != (K, 6):
-            raise ValueError(
-                f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-                f"got {P.shape} and {q.shape}"
-            )
-    if compiled:
-        out = np.zeros((K, 12))
-        ok = np.zeros(K, dtype=np.bool_)
-        its = np.zeros(K, dtype=np.int64)
-        err = np.zeros(K)
-        use = np.bool_(P is not None)
-        if P is None:
-            P, q = _NO_P, _NO_Q
-        _solve(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q, use, out, ok, its, err)
-    else:
-        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            out, ok, its, err = _solve_numpy(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q)
-    ok &= np.isfinite(out).all(axis=1)
-    out[~ok] = 0.0
-    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
+    kernel, with_prior = _kernels(_solve_numpy if numpy else _solve, cam, Rm, cm)
+    return run_batch_with_prior(
+        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows,
+        checked=True,
+    )  # fmt: skip
+
+
+def _kernels(solve, cam, Rm, cm):
+    """``solve`` (:func:`_solve` or :func:`_solve_numpy`) on the cameras ``cam`` at the
+    mountings ``Rm``, ``cm`` as the single camera's kernels of :mod:`._linear` (the
+    observation times passed as its ``r``, ``r0`` unused): ``(kernel, solve with prior)``."""
+
+    def with_prior(x, X, tau, r0, iterations, tol, v_init, P, q, use, out, ok, its, err):
+        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use, out, ok, its, err)
+
+    def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
+        # (the prior's types, a non-literal flag: one compiled _solve for both)
+        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
+
+    return kernel, with_prior
 
 
 def rig_algebraic_error(

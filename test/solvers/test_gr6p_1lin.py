@@ -15,7 +15,6 @@ from rs_localizer.solvers import DegenerateInputError, r6p_1lin, r6p_1lin_batch
 from rs_localizer.solvers.gr6p_1lin import (
     gr6p_1lin,
     gr6p_1lin_batch,
-    gr6p_1lin_batch_numpy,
     rig_algebraic_error,
     rig_times,
     still_solve_kernel,
@@ -158,7 +157,7 @@ def test_recovers_rig_motion_on_linearized_model_data(m):
 
 
 def test_numpy_form_agrees_with_the_compiled_solver_and_the_truth():
-    """gr6p_1lin_batch_numpy (NumPy's stacked QR, nothing compiled) on 3-camera rigs: on
+    """gr6p_1lin_batch(..., numpy=True) (NumPy's stacked QR, nothing compiled) on 3-camera rigs: on
     noise-free data of the rig eq. 5 (20 minimal samples of 6 points, 5 samples of 15) it
     reaches the truth as the compiled batch does (1e-7); on data with 1e-3 noise, with and
     without prior rows, it gives the compiled batch's valid flags, iteration counts and
@@ -169,7 +168,7 @@ def test_numpy_form_agrees_with_the_compiled_solver_and_the_truth():
         v, C, w, t = truth(rng)
         obs = [observe(rng, Rm, cm, cams, [n // 3] * 3, v, C, w, t) for _ in range(K)]
         x, X, tau, cam = (np.array([o[i] for o in obs]) for i in range(4))
-        exact = gr6p_1lin_batch_numpy(x, X, tau, cam, Rm, cm, iterations=50)
+        exact = gr6p_1lin_batch(x, X, tau, cam, Rm, cm, iterations=50, numpy=True)
         ref = gr6p_1lin_batch(x, X, tau, cam, Rm, cm, iterations=50)
         hit = np.array([max(errors(_row(exact, k), v, C, w, t)) < 1e-7 for k in range(K)])
         hit_ref = np.array([max(errors(_row(ref, k), v, C, w, t)) < 1e-7 for k in range(K)])
@@ -178,7 +177,7 @@ def test_numpy_form_agrees_with_the_compiled_solver_and_the_truth():
         P, q = rng.normal(size=(K, 6, 6)), rng.normal(size=(K, 6))
         for prior in (None, (P, q)):
             a = gr6p_1lin_batch(x, X, tau, cam, Rm, cm, iterations=10, prior_rows=prior)
-            b = gr6p_1lin_batch_numpy(x, X, tau, cam, Rm, cm, iterations=10, prior_rows=prior)
+            b = gr6p_1lin_batch(x, X, tau, cam, Rm, cm, iterations=10, prior_rows=prior, numpy=True)
             assert np.array_equal(a.valid, b.valid) and np.array_equal(a.iterations, b.iterations)
             for f in ("v", "C", "w", "t"):
                 np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=0, atol=1e-9)
