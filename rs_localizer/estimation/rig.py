@@ -152,7 +152,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import camera_values, kernel_ready
+from .frame import camera_values, correspondences, kernel_ready, valid_correspondences
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -199,7 +199,7 @@ from .rig_batch import (
     sample_kernel,
     still_search,
 )
-from .sampling import draw_samples_numpy
+from .sampling import draw_samples_numpy, valid_rows
 from .single_tag import MIN_PLANAR_POINTS, posed_planarity
 
 __all__ = [
@@ -525,51 +525,48 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     mc = None if mc is None or not mc.any() else mc
     uv = np.asarray(v.uv, dtype=float)
     X = np.asarray(v.X, dtype=float)
-    if uv.size == 0:
-        uv = uv.reshape(0, 2)
-    if X.size == 0:
-        X = X.reshape(0, 3)
-    if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
-            f"{uv.shape} and {X.shape}"
+    # (a camera's checks, :func:`~.frame.correspondences`; an empty view of any shape: no rows)
+    try:
+        uv, X = correspondences(
+            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X
         )
-    if len(uv) != len(X):
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
-        )
+    except ValueError as e:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
     cam = v.camera
-    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2, focal = np.zeros((0, 2)), camera_values(cam).focal
-        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
-                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     k = camera_values(cam)  # (kept per camera object)
     spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
+    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
+        z2 = np.zeros((0, 2))
+        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
+                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     stamp = float(v.stamp_offset)
     args = None if numpy else args  # (a distorted camera's, compiled)
-    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
-    if args is not None and spr == 0.0 and kernel_ready(uv) and kernel_ready(X):
+    kernels = not numpy and kernel_ready(uv) and kernel_ready(X)
+    if args is not None and spr == 0.0 and kernels:
         # (a global shutter with distortion: the checks and rows below in one compiled call
-        # when every row is finite)
+        # when every row is valid)
         x = cam.undistort(uv)
         if kernel_ready(x):
-            finite, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
-            if finite:
+            valid, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
+            if valid:
                 return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
-    if _all_finite(uv, X, numpy):
+    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`: every finite
+    # point, wherever it is)
+    ok = valid_correspondences(uv, X, _FINITE, kernels)
+    if ok.all():
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
-        idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
+        idx = np.flatnonzero(ok)
         uv_g, X_g = uv[idx], X[idx]
-    x = cam.undistort(uv_g, compiled=not numpy)
+    # (a camera's undistortion and RS coordinates, CameraModel.normalize)
+    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
     if not _all_finite(x, x, numpy):
         ok = np.isfinite(x).all(axis=1)
-        idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
+        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
         tau.fill(stamp + 0.0)
     else:
-        r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - k.r0) * spr
     if jacobian:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
@@ -580,20 +577,24 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             focal, A)  # fmt: skip
 
 
+#: the largest float: a rig's camera takes every finite point (:func:`_view_part`)
+_FINITE = float(np.finfo(np.float64).max)
+
+
 @njit(cache=True)
 def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
     """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
-    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every entry of the three
-    finite, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians
-    of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
+    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
+    camera's rule, :func:`~.sampling.valid_rows`, every finite point) with a finite ``x``, its
+    rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians of
+    :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
     fisheye, fx, fy``)``."""
     n = x.shape[0]
     idx = np.arange(n)
     tau = np.empty(n)
+    ok = valid_rows(uv, X, _FINITE)
     for i in range(n):
-        ok = np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]) and np.isfinite(x[i, 0])
-        ok = ok and np.isfinite(x[i, 1]) and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
-        if not (ok and np.isfinite(X[i, 2])):
+        if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
             return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
