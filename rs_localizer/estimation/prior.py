@@ -281,6 +281,7 @@ def sample_prior_rows(
     seconds_per_unit_r: float,
     noise: float | np.ndarray,
     distance: bool = False,
+    compiled: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`linear_prior_rows` for K pre-rotated samples, weighted like their equations.
 
@@ -296,6 +297,7 @@ def sample_prior_rows(
             sample or (K,) one per sample (a rig's: its first camera's).
         distance: the depth is the points' distance ``|Xs + C0|`` instead (a rig's frame,
             :mod:`~.rig`, has no optical axis).
+        compiled: False: the same loops in Python (code that compiles nothing).
     Returns:
         (P (K, 6, 6), q (K, 6)) for ``prior_rows``; equal to :func:`linear_prior_rows` with
         that scale.
@@ -306,7 +308,7 @@ def sample_prior_rows(
     K = len(C0)
     P = np.empty((K, 6, 6))
     q = np.empty((K, 6))
-    _rows_kernel(
+    (_rows_kernel if compiled else _rows_kernel.py_func)(
         U,
         U @ prior.mean_vector(),
         np.ascontiguousarray(Xs, dtype=np.float64),

@@ -497,7 +497,7 @@ def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
     weighted by half the inlier threshold in the sample's first camera's normalized units times
     the points' mean distance from the rig."""
     noise = 0.5 * threshold_px / pool.focal[idx[:, 0]]
-    return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True)
+    return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
 
 
 def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
