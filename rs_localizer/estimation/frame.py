@@ -311,7 +311,7 @@ def prepare_frame(
     return _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
 
 
-def correspondences(points2d, points3d) -> tuple[np.ndarray, np.ndarray]:
+def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A frame's measured pixels ``points2d`` and world points ``points3d`` as float64 arrays,
     checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`, a rig's camera,
     :mod:`~.rig`).
