@@ -40,6 +40,7 @@ __all__ = [
     "configure_frame",
     "correspondences",
     "kernel_ready",
+    "normalized_rows",
     "prepare_frame",
     "undistorted_frame",
     "valid_correspondences",
@@ -340,6 +341,16 @@ def valid_correspondences(
         return np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
 
 
+def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
+    """The rows of :meth:`~rs_localizer.camera.CameraModel.normalize`'s (N, 2) points ``x`` and
+    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, a rig's camera,
+    :mod:`~.rig`): None when every one is finite, else the (N,) bool mask of those that are
+    (undistortion can fail far outside the image)."""
+    if np.isfinite(x).all() and np.isfinite(r).all():
+        return None
+    return np.isfinite(x.sum(axis=1) + r)
+
+
 def undistorted_frame(
     points2d: np.ndarray,
     points3d: np.ndarray,
@@ -513,8 +524,8 @@ def _frame(
     RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`); ``J``:
     (N, 4) the rows' pixel Jacobians when known (every row finite; None: computed here when
     the camera's varies)."""
-    if not (np.isfinite(x).all() and np.isfinite(r).all()):
-        good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
+    good = normalized_rows(x, r)
+    if good is not None:
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
     r0, focal, varying, d, _, _ = camera_values(camera)
     fr = Frame(

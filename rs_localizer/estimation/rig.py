@@ -152,7 +152,13 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import camera_values, correspondences, kernel_ready, valid_correspondences
+from .frame import (
+    camera_values,
+    correspondences,
+    kernel_ready,
+    normalized_rows,
+    valid_correspondences,
+)
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -165,7 +171,6 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
 from .plausibility import (
-    all_finite,
     collinear_3d,
     image_degenerate,
     plausible_motion,
@@ -504,7 +509,10 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
-    n valid rows."""
+    n valid rows: the rows a single camera's frame takes of them (:func:`~.frame.prepare_frame`:
+    its checks, :func:`~.frame.correspondences`, :func:`~.frame.valid_correspondences` with
+    every finite point, :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
+    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
     m = v.mounting
@@ -560,8 +568,8 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         uv_g, X_g = uv[idx], X[idx]
     # (a camera's undistortion and RS coordinates, CameraModel.normalize)
     x, r, _ = cam.normalize(uv_g, compiled=not numpy)
-    if not _all_finite(x, x, numpy):
-        ok = np.isfinite(x).all(axis=1)
+    ok = normalized_rows(x, r)
+    if ok is not None:
         idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
@@ -598,28 +606,6 @@ def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
             return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-@njit(cache=True)
-def _finite_kernel(a, b):
-    """Whether every entry of the 2D float64 arrays ``a`` and ``b`` is finite."""
-    for i in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            if not np.isfinite(a[i, j]):
-                return False
-    for i in range(b.shape[0]):
-        for j in range(b.shape[1]):
-            if not np.isfinite(b[i, j]):
-                return False
-    return True
-
-
-def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
-    """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
-    in NumPy, nothing compiles)."""
-    if numpy or not (kernel_ready(a) and kernel_ready(b)):
-        return all_finite(a, b)
-    return bool(_finite_kernel(a, b))
 
 
 @njit(cache=True)
