@@ -976,8 +976,8 @@ def _hypotheses(
 def _prerotated_solve(pool: _Pool, S: np.ndarray, Xp: np.ndarray, tau: np.ndarray,
                       iterations: int, rows):  # fmt: skip
     """The rig solver on the samples ``S`` (H, 6) with their world points ``Xp`` (H, 6, 3)
-    pre-rotated by ``R0`` (H, 3, 3) at capture times ``tau`` (H, 6) s, ``rows`` its prior rows
-    or None; each solution's rotation is ``expm([v]x) R0``."""
+    pre-rotated, each sample's by a rotation ``R0`` (3, 3), at capture times ``tau`` (H, 6) s,
+    ``rows`` its prior rows or None; each solution's rotation is ``expm([v]x) R0``."""
     return _rig_solver(pool)(
         pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations, prior_rows=rows
     )  # fmt: skip
