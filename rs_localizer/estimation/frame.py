@@ -38,9 +38,12 @@ __all__ = [
     "RefinementView",
     "camera_values",
     "configure_frame",
+    "correspondences",
     "kernel_ready",
+    "normalized_rows",
     "prepare_frame",
     "undistorted_frame",
+    "valid_correspondences",
     "varying_pixel_jacobian",
 ]
 
@@ -299,22 +302,53 @@ def prepare_frame(
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
     """
-    u = np.asarray(points2d, dtype=np.float64)
-    X = np.asarray(points3d, dtype=np.float64)
-    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
-        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
-    if compiled:
-        ok = valid_rows(u, X, max_point_norm)
-    else:
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
-    rows = np.flatnonzero(ok)
+    u, X = correspondences(points2d, points3d)
+    rows = np.flatnonzero(valid_correspondences(u, X, max_point_norm, compiled))
     if rng is not None:
         rows = rng.permutation(rows)
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
     u_px = u.take(rows, axis=0)
     x, r, r0e = camera.normalize(u_px, compiled)
     return _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
+
+
+def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's measured pixels ``points2d`` and world points ``points3d`` as float64 arrays,
+    checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`, a rig's camera,
+    :mod:`~.rig`).
+
+    Raises:
+        ValueError: arrays of other shapes or of different lengths, naming both shapes.
+    """
+    u = np.asarray(points2d, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
+    return u, X
+
+
+def valid_correspondences(
+    u: np.ndarray, X: np.ndarray, max_point_norm: float, compiled: bool = True
+) -> np.ndarray:
+    """(N,) bool: the rows of (N, 2) pixels ``u`` and (N, 3) world points ``X`` (float64) a
+    frame takes (:func:`prepare_frame`, a rig's camera, :mod:`~.rig`): a finite pixel and a
+    point with every coordinate within ``max_point_norm`` (m) of the origin (NaN and points at
+    infinity fail); ``compiled=False``: in NumPy, the same rule
+    (:func:`~.sampling.valid_rows`)."""
+    if compiled:
+        return valid_rows(u, X, max_point_norm)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
+
+
+def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
+    """The rows of :meth:`~rs_localizer.camera.CameraModel.normalize`'s (N, 2) points ``x`` and
+    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, a rig's camera,
+    :mod:`~.rig`): None when every one is finite, else the (N,) bool mask of those that are
+    (undistortion can fail far outside the image)."""
+    if np.isfinite(x).all() and np.isfinite(r).all():
+        return None
+    return np.isfinite(x.sum(axis=1) + r)
 
 
 def undistorted_frame(
@@ -490,8 +524,8 @@ def _frame(
     RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`); ``J``:
     (N, 4) the rows' pixel Jacobians when known (every row finite; None: computed here when
     the camera's varies)."""
-    if not (np.isfinite(x).all() and np.isfinite(r).all()):
-        good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
+    good = normalized_rows(x, r)
+    if good is not None:
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
     r0, focal, varying, d, _, _ = camera_values(camera)
     fr = Frame(

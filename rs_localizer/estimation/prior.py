@@ -244,15 +244,23 @@ def linear_prior_rows(
 
 
 @njit(cache=True)
-def _rows_kernel(U, Um, Xs, C0, s, noise, P, q):
+def _rows_kernel(U, Um, Xs, C0, s, noise, distance, P, q):
     """:func:`sample_prior_rows` for K samples (loops instead of NumPy's per-call overhead)."""
     K, n = Xs.shape[0], Xs.shape[1]
     for k in range(K):
         depth = 0.0
-        for i in range(n):
-            depth += Xs[k, i, 2]
-        depth = depth / n + C0[k, 2]
-        sc = noise * max(depth, 1e-9) / s
+        if distance:
+            for i in range(n):
+                a0 = Xs[k, i, 0] + C0[k, 0]
+                a1 = Xs[k, i, 1] + C0[k, 1]
+                a2 = Xs[k, i, 2] + C0[k, 2]
+                depth += np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            depth = depth / n
+        else:
+            for i in range(n):
+                depth += Xs[k, i, 2]
+            depth = depth / n + C0[k, 2]
+        sc = noise[k] * max(depth, 1e-9) / s
         c0, c1, c2 = C0[k, 0], C0[k, 1], C0[k, 2]
         for a in range(6):
             u0, u1, u2 = U[a, 0], U[a, 1], U[a, 2]
@@ -267,7 +275,13 @@ def _rows_kernel(U, Um, Xs, C0, s, noise, P, q):
 
 
 def sample_prior_rows(
-    prior: MotionPrior, Xs: np.ndarray, C0: np.ndarray, seconds_per_unit_r: float, noise: float
+    prior: MotionPrior,
+    Xs: np.ndarray,
+    C0: np.ndarray,
+    seconds_per_unit_r: float,
+    noise: float | np.ndarray,
+    distance: bool = False,
+    compiled: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`linear_prior_rows` for K pre-rotated samples, weighted like their equations.
 
@@ -279,7 +293,11 @@ def sample_prior_rows(
         prior: an enabled :class:`MotionPrior`.
         Xs: (K, n, 3) the samples' points pre-rotated by their P3P rotations.
         C0: (K, 3) their P3P translations (the depth is ``Xs[..., 2] + C0[2]``).
-        seconds_per_unit_r: > 0 (s). noise: image noise (normalized units).
+        seconds_per_unit_r: > 0 (s). noise: image noise (normalized units), one for every
+            sample or (K,) one per sample (a rig's: its first camera's).
+        distance: the depth is the points' distance ``|Xs + C0|`` instead (a rig's frame,
+            :mod:`~.rig`, has no optical axis).
+        compiled: False: the same loops in Python (code that compiles nothing).
     Returns:
         (P (K, 6, 6), q (K, 6)) for ``prior_rows``; equal to :func:`linear_prior_rows` with
         that scale.
@@ -290,13 +308,14 @@ def sample_prior_rows(
     K = len(C0)
     P = np.empty((K, 6, 6))
     q = np.empty((K, 6))
-    _rows_kernel(
+    (_rows_kernel if compiled else _rows_kernel.py_func)(
         U,
         U @ prior.mean_vector(),
         np.ascontiguousarray(Xs, dtype=np.float64),
         np.ascontiguousarray(C0, dtype=np.float64),
         float(seconds_per_unit_r),
-        float(noise),
+        np.ascontiguousarray(np.broadcast_to(np.asarray(noise, dtype=np.float64), (K,))),
+        bool(distance),
         P,
         q,
     )

@@ -151,7 +151,13 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
 )
-from .frame import camera_values, kernel_ready
+from .frame import (
+    camera_values,
+    correspondences,
+    kernel_ready,
+    normalized_rows,
+    valid_correspondences,
+)
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -164,13 +170,12 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
 from .plausibility import (
-    all_finite,
     collinear_3d,
     image_degenerate,
     plausible_motion,
     views_degenerate,
 )
-from .prior import MotionPrior
+from .prior import MotionPrior, sample_prior_rows
 from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
@@ -198,7 +203,7 @@ from .rig_batch import (
     sample_kernel,
     still_search,
 )
-from .sampling import draw_samples_numpy
+from .sampling import draw_samples_numpy, valid_rows
 from .single_tag import MIN_PLANAR_POINTS, posed_planarity
 
 __all__ = [
@@ -487,60 +492,26 @@ def _label(c: int, v: RigView) -> str:
     return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
 
 
-@dataclass(frozen=True, eq=False)
-class _GyroPrior:
-    """A gyro measurement of the rig's angular velocity as a prior on the model's ``w``
-    (rad/s, rig frame; ``w = -omega``): mean ``w`` (3,), information ``info`` (3, 3)
-    (s^2/rad^2) and its square root ``U`` (``U^T U = info``); ``time`` (s from the rig's
-    reference time): when the rig turned at the measured rate (the middle of the gyro's
-    window; for the sensitivity to acceleration); ``motion``: the same as a single camera's
-    motion prior (:func:`~.gyro.gyro_prior`, the rig's twist with one second per unit of
-    tau), what the refinement takes."""
-
-    w: np.ndarray
-    info: np.ndarray
-    U: np.ndarray
-    time: float = 0.0
-    motion: MotionPrior | None = None
-
-    @classmethod
-    def of(cls, gyro: GyroMeasurement, time: float = 0.0, compiled: bool = True) -> _GyroPrior:
-        """The prior of ``gyro`` (``compiled=False``: its motion prior in NumPy,
-        :func:`~.gyro.gyro_prior`)."""
-        info = np.linalg.inv(gyro.covariance)
-        info = 0.5 * (info + info.T)
-        w = -np.asarray(gyro.angular_velocity, float)
-        return cls(
-            w, info, np.linalg.cholesky(info).T, float(time), gyro_prior(gyro, compiled=compiled)
-        )
-
-    def rows(self, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K samples whose
-        equations have noise ``scale`` (K,) (image noise times depth): ``|P (w, t) - q|^2 =
-        scale^2 (w - w_g)^T info (w - w_g)`` (3 rows; the other 3 zero: t is free)."""
-        k = np.asarray(scale, dtype=float)
-        P = np.zeros((len(k), 6, 6))
-        q = np.zeros((len(k), 6))
-        P[:, :3, :3] = k[:, None, None] * self.U[None]
-        q[:, :3] = k[:, None] * (self.U @ self.w)[None]
-        return P, q
-
-
-def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> np.ndarray:
-    """(K,) noise of the rig solver's equations for K samples ``idx`` (K, n) under models
-    ``R`` (K, 3, 3), ``C`` (K, 3): half the inlier threshold in normalized units times the
-    mean distance of the sample's points from the rig (as a single camera's damped samples,
-    :func:`~rs_localizer.estimation.prior.sample_prior_rows`)."""
-    p = np.einsum("kij,knj->kni", R, pool.X[idx]) + C[:, None, :]
-    depth = np.linalg.norm(p, axis=2).mean(axis=1)
-    return 0.5 * threshold_px / pool.focal[idx[:, 0]] * np.maximum(depth, 1e-9)
+def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
+                idx: np.ndarray, threshold_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The gyro ``prior``'s ``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K
+    samples ``idx`` (K, n) whose points ``Xp`` (K, n, 3) are pre-rotated, ``C0`` (K, 3) their
+    translations: a single camera's damped samples' rows
+    (:func:`~rs_localizer.estimation.prior.sample_prior_rows`, one second per unit of tau),
+    weighted by half the inlier threshold in the sample's first camera's normalized units times
+    the points' mean distance from the rig."""
+    noise = 0.5 * threshold_px / pool.focal[idx[:, 0]]
+    return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
 
 
 def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
-    n valid rows."""
+    n valid rows: the rows a single camera's frame takes of them (:func:`~.frame.prepare_frame`:
+    its checks, :func:`~.frame.correspondences`, :func:`~.frame.valid_correspondences` with
+    every finite point, :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
+    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
     m = v.mounting
@@ -561,51 +532,48 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     mc = None if mc is None or not mc.any() else mc
     uv = np.asarray(v.uv, dtype=float)
     X = np.asarray(v.X, dtype=float)
-    if uv.size == 0:
-        uv = uv.reshape(0, 2)
-    if X.size == 0:
-        X = X.reshape(0, 3)
-    if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
-            f"{uv.shape} and {X.shape}"
+    # (a camera's checks, :func:`~.frame.correspondences`; an empty view of any shape: no rows)
+    try:
+        uv, X = correspondences(
+            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X
         )
-    if len(uv) != len(X):
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
-        )
+    except ValueError as e:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
     cam = v.camera
-    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2, focal = np.zeros((0, 2)), camera_values(cam).focal
-        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
-                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     k = camera_values(cam)  # (kept per camera object)
     spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
+    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
+        z2 = np.zeros((0, 2))
+        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
+                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     stamp = float(v.stamp_offset)
     args = None if numpy else args  # (a distorted camera's, compiled)
-    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
-    if args is not None and spr == 0.0 and kernel_ready(uv) and kernel_ready(X):
+    kernels = not numpy and kernel_ready(uv) and kernel_ready(X)
+    if args is not None and spr == 0.0 and kernels:
         # (a global shutter with distortion: the checks and rows below in one compiled call
-        # when every row is finite)
+        # when every row is valid)
         x = cam.undistort(uv)
         if kernel_ready(x):
-            finite, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
-            if finite:
+            valid, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
+            if valid:
                 return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
-    if _all_finite(uv, X, numpy):
+    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`: every finite
+    # point, wherever it is)
+    ok = valid_correspondences(uv, X, _FINITE, kernels)
+    if ok.all():
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
-        idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
+        idx = np.flatnonzero(ok)
         uv_g, X_g = uv[idx], X[idx]
-    x = cam.undistort(uv_g, compiled=not numpy)
-    if not _all_finite(x, x, numpy):
-        ok = np.isfinite(x).all(axis=1)
-        idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
+    # (a camera's undistortion and RS coordinates, CameraModel.normalize)
+    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
+    ok = normalized_rows(x, r)
+    if ok is not None:
+        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
     if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.empty(len(uv_g))
         tau.fill(stamp + 0.0)
     else:
-        r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
         tau = stamp + (r - k.r0) * spr
     if jacobian:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
@@ -616,45 +584,27 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             focal, A)  # fmt: skip
 
 
+#: the largest float: a rig's camera takes every finite point (:func:`_view_part`)
+_FINITE = float(np.finfo(np.float64).max)
+
+
 @njit(cache=True)
 def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
     """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
-    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every entry of the three
-    finite, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians
-    of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
+    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
+    camera's rule, :func:`~.sampling.valid_rows`, every finite point) with a finite ``x``, its
+    rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians of
+    :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
     fisheye, fx, fy``)``."""
     n = x.shape[0]
     idx = np.arange(n)
     tau = np.empty(n)
+    ok = valid_rows(uv, X, _FINITE)
     for i in range(n):
-        ok = np.isfinite(uv[i, 0]) and np.isfinite(uv[i, 1]) and np.isfinite(x[i, 0])
-        ok = ok and np.isfinite(x[i, 1]) and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
-        if not (ok and np.isfinite(X[i, 2])):
+        if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
             return False, idx, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-@njit(cache=True)
-def _finite_kernel(a, b):
-    """Whether every entry of the 2D float64 arrays ``a`` and ``b`` is finite."""
-    for i in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            if not np.isfinite(a[i, j]):
-                return False
-    for i in range(b.shape[0]):
-        for j in range(b.shape[1]):
-            if not np.isfinite(b[i, j]):
-                return False
-    return True
-
-
-def _all_finite(a: np.ndarray, b: np.ndarray, numpy: bool) -> bool:
-    """Whether every entry of the 2D arrays ``a`` and ``b`` (float64) is finite (``numpy``:
-    in NumPy, nothing compiles)."""
-    if numpy or not (kernel_ready(a) and kernel_ready(b)):
-        return all_finite(a, b)
-    return bool(_finite_kernel(a, b))
 
 
 @njit(cache=True)
@@ -984,7 +934,7 @@ def _hypotheses(
     iterations: int,
     bounds=None,
     anchor=None,
-    prior: _GyroPrior | None = None,
+    prior: MotionPrior | None = None,
     threshold_px: float = 2.0,
     p3p=None,
 ):
@@ -994,7 +944,7 @@ def _hypotheses(
     every sample instead, an initial model's or the best model's; ``(R, C)``); ``bounds``
     ``(w_max rad/s, v_max m/s)`` or None: models moving faster are dropped
     (:func:`~.plausibility.plausible_motion` with one second per unit of tau); ``prior``: a
-    gyro, whose rows (weighted by :func:`_equation_noise` at the pre-rotation, P3P's or the
+    gyro's motion prior, whose rows (:func:`_prior_rows` at the pre-rotation, P3P's or the
     anchor's translation) join every linear solve. Returns arrays of H valid models, or
     None."""
     if anchor is not None:
@@ -1007,22 +957,20 @@ def _hypotheses(
             return None
         R0, C0, own = pre
         S = samples[own]
-    rows = None
-    if prior is not None:
-        rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
-    b = _prerotated_solve(pool, S, R0, pool.tau[S], iterations, rows)
+    Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
+    rows = None if prior is None else _prior_rows(pool, prior, Xp, C0, S, threshold_px)
+    b = _prerotated_solve(pool, S, Xp, pool.tau[S], iterations, rows)
     ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds, pool.compiled)
     if not ok.any():
         return None
     return np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok]), b.C[ok], b.w[ok], b.t[ok]
 
 
-def _prerotated_solve(pool: _Pool, S: np.ndarray, R0: np.ndarray, tau: np.ndarray,
+def _prerotated_solve(pool: _Pool, S: np.ndarray, Xp: np.ndarray, tau: np.ndarray,
                       iterations: int, rows):  # fmt: skip
-    """The rig solver on the samples ``S`` (H, 6) with their world points pre-rotated by
-    ``R0`` (H, 3, 3) at capture times ``tau`` (H, 6) s, ``rows`` its prior rows or None; each
-    solution's rotation is ``expm([v]x) R0``."""
-    Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
+    """The rig solver on the samples ``S`` (H, 6) with their world points ``Xp`` (H, 6, 3)
+    pre-rotated, each sample's by a rotation ``R0`` (3, 3), at capture times ``tau`` (H, 6) s,
+    ``rows`` its prior rows or None; each solution's rotation is ``expm([v]x) R0``."""
     return gr6p_1lin_batch(
         pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
         prior_rows=rows, numpy=pool.numpy,
@@ -1076,7 +1024,8 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     k = len(S)
     if pool.numpy:
         held = (np.broadcast_to(np.eye(6), (k, 6, 6)), np.zeros((k, 6)))  # ((w, t) = 0)
-        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
+        Xp = np.einsum("hij,hnj->hni", Rg, pool.X[S])
+        b = _prerotated_solve(pool, S, Xp, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
         return b.v, b.C, b.valid
     X, x = _kernel_arrays(pool)[:2]
     cam, Rm, cm, _ = _kernel_mountings(pool).views
@@ -1158,22 +1107,23 @@ def _refit(
     model,
     threshold_px: float,
     rounds: int = 2,
-    prior: _GyroPrior | None = None,
+    prior: MotionPrior | None = None,
 ):
     """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times;
-    ``prior``: a gyro's rows join the solve (weighted by :func:`_equation_noise` at
-    ``threshold_px``)."""
+    ``prior``: a gyro's motion prior, whose rows (:func:`_prior_rows` at ``threshold_px``)
+    join the solve."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
         return model
     for _ in range(rounds):
         if prior is not None or pool.numpy:  # (a batch of one: with the gyro's rows; NumPy)
+            Xp = (pool.X[idx] @ R.T)[None]
             rows = None
             if prior is not None:
-                rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
+                rows = _prior_rows(pool, prior, Xp, C[None], idx[None], threshold_px)
             b = gr6p_1lin_batch(
-                pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
+                pool.x[idx][None], Xp, pool.tau[idx][None],
                 pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
                 numpy=pool.numpy,
             )  # fmt: skip
@@ -1226,7 +1176,7 @@ def _refine(
     max_iterations: int = 20,
     free=12,
     cutoff_px: float | None = None,
-    prior: _GyroPrior | None = None,
+    prior: MotionPrior | None = None,
 ):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
@@ -1235,13 +1185,13 @@ def _refine(
     :data:`RIG_REFINE_TOL`) with each point seen through its camera's mounting at its own
     capture time, errors in px. 12 parameters: a rotation update left of R, C, w, t
     (``free=6``: the pose alone, w and t kept at zero).
-    ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains ``sigma^2 (w -
-    w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the starting
-    model's errors inside the threshold. With ``pool.numpy``:
+    ``prior`` (a gyro's motion prior, with ``free=12``): maximum a posteriori, the cost gains
+    ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
+    starting model's errors inside the threshold. With ``pool.numpy``:
     :func:`~.refine.refine_rs_pose_numpy`."""
     k = float(threshold_px)
     cut = None if cutoff_px is None else max(float(cutoff_px), k)
-    motion = prior.motion if prior is not None and free == 12 else None
+    motion = prior if free == 12 else None
     res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
                            max_iterations=max_iterations, covariance=False,
                            tol=RIG_REFINE_TOL)  # fmt: skip
@@ -1665,8 +1615,8 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstim
         return _still_if_no_motion(pool, settings, _estimate(pool, *settings))
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    prior = _GyroPrior.of(gyro, gyro_time, not pool.numpy)
-    est = _estimate(pool, *settings, prior=prior)
+    prior = gyro_prior(gyro, compiled=not pool.numpy)
+    est = _estimate(pool, *settings, prior=prior, gyro_time=gyro_time)
     chi2, image_inliers = np.inf, 0
     if est.success:
         image = image_alone(pool, est.model, threshold_px, None)
@@ -2284,14 +2234,17 @@ def _estimate(
     options: EstimateOptions,
     initial_model,
     generalized: bool,
-    prior: _GyroPrior | None = None,
+    prior: MotionPrior | None = None,
     still: bool | None = None,
     spread: bool = False,
+    gyro_time: float = 0.0,
 ) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
-    a rig frame that is not still) or without one (arguments as there); ``still``: on the
-    global-shutter model (True) or not (False) whatever the observations' time spread (None:
-    global shutter when they are within :data:`STILL_SPREAD`).
+    a rig frame that is not still; :func:`~.gyro.gyro_prior`, the rig's twist with one second
+    per unit of tau; ``gyro_time``: s from the rig's reference time when the rig turned at the
+    measured rate, for the sensitivity to acceleration) or without one (arguments as there);
+    ``still``: on the global-shutter model (True) or not (False) whatever the observations'
+    time spread (None: global shutter when they are within :data:`STILL_SPREAD`).
 
     A global-shutter search whose final model has fewer than ``ransac.min_inliers`` inliers
     searches again (``spread``) with every sample's P3P models corrected on the sample's six
@@ -2380,7 +2333,9 @@ def _estimate(
     inl, n_inl, rms = selected(e, threshold_px)
     if n_inl < r.min_inliers:
         if still and not spread:  # (every sample corrected across the cameras: docstring)
-            return _estimate(pool, options, initial_model, generalized, prior, True, True)
+            return _estimate(
+                pool, options, initial_model, generalized, prior, True, True, gyro_time
+            )
         return failed(TOO_FEW_INLIERS, drawn)
     # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
     if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
@@ -2396,7 +2351,7 @@ def _estimate(
     ref, compiled = None, not pool.numpy
     rolling = free == 12
     if refine and n_inl > 6:
-        motion = prior.motion if prior is not None and rolling else None
+        motion = prior if rolling else None
         ref = frame_refinement(pool, (R, C, w, t), threshold_px, rolling, motion, rolling,
                                max_iterations=0)  # fmt: skip
     if options.plausibility.consistent_fit and inconsistent_fit(
@@ -2410,7 +2365,7 @@ def _estimate(
     if ref is not None:
         cov = final_covariance(pool, (R, C, w, t), ref, threshold_px, rolling, e)
     if cov is not None and rolling:
-        rate = None if prior is None else (prior.time, prior.info)
+        rate = None if prior is None else (gyro_time, prior.information()[3:, 3:])
         G = final_sensitivity(pool, (R, C, w, t), ref.covariance, ref, threshold_px, rate)
     out = (
         (None, None, None)

@@ -9,6 +9,7 @@ import pytest
 
 from rs_localizer import EstimateOptions, MotionPrior, RansacOptions, estimate_rs_pose
 from rs_localizer.estimation.degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from rs_localizer.estimation.gyro import GyroMeasurement, gyro_prior
 from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
 from rs_localizer.estimation.refine import (
     RefineSettings,
@@ -287,6 +288,28 @@ def test_linear_prior_rows_are_the_prior_at_the_linearization_point():
     P3, q3 = linear_prior_rows(prior, C0, s, 1e-3 * (Xs[0, :, 2].mean() + C0[2]))
     np.testing.assert_allclose(P2, P3, rtol=1e-12)
     np.testing.assert_allclose(q2, q3, rtol=1e-12)
+
+
+def test_gyro_rows_per_sample_at_the_distance_are_its_information_on_w():
+    # a rig's gyro (rad/s, one second per unit of tau): rows on w alone, each sample weighted
+    # by its own noise times its points' mean distance from the rig; in Python as compiled
+    rng = np.random.default_rng(4)
+    S = np.diag([2e-4, 3e-4, 1e-4]) + 5e-5
+    omega = np.array([0.3, -1.2, 0.5])
+    prior = gyro_prior(GyroMeasurement(omega, S))
+    Xs, C0 = rng.normal(size=(3, 6, 3)), rng.normal(size=(3, 3)) + [0.0, 0.0, 4.0]
+    noise = np.array([1e-3, 2e-3, 5e-4])
+    P, q = sample_prior_rows(prior, Xs, C0, 1.0, noise, distance=True)
+    P2, q2 = sample_prior_rows(prior, Xs, C0, 1.0, noise, distance=True, compiled=False)
+    np.testing.assert_allclose(P2, P, rtol=1e-14, atol=0.0)
+    np.testing.assert_allclose(q2, q, rtol=1e-14, atol=0.0)
+    for k in range(3):
+        scale = noise[k] * np.linalg.norm(Xs[k] + C0[k], axis=1).mean()
+        w, t = rng.normal(size=3), rng.normal(size=3)
+        d = w + omega  # (the model's w is -omega)
+        assert np.sum((P[k] @ np.r_[w, t] - q[k]) ** 2) == pytest.approx(
+            scale**2 * d @ np.linalg.inv(S) @ d, rel=1e-10
+        )
 
 
 def test_runner_up_prerotation_by_brute_force():
