@@ -11,9 +11,10 @@ mapped to the rig, corrected on the sample's 6 points by the rig solver with the
 held at zero where the best model misses a camera) and :func:`moving_batch` (a rolling-shutter
 one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
-:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
-through its camera's mounting (:func:`point_residual`), summed as ``np.sum`` sums, the lowest
-kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
+:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels,
+the camera's exact-model error (:mod:`.scoring`) of the model seen through the point's
+camera's mounting (:func:`camera_pose`, :func:`point_error2`), summed as ``np.sum`` sums, the
+lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
 implementation) calls the same kernels one by one.
 """
 
@@ -22,18 +23,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE, compose_rotvec
+from .._so3 import FMA, INLINE, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 from .ransac import next_batch_size_kernel, required_samples_kernel
 from .sampling import draw_sample
+from .scoring import exact_error2_whitened, image_error2_whitened
 
 __all__ = [
     "batch_samples",
     "best_msac",
     "block_sum",
-    "camera_error",
+    "camera_pose",
     "counted",
     "inliers_missed",
     "lambda_twist_on_rig",
@@ -43,68 +45,63 @@ __all__ = [
     "next_batch",
     "p3p_on_rig_into",
     "pairwise_sum",
-    "point_residual",
+    "point_error2",
     "sample_kernel",
     "still_batch",
-    "still_residual",
     "still_search",
 ]
 
 
-@njit(cache=True, inline=INLINE)
-def camera_error(z0, z1, z2, c_, Rm, cm, x, A, i):
-    """The (2,) image error (px) of point ``i`` at ``z`` in the rig frame, seen by camera
-    ``c_`` through its mounting: :func:`point_residual`'s last steps."""
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _turned(Rm, c, v0, v1, v2):
+    """``Rm[c] v`` for a vector ``v``: three scalars."""
+    return (
+        Rm[c, 0, 0] * v0 + Rm[c, 0, 1] * v1 + Rm[c, 0, 2] * v2,
+        Rm[c, 1, 0] * v0 + Rm[c, 1, 1] * v1 + Rm[c, 1, 2] * v2,
+        Rm[c, 2, 0] * v0 + Rm[c, 2, 1] * v1 + Rm[c, 2, 2] * v2,
+    )
 
 
-@njit(cache=True, inline=INLINE)
-def point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
-    """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
-    the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`~.rig._Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
-    camera. Inlined (numba permitting: ``INLINE``) into each kernel that needs it: the same
-    operations in each."""
-    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    ti = tau[i]
-    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    if th < 1e-12:
-        z0 = y0 + p1 * y2 - p2 * y1
-        z1 = y1 + p2 * y0 - p0 * y2
-        z2 = y2 + p0 * y1 - p1 * y0
-    else:
-        k0, k1, k2 = p0 / th, p1 / th, p2 / th
-        c, s = np.cos(th), np.sin(th)
-        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-    z0 += C[h, 0] + ti * t[h, 0]
-    z1 += C[h, 1] + ti * t[h, 1]
-    z2 += C[h, 2] + ti * t[h, 2]
-    return camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def camera_pose(R, C, w, t, h, Rm, cm, c):
+    """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
+    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
+    (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c] t[h])``, 18 scalars. Since ``Rm
+    expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau [w]x) R X + C + tau t)
+    + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``, which the camera's
+    kernels evaluate (:func:`point_error2`)."""
+    a00, a10, a20 = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
+    a01, a11, a21 = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
+    a02, a12, a22 = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
+    C0, C1, C2 = _turned(Rm, c, C[h, 0], C[h, 1], C[h, 2])
+    w0, w1, w2 = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
+    t0, t1, t2 = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
+    return (a00, a01, a02, a10, a11, a12, a20, a21, a22,
+            C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
 
 
-@njit(cache=True, inline=INLINE)
-def still_residual(R, C, X, cam, Rm, cm, x, A, h, i):
-    """:func:`point_residual` of a model with ``w = t = 0`` (the rotation at every capture
-    time the identity): the same (2,) error, without the terms that add zeros."""
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    z0, z1, z2 = y0 + C[h, 0], y1 + C[h, 1], y2 + C[h, 2]
-    return camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def point_error2(pose, X, x, tau, A, i, still):
+    """The squared image error (px^2) of point ``i`` under a camera's ``pose``
+    (:func:`camera_pose`): the camera's exact-model error at its capture time ``tau[i]``
+    (:func:`~.scoring.exact_error2_whitened`), the normalized difference (predicted minus
+    measured) times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
+    :class:`~.rig._Pool`), to first order the error in the measured image; ``inf`` behind
+    the camera. ``still``: ``w = t = 0`` (the rotation at every capture time the identity:
+    the same error without the terms that add zeros)."""
+    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
+    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+    q0 = r00 * X0 + r01 * X1 + r02 * X2
+    q1 = r10 * X0 + r11 * X1 + r12 * X2
+    q2 = r20 * X0 + r21 * X1 + r22 * X2
+    if still:
+        return image_error2_whitened(
+            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
+        )
+    return exact_error2_whitened(
+        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
+        A[i, 0], A[i, 1], A[i, 2], A[i, 3],
+    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -169,22 +166,26 @@ def pairwise_sum(a, lo, n):
     return vals[0]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
     """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
-    ``np.sum`` sums), its (N,) errors written into ``e`` (``v`` (N,): the capped squares);
-    -1 when the plain running sum of its first capped squares exceeds ``bound`` (a model then
-    left before its last points: see :func:`best_msac`). ``still``: every ``w`` and ``t``
-    zero (:func:`still_residual`)."""
+    ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
+    squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
+    model then left before its last points: see :func:`best_msac`). Each point's error is
+    its camera's (:func:`point_error2` of :func:`camera_pose`, computed again where the
+    camera changes: once per camera in a pool stacked by camera). ``still``: every ``w`` and
+    ``t`` zero."""
     N = X.shape[0]
     run = 0.0
+    c_ = -1
+    z = 0.0
+    pose = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
     for i in range(N):
-        if still:
-            d0, d1 = still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
-        else:
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-        e[i] = np.sqrt(d0**2 + d1**2)
-        q = e[i] * e[i]
+        if cam[i] != c_:
+            c_ = cam[i]
+            pose = camera_pose(R, C, w, t, h, Rm, cm, c_)
+        q = point_error2(pose, X, x, tau, A, i, still)
+        e[i] = np.sqrt(q)
         v[i] = th2 if q > th2 else q
         run += v[i]
         if run > bound:
@@ -201,13 +202,12 @@ STOP = 1.0 + 1e-9
 
 @njit(cache=True)
 def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
-    """The model of the lowest MSAC cost among H models (:func:`~.rig._errors_kernel`'s errors,
+    """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
     or the first NaN). A model whose running cost already exceeds the best one's is left
     before its last points (:data:`STOP`): the hypotheses' models and the points are finite,
-    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the
-    errors of :func:`still_residual`, the same)."""
+    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
     v = np.empty(N)

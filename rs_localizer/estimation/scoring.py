@@ -79,16 +79,22 @@ def exact_errors2_numpy(
     X: np.ndarray,
     x: np.ndarray,
     tau: np.ndarray,
+    W: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the points ``X`` (n, 3), ``x`` (n, 2) captured at ``tau`` (n,) (``r - r0``),
     exact model (paper eq. 4); ``inf`` behind the camera. :func:`exact_error2` in NumPy (the
-    estimator's NumPy implementation)."""
+    estimator's NumPy implementation); with ``W`` (n, 4), each point's error whitened by its
+    row-major 2x2 (:func:`exact_error2_whitened`)."""
     p = exact_camera_points(R, C, w, t, X, tau)
     z = p[..., 2]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         iz = 1.0 / z
-        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+        if W is None:
+            e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+        else:
+            ex, ey = p[..., 0] * iz - x[:, 0], p[..., 1] * iz - x[:, 1]
+            e = (W[:, 0] * ex + W[:, 1] * ey) ** 2 + (W[:, 2] * ex + W[:, 3] * ey) ** 2
     return np.where(z > 0, e, np.inf)
 
 
@@ -122,7 +128,7 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
-def _image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
+def image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
     """:func:`_image_error2` with the error ``e`` whitened by the 2x2 ``a = (a00 a01; a10
     a11)``: ``|a e|^2`` (``inf`` behind the camera)."""
     if not pz > 0.0:
@@ -153,7 +159,7 @@ def exact_error2_whitened(
 ):
     """:func:`exact_error2` with the image error whitened by the 2x2 ``a`` (row-major)."""
     Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
-    return _image_error2_whitened(
+    return image_error2_whitened(
         x0,
         x1,
         Aq0 + C0 + tau * t0,
