@@ -335,6 +335,14 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     )
 
 
+@njit(cache=True, inline=INLINE)
+def pose_scalars(R, C, w, t):
+    """The pose ``R`` (3, 3), ``C``, ``w``, ``t`` (3,) as the 18 scalars :func:`point_rows`
+    takes: ``R`` row-major, then ``C``, ``w``, ``t``."""
+    return (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2],
+            C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])  # fmt: skip
+
+
 @njit(cache=True, inline=INLINE, fastmath=FMA)
 def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     """Point i's cost, residual and Jacobian rows at the pose ``(R (row-major), C, w, t)``
@@ -424,28 +432,12 @@ def _store_rows(Jt, j0, j1, v):
     of odd columns) are set once by :func:`_workspace`."""
     e0, e1 = v[2], v[3]
     d, d02, d12, ti = v[16], v[17], v[18], v[19]
-    Jt[0, j0] = v[4]
-    Jt[1, j0] = v[5]
-    Jt[2, j0] = v[6]
-    Jt[3, j0] = d
-    Jt[5, j0] = d02
-    Jt[6, j0] = ti * v[10]
-    Jt[7, j0] = ti * v[11]
-    Jt[8, j0] = ti * v[12]
-    Jt[9, j0] = ti * d
-    Jt[11, j0] = ti * d02
-    Jt[12, j0] = e0
-    Jt[0, j1] = v[7]
-    Jt[1, j1] = v[8]
-    Jt[2, j1] = v[9]
-    Jt[4, j1] = d
-    Jt[5, j1] = d12
-    Jt[6, j1] = ti * v[13]
-    Jt[7, j1] = ti * v[14]
-    Jt[8, j1] = ti * v[15]
-    Jt[10, j1] = ti * d
-    Jt[11, j1] = ti * d12
-    Jt[12, j1] = e1
+    Jt[0, j0], Jt[1, j0], Jt[2, j0], Jt[3, j0], Jt[5, j0] = v[4], v[5], v[6], d, d02
+    Jt[6, j0], Jt[7, j0], Jt[8, j0] = ti * v[10], ti * v[11], ti * v[12]
+    Jt[9, j0], Jt[11, j0], Jt[12, j0] = ti * d, ti * d02, e0
+    Jt[0, j1], Jt[1, j1], Jt[2, j1], Jt[4, j1], Jt[5, j1] = v[7], v[8], v[9], d, d12
+    Jt[6, j1], Jt[7, j1], Jt[8, j1] = ti * v[13], ti * v[14], ti * v[15]
+    Jt[10, j1], Jt[11, j1], Jt[12, j1] = ti * d, ti * d12, e1
 
 
 @njit(cache=True, inline=INLINE)
@@ -667,26 +659,7 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     number).
     """
     rho_cut = cutoff * cutoff if cutoff <= k else 2.0 * k * cutoff - k * k
-    pose = (
-        R[0, 0],
-        R[0, 1],
-        R[0, 2],
-        R[1, 0],
-        R[1, 1],
-        R[1, 2],
-        R[2, 0],
-        R[2, 1],
-        R[2, 2],
-        C[0],
-        C[1],
-        C[2],
-        w[0],
-        w[1],
-        w[2],
-        t[0],
-        t[1],
-        t[2],
-    )
+    pose = pose_scalars(R, C, w, t)
     if mountings is None:
         return _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt)
     cam, Rm, cm, scale = mountings

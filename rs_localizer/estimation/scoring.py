@@ -190,44 +190,15 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
         )  # fmt: skip
     if measured:
         return measured_error2(
-            x[i, 0],
-            x[i, 1],
-            d0,
-            d1,
-            r0e[i],
-            q0,
-            q1,
-            q2,
-            Cs[h, 0],
-            Cs[h, 1],
-            Cs[h, 2],
-            ws[h, 0],
-            ws[h, 1],
-            ws[h, 2],
-            ts[h, 0],
-            ts[h, 1],
-            ts[h, 2],
-        )
+            x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+            Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+            ts[h, 0], ts[h, 1], ts[h, 2],
+        )  # fmt: skip
     return project_error2(
-        x[i, 0],
-        x[i, 1],
-        d0,
-        d1,
-        r0e[i],
-        q0,
-        q1,
-        q2,
-        Cs[h, 0],
-        Cs[h, 1],
-        Cs[h, 2],
-        ws[h, 0],
-        ws[h, 1],
-        ws[h, 2],
-        ts[h, 0],
-        ts[h, 1],
-        ts[h, 2],
-        exact,
-    )
+        x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+        Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+        ts[h, 0], ts[h, 1], ts[h, 2], exact,
+    )  # fmt: skip
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
@@ -314,27 +285,9 @@ def msac_scores(
             continue
         # stop once the hypothesis can no longer pass the pre-test or beat the bound
         s, c, done = _msac_points(
-            x,
-            X,
-            r0e,
-            d0,
-            d1,
-            Rs,
-            Cs,
-            ws,
-            ts,
-            h,
-            zero,
-            n_pre,
-            0.0,
-            zero,
-            th2,
-            bail,
-            pretest_min,
-            exact,
-            measured,
-            Wa,
-        )
+            x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
+            zero, n_pre, 0.0, zero, th2, bail, pretest_min, exact, measured, Wa,
+        )  # fmt: skip
         if done:
             part[h] = s
             pre_cnt[h] = c
@@ -346,27 +299,9 @@ def msac_scores(
         if pre_cnt[h] < pretest_min or part[h] > bail:
             continue
         s, c, _ = _msac_points(
-            x,
-            X,
-            r0e,
-            d0,
-            d1,
-            Rs,
-            Cs,
-            ws,
-            ts,
-            h,
-            n_pre,
-            N,
-            part[h],
-            pre_cnt[h],
-            th2,
-            bail,
-            -N,
-            exact,
-            measured,
-            Wa,
-        )
+            x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
+            n_pre, N, part[h], pre_cnt[h], th2, bail, -N, exact, measured, Wa,
+        )  # fmt: skip
         if s <= bail:
             scores[h] = s
             counts[h] = c
@@ -401,45 +336,14 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
             )  # fmt: skip
         elif measured:
             out[i] = measured_error2(
-                x[i, 0],
-                x[i, 1],
-                d[0],
-                d[1],
-                r0e[i],
-                q0,
-                q1,
-                q2,
-                C[0],
-                C[1],
-                C[2],
-                w[0],
-                w[1],
-                w[2],
-                t[0],
-                t[1],
-                t[2],
-            )
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
+            )  # fmt: skip
         else:
             out[i] = project_error2(
-                x[i, 0],
-                x[i, 1],
-                d[0],
-                d[1],
-                r0e[i],
-                q0,
-                q1,
-                q2,
-                C[0],
-                C[1],
-                C[2],
-                w[0],
-                w[1],
-                w[2],
-                t[0],
-                t[1],
-                t[2],
-                exact,
-            )
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2], exact,
+            )  # fmt: skip
     return out
 
 
@@ -455,45 +359,16 @@ def exact_errors2(x, X, r0e, d, R, C, w, t, measured, W):
 
 @njit(cache=True, nogil=True)
 def exact_msac_scores(
-    x,
-    X,
-    r0e,
-    d,
-    Rs,
-    Cs,
-    ws,
-    ts,
-    th2,
-    valid,
-    bail,
-    pretest_n,
-    pretest_min,
-    pretest_fraction,
-    measured,
-    W,
-):
+    x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, pretest_n, pretest_min, pretest_fraction,
+    measured, W,
+):  # fmt: skip
     """:func:`msac_scores` with ``exact=True`` (the estimator's scoring), for callers in Python;
     one compiled :func:`msac_scores` with the fused RANSAC batch's (see :func:`exact_errors2`).
     """
     return msac_scores(
-        x,
-        X,
-        r0e,
-        d,
-        Rs,
-        Cs,
-        ws,
-        ts,
-        th2,
-        valid,
-        bail,
-        True,
-        pretest_n,
-        pretest_min,
-        pretest_fraction,
-        measured,
-        W,
-    )
+        x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, True, pretest_n, pretest_min,
+        pretest_fraction, measured, W,
+    )  # fmt: skip
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
