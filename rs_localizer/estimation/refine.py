@@ -335,6 +335,26 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     )
 
 
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _huber_terms(en, p2, k, cutoff, rho_cut):
+    """A point's terms of :func:`point_rows` from its image distance ``en`` and depth ``p2``:
+    ``(used, rho, sqrt of its Huber weight, e2_inside)`` (Huber: weight 1 inside k, k / e
+    outside; the rows are scaled by the weight's square root)."""
+    used = p2 > 1e-12 and not en > cutoff
+    e2_inside = -1.0
+    if en <= k:
+        rho = en * en
+        sw = 1.0
+        if p2 > 1e-12:
+            e2_inside = rho
+    else:
+        rho = 2.0 * k * en - k * k
+        sw = np.sqrt(k / en)
+    if not used:
+        rho = rho_cut
+    return used, rho, sw, e2_inside
+
+
 @njit(cache=True, inline=INLINE)
 def pose_scalars(R, C, w, t):
     """The pose ``R`` (3, 3), ``C``, ``w``, ``t`` (3,) as the 18 scalars :func:`point_rows`
@@ -374,18 +394,7 @@ def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     e0 = u0 - x[i, 0]
     e1 = u1 - x[i, 1]
     en = np.sqrt(e0 * e0 + e1 * e1)
-    used = p2 > 1e-12 and not en > cutoff
-    e2_inside = -1.0
-    if en <= k:  # Huber: weight 1 inside k, k / e outside; rows scaled by sqrt(weight)
-        rho = en * en
-        sw = 1.0
-        if p2 > 1e-12:
-            e2_inside = rho
-    else:
-        rho = 2.0 * k * en - k * k
-        sw = np.sqrt(k / en)
-    if not used:
-        rho = rho_cut
+    used, rho, sw, e2_inside = _huber_terms(en, p2, k, cutoff, rho_cut)
     # rows of dpi/dp: D0 = (iz, 0, -u0 iz), D1 = (0, iz, -u1 iz). With m = Aq x D (the row D
     # times -[Aq]x) and A [q]x = [Aq]x A:
     #   d/ddelta = -D A [q]x = (A^T m)^T,  d/dw = -tau D [Aq]x Jl = tau (Jl^T m)^T,
@@ -513,18 +522,7 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
     e0 = a00 * ex + a01 * ey
     e1 = a10 * ex + a11 * ey
     en = np.sqrt(e0 * e0 + e1 * e1)
-    used = p2 > 1e-12 and not en > cutoff
-    e2_inside = -1.0
-    if en <= k:
-        rho = en * en
-        sw = 1.0
-        if p2 > 1e-12:
-            e2_inside = rho
-    else:
-        rho = 2.0 * k * en - k * k
-        sw = np.sqrt(k / en)
-    if not used:
-        rho = rho_cut
+    used, rho, sw, e2_inside = _huber_terms(en, p2, k, cutoff, rho_cut)
     # the camera's rows a (iz, 0, -u0 iz; 0, iz, -u1 iz) turned into the rig frame: D_r = D Rm
     c00 = sw * a00 * iz
     c01 = sw * a01 * iz
