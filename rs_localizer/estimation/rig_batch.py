@@ -13,7 +13,7 @@ one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solv
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
 :func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels,
 the camera's exact-model error (:mod:`.scoring`) of the model seen through the point's
-camera's mounting (:func:`camera_pose`, :func:`point_error2`), summed as ``np.sum`` sums, the
+camera's mounting (:func:`mounted_pose`, :func:`pose_error2`), summed as ``np.sum`` sums, the
 lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
 implementation) calls the same kernels one by one.
 """
@@ -23,19 +23,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, INLINE, compose_rotvec
+from .._so3 import FMA, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 from .ransac import next_batch_size_kernel, required_samples_kernel
 from .sampling import draw_sample
-from .scoring import exact_error2_whitened, image_error2_whitened
+from .scoring import mounted_pose, pose_error2
 
 __all__ = [
     "batch_samples",
     "best_msac",
     "block_sum",
-    "camera_pose",
     "counted",
     "inliers_missed",
     "lambda_twist_on_rig",
@@ -45,63 +44,10 @@ __all__ = [
     "next_batch",
     "p3p_on_rig_into",
     "pairwise_sum",
-    "point_error2",
     "sample_kernel",
     "still_batch",
     "still_search",
 ]
-
-
-@njit(cache=True, inline=INLINE, fastmath=FMA)
-def _turned(Rm, c, v0, v1, v2):
-    """``Rm[c] v`` for a vector ``v``: three scalars."""
-    return (
-        Rm[c, 0, 0] * v0 + Rm[c, 0, 1] * v1 + Rm[c, 0, 2] * v2,
-        Rm[c, 1, 0] * v0 + Rm[c, 1, 1] * v1 + Rm[c, 1, 2] * v2,
-        Rm[c, 2, 0] * v0 + Rm[c, 2, 1] * v1 + Rm[c, 2, 2] * v2,
-    )
-
-
-@njit(cache=True, inline=INLINE, fastmath=FMA)
-def camera_pose(R, C, w, t, h, Rm, cm, c):
-    """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
-    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
-    (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c] t[h])``, 18 scalars. Since ``Rm
-    expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau [w]x) R X + C + tau t)
-    + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``, which the camera's
-    kernels evaluate (:func:`point_error2`)."""
-    a00, a10, a20 = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
-    a01, a11, a21 = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
-    a02, a12, a22 = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
-    C0, C1, C2 = _turned(Rm, c, C[h, 0], C[h, 1], C[h, 2])
-    w0, w1, w2 = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
-    t0, t1, t2 = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
-    return (a00, a01, a02, a10, a11, a12, a20, a21, a22,
-            C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
-
-
-@njit(cache=True, inline=INLINE, fastmath=FMA)
-def point_error2(pose, X, x, tau, A, i, still):
-    """The squared image error (px^2) of point ``i`` under a camera's ``pose``
-    (:func:`camera_pose`): the camera's exact-model error at its capture time ``tau[i]``
-    (:func:`~.scoring.exact_error2_whitened`), the normalized difference (predicted minus
-    measured) times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`~.rig._Pool`), to first order the error in the measured image; ``inf`` behind
-    the camera. ``still``: ``w = t = 0`` (the rotation at every capture time the identity:
-    the same error without the terms that add zeros)."""
-    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
-    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-    q0 = r00 * X0 + r01 * X1 + r02 * X2
-    q1 = r10 * X0 + r11 * X1 + r12 * X2
-    q2 = r20 * X0 + r21 * X1 + r22 * X2
-    if still:
-        return image_error2_whitened(
-            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
-        )
-    return exact_error2_whitened(
-        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
-        A[i, 0], A[i, 1], A[i, 2], A[i, 3],
-    )  # fmt: skip
 
 
 @njit(cache=True)
@@ -172,7 +118,7 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v
     ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
     squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
     model then left before its last points: see :func:`best_msac`). Each point's error is
-    its camera's (:func:`point_error2` of :func:`camera_pose`, computed again where the
+    its camera's (:func:`pose_error2` of :func:`mounted_pose`, computed again where the
     camera changes: once per camera in a pool stacked by camera). ``still``: every ``w`` and
     ``t`` zero."""
     N = X.shape[0]
@@ -183,8 +129,8 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v
     for i in range(N):
         if cam[i] != c_:
             c_ = cam[i]
-            pose = camera_pose(R, C, w, t, h, Rm, cm, c_)
-        q = point_error2(pose, X, x, tau, A, i, still)
+            pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
+        q = pose_error2(pose, X, x, tau, A, i, still)
         e[i] = np.sqrt(q)
         v[i] = th2 if q > th2 else q
         run += v[i]

@@ -1,5 +1,8 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
+A camera mounted on a rig is scored by the same exact-model error on the rig's model seen from
+that camera (:func:`mounted_pose`, :func:`pose_error2`).
+
 Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it
 is.
 The entry points release the GIL (``nogil``): the node's subscription callbacks keep taking
@@ -170,6 +173,57 @@ def exact_error2_whitened(
         a10,
         a11,
     )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _turned(Rm, c, v0, v1, v2):
+    """``Rm[c] v`` for a vector ``v``: three scalars."""
+    return (
+        Rm[c, 0, 0] * v0 + Rm[c, 0, 1] * v1 + Rm[c, 0, 2] * v2,
+        Rm[c, 1, 0] * v0 + Rm[c, 1, 1] * v1 + Rm[c, 1, 2] * v2,
+        Rm[c, 2, 0] * v0 + Rm[c, 2, 1] * v1 + Rm[c, 2, 2] * v2,
+    )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def mounted_pose(R, C, w, t, h, Rm, cm, c):
+    """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
+    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
+    (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c] t[h])``, 18 scalars. Since ``Rm
+    expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau [w]x) R X + C + tau t)
+    + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``, which the camera's
+    kernels evaluate (:func:`pose_error2`)."""
+    a00, a10, a20 = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
+    a01, a11, a21 = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
+    a02, a12, a22 = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
+    C0, C1, C2 = _turned(Rm, c, C[h, 0], C[h, 1], C[h, 2])
+    w0, w1, w2 = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
+    t0, t1, t2 = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
+    return (a00, a01, a02, a10, a11, a12, a20, a21, a22,
+            C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def pose_error2(pose, X, x, tau, A, i, still):
+    """The squared image error of point ``i`` (``X`` (N, 3), ``x`` (N, 2)) under a camera's
+    ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its
+    capture time ``tau[i]``: :func:`exact_error2_whitened` with the point's row-major 2x2
+    ``A[i]`` (a camera's pixel Jacobian: to first order the error in px of the measured
+    image); ``inf`` behind the camera. ``still``: ``w = t = 0`` (the rotation at every
+    capture time the identity: the same error without the terms that add zeros)."""
+    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
+    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+    q0 = r00 * X0 + r01 * X1 + r02 * X2
+    q1 = r10 * X0 + r11 * X1 + r12 * X2
+    q2 = r20 * X0 + r21 * X1 + r22 * X2
+    if still:
+        return image_error2_whitened(
+            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
+        )
+    return exact_error2_whitened(
+        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
+        A[i, 0], A[i, 1], A[i, 2], A[i, 3],
+    )  # fmt: skip
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
