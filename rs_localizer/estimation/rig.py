@@ -881,7 +881,7 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
 def _errors2_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
     """(H, N) squared image errors (px^2) of H models on every point of the pool in NumPy
     (nothing compiles): each camera's points (the pool is stacked by camera) under the models
-    seen from that camera (:func:`~.rig_batch.camera_pose`'s ``Rm R, Rm C + cm, Rm w, Rm
+    seen from that camera (:func:`~.scoring.mounted_pose`'s ``Rm R, Rm C + cm, Rm w, Rm
     t``), the camera's :func:`~.scoring.exact_errors2_numpy` whitened by the points' pixel
     Jacobians; inf behind the camera."""
     R, C, w, t = (np.asarray(a, dtype=float) for a in (R, C, w, t))

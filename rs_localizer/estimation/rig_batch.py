@@ -11,11 +11,11 @@ mapped to the rig, corrected on the sample's 6 points by the rig solver with the
 held at zero where the best model misses a camera) and :func:`moving_batch` (a rolling-shutter
 one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
-:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels,
-the camera's exact-model error (:mod:`.scoring`) of the model seen through the point's
-camera's mounting (:func:`mounted_pose`, :func:`pose_error2`), summed as ``np.sum`` sums, the
-lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
-implementation) calls the same kernels one by one.
+:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
+(a camera's exact-model error, :func:`~.scoring.pose_error2`, of the model seen from the
+point's camera through its mounting, :func:`~.scoring.mounted_pose`), summed as ``np.sum``
+sums, the lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
+generalized P3P, the NumPy implementation) calls the same kernels one by one.
 """
 
 from __future__ import annotations
@@ -118,9 +118,9 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v
     ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
     squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
     model then left before its last points: see :func:`best_msac`). Each point's error is
-    its camera's (:func:`pose_error2` of :func:`mounted_pose`, computed again where the
-    camera changes: once per camera in a pool stacked by camera). ``still``: every ``w`` and
-    ``t`` zero."""
+    its camera's (:func:`~.scoring.pose_error2` of :func:`~.scoring.mounted_pose`, the latter
+    computed again where the camera changes: once per camera in a pool stacked by camera).
+    ``still``: every ``w`` and ``t`` zero."""
     N = X.shape[0]
     run = 0.0
     c_ = -1
