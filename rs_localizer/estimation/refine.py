@@ -336,6 +336,34 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
+def _huber_terms(en, p2, k, cutoff, rho_cut):
+    """A point's terms of :func:`point_rows` from its image distance ``en`` and depth ``p2``:
+    ``(used, rho, sqrt of its Huber weight, e2_inside)`` (Huber: weight 1 inside k, k / e
+    outside; the rows are scaled by the weight's square root)."""
+    used = p2 > 1e-12 and not en > cutoff
+    e2_inside = -1.0
+    if en <= k:
+        rho = en * en
+        sw = 1.0
+        if p2 > 1e-12:
+            e2_inside = rho
+    else:
+        rho = 2.0 * k * en - k * k
+        sw = np.sqrt(k / en)
+    if not used:
+        rho = rho_cut
+    return used, rho, sw, e2_inside
+
+
+@njit(cache=True, inline=INLINE)
+def pose_scalars(R, C, w, t):
+    """The pose ``R`` (3, 3), ``C``, ``w``, ``t`` (3,) as the 18 scalars :func:`point_rows`
+    takes: ``R`` row-major, then ``C``, ``w``, ``t``."""
+    return (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2],
+            C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])  # fmt: skip
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     """Point i's cost, residual and Jacobian rows at the pose ``(R (row-major), C, w, t)``
     given as 18 scalars. Everything is computed whether or not the point is used (no early
@@ -366,18 +394,7 @@ def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     e0 = u0 - x[i, 0]
     e1 = u1 - x[i, 1]
     en = np.sqrt(e0 * e0 + e1 * e1)
-    used = p2 > 1e-12 and not en > cutoff
-    e2_inside = -1.0
-    if en <= k:  # Huber: weight 1 inside k, k / e outside; rows scaled by sqrt(weight)
-        rho = en * en
-        sw = 1.0
-        if p2 > 1e-12:
-            e2_inside = rho
-    else:
-        rho = 2.0 * k * en - k * k
-        sw = np.sqrt(k / en)
-    if not used:
-        rho = rho_cut
+    used, rho, sw, e2_inside = _huber_terms(en, p2, k, cutoff, rho_cut)
     # rows of dpi/dp: D0 = (iz, 0, -u0 iz), D1 = (0, iz, -u1 iz). With m = Aq x D (the row D
     # times -[Aq]x) and A [q]x = [Aq]x A:
     #   d/ddelta = -D A [q]x = (A^T m)^T,  d/dw = -tau D [Aq]x Jl = tau (Jl^T m)^T,
@@ -424,28 +441,12 @@ def _store_rows(Jt, j0, j1, v):
     of odd columns) are set once by :func:`_workspace`."""
     e0, e1 = v[2], v[3]
     d, d02, d12, ti = v[16], v[17], v[18], v[19]
-    Jt[0, j0] = v[4]
-    Jt[1, j0] = v[5]
-    Jt[2, j0] = v[6]
-    Jt[3, j0] = d
-    Jt[5, j0] = d02
-    Jt[6, j0] = ti * v[10]
-    Jt[7, j0] = ti * v[11]
-    Jt[8, j0] = ti * v[12]
-    Jt[9, j0] = ti * d
-    Jt[11, j0] = ti * d02
-    Jt[12, j0] = e0
-    Jt[0, j1] = v[7]
-    Jt[1, j1] = v[8]
-    Jt[2, j1] = v[9]
-    Jt[4, j1] = d
-    Jt[5, j1] = d12
-    Jt[6, j1] = ti * v[13]
-    Jt[7, j1] = ti * v[14]
-    Jt[8, j1] = ti * v[15]
-    Jt[10, j1] = ti * d
-    Jt[11, j1] = ti * d12
-    Jt[12, j1] = e1
+    Jt[0, j0], Jt[1, j0], Jt[2, j0], Jt[3, j0], Jt[5, j0] = v[4], v[5], v[6], d, d02
+    Jt[6, j0], Jt[7, j0], Jt[8, j0] = ti * v[10], ti * v[11], ti * v[12]
+    Jt[9, j0], Jt[11, j0], Jt[12, j0] = ti * d, ti * d02, e0
+    Jt[0, j1], Jt[1, j1], Jt[2, j1], Jt[4, j1], Jt[5, j1] = v[7], v[8], v[9], d, d12
+    Jt[6, j1], Jt[7, j1], Jt[8, j1] = ti * v[13], ti * v[14], ti * v[15]
+    Jt[10, j1], Jt[11, j1], Jt[12, j1] = ti * d, ti * d12, e1
 
 
 @njit(cache=True, inline=INLINE)
@@ -521,18 +522,7 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
     e0 = a00 * ex + a01 * ey
     e1 = a10 * ex + a11 * ey
     en = np.sqrt(e0 * e0 + e1 * e1)
-    used = p2 > 1e-12 and not en > cutoff
-    e2_inside = -1.0
-    if en <= k:
-        rho = en * en
-        sw = 1.0
-        if p2 > 1e-12:
-            e2_inside = rho
-    else:
-        rho = 2.0 * k * en - k * k
-        sw = np.sqrt(k / en)
-    if not used:
-        rho = rho_cut
+    used, rho, sw, e2_inside = _huber_terms(en, p2, k, cutoff, rho_cut)
     # the camera's rows a (iz, 0, -u0 iz; 0, iz, -u1 iz) turned into the rig frame: D_r = D Rm
     c00 = sw * a00 * iz
     c01 = sw * a01 * iz
@@ -667,26 +657,7 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     number).
     """
     rho_cut = cutoff * cutoff if cutoff <= k else 2.0 * k * cutoff - k * k
-    pose = (
-        R[0, 0],
-        R[0, 1],
-        R[0, 2],
-        R[1, 0],
-        R[1, 1],
-        R[1, 2],
-        R[2, 0],
-        R[2, 1],
-        R[2, 2],
-        C[0],
-        C[1],
-        C[2],
-        w[0],
-        w[1],
-        w[2],
-        t[0],
-        t[1],
-        t[2],
-    )
+    pose = pose_scalars(R, C, w, t)
     if mountings is None:
         return _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt)
     cam, Rm, cm, scale = mountings

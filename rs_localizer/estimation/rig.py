@@ -127,7 +127,7 @@ from numba import njit
 from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
-from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
@@ -204,6 +204,7 @@ from .rig_batch import (
     still_search,
 )
 from .sampling import draw_samples_numpy, valid_rows
+from .scoring import exact_errors2_numpy
 from .single_tag import MIN_PLANAR_POINTS, posed_planarity
 
 __all__ = [
@@ -817,11 +818,8 @@ class _Pool:
 @njit(cache=True)
 def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     """``(errors (H, N), costs (H,))``: the image errors (px) of N points under H models ``R``
-    (H, 3, 3), ``C``, ``w``, ``t`` (H, 3), the norms of :func:`~.rig_batch.point_residual`
-    (predicted minus measured, the normalized difference times the point's 2x2 pixel
-    Jacobian ``A[i]``, row-major, :class:`_Pool`: to first order the error in the measured
-    image; inf behind the camera), and each model's MSAC cost (the squares capped at ``th2``,
-    summed as ``np.sum`` sums them: :func:`~.rig_batch.model_cost`)."""
+    (H, 3, 3), ``C``, ``w``, ``t`` (H, 3) and each model's MSAC cost (the squares capped at
+    ``th2``, summed as ``np.sum`` sums them): :func:`~.rig_batch.model_cost` of each."""
     H, N = R.shape[0], X.shape[0]
     e, v, cost = np.empty((H, N)), np.empty(N), np.empty(H)
     for h in range(H):
@@ -829,26 +827,20 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     return e, cost
 
 
-def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
-    """:func:`~.rig_batch.point_residual` in NumPy on every point of the pool (nothing
-    compiles): the rig's points at each observation's capture time
-    (:func:`~rs_localizer.geometry.exact_camera_points`) seen through their camera's mounting
-    (the pool is stacked by camera: one matrix product per camera), the normalized errors
-    times the pixel Jacobians; inf behind the camera. Returns (H, N, 2)."""
-    ends = np.searchsorted(pool.cam, np.arange(len(pool.sizes) + 1))
-    A = pool.A
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        p = exact_camera_points(
-            np.asarray(R, dtype=float), np.asarray(C, dtype=float), np.asarray(w, dtype=float),
-            np.asarray(t, dtype=float), pool.X, pool.tau,
+def _errors2_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
+    """(H, N) squared image errors (px^2) of H models on every point of the pool in NumPy
+    (nothing compiles): each camera's points (the pool is stacked by camera) under the models
+    seen from that camera (:func:`~.scoring.mounted_pose`'s ``Rm R, Rm C + cm, Rm w, Rm
+    t``), the camera's :func:`~.scoring.exact_errors2_numpy` whitened by the points' pixel
+    Jacobians; inf behind the camera."""
+    R, C, w, t = (np.asarray(a, dtype=float) for a in (R, C, w, t))
+    out = np.empty((len(R), len(pool.cam)))
+    for m, s in enumerate(pool.slices):
+        Rm = pool.R_mount[m]
+        out[:, s] = exact_errors2_numpy(
+            Rm @ R, C @ Rm.T + pool.c_mount[m], w @ Rm.T, t @ Rm.T, pool.X[s], pool.x[s],
+            pool.tau[s], pool.A[s],
         )  # fmt: skip
-        for m in range(len(pool.sizes)):  # (in place: each camera's points through its mounting)
-            on = slice(ends[m], ends[m + 1])
-            p[:, on] = p[:, on] @ pool.R_mount[m].T + pool.c_mount[m]
-        z = p[..., 2]
-        ex, ey = p[..., 0] / z - pool.x[:, 0], p[..., 1] / z - pool.x[:, 1]
-        out = np.stack([A[:, 0] * ex + A[:, 1] * ey, A[:, 2] * ex + A[:, 3] * ey], axis=-1)
-    out[~(z > 1e-9)] = np.inf
     return out
 
 
@@ -856,11 +848,10 @@ def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
     with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
     (inf for a point behind its camera), and their MSAC costs at ``th2`` px^2. Returns
-    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`)."""
+    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`; NumPy: :func:`_errors2_numpy`)."""
     if pool.numpy:
-        d = _residuals_numpy(pool, R, C, w, t)
-        e = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
-        return e, np.minimum(e**2, th2).sum(axis=1)
+        e2 = _errors2_numpy(pool, R, C, w, t)
+        return np.sqrt(e2), np.minimum(e2, th2).sum(axis=1)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     return _errors_kernel(
         *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A, th2

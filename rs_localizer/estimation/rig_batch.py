@@ -12,9 +12,10 @@ held at zero where the best model misses a camera) and :func:`moving_batch` (a r
 one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
 (:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
 :func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
-through its camera's mounting (:func:`point_residual`), summed as ``np.sum`` sums, the lowest
-kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the generalized P3P, the NumPy
-implementation) calls the same kernels one by one.
+(a camera's exact-model error, :func:`~.scoring.pose_error2`, of the model seen from the
+point's camera through its mounting, :func:`~.scoring.mounted_pose`), summed as ``np.sum``
+sums, the lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
+generalized P3P, the NumPy implementation) calls the same kernels one by one.
 """
 
 from __future__ import annotations
@@ -22,18 +23,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE, compose_rotvec
+from .._so3 import FMA, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 from .ransac import next_batch_size_kernel, required_samples_kernel
 from .sampling import draw_sample
+from .scoring import mounted_pose, pose_error2
 
 __all__ = [
     "batch_samples",
     "best_msac",
     "block_sum",
-    "camera_error",
     "counted",
     "inliers_missed",
     "lambda_twist_on_rig",
@@ -43,68 +44,10 @@ __all__ = [
     "next_batch",
     "p3p_on_rig_into",
     "pairwise_sum",
-    "point_residual",
     "sample_kernel",
     "still_batch",
-    "still_residual",
     "still_search",
 ]
-
-
-@njit(cache=True, inline=INLINE)
-def camera_error(z0, z1, z2, c_, Rm, cm, x, A, i):
-    """The (2,) image error (px) of point ``i`` at ``z`` in the rig frame, seen by camera
-    ``c_`` through its mounting: :func:`point_residual`'s last steps."""
-    q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
-    q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
-    q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
-    if q2 <= 1e-9:
-        return np.inf, np.inf
-    ex = q0 / q2 - x[i, 0]
-    ey = q1 / q2 - x[i, 1]
-    return A[i, 0] * ex + A[i, 1] * ey, A[i, 2] * ex + A[i, 3] * ey
-
-
-@njit(cache=True, inline=INLINE)
-def point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i):
-    """The (2,) image error (px) of point ``i`` under model ``h``: predicted minus measured,
-    the normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
-    :class:`~.rig._Pool`), to first order the error in the measured image; ``(inf, inf)`` behind the
-    camera. Inlined (numba permitting: ``INLINE``) into each kernel that needs it: the same
-    operations in each."""
-    # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    ti = tau[i]
-    p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
-    th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    if th < 1e-12:
-        z0 = y0 + p1 * y2 - p2 * y1
-        z1 = y1 + p2 * y0 - p0 * y2
-        z2 = y2 + p0 * y1 - p1 * y0
-    else:
-        k0, k1, k2 = p0 / th, p1 / th, p2 / th
-        c, s = np.cos(th), np.sin(th)
-        kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
-        z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
-        z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
-        z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
-    z0 += C[h, 0] + ti * t[h, 0]
-    z1 += C[h, 1] + ti * t[h, 1]
-    z2 += C[h, 2] + ti * t[h, 2]
-    return camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
-
-
-@njit(cache=True, inline=INLINE)
-def still_residual(R, C, X, cam, Rm, cm, x, A, h, i):
-    """:func:`point_residual` of a model with ``w = t = 0`` (the rotation at every capture
-    time the identity): the same (2,) error, without the terms that add zeros."""
-    y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
-    y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
-    y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
-    z0, z1, z2 = y0 + C[h, 0], y1 + C[h, 1], y2 + C[h, 2]
-    return camera_error(z0, z1, z2, cam[i], Rm, cm, x, A, i)
 
 
 @njit(cache=True)
@@ -169,22 +112,26 @@ def pairwise_sum(a, lo, n):
     return vals[0]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
     """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
-    ``np.sum`` sums), its (N,) errors written into ``e`` (``v`` (N,): the capped squares);
-    -1 when the plain running sum of its first capped squares exceeds ``bound`` (a model then
-    left before its last points: see :func:`best_msac`). ``still``: every ``w`` and ``t``
-    zero (:func:`still_residual`)."""
+    ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
+    squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
+    model then left before its last points: see :func:`best_msac`). Each point's error is
+    its camera's (:func:`~.scoring.pose_error2` of :func:`~.scoring.mounted_pose`, the latter
+    computed again where the camera changes: once per camera in a pool stacked by camera).
+    ``still``: every ``w`` and ``t`` zero."""
     N = X.shape[0]
     run = 0.0
+    c_ = -1
+    z = 0.0
+    pose = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
     for i in range(N):
-        if still:
-            d0, d1 = still_residual(R, C, X, cam, Rm, cm, x, A, h, i)
-        else:
-            d0, d1 = point_residual(R, C, w, t, X, tau, cam, Rm, cm, x, A, h, i)
-        e[i] = np.sqrt(d0**2 + d1**2)
-        q = e[i] * e[i]
+        if cam[i] != c_:
+            c_ = cam[i]
+            pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
+        q = pose_error2(pose, X, x, tau, A, i, still)
+        e[i] = np.sqrt(q)
         v[i] = th2 if q > th2 else q
         run += v[i]
         if run > bound:
@@ -201,13 +148,12 @@ STOP = 1.0 + 1e-9
 
 @njit(cache=True)
 def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
-    """The model of the lowest MSAC cost among H models (:func:`~.rig._errors_kernel`'s errors,
+    """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
     its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
     or the first NaN). A model whose running cost already exceeds the best one's is left
     before its last points (:data:`STOP`): the hypotheses' models and the points are finite,
-    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero (the
-    errors of :func:`still_residual`, the same)."""
+    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
     v = np.empty(N)

@@ -1,5 +1,8 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
+A camera mounted on a rig is scored by the same exact-model error on the rig's model seen from
+that camera (:func:`mounted_pose`, :func:`pose_error2`).
+
 Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it
 is.
 The entry points release the GIL (``nogil``): the node's subscription callbacks keep taking
@@ -79,16 +82,22 @@ def exact_errors2_numpy(
     X: np.ndarray,
     x: np.ndarray,
     tau: np.ndarray,
+    W: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the points ``X`` (n, 3), ``x`` (n, 2) captured at ``tau`` (n,) (``r - r0``),
     exact model (paper eq. 4); ``inf`` behind the camera. :func:`exact_error2` in NumPy (the
-    estimator's NumPy implementation)."""
+    estimator's NumPy implementation); with ``W`` (n, 4), each point's error whitened by its
+    row-major 2x2 (:func:`exact_error2_whitened`)."""
     p = exact_camera_points(R, C, w, t, X, tau)
     z = p[..., 2]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         iz = 1.0 / z
-        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+        if W is None:
+            e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+        else:
+            ex, ey = p[..., 0] * iz - x[:, 0], p[..., 1] * iz - x[:, 1]
+            e = (W[:, 0] * ex + W[:, 1] * ey) ** 2 + (W[:, 2] * ex + W[:, 3] * ey) ** 2
     return np.where(z > 0, e, np.inf)
 
 
@@ -122,7 +131,7 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
-def _image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
+def image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
     """:func:`_image_error2` with the error ``e`` whitened by the 2x2 ``a = (a00 a01; a10
     a11)``: ``|a e|^2`` (``inf`` behind the camera)."""
     if not pz > 0.0:
@@ -153,7 +162,7 @@ def exact_error2_whitened(
 ):
     """:func:`exact_error2` with the image error whitened by the 2x2 ``a`` (row-major)."""
     Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
-    return _image_error2_whitened(
+    return image_error2_whitened(
         x0,
         x1,
         Aq0 + C0 + tau * t0,
@@ -164,6 +173,57 @@ def exact_error2_whitened(
         a10,
         a11,
     )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _turned(Rm, c, v0, v1, v2):
+    """``Rm[c] v`` for a vector ``v``: three scalars."""
+    return (
+        Rm[c, 0, 0] * v0 + Rm[c, 0, 1] * v1 + Rm[c, 0, 2] * v2,
+        Rm[c, 1, 0] * v0 + Rm[c, 1, 1] * v1 + Rm[c, 1, 2] * v2,
+        Rm[c, 2, 0] * v0 + Rm[c, 2, 1] * v1 + Rm[c, 2, 2] * v2,
+    )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def mounted_pose(R, C, w, t, h, Rm, cm, c):
+    """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
+    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
+    (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c] t[h])``, 18 scalars. Since ``Rm
+    expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau [w]x) R X + C + tau t)
+    + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``, which the camera's
+    kernels evaluate (:func:`pose_error2`)."""
+    a00, a10, a20 = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
+    a01, a11, a21 = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
+    a02, a12, a22 = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
+    C0, C1, C2 = _turned(Rm, c, C[h, 0], C[h, 1], C[h, 2])
+    w0, w1, w2 = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
+    t0, t1, t2 = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
+    return (a00, a01, a02, a10, a11, a12, a20, a21, a22,
+            C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def pose_error2(pose, X, x, tau, A, i, still):
+    """The squared image error of point ``i`` (``X`` (N, 3), ``x`` (N, 2)) under a camera's
+    ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its
+    capture time ``tau[i]``: :func:`exact_error2_whitened` with the point's row-major 2x2
+    ``A[i]`` (a camera's pixel Jacobian: to first order the error in px of the measured
+    image); ``inf`` behind the camera. ``still``: ``w = t = 0`` (the rotation at every
+    capture time the identity: the same error without the terms that add zeros)."""
+    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
+    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+    q0 = r00 * X0 + r01 * X1 + r02 * X2
+    q1 = r10 * X0 + r11 * X1 + r12 * X2
+    q2 = r20 * X0 + r21 * X1 + r22 * X2
+    if still:
+        return image_error2_whitened(
+            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
+        )
+    return exact_error2_whitened(
+        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
+        A[i, 0], A[i, 1], A[i, 2], A[i, 3],
+    )  # fmt: skip
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -184,44 +244,15 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
         )  # fmt: skip
     if measured:
         return measured_error2(
-            x[i, 0],
-            x[i, 1],
-            d0,
-            d1,
-            r0e[i],
-            q0,
-            q1,
-            q2,
-            Cs[h, 0],
-            Cs[h, 1],
-            Cs[h, 2],
-            ws[h, 0],
-            ws[h, 1],
-            ws[h, 2],
-            ts[h, 0],
-            ts[h, 1],
-            ts[h, 2],
-        )
+            x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+            Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+            ts[h, 0], ts[h, 1], ts[h, 2],
+        )  # fmt: skip
     return project_error2(
-        x[i, 0],
-        x[i, 1],
-        d0,
-        d1,
-        r0e[i],
-        q0,
-        q1,
-        q2,
-        Cs[h, 0],
-        Cs[h, 1],
-        Cs[h, 2],
-        ws[h, 0],
-        ws[h, 1],
-        ws[h, 2],
-        ts[h, 0],
-        ts[h, 1],
-        ts[h, 2],
-        exact,
-    )
+        x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+        Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+        ts[h, 0], ts[h, 1], ts[h, 2], exact,
+    )  # fmt: skip
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
@@ -308,27 +339,9 @@ def msac_scores(
             continue
         # stop once the hypothesis can no longer pass the pre-test or beat the bound
         s, c, done = _msac_points(
-            x,
-            X,
-            r0e,
-            d0,
-            d1,
-            Rs,
-            Cs,
-            ws,
-            ts,
-            h,
-            zero,
-            n_pre,
-            0.0,
-            zero,
-            th2,
-            bail,
-            pretest_min,
-            exact,
-            measured,
-            Wa,
-        )
+            x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
+            zero, n_pre, 0.0, zero, th2, bail, pretest_min, exact, measured, Wa,
+        )  # fmt: skip
         if done:
             part[h] = s
             pre_cnt[h] = c
@@ -340,27 +353,9 @@ def msac_scores(
         if pre_cnt[h] < pretest_min or part[h] > bail:
             continue
         s, c, _ = _msac_points(
-            x,
-            X,
-            r0e,
-            d0,
-            d1,
-            Rs,
-            Cs,
-            ws,
-            ts,
-            h,
-            n_pre,
-            N,
-            part[h],
-            pre_cnt[h],
-            th2,
-            bail,
-            -N,
-            exact,
-            measured,
-            Wa,
-        )
+            x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
+            n_pre, N, part[h], pre_cnt[h], th2, bail, -N, exact, measured, Wa,
+        )  # fmt: skip
         if s <= bail:
             scores[h] = s
             counts[h] = c
@@ -395,45 +390,14 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
             )  # fmt: skip
         elif measured:
             out[i] = measured_error2(
-                x[i, 0],
-                x[i, 1],
-                d[0],
-                d[1],
-                r0e[i],
-                q0,
-                q1,
-                q2,
-                C[0],
-                C[1],
-                C[2],
-                w[0],
-                w[1],
-                w[2],
-                t[0],
-                t[1],
-                t[2],
-            )
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
+            )  # fmt: skip
         else:
             out[i] = project_error2(
-                x[i, 0],
-                x[i, 1],
-                d[0],
-                d[1],
-                r0e[i],
-                q0,
-                q1,
-                q2,
-                C[0],
-                C[1],
-                C[2],
-                w[0],
-                w[1],
-                w[2],
-                t[0],
-                t[1],
-                t[2],
-                exact,
-            )
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2], exact,
+            )  # fmt: skip
     return out
 
 
@@ -449,45 +413,16 @@ def exact_errors2(x, X, r0e, d, R, C, w, t, measured, W):
 
 @njit(cache=True, nogil=True)
 def exact_msac_scores(
-    x,
-    X,
-    r0e,
-    d,
-    Rs,
-    Cs,
-    ws,
-    ts,
-    th2,
-    valid,
-    bail,
-    pretest_n,
-    pretest_min,
-    pretest_fraction,
-    measured,
-    W,
-):
+    x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, pretest_n, pretest_min, pretest_fraction,
+    measured, W,
+):  # fmt: skip
     """:func:`msac_scores` with ``exact=True`` (the estimator's scoring), for callers in Python;
     one compiled :func:`msac_scores` with the fused RANSAC batch's (see :func:`exact_errors2`).
     """
     return msac_scores(
-        x,
-        X,
-        r0e,
-        d,
-        Rs,
-        Cs,
-        ws,
-        ts,
-        th2,
-        valid,
-        bail,
-        True,
-        pretest_n,
-        pretest_min,
-        pretest_fraction,
-        measured,
-        W,
-    )
+        x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, True, pretest_n, pretest_min,
+        pretest_fraction, measured, W,
+    )  # fmt: skip
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)

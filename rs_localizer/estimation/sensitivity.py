@@ -26,7 +26,7 @@ from numba import njit
 
 from .._so3 import skew_matrix
 from ..pose import model_twist_jacobian
-from .refine import point_rows
+from .refine import point_rows, pose_scalars
 
 __all__ = ["acceleration_sensitivity", "output_jacobian", "physical_sensitivity"]
 
@@ -36,26 +36,7 @@ def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
     """``J^T W J`` (12, 12; only if ``want_H``) and ``J^T W D`` (12, 6) over the points in
     front of the camera within ``cutoff`` (Huber weights with threshold k, as the
     refinement), D the (beta, b) columns."""
-    pose = (
-        R[0, 0],
-        R[0, 1],
-        R[0, 2],
-        R[1, 0],
-        R[1, 1],
-        R[1, 2],
-        R[2, 0],
-        R[2, 1],
-        R[2, 2],
-        C[0],
-        C[1],
-        C[2],
-        w[0],
-        w[1],
-        w[2],
-        t[0],
-        t[1],
-        t[2],
-    )
+    pose = pose_scalars(R, C, w, t)
     H = np.zeros((12, 12))
     B = np.zeros((12, 6))
     row = np.empty(12)
