@@ -178,67 +178,64 @@ class RigMode:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
         use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
         rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
+        node = self.node
         try:  # (the names first: they make parameter and topic names)
-            names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
+            names = rig_camera_names(node.get_parameter("rig.cameras").value)
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
         for n in names:
-            if not self.node.has_parameter(f"rig.{n}.line_delay"):
-                declare_parameters(self.node, {f"rig.{n}.{k}": v for k, v in own.items()})
-                declare_dynamic(self.node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
+            if not node.has_parameter(f"rig.{n}.line_delay"):
+                declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
+                declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
         try:
             self.config, single = self.changed_configuration({}, check=False)
             # (the landmarks and the front end's map loaded once, a front end object each)
-            loaded = {c.name: load_maps(single, owner=self.node) for c in self.config.cameras}
+            loaded = {c.name: load_maps(single, owner=node) for c in self.config.cameras}
         except ConfigError as e:
-            SHARED_MAPS.release(self.node)
+            SHARED_MAPS.release(node)
             raise RuntimeError(f"invalid parameters: {e}") from None
         #: the landmarks of ``landmarks_file`` (``(ids, points)``) the cameras' keypoints name
-        self.node.landmarks = next(iter(loaded.values())).landmarks
-        self.node.map_frame = str(single.map_frame)
-        self.node.frontend_kind = single.frontend_kind
-        self.node.image_transport = single.image_transport
-        self.node._log = ThrottledLog(
-            self.node.get_logger(), period=5.0
-        )  # (each kind once per 5 s)
+        node.landmarks = next(iter(loaded.values())).landmarks
+        node.map_frame = str(single.map_frame)
+        node.frontend_kind = single.frontend_kind
+        node.image_transport = single.image_transport
+        node._log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = Localizer(
-            self.config.settings, log=self.node._log, implementation=ready_implementation
+            self.config.settings, log=node._log, implementation=ready_implementation
         )
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
-        self.node.queue_size = int(single.queue_size)
-        self.node.republish = bool(single.republish_correspondences)
-        self.node._corr_out = {}  # (camera -> its correspondences_out, made when first needed)
-        self.node._frames = self.node._new_queue(
-            "rs_localizer_rig_worker", group=self._same_rig_frame
-        )
+        node.queue_size = int(single.queue_size)
+        node.republish = bool(single.republish_correspondences)
+        node._corr_out = {}  # (camera -> its correspondences_out, made when first needed)
+        node._frames = node._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
         self._group_ns = int(self.config.settings.window * 1e9)
         #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
         #: received, handed on, skipped or failed before the rig, its input stage's counts,
         #: its messages lost, the worker's time per frame
-        self.node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
         self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
-        self.node.inputs = rig_camera_inputs(
+        node.inputs = rig_camera_inputs(
             self.config,
-            self.node._log,
+            node._log,
             self._count_input,
-            stopped=lambda: self.node._frames.stopping,
+            stopped=lambda: node._frames.stopping,
             wait=single.camera_info_wait,
-            landmarks=self.node.landmarks,
+            landmarks=node.landmarks,
         )
-        self.node._first_frame = None  # (monotonic s: the first frame received)
-        with self.node._timing_lock:
-            self.node.latencies.clear()
-            self.node.stamp_ages.clear()
+        node._first_frame = None  # (monotonic s: the first frame received)
+        with node._timing_lock:
+            node.latencies.clear()
+            node.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
-        if self.node.get_parameter("warmup").value:
+        if node.get_parameter("warmup").value:
             self._warm_up()
-        self.node._configured = True
+        node._configured = True
 
     def _warm_up(self) -> None:
         """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
