@@ -1,33 +1,43 @@
-"""The lifecycle plumbing of ``rs_localizer_node``, written once for one camera and for a rig.
+"""The localizer node, written once for one camera and for a rig.
 
-:class:`NodeCore` is the base of the camera's :class:`~rs_localizer.ros.node.LocalizerCore`
-and the rig's :class:`~rs_localizer.ros.rig_node.RigCore`: the output publishers (``pose``,
-``twist``, ``pose_with_covariance``, ``odom``, ``twist_single_frame``, ``/tf``,
-``/diagnostics``, ``correspondences_out``), each camera's ``camera_info`` and frame
-subscriptions (the mode's topic names as data: ``correspondences``, ``keypoints``, ``image``
-of the single camera; ``<c>/correspondences``, ``<c>/keypoints``, ``<c>/image_raw`` of a rig
-camera), the frame queue's worker and the timers (diagnostics, the idle track's flush)
-started and stopped with the frame inputs, the subscriptions destroyed, the visualizations
-closed, the latency and stamp-age record, the diagnostics published and the node destroyed.
-A core adds what differs: its configuration, what the worker does with a frame (a camera's
-:class:`~rs_localizer.ros.pipeline.FramePipeline`, or the rig's cameras and its
-:class:`~rs_localizer.tracking.video.Localizer`), what it publishes and its status.
+:class:`NodeCore` is the base of the node, :class:`~rs_localizer.ros.node.RSLocalizerNode`,
+and of the managed node, :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode`: the
+output publishers (``pose``, ``twist``, ``pose_with_covariance``, ``odom``,
+``twist_single_frame``, ``/tf``, ``/diagnostics``, ``correspondences_out``), each camera's
+``camera_info`` and frame subscriptions (the mode's topic names as data: ``correspondences``,
+``keypoints``, ``image`` of the single camera; ``<c>/correspondences``, ``<c>/keypoints``,
+``<c>/image_raw`` of a rig camera), the frame queue's worker and the timers (diagnostics, the
+idle track's flush) started and stopped with the frame inputs, the subscriptions destroyed,
+the visualizations closed, the latency and stamp-age record, the diagnostics published and
+the node destroyed. What differs is the node's mode (:attr:`NodeCore.mode`), chosen by
+``rig.cameras``: the single camera's (:class:`~rs_localizer.ros.node.CameraMode`: its
+:class:`~rs_localizer.ros.pipeline.FramePipeline`) or the rig's
+(:class:`~rs_localizer.ros.rig_node.RigMode`: its cameras and one
+:class:`~rs_localizer.tracking.video.Localizer`): its configuration, what the worker does with
+a frame, what it publishes and its status.
 
-A core's phases, run by :class:`~rs_localizer.ros.node.RSLocalizerNode` /
-:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` at construction
-(:meth:`NodeCore._start_unmanaged`) or by the managed node's transitions
-(:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`): ``_declare_parameters``,
-``_init_state``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
-``_create_frame_inputs``, ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``,
-``_release_configured``.
+The node's phases, run at construction (:meth:`NodeCore._start_unmanaged`) or by the managed
+node's transitions: ``_declare_parameters``, ``_init_state`` (the mode made),
+``_configure``, ``_create_outputs``, ``_create_info_inputs``, ``_create_frame_inputs``,
+``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``, ``_release_configured``.
+
+A mode has: ``configure()`` (RuntimeError for invalid parameters), ``configured_as()``,
+``log_ready()``, ``add_info_inputs()`` and ``add_frame_inputs()`` (its subscriptions beside
+the cameras'), ``camera_of(item)``, ``take_frame(item, camera)``, ``publish_taken(item,
+taken)``, ``idle_twists()``, ``close_track()`` and ``publish_closed(out)``,
+``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
+``apply_change(built, overrides)``, ``diagnostics(latencies, stamp_ages)``, and its topics
+and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
+``resolve_compressed``, ``images_text``, ``info_qos_overridable``, ``busy_key``,
+``busy_text``, ``count_image_frames``, ``mode_note``).
 
 The worker is one for both: the subscription callbacks hand a camera's frame message to
 :meth:`NodeCore._enqueue` (its stamp checked by the camera's input stage, a
 :class:`QueuedFrame` queued; the queue counts it ``received`` in the camera's counts), the
-worker takes it (:meth:`NodeCore._process`: the core's ``_take_frame``, under the worker's
+worker takes it (:meth:`NodeCore._process`: the mode's ``take_frame``, under the worker's
 lock, and the frame's outcome counted in the camera's counts in the same step), then
 publishes what it gave (:meth:`NodeCore._deliver`: the front end's ``correspondences_out``,
-then the core's ``_publish_taken``). The single camera is named "" (its topics and counts
+then the mode's ``publish_taken``). The single camera is named "" (its topics and counts
 without prefix); a rig's cameras by their names.
 """
 
@@ -55,16 +65,16 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
-from .declare import declare_parameters
+from .declare import declare_dynamic, declare_parameters
 from .frame_queue import FrameQueue
 from .outputs import fused_messages
-from .params import PARAMETERS, ConfigError
+from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, RELIABLE, output_events
 from .status_msg import status_message
 from .visualization import NodeVisualization
 
-__all__ = ["NodeCore", "QueuedFrame", "TakenFrame"]
+__all__ = ["NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
@@ -80,6 +90,12 @@ POSE_OUTPUTS = (
 #: s: the idle-track timer's period (every timer tick rebuilds the executor's wait set in
 #: Python; at 10 Hz the pending twists go out within 0.1 s of ``tracking.max_gap``)
 FLUSH_PERIOD_S = 0.1
+
+
+def names_a_rig(value: Any) -> bool:
+    """Whether a ``rig.cameras`` value (of any type: a wrong one is refused by the rig's
+    configure, naming the fix) sets the rig mode: anything but unset or empty."""
+    return not (value is None or (isinstance(value, (list, tuple, str)) and len(value) == 0))
 
 
 @dataclass(frozen=True)
@@ -121,17 +137,12 @@ class TakenFrame:
 
 
 class NodeCore:
-    """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
-    ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
-    :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
-    ``_diagnostics(latencies, stamp_ages)`` (:meth:`diagnostics_status`),
-    ``_idle_twists()`` (:meth:`_flush_idle_track`) and ``_log`` (its
-    :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per period), its
-    cameras and outputs as data (:attr:`inputs`, :attr:`camera_counts`, :attr:`queue_size`,
-    :attr:`images_of`, :attr:`frontend_kind`, :attr:`image_transport`, :attr:`landmarks`,
-    :attr:`republish`, :attr:`map_frame`; the mode's topics and texts as the class
-    attributes below), and the worker's parts (module docstring): ``_take_frame(item,
-    camera)`` and ``_publish_taken(item, taken)``.
+    """The node, for one camera or a rig (module docstring), mixed into an rclpy ``Node`` (or
+    a ``LifecycleNode``): the plumbing, and the mode (:attr:`mode`) for what differs. The
+    mode sets ``_frames`` (the :class:`~rs_localizer.ros.frame_queue.FrameQueue`) and
+    ``_log`` (a :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per
+    period) before :meth:`_start_frames`, and the cameras and outputs as data (the attributes
+    below).
 
     Attributes:
         inputs: camera name ("" for the single camera) -> its
@@ -149,15 +160,18 @@ class NodeCore:
         republish: ``republish_correspondences``: what a front end found in an image to its
             camera's ``correspondences_out``.
         map_frame: the frame the poses and fused twists are published in (``map_frame``).
+        mode: the single camera's :class:`~rs_localizer.ros.node.CameraMode` or the rig's
+            :class:`~rs_localizer.ros.rig_node.RigMode` (``rig.cameras``; made by
+            :meth:`_init_state` from the node class's ``_modes``).
     """
 
-    _frames = None  # (the frame queue: made by the core)
-    _log = None  # (the core's ThrottledLog: made by the core)
+    _frames = None  # (the frame queue: made by the mode)
+    _log = None  # (the mode's ThrottledLog: made by the mode)
     pub_diag = None
     viz = None  # (the node's visualization: made with the outputs)
     camera_viz: Mapping = MappingProxyType({})  # (each camera's: made with the outputs)
-    inputs: Mapping = MappingProxyType({})  # (made by the core)
-    camera_counts: Mapping = MappingProxyType({})  # (made by the core)
+    inputs: Mapping = MappingProxyType({})  # (made by the mode)
+    camera_counts: Mapping = MappingProxyType({})  # (made by the mode)
     queue_size = 0
     images_of: Mapping = MappingProxyType({})  # (made with the frame inputs)
     frontend_kind = "none"
@@ -166,29 +180,12 @@ class NodeCore:
     republish = False
     map_frame = "map"
     _configured = False  # (configure done: the node's configuration in use)
-    #: the mode's frame inputs (:meth:`_subscribe_frame_inputs`), under each camera's name (a
-    #: rig camera's ``<c>/``): the kind its correspondences clouds are queued as, its image
-    #: topic, whether its keypoints are subscribed without a ``landmarks_file``, whether its
-    #: ``image/compressed`` topic is the resolved image topic's, what a warning names its
-    #: images as (None: the image topic) and whether its ``camera_info`` QoS is overridable
-    _cloud_kind = "cloud"
-    _image_topic = "image_raw"
-    _keypoints_always = False
-    _resolve_compressed = False
-    _images_text: str | None = "the camera's images"
-    _info_qos_overridable = False
-    #: the full queue's warning (:meth:`_warn_busy`): its key and its text, formatted with
-    #: ``size`` (frames), ``queue_size`` (per camera) and ``dropped`` (so far)
-    _busy_key = "queue_full"
-    _busy_text = (
-        "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
-        "the oldest waiting frame [{dropped} dropped so far]"
-    )
-    #: the single camera counts its image frames (``image_frames``)
-    _count_image_frames = False
+    mode = None  # (the mode: made with the node's state, :meth:`_init_state`)
+    _modes: tuple = ()  # (the node class's: the camera's mode and the rig's)
     _first_frame: float | None = None  # (monotonic s: the first frame received)
     _unmanaged = False  # (every phase at construction: :meth:`_start_unmanaged`)
     _warned_beside_frontend = False  # (set on the instance when given: once per node)
+    _warned_rs = False  # (the single camera's default-timing warning: once per node)
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -196,7 +193,12 @@ class NodeCore:
         return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
 
     def _declare_parameters(self) -> None:
+        """Every parameter, each once: :data:`~.params.PARAMETERS` and the rig's
+        :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` of any type, checked at configure; a
+        rig camera's ``rig.<camera>.*`` are declared by the rig's configure)."""
         declare_parameters(self, PARAMETERS)
+        declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
+        declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         """The node (``node_name`` and ``kwargs`` to the rclpy ``Node`` or ``LifecycleNode``
@@ -211,19 +213,38 @@ class NodeCore:
 
     def _start(self) -> None:
         """The node's start (a node that is not managed: :meth:`_start_unmanaged`; the
-        managed node's: :meth:`.lifecycle.ManagedTransitions._start`)."""
+        managed node's: :meth:`.lifecycle.RSLocalizerLifecycleNode._start`)."""
         self._start_unmanaged()
 
     def _init_state(self) -> None:
-        """The core's state before ``configure``: the shared plumbing's
-        (:meth:`_init_plumbing`; the camera's adds its pipeline, the rig's state is made with
-        its parameters)."""
+        """The node's state before ``configure``: the shared plumbing's
+        (:meth:`_init_plumbing`), then the mode of ``rig.cameras`` (read-only: the one the
+        node is configured with; :attr:`_modes`): the single camera's with ``rig.cameras``
+        empty (its pipeline, unconfigured), else the rig's (made at configure)."""
         self._init_plumbing()
+        self.inputs, self.camera_counts, self._configured = {}, {}, False
+        camera, rig = self._modes
+        self.mode = (rig if names_a_rig(self.get_parameter("rig.cameras").value) else camera)(self)
+
+    def _configure(self) -> None:
+        """Parameters -> configuration (the mode's; RuntimeError for invalid parameters,
+        naming them)."""
+        self.mode.configure()
+
+    def _log_ready(self) -> None:
+        """The ``ready: ...`` line (the mode's)."""
+        self.mode.log_ready()
+
+    def _release_configured(self) -> None:
+        """Drop what configure made but the publishers (the managed node destroys those): the
+        camera_info and imu subscriptions, the maps (:meth:`_release_inputs`), then the
+        mode's state, its configuration and the counters (:meth:`_init_state`)."""
+        self._release_inputs()
+        self._init_state()
 
     def _start_unmanaged(self) -> None:
         """The construction of a node that is not managed
-        (:class:`~rs_localizer.ros.node.RSLocalizerNode`,
-        :class:`~rs_localizer.ros.rig_node.RigLocalizerNode`): every phase at once, the
+        (:class:`~rs_localizer.ros.node.RSLocalizerNode`): every phase at once, the
         parameter changes taken (:meth:`_on_set_parameters`) once configured.
 
         Raises:
@@ -267,21 +288,6 @@ class NodeCore:
         """Whether the node is configured (a managed node before ``configure`` is not)."""
         return self._configured
 
-    def _changed_configuration(self, overrides: dict):
-        """The configuration the node would run with after the change ``overrides`` (name ->
-        new value of :data:`~.params.PARAMETERS`), every other parameter as it is.
-
-        Raises:
-            ConfigError: a value that cannot be used, or a change the node cannot make while
-                it runs (the message names the parameter and why).
-        """
-        raise NotImplementedError
-
-    def _apply_change(self, built, overrides: dict) -> None:
-        """Run with ``built``, the :meth:`_changed_configuration` of ``overrides``, from the
-        next frame on."""
-        raise NotImplementedError
-
     def _on_set_parameters(self, params) -> SetParametersResult:
         """A parameter change at run time (``ros2 param set``), for one camera and for a rig
         alike: the configuration is built anew from the changed values
@@ -295,11 +301,11 @@ class NodeCore:
         if not overrides or not self._has_configuration():
             return SetParametersResult(successful=True)
         try:
-            built = self._changed_configuration(overrides)
+            built = self.mode.changed_configuration(overrides)
         except ConfigError as e:
             self.get_logger().warning(f"rejected parameter change: {e}")
             return SetParametersResult(successful=False, reason=str(e))
-        self._apply_change(built, overrides)
+        self.mode.apply_change(built, overrides)
         return SetParametersResult(successful=True)
 
     def _create_outputs(self) -> None:
@@ -318,7 +324,8 @@ class NodeCore:
         inputs: a camera_info ready together with a frame is taken first."""
         overriding = QoSOverridingOptions.with_default_policies
         for name in self._camera_names():
-            self._subscribe_info(name, overriding() if self._info_qos_overridable else None)
+            self._subscribe_info(name, overriding() if self.mode.info_qos_overridable else None)
+        self.mode.add_info_inputs()
 
     def _create_frame_inputs(self) -> None:
         """The frame subscriptions (:meth:`_subscribe_frame_inputs`), then the diagnostics
@@ -335,19 +342,20 @@ class NodeCore:
         images = {}
         for n in self._camera_names():
             p = f"{n}/" if n else ""
-            self._subscribe_frames(n, self._cloud_kind, PointCloud2, f"{p}correspondences",
+            self._subscribe_frames(n, self.mode.cloud_kind, PointCloud2, f"{p}correspondences",
                                    CLOUD_QOS)  # fmt: skip
-            if self._keypoints_always or self.landmarks is not None:
+            if self.mode.keypoints_always or self.landmarks is not None:
                 self._subscribe_frames(n, "keypoints", PointCloud2, f"{p}keypoints", CLOUD_QOS)
             if self.frontend_kind == "none":
                 continue
-            topic, msg_type = p + self._image_topic, Image
+            topic, msg_type = p + self.mode.image_topic, Image
             if self.image_transport == "compressed":  # (on image_transport's topic name)
-                resolved = self.resolve_topic_name(topic) if self._resolve_compressed else topic
+                resolved = self.resolve_topic_name(topic) if self.mode.resolve_compressed else topic
                 topic, msg_type = resolved + "/compressed", CompressedImage
             sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
-            images[n] = self._images_text or sub.topic_name
+            images[n] = self.mode.images_text or sub.topic_name
         self.images_of = images
+        self.mode.add_frame_inputs()
 
     def _create_pose_outputs(self) -> None:
         """The publishers of the pose outputs (:data:`POSE_OUTPUTS`), ``/tf`` with
@@ -403,9 +411,9 @@ class NodeCore:
     def _warn_busy(self, size: int) -> None:
         """A full queue of ``size`` frames dropped its oldest (:meth:`_enqueue`): a throttled
         warning (the mode's :attr:`_busy_key` and :attr:`_busy_text`)."""
-        text = self._busy_text.format(size=size, queue_size=self.queue_size,
+        text = self.mode.busy_text.format(size=size, queue_size=self.queue_size,
                                       dropped=self._frames.dropped)  # fmt: skip
-        self._log.warning(self._busy_key, text)
+        self._log.warning(self.mode.busy_key, text)
 
     def _subscribe_info(self, name: str, qos_overriding=None):
         """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
@@ -435,7 +443,7 @@ class NodeCore:
 
     def _subscribe_frames(self, name: str, kind: str, msg_type, topic: str, qos):
         """Camera ``name``'s ``kind`` input on ``topic`` (QoS overridable as
-        ``qos_overrides.<topic>.subscription.*``): each message to the core's
+        ``qos_overrides.<topic>.subscription.*``): each message to the node's
         ``_on_frame(name, kind, msg)``; its QoS ``message_lost`` events (messages the
         middleware lost before the node saw them, never received) counted in the camera's
         counts (``messages_lost``). Kept with the frame inputs (destroyed with them)."""
@@ -470,7 +478,7 @@ class NodeCore:
         naming both inputs (:meth:`_frame_beside_frontend`: such a cloud is solved as given,
         not from the images and the front end's map)."""
         if kind == "image":
-            if self._count_image_frames:
+            if self.mode.count_image_frames:
                 self._counts_of(name).add("image_frames")
         elif name in self.images_of:
             leaf = "correspondences" if kind == "cloud" else kind
@@ -494,23 +502,17 @@ class NodeCore:
         if skipped:
             self._warn_busy(size)
 
-    def _camera_of(self, item: QueuedFrame) -> Any:
-        """The camera model of a queued frame, looked up before the worker's lock (a rig
-        camera's: it may wait for its camera_info); None by default (the core's
-        ``_take_frame`` finds it)."""
-        return None
-
     def _process(self, item: QueuedFrame) -> TakenFrame:
-        """The worker: one camera frame taken (the core's ``_take_frame``, under the worker's
+        """The worker: one camera frame taken (the mode's ``take_frame``, under the worker's
         lock) and counted in its camera's counts in the same step (its time and the keys of
         its outcome), so that a diagnostics snapshot sees it once. An
         exception is a defect: the frame is counted ``failed.internal_error`` and logged, the
         node goes on."""
         tic = time.perf_counter()
-        camera = self._camera_of(item)
+        camera = self.mode.camera_of(item)
         with self._worker_lock:
             try:
-                taken = self._take_frame(item, camera)
+                taken = self.mode.take_frame(item, camera)
             except Exception as e:
                 taken = TakenFrame(("failed.internal_error",), "internal_error")
                 self._log.warning(
@@ -525,10 +527,10 @@ class NodeCore:
     def _deliver(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: what the camera's front end found in its
         image to its ``correspondences_out`` (``republish_correspondences``), then what the
-        frame gave (the core's ``_publish_taken``)."""
+        frame gave (the mode's ``publish_taken``)."""
         for name, cloud in taken.clouds:
             self._corr_out_publisher(name).publish(cloud)
-        self._publish_taken(item, taken)
+        self.mode.publish_taken(item, taken)
 
     def _corr_out_publisher(self, name: str = ""):
         """Camera ``name``'s ``correspondences_out`` (``<name>/correspondences_out`` of a rig
@@ -580,32 +582,24 @@ class NodeCore:
                 self.destroy_timer(timer)
         self._diag_timer = self._flush_timer = None
         self._stop_worker(drop_queued=True)
-        self._frame_inputs_destroyed()
-
-    def _frame_inputs_destroyed(self) -> None:
-        """After :meth:`_destroy_frame_inputs` (nothing by default)."""
+        self.mode.frame_inputs_destroyed()
 
     def _end_video(self) -> None:
-        """The end of the frame inputs: what the track still holds (the core's
-        ``_close_track()``, under the worker's lock: the results it completes, each to
-        ``_publish_closed``, and the twists still pending, fused outputs) published; the
+        """The end of the frame inputs: what the track still holds (the mode's
+        ``close_track()``, under the worker's lock: the results it completes, each to
+        ``publish_closed``, and the twists still pending, fused outputs) published; the
         next frame starts a new track."""
         with self._worker_lock:
-            closed, fused = self._close_track()
+            closed, fused = self.mode.close_track()
         for out in closed:
-            self._publish_closed(out)
+            self.mode.publish_closed(out)
         self._publish_fused(fused)
-
-    def _close_track(self) -> tuple[list, list]:
-        """``(results, fused)``: what :meth:`_end_video` publishes (none by default: the
-        single camera's track is dropped with its frame inputs, nothing is left)."""
-        return [], []
 
     def _flush_idle_track(self) -> None:
         """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
-        frame starts a new one): publish the twists still pending (the core's
-        ``_idle_twists()``, fused outputs; none while the worker is on a frame)."""
-        self._publish_fused(self._idle_twists())
+        frame starts a new one): publish the twists still pending (the mode's
+        ``idle_twists()``, fused outputs; none while the worker is on a frame)."""
+        self._publish_fused(self.mode.idle_twists())
 
     def _publish_fused(self, fused) -> None:
         """twist and odom of the frames whose fused twist is final (``fused``:
@@ -615,7 +609,7 @@ class NodeCore:
             self._publish(fused_messages(fused, self.map_frame, self._wanted))
 
     def _release_inputs(self) -> None:
-        """The part of ``_release_configured`` both cores share: the camera_info and imu
+        """The first part of :meth:`_release_configured`: the camera_info and imu
         subscriptions, the shared maps and the diagnostics publisher (the managed node
         destroys the publishers)."""
         for sub in self._info_subs:
@@ -677,11 +671,11 @@ class NodeCore:
         return status_message(name, hardware_id, level, message, values)
 
     def diagnostics_status(self) -> DiagnosticStatus:
-        """The node's status: the core's ``_diagnostics(latencies, stamp_ages)`` (s, the last
+        """The node's status: the mode's ``diagnostics(latencies, stamp_ages)`` (s, the last
         1000 poses: :meth:`_timing_snapshot`) -> ``(hardware_id, level, message, values)``,
         named after the node (:meth:`_status`)."""
         latencies, stamp_ages = self._timing_snapshot()
-        return self._status(*self._diagnostics(latencies, stamp_ages))
+        return self._status(*self.mode.diagnostics(latencies, stamp_ages))
 
     def publish_diagnostics(self) -> None:
         """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""

@@ -9,9 +9,9 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 
-from .params import FloatRange
+from .params import FloatRange, Parameter
 
-__all__ = ["declare_parameters"]
+__all__ = ["declare_dynamic", "declare_parameters"]
 
 
 def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
@@ -45,3 +45,15 @@ def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
                 + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
                 + f": {e}"
             ) from None
+
+
+def declare_dynamic(node: Any, name: str, par: Parameter) -> Any:
+    """Declare parameter ``name`` (a :class:`~rs_localizer.ros.params.Parameter` ``par``) of any
+    type (its value checked by :func:`.config.rig_config`, which names the parameter and the
+    fix: ``rig.cameras: front`` instead of ``[front]``, a mounting of integers); returns its
+    value (None: not set)."""
+    d = ParameterDescriptor(
+        description=par.description, read_only=par.read_only, dynamic_typing=True
+    )
+    node.declare_parameter(name, None, d)
+    return node.get_parameter(name).value

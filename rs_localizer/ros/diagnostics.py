@@ -470,7 +470,7 @@ def _imu_values(g: GyroState) -> dict[str, Any]:
 # ---------------------------------------------------------------------- a rig of cameras
 @dataclass
 class RigInputs:
-    """What the rig node (:class:`~rs_localizer.ros.rig_node.RigCore`) knows of the frames
+    """What the rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) knows of the frames
     before they reach the rig, for :func:`rig_diagnostics`.
 
     ``counts``: the node's map-fit check over the rig frames

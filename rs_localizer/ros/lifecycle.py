@@ -21,68 +21,55 @@ The same processing, parameters and topics as ``rs_localizer_node``
 The ``cameras`` parameter runs one managed node per camera namespace (:mod:`.runner`); each is
 managed separately (``/robot/front/rs_localizer/change_state``, ...).
 
-With ``rig.cameras`` set the process runs the rig mode as one managed node
-(:class:`RigLocalizerLifecycleNode`, :mod:`.rig_node`): configure reads the rig's parameters
-(each camera's ``rig.<camera>.*``; a camera without mounting fails the transition, naming it),
-builds each camera's front end and creates the publishers (inactive) and the cameras'
-``camera_info`` subscriptions; activate subscribes every camera's frame inputs
-(``<camera>/correspondences``, ``<camera>/image_raw``) and publishes diagnostics; deactivate
-unsubscribes them, solves and publishes the rig frames still open and ends the track (the next
-activation starts a new one; the counters go on); cleanup releases everything (the counters
-too). Parameters may be changed while unconfigured; once configured, a change is taken or
-refused as by the rig node (:class:`~.rig_node.RigCore`).
-
-Both managed nodes run the transitions of one template, :class:`ManagedTransitions`, over the
-phases that the camera's and the rig's cores (:class:`~.node.LocalizerCore`,
-:class:`~.rig_node.RigCore`) both have.
+With ``rig.cameras`` set the node runs the rig mode (:class:`~.rig_node.RigMode`):
+configure reads the rig's parameters (each camera's ``rig.<camera>.*``; a camera without
+mounting fails the transition, naming it), builds each camera's front end and creates the
+publishers (inactive) and the cameras' ``camera_info`` subscriptions; activate subscribes
+every camera's frame inputs (``<camera>/correspondences``, ``<camera>/image_raw``) and
+publishes diagnostics; deactivate unsubscribes them, solves and publishes the rig frames still
+open and ends the track (the next activation starts a new one; the counters go on); cleanup
+releases everything (the counters too). Parameters may be changed while unconfigured; once
+configured, a change is taken or refused as by ``rs_localizer_node``
+(:meth:`.core.NodeCore._on_set_parameters`). ``rig.cameras`` is read-only: the mode is the
+one the node was started with.
 """
 
 from __future__ import annotations
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from .node import LocalizerCore
+from .core import NodeCore
+from .node import CameraMode
 from .qos import output_events
-from .rig_node import RigCore
+from .rig_node import RigMode
 
-__all__ = ["ManagedTransitions", "RSLocalizerLifecycleNode", "RigLocalizerLifecycleNode"]
+__all__ = ["RSLocalizerLifecycleNode"]
 
 _OK = TransitionCallbackReturn.SUCCESS
 
 
-class ManagedTransitions:
-    """The lifecycle transitions of a managed node, written once (see the module docstring).
-
-    Mixed in before the node's core and :class:`rclpy.lifecycle.LifecycleNode`
-    (``class X(ManagedTransitions, Core, LifecycleNode)``). The core
-    (:class:`~.node.LocalizerCore`, :class:`~.rig_node.RigCore`) has the phases a transition
-    runs: ``_configure`` (parameters -> configuration; RuntimeError for invalid parameters),
-    ``_create_outputs``, ``_create_info_inputs``, ``_create_frame_inputs``, ``_log_ready``,
-    ``_destroy_frame_inputs``, ``_end_video`` (publish what the track still holds, the
-    publishers still active) and ``_release_configured`` (what configure made but the
-    publishers); the node class says what the log line ``configured: ... (inactive)`` names
-    (``_configured_as``). The outputs are lifecycle publishers (``self._outputs``), enabled
-    and disabled by the lifecycle node's own transitions.
+class RSLocalizerLifecycleNode(NodeCore, LifecycleNode):
+    """The managed localizer node, for one camera or a rig (see the module docstring): the
+    phases of :class:`~.core.NodeCore` run by the lifecycle transitions. ``node_name`` and
+    ``kwargs`` go to :class:`rclpy.lifecycle.LifecycleNode`. The outputs are lifecycle
+    publishers (``self._outputs``), enabled and disabled by the lifecycle node's own
+    transitions.
     """
 
+    _modes = (CameraMode, RigMode)
     _outputs: list
-    #: the mode in the log line of the start (``unconfigured (lifecycle node...)``)
-    _mode_note = ""
 
     def _start(self) -> None:
-        """The managed node's start (in the core's construction): the parameters declared,
-        the core's state before ``configure``, parameter changes taken (checked at
+        """The managed node's start (in the node's construction): the parameters declared,
+        the node's state before ``configure`` (its mode), parameter changes taken (checked at
         ``configure``); nothing configured."""
         self._declare_parameters()
         self._init_state()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._outputs = []
         self.get_logger().info(
-            f"unconfigured (lifecycle node{self._mode_note}: configure, then activate)"
+            f"unconfigured (lifecycle node{self.mode.mode_note}: configure, then activate)"
         )
-
-    def _configured_as(self) -> str:
-        raise NotImplementedError
 
     def _make_publisher(self, msg_type, topic, qos):
         pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
@@ -98,7 +85,7 @@ class ManagedTransitions:
             return TransitionCallbackReturn.FAILURE
         self._create_outputs()
         self._create_info_inputs()
-        self.get_logger().info(f"configured: {self._configured_as()} (inactive)")
+        self.get_logger().info(f"configured: {self.mode.configured_as()} (inactive)")
         return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -131,26 +118,9 @@ class ManagedTransitions:
         return _OK
 
     def _release(self):
-        """Drop what configure made: the publishers, then the core's part."""
+        """Drop what configure made: the publishers, then the rest
+        (:meth:`.core.NodeCore._release_configured`)."""
         for pub in self._outputs:
             self.destroy_lifecycle_publisher(pub)
         self._outputs = []
         self._release_configured()
-
-
-class RSLocalizerLifecycleNode(ManagedTransitions, LocalizerCore, LifecycleNode):
-    """The managed localizer node (see the module docstring). ``node_name`` and ``kwargs`` go to
-    :class:`rclpy.lifecycle.LifecycleNode`."""
-
-    def _configured_as(self) -> str:
-        return f"solver {self.cfg.solver}"
-
-
-class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
-    """The rig mode as a managed node (see the module docstring). ``node_name`` and ``kwargs``
-    go to :class:`rclpy.lifecycle.LifecycleNode`."""
-
-    _mode_note = ", rig mode"
-
-    def _configured_as(self) -> str:
-        return f"rig of {len(self.config.cameras)} cameras"

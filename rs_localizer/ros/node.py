@@ -41,6 +41,7 @@ Publications (reliable, depth 10):
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -55,61 +56,65 @@ from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
 from .qos import IMU_QOS
+from .rig_node import RigMode
 
-__all__ = ["PARAMETERS", "RSLocalizerNode"]
+__all__ = ["PARAMETERS", "CameraMode", "RSLocalizerNode"]
 
 
-class LocalizerCore(NodeCore):
-    """Everything of the localizer node but the order of its construction, shared by
-    :class:`RSLocalizerNode` (all at once) and the managed
-    :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode` (by lifecycle transition).
-    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`, :meth:`_init_state`,
-    :meth:`_configure` (parameters -> configuration, maps, JIT warm-up), :meth:`_create_outputs`,
-    :meth:`_create_info_inputs`, :meth:`_create_frame_inputs`, :meth:`_log_ready` (and
-    :meth:`_destroy_frame_inputs`, :meth:`_end_video`, :meth:`_release_configured`): the rig's
-    :class:`~rs_localizer.ros.rig_node.RigCore` has the same, so that one template of the
-    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives both;
-    the plumbing both share (publishers, timers, worker, diagnostics publishing) is
-    :class:`~rs_localizer.ros.core.NodeCore`'s. The frames go through a
-    :class:`~rs_localizer.ros.pipeline.FramePipeline` on the worker thread of a
-    :class:`~rs_localizer.ros.frame_queue.FrameQueue`; this class subscribes, publishes what
-    the pipeline returns and reports diagnostics."""
+class CameraMode:
+    """The single camera's part of :class:`RSLocalizerNode` (``rig.cameras`` empty): the
+    camera's topics without prefix, its frames through a
+    :class:`~rs_localizer.ros.pipeline.FramePipeline` on the node's worker thread, what the
+    pipeline returns published, the camera's diagnostics. The node
+    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing; this object what
+    the camera's mode does at each phase (the interface :class:`~.core.NodeCore` names; the
+    rig's is :class:`~rs_localizer.ros.rig_node.RigMode`). Made with the node's state
+    (``_init_state``): the pipeline without configuration, the camera's input stage and
+    counts (named ""), the frame queue."""
 
-    pipeline = None  # (None: before _init_state)
-    _count_image_frames = True
-    # (the single camera's topics and texts: :class:`~rs_localizer.ros.core.NodeCore`'s)
-    _cloud_kind = "correspondences"
-    _image_topic = "image"
-    _keypoints_always = True
-    _resolve_compressed = True
-    _images_text = None
-    _info_qos_overridable = True
-    _busy_key = "skipped"
-    _busy_text = (
+    #: the single camera counts its image frames (``image_frames``)
+    count_image_frames = True
+    #: the single camera's topics and texts (:class:`~rs_localizer.ros.core.NodeCore`)
+    cloud_kind = "correspondences"
+    image_topic = "image"
+    keypoints_always = True
+    resolve_compressed = True
+    images_text = None
+    info_qos_overridable = True
+    busy_key = "skipped"
+    busy_text = (
         "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
         "[{dropped} skipped so far]"
     )
-    _warned_rs = False  # (a warning given once per node: set on the instance when given)
+    #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
+    mode_note = ""
+
+    def __init__(self, node: NodeCore):
+        self.node = node
+        self.pipeline = FramePipeline(log=node.get_logger(), stopped=lambda: node._frames.stopping)
+        node._log = self.pipeline.log
+        node.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
+        node.camera_counts = {"": self.pipeline.stats}
+        node._frames = node._new_queue()
 
     @property
     def cfg(self) -> LocalizerConfig | None:
         """The configuration built from the parameters (None: not configured)."""
-        return None if self.pipeline is None else self.pipeline.config
+        return self.pipeline.config
 
-    def _init_state(self):
-        super()._init_state()
-        self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
-        self._log = self.pipeline.log
-        self.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
-        self.camera_counts = {"": self.pipeline.stats}
-        self._frames = self._new_queue()
-        self._configured = False
+    def configured_as(self) -> str:
+        """What the managed node's ``configured: ... (inactive)`` line names."""
+        return f"solver {self.cfg.solver}"
 
-    def _configure(self):
+    def camera_of(self, item: QueuedFrame) -> None:
+        """None: :meth:`take_frame` finds the camera model (the pipeline's)."""
+        return None
+
+    def configure(self) -> None:
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
         the JIT warm-up. Raises RuntimeError for invalid parameters."""
         try:
-            cfg, maps = self._changed_configuration({})
+            cfg, maps = self.changed_configuration({})
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self._apply_config(cfg, maps)
@@ -118,38 +123,39 @@ class LocalizerCore(NodeCore):
     def _warm_up(self, cfg: LocalizerConfig, background: bool = False) -> None:
         """With ``warmup``, the kernels of ``cfg``'s solver, tracking and gyro compiled or
         loaded (:func:`.pipeline.log_warm_up`; ``background``: its)."""
-        if self.get_parameter("warmup").value:
-            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.get_logger(),
+        if self.node.get_parameter("warmup").value:
+            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.node.get_logger(),
                         cfg.imu is not None, background)  # fmt: skip
 
-    def _create_info_inputs(self):
-        """camera_info (:meth:`.core.NodeCore._create_info_inputs`) and, with imu.enabled
-        (read-only), the gyro's imu; created before the frame inputs: a camera_info or IMU
-        sample ready together with a frame is taken first."""
-        super()._create_info_inputs()
+    def add_info_inputs(self) -> None:
+        """With imu.enabled (read-only), the gyro's imu, after camera_info
+        (:meth:`.core.NodeCore._create_info_inputs`), before the frame inputs: a camera_info
+        or IMU sample ready together with a frame is taken first."""
         if self.cfg.imu is not None:
             qos = QoSOverridingOptions.with_default_policies()
-            self._info_subs.append(self.create_subscription(
+            self.node._info_subs.append(self.node.create_subscription(
                 Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
             ))  # fmt: skip
 
-    def _frame_inputs_destroyed(self):
+    def add_frame_inputs(self) -> None:
+        """Nothing beside the camera's frame inputs (its imu is subscribed at configure)."""
+
+    def frame_inputs_destroyed(self) -> None:
         """After the frame inputs' end (the frames still queued dropped): the track is
-        dropped too (nothing is left for :meth:`_end_video` to publish)."""
+        dropped too (nothing is left for :meth:`.core.NodeCore._end_video` to publish)."""
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
 
-    def _release_configured(self):
-        """Drop what configure made but the publishers (the managed node destroys those): the
-        camera_info and imu subscriptions, maps, the camera model, the configuration and the
-        counters."""
-        self._release_inputs()
-        self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
-        # the counters reset too)
+    def close_track(self) -> tuple[list, list]:
+        """None left: the single camera's track is dropped with its frame inputs."""
+        return [], []
 
-    def _log_ready(self):
+    def publish_closed(self, out: Any) -> None:  # (never: close_track returns none)
+        raise AssertionError("the single camera closes no frames")
+
+    def log_ready(self) -> None:
         cfg = self.cfg
         if cfg.line_delay == 0 and cfg.readout_time == 0:
-            self.get_logger().warning(
+            self.node.get_logger().warning(
                 "rs.line_delay and rs.readout_time are 0: global-shutter "
                 "timing, the published twist will be zero"
             )
@@ -160,10 +166,10 @@ class LocalizerCore(NodeCore):
         landmarks = self._maps().landmarks
         if landmarks:
             text += f", {len(landmarks[0])} landmarks from {cfg.landmarks_file}"
-        if "" in self.images_of:
-            text += f", {cfg.frontend_kind} front end on {self.images_of['']} (map "
+        if "" in self.node.images_of:
+            text += f", {cfg.frontend_kind} front end on {self.node.images_of['']} (map "
             text += f"{cfg.frontend_map})"
-        self.get_logger().info(text)
+        self.node.get_logger().info(text)
 
     # ------------------------------------------------------------------ parameters
     def _maps(self) -> LoadedMaps:
@@ -175,12 +181,15 @@ class LocalizerCore(NodeCore):
         old_fe = self._maps().frontend
         # (the RS timing may have changed: camera models rebuilt)
         self.pipeline.configure(cfg, maps)
-        self.queue_size, self.frontend_kind = cfg.queue_size, cfg.frontend_kind
-        self.image_transport, self.landmarks = cfg.image_transport, maps.landmarks
-        self.republish, self.map_frame = bool(cfg.republish_correspondences), cfg.map_frame
-        self._configured = True
+        self.node.queue_size, self.node.frontend_kind = cfg.queue_size, cfg.frontend_kind
+        self.node.image_transport, self.node.landmarks = cfg.image_transport, maps.landmarks
+        self.node.republish, self.node.map_frame = (
+            bool(cfg.republish_correspondences),
+            cfg.map_frame,
+        )
+        self.node._configured = True
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
-            self.get_logger().info(
+            self.node.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
             )
         detector = None if maps.frontend is None else maps.frontend.marker_detector_note()
@@ -188,22 +197,22 @@ class LocalizerCore(NodeCore):
             # which marker detector runs (a missing AprilTag library: a warning with the
             # install line)
             line, fallback = detector
-            log = self.get_logger().warning if fallback else self.get_logger().info
+            log = self.node.get_logger().warning if fallback else self.node.get_logger().info
             log(f"marker detector: {line}")
-        if cfg.republish_correspondences and maps.frontend is not None and self._pubs:
-            self._corr_out_publisher()
+        if cfg.republish_correspondences and maps.frontend is not None and self.node._pubs:
+            self.node._corr_out_publisher()
         note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
-        if note is not None and not self._warned_rs:
-            self._warned_rs = True  # (once per node)
-            self.get_logger().warning(note)
+        if note is not None and not self.node._warned_rs:
+            self.node._warned_rs = True  # (once per node, whatever its configures)
+            self.node.get_logger().warning(note)
 
-    def _changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, LoadedMaps]:
+    def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, LoadedMaps]:
         """The configuration of the parameters with ``overrides`` and the maps it names
         (a changed ``landmarks_file`` or ``frontend_map`` loaded; ConfigError: not loadable)."""
-        cfg = build_config(self._param_values(overrides))
+        cfg = build_config(self.node._param_values(overrides))
         return cfg, load_maps(cfg, owner=self, current=self._maps())
 
-    def _apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
+    def apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
         """The pipeline reconfigured (:meth:`_apply_config`); a solver change logged (and its
         kernels warmed up with ``warmup``: loaded from numba's cache, or, not cached and the
         solver has a NumPy implementation, compiled in another process while its frames are
@@ -211,46 +220,48 @@ class LocalizerCore(NodeCore):
         landmarks logged."""
         cfg, maps = built
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
-            self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
+            self.node.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
             self._warm_up(cfg, background=True)
         self._apply_config(cfg, maps)
         if overrides.get("landmarks_file") and maps.landmarks is not None:
-            self.get_logger().info(
+            self.node.get_logger().info(
                 f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.landmarks_file}"
             )
 
     # ------------------------------------------------------------------ frames
-    def _take_frame(self, item: QueuedFrame, camera=None) -> TakenFrame:
+    def take_frame(self, item: QueuedFrame, camera: Any = None) -> TakenFrame:
         """The worker: one frame through the pipeline (its stamp checked as it arrived),
         counted ``solved`` or ``failed.<reason>``; with ``republish_correspondences`` what the
         front end found in the image, as a ``correspondences_out`` cloud."""
         res = self.pipeline.process(item.msg, item.kind, item.stamp)
         clouds = []
         if res.correspondences is not None:
-            clouds.append(("", self._found_cloud("", res.correspondences, item.msg, res.stamp_ns)))
+            clouds.append(
+                ("", self.node._found_cloud("", res.correspondences, item.msg, res.stamp_ns))
+            )
         outcome = "solved" if res.failure is None else f"failed.{res.failure}"
         return TakenFrame((outcome,), res.failure, res, clouds=clouds)
 
-    def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
+    def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish what the pipeline returned (a
         failed frame: the fused twists it made final), log a failure."""
         tic = time.perf_counter()
         cfg, res = self.cfg, taken.result
-        self.viz.hold_image(res.image if res.failure is None else None)
+        self.node.viz.hold_image(res.image if res.failure is None else None)
         if res.failure is not None:
-            self._publish_fused(res.fused)
+            self.node._publish_fused(res.fused)
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
                 self.pipeline.stats.get(f"failed.{res.failure}"),
             )
-            return self._log.warning(res.failure, text, n)
+            return self.node._log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        messages = frame_messages(res, cfg.map_frame, self._wanted)
-        self._publish(messages)
+        messages = frame_messages(res, cfg.map_frame, self.node._wanted)
+        self.node._publish(messages)
         r, mf = res, cfg.map_frame  # (visualization: in the camera frame)
         # (the path takes the published pose when that is the camera's: no base_frame)
         pose = messages[0][1] if r.output is r.estimate and messages[0][0] == "pose" else None
-        self.viz.publish(
+        self.node.viz.publish(
             r.estimate,
             r.points2d,
             r.points3d,
@@ -262,13 +273,13 @@ class LocalizerCore(NodeCore):
             pose,
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
-        self._record_timing(item.arrived, res.stamp_ns)
+        self.node._record_timing(item.arrived, res.stamp_ns)
 
-    def _idle_twists(self) -> list:
+    def idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)
 
     # ------------------------------------------------------------------ diagnostics
-    def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
+    def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
         """The camera's status (:func:`.diagnostics.diagnostic_status`)."""
         stats = self.pipeline.stats.snapshot()
         level, message, values = diagnostic_status(
@@ -289,10 +300,15 @@ class LocalizerCore(NodeCore):
         return self.cfg.camera_frame or "camera", level, message, values
 
 
-class RSLocalizerNode(LocalizerCore, Node):
-    """The localizer node: configured (JIT warm-up included), subscribed and publishing from
-    construction. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`.
+class RSLocalizerNode(NodeCore, Node):
+    """The localizer node, for one camera (``rig.cameras`` empty: :class:`CameraMode`) or a
+    rig (:class:`~rs_localizer.ros.rig_node.RigMode`): configured (JIT warm-up included),
+    subscribed and publishing from construction. ``node_name`` and ``kwargs`` go to
+    :class:`rclpy.node.Node`. The managed node is
+    :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode`.
 
     Raises:
         RuntimeError: invalid parameters (the message names the parameter).
     """
+
+    _modes = (CameraMode, RigMode)

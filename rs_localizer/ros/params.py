@@ -686,12 +686,12 @@ def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
     return tree
 
 
-#: the rig mode's parameters (docs/rig_node.md): with ``rig.cameras`` set the process runs one
-#: :class:`~rs_localizer.ros.rig_node.RigLocalizerNode` for the rig instead of one localizer per
-#: camera; every parameter of :data:`PARAMETERS` applies to it too (``ransac.*``, ``tracking.*``,
-#: ``rs.*`` as every camera's default timing, ``map_frame``, ``base_frame``, ``publish_tf``,
-#: ``time_reset_threshold``, ``diagnostics_period``). ``rig.cameras`` is a string array (its
-#: empty default is declared with that type).
+#: the rig mode's parameters (docs/rig_node.md), declared by every node: with ``rig.cameras``
+#: set the node runs the rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) instead of one
+#: localizer per camera; every parameter of :data:`PARAMETERS` applies to it too
+#: (``ransac.*``, ``tracking.*``, ``rs.*`` as every camera's default timing, ``map_frame``,
+#: ``base_frame``, ``publish_tf``, ``time_reset_threshold``, ``diagnostics_period``).
+#: ``rig.cameras`` is a string array (its empty default is declared with that type).
 RIG_PARAMETERS = {
     "rig.cameras": Parameter(
         [],

@@ -66,18 +66,15 @@ run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_para
 parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
 ``max_points`` and ``queue_size`` apply from the next rig frame on
 (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when drawing, and the others
-are refused with why (:func:`.config.rig_change_refused`). The managed node's rig mode is
-:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+are refused with why (:func:`.config.rig_change_refused`). The managed node
+(:class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode`) runs the same mode.
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.node import Node
 from sensor_msgs.msg import Imu
 
 from ..camera import CameraModel, Stamp
@@ -86,7 +83,6 @@ from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
 from .camera_input import (
     CameraCounts,
-    CameraInput,
     DroppedFrame,
     ImageFrame,
     rig_camera_inputs,
@@ -104,7 +100,7 @@ from .config import (
     same_value,
 )
 from .core import NodeCore, QueuedFrame, TakenFrame
-from .declare import declare_parameters
+from .declare import declare_dynamic, declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
@@ -119,7 +115,7 @@ from .pipeline import (
 from .qos import IMU_QOS
 from .visualization import rig_camera_views
 
-__all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
+__all__ = ["RigMode", "rig_diagnostics"]
 
 
 INPUT_SKIP_REASONS = {
@@ -133,100 +129,113 @@ INPUT_SKIP_REASONS = {
 :data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
 
 
-def _declare_dynamic(node: Node, name: str, par) -> Any:
-    """Declare a parameter of any type (its value checked by :func:`.config.rig_config`, which
-    names the parameter and the fix: ``rig.cameras: front`` instead of ``[front]``, a mounting
-    of integers); returns its value (None: not set)."""
-    d = ParameterDescriptor(
-        description=par.description, read_only=par.read_only, dynamic_typing=True
+class RigMode:
+    """The rig's part of :class:`~rs_localizer.ros.node.RSLocalizerNode` (``rig.cameras``
+    set; module docstring): each camera's topics under ``<c>/``, its frames to one
+    :class:`~rs_localizer.tracking.video.Localizer` on the node's worker thread, the rig
+    frames they complete published, the rig's diagnostics with a section per camera. The node
+    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing; this object what
+    the rig's mode does at each phase (the interface :class:`~.core.NodeCore` names; the
+    single camera's is :class:`~rs_localizer.ros.node.CameraMode`). Nothing before
+    ``configure`` (:meth:`configure`: the cameras, their inputs and counts, the frame queue,
+    the localizer)."""
+
+    #: the rig's topics and texts (:class:`~rs_localizer.ros.core.NodeCore`)
+    count_image_frames = False
+    cloud_kind = "cloud"
+    image_topic = "image_raw"
+    keypoints_always = False
+    resolve_compressed = False
+    images_text: str | None = "the camera's images"
+    info_qos_overridable = False
+    busy_key = "queue_full"
+    busy_text = (
+        "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
+        "the oldest waiting frame [{dropped} dropped so far]"
     )
-    node.declare_parameter(name, None, d)
-    return node.get_parameter(name).value
-
-
-class RigCore(NodeCore):
-    """Everything of the rig mode but the order of its construction, shared by
-    :class:`RigLocalizerNode` (all at once) and the managed
-    :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
-    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`,
-    :meth:`_configure` (parameters -> configuration, the cameras' front ends, the
-    :class:`~rs_localizer.tracking.video.Localizer`), :meth:`_create_outputs`,
-    :meth:`_create_info_inputs`, :meth:`_create_frame_inputs` (and
-    :meth:`_destroy_frame_inputs`), :meth:`_end_video`, :meth:`_release_configured`: those of
-    the camera's :class:`~rs_localizer.ros.node.LocalizerCore`, so that one template of the
-    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives
-    both; the plumbing both share (publishers, timers, worker, diagnostics publishing) is
-    :class:`~rs_localizer.ros.core.NodeCore`'s."""
-
+    #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
+    mode_note = ", rig mode"
     rig = None  # (None: not configured)
     config = None
 
-    def _declare_parameters(self) -> None:
-        super()._declare_parameters()
-        declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
-        _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
+    def __init__(self, node: NodeCore):
+        self.node = node
+        self.imu_rejected: dict[str, int] = {}
 
-    def _configure(self) -> None:
+    def configured_as(self) -> str:
+        """What the managed node's ``configured: ... (inactive)`` line names."""
+        return f"rig of {len(self.config.cameras)} cameras"
+
+    def add_info_inputs(self) -> None:
+        """Nothing beside the cameras' camera_info (the rig's imu comes with the frame
+        inputs: :meth:`add_frame_inputs`)."""
+
+    def frame_inputs_destroyed(self) -> None:
+        """Nothing: the rig frames still open are published at the end of the frame inputs
+        (:meth:`close_track`)."""
+
+    def configure(self) -> None:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
         use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
         rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
+        node = self.node
         try:  # (the names first: they make parameter and topic names)
-            names = rig_camera_names(self.get_parameter("rig.cameras").value)
+            names = rig_camera_names(node.get_parameter("rig.cameras").value)
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
         for n in names:
-            if not self.has_parameter(f"rig.{n}.line_delay"):
-                declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
-                _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
+            if not node.has_parameter(f"rig.{n}.line_delay"):
+                declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
+                declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
         try:
-            self.config, single = self._changed_configuration({}, check=False)
+            self.config, single = self.changed_configuration({}, check=False)
             # (the landmarks and the front end's map loaded once, a front end object each)
-            loaded = {c.name: load_maps(single, owner=self) for c in self.config.cameras}
+            loaded = {c.name: load_maps(single, owner=node) for c in self.config.cameras}
         except ConfigError as e:
-            SHARED_MAPS.release(self)
+            SHARED_MAPS.release(node)
             raise RuntimeError(f"invalid parameters: {e}") from None
         #: the landmarks of ``landmarks_file`` (``(ids, points)``) the cameras' keypoints name
-        self.landmarks = next(iter(loaded.values())).landmarks
-        self.map_frame = str(single.map_frame)
-        self.frontend_kind = single.frontend_kind
-        self.image_transport = single.image_transport
-        self._log = ThrottledLog(self.get_logger(), period=5.0)  # (each kind once per 5 s)
+        node.landmarks = next(iter(loaded.values())).landmarks
+        node.map_frame = str(single.map_frame)
+        node.frontend_kind = single.frontend_kind
+        node.image_transport = single.image_transport
+        node._log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = Localizer(
-            self.config.settings, log=self._log, implementation=ready_implementation
+            self.config.settings, log=node._log, implementation=ready_implementation
         )
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
-        self.queue_size = int(single.queue_size)
-        self.republish = bool(single.republish_correspondences)
-        self._corr_out: dict = {}  # (camera -> its correspondences_out, made when first needed)
-        self._frames = self._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
+        node.queue_size = int(single.queue_size)
+        node.republish = bool(single.republish_correspondences)
+        node._corr_out = {}  # (camera -> its correspondences_out, made when first needed)
+        node._frames = node._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
         self._group_ns = int(self.config.settings.window * 1e9)
         #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
         #: received, handed on, skipped or failed before the rig, its input stage's counts,
         #: its messages lost, the worker's time per frame
-        self.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
         self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
-        self.inputs: dict[str, CameraInput] = rig_camera_inputs(
+        node.inputs = rig_camera_inputs(
             self.config,
-            self._log,
+            node._log,
             self._count_input,
-            stopped=lambda: self._frames.stopping,
+            stopped=lambda: node._frames.stopping,
             wait=single.camera_info_wait,
-            landmarks=self.landmarks,
+            landmarks=node.landmarks,
         )
-        self._first_frame: float | None = None  # (monotonic s: the first frame received)
-        with self._timing_lock:
-            self.latencies.clear()
-            self.stamp_ages.clear()
+        node._first_frame = None  # (monotonic s: the first frame received)
+        with node._timing_lock:
+            node.latencies.clear()
+            node.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
-        if self.get_parameter("warmup").value:
+        if node.get_parameter("warmup").value:
             self._warm_up()
-        self._configured = True
+        node._configured = True
 
     def _warm_up(self) -> None:
         """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
@@ -252,20 +261,20 @@ class RigCore(NodeCore):
             return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
 
         kernels = RigKernels(self.config.settings, timing)
-        warm_kernels(kernels, "rig", warm, self.get_logger(), True,
+        warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
 
-    def _subscribe_frame_inputs(self) -> None:
-        """Each camera's frame inputs (:meth:`.core.NodeCore._subscribe_frame_inputs`:
+    def add_frame_inputs(self) -> None:
+        """After each camera's frame inputs (:meth:`.core.NodeCore._subscribe_frame_inputs`:
         ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints``, with a front end
-        ``<c>/image_raw`` or ``<c>/image_raw/compressed``), then with ``imu.enabled`` the rig's
+        ``<c>/image_raw`` or ``<c>/image_raw/compressed``), with ``imu.enabled`` the rig's
         ``imu`` (its rejected samples counted anew)."""
-        super()._subscribe_frame_inputs()
-        self.imu_rejected: dict[str, int] = {}
+        self.imu_rejected = {}
         if self.config.settings.imu is not None:
-            self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
+            sub = self.node.create_subscription(Imu, "imu", self._on_imu, IMU_QOS)
+            self.node._frame_subs.append(sub)
 
-    def _close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
+    def close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
         """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
         twists still pending (none unconfigured)."""
         if self.rig is None:
@@ -274,20 +283,13 @@ class RigCore(NodeCore):
             self.rig.flush() + self.rig.reset(), self.config.base_frame
         )
 
-    def _publish_closed(self, out: LocalizerOutput) -> None:
+    def publish_closed(self, out: LocalizerOutput) -> None:
         self.publish_output(out)
 
-    def _release_configured(self) -> None:
-        """Drop what configure made: publishers, subscriptions, front ends and their map, the
-        rig and its counters."""
-        self._release_inputs()
-        self.rig, self.config, self._pubs = None, None, {}
-        self._configured = False
-
-    def _log_ready(self) -> None:
+    def log_ready(self) -> None:
         images = (
-            f", {self.frontend_kind} front end on each camera's image_raw"
-            if self.frontend_kind != "none"
+            f", {self.node.frontend_kind} front end on each camera's image_raw"
+            if self.node.frontend_kind != "none"
             else ""
         )
         timing = []
@@ -298,15 +300,15 @@ class RigCore(NodeCore):
                 else f"line delay {c.line_delay * 1e6:.2f} us/line"
             )
             timing.append(f"{c.name} {t} {c.direction}")
-        self.get_logger().info(
+        self.node.get_logger().info(
             f"ready: rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
-            f"{self.config.base_frame} in {self.map_frame}{images}"
+            f"{self.config.base_frame} in {self.node.map_frame}{images}"
         )
         if self.config.unused_text:
-            self.get_logger().warning(self.config.unused_text)
+            self.node.get_logger().warning(self.config.unused_text)
 
     # ---------------------------------------------------------------- parameters
-    def _changed_configuration(
+    def changed_configuration(
         self, overrides: dict, check: bool = True
     ) -> tuple[RigConfig, LocalizerConfig]:
         """The rig's configuration of the parameters with ``overrides`` (name -> value of
@@ -322,25 +324,27 @@ class RigCore(NodeCore):
         """
         if check:
             changed = [
-                n for n, v in overrides.items() if not same_value(v, self.get_parameter(n).value)
+                n
+                for n, v in overrides.items()
+                if not same_value(v, self.node.get_parameter(n).value)
             ]
             refused = rig_change_refused(changed, self.config.settings.single_camera)
             if refused is not None:
                 raise ConfigError(refused)
-        names = rig_camera_names(self.get_parameter("rig.cameras").value)
-        values = self._param_values(overrides)
+        names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
+        values = self.node._param_values(overrides)
         values.update(
-            {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
+            {n: self.node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
         values["rig.cameras"] = names
         cams = {
-            n: {k: self.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
+            n: {k: self.node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
             for n in names
         }
         config = rig_config(values, cams)
         return config, build_config(rig_used_values(values, config.settings.single_camera))
 
-    def _apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
+    def apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on
         (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
@@ -349,20 +353,20 @@ class RigCore(NodeCore):
         config, single = built
         old = self.config.settings.solver
         if config.settings.single_camera and config.settings.solver != old:
-            self.get_logger().info(f"solver: {old} -> {config.settings.solver}")
-        with self._worker_lock:  # (between two camera frames of the worker)
+            self.node.get_logger().info(f"solver: {old} -> {config.settings.solver}")
+        with self.node._worker_lock:  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
-            for inp in self.inputs.values():
+            for inp in self.node.inputs.values():
                 inp.max_points = config.settings.max_points
                 inp.wait = float(single.camera_info_wait)
-        self.queue_size = single.queue_size
-        self.republish = bool(single.republish_correspondences)
+        self.node.queue_size = single.queue_size
+        self.node.republish = bool(single.republish_correspondences)
 
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
         """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
-        self.camera_counts[name].add(key, n)
+        self.node.camera_counts[name].add(key, n)
 
     def _same_rig_frame(self, batch: list, item) -> bool:
         """Whether a waiting frame goes with the frames the worker takes (``batch``): another
@@ -381,16 +385,16 @@ class RigCore(NodeCore):
         stamp without one), as the rig groups it
         (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns`)."""
         return self.config.settings.reference_ns(
-            item.name, item.stamp, self.inputs[item.name].newest
+            item.name, item.stamp, self.node.inputs[item.name].newest
         )
 
-    def _camera_of(self, item: QueuedFrame) -> CameraModel | None:
+    def camera_of(self, item: QueuedFrame) -> CameraModel | None:
         """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
         camera_info: outside the worker's lock, which the diagnostics take on the executor
         that delivers it."""
-        return self.inputs[item.name].camera_of(item.stamp)
+        return self.node.inputs[item.name].camera_of(item.stamp)
 
-    def _take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
+    def take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
         """The worker: one camera frame to the rig (:meth:`_take`), or why not (a stamp out
         of range: counted ``skipped.bad_input``; the rig never sees it), under the worker's
         lock with its count, so that a diagnostics snapshot sees the rig's and the camera's
@@ -402,10 +406,10 @@ class RigCore(NodeCore):
             return TakenFrame((None if skip is None else f"skipped.{skip}",))
         clouds = []
         outs = self._take(name, kind, msg, stamp, camera)
-        if kind == "image" and self.republish:
+        if kind == "image" and self.node.republish:
             found = self.rig.last_correspondences(name)
             if found is not None:  # (also an image where it found nothing)
-                clouds.append((name, self._found_cloud(name, found, msg, stamp)))
+                clouds.append((name, self.node._found_cloud(name, found, msg, stamp)))
         return TakenFrame(outs=outs, clouds=clouds)
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
@@ -434,12 +438,12 @@ class RigCore(NodeCore):
         image kept for ``debug_image`` while someone watches."""
         if kind == "image":
             self._warn_no_info(name, "images")
-        item = self.inputs[name].take(msg, kind, stamp, camera)
+        item = self.node.inputs[name].take(msg, kind, stamp, camera)
         if isinstance(item, DroppedFrame):
             self._not_taken(kind, item)
         elif kind != "image":
             self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
-        viz = self.camera_viz.get(name)
+        viz = self.node.camera_viz.get(name)
         if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
             # (only while someone watches; drawn when the rig frame is published)
             self._images.setdefault(name, deque(maxlen=4)).append(
@@ -455,18 +459,20 @@ class RigCore(NodeCore):
         (:func:`.camera_input.to_rig`)."""
         name, error = item.camera_name, item.error
         if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
-            self._log.warning(
+            self.node._log.warning(
                 f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
             )
             return None
-        self.camera_counts[name].add("bad_input")
+        self.node.camera_counts[name].add("bad_input")
         if kind in ("cloud", "keypoints"):
-            self._log.warning(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
+            self.node._log.warning(
+                f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}"
+            )
         else:
-            self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
+            self.node._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input" if item.stamp_ns is None else None
 
-    def _publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
+    def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log
         the failed ones (each reason at most once per 5 s)."""
         for out in taken.outs:
@@ -474,7 +480,7 @@ class RigCore(NodeCore):
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
-                self._record_timing(item.arrived, out.stamp_ns)
+                self.node._record_timing(item.arrived, out.stamp_ns)
 
     def _check_map_fit(self, out: LocalizerOutput) -> None:
         """The single-camera node's map-fit check over the rig frames
@@ -489,7 +495,7 @@ class RigCore(NodeCore):
         if refused is not None:
             self._rig_counts.set("map_fit_doubtful", int(self._map_fit.doubtful))
         if warn:
-            self._log.warning("map_fit", self._map_fit.text())
+            self.node._log.warning("map_fit", self._map_fit.text())
 
     def _log_failure(self, out: LocalizerOutput) -> None:
         if out.error is not None:
@@ -502,7 +508,7 @@ class RigCore(NodeCore):
         else:
             if out.outvoted:
                 names = ", ".join(out.outvoted)
-                self._log.warning(
+                self.node._log.warning(
                     f"rig.outvoted.{names}",
                     f"rig camera {names}: outvoted by the others (its points contradict their "
                     "pose; its mounting, clock, line delay or matches are likely wrong) "
@@ -510,17 +516,17 @@ class RigCore(NodeCore):
                 )
             return
         n = self.rig.counts[f"rig.failed.{reason}"]
-        self._log.warning(
+        self.node._log.warning(
             f"rig.failed.{reason}",
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
     def _warn_no_info(self, name: str, kind: str) -> None:
-        if self.inputs[name].newest is None:
-            self._log.warning(
+        if self.node.inputs[name].newest is None:
+            self.node._log.warning(
                 f"no_info.{name}",
                 f"rig camera {name!r}: {kind} but no camera_info yet on "
-                f"{self.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
+                f"{self.node.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
                 f"{name}.skipped.no_camera_info), the rig runs on the others",
             )
 
@@ -533,32 +539,32 @@ class RigCore(NodeCore):
         return reason
 
     # ---------------------------------------------------------------- outputs
-    def _idle_twists(self) -> list[FusedOutput]:
+    def idle_twists(self) -> list[FusedOutput]:
         """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
         ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
         while the worker is on a frame (not idle)."""
-        if self.rig is None or not self._worker_lock.acquire(blocking=False):
+        if self.rig is None or not self.node._worker_lock.acquire(blocking=False):
             return []
         try:
             return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
         finally:
-            self._worker_lock.release()
+            self.node._worker_lock.release()
 
     def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
         ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
         built only while subscribed, on its drawing thread), the camera as the rig's pose
         and its mounting put it (:func:`~rs_localizer.estimation.rig.camera_estimate`)."""
-        m, mf = out.estimate, self.map_frame
-        self.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
+        m, mf = out.estimate, self.node.map_frame
+        self.node.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
         mounts = {c.name: c.mount for c in self.config.cameras}
 
         def wanted(n: str) -> bool:
-            viz = self.camera_viz.get(n)
+            viz = self.node.camera_viz.get(n)
             return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
 
         for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
-            viz = self.camera_viz[n]
+            viz = self.node.camera_viz[n]
             for img in self._images.get(n, ()):
                 if img[2] == frame.stamp_ns:
                     viz.set_image(*img)
@@ -571,38 +577,30 @@ class RigCore(NodeCore):
         camera with a global shutter or a global-shutter solver)."""
         if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
             own_twist = out.twist_now  # (no tracking, or a rig of one's global shutter)
-            base, mf = self.config.base_frame, self.map_frame
-            self._publish(
-                pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self._wanted)
+            base, mf = self.config.base_frame, self.node.map_frame
+            self.node._publish(
+                pose_messages(
+                    out.estimate, out.stamp_ns, mf, base, own_twist, (), self.node._wanted
+                )
             )
-            if self.viz is not None:
+            if self.node.viz is not None:
                 self._publish_viz(out)
-        self._publish_fused(fused_outputs(out.fused, self.config.base_frame))
+        self.node._publish_fused(fused_outputs(out.fused, self.config.base_frame))
 
-    def _diagnostics(self, latencies, stamp_ages) -> tuple[str, int, str, dict]:
+    def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
-        waiting = {n for n, i in self.inputs.items() if i.newest is None}
-        first = self._first_frame
+        waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
+        first = self.node._first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
-        with self._worker_lock:  # (waits for the frame the worker is on: one consistent count)
+        with self.node._worker_lock:  # (waits for the frame the worker is on: one consistent count)
             counts = Counter(self._rig_counts.counts())
-            for cc in self.camera_counts.values():
+            for cc in self.node.camera_counts.values():
                 counts.update(cc.prefixed())
-            frame_times = {n: cc.frame_times() for n, cc in self.camera_counts.items()}
-            bad_input = {n: counts[f"{n}.bad_input"] for n in self.camera_counts}
-            absent = [n for n in self.inputs if waited and counts[f"{n}.received"] == 0]
+            frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
+            bad_input = {n: counts[f"{n}.bad_input"] for n in self.node.camera_counts}
+            absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
             inputs = RigInputs(counts, latencies, stamp_ages, frame_times, bad_input,
                                dict(self.imu_rejected), absent,
-                               self.frontend_kind != "none")  # fmt: skip
+                               self.node.frontend_kind != "none")  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
         return self.config.base_frame, level, message, values
-
-
-class RigLocalizerNode(RigCore, Node):
-    """The rig mode (module docstring): configured, subscribed and publishing from
-    construction. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`.
-
-    Raises:
-        RuntimeError: invalid parameters, e.g. a camera without ``rig.<camera>.mounting``
-            (the message names it).
-    """

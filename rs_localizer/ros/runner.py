@@ -13,10 +13,10 @@ command-line ROS argument except the namespace and node-name remaps (so ``--para
 section of the parameter file too, e.g. ``/robot/front/rs_localizer: ros__parameters:
 {camera_frame: front_optical}``.
 
-With ``rig.cameras`` set (the rig mode, docs/rig_node.md) the process runs one
-:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` posing all of the rig's cameras as one body
-(``rs_localizer_lifecycle_node``: one
-:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`).
+With ``rig.cameras`` set (the rig mode, docs/rig_node.md) the process runs one node
+(:class:`~rs_localizer.ros.node.RSLocalizerNode`; ``rs_localizer_lifecycle_node``:
+:class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode`) posing all of the rig's cameras
+as one body, whatever ``cameras`` says.
 
 From a checkout: ``python -m rs_localizer.ros.runner --ros-args ...`` (``rs_localizer_node``) or
 ``python -m rs_localizer.ros.runner rs_localizer_lifecycle_node --ros-args ...``.
@@ -29,9 +29,9 @@ from collections.abc import Sequence
 
 import rclpy
 
-from .lifecycle import RigLocalizerLifecycleNode, RSLocalizerLifecycleNode
+from .core import names_a_rig
+from .lifecycle import RSLocalizerLifecycleNode
 from .node import RSLocalizerNode
-from .rig_node import RigLocalizerNode
 
 __all__ = [
     "NODES",
@@ -44,10 +44,10 @@ __all__ = [
     "run",
 ]
 
-#: executable name -> (the camera node's class, the rig node's class: ``rig.cameras`` set)
+#: executable name -> the node's class (one camera or, with ``rig.cameras`` set, a rig)
 NODES = {
-    "rs_localizer_node": (RSLocalizerNode, RigLocalizerNode),
-    "rs_localizer_lifecycle_node": (RSLocalizerLifecycleNode, RigLocalizerLifecycleNode),
+    "rs_localizer_node": RSLocalizerNode,
+    "rs_localizer_lifecycle_node": RSLocalizerLifecycleNode,
 }
 
 
@@ -130,9 +130,10 @@ def read_cameras(node_name: str = "rs_localizer") -> tuple[list[str], str, str]:
 
 
 def read_rig_cameras(node_name: str = "rs_localizer") -> list[str]:
-    """The ``rig.cameras`` parameter as the single node would see it (empty: no rig), via a
-    short-lived probe node; a value of another type than a list of names (``front`` for
-    ``[front]``, integers) as a one-element list, for the rig node to refuse naming the fix."""
+    """The ``rig.cameras`` parameter as the node would see it (empty: no rig,
+    :func:`.core.names_a_rig`), via a short-lived probe node; a value of another type than a
+    list of names (``front`` for ``[front]``, integers) as a one-element list, for the node's
+    rig mode to refuse naming the fix."""
     from rcl_interfaces.msg import ParameterDescriptor
 
     probe = rclpy.create_node(node_name)
@@ -140,7 +141,7 @@ def read_rig_cameras(node_name: str = "rs_localizer") -> list[str]:
         d = ParameterDescriptor(read_only=True, dynamic_typing=True)
         probe.declare_parameter("rig.cameras", None, d)
         value = probe.get_parameter("rig.cameras").value
-        if value is None or (isinstance(value, (list, tuple, str)) and len(value) == 0):
+        if not names_a_rig(value):
             return []
         return list(value) if isinstance(value, (list, tuple)) else [value]
     finally:
@@ -159,7 +160,7 @@ def run(prog: str = "rs_localizer_node", args: list[str] | None = None) -> int:
 
     from .dds_profile import apply_default_profile, profile_in_effect
 
-    node_class, rig_class = NODES[prog]
+    node_class = NODES[prog]
     argv = sys.argv if args is None else args
     apply_default_profile()  # (before the first participant: images over shared memory)
     rclpy.init(args=argv)
@@ -167,9 +168,7 @@ def run(prog: str = "rs_localizer_node", args: list[str] | None = None) -> int:
     executor = None
     try:
         cams, base_ns, name = read_cameras()
-        if read_rig_cameras():  # (the rig mode: one node for every camera of the rig)
-            nodes.append(rig_class())
-        elif cams:
+        if cams and not read_rig_cameras():  # (a rig: one node for all of its cameras)
             cli = node_cli_args(argv)
             try:
                 namespaces = camera_namespaces(cams, base_ns)

@@ -104,10 +104,10 @@ class RigHarness:
     def send(self, name, kind, msg, taken=True):
         """Publish one frame; with ``taken``, wait until the node counted it."""
         key = f"{name}.received"
-        n = self.node.rig.counts[key]
+        n = self.node.mode.rig.counts[key]
         self.pub[name][kind].publish(msg)
         if taken:
-            assert self.wait(lambda: self.node.rig.counts[key] > n), (name, kind)
+            assert self.wait(lambda: self.node.mode.rig.counts[key] > n), (name, kind)
 
     def send_clouds(self, frames):
         """Each rig camera frame's correspondences in turn (lock-step)."""

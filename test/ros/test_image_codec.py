@@ -291,11 +291,11 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 
 
 def _rig_node_decode(msg, cam):
-    """The rig node's image step (``RigCore._take`` of an image) on ``msg`` with the camera's
+    """The rig node's image step (``RigMode._take`` of an image) on ``msg`` with the camera's
     model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same
     form."""
     from rs_localizer.ros.camera_input import CameraInput
-    from rs_localizer.ros.rig_node import RigCore
+    from rs_localizer.ros.rig_node import RigMode
 
     got, logged = [], []
 
@@ -311,18 +311,12 @@ def _rig_node_decode(msg, cam):
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
-    core = SimpleNamespace(
-        rig=Rig(),
-        _log=log,
-        inputs={"c": camera_input},
-        _warn_no_info=lambda name, what: None,
-        camera_viz={},
-        _images={},
-    )
-    core._not_taken = lambda kind, item: RigCore._not_taken(core, kind, item)
+    mode = RigMode(SimpleNamespace(_log=log, inputs={"c": camera_input}, camera_viz={}))
+    mode.rig, mode._images = Rig(), {}
+    mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
-    assert RigCore._take(core, "c", "image", msg, stamp, camera) == []
+    assert mode._take("c", "image", msg, stamp, camera) == []
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

@@ -1144,14 +1144,14 @@ def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monke
     old = _config_of({})
     new = _config_of({"solver": "p3p"})
     logs = []
-    fake = SimpleNamespace(
-        cfg=old,
+    node = SimpleNamespace(
         get_logger=lambda: SimpleNamespace(info=logs.append, warning=logs.append),
         get_parameter=lambda name: SimpleNamespace(value=True),
-        _apply_config=lambda cfg, maps: None,
     )
-    fake._warm_up = lambda cfg, background=False: N.LocalizerCore._warm_up(fake, cfg, background)
-    N.LocalizerCore._apply_change(fake, (new, None), {"solver": "p3p"})
+    mode = N.CameraMode.__new__(N.CameraMode)  # (the camera's mode without its pipeline)
+    mode.node, mode.pipeline = node, SimpleNamespace(config=old)
+    mode._apply_config = lambda cfg, maps: None
+    mode.apply_change((new, None), {"solver": "p3p"})
     assert calls == [("p3p", True, {})]
     assert logs == [f"solver: {old.solver} -> p3p"]
 

@@ -19,9 +19,9 @@ OK, WARN = b"\x00", b"\x01"  # (diagnostic_msgs/DiagnosticStatus levels)
 def rig_harness(ctx, cams, params) -> RigHarness:
     """The rig node under ``/rig`` with ``params`` and the probe, matched on the cameras'
     clouds and camera_info and on pose and odom."""
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
-    node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+    node = RSLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     h = RigHarness(ctx, cams, node, timeout=20.0)
     assert h.matched(("cloud", "info"), ("pose", "odom")), (
@@ -100,7 +100,7 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
         from rclpy.parameter import Parameter
 
         (r,) = h.node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
-        assert r.successful and h.node.rig.settings.options.ransac.threshold_px == 3.0
+        assert r.successful and h.node.mode.rig.settings.options.ransac.threshold_px == 3.0
     finally:
         h.close()
 
@@ -126,15 +126,50 @@ def test_a_mounting_off_by_degrees_is_named_in_the_diagnostics(ros_context):
 def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     cams = default_rig(2)
     params = [p for p in rig_parameters(cams) if p.name != "rig.left.mounting"]
     with pytest.raises(RuntimeError, match="rig camera 'left' has no mounting"):
-        RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
+        RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
     bad = [p for p in params] + [Parameter("rig.left.mounting", value=[0.0, 1.0])]
     with pytest.raises(RuntimeError, match=r"rig\.left\.mounting must be 7"):
-        RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
+        RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
+
+
+def test_one_node_class_runs_one_camera_or_a_rig_by_rig_cameras(ros_context):
+    """One class per executable: ``rig.cameras`` empty runs the single camera (its topics
+    without prefix), set runs the rig (its cameras' topics), in the node and the managed node
+    alike; each declares every parameter once, the rig's ``rig.*`` too (read-only, their
+    defaults on a single camera)."""
+    from rclpy.lifecycle import TransitionCallbackReturn
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
+    from rs_localizer.ros.node import CameraMode, RSLocalizerNode
+    from rs_localizer.ros.params import RIG_PARAMETERS
+    from rs_localizer.ros.rig_node import RigMode
+
+    cams = default_rig(2)
+    rig = rig_parameters(cams)  # (warmup false)
+    single = [Parameter("warmup", value=False)]
+    for cls in (RSLocalizerNode, RSLocalizerLifecycleNode):
+        one = cls("rs_localizer", context=ros_context, namespace="/one", parameter_overrides=single)
+        two = cls("rs_localizer", context=ros_context, namespace="/two", parameter_overrides=rig)
+        try:
+            if cls is RSLocalizerLifecycleNode:
+                ok = TransitionCallbackReturn.SUCCESS
+                assert one.trigger_configure() == ok and two.trigger_configure() == ok
+            assert type(one.mode) is CameraMode and type(two.mode) is RigMode
+            assert list(one.inputs) == [""] and list(two.inputs) == [c.name for c in cams]
+            for name, par in RIG_PARAMETERS.items():
+                if name != "rig.cameras":
+                    assert one.get_parameter(name).value == par.default
+                    (r,) = one.set_parameters([Parameter(name, value=1.0)])
+                    assert not r.successful  # (read-only)
+        finally:
+            one.destroy_node()
+            two.destroy_node()
 
 
 @pytest.mark.parametrize(
@@ -153,13 +188,13 @@ def test_a_parameter_of_the_wrong_shape_stops_the_node_with_one_line(ros_context
     the parameter and the fix."""
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     params = {"warmup": False, "rig.cameras": ["front"]}
     params["rig.front.mounting"] = [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]
     params.update(overrides)
     with pytest.raises(RuntimeError, match=error) as e:
-        RigLocalizerNode(
+        RSLocalizerNode(
             "rs_localizer",
             context=ros_context,
             parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
@@ -170,7 +205,7 @@ def test_a_parameter_of_the_wrong_shape_stops_the_node_with_one_line(ros_context
 def test_an_integer_mounting_is_taken(ros_context):
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     params = {
         "warmup": False,
@@ -178,9 +213,9 @@ def test_an_integer_mounting_is_taken(ros_context):
         "rig.front.mounting": [0, 0, 0, 0, 0, 0, 1],
     }
     overrides = [Parameter(k, value=v) for k, v in params.items()]
-    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
     try:
-        m = node.config.cameras[0].mount
+        m = node.mode.config.cameras[0].mount
         assert np.allclose(m.R, np.eye(3)) and np.allclose(m.c, 0.0)
     finally:
         node.destroy_node()
@@ -250,9 +285,11 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
             m.header.stamp = ns_to_stamp(int(t))
             m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
             m.angular_velocity_covariance[0] = cov
-            n = h.node.rig.imu.received + sum(h.node.imu_rejected.values())
+            n = h.node.mode.rig.imu.received + sum(h.node.mode.imu_rejected.values())
             pub.publish(m)
-            assert h.wait(lambda: h.node.rig.imu.received + sum(h.node.imu_rejected.values()) > n)
+            assert h.wait(
+                lambda: h.node.mode.rig.imu.received + sum(h.node.mode.imu_rejected.values()) > n
+            )
 
         send_imu(stamps[0], rates[0], -1.0)
         k = 0
@@ -301,13 +338,13 @@ def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounte
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.5, num_points=120, seed=14)
     h = rig_harness(ros_context, cams, rig_parameters(cams, queue_size=1))
-    slow_add = h.node.rig.add
+    slow_add = h.node.mode.rig.add
 
     def add(frame):
         time.sleep(0.02)
         return slow_add(frame)
 
-    h.node.rig.add = add
+    h.node.mode.rig.add = add
     try:
         h.send_info(cams)
         for f in frames:
@@ -388,7 +425,7 @@ def test_the_node_s_velocity_bound_and_ransac_confidence_reach_the_rig(ros_conte
         )
         h = rig_harness(ros_context, cams, params)
         try:
-            s = h.node.rig.settings.options
+            s = h.node.mode.rig.settings.options
             r, p = s.ransac, s.plausibility
             assert (r.confidence, p.max_angular_velocity, p.max_linear_velocity) == (
                 0.99,
@@ -567,7 +604,7 @@ def test_a_forward_stamp_jump_starts_the_rig_again(ros_context):
         assert sum(int(v[f"{c.name}.stamp_jumped_ahead"]) for c in cams) == 1, v
         assert int(v["rig_frames_solved"]) == 2 * len(frames) // 3 == len(h.poses), v
         for c in cams:
-            assert h.node.rig.counts[f"{c.name}.stopped"] == 0
+            assert h.node.mode.rig.counts[f"{c.name}.stopped"] == 0
             assert v[f"{c.name}.missed"] == "0", v
     finally:
         h.close()
@@ -619,10 +656,10 @@ def _direct_node(ctx, cams, frames, logged=None, **params):
     20 ms: a camera's next frame, 33 ms on, within 2 x window) with each camera's true
     camera_info; ``logged``: a list that takes the texts it logs."""
     from rs_localizer.ros.conversions import camera_info_msg
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02}, **params)
-    node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+    node = RSLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     if logged is not None:
         log = logged.append
@@ -673,7 +710,7 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
         return original(stamp_ns, what)
 
     grouped_bad = []
-    same = node._same_rig_frame
+    same = node.mode._same_rig_frame
 
     def watched(batch, item):
         together = same(batch, item)
@@ -755,15 +792,15 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
 
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
     from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.node import RSLocalizerNode
     from rs_localizer.ros.param_files import read_params_file
-    from rs_localizer.ros.rig_node import RigLocalizerNode
 
     b = bag_with_unread_clouds(tmp_path)
     res = replay(b.bag, progress=None)
     values = {**read_params_file(b.bag / "rig_params.yaml"), "warmup": False,
               "publish_tf": False, "queue_size": len(b.frames)}  # fmt: skip
     params = [Parameter(k, value=v) for k, v in values.items()]
-    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+    node = RSLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     try:
         ts = typestore()
@@ -875,7 +912,7 @@ def test_estimator_parameters_change_while_the_rig_runs(ros_context):
         v = play(0)
         assert v["rig_frames_solved"] == str(n) and v["rig_frames_failed"] == "0", v
         assert _set(node, "max_angular_velocity", 0.01).successful
-        assert node.rig.settings.options.plausibility.max_angular_velocity == 0.01
+        assert node.mode.rig.settings.options.plausibility.max_angular_velocity == 0.01
         v = play(1)
         assert v["rig_frames_solved"] == str(n), v
         assert v["rig_frames_failed"] == v["rig_frames_failed.implausible_motion"] == str(n), v
@@ -883,7 +920,7 @@ def test_estimator_parameters_change_while_the_rig_runs(ros_context):
         assert not r.successful
         assert "max_points 5000 is below the 6000 points a pose needs" in r.reason, r.reason
         assert node.get_parameter("ransac.min_inliers").value == 12
-        assert node.rig.settings.options.ransac.min_inliers == 12
+        assert node.mode.rig.settings.options.ransac.min_inliers == 12
         assert _set(node, "max_angular_velocity", 20.0).successful
         v = play(2)
         assert int(v["rig_frames_solved"]) == n + sum(f.index // third == 2 for f in frames) // 3
@@ -903,12 +940,12 @@ def test_a_rig_node_names_the_single_cameras_parameters_it_was_given(ros_context
     frames, _, _ = generate_rig_video(cams, duration=0.05, num_points=60, seed=25)
     node = _direct_node(ros_context, cams, frames, solver="p3p", **{"camera.fx": 600.0})
     try:
-        assert node.config.unused == ("solver", "camera.fx")
+        assert node.mode.config.unused == ("solver", "camera.fx")
         logged = []
         log = SimpleNamespace(info=lambda text: None, warning=logged.append)
         node.get_logger = lambda: log
         node._log_ready()
-        assert logged == [node.config.unused_text] and "solver (the rig estimator" in logged[0]
+        assert logged == [node.mode.config.unused_text] and "solver (the rig estimator" in logged[0]
     finally:
         node.destroy_node()
 
@@ -929,7 +966,7 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
     frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=120, seed=24)
     node = _direct_node(ros_context, cams, frames)
     try:
-        settings = node.rig.settings
+        settings = node.mode.rig.settings
         for name, value, says in (
             ("rig.cameras", ["front"], "read-only"),
             ("base_frame", "rig", "restart the node to change base_frame: the cameras' mountings"),
@@ -942,15 +979,17 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
             [Parameter("ransac.threshold_px", value=3.0), Parameter("rs.direction", value="")]
         )
         assert not r.successful and "rs.direction" in r.reason, r.reason
-        assert node.rig.settings is settings and node.get_parameter("base_frame").value == ""
+        assert node.mode.rig.settings is settings and node.get_parameter("base_frame").value == ""
         assert _set(node, "base_frame", "").successful  # (unchanged)
-        assert node.rig.track_state == "lost"
+        assert node.mode.rig.track_state == "lost"
         assert _set(node, "tracking.enabled", False).successful
-        assert node.rig.track_state == "disabled" and node.config.settings.tracking is None
+        assert (
+            node.mode.rig.track_state == "disabled" and node.mode.config.settings.tracking is None
+        )
         assert _set(node, "max_points", 40).successful and _set(node, "queue_size", 7).successful
-        assert node.rig.settings.max_points == 40 and node.queue_size == 7
+        assert node.mode.rig.settings.max_points == 40 and node.queue_size == 7
         assert [node.inputs[c.name].max_points for c in cams] == [40, 40, 40]
-        assert node.rig.settings.options == settings.options
+        assert node.mode.rig.settings.options == settings.options
         for f in frames:
             node._on_frame(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
                                                         stamp=ns_to_stamp(f.stamp_ns)))  # fmt: skip
@@ -984,7 +1023,7 @@ def test_a_frame_before_its_camera_info_waits_camera_info_wait(ros_context, wait
         h.send_info(cams)
         h.send_clouds(frames[1:])
         n = {c.name: sum(g.name == c.name for g in frames) for c in cams}
-        assert h.wait(lambda: h.node.rig.rig_counts()["pending"] == 0 and len(h.poses) >= 3)
+        assert h.wait(lambda: h.node.mode.rig.rig_counts()["pending"] == 0 and len(h.poses) >= 3)
         v = h.last_diag()[1]
         first = f"{f.name}.skipped.no_camera_info"
         for c in cams:
@@ -1078,7 +1117,7 @@ def test_each_camera_subscribes_its_topics_under_its_name(ros_context, tmp_path)
     ``<c>/image_raw`` (``sensor_msgs/Image``), with ``image_transport: compressed`` on
     ``<c>/image_raw/compressed`` (``sensor_msgs/CompressedImage``); the rig's ``imu`` with
     ``imu.enabled``. The topics and types are read from the node's subscriptions."""
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     cams = default_rig(2)
     table = tmp_path / "landmarks.csv"
@@ -1097,7 +1136,7 @@ def test_each_camera_subscribes_its_topics_under_its_name(ros_context, tmp_path)
                                **added}.items():  # fmt: skip
                 want[f"/rig/{c.name}/{leaf}"] = kind
         params = rig_parameters(cams, **({"imu.enabled": True} if extra == {} else extra))
-        node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+        node = RSLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
                                 parameter_overrides=params)  # fmt: skip
         try:
             got = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}

@@ -61,15 +61,15 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
 
     from rs_localizer.ros.config import build_config, load_maps
     from rs_localizer.ros.conversions import pose_from_msg
+    from rs_localizer.ros.node import RSLocalizerNode
     from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pointcloud import read_correspondences
-    from rs_localizer.ros.rig_node import RigLocalizerNode
     from rs_localizer.sim.rig_video import rig_truth
 
     cams, frames, motion = rendered
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room", warmup=True,
                             republish_correspondences=True)  # fmt: skip
-    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+    node = RSLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     h = RigHarness(ros_context, cams, node)
     clouds = {c.name: [] for c in cams}
@@ -136,7 +136,7 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
     from rclpy.lifecycle import TransitionCallbackReturn
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.lifecycle import RigLocalizerLifecycleNode
+    from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
@@ -144,11 +144,11 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=21)
     full = rig_parameters(cams)
     params = [p for p in full if p.name != "rig.left.mounting"]
-    broken = RigLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/broken",
+    broken = RSLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/broken",
                                        parameter_overrides=params)  # fmt: skip
-    assert broken.trigger_configure() == FAILURE and broken.rig is None
+    assert broken.trigger_configure() == FAILURE and broken.mode.rig is None
     broken.destroy_node()
-    node = RigLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/rig",
+    node = RSLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/rig",
                                      parameter_overrides=full)  # fmt: skip
     (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=2.5)])
     assert r.successful  # (unconfigured: read at configure)
@@ -169,7 +169,7 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
         assert h.wait(lambda: h.pub["front"]["info"].get_subscription_count() > 0)
         assert h.pub["front"]["cloud"].get_subscription_count() == 0  # (inactive)
         (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
-        assert r.successful and node.rig.settings.options.ransac.threshold_px == 3.0
+        assert r.successful and node.mode.rig.settings.options.ransac.threshold_px == 3.0
         (r,) = node.set_parameters([Parameter("rs.line_delay", value=2e-5)])
         assert not r.successful and "restart the node to change rs.line_delay" in r.reason
         h.send_info(cams)
@@ -179,12 +179,12 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
         assert h.wait(lambda: len(h.poses) >= 4)
         assert node.trigger_deactivate() == SUCCESS
         assert len(h.poses) == 5 or h.wait(lambda: len(h.poses) == 5)  # (the open one too)
-        assert node.rig.rig_counts()["pending"] == 0
-        received = node.rig.counts["front.received"]
+        assert node.mode.rig.rig_counts()["pending"] == 0
+        received = node.mode.rig.counts["front.received"]
         clouds(frames[15:18], taken=False)
         h.wait(lambda: False, timeout=0.5)
-        assert node.rig.counts["front.received"] == received  # (not subscribed)
-        assert node.trigger_cleanup() == SUCCESS and node.rig is None
+        assert node.mode.rig.counts["front.received"] == received  # (not subscribed)
+        assert node.trigger_cleanup() == SUCCESS and node.mode.rig is None
         assert node.trigger_configure() == SUCCESS and node.trigger_activate() == SUCCESS
         assert h.matched(("cloud", "info"))
         h.send_info(cams)
@@ -192,7 +192,8 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
         clouds(frames[15:])
         assert h.wait(lambda: len(h.poses) >= n0 + 3)
         assert (
-            node.rig.counts["rig.path.cold"] == 1 and node.rig.counts["front.received"] == 4
+            node.mode.rig.counts["rig.path.cold"] == 1
+            and node.mode.rig.counts["front.received"] == 4
         )  # (counters anew)
     finally:
         h.close()
@@ -219,12 +220,12 @@ def test_one_diagnostics_converter_for_both_nodes():
         assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
     with pytest.raises(ValueError, match="unknown diagnostic level"):
         status_message("n", "hw", "FINE", "m", {})
-    # (the nodes' shared core converts both statuses; neither node builds a message itself,
+    # (the one node converts both modes' statuses; neither mode builds a message itself,
     # each gives its status's values)
     assert "status_message(" in inspect.getsource(core)
-    assert "self._status(*self._diagnostics(" in inspect.getsource(core.NodeCore)
+    assert "self._status(*self.mode.diagnostics(" in inspect.getsource(core.NodeCore)
     for mod in (single, rig_node):
-        assert "def _diagnostics(" in inspect.getsource(mod)
+        assert "def diagnostics(" in inspect.getsource(mod)
         assert "status_message(" not in inspect.getsource(mod)
         assert "DiagnosticStatus()" not in inspect.getsource(mod)
 

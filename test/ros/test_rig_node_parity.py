@@ -20,9 +20,9 @@ pytest.importorskip("rclpy")
 
 
 def _harness(ctx, cams, params, kinds=("cloud", "info"), outputs=("pose", "odom")) -> RigHarness:
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
-    node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+    node = RSLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
     h = RigHarness(ctx, cams, node, timeout=20.0)
     assert h.matched(kinds, outputs), "the rig node and the probe did not match"
@@ -62,7 +62,7 @@ def test_an_angular_velocity_bound_below_the_motion_refuses_every_rig_frame_as_i
     assert alone == {"implausible_motion"}, alone
     h = _harness(ros_context, cams, rig_parameters(cams, max_angular_velocity=bound))
     try:
-        assert h.node.rig.settings.options.plausibility.max_angular_velocity == bound
+        assert h.node.mode.rig.settings.options.plausibility.max_angular_velocity == bound
         h.send_info(cams)
         h.send_clouds(frames)
         _, v = h.last_diag()
@@ -156,13 +156,13 @@ def test_a_forward_stamp_jump_ends_the_rig_s_track_as_a_camera_s(ros_context):
         h.send_clouds(later[:3])  # (the second video's first rig frame)
         assert h.wait(lambda: {_stamp(m) for m in h.odom} >= first), "twists not published"
         h.send_clouds(later[3:])
-        c = h.node.rig.counts
+        c = h.node.mode.rig.counts
         assert c["rig.path.cold"] == 2 and c["rig.path.reset"] == 0, dict(c)
         _, v = h.last_diag()
         assert sum(int(v[f"{x.name}.stamp_jumped_ahead"]) for x in cams) == 1, v
         assert len(h.poses) == 2 * n and v["rig_frames_solved"] == str(2 * n), v
         for c in cams:
-            assert h.node.rig.counts[f"{c.name}.stopped"] == 0 and v[f"{c.name}.missed"] == "0"
+            assert h.node.mode.rig.counts[f"{c.name}.stopped"] == 0 and v[f"{c.name}.missed"] == "0"
     finally:
         h.close()
 
@@ -309,7 +309,7 @@ def test_warmup_runs_the_rig_s_kernels_before_the_first_frame(ros_context, monke
     from rclpy.parameter import Parameter
 
     import rs_localizer.runtime.warmup as warmup
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     calls = []
     real = warmup.warm_rig
@@ -323,13 +323,13 @@ def test_warmup_runs_the_rig_s_kernels_before_the_first_frame(ros_context, monke
     for on in (False, True):
         params = [p for p in rig_parameters(cams) if p.name != "warmup"]
         params.append(Parameter("warmup", value=on))
-        node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
+        node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
         try:
             if not on:
                 assert calls == []
                 continue
             ((settings, timing, posed),) = calls
-            assert settings is node.rig.settings and posed == 8
+            assert settings is node.mode.rig.settings and posed == 8
             assert timing == {c.name: (c.camera.line_delay, 0.0, c.camera.readout) for c in cams}
         finally:
             node.destroy_node()
@@ -354,7 +354,7 @@ def test_while_the_kernels_compile_the_rig_frames_are_tracked_and_fused(ros_cont
         n = len(frames) // 3
         assert h.wait(lambda: len(h.poses) == n)
         assert len(h.odom) < n  # (the last rig frames' fused twists wait for later ones)
-        c = h.node.rig.counts
+        c = h.node.mode.rig.counts
         assert c["rig.uncompiled"] == n and c["rig.path.tracked"] == n - 1, dict(c)
         _, v = h.last_diag()
         assert v["compiled"] == "false" and v["rig_frames_uncompiled"] == str(n), v
@@ -384,9 +384,9 @@ def test_a_rig_of_one_is_solved_with_the_solver_parameter_and_publishes_its_twis
     params.append(Parameter("rig.front.mounting", value=[0.0] * 6 + [1.0]))
     h = _harness(ros_context, cams, params)
     try:
-        rig = h.node.rig
+        rig = h.node.mode.rig
         assert rig.settings.single_camera and rig.settings.solver == "p3p"
-        assert h.node.config.unused == ()
+        assert h.node.mode.config.unused == ()
         h.send_info(cams)
         h.send_clouds(frames)
         _, v = h.last_diag()
@@ -398,6 +398,6 @@ def test_a_rig_of_one_is_solved_with_the_solver_parameter_and_publishes_its_twis
             assert [t.angular.x, t.angular.y, t.angular.z, t.linear.x] == [0.0] * 4
         res = h.node.set_parameters([Parameter("solver", value="r6p_1lin")])
         assert res[0].successful, res[0].reason
-        assert h.node.rig.settings.solver == "r6p_1lin"
+        assert h.node.mode.rig.settings.solver == "r6p_1lin"
     finally:
         h.close()

@@ -183,7 +183,7 @@ def test_the_node_takes_a_mounting_covariance(ros_context):
     pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     cov = np.diag([1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-8])
     params = {
@@ -194,9 +194,9 @@ def test_the_node_takes_a_mounting_covariance(ros_context):
         "rig.left.mounting_covariance": [float(x) for x in cov.ravel()],
     }
     overrides = [Parameter(k, value=v) for k, v in params.items()]
-    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
     try:
-        front, left = (c.mount for c in node.config.cameras)
+        front, left = (c.mount for c in node.mode.config.cameras)
         assert front.covariance is None
         assert np.allclose(np.diag(left.covariance), [1e-8] * 3 + [1e-6] * 3)
     finally:
@@ -209,7 +209,7 @@ def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
     pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
 
-    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.ros.node import RSLocalizerNode
 
     params = {
         "warmup": False,
@@ -219,9 +219,9 @@ def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
         "rig.left.mounting": [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0],
     }
     overrides = [Parameter(k, value=v) for k, v in params.items()]
-    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
     try:
-        assert node.rig.settings.max_points == 37
+        assert node.mode.rig.settings.max_points == 37
         assert [node.inputs[n].max_points for n in ("front", "left")] == [37, 37]
     finally:
         node.destroy_node()

@@ -157,13 +157,13 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
     from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.bags.play import play
     from rs_localizer.ros.conversions import pose_from_msg
+    from rs_localizer.ros.node import RSLocalizerNode
     from rs_localizer.ros.param_files import read_params_file
-    from rs_localizer.ros.rig_node import RigLocalizerNode
 
     bag = rendered_rig_bag
     params = read_params_file(bag / "rig_params.yaml")
     params.update(publish_tf=False, warmup=False)
-    node = RigLocalizerNode(
+    node = RSLocalizerNode(
         "rs_localizer",
         context=ros_context,
         namespace="/rig",
@@ -177,7 +177,7 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
         res = play(bag, lockstep=True, context=ros_context, wait_subscribers=20.0,
                    timeout=5.0, log=print)  # fmt: skip
         time.sleep(0.3)
-        node_rig_frames = node.rig.counts["rig_frames"]  # (the node's own count)
+        node_rig_frames = node.mode.rig.counts["rig_frames"]  # (the node's own count)
     assert res.rig_frames == FRAMES and res.answered == FRAMES and res.timeouts == 0
     assert not res.gave_up
     assert res.rig_frames_in_bag == FRAMES == node_rig_frames
