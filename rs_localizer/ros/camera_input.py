@@ -10,7 +10,8 @@ frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``, ``ca
 and the rig-frame grouping of ``play --lockstep``), the rig's made by
 :func:`rig_camera_inputs`. A frame message goes through it in three steps:
 :meth:`CameraInput.check` (its header stamp checked, once), :meth:`CameraInput.camera_of` (the
-camera model of that stamp, from the camera_infos), :meth:`CameraInput.take` (the image decoded
+camera model of that stamp, from the camera_infos; the single camera notes the stamp on its
+video's clock first, :meth:`CameraInput.note_time`), :meth:`CameraInput.take` (the image decoded
 and checked against that model, or the cloud's rows as the estimator takes them: non-finite
 rows dropped, at most ``max_points``, a keypoint's 3D point from the landmarks). What comes out
 is a :class:`~rs_localizer.tracking.localizer.CameraFrame` (a cloud's rows), an
@@ -19,10 +20,10 @@ with its reason (:data:`DROP_REASONS`); :func:`to_rig` hands any of them to a ri
 
 Its counts go to its owner's ``count(key, n)``, the camera's :class:`CameraCounts` (the
 single-camera node's and each rig camera's: ``camera_info_rejected``,
-``camera_info_rejected.<reason>``, ``points_dropped``, ``capped_clouds``, ``capped_points``,
-``unknown_landmark_ids``; reported as they are for the single camera, after ``<camera>.`` for a
-rig's). Its warnings go to its owner's throttled
-log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
+``camera_info_rejected.<reason>``, ``time_resets`` (the single camera's), ``points_dropped``,
+``capped_clouds``, ``capped_points``, ``unknown_landmark_ids``; reported as they are for the
+single camera, after ``<camera>.`` for a rig's). Its warnings go to its owner's throttled log,
+each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
 """
 
@@ -342,6 +343,22 @@ class CameraInput:
         if not self.rig and kind != "image" and int(msg.width) * int(msg.height) == 0:
             return self._dropped(stamp, None, _Refused("empty_cloud", "cloud has no points"))
         return stamp
+
+    def note_time(self, stamp: Stamp, clock: Callable[[Stamp], str | None]) -> None:
+        """A checked frame ``stamp`` (ns) noted on the clock of the camera's video, in frame
+        order: ``clock(stamp)`` returns why the stamp is a time reset (older than the previous
+        frame's, or newer by more than ``time_reset_threshold``), else None
+        (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.check_time`). A time reset
+        is counted ``time_resets`` and logged (``time reset: <why>``, after the label), and
+        the camera_infos stamped after it are forgotten
+        (:meth:`~rs_localizer.ros.camera_info_history.CameraInfoHistory.forget_after`). No
+        frame is dropped for it."""
+        why = clock(stamp)
+        if why is None:
+            return
+        self.count("time_resets", 1)
+        self._warn("time_reset", f"time reset: {why}")
+        self.history.forget_after(stamp)
 
     def camera_of(self, stamp: Stamp | DroppedFrame) -> CameraModel | DroppedFrame | None:
         """The camera model of a frame whose :meth:`check` gave ``stamp``

@@ -5,7 +5,8 @@ frame, and what ``rs-localizer replay`` does with each frame of a bag.
 keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messages, which have
 the same fields) and returns a :class:`FrameResult`. The camera's input stage
 (:class:`.camera_input.CameraInput`, each rig camera's too) checks its stamp (once) and an
-empty cloud; time resets; the stage gives the camera model of the frame's stamp (fed by
+empty cloud, notes the stamp on the video's clock (a time reset: counted, logged, the
+camera_infos stamped after it forgotten), gives the camera model of the frame's stamp (fed by
 :meth:`FramePipeline.add_camera_info`) and makes the frame: the image decoded, or the 2D-3D
 rows (cloud or landmark lookup) without the non-finite ones and capped to ``max_points``; then
 the camera's video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the
@@ -585,7 +586,7 @@ class FramePipeline:
         res.frame_id = inp.tag_of(msg)
         stamp = _taken(inp.check(msg, kind) if checked is None else checked)
         res.stamp_ns = stamp
-        self._check_time(stamp)
+        inp.note_time(stamp, self.sequence.check_time)  # (a time reset: counted, logged)
         camera = _taken(inp.camera_of(stamp))
         res.camera = camera
         # (the frame's times, made once: its checked stamp and its reference time, taken as
@@ -665,19 +666,6 @@ class FramePipeline:
     def map_fit_text(self) -> str:
         """The map-fit warning for the current window (:meth:`MapFitCheck.text`)."""
         return self._map_fit.text()
-
-    def _check_time(self, stamp: int) -> None:
-        """A stamp older than the previous frame's, or newer by more than
-        ``time_reset_threshold``: a time reset (counted and logged; the camera_infos stamped
-        after it are forgotten; the video state starts a new gyro timeline,
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.check_time`). Frames are never
-        dropped for their stamp."""
-        why = self.sequence.check_time(stamp)
-        if why is None:
-            return
-        self.stats.add("time_resets")
-        self.log.warning("time_reset", f"time reset: {why}")
-        self.camera_input.history.forget_after(stamp)
 
     def _frontend_ran(self, out: Any, cfg: LocalizerConfig, res: FrameResult) -> None:
         """Account for the front end's run on an image frame (its correspondences to
