@@ -319,6 +319,13 @@ class CameraInput:
         camera_info and no fallback."""
         return self.history.camera_for(stamp_ns, self.fallback, self.wait, self._stopped)
 
+    def source(self) -> str:
+        """Where the camera's intrinsics come from: ``camera_info`` (one kept), ``parameters``
+        (the fallback) or ``missing``."""
+        if len(self.history):
+            return "camera_info"
+        return "parameters" if self.fallback is not None else "missing"
+
     def wake(self) -> None:
         """Wake a frame waiting for its camera_info in :meth:`camera_for` (to see
         ``stopped()``)."""

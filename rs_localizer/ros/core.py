@@ -29,7 +29,11 @@ taken)``, ``idle_twists()``, ``close_track()`` and ``publish_closed(out)``,
 ``apply_change(built, overrides)``, ``diagnostics(latencies, stamp_ages)``, and its topics
 and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
 ``resolve_compressed``, ``images_text``, ``info_qos_overridable``, ``busy_key``,
-``busy_text``, ``count_image_frames``, ``mode_note``).
+``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node for its
+outputs: ``publish_messages(messages)``, ``publish_fused(fused)``, ``wanted(topic)``,
+``warn(key, text, count)`` (the throttled log) and ``record_timing(arrived, stamp_ns)``; what
+the front end found in an image it hands back in its :class:`TakenFrame` (``found``), which the
+node publishes on the camera's ``correspondences_out``.
 
 The worker is one for both: the subscription callbacks hand a camera's frame message to
 :meth:`NodeCore._enqueue` (its stamp checked by the camera's input stage, a
@@ -125,15 +129,16 @@ class TakenFrame:
             camera's frame, whose fate is the rig's).
         result: the single camera's :class:`~rs_localizer.ros.pipeline.FrameResult`.
         outs: the rig frames it completed (a rig camera's).
-        clouds: ``(camera, cloud)``: what the camera's front end found in the image, for its
-            ``correspondences_out`` (``republish_correspondences``).
+        found: ``(camera, correspondences, stamp_ns)``: what the camera's front end found in
+            the image (a :class:`~rs_localizer.correspondences.Correspondences`) and the
+            image's stamp, for its ``correspondences_out`` (``republish_correspondences``).
     """
 
     counted: tuple = ()
     failure: str | None = None
     result: Any = None
     outs: list = field(default_factory=list)
-    clouds: list = field(default_factory=list)
+    found: list = field(default_factory=list)
 
 
 class NodeCore:
@@ -526,10 +531,12 @@ class NodeCore:
 
     def _deliver(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: what the camera's front end found in its
-        image to its ``correspondences_out`` (``republish_correspondences``), then what the
-        frame gave (the mode's ``publish_taken``)."""
-        for name, cloud in taken.clouds:
-            self._corr_out_publisher(name).publish(cloud)
+        image to its ``correspondences_out`` (``republish_correspondences``,
+        :meth:`_found_cloud`), then what the frame gave (the mode's ``publish_taken``)."""
+        for name, found, stamp_ns in taken.found:
+            self._corr_out_publisher(name).publish(
+                self._found_cloud(name, found, item.msg, stamp_ns)
+            )
         self.mode.publish_taken(item, taken)
 
     def _corr_out_publisher(self, name: str = ""):
@@ -593,20 +600,20 @@ class NodeCore:
             closed, fused = self.mode.close_track()
         for out in closed:
             self.mode.publish_closed(out)
-        self._publish_fused(fused)
+        self.publish_fused(fused)
 
     def _flush_idle_track(self) -> None:
         """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
         frame starts a new one): publish the twists still pending (the mode's
         ``idle_twists()``, fused outputs; none while the worker is on a frame)."""
-        self._publish_fused(self.mode.idle_twists())
+        self.publish_fused(self.mode.idle_twists())
 
-    def _publish_fused(self, fused) -> None:
+    def publish_fused(self, fused: list) -> None:
         """twist and odom of the frames whose fused twist is final (``fused``:
         :class:`~rs_localizer.ros.pipeline.FusedOutput` s, :func:`.outputs.fused_messages`
         in :attr:`map_frame`)."""
         if fused:
-            self._publish(fused_messages(fused, self.map_frame, self._wanted))
+            self.publish_messages(fused_messages(fused, self.map_frame, self.wanted))
 
     def _release_inputs(self) -> None:
         """The first part of :meth:`_release_configured`: the camera_info and imu
@@ -618,13 +625,21 @@ class NodeCore:
         SHARED_MAPS.release(self)
         self.pub_diag = None
 
-    # ---------------------------------------------------------------- outputs
-    def _wanted(self, topic: str) -> bool:
+    # ---------------------------------------------------------------- what a mode calls
+    # (the node's outputs, log and timing record, as a mode uses them: publish_messages,
+    # publish_fused, wanted, warn, record_timing)
+    def warn(self, key: str, text: str, count: int = 0) -> None:
+        """A warning of the node's throttled log (the mode's
+        :class:`~rs_localizer.ros.pipeline.ThrottledLog`: at most once per period per
+        ``key``; ``count`` > 1 appended as ``[count so far]``)."""
+        self._log.warning(key, text, count)
+
+    def wanted(self, topic: str) -> bool:
         """Whether an output has a subscriber (messages nobody receives are not built)."""
         pub = self._pubs.get(topic)
         return pub is not None and pub.get_subscription_count() > 0
 
-    def _publish(self, messages) -> None:
+    def publish_messages(self, messages: list) -> None:
         """Publish ``(topic, message)`` pairs (:mod:`.outputs`)."""
         for topic, msg in messages:
             self._pubs[topic].publish(msg)
@@ -650,7 +665,7 @@ class NodeCore:
     def _delivery_failed(self, e: BaseException) -> None:
         self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
 
-    def _record_timing(self, arrived: float, stamp_ns: int) -> None:
+    def record_timing(self, arrived: float, stamp_ns: int) -> None:
         """A pose published: its latency from the frame's arrival (``time.perf_counter``) and
         its stamp's age on the node's clock."""
         toc = time.perf_counter()

@@ -234,13 +234,9 @@ class CameraMode:
         counted ``solved`` or ``failed.<reason>``; with ``republish_correspondences`` what the
         front end found in the image, as a ``correspondences_out`` cloud."""
         res = self.pipeline.process(item.msg, item.kind, item.stamp)
-        clouds = []
-        if res.correspondences is not None:
-            clouds.append(
-                ("", self.node._found_cloud("", res.correspondences, item.msg, res.stamp_ns))
-            )
+        found = [] if res.correspondences is None else [("", res.correspondences, res.stamp_ns)]
         outcome = "solved" if res.failure is None else f"failed.{res.failure}"
-        return TakenFrame((outcome,), res.failure, res, clouds=clouds)
+        return TakenFrame((outcome,), res.failure, res, found=found)
 
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish what the pipeline returned (a
@@ -249,15 +245,15 @@ class CameraMode:
         cfg, res = self.cfg, taken.result
         self.node.viz.hold_image(res.image if res.failure is None else None)
         if res.failure is not None:
-            self.node._publish_fused(res.fused)
+            self.node.publish_fused(res.fused)
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
                 self.pipeline.stats.get(f"failed.{res.failure}"),
             )
-            return self.node._log.warning(res.failure, text, n)
+            return self.node.warn(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        messages = frame_messages(res, cfg.map_frame, self.node._wanted)
-        self.node._publish(messages)
+        messages = frame_messages(res, cfg.map_frame, self.node.wanted)
+        self.node.publish_messages(messages)
         r, mf = res, cfg.map_frame  # (visualization: in the camera frame)
         # (the path takes the published pose when that is the camera's: no base_frame)
         pose = messages[0][1] if r.output is r.estimate and messages[0][0] == "pose" else None
@@ -273,7 +269,7 @@ class CameraMode:
             pose,
         )
         self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
-        self.node._record_timing(item.arrived, res.stamp_ns)
+        self.node.record_timing(item.arrived, res.stamp_ns)
 
     def idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)

@@ -524,11 +524,8 @@ class FramePipeline:
 
     def camera_source(self) -> str:
         """Where the intrinsics come from: ``camera_info``, ``parameters`` (fallback) or
-        ``missing``."""
-        if len(self.camera_input.history):
-            return "camera_info"
-        cfg = self._config
-        return "parameters" if cfg is not None and cfg.fallback is not None else "missing"
+        ``missing`` (:meth:`.camera_input.CameraInput.source`)."""
+        return self.camera_input.source()
 
     # ---------------------------------------------------------------- camera_info
     def add_camera_info(self, msg: Any) -> CameraModel | None:

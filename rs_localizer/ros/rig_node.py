@@ -404,13 +404,13 @@ class RigMode:
         if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
             skip = self._not_taken(kind, stamp)
             return TakenFrame((None if skip is None else f"skipped.{skip}",))
-        clouds = []
+        found = []
         outs = self._take(name, kind, msg, stamp, camera)
         if kind == "image" and self.node.republish:
-            found = self.rig.last_correspondences(name)
-            if found is not None:  # (also an image where it found nothing)
-                clouds.append((name, self.node._found_cloud(name, found, msg, stamp)))
-        return TakenFrame(outs=outs, clouds=clouds)
+            corr = self.rig.last_correspondences(name)
+            if corr is not None:  # (also an image where it found nothing)
+                found.append((name, corr, stamp))
+        return TakenFrame(outs=outs, found=found)
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
         """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
@@ -459,17 +459,15 @@ class RigMode:
         (:func:`.camera_input.to_rig`)."""
         name, error = item.camera_name, item.error
         if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
-            self.node._log.warning(
+            self.node.warn(
                 f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
             )
             return None
         self.node.camera_counts[name].add("bad_input")
         if kind in ("cloud", "keypoints"):
-            self.node._log.warning(
-                f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}"
-            )
+            self.node.warn(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
         else:
-            self.node._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
+            self.node.warn(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input" if item.stamp_ns is None else None
 
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
@@ -480,7 +478,7 @@ class RigMode:
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
-                self.node._record_timing(item.arrived, out.stamp_ns)
+                self.node.record_timing(item.arrived, out.stamp_ns)
 
     def _check_map_fit(self, out: LocalizerOutput) -> None:
         """The single-camera node's map-fit check over the rig frames
@@ -495,7 +493,7 @@ class RigMode:
         if refused is not None:
             self._rig_counts.set("map_fit_doubtful", int(self._map_fit.doubtful))
         if warn:
-            self.node._log.warning("map_fit", self._map_fit.text())
+            self.node.warn("map_fit", self._map_fit.text())
 
     def _log_failure(self, out: LocalizerOutput) -> None:
         if out.error is not None:
@@ -508,7 +506,7 @@ class RigMode:
         else:
             if out.outvoted:
                 names = ", ".join(out.outvoted)
-                self.node._log.warning(
+                self.node.warn(
                     f"rig.outvoted.{names}",
                     f"rig camera {names}: outvoted by the others (its points contradict their "
                     "pose; its mounting, clock, line delay or matches are likely wrong) "
@@ -516,14 +514,14 @@ class RigMode:
                 )
             return
         n = self.rig.counts[f"rig.failed.{reason}"]
-        self.node._log.warning(
+        self.node.warn(
             f"rig.failed.{reason}",
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
     def _warn_no_info(self, name: str, kind: str) -> None:
         if self.node.inputs[name].newest is None:
-            self.node._log.warning(
+            self.node.warn(
                 f"no_info.{name}",
                 f"rig camera {name!r}: {kind} but no camera_info yet on "
                 f"{self.node.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
@@ -578,14 +576,12 @@ class RigMode:
         if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
             own_twist = out.twist_now  # (no tracking, or a rig of one's global shutter)
             base, mf = self.config.base_frame, self.node.map_frame
-            self.node._publish(
-                pose_messages(
-                    out.estimate, out.stamp_ns, mf, base, own_twist, (), self.node._wanted
-                )
+            self.node.publish_messages(
+                pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self.node.wanted)
             )
             if self.node.viz is not None:
                 self._publish_viz(out)
-        self.node._publish_fused(fused_outputs(out.fused, self.config.base_frame))
+        self.node.publish_fused(fused_outputs(out.fused, self.config.base_frame))
 
     def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""

@@ -311,7 +311,8 @@ def _rig_node_decode(msg, cam):
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
-    mode = RigMode(SimpleNamespace(_log=log, inputs={"c": camera_input}, camera_viz={}))
+    warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
+    mode = RigMode(SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}))
     mode.rig, mode._images = Rig(), {}
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
