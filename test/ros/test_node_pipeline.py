@@ -565,3 +565,30 @@ def test_an_image_after_a_time_reset_is_not_compared_with_the_last_one(msgs, seq
     assert alone == [few, frozen, few, frozen]
     assert node == alone
     assert pipe.stats.snapshot().counts["time_resets"] == 1
+
+
+def test_camera_input_notes_a_time_reset_and_names_its_intrinsics():
+    """CameraInput.note_time: a stamp the video's clock calls a time reset is counted
+    ``time_resets`` and warned about once (key ``time_reset``, the camera's label before it),
+    and the camera_infos stamped after it are forgotten (a frame after the reset no longer
+    picks them); a stamp the clock accepts changes nothing. CameraInput.source: ``missing``,
+    ``parameters`` with a fallback, ``camera_info`` once one is kept."""
+    from rs_localizer.ros.camera_input import CameraInput
+
+    warned, counts = [], CameraCounts()
+    log = type("L", (), {"warning": lambda self, key, text: warned.append((key, text))})()
+    inp = CameraInput(log, counts.add, label="rig camera 'a': ")
+    assert inp.source() == "missing"
+    inp.fallback = object()
+    assert inp.source() == "parameters"
+    cams = {s: object() for s in (1, 2, 3)}  # (a model per camera_info, told apart by identity)
+    for s, cam in cams.items():
+        inp.history.add(s * 10**9, (s,), None, cam)
+    assert inp.source() == "camera_info" and inp.camera_for(5 * 10**9) is cams[3]
+    inp.note_time(4 * 10**9, lambda stamp: None)
+    assert counts.get("time_resets") == 0 and not warned and inp.camera_for(5 * 10**9) is cams[3]
+    seen = []
+    inp.note_time(int(1.5e9), lambda stamp: seen.append(stamp) or "went back")
+    assert seen == [int(1.5e9)] and counts.get("time_resets") == 1
+    assert warned == [("rig camera 'a': time_reset", "rig camera 'a': time reset: went back")]
+    assert inp.camera_for(5 * 10**9) is cams[1] and len(inp.history) == 1
