@@ -505,14 +505,15 @@ def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
     return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
 
 
-def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
+def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
     n valid rows: the rows a single camera's frame takes of them (:func:`~.frame.prepare_frame`:
     its checks, :func:`~.frame.correspondences`, :func:`~.frame.valid_correspondences` with
-    every finite point, :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
-    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
+    every coordinate of a point within ``max_norm`` m of the origin (the options'
+    ``plausibility.max_point_norm``), :func:`~.frame.normalized_rows`; its undistortion and RS
+    coordinates, :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
     m = v.mounting
@@ -555,12 +556,11 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         # when every row is valid)
         x = cam.undistort(uv)
         if kernel_ready(x):
-            valid, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, *args)
+            valid, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
             if valid:
                 return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
-    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`: every finite
-    # point, wherever it is)
-    ok = valid_correspondences(uv, X, _FINITE, kernels)
+    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`)
+    ok = valid_correspondences(uv, X, max_norm, kernels)
     if ok.all():
         idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
@@ -585,22 +585,18 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             focal, A)  # fmt: skip
 
 
-#: the largest float: a rig's camera takes every finite point (:func:`_view_part`)
-_FINITE = float(np.finfo(np.float64).max)
-
-
 @njit(cache=True)
-def _global_shutter_rows(uv, X, x, stamp, d, fisheye, fx, fy):
+def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
     """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
     (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
-    camera's rule, :func:`~.sampling.valid_rows`, every finite point) with a finite ``x``, its
-    rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel Jacobians of
-    :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments ``d,
-    fisheye, fx, fy``)``."""
+    camera's rule, :func:`~.sampling.valid_rows`, every point within ``max_norm`` m) with a
+    finite ``x``, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
+    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
+    ``d, fisheye, fx, fy``)``."""
     n = x.shape[0]
     idx = np.arange(n)
     tau = np.empty(n)
-    ok = valid_rows(uv, X, _FINITE)
+    ok = valid_rows(uv, X, max_norm)
     for i in range(n):
         if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
             return False, idx, tau, np.empty((0, 4))
@@ -673,7 +669,9 @@ class _Pool:
     normalized error times it is to first order the error in the measured, distorted image;
     the focal length times the identity for a camera without distortion and with fx = fy);
     ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
-    implementation, :func:`estimate_rig_pose`).
+    implementation, :func:`estimate_rig_pose`); ``max_norm`` (m): a point with a coordinate
+    farther from the origin is dropped, as a single camera drops it (the options'
+    ``plausibility.max_point_norm``).
 
     It is the final stage's :class:`~.frame.RefinementView` of the rig frame (the refinements
     of :mod:`~.finalize` a single camera's frame takes): time ``r = tau`` (s, ``r0 = 0``, one
@@ -685,7 +683,13 @@ class _Pool:
     #: the rig passes no planar motion prior to the final stage (:class:`~.frame.RefinementView`)
     planar = False
 
-    def __init__(self, views: Sequence[RigView], numpy: bool = False, cache: dict | None = None):
+    def __init__(
+        self,
+        views: Sequence[RigView],
+        numpy: bool = False,
+        cache: dict | None = None,
+        max_norm: float = EstimateOptions().plausibility.max_point_norm,
+    ):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
         # ``cache``: id(view) -> (view, camera index, its checked and normalized part), shared
         # by the pools of one rig frame (the consensus solves the rig again on some of its
@@ -697,7 +701,7 @@ class _Pool:
             if hit is not None and hit[0] is v and hit[1] == c:
                 parts.append(hit[2])
                 continue
-            part = _view_part(c, v, self.numpy)
+            part = _view_part(c, v, self.numpy, max_norm)
             cache[id(v)] = (v, c, part)
             parts.append(part)
         self.R_mount, self.c_mount = _mounting_stacks(views, parts)
@@ -1339,7 +1343,9 @@ def estimate_rig_pose(
             refinement on the exact model and the covariance; without it the estimate is the
             rig solver's refit of RANSAC's model) and ``plausibility``'s
             ``max_angular_velocity`` (rad/s) and ``max_linear_velocity`` (m/s): hypotheses and
-            final models of a rig moving faster are implausible (``inf``: no bound). Its
+            final models of a rig moving faster are implausible (``inf``: no bound), and
+            ``max_point_norm`` (m): a row whose world point has a coordinate farther from the
+            origin is dropped (counted in ``num_dropped``), as a single camera drops it. Its
             other fields (local optimization, motion prior, correlated noise, sampling order
             and pre-test) are the single camera's alone.
         initial_model: optional :class:`~rs_localizer.estimation.InitialModel` whose
@@ -1467,7 +1473,8 @@ def estimate_rig_pose(
         )
     numpy = implementation == NUMPY
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
-    pool = _Pool(views, numpy, cache)
+    max_norm = float(options.plausibility.max_point_norm)
+    pool = _Pool(views, numpy, cache, max_norm)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
@@ -1481,7 +1488,8 @@ def estimate_rig_pose(
         prediction = given.model if isinstance(given, InitialModel) else given
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs, numpy, cache), settings, gyro, gyro_time), prediction,
+        lambda vs: _estimate_pool(_Pool(vs, numpy, cache, max_norm), settings, gyro, gyro_time),
+        prediction,
         verify_cameras,
     )  # fmt: skip
 

@@ -386,6 +386,34 @@ def test_points_behind_a_camera_are_counted_not_inliers():
     assert not est.inliers_per_view[0][40:].any()
 
 
+@pytest.mark.parametrize("implementation", ["compiled", "numpy"])
+def test_points_beyond_max_point_norm_are_dropped_as_a_camera_drops_them(implementation):
+    """Camera 0 with 3 more rows whose world points lie 2e6 m away (beyond the default
+    ``plausibility.max_point_norm``, 1e6 m): dropped (num_dropped 3, not in the camera's valid
+    rows, never inliers), as the single camera drops them from the same view; with the bound
+    at half the scene's extent, each camera's valid rows are its rows within it."""
+    rng = np.random.default_rng(16)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    truth = rig_truth(rng)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], truth, outliers=0.0)
+    v = views[0]
+    far = v.X[:3] * (2e6 / np.abs(v.X[:3]).max(axis=1, keepdims=True))
+    view = RigView(np.vstack([v.uv, v.uv[:3]]), np.vstack([v.X, far]), v.camera, v.mounting,
+                   v.stamp_offset)  # fmt: skip
+    est = estimate_rig_pose([view, views[1]], implementation=implementation)
+    assert est.success and est.num_dropped == 3
+    assert est.num_valid_per_view == (40, 40)
+    assert not est.inliers_per_view[0][40:].any()
+    alone = estimate_rs_pose(view.uv, view.X, view.camera, implementation=implementation)
+    assert alone.num_dropped == 3
+    extent = float(np.abs(np.vstack([v.X, views[1].X])).max())
+    near_only = EstimateOptions(plausibility=PlausibilityOptions(max_point_norm=0.5 * extent))
+    bounded = estimate_rig_pose([view, views[1]], near_only, implementation=implementation)
+    kept = (np.abs(views[1].X) <= 0.5 * extent).all(axis=1).sum()
+    assert bounded.num_valid_per_view[1] == kept
+    assert bounded.num_valid_per_view[0] == (np.abs(v.X) <= 0.5 * extent).all(axis=1).sum()
+
+
 def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
     """A rig of one camera at the identity mounting, stamped at the rig's reference time: the
     same model as estimate_rs_pose (r6p_1lin, the same exact model, threshold and robust
