@@ -165,7 +165,7 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
-from .local_optimization import initial_model_seed
+from .local_optimization import initial_model_seed, polish
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
@@ -1204,6 +1204,32 @@ def _kernel_arrays(pool: _Pool) -> tuple:
             np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
         )  # fmt: skip
     return a
+
+
+def _local_steps(
+    pool: _Pool, threshold_px: float, still: bool, refine: bool, free: int, prior, refined: list
+):
+    """The rig's steps of local optimization (:func:`~.local_optimization.polish`):
+    ``(linear, exact)``, ``linear(model, inliers)`` the rig solver's refit on the (N_pool,)
+    ``inliers`` (:func:`_refit`: pre-rotated by the model, twice; None on a frame taken at
+    one time, whose ``w`` and ``t`` the solver cannot fit), ``exact(model)`` the refinement on
+    every point within :data:`FINAL_CUTOFF` thresholds (:func:`_refine`, the final
+    refinement's first; None when ``refine`` is False). Each refinement appends its (start,
+    result) to ``refined``."""
+    linear = exact = None
+    if not still:
+
+        def linear(model, inliers):
+            return [_refit(pool, inliers, model, threshold_px, prior=prior)]
+
+    if refine:
+
+        def exact(model):
+            out = _refine(pool, model, threshold_px, free=free, prior=prior)
+            refined.append((model, out))
+            return out
+
+    return linear, exact
 
 
 def _final(
@@ -2294,22 +2320,18 @@ def _estimate(
         return failed(e.reason, search.iterations)
     best_cost, drawn = search.score, search.iterations
 
-    # each step is kept only if it does not raise the MSAC cost of the whole pool
-    steps = (_refit, _refine) if refine else (_refit,)
-    if still:  # (the rig solver needs a spread of capture times)
-        steps = (_refine,) if refine else ()
-    refined = None  # (the last refinement: (its start, its result))
-    for _ in range(LO_ROUNDS):
-        for step in steps:
-            if step is _refit:  # (the refinement selects its points itself)
-                inl = pool.errors(model) < threshold_px
-                cand = _refit(pool, inl, model, threshold_px, prior=prior)
-            else:
-                cand = _refine(pool, model, threshold_px, free=free, prior=prior)
-            refined = (model, cand) if step is _refine else None
-            cost = search.cost(cand)
-            if cost <= best_cost:
-                model, best_cost = cand, cost
+    # local optimization: the single camera's rounds with the rig's steps (_local_steps)
+    refined: list = []  # (the last refinement: (its start, its result))
+    linear, exact = _local_steps(pool, threshold_px, still, refine, free, prior, refined)
+    if linear is not None or exact is not None:
+
+        def evaluate(m):
+            cost = search.cost(m)
+            return cost, search.errors(m) < threshold_px
+
+        best = (best_cost, model, pool.errors(model) < threshold_px)
+        best_cost, model, _ = polish(best, evaluate, linear, exact, LO_ROUNDS)
+    refined = refined[-1] if refined else None
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
         # (local optimization's last refinement is the final one's first, whether it took it,
         # or did not and the model is still the one it started from)
