@@ -38,9 +38,12 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   at which the samples drawn reach ``ransac.min_iterations`` and what the best model's inlier
   ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
   some moved beyond the bounds;
-- local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
-  by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
-  that raises the MSAC cost of all points is not taken;
+- local optimization is the single camera's rounds
+  (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps
+  (:func:`_local_steps`): the rig solver on the best model's inliers (pre-rotated by the
+  model, twice), then the exact-model refinement on every point within ``FINAL_CUTOFF``
+  thresholds (the final refinement's first), :data:`LO_ROUNDS` round; a step is taken where
+  it lowers the MSAC cost of every point;
 - the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
   rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
   (each point seen through its camera's mounting at its own time, errors in its camera's
