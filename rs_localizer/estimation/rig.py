@@ -39,11 +39,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
   some moved beyond the bounds;
 - local optimization is the single camera's rounds
-  (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps
-  (:func:`_local_steps`): the rig solver on the best model's inliers (pre-rotated by the
-  model, twice), then the exact-model refinement on every point within ``FINAL_CUTOFF``
-  thresholds (the final refinement's first), :data:`LO_ROUNDS` round; a step is taken where
-  it lowers the MSAC cost of every point;
+  (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps: the rig
+  solver on the best model's inliers (pre-rotated by the model, twice), then the exact-model
+  refinement on every point within ``FINAL_CUTOFF`` thresholds (the final refinement's
+  first), :data:`LO_ROUNDS` round; a step is taken where it lowers the MSAC cost of every
+  point;
 - the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
   rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
   (each point seen through its camera's mounting at its own time, errors in its camera's
@@ -1209,32 +1209,6 @@ def _kernel_arrays(pool: _Pool) -> tuple:
     return a
 
 
-def _local_steps(
-    pool: _Pool, threshold_px: float, still: bool, refine: bool, free: int, prior, refined: list
-):
-    """The rig's steps of local optimization (:func:`~.local_optimization.polish`):
-    ``(linear, exact)``, ``linear(model, inliers)`` the rig solver's refit on the (N_pool,)
-    ``inliers`` (:func:`_refit`: pre-rotated by the model, twice; None on a frame taken at
-    one time, whose ``w`` and ``t`` the solver cannot fit), ``exact(model)`` the refinement on
-    every point within :data:`FINAL_CUTOFF` thresholds (:func:`_refine`, the final
-    refinement's first; None when ``refine`` is False). Each refinement appends its (start,
-    result) to ``refined``."""
-    linear = exact = None
-    if not still:
-
-        def linear(model, inliers):
-            return [_refit(pool, inliers, model, threshold_px, prior=prior)]
-
-    if refine:
-
-        def exact(model):
-            out = _refine(pool, model, threshold_px, free=free, prior=prior)
-            refined.append((model, out))
-            return out
-
-    return linear, exact
-
-
 def _final(
     pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior, first=None
 ):
@@ -2323,17 +2297,23 @@ def _estimate(
         return failed(e.reason, search.iterations)
     best_cost, drawn = search.score, search.iterations
 
-    # local optimization: the single camera's rounds with the rig's steps (_local_steps)
-    refined: list = []  # (the last refinement: (its start, its result))
-    linear, exact = _local_steps(pool, threshold_px, still, refine, free, prior, refined)
-    if linear is not None or exact is not None:
+    # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
+    # solver on the inliers (not on a frame taken at one time) and the final refinement's first
+    refined = []  # (each refinement's (start, result))
 
-        def evaluate(m):
-            cost = search.cost(m)
-            return cost, search.errors(m) < threshold_px
+    def refit(m, inl):
+        return [_refit(pool, inl, m, threshold_px, prior=prior)]
 
-        best = (best_cost, model, pool.errors(model) < threshold_px)
-        best_cost, model, _ = polish(best, evaluate, linear, exact, LO_ROUNDS)
+    def exact(m):
+        refined.append((m, _refine(pool, m, threshold_px, free=free, prior=prior)))
+        return refined[-1][1]
+
+    def evaluate(m):
+        return search.cost(m), search.errors(m) < threshold_px
+
+    best = (best_cost, model, pool.errors(model) < threshold_px)
+    steps = (None if still else refit, exact if refine else None)
+    model = polish(best, evaluate, *steps, LO_ROUNDS)[1]
     refined = refined[-1] if refined else None
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
         # (local optimization's last refinement is the final one's first, whether it took it,
