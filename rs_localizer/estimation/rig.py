@@ -42,8 +42,8 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps: the rig
   solver on the best model's inliers (pre-rotated by the model, twice), then the exact-model
   refinement on every point within ``FINAL_CUTOFF`` thresholds (the final refinement's
-  first), :data:`LO_ROUNDS` round; a step is taken where it lowers the MSAC cost of every
-  point;
+  first), at most :data:`LO_ROUNDS` rounds (the camera's stop rules); a step is taken where it
+  lowers the MSAC cost of every point;
 - the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
   rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
   (each point seen through its camera's mounting at its own time, errors in its camera's
@@ -270,9 +270,12 @@ STILL_SOLVER_ITERATIONS = 1
 #: a second one converges on the sample's six points)
 SPREAD_CORRECTION_ROUNDS = 2
 
-#: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
-#: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
-#: cost 2.3 ms of 10 per frame: the final refinement converges from the first
+#: local optimization's rounds (:func:`~.local_optimization.polish`; a camera's are at most
+#: ``local_optimization.steps``): the rig's refinement is the final refinement's first, on
+#: every point until converged, so further rounds seldom move the model. Up to 4 rounds
+#: changed none of the rig's medians or posed counts in ``python -m benchmarks.bench_rig``
+#: (also ``--points 36``, ``--gyro``) and ``python -m benchmarks.bench_rig_rendered``, and
+#: made every TagSLAM recording's rig frames slower
 LO_ROUNDS = 1
 
 #: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
