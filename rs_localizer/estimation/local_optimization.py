@@ -102,6 +102,7 @@ def polish(
     nonminimal: Callable[[Model, np.ndarray], list[Model]] | None,
     refine: Callable[[Model], Model] | None,
     rounds: int,
+    min_inliers: int = 6,
 ) -> Scored:
     """The rounds of local optimization on a new ``best`` (score, model, (N,) inlier mask),
     whatever the frame: a single camera's (:func:`local_optimization`) and a rig's
@@ -112,10 +113,12 @@ def polish(
     None: no such step), then ``refine(model)`` (the exact-model refinement, from the better
     of the start and the linear models; None: no such step). Rounds stop at ``rounds``, at a
     round that does not lower the score, after a round whose inliers did not grow, and before
-    a round that would start with fewer than 6 inliers.
+    a round that would start with fewer than ``min_inliers`` inliers.
 
     Args:
         evaluate: ``evaluate(model)`` the (score, (N,) inlier mask) of a model on every point.
+        best: its inlier mask may be None (none counted) without ``nonminimal`` and with
+            ``min_inliers`` 0.
 
     Returns:
         the polished (score, model, inlier mask).
@@ -123,7 +126,7 @@ def polish(
     best_score, model, best_inl = best
     for step in range(rounds):
         n_before = int(np.count_nonzero(best_inl))
-        if n_before < 6:
+        if n_before < min_inliers:
             break
         start, start_score, start_inl = model, best_score, best_inl
         linear = nonminimal(model, best_inl) if nonminimal is not None and step == 0 else []
@@ -139,7 +142,7 @@ def polish(
         if start_score >= best_score:
             break
         model, best_score, best_inl = start, start_score, start_inl
-        if int(np.count_nonzero(best_inl)) <= n_before:
+        if step + 1 == rounds or int(np.count_nonzero(best_inl)) <= n_before:
             break
     return best_score, model, best_inl
 

@@ -2314,9 +2314,10 @@ def _estimate(
     def evaluate(m):
         return search.cost(m), search.errors(m) < threshold_px
 
-    best = (best_cost, model, pool.errors(model) < threshold_px)
+    # (the rig solver takes the inliers; the refinement selects its points itself, from any)
+    inl = None if still else pool.errors(model) < threshold_px
     steps = (None if still else refit, exact if refine else None)
-    model = polish(best, evaluate, *steps, LO_ROUNDS)[1]
+    model = polish((best_cost, model, inl), evaluate, *steps, LO_ROUNDS, min_inliers=0)[1]
     refined = refined[-1] if refined else None
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
         # (local optimization's last refinement is the final one's first, whether it took it,
