@@ -18,7 +18,13 @@ from .plausibility import all_finite, finite_model
 from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
-__all__ = ["Scored", "initial_model_seed", "local_optimization", "seed_from_initial_model"]
+__all__ = [
+    "Scored",
+    "initial_model_seed",
+    "local_optimization",
+    "polish",
+    "seed_from_initial_model",
+]
 
 #: (MSAC score, model (R, C, w, t), (N,) inlier mask)
 Scored = tuple[float, Model, np.ndarray]
@@ -45,7 +51,8 @@ def local_optimization(
     which is biased on fast motion). Later rounds do not re-run the linear solver: starting
     from an exact-model fit it never won (0 of 80 second rounds at RS speed 0.5 and 1.0).
     Rounds continue while the MSAC score improves and the inlier set grows (at most
-    ``opts.local_optimization.steps``). P3P only gets the global-shutter refinement.
+    ``opts.local_optimization.steps``; the rounds are :func:`polish`'s). P3P only gets the
+    global-shutter refinement.
 
     The steps themselves are arguments (the NumPy implementation, :mod:`.numpy_impl`, passes
     its own): ``evaluate(model)`` (score, (N,) inlier mask) on every point (default
@@ -58,28 +65,18 @@ def local_optimization(
     if evaluate is None:
         evaluate = functools.partial(fr.evaluate, th2=th2)
     lo = opts.local_optimization
-    best_score, model, best_inl = best
     th = np.sqrt(th2)
     rolling = solver_info(solver).rolling
     M = min(len(fr.x), max(lo.max_points, 2 * sample_size(solver)))
     sub = fr.head(M)
     tau = sub.r - sub.r0
-    for step in range(lo.steps):
-        n_before = int(np.count_nonzero(best_inl))
-        if n_before < 6:
-            break
-        start, start_score, start_inl = model, best_score, best_inl
-        linear = (
-            nonminimal(sub, solver, best_inl[:M], model[0], opts, model[1])
-            if lo.nonminimal and step == 0
-            else []
-        )
-        for cand in linear:
-            sc, inl = evaluate(cand)
-            if sc < start_score:
-                start, start_score, start_inl = cand, sc, inl
+
+    def linear(model: Model, inliers: np.ndarray) -> list[Model]:
+        return nonminimal(sub, solver, inliers[:M], model[0], opts, model[1])
+
+    def exact(model: Model) -> Model:
         ref = refine(
-            start,
+            model,
             sub.X,
             sub.x,
             tau,
@@ -94,14 +91,58 @@ def local_optimization(
             prior=fr.prior,
             mountings=sub.mountings(),
         )
-        cand = RSModel(ref.R, ref.C, ref.w, ref.t)
-        sc, inl = evaluate(cand)
-        if sc < start_score:
-            start, start_score, start_inl = cand, sc, inl
+        return RSModel(ref.R, ref.C, ref.w, ref.t)
+
+    return polish(best, evaluate, linear if lo.nonminimal else None, exact, lo.steps)
+
+
+def polish(
+    best: Scored,
+    evaluate: Callable[[Model], tuple[float, np.ndarray]],
+    nonminimal: Callable[[Model, np.ndarray], list[Model]] | None,
+    refine: Callable[[Model], Model] | None,
+    rounds: int,
+    min_inliers: int = 6,
+) -> Scored:
+    """The rounds of local optimization on a new ``best`` (score, model, (N,) inlier mask),
+    whatever the frame: a single camera's (:func:`local_optimization`) and a rig's
+    (:func:`~.rig.estimate_rig_pose`), each with its own steps.
+
+    A round takes the better (lower score) of its start and the models of each step: in the
+    first round ``nonminimal(model, inliers)`` (the linear re-solve on the (N,) inlier mask;
+    None: no such step), then ``refine(model)`` (the exact-model refinement, from the better
+    of the start and the linear models; None: no such step). Rounds stop at ``rounds``, at a
+    round that does not lower the score, after a round whose inliers did not grow, and before
+    a round that would start with fewer than ``min_inliers`` inliers.
+
+    Args:
+        evaluate: ``evaluate(model)`` the (score, (N,) inlier mask) of a model on every point.
+        best: its inlier mask may be None (none counted) without ``nonminimal`` and with
+            ``min_inliers`` 0.
+
+    Returns:
+        the polished (score, model, inlier mask).
+    """
+    best_score, model, best_inl = best
+    for step in range(rounds):
+        n_before = int(np.count_nonzero(best_inl))
+        if n_before < min_inliers:
+            break
+        start, start_score, start_inl = model, best_score, best_inl
+        linear = nonminimal(model, best_inl) if nonminimal is not None and step == 0 else []
+        for cand in linear:
+            sc, inl = evaluate(cand)
+            if sc < start_score:
+                start, start_score, start_inl = cand, sc, inl
+        if refine is not None:
+            cand = refine(start)
+            sc, inl = evaluate(cand)
+            if sc < start_score:
+                start, start_score, start_inl = cand, sc, inl
         if start_score >= best_score:
             break
         model, best_score, best_inl = start, start_score, start_inl
-        if int(np.count_nonzero(best_inl)) <= n_before:
+        if step + 1 == rounds or int(np.count_nonzero(best_inl)) <= n_before:
             break
     return best_score, model, best_inl
 

@@ -38,9 +38,12 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   at which the samples drawn reach ``ransac.min_iterations`` and what the best model's inlier
   ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
   some moved beyond the bounds;
-- local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
-  by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
-  that raises the MSAC cost of all points is not taken;
+- local optimization is the single camera's rounds
+  (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps: the rig
+  solver on the best model's inliers (pre-rotated by the model, twice), then the exact-model
+  refinement on every point within ``FINAL_CUTOFF`` thresholds (the final refinement's
+  first), at most :data:`LO_ROUNDS` rounds (the camera's stop rules); a step is taken where it
+  lowers the MSAC cost of every point;
 - the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
   rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
   (each point seen through its camera's mounting at its own time, errors in its camera's
@@ -165,7 +168,7 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
-from .local_optimization import initial_model_seed
+from .local_optimization import initial_model_seed, polish
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
@@ -267,9 +270,12 @@ STILL_SOLVER_ITERATIONS = 1
 #: a second one converges on the sample's six points)
 SPREAD_CORRECTION_ROUNDS = 2
 
-#: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
-#: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
-#: cost 2.3 ms of 10 per frame: the final refinement converges from the first
+#: local optimization's rounds (:func:`~.local_optimization.polish`; a camera's are at most
+#: ``local_optimization.steps``): the rig's refinement is the final refinement's first, on
+#: every point until converged, so further rounds seldom move the model. Up to 4 rounds
+#: changed none of the rig's medians or posed counts in ``python -m benchmarks.bench_rig``
+#: (also ``--points 36``, ``--gyro``) and ``python -m benchmarks.bench_rig_rendered``, and
+#: made every TagSLAM recording's rig frames slower
 LO_ROUNDS = 1
 
 #: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
@@ -2302,22 +2308,25 @@ def _estimate(
         return failed(e.reason, search.iterations)
     best_cost, drawn = search.score, search.iterations
 
-    # each step is kept only if it does not raise the MSAC cost of the whole pool
-    steps = (_refit, _refine) if refine else (_refit,)
-    if still:  # (the rig solver needs a spread of capture times)
-        steps = (_refine,) if refine else ()
-    refined = None  # (the last refinement: (its start, its result))
-    for _ in range(LO_ROUNDS):
-        for step in steps:
-            if step is _refit:  # (the refinement selects its points itself)
-                inl = pool.errors(model) < threshold_px
-                cand = _refit(pool, inl, model, threshold_px, prior=prior)
-            else:
-                cand = _refine(pool, model, threshold_px, free=free, prior=prior)
-            refined = (model, cand) if step is _refine else None
-            cost = search.cost(cand)
-            if cost <= best_cost:
-                model, best_cost = cand, cost
+    # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
+    # solver on the inliers (not on a frame taken at one time) and the final refinement's first
+    refined = []  # (each refinement's (start, result))
+
+    def refit(m, inl):
+        return [_refit(pool, inl, m, threshold_px, prior=prior)]
+
+    def exact(m):
+        refined.append((m, _refine(pool, m, threshold_px, free=free, prior=prior)))
+        return refined[-1][1]
+
+    def evaluate(m):
+        return search.cost(m), search.errors(m) < threshold_px
+
+    # (the rig solver takes the inliers; the refinement selects its points itself, from any)
+    inl = None if still else pool.errors(model) < threshold_px
+    steps = (None if still else refit, exact if refine else None)
+    model = polish((best_cost, model, inl), evaluate, *steps, LO_ROUNDS, min_inliers=0)[1]
+    refined = refined[-1] if refined else None
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
         # (local optimization's last refinement is the final one's first, whether it took it,
         # or did not and the model is still the one it started from)
