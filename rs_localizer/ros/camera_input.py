@@ -16,7 +16,10 @@ and checked against that model, or the cloud's rows as the estimator takes them:
 rows dropped, at most ``max_points``, a keypoint's 3D point from the landmarks). What comes out
 is a :class:`~rs_localizer.tracking.localizer.CameraFrame` (a cloud's rows), an
 :class:`ImageFrame` (the decoded image for the camera's front end) or a :class:`DroppedFrame`
-with its reason (:data:`DROP_REASONS`); :func:`to_rig` hands any of them to a rig.
+with its reason (:data:`DROP_REASONS`); :func:`to_rig` hands any of them to a rig. The single
+camera and the rig node take a frame to their rig in one step, :meth:`CameraInput.step`
+(:meth:`CameraInput.take`, :func:`to_rig`, and a rig camera's stamp noted on the rig's clock
+after it, :meth:`CameraInput.note_time`: its camera_infos after a time reset forgotten).
 
 Its counts go to its owner's ``count(key, n)``, the camera's :class:`CameraCounts` (the
 single-camera node's and each rig camera's: ``camera_info_rejected``,
@@ -30,11 +33,12 @@ module-level ROS import: messages are duck-typed (rclpy or rosbags).
 from __future__ import annotations
 
 import threading
+import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -195,6 +199,16 @@ class ImageFrame:
     image: np.ndarray
     encoding: str
     tag: object = None
+
+
+class FrameStep(NamedTuple):
+    """A frame message through :meth:`CameraInput.step`: what :meth:`CameraInput.take` made
+    of it (``item``), the rig frames it completed (``outs``: solved, oldest first) and the
+    :func:`time.perf_counter` s when it was taken (decoded, before the rig)."""
+
+    item: CameraFrame | ImageFrame | DroppedFrame
+    outs: list
+    taken_at: float
 
 
 class CameraInput:
@@ -359,12 +373,14 @@ class CameraInput:
         is counted ``time_resets`` and logged (``time reset: <why>``, after the label), and
         the camera_infos stamped after it are forgotten
         (:meth:`~rs_localizer.ros.camera_info_history.CameraInfoHistory.forget_after`). No
-        frame is dropped for it."""
+        frame is dropped for it. A rig camera's time reset is the rig's to count and log
+        (``rig.time_resets``, ``rig time reset: <why>``): only its camera_infos are forgotten."""
         why = clock(stamp)
         if why is None:
             return
-        self.count("time_resets", 1)
-        self._warn("time_reset", f"time reset: {why}")
+        if not self.rig:
+            self.count("time_resets", 1)
+            self._warn("time_reset", f"time reset: {why}")
         self.history.forget_after(stamp)
 
     def camera_of(self, stamp: Stamp | DroppedFrame) -> CameraModel | DroppedFrame | None:
@@ -424,6 +440,33 @@ class CameraInput:
         if self.rig:
             scores = None
         return CameraFrame(stamp, camera, uv, xyz, scores, tag, self.name)
+
+    def step(
+        self,
+        rig: Localizer,
+        msg: Any,
+        kind: str,
+        stamp: Stamp | DroppedFrame,
+        camera: CameraModel | DroppedFrame | None,
+        reference_ns: int | None = None,
+    ) -> FrameStep:
+        """A camera's frame message of a checked ``stamp`` (:meth:`check`) and its ``camera``
+        (:meth:`camera_of`) to ``rig``, the one frame step of the single camera
+        (:class:`~rs_localizer.ros.pipeline.FramePipeline`, its rig of one) and of a rig's
+        camera (the rig node): :meth:`take`, then :func:`to_rig` (``reference_ns`` as there);
+        a rig camera's stamp then noted on the rig's clock (:meth:`note_time` with
+        :meth:`~rs_localizer.tracking.video.Localizer.took_time_reset`: its camera_infos after
+        a time reset forgotten, as the single camera's, which notes its stamp ahead of the
+        frame). A frame the single camera drops does not go to its rig (its owner counts it
+        ``failed.<reason>``); a rig camera's with a stamp goes there as skipped."""
+        item = self.take(msg, kind, stamp, camera)
+        taken_at = time.perf_counter()
+        if isinstance(item, DroppedFrame) and not self.rig:
+            return FrameStep(item, [], taken_at)
+        outs = to_rig(rig, item, reference_ns)
+        if self.rig and not isinstance(stamp, DroppedFrame):
+            self.note_time(stamp, lambda _stamp: rig.took_time_reset(self.name))
+        return FrameStep(item, outs, taken_at)
 
     def _dropped(
         self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError

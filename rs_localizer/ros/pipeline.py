@@ -14,7 +14,7 @@ library's video entry point: the gyro samples fed by :meth:`FramePipeline.add_im
 measurement of the frame's readout when ``imu.enabled``, the online gyro bias, the check of the
 gyro against the image, the video tracker with ``tracking.enabled`` or else each frame alone;
 a cloud's frame goes to its rig of one as a rig camera's frame goes to its rig,
-:func:`.camera_input.to_rig`, an image through the front end first), and what is to be
+:meth:`.camera_input.CameraInput.step`, an image through the front end first), and what is to be
 published: the pose and the frame's own twist, and the fused twists that became final (a frame
 ``tracking.lag`` frames back). :mod:`.outputs` turns a result into messages. Counters for the
 diagnostics are kept in :attr:`FramePipeline.stats`. No module-level ROS import.
@@ -42,7 +42,7 @@ from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
-from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame, to_rig
+from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame
 from .config import LocalizerConfig
 
 __all__ = [
@@ -600,11 +600,12 @@ class FramePipeline:
         if kind == "image" and self.sequence.frontend is None:
             # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
-        item = _taken(inp.take(msg, kind, stamp, camera))
-        t_decoded = time.perf_counter()
-        # (as a rig camera's frame: to the camera's rig of one, to_rig; an image through its
-        # front end first)
-        outs = to_rig(self.sequence.rig, item, ft.reference_ns)
+        # (as a rig camera's frame: to the camera's rig of one, CameraInput.step; an image
+        # through its front end first)
+        item, outs, t_decoded = inp.step(
+            self.sequence.rig, msg, kind, stamp, camera, ft.reference_ns
+        )
+        _taken(item)
         if isinstance(item, ImageFrame):
             res.image = (item.image, item.encoding, stamp)
             out = self.sequence.image_output(ft, outs)

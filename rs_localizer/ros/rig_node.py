@@ -86,7 +86,6 @@ from .camera_input import (
     DroppedFrame,
     ImageFrame,
     rig_camera_inputs,
-    to_rig,
 )
 from .config import (
     LocalizerConfig,
@@ -414,9 +413,11 @@ class RigMode:
 
     def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
         """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
-        through the camera's input stage (:meth:`.camera_input.CameraInput.take`, as a rig
-        bag's in ``replay``; :func:`.camera_input.to_rig`); returns the rig frames it
-        completed.
+        through the camera's input stage in the single camera's frame step
+        (:meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.CameraInput.take`, as a
+        rig bag's in ``replay``, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
+        clock: the camera's camera_infos stamped after a time reset forgotten); returns the rig
+        frames it completed.
 
         A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
         ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
@@ -438,7 +439,7 @@ class RigMode:
         image kept for ``debug_image`` while someone watches."""
         if kind == "image":
             self._warn_no_info(name, "images")
-        item = self.node.inputs[name].take(msg, kind, stamp, camera)
+        item, outs, _ = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
         if isinstance(item, DroppedFrame):
             self._not_taken(kind, item)
         elif kind != "image":
@@ -449,7 +450,7 @@ class RigMode:
             self._images.setdefault(name, deque(maxlen=4)).append(
                 (item.image, item.encoding, stamp)
             )
-        return to_rig(self.rig, item)
+        return outs
 
     def _not_taken(self, kind: str, item: DroppedFrame) -> str | None:
         """A frame the camera's input stage dropped, logged: one whose stamp is out of range or

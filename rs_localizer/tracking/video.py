@@ -663,6 +663,9 @@ class Localizer(GyroReadouts):
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
         self._noted: int | None = None  # (a rig of one: the frame time noted last, _note_alone)
+        # (the last time reset's detail and number, each camera's number taken: took_time_reset)
+        self._reset: tuple[int, str] = (0, "")
+        self._reset_taken: dict[str, int] = {}
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
@@ -1035,6 +1038,19 @@ class Localizer(GyroReadouts):
         (name,) = self._cams
         return self._note_alone(self._on_clock(name, checked_stamp(stamp_ns)))
 
+    def took_time_reset(self, name: str) -> str | None:
+        """Camera ``name``'s first call since the rig's clock last started again (a time
+        reset, :meth:`add`): that reset's detail; else None. A rig camera's input stage calls
+        it after each frame it takes, to note its stamp on the rig's clock
+        (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_time`: the camera_infos
+        stamped after the camera's first frame of the new timeline forgotten, as one
+        camera's)."""
+        n, detail = self._reset
+        if self._reset_taken.get(name, 0) == n:
+            return None
+        self._reset_taken[name] = n
+        return detail
+
     def _on_clock(self, name: str, stamp: Stamp) -> int:
         """ns: camera ``name``'s checked ``stamp`` on the rig's clock, its
         :attr:`LocalizerSettings.time_offsets` entry added (not its reference time): the time
@@ -1089,6 +1105,7 @@ class Localizer(GyroReadouts):
         solved = []
         if reset is not None:
             self.counts["rig.time_resets"] += 1
+            self._reset = (self._reset[0] + 1, reset.detail)
             if self._rig:  # (a camera's video: the caller reports it, check_time)
                 self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)

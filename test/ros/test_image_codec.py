@@ -308,6 +308,9 @@ def _rig_node_decode(msg, cam):
             got.append(("drop", reason))
             return []
 
+        def took_time_reset(self, name):  # (no time reset: the camera's stamp noted after)
+            return None
+
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)

@@ -762,6 +762,50 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
         node.destroy_node()
 
 
+def test_a_rig_camera_forgets_its_camera_infos_after_a_time_reset(ros_context):
+    """Each camera's true camera_info stamped at T0 and a wrong one (focal 30 % longer) at
+    T0 + 3 s; the video at T0 + 10 s, then again from T0 (10 s back: a time reset of the rig,
+    ``time_reset_threshold`` 5 s), then at T0 + 3.2 s (no reset: within 5 s). Each camera's
+    first frame after the reset forgets its camera_infos stamped after that frame, as the
+    single camera's video does: the frames at T0 + 3.2 s take the true camera, not the one of
+    the old timeline's T0 + 3 s. The reset is the rig's to count (``time_resets`` once; no
+    camera counts one), every camera balances."""
+    import dataclasses
+
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)
+    videos = [
+        [dataclasses.replace(f, stamp_ns=f.stamp_ns + dt) for f in frames]
+        for dt in (10 * 10**9, 0, int(3.2e9))
+    ]
+    node = _direct_node(ros_context, cams, frames * 3, time_reset_threshold=5.0)
+    try:
+        for c in cams:
+            wrong = camera_info_msg(c.camera, c.name, T0 + 3 * 10**9)
+            wrong.k[0] *= 1.3
+            wrong.k[4] *= 1.3
+            node.inputs[c.name].add_camera_info(wrong)
+            assert len(node.inputs[c.name].history) == 2
+        for f in (f for video in videos for f in video):
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            node._on_frame(f.name, "cloud", cloud)
+        v = _drained_values(node, cams)
+        assert node.mode.rig.counts["rig.time_resets"] == 1
+        assert [k for k in v if "time_reset" in k] == ["time_resets"] and v["time_resets"] == "1", v
+        for c in cams:
+            inp = node.inputs[c.name]
+            assert len(inp.history) == 1
+            got = inp.camera_for(videos[2][0].stamp_ns)
+            np.testing.assert_array_equal(got.K, c.camera.K)
+    finally:
+        node.destroy_node()
+
+
 def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
     """The left camera's clouds 3..6 without their ``x`` field (the stamp readable): counted
     ``left.skipped.bad_input``, passed on to the rig, so the rig frames without them count
