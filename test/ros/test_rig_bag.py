@@ -780,3 +780,55 @@ def test_replay_of_a_rendered_rig_bag_writes_each_cameras_debug_outputs(tmp_path
             seen = img[60:].astype(float).mean(axis=2).ravel()
             r = np.corrcoef(seen, gray[(n, stamp)][60:].ravel())[0, 1]
             assert (r < 0.5) if (n, stamp) == ("front", gone) else (r > 0.8), (n, stamp, r)
+
+
+def test_a_rig_camera_s_camera_infos_after_a_time_reset_are_forgotten_as_the_node_forgets_them(
+    tmp_path,
+):
+    """A rig bag whose video plays at T0 + 10 s, then again from T0 (a time reset of the rig,
+    ``time_reset_threshold`` 5 s), then at T0 + 3.2 s, each camera with its true camera_info at
+    T0 and a wrong one (focal 30 % longer) stamped T0 + 3 s, received first: replay notes each
+    frame's stamp on the rig's clock as the rig node does, so each camera forgets the
+    camera_info of the old timeline's T0 + 3 s at its first frame after the reset, and the
+    frames at T0 + 3.2 s take the true camera."""
+    from dataclasses import replace
+
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.rig_bag import RigRun
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)
+    clean = write_rig_bag(tmp_path / "clean", frames, cams, traj)
+    t0 = min(f.stamp_ns for f in frames)
+    first_info: dict = {}
+
+    def stamped(msg, ns):
+        stamp = replace(msg.header.stamp, sec=ns // 10**9, nanosec=ns % 10**9)
+        return replace(msg, header=replace(msg.header, stamp=stamp))
+
+    def edit(topic, msg, t):
+        s = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        if topic.endswith("/camera_info"):
+            if topic in first_info:
+                return []
+            first_info[topic] = s
+            k, p = msg.k.copy(), msg.p.copy()
+            k[0], k[4], p[0], p[5] = 1.3 * k[0], 1.3 * k[4], 1.3 * p[0], 1.3 * p[5]
+            wrong = stamped(replace(msg, k=k, p=p), t0 + 3 * 10**9)
+            return [(t - 2, wrong), (t - 1, msg)]
+        if topic.endswith("/correspondences"):
+            shifts = (10 * 10**9, 0, int(3.2e9))  # (log order: +10 s, then 0, then +3.2 s)
+            return [(t + i * 10**9, stamped(msg, s + dt)) for i, dt in enumerate(shifts)]
+        return []  # (no ground truth: its stamps are the first video's)
+
+    bag = rewrite_bag(clean, tmp_path / "reset", edit)
+    run = RigRun(bag, [], {"time_reset_threshold": 5.0})
+    outs = list(run.outputs())
+    assert run.rig.counts["rig.time_resets"] == 1
+    assert sum(o.success for o in outs) > 0
+    for c in cams:
+        inp = run.inputs[c.name]
+        assert len(inp.history) == 1
+        got = inp.camera_for(t0 + int(3.2e9))
+        np.testing.assert_array_equal(got.K, c.camera.K)

@@ -65,7 +65,10 @@ class RigRun:
     ``skipped.bad_input`` as the node counts it, and one with a readable stamp goes to the rig
     as a frame skipped (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's counts
     are the rig node's on the same messages (taken as they come, none dropped from a full
-    queue). With a front end (``frontend`` other than ``none``, its map ``frontend_map``; a
+    queue); each frame's stamp is then noted on the rig's clock as the node's camera notes it
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_time`: after a time reset, the
+    camera_infos stamped after the camera's first frame of the new timeline forgotten). With a
+    front end (``frontend`` other than ``none``, its map ``frontend_map``; a
     ``render-bag --rig`` bag holds its ``markers.yaml``) each camera's images
     (``<namespace>/<camera>/image_raw``) are read instead, through the camera's own front end
     as the rig node runs it (decoded and checked against the camera model of its stamp, a
@@ -143,6 +146,9 @@ class RigRun:
                 while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
                     rig.add_imu(*gyro.pop())
                 outs = to_rig(rig, item)
+                # (its stamp on the rig's clock, as the rig node's camera notes it: its
+                # camera_infos stamped after a time reset forgotten)
+                self.inputs[n].note_time(stamp, lambda _stamp, n=n: rig.took_time_reset(n))
                 _note_disagreeing(rig, outs, self.off_deg)
                 bar.update(len(outs))
                 yield from outs
