@@ -465,8 +465,16 @@ class CameraInput:
             return FrameStep(item, [], taken_at)
         outs = to_rig(rig, item, reference_ns)
         if self.rig and not isinstance(stamp, DroppedFrame):
-            self.note_time(stamp, lambda _stamp: rig.took_time_reset(self.name))
+            self.note_on_rig(rig, stamp)
         return FrameStep(item, outs, taken_at)
+
+    def note_on_rig(self, rig: Localizer, stamp: Stamp) -> None:
+        """A rig camera's checked frame ``stamp`` noted on ``rig``'s clock after its frame went
+        to the rig (:meth:`note_time` with
+        :meth:`~rs_localizer.tracking.video.Localizer.took_time_reset`: after a time reset,
+        the camera_infos stamped after the camera's first frame of the new timeline
+        forgotten); the rig node's (:meth:`step`) and a rig bag's replay's."""
+        self.note_time(stamp, lambda _stamp: rig.took_time_reset(self.name))
 
     def _dropped(
         self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError

@@ -66,7 +66,7 @@ class RigRun:
     as a frame skipped (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's counts
     are the rig node's on the same messages (taken as they come, none dropped from a full
     queue); each frame's stamp is then noted on the rig's clock as the node's camera notes it
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_time`: after a time reset, the
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_on_rig`: after a time reset, the
     camera_infos stamped after the camera's first frame of the new timeline forgotten). With a
     front end (``frontend`` other than ``none``, its map ``frontend_map``; a
     ``render-bag --rig`` bag holds its ``markers.yaml``) each camera's images
@@ -148,7 +148,7 @@ class RigRun:
                 outs = to_rig(rig, item)
                 # (its stamp on the rig's clock, as the rig node's camera notes it: its
                 # camera_infos stamped after a time reset forgotten)
-                self.inputs[n].note_time(stamp, lambda _stamp, n=n: rig.took_time_reset(n))
+                self.inputs[n].note_on_rig(rig, stamp)
                 _note_disagreeing(rig, outs, self.off_deg)
                 bar.update(len(outs))
                 yield from outs
