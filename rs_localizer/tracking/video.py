@@ -663,6 +663,7 @@ class Localizer(GyroReadouts):
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
         self._noted: int | None = None  # (a rig of one: the frame time noted last, _note_alone)
+        self._img: _ImageInput | None = None  # (the image search, made on first use)
         # (the last time reset's detail and number, each camera's number taken: took_time_reset)
         self._reset: tuple[int, str] = (0, "")
         self._reset_taken: dict[str, int] = {}
@@ -1074,8 +1075,7 @@ class Localizer(GyroReadouts):
         if reset is None:
             return None
         self._time_reset(reset)
-        img = self.__dict__.get("_img")
-        for fe in () if img is None else img.frontends.values():
+        for fe in () if self._img is None else self._img.frontends.values():
             fe.last_sample = None
         return reset.detail
 
@@ -1156,10 +1156,9 @@ class Localizer(GyroReadouts):
 
     # ---------------------------------------------------------------- images
     def _image_input(self) -> _ImageInput:
-        img = self.__dict__.get("_img")
-        if img is None:
-            img = self._img = _ImageInput()
-        return img
+        if self._img is None:
+            self._img = _ImageInput()
+        return self._img
 
     def set_frontend(
         self, name: str, frontend: Frontend | VideoFrontend | None, label: str | None = None
@@ -1304,9 +1303,8 @@ class Localizer(GyroReadouts):
                 f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
             )
         t = self.frame_time(name, stamp_ns, camera)
-        img = self.__dict__.get("_img")
-        if img is not None:  # (its last image was not searched)
-            img.found[name] = None
+        if self._img is not None:  # (its last image was not searched)
+            self._img.found[name] = None
         return self._drop(name, t.stamp_ns, t.reference_ns, reason)
 
     def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
