@@ -31,7 +31,12 @@ undistorted plane), then:
    (deg) and position (mm) error against the reference, median and 90th percentile, over the
    rig frames with tags in two or more cameras that both posed; the ratio ours / PoseLib; the
    rig frames posed; CPU time per rig frame (one thread, the two methods interleaved frame by
-   frame, each first on every other frame);
+   frame, each first on every other frame); the corners' MSAC cost at the threshold
+   (:func:`msac_cost`, the cost both methods score their models by) of the two methods' poses
+   and of the reference's; the camera with the most corners posed alone
+   (:func:`camera_alone`) against the reference, next to the two methods on the same rig
+   frames (where it is closer to the reference than both, the cameras' corners through the
+   reference's extrinsics pull the rig away from the reference's pose);
 2. each camera alone on the same corners: the single camera's estimator
    (:func:`~rs_localizer.estimation.estimate_rs_pose`, default options), PoseLib's
    ``estimate_absolute_pose`` (matched options) and OpenCV's ``solvePnP`` on the undistorted
@@ -104,6 +109,8 @@ __all__ = [
     "calibrate",
     "calibrate_estimates",
     "calibrated_rig_run",
+    "camera_alone",
+    "msac_cost",
     "reference_residuals",
     "rig_run",
     "single_run",
@@ -175,6 +182,34 @@ def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: 
     return rotvec_to_matrix(p[:3]) @ R, C + p[3:]
 
 
+def msac_cost(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, threshold: float) -> float:
+    """The MSAC cost (px^2) of the rig pose ``(R, C)`` on a rig frame's corners: each corner's
+    error in the distorted image of its camera (through the reference's extrinsics),
+    ``min(e^2, threshold^2)`` summed (a corner behind its camera: ``threshold^2``). The cost
+    both methods score their models by."""
+    cost = 0.0
+    for n, (uv, X) in views.items():
+        Rm, cm = rig.mounts[n]
+        P = (X @ R.T + C) @ Rm.T + cm
+        e = np.linalg.norm(rig.cameras[n].project(P) - uv, axis=1)
+        e = np.where(np.isfinite(e) & (P[:, 2] > 0), e, np.inf)
+        cost += float(np.minimum(e * e, threshold * threshold).sum())
+    return cost
+
+
+def camera_alone(rig: RealRig, views: dict):
+    """The rig pose ``(R, C)`` from the camera of the rig frame with the most corners posed
+    alone (:func:`~rs_localizer.estimation.estimate_rs_pose`, default options), mapped to the
+    rig through the reference's extrinsics; None when it fails."""
+    name = max(views, key=lambda n: len(views[n][0]))
+    uv, X = views[name]
+    e = estimate_rs_pose(uv, X, rig.cameras[name])
+    if not e.success:
+        return None
+    Rm, cm = rig.mounts[name]
+    return Rm.T @ e.model.R, Rm.T @ (e.model.C - cm)
+
+
 def _timed(fn):
     t0 = time.thread_time()
     out = fn()
@@ -185,8 +220,11 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
     """Per rig frame with a reference pose (``frames``: the first that many rig frames with
     tags): ``both`` (tags in two or more cameras), the errors ``(rotation deg, position mm)``
     of ``ours`` (None: refused, ``failure`` its reason), ``refit`` (:func:`pixel_refit` of
-    ours) and ``poselib``, and their CPU times (s), interleaved (each first on every other
-    rig frame); both methods on ``options``."""
+    ours), ``poselib`` and ``alone`` (:func:`camera_alone`, on rig frames of two or more
+    cameras; None: not posed), ``cost``: the :func:`msac_cost` of ours (nan: refused),
+    PoseLib's and the reference's poses at ``options``' threshold, and the two methods' CPU
+    times (s), interleaved (each first on every other rig frame); both methods on
+    ``options``."""
     out = []
     warm = next(v for _, v in rig.frames if len(v) >= 2)  # (compiles the kernels: untimed)
     ours_rig(rig, warm, options)
@@ -205,6 +243,13 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
             (R, C), t_pl = _timed(lambda v=views: poselib_rig(rig, v, options))
         failure = mine if isinstance(mine, str) else None
         refit = pixel_refit(rig, views, *mine) if failure is None else None
+        th = options.ransac.threshold_px
+        cost = (
+            msac_cost(rig, views, *mine, th) if failure is None else np.nan,
+            msac_cost(rig, views, R, C, th),
+            msac_cost(rig, views, *ref, th),
+        )
+        alone = camera_alone(rig, views) if len(views) >= 2 else None
         out.append(
             {
                 "stamp": stamp,
@@ -214,6 +259,8 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
                 "ours": errors(*mine, ref) if failure is None else None,
                 "refit": errors(*refit, ref) if refit is not None else None,
                 "poselib": errors(R, C, ref),
+                "alone": errors(*alone, ref) if alone is not None else None,
+                "cost": cost,
                 "t_ours": t_ours,
                 "t_poselib": t_pl,
             }
@@ -501,7 +548,10 @@ def _ours_and_poselib(rows: list) -> str:
 def summary(res: list) -> dict:
     """Medians and 90th percentiles over the rig frames with tags in both cameras that both
     methods posed: ``{"ours": (rot (2,), pos (2,)), "poselib": ..., "posed", "both",
-    "ratio_rot", "ratio_pos", "ms_ours", "ms_poselib"}`` (median CPU ms per rig frame)."""
+    "ratio_rot", "ratio_pos", "ms_ours", "ms_poselib"}`` (median CPU ms per rig frame),
+    ``"cost"`` ((n, 3) :func:`msac_cost` of ours, PoseLib's and the reference's poses) and
+    ``"alone"`` ((n, 2) the errors of :func:`camera_alone` with ours' and PoseLib's on the
+    rig frames it posed: (n, 3, 2))."""
     both = [r for r in res if r["both"]]
     ok = [r for r in both if r["ours"] is not None]
     s = {"posed": len(ok), "both": len(both), "frames": len(res)}
@@ -509,6 +559,10 @@ def summary(res: list) -> dict:
     for key in ("ours", "poselib", "refit"):
         e = np.array([r[key] for r in ok])
         s[key] = e
+    s["cost"] = np.array([r["cost"] for r in ok]).reshape(-1, 3)
+    s["alone"] = np.array(
+        [(r["alone"], r["ours"], r["poselib"]) for r in ok if r["alone"] is not None]
+    ).reshape(-1, 3, 2)
     s["ratio_rot"] = np.median(s["ours"][:, 0]) / np.median(s["poselib"][:, 0])
     s["ratio_pos"] = np.median(s["ours"][:, 1]) / np.median(s["poselib"][:, 1])
     s["ratio_refit"] = (
@@ -719,6 +773,24 @@ def main(argv: list[str] | None = None) -> None:
             f"distorted pixels / PoseLib: rotation {s['ratio_refit'][0]:.2f}, position "
             f"{s['ratio_refit'][1]:.2f}"
         )
+        cost = s["cost"]
+        c_ours, c_pl, c_ref = (np.median(cost[:, i]) for i in range(3))
+        print(
+            f"  the corners' MSAC cost at the threshold (px^2, distorted pixels; msac_cost), "
+            f"median: ours {c_ours:.1f}, PoseLib {c_pl:.1f}, the reference's pose {c_ref:.1f}; "
+            f"ours at most PoseLib's in {int(np.sum(cost[:, 0] <= cost[:, 1] + 1e-9))} of "
+            f"{len(cost)} rig "
+            f"frames, the reference's above both in "
+            f"{int(np.sum(cost[:, 2] > np.maximum(cost[:, 0], cost[:, 1])))}"
+        )
+        alone = s["alone"]
+        if len(alone):
+            e = [f"{_stats(alone[:, k, 0])} {_stats(alone[:, k, 1])}" for k in range(3)]
+            print(
+                "  the camera with the most corners alone (estimate_rs_pose through the "
+                f"reference's extrinsics), {len(alone)} of those rig frames: rotation, position "
+                f"{e[0]}; on the same rig frames ours {e[1]}, PoseLib {e[2]}"
+            )
         refused = Counter((r["cameras"], r["failure"]) for r in runs if r["failure"])
         print(
             "  refused (cameras with tags, reason): "

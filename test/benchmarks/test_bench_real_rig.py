@@ -45,6 +45,18 @@ def test_the_rig_is_posed_close_to_the_reference_and_to_poselib(rig):
     assert s["ratio_rot"] < 1.1 and s["ratio_pos"] < 1.15
     # (the same poses refined on the distorted pixels, PoseLib's cost: at least as close)
     assert s["ratio_refit"][0] < 1.1 and s["ratio_refit"][1] < 1.1
+    # the corners' MSAC cost at the 2 px threshold, the cost both methods score models by:
+    # ours at most PoseLib's on every rig frame (measured: 128 of 128, median 9.2 against 9.7
+    # px^2; the reference's pose 12.4, above both in 108)
+    cost = s["cost"]
+    assert len(cost) == s["posed"]
+    assert np.sum(cost[:, 0] <= cost[:, 1] + 1e-9) >= 0.95 * len(cost)
+    assert np.median(cost[:, 0]) <= np.median(cost[:, 1]) <= np.median(cost[:, 2])
+    # the camera with the most corners posed alone: the second camera turns the rig's
+    # rotation closer to the reference (measured: 0.074 deg alone, 0.058 the rig)
+    alone = s["alone"]
+    assert len(alone) >= 0.95 * s["posed"]
+    assert np.median(alone[:, 1, 0]) < np.median(alone[:, 0, 0])
 
 
 def test_each_camera_alone_is_posed_on_most_frames(rig):
