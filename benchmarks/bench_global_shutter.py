@@ -29,7 +29,7 @@ Last (``--drive``), a robot driving past 3-5 markers of a simulated room (12-20 
 coplanar, 30 ms readout: :func:`rs_localizer.sim.marker_mapping.drive_detections`, the frames
 with 3 or more markers) on the true map: real motion that a few points determine loosely.
 
-``--rig``: a rig of three cameras (:func:`rs_localizer.sim.rig.make_rig`: front, left, right,
+``--rig``: a rig of three cameras (:func:`rs_localizer.sim.synthetic.make_rig`: front, left, right,
 5-20 cm levers) with equal stamps, turning at 0.3 rad/s and moving at 0.3 m/s, 40 points per
 camera (10 % outliers, 0.5 px noise), at each line delay: the rig estimator's median rotation
 error against the same rig frames with line delay 0 (the rig's generalized absolute pose), the
