@@ -295,7 +295,7 @@ def rig_frames(line_delay: float, n: int) -> list:
     """``n`` rig frames (views, truth) of three cameras with equal stamps at ``line_delay``
     (s per line), turning at 0.3 rad/s: the same points and motion at every line delay (one
     seed per frame)."""
-    from rs_localizer.sim import rig as sim_rig
+    from rs_localizer.sim import synthetic as sim_rig
 
     out = []
     for k in range(n):

@@ -45,7 +45,7 @@ import numpy as np
 import rs_localizer
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.runtime.jit_cache import compile_progress
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 n = int(sys.argv[1])
 rng = np.random.default_rng(1)
 rig = sim_rig.make_rig(3, rng)

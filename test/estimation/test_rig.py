@@ -22,7 +22,7 @@ from rs_localizer.estimation.rig import (
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 
 def _opts(**ransac) -> EstimateOptions:
