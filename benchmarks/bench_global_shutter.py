@@ -29,7 +29,7 @@ Last (``--drive``), a robot driving past 3-5 markers of a simulated room (12-20 
 coplanar, 30 ms readout: :func:`rs_localizer.sim.marker_mapping.drive_detections`, the frames
 with 3 or more markers) on the true map: real motion that a few points determine loosely.
 
-``--rig``: a rig of three cameras (:func:`rs_localizer.sim.rig.make_rig`: front, left, right,
+``--rig``: a rig of three cameras (:func:`rs_localizer.sim.synthetic.make_rig`: front, left, right,
 5-20 cm levers) with equal stamps, turning at 0.3 rad/s and moving at 0.3 m/s, 40 points per
 camera (10 % outliers, 0.5 px noise), at each line delay: the rig estimator's median rotation
 error against the same rig frames with line delay 0 (the rig's generalized absolute pose), the
@@ -295,7 +295,7 @@ def rig_frames(line_delay: float, n: int) -> list:
     """``n`` rig frames (views, truth) of three cameras with equal stamps at ``line_delay``
     (s per line), turning at 0.3 rad/s: the same points and motion at every line delay (one
     seed per frame)."""
-    from rs_localizer.sim import rig as sim_rig
+    from rs_localizer.sim import synthetic as sim_rig
 
     out = []
     for k in range(n):

@@ -1,10 +1,10 @@
 """A rig of rolling-shutter cameras posed as one body: ``python -m benchmarks.bench_rig``
 (from the repository root).
 
-Synthetic rig frames (:mod:`rs_localizer.sim.rig`): rigs of 2, 3 and 4 RS cameras looking
-front, back and to the sides (readout 15-35 ms in different directions, stamps up to 10 ms
-apart, 5-20 cm levers), turning at 1-2 rad/s and moving at 1.5 m/s, ``--points``
-correspondences per camera (20 % outliers, 0.5 px noise). Each frame is estimated by
+Synthetic rig frames (:func:`rs_localizer.sim.synthetic.rig_frame`): rigs of 2, 3 and 4 RS cameras
+looking front, back and to the sides (readout 15-35 ms in different directions, stamps up to 10 ms
+apart, 5-20 cm levers), turning at 1-2 rad/s and moving at 1.5 m/s, ``--points`` correspondences per
+camera (20 % outliers, 0.5 px noise). Each frame is estimated by
 
 * ``rig``: :func:`rs_localizer.estimation.rig.estimate_rig_pose` on every camera at once;
 * ``camera <name>``: :func:`rs_localizer.estimation.estimate_rs_pose` (``r6p_1lin``) on that
@@ -53,7 +53,7 @@ from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose, rig_mode
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig import make_rig, rig_frame, rig_motion
+from rs_localizer.sim.synthetic import make_rig, rig_frame, rig_motion
 
 __all__ = [
     "few_points",

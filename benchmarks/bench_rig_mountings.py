@@ -1,7 +1,7 @@
 """Calibrated mountings and the rig's covariance: each camera's mounting calibrated on one
-synthetic rig video (calibrate_mountings; rs_localizer.sim.rig_video: the corridor walk, 150
-points per frame, 0.5 px noise, 20 % outliers), a second video (another seed) localized with
-those mountings, with and without their covariance.
+synthetic rig video (calibrate_mountings; rs_localizer.sim.trajectory.generate_rig_video: the
+corridor walk, 150 points per frame, 0.5 px noise, 20 % outliers), a second video (another seed)
+localized with those mountings, with and without their covariance.
 
     python -m benchmarks.bench_rig_mountings [--cameras 3] [--calibrate 3] [--localize 10]
 
@@ -20,7 +20,7 @@ from scipy.stats import chi2
 from rs_localizer.calibration import calibrate_mountings
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.video import Localizer, LocalizerSettings
 

@@ -3,16 +3,16 @@
     python -m benchmarks.bench_rig_node_images [--frames 30] [--cameras 3] [--rate HZ]
 
 Renders every camera's view of the ``aruco_room`` marker scene at the rig's ``shake`` motion
-composed with its mounting (:mod:`rs_localizer.sim.render.rig`: the ``vga`` camera preset, 30 ms
-readout, cameras looking front, 35 deg left and right, first frames 0, 4 and 8 ms apart), starts
-``rs_localizer_node`` with ``rig.cameras`` (``frontend: aruco``, reliable image subscriptions)
-in a subprocess pinned to one core, and from this process (pinned to the other; the package's
-Fast DDS profile, so that an image goes through shared memory) publishes each
-rig frame's images on ``/rig/<camera>/image_raw`` and waits for its pose (lock-step). Reports
-the rig frames posed, the lock-step rate (rig frames per second of wall time, the round trip
-included), the node process's CPU time per rig frame (all its threads, ``/proc``) and the
-poses' median and maximum errors against the truth. The first ``--warm`` rig frames (numba
-caches loading, OpenCV's first calls) are sent but not timed.
+composed with its mounting (:func:`rs_localizer.sim.render.renderer.render_rig_frames`: the ``vga``
+camera preset, 30 ms readout, cameras looking front, 35 deg left and right, first frames 0, 4 and 8
+ms apart), starts ``rs_localizer_node`` with ``rig.cameras`` (``frontend: aruco``, reliable image
+subscriptions) in a subprocess pinned to one core, and from this process (pinned to the other; the
+package's Fast DDS profile, so that an image goes through shared memory) publishes each rig frame's
+images on ``/rig/<camera>/image_raw`` and waits for its pose (lock-step). Reports the rig frames
+posed, the lock-step rate (rig frames per second of wall time, the round trip included), the node
+process's CPU time per rig frame (all its threads, ``/proc``) and the poses' median and maximum
+errors against the truth. The first ``--warm`` rig frames (numba caches loading, OpenCV's first
+calls) are sent but not timed.
 
 With ``--rate HZ`` the rig frames are sent at that rate, as cameras do, without waiting for
 the poses; then the node's /diagnostics are read once it is idle: every camera's received,
@@ -79,7 +79,7 @@ def run_benchmark(
     from rs_localizer.ros.conversions import camera_info_msg, quaternion_from_matrix
     from rs_localizer.ros.dds_profile import apply_default_profile
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
-    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+    from rs_localizer.sim.render import render_rig_frames, vga_rig
 
     from .bench_client import SINGLE_THREAD_ENV
 
@@ -217,7 +217,7 @@ def _pose_errors(poses, motion) -> np.ndarray:
     """(N, 2) rotation (deg) and position (mm) errors of the poses against the truth."""
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros.conversions import pose_from_msg
-    from rs_localizer.sim.rig_video import rig_truth
+    from rs_localizer.sim.trajectory import rig_truth
 
     errs = []
     for m in poses:

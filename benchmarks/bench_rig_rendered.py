@@ -1,7 +1,7 @@
 """A rig of rolling-shutter cameras in a rendered room: ``python -m benchmarks.bench_rig_rendered``
 (from the repository root).
 
-Rigs of 2, 3 and 4 cameras (:func:`rs_localizer.sim.render.rig.rendered_rig`: 640x480 with mild
+Rigs of 2, 3 and 4 cameras (:func:`rs_localizer.sim.render.renderer.rendered_rig`: 640x480 with mild
 lens distortion, front/back (2), front/left/right (3), front/right/back/left (4), readout 20-30
 ms in four directions, first frames 0-9 ms apart) turn in the closed AprilTag room
 ``apriltag_rig_room`` (the renderer's ``pan`` motion, rotation amplitudes times
@@ -64,7 +64,7 @@ def render(m: int, frames: int, scale: float, fps: float = 30.0, seed: int = 0) 
     """Render a rig of ``m`` cameras for ``frames`` frames each: {"cameras": the rig,
     "trajectory", "frames": {(name, k): RigFrameSim}, "render_ms", "frontend_ms":
     median CPU ms per camera frame}."""
-    from rs_localizer.sim.render.rig import render_rig_video, rendered_rig, rig_trajectory
+    from rs_localizer.sim.render import render_rig_video, rendered_rig, rig_trajectory
     from rs_localizer.sim.render.scene import load_scene
 
     sc = load_scene(SCENE)

@@ -45,7 +45,7 @@ import numpy as np
 import rs_localizer
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.runtime.jit_cache import compile_progress
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 n = int(sys.argv[1])
 rng = np.random.default_rng(1)
 rig = sim_rig.make_rig(3, rng)
@@ -94,7 +94,7 @@ def node_run(source: Path, timeout: float = 300.0) -> dict:
     from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp, quaternion_from_matrix
     from rs_localizer.ros.pointcloud import correspondence_cloud
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(3)
     by = {c.name: c.camera for c in cams}

@@ -1,7 +1,7 @@
 """A rig of unsynchronized RS cameras through a video: the rig (Localizer) against each
-camera alone (SequenceLocalizer, its pose mapped to the rig by its mounting), on the synthetic
-rig walk of rs_localizer.sim.rig_video (a corridor, turning up to ~1.7 rad/s, 20 % outliers,
-0.5 px noise, cameras 4 ms apart).
+camera alone (SequenceLocalizer, its pose mapped to the rig by its mounting), on the synthetic rig
+walk of rs_localizer.sim.trajectory.generate_rig_video (a corridor, turning up to ~1.7 rad/s, 20 %
+outliers, 0.5 px noise, cameras 4 ms apart).
 
     python -m benchmarks.bench_rig_video [--cameras 3] [--seconds 2] [--points 300]
         [--implementations compiled numpy] [--repeats 3]
@@ -24,7 +24,7 @@ import numpy as np
 
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking import CameraFrame, SequenceLocalizer
 from rs_localizer.tracking.video import Localizer, LocalizerSettings
 

@@ -43,9 +43,6 @@ RIG_ONLY = {
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
     "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",
-    "sim/rig.py": "simulated rigs of 2-4 RS cameras and their frames",
-    "sim/rig_video.py": "a simulated video of a rig of unsynchronized cameras",
-    "sim/render/rig.py": "rendered rigs: each camera's images at its mounting-composed pose",
 }
 
 #: what computes a pose from observations: (module, name) -> why it is one

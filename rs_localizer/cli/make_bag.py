@@ -234,7 +234,7 @@ def _run_rig(args: argparse.Namespace) -> int:
     if args.scene != "corridor" or args.motion != "walk" or args.imu_time_offset != 0:
         raise A.CliError("--rig walks the corridor: without --scene, --motion or --imu-time-offset")
     from ..ros.bags.bag_io import write_rig_bag
-    from ..sim.rig_video import default_rig, generate_rig_video
+    from ..sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(args.rig)
     cams = [type(c)(**{**c.__dict__, "fps": args.fps}) for c in cams]
@@ -254,7 +254,7 @@ def _run_rig(args: argparse.Namespace) -> int:
     if args.imu_rate > 0:  # (a gyro on the rig, its axes the base frame's)
         import numpy as np
 
-        from ..sim.rig_video import rig_gyro
+        from ..sim.trajectory import rig_gyro
 
         g = rig_gyro(traj, args.frames / args.fps, args.imu_rate, seed=args.seed, t0_ns=t0)
         imu = (g[0], g[1], np.eye(3))

@@ -16,7 +16,7 @@ Stamps: an image's header stamp is the capture time of its first line (``rs.stam
 the ground truth is stamped with the reference line's capture time.
 
 :func:`render_rig_bag` (``--rig N``) renders a rig of N unsynchronized rolling-shutter cameras
-(:mod:`rs_localizer.sim.render.rig`) into a rig bag
+(:func:`rs_localizer.sim.render.renderer.render_rig_video`) into a rig bag
 (:func:`rs_localizer.ros.bags.bag_io.write_rig_bag`: per camera its images, camera_info and
 the front end's correspondences, the rig's ground truth, ``rig_params.yaml``), which
 ``replay``, ``play`` and ``calibrate-rig`` read like a ``make-bag --rig`` bag.
@@ -332,7 +332,7 @@ def render_rig_bag(
     """Render a rig of ``cameras`` (1-4) rolling-shutter cameras into a rig bag; returns its
     path.
 
-    The rig (:func:`rs_localizer.sim.render.rig.rendered_rig`: 640x480 cameras front, back and
+    The rig (:func:`rs_localizer.sim.render.renderer.rendered_rig`: 640x480 cameras front, back and
     to the sides, readout times 20-30 ms, four readout directions, first frames 0-9 ms apart)
     moves along the renderer's ``motion`` preset around ``scene``'s viewpoint (rotation
     amplitudes times ``motion_scale``: ``pan`` turns up to 1.4 rad/s at 1, 2.1 rad/s at 1.5).
@@ -357,7 +357,7 @@ def render_rig_bag(
     """
     from ..maps.markers import write_marker_map
     from ..ros.bags.bag_io import write_rig_bag
-    from ..sim.render.rig import render_rig_video, rendered_rig, rig_trajectory
+    from ..sim.render import render_rig_video, rendered_rig, rig_trajectory
     from ..sim.render.scene import Scene, load_scene
 
     path = Path(path)

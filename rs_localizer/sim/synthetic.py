@@ -11,6 +11,17 @@ Pixel noise is given in pixels of a nominal 1000 x 1000 image (focal length
 ``500 / tan(22.5 deg)`` px), as in R6P (Albl et al. 2015). :func:`paper_camera` returns that
 camera as a :class:`~rs_localizer.camera.CameraModel` so frames can be fed to the estimator in
 pixels.
+
+Frames in pixels of a camera moving as an :class:`~rs_localizer.pose.RSModel`
+(:func:`camera_frame`: points in its view, its exact RS projection, noise and outliers), and of
+rigs of such cameras: a rig frame is its cameras' frames, each of the rig's model composed with
+the camera's mounting and stamp offset (:func:`rig_frame`; a camera alone is a rig of one, at the
+identity mounting). A :class:`Rig` (:func:`make_rig`) carries 1 to 4 cameras looking front,
+back and to the sides (:data:`LAYOUTS`), each mounted 5-20 cm off the rig's origin with a few
+degrees of tilt, with its own focal length, readout time and direction, and a stamp up to
+``stamp_spread`` from the others (unsynchronized cameras). The rig frame is camera-like (x right,
+y down, z forward); a camera of yaw ``psi`` looks along ``(sin psi, 0, cos psi)`` of the rig. The
+tests of the rig estimator and ``python -m benchmarks.bench_rig`` use them.
 """
 
 from __future__ import annotations
@@ -21,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..camera import CameraModel
+from ..frames import Mounting
 from ..geometry import (
     camera_position,
     matrix_to_rotvec,
@@ -30,6 +42,7 @@ from ..geometry import (
     rs_project_linear,
     skew,
 )
+from ..pose import RSModel
 
 if TYPE_CHECKING:
     from ..estimation.estimate import EstimateOptions
@@ -39,11 +52,20 @@ __all__ = [
     "FOV_DEG",
     "FRAME_SPAN",
     "IMAGE_SIZE",
+    "LAYOUTS",
+    "READOUTS",
+    "Rig",
+    "RigCamera",
+    "RigFrame",
     "SyntheticFrame",
+    "camera_frame",
     "make_frame",
+    "make_rig",
     "paper_camera",
     "protocol_options",
     "random_rotation",
+    "rig_frame",
+    "rig_motion",
 ]
 
 FOV_DEG = 45.0
@@ -243,3 +265,209 @@ def make_frame(
         linear_velocity=vel,
         position=camera_position(Rm, C),
     )
+
+
+# ------------------------------------------------------------ cameras and rigs of an RSModel
+#: cameras of a rig of M cameras: (name, yaw rad) each
+LAYOUTS = {
+    1: (("front", 0.0),),
+    2: (("front", 0.0), ("back", np.pi)),
+    3: (("front", 0.0), ("left", -np.pi / 2), ("right", np.pi / 2)),
+    4: (("front", 0.0), ("right", np.pi / 2), ("back", np.pi), ("left", -np.pi / 2)),
+}
+#: readout directions, in the order the cameras of a rig take them
+READOUTS = ("top_to_bottom", "left_to_right", "bottom_to_top", "right_to_left")
+
+
+def camera_frame(
+    camera: CameraModel,
+    model: RSModel | tuple,
+    n: int,
+    rng: np.random.Generator,
+    noise_px: float = 0.5,
+    outliers: float = 0.2,
+    depth: tuple[float, float] = (2.0, 8.0),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One camera's frame of ``n`` correspondences: world points drawn in its field of view at
+    ``depth`` (m) from it at its reference line, projected by its exact RS projection
+    (:meth:`~rs_localizer.camera.CameraModel.project_rs`) of ``model`` ``(R, C, w, t)`` (per
+    unit r; points that leave the image at their capture time are drawn again), noised
+    (``noise_px`` per axis, px) and a share ``outliers`` of them (each row with that
+    probability) replaced by pixels uniform over the image.
+
+    Returns:
+        (pixels (n, 2), world points (n, 3) m, outlier rows (n,) bool).
+    """
+    Rp, Cp, wp, tp = model
+    half = 0.5 * np.array([camera.width, camera.height]) / np.diag(camera.K)[:2] * 0.95
+    uv, X = np.zeros((0, 2)), np.zeros((0, 3))
+    while len(uv) < n:
+        xn = rng.uniform(-half, half, (4 * n, 2))
+        z = rng.uniform(*depth, 4 * n)
+        Xw = (np.c_[xn * z[:, None], z] - Cp) @ Rp
+        p = camera.project_rs(Xw, Rp, Cp, wp, tp)
+        ok = np.isfinite(p).all(axis=1) & camera.in_image(p)
+        uv = np.vstack([uv, p[ok]])[:n]
+        X = np.vstack([X, Xw[ok]])[:n]
+    uv = uv + rng.normal(size=uv.shape) * noise_px
+    bad = rng.random(n) < outliers
+    uv[bad] = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], (int(bad.sum()), 2))
+    return uv, X, bad
+
+
+@dataclass(frozen=True, eq=False)
+class RigCamera:
+    """One camera of a simulated rig.
+
+    Attributes:
+        name: its place on the rig (``front``, ``back``, ``left``, ``right``).
+        camera: intrinsics and RS timing (no lens distortion).
+        mounting: its :class:`~rs_localizer.frames.Mounting` on the rig (``x_cam = R x_rig +
+            c``).
+        stamp_offset: its reference line's capture time minus the rig's reference time (s).
+    """
+
+    name: str
+    camera: CameraModel
+    mounting: Mounting
+    stamp_offset: float
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the camera centre in the rig frame (m)."""
+        return self.mounting.position
+
+    def model(self, truth: RSModel) -> RSModel:
+        """The camera's single-camera model at its reference line (per unit r) of the rig's
+        ``truth`` (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`)."""
+        from ..estimation.rig import camera_model_of_rig
+
+        spr = self.camera.seconds_per_unit_r
+        return camera_model_of_rig(truth, self.mounting, self.stamp_offset, spr)
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """A simulated rig: its cameras (:class:`RigCamera`)."""
+
+    cameras: tuple[RigCamera, ...]
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+@dataclass(frozen=True, eq=False)
+class RigFrame:
+    """One simulated rig frame.
+
+    Attributes:
+        views: one :class:`~rs_localizer.estimation.rig.RigView` per camera (what
+            :func:`~rs_localizer.estimation.rig.estimate_rig_pose` takes).
+        truth: the rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference
+            time (``w`` rad/s, ``t`` m/s: :mod:`~rs_localizer.estimation.rig`).
+        outliers: one (N_c,) bool per camera: rows replaced by outliers.
+        rig: the rig.
+    """
+
+    views: list
+    truth: RSModel
+    outliers: tuple
+    rig: Rig
+
+    def camera_truth(self, c: int) -> RSModel:
+        """Camera c's true single-camera model at its reference line (per unit r)."""
+        return self.rig.cameras[c].model(self.truth)
+
+
+def make_rig(
+    m: int,
+    rng: np.random.Generator,
+    readout_time: tuple[float, float] = (0.015, 0.035),
+    stamp_spread: float = 0.01,
+    lever: tuple[float, float] = (0.05, 0.2),
+    tilt: float = 0.05,
+    focal: tuple[float, float] = (450.0, 600.0),
+    size: tuple[int, int] = (640, 480),
+) -> Rig:
+    """A rig of ``m`` (1-4) cameras laid out as :data:`LAYOUTS`.
+
+    Args:
+        m: number of cameras. rng: the random generator.
+        readout_time: (lo, hi) s, each camera's frame readout time drawn uniformly (0, 0: global
+            shutter cameras).
+        stamp_spread: s, the stamps drawn uniformly within ``+- stamp_spread / 2`` of the rig's
+            reference time (at most ``stamp_spread`` apart; 0: synchronized).
+        lever: (lo, hi) m, each camera centre's distance from the rig's origin.
+        tilt: rad, the standard deviation of each mounting's random tilt off its layout.
+        focal: (lo, hi) px, each camera's focal length. size: (width, height) px.
+    Raises:
+        ValueError: ``m`` not in 1..4.
+    """
+    if m not in LAYOUTS:
+        raise ValueError(f"make_rig: a rig has 1 to 4 cameras, got {m}")
+    width, height = size
+    cams = []
+    for k, (name, yaw) in enumerate(LAYOUTS[m]):
+        f = rng.uniform(*focal)
+        K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1.0]])
+        cam = CameraModel.from_readout_time(
+            K, rng.uniform(*readout_time), width, height, readout=READOUTS[k % 4]
+        )
+        # camera axes in the rig frame: the layout's yaw about y, then a small tilt
+        axes = rotvec_to_matrix([0.0, yaw, 0.0]) @ rotvec_to_matrix(rng.normal(size=3) * tilt)
+        Rc = axes.T
+        d = rng.normal(size=3)
+        centre = d / np.linalg.norm(d) * rng.uniform(*lever)
+        stamp = rng.uniform(-0.5, 0.5) * stamp_spread
+        cams.append(RigCamera(name, cam, Mounting(Rc, -Rc @ centre), float(stamp)))
+    return Rig(tuple(cams))
+
+
+def rig_motion(
+    rng: np.random.Generator, angular_speed: float = 1.5, linear_speed: float = 1.5
+) -> RSModel:
+    """A random rig pose and constant velocity: ``R`` uniform-ish (a normal rotation vector),
+    ``C`` normal (m), ``w`` of norm ``angular_speed`` (rad/s), ``t`` of norm ``linear_speed``
+    (m/s), in random directions. Returns the rig's :class:`~rs_localizer.pose.RSModel`."""
+    w = rng.normal(size=3)
+    t = rng.normal(size=3)
+    return RSModel(
+        rotvec_to_matrix(rng.normal(size=3)),
+        rng.normal(size=3),
+        w * angular_speed / np.linalg.norm(w),
+        t * linear_speed / np.linalg.norm(t),
+    )
+
+
+def rig_frame(
+    rig: Rig,
+    truth: RSModel | tuple,
+    counts: list[int] | tuple[int, ...],
+    rng: np.random.Generator,
+    noise_px: float = 0.5,
+    outliers: float = 0.2,
+    depth: tuple[float, float] = (2.0, 8.0),
+) -> RigFrame:
+    """One rig frame: ``counts[c]`` correspondences of camera c, its :func:`camera_frame` of
+    the rig's ``truth`` composed with its mounting and stamp offset (:meth:`RigCamera.model`).
+
+    Args:
+        rig: the rig. truth: the rig's ``(R, C, w, t)`` (:func:`rig_motion`).
+        counts: (M,) points per camera (0 allowed). rng: the random generator.
+        noise_px, outliers, depth: as :func:`camera_frame`.
+    Returns:
+        :class:`RigFrame`.
+    Raises:
+        ValueError: ``counts`` of another length than the rig's cameras.
+    """
+    from ..estimation.rig import RigView
+
+    if len(counts) != len(rig):
+        raise ValueError(f"rig_frame: {len(counts)} counts for {len(rig)} cameras")
+    truth = RSModel(*(np.asarray(a, dtype=float) for a in truth))
+    views, bad_rows = [], []
+    for k, n in zip(rig.cameras, counts, strict=True):
+        uv, X, bad = camera_frame(k.camera, k.model(truth), n, rng, noise_px, outliers, depth)
+        views.append(RigView(uv, X, k.camera, k.mounting, k.stamp_offset, name=k.name))
+        bad_rows.append(bad)
+    return RigFrame(views, truth, tuple(bad_rows), rig)

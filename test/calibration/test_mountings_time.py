@@ -8,8 +8,7 @@ from helpers.rig import mounts_of
 
 from rs_localizer.calibration import calibrate_mountings
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.sim.rig_video import RigTrajectory, default_rig, generate_rig_video
-from rs_localizer.sim.trajectory import Trajectory
+from rs_localizer.sim.trajectory import RigTrajectory, Trajectory, default_rig, generate_rig_video
 from rs_localizer.tracking.localizer import CameraFrame
 
 

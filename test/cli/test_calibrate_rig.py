@@ -185,7 +185,7 @@ def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     ring = ("front", "left", "back", "right")
     cams = default_rig(4)
@@ -250,7 +250,7 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_frames import read_rig_frames
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=200, seed=5)

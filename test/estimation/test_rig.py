@@ -22,7 +22,7 @@ from rs_localizer.estimation.rig import (
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 
 def _opts(**ransac) -> EstimateOptions:
@@ -31,7 +31,7 @@ def _opts(**ransac) -> EstimateOptions:
 
 
 def make_rig(rng, m):
-    """M cameras front/back/sides (:func:`rs_localizer.sim.rig.make_rig`), 5-20 cm off the
+    """M cameras front/back/sides (:func:`rs_localizer.sim.synthetic.make_rig`), 5-20 cm off the
     rig's origin, readout 15-35 ms, stamps up to 10 ms apart; returns cameras, mountings and
     stamp offsets."""
     rig = sim_rig.make_rig(m, rng)
@@ -52,7 +52,7 @@ def camera_pose(Rc, cc, s, cam, R, C, w, t):
 
 
 def rig_frame(rng, cams, R_m, c_m, stamps, counts, truth, noise_px=0.5, outliers=0.2):
-    """Views of world points seen by each camera (:func:`rs_localizer.sim.rig.rig_frame`:
+    """Views of world points seen by each camera (:func:`rs_localizer.sim.synthetic.rig_frame`:
     exact RS projection, noise, outliers)."""
     rig = sim_rig.Rig(
         tuple(
@@ -728,8 +728,8 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
 
 def _global_shutter_frame(seed, counts, noise_px, outliers, line_delay=0.0, motion=()):
     """A rig frame of ``len(counts)`` cameras with equal stamps
-    (:func:`rs_localizer.sim.rig.make_rig`) reading out at ``line_delay`` (s per line; 0:
-    global shutter), moving as :func:`~rs_localizer.sim.rig.rig_motion` with ``motion``: its
+    (:func:`rs_localizer.sim.synthetic.make_rig`) reading out at ``line_delay`` (s per line; 0:
+    global shutter), moving as :func:`~rs_localizer.sim.synthetic.rig_motion` with ``motion``: its
     views (a list, to turn a mounting) and the truth."""
     rng = np.random.default_rng(seed)
     rig = sim_rig.make_rig(len(counts), rng)
@@ -1006,7 +1006,7 @@ def test_a_rig_of_near_global_shutter_cameras_is_posed_as_a_global_shutter_rig(l
 
 def _one_tag_per_camera(seed, side=0.15, depth=(2.0, 3.5), noise_px=0.3):
     """A global-shutter rig frame of two cameras looking 90 degrees apart
-    (:func:`rs_localizer.sim.rig.make_rig`, equal stamps), each seeing one square tag of
+    (:func:`rs_localizer.sim.synthetic.make_rig`, equal stamps), each seeing one square tag of
     ``side`` m (its 4 corners, the tag tilted up to 30 degrees off the camera's axis, at
     ``depth`` m) with ``noise_px`` of image noise. Returns (views, the rig's true (R, C))."""
     rng = np.random.default_rng(seed)

@@ -8,7 +8,7 @@ import pytest
 from rs_localizer.estimation.gyro import GyroMeasurement
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 SIGMA = 0.005  # rad/s, the gyro's noise over one rig frame
 

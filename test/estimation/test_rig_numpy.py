@@ -11,7 +11,7 @@ from rs_localizer.estimation.gyro import GyroMeasurement
 from rs_localizer.estimation.options import InitialModel
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 
 def _frames(seed, n, points=100, cameras=3):
@@ -97,7 +97,7 @@ import numpy as np
 from rs_localizer.estimation.gyro import GyroMeasurement
 from rs_localizer.estimation.options import InitialModel
 from rs_localizer.estimation.rig import estimate_rig_pose
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 rng = np.random.default_rng(1)
 rig = sim_rig.make_rig(3, rng)

@@ -16,7 +16,7 @@ from rs_localizer.estimation.ransac import required_iterations
 from rs_localizer.estimation.rig_batch import moving_batch, still_batch
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 
 #: a batch's search state of no best model and no termination before its last sample:
 #: ``(best cost, samples drawn, min_iterations, samples asked for, log(1 - confidence))``

@@ -240,7 +240,7 @@ import numpy as np
 from rs_localizer.camera import CameraModel
 from rs_localizer.frames import Mounting
 from rs_localizer.frontends import make_frontend
-from rs_localizer.sim.render.rig import vga_rig
+from rs_localizer.sim.render import vga_rig
 from rs_localizer.tracking.video import Localizer, LocalizerSettings
 SHAPES = {shapes!r}
 cams = vga_rig(2)

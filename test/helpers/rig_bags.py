@@ -72,7 +72,7 @@ def bag_with_unread_clouds(tmp_path, duration: float = 0.5, seed: int = 7) -> Un
     ``bad_input``) and whose left cloud :data:`BAD_STAMP` has ``nanosec`` 1.5e9 (a stamp no ROS
     time holds: the node counts it alone)."""
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=duration, num_points=80, seed=seed)

@@ -8,7 +8,7 @@ from .rig import T0
 
 
 def rig_parameters(cams, mountings=None, **extra):
-    """The rig node's parameters for the rig cameras ``cams`` (``sim.rig_video`` cameras):
+    """The rig node's parameters for the rig cameras ``cams`` (``sim.trajectory.RigCameraSim``):
     each one's mounting (``mountings``: name -> rotation to use instead of the true one),
     line delay and readout direction, plus ``extra``; no warm-up, no ``/tf``."""
     from rclpy.parameter import Parameter

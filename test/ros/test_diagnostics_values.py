@@ -42,7 +42,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     from helpers.rig import mounts_of
 
     from rs_localizer.ros.diagnostics import ERROR, RigInputs, rig_diagnostics
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
@@ -108,7 +108,7 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
 
     from rs_localizer.estimation.options import EstimateOptions, PlausibilityOptions
     from rs_localizer.ros.diagnostics import rig_diagnostics
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking import fusion
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
@@ -158,7 +158,7 @@ def test_a_suspect_readout_timing_warns():
     from helpers.rig import Log, mounts_of
 
     from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
@@ -206,7 +206,7 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     from helpers.rig import mounts_of
 
     from rs_localizer.ros import diagnostics as D
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.gyro_input import GyroSettings
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
@@ -250,7 +250,7 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
 
     from rs_localizer.ros.bags.rig_bag import camera_counts
     from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames, rig_diagnostics
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 

@@ -39,7 +39,7 @@ def _mirrored_rig_bag(tmp_path, mirror: bool):
     import numpy as np
 
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=80, seed=2)

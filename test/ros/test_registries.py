@@ -29,9 +29,6 @@ RIG_ONLY = (
     "ros/bags/rig_bag.py",
     "calibration/mountings.py",
     "cli/calibrate_rig.py",
-    "sim/rig.py",
-    "sim/rig_video.py",
-    "sim/render/rig.py",
 )
 
 #: names a rig-only module may use for a concept of its own: (module, name) -> what it is

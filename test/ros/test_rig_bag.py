@@ -18,7 +18,7 @@ def test_make_bag_rig_and_replay(tmp_path, capsys):
     from rs_localizer.ros.bags.bag_io import bag_topics
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.param_files import read_params_file
-    from rs_localizer.sim.rig_video import default_rig
+    from rs_localizer.sim.trajectory import default_rig
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "3", "--frames", "12", "--points", "120",
@@ -99,7 +99,7 @@ def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tm
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.replay import replay
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=3)
@@ -447,7 +447,7 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=80, seed=4)
@@ -566,7 +566,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.ros.config import rig_config
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
 
     cams = default_rig(2)
@@ -795,7 +795,7 @@ def test_a_rig_camera_s_camera_infos_after_a_time_reset_are_forgotten_as_the_nod
 
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.rig_bag import RigRun
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)

@@ -9,7 +9,7 @@ import pytest
 from helpers.rig_node import T0, RigHarness, rig_parameters
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 
 pytest.importorskip("rclpy")
 
@@ -266,7 +266,7 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
     from sensor_msgs.msg import Imu
 
     from rs_localizer.ros.conversions import ns_to_stamp, quaternion_from_matrix
-    from rs_localizer.sim.rig_video import rig_gyro
+    from rs_localizer.sim.trajectory import rig_gyro
 
     cams = default_rig(2)
     frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=80, seed=4)

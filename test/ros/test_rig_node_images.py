@@ -1,9 +1,9 @@
 """The rig mode with images over DDS: three 640x480 RGB cameras of the marker room (each view
-rendered at the rig's motion composed with its mounting, rs_localizer.sim.render.rig) published
-per camera on ``<camera>/image_raw``, each camera's ArUco front end, one pose for the rig against
-the truth, every image counted (undecodable and wrong-size images under the single-camera
-node's reasons); the managed rig node through a transition cycle; the diagnostics converter
-shared with the single-camera node; the status naming two cameras that disagree."""
+rendered at the rig's motion composed with its mounting, rs_localizer.sim.render.render_rig_frames)
+published per camera on ``<camera>/image_raw``, each camera's ArUco front end, one pose for the rig
+against the truth, every image counted (undecodable and wrong-size images under the single-camera
+node's reasons); the managed rig node through a transition cycle; the diagnostics converter shared
+with the single-camera node; the status naming two cameras that disagree."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def image_msg(img: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rg
 
 @pytest.fixture(scope="module")
 def rendered():
-    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+    from rs_localizer.sim.render import render_rig_frames, vga_rig
 
     cams = vga_rig(3)
     frames, motion = render_rig_frames(cams, 6, seed=5)
@@ -64,7 +64,7 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
     from rs_localizer.ros.node import RSLocalizerNode
     from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pointcloud import read_correspondences
-    from rs_localizer.sim.rig_video import rig_truth
+    from rs_localizer.sim.trajectory import rig_truth
 
     cams, frames, motion = rendered
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room", warmup=True,
@@ -137,7 +137,7 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
     from rclpy.parameter import Parameter
 
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
     cams = default_rig(3)
@@ -240,7 +240,7 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
     from rs_localizer.ros.diagnostics import ERROR
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 

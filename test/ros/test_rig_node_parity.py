@@ -14,7 +14,7 @@ import pytest
 from helpers.rig_node import T0, RigHarness, rig_parameters
 
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 
 pytest.importorskip("rclpy")
 

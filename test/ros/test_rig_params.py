@@ -18,7 +18,7 @@ from rs_localizer.ros.params import (
     ConfigError,
     default_values,
 )
-from rs_localizer.sim.rig_video import default_rig
+from rs_localizer.sim.trajectory import default_rig
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "rig_node.md"
 

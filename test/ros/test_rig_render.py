@@ -121,7 +121,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.rig_bag import rig_frame_ends
     from rs_localizer.ros.config import rig_config
-    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
 
     cams = default_rig(3)

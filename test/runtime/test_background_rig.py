@@ -8,7 +8,7 @@ import time
 from helpers.rig import mounts_of
 
 from rs_localizer.runtime import background as B
-from rs_localizer.sim.rig_video import default_rig
+from rs_localizer.sim.trajectory import default_rig
 from rs_localizer.tracking.video import LocalizerSettings
 
 

@@ -1,10 +1,10 @@
-"""The simulated rig (rs_localizer.sim.rig): its layout, timing and frames against the
-independent geometry of each camera."""
+"""The simulated rig (rs_localizer.sim.synthetic.make_rig, rig_frame): its layout, timing and frames
+against the independent geometry of each camera."""
 
 import numpy as np
 import pytest
 
-from rs_localizer.sim.rig import LAYOUTS, make_rig, rig_frame, rig_motion
+from rs_localizer.sim.synthetic import LAYOUTS, make_rig, rig_frame, rig_motion
 
 
 @pytest.mark.parametrize("m", [2, 3, 4])

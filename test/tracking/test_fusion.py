@@ -23,7 +23,7 @@ from rs_localizer.estimation.result import RSPoseEstimate
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.pose import PoseMeasurement, RSPose
-from rs_localizer.sim import rig as sim_rig
+from rs_localizer.sim import synthetic as sim_rig
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
 from rs_localizer.tracking.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.tracking.tracker import RSTracker, TrackerOptions

@@ -1,7 +1,7 @@
 """Localizer: the rig publishes a pose only where its cameras agree with each other and with
 the rig's track (a camera's clock off, a wrong mounting on the camera with the most points, a
 rig frame of one camera the track contradicts), against the rig's true trajectory
-(rs_localizer.sim.rig_video)."""
+(rs_localizer.sim.trajectory.generate_rig_video)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from helpers.rig import T0, Log, assert_balanced, mounts_of
 
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.video import RIG_REFUSALS, Localizer, LocalizerSettings
 

@@ -1,8 +1,8 @@
 """Localizer.process_image: every camera's 640x480 images of the marker room (rendered at the
-rig's motion composed with each camera's mounting, rs_localizer.sim.render.rig) through its own
-ArUco front end, the rig posed against the true trajectory; the rig's prediction handed to each
-camera's front end (and none after a reset); dropped images counted; and which camera is named
-when mountings disagree (two cameras: both; three: the wrong one)."""
+rig's motion composed with each camera's mounting, rs_localizer.sim.render.render_rig_frames)
+through its own ArUco front end, the rig posed against the true trajectory; the rig's prediction
+handed to each camera's front end (and none after a reset); dropped images counted; and which camera
+is named when mountings disagree (two cameras: both; three: the wrong one)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from helpers.rig import T0, Log, assert_balanced, mounts_of
 
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.render import render_rig_frames, vga_rig
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.video import SKIP_REASONS, Localizer, LocalizerSettings
 

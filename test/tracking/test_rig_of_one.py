@@ -198,7 +198,7 @@ def test_a_rig_of_one_on_images_is_the_camera_on_them(tracking):
     prediction handed to the front end (the tracker's, or the last posed frame carried without
     tracking), the same rows found, estimates and fused twists, bit for bit."""
     from rs_localizer.frontends import make_frontend
-    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+    from rs_localizer.sim.render import render_rig_frames, vga_rig
 
     (c,) = vga_rig(1)
     frames, _ = render_rig_frames([c], 8, seed=3)
@@ -335,7 +335,7 @@ def test_a_rig_of_one_s_frozen_image_starts_a_new_track(video):
     prediction) and starts a new track, as the camera's (``restart_track``); counted a
     reset."""
     from rs_localizer.frontends import make_frontend
-    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
+    from rs_localizer.sim.render import render_rig_frames, vga_rig
 
     (c,) = vga_rig(1)
     frames, _ = render_rig_frames([c], 6, seed=3)

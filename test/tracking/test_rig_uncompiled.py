@@ -9,7 +9,7 @@ import numpy as np
 from helpers.rig import T0, assert_balanced, mounts_of
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.sequence import GyroSettings
 from rs_localizer.tracking.video import Localizer, LocalizerSettings

@@ -1,5 +1,5 @@
 """Localizer: unsynchronized RS cameras on one rig through a video (simulated with
-rs_localizer.sim.rig_video), against the rig's true trajectory."""
+rs_localizer.sim.trajectory.generate_rig_video), against the rig's true trajectory."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from helpers.rig import T0, Log, assert_balanced, mounts_of
 
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.sequence import SequenceLocalizer
 from rs_localizer.tracking.video import MISSED_REASONS, SKIP_REASONS, Localizer, LocalizerSettings

@@ -1,6 +1,6 @@
-"""Localizer with a gyro on the rig (simulated with rs_localizer.sim.rig_video): a right
-gyro improves each rig frame's angular velocity against the true trajectory, a wrongly mounted
-one is rejected and counted, a biased one's bias is estimated online."""
+"""Localizer with a gyro on the rig (simulated with rs_localizer.sim.trajectory.generate_rig_video):
+a right gyro improves each rig frame's angular velocity against the true trajectory, a wrongly
+mounted one is rejected and counted, a biased one's bias is estimated online."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from helpers.rig import T0
 from rs_localizer.camera import reference_stamp_ns
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
+from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.sequence import GyroSettings
 from rs_localizer.tracking.video import Localizer, LocalizerSettings

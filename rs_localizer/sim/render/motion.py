@@ -15,7 +15,8 @@ the solvers' constant-velocity model: the angular velocity changes within a read
 Presets (:data:`MOTIONS`, :func:`make_motion`): ``shake`` (hand-held look-around with head
 shake, ~1 rad/s), ``pan`` (fast pan, ~1.3 rad/s), ``walk`` (1.2 m/s forward with bob and sway),
 ``drone`` (2.5 m/s sideways fly-by, slow yaw, high-frequency vibration), ``car`` (pure
-translation, 3 m/s sideways, no rotation), ``static``.
+translation, 3 m/s sideways, no rotation), ``static``. A rig's motion: a preset turned into the
+rig's base frame (:func:`rig_trajectory`).
 """
 
 from __future__ import annotations
@@ -26,9 +27,16 @@ from typing import Any
 import numpy as np
 
 from ...geometry import rotvec_to_matrix
-from ..trajectory import R_FORWARD, Trajectory
+from ..trajectory import R_FORWARD, RigTrajectory, Trajectory
 
-__all__ = ["MOTIONS", "Motion", "base_rotation", "make_motion", "motion_names"]
+__all__ = [
+    "MOTIONS",
+    "Motion",
+    "base_rotation",
+    "make_motion",
+    "motion_names",
+    "rig_trajectory",
+]
 
 
 def base_rotation(yaw: float, pitch: float) -> np.ndarray:
@@ -185,3 +193,14 @@ def make_motion(
         scale=float(scale),
     )
     return replace(m, **fields)
+
+
+def rig_trajectory(
+    motion: str = "pan", scene: Any = None, duration: float = 1.0, scale: float = 1.0
+) -> RigTrajectory:
+    """A rig's motion: the preset ``motion`` (``pan``: turning ~1.3 rad/s at ``scale`` 1;
+    ``shake``, ``walk``, ...) around ``scene``'s viewpoint, rotation amplitudes times ``scale``,
+    its camera axes turned into the rig's base frame (x forward, y left, z up:
+    :class:`~rs_localizer.sim.trajectory.RigTrajectory`). Raises ValueError for an unknown
+    preset."""
+    return RigTrajectory(make_motion(motion, scene, duration=duration, scale=scale))

@@ -14,13 +14,25 @@ Conventions: pixel centres at integer coordinates (OpenCV); line ``i`` is captur
 ``t_first + line_time(i)``; ground truth (:class:`RenderedFrame`) is the pose at the reference
 line (camera -> world orientation and camera centre, world z up) and the angular/linear velocity
 in the camera optical frame, from :func:`rs_localizer.sim.trajectory.ground_truth`.
+
+A rig's cameras are rendered as single cameras (:meth:`Renderer.render_sequence`) along the
+rig's motion composed with each one's mounting
+(:class:`~rs_localizer.sim.trajectory.MountedTrajectory`), with its own first-frame offset and
+frame rate, their frames merged by stamp (:func:`render_rig_images`; with an image front end's
+correspondences: :func:`render_rig_video`). Two rigs: :func:`rendered_rig` (1-4 cameras laid
+out as :data:`rs_localizer.sim.synthetic.LAYOUTS`; the built-in scene ``apriltag_rig_room``,
+tags on all four walls, gives every camera markers to see) and :func:`vga_rig` (1-3 cameras
+looking front, left and right at the ``aruco_room`` walls: the image tests' rig,
+:func:`render_rig_frames`).
 """
 
 from __future__ import annotations
 
 import functools
+import heapq
 import math
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -28,16 +40,32 @@ import numpy as np
 from numba import njit, prange
 
 from ...camera import CameraModel
-from ..trajectory import Trajectory, ground_truth, project_rs
-from .scene import Scene
+from ..synthetic import LAYOUTS, READOUTS
+from ..trajectory import (
+    PLACES,
+    RigCameraSim,
+    RigFrameSim,
+    RigTrajectory,
+    Trajectory,
+    ground_truth,
+    project_rs,
+)
+from .motion import rig_trajectory
+from .scene import Scene, load_scene
 
 __all__ = [
     "CAMERA_PRESETS",
+    "RIG_TIMING",
     "NoiseModel",
     "RenderedFrame",
     "Renderer",
     "camera_preset",
     "frame_times",
+    "render_rig_frames",
+    "render_rig_images",
+    "render_rig_video",
+    "rendered_rig",
+    "vga_rig",
 ]
 
 MAX_LEVELS = 16
@@ -84,6 +112,77 @@ def camera_preset(
         reference_row=reference_row,
         distortion_model="plumb_bob",
     )
+
+
+#: name -> (frame readout time s, first-frame offset s) of :func:`rendered_rig`'s cameras
+#: (placed as :data:`~rs_localizer.sim.trajectory.PLACES`)
+RIG_TIMING = {
+    "front": (0.030, 0.000),
+    "left": (0.025, 0.004),
+    "right": (0.020, 0.009),
+    "back": (0.028, 0.002),
+}
+
+
+def vga_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008)) -> list:
+    """``num_cameras`` (1-3) 640x480 cameras (the ``vga`` preset, 30 ms readout) looking front,
+    35 deg left and 35 deg right, 5-15 cm off the rig origin, readouts top-down, bottom-up and
+    left-right (62.5, 62.5 and 46.9 us/line), first frames ``offsets_s`` apart, 30 fps: a rig
+    that sees the ``aruco_room`` walls from its viewpoint
+    (:class:`~rs_localizer.sim.trajectory.RigCameraSim` each).
+
+    Raises:
+        ValueError: ``num_cameras`` outside 1-3.
+    """
+    if not 1 <= num_cameras <= 3:
+        raise ValueError(f"num_cameras must be 1-3, got {num_cameras}")
+    spec = [
+        ("front", 0.0, (0.10, 0.0, 0.05), "top_to_bottom"),
+        ("left", 35.0, (0.0, 0.08, 0.06), "bottom_to_top"),
+        ("right", -35.0, (0.0, -0.08, 0.06), "left_to_right"),
+    ]
+    return [
+        RigCameraSim.facing(name, camera_preset("vga", readout=readout), yaw, pos, offsets_s[k])
+        for k, (name, yaw, pos, readout) in enumerate(spec[:num_cameras])
+    ]
+
+
+def rendered_rig(
+    num_cameras: int = 3,
+    fps: float = 30.0,
+    names: tuple[str, ...] | None = None,
+    camera: str | Sequence[str] = "vga",
+) -> list[RigCameraSim]:
+    """``num_cameras`` (1-4) cameras laid out as :data:`rs_localizer.sim.synthetic.LAYOUTS` (2:
+    front, back; 3: front, left, right; 4: front, right, back, left), each the ``camera``
+    preset (default 640x480, mild plumb_bob distortion; a sequence: one preset per camera, in
+    layout order, e.g. ``("hd", "vga", "vga")``) placed as
+    :data:`~rs_localizer.sim.trajectory.PLACES`, with its :data:`RIG_TIMING` readout
+    time (30, 25, 20, 28 ms: front, left, right, back) over its lines, the readout directions
+    of :data:`rs_localizer.sim.synthetic.READOUTS` in layout order (top-down, left-right,
+    bottom-up, right-left), and first frames 0-9 ms apart (unsynchronized).
+
+    Raises:
+        ValueError: ``num_cameras`` outside 1-4, an unknown name, or a sequence of presets of
+            another length than the cameras.
+    """
+    if names is None:
+        if num_cameras not in LAYOUTS:
+            raise ValueError(f"a rendered rig has 1 to 4 cameras, got {num_cameras}")
+        names = tuple(n for n, _ in LAYOUTS[num_cameras])
+    presets = [camera] * len(names) if isinstance(camera, str) else list(camera)
+    if len(presets) != len(names):
+        raise ValueError(
+            f"{len(presets)} camera presets {presets} for the {len(names)} cameras {list(names)}"
+        )
+    out = []
+    for k, name in enumerate(names):
+        if name not in RIG_TIMING:
+            raise ValueError(f"unknown rig camera {name!r}; expected one of {sorted(RIG_TIMING)}")
+        readout_time, offset = RIG_TIMING[name]
+        cam = camera_preset(presets[k], readout_time=readout_time, readout=READOUTS[k % 4])
+        out.append(RigCameraSim.facing(name, cam, *PLACES[name], offset, fps))
+    return out
 
 
 # ------------------------------------------------------------------------------ packing
@@ -693,10 +792,12 @@ class Renderer:
         t0: float = 0.0,
         shutter: str = "rolling",
         mono: bool = False,
-        seed: int = 0,
+        seed: int | tuple = 0,
     ) -> Iterator[RenderedFrame]:
         """Yield :class:`RenderedFrame` for frames ``0..frames-1`` (first line at
-        ``t0 + k / fps``); noise is seeded per frame from ``seed``."""
+        ``t0 + k / fps``); noise is seeded per frame from ``seed`` (an int or a tuple of them:
+        frame k's generator is seeded by ``[*seed, k]``)."""
+        key = [seed] if np.isscalar(seed) else list(seed)
         for k in range(int(frames)):
             yield self.render(
                 motion,
@@ -704,7 +805,7 @@ class Renderer:
                 index=k,
                 shutter=shutter,
                 mono=mono,
-                rng=np.random.default_rng([seed, k]),
+                rng=np.random.default_rng([*key, k]),
             )
 
     # ---------------------------------------------------------------- geometry
@@ -809,3 +910,145 @@ class Renderer:
             ok[idx[~vis]] = False
         uv = np.where(ok[:, None], uv, np.nan)
         return uv, ok
+
+
+# ------------------------------------------------------------------------------ rigs
+def _duration(cameras: list[RigCameraSim], frames: int) -> float:
+    """s of rig time until the last camera's last frame starts."""
+    return max(c.offset + frames / c.fps for c in cameras)
+
+
+def render_rig_images(
+    cameras: list[RigCameraSim],
+    scene: Scene,
+    trajectory: RigTrajectory,
+    frames: int,
+    *,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    stamp_row: float = 0.0,
+    supersample: int = 2,
+    noise: bool = True,
+    seed: int = 0,
+    mono: bool = False,
+) -> Iterator[RigFrameSim]:
+    """Yield every camera's rendered images (``frames`` per camera), sorted by stamp (then by
+    camera, in ``cameras`` order), rendered as they are asked for (each camera's next frame
+    ahead): a :class:`~rs_localizer.sim.trajectory.RigFrameSim` with its ``image`` ((H, W, 3)
+    uint8 RGB, or (H, W) mono8), ``render_s`` (CPU s), the rig's pose at its reference line and
+    no correspondences.
+
+    Camera c's frames are :meth:`Renderer.render_sequence` along ``trajectory`` composed with
+    its mounting, frame k's first line read at rig time ``c.offset + k / c.fps`` (rig time t is
+    stamped ``t0_ns + t * 1e9`` ns; the header stamp is the capture time of line
+    ``stamp_row``), its noise seeded by ``(seed, c's index)``.
+
+    Args:
+        cameras: the rig (:func:`rendered_rig`, :func:`vga_rig`). scene: the scene.
+        trajectory: the rig's motion (:func:`~rs_localizer.sim.render.motion.rig_trajectory`).
+        supersample: anti-aliasing samples per axis. noise: sensor noise
+            (:class:`NoiseModel`) or none. mono: mono8 images instead of RGB.
+    """
+
+    def stream(ci: int, c: RigCameraSim) -> Iterator[tuple]:
+        """(stamp s, ci, frame, CPU s to render it) of camera ``c``'s frames."""
+        r = Renderer(scene, c.camera, supersample, noise=NoiseModel() if noise else None)
+        mounted = c.on(trajectory)
+        seq = r.render_sequence(mounted, frames, c.fps, c.offset, mono=mono, seed=(seed, ci))
+        while True:
+            tic = time.process_time()
+            fr = next(seq, None)
+            if fr is None:
+                return
+            stamp = fr.t_first + float(c.camera.line_time(stamp_row))
+            yield stamp, ci, fr, time.process_time() - tic
+
+    cameras = list(cameras)
+    for stamp, ci, fr, render_s in heapq.merge(*(stream(*c) for c in enumerate(cameras))):
+        R, p = trajectory.pose(fr.t_ref)
+        yield RigFrameSim(
+            cameras[ci].name, fr.index, int(t0_ns) + int(round(stamp * 1e9)),
+            int(t0_ns) + int(round(fr.t_ref * 1e9)), np.zeros((0, 2)), np.zeros((0, 3)), R, p,
+            image=fr.image, render_s=render_s,
+        )  # fmt: skip
+
+
+def render_rig_frames(
+    cameras: list,
+    frames: int,
+    *,
+    scene: str = "aruco_room",
+    motion: str = "shake",
+    seed: int = 0,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    supersample: int = 1,
+    noise: bool = True,
+    mono: bool = False,
+) -> tuple[list[RigFrameSim], RigTrajectory]:
+    """Render ``frames`` frames of every camera, stamped at their row 0, sorted by stamp:
+    :func:`render_rig_images` along the ``motion`` preset
+    (:func:`~rs_localizer.sim.render.motion.rig_trajectory`) over the rendered time, around
+    ``scene``'s viewpoint.
+
+    Args:
+        cameras: :class:`~rs_localizer.sim.trajectory.RigCameraSim` (e.g. :func:`vga_rig`).
+        scene, motion: the renderer's scene and motion preset names.
+        supersample, noise, mono: as :func:`render_rig_images`.
+    Returns:
+        (frames, the rig's motion; :func:`~rs_localizer.sim.trajectory.rig_truth` gives its
+        truth).
+    """
+    sc = load_scene(scene)
+    rig = rig_trajectory(motion, sc, _duration(cameras, frames))
+    images = render_rig_images(
+        cameras, sc, rig, frames, t0_ns=t0_ns, supersample=supersample, noise=noise, seed=seed,
+        mono=mono,
+    )  # fmt: skip
+    return list(images), rig
+
+
+def render_rig_video(
+    cameras: list[RigCameraSim],
+    scene: str | Scene = "apriltag_rig_room",
+    trajectory: RigTrajectory | None = None,
+    frames: int = 30,
+    *,
+    frontend: Callable | None = None,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    stamp_row: float = 0.0,
+    supersample: int = 2,
+    noise: bool = True,
+    seed: int = 0,
+) -> Iterator[RigFrameSim]:
+    """Yield every camera's rendered frames (``frames`` per camera; :func:`render_rig_images`),
+    sorted by stamp, each with its front end's correspondences and the rig's pose at its
+    reference line.
+
+    Args:
+        cameras: the rig (:func:`rendered_rig`). scene: a built-in name, YAML path or
+            :class:`Scene`. trajectory: the rig's motion (default
+            :func:`~rs_localizer.sim.render.motion.rig_trajectory` ``pan`` over the video).
+        frontend: ``make(camera_name) -> object with process(image, camera) -> (uv, xyz,
+            ids)``, one front end per camera (default: the AprilTag/ArUco front end of the
+            scene's markers, :class:`~rs_localizer.frontends.ArucoFrontend`).
+        supersample: anti-aliasing samples per axis. noise: sensor noise, seeded per camera and
+            frame from ``seed``.
+    """
+    from ...frontends import ArucoFrontend
+
+    sc = scene if isinstance(scene, Scene) else load_scene(scene)
+    cameras = list(cameras)
+    trajectory = trajectory or rig_trajectory("pan", sc, _duration(cameras, frames))
+    make_fe = frontend or (lambda name: ArucoFrontend.from_scene(sc))
+    by_name = {c.name: (c.camera, make_fe(c.name)) for c in cameras}
+    images = render_rig_images(
+        cameras, sc, trajectory, frames, t0_ns=t0_ns, stamp_row=stamp_row,
+        supersample=supersample, noise=noise, seed=seed,
+    )  # fmt: skip
+    for f in images:
+        camera, fe = by_name[f.name]
+        tic = time.process_time()
+        uv, xyz, ids = fe.process(f.image, camera)
+        f.uv, f.xyz = np.asarray(uv, float).reshape(-1, 2), np.asarray(xyz, float).reshape(-1, 3)
+        f.ids = np.asarray(ids, np.uint32).reshape(-1)
+        f.frontend_s = time.process_time() - tic
+        yield f
