@@ -748,22 +748,17 @@ def rig_camera_section(rig: Localizer, n: str, own: Mapping[str, int] | None) ->
 def _rig_camera_values(
     rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
 ) -> tuple[CameraPart, int, int]:
-    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``: the
-    camera's accounting as the single camera's (:func:`camera_section`: its frames of
-    :func:`rig_camera_frames`, ``capped_clouds`` and ``points_dropped`` of the node's clouds
-    and the rig's images, ``Localizer.process_image``; with the node's ``inputs`` its counts,
-    the node's ``skipped.<reason>`` and ``failed.<reason>`` with the rig's, and
-    ``camera_frame_ms_median``, the worker's time per frame of this camera), then ``state``
-    (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
-    ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
-    ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted``
-    (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never
-    join the others', ``Localizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
-    apparent clock offset from each other camera, ms); with ``inputs`` also
-    ``stamp_jumped_ahead`` and ``bad_input`` (its frames not read: a stamp or a cloud).
-    Appends the camera's warnings to ``warnings``; returns the camera (its lines the rig's
-    own: grouping, disagreement, mounting), the camera's frames
-    dropped from a full queue and its messages lost."""
+    """Camera ``n`` of :func:`rig_diagnostics`: its :func:`rig_camera_part` (with the node's
+    ``inputs`` its counts and ``camera_frame_ms_median``) with the rig's own lines, each key
+    ``<c>.<key>``: ``state`` (waiting, running, stopped, disagrees), ``camera_info``
+    (received or waiting), ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig
+    frame it was in), ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>``
+    counts, ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart``
+    (yes: its frames never join the others', ``Localizer.camera_apart``), then
+    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
+    ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its frames not
+    read, a stamp or a cloud). Appends the camera's warnings to ``warnings``; returns the
+    camera, its frames dropped from a full queue and its messages lost."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}

@@ -437,7 +437,8 @@ class RigMode:
         camera's front end and the rig (:meth:`Localizer.process_image`: the front end's rows
         as a cloud's, the non-finite ones dropped and the rest capped to ``max_points``,
         counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
-        image kept for ``debug_image`` while someone watches."""
+        image kept for ``debug_image`` while someone watches. The frame's times per stage go
+        to the diagnostics (:meth:`.diagnostics.StageTimes.camera_frame`)."""
         if kind == "image":
             self._warn_no_info(name, "images")
         tic = time.perf_counter()
