@@ -443,7 +443,7 @@ class RigMode:
             self._warn_no_info(name, "images")
         tic = time.perf_counter()
         item, outs, taken_at = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
-        search = self.rig.last_search(name) if kind == "image" else None
+        search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
         self._stages.camera_frame(tic, taken_at, search and search.seconds,
                                   any(o.success for o in outs), time.perf_counter())  # fmt: skip
         if isinstance(item, DroppedFrame):
