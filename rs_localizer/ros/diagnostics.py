@@ -1,15 +1,19 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
 without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder
-(:func:`status`) lays out both modes' statuses from a description without the mode
-(:class:`StatusParts`), with one level and message rule: one camera's
-(:func:`diagnostic_status`: flat keys) and a rig's (:func:`rig_diagnostics`: the rig's keys
-and a section per camera, ``<c>.*``), sharing a camera's accounting (:func:`camera_section`:
-the single camera's flat keys, each rig camera's section), the estimator's path, the map-fit
-check, the gyro's values (:class:`GyroState`) and the timing keys (:func:`timing_values`)."""
+(:func:`status`) lays out the status of one camera or a rig from a description without the
+mode (:class:`StatusParts`), with one level and message rule and one section per camera
+(:class:`CameraPart`, its accounting of :func:`camera_section`: a camera alone's flat keys,
+each rig camera's ``<c>.*``); shared by both: the estimator's path, the map-fit check, the
+timing keys (:func:`timing_values`, the stage times of :class:`StageTimes`) and the gyro's
+values (:class:`GyroState`). Each mode describes itself: one camera
+(:func:`diagnostic_status`, of its pipeline's counters) and a rig
+(:func:`rig_diagnostics`: the rig frames' accounting and each camera's lines of grouping,
+disagreement and mounting, the rig's own)."""
 
 from __future__ import annotations
 
-from collections import Counter
+import threading
+from collections import Counter, deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -32,13 +36,17 @@ __all__ = [
     "FRAME_ACCOUNTING",
     "IMU_IDLE_WARN_S",
     "OK",
+    "STAGES",
     "WARN",
+    "CameraPart",
     "GyroState",
     "RigInputs",
+    "StageTimes",
     "StatusParts",
     "camera_section",
     "diagnostic_status",
     "rig_camera_frames",
+    "rig_camera_part",
     "rig_camera_section",
     "rig_diagnostics",
     "status",
@@ -61,7 +69,47 @@ OFF_CLOCK_S = 60.0
 
 
 def _median_ms(seconds: Sequence[float]) -> str:
-    return f"{np.median(_ms(seconds)):.3f}" if len(seconds) else "nan"
+    return f"{np.median(seconds) * 1e3:.3f}" if len(seconds) else "nan"
+
+
+#: the worker's stages whose times a status gives (``<stage>_ms_median``; ``frontend`` only
+#: with a front end)
+STAGES = ("decode", "frontend", "estimate", "publish")
+
+
+class StageTimes:
+    """The worker's times per stage of :data:`STAGES` (s, the last ``kept`` of each;
+    thread-safe): the rig mode's (a camera's are its pipeline's,
+    :class:`~rs_localizer.ros.pipeline.PipelineStats`). A status gives their medians
+    (:func:`status`)."""
+
+    def __init__(self, kept: int = 1000):
+        self._lock = threading.Lock()
+        self._times = {k: deque(maxlen=kept) for k in STAGES}
+
+    def add(self, stage: str, seconds: float) -> None:
+        """Record the time (s) a frame spent in ``stage`` (one of :data:`STAGES`)."""
+        with self._lock:
+            self._times[stage].append(seconds)
+
+    def camera_frame(self, tic: float, taken_at: float, frontend_s: float | None, posed: bool,
+                     toc: float) -> None:  # fmt: skip
+        """A rig camera's frame through the worker (:func:`time.perf_counter` s): taken by
+        its input stage from ``tic`` to ``taken_at`` (``decode``: decoding, its stamp and
+        camera_info), then the rig until ``toc``: the front end's ``frontend_s`` on an image
+        (None: not searched) and, when it completed a posed rig frame (``posed``), the rest
+        (``estimate``: grouping, the rig's estimate, its gyro wait and tracking)."""
+        with self._lock:
+            self._times["decode"].append(taken_at - tic)
+            if frontend_s is not None:
+                self._times["frontend"].append(frontend_s)
+            if posed:
+                self._times["estimate"].append(toc - taken_at - (frontend_s or 0.0))
+
+    def snapshot(self) -> dict[str, list[float]]:
+        """A consistent copy: stage -> its times (s), oldest first."""
+        with self._lock:
+            return {k: list(d) for k, d in self._times.items()}
 
 
 def timing_values(latencies: Sequence[float], stamp_ages: Sequence[float]) -> dict[str, Any]:
@@ -170,6 +218,30 @@ def camera_section(
     return values
 
 
+@dataclass
+class CameraPart:
+    """One camera of a status, its section: ``name`` ("": a camera alone, its flat keys;
+    else each key ``<name>.<key>``), its accounting (:func:`camera_section` of ``frames``,
+    ``counts``, ``more``, ``frontend``, ``frame_times``), then a rig camera's own ``lines``
+    (its state in the rig: grouping, disagreement, mounting; keys with the prefix, none
+    replacing an accounting key)."""
+
+    name: str
+    frames: FrameCounts
+    counts: Mapping[str, int] | None = None
+    more: Mapping[str, int] | None = None
+    frontend: bool = False
+    frame_times: Sequence[float] | None = None
+    lines: Mapping[str, Any] = field(default_factory=dict)
+
+    def section(self) -> dict[str, Any]:
+        """The camera's values: its accounting, then its ``lines``."""
+        values = camera_section(self.name, self.frames, self.counts, self.more, self.frontend,
+                                self.frame_times)  # fmt: skip
+        values.update({k: v for k, v in self.lines.items() if k not in values})
+        return values
+
+
 def diagnostic_status(
     cfg: LocalizerConfig,
     frames: FrameCounts,
@@ -215,24 +287,18 @@ def diagnostic_status(
     c = stats.counts
     failed = dict(sorted(frames.failures.items()))
     has_frontend = frontend is not None
-    section = camera_section(
-        "", frames, {**c, "messages_lost": messages_lost}, frontend=has_frontend
-    )
     inliers = stats.inliers
     lead = f"{frames.solved}/{frames.received} frames solved" + (
         f", {frames.skipped} skipped (busy)" if frames.skipped else ""
     )
-
-    def of(*keys: str) -> dict[str, Any]:
-        return {k: section[k] for k in keys}
-
     gyro = None
     if cfg.imu is not None:
         gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s,
                          bool(frames.received))  # fmt: skip
     parts = StatusParts(
         unit="frames",
-        accounting=of(*(_FLAT_KEYS[k] for k in FRAME_ACCOUNTING)),
+        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
+                            frontend=has_frontend)],
         solved=frames.solved,
         nothing="no frame solved" + (f" ({failed})" if failed else ""),
         nothing_solved=bool(frames.received and not frames.solved),
@@ -245,8 +311,8 @@ def diagnostic_status(
             "frames_uncompiled": c.get("frames_uncompiled", 0),
             "queue_size": cfg.queue_size,
             "time_resets": c.get("time_resets", 0),
-            **of("messages_lost", "points_dropped", "clouds_capped"),
-            **of("unknown_landmark_ids", "camera_info_rejected"),
+        },
+        path_after={
             "frames_few_points": c.get("frames_few_points", 0),
             "frames_single_tag": c.get("frames_single_tag", 0),
         },
@@ -259,14 +325,10 @@ def diagnostic_status(
             "condition_number_last": f"{stats.condition_number:.3g}",
         },
         timing=(latencies, stamp_ages),
-        times={
-            f"{k}_ms_median": f"{np.median(d) * 1e3:.3f}" if d else "nan"
-            for k, d in stats.stage_times.items()
-            if has_frontend or k != "frontend"
-        },
-        frontend=_frontend_values(cfg, frontend, stats, section) if has_frontend else {},
+        stage_times=stats.stage_times,
+        with_frontend=has_frontend,
+        frontend=_frontend_values(cfg, frontend, stats) if has_frontend else {},
         gyro=gyro,
-        reasons={k: v for k, v in section.items() if k.startswith(("failed.", _INFO_REJECTED))},
         counts=c,
     )  # fmt: skip
     return status(parts)
@@ -295,13 +357,21 @@ class GyroState:
 class StatusParts:
     """A status described without its mode (one camera or a rig), laid out by :func:`status`.
 
-    Values, in publishing order: ``head``, the frame ``accounting``, the estimator's path
-    (:func:`_compile_values`), ``path`` (what follows it), with ``map_fit`` (counts) the
-    map-fit check's ``<unit>_failed_with_matches`` and ``map_fit_doubtful``, ``tracking``, with
-    ``timing`` (``(latencies, stamp_ages)``, s) :func:`timing_values`, ``times`` (worker
-    times), ``frontend``, with ``gyro`` its values (:func:`_imu_values`), ``reasons`` (failures
-    by reason), ``sections`` (each rig camera's ``<c>.*``), then the ``gyro_missing.<reason>``,
-    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` of ``counts``.
+    Values, in publishing order: ``head``; the frame accounting: ``accounting`` (a rig's of
+    its rig frames), or a camera alone's of its section; the estimator's path
+    (:func:`_compile_values`), ``path`` (what follows it), a camera alone's input counts
+    (``messages_lost``, ``points_dropped``, ``clouds_capped``, ``unknown_landmark_ids``,
+    ``camera_info_rejected``), ``path_after``; with ``map_fit`` (counts) the map-fit check's
+    ``<unit>_failed_with_matches`` and ``map_fit_doubtful``; ``tracking``; the timing keys:
+    with ``timing`` (``(latencies, stamp_ages)``, s) :func:`timing_values`, with
+    ``stage_times`` (stage -> s, :data:`STAGES`) each stage's ``<stage>_ms_median``
+    (``frontend`` only ``with_frontend``), ``times`` (the worker's other times);
+    ``frontend``; with ``gyro`` its values (:func:`_imu_values`); the failures by reason (a
+    camera alone's ``failed.<reason>`` and ``camera_info_rejected.<reason>``, then
+    ``reasons``); each rig camera's section (``<c>.*``); then the ``gyro_missing.<reason>``,
+    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` of ``counts``. ``cameras``: a
+    :class:`CameraPart` per camera, a camera alone's named "" (its flat keys placed as
+    above).
 
     The message (:func:`_level_and_message`): ``unit`` what is solved (``frames``, ``rig
     frames``); ``nothing`` the message when ``nothing_solved``; ``summary`` the OK message;
@@ -311,36 +381,52 @@ class StatusParts:
     ``solved`` and ``absent`` (cameras that sent nothing: ERROR while nothing is solved)."""
 
     unit: str
-    accounting: dict[str, Any]
     solved: int
     nothing: str
     nothing_solved: bool
     summary: str
+    cameras: Sequence[CameraPart] = ()
+    accounting: dict[str, Any] = field(default_factory=dict)
     lead: str | None = None
     warnings: list[str] = field(default_factory=list)
     trailing: list[str] = field(default_factory=list)
     failed: str = ""
     head: dict[str, Any] = field(default_factory=dict)
     path: dict[str, Any] = field(default_factory=dict)
+    path_after: dict[str, Any] = field(default_factory=dict)
     map_fit: Mapping[str, int] | None = None
     tracking: dict[str, Any] = field(default_factory=dict)
     timing: tuple[Sequence[float], Sequence[float]] | None = None
+    stage_times: Mapping[str, Sequence[float]] | None = None
+    with_frontend: bool = False
     times: dict[str, Any] = field(default_factory=dict)
     frontend: dict[str, Any] = field(default_factory=dict)
     gyro: GyroState | None = None
     reasons: dict[str, Any] = field(default_factory=dict)
-    sections: dict[str, Any] = field(default_factory=dict)
     counts: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
 
 
+#: a camera alone's input counts, after the estimator's path
+_INPUT_KEYS = ("messages_lost", "points_dropped", "clouds_capped", "unknown_landmark_ids",
+               "camera_info_rejected")  # fmt: skip
+
+
 def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of a camera's or a rig's status from its
-    :class:`StatusParts` (values in its order; level and message :func:`_level_and_message`,
-    with the map-fit check's note while it doubts the map and the level is not OK, then the
-    estimator path's note off the compiled path)."""
+    :class:`StatusParts` (values in its order, each camera's section of
+    :meth:`CameraPart.section`; level and message :func:`_level_and_message`, with the map-fit
+    check's note while it doubts the map and the level is not OK, then the estimator path's
+    note off the compiled path)."""
     compile_values, note = _compile_values(p.unit)
-    values: dict[str, Any] = {**p.head, **p.accounting, **compile_values, **p.path}
+    sections = [c.section() for c in p.cameras]
+    alone = sections[0] if [c.name for c in p.cameras] == [""] else {}
+    sections = [] if alone else sections
+    accounting = [_FLAT_KEYS[k] for k in FRAME_ACCOUNTING] if alone else []
+    values: dict[str, Any] = {**p.head, **p.accounting, **{k: alone[k] for k in accounting}}
+    values.update({**compile_values, **p.path})
+    values.update({k: alone[k] for k in _INPUT_KEYS if k in alone})
+    values.update(p.path_after)
     if p.map_fit is not None:
         key = p.unit.replace(" ", "_") + "_failed_with_matches"
         values[key] = p.map_fit.get(key, 0)
@@ -348,12 +434,17 @@ def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
     values.update(p.tracking)
     if p.timing is not None:
         values.update(timing_values(*p.timing))
+    for k, d in (p.stage_times or {}).items():
+        if p.with_frontend or k != "frontend":
+            values[f"{k}_ms_median"] = _median_ms(d)
     values.update(p.times)
     values.update(p.frontend)
     if p.gyro is not None:
         values.update(_imu_values(p.gyro))
+    values.update({k: v for k, v in alone.items() if k.startswith(("failed.", _INFO_REJECTED))})
     values.update(p.reasons)
-    values.update(p.sections)
+    for section in sections:
+        values.update(section)
     prefixes = ("gyro_missing.", "gyro_rejected.", "imu_rejected.")
     values.update({k: v for k, v in sorted(p.counts.items()) if k.startswith(prefixes)})
     level, message = _level_and_message(p, values)
@@ -407,10 +498,9 @@ def _map_fit_note(unit: str) -> str:
 
 
 def _frontend_values(
-    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot, section: Mapping
+    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot
 ) -> dict[str, Any]:
-    """The front end's values of :func:`diagnostic_status` (with a ``frontend``; ``section``:
-    the camera's :func:`camera_section`)."""
+    """The front end's values of :func:`diagnostic_status` (with a ``frontend``)."""
     c = stats.counts
     values: dict[str, Any] = {}
     fe = stats.stage_times["frontend"]
@@ -419,7 +509,7 @@ def _frontend_values(
         {
             "frontend": cfg.frontend_kind,
             "image_frames": c.get("image_frames", 0),
-            "frames_beside_frontend": section["frames_beside_frontend"],
+            "frames_beside_frontend": c.get("frames_beside_frontend", 0),
             "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
             "frontend_correspondences_last": stats.frontend_last,
             "frontend_correspondences_mean": (
@@ -487,7 +577,8 @@ class RigInputs:
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
     rig), ``bad_input`` (camera -> frames not read: a stamp or a cloud), ``imu_rejected`` (reason
     -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
-    ``rig.stop_after`` since the first)."""
+    ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per stage,
+    :meth:`StageTimes.snapshot`)."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
     latencies: Sequence[float] = ()
@@ -497,6 +588,7 @@ class RigInputs:
     imu_rejected: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
     frontend: bool = False
+    stage_times: Mapping[str, Sequence[float]] = field(default_factory=dict)
 
 
 def rig_diagnostics(
@@ -525,7 +617,11 @@ def rig_diagnostics(
     ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's),
     ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter timing,
     as a camera's: WARN while suspect), the single-camera node's timing keys
-    (:func:`timing_values`) and ``camera_frame_ms_median``; with a gyro the single-camera
+    (:func:`timing_values`; the stage times ``decode_ms_median``, ``frontend_ms_median`` with
+    a front end, ``estimate_ms_median``, ``publish_ms_median`` of the worker's
+    :class:`StageTimes`: a camera frame's input stage, the front end on an image, a posed rig
+    frame's grouping, estimate and tracking, its publishing) and ``camera_frame_ms_median``;
+    with a gyro the single-camera
     node's gyro values, the rig frames for its frames (``imu_rate_hz``,
     ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing``, ``imu_rejected``,
     ``imu_idle_s``, ``gyro_bias`` and ``gyro_bias_std`` (rad/s, IMU frame),
@@ -548,11 +644,11 @@ def rig_diagnostics(
         inputs = RigInputs(counts=inputs)
     r = rig.rig_counts()
     warnings: list[str] = []
-    sections: dict[str, Any] = {}
+    cameras: list[CameraPart] = []
     busy = lost = 0
     for n in rig.cameras:
-        section, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
-        sections.update(section)
+        camera, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
+        cameras.append(camera)
         busy, lost = busy + busy_n, lost + lost_n
     gyro = _rig_gyro(rig, inputs, warnings)
     trailing = []
@@ -574,6 +670,7 @@ def rig_diagnostics(
         counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
     parts = StatusParts(
         unit="rig frames",
+        cameras=cameras,
         accounting={
             "rig_frames": r["rig_frames"],
             "rig_frames_solved": r["solved"],
@@ -595,10 +692,10 @@ def rig_diagnostics(
         map_fit=inputs.counts if inputs is not None else None,
         tracking={"track_state": rig.track_state, **rig.twist_values(), **rig.readout_values()},
         timing=(inputs.latencies, inputs.stamp_ages) if inputs is not None else None,
-        times={},
+        stage_times=inputs.stage_times if inputs is not None else None,
+        with_frontend=inputs is not None and inputs.frontend,
         gyro=gyro,
         reasons=reasons,
-        sections=sections,
         counts=counts,
         absent=list(inputs.absent) if inputs is not None else [],
     )
@@ -625,47 +722,49 @@ def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = No
     return handed if own is None else frame_accounting(own, handed)
 
 
-def rig_camera_section(
+def rig_camera_part(
     rig: Localizer,
     n: str,
     own: Mapping[str, int] | None,
     frontend: bool = False,
     frame_times: Sequence[float] | None = None,
-) -> dict[str, Any]:
-    """Camera ``n``'s accounting in a rig (:func:`camera_section`, each key ``<n>.<key>``):
-    its frames of :func:`rig_camera_frames` (the rig's and the node's ``own`` counts of the
-    camera, keys without the ``<n>.`` prefix; None: the rig's alone), its rows' counts of the
-    node's clouds and the rig's images (``Localizer.process_image``) summed, and with ``own``
-    its input stage's counts. The rig node's diagnostics and ``replay`` of a rig bag both
-    take a camera's accounting from it."""
+) -> CameraPart:
+    """Camera ``n``'s accounting in a rig (a :class:`CameraPart` named ``n``, without its
+    lines): its frames of :func:`rig_camera_frames` (the rig's and the node's ``own`` counts
+    of the camera, keys without the ``<n>.`` prefix; None: the rig's alone), its rows' counts
+    of the node's clouds and the rig's images (``Localizer.process_image``) summed, and with
+    ``own`` its input stage's counts."""
     theirs = {k[len(n) + 1 :]: v for k, v in rig.counts.items() if k.startswith(f"{n}.")}
-    frames = rig_camera_frames(rig, n, own)
-    return camera_section(n, frames, own, theirs, frontend, frame_times)
+    return CameraPart(n, rig_camera_frames(rig, n, own), own, theirs, frontend, frame_times)
+
+
+def rig_camera_section(rig: Localizer, n: str, own: Mapping[str, int] | None) -> dict[str, Any]:
+    """Camera ``n``'s accounting values in a rig, each key ``<n>.<key>``
+    (:func:`camera_section` of :func:`rig_camera_part`): the rig node's diagnostics and
+    ``replay`` of a rig bag both take a camera's accounting from it."""
+    return rig_camera_part(rig, n, own).section()
 
 
 def _rig_camera_values(
     rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
-) -> tuple[dict[str, Any], int, int]:
-    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``: the
-    camera's accounting as the single camera's (:func:`camera_section`: its frames of
-    :func:`rig_camera_frames`, ``capped_clouds`` and ``points_dropped`` of the node's clouds
-    and the rig's images, ``Localizer.process_image``; with the node's ``inputs`` its counts,
-    the node's ``skipped.<reason>`` and ``failed.<reason>`` with the rig's, and
-    ``camera_frame_ms_median``, the worker's time per frame of this camera), then ``state``
-    (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
-    ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
-    ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted``
-    (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never
-    join the others', ``Localizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
-    apparent clock offset from each other camera, ms); with ``inputs`` also
-    ``stamp_jumped_ahead`` and ``bad_input`` (its frames not read: a stamp or a cloud).
-    Appends the camera's warnings to ``warnings``; returns the section, the camera's frames
-    dropped from a full queue and its messages lost."""
+) -> tuple[CameraPart, int, int]:
+    """Camera ``n`` of :func:`rig_diagnostics`: its :func:`rig_camera_part` (with the node's
+    ``inputs`` its counts and ``camera_frame_ms_median``) with the rig's own lines, each key
+    ``<c>.<key>``: ``state`` (waiting, running, stopped, disagrees), ``camera_info``
+    (received or waiting), ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig
+    frame it was in), ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>``
+    counts, ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart``
+    (yes: its frames never join the others', ``Localizer.camera_apart``), then
+    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
+    ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its frames not
+    read, a stamp or a cloud). Appends the camera's warnings to ``warnings``; returns the
+    camera, its frames dropped from a full queue and its messages lost."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
     times = inputs.frame_times.get(n, ()) if inputs is not None else None
-    values = rig_camera_section(rig, n, own, inputs is not None and inputs.frontend, times)
+    camera = rig_camera_part(rig, n, own, inputs is not None and inputs.frontend, times)
+    values: dict[str, Any] = {}  # (its lines, after its accounting)
     busy = lost = 0
     if own is not None:
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
@@ -717,7 +816,8 @@ def _rig_camera_values(
         warnings.append(f"camera {n} waits for its camera_info")
     if inputs is not None and n in inputs.bad_input:
         values[f"{n}.bad_input"] = inputs.bad_input[n]
-    return values, busy, lost
+    camera.lines = values
+    return camera, busy, lost
 
 
 def _rig_gyro(rig: Localizer, inputs: RigInputs | None, warnings: list[str]) -> GyroState | None:

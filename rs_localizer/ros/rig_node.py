@@ -100,7 +100,7 @@ from .config import (
 )
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_dynamic, declare_parameters
-from .diagnostics import RigInputs, rig_diagnostics
+from .diagnostics import RigInputs, StageTimes, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import (
@@ -217,6 +217,7 @@ class RigMode:
         #: its messages lost, the worker's time per frame
         node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
         self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
+        self._stages = StageTimes()  # (the worker's times per stage)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
         node.inputs = rig_camera_inputs(
             self.config,
@@ -436,10 +437,15 @@ class RigMode:
         camera's front end and the rig (:meth:`Localizer.process_image`: the front end's rows
         as a cloud's, the non-finite ones dropped and the rest capped to ``max_points``,
         counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
-        image kept for ``debug_image`` while someone watches."""
+        image kept for ``debug_image`` while someone watches. The frame's times per stage go
+        to the diagnostics (:meth:`.diagnostics.StageTimes.camera_frame`)."""
         if kind == "image":
             self._warn_no_info(name, "images")
-        item, outs, _ = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
+        tic = time.perf_counter()
+        item, outs, taken_at = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
+        search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
+        self._stages.camera_frame(tic, taken_at, search and search.seconds,
+                                  any(o.success for o in outs), time.perf_counter())  # fmt: skip
         if isinstance(item, DroppedFrame):
             self._not_taken(kind, item)
         elif kind != "image":
@@ -474,12 +480,15 @@ class RigMode:
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log
         the failed ones (each reason at most once per 5 s)."""
+        tic = time.perf_counter()
         for out in taken.outs:
             self._check_map_fit(out)
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
                 self.node.record_timing(item.arrived, out.stamp_ns)
+        if any(o.success for o in taken.outs):
+            self._stages.add("publish", time.perf_counter() - tic)
 
     def _check_map_fit(self, out: LocalizerOutput) -> None:
         """The single-camera node's map-fit check over the rig frames
@@ -598,6 +607,7 @@ class RigMode:
             absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
             inputs = RigInputs(counts, latencies, stamp_ages, frame_times, bad_input,
                                dict(self.imu_rejected), absent,
-                               self.node.frontend_kind != "none")  # fmt: skip
+                               self.node.frontend_kind != "none",
+                               self._stages.snapshot())  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
         return self.config.base_frame, level, message, values

@@ -17,6 +17,22 @@ def _values(stamp_ages):
     return diagnostic_status(*args, 0.0, None, False, 0.0)[2]
 
 
+def test_stage_times_of_a_rig_cameras_frame():
+    """A rig camera's frame through the worker: its input stage (``decode``) from the start to
+    its taking, the front end's own time on an image, and the rest of the rig's time
+    (``estimate``) only when it completed a posed rig frame; publishing apart."""
+    from rs_localizer.ros.diagnostics import StageTimes
+
+    st = StageTimes(kept=2)
+    st.camera_frame(10.0, 10.25, None, False, 10.5)  # (a cloud, no rig frame posed)
+    st.camera_frame(20.0, 20.5, 0.125, True, 21.0)  # (an image completing a posed rig frame)
+    st.add("publish", 0.0625)
+    assert st.snapshot() == {"decode": [0.25, 0.5], "frontend": [0.125], "estimate": [0.375],
+                             "publish": [0.0625]}  # fmt: skip
+    st.camera_frame(30.0, 30.75, 0.0, True, 31.0)  # (kept: the last two of each)
+    assert st.snapshot()["decode"] == [0.5, 0.75] and st.snapshot()["estimate"] == [0.375, 0.25]
+
+
 def test_stamp_age_leaves_out_stamps_of_another_clock():
     """A recorded bag played without use_sim_time: its stamps are days older than the node's
     clock. Their age is no delay of the node: counted apart, not averaged in."""
@@ -33,7 +49,9 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     """The rig's status comes from the same builder: given the same latencies and stamp ages
     as a camera's, its timing keys are the camera's, character for character, and equal the
     medians and percentiles computed here, and the keys both statuses have come in the same
-    order; each camera's section has its own worker time
+    order; the worker's stage times give the camera's stage keys (``<stage>_ms_median``, the
+    front end's only with a front end) before the rig-wide ``camera_frame_ms_median``; each
+    camera's section has its own worker time
     (``<c>.camera_frame_ms_median``) beside the rig-wide one; per camera ``received = solved
     + failed + skipped + pending`` with the node's own counts folded in; a camera that sent
     nothing is named in an ERROR while no rig frame is posed; a time reset of the rig is
@@ -61,7 +79,10 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     counts[f"{names[0]}.skipped.queue_full"] += 2
     lat, age = [0.004, 0.006, 0.020, 0.005], [0.010, 0.030, 95.6e6]
     times = {names[0]: [0.001, 0.003, 0.002], names[1]: [0.010]}
-    level, message, v = rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))
+    stages = {"decode": [0.001, 0.002], "frontend": [0.03], "estimate": [0.004, 0.008, 0.005],
+              "publish": []}  # fmt: skip
+    inputs = RigInputs(counts, lat, age, times, stage_times=stages)
+    level, message, v = rig_diagnostics(rig, set(), inputs)
     cfg = build_config(default_values())
     snap = FramePipeline(cfg).stats.snapshot()
     args = (cfg, FrameCounts(received=4, solved=4), snap, {}, "camera_info", 0, lat, age)
@@ -77,6 +98,14 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert v[f"{names[0]}.camera_frame_ms_median"] == "2.000"
     assert v[f"{names[1]}.camera_frame_ms_median"] == "10.000"
     assert v["camera_frame_ms_median"] == "2.500"  # (of all four)
+    assert v["decode_ms_median"] == "1.500" and v["estimate_ms_median"] == "5.000"
+    assert v["publish_ms_median"] == "nan" and "frontend_ms_median" not in v
+    timing = [k for k in v if k.endswith("_ms_median") and "." not in k]
+    assert timing == ["latency_ms_median", "stamp_age_ms_median", "decode_ms_median",
+                      "estimate_ms_median", "publish_ms_median",
+                      "camera_frame_ms_median"]  # fmt: skip
+    inputs.frontend = True
+    assert rig_diagnostics(rig, set(), inputs)[2]["frontend_ms_median"] == "30.000"
     for n in names:
         parts = [v[f"{n}.{k}"] for k in ("solved", "failed", "skipped", "pending")]
         assert v[f"{n}.received"] == sum(parts), (n, v)

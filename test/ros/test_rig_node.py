@@ -69,6 +69,9 @@ def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context
         assert abs(shares - 1.0) < 0.01
         lat, frame = float(v["latency_ms_median"]), float(v["camera_frame_ms_median"])
         assert frame > 0.0 and 0.0 < lat < 10_000.0, v
+        # (the camera's stage times: clouds, no front end)
+        stages = [float(v[f"{k}_ms_median"]) for k in ("decode", "estimate", "publish")]
+        assert all(0.0 < t < lat for t in stages) and "frontend_ms_median" not in v, v
         # (the simulated stamps are of 2023, not the node's clock: no stamp age)
         assert v["stamp_age_ms_median"] == "nan" and v["stamps_off_clock"] == "15", v
     finally:

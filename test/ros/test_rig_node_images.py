@@ -48,7 +48,8 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
     6 rig poses within 0.1 deg and 3 mm of the truth, each from the three cameras' markers;
     then an image of another size and one of an unknown encoding, counted
     ``skipped.image_size_mismatch`` and ``skipped.bad_image``; received = solved + failed +
-    skipped + pending per camera and per rig frame in the diagnostics. With
+    skipped + pending per camera and per rig frame in the diagnostics, with the stage times
+    (the front end's too). With
     ``republish_correspondences``, each camera's ``correspondences_out`` holds what its front
     end found in each image it searched, stamped like the image (the first image of each
     camera, searched whole, gives the correspondences of the same front end run on it alone),
@@ -123,6 +124,9 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
             got = sum(int(v[f"{n}.{k}"]) for k in ("solved", "failed", "skipped", "pending"))
             assert int(v[f"{n}.received"]) == got == 6 + (n != "right"), (n, v)
             assert int(v[f"{n}.inliers"]) > 60, v
+        # (the camera's stage times, the front end's of the images searched)
+        stages = [float(v[f"{k}_ms_median"]) for k in ("decode", "frontend", "estimate", "publish")]
+        assert all(0.0 < t < 10_000.0 for t in stages), v
     finally:
         h.close()
 
