@@ -494,8 +494,8 @@ def write_rig_bag(
         frames: camera frames in stamp order, each with ``name``, ``stamp_ns``, ``t_ref_ns``,
             ``uv`` (N, 2) px, ``xyz`` (N, 3) m, optionally ``ids`` (N,) (default 0..N-1) and
             ``image`` ((H, W, 3) uint8 RGB: then ``<ns>/<c>/image_raw`` is written too):
-            :func:`rs_localizer.sim.rig_video.generate_rig_video`,
-            :func:`rs_localizer.sim.render.rig.render_rig_video`; an iterator is consumed
+            :func:`rs_localizer.sim.trajectory.generate_rig_video`,
+            :func:`rs_localizer.sim.render.renderer.render_rig_video`; an iterator is consumed
             as it is written.
         cameras: the rig's cameras (``name``, ``camera``, ``R_rig_cam``, ``p_rig_cam``,
             ``offset``, ``fps``). trajectory: the rig's motion (``pose(t)``,
@@ -504,7 +504,7 @@ def write_rig_bag(
             top-level entries, e.g. the front end). compress: zstd (mcap chunks, sqlite3
             messages).
         imu: optional ``(t_ns (M,), omega (M, 3) rad/s, R_rig_imu (3, 3))``, a gyro on the
-            rig (:func:`rs_localizer.sim.rig_video.rig_gyro`) written on ``<namespace>/imu``
+            rig (:func:`rs_localizer.sim.trajectory.rig_gyro`) written on ``<namespace>/imu``
             at its stamps.
 
     Log times: camera_info at stamp + 1 ms, the image, the cloud and the ground truth at
