@@ -38,7 +38,7 @@ RIG_ONLY = {
     ),
     "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
     "ros/bags/rig_bag.py": (
-        "a rig bag's run in replay (RigRun), each camera's counts, disagreement, the grouping"
+        "a rig bag's counts per camera, disagreement, the grouping (replay, play)"
     ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",

@@ -54,6 +54,7 @@ __all__ = [
     "BagFrames",
     "QuietLog",
     "RigFrames",
+    "camera_messages",
     "is_rig_bag",
     "iter_rig_frames",
     "read_bag_frames",
@@ -61,6 +62,7 @@ __all__ = [
     "read_rig_frames",
     "rig_bag_config",
     "rig_frontends",
+    "rig_kinds",
     "rig_landmarks",
     "rig_messages",
     "rig_parameter_values",
@@ -486,12 +488,7 @@ def iter_rig_frames(
     """
     from ..camera_input import ImageFrame
 
-    if frontends is not None or images:
-        kinds: tuple = ("image",)
-    elif any(inp.landmarks is not None for inp in inputs.values()):
-        kinds = ("cloud", "keypoints")
-    else:
-        kinds = ("cloud",)
+    kinds = rig_kinds(inputs, frontends is not None or images)
     for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
         item = inputs[n].take(msg, kind, stamp, camera)
         if frontends is not None and isinstance(item, ImageFrame):
@@ -541,14 +538,42 @@ def rig_messages(
         of that stamp or None)`` (:meth:`~rs_localizer.ros.camera_input.CameraInput.check`,
         :meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`).
     """
-
     topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
+    for k, n, msg, _ in camera_messages(bag, topics, inputs):
+        if k != "info":
+            stamp = inputs[n].check(msg, k)
+            yield n, k, msg, stamp, inputs[n].camera_of(stamp)
+
+
+def rig_kinds(inputs: Mapping[str, CameraInput], images: bool = False) -> tuple[str, ...]:
+    """The kinds of frame messages a rig's cameras (``inputs``, camera name -> its
+    :class:`~rs_localizer.ros.camera_input.CameraInput`) are read from: with ``images`` their
+    images (``image``), else their clouds (``cloud``) and, with the cameras' landmarks, their
+    keypoints (``keypoints``)."""
+    if images:
+        return ("image",)
+    if any(inp.landmarks is not None for inp in inputs.values()):
+        return ("cloud", "keypoints")
+    return ("cloud",)
+
+
+def camera_messages(
+    bag: str | os.PathLike, topics: Mapping[str, tuple[str, str]], inputs: Mapping[str, Any]
+) -> Iterator[tuple[str, str, Any, int]]:
+    """The one reader of a bag's camera messages (a camera's replay, a rig's, the rig's frames
+    of :func:`rig_messages`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
+    kind ``info`` for a ``sensor_msgs/CameraInfo``) in log-time order, deserialized, each
+    camera_info given to its camera's input as it comes (``inputs[camera name].
+    add_camera_info(msg)``: a :class:`~rs_localizer.ros.camera_input.CameraInput`, or a
+    camera's :class:`~rs_localizer.ros.pipeline.FramePipeline`).
+
+    Yields:
+        ``(kind, camera name, message, log time ns)`` of every message, camera_infos included.
+    """
     ts = typestore()
-    for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
-        k, n = topics[topic]
+    for topic, msgtype, t_log, raw in iter_messages(bag, set(topics)):
+        kind, name = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
-        if k == "info":
-            inputs[n].add_camera_info(msg)
-            continue
-        stamp = inputs[n].check(msg, k)
-        yield n, k, msg, stamp, inputs[n].camera_of(stamp)
+        if kind == "info":
+            inputs[name].add_camera_info(msg)
+        yield kind, name, msg, t_log

@@ -7,9 +7,10 @@ A camera's frames go through the node's own per-frame pipeline
 overrides), so a replay publishes what the node would: the pose, the frame's own twist
 (``twist_single_frame``) and, with tracking (the default), the fused twist on ``twist`` and
 ``odom`` when it is final. A rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.
-is_rig_bag`) go through the rig mode as the rig node runs it
-(:class:`~rs_localizer.ros.bags.rig_bag.RigRun`), a rig frame for a frame. Either way the
-outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
+is_rig_bag`) go through the rig mode as the rig node runs it, a rig frame for a frame. Either
+way it is one run: the bag's messages read once in log-time order, each camera_info to its
+camera's input, the gyro's samples read first, the mode's frame step the only difference;
+and the outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
 frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth (``/ground_truth/*``)
 when it has one and, with ``debug_outputs``, the node's visualization topics in the output bag
 (``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`; of a rig,
@@ -40,11 +41,20 @@ from ...accuracy import (
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
+from ..camera_input import to_rig
 from ..config import LocalizerConfig, RigConfig, build_config, default_timing_note, load_maps
 from ..outputs import frame_messages, fused_messages, pose_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
-from .bag_frames import is_rig_bag
+from .bag_frames import (
+    QuietLog,
+    camera_messages,
+    is_rig_bag,
+    rig_bag_config,
+    rig_frontends,
+    rig_kinds,
+    rig_landmarks,
+)
 from .bag_io import (
     CAMERA_INFO,
     COMPRESSED_IMAGE,
@@ -63,7 +73,7 @@ from .bag_io import (
     storage_plugin,
     typestore,
 )
-from .rig_bag import RigRun, disagreeing
+from .rig_bag import GYRO_AHEAD_NS, camera_counts, disagreeing, note_disagreeing
 
 if TYPE_CHECKING:
     from ...camera import CameraModel
@@ -266,8 +276,7 @@ def replay(
     """Run the localizer node over every frame of a bag, offline: a camera's frames through
     its per-frame pipeline, or a rig bag's cameras through the rig mode
     (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`: ``make-bag --rig``, ``render-bag
-    --rig``, or a recording with ``rig.cameras`` in the parameters;
-    :class:`~rs_localizer.ros.bags.rig_bag.RigRun`), a rig frame for a frame.
+    --rig``, or a recording with ``rig.cameras`` in the parameters), a rig frame for a frame.
 
     Args:
         path: bag directory (make-bag or render-bag output, or a recording), or its storage
@@ -410,25 +419,67 @@ class _Step:
     views: list = field(default_factory=list)
 
 
-class _CameraReplay:
-    """A camera's bag through the node's per-frame pipeline (:func:`replay`): configured (and
-    its topics found: ``bag_topics``, the bag's topic -> msgtype, read once) on construction,
-    its frames' :class:`_Step` from :meth:`steps`."""
+#: the output topics a replay's bag holds (``tf`` is not among them)
+_WANTED = OUT_TYPES.__contains__
+
+
+class _Run:
+    """The one run of :func:`replay`, of a camera's bag or a rig's: the IMU's samples read
+    first, then the bag's camera messages once, in log-time order
+    (:func:`~rs_localizer.ros.bags.bag_frames.camera_messages`: each camera_info given to its
+    camera's input), each frame message through the mode's frame step (:meth:`frame`: a
+    camera's pipeline, or a rig camera's input and the rig), then the end of the video
+    (:meth:`close`) and the fused twists still pending; each frame's :class:`_Step` from
+    :meth:`steps`. A mode sets, on construction: ``path``, ``topics`` (topic -> ``(kind,
+    camera name)``), ``inputs`` (camera name -> what takes its camera_infos), ``imu_topic``
+    (None: no gyro), ``total`` and ``unit`` (the progress bar's), ``map_frame``, ``views``
+    (the cameras' prefixes of the debug outputs), ``image_topics`` (topic -> camera prefix:
+    the images they are drawn on), ``bag_topics`` (the bag's topic -> msgtype), ``result``
+    (:class:`ReplayResult`) and ``engine`` (whose ``gyro_bias_values`` it reports)."""
+
+    def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
+        """Every frame's :class:`_Step` (a rig's: each rig frame its cameras' frames complete,
+        then those the end of the video closes), then the twists still pending at the end."""
+        imu = self.imu_topic and camera_messages(self.path, {self.imu_topic: ("imu", "")}, {})
+        self.start([msg for _, _, msg, _ in imu or ()])
+        bar = progress_bar(progress, self.total, unit=self.unit)
+        t_log = 0
+        try:
+            for kind, name, msg, t_log in camera_messages(self.path, self.topics, self.inputs):
+                if kind != "info":
+                    steps = self.frame(name, kind, msg, t_log, views)
+                    yield from steps
+                    bar.update(len(steps))
+            steps, t_end, fused = self.close(t_log, views)
+            yield from steps
+            bar.update(len(steps))
+            yield _Step(t_end, fused_messages(fused, self.map_frame, _WANTED), fused)
+        finally:
+            bar.close()
+            SHARED_MAPS.release(self)  # (a rig's cameras' front ends and landmarks)
+
+
+class _CameraReplay(_Run):
+    """A camera's bag through the node's per-frame pipeline (:func:`replay`), configured (and
+    its topics found) on construction: its IMU's samples all buffered first (no waiting), its
+    camera_infos to the pipeline, each frame through the pipeline."""
 
     def __init__(self, path: Path, params_files: list, params, source, image_topic, imu_topic,
                  debug_outputs: bool, log: Any):  # fmt: skip
         values, cfg, maps, source = _replay_config(path, params_files, params, source)
         counted = bag_connections(path)  # (the bag's topics, read once)
         self.bag_topics = topics = {t: mt for t, (mt, _) in counted.items()}
-        self.topics = _replay_topics(path, topics, cfg, source, image_topic, imu_topic,
-                                     debug_outputs)  # fmt: skip
-        self.frames_total = counted[self.topics[0]][1]
+        frame_topic, info_topic, viz_topic, self.imu_topic = _replay_topics(
+            path, topics, cfg, source, image_topic, imu_topic, debug_outputs)  # fmt: skip
+        self.total, self.unit = counted[frame_topic][1], "frame"
+        self.topics = {frame_topic: ("frame", "")}
+        if info_topic is not None:
+            self.topics[info_topic] = ("info", "")
         if cfg.imu is not None:
             # (offline every sample is buffered before the frames: no waiting)
             cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
         self.path, self.cfg, self.source = path, cfg, source
         self.map_frame, self.views = cfg.map_frame, ("",)
-        viz_topic = self.topics[2]
         self.image_topics = {viz_topic: ""} if viz_topic else {}
         self.result = ReplayResult(config=cfg, maps=maps, parameters=values, solver=cfg.solver,
                                    tracked=cfg.tracking is not None)  # fmt: skip
@@ -439,42 +490,29 @@ class _CameraReplay:
         if note is not None:
             self.result.notes.append(note)
         self.pipeline = self.engine = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
+        self.inputs = {"": self.pipeline}
+        self.index = 0
 
-    def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
-        """The IMU samples buffered (with ``imu.enabled``), then every frame (and camera_info)
-        of the bag, in log-time order, through the pipeline, each frame's :class:`_Step`; then
-        the twists still pending at the end of the video."""
-        path, cfg, pipeline = self.path, self.cfg, self.pipeline
-        frame_topic, info_topic, _, imu_topic = self.topics
-        ts = typestore()
-        if cfg.imu is not None:
-            for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
-                pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
-        bar = progress_bar(progress, self.frames_total)
-        wanted = OUT_TYPES.__contains__
-        try:
-            i = 0
-            t_log = 0
-            for topic, msgtype, t_log, raw in iter_messages(path, {frame_topic, info_topic}):
-                msg = ts.deserialize_cdr(raw, msgtype)
-                if topic == info_topic:
-                    pipeline.add_camera_info(msg)
-                    continue
-                res = pipeline.process(msg, self.source)
-                step = _Step(t_log, frame_messages(res, cfg.map_frame, wanted), res.fused,
-                             _camera_row(i, res, cfg.solver))  # fmt: skip
-                if res.solved:
-                    step.pose, step.out_stamp_ns = res.output, res.out_stamp_ns
-                    step.twist_now, step.estimate = res.twist_now, res.estimate
-                    if views:
-                        step.views = [_camera_view(res)]
-                i += 1
-                yield step
-                bar.update()
-            last = pipeline.flush()  # (the end of the video: the twists still pending)
-            yield _Step(t_log, fused_messages(last, cfg.map_frame), last)
-        finally:
-            bar.close()
+    def start(self, imu: list) -> None:
+        for msg in imu:
+            self.pipeline.add_imu(msg)
+
+    def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
+        """A frame through the pipeline: its step."""
+        res = self.pipeline.process(msg, self.source)
+        step = _Step(t_log, frame_messages(res, self.map_frame, _WANTED), res.fused,
+                     _camera_row(self.index, res, self.cfg.solver))  # fmt: skip
+        self.index += 1
+        if res.solved:
+            step.pose, step.out_stamp_ns = res.output, res.out_stamp_ns
+            step.twist_now, step.estimate = res.twist_now, res.estimate
+            if views:
+                step.views = [_camera_view(res)]
+        return [step]
+
+    def close(self, t_log: int, views: bool) -> tuple[list, int, list]:
+        """The end of the video: the twists still pending, at the bag's last log time."""
+        return [], t_log, self.pipeline.flush()
 
     def finish(self, rows: ReplayRows) -> None:
         """The pipeline's counts and the map-fit check's warning into the result."""
@@ -518,76 +556,169 @@ def _camera_view(res: FrameResult) -> _View:
                  res.frame_id, res.out_stamp_ns, image)  # fmt: skip
 
 
-class _RigReplay:
-    """A rig bag's cameras through the rig mode (:class:`~rs_localizer.ros.bags.rig_bag.
-    RigRun`) for :func:`replay`: each rig frame's :class:`_Step` from :meth:`steps`, the
-    rig frame's pose in ``map_frame`` and its twist in ``base_frame``, as the rig node
-    publishes them; ``bag_topics``: the bag's topic -> msgtype."""
+class _RigReplay(_Run):
+    """A rig bag's cameras through the rig mode, as the rig node runs it (:func:`replay`):
+    configured on construction from the parameters
+    (:func:`~rs_localizer.ros.bags.bag_frames.rig_bag_config`: the defaults, the bag's
+    ``rig_params.yaml``, ``params_files``, ``params``): the rig
+    (:class:`~rs_localizer.tracking.video.Localizer`), each camera's input
+    (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`) and front end.
+
+    Each camera's frame message is read through its
+    :class:`~rs_localizer.ros.camera_input.CameraInput` as the rig node reads it: a cloud's
+    rows with a NaN or inf dropped, then at most ``max_points`` rows (highest scores first),
+    counted per camera (``points_dropped``, ``capped_clouds``); with a front end (``frontend``
+    other than ``none``, its map ``frontend_map``; a ``render-bag --rig`` bag holds its
+    ``markers.yaml``) its images (``<namespace>/<camera>/image_raw``) instead, through the
+    camera's own front end (decoded and checked against the camera model of its stamp, a
+    rejected one skipped for its reason). A message that cannot be read is counted received
+    and ``skipped.bad_input`` as the node counts it, and one with a readable stamp goes to the
+    rig as a frame skipped (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's
+    counts are the rig node's on the same messages (taken as they come, none dropped from a
+    full queue); each frame's stamp is then noted on the rig's clock as the node's camera
+    notes it (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_on_rig`: after a time
+    reset, the camera_infos stamped after the camera's first frame of the new timeline
+    forgotten). A gyro on the rig (``imu.enabled``) is read from ``<namespace>/imu``, its
+    samples up to :data:`~rs_localizer.ros.bags.rig_bag.GYRO_AHEAD_NS` after a frame's stamp
+    given to the rig before the frame. Each rig frame is published as the rig node publishes
+    it: its pose in ``map_frame``, its twist in ``base_frame``.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
+            no ``rig.cameras``, a front end whose map does not load), or a front end for a bag
+            without camera images.
+    """
 
     def __init__(self, path: Path, params_files: list, params):
-        self.run = run = RigRun(path, params_files, params)
-        self.engine = run.rig
-        values = run.values
+        from ...tracking.video import Localizer
+        from ..camera_input import CameraCounts, rig_camera_inputs
+
+        values, _, cfg = rig_bag_config(path, params_files, params)
+        self.path, self.cfg = path, cfg
+        self.engine = rig = Localizer(cfg.settings)
+        names = tuple(c.name for c in cfg.cameras)
+        self.mounts = {c.name: c.mount for c in cfg.cameras}
+        self.own = {n: CameraCounts(n) for n in names}  # (the node's counts of each)
+        self.off_deg: dict[str, list] = {}
+        ns = rig_namespace(path, names)
+        self.imu_topic = f"{ns}/imu" if cfg.settings.imu is not None else None
+        try:
+            frontends = rig_frontends(path, values, cfg, owner=self)
+            self.landmarks = rig_landmarks(values, cfg, owner=self)
+        except BaseException:
+            SHARED_MAPS.release(self)
+            raise
+        self.inputs = rig_camera_inputs(cfg, QuietLog(), self._count, landmarks=self.landmarks)
+        for n, fe in (frontends or {}).items():  # (each camera's own, as the node runs them)
+            rig.set_frontend(n, fe, str(values["frontend"]).strip())
+        kinds = rig_kinds(self.inputs, frontends is not None)
+        self.topics = RigTopics(ns, names).of(("info", *kinds))
+        self.total, self.unit = None, " rig frames"
         self.map_frame = str(values["map_frame"])
         self.base_frame = str(values["base_frame"]).strip() or "base_link"
-        self.views = tuple(f"{n}/" for n in run.cameras)
+        self.views = tuple(f"{n}/" for n in names)
         self.bag_topics = present = bag_topics(path)
-        names = run.cameras
-        self.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(rig_namespace(path, names),
-                             names).of(("image",)).items() if t in present}  # fmt: skip
-        self.twist_now = run.cfg.settings.tracking is None
-        self.result = ReplayResult(config=run.cfg, parameters=values, cameras=run.cameras,
+        self.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(ns, names).of(("image",))
+                             .items() if t in present}  # fmt: skip
+        self.twist_now = cfg.settings.tracking is None
+        self.result = ReplayResult(config=cfg, parameters=values, cameras=names,
                                    tracked=not self.twist_now)  # fmt: skip
         self.fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end)
 
-    def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
-        """Each rig frame's :class:`_Step` as the rig poses it or fails, logged at its time;
-        then the fused twists still pending at the end of the video."""
+    def _count(self, name: str, key: str, n: int = 1) -> None:
+        self.own[name].add(key, n)
+
+    def start(self, imu: list) -> None:
+        """The gyro's samples ``(stamp_ns, (wx, wy, wz))``, newest first (popped oldest
+        first); samples without an angular velocity or a readable stamp left out."""
+        gyro = []
+        for msg in imu:
+            try:
+                gyro.append(cv.gyro_sample(msg))
+            except cv.ImuError:
+                continue
+        self.gyro = sorted(gyro, key=lambda x: x[0])[::-1]
+
+    def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
+        """A camera's frame message through its input to the rig: the steps of the rig frames
+        it completes."""
+        rig, own, inp = self.engine, self.own[name], self.inputs[name]
+        own.add("received")  # (as the node: every message, taken at once)
+        stamp = inp.check(msg, kind)
+        item = inp.take(msg, kind, stamp, inp.camera_of(stamp))
+        stamp = item.stamp_ns
+        if stamp is None:  # (a stamp out of range: skipped by the node alone)
+            own.add("skipped.bad_input")
+            return []
+        while self.gyro and self.gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
+            rig.add_imu(*self.gyro.pop())
+        outs = to_rig(rig, item)
+        # (its stamp on the rig's clock, as the rig node's camera notes it: its camera_infos
+        # stamped after a time reset forgotten)
+        inp.note_on_rig(rig, stamp)
+        note_disagreeing(rig, outs, self.off_deg)
+        return self._steps(outs, views)
+
+    def close(self, t_log: int, views: bool) -> tuple[list, int, list]:
+        """The end of the video: the rig frames it closes, then the fused twists still
+        pending, at the last rig frame's time."""
+        rig, result = self.engine, self.result
+        tail = rig.close()
+        note_disagreeing(rig, tail, self.off_deg)
+        result.flushed = rig.flush()
+        steps = self._steps(tail, views)
+        t_end = result.outputs[-1].stamp_ns if result.outputs else 0
+        return steps, t_end, [FusedOutput(f.pose.stamp_ns, f, self.base_frame)
+                              for f in result.flushed]  # fmt: skip
+
+    def _steps(self, outs: list, views: bool) -> list[_Step]:
+        """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
+        the rig node tags it), each logged at its time."""
         from ..visualization import rig_camera_views
 
-        run, result, base, mf = self.run, self.result, self.base_frame, self.map_frame
-        wanted = OUT_TYPES.__contains__
-        t = 0
-        for i, o in enumerate(run.outputs(progress)):
-            result.outputs.append(o)
+        result, base, mf, steps = self.result, self.base_frame, self.map_frame, []
+        for o in outs:
             t, est = o.stamp_ns, o.estimate
             if est is not None:
                 result.solver = result.solver or est.solver
                 self.fit.update(o.num_points, est)
             fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in o.fused]
-            msgs = pose_messages(est, t, mf, base, self.twist_now, (), wanted) if o.success else []
-            step = _Step(t, msgs + fused_messages(fused, mf, wanted), fused, _rig_row(i, o))
+            msgs = pose_messages(est, t, mf, base, self.twist_now, (), _WANTED) if o.success else []
+            step = _Step(t, msgs + fused_messages(fused, mf, _WANTED), fused,
+                         _rig_row(len(result.outputs), o))  # fmt: skip
+            result.outputs.append(o)
             if o.success:
                 step.pose, step.out_stamp_ns, step.estimate = est, t, est
                 step.twist_now = self.twist_now or o.twist_now
-                drawn = rig_camera_views(o, run.mounts) if views else ()
+                drawn = rig_camera_views(o, self.mounts) if views else ()
                 step.views = [
                     _View(f"{n}/", view, f.points2d, f.points3d, f.camera, f.stamp_ns,
                           f.tag or n, ref)
                     for n, f, view, ref in drawn
                 ]  # fmt: skip
-            yield step
-        result.flushed = run.flushed
-        fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in run.flushed]
-        yield _Step(t, fused_messages(fused, mf, wanted), fused)
+            steps.append(step)
+        return steps
 
     def finish(self, rows: ReplayRows) -> None:
         """The cameras' and the rig's counts, the gyro's, the rig frames' own twist, the
         cameras' disagreement and the warnings of the video into the result."""
-        run, result, rig = self.run, self.result, self.run.rig
-        result.camera_counts = run.camera_counts()
-        result.off_deg = run.off_deg
+        result, rig = self.result, self.engine
+        result.camera_counts = {"rig": rig.rig_counts()}
+        for n in rig.cameras:
+            result.camera_counts[n] = camera_counts(rig, n, self.own[n].counts(),
+                                                    self.landmarks is not None)  # fmt: skip
+        result.off_deg = self.off_deg
         result.own_twist = rows.own_twist()
-        if run.cfg.settings.imu is not None:
+        if self.cfg.settings.imu is not None:
             result.counts = rig.gyro_counts()
         if self.fit.doubtful:
             result.notes.append(self.fit.text())
-        if run.cfg.unused_text:  # (a parameter file shared with single-camera nodes)
-            result.notes.append(run.cfg.unused_text)
+        if self.cfg.unused_text:  # (a parameter file shared with single-camera nodes)
+            result.notes.append(self.cfg.unused_text)
 
     def readout_values(self) -> dict:
         """The check of the cameras' rolling-shutter timing on the video."""
-        return self.run.rig.readout_values()
+        return self.engine.readout_values()
 
 
 def _rig_row(index: int, o: Any) -> dict:

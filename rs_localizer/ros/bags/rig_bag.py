@@ -1,10 +1,9 @@
-"""What a rig bag's replay does that a camera's does not: the cameras' frames, read as the rig
-node reads them (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`), grouped into rig
-frames and posed by the rig mode's :class:`~rs_localizer.tracking.video.Localizer`
-(:class:`RigRun`, which :func:`~rs_localizer.ros.bags.replay.replay` runs for a rig bag and
-reports as a camera's replay), each camera's accounting (:func:`camera_counts`), the cameras
-that disagree with the others (:func:`disagreeing`), and the grouping alone
-(:func:`rig_frame_grouping`, what ``play --lockstep`` waits after).
+"""What only a rig bag's replay and play do: each camera's accounting
+(:func:`camera_counts`), the cameras that disagree with the others
+(:func:`note_disagreeing`, :func:`disagreeing`), how far ahead of a frame the rig's gyro is
+fed (:data:`GYRO_AHEAD_NS`), and the grouping of the cameras' frames into rig frames alone
+(:func:`rig_frame_grouping`, what ``play --lockstep`` waits after). The rig's run itself is
+:func:`~rs_localizer.ros.bags.replay.replay`'s, a camera's with the rig mode's frame step.
 
 A rig bag (written by :func:`~rs_localizer.ros.bags.bag_io.write_rig_bag`) holds, per camera
 ``<c>``, ``<ns>/<c>/camera_info`` and ``<ns>/<c>/correspondences`` (u, v, x, y, z, id) and,
@@ -20,155 +19,27 @@ and of ``replay``). With a gyro on the rig (``make-bag --rig N --imu-rate HZ``) 
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterable, Iterator, Mapping
-from typing import TYPE_CHECKING, Any, TextIO
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .. import conversions as cv
-from .bag_frames import (
-    QuietLog,
-    iter_rig_frames,
-    read_rig_frames,
-    rig_bag_config,
-    rig_frontends,
-    rig_landmarks,
-)
-from .bag_io import iter_messages, progress_bar, rig_namespace, typestore
+from .bag_frames import read_rig_frames
 
 if TYPE_CHECKING:
-    from ...tracking.video import Localizer, LocalizerOutput
+    import os
+
+    from ...tracking.video import Localizer
 
 __all__ = [
+    "GYRO_AHEAD_NS",
     "ROW_COUNTS",
-    "RigRun",
     "camera_counts",
     "disagreeing",
+    "note_disagreeing",
     "rig_frame_ends",
     "rig_frame_grouping",
 ]
-
-
-class RigRun:
-    """A rig bag through the rig mode, for :func:`~rs_localizer.ros.bags.replay.replay`: the
-    configuration of the parameters (:func:`~rs_localizer.ros.bags.bag_frames.rig_bag_config`:
-    the defaults, the bag's ``rig_params.yaml``, ``params_files``, ``params``), the rig
-    (:class:`~rs_localizer.tracking.video.Localizer`) and each camera's input
-    (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), made before any frame is read.
-
-    Each camera's clouds are read through its
-    :class:`~rs_localizer.ros.camera_input.CameraInput`, as the rig node reads them: rows with
-    a NaN or inf dropped, then at most ``max_points`` rows (highest scores first), counted per
-    camera (``points_dropped``, ``capped_clouds``). A cloud that cannot be read
-    (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`) is counted received and
-    ``skipped.bad_input`` as the node counts it, and one with a readable stamp goes to the rig
-    as a frame skipped (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's counts
-    are the rig node's on the same messages (taken as they come, none dropped from a full
-    queue); each frame's stamp is then noted on the rig's clock as the node's camera notes it
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_on_rig`: after a time reset, the
-    camera_infos stamped after the camera's first frame of the new timeline forgotten). With a
-    front end (``frontend`` other than ``none``, its map ``frontend_map``; a
-    ``render-bag --rig`` bag holds its ``markers.yaml``) each camera's images
-    (``<namespace>/<camera>/image_raw``) are read instead, through the camera's own front end
-    as the rig node runs it (decoded and checked against the camera model of its stamp, a
-    rejected one skipped for its reason, the front end's rows as a cloud's). A gyro on the rig
-    (``imu.enabled``) is read from ``<namespace>/imu``, its samples up to
-    :data:`GYRO_AHEAD_NS` after a frame's stamp given to the rig before the frame.
-
-    Attributes:
-        values: the parameter values; cfg: the :class:`~rs_localizer.ros.config.RigConfig`.
-        cameras: the cameras' names (rig order); mounts: camera -> its
-            :class:`~rs_localizer.frames.Mounting` (in ``base_frame``).
-        off_deg: camera -> one entry per posed rig frame in which it disagreed with the others
-            (:func:`disagreeing`).
-        flushed: the fused poses still pending at the end of the video (after :meth:`outputs`).
-
-    Raises:
-        ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
-            no ``rig.cameras``, a front end whose map does not load), or a front end for a bag
-            without camera images.
-    """
-
-    def __init__(
-        self,
-        bag: str | os.PathLike,
-        params_files: Iterable[str | os.PathLike] = (),
-        params: Mapping[str, Any] | None = None,
-    ):
-        from ...frontends.shared import SHARED_MAPS
-        from ...tracking.video import Localizer
-        from ..camera_input import CameraCounts, rig_camera_inputs
-
-        self.bag = bag
-        self.values, _, self.cfg = rig_bag_config(bag, params_files, params)
-        cfg = self.cfg
-        self.rig = Localizer(cfg.settings)
-        self.cameras = tuple(c.name for c in cfg.cameras)
-        self.mounts = {c.name: c.mount for c in cfg.cameras}
-        self.own = {n: CameraCounts(n) for n in self.cameras}  # (the node's counts of each)
-        self.off_deg: dict[str, list] = {}
-        self.flushed: list = []
-        ns = rig_namespace(bag, self.cameras)
-        self.gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
-        try:
-            self.frontends = rig_frontends(bag, self.values, cfg, owner=self)
-            self.landmarks = rig_landmarks(self.values, cfg, owner=self)
-        except BaseException:
-            SHARED_MAPS.release(self)
-            raise
-        self.inputs = rig_camera_inputs(cfg, QuietLog(), self._count, landmarks=self.landmarks)
-        for n, fe in (self.frontends or {}).items():  # (each camera's own, as the node runs them)
-            self.rig.set_frontend(n, fe, str(self.values["frontend"]).strip())
-
-    def _count(self, name: str, key: str, n: int = 1) -> None:
-        self.own[name].add(key, n)
-
-    def outputs(self, progress: TextIO | None = None) -> Iterator[LocalizerOutput]:
-        """Every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`, solved or
-        failed, in order as the cameras' frames (in log-time order) complete them, then those
-        the end of the video closes; each camera frame tagged with its frame id, as the rig
-        node tags it (:meth:`~rs_localizer.ros.camera_input.CameraInput.tag_of`). Afterwards
-        :attr:`flushed` holds the fused poses still pending."""
-        from ...frontends.shared import SHARED_MAPS
-        from ..camera_input import to_rig
-
-        rig, own, gyro = self.rig, self.own, self.gyro
-        bar = progress_bar(progress, None, unit=" rig frames")
-        try:
-            for item in iter_rig_frames(self.bag, self.inputs, images=self.frontends is not None):
-                n = item.camera_name
-                own[n].add("received")  # (as the node: every message, taken at once)
-                stamp = item.stamp_ns
-                if stamp is None:  # (a stamp out of range: skipped by the node alone)
-                    own[n].add("skipped.bad_input")
-                    continue
-                while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
-                    rig.add_imu(*gyro.pop())
-                outs = to_rig(rig, item)
-                # (its stamp on the rig's clock, as the rig node's camera notes it: its
-                # camera_infos stamped after a time reset forgotten)
-                self.inputs[n].note_on_rig(rig, stamp)
-                _note_disagreeing(rig, outs, self.off_deg)
-                bar.update(len(outs))
-                yield from outs
-            tail = rig.close()
-            _note_disagreeing(rig, tail, self.off_deg)
-            self.flushed = rig.flush()
-            bar.update(len(tail))
-            yield from tail
-        finally:
-            SHARED_MAPS.release(self)
-            bar.close()
-
-    def camera_counts(self) -> dict:
-        """``rig``: the rig frames' counts (``rig_frames``, ``solved``, ``failed``,
-        ``skipped``, ``pending``), then camera -> :func:`camera_counts`, as the rig node's
-        diagnostics count them."""
-        out = {"rig": self.rig.rig_counts()}
-        for n in self.rig.cameras:
-            out[n] = camera_counts(self.rig, n, self.own[n].counts(), self.landmarks is not None)
-        return out
 
 
 #: the counts of a camera's rows a replay reports beside its frames' (the rig node's
@@ -196,7 +67,7 @@ def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: boo
     return out
 
 
-def _note_disagreeing(rig, outs: list, off_deg: dict) -> None:
+def note_disagreeing(rig: Localizer, outs: list, off_deg: dict) -> None:
     """For each posed rig frame of ``outs``, each of its cameras that disagrees with the others
     (:attr:`~rs_localizer.tracking.video.LocalizerOutput.outvoted` or ``disagreeing``): how far
     off it is (:meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg` on the camera's frame
@@ -214,7 +85,7 @@ def _note_disagreeing(rig, outs: list, off_deg: dict) -> None:
 
 def disagreeing(off_deg: Mapping[str, list]) -> dict:
     """camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera that disagreed with the
-    others in N posed rig frames (``off_deg``: :attr:`RigRun.off_deg`), X the median of how far
+    others in N posed rig frames (``off_deg``: :func:`note_disagreeing`'s), X the median of how far
     off it was, deg (NaN: never posed alone)."""
     return {
         n: {
@@ -228,20 +99,6 @@ def disagreeing(off_deg: Mapping[str, list]) -> dict:
 #: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
 #: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
 GYRO_AHEAD_NS = 50_000_000
-
-
-def _read_rig_gyro(bag: str | os.PathLike, ns: str) -> list:
-    """The ``<ns>/imu`` samples of a rig bag as ``(stamp_ns, (wx, wy, wz))``, newest first
-    (popped oldest first); samples without an angular velocity or a readable stamp left out."""
-    ts = typestore()
-    out = []
-    for _, msgtype, _, raw in iter_messages(bag, {f"{ns}/imu"}):
-        try:
-            out.append(cv.gyro_sample(ts.deserialize_cdr(raw, msgtype)))
-        except cv.ImuError:
-            continue
-    out.sort(key=lambda x: x[0])
-    return out[::-1]
 
 
 def rig_frame_ends(
