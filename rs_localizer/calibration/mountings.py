@@ -404,6 +404,32 @@ def _mounting_covariance(
     return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
 
 
+def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
+    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
+    those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
+    ``(t ns on the rig's clock, orientation (3, 3) camera -> world, position (3,) m, angular
+    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12))`` in time
+    order (``t``: the reference line's capture time plus the camera's ``given`` offset, s)."""
+    poses: dict[str, list] = {}
+    for f in frames:
+        if f.camera is None:
+            continue
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        poses.setdefault(f.camera_name, [])
+        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
+            continue
+        if not np.isfinite(est.covariance[:6, :6]).all():
+            continue
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
+        q = est.pose
+        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
+                                     q.linear_velocity, est.covariance))  # fmt: skip
+    for items in poses.values():
+        items.sort(key=lambda i: i[0])
+    return poses
+
+
 def calibrate_mountings(
     frames: list,
     reference: str,
@@ -461,23 +487,7 @@ def calibrate_mountings(
         ValueError: no frame of ``reference`` posed.
     """
     given = {n: float(v) for n, v in (time_offsets or {}).items()}
-    poses: dict[str, list] = {}
-    for f in frames:
-        if f.camera is None:
-            continue
-        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
-        poses.setdefault(f.camera_name, [])
-        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
-            continue
-        if not np.isfinite(est.covariance[:6, :6]).all():
-            continue
-        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
-        q = est.pose
-        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
-                                     q.linear_velocity, est.covariance))  # fmt: skip
-    for items in poses.values():
-        items.sort(key=lambda i: i[0])
+    poses = _posed_alone(frames, options, min_inliers, stamp_row, given)
     if not poses.get(reference):
         raise ValueError(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
