@@ -26,24 +26,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "calibrate-rig",
         help=HELP,
         description="Estimate every camera's mounting on the rig from a rig bag (each camera's "
-        "correspondences with a known map and camera_info, e.g. make-bag --rig N): each camera "
-        "frame is posed alone and carried to its rig frame's time with its estimated twist; "
-        "the mountings start from the cameras' relative poses chained from the reference "
-        "camera over the cameras that share rig frames (a ring or a chain of cameras need not "
-        "all see the map with the reference), then every rig frame's pose and every mounting "
-        "are adjusted jointly by least squares (outliers left out), each mounting with its "
-        "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
-        "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
-        "docs/rig_node.md) with each camera's RS timing. The cameras, their timing and "
-        "max_points come from the bag's rig_params.yaml, then --params-file, then -p. Each "
-        "camera's clouds (with a front end, -p frontend: its images through the front end, "
-        "e.g. of a render-bag --rig bag or a recording) are read as the rig node reads them: "
-        "with the camera_info of the cloud's "
-        "stamp, rows with a NaN or inf dropped (counted points_dropped), then at most "
-        "max_points rows (counted capped_clouds, capped_points); a cloud that cannot be read "
-        "(an invalid stamp, no u, v, x, y, z fields) is left out, counted bad_input, as the "
-        "node counts it skipped.bad_input; the counts are printed for each camera that had "
-        "any.",
+        "correspondences with a known map and camera_info, e.g. make-bag --rig N; with -p "
+        "frontend its images through the front end): each camera frame is posed alone; the "
+        "mountings start from the cameras' relative poses chained from the reference camera "
+        "over the cameras that share rig frames (a ring or a chain of cameras need not all see "
+        "the map with the reference), then every rig frame's pose and every mounting are "
+        "adjusted jointly by least squares (outliers left out), each mounting with its "
+        "covariance. Writes the node's rig parameters (rig.<camera>.mounting and "
+        "mounting_covariance) with each camera's RS timing. The cameras, their timing and "
+        "max_points come from the bag's rig_params.yaml, then --params-file, then -p. The "
+        "clouds are read as the rig node reads them; the rows and clouds left out are counted "
+        "and printed for each camera that had any (docs/tools.md#calibrate-rig).",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
