@@ -1,12 +1,7 @@
-"""A rig's camera mountings from a video of a known map (``rs-localizer calibrate-rig``).
-
-Each camera frame is posed alone; the cameras' frames close in time make rig frames; the
-mountings start from the cameras' relative poses chained over a spanning tree of the cameras
-that share rig frames, then every rig frame's pose and every mounting are adjusted in one
-least-squares problem (:func:`calibrate_mountings`), each mounting with its covariance
-(:class:`MountingEstimate`), which the rig estimator adds to the rig pose's
-(:attr:`~rs_localizer.frames.Mounting.covariance`). docs/rig_node.md, "Mountings from
-data".
+"""A rig's camera mountings from a video of a known map (:func:`calibrate_mountings`, what
+``rs-localizer calibrate-rig`` runs), each with its covariance, which the rig estimator adds
+to the rig pose's (:attr:`~rs_localizer.frames.Mounting.covariance`). The method, step by
+step, with its measurements: docs/rig_node.md, "Mountings from data".
 """
 
 from __future__ import annotations
@@ -16,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.linalg import block_diag
 from scipy.stats import chi2
 
 from ..camera import reference_stamp_ns
@@ -40,33 +36,21 @@ class MountingEstimate:
     Attributes:
         name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
             x_rig + c``) with its ``covariance`` (None for the reference camera, whose
-            mounting is given).
+            mounting is given): the adjustment's ``s^2 (J^T J)^-1``, inflated for the errors
+            neighbouring frames share, plus the bias of the single-camera poses that averaging
+            does not remove (:data:`MOUNTING_BIAS_SHARE`; docs/rig_node.md, "Mountings from
+            data", step 5).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
             its three axes) and of the camera's position on the rig (mm, norm), from
-            ``mount.covariance``; zero for the reference camera. The covariance adds:
-
-            * the adjustment's ``s^2 (J^T J)^-1`` (``J`` the Jacobian of the camera frames'
-              whitened pose errors, ``s^2`` their variance factor), scaled up by how much
-              more the means of 8 runs of consecutive rig frames scatter than independent
-              frames would (neighbouring frames share errors, e.g. of the motion);
-            * a systematic term: the single-camera poses carry a bias (mostly along a
-              camera's depth) that is the same in every frame of a video, so averaging does
-              not remove it. Each camera's is taken as :data:`MOUNTING_BIAS_SHARE` (0.1 for
-              the rotation, 0.2 for the position) of its frames' per-axis scatter in its own
-              axes, and propagated through the adjustment to every mounting (to first
-              order; a camera reached through others carries their biases too). Against the
-              truth the bias was 0.02-0.15 of one frame's scatter in rotation and 0.07-0.26
-              in position on synthetic and rendered rig videos of 5-10 s; it does not shrink
-              with the video's length.
+            ``mount.covariance``; zero for the reference camera.
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
         time_offset: s added to the camera's stamps to put its frames on the rig's clock (the
             reference camera's: as given): the one it was calibrated with, or with
             ``estimate_time_offsets`` the estimate.
         time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
-            the mounting's for the frames' shared errors); NaN: not estimated (given, or the
-            reference camera's).
+            the mounting's); NaN: not estimated (given, or the reference camera's).
     """
 
     name: str
@@ -95,18 +79,6 @@ TIME_OFFSET_PRIOR = 1.0
 #: share of one rig frame's scatter of the rotation and of the position: the bias of the
 #: single-camera poses, which averaging over a video does not remove
 MOUNTING_BIAS_SHARE = {"rotation": 0.1, "position": 0.2}
-
-
-def _robust_rotation_mean(Rs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (n, 3, 3) -> (their chordal mean over the inliers, the inlier mask): rotations
-    more than 3 times the median angle (and 0.05 deg) from the mean are outliers, twice."""
-    keep = np.ones(len(Rs), dtype=bool)
-    for _ in range(3):
-        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
-        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
-        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
-    return M, keep
 
 
 def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
@@ -183,10 +155,17 @@ def _rig_frames(poses: dict, window: float, max_step: float) -> list:
 
 def _pair_mean(rel: list) -> tuple:
     """Relative poses ``(R, p)`` of one camera in another's frame over rig frames -> their
-    robust mean (chordal mean and mean position over the inliers)."""
+    robust mean: the chordal mean of the rotations and the mean position over the inliers
+    (rotations more than 3 times the median angle and 0.05 deg from the mean are outliers,
+    twice; positions more than 3 times the median distance and 0.1 mm from the median)."""
     Rs = np.array([r for r, _ in rel])
     ps = np.array([p for _, p in rel])
-    M, keep = _robust_rotation_mean(Rs)
+    keep = np.ones(len(Rs), dtype=bool)
+    for _ in range(3):
+        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
+        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
+        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
     d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
     keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
     return M, ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
@@ -224,16 +203,6 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     return mounts
 
 
-def _turned(R: np.ndarray) -> np.ndarray:
-    """(6, 6) block-diagonal ``diag(R, R)``: a (rotation, position) error turned by ``R``
-    (3, 3); ``R_wc^T`` of a camera of orientation ``R_wc`` (camera -> world) takes it from
-    world axes to the camera's, ``R_wc`` back."""
-    T = np.zeros((6, 6))
-    T[:3, :3] = R
-    T[3:, 3:] = R
-    return T
-
-
 #: rig frames whose camera's whitened pose error (squared) is beyond this quantile of the
 #: chi-square distribution with 6 degrees of freedom (times the median's scale) are left out
 #: of the mountings' adjustment
@@ -249,30 +218,26 @@ def _adjust(
 ):
     """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
     frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
-    rig rotation, position), the start) to the cameras' poses posed alone, each camera's
-    errors whitened by its frames' typical covariance in its own axes; camera frames in
-    ``outlier`` ((rig
-    frame, camera) -> True) left out, and cameras no longer connected to the reference.
-    ``offsets``: each non-reference camera's time offset (s, against the reference's) is
-    adjusted too, to first order (its frames' poses move along their twist).
-    Returns ``(mounts, the whitened Jacobian (sparse), whitened errors (m, 6), the
-    observations (rig frame used, rig frame, camera, O, p, whitening, twist), rig frames
-    used, adjusted cameras, their time offsets (s; empty without ``offsets``))``; the
-    Jacobian's columns: the rig frames' poses (6 each), the mountings (6 each), the time
-    offsets."""
+    rig rotation, position), the start) to the cameras' poses posed alone; camera frames in
+    ``outlier`` ((rig frame, camera) -> True) and cameras no longer connected to the
+    reference left out. ``offsets``: each free camera's time offset (s) adjusted too, to
+    first order (its frames' poses moved along their twist). Returns ``(mounts, the whitened
+    Jacobian (sparse; columns: the rig frames' poses, the mountings, 6 each, then the
+    offsets), whitened errors (m, 6), the observations (rig frame used, rig frame, camera, O,
+    p, whitening, twist), rig frames used, adjusted cameras, their offsets (s; {} without
+    ``offsets``))``."""
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
 
     # each camera's pose errors weighted by its frames' typical covariance (the mean of
-    # those within 3 times the median trace), taken in the camera's own axes: the depth
-    # direction and the rotation-position coupling turn with the camera, so a mean in world
-    # axes blurs them as the rig turns (on make-bag --rig 3 --frames 300 --points 300 the
-    # world-axes mean gave 0.57/0.98 mm against the truth, the camera-axes 0.40/0.39 mm);
-    # each frame's weight then scaled by its own covariance's size (below)
+    # those within 3 times the median trace) in its own axes (block_diag(R_wc^T, R_wc^T):
+    # world -> camera axes), as the depth direction turns with the camera (on make-bag --rig
+    # 3 --frames 300 --points 300 world axes gave 0.57/0.98 mm against the truth, camera
+    # axes 0.40/0.39 mm); each frame's weight then scaled by its own covariance's size
     covs: dict = {}
     for _, seen in rig_frames:
         for n, (R_wc, _, c6, _) in seen.items():
-            T = _turned(R_wc.T)
+            T = block_diag(R_wc.T, R_wc.T)
             covs.setdefault(n, []).append(T @ np.asarray(c6, dtype=float)[:6, :6] @ T.T)
     whiten = {}
     for n, cs in covs.items():
@@ -316,7 +281,7 @@ def _adjust(
             # the typical covariance's shape, scaled to the size of the frame's own (its
             # mean variance in the typical's whitened units): a frame of few inliers
             # counts less, its own shape (noisy with few points) is not used
-            Wn = whiten[n] @ _turned(Oc.T)
+            Wn = whiten[n] @ block_diag(Oc.T, Oc.T)
             size = np.trace(Wn @ np.asarray(c6, dtype=float)[:6, :6] @ Wn.T) / 6.0
             obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), twist))
     G, F = len(R0g), len(free)
@@ -388,14 +353,11 @@ def _mounting_covariance(
     J, r: np.ndarray, obs: list, G: int, free: list, reference: str
 ) -> tuple[dict, dict]:
     """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
-    [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J`` of the
-    whitened errors, ``s^2`` their variance factor), scaled by how much more the means of 8
-    runs of consecutive rig frames scatter than independent frames would (neighbouring frames
-    share errors, e.g. of the motion), plus the bias every frame of a camera shares
-    (:data:`MOUNTING_BIAS_SHARE` of the camera's per-axis scatter in its own axes, which
-    averaging does not remove), propagated through the adjustment (first order). Also each
-    free camera's time offset's standard deviation (s) when the adjustment had them (the
-    Jacobian's last columns), ``s^2 H^-1`` with the same inflation."""
+    [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J``)
+    inflated by the batch means of :func:`_std_of_mean`, plus each camera's bias
+    (:data:`MOUNTING_BIAS_SHARE` of its per-axis scatter in its own axes) propagated through
+    the adjustment to first order (docs/rig_node.md, "Mountings from data", step 5). Also
+    each free camera's time offset's std (s) when the adjustment had them, inflated alike."""
     m, n = r.shape[0], J.shape[1]
     H = (J.T @ J).toarray() if hasattr(J, "toarray") else J.T @ J
     dof = max(6 * m - n, 1)
@@ -432,7 +394,7 @@ def _mounting_covariance(
         e_cam = []
         for i in rows:
             Oc, Wh = obs[i][3], obs[i][5]
-            Z[6 * i : 6 * i + 6] = Wh @ _turned(Oc)
+            Z[6 * i : 6 * i + 6] = Wh @ block_diag(Oc, Oc)
             e = np.linalg.solve(Wh, r[i])
             e_cam.append(np.concatenate([Oc.T @ e[:3], Oc.T @ e[3:]]))
         B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
@@ -442,75 +404,12 @@ def _mounting_covariance(
     return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
 
 
-def calibrate_mountings(
-    frames: list,
-    reference: str,
-    *,
-    reference_mount: Mounting | None = None,
-    window: float = 0.015,
-    stamp_row: float = 0.0,
-    min_inliers: int = 20,
-    options: Any = None,
-    max_step: float = 0.1,
-    time_offsets: Mapping[str, float] | None = None,
-    estimate_time_offsets: bool = False,
-) -> dict:
-    """Every camera's mounting on the rig from a video of a known map, adjusted jointly.
-
-    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
-    pose, twist and covariance at its reference line's capture time, camera optical frame).
-    Rig frames: every camera frame's time starts one unless within ``window`` of the current
-    rig frame's start; each camera's frame nearest that start (within ``window``) is carried
-    to it with the camera's estimated motion: the constant twist between its own two frames
-    around that time (interpolated poses; its frame's own twist when it has no frame on the
-    other side within ``max_step`` s). Rig frames with at least two cameras are used.
-
-    The cameras need not share rig frames with the reference camera: any set of cameras
-    connected through shared rig frames (a ring, a chain) is calibrated. The mountings start
-    from the pairwise relative poses (robust means over the rig frames two cameras share)
-    chained from the reference over a spanning tree of the cameras, then every rig frame's
-    pose and every mounting are adjusted in one least-squares problem over all rig frames
-    (SciPy ``least_squares``, sparse Jacobian), each camera's pose errors whitened by its
-    frames' typical covariance in the camera's own axes (the mean of those within 3 times the
-    median trace, turned with the camera into the world in every frame), scaled in each
-    frame to the size of the frame's own covariance (a frame of few inliers counts less;
-    whitening each frame by its own covariance, shape included, gave larger errors against
-    the truth on the synthetic rig walk);
-    camera frames whose error is beyond the 99.9 % quantile (chi-square,
-    6 degrees of freedom, at the errors' median scale) are left out and the adjustment is
-    run again.
-
-    Args:
-        frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
-            order; frames without a camera model are skipped).
-        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
-            (its known mounting on the rig) places it: the rig frame is then that mounting's.
-        window: s; frames further apart are not one rig frame.
-        stamp_row: the row whose capture time is a frame's stamp.
-        min_inliers: frames posed with fewer inliers are not used.
-        max_step: s; the longest interval between a camera's two frames to interpolate
-            over. (On the synthetic rig walk, 6 s, 0.5 px noise, the camera 8 ms from the
-            reference: interpolated 0.001 deg and 0.44 mm from the truth, carried by its own
-            frame's twist 0.012 deg and 0.63 mm, by the true twist 0.003 deg and 0.44 mm.)
-        options: the single-camera estimator's
-            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
-        time_offsets: camera -> s added to its stamps (a rig's
-            :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
-        estimate_time_offsets: also estimate every camera's time offset against the
-            reference camera's (its given one kept): each one's parameter in the adjustment
-            (a camera frame's pose moved along its own twist by it), the cameras' frames
-            regrouped at the offsets found (those beyond 3 of their std) and the adjustment
-            run again until they change by less than :data:`TIME_OFFSET_TOL` (at most
-            :data:`TIME_OFFSET_ROUNDS` times).
-            Only a rig that moves shows an offset: its std says how well (a camera turning at
-            1 rad/s is 0.57 deg off per 10 ms, one moving at 1 m/s 10 mm).
-    Returns:
-        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
-        a camera not connected to the reference through shared rig frames is missing).
-    Raises:
-        ValueError: no frame of ``reference`` posed.
-    """
-    given = {n: float(v) for n, v in (time_offsets or {}).items()}
+def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
+    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
+    those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
+    ``(t ns on the rig's clock, orientation (3, 3) camera -> world, position (3,) m, angular
+    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12))`` in time
+    order (``t``: the reference line's capture time plus the camera's ``given`` offset, s)."""
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
@@ -528,6 +427,67 @@ def calibrate_mountings(
                                      q.linear_velocity, est.covariance))  # fmt: skip
     for items in poses.values():
         items.sort(key=lambda i: i[0])
+    return poses
+
+
+def calibrate_mountings(
+    frames: list,
+    reference: str,
+    *,
+    reference_mount: Mounting | None = None,
+    window: float = 0.015,
+    stamp_row: float = 0.0,
+    min_inliers: int = 20,
+    options: Any = None,
+    max_step: float = 0.1,
+    time_offsets: Mapping[str, float] | None = None,
+    estimate_time_offsets: bool = False,
+) -> dict:
+    """Every camera's mounting on the rig from a video of a known map, adjusted jointly
+    (docs/rig_node.md, "Mountings from data", has each step and its measurements).
+
+    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
+    pose, twist and covariance at its reference line's capture time, camera optical frame);
+    every camera frame's time starts a rig frame unless within ``window`` of the current one's
+    start, each camera's nearest frame carried to it with the camera's motion (interpolated
+    between its own two frames around it). The mountings start from the cameras' relative
+    poses chained from the reference over the cameras that share rig frames (any set of
+    cameras connected through shared rig frames, a ring or a chain, is calibrated), then every
+    rig frame's pose and every mounting are adjusted in one least-squares problem (SciPy
+    ``least_squares``, sparse Jacobian; each camera's pose errors whitened by its frames'
+    typical covariance in its own axes, scaled to each frame's own covariance's size); camera
+    frames beyond the 99.9 % chi-square quantile (6 degrees of freedom, at the errors' median
+    scale) are left out and the adjustment is run again.
+
+    Args:
+        frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
+            order; frames without a camera model are skipped).
+        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
+            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+        window: s; frames further apart are not one rig frame.
+        stamp_row: the row whose capture time is a frame's stamp.
+        min_inliers: frames posed with fewer inliers are not used.
+        max_step: s; the longest interval between a camera's two frames to interpolate over
+            (beyond it a frame is carried by its own twist).
+        options: the single-camera estimator's
+            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+        time_offsets: camera -> s added to its stamps (a rig's
+            :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
+        estimate_time_offsets: also estimate every camera's time offset against the
+            reference camera's (its given one kept): a parameter per camera in the adjustment
+            (a camera frame's pose moved along its own twist), the frames regrouped at the
+            offsets found (those beyond 3 of their std) and the adjustment run again until
+            they change by less than :data:`TIME_OFFSET_TOL` (at most
+            :data:`TIME_OFFSET_ROUNDS` times). Only a rig that moves shows an offset: its std
+            says how well.
+    Returns:
+        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
+        a camera not connected to the reference through shared rig frames is missing).
+    Raises:
+        ValueError: no frame of ``reference`` posed.
+    """
+    given = {n: float(v) for n, v in (time_offsets or {}).items()}
+    poses = _posed_alone(frames, options, min_inliers, stamp_row, given)
     if not poses.get(reference):
         raise ValueError(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"

@@ -26,24 +26,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "calibrate-rig",
         help=HELP,
         description="Estimate every camera's mounting on the rig from a rig bag (each camera's "
-        "correspondences with a known map and camera_info, e.g. make-bag --rig N): each camera "
-        "frame is posed alone and carried to its rig frame's time with its estimated twist; "
-        "the mountings start from the cameras' relative poses chained from the reference "
-        "camera over the cameras that share rig frames (a ring or a chain of cameras need not "
-        "all see the map with the reference), then every rig frame's pose and every mounting "
-        "are adjusted jointly by least squares (outliers left out), each mounting with its "
-        "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
-        "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
-        "docs/rig_node.md) with each camera's RS timing. The cameras, their timing and "
-        "max_points come from the bag's rig_params.yaml, then --params-file, then -p. Each "
-        "camera's clouds (with a front end, -p frontend: its images through the front end, "
-        "e.g. of a render-bag --rig bag or a recording) are read as the rig node reads them: "
-        "with the camera_info of the cloud's "
-        "stamp, rows with a NaN or inf dropped (counted points_dropped), then at most "
-        "max_points rows (counted capped_clouds, capped_points); a cloud that cannot be read "
-        "(an invalid stamp, no u, v, x, y, z fields) is left out, counted bad_input, as the "
-        "node counts it skipped.bad_input; the counts are printed for each camera that had "
-        "any.",
+        "correspondences with a known map and camera_info, e.g. make-bag --rig N; with -p "
+        "frontend its images through the front end): each camera frame is posed alone; the "
+        "mountings start from the cameras' relative poses chained from the reference camera "
+        "over the cameras that share rig frames (a ring or a chain of cameras need not all see "
+        "the map with the reference), then every rig frame's pose and every mounting are "
+        "adjusted jointly by least squares (outliers left out), each mounting with its "
+        "covariance. Writes the node's rig parameters (rig.<camera>.mounting and "
+        "mounting_covariance) with each camera's RS timing. The cameras, their timing and "
+        "max_points come from the bag's rig_params.yaml, then --params-file, then -p. The "
+        "clouds are read as the rig node reads them; the rows and clouds left out are counted "
+        "and printed for each camera that had any (docs/tools.md#calibrate-rig).",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
@@ -150,36 +143,25 @@ def rows_note(name: str, counts: dict, max_points: int) -> str:
     )  # fmt: skip
 
 
-def params_yaml(
-    values: dict,
-    cams: dict,
-    names: list,
-    mountings: dict,
-    notes: list,
-    base_frame: str,
-    time_offsets: dict | None = None,
-) -> str:
+def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame: str) -> str:
     """The node's parameter file of the calibrated rig: ``base_frame`` (the rig frame the
-    mountings are in), ``rs.stamp_row``, ``rig.cameras`` and per camera its ``mounting``, the
-    RS timing it was read with and its ``time_offset`` (``time_offsets``: camera -> s, those
-    calibrated with or estimated; None: those it was read with); ``notes``: comment lines on
-    top."""
+    mountings are in), ``rs.stamp_row``, ``rig.cameras`` (the keys of ``est``: camera ->
+    :class:`~rs_localizer.calibration.MountingEstimate`) and per camera its ``mounting`` (and
+    covariance), the RS timing it was read with (``cams``) and its ``time_offset`` (the one
+    calibrated with or estimated); ``notes``: comment lines on top."""
     from ..ros.config import mounting_covariance_values, mounting_values, rig_parameter_file
 
     body_cams = {}
-    for n in names:
-        entry = {"mounting": mounting_values(mountings[n])}
-        if mountings[n].covariance is not None:
-            entry["mounting_covariance"] = mounting_covariance_values(mountings[n])
-        for k in ("line_delay", "readout_time", "direction"):
-            v = cams[n].get(k)
-            if v not in (None, "", -1.0):
-                entry[k] = v
-        dt = (time_offsets or {}).get(n, cams[n].get("time_offset")) or 0.0
-        if dt:
-            entry["time_offset"] = round(float(dt), 7) + 0.0
+    for n, e in est.items():
+        entry = {"mounting": mounting_values(e.mount)}
+        if e.mount.covariance is not None:
+            entry["mounting_covariance"] = mounting_covariance_values(e.mount)
+        entry.update({k: v for k in ("line_delay", "readout_time", "direction")
+                      if (v := cams[n].get(k)) not in (None, "", -1.0)})  # fmt: skip
+        if e.time_offset:
+            entry["time_offset"] = round(float(e.time_offset), 7) + 0.0
         body_cams[n] = entry
-    return rig_parameter_file(base_frame, values["rs.stamp_row"], body_cams, notes=notes)
+    return rig_parameter_file(base_frame, stamp_row, body_cams, notes=notes)
 
 
 #: a calibrated mounting further than this many of its std (rotation or position) from the
@@ -212,17 +194,6 @@ def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]
             for n, m in mountings.items()}  # fmt: skip
 
 
-def mounting_difference(a: Mounting, b: Mounting) -> tuple[float, float]:
-    """``(deg, mm)`` between two mountings of a camera: the angle of the rotation between
-    them and the distance between the camera's positions in the rig frame."""
-    from ..geometry import rotation_angle_deg
-
-    return (
-        float(rotation_angle_deg(a.R, b.R)),
-        float(np.linalg.norm(a.position - b.position) * 1e3),
-    )
-
-
 def _optical_frame_id(bag, camera: str) -> str:
     """The optical frame of ``camera`` in a rig bag: the ``frame_id`` of its first camera_info
     (``<namespace>/<camera>/camera_info``), else ``<camera>_optical_frame``."""
@@ -236,6 +207,47 @@ def _optical_frame_id(bag, camera: str) -> str:
             return frame_id
         break
     return f"{camera}_optical_frame"
+
+
+def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
+    """The lines printed on a non-reference camera's :class:`MountingEstimate` ``e`` (its std,
+    time offset, warnings) and, with the parameters' mounting ``given``, how far that is from
+    ``e``'s (lines, and ``parameters_off_deg``/``_mm`` for its report)."""
+    from ..geometry import rotation_angle_deg
+
+    notes = [
+        f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
+        f"{e.std_mm:.2f} mm (one frame about the rig: {e.scatter_deg:.3f} deg "
+        f"{e.scatter_mm:.1f} mm)"
+    ]
+    if np.isfinite(e.time_offset_std):
+        notes.append(
+            f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
+            f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
+        )
+        if e.time_offset_std > UNSEEN_OFFSET_STD:
+            notes.append(
+                f"WARNING: {n}: the video does not show its time offset (std "
+                f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "
+                "frames it shares; record one that moves"
+            )
+    if e.frames < MIN_RIG_FRAMES:
+        notes.append(short_video_warning(n, e.frames))
+    if given is None:
+        return notes, {}
+    deg = float(rotation_angle_deg(e.mount.R, given.R))
+    mm = float(np.linalg.norm(e.mount.position - given.position) * 1e3)
+    k_deg, k_mm = deg / max(e.std_deg, 1e-12), mm / max(e.std_mm, 1e-12)
+    notes.append(
+        f"{n}: the parameters' mounting is {deg:.3f} deg, {mm:.1f} mm from this one "
+        f"({k_deg:.1f} and {k_mm:.1f} std)"
+    )
+    if max(k_deg, k_mm) > PARAMETERS_OFF_STD:
+        notes.append(
+            f"WARNING: {n}: the mounting in the parameters is off by {deg:.2f} deg, "
+            f"{mm:.1f} mm (more than {PARAMETERS_OFF_STD:g} std): use the one written here"
+        )
+    return notes, {"parameters_off_deg": deg, "parameters_off_mm": mm}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -300,14 +312,9 @@ def run(args: argparse.Namespace) -> int:
         e = est[n]
         report[n] = {
             "mounting": mounting_values(e.mount),
-            "frames": e.frames,
-            "rejected": e.rejected,
-            "std_deg": e.std_deg,
-            "std_mm": e.std_mm,
+            **{k: getattr(e, k) for k in ("frames", "rejected", "std_deg", "std_mm")},
             "mounting_covariance": mounting_covariance_values(e.mount),
-            "scatter_deg": e.scatter_deg,
-            "scatter_mm": e.scatter_mm,
-            "time_offset": e.time_offset,
+            **{k: getattr(e, k) for k in ("scatter_deg", "scatter_mm", "time_offset")},
             **read.counts[n],
         }
         if np.isfinite(e.time_offset_std):
@@ -315,40 +322,10 @@ def run(args: argparse.Namespace) -> int:
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
-            notes.append(
-                f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
-                f"{e.std_mm:.2f} mm (one frame about the rig: {e.scatter_deg:.3f} deg "
-                f"{e.scatter_mm:.1f} mm)"
-            )
-            if np.isfinite(e.time_offset_std):
-                notes.append(
-                    f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
-                    f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
-                )
-                if e.time_offset_std > UNSEEN_OFFSET_STD:
-                    notes.append(
-                        f"WARNING: {n}: the video does not show its time offset (std "
-                        f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "
-                        "frames it shares; record one that moves"
-                    )
-            if e.frames < MIN_RIG_FRAMES:
-                notes.append(short_video_warning(n, e.frames))
-            if n in given:
-                deg, mm = mounting_difference(e.mount, given[n])
-                report[n]["parameters_off_deg"], report[n]["parameters_off_mm"] = deg, mm
-                k_deg, k_mm = deg / max(e.std_deg, 1e-12), mm / max(e.std_mm, 1e-12)
-                notes.append(
-                    f"{n}: the parameters' mounting is {deg:.3f} deg, {mm:.1f} mm from this one "
-                    f"({k_deg:.1f} and {k_mm:.1f} std)"
-                )
-                if max(k_deg, k_mm) > PARAMETERS_OFF_STD:
-                    notes.append(
-                        f"WARNING: {n}: the mounting in the parameters is off by {deg:.2f} deg, "
-                        f"{mm:.1f} mm (more than {PARAMETERS_OFF_STD:g} std): use the one "
-                        "written here"
-                    )
-    offsets = {n: est[n].time_offset for n in names}
-    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame, offsets)
+            lines, off = _camera_notes(n, e, given.get(n))
+            notes += lines
+            report[n].update(off)
+    text = params_yaml(values["rs.stamp_row"], cams, {n: est[n] for n in names}, notes, frame)
     if out_path is not None:
         out_path.write_text(text)
     for line in notes:

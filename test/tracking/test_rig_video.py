@@ -436,6 +436,29 @@ def test_calibrate_mountings_of_a_ring_of_cameras():
         assert e.std_deg == pytest.approx(np.degrees(np.sqrt(np.trace(e.mount.covariance[:3, :3]))))
 
 
+def test_calibrate_mountings_of_a_chain_of_cameras():
+    """An open chain: front sees the map with left, left with back, back with right (each
+    pair a quarter of a 2 s video, 150 points, 20 % outliers); right reaches the reference
+    through two cameras and front never shares a rig frame with back or right. Every
+    mounting is within 3 of its stated standard deviations of the truth (0.2-0.75 std
+    here), and the stated std grows along the chain (each link adds its error)."""
+    from rs_localizer.calibration import calibrate_mountings
+
+    cams, fr = ring_frames(2.0, 3, phases=(0, 1, 2))
+    shared = {n: {f.stamp_ns // 10**7 for f in fr if f.camera_name == n} for n in RING}
+    assert not shared["front"] & (shared["back"] | shared["right"])
+    truth = mounts_of(cams)
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert sorted(out) == sorted(RING)
+    for n in ("left", "back", "right"):
+        e = out[n]
+        deg = rotation_angle_deg(e.mount.R, truth[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e)
+        assert deg < 0.1 and mm < 5.0, (n, deg, mm)
+    assert out["left"].std_mm < out["back"].std_mm < out["right"].std_mm
+
+
 def test_cameras_not_connected_to_the_reference_are_missing():
     """The ring's quarters where left sees with back and back with right, and the front
     camera's frames of the first quarter alone: with left as the reference back and right
