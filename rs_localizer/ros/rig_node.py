@@ -75,9 +75,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 
-from sensor_msgs.msg import Imu
-
-from ..camera import CameraModel, Stamp
+from ..camera import CameraModel, FrameTime
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
@@ -111,7 +109,6 @@ from .pipeline import (
     take_gyro_sample,
     warm_kernels,
 )
-from .qos import IMU_QOS
 from .visualization import rig_camera_views
 
 __all__ = ["RigMode", "rig_diagnostics"]
@@ -165,9 +162,11 @@ class RigMode:
         """What the managed node's ``configured: ... (inactive)`` line names."""
         return f"rig of {len(self.config.cameras)} cameras"
 
-    def add_info_inputs(self) -> None:
-        """Nothing beside the cameras' camera_info (the rig's imu comes with the frame
-        inputs: :meth:`add_frame_inputs`)."""
+    def imu_input(self):
+        """With ``imu.enabled``, what takes an ``imu`` message: the rig's gyro
+        (:meth:`_on_imu`); else None (:meth:`.core.NodeCore._subscribe_imu`, at configure as
+        the single camera's)."""
+        return None if self.config.settings.imu is None else self._on_imu
 
     def frame_inputs_destroyed(self) -> None:
         """Nothing: the rig frames still open are published at the end of the frame inputs
@@ -199,42 +198,29 @@ class RigMode:
         node.map_frame = str(single.map_frame)
         node.frontend_kind = single.frontend_kind
         node.image_transport = single.image_transport
-        node._log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
+        log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = Localizer(
-            self.config.settings, log=node._log, implementation=ready_implementation
-        )
+        self.rig = Localizer(self.config.settings, log=log, implementation=ready_implementation)
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
         node.queue_size = int(single.queue_size)
         node.republish = bool(single.republish_correspondences)
-        node._corr_out = {}  # (camera -> its correspondences_out, made when first needed)
-        node._frames = node._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
         self._group_ns = int(self.config.settings.window * 1e9)
-        #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
-        #: received, handed on, skipped or failed before the rig, its input stage's counts,
-        #: its messages lost, the worker's time per frame
-        node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
         self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
-        #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
-        node.inputs = rig_camera_inputs(
-            self.config,
-            node._log,
-            self._count_input,
-            stopped=lambda: node._frames.stopping,
-            wait=single.camera_info_wait,
-            landmarks=node.landmarks,
-        )
-        node._first_frame = None  # (monotonic s: the first frame received)
-        with node._timing_lock:
-            node.latencies.clear()
-            node.stamp_ages.clear()
+        # each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``: its frames
+        # received, handed on, skipped or failed before the rig, its input stage's counts, its
+        # messages lost, the worker's time per frame) and its input (its camera_infos by
+        # stamp, its clouds' rows, its images), a frame queue for them
+        counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        inputs = rig_camera_inputs(self.config, log, self._count_input, stopped=node.stopping,
+                                   wait=single.camera_info_wait,
+                                   landmarks=node.landmarks)  # fmt: skip
+        node.set_cameras(inputs, counts, log, self._same_rig_frame, "rs_localizer_rig_worker")
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
         if node.get_parameter("warmup").value:
             self._warm_up()
-        node._configured = True
 
     def _warm_up(self) -> None:
         """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
@@ -262,16 +248,6 @@ class RigMode:
         kernels = RigKernels(self.config.settings, timing)
         warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
-
-    def add_frame_inputs(self) -> None:
-        """After each camera's frame inputs (:meth:`.core.NodeCore._subscribe_frame_inputs`:
-        ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints``, with a front end
-        ``<c>/image_raw`` or ``<c>/image_raw/compressed``), with ``imu.enabled`` the rig's
-        ``imu`` (its rejected samples counted anew)."""
-        self.imu_rejected = {}
-        if self.config.settings.imu is not None:
-            sub = self.node.create_subscription(Imu, "imu", self._on_imu, IMU_QOS)
-            self.node._frame_subs.append(sub)
 
     def close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
         """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
@@ -331,7 +307,7 @@ class RigMode:
             if refused is not None:
                 raise ConfigError(refused)
         names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
-        values = self.node._param_values(overrides)
+        values = self.node.param_values(overrides)
         values.update(
             {n: self.node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
@@ -353,7 +329,7 @@ class RigMode:
         old = self.config.settings.solver
         if config.settings.single_camera and config.settings.solver != old:
             self.node.get_logger().info(f"solver: {old} -> {config.settings.solver}")
-        with self.node._worker_lock:  # (between two camera frames of the worker)
+        with self.node.between_frames():  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
             for inp in self.node.inputs.values():
@@ -394,25 +370,44 @@ class RigMode:
         return self.node.inputs[item.name].camera_of(item.stamp)
 
     def take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
-        """The worker: one camera frame to the rig (:meth:`_take`), or why not (a stamp out
-        of range: counted ``skipped.bad_input``; the rig never sees it), under the worker's
-        lock with its count, so that a diagnostics snapshot sees the rig's and the camera's
-        counts of it at once; with ``republish_correspondences`` what the camera's front end
-        found in an image."""
+        """The worker: one camera frame to the rig (:meth:`_take`), or why not (the rig never
+        sees it): a header stamp out of range, counted ``skipped.bad_input``; the single
+        camera's entry checks (:meth:`.camera_input.CameraInput.admit`: an output stamp out
+        of range, ``bad_stamp``; an image without a front end, ``no_frontend``), counted
+        ``failed.<reason>`` and logged. Under the worker's lock with its count, so that a
+        diagnostics snapshot sees the rig's and the camera's counts of it at once; with
+        ``republish_correspondences`` what the camera's front end found in an image."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
         if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
             skip = self._not_taken(kind, stamp)
             return TakenFrame((None if skip is None else f"skipped.{skip}",))
+        # (the single camera's entry checks: its times made once, its output stamp in range)
+        frontend = self.node.frontend_kind != "none"
+        ft = self.node.inputs[name].admit(kind, stamp, camera, self._frame_time(name), frontend)
+        if isinstance(ft, DroppedFrame):  # (the rig never sees it either)
+            self.node.warn(
+                f"{ft.reason}.{name}",
+                f"rig camera {name!r}: frame dropped ({ft.reason}): {ft.error}",
+                self.node.camera_counts[name].get(f"failed.{ft.reason}") + 1,
+            )
+            return TakenFrame((f"failed.{ft.reason}",), ft.reason)
         found = []
-        outs = self._take(name, kind, msg, stamp, camera)
+        outs = self._take(name, kind, msg, ft, camera)
         if kind == "image" and self.node.republish:
             corr = self.rig.last_correspondences(name)
             if corr is not None:  # (also an image where it found nothing)
                 found.append((name, corr, stamp))
         return TakenFrame(outs=outs, found=found)
 
-    def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
-        """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
+    def _frame_time(self, name: str):
+        """Camera ``name``'s frame times on the rig's clock, ``(stamp, camera) ->``
+        :class:`~rs_localizer.camera.FrameTime`
+        (:meth:`~rs_localizer.tracking.video.Localizer.frame_time`)."""
+        return lambda stamp, camera: self.rig.frame_time(name, stamp, camera)
+
+    def _take(self, name: str, kind: str, msg, ft: FrameTime, camera: CameraModel | None) -> list:
+        """A camera frame of checked times ``ft`` (:meth:`.camera_input.CameraInput.admit`:
+        its stamp and its time on the rig's clock; ``camera`` the model of it) to the rig
         through the camera's input stage in the single camera's frame step
         (:meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.CameraInput.take`, as a
         rig bag's in ``replay``, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
@@ -439,7 +434,10 @@ class RigMode:
         image kept for ``debug_image`` while someone watches."""
         if kind == "image":
             self._warn_no_info(name, "images")
-        item, outs, _ = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
+        stamp = ft.stamp_ns
+        item, outs, _ = self.node.inputs[name].step(
+            self.rig, msg, kind, stamp, camera, ft.reference_ns
+        )
         if isinstance(item, DroppedFrame):
             self._not_taken(kind, item)
         elif kind != "image":
@@ -539,15 +537,12 @@ class RigMode:
 
     # ---------------------------------------------------------------- outputs
     def idle_twists(self) -> list[FusedOutput]:
-        """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
-        ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
-        while the worker is on a frame (not idle)."""
-        if self.rig is None or not self.node._worker_lock.acquire(blocking=False):
+        """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
+        still pending after ``tracking.max_gap`` s without camera frames
+        (:meth:`Localizer.flush_idle`; none unconfigured)."""
+        if self.rig is None:
             return []
-        try:
-            return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
-        finally:
-            self.node._worker_lock.release()
+        return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
 
     def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
