@@ -65,7 +65,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -660,7 +660,8 @@ class NodeCore:
     # (the node's cameras, worker, outputs, log and timing record, as a mode uses them:
     # set_cameras, stopping, between_frames, first_frame, param_values, open_found_output,
     # publish_messages, publish_fused, wanted, warn, warn_once, record_timing)
-    def set_cameras(self, inputs: Mapping, counts: Mapping, log, group=None,
+    def set_cameras(self, inputs: Mapping, counts: Mapping, log: Any,
+                    group: Callable[[list, Any], bool] | None = None,
                     worker: str = "rs_localizer_worker") -> None:  # fmt: skip
         """The mode's cameras handed to the node: ``inputs`` (camera name -> its
         :class:`~.camera_input.CameraInput`, :attr:`inputs`), ``counts`` (camera name -> its

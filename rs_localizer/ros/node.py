@@ -41,6 +41,7 @@ Publications (reliable, depth 10):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.node import Node
@@ -123,7 +124,7 @@ class CameraMode:
             log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.node.get_logger(),
                         cfg.imu is not None, background)  # fmt: skip
 
-    def imu_input(self):
+    def imu_input(self) -> Callable[[Any], str | None] | None:
         """With ``imu.enabled`` (read-only), what takes an ``imu`` message: the pipeline's
         gyro (:meth:`.pipeline.FramePipeline.add_imu`); else None
         (:meth:`.core.NodeCore._subscribe_imu`)."""

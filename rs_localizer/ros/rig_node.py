@@ -61,7 +61,11 @@ failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in 
 in an open rig frame). Each camera's inputs are taken by a
 :class:`~rs_localizer.ros.camera_input.CameraInput`, as the single-camera node's: its
 camera_infos kept by stamp (a frame uses the camera_info of its stamp,
-:mod:`.camera_info_history`), its clouds' rows, its images decoded. A parameter change at
+:mod:`.camera_info_history`), its clouds' rows, its images decoded, and each frame checked at
+the localizer's entry in the single camera's code (:meth:`.camera_input.CameraInput.admit`:
+its time on the rig's clock, the rig frame's stamp, out of [0, 2^31 s) counted
+``<c>.failed.bad_stamp``, an image without a front end ``<c>.failed.no_frontend``; the rig
+never sees them). A parameter change at
 run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_parameters`): the
 parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
 ``max_points`` and ``queue_size`` apply from the next rig frame on
@@ -74,6 +78,8 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
 
 from ..camera import CameraModel, FrameTime
 from ..frontends.shared import SHARED_MAPS
@@ -162,7 +168,7 @@ class RigMode:
         """What the managed node's ``configured: ... (inactive)`` line names."""
         return f"rig of {len(self.config.cameras)} cameras"
 
-    def imu_input(self):
+    def imu_input(self) -> Callable[[Any], str | None] | None:
         """With ``imu.enabled``, what takes an ``imu`` message: the rig's gyro
         (:meth:`_on_imu`); else None (:meth:`.core.NodeCore._subscribe_imu`, at configure as
         the single camera's)."""

@@ -340,9 +340,9 @@ def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounte
     h = rig_harness(ros_context, cams, rig_parameters(cams, queue_size=1))
     slow_add = h.node.mode.rig.add
 
-    def add(frame):
+    def add(frame, *reference_ns):  # (the frame's time on the rig's clock, made at its entry)
         time.sleep(0.02)
-        return slow_add(frame)
+        return slow_add(frame, *reference_ns)
 
     h.node.mode.rig.add = add
     try:
