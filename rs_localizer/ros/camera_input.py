@@ -65,11 +65,14 @@ __all__ = [
 #: the reasons :class:`CameraInput` drops a frame message for. The single camera's
 #: (``failed.<reason>``): ``bad_stamp``, ``empty_cloud``, ``no_camera_info``, a cloud's
 #: :data:`~rs_localizer.ros.pointcloud.CLOUD_REASONS`, ``no_landmarks``,
-#: ``unknown_landmarks``, ``bad_image``, ``image_size_mismatch``; a rig camera's
-#: (``<camera>.skipped.<reason>``): ``bad_input`` (a stamp or cloud that cannot be read),
-#: ``bad_image``, ``image_size_mismatch``
+#: ``unknown_landmarks``, ``bad_image``, ``image_size_mismatch``, ``no_frontend``; a rig
+#: camera's (``<camera>.skipped.<reason>``): ``bad_input`` (a stamp or cloud that cannot be
+#: read), ``bad_image``, ``image_size_mismatch``, and as the single camera's
+#: (``<camera>.failed.<reason>``, :meth:`CameraInput.admit`): ``bad_stamp`` (its output
+#: stamp), ``no_frontend``
 DROP_REASONS = {
-    "bad_stamp": "the header stamp is out of range (negative, or past 2^31 s)",
+    "bad_stamp": "the header stamp is out of range (negative, or past 2^31 s), or the output "
+    "stamp (the reference row's time) is",
     "empty_cloud": "the cloud has no points",
     "no_camera_info": "no camera_info before the frame (after camera_info_wait) and no "
     "fallback intrinsics",
@@ -78,6 +81,7 @@ DROP_REASONS = {
     "bad_image": "the image does not decode, has an unsupported encoding or is too small",
     "image_size_mismatch": "the image is another size than its camera_info's",
     "bad_input": "a rig camera's message that cannot be read (its stamp or its cloud)",
+    "no_frontend": "an image while ``frontend`` is none",
 }
 
 
@@ -364,6 +368,41 @@ class CameraInput:
         if not self.rig and kind != "image" and int(msg.width) * int(msg.height) == 0:
             return self._dropped(stamp, None, _Refused("empty_cloud", "cloud has no points"))
         return stamp
+
+    def admit(
+        self,
+        kind: str,
+        stamp: Stamp | DroppedFrame,
+        camera: CameraModel | DroppedFrame | None,
+        frame_time: Callable[[Stamp, CameraModel | None], FrameTime],
+        frontend: bool,
+    ) -> FrameTime | DroppedFrame:
+        """The checks of a frame before it is solved, the single camera's and a rig camera's
+        alike (the frame's one entry into its localizer): its ``stamp`` of :meth:`check` and
+        its ``camera`` of :meth:`camera_of` (a :class:`DroppedFrame` of either returned as it
+        is), then its times, made once here (``frame_time(stamp, camera)``: the localizer's,
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.frame_time` or
+        :meth:`~rs_localizer.tracking.video.Localizer.frame_time`), whose reference time, the
+        stamp of the outputs, must lie in [0, 2^31 s) (else a :class:`DroppedFrame`,
+        ``bad_stamp``); an image (``kind``) without a front end (``frontend`` false): dropped,
+        ``no_frontend``. Returns the frame's :class:`~rs_localizer.camera.FrameTime`, or the
+        :class:`DroppedFrame` its owner counts ``failed.<reason>`` (the rig never sees it)."""
+        for given in (stamp, camera):
+            if isinstance(given, DroppedFrame):
+                return given
+        ft = frame_time(stamp, camera)
+        out_stamp = ft.reference_ns
+        if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
+            why = _Refused(
+                "bad_stamp",
+                f"output stamp {out_stamp} ns (input {stamp} ns + the reference row's offset) "
+                "is outside [0, 2^31 s)",
+            )
+            return DroppedFrame(self.name, stamp, camera, why, why.reason)
+        if kind == "image" and not frontend:  # (the node subscribes images only with one)
+            why = _Refused("no_frontend", "image received but frontend is none")
+            return DroppedFrame(self.name, stamp, camera, why, why.reason)
+        return ft
 
     def note_time(self, stamp: Stamp, clock: Callable[[Stamp], str | None]) -> None:
         """A checked frame ``stamp`` (ns) noted on the clock of the camera's video, in frame

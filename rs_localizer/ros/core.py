@@ -22,18 +22,30 @@ node's transitions: ``_declare_parameters``, ``_init_state`` (the mode made),
 ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``, ``_release_configured``.
 
 A mode has: ``configure()`` (RuntimeError for invalid parameters), ``configured_as()``,
-``log_ready()``, ``add_info_inputs()`` and ``add_frame_inputs()`` (its subscriptions beside
-the cameras'), ``camera_of(item)``, ``take_frame(item, camera)``, ``publish_taken(item,
-taken)``, ``idle_twists()``, ``close_track()`` and ``publish_closed(out)``,
+``log_ready()``, ``imu_input()`` (what takes the ``imu`` messages, subscribed with the
+camera_infos at configure; None: no gyro), ``camera_of(item)``, ``take_frame(item, camera)``,
+``publish_taken(item, taken)``, ``idle_twists()`` (under the worker's lock),
+``close_track()`` and ``publish_closed(out)``,
 ``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
 ``apply_change(built, overrides)``, ``diagnostics(latencies, stamp_ages)``, and its topics
 and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
 ``resolve_compressed``, ``images_text``, ``info_qos_overridable``, ``busy_key``,
-``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node for its
-outputs: ``publish_messages(messages)``, ``publish_fused(fused)``, ``wanted(topic)``,
-``warn(key, text, count)`` (the throttled log) and ``record_timing(arrived, stamp_ns)``; what
-the front end found in an image it hands back in its :class:`TakenFrame` (``found``), which the
-node publishes on the camera's ``correspondences_out``.
+``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node:
+``set_cameras(inputs, counts, log, group, worker)`` (its cameras and a frame queue for them),
+``stopping()``, ``between_frames()`` (the worker's lock), ``first_frame``,
+``param_values(overrides)``, ``open_found_output(name)``, and for its outputs
+``publish_messages(messages)``, ``publish_fused(fused)``, ``wanted(topic)``, ``warn(key,
+text, count)`` (the throttled log), ``warn_once(key, text)`` and ``record_timing(arrived,
+stamp_ns)``; what the front end found in an image it hands back in its :class:`TakenFrame`
+(``found``), which the node publishes on the camera's ``correspondences_out``.
+
+A frame's checks before it is solved are the same for both modes, in the camera's input stage:
+its header stamp as it arrives (:meth:`.camera_input.CameraInput.check`), its camera model
+(:meth:`.camera_input.CameraInput.camera_of`), then at the localizer's entry its times, its
+output stamp's range and an image's front end (:meth:`.camera_input.CameraInput.admit`); a
+frame they drop is counted in its camera's counts under its reason
+(:data:`.camera_input.DROP_REASONS`), so that per camera ``received = solved + failed +
+skipped + pending``.
 
 The worker is one for both: the subscription callbacks hand a camera's frame message to
 :meth:`NodeCore._enqueue` (its stamp checked by the camera's input stage, a
@@ -53,7 +65,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -65,7 +77,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
@@ -74,7 +86,7 @@ from .frame_queue import FrameQueue
 from .outputs import fused_messages
 from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
-from .qos import CLOUD_QOS, IMAGE_QOS, RELIABLE, output_events
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .status_msg import status_message
 from .visualization import NodeVisualization
 
@@ -125,8 +137,8 @@ class TakenFrame:
     Attributes:
         counted: the keys counted for it in its camera's counts (``solved``,
             ``failed.<reason>``, a rig camera's ``skipped.<reason>``; None: none).
-        failure: the single camera's frame dropped for this reason (None: solved, or a rig
-            camera's frame, whose fate is the rig's).
+        failure: the frame dropped for this reason (None: solved, or a rig camera's frame
+            handed to the rig, whose fate is the rig's).
         result: the single camera's :class:`~rs_localizer.ros.pipeline.FrameResult`.
         outs: the rig frames it completed (a rig camera's).
         found: ``(camera, correspondences, stamp_ns)``: what the camera's front end found in
@@ -144,10 +156,9 @@ class TakenFrame:
 class NodeCore:
     """The node, for one camera or a rig (module docstring), mixed into an rclpy ``Node`` (or
     a ``LifecycleNode``): the plumbing, and the mode (:attr:`mode`) for what differs. The
-    mode sets ``_frames`` (the :class:`~rs_localizer.ros.frame_queue.FrameQueue`) and
-    ``_log`` (a :class:`~.pipeline.ThrottledLog`: its warnings, each kind at most once per
-    period) before :meth:`_start_frames`, and the cameras and outputs as data (the attributes
-    below).
+    mode hands the node its cameras (:meth:`set_cameras`: their inputs and counts, its
+    :class:`~.pipeline.ThrottledLog`, a new :class:`~rs_localizer.ros.frame_queue.FrameQueue`)
+    before :meth:`_start_frames`, and its outputs as data (the attributes below).
 
     Attributes:
         inputs: camera name ("" for the single camera) -> its
@@ -189,8 +200,6 @@ class NodeCore:
     _modes: tuple = ()  # (the node class's: the camera's mode and the rig's)
     _first_frame: float | None = None  # (monotonic s: the first frame received)
     _unmanaged = False  # (every phase at construction: :meth:`_start_unmanaged`)
-    _warned_beside_frontend = False  # (set on the instance when given: once per node)
-    _warned_rs = False  # (the single camera's default-timing warning: once per node)
 
     def _make_publisher(self, msg_type, topic, qos):
         """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
@@ -213,6 +222,7 @@ class NodeCore:
             RuntimeError: a node that is not managed, with invalid parameters (the message
                 names them).
         """
+        self._warned_once: set = set()  # (warn_once's keys: once per node)
         super().__init__(node_name, **kwargs)
         self._start()
 
@@ -233,8 +243,9 @@ class NodeCore:
 
     def _configure(self) -> None:
         """Parameters -> configuration (the mode's; RuntimeError for invalid parameters,
-        naming them)."""
+        naming them): the node's configuration in use from then on."""
         self.mode.configure()
+        self._configured = True
 
     def _log_ready(self) -> None:
         """The ``ready: ...`` line (the mode's)."""
@@ -281,7 +292,7 @@ class NodeCore:
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
 
     # ---------------------------------------------------------------- parameters
-    def _param_values(self, overrides: Mapping) -> dict:
+    def param_values(self, overrides: Mapping) -> dict:
         """Every parameter of :data:`~.params.PARAMETERS` by name: its value in ``overrides``
         (a change being checked), else the node's."""
         return {
@@ -325,12 +336,26 @@ class NodeCore:
                 self._corr_out_publisher(name)
 
     def _create_info_inputs(self) -> None:
-        """Each camera's ``camera_info`` (:meth:`_subscribe_info`), created before the frame
-        inputs: a camera_info ready together with a frame is taken first."""
+        """Each camera's ``camera_info`` (:meth:`_subscribe_info`), then with ``imu.enabled``
+        the gyro's ``imu`` (:meth:`_subscribe_imu`), created at configure (a managed node's:
+        before activate), before the frame inputs: a camera_info or IMU sample ready together
+        with a frame is taken first."""
         overriding = QoSOverridingOptions.with_default_policies
         for name in self._camera_names():
             self._subscribe_info(name, overriding() if self.mode.info_qos_overridable else None)
-        self.mode.add_info_inputs()
+        self._subscribe_imu()
+
+    def _subscribe_imu(self) -> None:
+        """With ``imu.enabled``, ``imu`` (sensor_msgs/Imu, sensor-data QoS, overridable as
+        ``qos_overrides./imu.subscription.*``): each sample to the mode's gyro (its
+        ``imu_input()``: the camera's or the rig's; None: no gyro). Kept with the configured
+        inputs (destroyed at cleanup)."""
+        take = self.mode.imu_input()
+        if take is not None:
+            self._info_subs.append(self.create_subscription(
+                Imu, "imu", take, IMU_QOS,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            ))  # fmt: skip
 
     def _create_frame_inputs(self) -> None:
         """The frame subscriptions (:meth:`_subscribe_frame_inputs`), then the diagnostics
@@ -360,7 +385,6 @@ class NodeCore:
             sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
             images[n] = self.mode.images_text or sub.topic_name
         self.images_of = images
-        self.mode.add_frame_inputs()
 
     def _create_pose_outputs(self) -> None:
         """The publishers of the pose outputs (:data:`POSE_OUTPUTS`), ``/tf`` with
@@ -605,8 +629,15 @@ class NodeCore:
     def _flush_idle_track(self) -> None:
         """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
         frame starts a new one): publish the twists still pending (the mode's
-        ``idle_twists()``, fused outputs; none while the worker is on a frame)."""
-        self.publish_fused(self.mode.idle_twists())
+        ``idle_twists()``, fused outputs, taken under the worker's lock; nothing while the
+        worker is on a frame: not idle)."""
+        if not self._worker_lock.acquire(blocking=False):
+            return
+        try:
+            fused = self.mode.idle_twists()
+        finally:
+            self._worker_lock.release()
+        self.publish_fused(fused)
 
     def publish_fused(self, fused: list) -> None:
         """twist and odom of the frames whose fused twist is final (``fused``:
@@ -626,8 +657,54 @@ class NodeCore:
         self.pub_diag = None
 
     # ---------------------------------------------------------------- what a mode calls
-    # (the node's outputs, log and timing record, as a mode uses them: publish_messages,
-    # publish_fused, wanted, warn, record_timing)
+    # (the node's cameras, worker, outputs, log and timing record, as a mode uses them:
+    # set_cameras, stopping, between_frames, first_frame, param_values, open_found_output,
+    # publish_messages, publish_fused, wanted, warn, warn_once, record_timing)
+    def set_cameras(self, inputs: Mapping, counts: Mapping, log: Any,
+                    group: Callable[[list, Any], bool] | None = None,
+                    worker: str = "rs_localizer_worker") -> None:  # fmt: skip
+        """The mode's cameras handed to the node: ``inputs`` (camera name -> its
+        :class:`~.camera_input.CameraInput`, :attr:`inputs`), ``counts`` (camera name -> its
+        :class:`~.camera_input.CameraCounts`, :attr:`camera_counts`), ``log`` (the mode's
+        :class:`~.pipeline.ThrottledLog`, :meth:`warn`'s), and a new frame queue for them
+        (its worker thread named ``worker``; ``group``: :class:`~.frame_queue.FrameQueue`'s);
+        the first frame's time and the timing record start again."""
+        self._log, self.inputs, self.camera_counts = log, inputs, counts
+        self._frames = self._new_queue(worker, group)
+        self._first_frame = None
+        with self._timing_lock:
+            self.latencies.clear()
+            self.stamp_ages.clear()
+
+    def stopping(self) -> bool:
+        """A stop of the worker was requested (a frame waiting for its camera_info or gyro
+        samples stops waiting)."""
+        return self._frames is not None and self._frames.stopping
+
+    def between_frames(self) -> threading.Lock:
+        """The worker's lock, held while it takes a frame (``with node.between_frames():``
+        runs between two frames: a change of the mode's state, or a snapshot of the mode's
+        and the cameras' counts of a frame at once)."""
+        return self._worker_lock
+
+    @property
+    def first_frame(self) -> float | None:
+        """monotonic s: when the first frame was received (None: none yet)."""
+        return self._first_frame
+
+    def open_found_output(self, name: str = "") -> None:
+        """Camera ``name``'s ``correspondences_out`` made now, once the node's outputs exist
+        (``republish_correspondences`` turned on at run time; else it is made with the
+        outputs, or when first needed)."""
+        if self._pubs:
+            self._corr_out_publisher(name)
+
+    def warn_once(self, key: str, text: str) -> None:
+        """A warning logged once in the node's life for ``key`` (whatever its configures)."""
+        if key not in self._warned_once:
+            self._warned_once.add(key)
+            self.get_logger().warning(text)
+
     def warn(self, key: str, text: str, count: int = 0) -> None:
         """A warning of the node's throttled log (the mode's
         :class:`~rs_localizer.ros.pipeline.ThrottledLog`: at most once per period per
@@ -651,15 +728,15 @@ class NodeCore:
         time in the node, a warning naming both inputs (the frame is solved as given: the
         front end and its map play no part)."""
         counts.add("frames_beside_frontend")
-        if self._warned_beside_frontend:
+        if "frames_beside_frontend" in self._warned_once:
             return
-        self._warned_beside_frontend = True  # (once per node)
         topic = self.resolve_topic_name(f"{counts.name}/{leaf}" if counts.name else leaf)
-        self.get_logger().warning(
+        self.warn_once(
+            "frames_beside_frontend",
             f"received {leaf} on {topic} while the {frontend} front end runs on {images}: "
             f"these frames are solved from the given {leaf}, not from the images and the "
             f"front end's map (counted {counts.prefix}frames_beside_frontend; play a bag's "
-            "images only: rs-localizer play --source image)"
+            "images only: rs-localizer play --source image)",
         )
 
     def _delivery_failed(self, e: BaseException) -> None:

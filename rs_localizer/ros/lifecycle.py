@@ -8,8 +8,9 @@ The same processing, parameters and topics as ``rs_localizer_node``
 * unconfigured (after start): parameters declared, nothing loaded, no topics.
 * configure: parameters -> configuration (fails, staying unconfigured, with the reason in the
   log, on invalid parameters), the landmark and front-end maps loaded, the JIT kernels compiled
-  or loaded (the warm-up), the output publishers created (inactive) and ``camera_info``
-  subscribed (so a calibration is at hand at activation).
+  or loaded (the warm-up), the output publishers created (inactive) and ``camera_info`` (with
+  ``imu.enabled`` also ``imu``) subscribed (so a calibration and the gyro's samples are at
+  hand at activation).
 * activate: the output publishers enabled, the frame inputs (``correspondences``,
   ``keypoints``, ``image``) subscribed, diagnostics published.
 * deactivate: the frame inputs unsubscribed and diagnostics stopped: nothing is processed or
@@ -24,7 +25,8 @@ managed separately (``/robot/front/rs_localizer/change_state``, ...).
 With ``rig.cameras`` set the node runs the rig mode (:class:`~.rig_node.RigMode`):
 configure reads the rig's parameters (each camera's ``rig.<camera>.*``; a camera without
 mounting fails the transition, naming it), builds each camera's front end and creates the
-publishers (inactive) and the cameras' ``camera_info`` subscriptions; activate subscribes
+publishers (inactive), the cameras' ``camera_info`` subscriptions and, with ``imu.enabled``,
+``imu`` (as for one camera); activate subscribes
 every camera's frame inputs (``<camera>/correspondences``, ``<camera>/image_raw``) and
 publishes diagnostics; deactivate unsubscribes them, solves and publishes the rig frames still
 open and ends the track (the next activation starts a new one; the counters go on); cleanup

@@ -41,11 +41,10 @@ Publications (reliable, depth 10):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import Imu
 
 from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
@@ -55,7 +54,6 @@ from .frame_queue import frame_accounting
 from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, log_warm_up
-from .qos import IMU_QOS
 from .rig_node import RigMode
 
 __all__ = ["PARAMETERS", "CameraMode", "RSLocalizerNode"]
@@ -91,11 +89,10 @@ class CameraMode:
 
     def __init__(self, node: NodeCore):
         self.node = node
-        self.pipeline = FramePipeline(log=node.get_logger(), stopped=lambda: node._frames.stopping)
-        node._log = self.pipeline.log
-        node.inputs = {"": self.pipeline.camera_input}  # (the one camera, named "")
-        node.camera_counts = {"": self.pipeline.stats}
-        node._frames = node._new_queue()
+        self.pipeline = FramePipeline(log=node.get_logger(), stopped=node.stopping)
+        # (the one camera, named "")
+        node.set_cameras({"": self.pipeline.camera_input}, {"": self.pipeline.stats},
+                         self.pipeline.log)  # fmt: skip
 
     @property
     def cfg(self) -> LocalizerConfig | None:
@@ -127,18 +124,11 @@ class CameraMode:
             log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.node.get_logger(),
                         cfg.imu is not None, background)  # fmt: skip
 
-    def add_info_inputs(self) -> None:
-        """With imu.enabled (read-only), the gyro's imu, after camera_info
-        (:meth:`.core.NodeCore._create_info_inputs`), before the frame inputs: a camera_info
-        or IMU sample ready together with a frame is taken first."""
-        if self.cfg.imu is not None:
-            qos = QoSOverridingOptions.with_default_policies()
-            self.node._info_subs.append(self.node.create_subscription(
-                Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
-            ))  # fmt: skip
-
-    def add_frame_inputs(self) -> None:
-        """Nothing beside the camera's frame inputs (its imu is subscribed at configure)."""
+    def imu_input(self) -> Callable[[Any], str | None] | None:
+        """With ``imu.enabled`` (read-only), what takes an ``imu`` message: the pipeline's
+        gyro (:meth:`.pipeline.FramePipeline.add_imu`); else None
+        (:meth:`.core.NodeCore._subscribe_imu`)."""
+        return None if self.cfg.imu is None else self.pipeline.add_imu
 
     def frame_inputs_destroyed(self) -> None:
         """After the frame inputs' end (the frames still queued dropped): the track is
@@ -187,7 +177,6 @@ class CameraMode:
             bool(cfg.republish_correspondences),
             cfg.map_frame,
         )
-        self.node._configured = True
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.node.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
@@ -199,17 +188,16 @@ class CameraMode:
             line, fallback = detector
             log = self.node.get_logger().warning if fallback else self.node.get_logger().info
             log(f"marker detector: {line}")
-        if cfg.republish_correspondences and maps.frontend is not None and self.node._pubs:
-            self.node._corr_out_publisher()
+        if cfg.republish_correspondences and maps.frontend is not None:
+            self.node.open_found_output()
         note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
-        if note is not None and not self.node._warned_rs:
-            self.node._warned_rs = True  # (once per node, whatever its configures)
-            self.node.get_logger().warning(note)
+        if note is not None:
+            self.node.warn_once("default_timing", note)
 
     def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, LoadedMaps]:
         """The configuration of the parameters with ``overrides`` and the maps it names
         (a changed ``landmarks_file`` or ``frontend_map`` loaded; ConfigError: not loadable)."""
-        cfg = build_config(self.node._param_values(overrides))
+        cfg = build_config(self.node.param_values(overrides))
         return cfg, load_maps(cfg, owner=self, current=self._maps())
 
     def apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:

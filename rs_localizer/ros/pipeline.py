@@ -586,20 +586,11 @@ class FramePipeline:
         inp.note_time(stamp, self.sequence.check_time)  # (a time reset: counted, logged)
         camera = _taken(inp.camera_of(stamp))
         res.camera = camera
-        # (the frame's times, made once: its checked stamp and its reference time, taken as
-        # they are from here on)
-        ft = self.sequence.frame_time(stamp, camera)
-        out_stamp = ft.reference_ns
-        if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
-            raise _Drop(
-                "bad_stamp",
-                f"output stamp {out_stamp} ns (input {stamp} ns + "
-                "the reference row's offset) is outside [0, 2^31 s)",
-            )
-        res.out_stamp_ns = out_stamp
-        if kind == "image" and self.sequence.frontend is None:
-            # (the node subscribes images only with a front end)
-            raise _Drop("no_frontend", "image received but frontend is none")
+        # (the frame's entry checks, a rig camera's too: its times, made once and taken as
+        # they are from here on, its output stamp in range, an image with a front end)
+        frontend = self.sequence.frontend is not None
+        ft = _taken(inp.admit(kind, stamp, camera, self.sequence.frame_time, frontend))
+        res.out_stamp_ns = ft.reference_ns
         # (as a rig camera's frame: to the camera's rig of one, CameraInput.step; an image
         # through its front end first)
         item, outs, t_decoded = inp.step(

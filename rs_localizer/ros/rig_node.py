@@ -61,7 +61,11 @@ failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in 
 in an open rig frame). Each camera's inputs are taken by a
 :class:`~rs_localizer.ros.camera_input.CameraInput`, as the single-camera node's: its
 camera_infos kept by stamp (a frame uses the camera_info of its stamp,
-:mod:`.camera_info_history`), its clouds' rows, its images decoded. A parameter change at
+:mod:`.camera_info_history`), its clouds' rows, its images decoded, and each frame checked at
+the localizer's entry in the single camera's code (:meth:`.camera_input.CameraInput.admit`:
+its time on the rig's clock, the rig frame's stamp, out of [0, 2^31 s) counted
+``<c>.failed.bad_stamp``, an image without a front end ``<c>.failed.no_frontend``; the rig
+never sees them). A parameter change at
 run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_parameters`): the
 parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
 ``max_points`` and ``queue_size`` apply from the next rig frame on
@@ -74,10 +78,10 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
 
-from sensor_msgs.msg import Imu
-
-from ..camera import CameraModel, Stamp
+from ..camera import CameraModel, FrameTime
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
@@ -111,7 +115,6 @@ from .pipeline import (
     take_gyro_sample,
     warm_kernels,
 )
-from .qos import IMU_QOS
 from .visualization import rig_camera_views
 
 __all__ = ["RigMode", "rig_diagnostics"]
@@ -165,9 +168,11 @@ class RigMode:
         """What the managed node's ``configured: ... (inactive)`` line names."""
         return f"rig of {len(self.config.cameras)} cameras"
 
-    def add_info_inputs(self) -> None:
-        """Nothing beside the cameras' camera_info (the rig's imu comes with the frame
-        inputs: :meth:`add_frame_inputs`)."""
+    def imu_input(self) -> Callable[[Any], str | None] | None:
+        """With ``imu.enabled``, what takes an ``imu`` message: the rig's gyro
+        (:meth:`_on_imu`); else None (:meth:`.core.NodeCore._subscribe_imu`, at configure as
+        the single camera's)."""
+        return None if self.config.settings.imu is None else self._on_imu
 
     def frame_inputs_destroyed(self) -> None:
         """Nothing: the rig frames still open are published at the end of the frame inputs
@@ -199,43 +204,30 @@ class RigMode:
         node.map_frame = str(single.map_frame)
         node.frontend_kind = single.frontend_kind
         node.image_transport = single.image_transport
-        node._log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
+        log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = Localizer(
-            self.config.settings, log=node._log, implementation=ready_implementation
-        )
+        self.rig = Localizer(self.config.settings, log=log, implementation=ready_implementation)
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
         node.queue_size = int(single.queue_size)
         node.republish = bool(single.republish_correspondences)
-        node._corr_out = {}  # (camera -> its correspondences_out, made when first needed)
-        node._frames = node._new_queue("rs_localizer_rig_worker", group=self._same_rig_frame)
         self._group_ns = int(self.config.settings.window * 1e9)
-        #: each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``): its frames
-        #: received, handed on, skipped or failed before the rig, its input stage's counts,
-        #: its messages lost, the worker's time per frame
-        node.camera_counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
         self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
         self._stages = StageTimes()  # (the worker's times per stage)
-        #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
-        node.inputs = rig_camera_inputs(
-            self.config,
-            node._log,
-            self._count_input,
-            stopped=lambda: node._frames.stopping,
-            wait=single.camera_info_wait,
-            landmarks=node.landmarks,
-        )
-        node._first_frame = None  # (monotonic s: the first frame received)
-        with node._timing_lock:
-            node.latencies.clear()
-            node.stamp_ages.clear()
+        # each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``: its frames
+        # received, handed on, skipped or failed before the rig, its input stage's counts, its
+        # messages lost, the worker's time per frame) and its input (its camera_infos by
+        # stamp, its clouds' rows, its images), a frame queue for them
+        counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        inputs = rig_camera_inputs(self.config, log, self._count_input, stopped=node.stopping,
+                                   wait=single.camera_info_wait,
+                                   landmarks=node.landmarks)  # fmt: skip
+        node.set_cameras(inputs, counts, log, self._same_rig_frame, "rs_localizer_rig_worker")
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
         if node.get_parameter("warmup").value:
             self._warm_up()
-        node._configured = True
 
     def _warm_up(self) -> None:
         """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
@@ -263,16 +255,6 @@ class RigMode:
         kernels = RigKernels(self.config.settings, timing)
         warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
-
-    def add_frame_inputs(self) -> None:
-        """After each camera's frame inputs (:meth:`.core.NodeCore._subscribe_frame_inputs`:
-        ``<c>/correspondences``, with ``landmarks_file`` ``<c>/keypoints``, with a front end
-        ``<c>/image_raw`` or ``<c>/image_raw/compressed``), with ``imu.enabled`` the rig's
-        ``imu`` (its rejected samples counted anew)."""
-        self.imu_rejected = {}
-        if self.config.settings.imu is not None:
-            sub = self.node.create_subscription(Imu, "imu", self._on_imu, IMU_QOS)
-            self.node._frame_subs.append(sub)
 
     def close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
         """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
@@ -332,7 +314,7 @@ class RigMode:
             if refused is not None:
                 raise ConfigError(refused)
         names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
-        values = self.node._param_values(overrides)
+        values = self.node.param_values(overrides)
         values.update(
             {n: self.node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
@@ -354,7 +336,7 @@ class RigMode:
         old = self.config.settings.solver
         if config.settings.single_camera and config.settings.solver != old:
             self.node.get_logger().info(f"solver: {old} -> {config.settings.solver}")
-        with self.node._worker_lock:  # (between two camera frames of the worker)
+        with self.node.between_frames():  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
             for inp in self.node.inputs.values():
@@ -395,25 +377,44 @@ class RigMode:
         return self.node.inputs[item.name].camera_of(item.stamp)
 
     def take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
-        """The worker: one camera frame to the rig (:meth:`_take`), or why not (a stamp out
-        of range: counted ``skipped.bad_input``; the rig never sees it), under the worker's
-        lock with its count, so that a diagnostics snapshot sees the rig's and the camera's
-        counts of it at once; with ``republish_correspondences`` what the camera's front end
-        found in an image."""
+        """The worker: one camera frame to the rig (:meth:`_take`), or why not (the rig never
+        sees it): a header stamp out of range, counted ``skipped.bad_input``; the single
+        camera's entry checks (:meth:`.camera_input.CameraInput.admit`: an output stamp out
+        of range, ``bad_stamp``; an image without a front end, ``no_frontend``), counted
+        ``failed.<reason>`` and logged. Under the worker's lock with its count, so that a
+        diagnostics snapshot sees the rig's and the camera's counts of it at once; with
+        ``republish_correspondences`` what the camera's front end found in an image."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
         if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
             skip = self._not_taken(kind, stamp)
             return TakenFrame((None if skip is None else f"skipped.{skip}",))
+        # (the single camera's entry checks: its times made once, its output stamp in range)
+        frontend = self.node.frontend_kind != "none"
+        ft = self.node.inputs[name].admit(kind, stamp, camera, self._frame_time(name), frontend)
+        if isinstance(ft, DroppedFrame):  # (the rig never sees it either)
+            self.node.warn(
+                f"{ft.reason}.{name}",
+                f"rig camera {name!r}: frame dropped ({ft.reason}): {ft.error}",
+                self.node.camera_counts[name].get(f"failed.{ft.reason}") + 1,
+            )
+            return TakenFrame((f"failed.{ft.reason}",), ft.reason)
         found = []
-        outs = self._take(name, kind, msg, stamp, camera)
+        outs = self._take(name, kind, msg, ft, camera)
         if kind == "image" and self.node.republish:
             corr = self.rig.last_correspondences(name)
             if corr is not None:  # (also an image where it found nothing)
                 found.append((name, corr, stamp))
         return TakenFrame(outs=outs, found=found)
 
-    def _take(self, name: str, kind: str, msg, stamp: Stamp, camera: CameraModel | None) -> list:
-        """A camera frame of a checked ``stamp`` (``camera`` the model of it) to the rig
+    def _frame_time(self, name: str):
+        """Camera ``name``'s frame times on the rig's clock, ``(stamp, camera) ->``
+        :class:`~rs_localizer.camera.FrameTime`
+        (:meth:`~rs_localizer.tracking.video.Localizer.frame_time`)."""
+        return lambda stamp, camera: self.rig.frame_time(name, stamp, camera)
+
+    def _take(self, name: str, kind: str, msg, ft: FrameTime, camera: CameraModel | None) -> list:
+        """A camera frame of checked times ``ft`` (:meth:`.camera_input.CameraInput.admit`:
+        its stamp and its time on the rig's clock; ``camera`` the model of it) to the rig
         through the camera's input stage in the single camera's frame step
         (:meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.CameraInput.take`, as a
         rig bag's in ``replay``, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
@@ -441,8 +442,11 @@ class RigMode:
         to the diagnostics (:meth:`.diagnostics.StageTimes.camera_frame`)."""
         if kind == "image":
             self._warn_no_info(name, "images")
+        stamp = ft.stamp_ns
         tic = time.perf_counter()
-        item, outs, taken_at = self.node.inputs[name].step(self.rig, msg, kind, stamp, camera)
+        item, outs, taken_at = self.node.inputs[name].step(
+            self.rig, msg, kind, stamp, camera, ft.reference_ns
+        )
         search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
         self._stages.camera_frame(tic, taken_at, search and search.seconds,
                                   any(o.success for o in outs), time.perf_counter())  # fmt: skip
@@ -548,15 +552,12 @@ class RigMode:
 
     # ---------------------------------------------------------------- outputs
     def idle_twists(self) -> list[FusedOutput]:
-        """:meth:`.core.NodeCore._flush_idle_track`: the twists still pending after
-        ``tracking.max_gap`` s without camera frames (:meth:`Localizer.flush_idle`); none
-        while the worker is on a frame (not idle)."""
-        if self.rig is None or not self.node._worker_lock.acquire(blocking=False):
+        """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
+        still pending after ``tracking.max_gap`` s without camera frames
+        (:meth:`Localizer.flush_idle`; none unconfigured)."""
+        if self.rig is None:
             return []
-        try:
-            return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
-        finally:
-            self.node._worker_lock.release()
+        return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
 
     def _publish_viz(self, out: LocalizerOutput) -> None:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
@@ -596,9 +597,9 @@ class RigMode:
     def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
-        first = self.node._first_frame
+        first = self.node.first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
-        with self.node._worker_lock:  # (waits for the frame the worker is on: one consistent count)
+        with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
             counts = Counter(self._rig_counts.counts())
             for cc in self.node.camera_counts.values():
                 counts.update(cc.prefixed())

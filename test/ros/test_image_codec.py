@@ -294,6 +294,7 @@ def _rig_node_decode(msg, cam):
     """The rig node's image step (``RigMode._take`` of an image) on ``msg`` with the camera's
     model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same
     form."""
+    from rs_localizer.camera import FrameTime
     from rs_localizer.ros.camera_input import CameraInput
     from rs_localizer.ros.rig_node import RigMode
 
@@ -320,7 +321,9 @@ def _rig_node_decode(msg, cam):
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
-    assert mode._take("c", "image", msg, stamp, camera) == []
+    # (the rig camera's entry checks, as RigMode.take_frame makes them; its time the stamp)
+    ft = camera_input.admit("image", stamp, camera, lambda s, c: FrameTime(s, int(s)), True)
+    assert mode._take("c", "image", msg, ft, camera) == []
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

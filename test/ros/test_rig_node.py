@@ -343,9 +343,9 @@ def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounte
     h = rig_harness(ros_context, cams, rig_parameters(cams, queue_size=1))
     slow_add = h.node.mode.rig.add
 
-    def add(frame):
+    def add(frame, *reference_ns):  # (the frame's time on the rig's clock, made at its entry)
         time.sleep(0.02)
-        return slow_add(frame)
+        return slow_add(frame, *reference_ns)
 
     h.node.mode.rig.add = add
     try:
@@ -761,6 +761,88 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
         assert not grouped_bad
         assert sorted(checks) == sorted(good)
+    finally:
+        node.destroy_node()
+
+
+def test_a_rig_camera_s_frame_passes_the_single_camera_s_entry_checks(ros_context):
+    """A rig camera's frame passes the single camera's entry checks
+    (``CameraInput.admit``), counted as the single camera counts them: the front camera's
+    (top to bottom, stamped at its first row) clouds 3..5 stamped 1 us before 2^31 s (a valid
+    header stamp, whose reference line, the rig frame's stamp, is past the range of a ROS
+    time) are counted ``front.failed.bad_stamp`` and logged (``frame dropped (bad_stamp):
+    output stamp ...``), never handed to the rig (it does not count them received; nothing
+    fails to publish); an image while ``frontend`` is none is counted
+    ``front.failed.no_frontend``. Every camera balances, every rig frame of the true stamps is
+    posed. Frames handed to the node's callbacks directly."""
+    from sensor_msgs.msg import Image
+
+    from rs_localizer.ros.conversions import STAMP_MAX_NS, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
+    logged: list = []
+    node = _direct_node(ros_context, cams, frames + frames[:1], logged)
+    try:
+        late = STAMP_MAX_NS - 1000
+        ref = node.mode.config.settings.reference_ns("front", late, node.inputs["front"].newest)
+        assert ref > STAMP_MAX_NS  # (the reference line read after the stamp's)
+        bad = 0
+        for f in frames:
+            stamp = f.stamp_ns
+            if f.name == "front" and 3 <= f.index <= 5:
+                stamp, bad = late, bad + 1
+            cloud = correspondence_cloud(f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(stamp))
+            node._on_frame(f.name, "cloud", cloud)
+        image = Image(height=480, width=640, encoding="mono8", step=640, data=bytes(640 * 480))
+        image.header.stamp = ns_to_stamp(frames[-1].stamp_ns + 10_000_000)
+        node._on_frame("front", "image", image)
+        v = _drained_values(node, cams)
+        assert v.get("front.failed.bad_stamp") == str(bad) == "3", v
+        assert v.get("front.failed.no_frontend") == "1", v
+        assert v["front.failed"] == "4" and v["front.skipped"] == "0", v
+        front = sum(f.name == "front" for f in frames)
+        assert v["front.received"] == str(front + 1), v
+        assert node.mode.rig.counts["front.received"] == front - bad
+        assert int(v["rig_frames_solved"]) == len(frames) // 3, v
+        text = " ".join(map(str, logged))
+        assert "rig camera 'front': frame dropped (bad_stamp): output stamp" in text, text
+        assert "publishing failed" not in text and "internal_error" not in text, text
+    finally:
+        node.destroy_node()
+
+
+def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
+    """With ``imu.enabled`` the managed rig node subscribes ``imu`` at configure, as the
+    single camera's does (the samples are taken while it is inactive), with its QoS
+    overridable (``qos_overrides./rig/imu.subscription.*``), and keeps it over deactivate and
+    activate (its ``imu_rejected`` counting on); cleanup drops it."""
+    from rclpy.lifecycle import TransitionCallbackReturn
+
+    from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
+
+    ok = TransitionCallbackReturn.SUCCESS
+    cams = default_rig(2)
+    params = rig_parameters(cams, **{"imu.enabled": True})
+    node = RSLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/rig",
+                                    parameter_overrides=params)  # fmt: skip
+
+    def imu_subs() -> int:
+        return sum(s.topic_name == "/rig/imu" for s in node.subscriptions)
+
+    try:
+        assert imu_subs() == 0
+        assert node.trigger_configure() == ok
+        assert imu_subs() == 1
+        assert node.has_parameter("qos_overrides./rig/imu.subscription.reliability")
+        node.mode.imu_rejected["bad_stamp"] = 1
+        assert node.trigger_activate() == ok and imu_subs() == 1
+        assert node.trigger_deactivate() == ok and imu_subs() == 1
+        assert node.trigger_activate() == ok and imu_subs() == 1
+        assert node.mode.imu_rejected == {"bad_stamp": 1}
+        assert node.trigger_deactivate() == ok and node.trigger_cleanup() == ok
+        assert imu_subs() == 0
     finally:
         node.destroy_node()
 
