@@ -21,6 +21,7 @@ can seed it (:meth:`Ransac.run`).
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Iterator
 from typing import Any, Protocol
@@ -179,7 +180,7 @@ def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
         if not (it < max_it and (it < needed or it < min_it)):
             return
         # batches double (fewer calls), but draw no more samples than termination asks for
-        ask = int(np.ceil(min(needed, np.float64(max_it))))
+        ask = math.ceil(min(needed, float(max_it)))
         yield min(batch, max_it - it, max(ask - it, min_it - it, 1))
         batch *= 2
 
@@ -216,6 +217,7 @@ class RansacLoop:
     def __init__(self, s: int, r: RansacOptions):
         self.s = s
         self.confidence = r.confidence
+        self._log_miss = np.log(1 - r.confidence)  # (required_iterations' log(1 - confidence))
         self.best: Any = None
         self.score = np.inf
         self.iterations = 0
@@ -234,7 +236,7 @@ class RansacLoop:
             score, model = estimator.score_models(hypotheses)
             if score < self.score:
                 self.score, self.best, ratio = estimator.refine_model(self, model)
-                self.needed = required_iterations(ratio, self.s, self.confidence)
+                self.needed = required_samples(ratio, self.s, self._log_miss)
 
     def found(self) -> Any:
         """The best model.

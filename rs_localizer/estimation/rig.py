@@ -2069,7 +2069,6 @@ class _RigSearch(RansacLoop):
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
-        self._log_miss = float(np.log(1 - r.confidence))
         self._min_it, self._max_it = r.min_iterations, r.max_iterations
         self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
         self._drawn = 0  # (the seed's random draws the batches took)
