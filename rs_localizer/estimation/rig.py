@@ -2144,6 +2144,8 @@ class _RigSearch(RansacLoop):
             drawn, h, cost, e, R, C, n, missed = still_batch(
                 u, *self._args, missed, rounds, self.th2, self.threshold_px, self._counts, state
             )  # fmt: skip
+            if h < 0:
+                return None, int(drawn)
             w, t = np.zeros(3), np.zeros(3)
         else:
             anchor = _NO_ANCHOR
