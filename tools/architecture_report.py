@@ -30,7 +30,7 @@ PKG = ROOT / "rs_localizer"
 #: runs none of them
 RIG_ONLY = {
     "estimation/rig.py": "estimate_rig_pose: one pose for a rig frame of several cameras",
-    "estimation/rig_batch.py": "the rig's compiled RANSAC search and scoring kernels",
+    "estimation/rig_batch.py": "the rig's compiled RANSAC batch and scoring kernels",
     "tracking/rig.py": (
         "RigGrouping, CameraAgreement, refusal, RigViews: the cameras' frames grouped into rig "
         "frames, their disagreement, the refusal of a rig frame one camera poses, the rig's "

@@ -8,8 +8,8 @@ drawn, the adaptive termination: :func:`required_iterations`, the batches:
 ``refine_model``: a new best). The single camera's :class:`Ransac` is its own estimator; the
 rig's is in :mod:`.rig`. Both draw from one seeded random stream (:func:`seeded_rng`; the
 start of it kept per seed by :func:`seeded_stream`: a frame's shuffle, a compiled rig
-search's draws), and both terminate by one rule (:func:`required_samples`,
-:func:`next_batch_size`, compiled in the rig's search kernels).
+batch's draws), and both terminate by one rule (:func:`required_samples`, compiled too for
+the rig's batches, which check it after every sample).
 
 :class:`Ransac` holds the search's state (the best model, its score and inliers, the
 hypotheses drawn, the adaptive termination) and draws batches of minimal samples from a
@@ -21,6 +21,7 @@ can seed it (:meth:`Ransac.run`).
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Iterator
 from typing import Any, Protocol
@@ -46,7 +47,6 @@ __all__ = [
     "RansacEstimator",
     "RansacLoop",
     "batch_sizes",
-    "next_batch_size",
     "prosac_order",
     "required_iterations",
     "required_samples",
@@ -85,7 +85,7 @@ def _seeded_stream(seed: int, kind: str, n: int) -> np.ndarray:
 def seeded_stream(seed: int | np.integer | None, kind: str, n: int) -> np.ndarray:
     """The start of ``seeded_rng(seed)``'s stream: its first ``permutation(n)`` (``kind``
     ``"permutation"``: a frame's shuffle, :class:`SeededShuffle`) or its first ``n`` uniform
-    draws in [0, 1) (``"random"``: a compiled rig search's, :mod:`.rig_batch`), (n,) and
+    draws in [0, 1) (``"random"``: a compiled rig batch's, :mod:`.rig_batch`), (n,) and
     read-only. Kept for the last int seeds and sizes (every frame of a seed starts from the
     same stream); any other seed draws from a new generator."""
     if not _int_seed(seed):
@@ -143,22 +143,9 @@ def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
     return log_miss / np.log1p(-p)
 
 
-def next_batch_size(batch: int, it: int, needed: float, min_it: int, max_it: int) -> int:
-    """The next batch of a search that has drawn ``it`` samples (:func:`batch_sizes`'
-    rule, once for a camera's search and, compiled (:data:`next_batch_size_kernel`), a rig's):
-    0 once ``max_it`` samples are drawn or both ``min_it`` and what termination asks for
-    (``needed``); else ``batch`` samples, but no more than ``max_it`` in all nor than
-    termination still asks for, at least ``min_it`` in all."""
-    if not (it < max_it and (it < needed or it < min_it)):
-        return 0
-    ask = int(np.ceil(min(needed, np.float64(max_it))))
-    return min(batch, max_it - it, max(ask - it, min_it - it, 1))
-
-
-#: :func:`required_samples` and :func:`next_batch_size` compiled (the rig's search kernels,
-#: :mod:`.rig_batch`; compiled on their first call there)
+#: :func:`required_samples` compiled (the rig's batch kernels, :mod:`.rig_batch`, check it
+#: after every sample; compiled on its first call there)
 required_samples_kernel = njit(cache=True)(required_samples)
-next_batch_size_kernel = njit(cache=True)(next_batch_size)
 
 
 def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
@@ -184,14 +171,17 @@ def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
     """The sizes of the batches of minimal samples a search draws, until adaptive termination
     (``loop.needed``, read before each batch) or ``r.max_iterations``: the first batch
     ``r.batch_size``, each next one twice as large, but none more than termination still asks
-    for (at least ``r.min_iterations`` in all). The caller adds each to ``loop.iterations``."""
+    for (at least ``r.min_iterations`` in all). The caller adds the samples each drew to
+    ``loop.iterations``."""
     batch = max(int(r.batch_size), 1)
+    min_it, max_it = r.min_iterations, r.max_iterations
     while True:
-        # batches double (fewer calls), but draw no more samples than termination asks for
-        K = next_batch_size(batch, loop.iterations, loop.needed, r.min_iterations, r.max_iterations)
-        if K == 0:
+        it, needed = loop.iterations, loop.needed
+        if not (it < max_it and (it < needed or it < min_it)):
             return
-        yield K
+        # batches double (fewer calls), but draw no more samples than termination asks for
+        ask = math.ceil(min(needed, float(max_it)))
+        yield min(batch, max_it - it, max(ask - it, min_it - it, 1))
         batch *= 2
 
 
@@ -199,10 +189,12 @@ class RansacEstimator(Protocol):
     """What :meth:`RansacLoop.search` asks of one estimator (a camera's, a rig's), as
     PoseLib's estimators' ``generate_models``, ``score_model`` and ``refine_model``."""
 
-    def generate_models(self, loop: RansacLoop, K: int) -> Any:
-        """Hypotheses of ``K`` new minimal samples (``loop.iterations`` not yet counting
-        them), or None when none gave a model; adds those dropped for their motion alone to
-        ``loop.implausible``."""
+    def generate_models(self, loop: RansacLoop, K: int) -> tuple[Any, int]:
+        """``(hypotheses, samples drawn)``: the hypotheses of up to ``K`` new minimal samples
+        (``loop.iterations`` not yet counting them), or None when none gave a model, and the
+        samples drawn (``K``, or fewer when the estimator checks termination after every
+        sample and it was reached, as PoseLib's loop does); adds those dropped for their
+        motion alone to ``loop.implausible``."""
 
     def score_models(self, hypotheses: Any) -> tuple[float, Any]:
         """The best of ``generate_models``'s hypotheses: (its MSAC score, its model)."""
@@ -225,6 +217,7 @@ class RansacLoop:
     def __init__(self, s: int, r: RansacOptions):
         self.s = s
         self.confidence = r.confidence
+        self._log_miss = np.log(1 - r.confidence)  # (required_iterations' log(1 - confidence))
         self.best: Any = None
         self.score = np.inf
         self.iterations = 0
@@ -236,14 +229,14 @@ class RansacLoop:
         than the best's is refined and becomes the best, and termination is updated from its
         inlier ratio (:func:`required_iterations`)."""
         for K in batch_sizes(self, r):
-            hypotheses = estimator.generate_models(self, K)
-            self.iterations += K
+            hypotheses, drawn = estimator.generate_models(self, K)
+            self.iterations += drawn
             if hypotheses is None:
                 continue
             score, model = estimator.score_models(hypotheses)
             if score < self.score:
                 self.score, self.best, ratio = estimator.refine_model(self, model)
-                self.needed = required_iterations(ratio, self.s, self.confidence)
+                self.needed = required_samples(ratio, self.s, self._log_miss)
 
     def found(self) -> Any:
         """The best model.
@@ -394,9 +387,9 @@ class Ransac(RansacLoop):
                 self.needed = 0.0
         self._t_local += time.perf_counter() - t_lo
 
-    def generate_models(self, loop: RansacLoop, K: int) -> ScoredBatch:
+    def generate_models(self, loop: RansacLoop, K: int) -> tuple[ScoredBatch, int]:
         """The best of K samples' hypotheses, scored preemptively in the same compiled call
-        (:meth:`~.hypotheses.HypothesisSource.best_of_batch`)."""
+        (:meth:`~.hypotheses.HypothesisSource.best_of_batch`), and K."""
         pool = self._pool(K)
         pretest_min = int(0.5 * self.opts.ransac.pretest_points * self.count / len(self.fr.x))
         if self.anchor is not None and self.best is not None:
@@ -408,7 +401,7 @@ class Ransac(RansacLoop):
             self.rng.random((K, self.s)), pool, self.order, self.score, pretest_min, self.anchor
         )
         self.implausible += out.implausible
-        return out
+        return out, K
 
     def score_models(self, out: ScoredBatch) -> tuple[float, Model]:
         h = out.best

@@ -33,11 +33,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
-  random stream; compiled, the whole search is one call (:mod:`.rig_batch`) that checks
-  termination after every sample, as PoseLib's loop does (a batch stops at the first sample
-  at which the samples drawn reach ``ransac.min_iterations`` and what the best model's inlier
-  ratio asks for); no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
-  some moved beyond the bounds;
+  random stream; compiled, each batch is drawn, solved and scored in one call
+  (:mod:`.rig_batch`) that checks termination after every sample, as PoseLib's loop does (a
+  batch stops at the first sample at which the samples drawn reach ``ransac.min_iterations``
+  and what the best model's inlier ratio asks for); no sample gives a model:
+  ``no_hypothesis``, or ``implausible_motion`` when some moved beyond the bounds;
 - local optimization is the single camera's rounds
   (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps: the rig
   solver on the best model's inliers (pre-rotated by the model, twice), then the exact-model
@@ -202,9 +202,9 @@ from .rig_batch import (
     inliers_missed,
     lambda_twist_on_rig,
     model_cost,
-    moving_search,
+    moving_batch,
     sample_kernel,
-    still_search,
+    still_batch,
 )
 from .sampling import draw_samples_numpy, valid_rows
 from .scoring import exact_errors2_numpy
@@ -2021,9 +2021,9 @@ def _search_batches_of(r: RansacOptions) -> RansacOptions:
     return hit[1]
 
 
-#: :func:`~.rig_batch.still_search`'s subset of no subset (every pool point sampled)
+#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
-#: :func:`~.rig_batch.moving_search`'s anchor of none (P3P pre-rotates the samples)
+#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
@@ -2037,10 +2037,10 @@ class _RigSearch(RansacLoop):
     ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
     generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
     dropping models beyond the velocity bounds (``implausible``; a compiled search draws,
-    solves and scores every batch in one call, :mod:`.rig_batch`); ``score_models`` is MSAC on every
-    point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the rig's
-    local optimization runs once, after the search) and gives termination its inlier ratio
-    (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
+    solves and scores each batch in one call, :meth:`_batch`); ``score_models`` is MSAC on
+    every point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the
+    rig's local optimization runs once, after the search) and gives termination its inlier
+    ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
     def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
@@ -2065,11 +2065,14 @@ class _RigSearch(RansacLoop):
         #: the number of cameras with points in the pool
         self.cameras = int(np.count_nonzero(self._counts))
         self.missed = self._counts >= 3 if spread and still else None
-        #: the whole search in one compiled call (:meth:`_fused_search`)
+        #: each batch drawn, solved and scored in one compiled call (:meth:`_batch`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
-        self._log_miss = float(np.log(1 - r.confidence))
+        self._min_it, self._max_it = r.min_iterations, r.max_iterations
+        self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
+        self._drawn = 0  # (the seed's random draws the batches took)
+        self._n, self._missed = 0, self._no_missed
 
     @property
     def rng(self) -> np.random.Generator:
@@ -2098,72 +2101,68 @@ class _RigSearch(RansacLoop):
                 return e
         return self.pool.errors(model)
 
-    def search(self, estimator, r: RansacOptions) -> None:
-        """:meth:`~.ransac.RansacLoop.search`; a compiled search runs in one call
-        (:meth:`_fused_search`)."""
-        if not self.fused:
-            return super().search(estimator, r)
-        return self._fused_search(r)
-
-    def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
+    def generate_models(self, loop: RansacLoop, K: int) -> tuple:
+        if self.fused:
+            return self._batch(K)
         pool = self.pool
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            return _hypotheses_still(pool, samples, p3p, self.missed, rounds)
+            return _hypotheses_still(pool, samples, p3p, self.missed, rounds), K
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(
             pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
             p3p,
         )  # fmt: skip
         if hyp is None:
-            return None
+            return None, K
         ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds, pool.compiled)
         self.implausible += int(np.count_nonzero(~ok))
-        return tuple(a[ok] for a in hyp) if ok.any() else None
+        return (tuple(a[ok] for a in hyp) if ok.any() else None), K
 
-    def _fused_search(self, r: RansacOptions) -> None:
-        """The search in one compiled call (:func:`~.rig_batch.still_search`, without a gyro
-        :func:`~.rig_batch.moving_search`): the batches of :func:`~.ransac.batch_sizes`, each
-        stopping after the first sample at which termination is reached (a new best's inlier
-        ratio counted at once, as PoseLib's loop does after every sample), on the seed's
-        random stream (:func:`~.ransac.seeded_stream`: the draws a batch by batch search
-        takes)."""
-        pool, subset = self.pool, self.subset
-        X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-        draws = seeded_stream(r.seed, "random", 7 * int(r.max_iterations))
-        args = (draws, _sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
-                _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
-        state = np.array([self.score, self.needed, self._log_miss])
-        limits = np.array([self.batches.batch_size, r.min_iterations, r.max_iterations])
+    def _batch(self, K: int) -> tuple:
+        """``generate_models`` in one compiled call (:func:`~.rig_batch.still_batch`, without
+        a gyro :func:`~.rig_batch.moving_batch`): K samples on the seed's next ``7 K`` random
+        draws (:func:`~.ransac.seeded_stream`: those :func:`_sample` takes), solved and scored
+        in turn, the batch stopping after the first sample at which termination is reached (a
+        new best's inlier ratio counted at once, as PoseLib's loop does after every sample).
+        Returns ``((cost, model, errors, inliers, missed cameras) of the batch's best model,
+        or None when none beat the best, samples drawn)``."""
+        if self._args is None:
+            pool, subset = self.pool, self.subset
+            X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
+            self._args = (_sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
+                          _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+            self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
+        u = self._draws[self._drawn : self._drawn + 7 * K].reshape((7, K))
+        self._drawn += 7 * K
+        state = np.array([self.score, self.iterations, self._min_it, self.needed, self._log_miss])
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            it, h, cost, e, R, C, n, missed = still_search(
-                *args, missed, rounds, self.th2, self.threshold_px, self._counts, state, limits,
-                not self.spread,
+            drawn, h, cost, e, R, C, n, missed = still_batch(
+                u, *self._args, missed, rounds, self.th2, self.threshold_px, self._counts, state
             )  # fmt: skip
+            if h < 0:
+                return None, int(drawn)
             w, t = np.zeros(3), np.zeros(3)
-            if not self.spread:
-                self.missed = missed if missed.any() else None
         else:
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            it, h, cost, e, R, C, w, t, n, beyond = moving_search(
-                *args, anchor, self.solver_iterations, self._w2max, self._v2max, self.th2,
-                self.threshold_px, self._counts, state, limits,
+            drawn, h, cost, e, R, C, w, t, n, missed, beyond = moving_batch(
+                u, *self._args, anchor, self.solver_iterations, self._w2max, self._v2max,
+                self.th2, self.threshold_px, self._counts, state,
             )  # fmt: skip
             self.implausible += int(beyond)
-        self.iterations += int(it)
-        if h >= 0:
-            self._e, self.score, self.best = e, float(cost), (R, C, w, t)
-            among = len(e) if subset is None else len(subset)
-            self.needed = required_iterations(n / among, self.s, self.confidence)
+        return (None if h < 0 else (float(cost), (R, C, w, t), e, n, missed)), int(drawn)
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         pool = self.pool
+        if self.fused:  # (:meth:`_batch`'s best, scored)
+            self._cost, model, self._e, self._n, self._missed = hyp
+            return self._cost, model
         if pool.numpy:
             e, cost = _errors_px(pool, *hyp, self.th2)
             h = int(np.argmin(cost))
@@ -2178,11 +2177,14 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
-        if self.subset is None and not self.pool.numpy:  # (the same in one compiled call)
-            n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
+        if self.fused or (self.subset is None and not self.pool.numpy):  # (compiled)
+            n, missed = self._n, self._missed
+            if not self.fused:
+                n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
             if self.still and not self.spread:
                 self.missed = missed if missed.any() else None
-            return self._cost, model, float(n / len(self._e))
+            among = len(self._e) if self.subset is None else len(self.subset)
+            return self._cost, model, float(n / among)
         inl = self._e < self.threshold_px
         if self.still and not self.spread:
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))

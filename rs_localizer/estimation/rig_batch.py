@@ -1,10 +1,10 @@
-"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): the whole search
-in one numba call (:func:`still_search`, :func:`moving_search`: the batches of
-:func:`~.ransac.batch_sizes` on the seed's random stream), each batch of minimal samples drawn,
-solved and scored in turn, as :mod:`.batch` does for one camera. Termination is checked after
+"""The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): each batch of
+the search (:class:`~.ransac.RansacLoop`, the batches of :func:`~.ransac.batch_sizes` on the
+seed's random stream) drawn, solved and scored in one numba call (:func:`still_batch`,
+:func:`moving_batch`), as :mod:`.batch` does for one camera. Termination is checked after
 every sample (:func:`~.ransac.required_samples` of the best model's inlier ratio, as
 PoseLib's loop does): a batch stops at the first sample at which the samples drawn reach
-``min_iterations`` and what termination asks for (:func:`~.ransac.next_batch_size`).
+``min_iterations`` and what termination asks for.
 
 :func:`still_batch` (a global-shutter rig frame: Lambda Twist P3P of one camera's 3 points
 mapped to the rig, corrected on the sample's 6 points by the rig solver with the velocities
@@ -27,7 +27,7 @@ from .._so3 import FMA, compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
-from .ransac import next_batch_size_kernel, required_samples_kernel
+from .ransac import required_samples_kernel
 from .sampling import draw_sample
 from .scoring import mounted_pose, pose_error2
 
@@ -40,13 +40,10 @@ __all__ = [
     "lambda_twist_on_rig",
     "model_cost",
     "moving_batch",
-    "moving_search",
-    "next_batch",
     "p3p_on_rig_into",
     "pairwise_sum",
     "sample_kernel",
     "still_batch",
-    "still_search",
 ]
 
 
@@ -445,92 +442,3 @@ def inliers_missed(e, k, cam, counts):
     for c in range(len(counts)):
         missed[c] = counts[c] >= 3 and hit[c] == 0
     return n, missed
-
-
-@njit(cache=True)
-def next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it):
-    """The next batch of a search that has drawn ``it`` samples: its uniform draws (7, K) from
-    offset ``o`` of the stream ``draws`` (K :func:`~.ransac.next_batch_size`; 0 when
-    termination, the ``max_it`` samples or the stream end the search), the next offset, and
-    the batch's ``state`` (:func:`still_batch`'s)."""
-    K = next_batch_size_kernel(batch, it, needed, min_it, max_it)
-    if o + 7 * K > len(draws):
-        K = 0
-    u = draws[o : o + 7 * K].reshape((7, K))
-    return u, o + 7 * K, np.array([best_cost, it, min_it, needed, log_miss])
-
-
-@njit(cache=True)
-def still_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds,
-                 th2, k, pool_counts, state, limits, follow):  # fmt: skip
-    """A global-shutter rig search in one call: the batches of :func:`~.ransac.batch_sizes`
-    (``limits``: ``(batch_size, min_iterations, max_iterations)``; the first batch
-    ``batch_size``, each next one twice as large, none more than termination asks for), each
-    :func:`still_batch` on its ``7 K`` consecutive uniform ``draws`` (the random stream's, in
-    the order :func:`~.rig._sample` takes them; at least ``7 max_iterations``), until
-    termination (``state``: ``(the best cost so far (inf: none), samples termination asks for,
-    log(1 - confidence))``). ``missed``: the cameras whose points samples are corrected on
-    at the start; ``follow``: after each batch with a new best, the cameras its model
-    explains none of (none: no correction) instead.
-
-    Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers, missed
-    (M,) bool)``: the best model found (``h`` -1: none beat ``state``'s cost), and the
-    cameras the last batch's samples were corrected on."""
-    best_cost, needed, log_miss = state[0], state[1], state[2]
-    batch, min_it, max_it = max(limits[0], 1), limits[1], limits[2]
-    N = X.shape[0]
-    among = len(subset) if len(subset) else N
-    it, o, found, n_best = 0, 0, -1, 0
-    e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
-    missed_now = missed.copy()
-    while True:
-        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
-        if u.shape[1] == 0:
-            break
-        drawn, h, cost, e, R, C, n, m = still_batch(u, sampling, subset, bearings, X, x, tau,
-                                                    cam, Rm, cm, A, missed_now, rounds, th2, k,
-                                                    pool_counts, st)  # fmt: skip
-        it += drawn
-        if h >= 0:
-            best_cost, found, n_best = cost, h, n
-            e_best, R_best, C_best = e, R, C
-            needed = required_samples_kernel(n / among, 3, log_miss)
-            if follow:
-                missed_now = m
-        batch *= 2
-    return it, found, best_cost, e_best, R_best, C_best, n_best, missed_now
-
-
-@njit(cache=True)
-def moving_search(draws, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor,
-                  iterations, w2max, v2max, th2, k, pool_counts, state, limits):  # fmt: skip
-    """A rolling-shutter rig search without a gyro in one call, as :func:`still_search`, each
-    batch :func:`moving_batch`: with ``anchor`` (3, 3) not empty (a prediction's rotation),
-    each batch pre-rotated by the best model's rotation so far (the anchor's before any).
-    Returns :func:`still_search`'s outputs with the best model's ``w`` and ``t`` (3,) after
-    its ``C`` and the number of solutions beyond the motion bounds, without the missed
-    cameras."""
-    best_cost, needed, log_miss = state[0], state[1], state[2]
-    batch, min_it, max_it = max(limits[0], 1), limits[1], limits[2]
-    N = X.shape[0]
-    among = len(subset) if len(subset) else N
-    it, o, found, n_best, beyond = 0, 0, -1, 0, 0
-    e_best, R_best, C_best = np.zeros(N), np.eye(3), np.zeros(3)
-    w_best, t_best = np.zeros(3), np.zeros(3)
-    while True:
-        u, o, st = next_batch(draws, o, it, batch, best_cost, needed, log_miss, min_it, max_it)
-        if u.shape[1] == 0:
-            break
-        pre = anchor
-        if anchor.shape[0] and found >= 0:
-            pre = R_best
-        out = moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, pre,
-                           iterations, w2max, v2max, th2, k, pool_counts, st)  # fmt: skip
-        it += out[0]
-        beyond += out[10]
-        if out[1] >= 0:
-            best_cost, found, n_best = out[2], out[1], out[8]
-            e_best, R_best, C_best, w_best, t_best = out[3], out[4], out[5], out[6], out[7]
-            needed = required_samples_kernel(n_best / among, 6, log_miss)
-        batch *= 2
-    return it, found, best_cost, e_best, R_best, C_best, w_best, t_best, n_best, beyond
