@@ -60,13 +60,13 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   enough inliers, not on one 3D line, plausible motion and every inlier in front of its camera
   at its capture time (:func:`~.finalize.last_checks`, each camera's own model), and with
   ``plausibility.consistent_fit`` a fit a rigid rig can give
-  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails). The rig's
-  own part is what several cameras need and one does not: the choice between refinements
-  (:func:`_final`: on a frame of several cameras, unless the first refinement explains every
-  point within the threshold, also the refinement from the model first fitted with a wider
-  threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone where its
-  cost is significantly lower: cameras whose mountings disagree), and the estimate's
-  per-camera fields (:func:`_rig_estimate`);
+  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails); the
+  choice between refinements (:func:`~.finalize.chosen_refinement`, which takes a single
+  view's first: on a frame of several cameras, unless the first refinement explains every
+  point within the threshold, also the refinement from the model first fitted with
+  :data:`CONTRADICTION_GATE` thresholds, the one of the lower MSAC cost kept, or the fit of
+  the inliers alone where its cost is significantly lower: cameras whose mountings
+  disagree). The rig's own part is the estimate's per-camera fields (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
@@ -143,7 +143,9 @@ from .estimate import estimate_rs_pose, few_points_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
+    INLIER_FIT_SIGNIFICANCE,
     ROLLING_SHUTTER,
+    chosen_refinement,
     final_covariance,
     final_sensitivity,
     frame_refinement,
@@ -151,6 +153,7 @@ from .finalize import (
     inconsistent_fit,
     information_condition,
     last_checks,
+    refined_model,
     rolling_shutter_check,
     still_fallback,
 )
@@ -168,7 +171,7 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
-from .local_optimization import initial_model_seed, polish
+from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
@@ -183,7 +186,6 @@ from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
     Mountings,
-    image_variance,
     kernel_mountings_of,
 )
 from .result import (
@@ -250,11 +252,6 @@ VOTE_MIN_POINTS = 8
 #: voting camera of a few points alone
 RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
 
-#: the rig's refinements stop at this relative decrease of the cost (a single camera's final
-#: refinement at :data:`~.finalize.FINAL_TOL`): several refinements from different starts
-#: are compared by their MSAC cost (:func:`_final`), and on the rendered 3-camera rig the
-#: looser tolerance moved the median angular velocity error by 5 % at no measurable saving
-RIG_REFINE_TOL = 1e-10
 #: the rig solver's iterations per sample after the pre-rotation when
 #: ``EstimateOptions.ransac.solver_iterations`` is None (the single camera's choice per solver)
 RIG_SOLVER_ITERATIONS = 3
@@ -300,15 +297,6 @@ AGREE_SHARE = 0.3
 #: contradiction; a mounting 2 degrees off misses by 15 px and more at focal lengths of 450
 #: px and more
 CONTRADICTION_GATE = 3.0
-
-#: the final refinement of a frame of several cameras keeps the fit of its inliers alone (the
-#: points within the threshold) instead of the fit over every point near the model only when
-#: it lowers the MSAC cost by more than this many image variances (px^2): the 99 % quantile of
-#: chi-square with the model's degrees of freedom (6: the pose, 12: with the velocities), by
-#: which two fits of the same consistent points differ at most. Where no pose explains every
-#: camera (mountings a few tenths of a degree off), the fit near every point settles between
-#: the cameras at a cost tens of variances above the one that explains its inliers
-INLIER_FIT_SIGNIFICANCE = {6: 16.81, 12: 26.22}
 
 #: with a prediction, a voting camera is explained by it when its share of points within
 #: this many inlier thresholds of the prediction is at least :data:`AGREE_SHARE` times the
@@ -1170,38 +1158,6 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
     return m
 
 
-def _refine(
-    pool: _Pool,
-    model,
-    threshold_px: float,
-    max_iterations: int = 20,
-    free=12,
-    cutoff_px: float | None = None,
-    prior: MotionPrior | None = None,
-):
-    """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
-    thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
-    truncated beyond: the set re-selected at each iteration): a single camera's final
-    refinement (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
-    :data:`RIG_REFINE_TOL`) with each point seen through its camera's mounting at its own
-    capture time, errors in px. 12 parameters: a rotation update left of R, C, w, t
-    (``free=6``: the pose alone, w and t kept at zero).
-    ``prior`` (a gyro's motion prior, with ``free=12``): maximum a posteriori, the cost gains
-    ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
-    starting model's errors inside the threshold. With ``pool.numpy``:
-    :func:`~.refine.refine_rs_pose_numpy`."""
-    k = float(threshold_px)
-    cut = None if cutoff_px is None else max(float(cutoff_px), k)
-    motion = prior if free == 12 else None
-    res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
-                           max_iterations=max_iterations, covariance=False,
-                           tol=RIG_REFINE_TOL)  # fmt: skip
-    if pool.numpy:
-        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
-    # (views of the refinement's own buffer: no other model shares it)
-    return res.R, res.C, res.w, res.t
-
-
 def _kernel_arrays(pool: _Pool) -> tuple:
     """The pool's ``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous
     float64 arrays, :func:`_kernel_mountings`' views), built once per pool: a rig frame
@@ -1214,66 +1170,6 @@ def _kernel_arrays(pool: _Pool) -> tuple:
             np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
         )  # fmt: skip
     return a
-
-
-def _final(
-    pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior, first=None
-):
-    """The final refinement of ``model`` (``search.cost``: the MSAC cost of a model on every
-    point, the estimate's own measure; ``search.errors``: its errors): :func:`_refine` (Huber
-    loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the set
-    re-selected at each iteration) from ``model`` and from ``model`` first fitted with
-    :data:`CONTRADICTION_GATE` thresholds as its threshold (every camera's points within the
-    largest inconsistency the cameras' consensus accepts between them), the one of the lower
-    MSAC cost (the first alone when every point of the frame lies within the threshold of it:
-    no point a few thresholds away for the wider fit to take in); unless the fit of the
-    inliers alone (the points within the threshold, from ``model`` or from that one, the
-    better) lowers the MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances
-    (tried only when some point lies between one and :data:`FINAL_CUTOFF` thresholds of that
-    model: otherwise the inliers are every point its refinement weighed).
-
-    RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
-    refinement from the best of them stays near that camera's pose when another camera's
-    points lie a few thresholds away, although a pose between the cameras explains more points
-    at a lower cost (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the
-    lower cost in 36 % of the rig frames). Where the cameras' mountings are off so that no pose
-    explains them all, both refinements can settle between the cameras at a higher cost than
-    the pose that explains its inliers (TagSLAM's ``test_6``: 10-32 % more MSAC cost on rig
-    frames 1-1.8 deg from its reference): the inliers' own fit keeps that pose. On consistent
-    points the two differ by a few variances, and the fit over every point near the model,
-    the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
-    MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
-    or ``model`` itself when it is local optimization's refinement) when already computed,
-    or None."""
-    out = first if first is not None else _refine(pool, model, threshold_px, free=free, prior=prior)
-    if prior is not None or search.cameras < 2:
-        return out
-    msac = search.cost
-    k = float(threshold_px)
-    if search.errors(out).max() < k:
-        return out  # (every point within the threshold: none a few thresholds away)
-    gate = CONTRADICTION_GATE * threshold_px
-    wide = _refine(pool, _refine(pool, model, gate, free=free), threshold_px, free=free)
-
-    c_out, c_wide = msac(out), msac(wide)
-    best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
-
-    e = search.errors(best)
-    if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
-        return best  # (no point the inliers' fit leaves out that the refinement weighs)
-
-    def inliers_fit(m):
-        fit = _refine(pool, m, threshold_px, free=free, cutoff_px=threshold_px)
-        return fit, msac(fit)
-
-    # (``best`` is ``model`` itself when local optimization's refinement was the first and
-    # the wider fit did not lower its cost: the same refinement from the same start, once)
-    fits = inliers_fit(model)
-    fits = (fits, fits if best is model else inliers_fit(best))
-    tight, c_tight = min(fits, key=lambda fc: fc[1])
-    margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
-    return tight if c_tight < c_best - margin else best
 
 
 def _view_planar(pool: _Pool, c: int) -> bool:
@@ -1299,25 +1195,6 @@ def _copies(model) -> tuple:
 
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
-
-
-def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior):
-    """The rig's steps of :func:`~.local_optimization.initial_model_seed`: the errors in px
-    (:meth:`_Pool.errors`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
-    explained points: :func:`_refine` on every point (at most 10 iterations, Huber at the
-    threshold, truncated at ``gate`` px), kept where it lowers the MSAC score."""
-    k = float(threshold_px)
-    th2 = k**2
-
-    def evaluate(model, e: np.ndarray) -> tuple[float, np.ndarray]:
-        return np.minimum(e * e, th2).sum(), e < k
-
-    def pull(seed, near: np.ndarray):
-        pulled = _refine(pool, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
-        scored = evaluate(pulled, pool.errors(pulled))
-        return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
-
-    return pool.errors, evaluate, pull
 
 
 def estimate_rig_pose(
@@ -1777,7 +1654,7 @@ def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=No
     gate = CONTRADICTION_GATE * threshold_px
     free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
     model = (est if start is None else start).model
-    fit = _refine(_evened(pool, voters), model, gate, free=free)
+    fit = refined_model(_evened(pool, voters), model, gate, free == 12)
     return cams <= _gated(pool, est, voters, gate, fit)
 
 
@@ -2283,7 +2160,7 @@ def _estimate(
         gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
         explained, seeded, anchored = initial_model_seed(
             model, im.min_explained, not still, size, gate,
-            *_seed_steps(pool, threshold_px, gate, free, prior),
+            *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
         )  # fmt: skip
         n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
         # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies it,
@@ -2310,30 +2187,26 @@ def _estimate(
 
     # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
     # solver on the inliers (not on a frame taken at one time) and the final refinement's first
-    refined = []  # (each refinement's (start, result))
-
     def refit(m, inl):
         return [_refit(pool, inl, m, threshold_px, prior=prior)]
-
-    def exact(m):
-        refined.append((m, _refine(pool, m, threshold_px, free=free, prior=prior)))
-        return refined[-1][1]
 
     def evaluate(m):
         return search.cost(m), search.errors(m) < threshold_px
 
-    # (the rig solver takes the inliers; the refinement selects its points itself, from any)
-    inl = None if still else pool.errors(model) < threshold_px
+    exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not still, prior=prior)
     steps = (None if still else refit, exact if refine else None)
-    model = polish((best_cost, model, inl), evaluate, *steps, LO_ROUNDS, min_inliers=0)[1]
-    refined = refined[-1] if refined else None
-    if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
+    best = (best_cost, model, search.errors(model) < threshold_px)
+    (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
+    if refine:  # the final refinement, the model of the lowest MSAC cost (chosen_refinement)
         # (local optimization's last refinement is the final one's first, whether it took it,
         # or did not and the model is still the one it started from)
         first = None
-        if refined is not None and (refined[0] is model or refined[1] is model):
-            first = refined[1]
-        model = _final(pool, model, search, threshold_px, free, prior, first)
+        if last is not None and (last[0] is model or last[1] is model):
+            first = last[1]
+        model = chosen_refinement(
+            pool, model, threshold_px, not still, prior, search.cost, search.errors,
+            search.cameras, CONTRADICTION_GATE, first,
+        )  # fmt: skip
     e = search.errors(model)
     R, C, w, t = _copies(model)
     # (the inliers and their RMS error as a camera's final model's)
