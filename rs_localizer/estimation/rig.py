@@ -2037,7 +2037,8 @@ def _estimate(
     best_cost, drawn = search.score, search.iterations
 
     # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
-    # solver on the inliers (not on a frame taken at one time) and the final refinement's first
+    # solver on the inliers and the final refinement's first; on a frame taken at one time
+    # (no linear re-solve) its one round is that refinement alone, kept where it lowers the cost
     def refit(m, inl):
         return [_refit(pool, inl, m, threshold_px, prior=prior)]
 
@@ -2045,9 +2046,14 @@ def _estimate(
         return search.cost(m), search.errors(m) < threshold_px
 
     exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not still, prior=prior)
-    steps = (None if still else refit, exact if refine else None)
-    best = (best_cost, model, search.errors(model) < threshold_px)
-    (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
+    if still:
+        last = (model, exact(model)) if refine else None
+        if last is not None and search.cost(last[1]) < best_cost:
+            model = last[1]
+    else:
+        best = (best_cost, model, search.errors(model) < threshold_px)
+        steps = (refit, exact if refine else None)
+        (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
     if refine:  # the final refinement, the model of the lowest MSAC cost (chosen_refinement)
         # (local optimization's last refinement is the final one's first, whether it took it,
         # or did not and the model is still the one it started from)
