@@ -48,6 +48,7 @@ from .refine import (
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
+    image_variance,
     posterior_step,
     refine_backend,
 )
@@ -67,6 +68,7 @@ __all__ = [
     "FINAL_CUTOFF",
     "FINAL_TOL",
     "GLOBAL_SHUTTER",
+    "INLIER_FIT_SIGNIFICANCE",
     "MIRRORED_FIT_FRACTION",
     "MOTION_SIGNIFICANCE",
     "MOTION_SIGNIFICANCE_CHI2",
@@ -83,6 +85,7 @@ __all__ = [
     "FinalModel",
     "ImageAlone",
     "checked_final",
+    "chosen_refinement",
     "final_covariance",
     "final_estimate",
     "final_refinement",
@@ -97,6 +100,7 @@ __all__ = [
     "posterior_if_consistent",
     "prior_at_rest",
     "refine_final_model",
+    "refined_model",
     "rolling_shutter_check",
     "still_fallback",
     "still_final",
@@ -123,6 +127,19 @@ FINAL_CUTOFF = 2.0
 #: agree with those at 1e-10 to 1e-4 of the ML fit's spread (RS speed 0.5 and 1), with 4-5
 #: cost evaluations instead of 6-8
 FINAL_TOL = 1e-6
+#: the refinements :func:`chosen_refinement` compares by their MSAC cost stop at this relative
+#: decrease of the cost (the final refinement of one camera's frame at :data:`FINAL_TOL`): on
+#: the rendered 3-camera rig the looser tolerance moved the median angular velocity error by
+#: 5 % at no measurable saving
+COMPARED_TOL = 1e-10
+#: the final refinement of a frame of several views keeps the fit of its inliers alone (the
+#: points within the threshold) instead of the fit over every point near the model only when
+#: it lowers the MSAC cost by more than this many image variances (px^2): the 99 % quantile of
+#: chi-square with the model's degrees of freedom (6: the pose, 12: with the velocities), by
+#: which two fits of the same consistent points differ at most. Where no pose explains every
+#: camera (mountings a few tenths of a degree off), the fit near every point settles between
+#: the cameras at a cost tens of variances above the one that explains its inliers
+INLIER_FIT_SIGNIFICANCE = {6: 16.81, 12: 26.22}
 #: ``inconsistent_fit``: a planar inlier set of a non-planar frame with more than this fraction
 #: of the other points beyond its plane, away from the camera (the plane seen from behind).
 #: ``python -m benchmarks.bench_consistency``: true fits 0.0 with coplanar inliers
@@ -236,6 +253,104 @@ def frame_refinement(
         prior=prior,
         mountings=fr.mountings(),
     )
+
+
+def refined_model(
+    fr: RefinementView,
+    model: Model,
+    th: float,
+    rolling: bool,
+    prior: MotionPrior | None = None,
+    *,
+    cutoff: float | None = None,
+    max_iterations: int = 20,
+) -> Model:
+    """The model ``(R, C, w, t)`` of :func:`frame_refinement` of ``model`` without the
+    covariance, stopping at :data:`COMPARED_TOL`: the refinement :func:`chosen_refinement`
+    compares, and the step of local optimization and of the initial model's pull of a frame
+    whose final stage chooses among refinements (a rig's). ``th``: the Huber scale in the
+    frame's units (px for a rig); points beyond ``cutoff`` (at least ``th``; None:
+    :data:`FINAL_CUTOFF` thresholds) ignored, re-selected at each iteration; ``rolling``: the
+    12 parameters, else the pose's 6 (``w``, ``t`` held); ``prior``: maximum a posteriori
+    (rolling shutter only). The arrays are the refinement's own (copies in NumPy)."""
+    cut = None if cutoff is None else max(float(cutoff), float(th))
+    res = frame_refinement(
+        fr, model, th, rolling, prior if rolling else None, cutoff=cut,
+        max_iterations=max_iterations, covariance=False, tol=COMPARED_TOL,
+    )  # fmt: skip
+    if not fr.compiled:
+        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
+    # (views of the refinement's own buffer: no other model shares it)
+    return res.R, res.C, res.w, res.t
+
+
+def chosen_refinement(
+    fr: RefinementView,
+    model: Model,
+    th: float,
+    rolling: bool,
+    prior: MotionPrior | None,
+    cost: Callable[[Model], float],
+    errors: Callable[[Model], np.ndarray],
+    views: int,
+    wide: float,
+    first: Model | None = None,
+) -> Model:
+    """The final refinement of ``model`` on a frame of ``views`` views with points
+    (``cost``: the MSAC cost of a model on every point, the estimate's own measure;
+    ``errors``: its (N,) errors, in the units of the threshold ``th``): :func:`refined_model`
+    (Huber loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the
+    set re-selected at each iteration) from ``model`` and from ``model`` first fitted with
+    ``wide`` thresholds as its threshold (a rig's: every camera's points within the largest
+    inconsistency its cameras' consensus accepts between them), the one of the lower MSAC
+    cost (the first alone when every point of the frame lies within the threshold of it: no
+    point a few thresholds away for the wider fit to take in); unless the fit of the inliers
+    alone (the points within the threshold, from ``model`` or from that one, the better)
+    lowers the MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances (tried
+    only when some point lies between one and :data:`FINAL_CUTOFF` thresholds of that model:
+    otherwise the inliers are every point its refinement weighed).
+
+    RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
+    refinement from the best of them stays near that camera's pose when another camera's
+    points lie a few thresholds away, although a pose between the cameras explains more points
+    at a lower cost (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the
+    lower cost in 36 % of the rig frames). Where the cameras' mountings are off so that no pose
+    explains them all, both refinements can settle between the cameras at a higher cost than
+    the pose that explains its inliers (TagSLAM's ``test_6``: 10-32 % more MSAC cost on rig
+    frames 1-1.8 deg from its reference): the inliers' own fit keeps that pose. On consistent
+    points the two differ by a few variances, and the fit over every point near the model,
+    the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
+    MSAC cost) or one view (a camera alone, one view at the identity mounting): the first
+    alone. ``first``: that first refinement (:func:`refined_model` of ``model`` at the
+    threshold, or ``model`` itself when it is local optimization's refinement) when already
+    computed, or None."""
+    out = first if first is not None else refined_model(fr, model, th, rolling, prior)
+    if prior is not None or views < 2:
+        return out
+    k = float(th)
+    if errors(out).max() < k:
+        return out  # (every point within the threshold: none a few thresholds away)
+    wider = refined_model(fr, model, wide * k, rolling)
+    wider = refined_model(fr, wider, k, rolling)
+    c_out, c_wide = cost(out), cost(wider)
+    best, c_best = (wider, c_wide) if c_wide < c_out else (out, c_out)
+
+    e = errors(best)
+    if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
+        return best  # (no point the inliers' fit leaves out that the refinement weighs)
+
+    def inliers_fit(m):
+        fit = refined_model(fr, m, k, rolling, cutoff=k)
+        return fit, cost(fit)
+
+    # (``best`` is ``model`` itself when local optimization's refinement was the first and
+    # the wider fit did not lower its cost: the same refinement from the same start, once)
+    fits = inliers_fit(model)
+    fits = (fits, fits if best is model else inliers_fit(best))
+    tight, c_tight = min(fits, key=lambda fc: fc[1])
+    free = 12 if rolling else 6
+    margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, fr.compiled)
+    return tight if c_tight < c_best - margin else best
 
 
 @lru_cache(maxsize=64)

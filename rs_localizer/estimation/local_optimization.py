@@ -11,10 +11,12 @@ import numpy as np
 
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
-from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
+from .finalize import refined_model
+from .frame import SCORE_AT_MEASURED_TIME, Frame, Model, RefinementView
 from .hypotheses import nonminimal_models
 from .options import EstimateOptions, InitialModel
 from .plausibility import all_finite, finite_model
+from .prior import MotionPrior
 from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
@@ -24,6 +26,7 @@ __all__ = [
     "local_optimization",
     "polish",
     "seed_from_initial_model",
+    "view_seed_steps",
 ]
 
 #: (MSAC score, model (R, C, w, t), (N,) inlier mask)
@@ -93,7 +96,7 @@ def local_optimization(
         )
         return RSModel(ref.R, ref.C, ref.w, ref.t)
 
-    return polish(best, evaluate, linear if lo.nonminimal else None, exact, lo.steps)
+    return polish(best, evaluate, linear if lo.nonminimal else None, exact, lo.steps)[0]
 
 
 def polish(
@@ -103,7 +106,7 @@ def polish(
     refine: Callable[[Model], Model] | None,
     rounds: int,
     min_inliers: int = 6,
-) -> Scored:
+) -> tuple[Scored, tuple[Model, Model] | None]:
     """The rounds of local optimization on a new ``best`` (score, model, (N,) inlier mask),
     whatever the frame: a single camera's (:func:`local_optimization`) and a rig's
     (:func:`~.rig.estimate_rig_pose`), each with its own steps.
@@ -117,13 +120,14 @@ def polish(
 
     Args:
         evaluate: ``evaluate(model)`` the (score, (N,) inlier mask) of a model on every point.
-        best: its inlier mask may be None (none counted) without ``nonminimal`` and with
-            ``min_inliers`` 0.
 
     Returns:
-        the polished (score, model, inlier mask).
+        (the polished (score, model, inlier mask), the last refinement's ``(start, result)``
+        whether it was taken or not, None without one): a final refinement that starts from
+        the polished model need not run that refinement again.
     """
     best_score, model, best_inl = best
+    refined = None
     for step in range(rounds):
         n_before = int(np.count_nonzero(best_inl))
         if n_before < min_inliers:
@@ -136,6 +140,7 @@ def polish(
                 start, start_score, start_inl = cand, sc, inl
         if refine is not None:
             cand = refine(start)
+            refined = (start, cand)
             sc, inl = evaluate(cand)
             if sc < start_score:
                 start, start_score, start_inl = cand, sc, inl
@@ -144,7 +149,7 @@ def polish(
         model, best_score, best_inl = start, start_score, start_inl
         if step + 1 == rounds or int(np.count_nonzero(best_inl)) <= n_before:
             break
-    return best_score, model, best_inl
+    return (best_score, model, best_inl), refined
 
 
 def seed_from_initial_model(
@@ -248,6 +253,29 @@ def initial_model_seed(
     if int(np.count_nonzero(seed[2])) <= size:
         return explained, None, True
     return explained, seed, True
+
+
+def view_seed_steps(
+    fr: RefinementView, th: float, gate: float, rolling: bool, prior: MotionPrior | None
+) -> tuple[Callable, Callable, Callable]:
+    """The ``errors``, ``evaluate`` and ``pull`` steps of :func:`initial_model_seed` on a
+    frame whose errors (:meth:`~.frame.RefinementView.errors`) are in the threshold's units
+    (a rig's, px): the MSAC score and inliers at ``th``, and the pull onto the explained points:
+    :func:`~.finalize.refined_model` on every point (at most 10 iterations, Huber at the
+    threshold, truncated at ``gate``; ``rolling``, ``prior`` as there), kept where it lowers
+    the MSAC score."""
+    k = float(th)
+    th2 = k**2
+
+    def evaluate(model: Model, e: np.ndarray) -> tuple[float, np.ndarray]:
+        return np.minimum(e * e, th2).sum(), e < k
+
+    def pull(seed: Scored, near: np.ndarray) -> Scored:
+        pulled = refined_model(fr, seed[1], k, rolling, prior, cutoff=gate, max_iterations=10)
+        scored = evaluate(pulled, fr.errors(pulled))
+        return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
+
+    return fr.errors, evaluate, pull
 
 
 def _pull_in(

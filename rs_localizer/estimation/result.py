@@ -1,19 +1,26 @@
 """What :func:`~rs_localizer.estimation.estimate_rs_pose` returns: :class:`RSPoseEstimate`, its
 failure reasons (a camera's and a rig's, documented once: :data:`FAILURE_REASONS`,
 :data:`RIG_FAILURE_REASONS`, :data:`RIG_REFUSALS`), and the conversions of the model (R, C, w,
-t per unit RS coordinate) to the camera's physical velocities and the output covariances.
+t per unit RS coordinate) to the camera's physical velocities and the output covariances, and
+between a camera's model and the model of the body (a rig) it is mounted on
+(:func:`camera_model_of_rig`, :func:`rig_model_of_camera`, :func:`camera_estimate`; a camera
+alone is the body at the identity mounting).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import skew
+from ..camera import CameraModel
+from ..frames import Mounting
+from ..geometry import rotvec_to_matrix, skew
 from ..pose import (
     PoseWithCovariance,
     RSModel,
+    RSPose,
     frozen_instance,
     model_twist,
     model_twist_jacobian,
@@ -40,9 +47,13 @@ __all__ = [
     "UNCONFIRMED",
     "EstimationFailed",
     "RSPoseEstimate",
+    "camera_estimate",
+    "camera_model_of_rig",
     "failed_estimate",
     "output_covariance",
     "physical_velocities",
+    "rig_model_jacobian",
+    "rig_model_of_camera",
 ]
 
 # The reasons a frame (a camera's, or a rig's: :func:`~.rig.estimate_rig_pose`, the rig
@@ -432,3 +443,153 @@ def _output_covariance_numpy(cov12, R, C, w, s: float):
     pose = out[np.ix_(idx, idx)]
     tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
     return out, pose, (out[np.ix_(tw, tw)] if s > 0 else None)
+
+
+def camera_model_of_rig(
+    model: RSModel | tuple,
+    mounting: Mounting,
+    stamp_offset: float,
+    seconds_per_unit_r: float,
+) -> RSModel:
+    """Camera c's single-camera model at its reference line from the rig's model.
+
+    With the rig's ``(R, C, w, t)`` (:mod:`~.rig`'s; ``w``, ``t`` per second) and
+    ``s = stamp_offset``, the rig at ``s + sigma`` sees ``expm(sigma [w]x) R' X + C' + sigma t``
+    with ``R' = expm(s [w]x) R``, ``C' = C + s t``; camera c sees that through its mounting,
+    and per unit RS coordinate (``sigma = seconds_per_unit_r (r - r0)``)::
+
+        R_cam = R_c R', C_cam = R_c C' + c_c, w_cam = spr R_c w, t_cam = spr R_c t
+
+    Args:
+        model: the rig's ``(R (3, 3), C (3,) m, w (3,) rad/s, t (3,) m/s)``.
+        mounting: the camera's :class:`~rs_localizer.frames.Mounting` (``x_cam = R_c x_rig +
+            c_c``: its ``R``, ``c``).
+        stamp_offset: the camera's reference line's capture time minus the rig's reference
+            time (s). seconds_per_unit_r: the camera's ``seconds_per_unit_r`` (s).
+    Returns:
+        the camera's :class:`~rs_localizer.pose.RSModel` (``w``, ``t`` per unit r), what
+        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for that camera alone.
+    """
+    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+    Rc, cc = mounting.R, mounting.c
+    s, spr = float(stamp_offset), float(seconds_per_unit_r)
+    a = s * w
+    # (expm(0) = I exactly, and R_c I = R_c: a mounting's rotation is finite)
+    Rs = Rc @ rotvec_to_matrix(a) if a.any() else Rc
+    return RSModel(Rs @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t))
+
+
+def camera_estimate(
+    est: RSPoseEstimate,
+    index: int,
+    camera: CameraModel,
+    mounting: Mounting,
+    stamp_offset: float,
+    points2d: np.ndarray,
+    points3d: np.ndarray | None = None,
+) -> RSPoseEstimate:
+    """Camera ``index``'s part of the rig estimate ``est`` as that camera's own estimate: what
+    its front end is told (:class:`~rs_localizer.correspondences.FrameFeedback`) and its
+    debug image draws.
+
+    Args:
+        est: a rig frame's estimate (:func:`~.rig.estimate_rig_pose`).
+        index: the camera's view in the rig frame. camera: its model.
+        mounting (:class:`~rs_localizer.frames.Mounting`), stamp_offset (s): its mounting
+            and its reference line's time after the rig's (:class:`~.rig.RigView`).
+        points2d: (N, 2) px, the rows the camera gave the rig; points3d: (N, 3) m, their
+            world points, for ``rmse_px`` (None: NaN).
+    Returns:
+        an :class:`~.result.RSPoseEstimate` with the rig's ``success``, ``failure``,
+        ``solver``, ``motion_model``; ``model`` the camera's at its reference line
+        (:func:`camera_model_of_rig`, per unit r; the identity and zeros on failure),
+        ``pose`` its optical frame's; ``inliers`` (N,) the view's
+        (``est.inliers_per_view[index]``; none where the rig frame has no such view);
+        ``rmse_px`` the RMS error of those inliers under that model (px, the camera's
+        projection at each row's capture time, NaN without ``points3d`` or inliers). The
+        covariances stay the rig's own: None here.
+    """
+    n = len(points2d)
+    per = est.inliers_per_view
+    inl = np.asarray(per[index], bool) if index < len(per) else np.zeros(n, bool)
+    inl = inl if len(inl) == n else np.zeros(n, bool)
+    spr = camera.seconds_per_unit_r
+    model = RSModel.identity()
+    if est.success:
+        model = RSModel(*camera_model_of_rig(est.model, mounting, stamp_offset, spr))
+    rmse = float("nan")
+    if points3d is not None and inl.any():
+        uv = np.asarray(points2d, float)[inl]
+        e = camera.project_rs(np.asarray(points3d, float)[inl], *model) - uv
+        rmse = float(np.sqrt(np.nanmean(np.sum(e * e, axis=1))))
+    return RSPoseEstimate(
+        success=est.success,
+        failure=est.failure,
+        solver=est.solver,
+        model=model,
+        pose=RSPose.from_model(model, spr),
+        inliers=inl,
+        num_valid=n,
+        rmse_px=rmse,
+        motion_model=est.motion_model,
+        implementation=est.implementation,
+    )
+
+
+def rig_model_of_camera(
+    model: RSModel | tuple,
+    mounting: Mounting,
+    stamp_offset: float,
+    seconds_per_unit_r: float,
+) -> RSModel:
+    """The inverse of :func:`camera_model_of_rig`: the rig's model ``(R, C, w, t)`` (per
+    second, at the rig's reference time) of one camera's single-camera model (per unit r at its
+    reference line); a global-shutter camera (``seconds_per_unit_r <= 0``) gives zero ``w``
+    and ``t``. Arguments as :func:`camera_model_of_rig`."""
+    Rk, Ck, wk, tk = (np.asarray(a, dtype=float) for a in model)
+    Rc, cc = mounting.R, mounting.c
+    spr = float(seconds_per_unit_r)
+    w = Rc.T @ wk / spr if spr > 0 else np.zeros(3)
+    t = Rc.T @ tk / spr if spr > 0 else np.zeros(3)
+    s = float(stamp_offset)
+    R1, C1 = Rc.T @ Rk, Rc.T @ (Ck - cc)
+    a = -s * w
+    # (expm(0) = I exactly, and I R1 = R1 when R1 is finite: a global shutter's, or a camera
+    # at the rig's reference time)
+    if a.any() or not np.isfinite(R1).all():
+        R1 = rotvec_to_matrix(a) @ R1
+    return RSModel(R1, C1 - s * t, w, t)
+
+
+def rig_model_jacobian(
+    model: RSModel | tuple, mounting: Mounting, stamp_offset: float, spr: float
+) -> np.ndarray:
+    """(12, 12) the derivative of :func:`rig_model_of_camera`'s ``(delta, C, w, t)`` (the
+    rig's rotation perturbed on the left, ``R = expm([delta]x) R_0``) over the camera model's
+    ``(delta, C, w, t)`` at ``model``, analytic: with ``E = expm(-s [w]x)`` (``s`` the
+    stamp offset, ``w`` the rig's angular velocity) and the mounting's ``R_c``, ``delta =
+    E R_c^T delta_cam - (s / spr) J_l(-s w) R_c^T dw_cam``, ``dC = R_c^T (dC_cam - (s / spr)
+    dt_cam)``, ``dw = R_c^T dw_cam / spr``, ``dt = R_c^T dt_cam / spr`` (``J_l`` the left
+    Jacobian of SO(3): ``expm([a + d]x) = expm([J_l(a) d]x) expm([a]x)`` to first order); a
+    global-shutter camera (``spr <= 0``): the velocities' rows and columns zero."""
+    Rt = np.asarray(mounting.R, dtype=float).T
+    J = np.zeros((12, 12))
+    J[3:6, 3:6] = Rt
+    spr, s = float(spr), float(stamp_offset)
+    if spr <= 0:
+        J[0:3, 0:3] = Rt
+        return J
+    a = -s * (Rt @ np.asarray(model[2], dtype=float) / spr)  # (-s w, the rig's w)
+    J[0:3, 0:3] = rotvec_to_matrix(a) @ Rt
+    th2 = float(a @ a)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    if th2 < 1e-12:  # (Taylor: 1/2 - t^2/24, 1/6 - t^2/120)
+        c2, c3 = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = math.sqrt(th2)
+        c2, c3 = (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / (th2 * th)
+    Jl = np.eye(3) + c2 * K + c3 * (K @ K)
+    J[0:3, 6:9] = (-s / spr) * (Jl @ Rt)
+    J[3:6, 9:12] = (-s / spr) * Rt
+    J[6:9, 6:9] = J[9:12, 9:12] = Rt / spr
+    return J

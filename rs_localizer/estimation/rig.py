@@ -60,13 +60,13 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   enough inliers, not on one 3D line, plausible motion and every inlier in front of its camera
   at its capture time (:func:`~.finalize.last_checks`, each camera's own model), and with
   ``plausibility.consistent_fit`` a fit a rigid rig can give
-  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails). The rig's
-  own part is what several cameras need and one does not: the choice between refinements
-  (:func:`_final`: on a frame of several cameras, unless the first refinement explains every
-  point within the threshold, also the refinement from the model first fitted with a wider
-  threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone where its
-  cost is significantly lower: cameras whose mountings disagree), and the estimate's
-  per-camera fields (:func:`_rig_estimate`);
+  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails); the
+  choice between refinements (:func:`~.finalize.chosen_refinement`, which takes a single
+  view's first: on a frame of several cameras, unless the first refinement explains every
+  point within the threshold, also the refinement from the model first fitted with
+  :data:`CONTRADICTION_GATE` thresholds, the one of the lower MSAC cost kept, or the fit of
+  the inliers alone where its cost is significantly lower: cameras whose mountings
+  disagree). The rig's own part is the estimate's per-camera fields (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
@@ -143,7 +143,9 @@ from .estimate import estimate_rs_pose, few_points_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
+    INLIER_FIT_SIGNIFICANCE,
     ROLLING_SHUTTER,
+    chosen_refinement,
     final_covariance,
     final_sensitivity,
     frame_refinement,
@@ -151,6 +153,7 @@ from .finalize import (
     inconsistent_fit,
     information_condition,
     last_checks,
+    refined_model,
     rolling_shutter_check,
     still_fallback,
 )
@@ -168,7 +171,7 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
-from .local_optimization import initial_model_seed, polish
+from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .outputs import final_inliers
@@ -183,7 +186,6 @@ from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
     Mountings,
-    image_variance,
     kernel_mountings_of,
 )
 from .result import (
@@ -195,7 +197,11 @@ from .result import (
     TOO_FEW_POINTS,
     EstimationFailed,
     RSPoseEstimate,
+    camera_estimate,
+    camera_model_of_rig,
     output_covariance,
+    rig_model_jacobian,
+    rig_model_of_camera,
 )
 from .rig_batch import (
     best_msac,
@@ -250,11 +256,6 @@ VOTE_MIN_POINTS = 8
 #: voting camera of a few points alone
 RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
 
-#: the rig's refinements stop at this relative decrease of the cost (a single camera's final
-#: refinement at :data:`~.finalize.FINAL_TOL`): several refinements from different starts
-#: are compared by their MSAC cost (:func:`_final`), and on the rendered 3-camera rig the
-#: looser tolerance moved the median angular velocity error by 5 % at no measurable saving
-RIG_REFINE_TOL = 1e-10
 #: the rig solver's iterations per sample after the pre-rotation when
 #: ``EstimateOptions.ransac.solver_iterations`` is None (the single camera's choice per solver)
 RIG_SOLVER_ITERATIONS = 3
@@ -301,15 +302,6 @@ AGREE_SHARE = 0.3
 #: px and more
 CONTRADICTION_GATE = 3.0
 
-#: the final refinement of a frame of several cameras keeps the fit of its inliers alone (the
-#: points within the threshold) instead of the fit over every point near the model only when
-#: it lowers the MSAC cost by more than this many image variances (px^2): the 99 % quantile of
-#: chi-square with the model's degrees of freedom (6: the pose, 12: with the velocities), by
-#: which two fits of the same consistent points differ at most. Where no pose explains every
-#: camera (mountings a few tenths of a degree off), the fit near every point settles between
-#: the cameras at a cost tens of variances above the one that explains its inliers
-INLIER_FIT_SIGNIFICANCE = {6: 16.81, 12: 26.22}
-
 #: with a prediction, a voting camera is explained by it when its share of points within
 #: this many inlier thresholds of the prediction is at least :data:`AGREE_SHARE` times the
 #: best voting camera's
@@ -337,11 +329,6 @@ VERIFY_ALL_EXPLAINED = 0.95
 PREDICTION_MARGIN = 2.0
 
 
-def _identity_mounting() -> Mounting:
-    """The identity mounting: a :class:`RigView`'s default (the camera's frame is the rig's)."""
-    return Mounting(np.eye(3), np.zeros(3))
-
-
 @dataclass(frozen=True, eq=False)
 class RigView:
     """One camera's part of a rig frame.
@@ -365,7 +352,7 @@ class RigView:
     uv: np.ndarray
     X: np.ndarray
     camera: CameraModel
-    mounting: Mounting | None = field(default_factory=_identity_mounting)
+    mounting: Mounting | None = field(default_factory=lambda: Mounting(np.eye(3), np.zeros(3)))
     stamp_offset: float = 0.0
     name: str = ""
 
@@ -377,122 +364,6 @@ class RigView:
         return camera_model_of_rig(
             model, self.mounting, self.stamp_offset, self.camera.seconds_per_unit_r
         )
-
-
-def camera_model_of_rig(
-    model: RSModel | tuple,
-    mounting: Mounting,
-    stamp_offset: float,
-    seconds_per_unit_r: float,
-) -> RSModel:
-    """Camera c's single-camera model at its reference line from the rig's model.
-
-    With the rig's ``(R, C, w, t)`` (module docstring; ``w``, ``t`` per second) and
-    ``s = stamp_offset``, the rig at ``s + sigma`` sees ``expm(sigma [w]x) R' X + C' + sigma t``
-    with ``R' = expm(s [w]x) R``, ``C' = C + s t``; camera c sees that through its mounting,
-    and per unit RS coordinate (``sigma = seconds_per_unit_r (r - r0)``)::
-
-        R_cam = R_c R', C_cam = R_c C' + c_c, w_cam = spr R_c w, t_cam = spr R_c t
-
-    Args:
-        model: the rig's ``(R (3, 3), C (3,) m, w (3,) rad/s, t (3,) m/s)``.
-        mounting: the camera's :class:`~rs_localizer.frames.Mounting` (``x_cam = R_c x_rig +
-            c_c``: its ``R``, ``c``).
-        stamp_offset: the camera's reference line's capture time minus the rig's reference
-            time (s). seconds_per_unit_r: the camera's ``seconds_per_unit_r`` (s).
-    Returns:
-        the camera's :class:`~rs_localizer.pose.RSModel` (``w``, ``t`` per unit r), what
-        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for that camera alone.
-    """
-    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
-    Rc, cc = mounting.R, mounting.c
-    s, spr = float(stamp_offset), float(seconds_per_unit_r)
-    a = s * w
-    # (expm(0) = I exactly, and R_c I = R_c: a mounting's rotation is finite)
-    Rs = Rc @ rotvec_to_matrix(a) if a.any() else Rc
-    return RSModel(Rs @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t))
-
-
-def camera_estimate(
-    est: RSPoseEstimate,
-    index: int,
-    camera: CameraModel,
-    mounting: Mounting,
-    stamp_offset: float,
-    points2d: np.ndarray,
-    points3d: np.ndarray | None = None,
-) -> RSPoseEstimate:
-    """Camera ``index``'s part of the rig estimate ``est`` as that camera's own estimate: what
-    its front end is told (:class:`~rs_localizer.correspondences.FrameFeedback`) and its
-    debug image draws.
-
-    Args:
-        est: a rig frame's estimate (:func:`estimate_rig_pose`).
-        index: the camera's view in the rig frame. camera: its model.
-        mounting (:class:`~rs_localizer.frames.Mounting`), stamp_offset (s): its mounting
-            and its reference line's time after the rig's (:class:`RigView`).
-        points2d: (N, 2) px, the rows the camera gave the rig; points3d: (N, 3) m, their
-            world points, for ``rmse_px`` (None: NaN).
-    Returns:
-        an :class:`~.result.RSPoseEstimate` with the rig's ``success``, ``failure``,
-        ``solver``, ``motion_model``; ``model`` the camera's at its reference line
-        (:func:`camera_model_of_rig`, per unit r; the identity and zeros on failure),
-        ``pose`` its optical frame's; ``inliers`` (N,) the view's
-        (``est.inliers_per_view[index]``; none where the rig frame has no such view);
-        ``rmse_px`` the RMS error of those inliers under that model (px, the camera's
-        projection at each row's capture time, NaN without ``points3d`` or inliers). The
-        covariances stay the rig's own: None here.
-    """
-    n = len(points2d)
-    per = est.inliers_per_view
-    inl = np.asarray(per[index], bool) if index < len(per) else np.zeros(n, bool)
-    inl = inl if len(inl) == n else np.zeros(n, bool)
-    spr = camera.seconds_per_unit_r
-    model = RSModel.identity()
-    if est.success:
-        model = RSModel(*camera_model_of_rig(est.model, mounting, stamp_offset, spr))
-    rmse = float("nan")
-    if points3d is not None and inl.any():
-        uv = np.asarray(points2d, float)[inl]
-        e = camera.project_rs(np.asarray(points3d, float)[inl], *model) - uv
-        rmse = float(np.sqrt(np.nanmean(np.sum(e * e, axis=1))))
-    return RSPoseEstimate(
-        success=est.success,
-        failure=est.failure,
-        solver=est.solver,
-        model=model,
-        pose=RSPose.from_model(model, spr),
-        inliers=inl,
-        num_valid=n,
-        rmse_px=rmse,
-        motion_model=est.motion_model,
-        implementation=est.implementation,
-    )
-
-
-def rig_model_of_camera(
-    model: RSModel | tuple,
-    mounting: Mounting,
-    stamp_offset: float,
-    seconds_per_unit_r: float,
-) -> RSModel:
-    """The inverse of :func:`camera_model_of_rig`: the rig's model ``(R, C, w, t)`` (per
-    second, at the rig's reference time) of one camera's single-camera model (per unit r at its
-    reference line); a global-shutter camera (``seconds_per_unit_r <= 0``) gives zero ``w``
-    and ``t``. Arguments as :func:`camera_model_of_rig`."""
-    Rk, Ck, wk, tk = (np.asarray(a, dtype=float) for a in model)
-    Rc, cc = mounting.R, mounting.c
-    spr = float(seconds_per_unit_r)
-    w = Rc.T @ wk / spr if spr > 0 else np.zeros(3)
-    t = Rc.T @ tk / spr if spr > 0 else np.zeros(3)
-    s = float(stamp_offset)
-    R1, C1 = Rc.T @ Rk, Rc.T @ (Ck - cc)
-    a = -s * w
-    # (expm(0) = I exactly, and I R1 = R1 when R1 is finite: a global shutter's, or a camera
-    # at the rig's reference time)
-    if a.any() or not np.isfinite(R1).all():
-        R1 = rotvec_to_matrix(a) @ R1
-    return RSModel(R1, C1 - s * t, w, t)
 
 
 def _label(c: int, v: RigView) -> str:
@@ -1170,38 +1041,6 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
     return m
 
 
-def _refine(
-    pool: _Pool,
-    model,
-    threshold_px: float,
-    max_iterations: int = 20,
-    free=12,
-    cutoff_px: float | None = None,
-    prior: MotionPrior | None = None,
-):
-    """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
-    thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
-    truncated beyond: the set re-selected at each iteration): a single camera's final
-    refinement (:func:`~.finalize.frame_refinement`, without the covariance, stopping at
-    :data:`RIG_REFINE_TOL`) with each point seen through its camera's mounting at its own
-    capture time, errors in px. 12 parameters: a rotation update left of R, C, w, t
-    (``free=6``: the pose alone, w and t kept at zero).
-    ``prior`` (a gyro's motion prior, with ``free=12``): maximum a posteriori, the cost gains
-    ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
-    starting model's errors inside the threshold. With ``pool.numpy``:
-    :func:`~.refine.refine_rs_pose_numpy`."""
-    k = float(threshold_px)
-    cut = None if cutoff_px is None else max(float(cutoff_px), k)
-    motion = prior if free == 12 else None
-    res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
-                           max_iterations=max_iterations, covariance=False,
-                           tol=RIG_REFINE_TOL)  # fmt: skip
-    if pool.numpy:
-        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
-    # (views of the refinement's own buffer: no other model shares it)
-    return res.R, res.C, res.w, res.t
-
-
 def _kernel_arrays(pool: _Pool) -> tuple:
     """The pool's ``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous
     float64 arrays, :func:`_kernel_mountings`' views), built once per pool: a rig frame
@@ -1214,66 +1053,6 @@ def _kernel_arrays(pool: _Pool) -> tuple:
             np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
         )  # fmt: skip
     return a
-
-
-def _final(
-    pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior, first=None
-):
-    """The final refinement of ``model`` (``search.cost``: the MSAC cost of a model on every
-    point, the estimate's own measure; ``search.errors``: its errors): :func:`_refine` (Huber
-    loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the set
-    re-selected at each iteration) from ``model`` and from ``model`` first fitted with
-    :data:`CONTRADICTION_GATE` thresholds as its threshold (every camera's points within the
-    largest inconsistency the cameras' consensus accepts between them), the one of the lower
-    MSAC cost (the first alone when every point of the frame lies within the threshold of it:
-    no point a few thresholds away for the wider fit to take in); unless the fit of the
-    inliers alone (the points within the threshold, from ``model`` or from that one, the
-    better) lowers the MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances
-    (tried only when some point lies between one and :data:`FINAL_CUTOFF` thresholds of that
-    model: otherwise the inliers are every point its refinement weighed).
-
-    RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
-    refinement from the best of them stays near that camera's pose when another camera's
-    points lie a few thresholds away, although a pose between the cameras explains more points
-    at a lower cost (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the
-    lower cost in 36 % of the rig frames). Where the cameras' mountings are off so that no pose
-    explains them all, both refinements can settle between the cameras at a higher cost than
-    the pose that explains its inliers (TagSLAM's ``test_6``: 10-32 % more MSAC cost on rig
-    frames 1-1.8 deg from its reference): the inliers' own fit keeps that pose. On consistent
-    points the two differ by a few variances, and the fit over every point near the model,
-    the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
-    MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold,
-    or ``model`` itself when it is local optimization's refinement) when already computed,
-    or None."""
-    out = first if first is not None else _refine(pool, model, threshold_px, free=free, prior=prior)
-    if prior is not None or search.cameras < 2:
-        return out
-    msac = search.cost
-    k = float(threshold_px)
-    if search.errors(out).max() < k:
-        return out  # (every point within the threshold: none a few thresholds away)
-    gate = CONTRADICTION_GATE * threshold_px
-    wide = _refine(pool, _refine(pool, model, gate, free=free), threshold_px, free=free)
-
-    c_out, c_wide = msac(out), msac(wide)
-    best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
-
-    e = search.errors(best)
-    if not np.any((e >= k) & (e < FINAL_CUTOFF * k)):
-        return best  # (no point the inliers' fit leaves out that the refinement weighs)
-
-    def inliers_fit(m):
-        fit = _refine(pool, m, threshold_px, free=free, cutoff_px=threshold_px)
-        return fit, msac(fit)
-
-    # (``best`` is ``model`` itself when local optimization's refinement was the first and
-    # the wider fit did not lower its cost: the same refinement from the same start, once)
-    fits = inliers_fit(model)
-    fits = (fits, fits if best is model else inliers_fit(best))
-    tight, c_tight = min(fits, key=lambda fc: fc[1])
-    margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
-    return tight if c_tight < c_best - margin else best
 
 
 def _view_planar(pool: _Pool, c: int) -> bool:
@@ -1299,25 +1078,6 @@ def _copies(model) -> tuple:
 
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
-
-
-def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior):
-    """The rig's steps of :func:`~.local_optimization.initial_model_seed`: the errors in px
-    (:meth:`_Pool.errors`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
-    explained points: :func:`_refine` on every point (at most 10 iterations, Huber at the
-    threshold, truncated at ``gate`` px), kept where it lowers the MSAC score."""
-    k = float(threshold_px)
-    th2 = k**2
-
-    def evaluate(model, e: np.ndarray) -> tuple[float, np.ndarray]:
-        return np.minimum(e * e, th2).sum(), e < k
-
-    def pull(seed, near: np.ndarray):
-        pulled = _refine(pool, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
-        scored = evaluate(pulled, pool.errors(pulled))
-        return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
-
-    return pool.errors, evaluate, pull
 
 
 def estimate_rig_pose(
@@ -1554,7 +1314,7 @@ def _one_camera_alone(
     R, C, w, _ = model
     cov = out = None
     if est.model_covariance is not None:
-        J = _rig_model_jacobian(est.model, v.mounting, v.stamp_offset, spr)
+        J = rig_model_jacobian(est.model, v.mounting, v.stamp_offset, spr)
         cov = J @ est.model_covariance @ J.T
         out = output_covariance(cov, R, C, w, 1.0)
     inl = np.zeros(len(pool.cam), dtype=bool)
@@ -1577,38 +1337,6 @@ def _one_camera_alone(
 #: (:func:`_one_camera_alone`)
 _CAMERA_FIELDS = ("rmse_px", "num_behind", "motion_model", "initial_explained", "initial_used",
                   "gyro_used", "planar", "single_tag")  # fmt: skip
-
-
-def _rig_model_jacobian(model, mounting: Mounting, stamp_offset: float, spr: float) -> np.ndarray:
-    """(12, 12) the derivative of :func:`rig_model_of_camera`'s ``(delta, C, w, t)`` (the
-    rig's rotation perturbed on the left, ``R = expm([delta]x) R_0``) over the camera model's
-    ``(delta, C, w, t)`` at ``model``, analytic: with ``E = expm(-s [w]x)`` (``s`` the
-    stamp offset, ``w`` the rig's angular velocity) and the mounting's ``R_c``, ``delta =
-    E R_c^T delta_cam - (s / spr) J_l(-s w) R_c^T dw_cam``, ``dC = R_c^T (dC_cam - (s / spr)
-    dt_cam)``, ``dw = R_c^T dw_cam / spr``, ``dt = R_c^T dt_cam / spr`` (``J_l`` the left
-    Jacobian of SO(3): ``expm([a + d]x) = expm([J_l(a) d]x) expm([a]x)`` to first order); a
-    global-shutter camera (``spr <= 0``): the velocities' rows and columns zero."""
-    Rt = np.asarray(mounting.R, dtype=float).T
-    J = np.zeros((12, 12))
-    J[3:6, 3:6] = Rt
-    spr, s = float(spr), float(stamp_offset)
-    if spr <= 0:
-        J[0:3, 0:3] = Rt
-        return J
-    a = -s * (Rt @ np.asarray(model[2], dtype=float) / spr)  # (-s w, the rig's w)
-    J[0:3, 0:3] = rotvec_to_matrix(a) @ Rt
-    th2 = float(a @ a)
-    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    if th2 < 1e-12:  # (Taylor: 1/2 - t^2/24, 1/6 - t^2/120)
-        c2, c3 = 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-    else:
-        th = math.sqrt(th2)
-        c2, c3 = (1.0 - math.cos(th)) / th2, (th - math.sin(th)) / (th2 * th)
-    Jl = np.eye(3) + c2 * K + c3 * (K @ K)
-    J[0:3, 6:9] = (-s / spr) * (Jl @ Rt)
-    J[3:6, 9:12] = (-s / spr) * Rt
-    J[6:9, 6:9] = J[9:12, 9:12] = Rt / spr
-    return J
 
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
@@ -1777,7 +1505,7 @@ def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=No
     gate = CONTRADICTION_GATE * threshold_px
     free = 6 if est.motion_model == GLOBAL_SHUTTER else 12
     model = (est if start is None else start).model
-    fit = _refine(_evened(pool, voters), model, gate, free=free)
+    fit = refined_model(_evened(pool, voters), model, gate, free == 12)
     return cams <= _gated(pool, est, voters, gate, fit)
 
 
@@ -2285,7 +2013,7 @@ def _estimate(
         gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
         explained, seeded, anchored = initial_model_seed(
             model, im.min_explained, not still, size, gate,
-            *_seed_steps(pool, threshold_px, gate, free, prior),
+            *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
         )  # fmt: skip
         n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
         # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies it,
@@ -2311,31 +2039,33 @@ def _estimate(
     best_cost, drawn = search.score, search.iterations
 
     # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
-    # solver on the inliers (not on a frame taken at one time) and the final refinement's first
-    refined = []  # (each refinement's (start, result))
-
+    # solver on the inliers and the final refinement's first; on a frame taken at one time
+    # (no linear re-solve) its one round is that refinement alone, kept where it lowers the cost
     def refit(m, inl):
         return [_refit(pool, inl, m, threshold_px, prior=prior)]
-
-    def exact(m):
-        refined.append((m, _refine(pool, m, threshold_px, free=free, prior=prior)))
-        return refined[-1][1]
 
     def evaluate(m):
         return search.cost(m), search.errors(m) < threshold_px
 
-    # (the rig solver takes the inliers; the refinement selects its points itself, from any)
-    inl = None if still else pool.errors(model) < threshold_px
-    steps = (None if still else refit, exact if refine else None)
-    model = polish((best_cost, model, inl), evaluate, *steps, LO_ROUNDS, min_inliers=0)[1]
-    refined = refined[-1] if refined else None
-    if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
+    exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not still, prior=prior)
+    if still:
+        last = (model, exact(model)) if refine else None
+        if last is not None and search.cost(last[1]) < best_cost:
+            model = last[1]
+    else:
+        best = (best_cost, model, search.errors(model) < threshold_px)
+        steps = (refit, exact if refine else None)
+        (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
+    if refine:  # the final refinement, the model of the lowest MSAC cost (chosen_refinement)
         # (local optimization's last refinement is the final one's first, whether it took it,
         # or did not and the model is still the one it started from)
         first = None
-        if refined is not None and (refined[0] is model or refined[1] is model):
-            first = refined[1]
-        model = _final(pool, model, search, threshold_px, free, prior, first)
+        if last is not None and (last[0] is model or last[1] is model):
+            first = last[1]
+        model = chosen_refinement(
+            pool, model, threshold_px, not still, prior, search.cost, search.errors,
+            search.cameras, CONTRADICTION_GATE, first,
+        )  # fmt: skip
     e = search.errors(model)
     R, C, w, t = _copies(model)
     # (the inliers and their RMS error as a camera's final model's)

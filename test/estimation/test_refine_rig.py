@@ -208,3 +208,23 @@ def test_the_numpy_refinement_reaches_the_compiled_one_and_gives_its_covariance(
         (a0.covariance, b0.covariance),
     ):
         np.testing.assert_allclose(q, p, rtol=1e-7, atol=1e-9 * np.abs(p).max())
+
+
+def test_polish_hands_back_its_last_refinement_taken_or_not():
+    """Local optimization's rounds (``polish``, a camera's and a rig's) on scalar models
+    scored by their squared distance to 3: the linear step's 1.0 beats the start 0.0, the
+    refinement from 1.0 is handed back with its start whether its lower score makes it the
+    polished model (2.0) or not (-4.0); without a refinement, none."""
+    from rs_localizer.estimation.local_optimization import polish
+
+    def evaluate(m):
+        return (m - 3.0) ** 2, np.arange(10) < 10 - abs(m - 3.0)
+
+    best = (9.0, 0.0, np.arange(10) < 7)
+    for step, want in ((lambda m: m + 1.0, 2.0), (lambda m: m - 5.0, 1.0)):
+        (score, model, inl), last = polish(best, evaluate, lambda m, i: [1.0], step, 1)
+        assert model == want and score == (want - 3.0) ** 2
+        assert np.array_equal(inl, evaluate(want)[1])
+        assert last == (1.0, step(1.0))
+    (score, model, _), last = polish(best, evaluate, lambda m, i: [1.0], None, 1)
+    assert (score, model, last) == (4.0, 1.0, None)

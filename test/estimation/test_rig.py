@@ -1129,7 +1129,7 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
 
 @pytest.mark.parametrize(("stamp_offset", "spr"), [(0.0, 0.0), (0.004, 3e-5), (-0.01, 2e-5)])
 def test_the_rig_model_jacobian_is_the_maps_central_differences(stamp_offset, spr):
-    """``_rig_model_jacobian`` (analytic: a rig frame posed by one camera maps that camera's
+    """``rig_model_jacobian`` (analytic: a rig frame posed by one camera maps that camera's
     covariance to the rig with it) against central differences of ``rig_model_of_camera``
     itself (the camera's rotation perturbed on the left, the rig's rotation error measured on
     the left), for a global-shutter and two rolling-shutter cameras."""
@@ -1149,7 +1149,7 @@ def test_the_rig_model_jacobian_is_the_maps_central_differences(stamp_offset, sp
             R, C, w, t = rig_mod.rig_model_of_camera(m, mount, stamp_offset, spr)
             cols.append(np.concatenate([matrix_to_rotvec(R @ base.R.T), C, w, t]))
         J[:, k] = (cols[0] - cols[1]) / (2 * h)
-    got = rig_mod._rig_model_jacobian(model, mount, stamp_offset, spr)
+    got = rig_mod.rig_model_jacobian(model, mount, stamp_offset, spr)
     np.testing.assert_allclose(got, J, rtol=1e-6, atol=1e-8 * np.abs(J).max())
     if spr == 0.0:
         assert not got[6:, :].any() and not got[:, 6:].any()
