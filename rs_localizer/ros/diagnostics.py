@@ -1,14 +1,17 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
 without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder
-(:func:`status`) lays out the status of one camera or a rig from a description without the
-mode (:class:`StatusParts`), with one level and message rule and one section per camera
+(:func:`status`) makes the status of one camera or a rig from a description without the mode
+(:class:`StatusParts`): the accounting of what is solved (a camera's frames, a rig's rig
+frames: one :class:`~rs_localizer.ros.frame_queue.FrameCounts`) and a section per camera
 (:class:`CameraPart`, its accounting of :func:`camera_section`: a camera alone's flat keys,
-each rig camera's ``<c>.*``); shared by both: the estimator's path, the map-fit check, the
-timing keys (:func:`timing_values`, the stage times of :class:`StageTimes`) and the gyro's
-values (:class:`GyroState`). Each mode describes itself: one camera
-(:func:`diagnostic_status`, of its pipeline's counters) and a rig
-(:func:`rig_diagnostics`: the rig frames' accounting and each camera's lines of grouping,
-disagreement and mounting, the rig's own)."""
+each rig camera's ``<c>.*``), from which it takes the keys' order, the level and the message
+(one rule; a camera alone is solved in frames, any other set of cameras in rig frames);
+shared by both: the estimator's path, the map-fit check, the timing keys
+(:func:`timing_values`, the stage times of :class:`StageTimes`) and the gyro's values
+(:class:`GyroState`). Each mode gives its inputs to it: one camera
+(:func:`diagnostic_status`, its pipeline's counters) and a rig (:func:`rig_diagnostics`: the
+rig frames' counts and each camera's lines of grouping, disagreement, mounting and clock
+offsets, the rig's own)."""
 
 from __future__ import annotations
 
@@ -285,26 +288,16 @@ def diagnostic_status(
     front end in use (:attr:`.pipeline.FramePipeline.maps`), None without one.
     """
     c = stats.counts
-    failed = dict(sorted(frames.failures.items()))
     has_frontend = frontend is not None
     inliers = stats.inliers
-    lead = f"{frames.solved}/{frames.received} frames solved" + (
-        f", {frames.skipped} skipped (busy)" if frames.skipped else ""
-    )
     gyro = None
     if cfg.imu is not None:
         gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s,
                          bool(frames.received))  # fmt: skip
     parts = StatusParts(
-        unit="frames",
+        frames=frames,
         cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
                             frontend=has_frontend)],
-        solved=frames.solved,
-        nothing="no frame solved" + (f" ({failed})" if failed else ""),
-        nothing_solved=bool(frames.received and not frames.solved),
-        summary=lead if frames.received else "waiting for frames",
-        lead=lead,
-        warnings=[""] if frames.failed or messages_lost or frames.skipped else [],
         head={"solver": cfg.solver, "camera": camera_source},
         path={
             "frames_compiled": c.get("frames_compiled", 0),
@@ -357,40 +350,35 @@ class GyroState:
 class StatusParts:
     """A status described without its mode (one camera or a rig), laid out by :func:`status`.
 
-    Values, in publishing order: ``head``; the frame accounting: ``accounting`` (a rig's of
-    its rig frames), or a camera alone's of its section; the estimator's path
-    (:func:`_compile_values`), ``path`` (what follows it), a camera alone's input counts
-    (``messages_lost``, ``points_dropped``, ``clouds_capped``, ``unknown_landmark_ids``,
-    ``camera_info_rejected``), ``path_after``; with ``map_fit`` (counts) the map-fit check's
-    ``<unit>_failed_with_matches`` and ``map_fit_doubtful``; ``tracking``; the timing keys:
-    with ``timing`` (``(latencies, stamp_ages)``, s) :func:`timing_values`, with
-    ``stage_times`` (stage -> s, :data:`STAGES`) each stage's ``<stage>_ms_median``
-    (``frontend`` only ``with_frontend``), ``times`` (the worker's other times);
-    ``frontend``; with ``gyro`` its values (:func:`_imu_values`); the failures by reason (a
-    camera alone's ``failed.<reason>`` and ``camera_info_rejected.<reason>``, then
-    ``reasons``); each rig camera's section (``<c>.*``); then the ``gyro_missing.<reason>``,
-    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` of ``counts``. ``cameras``: a
-    :class:`CameraPart` per camera, a camera alone's named "" (its flat keys placed as
-    above).
+    ``frames``: the accounting of what is solved (:class:`~rs_localizer.ros.frame_queue.
+    FrameCounts`): a camera alone's frames, a rig's rig frames (``received`` the rig frames
+    formed, ``failures`` the rig estimator's failures by reason). ``cameras``: a
+    :class:`CameraPart` per camera, a camera alone's named "" (its flat keys), each rig
+    camera's named (its section ``<c>.*``). A camera alone is solved in ``frames``, any other
+    set of cameras in ``rig frames``: the unit of the keys and the message.
 
-    The message (:func:`_level_and_message`): ``unit`` what is solved (``frames``, ``rig
-    frames``); ``nothing`` the message when ``nothing_solved``; ``summary`` the OK message;
-    ``warnings`` the mode's own (before the gyro's and the readout check's), ``trailing`` and
-    ``failed`` after them (not in the ERROR's list); ``lead``: one camera's count, which its
-    message names with its first warning only (an empty warning: the count says it);
-    ``solved`` and ``absent`` (cameras that sent nothing: ERROR while nothing is solved)."""
+    Values, in publishing order: ``head``; the frame accounting (a camera alone's
+    ``frames_received`` ... ``frames_pending``; a rig's ``rig_frames``, ``rig_frames_solved``
+    ... ``rig_frames_pending``); the estimator's path (:func:`_compile_values`), ``path``
+    (what follows it), a camera alone's input counts (``messages_lost``, ``points_dropped``,
+    ``clouds_capped``, ``unknown_landmark_ids``, ``camera_info_rejected``), ``path_after``;
+    with ``map_fit`` (counts) the map-fit check's ``<unit>_failed_with_matches`` and
+    ``map_fit_doubtful``; ``tracking``; the timing keys: with ``timing`` (``(latencies,
+    stamp_ages)``, s) :func:`timing_values`, with ``stage_times`` (stage -> s,
+    :data:`STAGES`) each stage's ``<stage>_ms_median`` (``frontend`` only ``with_frontend``),
+    ``times`` (the worker's other times); ``frontend``; with ``gyro`` its values
+    (:func:`_imu_values`); the failures by reason (a camera alone's ``failed.<reason>`` and
+    ``camera_info_rejected.<reason>``; a rig's ``rig_frames_failed.<reason>``); each rig
+    camera's section; then the ``gyro_missing.<reason>``, ``gyro_rejected.<reason>`` and
+    ``imu_rejected.<reason>`` of ``counts``.
 
-    unit: str
-    solved: int
-    nothing: str
-    nothing_solved: bool
-    summary: str
+    ``warnings``: the mode's own (a rig's cameras' and its gyro's; the level and message:
+    :func:`_level_and_message`); ``absent``: cameras that sent nothing (ERROR while nothing
+    is solved)."""
+
+    frames: FrameCounts
     cameras: Sequence[CameraPart] = ()
-    accounting: dict[str, Any] = field(default_factory=dict)
-    lead: str | None = None
     warnings: list[str] = field(default_factory=list)
-    trailing: list[str] = field(default_factory=list)
-    failed: str = ""
     head: dict[str, Any] = field(default_factory=dict)
     path: dict[str, Any] = field(default_factory=dict)
     path_after: dict[str, Any] = field(default_factory=dict)
@@ -402,9 +390,18 @@ class StatusParts:
     times: dict[str, Any] = field(default_factory=dict)
     frontend: dict[str, Any] = field(default_factory=dict)
     gyro: GyroState | None = None
-    reasons: dict[str, Any] = field(default_factory=dict)
     counts: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
+
+    @property
+    def alone(self) -> bool:
+        """One camera alone (its section named "", solved in ``frames``)."""
+        return [c.name for c in self.cameras] == [""]
+
+    @property
+    def unit(self) -> str:
+        """What is solved: ``frames`` (a camera alone) or ``rig frames``."""
+        return "frames" if self.alone else "rig frames"
 
 
 #: a camera alone's input counts, after the estimator's path
@@ -417,18 +414,25 @@ def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
     :class:`StatusParts` (values in its order, each camera's section of
     :meth:`CameraPart.section`; level and message :func:`_level_and_message`, with the map-fit
     check's note while it doubts the map and the level is not OK, then the estimator path's
-    note off the compiled path)."""
-    compile_values, note = _compile_values(p.unit)
+    note off the compiled path, then the cameras that sent nothing named first while nothing
+    is solved)."""
+    f, unit = p.frames, p.unit
+    compile_values, note = _compile_values(unit)
     sections = [c.section() for c in p.cameras]
-    alone = sections[0] if [c.name for c in p.cameras] == [""] else {}
-    sections = [] if alone else sections
-    accounting = [_FLAT_KEYS[k] for k in FRAME_ACCOUNTING] if alone else []
-    values: dict[str, Any] = {**p.head, **p.accounting, **{k: alone[k] for k in accounting}}
-    values.update({**compile_values, **p.path})
+    alone = sections[0] if p.alone else {}
+    sections = [] if p.alone else sections
+    if p.alone:
+        accounting = {_FLAT_KEYS[k]: alone[_FLAT_KEYS[k]] for k in FRAME_ACCOUNTING}
+        reasons = {k: v for k, v in alone.items() if k.startswith(("failed.", _INFO_REJECTED))}
+    else:
+        accounting = {"rig_frames": f.received}
+        accounting.update({f"rig_frames_{k}": getattr(f, k) for k in FRAME_ACCOUNTING[1:]})
+        reasons = {f"rig_frames_failed.{k}": v for k, v in sorted(f.failures.items())}
+    values: dict[str, Any] = {**p.head, **accounting, **compile_values, **p.path}
     values.update({k: alone[k] for k in _INPUT_KEYS if k in alone})
     values.update(p.path_after)
     if p.map_fit is not None:
-        key = p.unit.replace(" ", "_") + "_failed_with_matches"
+        key = unit.replace(" ", "_") + "_failed_with_matches"
         values[key] = p.map_fit.get(key, 0)
         values["map_fit_doubtful"] = str(bool(p.map_fit.get("map_fit_doubtful", 0))).lower()
     values.update(p.tracking)
@@ -441,51 +445,84 @@ def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
     values.update(p.frontend)
     if p.gyro is not None:
         values.update(_imu_values(p.gyro))
-    values.update({k: v for k, v in alone.items() if k.startswith(("failed.", _INFO_REJECTED))})
-    values.update(p.reasons)
+    values.update(reasons)
     for section in sections:
         values.update(section)
     prefixes = ("gyro_missing.", "gyro_rejected.", "imu_rejected.")
     values.update({k: v for k, v in sorted(p.counts.items()) if k.startswith(prefixes)})
     level, message = _level_and_message(p, values)
     if values.get("map_fit_doubtful") == "true" and level != OK:
-        message += _map_fit_note(p.unit)
+        message += _map_fit_note(unit)
     message += note
-    if p.absent and p.solved == 0:  # (a camera silent: named first)
-        rest = "" if level == OK else message.removeprefix(f"{p.nothing}: ")
-        rest = "" if rest == p.nothing else rest
+    if p.absent and f.solved == 0:  # (a camera silent: named first)
+        nothing = _nothing_solved(p)
+        rest = "" if level == OK else message.removeprefix(f"{nothing}: ")
+        rest = "" if rest == nothing else rest
         level = ERROR
-        message = f"{p.nothing}: no frame from camera {', '.join(p.absent)}"
+        message = f"{nothing}: no frame from camera {', '.join(p.absent)}"
         message += f"; {rest}" if rest else ""
     return level, message, values
 
 
+def _nothing_solved(p: StatusParts) -> str:
+    """The message's head while nothing is solved: a camera alone's ``no frame solved`` with
+    its failures by reason, a rig's ``no rig frame posed``."""
+    failed = dict(sorted(p.frames.failures.items()))
+    if not p.alone:
+        return "no rig frame posed"
+    return "no frame solved" + (f" ({failed})" if failed else "")
+
+
 def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, str]:
-    """The level and message of :func:`status` (before its notes): ERROR while nothing is
-    solved (``p.nothing``; a rig's goes on with its warnings and ``failed``), WARN with a
-    warning (the mode's ``warnings``; the gyro contradicting the image; the rolling-shutter
-    timing suspect, ``readout_suspect``; no usable IMU sample for :data:`IMU_IDLE_WARN_S`
-    while frames arrive; then ``trailing`` and ``failed``), else OK (``p.summary``). One
-    camera's message (``p.lead``) is its count and its first warning; a rig's, every
-    warning."""
+    """The level and message of :func:`status` (before its notes), of the accounting
+    ``p.frames`` and the warnings: ERROR while nothing is solved (:func:`_nothing_solved`; a
+    camera alone: frames arrived and none was solved; a rig: rig frames were tried and none
+    was posed; a rig's message goes on with its warnings and failures), WARN with a warning
+    (the mode's ``warnings``; the gyro contradicting the image; the rolling-shutter timing
+    suspect, ``readout_suspect``; no usable IMU sample for :data:`IMU_IDLE_WARN_S` while
+    frames arrive; then a rig's cameras' frames dropped from a full queue, their messages
+    lost and its failed rig frames by reason), else OK. A camera alone's message is its count
+    (``<solved>/<received> frames solved``, its skips) and its first warning (a failed or
+    skipped frame, a lost message: the count says it); a rig's, every warning, OK ``<solved>
+    rig frames posed``."""
+    f, g, unit = p.frames, p.gyro, p.unit
     ws = [*p.warnings]
-    g, unit = p.gyro, p.unit
+    if p.alone and (f.failed or values["messages_lost"] or f.skipped):
+        ws.insert(0, "")  # (the count says it)
     if g is not None and g.inconsistent:
         ws.append(
             "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
             f"{unit} solved without it"
         )
     if values.get("readout_suspect") == "true":
-        ws.append(readout_warning(values["readout_contradicted"], rig=unit == "rig frames"))
+        ws.append(readout_warning(values["readout_contradicted"], rig=not p.alone))
     if g is not None and g.arrived and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
         ws.append(_imu_idle_text(g.idle_s, g.counts.get("imu_rejected", 0), unit))
-    if p.nothing_solved:
-        why = [] if p.lead is not None else [*ws, p.failed] if p.failed else ws
-        return ERROR, p.nothing + (f": {'; '.join(why)}" if why else "")
-    if p.lead is not None:
-        return (WARN, p.lead + (f"; {ws[0]}" if ws[0] else "")) if ws else (OK, p.summary)
-    ws += [*p.trailing, p.failed] if p.failed else p.trailing
-    return (WARN, "; ".join(ws)) if ws else (OK, p.summary)
+    if p.alone:
+        lead = f"{f.solved}/{f.received} frames solved" + (
+            f", {f.skipped} skipped (busy)" if f.skipped else ""
+        )
+        if f.received and not f.solved:
+            return ERROR, _nothing_solved(p)
+        if ws:
+            return WARN, lead + (f"; {ws[0]}" if ws[0] else "")
+        return OK, lead if f.received else "waiting for frames"
+    own = [c.counts or {} for c in p.cameras]
+    busy = sum(c.get("skipped.queue_full", 0) for c in own)
+    lost = sum(c.get("messages_lost", 0) for c in own)
+    failed = ""
+    if f.failed:
+        why = ", ".join(f"{k} {v}" for k, v in sorted(f.failures.items()))
+        failed = f"{f.failed} rig frames failed ({why})"
+    if f.received > f.pending + f.skipped and f.solved == 0:
+        why = [*ws, failed] if failed else ws
+        return ERROR, "no rig frame posed" + (f": {'; '.join(why)}" if why else "")
+    if busy:
+        ws.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        ws.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
+    ws += [failed] if failed else []
+    return (WARN, "; ".join(ws)) if ws else (OK, f"{f.solved} rig frames posed")
 
 
 def _map_fit_note(unit: str) -> str:
@@ -644,47 +681,19 @@ def rig_diagnostics(
         inputs = RigInputs(counts=inputs)
     r = rig.rig_counts()
     warnings: list[str] = []
-    cameras: list[CameraPart] = []
-    busy = lost = 0
-    for n in rig.cameras:
-        camera, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
-        cameras.append(camera)
-        busy, lost = busy + busy_n, lost + lost_n
+    cameras = [_rig_camera_values(rig, n, waiting_info, inputs, warnings) for n in rig.cameras]
     gyro = _rig_gyro(rig, inputs, warnings)
-    trailing = []
-    if busy:
-        trailing.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        trailing.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    reasons = {
-        f"rig_frames_failed.{k[len('rig.failed.') :]}": v
-        for k, v in sorted(rig.counts.items())
-        if k.startswith("rig.failed.")
+    failures = {
+        k[len("rig.failed.") :]: v for k, v in rig.counts.items() if k.startswith("rig.failed.")
     }
-    failed = ""
-    if r["failed"]:
-        why = ", ".join(f"{k[len('rig_frames_failed.') :]} {v}" for k, v in reasons.items())
-        failed = f"{r['failed']} rig frames failed ({why})"
     counts = dict(gyro.counts) if gyro is not None else {}
     if inputs is not None:
         counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
+    rig_frames = [r[k] for k in ("rig_frames", "solved", "failed", "skipped", "pending")]
     parts = StatusParts(
-        unit="rig frames",
+        frames=FrameCounts(*rig_frames, failures=failures),
         cameras=cameras,
-        accounting={
-            "rig_frames": r["rig_frames"],
-            "rig_frames_solved": r["solved"],
-            "rig_frames_failed": r["failed"],
-            "rig_frames_skipped": r["skipped"],
-            "rig_frames_pending": r["pending"],
-        },
-        solved=r["solved"],
-        nothing="no rig frame posed",
-        nothing_solved=r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0,
-        summary=f"{r['solved']} rig frames posed",
         warnings=warnings,
-        trailing=trailing,
-        failed=failed,
         path={
             "rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
             "time_resets": rig.counts.get("rig.time_resets", 0),
@@ -695,7 +704,6 @@ def rig_diagnostics(
         stage_times=inputs.stage_times if inputs is not None else None,
         with_frontend=inputs is not None and inputs.frontend,
         gyro=gyro,
-        reasons=reasons,
         counts=counts,
         absent=list(inputs.absent) if inputs is not None else [],
     )
@@ -747,7 +755,7 @@ def rig_camera_section(rig: Localizer, n: str, own: Mapping[str, int] | None) ->
 
 def _rig_camera_values(
     rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
-) -> tuple[CameraPart, int, int]:
+) -> CameraPart:
     """Camera ``n`` of :func:`rig_diagnostics`: its :func:`rig_camera_part` (with the node's
     ``inputs`` its counts and ``camera_frame_ms_median``) with the rig's own lines, each key
     ``<c>.<key>``: ``state`` (waiting, running, stopped, disagrees), ``camera_info``
@@ -757,17 +765,14 @@ def _rig_camera_values(
     (yes: its frames never join the others', ``Localizer.camera_apart``), then
     ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
     ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its frames not
-    read, a stamp or a cloud). Appends the camera's warnings to ``warnings``; returns the
-    camera, its frames dropped from a full queue and its messages lost."""
+    read, a stamp or a cloud). Appends the camera's warnings to ``warnings``."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
     times = inputs.frame_times.get(n, ()) if inputs is not None else None
     camera = rig_camera_part(rig, n, own, inputs is not None and inputs.frontend, times)
     values: dict[str, Any] = {}  # (its lines, after its accounting)
-    busy = lost = 0
     if own is not None:
-        busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
         values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
@@ -817,7 +822,7 @@ def _rig_camera_values(
     if inputs is not None and n in inputs.bad_input:
         values[f"{n}.bad_input"] = inputs.bad_input[n]
     camera.lines = values
-    return camera, busy, lost
+    return camera
 
 
 def _rig_gyro(rig: Localizer, inputs: RigInputs | None, warnings: list[str]) -> GyroState | None:

@@ -457,3 +457,40 @@ def test_the_single_cameras_status_keeps_its_keys_order_values_and_message(monke
         assert (level, message) == _PINNED[name][:2], (name, message)
         assert list(values) == [k for k in _ORDER if k in values], name
         assert values == _PINNED[name][2], name
+
+
+def test_one_builder_takes_level_and_message_from_what_is_solved(monkeypatch):
+    """One builder for both modes: the same accounting (4 received, 2 failed for
+    ``too_few_points``, 2 pending) is a camera alone's frames or, with a named camera, a rig's
+    rig frames; the keys, level and message follow from it by one rule (a camera alone: frames
+    arrived and none solved is an ERROR naming its failures; a rig: rig frames tried and none
+    posed, the message with the failures by reason; a lost message a WARN in both, its count
+    first for the camera, a rig's trailing warning)."""
+    from rs_localizer.ros import diagnostics as D
+
+    monkeypatch.setattr(D, "compiled_ready", lambda: True)
+    monkeypatch.setattr(D, "background_state", lambda: {"state": "done", "failures": 0,
+                                                         "reason": None})  # fmt: skip
+    frames = FrameCounts(4, 0, 2, 0, 2, failures={"too_few_points": 2})
+    camera = D.CameraPart("", frames, {"messages_lost": 0})
+    level, message, v = D.status(D.StatusParts(frames=frames, cameras=[camera]))
+    assert (level, message) == (D.ERROR, "no frame solved ({'too_few_points': 2})")
+    assert [v[k] for k in ("frames_received", "frames_failed", "frames_pending")] == [4, 2, 2]
+    assert v["failed.too_few_points"] == 2 and "rig_frames" not in v
+    named = D.CameraPart("a", FrameCounts(6, 0, 0, 0, 6), {"messages_lost": 0})
+    level, message, v = D.status(D.StatusParts(frames=frames, cameras=[named]))
+    assert level == D.ERROR
+    assert message == "no rig frame posed: 2 rig frames failed (too_few_points 2)"
+    assert [v[k] for k in ("rig_frames", "rig_frames_failed", "rig_frames_pending")] == [4, 2, 2]
+    assert v["rig_frames_failed.too_few_points"] == 2 and v["a.received"] == 6
+    assert "frames_received" not in v and "failed.too_few_points" not in v
+    solved = FrameCounts(4, 3, 0, 0, 1)
+    camera = D.CameraPart("", solved, {"messages_lost": 1})
+    assert D.status(D.StatusParts(frames=solved, cameras=[camera]))[:2] == (
+        D.WARN, "3/4 frames solved")  # fmt: skip
+    named = D.CameraPart("a", solved, {"messages_lost": 1})
+    assert D.status(D.StatusParts(frames=solved, cameras=[named]))[:2] == (
+        D.WARN, "1 camera messages lost by the middleware (QoS message_lost)")  # fmt: skip
+    named = D.CameraPart("a", solved, {"messages_lost": 0})
+    assert D.status(D.StatusParts(frames=solved, cameras=[named]))[:2] == (
+        D.OK, "3 rig frames posed")  # fmt: skip
