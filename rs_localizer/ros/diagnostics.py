@@ -292,8 +292,7 @@ def diagnostic_status(
     inliers = stats.inliers
     gyro = None
     if cfg.imu is not None:
-        gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s,
-                         bool(frames.received))  # fmt: skip
+        gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s)
     parts = StatusParts(
         frames=frames,
         cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
@@ -334,8 +333,8 @@ class GyroState:
     :meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`), the buffered samples'
     ``rate_hz``, ``bias`` ``(bias (3,), std (3,))`` rad/s in the IMU frame (None: the
     configured ``imu.gyro_bias``, ``imu.gyro_bias_sigma``), whether the rotation between
-    frames contradicts it (``inconsistent``), ``idle_s`` (s since the last usable sample; None:
-    unknown) and whether frames arrived (``arrived``)."""
+    frames contradicts it (``inconsistent``) and ``idle_s`` (s since the last usable sample;
+    None: unknown)."""
 
     settings: GyroSettings
     counts: Mapping[str, int]
@@ -343,7 +342,6 @@ class GyroState:
     bias: tuple[Sequence[float], Sequence[float]] | None
     inconsistent: bool
     idle_s: float | None
-    arrived: bool
 
 
 @dataclass
@@ -496,7 +494,7 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
         )
     if values.get("readout_suspect") == "true":
         ws.append(readout_warning(values["readout_contradicted"], rig=not p.alone))
-    if g is not None and g.arrived and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
+    if g is not None and f.received and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
         ws.append(_imu_idle_text(g.idle_s, g.counts.get("imu_rejected", 0), unit))
     if p.alone:
         lead = f"{f.solved}/{f.received} frames solved" + (
@@ -842,5 +840,4 @@ def _rig_gyro(rig: Localizer, inputs: RigInputs | None, warnings: list[str]) -> 
     rate = buf.rate_hz() if buf is not None else None
     if not rig.gyro_inconsistent and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
         warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    return GyroState(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle,
-                     bool(rig.counts["rig_frames"]))  # fmt: skip
+    return GyroState(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle)
