@@ -704,12 +704,13 @@ def _drained_values(node, cams) -> dict:
     return v
 
 
-def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, monkeypatch):
+def test_a_bad_stamp_fails_as_the_camera_s_never_grouped(ros_context, monkeypatch):
     """The left camera's clouds 3..5 with stamps no ROS time holds (nanosec >= 1e9, one of them
-    summing to the frame's true ns count; a negative sec): counted ``left.skipped.bad_input``
-    (and ``left.bad_input``) by the node alone, never handed to the rig nor grouped with
-    another camera's frame; every other frame's stamp is validated once, as it arrives; every
-    camera balances. Frames handed to the node's callbacks directly (no DDS)."""
+    summing to the frame's true ns count; a negative sec): counted ``left.failed.bad_stamp``
+    as the single camera counts them (not ``bad_input``: the cloud is readable) and logged,
+    by the node alone, never handed to the rig nor grouped with another camera's frame; every
+    other frame's stamp is validated once, as it arrives; every camera balances. Frames
+    handed to the node's callbacks directly (no DDS)."""
     import rs_localizer.camera as camera_mod
     import rs_localizer.ros.conversions as conversions_mod
     from rs_localizer.ros.conversions import ns_to_stamp
@@ -717,7 +718,8 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
-    node = _direct_node(ros_context, cams, frames)
+    logged: list = []
+    node = _direct_node(ros_context, cams, frames, logged)
     checks = []
     original = camera_mod.checked_stamp
 
@@ -757,8 +759,13 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
                 good.append(f.stamp_ns)
             node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
-        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
+        assert v.get("left.failed.bad_stamp") == v["left.failed"] == str(bad) == "3", v
+        assert v["left.bad_input"] == v["left.skipped"] == "0", v
+        assert "left.skipped.bad_input" not in v, v
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
+        assert node.mode.rig.counts["left.received"] == int(v["left.received"]) - bad
+        text = " ".join(map(str, logged))
+        assert "rig camera 'left': frame dropped (bad_stamp): " in text, text
         assert not grouped_bad
         assert sorted(checks) == sorted(good)
     finally:
@@ -928,8 +935,9 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
     stamp no ROS time holds: the node, given the bag's messages in log order (its parameters
     the bag's ``rig_params.yaml``; frames handed to its callbacks, no DDS), and ``replay`` of
     the bag count every camera's frames alike: received, solved, failed, skipped, pending,
-    ``skipped.<reason>`` (``left.skipped.bad_input`` 7), ``points_dropped``,
-    ``capped_clouds``, and the rig's rig frames."""
+    ``failed.<reason>`` (``left.failed.bad_stamp`` 1), ``skipped.<reason>``
+    (``left.skipped.bad_input`` 6), ``points_dropped``, ``capped_clouds``, and the rig's rig
+    frames."""
     from helpers.rig_bags import NO_X, bag_with_unread_clouds
     from rclpy.parameter import Parameter
 
@@ -954,7 +962,9 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
             elif leaf == "correspondences":
                 node._on_frame(name, "cloud", ts.deserialize_cdr(raw, mt))
         v = _drained_values(node, b.cams)
-        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
+        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X)), v
+        assert v["left.failed.bad_stamp"] == "1", v
+        assert res.camera_counts["left"]["failed.bad_stamp"] == 1
         for c in b.cams:
             for k, want in res.camera_counts[c.name].items():
                 assert int(v[f"{c.name}.{k}"]) == want, (c.name, k, v)

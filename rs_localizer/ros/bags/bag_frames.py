@@ -367,8 +367,9 @@ class RigFrames:
     ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
     (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
     ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
-    (an invalid stamp, no u, v, x, y, z fields: the rig node's
-    ``<camera>.skipped.bad_input``); ``settings``: the rig's
+    (no u, v, x, y, z fields: the rig node's ``<camera>.skipped.bad_input``), then the other
+    reasons its messages were left out for (``bad_stamp``: a header stamp out of range, the rig
+    node's ``<camera>.failed.bad_stamp``; an image's); ``settings``: the rig's
     :class:`~rs_localizer.tracking.video.LocalizerSettings` of those parameters (every mounting the
     identity: not read)."""
 
@@ -405,9 +406,10 @@ def read_rig_frames(
     (:func:`iter_rig_frames`), as the rig node and ``replay`` read them: each cloud with the
     model of the camera_info of its stamp (None before the camera's first camera_info), its
     rows with a NaN or inf dropped, then at most ``max_points`` rows, counted per camera
-    (:attr:`RigFrames.counts`); a cloud that cannot be read (an invalid stamp, no u, v, x, y,
-    z fields) is in no frame, counted ``bad_input`` for its camera (as the rig node's
-    ``<camera>.skipped.bad_input``).
+    (:attr:`RigFrames.counts`); a cloud that cannot be read (no u, v, x, y, z fields) is in
+    no frame, counted ``bad_input`` for its camera (as the rig node's
+    ``<camera>.skipped.bad_input``), nor one whose header stamp is out of range, counted
+    ``bad_stamp`` (the rig node's ``<camera>.failed.bad_stamp``).
 
     Raises:
         ValueError: no ``rig.cameras``;
@@ -462,11 +464,13 @@ def iter_rig_frames(
     None before the camera's first camera_info is received), its rows with a NaN or inf
     dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
     first, counted ``capped_clouds``, ``capped_points``
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (an
-    invalid stamp, no x, y, z / u, v fields) is yielded as a
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (no
+    x, y, z / u, v fields) is yielded as a
     :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``bad_input``), which the node
-    counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
-    skipped (:func:`~rs_localizer.ros.camera_input.to_rig`). With the cameras' landmarks
+    counts received and skipped and hands to the rig as a frame skipped
+    (:func:`~rs_localizer.ros.camera_input.to_rig`); one whose header stamp is out of range
+    as a ``DroppedFrame`` without a stamp (``bad_stamp``), which the node counts received and
+    failed and the rig never sees. With the cameras' landmarks
     (``landmarks_file``, :func:`rig_landmarks`, given to :func:`rig_camera_inputs`) each
     camera's keypoints (``.../keypoints``: u, v, id) are read too, beside its clouds, as the
     rig node reads them (each row the 3D point of its id; unknown ids counted
