@@ -28,7 +28,8 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          (``<c>.points_dropped``, ``<c>.capped_clouds``); decoded and checked
                          as the single-camera node does (``bad_image``, ``image_size_mismatch``,
                          counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
-                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage)
+                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage; of
+                         ``<c>/image_raw`` resolved: a remap of it moves it too)
     The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
     single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 and, with ``imu.enabled``, one for the rig:
@@ -146,7 +147,6 @@ class RigMode:
     cloud_kind = "cloud"
     image_topic = "image_raw"
     keypoints_always = False
-    resolve_compressed = False
     images_text: str | None = "the camera's images"
     info_qos_overridable = False
     busy_key = "queue_full"

@@ -1296,3 +1296,28 @@ def test_each_camera_subscribes_its_topics_under_its_name(ros_context, tmp_path)
         finally:
             node.destroy_node()
         assert {t: k for t, k in got.items() if t.startswith("/rig/")} == want, (extra, got)
+
+
+def test_a_camera_s_compressed_images_follow_a_remap_of_its_image_raw(ros_context):
+    """``image_transport: compressed`` names a rig camera's images as the single camera's
+    (image_transport's name: the resolved image topic + ``/compressed``): a remap of
+    ``front/image_raw`` moves the front camera's ``CompressedImage`` subscription with it,
+    the left camera's stays ``<c>/image_raw/compressed``. Read from the node's
+    subscriptions."""
+    from rs_localizer.ros.node import RSLocalizerNode
+
+    cams = default_rig(2)
+    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room",
+                            image_transport="compressed")  # fmt: skip
+    remap = ["--ros-args", "-r", "front/image_raw:=/cams/front_image"]
+    node = RSLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params, cli_args=remap)  # fmt: skip
+    try:
+        got = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+    finally:
+        node.destroy_node()
+    images = {t: k for t, k in got.items() if "image" in t}
+    assert images == {
+        "/cams/front_image/compressed": "CompressedImage",
+        "/rig/left/image_raw/compressed": "CompressedImage",
+    }, got
