@@ -513,8 +513,9 @@ class CameraInput:
         to the rig (:meth:`note_time` with
         :meth:`~rs_localizer.tracking.video.Localizer.took_time_reset`: after a time reset,
         the camera_infos stamped after the camera's first frame of the new timeline
-        forgotten); the rig node's (:meth:`step`) and a rig bag's replay's."""
-        self.note_time(stamp, lambda _stamp: rig.took_time_reset(self.name))
+        forgotten; a late frame of the old timeline forgets none, the camera's next frame
+        takes the reset); the rig node's (:meth:`step`) and a rig bag's replay's."""
+        self.note_time(stamp, lambda stamp: rig.took_time_reset(self.name, stamp))
 
     def _dropped(
         self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError

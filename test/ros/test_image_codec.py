@@ -309,7 +309,7 @@ def _rig_node_decode(msg, cam):
             got.append(("drop", reason))
             return []
 
-        def took_time_reset(self, name):  # (no time reset: the camera's stamp noted after)
+        def took_time_reset(self, name, stamp_ns=None):  # (no time reset: its stamp noted after)
             return None
 
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))

@@ -898,6 +898,55 @@ def test_a_rig_camera_forgets_its_camera_infos_after_a_time_reset(ros_context):
         node.destroy_node()
 
 
+def test_a_late_frame_of_the_old_timeline_keeps_a_rig_camera_s_new_camera_infos(ros_context):
+    """Each camera's true camera_info at T0 and a recalibrated one (focal 30 % longer) 1 ms
+    before the video jumps ahead by 100 s (a time reset of the rig, ``time_reset_threshold``
+    5 s); the left camera's last frame of the old timeline arrives after the front camera's
+    first of the new one (late). That late frame does not take the reset for the left camera
+    (it would forget the camera_infos stamped after it: the new timeline's); its first frame
+    of the new timeline does, as every other camera's: every camera keeps both camera_infos,
+    and the new timeline's frames take the recalibrated one. One time reset, counted by the
+    rig; every camera balances."""
+    import dataclasses
+
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)
+    jump = 100 * 10**9
+    new = [dataclasses.replace(f, stamp_ns=f.stamp_ns + jump) for f in frames]
+    late = max((f for f in frames if f.name == "left"), key=lambda f: f.stamp_ns)
+    first_new = min((f for f in new if f.name == "front"), key=lambda f: f.stamp_ns)
+    order = [f for f in frames if f is not late] + [first_new, late]
+    order += [f for f in new if f is not first_new]
+    node = _direct_node(ros_context, cams, order, time_reset_threshold=5.0)
+    try:
+        recalibrated = {}
+        for c in cams:
+            info = camera_info_msg(c.camera, c.name, T0 + jump - 10**6)
+            info.k[0] *= 1.3
+            info.k[4] *= 1.3
+            recalibrated[c.name] = np.asarray(info.k, float).reshape(3, 3)
+            node.inputs[c.name].add_camera_info(info)
+        for f in order:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            node._on_frame(f.name, "cloud", cloud)
+        v = _drained_values(node, cams)
+        assert node.mode.rig.counts["rig.time_resets"] == 1
+        for c in cams:
+            inp = node.inputs[c.name]
+            assert len(inp.history) == 2, c.name
+            got = inp.camera_for(max(f.stamp_ns for f in new if f.name == c.name))
+            np.testing.assert_allclose(got.K, recalibrated[c.name])
+            np.testing.assert_array_equal(inp.camera_for(late.stamp_ns).K, c.camera.K)
+        assert int(v["left.received"]) == sum(f.name == "left" for f in order), v
+    finally:
+        node.destroy_node()
+
+
 def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
     """The left camera's clouds 3..6 without their ``x`` field (the stamp readable): counted
     ``left.skipped.bad_input``, passed on to the rig, so the rig frames without them count
