@@ -296,6 +296,7 @@ def _rig_node_decode(msg, cam):
     form."""
     from rs_localizer.camera import FrameTime
     from rs_localizer.ros.camera_input import CameraInput
+    from rs_localizer.ros.diagnostics import StageTimes
     from rs_localizer.ros.rig_node import RigMode
 
     got, logged = [], []
@@ -312,12 +313,15 @@ def _rig_node_decode(msg, cam):
         def took_time_reset(self, name, stamp_ns=None):  # (no time reset: its stamp noted after)
             return None
 
+        def last_search(self, name):  # (no search timed)
+            return None
+
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
     mode = RigMode(SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}))
-    mode.rig, mode._images = Rig(), {}
+    mode.rig, mode._images, mode._stages = Rig(), {}, StageTimes()
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
