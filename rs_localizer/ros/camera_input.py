@@ -6,8 +6,8 @@ each camera of the rig node: its camera_infos checked and kept by stamp, and eac
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
 :class:`~rs_localizer.ros.rig_node.RigMode` (the rig mode) and in the reader of a rig bag's
-frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``, ``calibrate-rig``
-and the rig-frame grouping of ``play --lockstep``), the rig's made by
+frames (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig`` and the
+rig-frame grouping of ``play --lockstep``) and in ``replay`` of a rig bag, the rig's made by
 :func:`rig_camera_inputs`. A frame message goes through it in three steps:
 :meth:`CameraInput.check` (its header stamp checked, once), :meth:`CameraInput.camera_of` (the
 camera model of that stamp, from the camera_infos; the single camera notes the stamp on its
@@ -582,10 +582,11 @@ def rig_camera_inputs(
     node takes the camera's inputs: its camera_infos made models with the camera's
     rolling-shutter timing (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else
     the ``rs.*`` values) and the rig's reference row, its clouds' rows capped to the rig's
-    ``max_points``. The rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) and the reader
-    of a rig bag's frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``,
-    ``calibrate-rig``, the rig-frame grouping of ``play --lockstep``) both read their cameras
-    through them, so that both take the same rows of a cloud and count them alike.
+    ``max_points``. The rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`), ``replay`` of
+    a rig bag and the reader of a rig bag's frames
+    (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig``, the
+    rig-frame grouping of ``play --lockstep``) all read their cameras through them, so that
+    all take the same rows of a cloud and count them alike.
 
     Args:
         config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.

@@ -43,7 +43,6 @@ from .bag_io import (
 if TYPE_CHECKING:
     import os
 
-    from ...camera import Stamp
     from ...tracking.localizer import CameraFrame
     from ...tracking.video import LocalizerSettings
     from ..camera_input import CameraInput, DroppedFrame, ImageFrame
@@ -64,7 +63,6 @@ __all__ = [
     "rig_frontends",
     "rig_kinds",
     "rig_landmarks",
-    "rig_messages",
     "rig_parameter_values",
 ]
 
@@ -493,10 +491,15 @@ def iter_rig_frames(
     from ..camera_input import ImageFrame
 
     kinds = rig_kinds(inputs, frontends is not None or images)
-    for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
-        item = inputs[n].take(msg, kind, stamp, camera)
+    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
+    for kind, n, msg, _ in camera_messages(bag, topics, inputs):  # (camera_infos taken there)
+        if kind == "info":
+            continue
+        inp = inputs[n]
+        stamp = inp.check(msg, kind)
+        item = inp.take(msg, kind, stamp, inp.camera_of(stamp))
         if frontends is not None and isinstance(item, ImageFrame):
-            item = _found_frame(inputs[n], item, frontends[n])
+            item = _found_frame(inp, item, frontends[n])
         yield item
 
 
@@ -526,29 +529,6 @@ def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFra
     return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 
-def rig_messages(
-    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], *kinds: str
-) -> Iterator[tuple[str, str, Any, Stamp | DroppedFrame, CameraModel | None]]:
-    """Every camera's frame messages of ``kinds`` (``cloud``: ``<namespace>/<camera>/
-    correspondences``, ``keypoints``: ``.../keypoints``, ``image``: ``.../image_raw``) of a
-    rig bag in log-time order, each
-    camera's camera_infos given to its input (``inputs``: camera name -> its
-    :class:`~rs_localizer.ros.camera_input.CameraInput`) as they come, as
-    :func:`iter_rig_frames` reads them.
-
-    Yields:
-        ``(camera name, kind, message, its header stamp checked (ns) or the
-        :class:`~rs_localizer.ros.camera_input.DroppedFrame` of that check, the camera model
-        of that stamp or None)`` (:meth:`~rs_localizer.ros.camera_input.CameraInput.check`,
-        :meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`).
-    """
-    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
-    for k, n, msg, _ in camera_messages(bag, topics, inputs):
-        if k != "info":
-            stamp = inputs[n].check(msg, k)
-            yield n, k, msg, stamp, inputs[n].camera_of(stamp)
-
-
 def rig_kinds(inputs: Mapping[str, CameraInput], images: bool = False) -> tuple[str, ...]:
     """The kinds of frame messages a rig's cameras (``inputs``, camera name -> its
     :class:`~rs_localizer.ros.camera_input.CameraInput`) are read from: with ``images`` their
@@ -565,7 +545,7 @@ def camera_messages(
     bag: str | os.PathLike, topics: Mapping[str, tuple[str, str]], inputs: Mapping[str, Any]
 ) -> Iterator[tuple[str, str, Any, int]]:
     """The one reader of a bag's camera messages (a camera's replay, a rig's, the rig's frames
-    of :func:`rig_messages`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
+    of :func:`iter_rig_frames`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
     kind ``info`` for a ``sensor_msgs/CameraInfo``) in log-time order, deserialized, each
     camera_info given to its camera's input as it comes (``inputs[camera name].
     add_camera_info(msg)``: a :class:`~rs_localizer.ros.camera_input.CameraInput`, or a
