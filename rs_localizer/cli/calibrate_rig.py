@@ -134,12 +134,14 @@ def short_video_warning(name: str, frames: int) -> str:
 
 def rows_note(name: str, counts: dict, max_points: int) -> str:
     """The line on camera ``name``'s rows and clouds left out of its frames: ``counts``
-    (``points_dropped``, ``capped_clouds``, ``capped_points``, ``bad_input`` of
-    :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`) as ``replay`` names them."""
+    (``points_dropped``, ``capped_clouds``, ``capped_points``, ``bad_input``, then any other
+    reason, e.g. ``bad_stamp``, of :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`)
+    as ``replay`` names them."""
     return (
         f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
         + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
-        "rows capped to it; clouds not read: an invalid stamp, no u, v, x, y, z fields)"
+        "rows capped to it; clouds not read: no u, v, x, y, z fields (bad_input), a header stamp "
+        "out of range (bad_stamp))"
     )  # fmt: skip
 
 

@@ -6,8 +6,8 @@ each camera of the rig node: its camera_infos checked and kept by stamp, and eac
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
 :class:`~rs_localizer.ros.rig_node.RigMode` (the rig mode) and in the reader of a rig bag's
-frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``, ``calibrate-rig``
-and the rig-frame grouping of ``play --lockstep``), the rig's made by
+frames (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig`` and the
+rig-frame grouping of ``play --lockstep``) and in ``replay`` of a rig bag, the rig's made by
 :func:`rig_camera_inputs`. A frame message goes through it in three steps:
 :meth:`CameraInput.check` (its header stamp checked, once), :meth:`CameraInput.camera_of` (the
 camera model of that stamp, from the camera_infos; the single camera notes the stamp on its
@@ -66,10 +66,10 @@ __all__ = [
 #: (``failed.<reason>``): ``bad_stamp``, ``empty_cloud``, ``no_camera_info``, a cloud's
 #: :data:`~rs_localizer.ros.pointcloud.CLOUD_REASONS`, ``no_landmarks``,
 #: ``unknown_landmarks``, ``bad_image``, ``image_size_mismatch``, ``no_frontend``; a rig
-#: camera's (``<camera>.skipped.<reason>``): ``bad_input`` (a stamp or cloud that cannot be
-#: read), ``bad_image``, ``image_size_mismatch``, and as the single camera's
-#: (``<camera>.failed.<reason>``, :meth:`CameraInput.admit`): ``bad_stamp`` (its output
-#: stamp), ``no_frontend``
+#: camera's (``<camera>.skipped.<reason>``): ``bad_input`` (a cloud that cannot be read),
+#: ``bad_image``, ``image_size_mismatch``, and as the single camera's
+#: (``<camera>.failed.<reason>``, :meth:`CameraInput.admit`): ``bad_stamp`` (its header
+#: stamp or its output stamp), ``no_frontend``
 DROP_REASONS = {
     "bad_stamp": "the header stamp is out of range (negative, or past 2^31 s), or the output "
     "stamp (the reference row's time) is",
@@ -80,7 +80,7 @@ DROP_REASONS = {
     "unknown_landmarks": "none of the keypoints' ids is in the landmarks",
     "bad_image": "the image does not decode, has an unsupported encoding or is too small",
     "image_size_mismatch": "the image is another size than its camera_info's",
-    "bad_input": "a rig camera's message that cannot be read (its stamp or its cloud)",
+    "bad_input": "a rig camera's cloud that cannot be read (its fields, its landmarks)",
     "no_frontend": "an image while ``frontend`` is none",
 }
 
@@ -230,8 +230,8 @@ class CameraInput:
             ``camera_name``, and their tag without a ``frame_id``.
         rig: take frames as a rig does: a frame without a camera model (before its
             camera_info), an empty cloud, a keypoints cloud of no known id go on to the rig
-            (which counts them), not dropped; a stamp or cloud that cannot be read is dropped
-            as ``bad_input``; the rows go without their scores. Else as the single camera:
+            (which counts them), not dropped; a cloud that cannot be read is dropped as
+            ``bad_input``; the rows go without their scores. Else as the single camera:
             each of those dropped for its own reason (:data:`DROP_REASONS`).
 
     Threads: camera_infos on one thread, frames on another (the history is thread-safe).
@@ -358,13 +358,14 @@ class CameraInput:
     def check(self, msg: Any, kind: str) -> Stamp | DroppedFrame:
         """A frame message's header stamp checked, the frame's one check of it
         (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`): the stamp (ns), or a
-        :class:`DroppedFrame` (``stamp_ns`` None) for a stamp out of range (``bad_stamp``; a
-        rig's ``bad_input``); the single camera's cloud (``kind`` other than ``image``)
+        :class:`DroppedFrame` (``stamp_ns`` None) for a stamp out of range (``bad_stamp``, the
+        single camera's and a rig camera's alike: :meth:`admit` returns it); the single
+        camera's cloud (``kind`` other than ``image``)
         without points: ``empty_cloud``."""
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except cv.StampError as e:
-            return self._dropped(None, None, e)
+            return DroppedFrame(self.name, None, None, e, e.reason)
         if not self.rig and kind != "image" and int(msg.width) * int(msg.height) == 0:
             return self._dropped(stamp, None, _Refused("empty_cloud", "cloud has no points"))
         return stamp
@@ -512,14 +513,15 @@ class CameraInput:
         to the rig (:meth:`note_time` with
         :meth:`~rs_localizer.tracking.video.Localizer.took_time_reset`: after a time reset,
         the camera_infos stamped after the camera's first frame of the new timeline
-        forgotten); the rig node's (:meth:`step`) and a rig bag's replay's."""
-        self.note_time(stamp, lambda _stamp: rig.took_time_reset(self.name))
+        forgotten; a late frame of the old timeline forgets none, the camera's next frame
+        takes the reset); the rig node's (:meth:`step`) and a rig bag's replay's."""
+        self.note_time(stamp, lambda stamp: rig.took_time_reset(self.name, stamp))
 
     def _dropped(
         self, stamp: Stamp | None, camera: CameraModel | None, error: ValueError
     ) -> DroppedFrame:
-        """The frame dropped for ``error``'s ``reason``; a rig's stamp or cloud that cannot be
-        read (all but an image refused by :meth:`decode`): ``bad_input``."""
+        """The frame dropped for ``error``'s ``reason``; a rig's cloud that cannot be read (all
+        but an image refused by :meth:`decode`): ``bad_input``."""
         from .image_codec import ImageRejected
 
         reason = getattr(error, "reason", "bad_input")
@@ -580,10 +582,11 @@ def rig_camera_inputs(
     node takes the camera's inputs: its camera_infos made models with the camera's
     rolling-shutter timing (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else
     the ``rs.*`` values) and the rig's reference row, its clouds' rows capped to the rig's
-    ``max_points``. The rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) and the reader
-    of a rig bag's frames (:func:`~rs_localizer.ros.bags.bag_frames.rig_messages`: ``replay``,
-    ``calibrate-rig``, the rig-frame grouping of ``play --lockstep``) both read their cameras
-    through them, so that both take the same rows of a cloud and count them alike.
+    ``max_points``. The rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`), ``replay`` of
+    a rig bag and the reader of a rig bag's frames
+    (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig``, the
+    rig-frame grouping of ``play --lockstep``) all read their cameras through them, so that
+    all take the same rows of a cloud and count them alike.
 
     Args:
         config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.

@@ -29,7 +29,7 @@ camera_infos at configure; None: no gyro), ``camera_of(item)``, ``take_frame(ite
 ``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
 ``apply_change(built, overrides)``, ``diagnostics(latencies, stamp_ages)``, and its topics
 and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
-``resolve_compressed``, ``images_text``, ``info_qos_overridable``, ``busy_key``,
+``images_text``, ``info_qos_overridable``, ``busy_key``,
 ``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node:
 ``set_cameras(inputs, counts, log, group, worker)`` (its cameras and a frame queue for them),
 ``stopping()``, ``between_frames()`` (the worker's lock), ``first_frame``,
@@ -367,7 +367,8 @@ class NodeCore:
         """Each camera's frame inputs (a rig camera's under ``<c>/``; :meth:`_subscribe_frames`):
         ``correspondences``; ``keypoints`` (a rig's: with a ``landmarks_file``); with a front
         end its images (``image`` of the single camera, ``<c>/image_raw`` of a rig camera;
-        ``image_transport: compressed``: that topic + ``/compressed``, sensor_msgs/
+        ``image_transport: compressed``: that topic resolved (a remap of it moves its
+        compressed topic too, as image_transport names it) + ``/compressed``, sensor_msgs/
         CompressedImage), noted in :attr:`images_of`."""
         images = {}
         for n in self._camera_names():
@@ -380,8 +381,7 @@ class NodeCore:
                 continue
             topic, msg_type = p + self.mode.image_topic, Image
             if self.image_transport == "compressed":  # (on image_transport's topic name)
-                resolved = self.resolve_topic_name(topic) if self.mode.resolve_compressed else topic
-                topic, msg_type = resolved + "/compressed", CompressedImage
+                topic, msg_type = self.resolve_topic_name(topic) + "/compressed", CompressedImage
             sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
             images[n] = self.mode.images_text or sub.topic_name
         self.images_of = images

@@ -76,7 +76,6 @@ class CameraMode:
     cloud_kind = "correspondences"
     image_topic = "image"
     keypoints_always = True
-    resolve_compressed = True
     images_text = None
     info_qos_overridable = True
     busy_key = "skipped"

@@ -28,7 +28,8 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          (``<c>.points_dropped``, ``<c>.capped_clouds``); decoded and checked
                          as the single-camera node does (``bad_image``, ``image_size_mismatch``,
                          counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
-                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage)
+                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage; of
+                         ``<c>/image_raw`` resolved: a remap of it moves it too)
     The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
     single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 and, with ``imu.enabled``, one for the rig:
@@ -63,9 +64,9 @@ in an open rig frame). Each camera's inputs are taken by a
 camera_infos kept by stamp (a frame uses the camera_info of its stamp,
 :mod:`.camera_info_history`), its clouds' rows, its images decoded, and each frame checked at
 the localizer's entry in the single camera's code (:meth:`.camera_input.CameraInput.admit`:
-its time on the rig's clock, the rig frame's stamp, out of [0, 2^31 s) counted
-``<c>.failed.bad_stamp``, an image without a front end ``<c>.failed.no_frontend``; the rig
-never sees them). A parameter change at
+a header stamp out of range, or its time on the rig's clock, the rig frame's stamp, out of
+[0, 2^31 s) counted ``<c>.failed.bad_stamp``, an image without a front end
+``<c>.failed.no_frontend``; the rig never sees them). A parameter change at
 run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_parameters`): the
 parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
 ``max_points`` and ``queue_size`` apply from the next rig frame on
@@ -124,7 +125,6 @@ INPUT_SKIP_REASONS = {
     "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
     "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
     "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
-    "bad_input": "the message could not be read (a stamp out of range, a cloud without its fields)",
 }
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own
@@ -147,7 +147,6 @@ class RigMode:
     cloud_kind = "cloud"
     image_topic = "image_raw"
     keypoints_always = False
-    resolve_compressed = False
     images_text: str | None = "the camera's images"
     info_qos_overridable = False
     busy_key = "queue_full"
@@ -378,17 +377,15 @@ class RigMode:
 
     def take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
         """The worker: one camera frame to the rig (:meth:`_take`), or why not (the rig never
-        sees it): a header stamp out of range, counted ``skipped.bad_input``; the single
-        camera's entry checks (:meth:`.camera_input.CameraInput.admit`: an output stamp out
-        of range, ``bad_stamp``; an image without a front end, ``no_frontend``), counted
-        ``failed.<reason>`` and logged. Under the worker's lock with its count, so that a
-        diagnostics snapshot sees the rig's and the camera's counts of it at once; with
+        sees it): the single camera's entry checks (:meth:`.camera_input.CameraInput.admit`:
+        a header stamp or an output stamp out of range, ``bad_stamp``; an image without a
+        front end, ``no_frontend``), counted ``failed.<reason>`` and logged. Under the
+        worker's lock with its count, so that a diagnostics snapshot sees the rig's and the
+        camera's counts of it at once; with
         ``republish_correspondences`` what the camera's front end found in an image."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
-        if isinstance(stamp, DroppedFrame):  # (the rig never sees it)
-            skip = self._not_taken(kind, stamp)
-            return TakenFrame((None if skip is None else f"skipped.{skip}",))
-        # (the single camera's entry checks: its times made once, its output stamp in range)
+        # (the single camera's entry checks: its stamp, its times made once, its output stamp
+        # in range)
         frontend = self.node.frontend_kind != "none"
         ft = self.node.inputs[name].admit(kind, stamp, camera, self._frame_time(name), frontend)
         if isinstance(ft, DroppedFrame):  # (the rig never sees it either)
@@ -462,24 +459,21 @@ class RigMode:
             )
         return outs
 
-    def _not_taken(self, kind: str, item: DroppedFrame) -> str | None:
-        """A frame the camera's input stage dropped, logged: one whose stamp is out of range or
-        whose cloud cannot be read (``bad_input``) also counted ``<c>.bad_input``. Returns
-        the reason the node counts it skipped for itself (``bad_input`` for a stamp out of
-        range: the rig never sees the frame); None: the rig counts it
-        (:func:`.camera_input.to_rig`)."""
+    def _not_taken(self, kind: str, item: DroppedFrame) -> None:
+        """A frame of a checked stamp the camera's input stage dropped (the rig counts it
+        skipped, :func:`.camera_input.to_rig`), logged: one whose cloud cannot be read
+        (``bad_input``) also counted ``<c>.bad_input``."""
         name, error = item.camera_name, item.error
         if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
             self.node.warn(
                 f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
             )
-            return None
+            return
         self.node.camera_counts[name].add("bad_input")
         if kind in ("cloud", "keypoints"):
             self.node.warn(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
         else:
             self.node.warn(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
-        return "bad_input" if item.stamp_ns is None else None
 
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log

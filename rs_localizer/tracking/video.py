@@ -664,8 +664,9 @@ class Localizer(GyroReadouts):
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
         self._noted: int | None = None  # (a rig of one: the frame time noted last, _note_alone)
         self._img: _ImageInput | None = None  # (the image search, made on first use)
-        # (the last time reset's detail and number, each camera's number taken: took_time_reset)
-        self._reset: tuple[int, str] = (0, "")
+        # (the last time reset's number, detail and the new timeline's first time on the
+        # clock, ns; each camera's number taken: took_time_reset)
+        self._reset: tuple[int, str, int | None] = (0, "", None)
         self._reset_taken: dict[str, int] = {}
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
@@ -1039,16 +1040,23 @@ class Localizer(GyroReadouts):
         (name,) = self._cams
         return self._note_alone(self._on_clock(name, checked_stamp(stamp_ns)))
 
-    def took_time_reset(self, name: str) -> str | None:
+    def took_time_reset(self, name: str, stamp_ns: int | None = None) -> str | None:
         """Camera ``name``'s first call since the rig's clock last started again (a time
-        reset, :meth:`add`): that reset's detail; else None. A rig camera's input stage calls
-        it after each frame it takes, to note its stamp on the rig's clock
+        reset, :meth:`add`) with a frame of the new timeline: that reset's detail; else None.
+        ``stamp_ns``: the camera's frame's checked stamp (ns); one older than the new
+        timeline's first time by more than ``time_reset_ns`` (on the rig's clock) is a late
+        frame of the old timeline (after a jump ahead), which leaves the reset to the
+        camera's next frame (None: any frame takes it). A rig camera's input stage calls it
+        after each frame it takes, to note its stamp on the rig's clock
         (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_time`: the camera_infos
         stamped after the camera's first frame of the new timeline forgotten, as one
         camera's)."""
-        n, detail = self._reset
+        n, detail, start = self._reset
         if self._reset_taken.get(name, 0) == n:
             return None
+        old = start is not None and stamp_ns is not None
+        if old and start - self._on_clock(name, stamp_ns) > self._clock.time_reset_ns:
+            return None  # (the old timeline's: the camera's new timeline not begun)
         self._reset_taken[name] = n
         return detail
 
@@ -1105,7 +1113,7 @@ class Localizer(GyroReadouts):
         solved = []
         if reset is not None:
             self.counts["rig.time_resets"] += 1
-            self._reset = (self._reset[0] + 1, reset.detail)
+            self._reset = (self._reset[0] + 1, reset.detail, self._clock.newest)
             if self._rig:  # (a camera's video: the caller reports it, check_time)
                 self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)

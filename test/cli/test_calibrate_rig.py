@@ -297,8 +297,8 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
     line = (
         f"left: points_dropped {n_left}, capped_clouds {n_left}, capped_points "
         f"{capped_points}, bad_input 0 (rows with a NaN or inf dropped; clouds of more than "
-        f"max_points {cap} rows capped to it; clouds not read: an invalid stamp, no u, v, x, y, "
-        "z fields)"
+        f"max_points {cap} rows capped to it; clouds not read: no u, v, x, y, z fields "
+        "(bad_input), a header stamp out of range (bad_stamp))"
     )
     assert line in cap_out.err and "front: points_dropped" not in cap_out.err
     assert f"# {line}" in (tmp_path / "out.yaml").read_text()

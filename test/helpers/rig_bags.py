@@ -70,7 +70,7 @@ def bag_with_unread_clouds(tmp_path, duration: float = 0.5, seed: int = 7) -> Un
     """A 2-camera rig bag (``front``, ``left``, 30 fps) whose left clouds :data:`NO_X` have no
     ``x`` field (their stamps readable: the rig node hands them to the rig as frames skipped,
     ``bad_input``) and whose left cloud :data:`BAD_STAMP` has ``nanosec`` 1.5e9 (a stamp no ROS
-    time holds: the node counts it alone)."""
+    time holds: the node fails it alone, ``bad_stamp``)."""
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 

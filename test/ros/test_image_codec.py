@@ -296,6 +296,7 @@ def _rig_node_decode(msg, cam):
     form."""
     from rs_localizer.camera import FrameTime
     from rs_localizer.ros.camera_input import CameraInput
+    from rs_localizer.ros.diagnostics import StageTimes
     from rs_localizer.ros.rig_node import RigMode
 
     got, logged = [], []
@@ -309,7 +310,10 @@ def _rig_node_decode(msg, cam):
             got.append(("drop", reason))
             return []
 
-        def took_time_reset(self, name):  # (no time reset: the camera's stamp noted after)
+        def took_time_reset(self, name, stamp_ns=None):  # (no time reset: its stamp noted after)
+            return None
+
+        def last_search(self, name):  # (no search timed)
             return None
 
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
@@ -317,7 +321,7 @@ def _rig_node_decode(msg, cam):
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
     mode = RigMode(SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}))
-    mode.rig, mode._images = Rig(), {}
+    mode.rig, mode._images, mode._stages = Rig(), {}, StageTimes()
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)

@@ -487,13 +487,13 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
 
 def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_path, capsys):
     """The left camera's clouds 3..8 without their ``x`` field and its cloud 10 with a stamp no
-    ROS time holds: the one reader yields each as an unread frame (``bad_input``), so that
-    replay counts them as the rig node does (received, ``skipped.bad_input``; the ones with a
-    stamp handed to the rig, which does not wait for the camera at their times), calibrate-rig's
-    reader leaves them out of
-    its frames and counts them ``bad_input`` (printed, in the JSON), and the grouping
-    ``play --lockstep`` waits on is the rig mode's with them: the rig frames each of those
-    clouds completes."""
+    ROS time holds: the one reader yields each as an unread frame (``bad_input``; the stamp's
+    ``bad_stamp``, as the single camera's), so that replay counts them as the rig node does
+    (received, ``skipped.bad_input``, handed to the rig, which does not wait for the camera
+    at their times; received, ``failed.bad_stamp``, never seen by the rig), calibrate-rig's
+    reader leaves them out of its frames and counts them ``bad_input``, ``bad_stamp``
+    (printed, in the JSON), and the grouping ``play --lockstep`` waits on is the rig mode's
+    with them: the rig frames each of those clouds completes."""
     from helpers.rig_bags import BAD_STAMP, NO_X, bag_with_unread_clouds
 
     from rs_localizer.cli import main
@@ -514,16 +514,19 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
         b.no_x, key=lambda x: x[1]
     )
     assert [f.camera_name for f in unread if f.stamp_ns is None] == ["left"]
-    assert all(f.reason == "bad_input" for f in unread)
+    assert [f.reason for f in unread] == ["bad_input"] * len(NO_X) + ["bad_stamp"]
     assert len(read.frames) == len(b.frames) - bad
     assert not any(isinstance(f, DroppedFrame) for f in read.frames)
-    assert read.counts["left"]["bad_input"] == bad and read.counts["front"]["bad_input"] == 0
+    assert read.counts["left"]["bad_input"] == len(NO_X) and read.counts["left"]["bad_stamp"] == 1
+    assert read.counts["front"]["bad_input"] == 0 and "bad_stamp" not in read.counts["front"]
 
     res = replay(b.bag, progress=None)
     left = res.camera_counts["left"]
-    assert left["received"] == n["left"] and left["skipped.bad_input"] == bad, left
+    assert left["received"] == n["left"] and left["skipped.bad_input"] == len(NO_X), left
+    assert left["failed.bad_stamp"] == 1, left
     assert left["received"] == left["solved"] + left["failed"] + left["skipped"] + left["pending"]
-    assert left["skipped"] == bad and "skipped.bad_input" not in res.camera_counts["front"]
+    assert left["skipped"] == len(NO_X) and "skipped.bad_input" not in res.camera_counts["front"]
+    assert left["failed"] == 1 and "failed.bad_stamp" not in res.camera_counts["front"]
     front = res.camera_counts["front"]
     assert front["received"] == front["solved"] == n["front"]
     assert res.solved == len(res.outputs) == res.camera_counts["rig"]["rig_frames"] == n["front"]
@@ -546,12 +549,15 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     capsys.readouterr()
     assert main(["calibrate-rig", str(b.bag), "--json", "-o", str(tmp_path / "m.yaml")]) == 0
     out = capsys.readouterr()
-    assert json.loads(out.out)["cameras"]["left"]["bad_input"] == bad
-    assert f"left: points_dropped 0, capped_clouds 0, capped_points 0, bad_input {bad}" in out.err
+    assert json.loads(out.out)["cameras"]["left"]["bad_input"] == len(NO_X)
+    assert json.loads(out.out)["cameras"]["left"]["bad_stamp"] == 1
+    line = f"left: points_dropped 0, capped_clouds 0, capped_points 0, bad_input {len(NO_X)}, "
+    assert line + "bad_stamp 1 (" in out.err, out.err
     assert "front: points_dropped" not in out.err
     capsys.readouterr()
     assert main(["replay", str(b.bag), "--quiet"]) == 0
-    assert f", skipped.bad_input {bad}" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f", failed.bad_stamp 1, skipped.bad_input {len(NO_X)}" in printed, printed
 
 
 def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):

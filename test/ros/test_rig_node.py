@@ -704,12 +704,13 @@ def _drained_values(node, cams) -> dict:
     return v
 
 
-def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, monkeypatch):
+def test_a_bad_stamp_fails_as_the_camera_s_never_grouped(ros_context, monkeypatch):
     """The left camera's clouds 3..5 with stamps no ROS time holds (nanosec >= 1e9, one of them
-    summing to the frame's true ns count; a negative sec): counted ``left.skipped.bad_input``
-    (and ``left.bad_input``) by the node alone, never handed to the rig nor grouped with
-    another camera's frame; every other frame's stamp is validated once, as it arrives; every
-    camera balances. Frames handed to the node's callbacks directly (no DDS)."""
+    summing to the frame's true ns count; a negative sec): counted ``left.failed.bad_stamp``
+    as the single camera counts them (not ``bad_input``: the cloud is readable) and logged,
+    by the node alone, never handed to the rig nor grouped with another camera's frame; every
+    other frame's stamp is validated once, as it arrives; every camera balances. Frames
+    handed to the node's callbacks directly (no DDS)."""
     import rs_localizer.camera as camera_mod
     import rs_localizer.ros.conversions as conversions_mod
     from rs_localizer.ros.conversions import ns_to_stamp
@@ -717,7 +718,8 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
-    node = _direct_node(ros_context, cams, frames)
+    logged: list = []
+    node = _direct_node(ros_context, cams, frames, logged)
     checks = []
     original = camera_mod.checked_stamp
 
@@ -757,8 +759,13 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
                 good.append(f.stamp_ns)
             node._on_frame(f.name, "cloud", cloud)
         v = _drained_values(node, cams)
-        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
+        assert v.get("left.failed.bad_stamp") == v["left.failed"] == str(bad) == "3", v
+        assert v["left.bad_input"] == v["left.skipped"] == "0", v
+        assert "left.skipped.bad_input" not in v, v
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
+        assert node.mode.rig.counts["left.received"] == int(v["left.received"]) - bad
+        text = " ".join(map(str, logged))
+        assert "rig camera 'left': frame dropped (bad_stamp): " in text, text
         assert not grouped_bad
         assert sorted(checks) == sorted(good)
     finally:
@@ -891,6 +898,55 @@ def test_a_rig_camera_forgets_its_camera_infos_after_a_time_reset(ros_context):
         node.destroy_node()
 
 
+def test_a_late_frame_of_the_old_timeline_keeps_a_rig_camera_s_new_camera_infos(ros_context):
+    """Each camera's true camera_info at T0 and a recalibrated one (focal 30 % longer) 1 ms
+    before the video jumps ahead by 100 s (a time reset of the rig, ``time_reset_threshold``
+    5 s); the left camera's last frame of the old timeline arrives after the front camera's
+    first of the new one (late). That late frame does not take the reset for the left camera
+    (it would forget the camera_infos stamped after it: the new timeline's); its first frame
+    of the new timeline does, as every other camera's: every camera keeps both camera_infos,
+    and the new timeline's frames take the recalibrated one. One time reset, counted by the
+    rig; every camera balances."""
+    import dataclasses
+
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)
+    jump = 100 * 10**9
+    new = [dataclasses.replace(f, stamp_ns=f.stamp_ns + jump) for f in frames]
+    late = max((f for f in frames if f.name == "left"), key=lambda f: f.stamp_ns)
+    first_new = min((f for f in new if f.name == "front"), key=lambda f: f.stamp_ns)
+    order = [f for f in frames if f is not late] + [first_new, late]
+    order += [f for f in new if f is not first_new]
+    node = _direct_node(ros_context, cams, order, time_reset_threshold=5.0)
+    try:
+        recalibrated = {}
+        for c in cams:
+            info = camera_info_msg(c.camera, c.name, T0 + jump - 10**6)
+            info.k[0] *= 1.3
+            info.k[4] *= 1.3
+            recalibrated[c.name] = np.asarray(info.k, float).reshape(3, 3)
+            node.inputs[c.name].add_camera_info(info)
+        for f in order:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            node._on_frame(f.name, "cloud", cloud)
+        v = _drained_values(node, cams)
+        assert node.mode.rig.counts["rig.time_resets"] == 1
+        for c in cams:
+            inp = node.inputs[c.name]
+            assert len(inp.history) == 2, c.name
+            got = inp.camera_for(max(f.stamp_ns for f in new if f.name == c.name))
+            np.testing.assert_allclose(got.K, recalibrated[c.name])
+            np.testing.assert_array_equal(inp.camera_for(late.stamp_ns).K, c.camera.K)
+        assert int(v["left.received"]) == sum(f.name == "left" for f in order), v
+    finally:
+        node.destroy_node()
+
+
 def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
     """The left camera's clouds 3..6 without their ``x`` field (the stamp readable): counted
     ``left.skipped.bad_input``, passed on to the rig, so the rig frames without them count
@@ -928,8 +984,9 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
     stamp no ROS time holds: the node, given the bag's messages in log order (its parameters
     the bag's ``rig_params.yaml``; frames handed to its callbacks, no DDS), and ``replay`` of
     the bag count every camera's frames alike: received, solved, failed, skipped, pending,
-    ``skipped.<reason>`` (``left.skipped.bad_input`` 7), ``points_dropped``,
-    ``capped_clouds``, and the rig's rig frames."""
+    ``failed.<reason>`` (``left.failed.bad_stamp`` 1), ``skipped.<reason>``
+    (``left.skipped.bad_input`` 6), ``points_dropped``, ``capped_clouds``, and the rig's rig
+    frames."""
     from helpers.rig_bags import NO_X, bag_with_unread_clouds
     from rclpy.parameter import Parameter
 
@@ -954,7 +1011,9 @@ def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_pa
             elif leaf == "correspondences":
                 node._on_frame(name, "cloud", ts.deserialize_cdr(raw, mt))
         v = _drained_values(node, b.cams)
-        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
+        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X)), v
+        assert v["left.failed.bad_stamp"] == "1", v
+        assert res.camera_counts["left"]["failed.bad_stamp"] == 1
         for c in b.cams:
             for k, want in res.camera_counts[c.name].items():
                 assert int(v[f"{c.name}.{k}"]) == want, (c.name, k, v)
@@ -1286,3 +1345,28 @@ def test_each_camera_subscribes_its_topics_under_its_name(ros_context, tmp_path)
         finally:
             node.destroy_node()
         assert {t: k for t, k in got.items() if t.startswith("/rig/")} == want, (extra, got)
+
+
+def test_a_camera_s_compressed_images_follow_a_remap_of_its_image_raw(ros_context):
+    """``image_transport: compressed`` names a rig camera's images as the single camera's
+    (image_transport's name: the resolved image topic + ``/compressed``): a remap of
+    ``front/image_raw`` moves the front camera's ``CompressedImage`` subscription with it,
+    the left camera's stays ``<c>/image_raw/compressed``. Read from the node's
+    subscriptions."""
+    from rs_localizer.ros.node import RSLocalizerNode
+
+    cams = default_rig(2)
+    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room",
+                            image_transport="compressed")  # fmt: skip
+    remap = ["--ros-args", "-r", "front/image_raw:=/cams/front_image"]
+    node = RSLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params, cli_args=remap)  # fmt: skip
+    try:
+        got = {s.topic_name: s.msg_type.__name__ for s in node.subscriptions}
+    finally:
+        node.destroy_node()
+    images = {t: k for t, k in got.items() if "image" in t}
+    assert images == {
+        "/cams/front_image/compressed": "CompressedImage",
+        "/rig/left/image_raw/compressed": "CompressedImage",
+    }, got

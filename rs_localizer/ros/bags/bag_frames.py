@@ -43,7 +43,6 @@ from .bag_io import (
 if TYPE_CHECKING:
     import os
 
-    from ...camera import Stamp
     from ...tracking.localizer import CameraFrame
     from ...tracking.video import LocalizerSettings
     from ..camera_input import CameraInput, DroppedFrame, ImageFrame
@@ -64,7 +63,6 @@ __all__ = [
     "rig_frontends",
     "rig_kinds",
     "rig_landmarks",
-    "rig_messages",
     "rig_parameter_values",
 ]
 
@@ -367,8 +365,9 @@ class RigFrames:
     ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
     (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
     ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
-    (an invalid stamp, no u, v, x, y, z fields: the rig node's
-    ``<camera>.skipped.bad_input``); ``settings``: the rig's
+    (no u, v, x, y, z fields: the rig node's ``<camera>.skipped.bad_input``), then the other
+    reasons its messages were left out for (``bad_stamp``: a header stamp out of range, the rig
+    node's ``<camera>.failed.bad_stamp``; an image's); ``settings``: the rig's
     :class:`~rs_localizer.tracking.video.LocalizerSettings` of those parameters (every mounting the
     identity: not read)."""
 
@@ -405,9 +404,10 @@ def read_rig_frames(
     (:func:`iter_rig_frames`), as the rig node and ``replay`` read them: each cloud with the
     model of the camera_info of its stamp (None before the camera's first camera_info), its
     rows with a NaN or inf dropped, then at most ``max_points`` rows, counted per camera
-    (:attr:`RigFrames.counts`); a cloud that cannot be read (an invalid stamp, no u, v, x, y,
-    z fields) is in no frame, counted ``bad_input`` for its camera (as the rig node's
-    ``<camera>.skipped.bad_input``).
+    (:attr:`RigFrames.counts`); a cloud that cannot be read (no u, v, x, y, z fields) is in
+    no frame, counted ``bad_input`` for its camera (as the rig node's
+    ``<camera>.skipped.bad_input``), nor one whose header stamp is out of range, counted
+    ``bad_stamp`` (the rig node's ``<camera>.failed.bad_stamp``).
 
     Raises:
         ValueError: no ``rig.cameras``;
@@ -462,11 +462,13 @@ def iter_rig_frames(
     None before the camera's first camera_info is received), its rows with a NaN or inf
     dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
     first, counted ``capped_clouds``, ``capped_points``
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (an
-    invalid stamp, no x, y, z / u, v fields) is yielded as a
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.take`). One that cannot be read (no
+    x, y, z / u, v fields) is yielded as a
     :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``bad_input``), which the node
-    counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
-    skipped (:func:`~rs_localizer.ros.camera_input.to_rig`). With the cameras' landmarks
+    counts received and skipped and hands to the rig as a frame skipped
+    (:func:`~rs_localizer.ros.camera_input.to_rig`); one whose header stamp is out of range
+    as a ``DroppedFrame`` without a stamp (``bad_stamp``), which the node counts received and
+    failed and the rig never sees. With the cameras' landmarks
     (``landmarks_file``, :func:`rig_landmarks`, given to :func:`rig_camera_inputs`) each
     camera's keypoints (``.../keypoints``: u, v, id) are read too, beside its clouds, as the
     rig node reads them (each row the 3D point of its id; unknown ids counted
@@ -489,10 +491,15 @@ def iter_rig_frames(
     from ..camera_input import ImageFrame
 
     kinds = rig_kinds(inputs, frontends is not None or images)
-    for n, kind, msg, stamp, camera in rig_messages(bag, inputs, *kinds):
-        item = inputs[n].take(msg, kind, stamp, camera)
+    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
+    for kind, n, msg, _ in camera_messages(bag, topics, inputs):  # (camera_infos taken there)
+        if kind == "info":
+            continue
+        inp = inputs[n]
+        stamp = inp.check(msg, kind)
+        item = inp.take(msg, kind, stamp, inp.camera_of(stamp))
         if frontends is not None and isinstance(item, ImageFrame):
-            item = _found_frame(inputs[n], item, frontends[n])
+            item = _found_frame(inp, item, frontends[n])
         yield item
 
 
@@ -522,29 +529,6 @@ def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFra
     return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 
-def rig_messages(
-    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], *kinds: str
-) -> Iterator[tuple[str, str, Any, Stamp | DroppedFrame, CameraModel | None]]:
-    """Every camera's frame messages of ``kinds`` (``cloud``: ``<namespace>/<camera>/
-    correspondences``, ``keypoints``: ``.../keypoints``, ``image``: ``.../image_raw``) of a
-    rig bag in log-time order, each
-    camera's camera_infos given to its input (``inputs``: camera name -> its
-    :class:`~rs_localizer.ros.camera_input.CameraInput`) as they come, as
-    :func:`iter_rig_frames` reads them.
-
-    Yields:
-        ``(camera name, kind, message, its header stamp checked (ns) or the
-        :class:`~rs_localizer.ros.camera_input.DroppedFrame` of that check, the camera model
-        of that stamp or None)`` (:meth:`~rs_localizer.ros.camera_input.CameraInput.check`,
-        :meth:`~rs_localizer.ros.camera_input.CameraInput.camera_of`).
-    """
-    topics = RigTopics(rig_namespace(bag, inputs), tuple(inputs)).of(("info", *kinds))
-    for k, n, msg, _ in camera_messages(bag, topics, inputs):
-        if k != "info":
-            stamp = inputs[n].check(msg, k)
-            yield n, k, msg, stamp, inputs[n].camera_of(stamp)
-
-
 def rig_kinds(inputs: Mapping[str, CameraInput], images: bool = False) -> tuple[str, ...]:
     """The kinds of frame messages a rig's cameras (``inputs``, camera name -> its
     :class:`~rs_localizer.ros.camera_input.CameraInput`) are read from: with ``images`` their
@@ -561,7 +545,7 @@ def camera_messages(
     bag: str | os.PathLike, topics: Mapping[str, tuple[str, str]], inputs: Mapping[str, Any]
 ) -> Iterator[tuple[str, str, Any, int]]:
     """The one reader of a bag's camera messages (a camera's replay, a rig's, the rig's frames
-    of :func:`rig_messages`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
+    of :func:`iter_rig_frames`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
     kind ``info`` for a ``sensor_msgs/CameraInfo``) in log-time order, deserialized, each
     camera_info given to its camera's input as it comes (``inputs[camera name].
     add_camera_info(msg)``: a :class:`~rs_localizer.ros.camera_input.CameraInput`, or a

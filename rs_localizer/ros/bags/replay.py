@@ -27,6 +27,7 @@ import shutil
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -41,7 +42,7 @@ from ...accuracy import (
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
-from ..camera_input import to_rig
+from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, RigConfig, build_config, default_timing_note, load_maps
 from ..outputs import frame_messages, fused_messages, pose_messages
 from ..param_files import parameter_values, read_params_file
@@ -134,10 +135,12 @@ class ReplayResult:
       ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its frames'
       ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (received = the other
       four summed), its rows' ``points_dropped`` (rows with a NaN or inf) and
-      ``capped_clouds`` (clouds capped to ``max_points``), then ``skipped.<reason>`` for each
-      reason its frames were skipped for (e.g. ``bad_input``: clouds not read;
-      ``no_camera_info``), as the rig node's diagnostics count them ``<camera>.received``,
-      ..., ``<camera>.skipped.<reason>`` (:func:`~rs_localizer.ros.bags.rig_bag.camera_counts`);
+      ``capped_clouds`` (clouds capped to ``max_points``), then ``failed.<reason>`` for each
+      reason its frames failed for before the rig (``bad_stamp``: a stamp out of range) and
+      ``skipped.<reason>`` for each reason its frames were skipped for (e.g. ``bad_input``:
+      clouds not read; ``no_camera_info``), as the rig node's diagnostics count them
+      ``<camera>.received``, ..., ``<camera>.skipped.<reason>``
+      (:func:`~rs_localizer.ros.bags.rig_bag.camera_counts`);
     - ``own_twist``: the errors of each rig frame's own twist (``frames``, ``angvel``,
       ``linvel``); ``off_deg``: camera -> one entry per posed rig frame in which it disagreed
       with the others (the cameras' consensus outvoted it, or the rig names it as
@@ -571,14 +574,16 @@ class _RigReplay(_Run):
     other than ``none``, its map ``frontend_map``; a ``render-bag --rig`` bag holds its
     ``markers.yaml``) its images (``<namespace>/<camera>/image_raw``) instead, through the
     camera's own front end (decoded and checked against the camera model of its stamp, a
-    rejected one skipped for its reason). A message that cannot be read is counted received
-    and ``skipped.bad_input`` as the node counts it, and one with a readable stamp goes to the
-    rig as a frame skipped (:func:`~rs_localizer.ros.camera_input.to_rig`): each camera's
-    counts are the rig node's on the same messages (taken as they come, none dropped from a
-    full queue); each frame's stamp is then noted on the rig's clock as the node's camera
-    notes it (:meth:`~rs_localizer.ros.camera_input.CameraInput.note_on_rig`: after a time
-    reset, the camera_infos stamped after the camera's first frame of the new timeline
-    forgotten). A gyro on the rig (``imu.enabled``) is read from ``<namespace>/imu``, its
+    rejected one skipped for its reason). Each frame passes the single camera's entry checks
+    as the node's (:meth:`~rs_localizer.ros.camera_input.CameraInput.admit`: a header stamp
+    or an output stamp out of range counted received and ``failed.bad_stamp``, never seen by
+    the rig), then goes to the rig in the node's frame step
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.step`): a cloud that cannot be read
+    goes there as a frame skipped (``skipped.bad_input``), and its stamp is then noted on the
+    rig's clock as the node's camera notes it (after a time reset, the camera_infos stamped
+    after the camera's first frame of the new timeline forgotten). Each camera's counts are
+    the rig node's on the same messages (taken as they come, none dropped from a full
+    queue). A gyro on the rig (``imu.enabled``) is read from ``<namespace>/imu``, its
     samples up to :data:`~rs_localizer.ros.bags.rig_bag.GYRO_AHEAD_NS` after a frame's stamp
     given to the rig before the frame. Each rig frame is published as the rig node publishes
     it: its pose in ``map_frame``, its twist in ``base_frame``.
@@ -611,7 +616,8 @@ class _RigReplay(_Run):
         self.inputs = rig_camera_inputs(cfg, QuietLog(), self._count, landmarks=self.landmarks)
         for n, fe in (frontends or {}).items():  # (each camera's own, as the node runs them)
             rig.set_frontend(n, fe, str(values["frontend"]).strip())
-        kinds = rig_kinds(self.inputs, frontends is not None)
+        self.frontends = frontends is not None  # (images are read only with them)
+        kinds = rig_kinds(self.inputs, self.frontends)
         self.topics = RigTopics(ns, names).of(("info", *kinds))
         self.total, self.unit = None, " rig frames"
         self.map_frame = str(values["map_frame"])
@@ -645,17 +651,16 @@ class _RigReplay(_Run):
         rig, own, inp = self.engine, self.own[name], self.inputs[name]
         own.add("received")  # (as the node: every message, taken at once)
         stamp = inp.check(msg, kind)
-        item = inp.take(msg, kind, stamp, inp.camera_of(stamp))
-        stamp = item.stamp_ns
-        if stamp is None:  # (a stamp out of range: skipped by the node alone)
-            own.add("skipped.bad_input")
+        camera = inp.camera_of(stamp)
+        # (the node's entry checks: a stamp out of range failed by the node alone)
+        ft = inp.admit(kind, stamp, camera, partial(rig.frame_time, name), self.frontends)
+        if isinstance(ft, DroppedFrame):
+            own.add(f"failed.{ft.reason}")
             return []
-        while self.gyro and self.gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
+        while self.gyro and self.gyro[-1][0] <= ft.stamp_ns + GYRO_AHEAD_NS:  # (its readout's)
             rig.add_imu(*self.gyro.pop())
-        outs = to_rig(rig, item)
-        # (its stamp on the rig's clock, as the rig node's camera notes it: its camera_infos
-        # stamped after a time reset forgotten)
-        inp.note_on_rig(rig, stamp)
+        # (the node's frame step: to the rig, then its stamp on the rig's clock)
+        outs = inp.step(rig, msg, kind, ft.stamp_ns, camera, ft.reference_ns).outs
         note_disagreeing(rig, outs, self.off_deg)
         return self._steps(outs, views)
 

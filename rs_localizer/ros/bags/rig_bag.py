@@ -54,16 +54,18 @@ def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: boo
     node's ``own``, its :class:`~rs_localizer.ros.camera_input.CameraCounts`' counts) without
     the ``<n>.`` prefix: its frames' (received, solved, failed, skipped, pending), its rows'
     (:data:`ROW_COUNTS`; with ``keypoints``, a replay with ``landmarks_file``, also
-    ``unknown_landmark_ids``), then ``skipped.<reason>`` for each reason it was skipped for
-    (the node's and the rig's, e.g. ``bad_input``: clouds not read)."""
+    ``unknown_landmark_ids``), then ``failed.<reason>`` for each reason the node failed its
+    frames for before the rig (e.g. ``bad_stamp``: a stamp out of range) and
+    ``skipped.<reason>`` for each reason it was skipped for (the node's and the rig's, e.g.
+    ``bad_input``: clouds not read)."""
     from ..diagnostics import rig_camera_section
     from ..frame_queue import FRAME_ACCOUNTING
 
     section = rig_camera_section(rig, n, own)
     keys = (*FRAME_ACCOUNTING, *ROW_COUNTS, *(("unknown_landmark_ids",) if keypoints else ()))
     out = {k: section[f"{n}.{k}"] for k in keys}
-    skip = f"{n}.skipped."
-    out.update({k[len(n) + 1 :]: v for k, v in section.items() if k.startswith(skip) and v})
+    why = (f"{n}.failed.", f"{n}.skipped.")
+    out.update({k[len(n) + 1 :]: v for k, v in section.items() if k.startswith(why) and v})
     return out
 
 
