@@ -610,7 +610,7 @@ class RigInputs:
     frame's arrival to the pose of the rig frame
     it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
-    rig), ``bad_input`` (camera -> frames not read: a stamp or a cloud), ``imu_rejected`` (reason
+    rig), ``bad_input`` (camera -> clouds not read), ``imu_rejected`` (reason
     -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
     ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per stage,
     :meth:`StageTimes.snapshot`)."""
@@ -762,8 +762,8 @@ def _rig_camera_values(
     counts, ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart``
     (yes: its frames never join the others', ``Localizer.camera_apart``), then
     ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
-    ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its frames not
-    read, a stamp or a cloud). Appends the camera's warnings to ``warnings``."""
+    ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its clouds not
+    read). Appends the camera's warnings to ``warnings``."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
