@@ -1850,8 +1850,8 @@ class _RigSearch(RansacLoop):
             X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
             self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
-        # (the kernels read their draws from the stream at its offset, and the search's state
-        # as scalars: no array built per batch; they return Python ints and floats)
+        # (the kernels read the batch's draws at their offset in the stream and the search's
+        # state as scalars, and return Python ints and floats)
         o = self._drawn
         self._drawn = o + 7 * K
         if self.still:
