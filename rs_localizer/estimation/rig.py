@@ -1788,6 +1788,7 @@ class _RigSearch(RansacLoop):
         self._min_it, self._max_it = r.min_iterations, r.max_iterations
         self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
         self._drawn = 0  # (the seed's random draws the batches took)
+        self._out: tuple | None = None  # (:meth:`_batch`'s output buffers)
         self._n, self._missed = 0, self._no_missed
 
     @property
@@ -1854,28 +1855,44 @@ class _RigSearch(RansacLoop):
         # state as scalars, and return Python ints and floats)
         o = self._drawn
         self._drawn = o + 7 * K
+        # (the batch's best errors, model and missed cameras are written into buffers, new
+        # ones after each batch that found a best model: the search keeps that model)
+        out = self._out
+        if out is None:
+            N, M = len(self.pool.cam), len(self._counts)
+            if self.still:
+                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(M, dtype=bool))
+            else:
+                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3),
+                       np.empty(M, dtype=bool))  # fmt: skip
+            self._out = out
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            drawn, h, cost, e, R, C, n, missed = still_batch(
+            drawn, h, cost, n = still_batch(
                 self._draws, o, K, *self._args, missed, rounds, self.th2, self.threshold_px,
                 self._counts, self.score, self.iterations, self._min_it, self.needed,
-                self._log_miss,
+                self._log_miss, out,
             )  # fmt: skip
             if h < 0:
                 return None, drawn
+            e, R, C, missed = out
             w, t = np.zeros(3), np.zeros(3)
         else:
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            drawn, h, cost, e, R, C, w, t, n, missed, beyond = moving_batch(
+            drawn, h, cost, n, beyond = moving_batch(
                 self._draws, o, K, *self._args, anchor, self.solver_iterations, self._w2max,
                 self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-                self.iterations, self._min_it, self.needed, self._log_miss,
+                self.iterations, self._min_it, self.needed, self._log_miss, out,
             )  # fmt: skip
             self.implausible += beyond
-        return (None if h < 0 else (cost, (R, C, w, t), e, n, missed)), drawn
+            if h < 0:
+                return None, drawn
+            e, R, C, w, t, missed = out
+        self._out = None
+        return (cost, (R, C, w, t), e, n, missed), drawn
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         pool = self.pool

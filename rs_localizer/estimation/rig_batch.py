@@ -272,7 +272,7 @@ def counted(e, k, cam, pool_counts, subset):
 
 @njit(cache=True)
 def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, th2, k,
-                pool_counts, best_cost, it0, min_it, needed, log_miss):  # fmt: skip
+                pool_counts, best_cost, it0, min_it, needed, log_miss, out):  # fmt: skip
     """One global-shutter batch of the compiled search in one call: K samples of
     :func:`~.rig._sample` from the uniform draws ``draws[o:o + 7 K]`` (the random stream's, as
     (7, K); :func:`batch_sampling`'s distribution over the pool's points, ``subset`` (S,) the
@@ -290,22 +290,22 @@ def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, 
     the best model's inlier ratio (:func:`~.ransac.required_samples`, updated at each new best), as
     PoseLib's loop checks after every sample.
 
-    Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers (among
-    ``subset`` when given), the cameras of 3 or more points with no inlier (M,) bool)`` of
-    the batch's best model, the first of the lowest cost below the search's best; ``h`` -1
-    when no model beat it. The same best model as the batch's steps called one by one on the
-    samples drawn, bit for bit."""
+    Returns ``(samples drawn, h, cost, inliers (among ``subset`` when given))`` of the batch's
+    best model, the first of the lowest cost below the search's best, and writes into the
+    caller's ``out`` ``(errors (N,) px, R (3, 3), C (3,), the cameras of 3 or more points
+    with no inlier (M,) bool)`` its errors, model and missed cameras; ``h`` -1 when no model
+    beat it (``out`` then holds no model of this batch). The same best model as the batch's
+    steps called one by one on the samples drawn, bit for bit."""
     samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
     N = X.shape[0]
     b, P = np.empty((3, 3)), np.empty((3, 3))
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     R, C = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     z = np.zeros((1, 3))
-    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
+    e, v = np.empty(N), np.empty(N)
+    best_e, R_best, C_best, missed_best = out
     among = len(subset) if len(subset) else N
     found, n_best = -1, 0
-    missed_best = np.zeros(len(pool_counts), np.bool_)
-    R_best, C_best = np.eye(3), np.zeros(3)
     spread = missed.any()
     drawn = K
     for j in range(K):
@@ -325,13 +325,13 @@ def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, 
                 for h in range(q):
                     S[h] = samples[j]
             if r >= 1:
-                out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
+                sol, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
                 if not ok.any():
                     break
                 keep = np.flatnonzero(ok)
                 S = S[keep]
-                Cg = out[keep, 3:6]
-                Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
+                Cg = sol[keep, 3:6]
+                Rg = compose_rotvec(np.ascontiguousarray(sol[keep, 0:3]), Rg[keep])
                 if r < rounds:
                     continue
             for h in range(Rg.shape[0]):
@@ -340,13 +340,15 @@ def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, 
                 if c >= 0 and c < best_cost:
                     best_cost, found = c, h
                     best_e[:] = e
-                    R_best, C_best = Rg[h].copy(), Cg[h].copy()
-                    n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                    R_best[:] = Rg[h]
+                    C_best[:] = Cg[h]
+                    n_best, m = counted(e, k, cam, pool_counts, subset)
+                    missed_best[:] = m
                     needed = required_samples_kernel(n_best / among, 3, log_miss)
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
-    return drawn, found, best_cost, best_e, R_best, C_best, n_best, missed_best
+    return drawn, found, best_cost, n_best
 
 
 @njit(cache=True)
@@ -404,7 +406,8 @@ def batch_samples(u, cam, pool_counts, subset):
 
 @njit(cache=True)
 def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
-                 v2max, th2, k, pool_counts, best_cost, it0, min_it, needed, log_miss):  # fmt: skip
+                 v2max, th2, k, pool_counts, best_cost, it0, min_it, needed, log_miss,
+                 out):  # fmt: skip
     """One rolling-shutter batch of the compiled search without a gyro in one call, as
     :func:`still_batch` (its arguments, without ``missed`` and ``rounds``; its termination,
     at samples of 6 points): the samples' pre-rotations (Lambda Twist mapped to the rig, or
@@ -413,8 +416,8 @@ def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterati
     :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
     motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`~.rig._hypotheses`, then
     ``generate_models``' bounds), each sample's scored in turn. Returns :func:`still_batch`'s
-    outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
-    valid solutions of the samples drawn beyond the bounds; the rotations by the compiled
+    outputs and the number of valid solutions of the samples drawn beyond the bounds, ``out``
+    with the best model's ``w`` and ``t`` (3,) after its ``C``; the rotations by the compiled
     Rodrigues (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
     samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
     N = X.shape[0]
@@ -429,17 +432,16 @@ def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterati
         S = np.empty((len(own), 6), dtype=np.int64)
         for h in range(len(own)):
             S[h] = samples[own[h]]
-    out, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
+    sol, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
     H = len(ok)
-    R = compose_rotvec(np.ascontiguousarray(out[:, 0:3]), R0)
-    C = np.ascontiguousarray(out[:, 3:6])
-    w = np.ascontiguousarray(out[:, 6:9])
-    t = np.ascontiguousarray(out[:, 9:12])
-    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
+    R = compose_rotvec(np.ascontiguousarray(sol[:, 0:3]), R0)
+    C = np.ascontiguousarray(sol[:, 3:6])
+    w = np.ascontiguousarray(sol[:, 6:9])
+    t = np.ascontiguousarray(sol[:, 9:12])
+    e, v = np.empty(N), np.empty(N)
+    best_e, R_best, C_best, w_best, t_best, missed_best = out
     among = len(subset) if len(subset) else N
     found, n_best, beyond = -1, 0, 0
-    missed_best = np.zeros(len(pool_counts), np.bool_)
-    R_best, C_best, w_best, t_best = np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)
     h, drawn = 0, K
     for j in range(K):
         while h < H and own[h] == j:
@@ -455,9 +457,12 @@ def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterati
                     if c >= 0 and c < best_cost:
                         best_cost, found = c, h
                         best_e[:] = e
-                        R_best, C_best = R[h].copy(), C[h].copy()
-                        w_best, t_best = w[h].copy(), t[h].copy()
-                        n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                        R_best[:] = R[h]
+                        C_best[:] = C[h]
+                        w_best[:] = w[h]
+                        t_best[:] = t[h]
+                        n_best, m = counted(e, k, cam, pool_counts, subset)
+                        missed_best[:] = m
                         needed = required_samples_kernel(n_best / among, 6, log_miss)
                 else:
                     beyond += 1
@@ -465,8 +470,7 @@ def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterati
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
-    return (drawn, found, best_cost, best_e, R_best, C_best, w_best, t_best, n_best, missed_best,
-            beyond)  # fmt: skip
+    return drawn, found, best_cost, n_best, beyond
 
 
 @njit(cache=True)

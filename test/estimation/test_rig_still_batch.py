@@ -23,6 +23,14 @@ from rs_localizer.sim import synthetic as sim_rig
 _NO_STOP = (np.inf, 0, 2**62, np.inf, float(np.log(1e-4)))
 
 
+def _buffers(N, M, moving):
+    """A batch's output buffers (NaN, so that a value not written shows): errors (N,), R, C
+    (and w, t when ``moving``), missed cameras (M,)."""
+    f = [np.full(N, np.nan), np.full((3, 3), np.nan), np.full(3, np.nan)]
+    f += [np.full(3, np.nan), np.full(3, np.nan)] if moving else []
+    return (*f, np.zeros(M, dtype=bool))
+
+
 def _frame(seed, counts, turn_deg=0.0):
     """A global-shutter rig frame (equal stamps, 0.5 px noise, 20 % outliers) of
     ``len(counts)`` cameras; the last camera's given mounting turned ``turn_deg`` about y (its
@@ -76,11 +84,13 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     draws = np.random.default_rng(7 + seed).random(7 * K)
-    drawn, hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
+    out = _buffers(len(cam), len(counts), False)
+    drawn, hf, cf, n = still_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th, counts_all,
-        *_NO_STOP,
+        *_NO_STOP, out,
     )  # fmt: skip
+    ef, Rf, Cf, missed_f = out
     assert drawn == K and hf >= 0
     assert cf == pytest.approx(cost[h], rel=1e-12)
     np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
@@ -135,12 +145,13 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
         assert beyond > 0  # (the bounds drop some solutions)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     draws = np.random.default_rng(seed).random(7 * K)
-    out = moving_batch(
+    out = _buffers(len(cam), len(counts), True)
+    drawn, hf, cf, n, beyond_f = moving_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max**2,
-        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), *_NO_STOP,
+        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), *_NO_STOP, out,
     )  # fmt: skip
-    drawn, hf, cf, ef, Rf, Cf, wf, tf, n, _, beyond_f = out
+    ef, Rf, Cf, wf, tf, _ = out
     assert drawn == K and hf >= 0 and beyond_f == beyond
     assert cf == pytest.approx(cost[h], rel=1e-9)
     np.testing.assert_allclose(ef, e[h], rtol=1e-8, atol=1e-8)
@@ -165,14 +176,13 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     draws = np.random.default_rng(seed).random(7 * K)
     state = (np.inf, 0, min_it, np.inf, float(np.log(1 - 0.9999)))
     args = (draws, 0, K, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A)
+    out = _buffers(len(cam), len(counts), moving)
     if moving:
-        out = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th, th,
-                           pool_counts, *state)  # fmt: skip
-        drawn, hf, cf, n = out[0], out[1], out[2], out[8]
+        drawn, hf, cf, n, _ = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th,
+                                           th, pool_counts, *state, out)  # fmt: skip
     else:
-        out = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th, pool_counts,
-                          *state)  # fmt: skip
-        drawn, hf, cf, n = out[0], out[1], out[2], out[6]
+        drawn, hf, cf, n = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th,
+                                       pool_counts, *state, out)  # fmt: skip
     assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K)
     numpy_pool = rig_mod._Pool(views, numpy=True)
