@@ -943,25 +943,14 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
     return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
-def _bearings(pool: _Pool) -> np.ndarray:
-    """(N, 3) the pool's normalized points as bearings ``(x, y, 1)``, built once per pool."""
-    b = pool.__dict__.get("_bearing_rows")
-    if b is None:
-        b = np.empty((len(pool.x), 3))
-        b[:, :2] = pool.x
-        b[:, 2] = 1.0
-        pool._bearing_rows = b
-    return b
-
-
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
-        cam, Rm, cm, _ = _kernel_mountings(pool).views
-        R, C, own = lambda_twist_on_rig(_bearings(pool), pool.X, samples, cam, Rm, cm)
+        X, x, _, (cam, Rm, cm, _) = _kernel_arrays(pool)
+        R, C, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
     R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
@@ -1551,8 +1540,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
         [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
     )
     out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling",
-                   "_bearing_rows", "_bounds"):  # fmt: skip
+    for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling", "_bounds"):
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
@@ -1800,6 +1788,7 @@ class _RigSearch(RansacLoop):
         self._min_it, self._max_it = r.min_iterations, r.max_iterations
         self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
         self._drawn = 0  # (the seed's random draws the batches took)
+        self._out: tuple | None = None  # (:meth:`_batch`'s output buffers)
         self._n, self._missed = 0, self._no_missed
 
     @property
@@ -1860,31 +1849,50 @@ class _RigSearch(RansacLoop):
         if self._args is None:
             pool, subset = self.pool, self.subset
             X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
-            self._args = (_sampling_of(pool, subset), _NO_SUBSET if subset is None else subset,
-                          _bearings(pool), X, x, tau, cam, Rm, cm, A)  # fmt: skip
+            self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
             self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
-        u = self._draws[self._drawn : self._drawn + 7 * K].reshape((7, K))
-        self._drawn += 7 * K
-        state = np.array([self.score, self.iterations, self._min_it, self.needed, self._log_miss])
+        # (the kernels read the batch's draws at their offset in the stream and the search's
+        # state as scalars, and return Python ints and floats)
+        o = self._drawn
+        self._drawn = o + 7 * K
+        # (the batch's best errors, model and missed cameras are written into buffers, new
+        # ones after each batch that found a best model: the search keeps that model)
+        out = self._out
+        if out is None:
+            N, M = len(self.pool.cam), len(self._counts)
+            if self.still:
+                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(M, dtype=bool))
+            else:
+                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3),
+                       np.empty(M, dtype=bool))  # fmt: skip
+            self._out = out
         if self.still:
             missed = self._no_missed if self.missed is None else self.missed
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            drawn, h, cost, e, R, C, n, missed = still_batch(
-                u, *self._args, missed, rounds, self.th2, self.threshold_px, self._counts, state
+            drawn, h, cost, n = still_batch(
+                self._draws, o, K, *self._args, missed, rounds, self.th2, self.threshold_px,
+                self._counts, self.score, self.iterations, self._min_it, self.needed,
+                self._log_miss, out,
             )  # fmt: skip
             if h < 0:
-                return None, int(drawn)
+                return None, drawn
+            e, R, C, missed = out
             w, t = np.zeros(3), np.zeros(3)
         else:
             anchor = _NO_ANCHOR
             if self.anchored and self.best is not None:
                 anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            drawn, h, cost, e, R, C, w, t, n, missed, beyond = moving_batch(
-                u, *self._args, anchor, self.solver_iterations, self._w2max, self._v2max,
-                self.th2, self.threshold_px, self._counts, state,
+            drawn, h, cost, n, beyond = moving_batch(
+                self._draws, o, K, *self._args, anchor, self.solver_iterations, self._w2max,
+                self._v2max, self.th2, self.threshold_px, self._counts, self.score,
+                self.iterations, self._min_it, self.needed, self._log_miss, out,
             )  # fmt: skip
-            self.implausible += int(beyond)
-        return (None if h < 0 else (float(cost), (R, C, w, t), e, n, missed)), int(drawn)
+            self.implausible += beyond
+            if h < 0:
+                return None, drawn
+            e, R, C, w, t, missed = out
+        self._out = None
+        return (cost, (R, C, w, t), e, n, missed), drawn
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         pool = self.pool

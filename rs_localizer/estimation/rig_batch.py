@@ -33,6 +33,7 @@ from .scoring import mounted_pose, pose_error2
 
 __all__ = [
     "batch_samples",
+    "batch_sampling",
     "best_msac",
     "block_sum",
     "counted",
@@ -201,17 +202,18 @@ def sample_kernel(u, cdf, eligible, counts, starts, n):
 
 
 @njit(cache=True)
-def p3p_on_rig_into(bearings, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
+def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     """Lambda Twist (:func:`~rs_localizer.solvers.lambda_twist.lambda_twist`'s solutions, in
     its order) on the first 3 points of one ``sample`` (>= 3 pool indices) of the pool's
-    bearings (N, 3) and world points (N, 3), mapped to the rig through the first point's
+    normalized points (N, 2) (bearings ``(x, y, 1)``) and world points (N, 3), mapped to the
+    rig through the first point's
     camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)): the n <= 4 rotations
     and positions written to ``R[off:off + n]`` (3, 3) and ``C[off:off + n]`` (3,); returns
     n. ``b``, ``P`` (3, 3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers."""
     for j in range(3):
         i = sample[j]
+        b[j, 0], b[j, 1], b[j, 2] = x[i, 0], x[i, 1], 1.0
         for a in range(3):
-            b[j, a] = bearings[i, a]
             P[j, a] = X[i, a]
     n = lambda_twist_into(b, P, R_cam, C_cam, np.int64(0))
     c = cam[sample[0]]
@@ -232,9 +234,10 @@ def p3p_on_rig_into(bearings, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 
 
 
 @njit(cache=True)
-def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
+def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
     """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's bearings (N, 3) and world points (N, 3), mapped
+    of each sample (K, >= 3) of the pool's normalized points (N, 2) (bearings ``(x, y,
+    1)``) and world points (N, 3), mapped
     to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
     ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s
     (:func:`p3p_on_rig_into` sample by sample)."""
@@ -246,7 +249,7 @@ def lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm):
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     m = 0
     for k in range(K):
-        n = p3p_on_rig_into(bearings, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
+        n = p3p_on_rig_into(x, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
         for j in range(n):
             own[m + j] = k
         m += n
@@ -268,47 +271,47 @@ def counted(e, k, cam, pool_counts, subset):
 
 
 @njit(cache=True)
-def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed, rounds, th2,
-                k, pool_counts, state):  # fmt: skip
-    """One global-shutter batch of the compiled search in one call: :func:`~.rig._sample` from its
-    uniform draws ``u`` (7, K) (``sampling``: :func:`~.rig._sampling_of`'s ``(counts, starts,
-    eligible, cdf, n)``; ``subset`` (S,) the sorted pool indices sampled among, or empty: the
-    whole pool), :func:`~.rig._hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
+def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, th2, k,
+                pool_counts, best_cost, it0, min_it, needed, log_miss, out):  # fmt: skip
+    """One global-shutter batch of the compiled search in one call: K samples of
+    :func:`~.rig._sample` from the uniform draws ``draws[o:o + 7 K]`` (the random stream's, as
+    (7, K); :func:`batch_sampling`'s distribution over the pool's points, ``subset`` (S,) the
+    sorted pool indices sampled among, or empty: the whole pool; ``x`` (N, 2) the normalized
+    points), :func:`~.rig._hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
     (M,) bool any True, the samples with points in those cameras corrected ``rounds`` times
     by the rig solver with the velocities held at zero), each sample's models scored in turn
     (:func:`model_cost`, ``th2`` px^2) against the search's best, and its new best's inliers
     (errors below ``k`` px; ``pool_counts`` (M,): every camera's points in the pool).
 
-    ``state``: the search's ``(best cost (inf: none), samples drawn, min_iterations, samples
-    termination asks for, log(1 - confidence))``: the batch stops after the first sample at
+    ``best_cost`` (inf: none), ``it0`` (samples drawn), ``min_iterations``, ``needed``
+    (samples termination asks for), ``log_miss`` (log(1 - confidence)): the search's; the
+    batch stops after the first sample at
     which the samples drawn reach both ``min_iterations`` and what termination asks for at
     the best model's inlier ratio (:func:`~.ransac.required_samples`, updated at each new best), as
     PoseLib's loop checks after every sample.
 
-    Returns ``(samples drawn, h, cost, errors (N,) px, R (3, 3), C (3,), inliers (among
-    ``subset`` when given), the cameras of 3 or more points with no inlier (M,) bool)`` of
-    the batch's best model, the first of the lowest cost below the search's best; ``h`` -1
-    when no model beat it. The same best model as the batch's steps called one by one on the
-    samples drawn, bit for bit."""
-    counts = sampling[0]
-    samples = batch_samples(u, sampling, subset)
-    K, N = samples.shape[0], X.shape[0]
+    Returns ``(samples drawn, h, cost, inliers (among ``subset`` when given))`` of the batch's
+    best model, the first of the lowest cost below the search's best, and writes into the
+    caller's ``out`` ``(errors (N,) px, R (3, 3), C (3,), the cameras of 3 or more points
+    with no inlier (M,) bool)`` its errors, model and missed cameras; ``h`` -1 when no model
+    beat it (``out`` then holds no model of this batch). The same best model as the batch's
+    steps called one by one on the samples drawn, bit for bit."""
+    samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
+    N = X.shape[0]
     b, P = np.empty((3, 3)), np.empty((3, 3))
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     R, C = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     z = np.zeros((1, 3))
-    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
-    best_cost, it0, min_it, needed, log_miss = state[0], state[1], state[2], state[3], state[4]
+    e, v = np.empty(N), np.empty(N)
+    best_e, R_best, C_best, missed_best = out
     among = len(subset) if len(subset) else N
     found, n_best = -1, 0
-    missed_best = np.zeros(len(counts), np.bool_)
-    R_best, C_best = np.eye(3), np.zeros(3)
     spread = missed.any()
     drawn = K
     for j in range(K):
         # the sample's P3P models (solved as it is drawn), then (a point in a missed camera)
         # their corrections
-        q = p3p_on_rig_into(bearings, X, samples[j], cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
+        q = p3p_on_rig_into(x, X, samples[j], cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
         Rg, Cg = R[:q], C[:q]
         for r in range(rounds + 1 if spread and q > 0 else 1):
             if r == 1:
@@ -322,13 +325,13 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
                 for h in range(q):
                     S[h] = samples[j]
             if r >= 1:
-                out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
+                sol, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
                 if not ok.any():
                     break
                 keep = np.flatnonzero(ok)
                 S = S[keep]
-                Cg = out[keep, 3:6]
-                Rg = compose_rotvec(np.ascontiguousarray(out[keep, 0:3]), Rg[keep])
+                Cg = sol[keep, 3:6]
+                Rg = compose_rotvec(np.ascontiguousarray(sol[keep, 0:3]), Rg[keep])
                 if r < rounds:
                     continue
             for h in range(Rg.shape[0]):
@@ -337,20 +340,62 @@ def still_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, missed
                 if c >= 0 and c < best_cost:
                     best_cost, found = c, h
                     best_e[:] = e
-                    R_best, C_best = Rg[h].copy(), Cg[h].copy()
-                    n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                    R_best[:] = Rg[h]
+                    C_best[:] = Cg[h]
+                    n_best, m = counted(e, k, cam, pool_counts, subset)
+                    missed_best[:] = m
                     needed = required_samples_kernel(n_best / among, 3, log_miss)
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
-    return drawn, found, best_cost, best_e, R_best, C_best, n_best, missed_best
+    return drawn, found, best_cost, n_best
 
 
 @njit(cache=True)
-def batch_samples(u, sampling, subset):
-    """:func:`sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) and
-    :func:`~.rig._sampling_of`'s ``sampling``, mapped through ``subset`` when it is not empty."""
-    counts, starts, eligible, cdf, n = sampling
+def batch_sampling(cam, pool_counts, subset):
+    """:func:`~.rig._sampling_of` compiled: :func:`~.rig._sample`'s distribution over a pool
+    stacked by camera (``cam`` (N,) each point's camera, ``pool_counts`` (M,) each camera's
+    points), among the pool indices ``subset`` when it is not empty: ``(counts (M,), starts
+    (M,), eligible cameras (at least 3 points), cdf over them, n)``, the same numbers (the
+    cdf's quotients summed in order, then divided by the last)."""
+    M = len(pool_counts)
+    counts = np.zeros(M, dtype=np.int64)
+    if len(subset):
+        for i in subset:
+            counts[cam[i]] += 1
+        n = len(subset)
+    else:
+        counts[:] = pool_counts
+        n = len(cam)
+    starts = np.empty(M, dtype=np.int64)
+    a, m, total = 0, 0, 0
+    for c in range(M):
+        starts[c] = a
+        a += counts[c]
+        if counts[c] >= 3:
+            m += 1
+            total += counts[c]
+    eligible = np.empty(m, dtype=np.int64)
+    cdf = np.empty(m)
+    acc, j = 0.0, 0
+    for c in range(M):
+        if counts[c] >= 3:
+            eligible[j] = c
+            acc += counts[c] / total
+            cdf[j] = acc
+            j += 1
+    if m:
+        last = cdf[m - 1]
+        for j in range(m):
+            cdf[j] = cdf[j] / last
+    return counts, starts, eligible, cdf, n
+
+
+@njit(cache=True)
+def batch_samples(u, cam, pool_counts, subset):
+    """:func:`sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) on
+    :func:`batch_sampling`'s distribution, mapped through ``subset`` when it is not empty."""
+    counts, starts, eligible, cdf, n = batch_sampling(cam, pool_counts, subset)
     samples = sample_kernel(u, cdf, eligible, counts, starts, n)
     if len(subset):
         for a in range(samples.shape[0]):
@@ -360,8 +405,9 @@ def batch_samples(u, sampling, subset):
 
 
 @njit(cache=True)
-def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, anchor, iterations,
-                  w2max, v2max, th2, k, pool_counts, state):  # fmt: skip
+def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
+                 v2max, th2, k, pool_counts, best_cost, it0, min_it, needed, log_miss,
+                 out):  # fmt: skip
     """One rolling-shutter batch of the compiled search without a gyro in one call, as
     :func:`still_batch` (its arguments, without ``missed`` and ``rounds``; its termination,
     at samples of 6 points): the samples' pre-rotations (Lambda Twist mapped to the rig, or
@@ -370,12 +416,11 @@ def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, ancho
     :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
     motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`~.rig._hypotheses`, then
     ``generate_models``' bounds), each sample's scored in turn. Returns :func:`still_batch`'s
-    outputs with the best model's ``w`` and ``t`` (3,) after its ``C``, and the number of
-    valid solutions of the samples drawn beyond the bounds; the rotations by the compiled
+    outputs and the number of valid solutions of the samples drawn beyond the bounds, ``out``
+    with the best model's ``w`` and ``t`` (3,) after its ``C``; the rotations by the compiled
     Rodrigues (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
-    counts = sampling[0]
-    samples = batch_samples(u, sampling, subset)
-    K, N = samples.shape[0], X.shape[0]
+    samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
+    N = X.shape[0]
     if anchor.shape[0]:
         R0 = np.empty((K, 3, 3))
         for h in range(K):
@@ -383,22 +428,20 @@ def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, ancho
         S = samples
         own = np.arange(K)
     else:
-        R0, _, own = lambda_twist_on_rig(bearings, X, samples, cam, Rm, cm)
+        R0, _, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
         S = np.empty((len(own), 6), dtype=np.int64)
         for h in range(len(own)):
             S[h] = samples[own[h]]
-    out, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
+    sol, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
     H = len(ok)
-    R = compose_rotvec(np.ascontiguousarray(out[:, 0:3]), R0)
-    C = np.ascontiguousarray(out[:, 3:6])
-    w = np.ascontiguousarray(out[:, 6:9])
-    t = np.ascontiguousarray(out[:, 9:12])
-    e, v, best_e = np.empty(N), np.empty(N), np.zeros(N)
-    best_cost, it0, min_it, needed, log_miss = state[0], state[1], state[2], state[3], state[4]
+    R = compose_rotvec(np.ascontiguousarray(sol[:, 0:3]), R0)
+    C = np.ascontiguousarray(sol[:, 3:6])
+    w = np.ascontiguousarray(sol[:, 6:9])
+    t = np.ascontiguousarray(sol[:, 9:12])
+    e, v = np.empty(N), np.empty(N)
+    best_e, R_best, C_best, w_best, t_best, missed_best = out
     among = len(subset) if len(subset) else N
     found, n_best, beyond = -1, 0, 0
-    missed_best = np.zeros(len(counts), np.bool_)
-    R_best, C_best, w_best, t_best = np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)
     h, drawn = 0, K
     for j in range(K):
         while h < H and own[h] == j:
@@ -414,9 +457,12 @@ def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, ancho
                     if c >= 0 and c < best_cost:
                         best_cost, found = c, h
                         best_e[:] = e
-                        R_best, C_best = R[h].copy(), C[h].copy()
-                        w_best, t_best = w[h].copy(), t[h].copy()
-                        n_best, missed_best = counted(e, k, cam, pool_counts, subset)
+                        R_best[:] = R[h]
+                        C_best[:] = C[h]
+                        w_best[:] = w[h]
+                        t_best[:] = t[h]
+                        n_best, m = counted(e, k, cam, pool_counts, subset)
+                        missed_best[:] = m
                         needed = required_samples_kernel(n_best / among, 6, log_miss)
                 else:
                     beyond += 1
@@ -424,8 +470,7 @@ def moving_batch(u, sampling, subset, bearings, X, x, tau, cam, Rm, cm, A, ancho
         if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
             drawn = j + 1
             break
-    return (drawn, found, best_cost, best_e, R_best, C_best, w_best, t_best, n_best, missed_best,
-            beyond)  # fmt: skip
+    return drawn, found, best_cost, n_best, beyond
 
 
 @njit(cache=True)

@@ -13,14 +13,22 @@ import pytest
 from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
-from rs_localizer.estimation.rig_batch import moving_batch, still_batch
+from rs_localizer.estimation.rig_batch import batch_sampling, moving_batch, still_batch
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import synthetic as sim_rig
 
 #: a batch's search state of no best model and no termination before its last sample:
 #: ``(best cost, samples drawn, min_iterations, samples asked for, log(1 - confidence))``
-_NO_STOP = np.array([np.inf, 0.0, np.inf, np.inf, np.log(1e-4)])
+_NO_STOP = (np.inf, 0, 2**62, np.inf, float(np.log(1e-4)))
+
+
+def _buffers(N, M, moving):
+    """A batch's output buffers (NaN, so that a value not written shows): errors (N,), R, C
+    (and w, t when ``moving``), missed cameras (M,)."""
+    f = [np.full(N, np.nan), np.full((3, 3), np.nan), np.full(3, np.nan)]
+    f += [np.full(3, np.nan), np.full(3, np.nan)] if moving else []
+    return (*f, np.zeros(M, dtype=bool))
 
 
 def _frame(seed, counts, turn_deg=0.0):
@@ -75,13 +83,14 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     assert (len(hyp[0]) > n_p3p) == (m is not None)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     counts_all = np.bincount(pool.cam, minlength=len(counts))
-    u = np.random.default_rng(7 + seed).random(7 * K).reshape(7, K)
-    drawn, hf, cf, ef, Rf, Cf, n, missed_f = still_batch(
-        u, rig_mod._sampling_of(pool, subset),
-        rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
-        cam, Rm, cm, A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th,
-        counts_all, _NO_STOP,
+    draws = np.random.default_rng(7 + seed).random(7 * K)
+    out = _buffers(len(cam), len(counts), False)
+    drawn, hf, cf, n = still_batch(
+        draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
+        A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th, counts_all,
+        *_NO_STOP, out,
     )  # fmt: skip
+    ef, Rf, Cf, missed_f = out
     assert drawn == K and hf >= 0
     assert cf == pytest.approx(cost[h], rel=1e-12)
     np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
@@ -135,15 +144,14 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     if w_max < np.inf:
         assert beyond > 0  # (the bounds drop some solutions)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
-    u = np.random.default_rng(seed).random(7 * K).reshape(7, K)
-    out = moving_batch(
-        u, rig_mod._sampling_of(pool, subset),
-        rig_mod._NO_SUBSET if subset is None else subset, rig_mod._bearings(pool), X, x, tau,
-        cam, Rm, cm, A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations,
-        w_max**2, v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)),
-        _NO_STOP,
+    draws = np.random.default_rng(seed).random(7 * K)
+    out = _buffers(len(cam), len(counts), True)
+    drawn, hf, cf, n, beyond_f = moving_batch(
+        draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
+        A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max**2,
+        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), *_NO_STOP, out,
     )  # fmt: skip
-    drawn, hf, cf, ef, Rf, Cf, wf, tf, n, _, beyond_f = out
+    ef, Rf, Cf, wf, tf, _ = out
     assert drawn == K and hf >= 0 and beyond_f == beyond
     assert cf == pytest.approx(cost[h], rel=1e-9)
     np.testing.assert_allclose(ef, e[h], rtol=1e-8, atol=1e-8)
@@ -165,17 +173,16 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     pool = rig_mod._Pool(views)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     pool_counts = np.bincount(pool.cam, minlength=len(counts))
-    u = np.random.default_rng(seed).random(7 * K).reshape(7, K)
-    state = np.array([np.inf, 0.0, min_it, np.inf, np.log(1 - 0.9999)])
-    args = (u, rig_mod._sampling_of(pool, None), rig_mod._NO_SUBSET, rig_mod._bearings(pool), X,
-            x, tau, cam, Rm, cm, A)  # fmt: skip
+    draws = np.random.default_rng(seed).random(7 * K)
+    state = (np.inf, 0, min_it, np.inf, float(np.log(1 - 0.9999)))
+    args = (draws, 0, K, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A)
+    out = _buffers(len(cam), len(counts), moving)
     if moving:
-        out = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th, th,
-                           pool_counts, state)  # fmt: skip
-        drawn, hf, cf, n = out[0], out[1], out[2], out[8]
+        drawn, hf, cf, n, _ = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th,
+                                           th, pool_counts, *state, out)  # fmt: skip
     else:
-        out = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th, pool_counts, state)
-        drawn, hf, cf, n = out[0], out[1], out[2], out[6]
+        drawn, hf, cf, n = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th,
+                                       pool_counts, *state, out)  # fmt: skip
     assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K)
     numpy_pool = rig_mod._Pool(views, numpy=True)
@@ -196,3 +203,19 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     if drawn > min_it:
         n_before = best_of(drawn - 1)[1]
         assert drawn - 1 < required_iterations(n_before / len(pool.cam), s, 0.9999)
+
+
+@pytest.mark.parametrize(("counts", "every"), [((30, 24, 12), 0), ((16, 2, 20), 3), ((5, 4), 2)])
+def test_the_compiled_sampling_distribution_is_the_pools(counts, every):
+    """``batch_sampling`` (computed in each compiled batch) gives ``_sampling_of``'s counts,
+    starts, eligible cameras, cdf and point count, bit for bit, over the whole pool or a
+    subset (every point but each ``every``-th)."""
+    pool = rig_mod._Pool(_frame(31, counts))
+    subset = np.flatnonzero(np.arange(len(pool.cam)) % every != 1) if every else None
+    got = batch_sampling(pool.cam, np.bincount(pool.cam, minlength=len(counts)),
+                         rig_mod._NO_SUBSET if subset is None else subset)  # fmt: skip
+    want = rig_mod._sampling_of(pool, subset)
+    for g, w in zip(got[:4], want[:4], strict=True):
+        np.testing.assert_array_equal(g, w)
+        assert g.dtype == w.dtype
+    assert got[4] == want[4]
