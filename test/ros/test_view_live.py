@@ -52,6 +52,13 @@ CHANNELS = {
 REPLAY_OUTPUTS = ("pose", "path", "markers", "debug_image")
 
 
+def _ctrl_c_stops() -> None:
+    """(In the child before it runs:) SIGINT at its default, so that Ctrl-C stops the command as
+    in a terminal even when the tests run with SIGINT ignored (a background job of a
+    non-interactive shell passes that on to every process it starts)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _need_foxglove():
     from rs_localizer.ros.view import foxglove_available
 
@@ -217,6 +224,7 @@ def node_live(tmp_path_factory, ros_domain, sample_images_bag):
                     stdout=subprocess.PIPE,
                     stderr=subprocess.STDOUT,
                     text=True,
+                    preexec_fn=_ctrl_c_stops,
                 )
                 reader = threading.Thread(
                     target=lambda: diag_lines.extend(iter(diag.stdout.readline, "")), daemon=True
