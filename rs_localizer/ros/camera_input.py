@@ -53,6 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DROP_REASONS",
+    "STAGES",
     "CameraCounts",
     "CameraInput",
     "DroppedFrame",
@@ -61,6 +62,10 @@ __all__ = [
     "rig_camera_inputs",
     "to_rig",
 ]
+
+#: the worker's stages of a frame whose times a camera's counts keep
+#: (:meth:`CameraCounts.stage_time`; the diagnostics' ``<stage>_ms_median``)
+STAGES = ("decode", "frontend", "estimate", "publish")
 
 #: the reasons :class:`CameraInput` drops a frame message for. The single camera's
 #: (``failed.<reason>``): ``bad_stamp``, ``empty_cloud``, ``no_camera_info``, a cloud's
@@ -89,8 +94,10 @@ class CameraCounts:
     """One camera's counters (thread-safe), the same for the single-camera node (its
     :class:`~rs_localizer.ros.pipeline.PipelineStats`), each camera of the rig node and of a rig
     bag's ``replay``: counts by key (each key written once, here, without the camera's
-    prefix), the messages the middleware lost per input and the last ``kept`` times (s) of the
-    camera's frames. :attr:`prefix` is what its keys carry in a report of many cameras:
+    prefix), the messages the middleware lost per input, the last ``kept`` times (s) of the
+    camera's frames and the last ``kept`` times (s) per stage of :data:`STAGES`
+    (:meth:`stage_time`: the single camera's frames, or a rig's worker's). :attr:`prefix` is
+    what its keys carry in a report of many cameras:
     ``<name>.``, or "" for the single camera (``name`` "").
 
     Typical keys: ``received``, ``solved`` (the single camera's), ``skipped.<reason>``,
@@ -106,6 +113,7 @@ class CameraCounts:
         self._counts: Counter = Counter()
         self._lost: dict[str, int] = {}
         self._times: deque[float] = deque(maxlen=kept)
+        self._stages = {k: deque(maxlen=kept) for k in STAGES}
 
     def add(self, key: str, n: int = 1) -> None:
         """Add ``n`` to the counter ``key``."""
@@ -155,6 +163,16 @@ class CameraCounts:
     def prefixed(self) -> dict[str, int]:
         """:meth:`counts` with each key after :attr:`prefix`."""
         return {self.prefix + k: v for k, v in self.counts().items()}
+
+    def stage_time(self, stage: str, seconds: float) -> None:
+        """Record the time (s) a frame spent in ``stage`` (one of :data:`STAGES`)."""
+        with self._lock:
+            self._stages[stage].append(seconds)
+
+    def stage_times(self) -> dict[str, list[float]]:
+        """A consistent copy of the kept stage times: stage -> s, oldest first."""
+        with self._lock:
+            return {k: list(d) for k, d in self._stages.items()}
 
     def frame_times(self) -> list[float]:
         """The kept frame times (s), oldest first."""

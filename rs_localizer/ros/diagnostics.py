@@ -7,7 +7,8 @@ frames: one :class:`~rs_localizer.ros.frame_queue.FrameCounts`) and a section pe
 each rig camera's ``<c>.*``), from which it takes the keys' order, the level and the message
 (one rule; a camera alone is solved in frames, any other set of cameras in rig frames);
 shared by both: the estimator's path, the map-fit check, the timing keys
-(:func:`timing_values`, the stage times of :class:`StageTimes`) and the gyro's values
+(:func:`timing_values`, the stage times a camera's counts keep,
+:meth:`~.camera_input.CameraCounts.stage_time`) and the gyro's values
 (:class:`GyroState`). Each mode gives its inputs to it: one camera
 (:func:`diagnostic_status`, its pipeline's counters) and a rig (:func:`rig_diagnostics`: the
 rig frames' counts and each camera's lines of grouping, disagreement, mounting and clock
@@ -15,8 +16,7 @@ offsets, the rig's own)."""
 
 from __future__ import annotations
 
-import threading
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -39,12 +39,10 @@ __all__ = [
     "FRAME_ACCOUNTING",
     "IMU_IDLE_WARN_S",
     "OK",
-    "STAGES",
     "WARN",
     "CameraPart",
     "GyroState",
     "RigInputs",
-    "StageTimes",
     "StatusParts",
     "camera_section",
     "diagnostic_status",
@@ -73,46 +71,6 @@ OFF_CLOCK_S = 60.0
 
 def _median_ms(seconds: Sequence[float]) -> str:
     return f"{np.median(seconds) * 1e3:.3f}" if len(seconds) else "nan"
-
-
-#: the worker's stages whose times a status gives (``<stage>_ms_median``; ``frontend`` only
-#: with a front end)
-STAGES = ("decode", "frontend", "estimate", "publish")
-
-
-class StageTimes:
-    """The worker's times per stage of :data:`STAGES` (s, the last ``kept`` of each;
-    thread-safe): the rig mode's (a camera's are its pipeline's,
-    :class:`~rs_localizer.ros.pipeline.PipelineStats`). A status gives their medians
-    (:func:`status`)."""
-
-    def __init__(self, kept: int = 1000):
-        self._lock = threading.Lock()
-        self._times = {k: deque(maxlen=kept) for k in STAGES}
-
-    def add(self, stage: str, seconds: float) -> None:
-        """Record the time (s) a frame spent in ``stage`` (one of :data:`STAGES`)."""
-        with self._lock:
-            self._times[stage].append(seconds)
-
-    def camera_frame(self, tic: float, taken_at: float, frontend_s: float | None, posed: bool,
-                     toc: float) -> None:  # fmt: skip
-        """A rig camera's frame through the worker (:func:`time.perf_counter` s): taken by
-        its input stage from ``tic`` to ``taken_at`` (``decode``: decoding, its stamp and
-        camera_info), then the rig until ``toc``: the front end's ``frontend_s`` on an image
-        (None: not searched) and, when it completed a posed rig frame (``posed``), the rest
-        (``estimate``: grouping, the rig's estimate, its gyro wait and tracking)."""
-        with self._lock:
-            self._times["decode"].append(taken_at - tic)
-            if frontend_s is not None:
-                self._times["frontend"].append(frontend_s)
-            if posed:
-                self._times["estimate"].append(toc - taken_at - (frontend_s or 0.0))
-
-    def snapshot(self) -> dict[str, list[float]]:
-        """A consistent copy: stage -> its times (s), oldest first."""
-        with self._lock:
-            return {k: list(d) for k, d in self._times.items()}
 
 
 def timing_values(latencies: Sequence[float], stamp_ages: Sequence[float]) -> dict[str, Any]:
@@ -363,7 +321,8 @@ class StatusParts:
     with ``map_fit`` (counts) the map-fit check's ``<unit>_failed_with_matches`` and
     ``map_fit_doubtful``; ``tracking``; the timing keys: with ``timing`` (``(latencies,
     stamp_ages)``, s) :func:`timing_values`, with ``stage_times`` (stage -> s,
-    :data:`STAGES`) each stage's ``<stage>_ms_median`` (``frontend`` only ``with_frontend``),
+    :data:`~.camera_input.STAGES`) each stage's ``<stage>_ms_median`` (``frontend`` only
+    ``with_frontend``),
     ``times`` (the worker's other times); ``frontend``; with ``gyro`` its values
     (:func:`_imu_values`); the failures by reason (a camera alone's ``failed.<reason>`` and
     ``camera_info_rejected.<reason>``; a rig's ``rig_frames_failed.<reason>``); each rig
@@ -612,8 +571,8 @@ class RigInputs:
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
     rig), ``bad_input`` (camera -> clouds not read), ``imu_rejected`` (reason
     -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
-    ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per stage,
-    :meth:`StageTimes.snapshot`)."""
+    ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per stage: the
+    rig's counts', :meth:`~.camera_input.CameraCounts.stage_times`)."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
     latencies: Sequence[float] = ()
@@ -654,10 +613,10 @@ def rig_diagnostics(
     as a camera's: WARN while suspect), the single-camera node's timing keys
     (:func:`timing_values`; the stage times ``decode_ms_median``, ``frontend_ms_median`` with
     a front end, ``estimate_ms_median``, ``publish_ms_median`` of the worker's
-    :class:`StageTimes`: a camera frame's input stage, the front end on an image, a posed rig
-    frame's grouping, estimate and tracking, its publishing) and ``camera_frame_ms_median``;
-    with a gyro the single-camera
-    node's gyro values, the rig frames for its frames (``imu_rate_hz``,
+    (:meth:`~.camera_input.CameraCounts.stage_time`): a camera frame's input stage, the front
+    end on an image, a posed rig frame's grouping, estimate and tracking, its publishing) and
+    ``camera_frame_ms_median``; with a gyro the single-camera node's gyro values, the rig
+    frames for its frames (``imu_rate_hz``,
     ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing``, ``imu_rejected``,
     ``imu_idle_s``, ``gyro_bias`` and ``gyro_bias_std`` (rad/s, IMU frame),
     ``gyro_bias_rejected``, ``gyro_inconsistent`` (``true`` while the rotation between rig

@@ -289,23 +289,15 @@ class PipelineStats(CameraCounts):
     counts none of them); time_resets,
     points_dropped, capped_clouds, capped_points, unknown_landmark_ids,
     camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames,
-    frames_beside_frontend, ...; the messages lost per input), the last 1000 inlier counts
-    and stage times (s: decode, frontend, estimate, publish), the planarity of the last pose
+    frames_beside_frontend, ...; the messages lost per input; the stage times, s: decode,
+    frontend, estimate, publish), the last 1000 inlier counts, the planarity of the last pose
     and the front end's last correspondence count."""
 
     def __init__(self):
         super().__init__("", kept=_STATS_KEPT)
         self._inliers: deque[int] = deque(maxlen=_STATS_KEPT)
-        self._stages = {
-            k: deque(maxlen=_STATS_KEPT) for k in ("decode", "frontend", "estimate", "publish")
-        }
         self._planar = (False, float("nan"))
         self._frontend_last = 0
-
-    def stage_time(self, stage: str, seconds: float) -> None:
-        """Record the time (s) a frame spent in ``stage``."""
-        with self._lock:
-            self._stages[stage].append(seconds)
 
     def solved(self, inliers: int, planar: bool, condition_number: float) -> None:
         """Record a solved frame's inlier count and the planarity of its points."""

@@ -105,7 +105,7 @@ from .config import (
 )
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_dynamic, declare_parameters
-from .diagnostics import RigInputs, StageTimes, rig_diagnostics
+from .diagnostics import RigInputs, rig_diagnostics
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import (
@@ -118,7 +118,7 @@ from .pipeline import (
 )
 from .visualization import rig_camera_views
 
-__all__ = ["RigMode", "rig_diagnostics"]
+__all__ = ["RigMode", "note_camera_frame", "rig_diagnostics"]
 
 
 INPUT_SKIP_REASONS = {
@@ -129,6 +129,21 @@ INPUT_SKIP_REASONS = {
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own
 :data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
+
+
+def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
+                      frontend_s: float | None, posed: bool, toc: float) -> None:  # fmt: skip
+    """A rig camera's frame through the worker (:func:`time.perf_counter` s), its times per
+    stage in the rig's ``counts`` (:meth:`.camera_input.CameraCounts.stage_time`): taken by
+    its input stage from ``tic`` to ``taken_at`` (``decode``: decoding, its stamp and
+    camera_info), then the rig until ``toc``: the front end's ``frontend_s`` on an image (None:
+    not searched) and, when it completed a posed rig frame (``posed``), the rest
+    (``estimate``: grouping, the rig's estimate, its gyro wait and tracking)."""
+    counts.stage_time("decode", taken_at - tic)
+    if frontend_s is not None:
+        counts.stage_time("frontend", frontend_s)
+    if posed:
+        counts.stage_time("estimate", toc - taken_at - (frontend_s or 0.0))
 
 
 class RigMode:
@@ -212,8 +227,8 @@ class RigMode:
         node.queue_size = int(single.queue_size)
         node.republish = bool(single.republish_correspondences)
         self._group_ns = int(self.config.settings.window * 1e9)
-        self._rig_counts = CameraCounts()  # (the worker's map-fit check over the rig frames)
-        self._stages = StageTimes()  # (the worker's times per stage)
+        # (the worker's map-fit check over the rig frames, its times per stage)
+        self._rig_counts = CameraCounts()
         # each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``: its frames
         # received, handed on, skipped or failed before the rig, its input stage's counts, its
         # messages lost, the worker's time per frame) and its input (its camera_infos by
@@ -436,7 +451,7 @@ class RigMode:
         as a cloud's, the non-finite ones dropped and the rest capped to ``max_points``,
         counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
         image kept for ``debug_image`` while someone watches. The frame's times per stage go
-        to the diagnostics (:meth:`.diagnostics.StageTimes.camera_frame`)."""
+        to the diagnostics (:func:`note_camera_frame`)."""
         if kind == "image":
             self._warn_no_info(name, "images")
         stamp = ft.stamp_ns
@@ -445,8 +460,8 @@ class RigMode:
             self.rig, msg, kind, stamp, camera, ft.reference_ns
         )
         search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
-        self._stages.camera_frame(tic, taken_at, search and search.seconds,
-                                  any(o.success for o in outs), time.perf_counter())  # fmt: skip
+        note_camera_frame(self._rig_counts, tic, taken_at, search and search.seconds,
+                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
         if isinstance(item, DroppedFrame):
             self._not_taken(kind, item)
         elif kind != "image":
@@ -486,7 +501,7 @@ class RigMode:
             if out.success:
                 self.node.record_timing(item.arrived, out.stamp_ns)
         if any(o.success for o in taken.outs):
-            self._stages.add("publish", time.perf_counter() - tic)
+            self._rig_counts.stage_time("publish", time.perf_counter() - tic)
 
     def _check_map_fit(self, out: LocalizerOutput) -> None:
         """The single-camera node's map-fit check over the rig frames
@@ -603,6 +618,6 @@ class RigMode:
             inputs = RigInputs(counts, latencies, stamp_ages, frame_times, bad_input,
                                dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
-                               self._stages.snapshot())  # fmt: skip
+                               self._rig_counts.stage_times())  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
         return self.config.base_frame, level, message, values

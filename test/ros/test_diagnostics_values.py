@@ -21,16 +21,18 @@ def test_stage_times_of_a_rig_cameras_frame():
     """A rig camera's frame through the worker: its input stage (``decode``) from the start to
     its taking, the front end's own time on an image, and the rest of the rig's time
     (``estimate``) only when it completed a posed rig frame; publishing apart."""
-    from rs_localizer.ros.diagnostics import StageTimes
+    from rs_localizer.ros.camera_input import CameraCounts
+    from rs_localizer.ros.rig_node import note_camera_frame
 
-    st = StageTimes(kept=2)
-    st.camera_frame(10.0, 10.25, None, False, 10.5)  # (a cloud, no rig frame posed)
-    st.camera_frame(20.0, 20.5, 0.125, True, 21.0)  # (an image completing a posed rig frame)
-    st.add("publish", 0.0625)
-    assert st.snapshot() == {"decode": [0.25, 0.5], "frontend": [0.125], "estimate": [0.375],
-                             "publish": [0.0625]}  # fmt: skip
-    st.camera_frame(30.0, 30.75, 0.0, True, 31.0)  # (kept: the last two of each)
-    assert st.snapshot()["decode"] == [0.5, 0.75] and st.snapshot()["estimate"] == [0.375, 0.25]
+    st = CameraCounts(kept=2)
+    note_camera_frame(st, 10.0, 10.25, None, False, 10.5)  # (a cloud, no rig frame posed)
+    note_camera_frame(st, 20.0, 20.5, 0.125, True, 21.0)  # (an image completing a posed one)
+    st.stage_time("publish", 0.0625)
+    assert st.stage_times() == {"decode": [0.25, 0.5], "frontend": [0.125], "estimate": [0.375],
+                                "publish": [0.0625]}  # fmt: skip
+    note_camera_frame(st, 30.0, 30.75, 0.0, True, 31.0)  # (kept: the last two of each)
+    assert st.stage_times()["decode"] == [0.5, 0.75]
+    assert st.stage_times()["estimate"] == [0.375, 0.25]
 
 
 def test_stamp_age_leaves_out_stamps_of_another_clock():

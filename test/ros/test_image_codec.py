@@ -295,8 +295,7 @@ def _rig_node_decode(msg, cam):
     model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same
     form."""
     from rs_localizer.camera import FrameTime
-    from rs_localizer.ros.camera_input import CameraInput
-    from rs_localizer.ros.diagnostics import StageTimes
+    from rs_localizer.ros.camera_input import CameraCounts, CameraInput
     from rs_localizer.ros.rig_node import RigMode
 
     got, logged = [], []
@@ -321,7 +320,7 @@ def _rig_node_decode(msg, cam):
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
     mode = RigMode(SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}))
-    mode.rig, mode._images, mode._stages = Rig(), {}, StageTimes()
+    mode.rig, mode._images, mode._rig_counts = Rig(), {}, CameraCounts()
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
