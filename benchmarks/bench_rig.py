@@ -9,7 +9,7 @@ camera (20 % outliers, 0.5 px noise). Each frame is estimated by
 * ``rig``: :func:`rs_localizer.estimation.rig.estimate_rig_pose` on every camera at once;
 * ``camera <name>``: :func:`rs_localizer.estimation.estimate_rs_pose` (``r6p_1lin``) on that
   camera alone, its pose mapped to the rig through the mounting
-  (:func:`~rs_localizer.estimation.rig.rig_model_of_camera`);
+  (:func:`~rs_localizer.estimation.result.rig_model_of_camera`);
 * ``cameras averaged``: the rig poses of the cameras alone averaged (chordal mean of the
   rotations, mean of the positions and of the angular velocities);
 * ``PoseLib generalized GS``: PoseLib's ``estimate_generalized_absolute_pose`` (gP3P, global
@@ -49,7 +49,8 @@ from dataclasses import replace
 import numpy as np
 
 from rs_localizer.estimation import EstimateOptions, GyroMeasurement, estimate_rs_pose
-from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose, rig_model_of_camera
+from rs_localizer.estimation.result import rig_model_of_camera
+from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
@@ -181,7 +182,7 @@ def few_points(frames: int, seed: int = 0, counts=(20, 3)) -> dict:
     """A 2-camera rig whose cameras see ``counts`` points (10 % outliers): returns {"posed":
     frames the rig posed, "frames", "rig": (F, 2) and "alone": (F, 2) camera 0's rotation (deg)
     and centre (cm) errors at its reference line from the rig and alone (inf: not posed)}."""
-    from rs_localizer.estimation.rig import camera_model_of_rig
+    from rs_localizer.estimation.result import camera_model_of_rig
 
     rng = np.random.default_rng(seed + 77)
     posed, rig_err, one_err = 0, [], []

@@ -14,7 +14,7 @@ reference line). Each rig frame is estimated by
 * ``rig``: :func:`rs_localizer.estimation.rig.estimate_rig_pose` on every camera at once;
 * ``camera <name>``: :func:`rs_localizer.estimation.estimate_rs_pose` (``r6p_1lin``) on that
   camera alone, mapped to the rig through its mounting
-  (:func:`~rs_localizer.estimation.rig.rig_model_of_camera`);
+  (:func:`~rs_localizer.estimation.result.rig_model_of_camera`);
 * ``cameras averaged``: the cameras' rig poses averaged (chordal mean of the rotations, mean
   positions and angular velocities);
 * ``PoseLib generalized GS``: PoseLib's ``estimate_generalized_absolute_pose`` (global
@@ -50,7 +50,8 @@ from benchmarks.bench_rig import (
     print_table,
 )
 from rs_localizer.estimation import estimate_rs_pose
-from rs_localizer.estimation.rig import RigView, estimate_rig_pose, rig_model_of_camera
+from rs_localizer.estimation.result import rig_model_of_camera
+from rs_localizer.estimation.rig import RigView, estimate_rig_pose
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.pose import RSPose

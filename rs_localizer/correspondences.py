@@ -153,7 +153,7 @@ class FrameFeedback(Protocol):
     (:class:`~rs_localizer.estimation.result.RSPoseEstimate`), from a camera's video
     (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`), or from a rig's
     (:class:`~rs_localizer.tracking.video.Localizer`) each camera's part of the rig frame's
-    estimate (:func:`~rs_localizer.estimation.rig.camera_estimate`). A front end reads these
+    estimate (:func:`~rs_localizer.estimation.result.camera_estimate`). A front end reads these
     attributes only.
 
     Attributes:

@@ -143,7 +143,6 @@ from .estimate import estimate_rs_pose, few_points_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
-    INLIER_FIT_SIGNIFICANCE,
     ROLLING_SHUTTER,
     chosen_refinement,
     final_covariance,
@@ -197,7 +196,6 @@ from .result import (
     TOO_FEW_POINTS,
     EstimationFailed,
     RSPoseEstimate,
-    camera_estimate,
     camera_model_of_rig,
     output_covariance,
     rig_model_jacobian,
@@ -220,7 +218,6 @@ __all__ = [
     "AGREE_SHARE",
     "CONTRADICTION_GATE",
     "FINAL_CUTOFF",
-    "INLIER_FIT_SIGNIFICANCE",
     "LO_ROUNDS",
     "PREDICTION_GATE",
     "PREDICTION_MARGIN",
@@ -236,10 +233,7 @@ __all__ = [
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
     "RigView",
-    "camera_estimate",
-    "camera_model_of_rig",
     "estimate_rig_pose",
-    "rig_model_of_camera",
 ]
 
 #: ``RSPoseEstimate.solver`` of a rig's estimate: the rig solver that poses it (on the

@@ -572,7 +572,7 @@ class RigMode:
         """The rig's pose to ``path``; each camera of a posed rig frame to its
         ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
         built only while subscribed, on its drawing thread), the camera as the rig's pose
-        and its mounting put it (:func:`~rs_localizer.estimation.rig.camera_estimate`)."""
+        and its mounting put it (:func:`~rs_localizer.estimation.result.camera_estimate`)."""
         m, mf = out.estimate, self.node.map_frame
         self.node.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
         mounts = {c.name: c.mount for c in self.config.cameras}

@@ -205,10 +205,10 @@ def rig_camera_views(
     (:class:`~rs_localizer.tracking.video.LocalizerOutput`) as its ``<camera>/debug_image`` and
     ``<camera>/markers`` draw it: ``(name, its frame, its estimate, its reference line's
     stamp ns)``, the estimate the camera as the rig's pose and its mounting put it
-    (:func:`~rs_localizer.estimation.rig.camera_estimate`), the stamp the rig frame's time
+    (:func:`~rs_localizer.estimation.result.camera_estimate`), the stamp the rig frame's time
     plus the camera's offset. ``mounts``: camera name -> its mounting; ``wanted``: camera
     name -> whether to draw it (None: every camera with a frame in ``out``)."""
-    from ..estimation.rig import camera_estimate
+    from ..estimation.result import camera_estimate
 
     for k, n in enumerate(out.cameras):
         frame = out.frames.get(n)

@@ -53,7 +53,8 @@ from ..estimation.refine import (
     refine_rs_pose,
     untruncated_variance,
 )
-from ..estimation.rig import RigView, camera_model_of_rig, estimate_rig_pose
+from ..estimation.result import camera_model_of_rig
+from ..estimation.rig import RigView, estimate_rig_pose
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist

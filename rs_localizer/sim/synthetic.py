@@ -339,8 +339,8 @@ class RigCamera:
 
     def model(self, truth: RSModel) -> RSModel:
         """The camera's single-camera model at its reference line (per unit r) of the rig's
-        ``truth`` (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`)."""
-        from ..estimation.rig import camera_model_of_rig
+        ``truth`` (:func:`~rs_localizer.estimation.result.camera_model_of_rig`)."""
+        from ..estimation.result import camera_model_of_rig
 
         spr = self.camera.seconds_per_unit_r
         return camera_model_of_rig(truth, self.mounting, self.stamp_offset, spr)

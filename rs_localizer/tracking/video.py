@@ -160,13 +160,10 @@ from ..estimation.result import (
     CONTRADICTS_TRACK,
     RIG_REFUSALS,
     RSPoseEstimate,
-)
-from ..estimation.rig import (
-    RIG_OPTIONS,
-    RigView,
     camera_estimate,
     camera_model_of_rig,
 )
+from ..estimation.rig import RIG_OPTIONS, RigView
 from ..frames import Mounting
 from ..pose import RSModel
 from ..solvers.registry import DEFAULT_SOLVER, solver_info
@@ -1213,7 +1210,7 @@ class Localizer(GyroReadouts):
         ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
         :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the rig's
         predicted pose and twist at the frame's reference time mapped through the camera's
-        mounting (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`). The rig's
+        mounting (:func:`~rs_localizer.estimation.result.camera_model_of_rig`). The rig's
         prediction is the twist filter's (tracking), or without tracking the last rig frame
         posed through :meth:`process_image` carried at its own twist. None when nothing
         predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
@@ -1343,7 +1340,7 @@ class Localizer(GyroReadouts):
         highest scores first, counted ``<name>.capped_clouds`` and ``<name>.capped_points``, with a
         warning), then :meth:`add`; each camera's front end is told how its frame was solved
         (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
-        the rig's estimate, :func:`~rs_localizer.estimation.rig.camera_estimate`: the rig
+        the rig's estimate, :func:`~rs_localizer.estimation.result.camera_estimate`: the rig
         frame's success, the camera's inliers and its model from the rig's pose and its
         mounting) when its rig frame is solved: with unsynchronized
         cameras often after the camera's next image (a front end that searches around its last

@@ -13,10 +13,10 @@ from rs_localizer.estimation import (
     estimate_rs_pose,
 )
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.result import camera_estimate
 from rs_localizer.estimation.rig import (
     RIG_FAILURE_REASONS,
     RigView,
-    camera_estimate,
     estimate_rig_pose,
 )
 from rs_localizer.frames import Mounting
@@ -256,7 +256,7 @@ def test_covariance_covers_the_error_and_outputs_match_a_camera_estimate():
 def test_camera_model_of_the_rig_is_the_camera_truth_and_inverts():
     """camera_model_of_rig maps the rig's truth to the camera's (what the simulation projects
     with); rig_model_of_camera inverts it."""
-    from rs_localizer.estimation.rig import camera_model_of_rig, rig_model_of_camera
+    from rs_localizer.estimation.result import camera_model_of_rig, rig_model_of_camera
 
     rng = np.random.default_rng(12)
     cams, R_m, c_m, stamps = make_rig(rng, 3)
@@ -277,7 +277,7 @@ def test_a_camera_at_the_rig_time_or_global_shutter_maps_by_its_mounting_alone()
     stamp offset, or a camera that does not move: zero velocities, a global shutter): each
     map is the mounting's rigid transform exactly, ``R_cam = R_c R``, ``C_cam = R_c C + c_c``
     and back ``R = R_c^T R_cam``."""
-    from rs_localizer.estimation.rig import camera_model_of_rig, rig_model_of_camera
+    from rs_localizer.estimation.result import camera_model_of_rig, rig_model_of_camera
 
     rng = np.random.default_rng(21)
     _, R_m, c_m, _ = make_rig(rng, 2)
@@ -959,7 +959,7 @@ def test_the_final_model_is_not_beaten_by_a_fit_of_its_own_inliers(counts):
     (``INLIER_FIT_SIGNIFICANCE``): an independent robust fit of the estimate's inliers on the
     raw pixels (SciPy) lowers its cost by less than twice that at 0.5 px on every rig frame
     (up to 12.6 px^2 did when the refinement over every point near the model was kept)."""
-    from rs_localizer.estimation.rig import INLIER_FIT_SIGNIFICANCE
+    from rs_localizer.estimation.finalize import INLIER_FIT_SIGNIFICANCE
 
     bound = 2 * INLIER_FIT_SIGNIFICANCE[6] * 0.5**2  # (px^2)
     turn = rotvec_to_matrix(np.radians([0.0, 0.6, 0.0]))
@@ -1133,11 +1133,13 @@ def test_the_rig_model_jacobian_is_the_maps_central_differences(stamp_offset, sp
     covariance to the rig with it) against central differences of ``rig_model_of_camera``
     itself (the camera's rotation perturbed on the left, the rig's rotation error measured on
     the left), for a global-shutter and two rolling-shutter cameras."""
+    from rs_localizer.estimation.result import rig_model_jacobian, rig_model_of_camera
+
     rng = np.random.default_rng(3)
     mount = Mounting(rotvec_to_matrix(rng.normal(size=3)), 0.1 * rng.normal(size=3))
     model = (rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3),
              3e-5 * rng.normal(size=3), 3e-5 * rng.normal(size=3))  # fmt: skip
-    base = rig_mod.rig_model_of_camera(model, mount, stamp_offset, spr)
+    base = rig_model_of_camera(model, mount, stamp_offset, spr)
     h, J = 1e-7, np.zeros((12, 12))
     for k in range(12):
         d = np.zeros(12)
@@ -1146,10 +1148,10 @@ def test_the_rig_model_jacobian_is_the_maps_central_differences(stamp_offset, sp
         for step in (d, -d):
             m = (rotvec_to_matrix(step[:3]) @ model[0], model[1] + step[3:6],
                  model[2] + step[6:9], model[3] + step[9:12])  # fmt: skip
-            R, C, w, t = rig_mod.rig_model_of_camera(m, mount, stamp_offset, spr)
+            R, C, w, t = rig_model_of_camera(m, mount, stamp_offset, spr)
             cols.append(np.concatenate([matrix_to_rotvec(R @ base.R.T), C, w, t]))
         J[:, k] = (cols[0] - cols[1]) / (2 * h)
-    got = rig_mod.rig_model_jacobian(model, mount, stamp_offset, spr)
+    got = rig_model_jacobian(model, mount, stamp_offset, spr)
     np.testing.assert_allclose(got, J, rtol=1e-6, atol=1e-8 * np.abs(J).max())
     if spr == 0.0:
         assert not got[6:, :].any() and not got[:, 6:].any()

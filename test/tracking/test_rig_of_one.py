@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions
-from rs_localizer.estimation.rig import camera_estimate
+from rs_localizer.estimation.result import camera_estimate
 from rs_localizer.frames import Mounting
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,
