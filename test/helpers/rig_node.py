@@ -120,9 +120,15 @@ class RigHarness:
             )
             self.send(f.name, "cloud", cloud)
 
-    def last_diag(self):
+    def last_diag(self, until=None):
+        """The node's newest diagnostics status and its values, two statuses after the call;
+        with ``until`` (a predicate of the values), the first later status of which it holds
+        (the worker may still be solving the frames sent: a loaded machine), or the last one
+        within :attr:`timeout`."""
         n = len(self.diag)
         assert self.wait(lambda: len(self.diag) > n + 1)
+        if until is not None:
+            self.wait(lambda: until({kv.key: kv.value for kv in self.diag[-1].values}))
         st = self.diag[-1]
         return st, {kv.key: kv.value for kv in st.values}
 

@@ -118,7 +118,7 @@ def test_a_mounting_off_by_degrees_is_named_in_the_diagnostics(ros_context):
     try:
         h.send_info(cams)
         h.send_clouds(frames)
-        st, v = h.last_diag()
+        st, v = h.last_diag(until=lambda v: v.get("right.state") == "disagrees")
         assert st.level == WARN and "right disagrees with the rig" in st.message, st.message
         assert "mounting" in st.message and v["right.state"] == "disagrees"
         assert float(v["right.inlier_ratio"]) < 0.2 < float(v["front.inlier_ratio"])
