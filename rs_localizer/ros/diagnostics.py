@@ -375,14 +375,13 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
     (the mode's ``warnings``; the gyro contradicting the image; the rolling-shutter timing
     suspect, ``readout_suspect``; no usable IMU sample for :data:`IMU_IDLE_WARN_S` while
     frames arrive; then a rig's cameras' frames dropped from a full queue, their messages
-    lost and its failed rig frames by reason), else OK. A camera alone's message is its count
-    (``<solved>/<received> frames solved``, its skips) and its first warning (a failed or
-    skipped frame, a lost message: the count says it); a rig's, every warning, OK ``<solved>
-    rig frames posed``."""
+    lost and its failed rig frames by reason), else OK. The message lists every warning, a
+    camera alone's after its count (``<solved>/<received> frames solved``, its skips; a
+    failed or skipped frame, a lost message: the count says it), a rig's alone, OK
+    ``<solved> rig frames posed``."""
     f, g, unit = p.frames, p.gyro, p.unit
     ws = [*dict.fromkeys(w for c in p.cameras for w in c.warnings), *p.warnings]
-    if p.alone and (f.failed or values["messages_lost"] or f.skipped):
-        ws.insert(0, "")  # (the count says it)
+    fault = p.alone and (f.failed or values["messages_lost"] or f.skipped)  # (its count says it)
     if g is not None and g.inconsistent:
         ws.append(
             "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
@@ -398,8 +397,8 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
         )
         if f.received and not f.solved:
             return ERROR, _nothing_solved(p)
-        if ws:
-            return WARN, lead + (f"; {ws[0]}" if ws[0] else "")
+        if ws or fault:
+            return WARN, "; ".join([lead, *ws])
         return OK, lead if f.received else "waiting for frames"
     own = [c.counts or {} for c in p.cameras]
     busy = sum(c.get("skipped.queue_full", 0) for c in own)

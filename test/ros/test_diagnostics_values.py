@@ -492,3 +492,37 @@ def test_one_builder_takes_level_and_message_from_what_is_solved(monkeypatch):
     named = D.CameraPart("a", solved, {"messages_lost": 0})
     assert D.status(D.StatusParts(frames=solved, cameras=[named]))[:2] == (
         D.OK, "3 rig frames posed")  # fmt: skip
+
+
+def test_a_camera_lists_every_warning_as_a_rig_does(monkeypatch):
+    """Three warnings at once (the gyro contradicts the image, the rolling-shutter timing is
+    suspect, no usable IMU sample for 10 s while frames arrive): a camera alone's message is
+    its count then all three (not only the first), a rig's the same three for its rig
+    frames, in the same order."""
+    from rs_localizer.ros import diagnostics as D
+    from rs_localizer.tracking.localizer import readout_warning
+
+    monkeypatch.setattr(D, "compiled_ready", lambda: True)
+    monkeypatch.setattr(D, "background_state", lambda: {"state": "done", "failures": 0,
+                                                         "reason": None})  # fmt: skip
+    cfg = build_config({**default_values(), "imu.enabled": True})
+    tracking = {"readout_contradicted": 12, "readout_suspect": "true"}
+
+    def expected(unit, rig):
+        return [
+            "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
+            f"{unit} solved without it",
+            readout_warning(12, rig=rig),
+            f"no usable IMU sample for 10.0 s (3 IMU messages rejected): {unit} solved "
+            "without the gyro; check the imu topic and its stamps",
+        ]
+
+    snap = replace(FramePipeline(cfg).stats.snapshot(),
+                   counts={"received": 4, "solved": 4, "imu_rejected": 3})  # fmt: skip
+    level, message, _ = camera_status(cfg, snap, tracking, "camera_info", 0, [0.01], [0.01],
+                                      200.0, None, True, 10.0)  # fmt: skip
+    assert (level, message) == (D.WARN, "; ".join(["4/4 frames solved", *expected("frames", 0)]))
+    frames = FrameCounts(4, 4)
+    gyro = D.GyroState(cfg.imu, {"imu_rejected": 3}, 200.0, None, True, 10.0)
+    rig = D.StatusParts(frames, [D.CameraPart("a", frames, {})], tracking=tracking, gyro=gyro)
+    assert D.status(rig)[:2] == (D.WARN, "; ".join(expected("rig frames", True)))
