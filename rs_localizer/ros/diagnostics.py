@@ -507,16 +507,16 @@ class RigInputs:
     node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
     ``failed.internal_error``, its input stage's counts (``capped_clouds``,
     ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
-    ``frames_beside_frontend`` and ``messages_lost`` (:func:`camera_section`).
+    ``frames_beside_frontend``, ``messages_lost`` (:func:`camera_section`) and ``bad_input``
+    (clouds not read).
     ``frontend``: the cameras' front end runs. ``frame_times`` (camera -> s, the worker's time per
-    camera frame: decoding, front end, rig), ``bad_input`` (camera -> clouds not read),
-    ``imu_rejected`` (reason -> IMU messages rejected), ``absent`` (cameras without a frame though
-    the rig has waited ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per
-    stage: the rig's counts', :meth:`~.camera_input.CameraCounts.stage_times`)."""
+    camera frame: decoding, front end, rig), ``imu_rejected`` (reason -> IMU messages rejected),
+    ``absent`` (cameras without a frame though the rig has waited ``rig.stop_after`` since the
+    first), ``stage_times`` (the worker's times per stage: the rig's counts',
+    :meth:`~.camera_input.CameraCounts.stage_times`)."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
     frame_times: Mapping[str, Sequence[float]] = field(default_factory=dict)
-    bad_input: Mapping[str, int] = field(default_factory=dict)
     imu_rejected: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
     frontend: bool = False
@@ -631,7 +631,7 @@ def rig_camera_status(
         warnings.append(f"camera {n} stopped")
     if n in waiting_info:
         warnings.append(f"camera {n} waits for its camera_info")
-    if inputs is not None and n in inputs.bad_input:
-        values[f"{n}.bad_input"] = inputs.bad_input[n]
+    if own is not None:
+        values[f"{n}.bad_input"] = own.get("bad_input", 0)
     camera.lines = values
     return camera

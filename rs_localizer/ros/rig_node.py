@@ -615,9 +615,8 @@ class RigMode:
             for cc in self.node.camera_counts.values():
                 counts.update(cc.prefixed())
             frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
-            bad_input = {n: counts[f"{n}.bad_input"] for n in self.node.camera_counts}
             absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
-            inputs = RigInputs(counts, frame_times, bad_input, dict(self.imu_rejected), absent,
+            inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
                                self._rig_counts.stage_times())  # fmt: skip
             return self.config.base_frame, rig_status_parts(self.rig, waiting, inputs)
