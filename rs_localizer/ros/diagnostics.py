@@ -391,31 +391,28 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
         ws.append(readout_warning(values["readout_contradicted"], rig=not p.alone))
     if g is not None and f.received and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
         ws.append(_imu_idle_text(g.idle_s, g.counts.get("imu_rejected", 0), unit))
-    if p.alone:
+    if p.alone:  # (its count says its failed and skipped frames and its lost messages)
+        tried, faults, failed = f.received, (), ""
         lead = f"{f.solved}/{f.received} frames solved" + (
             f", {f.skipped} skipped (busy)" if f.skipped else ""
         )
-        if f.received and not f.solved:
-            return ERROR, _nothing_solved(p)
-        if ws or fault:
-            return WARN, "; ".join([lead, *ws])
-        return OK, lead if f.received else "waiting for frames"
-    own = [c.counts or {} for c in p.cameras]
-    busy = sum(c.get("skipped.queue_full", 0) for c in own)
-    lost = sum(c.get("messages_lost", 0) for c in own)
-    failed = ""
-    if f.failed:
+        calm = lead if f.received else "waiting for frames"
+    else:  # (a rig frame still open or dropped is not tried)
+        tried, lead, calm = f.received - f.pending - f.skipped, "", f"{f.solved} rig frames posed"
+        own = [c.counts or {} for c in p.cameras]
+        busy = sum(c.get("skipped.queue_full", 0) for c in own)
+        lost = sum(c.get("messages_lost", 0) for c in own)
         why = ", ".join(f"{k} {v}" for k, v in sorted(f.failures.items()))
-        failed = f"{f.failed} rig frames failed ({why})"
-    if f.received > f.pending + f.skipped and f.solved == 0:
-        why = [*ws, failed] if failed else ws
-        return ERROR, "no rig frame posed" + (f": {'; '.join(why)}" if why else "")
-    if busy:
-        ws.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        ws.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    ws += [failed] if failed else []
-    return (WARN, "; ".join(ws)) if ws else (OK, f"{f.solved} rig frames posed")
+        failed = f"{f.failed} rig frames failed ({why})" if f.failed else ""
+        faults = [
+            busy and f"busy: {busy} camera frames dropped from a full queue (queue_size)",
+            lost and f"{lost} camera messages lost by the middleware (QoS message_lost)",
+        ]
+    if tried > 0 and f.solved == 0:
+        why = [] if p.alone else [w for w in (*ws, failed) if w]
+        return ERROR, _nothing_solved(p) + (f": {'; '.join(why)}" if why else "")
+    ws += [w for w in (*faults, failed) if w]
+    return (WARN, "; ".join([lead, *ws] if lead else ws)) if ws or fault else (OK, calm)
 
 
 def _map_fit_note(unit: str) -> str:
