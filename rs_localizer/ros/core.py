@@ -27,7 +27,7 @@ camera_infos at configure; None: no gyro), ``camera_of(item)``, ``take_frame(ite
 ``publish_taken(item, taken)``, ``idle_twists()`` (under the worker's lock),
 ``close_track()`` and ``publish_closed(out)``,
 ``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
-``apply_change(built, overrides)``, ``diagnostics(latencies, stamp_ages)``, and its topics
+``apply_change(built, overrides)``, ``diagnostics()`` (its status as data), and its topics
 and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
 ``images_text``, ``info_qos_overridable``, ``busy_key``,
 ``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node:
@@ -82,6 +82,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_dynamic, declare_parameters
+from .diagnostics import status
 from .frame_queue import FrameQueue
 from .outputs import fused_messages
 from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
@@ -763,11 +764,13 @@ class NodeCore:
         return status_message(name, hardware_id, level, message, values)
 
     def diagnostics_status(self) -> DiagnosticStatus:
-        """The node's status: the mode's ``diagnostics(latencies, stamp_ages)`` (s, the last
-        1000 poses: :meth:`_timing_snapshot`) -> ``(hardware_id, level, message, values)``,
-        named after the node (:meth:`_status`)."""
-        latencies, stamp_ages = self._timing_snapshot()
-        return self._status(*self.mode.diagnostics(latencies, stamp_ages))
+        """The node's status, named after the node (:meth:`_status`): what the mode hands,
+        ``diagnostics()`` -> ``(hardware_id, parts)`` (its
+        :class:`~.diagnostics.StatusParts`), laid out by the one builder of both modes
+        (:func:`.diagnostics.status`) with the node's latencies and stamp ages (s, the last
+        1000 poses: :meth:`_timing_snapshot`)."""
+        hardware_id, parts = self.mode.diagnostics()
+        return self._status(hardware_id, *status(parts, self._timing_snapshot()))
 
     def publish_diagnostics(self) -> None:
         """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""

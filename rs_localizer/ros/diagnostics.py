@@ -9,15 +9,15 @@ each rig camera's ``<c>.*``), from which it takes the keys' order, the level and
 shared by both: the estimator's path, the map-fit check, the timing keys
 (:func:`timing_values`, the stage times a camera's counts keep,
 :meth:`~.camera_input.CameraCounts.stage_time`) and the gyro's values
-(:class:`GyroState`). Each mode gives its inputs to it: one camera
-(:func:`diagnostic_status`, its pipeline's counters) and a rig (:func:`rig_diagnostics`: the
-rig frames' counts and each camera's lines of grouping, disagreement, mounting and clock
-offsets, the rig's own)."""
+(:class:`GyroState`). The node (:meth:`.core.NodeCore.diagnostics_status`) calls it on what
+its mode hands as data: one camera's (:meth:`.node.CameraMode.diagnostics`, its pipeline's
+counters, :func:`frontend_values`) or a rig's (:meth:`.rig_node.RigMode.diagnostics`: the
+rig frames' counts and each camera's section of :func:`rig_camera_status`, its lines of
+grouping, disagreement, mounting and clock offsets)."""
 
 from __future__ import annotations
 
-from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -26,11 +26,11 @@ import numpy as np
 from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
 from ..tracking.localizer import readout_warning
-from .config import LocalizerConfig
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts, frame_accounting
 from .pipeline import StatsSnapshot
 
 if TYPE_CHECKING:
+    from ..tracking.gyro import ImuBuffer
     from ..tracking.gyro_input import GyroSettings
     from ..tracking.video import Localizer
 
@@ -45,11 +45,11 @@ __all__ = [
     "RigInputs",
     "StatusParts",
     "camera_section",
-    "diagnostic_status",
+    "frontend_values",
     "rig_camera_frames",
     "rig_camera_part",
     "rig_camera_section",
-    "rig_diagnostics",
+    "rig_camera_status",
     "status",
     "timing_values",
 ]
@@ -185,7 +185,7 @@ class CameraPart:
     else each key ``<name>.<key>``), its accounting (:func:`camera_section` of ``frames``,
     ``counts``, ``more``, ``frontend``, ``frame_times``), then a rig camera's own ``lines``
     (its state in the rig: grouping, disagreement, mounting; keys with the prefix, none
-    replacing an accounting key)."""
+    replacing an accounting key) and ``warnings`` (texts for the status's message)."""
 
     name: str
     frames: FrameCounts
@@ -194,6 +194,7 @@ class CameraPart:
     frontend: bool = False
     frame_times: Sequence[float] | None = None
     lines: Mapping[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     def section(self) -> dict[str, Any]:
         """The camera's values: its accounting, then its ``lines``."""
@@ -201,87 +202,6 @@ class CameraPart:
                                 self.frame_times)  # fmt: skip
         values.update({k: v for k, v in self.lines.items() if k not in values})
         return values
-
-
-def diagnostic_status(
-    cfg: LocalizerConfig,
-    frames: FrameCounts,
-    stats: StatsSnapshot,
-    tracking: dict[str, Any],
-    camera_source: str,
-    messages_lost: int,
-    latencies: Sequence[float],
-    stamp_ages: Sequence[float],
-    imu_rate_hz: float | None = None,
-    gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
-    gyro_inconsistent: bool = False,
-    imu_idle_s: float | None = None,
-    frontend: FrontendHooks | None = None,
-) -> tuple[int, str, dict[str, Any]]:
-    """``(level, message, values)`` of one camera's status: its :class:`StatusParts` laid out
-    by :func:`status`.
-
-    Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped,
-    a message was lost or the gyro is left out because the rotation between frames contradicts
-    it (``gyro_inconsistent``) or, with ``imu.enabled``, frames arrive but no usable IMU sample
-    did for :data:`IMU_IDLE_WARN_S` (``imu_idle_s``: s since the last buffered sample, or since
-    the start; e.g. every message rejected), else OK. ``values`` (in publishing order): solver,
-    camera (``camera_source``), frame accounting (received, solved, failed, skipped, pending),
-    the estimator's path (``compiled``: the compiled kernels in use, else the uncompiled path;
-    the background compile's state, failures and last error; frames solved on each path;
-    :func:`rs_localizer.runtime.background.background_state`), counters of ``stats`` and
-    ``messages_lost``, inliers, planarity, ``tracking`` (see
-    :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
-    published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
-    stage times, front-end values (with a front end), gyro values (with ``imu.enabled``:
-    ``imu_rate_hz`` the buffered samples' rate, frames solved with the gyro, frames whose
-    gyro the image contradicted, frames without gyro samples, IMU samples rejected, the gyro
-    bias used and its standard deviation: ``gyro_bias`` = (bias (3,), std (3,)) rad/s, IMU
-    frame, the online estimate with ``imu.estimate_bias``, default ``imu.gyro_bias`` and
-    ``imu.gyro_bias_sigma``; pairs of frames the bias estimator rejected; the check of the
-    gyro against the rotation between frames: ``gyro_inconsistent``, the frames solved
-    without the gyro because of it, its failed pairs and detections), then
-    ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>``,
-    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` counts. ``frontend``: the image
-    front end in use (:attr:`.pipeline.FramePipeline.maps`), None without one.
-    """
-    c = stats.counts
-    has_frontend = frontend is not None
-    inliers = stats.inliers
-    gyro = None
-    if cfg.imu is not None:
-        gyro = GyroState(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s)
-    parts = StatusParts(
-        frames=frames,
-        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
-                            frontend=has_frontend)],
-        head={"solver": cfg.solver, "camera": camera_source},
-        path={
-            "frames_compiled": c.get("frames_compiled", 0),
-            "frames_uncompiled": c.get("frames_uncompiled", 0),
-            "queue_size": cfg.queue_size,
-            "time_resets": c.get("time_resets", 0),
-        },
-        path_after={
-            "frames_few_points": c.get("frames_few_points", 0),
-            "frames_single_tag": c.get("frames_single_tag", 0),
-        },
-        map_fit=c,
-        tracking={
-            "inliers_last": inliers[-1] if inliers else 0,
-            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
-            "planar": str(stats.planar).lower(),
-            **tracking,
-            "condition_number_last": f"{stats.condition_number:.3g}",
-        },
-        timing=(latencies, stamp_ages),
-        stage_times=stats.stage_times,
-        with_frontend=has_frontend,
-        frontend=_frontend_values(cfg, frontend, stats) if has_frontend else {},
-        gyro=gyro,
-        counts=c,
-    )  # fmt: skip
-    return status(parts)
 
 
 @dataclass
@@ -301,6 +221,17 @@ class GyroState:
     inconsistent: bool
     idle_s: float | None
 
+    @classmethod
+    def of(cls, settings: GyroSettings, counts: Mapping[str, int], imu: ImuBuffer | None,
+           bias: tuple[Sequence[float], Sequence[float]] | None,
+           inconsistent: bool) -> GyroState:  # fmt: skip
+        """The gyro's state with its buffer of samples ``imu`` (None: no buffer; its
+        :meth:`~rs_localizer.tracking.gyro.ImuBuffer.rate_hz` and
+        :meth:`~rs_localizer.tracking.gyro.ImuBuffer.idle_seconds`)."""
+        if imu is None:
+            return cls(settings, counts, None, bias, inconsistent, None)
+        return cls(settings, counts, imu.rate_hz(), bias, inconsistent, imu.idle_seconds())
+
 
 @dataclass
 class StatusParts:
@@ -311,7 +242,9 @@ class StatusParts:
     formed, ``failures`` the rig estimator's failures by reason). ``cameras``: a
     :class:`CameraPart` per camera, a camera alone's named "" (its flat keys), each rig
     camera's named (its section ``<c>.*``). A camera alone is solved in ``frames``, any other
-    set of cameras in ``rig frames``: the unit of the keys and the message.
+    set of cameras in ``rig frames``: the unit of the keys and the message. The node's mode
+    hands it (:meth:`~rs_localizer.ros.node.CameraMode.diagnostics`,
+    :meth:`~rs_localizer.ros.rig_node.RigMode.diagnostics`), the node lays it out.
 
     Values, in publishing order: ``head``; the frame accounting (a camera alone's
     ``frames_received`` ... ``frames_pending``; a rig's ``rig_frames``, ``rig_frames_solved``
@@ -319,17 +252,18 @@ class StatusParts:
     (what follows it), a camera alone's input counts (``messages_lost``, ``points_dropped``,
     ``clouds_capped``, ``unknown_landmark_ids``, ``camera_info_rejected``), ``path_after``;
     with ``map_fit`` (counts) the map-fit check's ``<unit>_failed_with_matches`` and
-    ``map_fit_doubtful``; ``tracking``; the timing keys: with ``timing`` (``(latencies,
-    stamp_ages)``, s) :func:`timing_values`, with ``stage_times`` (stage -> s,
+    ``map_fit_doubtful``; ``tracking``; the timing keys: with the node's ``timing``
+    (:func:`status`) :func:`timing_values`, with ``stage_times`` (stage -> s,
     :data:`~.camera_input.STAGES`) each stage's ``<stage>_ms_median`` (``frontend`` only
     ``with_frontend``),
-    ``times`` (the worker's other times); ``frontend``; with ``gyro`` its values
+    ``camera_frame_ms_median`` of the cameras' ``frame_times`` together (with any);
+    ``frontend``; with ``gyro`` its values
     (:func:`_imu_values`); the failures by reason (a camera alone's ``failed.<reason>`` and
     ``camera_info_rejected.<reason>``; a rig's ``rig_frames_failed.<reason>``); each rig
     camera's section; then the ``gyro_missing.<reason>``, ``gyro_rejected.<reason>`` and
     ``imu_rejected.<reason>`` of ``counts``.
 
-    ``warnings``: the mode's own (a rig's cameras' and its gyro's; the level and message:
+    ``warnings``: the mode's own after its cameras' (a rig's gyro's; the level and message:
     :func:`_level_and_message`); ``absent``: cameras that sent nothing (ERROR while nothing
     is solved)."""
 
@@ -341,10 +275,8 @@ class StatusParts:
     path_after: dict[str, Any] = field(default_factory=dict)
     map_fit: Mapping[str, int] | None = None
     tracking: dict[str, Any] = field(default_factory=dict)
-    timing: tuple[Sequence[float], Sequence[float]] | None = None
     stage_times: Mapping[str, Sequence[float]] | None = None
     with_frontend: bool = False
-    times: dict[str, Any] = field(default_factory=dict)
     frontend: dict[str, Any] = field(default_factory=dict)
     gyro: GyroState | None = None
     counts: Mapping[str, int] = field(default_factory=dict)
@@ -366,9 +298,12 @@ _INPUT_KEYS = ("messages_lost", "points_dropped", "clouds_capped", "unknown_land
                "camera_info_rejected")  # fmt: skip
 
 
-def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
-    """``(level, message, values)`` of a camera's or a rig's status from its
-    :class:`StatusParts` (values in its order, each camera's section of
+def status(
+    p: StatusParts, timing: tuple[Sequence[float], Sequence[float]] | None = None
+) -> tuple[int, str, dict[str, Any]]:
+    """``(level, message, values)`` of a camera's or a rig's status, the one builder of both
+    modes' statuses: from its :class:`StatusParts` and the node's ``timing`` (``(latencies,
+    stamp_ages)``, s; None: no timing keys; values in its order, each camera's section of
     :meth:`CameraPart.section`; level and message :func:`_level_and_message`, with the map-fit
     check's note while it doubts the map and the level is not OK, then the estimator path's
     note off the compiled path, then the cameras that sent nothing named first while nothing
@@ -393,12 +328,14 @@ def status(p: StatusParts) -> tuple[int, str, dict[str, Any]]:
         values[key] = p.map_fit.get(key, 0)
         values["map_fit_doubtful"] = str(bool(p.map_fit.get("map_fit_doubtful", 0))).lower()
     values.update(p.tracking)
-    if p.timing is not None:
-        values.update(timing_values(*p.timing))
+    if timing is not None:
+        values.update(timing_values(*timing))
     for k, d in (p.stage_times or {}).items():
         if p.with_frontend or k != "frontend":
             values[f"{k}_ms_median"] = _median_ms(d)
-    values.update(p.times)
+    times = [c.frame_times for c in p.cameras if c.frame_times is not None]
+    if times:  # (the cameras' frames together)
+        values["camera_frame_ms_median"] = _median_ms([t for ts in times for t in ts])
     values.update(p.frontend)
     if p.gyro is not None:
         values.update(_imu_values(p.gyro))
@@ -438,14 +375,13 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
     (the mode's ``warnings``; the gyro contradicting the image; the rolling-shutter timing
     suspect, ``readout_suspect``; no usable IMU sample for :data:`IMU_IDLE_WARN_S` while
     frames arrive; then a rig's cameras' frames dropped from a full queue, their messages
-    lost and its failed rig frames by reason), else OK. A camera alone's message is its count
-    (``<solved>/<received> frames solved``, its skips) and its first warning (a failed or
-    skipped frame, a lost message: the count says it); a rig's, every warning, OK ``<solved>
-    rig frames posed``."""
+    lost and its failed rig frames by reason), else OK. The message lists every warning, a
+    camera alone's after its count (``<solved>/<received> frames solved``, its skips; a
+    failed or skipped frame, a lost message: the count says it), a rig's alone, OK
+    ``<solved> rig frames posed``."""
     f, g, unit = p.frames, p.gyro, p.unit
-    ws = [*p.warnings]
-    if p.alone and (f.failed or values["messages_lost"] or f.skipped):
-        ws.insert(0, "")  # (the count says it)
+    ws = [*dict.fromkeys(w for c in p.cameras for w in c.warnings), *p.warnings]
+    fault = p.alone and (f.failed or values["messages_lost"] or f.skipped)  # (its count says it)
     if g is not None and g.inconsistent:
         ws.append(
             "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
@@ -455,31 +391,28 @@ def _level_and_message(p: StatusParts, values: Mapping[str, Any]) -> tuple[int, 
         ws.append(readout_warning(values["readout_contradicted"], rig=not p.alone))
     if g is not None and f.received and g.idle_s is not None and g.idle_s > IMU_IDLE_WARN_S:
         ws.append(_imu_idle_text(g.idle_s, g.counts.get("imu_rejected", 0), unit))
-    if p.alone:
+    if p.alone:  # (its count says its failed and skipped frames and its lost messages)
+        tried, faults, failed = f.received, (), ""
         lead = f"{f.solved}/{f.received} frames solved" + (
             f", {f.skipped} skipped (busy)" if f.skipped else ""
         )
-        if f.received and not f.solved:
-            return ERROR, _nothing_solved(p)
-        if ws:
-            return WARN, lead + (f"; {ws[0]}" if ws[0] else "")
-        return OK, lead if f.received else "waiting for frames"
-    own = [c.counts or {} for c in p.cameras]
-    busy = sum(c.get("skipped.queue_full", 0) for c in own)
-    lost = sum(c.get("messages_lost", 0) for c in own)
-    failed = ""
-    if f.failed:
+        calm = lead if f.received else "waiting for frames"
+    else:  # (a rig frame still open or dropped is not tried)
+        tried, lead, calm = f.received - f.pending - f.skipped, "", f"{f.solved} rig frames posed"
+        own = [c.counts or {} for c in p.cameras]
+        busy = sum(c.get("skipped.queue_full", 0) for c in own)
+        lost = sum(c.get("messages_lost", 0) for c in own)
         why = ", ".join(f"{k} {v}" for k, v in sorted(f.failures.items()))
-        failed = f"{f.failed} rig frames failed ({why})"
-    if f.received > f.pending + f.skipped and f.solved == 0:
-        why = [*ws, failed] if failed else ws
-        return ERROR, "no rig frame posed" + (f": {'; '.join(why)}" if why else "")
-    if busy:
-        ws.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        ws.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    ws += [failed] if failed else []
-    return (WARN, "; ".join(ws)) if ws else (OK, f"{f.solved} rig frames posed")
+        failed = f"{f.failed} rig frames failed ({why})" if f.failed else ""
+        faults = [
+            busy and f"busy: {busy} camera frames dropped from a full queue (queue_size)",
+            lost and f"{lost} camera messages lost by the middleware (QoS message_lost)",
+        ]
+    if tried > 0 and f.solved == 0:
+        why = [] if p.alone else [w for w in (*ws, failed) if w]
+        return ERROR, _nothing_solved(p) + (f": {'; '.join(why)}" if why else "")
+    ws += [w for w in (*faults, failed) if w]
+    return (WARN, "; ".join([lead, *ws] if lead else ws)) if ws or fault else (OK, calm)
 
 
 def _map_fit_note(unit: str) -> str:
@@ -491,17 +424,20 @@ def _map_fit_note(unit: str) -> str:
     )
 
 
-def _frontend_values(
-    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot
-) -> dict[str, Any]:
-    """The front end's values of :func:`diagnostic_status` (with a ``frontend``)."""
+def frontend_values(kind: str, frontend: FrontendHooks, stats: StatsSnapshot) -> dict[str, Any]:
+    """The single camera's front-end values (``frontend``: its image front end of ``kind``,
+    :attr:`.pipeline.FramePipeline.maps`; ``stats``: its counters): ``frontend``,
+    ``image_frames``, ``frames_beside_frontend``, ``frontend_ms_last``,
+    ``frontend_correspondences_last``, ``frontend_correspondences_mean``, ``frontend_ms_p99``,
+    then the front end's summary (a tracking front end's) or ``frontend_frames_global``, and
+    a feature front end's ``frontend_few_match_frames``."""
     c = stats.counts
     values: dict[str, Any] = {}
     fe = stats.stage_times["frontend"]
     runs = c.get("frontend_runs", 0)
     values.update(
         {
-            "frontend": cfg.frontend_kind,
+            "frontend": kind,
             "image_frames": c.get("image_frames", 0),
             "frames_beside_frontend": c.get("frames_beside_frontend", 0),
             "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
@@ -530,8 +466,12 @@ def _imu_idle_text(idle_s: float, rejected: int, unit: str) -> str:
 
 
 def _imu_values(g: GyroState) -> dict[str, Any]:
-    """The gyro's values of a camera's or a rig's status (:class:`GyroState`; keys
-    :func:`diagnostic_status`)."""
+    """The gyro's values of a camera's or a rig's status (:class:`GyroState`): the buffered
+    samples' rate, frames solved with the gyro, rejected by the image, without samples, IMU
+    messages rejected, s without a usable sample, the bias used and its standard deviation
+    (rad/s, IMU frame), pairs the bias estimator rejected, the check of the gyro against the
+    rotation between frames (contradicted now, frames solved without it, pairs failed,
+    detections)."""
     c, imu = g.counts, g.settings
     bias, std = g.bias or (imu.gyro_bias, np.full(3, imu.gyro_bias_sigma))
     return {
@@ -555,7 +495,7 @@ def _imu_values(g: GyroState) -> dict[str, Any]:
 @dataclass
 class RigInputs:
     """What the rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) knows of the frames
-    before they reach the rig, for :func:`rig_diagnostics`.
+    before they reach the rig, for its cameras' sections (:func:`rig_camera_status`).
 
     ``counts``: the node's map-fit check over the rig frames
     (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
@@ -564,110 +504,20 @@ class RigInputs:
     node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
     ``failed.internal_error``, its input stage's counts (``capped_clouds``,
     ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
-    ``frames_beside_frontend`` and ``messages_lost`` (:func:`camera_section`).
-    ``frontend``: the cameras' front end runs. ``latencies`` (s, a camera
-    frame's arrival to the pose of the rig frame
-    it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
-    ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
-    rig), ``bad_input`` (camera -> clouds not read), ``imu_rejected`` (reason
-    -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
-    ``rig.stop_after`` since the first), ``stage_times`` (the worker's times per stage: the
-    rig's counts', :meth:`~.camera_input.CameraCounts.stage_times`)."""
+    ``frames_beside_frontend``, ``messages_lost`` (:func:`camera_section`) and ``bad_input``
+    (clouds not read).
+    ``frontend``: the cameras' front end runs. ``frame_times`` (camera -> s, the worker's time per
+    camera frame: decoding, front end, rig), ``imu_rejected`` (reason -> IMU messages rejected),
+    ``absent`` (cameras without a frame though the rig has waited ``rig.stop_after`` since the
+    first), ``stage_times`` (the worker's times per stage: the rig's counts',
+    :meth:`~.camera_input.CameraCounts.stage_times`)."""
 
     counts: Mapping[str, int] = field(default_factory=dict)
-    latencies: Sequence[float] = ()
-    stamp_ages: Sequence[float] = ()
     frame_times: Mapping[str, Sequence[float]] = field(default_factory=dict)
-    bad_input: Mapping[str, int] = field(default_factory=dict)
     imu_rejected: Mapping[str, int] = field(default_factory=dict)
     absent: Sequence[str] = ()
     frontend: bool = False
     stage_times: Mapping[str, Sequence[float]] = field(default_factory=dict)
-
-
-def rig_diagnostics(
-    rig: Localizer, waiting_info: set, inputs: Counter | RigInputs | None = None
-) -> tuple[int, str, dict]:
-    """``(level, message, values)`` of a rig's status (``rig``: a
-    :class:`~rs_localizer.tracking.video.Localizer`): its :class:`StatusParts` laid out by
-    :func:`status`, as one camera's. Level :data:`OK`,
-    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
-    consensus outvoted a camera in its last rig frame; a camera's frames never join the
-    others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
-    off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
-    ``ERROR`` (rig frames formed and none was posed, or a camera sent nothing for
-    ``rig.stop_after`` and none was posed; the message goes on with the cameras'
-    warnings and the failures by reason). Values, in publishing order: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, the
-    estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
-    else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
-    background compile's, :func:`rs_localizer.runtime.background.background_state`;
-    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
-    on the compiled one; the message then says so), ``time_resets`` (stamps going back or
-    jumping ahead, as a camera's), ``rig_frames_failed_with_matches`` and
-    ``map_fit_doubtful`` (the single-camera node's map-fit check over the rig frames,
-    :class:`~rs_localizer.ros.pipeline.MapFitCheck`; the message says so while doubtful and
-    the level is not OK), ``track_state``,
-    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's),
-    ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter timing,
-    as a camera's: WARN while suspect), the single-camera node's timing keys
-    (:func:`timing_values`; the stage times ``decode_ms_median``, ``frontend_ms_median`` with
-    a front end, ``estimate_ms_median``, ``publish_ms_median`` of the worker's
-    (:meth:`~.camera_input.CameraCounts.stage_time`): a camera frame's input stage, the front
-    end on an image, a posed rig frame's grouping, estimate and tracking, its publishing) and
-    ``camera_frame_ms_median``; with a gyro the single-camera node's gyro values, the rig
-    frames for its frames (``imu_rate_hz``,
-    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing``, ``imu_rejected``,
-    ``imu_idle_s``, ``gyro_bias`` and ``gyro_bias_std`` (rad/s, IMU frame),
-    ``gyro_bias_rejected``, ``gyro_inconsistent`` (``true`` while the rotation between rig
-    frames contradicts the gyro and rig frames are solved without it: WARN, as for one
-    camera), ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
-    ``gyro_inconsistent_detections``; WARN also without a usable IMU sample for
-    :data:`IMU_IDLE_WARN_S` while rig frames arrive, or when the image rejects the gyro more
-    often than it uses it); ``rig_frames_failed.<reason>`` for each failure reason of the
-    rig estimator (or ``error``: it raised); a section per camera ``<c>``
-    (:func:`_rig_camera_values`, with ``<c>.bad_input``); then ``gyro_missing.<reason>``,
-    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` counts. The timing keys,
-    ``camera_frame_ms_median``, the map-fit keys, ``<c>.bad_input`` and
-    ``imu_rejected.<reason>`` come with ``inputs``.
-
-    ``inputs``: the node's own counts and times (:class:`RigInputs`; a Counter: its
-    ``counts`` alone); then ``<c>.received`` is the subscriptions' count, the node's skips and
-    failures are added to the rig's and the frames still queued to ``<c>.pending``."""
-    if isinstance(inputs, Counter):
-        inputs = RigInputs(counts=inputs)
-    r = rig.rig_counts()
-    warnings: list[str] = []
-    cameras = [_rig_camera_values(rig, n, waiting_info, inputs, warnings) for n in rig.cameras]
-    gyro = _rig_gyro(rig, inputs, warnings)
-    failures = {
-        k[len("rig.failed.") :]: v for k, v in rig.counts.items() if k.startswith("rig.failed.")
-    }
-    counts = dict(gyro.counts) if gyro is not None else {}
-    if inputs is not None:
-        counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
-    rig_frames = [r[k] for k in ("rig_frames", "solved", "failed", "skipped", "pending")]
-    parts = StatusParts(
-        frames=FrameCounts(*rig_frames, failures=failures),
-        cameras=cameras,
-        warnings=warnings,
-        path={
-            "rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
-            "time_resets": rig.counts.get("rig.time_resets", 0),
-        },
-        map_fit=inputs.counts if inputs is not None else None,
-        tracking={"track_state": rig.track_state, **rig.twist_values(), **rig.readout_values()},
-        timing=(inputs.latencies, inputs.stamp_ages) if inputs is not None else None,
-        stage_times=inputs.stage_times if inputs is not None else None,
-        with_frontend=inputs is not None and inputs.frontend,
-        gyro=gyro,
-        counts=counts,
-        absent=list(inputs.absent) if inputs is not None else [],
-    )
-    if inputs is not None:
-        frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]
-        parts.times["camera_frame_ms_median"] = _median_ms(frames)
-    return status(parts)
 
 
 def rig_camera_frames(rig: Localizer, n: str, own: Mapping[str, int] | None = None) -> FrameCounts:
@@ -710,25 +560,29 @@ def rig_camera_section(rig: Localizer, n: str, own: Mapping[str, int] | None) ->
     return rig_camera_part(rig, n, own).section()
 
 
-def _rig_camera_values(
-    rig: Localizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
+def rig_camera_status(
+    rig: Localizer, n: str, waiting_info: Collection[str] = (), inputs: RigInputs | None = None
 ) -> CameraPart:
-    """Camera ``n`` of :func:`rig_diagnostics`: its :func:`rig_camera_part` (with the node's
-    ``inputs`` its counts and ``camera_frame_ms_median``) with the rig's own lines, each key
-    ``<c>.<key>``: ``state`` (waiting, running, stopped, disagrees), ``camera_info``
-    (received or waiting), ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig
-    frame it was in), ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>``
-    counts, ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart``
-    (yes: its frames never join the others', ``Localizer.camera_apart``), then
-    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
-    ``inputs`` also ``stamp_jumped_ahead`` (first) and ``bad_input`` (last: its clouds not
-    read). Appends the camera's warnings to ``warnings``."""
+    """Camera ``n``'s section of the rig's status (``waiting_info``: the cameras waiting for their
+    camera_info; ``inputs``: the node's, None: the rig's counts alone): its :func:`rig_camera_part`
+    (with the node's ``inputs`` its counts and ``camera_frame_ms_median``) with the rig's own lines,
+    each key ``<c>.<key>``: ``state`` (waiting, running, stopped, disagrees), ``camera_info``
+    (received or waiting), ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it
+    was in), ``missed`` and the rig's ``skipped.<reason>`` / ``missed.<reason>`` counts,
+    ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames
+    never join the others', ``Localizer.camera_apart``), then ``clock_offset_ms.<other>`` (its
+    apparent clock offset from each other camera, ms); with ``inputs`` also ``stamp_jumped_ahead``
+    (first) and ``bad_input`` (last: its clouds not read); its ``warnings``: its frames never join
+    the others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
+    off``), it disagrees with the rig or with its partner, the cameras' consensus outvoted it in its
+    last rig frame, it stopped, it waits for its camera_info."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
     times = inputs.frame_times.get(n, ()) if inputs is not None else None
     camera = rig_camera_part(rig, n, own, inputs is not None and inputs.frontend, times)
     values: dict[str, Any] = {}  # (its lines, after its accounting)
+    warnings = camera.warnings
     if own is not None:
         values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
     state = rig.camera_state(n)
@@ -758,12 +612,10 @@ def _rig_camera_values(
         )
     partner = rig.camera_partner(n) if state == "disagrees" else None
     if partner is not None:
-        pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
-        if not any(w.startswith(pair) for w in warnings):
-            warnings.append(
-                f"{pair}: the mounting of one of them is likely wrong (two cameras cannot "
-                "tell which)"
-            )
+        warnings.append(  # (both cameras' text: the status names the pair once)
+            f"cameras {min(n, partner)} and {max(n, partner)} disagree: the mounting of one "
+            "of them is likely wrong (two cameras cannot tell which)"
+        )
     elif state == "disagrees":
         also = f" (outvoted by the others in {outvoted} rig frames)" if outvoted else ""
         warnings.append(f"camera {n} disagrees with the rig{also}: likely a wrong mounting")
@@ -776,27 +628,7 @@ def _rig_camera_values(
         warnings.append(f"camera {n} stopped")
     if n in waiting_info:
         warnings.append(f"camera {n} waits for its camera_info")
-    if inputs is not None and n in inputs.bad_input:
-        values[f"{n}.bad_input"] = inputs.bad_input[n]
+    if own is not None:
+        values[f"{n}.bad_input"] = own.get("bad_input", 0)
     camera.lines = values
     return camera
-
-
-def _rig_gyro(rig: Localizer, inputs: RigInputs | None, warnings: list[str]) -> GyroState | None:
-    """The rig's gyro for :func:`rig_diagnostics` (None without a gyro on the rig): a
-    camera's :class:`GyroState` of the rig's counts by a camera's names
-    (:meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`, the rig frames for its
-    frames, ``gyro_missing.<reason>`` and ``gyro_rejected.<reason>`` with them); appends the
-    rig's own gyro warning to ``warnings``: the image rejects the gyro more often than it uses
-    it (while the gyro is not found to contradict the image)."""
-    imu = rig.settings.imu
-    if imu is None:
-        return None
-    c = rig.gyro_counts()
-    c["imu_rejected"] = sum(inputs.imu_rejected.values()) if inputs is not None else 0
-    buf = rig.imu
-    idle = buf.idle_seconds() if buf is not None else None
-    rate = buf.rate_hz() if buf is not None else None
-    if not rig.gyro_inconsistent and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
-        warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    return GyroState(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle)

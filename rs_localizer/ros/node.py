@@ -44,19 +44,21 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 
+from ..correspondences import FrontendHooks
 from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import NodeCore, QueuedFrame, TakenFrame
-from .diagnostics import diagnostic_status
+from .diagnostics import CameraPart, GyroState, StatusParts, frontend_values
 from .frame_queue import frame_accounting
 from .outputs import frame_messages
 from .params import PARAMETERS, ConfigError
-from .pipeline import FramePipeline, log_warm_up
+from .pipeline import FramePipeline, StatsSnapshot, log_warm_up
 from .rig_node import RigMode
 
-__all__ = ["PARAMETERS", "CameraMode", "RSLocalizerNode"]
+__all__ = ["PARAMETERS", "CameraMode", "RSLocalizerNode", "camera_status_parts"]
 
 
 class CameraMode:
@@ -262,25 +264,66 @@ class CameraMode:
         return self.pipeline.flush_idle()  # (none unconfigured)
 
     # ------------------------------------------------------------------ diagnostics
-    def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
-        """The camera's status (:func:`.diagnostics.diagnostic_status`)."""
-        stats = self.pipeline.stats.snapshot()
-        level, message, values = diagnostic_status(
-            self.cfg,
-            frame_accounting(stats.counts),
-            stats,
-            self.pipeline.tracking_values(),
-            self.pipeline.camera_source(),
-            self.pipeline.stats.messages_lost,
-            latencies,
-            stamp_ages,
-            self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
-            self.pipeline.gyro_bias_values(),
-            self.pipeline.gyro_inconsistent,
-            self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
-            frontend=self._maps().frontend,
-        )
-        return self.cfg.camera_frame or "camera", level, message, values
+    def diagnostics(self) -> tuple[str, StatusParts]:
+        """The camera's hardware id and status (:func:`camera_status_parts` of its
+        pipeline's counters)."""
+        p, cfg = self.pipeline, self.cfg
+        stats = p.stats.snapshot()
+        gyro = None
+        if cfg.imu is not None:
+            gyro = GyroState.of(cfg.imu, stats.counts, p.imu, p.gyro_bias_values(),
+                                p.gyro_inconsistent)  # fmt: skip
+        parts = camera_status_parts(cfg, stats, p.tracking_values(), p.camera_source(),
+                                    p.stats.messages_lost, gyro, self._maps().frontend)  # fmt: skip
+        return cfg.camera_frame or "camera", parts
+
+
+def camera_status_parts(
+    cfg: LocalizerConfig,
+    stats: StatsSnapshot,
+    tracking: dict[str, Any],
+    camera_source: str,
+    messages_lost: int,
+    gyro: GyroState | None = None,
+    frontend: FrontendHooks | None = None,
+) -> StatusParts:
+    """The single camera's status as data (:func:`.diagnostics.status` lays it out): its
+    frames (:func:`~.frame_queue.frame_accounting` of its counts ``stats.counts``), its one
+    section named "" (its counts and ``messages_lost``); ``solver``, ``camera``
+    (``camera_source``); after the estimator's path ``frames_compiled`` /
+    ``frames_uncompiled`` (frames solved on each path), ``queue_size``, ``time_resets``,
+    then ``frames_few_points``, ``frames_single_tag``; the map-fit check of its counts;
+    ``inliers_last``, ``inliers_mean``, ``planar``, ``tracking``
+    (:meth:`.pipeline.FramePipeline.tracking_values`), ``condition_number_last``; its stage
+    times; with an image front end (``frontend``, :attr:`.pipeline.FramePipeline.maps`) its
+    values (:func:`.diagnostics.frontend_values`); the ``gyro`` with ``imu.enabled``; its
+    counts by reason."""
+    c, inliers = stats.counts, stats.inliers
+    frames = frame_accounting(c)
+    return StatusParts(
+        frames=frames,
+        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
+                            frontend=frontend is not None)],
+        head={"solver": cfg.solver, "camera": camera_source},
+        path={"frames_compiled": c.get("frames_compiled", 0),
+              "frames_uncompiled": c.get("frames_uncompiled", 0),
+              "queue_size": cfg.queue_size, "time_resets": c.get("time_resets", 0)},
+        path_after={"frames_few_points": c.get("frames_few_points", 0),
+                    "frames_single_tag": c.get("frames_single_tag", 0)},
+        map_fit=c,
+        tracking={
+            "inliers_last": inliers[-1] if inliers else 0,
+            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
+            "planar": str(stats.planar).lower(),
+            **tracking,
+            "condition_number_last": f"{stats.condition_number:.3g}",
+        },
+        stage_times=stats.stage_times,
+        with_frontend=frontend is not None,
+        frontend={} if frontend is None else frontend_values(cfg.frontend_kind, frontend, stats),
+        gyro=gyro,
+        counts=c,
+    )  # fmt: skip
 
 
 class RSLocalizerNode(NodeCore, Node):

@@ -79,7 +79,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from ..camera import CameraModel, FrameTime
@@ -105,7 +105,8 @@ from .config import (
 )
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_dynamic, declare_parameters
-from .diagnostics import RigInputs, rig_diagnostics
+from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
+from .frame_queue import FRAME_ACCOUNTING, FrameCounts
 from .outputs import pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import (
@@ -118,7 +119,7 @@ from .pipeline import (
 )
 from .visualization import rig_camera_views
 
-__all__ = ["RigMode", "note_camera_frame", "rig_diagnostics"]
+__all__ = ["RigMode", "note_camera_frame", "rig_status_parts"]
 
 
 INPUT_SKIP_REASONS = {
@@ -229,7 +230,7 @@ class RigMode:
         self._group_ns = int(self.config.settings.window * 1e9)
         # (the worker's map-fit check over the rig frames, its times per stage)
         self._rig_counts = CameraCounts()
-        # each camera's own counts (rig_diagnostics' inputs, ``<c>.<key>``: its frames
+        # each camera's own counts (the diagnostics' inputs, ``<c>.<key>``: its frames
         # received, handed on, skipped or failed before the rig, its input stage's counts, its
         # messages lost, the worker's time per frame) and its input (its camera_infos by
         # stamp, its clouds' rows, its images), a frame queue for them
@@ -603,8 +604,9 @@ class RigMode:
                 self._publish_viz(out)
         self.node.publish_fused(fused_outputs(out.fused, self.config.base_frame))
 
-    def diagnostics(self, latencies: list, stamp_ages: list) -> tuple[str, int, str, dict]:
-        """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
+    def diagnostics(self) -> tuple[str, StatusParts]:
+        """The rig's hardware id (``base_frame``) and status (:func:`rig_status_parts` of the
+        node's counts and times per camera)."""
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
@@ -613,11 +615,54 @@ class RigMode:
             for cc in self.node.camera_counts.values():
                 counts.update(cc.prefixed())
             frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
-            bad_input = {n: counts[f"{n}.bad_input"] for n in self.node.camera_counts}
             absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
-            inputs = RigInputs(counts, latencies, stamp_ages, frame_times, bad_input,
-                               dict(self.imu_rejected), absent,
+            inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
                                self._rig_counts.stage_times())  # fmt: skip
-            level, message, values = rig_diagnostics(self.rig, waiting, inputs)
-        return self.config.base_frame, level, message, values
+            return self.config.base_frame, rig_status_parts(self.rig, waiting, inputs)
+
+
+def rig_status_parts(
+    rig: Localizer, waiting_info: Collection[str] = (), inputs: RigInputs | None = None
+) -> StatusParts:
+    """The rig's status as data (:func:`.diagnostics.status` lays it out, as one camera's):
+    its rig frames (``rig_frames``, ``rig_frames_solved`` ... ``_pending``; the rig
+    estimator's failures by reason, ``rig_frames_failed.<reason>``, ``error``: it raised), a
+    section per camera (:func:`.diagnostics.rig_camera_status`, ``waiting_info`` the cameras
+    waiting for their camera_info), after the estimator's path ``rig_frames_uncompiled``
+    (rig frames solved on the uncompiled path) and ``time_resets``; ``track_state``, the
+    fused twists' and the rolling-shutter timing check's values as a camera's; with a gyro
+    the camera's gyro values (:meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`:
+    the rig frames for its frames) and the rig's own warning when the image rejects the gyro
+    more often than it uses it (while the gyro is not found to contradict the image). With
+    the node's ``inputs`` (None: the rig's counts alone) also its map-fit check, its stage
+    times, each camera's and all cameras' ``camera_frame_ms_median``, the IMU messages
+    rejected (``imu_rejected.<reason>``) and the cameras that sent nothing (``absent``)."""
+    gyro, warnings, counts = None, [], {}
+    if rig.settings.imu is not None:
+        c = rig.gyro_counts()
+        c["imu_rejected"] = sum(inputs.imu_rejected.values()) if inputs is not None else 0
+        if not rig.gyro_inconsistent and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
+            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
+        gyro = GyroState.of(rig.settings.imu, c, rig.imu, rig.gyro_bias_values(),
+                            rig.gyro_inconsistent)  # fmt: skip
+        counts = dict(c)
+    if inputs is not None:
+        counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
+    r, failed = rig.rig_counts(), "rig.failed."
+    failures = {k[len(failed) :]: v for k, v in rig.counts.items() if k.startswith(failed)}
+    return StatusParts(
+        frames=FrameCounts(r["rig_frames"], *(r[k] for k in FRAME_ACCOUNTING[1:]),
+                           failures=failures),
+        cameras=[rig_camera_status(rig, n, waiting_info, inputs) for n in rig.cameras],
+        warnings=warnings,
+        path={"rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
+              "time_resets": rig.counts.get("rig.time_resets", 0)},
+        map_fit=inputs.counts if inputs is not None else None,
+        tracking={"track_state": rig.track_state, **rig.twist_values(), **rig.readout_values()},
+        stage_times=inputs.stage_times if inputs is not None else None,
+        with_frontend=inputs is not None and inputs.frontend,
+        gyro=gyro,
+        counts=counts,
+        absent=list(inputs.absent) if inputs is not None else [],
+    )  # fmt: skip

@@ -289,3 +289,30 @@ class ParamClient:
         self.ex.remove_node(self.node)
         self.node.destroy_node()
         self.ex.shutdown()
+
+
+def camera_status(cfg, snap, tracking, source, lost, latencies=(), stamp_ages=(), rate_hz=None,
+                  bias=None, inconsistent=False, idle_s=None, frontend=None):  # fmt: skip
+    """``(level, message, values)`` of one camera's status as its node builds it: the
+    camera's parts (``rs_localizer.ros.node.camera_status_parts`` of its config ``cfg``, its
+    counters ``snap``, ``tracking`` values, camera ``source``, messages ``lost``, with
+    ``imu.enabled`` its gyro of ``rate_hz``, ``bias``, ``inconsistent``, ``idle_s``, its
+    ``frontend``) laid out with the node's ``latencies`` and ``stamp_ages`` (s)."""
+    from rs_localizer.ros.diagnostics import GyroState, status
+    from rs_localizer.ros.node import camera_status_parts
+
+    gyro = None
+    if cfg.imu is not None:
+        gyro = GyroState(cfg.imu, snap.counts, rate_hz, bias, inconsistent, idle_s)
+    parts = camera_status_parts(cfg, snap, tracking, source, lost, gyro, frontend)
+    return status(parts, (latencies, stamp_ages))
+
+
+def rig_status(rig, waiting=(), inputs=None, timing=None):
+    """``(level, message, values)`` of a rig's status as the rig node builds it
+    (``rs_localizer.ros.rig_node.rig_status_parts`` of the ``rig``, the cameras ``waiting``
+    for their camera_info and the node's ``inputs``, laid out with its ``timing``)."""
+    from rs_localizer.ros.diagnostics import status
+    from rs_localizer.ros.rig_node import rig_status_parts
+
+    return status(rig_status_parts(rig, waiting, inputs), timing)

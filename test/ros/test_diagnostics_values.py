@@ -1,9 +1,11 @@
 """The node's diagnostics values from its counters, without a node: one camera's and a rig's."""
 
 from collections import Counter
+from dataclasses import replace
+
+from helpers.ros import camera_status, rig_status
 
 from rs_localizer.ros.config import build_config
-from rs_localizer.ros.diagnostics import diagnostic_status
 from rs_localizer.ros.frame_queue import FrameCounts
 from rs_localizer.ros.params import default_values
 from rs_localizer.ros.pipeline import FramePipeline
@@ -12,9 +14,9 @@ from rs_localizer.ros.pipeline import FramePipeline
 def _values(stamp_ages):
     cfg = build_config(default_values())
     snap = FramePipeline(cfg).stats.snapshot()
-    frames = FrameCounts(received=len(stamp_ages), solved=len(stamp_ages))
-    args = (cfg, frames, snap, {}, "camera_info", 0, [0.01] * len(stamp_ages), stamp_ages)
-    return diagnostic_status(*args, 0.0, None, False, 0.0)[2]
+    n = len(stamp_ages)
+    snap = replace(snap, counts={"received": n, "solved": n})
+    return camera_status(cfg, snap, {}, "camera_info", 0, [0.01] * n, stamp_ages)[2]
 
 
 def test_stage_times_of_a_rig_cameras_frame():
@@ -61,7 +63,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     import numpy as np
     from helpers.rig import mounts_of
 
-    from rs_localizer.ros.diagnostics import ERROR, RigInputs, rig_diagnostics
+    from rs_localizer.ros.diagnostics import ERROR, RigInputs
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
@@ -83,12 +85,11 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     times = {names[0]: [0.001, 0.003, 0.002], names[1]: [0.010]}
     stages = {"decode": [0.001, 0.002], "frontend": [0.03], "estimate": [0.004, 0.008, 0.005],
               "publish": []}  # fmt: skip
-    inputs = RigInputs(counts, lat, age, times, stage_times=stages)
-    level, message, v = rig_diagnostics(rig, set(), inputs)
+    inputs = RigInputs(counts, times, stage_times=stages)
+    level, message, v = rig_status(rig, (), inputs, (lat, age))
     cfg = build_config(default_values())
-    snap = FramePipeline(cfg).stats.snapshot()
-    args = (cfg, FrameCounts(received=4, solved=4), snap, {}, "camera_info", 0, lat, age)
-    camera = diagnostic_status(*args, 0.0, None, False, 0.0)[2]
+    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 4, "solved": 4})
+    camera = camera_status(cfg, snap, {}, "camera_info", 0, lat, age)[2]
     keys = ("latency_ms_last", "latency_ms_median", "latency_ms_p99", "stamp_age_ms_last",
             "stamp_age_ms_median", "stamps_off_clock")  # fmt: skip
     assert {k: v[k] for k in keys} == {k: camera[k] for k in keys}
@@ -107,7 +108,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
                       "estimate_ms_median", "publish_ms_median",
                       "camera_frame_ms_median"]  # fmt: skip
     inputs.frontend = True
-    assert rig_diagnostics(rig, set(), inputs)[2]["frontend_ms_median"] == "30.000"
+    assert rig_status(rig, (), inputs, (lat, age))[2]["frontend_ms_median"] == "30.000"
     for n in names:
         parts = [v[f"{n}.{k}"] for k in ("solved", "failed", "skipped", "pending")]
         assert v[f"{n}.received"] == sum(parts), (n, v)
@@ -117,11 +118,11 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert v["time_resets"] == 0
     f = frames[0]  # (a camera frame 10 s after the video: a time reset, as for one camera)
     rig.add(CameraFrame(frames[-1].stamp_ns + 10**10, by[f.name], f.uv, f.xyz, camera_name=f.name))
-    assert rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))[2]["time_resets"] == 1
+    assert rig_status(rig, (), RigInputs(counts, times), (lat, age))[2]["time_resets"] == 1
 
     silent = Localizer(LocalizerSettings(mounts_of(cams)))
     only = Counter({f"{names[1]}.received": 1})
-    level, message, v = rig_diagnostics(silent, set(), RigInputs(only, absent=[names[0]]))
+    level, message, v = rig_status(silent, (), RigInputs(only, absent=[names[0]]), ([], []))
     assert level == ERROR and message.startswith(
         f"no rig frame posed: no frame from camera {names[0]}"
     )
@@ -138,7 +139,6 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     from helpers.rig import mounts_of
 
     from rs_localizer.estimation.options import EstimateOptions, PlausibilityOptions
-    from rs_localizer.ros.diagnostics import rig_diagnostics
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking import fusion
     from rs_localizer.tracking.localizer import CameraFrame
@@ -169,7 +169,7 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     for out in rig.close():
         fused += out.fused
     fused += rig.flush()
-    v = rig_diagnostics(rig, set())[2]
+    v = rig_status(rig)[2]
     assert len(corrupted) == 1 and len(fused) > 3
     assert v["twists_implausible"] == 1 == sum(x.implausible for x in fused)
     assert v["twists_own_frame"] == sum(x.own_twist for x in fused) >= 1
@@ -188,19 +188,17 @@ def test_a_suspect_readout_timing_warns():
 
     from helpers.rig import Log, mounts_of
 
-    from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
+    from rs_localizer.ros.diagnostics import OK, WARN
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cfg = build_config(default_values())
-    snap = FramePipeline(cfg).stats.snapshot()
-    frames_in = FrameCounts(received=40, solved=40)
+    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 40, "solved": 40})
     for suspect, level in (("false", OK), ("true", WARN)):
         tracking = {"readout_contradicted": 12 if suspect == "true" else 0}
         tracking["readout_suspect"] = suspect
-        args = (cfg, frames_in, snap, tracking, "camera_info", 0, [0.01], [0.01])
-        got, message, v = diagnostic_status(*args, 0.0, None, False, 0.0)
+        got, message, v = camera_status(cfg, snap, tracking, "camera_info", 0, [0.01], [0.01])
         assert got == level and v["readout_suspect"] == suspect
         assert ("12 of the last 30 frames" in message and "rs.line_delay" in message) == (
             suspect == "true"
@@ -216,7 +214,7 @@ def test_a_suspect_readout_timing_warns():
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
         rig.close()
         rig.flush()
-        level, message, v = rig_diagnostics(rig, set())
+        level, message, v = rig_status(rig)
         logged = [t for k, t in log.warnings if k == "readout.suspect"]
         assert len(logged) == (scale == 2.0) and all("rig.<camera>" in t for t in logged)
         assert v["readout_contradicted"] >= 0, v  # (30 rig frames and more)
@@ -251,11 +249,10 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     cfg = build_config({**default_values(), "imu.enabled": True})
-    snap = FramePipeline(cfg).stats.snapshot()
-    camera = D.diagnostic_status(cfg, FrameCounts(received=3, solved=3), snap, {}, "", 0, [],
-                                 [], 0.0, None, False, 0.0)[2]  # fmt: skip
+    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 3, "solved": 3})
+    camera = camera_status(cfg, snap, {}, "", 0, rate_hz=0.0, idle_s=0.0)[2]
     camera_gyro = {k for k in camera if "gyro" in k or k.startswith("imu_")}
-    level, message, v = D.rig_diagnostics(rigs[True], set(), Counter())
+    level, message, v = rig_status(rigs[True], (), D.RigInputs())
     rig_gyro = {k for k in v if "gyro" in k or k.startswith("imu_")}
     assert [k for k in v if k in camera] == [k for k in camera if k in v]  # (one layout)
     posed = v["rig_frames_solved"]
@@ -264,10 +261,10 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
     assert v["frames_with_gyro"] == 0 and v["gyro_missing"] == v["gyro_missing.no_samples"]
     assert v["gyro_missing"] == posed and v["imu_rate_hz"] == "0.0"
     monkeypatch.setattr(D, "IMU_IDLE_WARN_S", 0.0)
-    level, message, v = D.rig_diagnostics(rigs[True], set(), Counter())
+    level, message, v = rig_status(rigs[True], (), D.RigInputs())
     assert level == D.WARN and "no usable IMU sample for" in message, message
     assert "rig frames solved without the gyro; check the imu topic" in message, message
-    level, message, v = D.rig_diagnostics(rigs[False], set(), Counter())
+    level, message, v = rig_status(rigs[False], (), D.RigInputs())
     assert level == D.OK and not {k for k in v if "gyro" in k or k.startswith("imu_")}, v
 
 
@@ -280,7 +277,7 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
     from helpers.rig import mounts_of
 
     from rs_localizer.ros.bags.rig_bag import camera_counts
-    from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames, rig_diagnostics
+    from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
@@ -313,7 +310,7 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
     counts = Counter()
     for n, c in own.items():
         counts.update({f"{n}.{k}": v for k, v in c.items()})
-    v = rig_diagnostics(rig, set(), RigInputs(counts))[2]
+    v = rig_status(rig, (), RigInputs(counts))[2]
     for n in (a, b):
         replayed = camera_counts(rig, n, own[n])
         assert replayed == {k: v[f"{n}.{k}"] for k in replayed}, (n, replayed, v)
@@ -410,7 +407,6 @@ def _pinned_states():
     a gyro the image contradicts, beside an ArUco front end."""
     from dataclasses import replace
 
-    from rs_localizer.ros.frame_queue import frame_accounting
     from rs_localizer.ros.pipeline import StatsSnapshot
 
     class Frontend:
@@ -425,7 +421,7 @@ def _pinned_states():
     )
     none = {"decode": [], "frontend": [], "estimate": [], "publish": []}
     fresh = StatsSnapshot({}, [], False, float("nan"), 0, none)
-    yield "fresh", (cfg, FrameCounts(), fresh, {"track_state": "lost"}, "camera_info", 0, [], [])
+    yield "fresh", (cfg, fresh, {"track_state": "lost"}, "camera_info", 0, [], [])
     c = {"received": 6, "solved": 3, "failed.too_few_points": 1, "skipped.queue_full": 1,
          "camera_info_rejected": 1, "camera_info_rejected.distortion": 1, "points_dropped": 4,
          "frames_failed_with_matches": 1, "map_fit_doubtful": 1, "frames_few_points": 1,
@@ -433,7 +429,7 @@ def _pinned_states():
     times = {"decode": [0.001], "frontend": [], "estimate": [0.002, 0.004], "publish": [5e-4]}
     snap = StatsSnapshot(c, [20, 31], True, 1234.5, 0, times)
     tracking = {"track_state": "tracking", "readout_suspect": "false"}
-    yield "mixed", (cfg, frame_accounting(c), snap, tracking, "parameters", 2, [0.01, 0.03],
+    yield "mixed", (cfg, snap, tracking, "parameters", 2, [0.01, 0.03],
                     [0.02, 95.6e6])  # fmt: skip
     g = {"received": 4, "solved": 4, "image_frames": 4, "frontend_runs": 4, "frontend_points": 90,
          "frames_with_gyro": 2, "gyro_rejected": 1, "gyro_rejected.too_far": 1, "imu_rejected": 2,
@@ -441,7 +437,7 @@ def _pinned_states():
     times = {"decode": [0.001], "frontend": [0.01, 0.02], "estimate": [0.002], "publish": [5e-4]}
     snap = StatsSnapshot(g, [25], False, 50.0, 22, times)
     bias = ((0.001, -0.002, 0.0), (0.01, 0.01, 0.01))
-    yield "gyro", (gyro_cfg, frame_accounting(g), snap, {"track_state": "tracking"}, "camera_info",
+    yield "gyro", (gyro_cfg, snap, {"track_state": "tracking"}, "camera_info",
                    0, [0.005], [0.006], 200.0, bias, True, 0.01, Frontend())  # fmt: skip
 
 
@@ -455,7 +451,7 @@ def test_the_single_cameras_status_keeps_its_keys_order_values_and_message(monke
     monkeypatch.setattr(D, "background_state",
                         lambda: {"state": "compiling", "failures": 0, "reason": None})  # fmt: skip
     for name, args in _pinned_states():
-        level, message, values = D.diagnostic_status(*args)
+        level, message, values = camera_status(*args)
         assert (level, message) == _PINNED[name][:2], (name, message)
         assert list(values) == [k for k in _ORDER if k in values], name
         assert values == _PINNED[name][2], name
@@ -496,3 +492,37 @@ def test_one_builder_takes_level_and_message_from_what_is_solved(monkeypatch):
     named = D.CameraPart("a", solved, {"messages_lost": 0})
     assert D.status(D.StatusParts(frames=solved, cameras=[named]))[:2] == (
         D.OK, "3 rig frames posed")  # fmt: skip
+
+
+def test_a_camera_lists_every_warning_as_a_rig_does(monkeypatch):
+    """Three warnings at once (the gyro contradicts the image, the rolling-shutter timing is
+    suspect, no usable IMU sample for 10 s while frames arrive): a camera alone's message is
+    its count then all three (not only the first), a rig's the same three for its rig
+    frames, in the same order."""
+    from rs_localizer.ros import diagnostics as D
+    from rs_localizer.tracking.localizer import readout_warning
+
+    monkeypatch.setattr(D, "compiled_ready", lambda: True)
+    monkeypatch.setattr(D, "background_state", lambda: {"state": "done", "failures": 0,
+                                                         "reason": None})  # fmt: skip
+    cfg = build_config({**default_values(), "imu.enabled": True})
+    tracking = {"readout_contradicted": 12, "readout_suspect": "true"}
+
+    def expected(unit, rig):
+        return [
+            "the gyro contradicts the image (check imu.rotation, imu.time_offset): "
+            f"{unit} solved without it",
+            readout_warning(12, rig=rig),
+            f"no usable IMU sample for 10.0 s (3 IMU messages rejected): {unit} solved "
+            "without the gyro; check the imu topic and its stamps",
+        ]
+
+    snap = replace(FramePipeline(cfg).stats.snapshot(),
+                   counts={"received": 4, "solved": 4, "imu_rejected": 3})  # fmt: skip
+    level, message, _ = camera_status(cfg, snap, tracking, "camera_info", 0, [0.01], [0.01],
+                                      200.0, None, True, 10.0)  # fmt: skip
+    assert (level, message) == (D.WARN, "; ".join(["4/4 frames solved", *expected("frames", 0)]))
+    frames = FrameCounts(4, 4)
+    gyro = D.GyroState(cfg.imu, {"imu_rejected": 3}, 200.0, None, True, 10.0)
+    rig = D.StatusParts(frames, [D.CameraPart("a", frames, {})], tracking=tracking, gyro=gyro)
+    assert D.status(rig)[:2] == (D.WARN, "; ".join(expected("rig frames", True)))

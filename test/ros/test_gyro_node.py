@@ -137,11 +137,12 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     window's pairs until a run of good frames. Over 16 videos (``python -m
     benchmarks.bench_gyro --video --mount --seconds 4 --seed S --rows "mount 90 deg off"``,
     S = 0..15) the check declared at frames 7-66 (median 33)."""
+    from helpers.ros import camera_status
+
     from rs_localizer.geometry import rotvec_to_matrix
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.conversions import quaternion_from_matrix
-    from rs_localizer.ros.diagnostics import WARN, diagnostic_status
-    from rs_localizer.ros.frame_queue import FrameCounts
+    from rs_localizer.ros.diagnostics import WARN
     from rs_localizer.ros.pipeline import StatsSnapshot
     from rs_localizer.sim.trajectory import R_IMU_CAMERA
 
@@ -168,8 +169,8 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     assert "gyro_inconsistent_detections" not in right.counts, right.counts
     assert right.counts.get("gyro_disabled_inconsistent", 0) == 0, right.counts
     snap = StatsSnapshot(c, [], True, 1.0, 0, {})
-    level, message, values = diagnostic_status(
-        wrong.config, FrameCounts(n, n), snap, {}, "parameters", 0, [], [], 200.0, None, True
+    level, message, values = camera_status(
+        wrong.config, snap, {}, "parameters", 0, rate_hz=200.0, inconsistent=True
     )
     assert level == WARN and "gyro contradicts the image" in message
     assert values["gyro_inconsistent"] == "true"

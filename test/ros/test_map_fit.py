@@ -57,8 +57,10 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
     it (the rig's map-fit check run on the rig frames, as the node's worker runs it)."""
     from collections import Counter
 
+    from helpers.ros import rig_status
+
     from rs_localizer.cli import main
-    from rs_localizer.ros.diagnostics import OK, RigInputs, rig_diagnostics
+    from rs_localizer.ros.diagnostics import OK, RigInputs
     from rs_localizer.ros.pipeline import MapFitCheck
 
     bag, _, _ = _mirrored_rig_bag(tmp_path, True)
@@ -81,7 +83,7 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
         refused, _ = fit.update(sum(len(f.points2d) for f in o.frames.values()), o.estimate)
         counts["rig_frames_failed_with_matches"] += bool(refused)
     counts["map_fit_doubtful"] = int(fit.doubtful)
-    level, message, v = rig_diagnostics(rig, set(), RigInputs(counts=counts))
+    level, message, v = rig_status(rig, (), RigInputs(counts=counts))
     assert v["rig_frames_failed_with_matches"] == len(outs) == len(res.outputs)
     assert v["map_fit_doubtful"] == "true" and level != OK
     assert "does the map fit this place? mirrored or another room?" in message, message

@@ -636,9 +636,9 @@ def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
     refusals (``rig_frames_failed.contradicts_track``, ``.unconfirmed``); front and right are
     not named."""
     from helpers.rig import mounts_of
+    from helpers.ros import rig_status
 
     from rs_localizer.ros.diagnostics import WARN as W
-    from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
@@ -649,7 +649,7 @@ def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
     rig = Localizer(LocalizerSettings(mounts_of(cams)))
     for s, f in sorted((f.stamp_ns + shift * (f.name == "left"), f) for f in frames):
         rig.add(CameraFrame(s, by[f.name], f.uv, f.xyz, camera_name=f.name))
-    level, message, v = rig_diagnostics(rig, set())
+    level, message, v = rig_status(rig)
     assert level == W, message
     assert v["left.frames_apart"] == "yes" and v["front.frames_apart"] == "no", v
     ref = {c.name: np.array([f.t_ref_ns for f in frames if f.name == c.name]) for c in cams}

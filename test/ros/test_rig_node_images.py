@@ -224,12 +224,12 @@ def test_one_diagnostics_converter_for_both_nodes():
         assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
     with pytest.raises(ValueError, match="unknown diagnostic level"):
         status_message("n", "hw", "FINE", "m", {})
-    # (the one node converts both modes' statuses; neither mode builds a message itself,
-    # each gives its status's values)
+    # (the one node builds both modes' statuses with the one builder and converts them;
+    # neither mode builds a status or a message itself, each hands its status as data)
     assert "status_message(" in inspect.getsource(core)
-    assert "self._status(*self.mode.diagnostics(" in inspect.getsource(core.NodeCore)
+    assert "status(parts, self._timing_snapshot())" in inspect.getsource(core.NodeCore)
     for mod in (single, rig_node):
-        assert "def diagnostics(" in inspect.getsource(mod)
+        assert "def diagnostics(" in inspect.getsource(mod) and not hasattr(mod, "status")
         assert "status_message(" not in inspect.getsource(mod)
         assert "DiagnosticStatus()" not in inspect.getsource(mod)
 
@@ -240,10 +240,11 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
     both cameras' state is ``disagrees``, the ERROR message going on with the cameras'
     warning and the failures by reason; with a third camera the status warns and names left
     alone, outvoted by the others (``left.outvoted``)."""
+    from helpers.ros import rig_status
+
     from rs_localizer.frames import Mounting
     from rs_localizer.ros.diagnostics import ERROR
     from rs_localizer.ros.diagnostics import WARN as W
-    from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
@@ -258,7 +259,7 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         by = {c.name: c.camera for c in cams}
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
-        level, message, values = rig_diagnostics(rig, set())
+        level, message, values = rig_status(rig)
         if k == 2:
             assert level == ERROR and rig.counts["rig.failed.cameras_disagree"] > 0, message
             n = rig.counts["rig.failed.cameras_disagree"]

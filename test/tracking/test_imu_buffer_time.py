@@ -97,9 +97,12 @@ def test_idle_seconds_counts_from_the_last_usable_sample():
 
 
 def test_diagnostics_warn_when_no_usable_imu_sample_arrives():
+    from dataclasses import replace
+
+    from helpers.ros import camera_status
+
     from rs_localizer.ros.config import build_config
-    from rs_localizer.ros.diagnostics import IMU_IDLE_WARN_S, OK, WARN, diagnostic_status
-    from rs_localizer.ros.frame_queue import FrameCounts
+    from rs_localizer.ros.diagnostics import IMU_IDLE_WARN_S, OK, WARN
     from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pipeline import FramePipeline
 
@@ -107,15 +110,14 @@ def test_diagnostics_warn_when_no_usable_imu_sample_arrives():
     stats = FramePipeline(cfg).stats
     for _ in range(50):
         stats.add("imu_rejected")
-    snap = stats.snapshot()
-    frames = FrameCounts(received=10, solved=10)
-    args = (cfg, frames, snap, {}, "camera_info", 0, [0.01], [0.02], 0.0, None, False)
-    level, message, values = diagnostic_status(*args, IMU_IDLE_WARN_S + 1.0)
+    idle = stats.snapshot()
+    snap = replace(idle, counts={**idle.counts, "received": 10, "solved": 10})
+    args = (snap, {}, "camera_info", 0, [0.01], [0.02], 0.0, None, False)
+    level, message, values = camera_status(cfg, *args, IMU_IDLE_WARN_S + 1.0)
     assert level == WARN and "no usable IMU sample" in message and "50" in message, message
     assert values["imu_idle_s"] == f"{IMU_IDLE_WARN_S + 1.0:.1f}"
-    assert diagnostic_status(*args, 0.1)[0] == OK
+    assert camera_status(cfg, *args, 0.1)[0] == OK
     # without frames (nothing to solve) or without imu.enabled: no warning about the IMU
-    idle = FrameCounts()
-    assert diagnostic_status(cfg, idle, *args[2:], 100.0)[0] == OK
+    assert camera_status(cfg, idle, *args[1:], 100.0)[0] == OK
     off = build_config(default_values())
-    assert diagnostic_status(off, *args[1:], 100.0)[0] == OK
+    assert camera_status(off, *args, 100.0)[0] == OK

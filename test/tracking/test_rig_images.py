@@ -284,8 +284,9 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     the counts under the camera's keys."""
     from dataclasses import replace
 
+    from helpers.ros import rig_status
+
     from rs_localizer.correspondences import Correspondences
-    from rs_localizer.ros.diagnostics import rig_diagnostics
     from rs_localizer.tracking.localizer import usable_rows
 
     cams = default_rig(2)
@@ -341,7 +342,7 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     assert capped and capped[0].startswith("rig camera 'front': cloud of ")
     assert capped[0].endswith("points capped to max_points 40")
     assert not any(k == "rig.capped.left" for k, _ in log.warnings)
-    v = rig_diagnostics(rig, set())[2]
+    v = rig_status(rig)[2]
     assert v["front.capped_clouds"] == len(front) and v["left.capped_clouds"] == 0
     assert v["front.points_dropped"] == 5 * len(front)
     assert_balanced(rig)

@@ -179,7 +179,9 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     from rs_localizer.tracking.localizer import CameraFrame
     from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 
-    rig_diagnostics = pytest.importorskip("rs_localizer.ros.rig_node").rig_diagnostics
+    pytest.importorskip("rclpy")
+    from helpers.ros import rig_status
+
     cams, frames, traj = video
     gyro = rig_gyro(traj, 0.8, R_rig_imu=R_RIG_IMU, noise=NOISE, seed=4)
     wrong = rotvec_to_matrix(np.radians([90.0, 0.0, 0.0])) @ R_RIG_IMU
@@ -195,7 +197,7 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     assert all(o.success for o in outs)
     warned = [t for k, t in log.warnings if k == "gyro.inconsistent"]
     assert len(warned) == 1 and "rig frames" in warned[0] and "imu.rotation" in warned[0]
-    level, message, v = rig_diagnostics(rig, set())
+    level, message, v = rig_status(rig)
     assert level == WARN and "the gyro contradicts the image" in message, message
     assert v["gyro_inconsistent"] == "true" and v["gyro_disabled_inconsistent"] > 5, v
     # the front camera alone, its gyro as wrong (IMU -> camera: the mounting's rotation)
@@ -214,7 +216,7 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     rig2, outs2 = _run(video, right, gyro)
     assert not rig2.gyro_inconsistent and rig2.counts["rig.gyro_inconsistent_detections"] == 0
     assert rig2.counts["rig.gyro_used"] == len(outs2)
-    assert rig_diagnostics(rig2, set())[2]["gyro_inconsistent"] == "false"
+    assert rig_status(rig2)[2]["gyro_inconsistent"] == "false"
 
 
 def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
