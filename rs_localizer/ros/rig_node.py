@@ -506,7 +506,7 @@ class RigMode:
 
     def _failure_line(self, out: LocalizerOutput) -> LogLine | None:
         """The line a rig frame logs (each reason at most once per 5 s): why it failed with
-        the count of rig frames failed so for that reason, or on a posed one the cameras
+        the count of rig frames failed so far for that reason, or on a posed one the cameras
         outvoted by the others; None: nothing to say."""
         if out.error is not None:
             reason, detail = "error", f"the estimator raised {out.error}"
