@@ -25,19 +25,20 @@ A mode has: ``configure()`` (RuntimeError for invalid parameters), ``configured_
 ``log_ready()``, ``imu_input()`` (what takes the ``imu`` messages, subscribed with the
 camera_infos at configure; None: no gyro), ``camera_of(item)``, ``take_frame(item, camera)``,
 ``publish_taken(item, taken)``, ``idle_twists()`` (under the worker's lock),
-``close_track()`` and ``publish_closed(out)``,
-``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
+``close_track()``, ``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
 ``apply_change(built, overrides)``, ``diagnostics()`` (its status as data), and its topics
 and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
 ``images_text``, ``info_qos_overridable``, ``busy_key``,
 ``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node:
 ``set_cameras(inputs, counts, log, group, worker)`` (its cameras and a frame queue for them),
 ``stopping()``, ``between_frames()`` (the worker's lock), ``first_frame``,
-``param_values(overrides)``, ``open_found_output(name)``, and for its outputs
-``publish_messages(messages)``, ``publish_fused(fused)``, ``wanted(topic)``, ``warn(key,
-text, count)`` (the throttled log), ``warn_once(key, text)`` and ``record_timing(arrived,
-stamp_ns)``; what the front end found in an image it hands back in its :class:`TakenFrame`
-(``found``), which the node publishes on the camera's ``correspondences_out``.
+``param_values(overrides)``, ``open_found_output(name)``, ``warn(key, text, count)`` (the
+throttled log), ``warn_once(key, text)`` and ``record_timing(arrived, stamp_ns)``; its
+frames' outcomes (``close_track()``'s too) it publishes with
+:func:`.outputs.publish_frame` (which calls ``publish_messages(messages)``,
+``wanted(topic)``, ``warn`` and the views); what the front end found in an image it hands
+back in its :class:`TakenFrame` (``found``), which the node publishes on the camera's
+``correspondences_out``.
 
 A frame's checks before it is solved are the same for both modes, in the camera's input stage:
 its header stamp as it arrives (:meth:`.camera_input.CameraInput.check`), its camera model
@@ -68,7 +69,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
@@ -84,12 +85,16 @@ from . import conversions as cv
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import status
 from .frame_queue import FrameQueue
-from .outputs import fused_messages
+from .outputs import FrameOutcome, publish_frame
 from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .status_msg import status_message
 from .visualization import NodeVisualization
+
+if TYPE_CHECKING:
+    from ..tracking.video import LocalizerOutput
+    from .pipeline import FrameResult
 
 __all__ = ["NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
@@ -149,8 +154,8 @@ class TakenFrame:
 
     counted: tuple = ()
     failure: str | None = None
-    result: Any = None
-    outs: list = field(default_factory=list)
+    result: FrameResult | None = None
+    outs: list[LocalizerOutput] = field(default_factory=list)
     found: list = field(default_factory=list)
 
 
@@ -618,14 +623,13 @@ class NodeCore:
 
     def _end_video(self) -> None:
         """The end of the frame inputs: what the track still holds (the mode's
-        ``close_track()``, under the worker's lock: the results it completes, each to
-        ``publish_closed``, and the twists still pending, fused outputs) published; the
+        ``close_track()``, under the worker's lock: the outcomes of the frames it completes
+        and of the twists still pending) published (:func:`.outputs.publish_frame`); the
         next frame starts a new track."""
         with self._worker_lock:
-            closed, fused = self.mode.close_track()
-        for out in closed:
-            self.mode.publish_closed(out)
-        self.publish_fused(fused)
+            closed = self.mode.close_track()
+        for outcome in closed:
+            publish_frame(self, outcome)
 
     def _flush_idle_track(self) -> None:
         """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
@@ -638,14 +642,7 @@ class NodeCore:
             fused = self.mode.idle_twists()
         finally:
             self._worker_lock.release()
-        self.publish_fused(fused)
-
-    def publish_fused(self, fused: list) -> None:
-        """twist and odom of the frames whose fused twist is final (``fused``:
-        :class:`~rs_localizer.ros.pipeline.FusedOutput` s, :func:`.outputs.fused_messages`
-        in :attr:`map_frame`)."""
-        if fused:
-            self.publish_messages(fused_messages(fused, self.map_frame, self.wanted))
+        publish_frame(self, FrameOutcome(fused=fused))
 
     def _release_inputs(self) -> None:
         """The first part of :meth:`_release_configured`: the camera_info and imu
@@ -658,9 +655,10 @@ class NodeCore:
         self.pub_diag = None
 
     # ---------------------------------------------------------------- what a mode calls
-    # (the node's cameras, worker, outputs, log and timing record, as a mode uses them:
-    # set_cameras, stopping, between_frames, first_frame, param_values, open_found_output,
-    # publish_messages, publish_fused, wanted, warn, warn_once, record_timing)
+    # (the node's cameras, worker, outputs, log and timing record, as a mode and
+    # outputs.publish_frame use them: set_cameras, stopping, between_frames, first_frame,
+    # param_values, open_found_output, publish_messages, wanted, warn, warn_once,
+    # record_timing)
     def set_cameras(self, inputs: Mapping, counts: Mapping, log: Any,
                     group: Callable[[list, Any], bool] | None = None,
                     worker: str = "rs_localizer_worker") -> None:  # fmt: skip

@@ -53,7 +53,7 @@ from .config import LocalizerConfig, build_config, default_timing_note, load_map
 from .core import NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import CameraPart, GyroState, StatusParts, frontend_values
 from .frame_queue import frame_accounting
-from .outputs import frame_messages
+from .outputs import FrameOutcome, camera_outcome, publish_frame
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, StatsSnapshot, log_warm_up
 from .rig_node import RigMode
@@ -136,12 +136,9 @@ class CameraMode:
         dropped too (nothing is left for :meth:`.core.NodeCore._end_video` to publish)."""
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
 
-    def close_track(self) -> tuple[list, list]:
+    def close_track(self) -> list[FrameOutcome]:
         """None left: the single camera's track is dropped with its frame inputs."""
-        return [], []
-
-    def publish_closed(self, out: Any) -> None:  # (never: close_track returns none)
-        raise AssertionError("the single camera closes no frames")
+        return []
 
     def log_ready(self) -> None:
         cfg = self.cfg
@@ -228,37 +225,16 @@ class CameraMode:
         return TakenFrame((outcome,), res.failure, res, found=found)
 
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
-        """The worker, after the frame is counted: publish what the pipeline returned (a
-        failed frame: the fused twists it made final), log a failure."""
+        """The worker, after the frame is counted: publish what the pipeline returned
+        (:func:`.outputs.publish_frame` of its :func:`.outputs.camera_outcome`: a failed
+        frame, the fused twists it made final and its log line)."""
         tic = time.perf_counter()
-        cfg, res = self.cfg, taken.result
-        self.node.viz.hold_image(res.image if res.failure is None else None)
-        if res.failure is not None:
-            self.node.publish_fused(res.fused)
-            text, n = (
-                f"frame dropped ({res.failure}): {res.detail}",
-                self.pipeline.stats.get(f"failed.{res.failure}"),
-            )
-            return self.node.warn(res.failure, text, n)
-        # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        messages = frame_messages(res, cfg.map_frame, self.node.wanted)
-        self.node.publish_messages(messages)
-        r, mf = res, cfg.map_frame  # (visualization: in the camera frame)
-        # (the path takes the published pose when that is the camera's: no base_frame)
-        pose = messages[0][1] if r.output is r.estimate and messages[0][0] == "pose" else None
-        self.node.viz.publish(
-            r.estimate,
-            r.points2d,
-            r.points3d,
-            r.camera,
-            r.stamp_ns,
-            r.out_stamp_ns,
-            r.frame_id,
-            mf,
-            pose,
-        )
-        self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
-        self.node.record_timing(item.arrived, res.stamp_ns)
+        res = taken.result
+        failed = 0 if res.solved else self.pipeline.stats.get(f"failed.{res.failure}")
+        publish_frame(self.node, camera_outcome(res, failed))
+        if res.solved:
+            self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
+            self.node.record_timing(item.arrived, res.stamp_ns)
 
     def idle_twists(self) -> list:
         return self.pipeline.flush_idle()  # (none unconfigured)

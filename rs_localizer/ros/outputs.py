@@ -1,26 +1,111 @@
-"""The messages of a frame's outputs (a :class:`~rs_localizer.ros.pipeline.FrameResult`), in the
-order the node publishes them; shared by the node (publishers) and ``rs-localizer replay``
-(the output bag).
+"""What one frame's outcome publishes, for one camera and a rig alike: its messages, in the
+order the node publishes them (shared by the node's publishers and ``rs-localizer replay``'s
+output bag), its debug views and its log line.
+
+A mode of the node turns its result into a :class:`FrameOutcome` (the single camera's
+:class:`~rs_localizer.ros.pipeline.FrameResult`: :func:`camera_outcome`; a rig frame, a
+:class:`~rs_localizer.tracking.video.LocalizerOutput`: the rig mode's) and hands it to
+:func:`publish_frame`.
 
 Topics (relative names, as the node publishes them): ``pose`` (PoseStamped, map frame),
 ``twist_single_frame`` (the frame's own twist), ``twist`` and ``odom`` (the frame's own twist
 without tracking, else the fused twist of an earlier frame when it is final, stamped with that
-frame's time), ``pose_with_covariance`` and ``tf``. Frames, stamps and covariances:
+frame's time), ``pose_with_covariance`` and ``tf``; ``path``, and each camera's
+``debug_image`` and ``markers`` (:mod:`.visualization`). Frames, stamps and covariances:
 :mod:`.conversions`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
-from typing import Any
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+import numpy as np
+
+from ..camera import CameraModel
+from ..estimation.result import RSPoseEstimate
+from ..pose import PoseWithCovariance
 from . import conversions as cv
 from .pipeline import FrameResult, FusedOutput
 
-__all__ = ["OUTPUT_TOPICS", "frame_messages", "fused_messages", "pose_messages"]
+if TYPE_CHECKING:
+    from .core import NodeCore
+
+__all__ = [
+    "OUTPUT_TOPICS",
+    "CameraView",
+    "FrameOutcome",
+    "LogLine",
+    "PosedFrame",
+    "camera_outcome",
+    "frame_messages",
+    "fused_messages",
+    "outcome_messages",
+    "pose_messages",
+    "publish_frame",
+]
 
 #: every output topic of a solved frame, in publishing order
 OUTPUT_TOPICS = ("pose", "twist_single_frame", "twist", "odom", "pose_with_covariance", "tf")
+
+
+class LogLine(NamedTuple):
+    """A warning of the node's throttled log (:meth:`.core.NodeCore.warn`): at most one
+    ``key`` line per period; ``count`` > 1 appended as ``[count so far]``."""
+
+    key: str
+    text: str
+    count: int = 0
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """A camera of a posed frame as its ``debug_image`` and ``markers`` draw it
+    (:meth:`.visualization.NodeVisualization.publish`): ``name`` ("" for the single
+    camera, whose views also draw the ``path``), ``estimate`` the camera's pose (map frame)
+    and twist, ``points2d`` (N, 2) px and ``points3d`` (N, 3) m the estimator's rows of the
+    camera, ``camera`` its model, ``stamp_ns`` its input stamp (the debug image's),
+    ``ref_stamp_ns`` its reference line's (the markers'), ``frame_id`` its optical frame,
+    ``image`` ``(array, encoding, stamp_ns)`` of its decoded input image (None: none)."""
+
+    name: str
+    estimate: RSPoseEstimate
+    points2d: np.ndarray
+    points3d: np.ndarray
+    camera: CameraModel
+    stamp_ns: int
+    ref_stamp_ns: int
+    frame_id: str
+    image: tuple | None = None
+
+
+@dataclass(frozen=True)
+class PosedFrame:
+    """The pose a frame publishes: ``pose`` (its ``pose`` in the map frame, its twist in
+    ``frame_id``: the camera's optical frame, the robot's ``base_frame`` or the rig's) at
+    ``stamp_ns`` (ns, the reference line's time); ``twist_now``: ``twist`` and ``odom``
+    carry its own twist (no tracking, a global-shutter solver or timing), else its fused
+    twist comes in a later frame's :attr:`FrameOutcome.fused`; ``views``: the cameras drawn
+    (:class:`CameraView`; the ``path`` takes the single camera's view's pose, else
+    ``pose``)."""
+
+    pose: PoseWithCovariance
+    stamp_ns: int
+    frame_id: str
+    twist_now: bool
+    views: tuple[CameraView, ...] = ()
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """What one frame's outcome publishes (:func:`publish_frame`): its pose (``posed``, None:
+    not posed), the twists of earlier frames it made final (``fused``, ``twist`` and
+    ``odom``), the lines it logs (``log``: why it failed, with the count of such frames)."""
+
+    posed: PosedFrame | None = None
+    fused: Sequence[FusedOutput] = ()
+    log: tuple[LogLine, ...] = ()
 
 
 def _everything(topic: str) -> bool:
@@ -42,24 +127,48 @@ def fused_messages(
     return out
 
 
+def camera_outcome(res: FrameResult, failed: int = 0) -> FrameOutcome:
+    """The outcome of the single camera's frame ``res``: solved, its output (the camera's
+    estimate, or the robot base's state with ``base_frame``) at its reference-line stamp and
+    the camera's view, with the fused twists now final unless its own twist is
+    (``twist_now``); failed, the fused twists now final and the line ``frame dropped
+    (<reason>): <detail>`` with ``failed``, the count of frames failed so far for that reason."""
+    if not res.solved:
+        line = LogLine(str(res.failure), f"frame dropped ({res.failure}): {res.detail}", failed)
+        return FrameOutcome(None, res.fused, (line,))
+    view = CameraView("", res.estimate, res.points2d, res.points3d, res.camera,
+                      res.stamp_ns, res.out_stamp_ns, res.frame_id, res.image)  # fmt: skip
+    posed = PosedFrame(res.output, res.out_stamp_ns, res.output_frame, res.twist_now, (view,))
+    return FrameOutcome(posed, () if res.twist_now else res.fused)
+
+
+def outcome_messages(
+    outcome: FrameOutcome, map_frame: str, wanted: Callable[[str], bool] = _everything
+) -> list[tuple[str, Any]]:
+    """``(topic, message)`` of everything a frame's outcome publishes, in order: posed,
+    :func:`pose_messages` with its fused twists; else the fused twists
+    (:func:`fused_messages`). ``wanted(topic)`` false skips building a message nobody
+    receives (``pose`` is always built)."""
+    p = outcome.posed
+    if p is None:
+        return fused_messages(outcome.fused, map_frame, wanted)
+    return pose_messages(p.pose, p.stamp_ns, map_frame, p.frame_id, p.twist_now,
+                         outcome.fused, wanted)  # fmt: skip
+
+
 def frame_messages(
     res: FrameResult, map_frame: str, wanted: Callable[[str], bool] = _everything
 ) -> list[tuple[str, Any]]:
-    """``(topic, message)`` of everything a frame's result publishes, in order: for a solved
-    frame ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist, or the
-    fused twists now final), ``pose_with_covariance`` and ``tf``; for a failed one the fused
-    twists now final. ``wanted(topic)`` false skips building a message nobody receives
-    (``pose`` is always built); ``tf`` needs ``tf2_msgs``."""
-    if not res.solved:
-        return fused_messages(res.fused, map_frame, wanted)
-    fused = () if res.twist_now else res.fused
-    return pose_messages(
-        res.output, res.out_stamp_ns, map_frame, res.output_frame, res.twist_now, fused, wanted
-    )
+    """``(topic, message)`` of everything the single camera's frame result publishes, in
+    order (:func:`outcome_messages` of :func:`camera_outcome`): for a solved frame ``pose``,
+    ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist, or the fused twists
+    now final), ``pose_with_covariance`` and ``tf``; for a failed one the fused twists now
+    final. ``tf`` needs ``tf2_msgs``."""
+    return outcome_messages(camera_outcome(res), map_frame, wanted)
 
 
 def pose_messages(
-    out: Any,
+    out: PoseWithCovariance,
     stamp: int,
     map_frame: str,
     frame: str,
@@ -69,7 +178,7 @@ def pose_messages(
 ) -> list[tuple[str, Any]]:
     """``(topic, message)`` of a published pose, of a camera's frame or a rig frame, in order:
     ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist with
-    ``twist_now``, e.g. without tracking; else the ``fused`` twists now final),
+    ``twist_now``, e.g. without tracking; then the ``fused`` twists now final),
     ``pose_with_covariance`` and ``tf``. ``out``: a
     :class:`~rs_localizer.pose.PoseWithCovariance` (its ``pose`` in ``map_frame``, its twist
     in ``frame``), ``stamp``: ns."""
@@ -89,3 +198,27 @@ def pose_messages(
     if wanted("tf"):
         msgs.append(("tf", cv.tf_message(out.pose, stamp, map_frame, frame)))
     return msgs
+
+
+def publish_frame(node: NodeCore, outcome: FrameOutcome) -> None:
+    """Publish a frame's outcome on ``node``'s outputs, for one camera and a rig alike: its
+    messages (:func:`outcome_messages` in the node's ``map_frame``, only those with a
+    subscriber built), then, posed, its pose to the ``path`` and each camera's view to its
+    ``debug_image`` and ``markers`` (``node.camera_viz``; drawn on their thread, only while
+    subscribed), then its log lines (:meth:`.core.NodeCore.warn`)."""
+    mf, posed = node.map_frame, outcome.posed
+    messages = outcome_messages(outcome, mf, node.wanted)
+    node.publish_messages(messages)
+    if posed is not None and node.viz is not None:
+        pose_msg = messages[0][1]  # (the path takes it when it is the one drawn)
+        if not any(node.camera_viz.get(v.name) is node.viz for v in posed.views):
+            node.viz.publish(posed.pose, None, None, None, posed.stamp_ns, posed.stamp_ns,
+                             "", mf, pose_msg)  # fmt: skip
+        for v in posed.views:
+            viz = node.camera_viz[v.name]
+            viz.hold_image(v.image)
+            viz.publish(v.estimate, v.points2d, v.points3d, v.camera, v.stamp_ns,
+                        v.ref_stamp_ns, v.frame_id, mf,
+                        pose_msg if v.estimate is posed.pose else None)  # fmt: skip
+    for line in outcome.log:
+        node.warn(*line)

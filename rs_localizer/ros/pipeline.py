@@ -87,10 +87,12 @@ class MapFitCheck:
     rig's rig frames: each one of at least :data:`MAP_FIT_MIN_POINTS` correspondences solved
     or refused for its geometry joins a window of the last :data:`MAP_FIT_WINDOW`; when 80 %
     or more of the window (at least half of it full) were refused, the map is doubted
-    (:attr:`doubtful`). ``unit``: what the warning names (``frames``, ``rig frames``)."""
+    (:attr:`doubtful`). ``unit``: what the warning names (``frames``, ``rig frames``) and
+    :meth:`check` counts (``<unit>_failed_with_matches``, blanks as ``_``)."""
 
     def __init__(self, unit: str = "frames"):
         self.unit = unit
+        self.failed_key = f"{unit.replace(' ', '_')}_failed_with_matches"
         self.doubtful = False
         self._fit: deque[tuple[bool, str, int]] = deque(maxlen=MAP_FIT_WINDOW)
 
@@ -109,6 +111,22 @@ class MapFitCheck:
         n_refused = sum(r for r, _, _ in w)
         self.doubtful = len(w) >= MAP_FIT_WINDOW // 2 and n_refused >= 0.8 * len(w)
         return refused, self.doubtful and refused
+
+    def check(self, n_points: int, est: RSPoseEstimate, counts: CameraCounts,
+              warn: Callable[[str, str], None]) -> None:  # fmt: skip
+        """:meth:`update` with a frame (a camera's or a rig's) of ``n_points``
+        correspondences and its estimate, counted in ``counts``: ``<unit>_failed_with_matches``
+        (:attr:`failed_key`: ``frames_failed_with_matches``,
+        ``rig_frames_failed_with_matches``) and ``map_fit_doubtful``; the warning that names
+        the map as the likely cause to ``warn(key, text)`` (a throttled log) when the map is
+        doubted."""
+        refused, warn_now = self.update(n_points, est)
+        if refused:
+            counts.add(self.failed_key)
+        if refused is not None:
+            counts.set("map_fit_doubtful", int(self.doubtful))
+        if warn_now:
+            warn("map_fit", self.text())
 
     def text(self) -> str:
         """The map-fit warning for the current window."""
@@ -614,7 +632,7 @@ class FramePipeline:
             raise _Drop("estimator_error", out.error or "no estimate")
         self.stats.add("points_dropped", int(est.num_dropped))
         res.estimate = est
-        self._check_map_fit(len(uv), est)
+        self._map_fit.check(len(uv), est, self.stats, self.log.warning)
         if not est.success:
             raise _Drop(
                 est.failure or "estimator_error",
@@ -631,18 +649,6 @@ class FramePipeline:
         res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
-
-    def _check_map_fit(self, n_points: int, est: RSPoseEstimate) -> None:
-        """The map-fit check of a frame of ``n_points`` correspondences (:class:`MapFitCheck`):
-        counted ``frames_failed_with_matches``, ``map_fit_doubtful``, and a throttled warning
-        that names the map as the likely cause."""
-        refused, warn = self._map_fit.update(n_points, est)
-        if refused:
-            self.stats.add("frames_failed_with_matches")
-        if refused is not None:
-            self.stats.set("map_fit_doubtful", int(self._map_fit.doubtful))
-        if warn:
-            self.log.warning("map_fit", self.map_fit_text())
 
     def map_fit_text(self) -> str:
         """The map-fit warning for the current window (:meth:`MapFitCheck.text`)."""

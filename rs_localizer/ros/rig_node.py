@@ -79,7 +79,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterator
 from typing import Any
 
 from ..camera import CameraModel, FrameTime
@@ -107,7 +107,7 @@ from .core import NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts
-from .outputs import pose_messages
+from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import (
     FusedOutput,
@@ -271,17 +271,14 @@ class RigMode:
         warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
 
-    def close_track(self) -> tuple[list[LocalizerOutput], list[FusedOutput]]:
-        """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, and the
+    def close_track(self) -> list[FrameOutcome]:
+        """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, then the
         twists still pending (none unconfigured)."""
         if self.rig is None:
-            return [], []
-        return self.rig.close(), fused_outputs(
-            self.rig.flush() + self.rig.reset(), self.config.base_frame
-        )
-
-    def publish_closed(self, out: LocalizerOutput) -> None:
-        self.publish_output(out)
+            return []
+        closed = [self._outcome(out) for out in self.rig.close()]
+        pending = self.rig.flush() + self.rig.reset()
+        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.config.base_frame))]
 
     def log_ready(self) -> None:
         images = (
@@ -492,34 +489,26 @@ class RigMode:
             self.node.warn(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
 
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
-        """The worker, after the frame is counted: publish the rig frames it completed, log
-        the failed ones (each reason at most once per 5 s)."""
+        """The worker, after the frame is counted: the rig frames it completed through the
+        map-fit check (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of the rig
+        frame together: counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a
+        throttled warning), then published with their log lines
+        (:func:`.outputs.publish_frame`, :meth:`_outcome`)."""
         tic = time.perf_counter()
         for out in taken.outs:
-            self._check_map_fit(out)
-            self._log_failure(out)
-            self.publish_output(out)
+            if out.estimate is not None:
+                self._map_fit.check(out.num_points, out.estimate, self._rig_counts,
+                                    self.node.warn)  # fmt: skip
+            publish_frame(self.node, self._outcome(out, logged=True))
             if out.success:
                 self.node.record_timing(item.arrived, out.stamp_ns)
         if any(o.success for o in taken.outs):
             self._rig_counts.stage_time("publish", time.perf_counter() - tic)
 
-    def _check_map_fit(self, out: LocalizerOutput) -> None:
-        """The single-camera node's map-fit check over the rig frames
-        (:class:`.pipeline.MapFitCheck`, every camera's rows of the rig frame together):
-        counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a throttled
-        warning."""
-        if out.estimate is None:
-            return
-        refused, warn = self._map_fit.update(out.num_points, out.estimate)
-        if refused:
-            self._rig_counts.add("rig_frames_failed_with_matches")
-        if refused is not None:
-            self._rig_counts.set("map_fit_doubtful", int(self._map_fit.doubtful))
-        if warn:
-            self.node.warn("map_fit", self._map_fit.text())
-
-    def _log_failure(self, out: LocalizerOutput) -> None:
+    def _failure_line(self, out: LocalizerOutput) -> LogLine | None:
+        """The line a rig frame logs (each reason at most once per 5 s): why it failed with
+        the count of rig frames failed so far for that reason, or on a posed one the cameras
+        outvoted by the others; None: nothing to say."""
         if out.error is not None:
             reason, detail = "error", f"the estimator raised {out.error}"
         elif out.estimate is not None and not out.estimate.success:
@@ -527,18 +516,18 @@ class RigMode:
             detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
             if reason == "cameras_disagree" and out.outvoted:
                 detail += f"; {', '.join(out.outvoted)} contradict each other"
+        elif out.outvoted:
+            names = ", ".join(out.outvoted)
+            return LogLine(
+                f"rig.outvoted.{names}",
+                f"rig camera {names}: outvoted by the others (its points contradict their "
+                "pose; its mounting, clock, line delay or matches are likely wrong) "
+                f"[{self.rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
+            )
         else:
-            if out.outvoted:
-                names = ", ".join(out.outvoted)
-                self.node.warn(
-                    f"rig.outvoted.{names}",
-                    f"rig camera {names}: outvoted by the others (its points contradict their "
-                    "pose; its mounting, clock, line delay or matches are likely wrong) "
-                    f"[{self.rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
-                )
-            return
+            return None
         n = self.rig.counts[f"rig.failed.{reason}"]
-        self.node.warn(
+        return LogLine(
             f"rig.failed.{reason}",
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
@@ -569,13 +558,27 @@ class RigMode:
             return []
         return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
 
-    def _publish_viz(self, out: LocalizerOutput) -> None:
-        """The rig's pose to ``path``; each camera of a posed rig frame to its
-        ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
-        built only while subscribed, on its drawing thread), the camera as the rig's pose
-        and its mounting put it (:func:`~rs_localizer.estimation.result.camera_estimate`)."""
-        m, mf = out.estimate, self.node.map_frame
-        self.node.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
+    def _outcome(self, out: LocalizerOutput, logged: bool = False) -> FrameOutcome:
+        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): posed, the rig's pose
+        (``base_frame``) at the rig frame's time with its own twist when that is final at
+        once (without tracking, or a rig of one camera with a global shutter or a
+        global-shutter solver), and each camera of it whose ``<c>/debug_image`` or
+        ``<c>/markers`` is watched as the rig's pose and its mounting put it
+        (:func:`.visualization.rig_camera_views`, with its image kept by :meth:`_take`); the
+        fused twists it made final; ``logged``: its :meth:`_failure_line`."""
+        base = self.config.base_frame
+        fused = fused_outputs(out.fused, base)
+        line = self._failure_line(out) if logged else None
+        log = () if line is None else (line,)
+        if not out.success:
+            return FrameOutcome(None, fused, log)
+        views = () if self.node.viz is None else tuple(self._views(out))
+        return FrameOutcome(PosedFrame(out.estimate, out.stamp_ns, base, out.twist_now, views),
+                            fused, log)  # fmt: skip
+
+    def _views(self, out: LocalizerOutput) -> Iterator[CameraView]:
+        """The cameras of a posed rig frame whose debug views are watched, as
+        :class:`.outputs.CameraView` s (their frame's image, the last kept of its stamp)."""
         mounts = {c.name: c.mount for c in self.config.cameras}
 
         def wanted(n: str) -> bool:
@@ -583,26 +586,12 @@ class RigMode:
             return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
 
         for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
-            viz = self.node.camera_viz[n]
+            image = None
             for img in self._images.get(n, ()):
                 if img[2] == frame.stamp_ns:
-                    viz.set_image(*img)
-            viz.publish(view, frame.points2d, frame.points3d, frame.camera, frame.stamp_ns, ref,
-                        frame.tag or n, mf)  # fmt: skip
-
-    def publish_output(self, out: LocalizerOutput) -> None:
-        """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
-        final (or its own twist when that is final at once: without tracking, or a rig of one
-        camera with a global shutter or a global-shutter solver)."""
-        if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
-            own_twist = out.twist_now  # (no tracking, or a rig of one's global shutter)
-            base, mf = self.config.base_frame, self.node.map_frame
-            self.node.publish_messages(
-                pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self.node.wanted)
-            )
-            if self.node.viz is not None:
-                self._publish_viz(out)
-        self.node.publish_fused(fused_outputs(out.fused, self.config.base_frame))
+                    image = img
+            yield CameraView(n, view, frame.points2d, frame.points3d, frame.camera,
+                             frame.stamp_ns, ref, frame.tag or n, image)  # fmt: skip
 
     def diagnostics(self) -> tuple[str, StatusParts]:
         """The rig's hardware id (``base_frame``) and status (:func:`rig_status_parts` of the

@@ -21,8 +21,8 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable, Iterator
-from typing import Any
+from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from geometry_msgs.msg import Point
@@ -39,6 +39,10 @@ from ..viz.scene3d import frustum_segments, velocity_arrows
 from . import conversions as cv
 from .image_codec import image_fields
 from .qos import DEBUG_IMAGE_QOS, RELIABLE, output_events
+
+if TYPE_CHECKING:
+    from ..tracking.localizer import CameraFrame
+    from ..tracking.video import LocalizerOutput
 
 __all__ = [
     "MARKER_COLORS",
@@ -199,8 +203,8 @@ def path_msg(poses: Iterable[Any], stamp_ns: int, map_frame: str) -> Path:
 
 
 def rig_camera_views(
-    out: Any, mounts: dict, wanted: Any = None
-) -> Iterator[tuple[str, Any, RSPoseEstimate, int]]:
+    out: LocalizerOutput, mounts: dict, wanted: Callable[[str], bool] | None = None
+) -> Iterator[tuple[str, CameraFrame, RSPoseEstimate, int]]:
     """Each camera of the posed rig frame ``out``
     (:class:`~rs_localizer.tracking.video.LocalizerOutput`) as its ``<camera>/debug_image`` and
     ``<camera>/markers`` draw it: ``(name, its frame, its estimate, its reference line's

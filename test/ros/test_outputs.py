@@ -1,0 +1,141 @@
+"""One frame's outcome published by :func:`rs_localizer.ros.outputs.publish_frame`, a rig
+frame's and the single camera's alike: its messages in order (each built as
+:mod:`rs_localizer.ros.conversions` builds it), the path given the pose it draws, each camera's
+view to its own visualization with its image, the log lines to the node's throttled log."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("geometry_msgs")
+
+
+class _Viz:
+    """A visualization recording what it was handed."""
+
+    def __init__(self):
+        self.calls = []
+
+    def hold_image(self, image):
+        self.calls.append(("image", image))
+
+    def publish(self, est, uv, X, camera, stamp_ns, out_stamp_ns, frame, map_frame, pose=None):
+        self.calls.append(("publish", est, uv, camera, stamp_ns, out_stamp_ns, frame, pose))
+
+
+class _Node:
+    """The node's side of publish_frame: its outputs (every one subscribed but ``tf``),
+    visualizations and log."""
+
+    map_frame = "world"
+
+    def __init__(self, viz, camera_viz):
+        self.viz, self.camera_viz = viz, camera_viz
+        self.sent, self.warned = [], []
+
+    def wanted(self, topic: str) -> bool:
+        return topic != "tf"
+
+    def publish_messages(self, messages):
+        self.sent += messages
+
+    def warn(self, key: str, text: str, count: int = 0):
+        self.warned.append((key, text, count))
+
+
+def _state(seed: int, stamp_ns: int):
+    from rs_localizer.geometry import rotvec_to_matrix
+    from rs_localizer.pose import PoseWithCovariance, RSPose
+
+    rng = np.random.default_rng(seed)
+    pose = RSPose(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3),
+                  rng.normal(size=3), stamp_ns)  # fmt: skip
+    return PoseWithCovariance(pose=pose, pose_covariance=np.diag(rng.uniform(1, 2, 6)))
+
+
+def _stamp(m) -> int:
+    return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+
+
+def test_a_posed_rig_frame_its_own_twist_then_the_fused_its_path_and_cameras():
+    """A rig frame posed with its own twist final and an earlier frame's fused twist: pose,
+    twist_single_frame, its twist and odom, the fused twist and odom, pose_with_covariance
+    (tf not subscribed), each as conversions builds it; the path (the node's viz) gets the
+    rig's pose and the very pose message sent; the camera's view goes to the camera's viz
+    with its image (no pose message: its pose is not the rig's); the log line is warned."""
+    from rs_localizer.ros import conversions as cv
+    from rs_localizer.ros.outputs import (
+        CameraView,
+        FrameOutcome,
+        LogLine,
+        PosedFrame,
+        publish_frame,
+    )
+    from rs_localizer.ros.pipeline import FusedOutput
+
+    rig, earlier, cam = _state(1, 2_000), _state(2, 1_000), _state(3, 2_005)
+    image = (np.zeros((4, 4), np.uint8), "mono8", 2_010)
+    uv, X = np.zeros((5, 2)), np.zeros((5, 3))
+    view = CameraView("left", cam, uv, X, "model", 2_010, 2_005, "left_optical", image)
+    fused = [FusedOutput(1_000, earlier, "base")]
+    line = LogLine("rig.outvoted.right", "right outvoted")
+    outcome = FrameOutcome(PosedFrame(rig, 2_000, "base", True, (view,)), fused, (line,))
+    path, left = _Viz(), _Viz()
+    node = _Node(path, {"left": left, "right": _Viz()})
+    publish_frame(node, outcome)
+    topics = [t for t, _ in node.sent]
+    assert topics == ["pose", "twist_single_frame", "twist", "odom", "twist", "odom",
+                      "pose_with_covariance"]  # fmt: skip
+    msgs = [m for _, m in node.sent]
+    expected = [
+        cv.pose_stamped(rig.pose, 2_000, "world"),
+        cv.twist_stamped(rig.pose, 2_000, "base"),
+        cv.twist_stamped(rig.pose, 2_000, "base"),
+        cv.odometry(rig, 2_000, "world", "base"),
+        cv.twist_stamped(earlier.pose, 1_000, "base"),
+        cv.odometry(earlier, 1_000, "world", "base"),
+        cv.pose_with_covariance_stamped(rig, 2_000, "world"),
+    ]
+    assert msgs == expected
+    assert [_stamp(m) for m in msgs] == [2_000] * 4 + [1_000] * 2 + [2_000]
+    ((kind, est, *_, pose_msg),) = path.calls
+    assert kind == "publish" and est is rig and pose_msg is msgs[0]
+    drawn = ("publish", cam, uv, "model", 2_010, 2_005, "left_optical", None)
+    assert left.calls == [("image", image), drawn]
+    assert node.camera_viz["right"].calls == []  # (not in the outcome: not watched)
+    assert node.warned == [("rig.outvoted.right", "right outvoted", 0)]
+
+
+def test_the_single_camera_s_outcome_its_view_draws_the_path():
+    """The single camera (its viz the node's, with the path): solved, its view drawn once with
+    the camera's estimate and the sent pose message when that pose is the camera's, none
+    (the path makes the camera's own) when the output is the robot base's; the fused twists
+    follow the frame's own twist unless that is final; failed, the fused twists alone and
+    the line ``frame dropped (<reason>): <detail>`` with its count."""
+    from rs_localizer.ros.outputs import camera_outcome, fused_messages, publish_frame
+    from rs_localizer.ros.pipeline import FrameResult, FusedOutput
+
+    est, base, earlier = _state(4, 5_000), _state(5, 5_000), _state(6, 4_000)
+    fused = [FusedOutput(4_000, earlier, "cam")]
+    for output, frame in ((est, "cam"), (base, "base_link")):
+        res = FrameResult(stamp_ns=5_100, out_stamp_ns=5_000, frame_id="cam", camera="model",
+                          points2d="uv", points3d="X", estimate=est, output=output,
+                          output_frame=frame, twist_now=False, fused=fused, image=None)  # fmt: skip
+        viz = _Viz()
+        node = _Node(viz, {"": viz})
+        publish_frame(node, camera_outcome(res))
+        assert [t for t, _ in node.sent] == ["pose", "twist_single_frame", "twist", "odom",
+                                             "pose_with_covariance"]  # fmt: skip
+        assert node.sent[2:4] == fused_messages(fused, "world")
+        assert node.sent[1][1].header.frame_id == frame
+        pose_msg = node.sent[0][1] if output is est else None
+        drawn = ("publish", est, "uv", "model", 5_100, 5_000, "cam", pose_msg)
+        assert viz.calls == [("image", None), drawn]
+        assert node.warned == []
+    res = FrameResult(failure="too_few_inliers", detail="9 points", fused=fused)
+    viz = _Viz()
+    node = _Node(viz, {"": viz})
+    publish_frame(node, camera_outcome(res, 3))
+    assert node.sent == fused_messages(fused, "world") and viz.calls == []
+    assert node.warned == [("too_few_inliers", "frame dropped (too_few_inliers): 9 points", 3)]
