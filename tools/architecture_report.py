@@ -32,9 +32,8 @@ RIG_ONLY = {
     "estimation/rig.py": "estimate_rig_pose: one pose for a rig frame of several cameras",
     "estimation/rig_batch.py": "the rig's compiled RANSAC batch and scoring kernels",
     "tracking/rig.py": (
-        "RigGrouping, CameraAgreement, refusal, RigViews: the cameras' frames grouped into rig "
-        "frames, their disagreement, the refusal of a rig frame one camera poses, the rig's "
-        "estimator on the track"
+        "RigGrouping, CameraAgreement, refusal: the cameras' frames grouped into rig "
+        "frames, their disagreement, the refusal of a rig frame one camera poses"
     ),
     "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
     "ros/bags/rig_bag.py": (

@@ -28,32 +28,28 @@ one and runs none of it.
   track contradicts it (``contradicts_track``; a tag of a second camera that the pose explains,
   :data:`CONFIRM_MIN_INLIERS`, makes it two), or when there is no track and two or more other
   cameras run (``unconfirmed``).
-- :class:`RigViews`, a rig frame's views as the tracker path's estimator
-  (:func:`solve_rig`: :func:`~rs_localizer.estimation.rig.estimate_rig_pose`, cold, tracked or
-  relocalized).
+
+A rig frame's views are the tracker path's estimator as a camera's view is
+(:class:`~rs_localizer.tracking.tracker.FrameViews`).
 """
 
 from __future__ import annotations
 
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
-from ..estimation.estimate import InitialModel, estimate_rs_pose
-from ..estimation.gyro import GyroMeasurement
-from ..estimation.options import EstimateOptions
+from ..estimation.estimate import estimate_rs_pose
 from ..estimation.result import CONTRADICTS_TRACK, UNCONFIRMED, RSPoseEstimate
-from ..estimation.rig import VOTE_MIN_POINTS, RigView, estimate_rig_pose
+from ..estimation.rig import VOTE_MIN_POINTS, RigView
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
-from ..pose import RSModel, RSPose, model_from_twist
+from ..pose import RSPose
 from .fusion import FusedState
 from .gyro_input import TrackLog
 from .localizer import CameraFrame
-from .tracker import Solve
 
 __all__ = [
     "APART_HISTORY",
@@ -64,16 +60,12 @@ __all__ = [
     "CONTRADICTION_MIN_DEG",
     "CONTRADICTION_MIN_M",
     "MISSED_REASONS",
-    "RIG_TRACKED_MAX_ITERATIONS",
     "STOP_INTERVALS",
     "CameraAgreement",
     "OpenRigFrame",
     "RigGrouping",
-    "RigViews",
     "alone_deg",
     "refusal",
-    "rig_model",
-    "solve_rig",
 ]
 
 #: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
@@ -118,9 +110,6 @@ APART_SHARE = 0.8
 #: rig of 2 Hz cameras with the default 0.5 s is otherwise cut in two at every stamp (the
 #: first camera's frame solved alone, the others stopped)
 STOP_INTERVALS = 2.0
-#: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
-#: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
-RIG_TRACKED_MAX_ITERATIONS = 200
 
 
 # ---------------------------------------------------------------------- grouping
@@ -618,83 +607,3 @@ def _contradicts(est: RSPoseEstimate, pred) -> bool:
     except np.linalg.LinAlgError:
         return True
     return not nis <= float(chi2.ppf(CONTRADICTION_GATE, 6))
-
-
-# ---------------------------------------------------------------------- the rig's estimator
-def rig_model(
-    Ori: np.ndarray, p: np.ndarray, omega: np.ndarray, v: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
-    in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
-    ``w = -omega``, ``t = w x C - v`` (:func:`~rs_localizer.pose.model_from_twist` with 1 s
-    per unit)."""
-    R = Ori.T
-    C = -R @ p
-    w, t = model_from_twist(C, omega, v, 1.0)
-    return R, C, w, t
-
-
-def solve_rig(
-    views: list,
-    options: EstimateOptions,
-    gyro: GyroMeasurement | None,
-    gyro_time: float | None,
-    implementation: str | None,
-    max_iterations: int | None = None,
-    initial: InitialModel | None = None,
-    prediction: RSModel | None = None,
-) -> RSPoseEstimate:
-    """The rig estimator (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`) on a rig
-    frame's views with ``options`` (RANSAC's samples capped to ``max_iterations`` when set),
-    the rig frame's ``gyro`` (its window's middle ``gyro_time`` s) on ``implementation``; with
-    neither an ``initial`` model nor a ``prediction`` (no track to check it against) every
-    camera is also posed alone (``verify_cameras``)."""
-    if max_iterations:
-        options = replace(options, ransac=replace(options.ransac, max_iterations=max_iterations))
-    return estimate_rig_pose(
-        views,
-        options,
-        initial_model=initial,
-        gyro=gyro,
-        gyro_time=gyro_time,
-        prediction=prediction,
-        verify_cameras=initial is None and prediction is None,
-        implementation=implementation,
-    )
-
-
-class RigViews:
-    """A rig frame's views as the tracker path's estimator (:class:`~rs_localizer.tracking.
-    tracker.PathEstimator`): the localizer's ``_run`` (:func:`solve_rig`) cold, tracked, or
-    relocalized with the prediction deciding between cameras that contradict each other.
-
-    Args:
-        rig: the :class:`~rs_localizer.tracking.video.Localizer` solving the rig frame.
-        views: its :class:`~rs_localizer.estimation.rig.RigView`\\ s. out: its output (the
-            fused twists of a track ended go there).
-    """
-
-    def __init__(self, rig: Any, views: list, out: Any):
-        self.rig, self.views, self.out = rig, views, out
-        self.focal = max(v.camera.mean_focal for v in views)
-        self.num_points = sum(len(v.uv) for v in views)
-        self.min_inliers = rig.settings.options.ransac.min_inliers
-
-    def ended(self, final: list) -> None:
-        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
-
-    def model(self, predicted: FusedState) -> RSModel:
-        pp = predicted.pose
-        return rig_model(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
-
-    def cold(self) -> Solve:
-        return Solve(self.rig._run(self.views))
-
-    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
-        tracking = self.rig.settings.tracking  # (set: the tracker path runs only with it)
-        n = None if tracking is None else tracking.tracked_max_iterations
-        n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
-        return Solve(self.rig._run(self.views, n, initial))
-
-    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
-        return Solve(self.rig._run(self.views, prediction=model))

@@ -25,7 +25,8 @@ counters: no state is made up for it, so a bad frame never becomes a pose or a t
 
 Steps 1-4 are :class:`TrackerPath`, the one tracker path of a camera and of a rig
 (:class:`~rs_localizer.tracking.video.Localizer`; a camera alone is a rig of one): only its
-estimator (:class:`PathEstimator`) differs, one camera's view here, a rig's views there.
+estimator (:class:`PathEstimator`) differs: :class:`FrameViews`, one camera's view (the
+single-camera estimator) or a rig's views (the rig estimator).
 
 :meth:`RSTracker.predict` gives the prediction of step 1 before the frame is estimated (the
 same one: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` hands its model to the
@@ -37,8 +38,9 @@ own twist instead.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,6 +50,8 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, default_implementation
 from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
+from ..estimation.rig import RigView, estimate_rig_pose
+from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
 from ..pose import PoseMeasurement, RSModel
 from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
@@ -55,6 +59,7 @@ from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
 __all__ = [
     "STATES",
     "CarriedPrediction",
+    "FrameViews",
     "PathEstimator",
     "PathFrame",
     "RSTracker",
@@ -71,6 +76,9 @@ __all__ = [
 
 #: the paths a frame can take
 STATES = ("cold", "tracked", "relocalized", "reset")
+
+#: a camera's own frame: its view's mounting (:class:`FrameViews` of a camera does not read it)
+_OWN_FRAME = Mounting(np.eye(3), np.zeros(3))
 
 
 @dataclass(frozen=True)
@@ -97,7 +105,7 @@ class TrackerOptions:
             prediction is a hypothesis already; adaptive termination still runs).
         tracked_max_iterations: RANSAC's maximum number of samples on tracked frames; None:
             a camera's estimator options' own (``ransac.max_iterations``; also a rig of one
-            camera's), a rig's :data:`~rs_localizer.tracking.rig.RIG_TRACKED_MAX_ITERATIONS`.
+            camera's), a rig's :data:`~rs_localizer.tracking.video.RIG_TRACKED_MAX_ITERATIONS`.
         prior_from_prediction: when the estimator's motion prior is the predicted twist with
             its covariance (:func:`motion_prior_from_state`) instead of the estimator options'
             own prior: ``"planar"`` (default: on tracked frames when the previous frame's
@@ -350,9 +358,9 @@ class Solve:
 
 
 class PathEstimator(Protocol):
-    """One frame's estimator on the tracker path (:meth:`TrackerPath.solve`): a camera's view
-    (:class:`RSTracker`) or a rig's views (:class:`~rs_localizer.tracking.video.Localizer`),
-    the one part that differs between them.
+    """One frame's estimator on the tracker path (:meth:`TrackerPath.solve`), the one part
+    that differs between a camera and a rig: :class:`FrameViews`, a camera's view
+    (:class:`RSTracker`) or a rig's views (:class:`~rs_localizer.tracking.video.Localizer`).
 
     Attributes:
         focal: px, the focal length of the prediction's gate (:func:`predicted_initial_model`).
@@ -635,7 +643,17 @@ class RSTracker(TrackerPath):
             ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
         """
         self._implementation(implementation)
-        view = _CameraView(self, points2d, points3d, camera, scores, gyro, implementation)
+        to = self.tracker_options
+        # (the prediction's twist as the motion prior: a rolling shutter's, where asked)
+        prior = to.prior_from_prediction == "always" or (
+            to.prior_from_prediction == "planar" and self._planar
+        )
+        view = FrameViews(
+            (RigView(points2d, points3d, camera, _OWN_FRAME),), self.options,
+            self.tracked_options, solver=self.solver, scores=scores, gyro=gyro,
+            implementation=implementation,
+            prior_inflation=to.prior_inflation if prior and camera.seconds_per_unit_r > 0 else None,
+        )  # fmt: skip
         f = self.solve(stamp_ns, view)
         est = f.estimate
         if not est.success:
@@ -668,50 +686,106 @@ class RSTracker(TrackerPath):
         self.filter.compiled = implementation != NUMPY
 
 
-class _CameraView:
-    """One camera's frame as the tracker path's estimator (:class:`PathEstimator`): the
-    tracker's options cold, its tracked options from the prediction (the prediction's twist
-    as the motion prior where :attr:`TrackerOptions.prior_from_prediction` asks for it), a
-    prediction that did not hold solved cold."""
+class FrameViews:
+    """A frame's views as the tracker path's estimator (:class:`PathEstimator`), the one of a
+    camera and of a rig (a camera alone is a rig of one view): a camera's own view is solved
+    by the single-camera estimator (:func:`estimate_rs_pose` with its ``solver``; its model
+    per unit RS coordinate, :func:`model_from_state`), a rig's views by the rig estimator
+    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`; its model per second at the rig
+    frame's time). Cold with ``options`` (a rig's with every camera also posed alone,
+    ``verify_cameras``: no track checks them); tracked from the prediction with
+    ``tracked_options`` (a camera's with the prediction's twist as its motion prior when
+    ``prior_inflation`` is given); relocalized, when the prediction did not hold, with
+    ``options`` again (a rig's with the prediction deciding between cameras that contradict
+    each other; a camera has none to decide between: solved cold).
 
-    def __init__(self, tracker: RSTracker, points2d, points3d, camera, scores, gyro, impl):
-        self.tracker, self.camera = tracker, camera
-        self.args = (points2d, points3d, camera, tracker.solver)
-        self.kwargs = {"scores": scores, "gyro": gyro, "implementation": impl}
-        self.focal = camera.mean_focal
-        self.num_points = len(points2d)
-        self.min_inliers = tracker.options.ransac.min_inliers
+    Args:
+        views: the frame's :class:`~rs_localizer.estimation.rig.RigView`\\ s: a camera's
+            one (its mounting and stamp offset unused) or a rig's.
+        options, tracked_options: the estimator's
+            :class:`~rs_localizer.estimation.options.EstimateOptions` of cold (and
+            relocalized) solves and of tracked ones.
+        solver: a camera's minimal solver (its one view solved by :func:`estimate_rs_pose`);
+            None: a rig's views.
+        scores: (N,) a camera's points' scores, or None. gyro: the frame's gyro measurement
+            (a rig's in the rig frame, its window's middle ``gyro_time`` s after the rig
+            frame's time), or None. implementation: the estimator's (None: its default).
+        prior_inflation: a camera's tracked solve takes the prediction's twist as its motion
+            prior (:func:`motion_prior_from_state`, its covariance times this); None: the
+            options' own prior.
+        ended: called with the fused states of a track ended before the frame (also kept,
+            ``final``).
+    """
+
+    def __init__(
+        self,
+        views: Sequence[RigView],
+        options: EstimateOptions,
+        tracked_options: EstimateOptions,
+        *,
+        solver: str | None = None,
+        scores: np.ndarray | None = None,
+        gyro: GyroMeasurement | None = None,
+        gyro_time: float | None = None,
+        implementation: str | None = None,
+        prior_inflation: float | None = None,
+        ended: Callable[[list], Any] | None = None,
+    ):
+        self.views, self.options, self.tracked_options = views, options, tracked_options
+        self.solver, self.scores, self.gyro, self.gyro_time = solver, scores, gyro, gyro_time
+        self.implementation, self.prior_inflation = implementation, prior_inflation
+        self._ended = ended
+        self.focal = max(v.camera.mean_focal for v in views)
+        self.num_points = sum(len(v.uv) for v in views)
+        self.min_inliers = options.ransac.min_inliers
+        # (the model's time unit: a camera's unit RS coordinate, a rig's second)
+        self.seconds_per_unit = 1.0 if solver is None else views[0].camera.seconds_per_unit_r
         self.final: list = []
 
     def ended(self, final: list) -> None:
         self.final = final
+        if self._ended is not None:
+            self._ended(final)
 
     def model(self, predicted: FusedState) -> RSModel:
-        return model_from_state(predicted, self.camera)
-
-    def _solve(self, options: EstimateOptions, **kwargs) -> RSPoseEstimate:
-        return estimate_rs_pose(*self.args, options, **self.kwargs, **kwargs)
+        return predicted.pose.model(self.seconds_per_unit)
 
     def cold(self) -> Solve:
-        opts = self.tracker.options
-        est = self._solve(opts)
-        return Solve(est, opts.motion_prior if est.motion_prior_used else None)
+        return self._solve(self.options)
 
     def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
-        t = self.tracker
-        to, opts = t.tracker_options, t.tracked_options
-        if self.camera.seconds_per_unit_r > 0 and (
-            to.prior_from_prediction == "always"
-            or (to.prior_from_prediction == "planar" and t._planar)
-        ):
+        opts = self.tracked_options
+        if self.prior_inflation is not None:
             # (a covariance that is not positive definite keeps the options' prior)
             with contextlib.suppress(ValueError):
-                opts = replace(
-                    opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
-                )
-        est = self._solve(opts, initial_model=initial)
-        prior = opts.motion_prior if est.motion_prior_used else None
-        return Solve(est, prior, opts is not t.tracked_options)
+                prior = motion_prior_from_state(predicted, self.prior_inflation)
+                opts = replace(opts, motion_prior=prior)
+        return self._solve(opts, initial, None, opts is not self.tracked_options)
 
     def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
-        return self.cold()
+        return self._solve(self.options, None, model)
+
+    def _solve(
+        self,
+        options: EstimateOptions,
+        initial: InitialModel | None = None,
+        prediction: RSModel | None = None,
+        prior_from_prediction: bool = False,
+    ) -> Solve:
+        """The frame solved with ``options`` from the ``initial`` model or the
+        ``prediction`` (a rig's tie-breaker), with the motion prior its refinement used."""
+        if self.solver is not None:  # (a camera's own view)
+            v = self.views[0]
+            est = estimate_rs_pose(
+                v.uv, v.X, v.camera, self.solver, options, scores=self.scores, gyro=self.gyro,
+                implementation=self.implementation, initial_model=initial,
+            )  # fmt: skip
+        else:
+            est = estimate_rig_pose(
+                self.views, options, initial_model=initial, gyro=self.gyro,
+                gyro_time=self.gyro_time, prediction=prediction,
+                verify_cameras=initial is None and prediction is None,
+                implementation=self.implementation,
+            )  # fmt: skip
+        prior = options.motion_prior if est.motion_prior_used else None
+        return Solve(est, prior, prior_from_prediction)

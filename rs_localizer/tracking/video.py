@@ -15,7 +15,8 @@ camera model; the cameras need not be synchronized). :class:`Localizer`:
    :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
    its own stamp offset);
 3. **tracks** on the camera tracker's path (:class:`~rs_localizer.tracking.tracker.
-   TrackerPath`, the rig's views its estimator, :class:`~rs_localizer.tracking.rig.RigViews`):
+   TrackerPath`, the rig's views its estimator as a camera's view is its camera's:
+   :class:`~rs_localizer.tracking.tracker.FrameViews`):
    the twist filter's prediction at the rig frame's time is the rig estimator's initial model
    (:class:`~rs_localizer.estimation.InitialModel`, the points within ``gate_px``, or
    ``gate_sigmas`` of the predicted rotation, up to ``max_gate_px``, explained by it): when
@@ -185,20 +186,11 @@ from .localizer import (
     too_few_points,
     usable_rows,
 )
-from .rig import (
-    MISSED_REASONS,
-    CameraAgreement,
-    OpenRigFrame,
-    RigGrouping,
-    RigViews,
-    alone_deg,
-    refusal,
-    rig_model,
-    solve_rig,
-)
+from .rig import MISSED_REASONS, CameraAgreement, OpenRigFrame, RigGrouping, alone_deg, refusal
 from .tracker import (
     STATES,
     CarriedPrediction,
+    FrameViews,
     RSTracker,
     TrackerOptions,
     TrackerPath,
@@ -210,6 +202,7 @@ __all__ = [
     "MISSED_REASONS",
     "RIG_PATHS",
     "RIG_REFUSALS",
+    "RIG_TRACKED_MAX_ITERATIONS",
     "SINGLE_CAMERA_SOLVER",
     "SKIP_REASONS",
     "CameraShare",
@@ -243,6 +236,10 @@ SKIP_REASONS = {
 
 #: the paths a rig frame can take (the camera tracker's)
 RIG_PATHS = STATES
+
+#: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
+#: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
+RIG_TRACKED_MAX_ITERATIONS = 200
 
 
 #: the default minimal solver of one camera (:attr:`LocalizerSettings.solver` of a rig of one, and
@@ -667,6 +664,7 @@ class Localizer(GyroReadouts):
         self._reset_taken: dict[str, int] = {}
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
+        self._tracked: tuple = (None, None)  # (settings, their tracked rig frames' options)
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
@@ -1277,9 +1275,7 @@ class Localizer(GyroReadouts):
         one: the state's model in its camera, as the camera's own video has it)."""
         if self._single:
             return model_from_state(state, camera)
-        pred = state.pose
-        rig = rig_model(pred.orientation, pred.position, pred.angular_velocity,
-                        pred.linear_velocity)  # fmt: skip
+        rig = state.pose.model(1.0)  # (the rig's model: per second)
         return camera_model_of_rig(rig, view.mount, 0.0, camera.seconds_per_unit_r)
 
     def _carried_in_camera(
@@ -1624,7 +1620,7 @@ class Localizer(GyroReadouts):
             self.counts["rig.uncompiled"] += 1
         out.gyro = self._gyro = self._gyro_for(g, views)
         try:
-            est, path = self._estimate(g.lo, views, out)
+            est, path, estimator = self._estimate(g.lo, views, out)
         except Exception as e:  # (the estimator raised: the rig frame failed)
             out.error = f"{type(e).__name__}: {e}"
             self._count_rig(names, "error")
@@ -1636,7 +1632,7 @@ class Localizer(GyroReadouts):
             # the prediction outvoted a camera into a pose it contradicts itself: it does not
             # decide between these cameras; the rig frame solved without it stands if it
             # poses more than one camera (cameras a little apart, posed jointly)
-            alone = self._run(views)
+            alone = estimator.cold().estimate
             if alone.success and self._refusal(out, alone) is None:
                 est, refusal = alone, None
                 out.estimate, out.path = est, path = alone, "relocalized"
@@ -1773,24 +1769,38 @@ class Localizer(GyroReadouts):
         for n in names:
             self.counts[f"{n}.failed"] += 1
 
-    def _run(self, views, max_iterations=None, initial=None, prediction=None) -> RSPoseEstimate:
-        """The rig estimator on the rig frame's views (:func:`~rs_localizer.tracking.rig.
-        solve_rig`, with the rig frame's gyro on its implementation); with neither an initial
-        model nor a prediction (no track to check it against) every camera is also posed alone
-        (``verify_cameras``)."""
-        return solve_rig(views, self.settings.options, self._gyro, self._gyro_time, self._impl,
-                         max_iterations, initial, prediction)  # fmt: skip
+    def _frame_views(self, views, out: LocalizerOutput) -> FrameViews:
+        """The rig frame's views as the tracker path's estimator
+        (:class:`~rs_localizer.tracking.tracker.FrameViews`: the rig estimator with the rig
+        frame's gyro on its implementation, ``options``; tracked with at most
+        ``tracking.tracked_max_iterations`` RANSAC samples, default
+        :data:`RIG_TRACKED_MAX_ITERATIONS`); a track ended before it: its twists out with
+        ``out``."""
+        s = self.settings
+        if self._tracked[0] is not s:  # (the tracked options: made once per settings)
+            t = s.tracking
+            n = None if t is None else t.tracked_max_iterations
+            n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
+            o = s.options
+            self._tracked = (s, replace(o, ransac=replace(o.ransac, max_iterations=n)))
+        return FrameViews(
+            views, s.options, self._tracked[1], gyro=self._gyro, gyro_time=self._gyro_time,
+            implementation=self._impl,
+            ended=lambda final: out.fused.extend(self._track_ended(final)),
+        )  # fmt: skip
 
-    def _estimate(self, stamp: int, views, out: LocalizerOutput):
+    def _estimate(self, stamp: int, views: list, out: LocalizerOutput) -> tuple:
         """The rig frame's estimate on the tracker path
-        (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
-        estimator). Returns (estimate, path)."""
+        (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, its views the estimator:
+        :meth:`_frame_views`), cold without tracking. Returns (estimate, path, the
+        estimator)."""
         self._prediction = None
+        estimator = self._frame_views(views, out)
         if self._track is None:
-            return self._run(views), None
-        f = self._track.solve(stamp, RigViews(self, views, out))
+            return estimator.cold().estimate, None, estimator
+        f = self._track.solve(stamp, estimator)
         self._prediction = f.predicted
-        return f.estimate, f.path
+        return f.estimate, f.path, estimator
 
     def _refusal(self, out: LocalizerOutput, est: RSPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone while another camera of the rig

@@ -378,16 +378,16 @@ def test_an_estimator_exception_is_logged_and_its_reason_in_the_diagnostics(
     LinAlgError on the rig frame whose points are scaled by 1e4): the rig frame fails as
     ``error``, its reason is in the status (``rig_frames_failed.error``, named in the
     message) and a warning is logged with the exception."""
-    import rs_localizer.tracking.rig as tracking_rig
+    import rs_localizer.tracking.tracker as tracking_tracker
 
-    estimate = tracking_rig.estimate_rig_pose
+    estimate = tracking_tracker.estimate_rig_pose
 
     def raising(views, *args, **kwargs):
         if any(len(v.X) and np.abs(v.X).max() > 1e3 for v in views):
             raise np.linalg.LinAlgError("Singular matrix")
         return estimate(views, *args, **kwargs)
 
-    monkeypatch.setattr(tracking_rig, "estimate_rig_pose", raising)
+    monkeypatch.setattr(tracking_tracker, "estimate_rig_pose", raising)
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=15)
     h = rig_harness(ros_context, cams, rig_parameters(cams, **{"tracking.enabled": False}))

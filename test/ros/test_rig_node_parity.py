@@ -78,10 +78,10 @@ def test_the_ransac_parameters_reach_the_rig_estimator(ros_context, monkeypatch)
     ``.seed``, ``refine`` and the velocity bounds are the rig estimator's arguments on every
     rig frame; and they act: a threshold of 0.05 px on points with 0.5 px noise leaves too
     few inliers in every rig frame (refused ``too_few_inliers``), where 2 px poses them all."""
-    import rs_localizer.tracking.rig as rig_module
+    import rs_localizer.tracking.tracker as tracker_module
 
     calls = []
-    real = rig_module.estimate_rig_pose
+    real = tracker_module.estimate_rig_pose
 
     def spy(views, options, **kw):
         r, p = options.ransac, options.plausibility
@@ -99,7 +99,7 @@ def test_the_ransac_parameters_reach_the_rig_estimator(ros_context, monkeypatch)
         )
         return real(views, options, **kw)
 
-    monkeypatch.setattr(rig_module, "estimate_rig_pose", spy)
+    monkeypatch.setattr(tracker_module, "estimate_rig_pose", spy)
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=23)
     given = {

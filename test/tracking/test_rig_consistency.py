@@ -194,10 +194,10 @@ def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not
     between the cameras, so the rig frame solved without it (all three, right) is published
     (``relocalized``, counted ``rig.track_outvote_undone``) instead of being refused as
     ``contradicts_track``; every other rig frame as without the stand-in."""
-    import rs_localizer.tracking.rig as tracking_rig
+    import rs_localizer.tracking.tracker as tracking_tracker
 
     cams, frames, traj = video
-    real = tracking_rig.estimate_rig_pose
+    real = tracking_tracker.estimate_rig_pose
     turned = {}
 
     def estimator(views, options, *, initial_model=None, prediction=None, **kw):
@@ -208,7 +208,7 @@ def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not
             return replace(est, model=est.model._replace(R=turned["R"]), disagreeing=(1, 2))
         return est
 
-    monkeypatch.setattr(tracking_rig, "estimate_rig_pose", estimator)
+    monkeypatch.setattr(tracking_tracker, "estimate_rig_pose", estimator)
     rig, outs = run(frames, cams)
     assert turned and rig.counts["rig.track_outvote_undone"] == 1
     assert not rig.counts["rig.failed.contradicts_track"]

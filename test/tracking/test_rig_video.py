@@ -500,22 +500,23 @@ def test_a_rig_and_a_camera_take_one_tracking_options_type(video, monkeypatch):
     verified with at most ``tracked_max_iterations`` RANSAC samples (default
     ``RIG_TRACKED_MAX_ITERATIONS``), cold ones with the estimator options' own maximum; a
     camera's tracked frames take the same field (default: the options' own maximum)."""
-    import rs_localizer.tracking.rig as rig_module
+    import rs_localizer.tracking.tracker as tracker_module
     from rs_localizer.estimation.options import EstimateOptions
     from rs_localizer.estimation.rig import RIG_OPTIONS
     from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
+    from rs_localizer.tracking.video import RIG_TRACKED_MAX_ITERATIONS
 
     cams, frames, _ = video
     seen = []
-    real = rig_module.estimate_rig_pose
+    real = tracker_module.estimate_rig_pose
 
     def spy(views, options, **kw):
         seen.append((kw.get("initial_model") is not None, options.ransac.max_iterations))
         return real(views, options, **kw)
 
-    monkeypatch.setattr(rig_module, "estimate_rig_pose", spy)
+    monkeypatch.setattr(tracker_module, "estimate_rig_pose", spy)
     cold = RIG_OPTIONS.ransac.max_iterations
-    for tracking, tracked in ((TrackerOptions(), rig_module.RIG_TRACKED_MAX_ITERATIONS),
+    for tracking, tracked in ((TrackerOptions(), RIG_TRACKED_MAX_ITERATIONS),
                               (TrackerOptions(tracked_max_iterations=7), 7)):  # fmt: skip
         seen.clear()
         _, outs, _ = run(frames, cams, LocalizerSettings(mounts_of(cams), tracking=tracking))
