@@ -526,16 +526,10 @@ class CameraInput:
             self.note_on_rig(rig, stamp)
         return FrameStep(item, outs, taken_at)
 
-    def enter(
-        self,
-        rig: Localizer,
-        msg: Any,
-        kind: str,
-        stamp: Stamp | DroppedFrame,
-        camera: CameraModel | None,
-        frontend: bool,
-        before: Callable[[FrameTime], Any] | None = None,
-    ) -> FrameStep | DroppedFrame:
+    def enter(self, rig: Localizer, msg: Any, kind: str, stamp: Stamp | DroppedFrame,
+              camera: CameraModel | None, frontend: bool,
+              before: Callable[[FrameTime], Any] | None = None
+              ) -> FrameStep | DroppedFrame:  # fmt: skip
         """A rig camera's frame message of a checked ``stamp`` (:meth:`check`) and its
         ``camera`` (:meth:`camera_of`) into ``rig``, the rig node's frame step and a rig bag's
         replay's: :meth:`admit` with its times on the rig's clock

@@ -212,34 +212,22 @@ def _bag_stream(
     )
 
 
-def rig_frame_grouping(
-    bag: str | os.PathLike,
-    params_files: Iterable[str | os.PathLike] = (),
-    params: Mapping[str, Any] | None = None,
-) -> tuple[dict[tuple[str, int], int], int]:
+def rig_frame_grouping(bag: str | os.PathLike, params_files: Iterable[str | os.PathLike] = (),
+                       params: Mapping[str, Any] | None = None) -> tuple[dict, int]:  # fmt: skip
     """Which camera frames of a rig bag complete a rig frame when played in log-time order
-    into the rig mode (what ``play --lockstep`` waits after).
-
-    The frames, read as the rig node reads them
-    (:func:`~rs_localizer.ros.bags.bag_frames.read_rig_frames`: each cloud with the camera
-    model of its stamp), go to the rig's own grouping
-    (:class:`~rs_localizer.tracking.rig.RigGrouping`, run by the rig mode's
-    :class:`~rs_localizer.tracking.video.Localizer` without solving), as the node hands them
-    on (:func:`~rs_localizer.ros.camera_input.to_rig`): by reference-line time, one frame
-    per camera within ``rig.window`` of the rig frame's earliest; a rig frame is complete once
-    every camera has joined it, sent a frame past it, or stopped (no frame for ``rig.stop_after``
-    s or a few of its own frame intervals); a forward time jump completes the open ones.
-    Frames without a camera model (received before their camera's first camera_info), out of
-    order or late join no rig frame. A cloud that cannot be read but has a readable stamp
-    joins none either but counts as the camera's frame at that time
-    (:meth:`~rs_localizer.tracking.video.Localizer.drop`); one without a readable stamp does
-    nothing. Rig frames still open at the end (completed only when the node closes) are in
-    no entry.
+    into the rig mode (what ``play --lockstep`` waits after): the frames read as the rig node
+    reads them (:func:`~rs_localizer.ros.bags.bag_frames.read_rig_frames`), handed on as it
+    hands them (:func:`~rs_localizer.ros.camera_input.to_rig`) to the rig's own grouping,
+    without solving (:class:`~rs_localizer.tracking.video.GroupingOnly`: by reference-line
+    time within ``rig.window``; a frame before its camera's first camera_info, out of order
+    or late joins no rig frame; a cloud not read but stamped counts as the camera's frame
+    at that time).
 
     Returns:
         ``({(camera name, header stamp ns): number of rig frames its arrival completes}``
-        (frames completing none are left out), the number of rig frames formed in all (those
-        still open at the end included: the rig node's ``rig_frames`` once it closes them)).
+        (frames completing none left out, and the rig frames still open at the end), the
+        number of rig frames formed in all, the open ones included (the rig node's
+        ``rig_frames`` once it closes them)).
     Raises:
         ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
         :func:`~rs_localizer.ros.bags.bag_frames.read_rig_frames`).

@@ -595,26 +595,16 @@ class _RigReplay(_Run):
     (:class:`~rs_localizer.tracking.video.Localizer`), each camera's input
     (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`) and front end.
 
-    Each camera's frame message is read through its
-    :class:`~rs_localizer.ros.camera_input.CameraInput` as the rig node reads it: a cloud's
-    rows with a NaN or inf dropped, then at most ``max_points`` rows (highest scores first),
-    counted per camera (``points_dropped``, ``capped_clouds``); with a front end (``frontend``
-    other than ``none``, its map ``frontend_map``; a ``render-bag --rig`` bag holds its
-    ``markers.yaml``) its images (``<namespace>/<camera>/image_raw``) instead, through the
-    camera's own front end (decoded and checked against the camera model of its stamp, a
-    rejected one skipped for its reason). Each frame passes the single camera's entry checks
-    as the node's (:meth:`~rs_localizer.ros.camera_input.CameraInput.admit`: a header stamp
-    or an output stamp out of range counted received and ``failed.bad_stamp``, never seen by
-    the rig), then goes to the rig in the node's frame step
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.step`): a cloud that cannot be read
-    goes there as a frame skipped (``skipped.bad_input``), and its stamp is then noted on the
-    rig's clock as the node's camera notes it (after a time reset, the camera_infos stamped
-    after the camera's first frame of the new timeline forgotten). Each camera's counts are
-    the rig node's on the same messages (taken as they come, none dropped from a full
-    queue). A gyro on the rig (``imu.enabled``) is read from ``<namespace>/imu``, its
-    samples up to :data:`GYRO_AHEAD_NS` after a frame's stamp given to the rig before the
-    frame. Each rig frame is published as the rig node publishes it: its pose in
-    ``map_frame``, its twist in ``base_frame``.
+    Each camera's frame message (its clouds; with a front end, ``frontend`` other than
+    ``none``, its images ``<namespace>/<camera>/image_raw`` instead) takes the rig node's
+    frame step (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`: the entry checks,
+    a frame they drop counted ``failed.<reason>`` and never seen by the rig; then the
+    camera's rows or image to the rig, its stamp noted on the rig's clock), so that each
+    camera's counts are the rig node's on the same messages (taken as they come, none
+    dropped from a full queue). A gyro on the rig (``imu.enabled``) is read from
+    ``<namespace>/imu``, its samples up to :data:`GYRO_AHEAD_NS` after a frame's stamp given
+    to the rig before the frame. Each rig frame is published as the rig node publishes it:
+    its pose in ``map_frame``, its twist in ``base_frame``.
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
