@@ -49,6 +49,7 @@ from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
 from .bag_frames import (
     QuietLog,
     camera_messages,
+    frame_topic,
     is_rig_bag,
     rig_bag_config,
     rig_frontends,
@@ -57,7 +58,6 @@ from .bag_frames import (
 )
 from .bag_io import (
     CAMERA_INFO,
-    COMPRESSED_IMAGE,
     GT_POSE,
     IMAGE,
     IMU,
@@ -133,15 +133,9 @@ class ReplayResult:
     A rig bag's replay also has (empty for a camera's):
 
     - ``cameras``: the cameras' names (rig order); ``camera_counts``: ``rig``, its rig frames'
-      ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its frames'
-      ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (received = the other
-      four summed), its rows' ``points_dropped`` (rows with a NaN or inf) and
-      ``capped_clouds`` (clouds capped to ``max_points``), then ``failed.<reason>`` for each
-      reason its frames failed for before the rig (``bad_stamp``: a stamp out of range) and
-      ``skipped.<reason>`` for each reason its frames were skipped for (e.g. ``bad_input``:
-      clouds not read; ``no_camera_info``), as the rig node's diagnostics count them
-      ``<camera>.received``, ..., ``<camera>.skipped.<reason>``
-      (:func:`camera_counts`);
+      ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its counts
+      as the rig node's diagnostics count them (:func:`camera_counts`: received = solved +
+      failed + skipped + pending, its rows', why its frames failed or were skipped);
     - ``own_twist``: the errors of each rig frame's own twist (``frames``, ``angvel``,
       ``linvel``); ``off_deg``: camera -> one entry per posed rig frame in which it disagreed
       with the others (the cameras' consensus outvoted it, or the rig names it as
@@ -252,18 +246,6 @@ def _imu_mount_note(cfg: LocalizerConfig, info: dict) -> str | None:
         "differs from it: the gyro will contradict the image and frames be solved without it "
         f'(pass -p "imu.rotation:=[{q}]")'
     )
-
-
-def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, image_topic):
-    """The bag topic of the frames for ``source``."""
-    if source != "image":
-        return next((t for t in topics if t.rstrip("/").endswith("/" + source)), None)
-    want = COMPRESSED_IMAGE if cfg.image_transport == "compressed" else IMAGE
-    images = [t for t, mt in topics.items() if mt == want]
-    for t in (image_topic, info.get("topics", {}).get("image")):
-        if t in images:
-            return t
-    return images[0] if images else None
 
 
 def replay(
@@ -695,11 +677,8 @@ class _RigReplay(_Run):
 
     def _steps(self, outs: list, views: bool) -> list[_Step]:
         """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
-        the rig node tags it), each logged at its time; of each posed one, each camera that
-        disagrees with the others (:attr:`~rs_localizer.tracking.video.LocalizerOutput.
-        outvoted` or ``disagreeing``): how far off it is
-        (:meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg` on its frame of the rig
-        frame; NaN: not posed alone) appended to ``off_deg[camera]``."""
+        the rig node tags it), each logged at its time; how far off each camera of a posed
+        one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
         from ..visualization import rig_camera_views
 
         result, base, mf, steps = self.result, self.base_frame, self.map_frame, []
@@ -795,14 +774,15 @@ def _replay_topics(
             not one).
     """
     info = read_bag_info(path)
-    frame_topic = _frame_topic(topics, source, cfg, info, image_topic)
+    prefer = (image_topic, info.get("topics", {}).get("image"))
+    frames = frame_topic(topics, source, cfg.image_transport == "compressed", prefer)
     info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
-    if frame_topic is None:
+    if frames is None:
         what = f"*/{source}" if source != "image" else f"{cfg.image_transport} image"
         raise ValueError(f"{path}: no {what} topic (topics: {sorted(topics)})")
     if debug_outputs and source != "image" and image_topic is None:
         images = [t for t, mt in topics.items() if mt == IMAGE]
-        ns = frame_topic.rsplit("/", 1)[0] + "/"
+        ns = frames.rsplit("/", 1)[0] + "/"
         image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
     viz_topic = image_topic if debug_outputs and source != "image" else None
     if cfg.imu is not None:
@@ -814,7 +794,7 @@ def _replay_topics(
                 f"{path}: imu.enabled needs a sensor_msgs/Imu topic (--imu-topic; IMU topics: "
                 f"{imus})"
             )
-    return frame_topic, info_topic, viz_topic, imu_topic
+    return frames, info_topic, viz_topic, imu_topic
 
 
 def open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
