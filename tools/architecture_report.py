@@ -36,9 +36,6 @@ RIG_ONLY = {
         "frames, their disagreement, the refusal of a rig frame one camera poses"
     ),
     "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
-    "ros/bags/rig_bag.py": (
-        "a rig bag's counts per camera, disagreement, the grouping (replay, play)"
-    ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
     "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",

@@ -526,6 +526,24 @@ class CameraInput:
             self.note_on_rig(rig, stamp)
         return FrameStep(item, outs, taken_at)
 
+    def enter(self, rig: Localizer, msg: Any, kind: str, stamp: Stamp | DroppedFrame,
+              camera: CameraModel | None, frontend: bool,
+              before: Callable[[FrameTime], Any] | None = None
+              ) -> FrameStep | DroppedFrame:  # fmt: skip
+        """A rig camera's frame message of a checked ``stamp`` (:meth:`check`) and its
+        ``camera`` (:meth:`camera_of`) into ``rig``, the rig node's frame step and a rig bag's
+        replay's: :meth:`admit` with its times on the rig's clock
+        (:meth:`~rs_localizer.tracking.video.Localizer.frame_time`; ``frontend``: the rig's
+        cameras have front ends), a :class:`DroppedFrame` returned as it is (its owner counts
+        it ``failed.<reason>``: the rig never sees it); else ``before(frame time)`` when given
+        (a replay's gyro samples up to the frame), then :meth:`step`."""
+        ft = self.admit(kind, stamp, camera, partial(rig.frame_time, self.name), frontend)
+        if isinstance(ft, DroppedFrame):
+            return ft
+        if before is not None:
+            before(ft)
+        return self.step(rig, msg, kind, ft.stamp_ns, camera, ft.reference_ns)
+
     def note_on_rig(self, rig: Localizer, stamp: Stamp) -> None:
         """A rig camera's checked frame ``stamp`` noted on ``rig``'s clock after its frame went
         to the rig (:meth:`note_time` with

@@ -82,13 +82,14 @@ from collections import Counter, deque
 from collections.abc import Callable, Collection, Iterator
 from typing import Any
 
-from ..camera import CameraModel, FrameTime
+from ..camera import CameraModel
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
 from .camera_input import (
     CameraCounts,
     DroppedFrame,
+    FrameStep,
     ImageFrame,
     rig_camera_inputs,
 )
@@ -397,39 +398,35 @@ class RigMode:
         camera's counts of it at once; with
         ``republish_correspondences`` what the camera's front end found in an image."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
+        if kind == "image":
+            self._warn_no_info(name, "images")
+        tic = time.perf_counter()
         # (the single camera's entry checks: its stamp, its times made once, its output stamp
-        # in range)
+        # in range; then the frame step, a rig bag's replay's too)
         frontend = self.node.frontend_kind != "none"
-        ft = self.node.inputs[name].admit(kind, stamp, camera, self._frame_time(name), frontend)
-        if isinstance(ft, DroppedFrame):  # (the rig never sees it either)
+        taken = self.node.inputs[name].enter(self.rig, msg, kind, stamp, camera, frontend)
+        if isinstance(taken, DroppedFrame):  # (the rig never sees it either)
             self.node.warn(
-                f"{ft.reason}.{name}",
-                f"rig camera {name!r}: frame dropped ({ft.reason}): {ft.error}",
-                self.node.camera_counts[name].get(f"failed.{ft.reason}") + 1,
+                f"{taken.reason}.{name}",
+                f"rig camera {name!r}: frame dropped ({taken.reason}): {taken.error}",
+                self.node.camera_counts[name].get(f"failed.{taken.reason}") + 1,
             )
-            return TakenFrame((f"failed.{ft.reason}",), ft.reason)
+            return TakenFrame((f"failed.{taken.reason}",), taken.reason)
         found = []
-        outs = self._take(name, kind, msg, ft, camera)
+        outs = self._take(name, kind, taken, tic)
         if kind == "image" and self.node.republish:
             corr = self.rig.last_correspondences(name)
             if corr is not None:  # (also an image where it found nothing)
                 found.append((name, corr, stamp))
         return TakenFrame(outs=outs, found=found)
 
-    def _frame_time(self, name: str):
-        """Camera ``name``'s frame times on the rig's clock, ``(stamp, camera) ->``
-        :class:`~rs_localizer.camera.FrameTime`
-        (:meth:`~rs_localizer.tracking.video.Localizer.frame_time`)."""
-        return lambda stamp, camera: self.rig.frame_time(name, stamp, camera)
-
-    def _take(self, name: str, kind: str, msg, ft: FrameTime, camera: CameraModel | None) -> list:
-        """A camera frame of checked times ``ft`` (:meth:`.camera_input.CameraInput.admit`:
-        its stamp and its time on the rig's clock; ``camera`` the model of it) to the rig
-        through the camera's input stage in the single camera's frame step
-        (:meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.CameraInput.take`, as a
-        rig bag's in ``replay``, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
-        clock: the camera's camera_infos stamped after a time reset forgotten); returns the rig
-        frames it completed.
+    def _take(self, name: str, kind: str, taken: FrameStep, tic: float) -> list:
+        """A camera frame's step into the rig from ``tic`` (:func:`time.perf_counter` s;
+        :meth:`.camera_input.CameraInput.enter`: its checked times, then the single camera's
+        frame step, :meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.
+        CameraInput.take`, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
+        clock: the camera's camera_infos stamped after a time reset forgotten), ``taken``,
+        counted and logged; returns the rig frames it completed.
 
         A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
         ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
@@ -450,13 +447,7 @@ class RigMode:
         counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
         image kept for ``debug_image`` while someone watches. The frame's times per stage go
         to the diagnostics (:func:`note_camera_frame`)."""
-        if kind == "image":
-            self._warn_no_info(name, "images")
-        stamp = ft.stamp_ns
-        tic = time.perf_counter()
-        item, outs, taken_at = self.node.inputs[name].step(
-            self.rig, msg, kind, stamp, camera, ft.reference_ns
-        )
+        item, outs, taken_at = taken
         search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
         note_camera_frame(self._rig_counts, tic, taken_at, search and search.seconds,
                           any(o.success for o in outs), time.perf_counter())  # fmt: skip
@@ -468,7 +459,7 @@ class RigMode:
         if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
             # (only while someone watches; drawn when the rig frame is published)
             self._images.setdefault(name, deque(maxlen=4)).append(
-                (item.image, item.encoding, stamp)
+                (item.image, item.encoding, item.stamp_ns)
             )
         return outs
 

@@ -276,7 +276,7 @@ def test_a_rig_cameras_frames_are_the_same_in_its_diagnostics_and_a_replay():
     values."""
     from helpers.rig import mounts_of
 
-    from rs_localizer.ros.bags.rig_bag import camera_counts
+    from rs_localizer.ros.bags.replay import camera_counts
     from rs_localizer.ros.diagnostics import RigInputs, rig_camera_frames
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.localizer import CameraFrame

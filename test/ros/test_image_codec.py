@@ -315,6 +315,9 @@ def _rig_node_decode(msg, cam):
         def last_search(self, name):  # (no search timed)
             return None
 
+        def frame_time(self, name, stamp, camera):  # (its time the stamp)
+            return FrameTime(stamp, int(stamp))
+
     log = SimpleNamespace(warning=lambda key, text: logged.append(text))
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
@@ -324,9 +327,9 @@ def _rig_node_decode(msg, cam):
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
-    # (the rig camera's entry checks, as RigMode.take_frame makes them; its time the stamp)
-    ft = camera_input.admit("image", stamp, camera, lambda s, c: FrameTime(s, int(s)), True)
-    assert mode._take("c", "image", msg, ft, camera) == []
+    # (the rig camera's entry checks and frame step, as RigMode.take_frame makes them)
+    taken = camera_input.enter(mode.rig, msg, "image", stamp, camera, True)
+    assert mode._take("c", "image", taken, 0.0) == []
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

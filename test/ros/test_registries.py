@@ -26,7 +26,6 @@ RIG_ONLY = (
     "estimation/rig.py",
     "tracking/rig.py",
     "ros/rig_node.py",
-    "ros/bags/rig_bag.py",
     "calibration/mountings.py",
     "cli/calibrate_rig.py",
 )

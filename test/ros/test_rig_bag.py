@@ -445,8 +445,8 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
 
     from rs_localizer.ros.bags.bag_frames import read_rig_frames
     from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.bags.replay import replay
-    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
 
     cams = default_rig(2)
@@ -498,8 +498,8 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
 
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
+    from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.bags.replay import replay
-    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
     from rs_localizer.ros.camera_input import DroppedFrame, to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.tracking.video import Localizer
@@ -569,7 +569,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
 
     from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.ros.bags.rig_bag import rig_frame_grouping
+    from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.camera_input import to_rig
     from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video

@@ -119,7 +119,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     mode (Localizer) solve rig frames: with a dropped frame and a camera that stops."""
     from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
     from rs_localizer.ros.bags.bag_io import write_rig_bag
-    from rs_localizer.ros.bags.rig_bag import rig_frame_ends
+    from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.config import rig_config
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
@@ -129,7 +129,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     cams[2] = type(cams[2])(**{**cams[2].__dict__, "stop": 0.25})
     frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=60, seed=2)
     bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
-    ends = rig_frame_ends(bag)
+    ends = rig_frame_grouping(bag)[0]
     values, cam_values = rig_parameter_values(bag)
     rig = Localizer(rig_config(values, cam_values).settings)
     truth = {}

@@ -30,6 +30,7 @@ from ..param_files import read_params_file
 from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
 from .bag_io import (
     CAMERA_INFO,
+    COMPRESSED_IMAGE,
     IMAGE,
     IMU,
     RigTopics,
@@ -54,6 +55,7 @@ __all__ = [
     "QuietLog",
     "RigFrames",
     "camera_messages",
+    "frame_topic",
     "is_rig_bag",
     "iter_rig_frames",
     "read_bag_frames",
@@ -85,12 +87,16 @@ class BagFrames:
     direction: str = "top_to_bottom"
 
 
-def _frame_topic(topics: dict, source: str):
-    if source == "image":
-        cand = [t for t, mt in topics.items() if mt == IMAGE]
-    else:
-        cand = [t for t in topics if t.rstrip("/").endswith("/" + source)]
-    return cand[0] if cand else None
+def frame_topic(topics: Mapping[str, str], source: str, compressed: bool = False,
+                prefer: Iterable[str | None] = ()) -> str | None:  # fmt: skip
+    """The topic of a bag's frames for ``source`` (``topics``: topic -> msgtype): of
+    ``correspondences`` or ``keypoints`` the first ``*/<source>`` topic; of ``image`` the
+    first of ``prefer`` that is an image topic (``sensor_msgs/CompressedImage`` with
+    ``compressed``, else ``sensor_msgs/Image``), else the first image topic; None: none."""
+    if source != "image":
+        return next((t for t in topics if t.rstrip("/").endswith("/" + source)), None)
+    images = [t for t, mt in topics.items() if mt == (COMPRESSED_IMAGE if compressed else IMAGE)]
+    return next((t for t in prefer if t in images), images[0] if images else None)
 
 
 def read_bag_frames(
@@ -131,9 +137,9 @@ def read_bag_frames(
     direction = direction or rs.get("direction", "top_to_bottom")
     out = BagFrames(stamp_row=float(rs.get("stamp_row", 0.0)), direction=direction)
     topics = bag_topics(path)
-    frame_topic = _frame_topic(topics, source)
+    frames = frame_topic(topics, source)
     info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
-    if frame_topic is None:
+    if frames is None:
         raise ValueError(f"{path}: no {source} topic (topics: {sorted(topics)})")
     lm_index = None
     fe = None
@@ -169,7 +175,7 @@ def read_bag_frames(
             )
         fe = make_frontend(kind, fmap)
     ts = typestore()
-    for topic, msgtype, _, raw in iter_messages(path, {frame_topic, info_topic}):
+    for topic, msgtype, _, raw in iter_messages(path, {frames, info_topic}):
         msg = ts.deserialize_cdr(raw, msgtype)
         if topic == info_topic:
             if out.camera is None:

@@ -10,8 +10,7 @@ frames; a rendered bag may add the image), only one of them is played, the one t
 A rig bag (``make-bag --rig``, ``render-bag --rig``: cameras ``<ns>/<camera>/...``) is played
 the same way, every camera's topics in log-time order; in lock-step the player waits for the
 rig's ``<ns>/pose`` after each camera frame that completes a rig frame in the rig mode
-(:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), and sends the other cameras' frames
-without waiting."""
+(:func:`rig_frame_grouping`), and sends the other cameras' frames without waiting."""
 
 from __future__ import annotations
 
@@ -40,7 +39,15 @@ from .bag_io import (
     iter_messages,
 )
 
-__all__ = ["SOURCES", "PlayResult", "choose_frame_topics", "is_frame_topic", "output_type", "play"]
+__all__ = [
+    "SOURCES",
+    "PlayResult",
+    "choose_frame_topics",
+    "is_frame_topic",
+    "output_type",
+    "play",
+    "rig_frame_grouping",
+]
 
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 #: ``play(source=...)``: what a camera namespace with several frame topics sends
@@ -91,7 +98,7 @@ class PlayResult:
     #: lock-step: why playing stopped before the end (no node answered), else ""
     gave_up: str = ""
     #: a rig bag in lock-step: the rig frames the frames sent completed, grouped as the rig
-    #: node groups them (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`), else 0
+    #: node groups them (:func:`rig_frame_grouping`), else 0
     rig_frames: int = 0
     #: a rig bag: the rig frames its camera frames form in all (the node's ``rig_frames``
     #: after the whole bag), else 0
@@ -205,16 +212,49 @@ def _bag_stream(
     )
 
 
+def rig_frame_grouping(bag: str | os.PathLike, params_files: Iterable[str | os.PathLike] = (),
+                       params: Mapping[str, Any] | None = None) -> tuple[dict, int]:  # fmt: skip
+    """Which camera frames of a rig bag complete a rig frame when played in log-time order
+    into the rig mode (what ``play --lockstep`` waits after): the frames read as the rig node
+    reads them (:func:`~rs_localizer.ros.bags.bag_frames.read_rig_frames`), handed on as it
+    hands them (:func:`~rs_localizer.ros.camera_input.to_rig`) to the rig's own grouping,
+    without solving (:class:`~rs_localizer.tracking.video.GroupingOnly`: by reference-line
+    time within ``rig.window``; a frame before its camera's first camera_info, out of order
+    or late joins no rig frame; a cloud not read but stamped counts as the camera's frame
+    at that time).
+
+    Returns:
+        ``({(camera name, header stamp ns): number of rig frames its arrival completes}``
+        (frames completing none left out, and the rig frames still open at the end), the
+        number of rig frames formed in all, the open ones included (the rig node's
+        ``rig_frames`` once it closes them)).
+    Raises:
+        ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
+        :func:`~rs_localizer.ros.bags.bag_frames.read_rig_frames`).
+    """
+    from ...tracking.video import GroupingOnly
+    from ..camera_input import to_rig
+    from .bag_frames import read_rig_frames
+
+    read = read_rig_frames(bag, params_files, params)
+    rig = GroupingOnly(read.settings)
+    out: dict[tuple[str, int], int] = {}
+    for f in read.items:
+        done = len(to_rig(rig, f))
+        if done:
+            out[(f.camera_name, f.stamp_ns)] = out.get((f.camera_name, f.stamp_ns), 0) + done
+    return out, int(rig.counts["rig_frames"])
+
+
 def _rig_grouping(path, params_files: list, params: Mapping[str, Any] | None) -> tuple:
     """A rig bag's ``(namespace of its cameras' topics, future of its rig frame grouping)``
-    (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`, with the rig node's parameter
-    files and parameters): the grouping is read on another thread, beside the first messages
+    (:func:`rig_frame_grouping`, with the rig node's parameter files and parameters): the
+    grouping is read on another thread, beside the first messages
     sent, since it reads the whole bag."""
     from concurrent.futures import ThreadPoolExecutor
 
     from .bag_frames import rig_parameter_values
     from .bag_io import rig_namespace
-    from .rig_bag import rig_frame_grouping
 
     cameras = rig_parameter_values(path, params_files, params)[0]["rig.cameras"]
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
@@ -266,9 +306,8 @@ def play(
             compiles its kernels (its log on ``/rosout``, ``compile_state`` on
             ``/diagnostics``) the wait goes on, up to ``compile_wait`` s in all.
             A rig bag (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`) waits only after the
-            camera frames that complete a rig frame
-            (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), for the rig's pose
-            (``<ns>/pose``; ``PlayResult.rig_frames`` counts them).
+            camera frames that complete a rig frame (:func:`rig_frame_grouping`), for the
+            rig's pose (``<ns>/pose``; ``PlayResult.rig_frames`` counts them).
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``;
             the key ``__ns`` moves every other bag topic into that namespace
             (:func:`live_topic`).

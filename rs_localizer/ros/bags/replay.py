@@ -27,7 +27,6 @@ import shutil
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -50,6 +49,7 @@ from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
 from .bag_frames import (
     QuietLog,
     camera_messages,
+    frame_topic,
     is_rig_bag,
     rig_bag_config,
     rig_frontends,
@@ -58,7 +58,6 @@ from .bag_frames import (
 )
 from .bag_io import (
     CAMERA_INFO,
-    COMPRESSED_IMAGE,
     GT_POSE,
     IMAGE,
     IMU,
@@ -74,19 +73,21 @@ from .bag_io import (
     storage_plugin,
     typestore,
 )
-from .rig_bag import GYRO_AHEAD_NS, camera_counts, disagreeing, note_disagreeing
 
 if TYPE_CHECKING:
-    from ...camera import CameraModel
+    from ...camera import CameraModel, FrameTime
     from ...estimation.result import RSPoseEstimate
     from ...pose import PoseWithCovariance
+    from ...tracking.video import Localizer
 
 __all__ = [
     "BAG_TIMING",
     "CSV_COLUMNS",
+    "GYRO_AHEAD_NS",
     "DebugWriter",
     "ReplayResult",
     "ReplayRows",
+    "camera_counts",
     "open_out_bag",
     "replay",
     "replay_parameters",
@@ -132,15 +133,9 @@ class ReplayResult:
     A rig bag's replay also has (empty for a camera's):
 
     - ``cameras``: the cameras' names (rig order); ``camera_counts``: ``rig``, its rig frames'
-      ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its frames'
-      ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (received = the other
-      four summed), its rows' ``points_dropped`` (rows with a NaN or inf) and
-      ``capped_clouds`` (clouds capped to ``max_points``), then ``failed.<reason>`` for each
-      reason its frames failed for before the rig (``bad_stamp``: a stamp out of range) and
-      ``skipped.<reason>`` for each reason its frames were skipped for (e.g. ``bad_input``:
-      clouds not read; ``no_camera_info``), as the rig node's diagnostics count them
-      ``<camera>.received``, ..., ``<camera>.skipped.<reason>``
-      (:func:`~rs_localizer.ros.bags.rig_bag.camera_counts`);
+      ``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending``; per camera its counts
+      as the rig node's diagnostics count them (:func:`camera_counts`: received = solved +
+      failed + skipped + pending, its rows', why its frames failed or were skipped);
     - ``own_twist``: the errors of each rig frame's own twist (``frames``, ``angvel``,
       ``linvel``); ``off_deg``: camera -> one entry per posed rig frame in which it disagreed
       with the others (the cameras' consensus outvoted it, or the rig names it as
@@ -184,9 +179,15 @@ class ReplayResult:
     @property
     def disagreeing(self) -> dict:
         """camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera of a rig that
-        disagreed with the others in N posed rig frames, X the median of :attr:`off_deg`
-        (:func:`~rs_localizer.ros.bags.rig_bag.disagreeing`)."""
-        return disagreeing(self.off_deg)
+        disagreed with the others in N posed rig frames, X the median of :attr:`off_deg`, deg
+        (NaN: never posed alone)."""
+        return {
+            n: {
+                "rig_frames": len(d),
+                "median_deg": float(np.nanmedian(d)) if np.isfinite(d).any() else float("nan"),
+            }
+            for n, d in self.off_deg.items()
+        }
 
 
 def replay_parameters(
@@ -245,18 +246,6 @@ def _imu_mount_note(cfg: LocalizerConfig, info: dict) -> str | None:
         "differs from it: the gyro will contradict the image and frames be solved without it "
         f'(pass -p "imu.rotation:=[{q}]")'
     )
-
-
-def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, image_topic):
-    """The bag topic of the frames for ``source``."""
-    if source != "image":
-        return next((t for t in topics if t.rstrip("/").endswith("/" + source)), None)
-    want = COMPRESSED_IMAGE if cfg.image_transport == "compressed" else IMAGE
-    images = [t for t, mt in topics.items() if mt == want]
-    for t in (image_topic, info.get("topics", {}).get("image")):
-        if t in images:
-            return t
-    return images[0] if images else None
 
 
 def replay(
@@ -494,7 +483,6 @@ class _CameraReplay(_Run):
             self.result.notes.append(note)
         self.pipeline = self.engine = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
         self.inputs = {"": self.pipeline}
-        self.index = 0
 
     def start(self, imu: list) -> None:
         for msg in imu:
@@ -503,9 +491,10 @@ class _CameraReplay(_Run):
     def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
         """A frame through the pipeline: its step."""
         res = self.pipeline.process(msg, self.source)
-        step = _Step(t_log, frame_messages(res, self.map_frame, _WANTED), res.fused,
-                     _camera_row(self.index, res, self.cfg.solver))  # fmt: skip
-        self.index += 1
+        est, ms = res.estimate, res.times.get("estimate", math.nan) * 1e3
+        row = _row(res.stamp_ns, res.out_stamp_ns, res.solved, res.failure or "", self.cfg.solver,
+                   est, 0 if est is None else len(res.points2d), ms)  # fmt: skip
+        step = _Step(t_log, frame_messages(res, self.map_frame, _WANTED), res.fused, row)
         if res.solved:
             step.pose, step.out_stamp_ns = res.output, res.out_stamp_ns
             step.twist_now, step.estimate = res.twist_now, res.estimate
@@ -529,25 +518,20 @@ class _CameraReplay(_Run):
         return self.pipeline.tracking_values()
 
 
-def _camera_row(index: int, res: FrameResult, solver: str) -> dict:
-    """The row of a camera's frame (the pipeline's result ``res``, solved by ``solver``), its
-    pose and twists left to :meth:`ReplayRows.add`."""
-    row = {
-        "frame": index,
-        "stamp_ns": res.stamp_ns,
-        "success": res.solved,
-        "failure": res.failure or "",
-        "solver": solver,
-    }
-    if res.out_stamp_ns is not None:
-        row["out_stamp_ns"] = res.out_stamp_ns
-    est = res.estimate
+def _row(stamp_ns: int, out_stamp_ns: int | None, success: bool, failure: str, solver: str,
+         est: RSPoseEstimate | None, num_points: int = 0,
+         time_ms: float | None = None) -> dict:  # fmt: skip
+    """The row of a frame, a camera's or a rig frame (:meth:`ReplayRows.add` numbers it and
+    adds its pose and twists): its stamps (ns; the outputs' None: a camera's frame dropped
+    before its times were made), ``success``, ``failure`` ("" when solved), ``solver``; with
+    an estimate (solved or failed): a camera's ``time_ms`` (the estimator's), ``num_points``
+    (a rig frame's: all its cameras'), the estimate's ``num_inliers`` and ``rmse_px``."""
+    row = {"stamp_ns": stamp_ns, "out_stamp_ns": out_stamp_ns, "success": success,
+           "failure": failure, "solver": solver}  # fmt: skip
     if est is not None:
-        row["time_ms"] = res.times.get("estimate", float("nan")) * 1e3
-        row["num_points"] = len(res.points2d)
-        row["num_inliers"] = est.num_inliers
-        row["rmse_px"] = est.rmse_px
-    return row
+        row.update(time_ms=time_ms, num_points=num_points, num_inliers=est.num_inliers,
+                   rmse_px=est.rmse_px)  # fmt: skip
+    return {k: v for k, v in row.items() if v is not None or k not in ("out_stamp_ns", "time_ms")}
 
 
 def _camera_view(res: FrameResult) -> _View:
@@ -559,6 +543,32 @@ def _camera_view(res: FrameResult) -> _View:
                  res.frame_id, res.out_stamp_ns, image)  # fmt: skip
 
 
+#: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
+#: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
+GYRO_AHEAD_NS = 50_000_000
+
+
+def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: bool = False) -> dict:
+    """Camera ``n``'s counts in a rig bag's replay, those of the rig node's diagnostics
+    (:func:`~rs_localizer.ros.diagnostics.rig_camera_section` of the rig's counts and the
+    node's ``own``, its :class:`~rs_localizer.ros.camera_input.CameraCounts`' counts) without
+    the ``<n>.`` prefix: its frames' (received, solved, failed, skipped, pending), its rows'
+    (``points_dropped``, ``capped_clouds``; with ``keypoints``, a replay with
+    ``landmarks_file``, also ``unknown_landmark_ids``), then ``failed.<reason>`` for each
+    reason the node failed its frames for before the rig (e.g. ``bad_stamp``: a stamp out of
+    range) and ``skipped.<reason>`` for each reason it was skipped for (the node's and the
+    rig's, e.g. ``bad_input``: clouds not read)."""
+    from ..diagnostics import rig_camera_section
+    from ..frame_queue import FRAME_ACCOUNTING
+
+    section = rig_camera_section(rig, n, own)
+    rows = ("points_dropped", "capped_clouds", *(("unknown_landmark_ids",) if keypoints else ()))
+    out = {k: section[f"{n}.{k}"] for k in (*FRAME_ACCOUNTING, *rows)}
+    why = (f"{n}.failed.", f"{n}.skipped.")
+    out.update({k[len(n) + 1 :]: v for k, v in section.items() if k.startswith(why) and v})
+    return out
+
+
 class _RigReplay(_Run):
     """A rig bag's cameras through the rig mode, as the rig node runs it (:func:`replay`):
     configured on construction from the parameters
@@ -567,26 +577,16 @@ class _RigReplay(_Run):
     (:class:`~rs_localizer.tracking.video.Localizer`), each camera's input
     (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`) and front end.
 
-    Each camera's frame message is read through its
-    :class:`~rs_localizer.ros.camera_input.CameraInput` as the rig node reads it: a cloud's
-    rows with a NaN or inf dropped, then at most ``max_points`` rows (highest scores first),
-    counted per camera (``points_dropped``, ``capped_clouds``); with a front end (``frontend``
-    other than ``none``, its map ``frontend_map``; a ``render-bag --rig`` bag holds its
-    ``markers.yaml``) its images (``<namespace>/<camera>/image_raw``) instead, through the
-    camera's own front end (decoded and checked against the camera model of its stamp, a
-    rejected one skipped for its reason). Each frame passes the single camera's entry checks
-    as the node's (:meth:`~rs_localizer.ros.camera_input.CameraInput.admit`: a header stamp
-    or an output stamp out of range counted received and ``failed.bad_stamp``, never seen by
-    the rig), then goes to the rig in the node's frame step
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.step`): a cloud that cannot be read
-    goes there as a frame skipped (``skipped.bad_input``), and its stamp is then noted on the
-    rig's clock as the node's camera notes it (after a time reset, the camera_infos stamped
-    after the camera's first frame of the new timeline forgotten). Each camera's counts are
-    the rig node's on the same messages (taken as they come, none dropped from a full
-    queue). A gyro on the rig (``imu.enabled``) is read from ``<namespace>/imu``, its
-    samples up to :data:`~rs_localizer.ros.bags.rig_bag.GYRO_AHEAD_NS` after a frame's stamp
-    given to the rig before the frame. Each rig frame is published as the rig node publishes
-    it: its pose in ``map_frame``, its twist in ``base_frame``.
+    Each camera's frame message (its clouds; with a front end, ``frontend`` other than
+    ``none``, its images ``<namespace>/<camera>/image_raw`` instead) takes the rig node's
+    frame step (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`: the entry checks,
+    a frame they drop counted ``failed.<reason>`` and never seen by the rig; then the
+    camera's rows or image to the rig, its stamp noted on the rig's clock), so that each
+    camera's counts are the rig node's on the same messages (taken as they come, none
+    dropped from a full queue). A gyro on the rig (``imu.enabled``) is read from
+    ``<namespace>/imu``, its samples up to :data:`GYRO_AHEAD_NS` after a frame's stamp given
+    to the rig before the frame. Each rig frame is published as the rig node publishes it:
+    its pose in ``map_frame``, its twist in ``base_frame``.
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
@@ -646,30 +646,29 @@ class _RigReplay(_Run):
         self.gyro = sorted(gyro, key=lambda x: x[0])[::-1]
 
     def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
-        """A camera's frame message through its input to the rig: the steps of the rig frames
-        it completes."""
-        rig, own, inp = self.engine, self.own[name], self.inputs[name]
+        """A camera's frame message through its input to the rig, in the rig node's frame step
+        (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`; a frame it drops counted
+        ``failed.<reason>`` by the node alone), the gyro's samples up to
+        :data:`GYRO_AHEAD_NS` after its stamp first: the steps of the rig frames it completes."""
+        own, inp = self.own[name], self.inputs[name]
         own.add("received")  # (as the node: every message, taken at once)
         stamp = inp.check(msg, kind)
-        camera = inp.camera_of(stamp)
-        # (the node's entry checks: a stamp out of range failed by the node alone)
-        ft = inp.admit(kind, stamp, camera, partial(rig.frame_time, name), self.frontends)
-        if isinstance(ft, DroppedFrame):
-            own.add(f"failed.{ft.reason}")
+        taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp), self.frontends,
+                          self._gyro_to)  # fmt: skip
+        if isinstance(taken, DroppedFrame):
+            own.add(f"failed.{taken.reason}")
             return []
+        return self._steps(taken.outs, views)
+
+    def _gyro_to(self, ft: FrameTime) -> None:
         while self.gyro and self.gyro[-1][0] <= ft.stamp_ns + GYRO_AHEAD_NS:  # (its readout's)
-            rig.add_imu(*self.gyro.pop())
-        # (the node's frame step: to the rig, then its stamp on the rig's clock)
-        outs = inp.step(rig, msg, kind, ft.stamp_ns, camera, ft.reference_ns).outs
-        note_disagreeing(rig, outs, self.off_deg)
-        return self._steps(outs, views)
+            self.engine.add_imu(*self.gyro.pop())
 
     def close(self, t_log: int, views: bool) -> tuple[list, int, list]:
         """The end of the video: the rig frames it closes, then the fused twists still
         pending, at the last rig frame's time."""
         rig, result = self.engine, self.result
         tail = rig.close()
-        note_disagreeing(rig, tail, self.off_deg)
         result.flushed = rig.flush()
         steps = self._steps(tail, views)
         t_end = result.outputs[-1].stamp_ns if result.outputs else 0
@@ -678,7 +677,8 @@ class _RigReplay(_Run):
 
     def _steps(self, outs: list, views: bool) -> list[_Step]:
         """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
-        the rig node tags it), each logged at its time."""
+        the rig node tags it), each logged at its time; how far off each camera of a posed
+        one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
         from ..visualization import rig_camera_views
 
         result, base, mf, steps = self.result, self.base_frame, self.map_frame, []
@@ -689,10 +689,16 @@ class _RigReplay(_Run):
                 self.fit.update(o.num_points, est)
             fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in o.fused]
             msgs = pose_messages(est, t, mf, base, self.twist_now, (), _WANTED) if o.success else []
-            step = _Step(t, msgs + fused_messages(fused, mf, _WANTED), fused,
-                         _rig_row(len(result.outputs), o))  # fmt: skip
+            failure = "" if o.success else (est.failure if est is not None else "error")
+            row = _row(t, t, o.success, failure, est.solver if est is not None else "", est,
+                       o.num_points)  # fmt: skip
+            step = _Step(t, msgs + fused_messages(fused, mf, _WANTED), fused, row)
             result.outputs.append(o)
             if o.success:
+                for n in (n for n in o.cameras if n in o.outvoted or n in o.disagreeing):
+                    f = o.frames.get(n)
+                    deg = None if f is None else self.engine.camera_off_deg(o, f)
+                    self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
                 step.pose, step.out_stamp_ns, step.estimate = est, t, est
                 step.twist_now = self.twist_now or o.twist_now
                 drawn = rig_camera_views(o, self.mounts) if views else ()
@@ -724,27 +730,6 @@ class _RigReplay(_Run):
     def readout_values(self) -> dict:
         """The check of the cameras' rolling-shutter timing on the video."""
         return self.engine.readout_values()
-
-
-def _rig_row(index: int, o: Any) -> dict:
-    """The row of a rig frame (``o``, a :class:`~rs_localizer.tracking.video.LocalizerOutput`,
-    solved or failed): its stamp the rig frame's time, ``num_points`` the rows of all its
-    cameras, ``failure`` the estimator's or the rig's reason (``error``: the estimator raised),
-    ``solver`` the estimator's; its pose and twists left to :meth:`ReplayRows.add`."""
-    est = o.estimate
-    row = {
-        "frame": index,
-        "stamp_ns": o.stamp_ns,
-        "out_stamp_ns": o.stamp_ns,
-        "success": o.success,
-        "failure": "" if o.success else (est.failure if est is not None else "error"),
-        "solver": est.solver if est is not None else "",
-    }
-    if est is not None:
-        row["num_points"] = o.num_points
-        row["num_inliers"] = est.num_inliers
-        row["rmse_px"] = est.rmse_px
-    return row
 
 
 def _replay_config(
@@ -789,14 +774,15 @@ def _replay_topics(
             not one).
     """
     info = read_bag_info(path)
-    frame_topic = _frame_topic(topics, source, cfg, info, image_topic)
+    prefer = (image_topic, info.get("topics", {}).get("image"))
+    frames = frame_topic(topics, source, cfg.image_transport == "compressed", prefer)
     info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
-    if frame_topic is None:
+    if frames is None:
         what = f"*/{source}" if source != "image" else f"{cfg.image_transport} image"
         raise ValueError(f"{path}: no {what} topic (topics: {sorted(topics)})")
     if debug_outputs and source != "image" and image_topic is None:
         images = [t for t, mt in topics.items() if mt == IMAGE]
-        ns = frame_topic.rsplit("/", 1)[0] + "/"
+        ns = frames.rsplit("/", 1)[0] + "/"
         image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
     viz_topic = image_topic if debug_outputs and source != "image" else None
     if cfg.imu is not None:
@@ -808,7 +794,7 @@ def _replay_topics(
                 f"{path}: imu.enabled needs a sensor_msgs/Imu topic (--imu-topic; IMU topics: "
                 f"{imus})"
             )
-    return frame_topic, info_topic, viz_topic, imu_topic
+    return frames, info_topic, viz_topic, imu_topic
 
 
 def open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
@@ -862,10 +848,10 @@ class ReplayRows:
     def add(
         self, row: dict, out: PoseWithCovariance | None, stamp: int | None, twist_now: bool
     ) -> None:
-        """A frame's ``row`` (``frame``, ``stamp_ns``, ``success``, ``failure``, ``solver``,
-        ``out_stamp_ns``, ``time_ms``, ``num_points``, ``num_inliers``, ``rmse_px``: those it
-        has) and, when posed, its published pose ``out`` at ``stamp`` (ns; ``twist_now``: its
-        own twist is the one published, else the fused one comes with :meth:`fused`)."""
+        """A frame's ``row`` (:func:`_row`; numbered here, ``frame``) and, when posed, its
+        published pose ``out`` at ``stamp`` (ns; ``twist_now``: its own twist is the one
+        published, else the fused one comes with :meth:`fused`)."""
+        row = {"frame": len(self.rows), **row}
         self.rows.append(row)
         if out is None:
             return
