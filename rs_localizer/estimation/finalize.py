@@ -85,6 +85,7 @@ __all__ = [
     "FinalModel",
     "ImageAlone",
     "checked_final",
+    "checked_outputs",
     "chosen_refinement",
     "final_covariance",
     "final_estimate",
@@ -1121,23 +1122,76 @@ def solved_estimate(
     return RSPoseEstimate._trusted(success=True, failure=None, **(given | fields))
 
 
-def checked_final(fr: Frame, final: FinalModel, compiled: bool = True) -> int:
-    """The last checks of :func:`final_estimate` on ``final`` (:func:`last_checks` within
-    the frame's :attr:`~.frame.Frame.motion_bounds`): the number of the frame's points behind
-    the camera.
+def checked_final(
+    fr: RefinementView,
+    final: FinalModel,
+    compiled: bool = True,
+    bounds2: tuple[float, float] | None = None,
+) -> int:
+    """The last checks of a final model (:func:`last_checks` on ``final`` within the squared
+    velocity bounds ``bounds2``, per unit of the frame's time; None: a camera's
+    :attr:`~.frame.Frame.motion_bounds`): the number of the frame's points behind their
+    cameras.
 
     Raises:
-        EstimationFailed: ``implausible_motion``, ``cheirality``.
+        EstimationFailed: ``implausible_motion``, ``cheirality`` (with the points behind).
     """
-    bounds = fr.motion_bounds
-    w2max, v2max = (
-        (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
-    )
+    if bounds2 is None:
+        bounds = fr.motion_bounds
+        bounds2 = (
+            (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+        )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    failure, n_behind = last_checks(fr, final.model, final.inliers, w2max, v2max, compiled)
+    failure, n_behind = last_checks(fr, final.model, final.inliers, *bounds2, compiled)
     if failure is not None:
-        raise EstimationFailed(failure)
+        raise EstimationFailed(failure, n_behind)
     return n_behind
+
+
+def checked_outputs(
+    fr: RefinementView,
+    final: FinalModel,
+    rolling: bool,
+    seconds_per_unit: float,
+    consistent_fit: bool,
+    threshold: float,
+    errors: Callable[[], np.ndarray],
+    condition: Callable[[], float],
+    view_planar: Callable[[int], bool],
+    compiled: bool = True,
+    *,
+    bounds2: tuple[float, float] | None = None,
+    support_share: float = 0.0,
+    flat: float | None = None,
+) -> tuple[int, tuple | None]:
+    """The finish of a final model of a camera's or a rig's frame (``fr``, its
+    :meth:`~.frame.RefinementView.views`), in order: the last checks (:func:`checked_final`
+    within ``bounds2``), with ``consistent_fit`` the consistent-fit test
+    (:func:`inconsistent_fit` with ``threshold``, ``errors``, ``condition``, ``view_planar``,
+    ``support_share`` and ``flat`` as there), and the output covariances of
+    ``final.covariance`` (:func:`~.result.output_covariance` at ``seconds_per_unit`` s per
+    unit of the frame's time; 0: no twist).
+
+    Args:
+        rolling: a rolling-shutter fit.
+
+    Returns:
+        (the number of points behind their cameras, ``(covariance (12, 12), pose (6, 6),
+        twist (6, 6) or None)`` in ROS order, or None without ``final.covariance``).
+
+    Raises:
+        EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
+    """
+    behind = checked_final(fr, final, compiled, bounds2)
+    if consistent_fit and inconsistent_fit(
+        fr.X, final.inliers, final.model, fr.views(), rolling, threshold, errors, condition,
+        view_planar, compiled, support_share=support_share, flat=flat,
+    ):  # fmt: skip
+        raise EstimationFailed(INCONSISTENT_FIT)
+    if final.covariance is None:
+        return behind, None
+    R, C, w, _ = final.model
+    return behind, output_covariance(final.covariance, R, C, w, seconds_per_unit, compiled)
 
 
 def final_estimate(
@@ -1195,34 +1249,20 @@ def final_estimate(
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
     (R, C, w, t), inl = final.model, final.inliers
-    n_behind = checked_final(fr, final, compiled)
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled) if flat is None else flat
-    position = camera_position(R, C)
     cond = information_condition(final.information, rolling, compiled)
     cond = cond if condition is None else condition
-    if consistent_fit and inconsistent_fit(
-        fr.X,
-        inl,
-        final.model,
-        None,
-        rolling,
-        threshold,
-        lambda: fr.errors(final.model, compiled),
-        lambda: cond,
-        lambda m: fr.planar,
-        compiled,
+    n_behind, cov = checked_outputs(
+        fr, final, rolling, fr.spr, consistent_fit, threshold,
+        lambda: fr.errors(final.model, compiled), lambda: cond, lambda m: fr.planar, compiled,
         flat=flat,
-    ):
-        raise EstimationFailed(INCONSISTENT_FIT)
-    cov = None
-    if final.covariance is not None:
-        cov = output_covariance(final.covariance, R, C, w, fr.spr, compiled)
+    )  # fmt: skip
     return solved_estimate(
         fr,
         solver,
         (R, C, w, t),
-        position,
+        camera_position(R, C),
         inl,
         n_behind,
         physical_velocities(R, C, w, t, fr.spr, compiled),

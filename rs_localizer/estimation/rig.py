@@ -144,14 +144,14 @@ from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
+    FinalModel,
+    checked_outputs,
     chosen_refinement,
     final_covariance,
     final_sensitivity,
     frame_refinement,
     image_alone,
-    inconsistent_fit,
     information_condition,
-    last_checks,
     refined_model,
     rolling_shutter_check,
     still_fallback,
@@ -190,7 +190,6 @@ from .refine import (
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
-    INCONSISTENT_FIT,
     RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
     TOO_FEW_POINTS,
@@ -2082,50 +2081,44 @@ def _estimate(
     # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
     if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
-    # (the camera's last checks on every camera's model)
-    failure, behind = last_checks(
-        pool, (R, C, w, t), inl, search._w2max, search._v2max, not pool.numpy
-    )
-    if failure is not None:
-        return failed(failure, drawn, behind)
     # (the final refinement's Jacobian at the model, no step, as a camera's final refinement
     # gives it: its information, its covariance, its J^T W D)
-    ref, compiled = None, not pool.numpy
-    rolling = free == 12
+    compiled, rolling = not pool.numpy, free == 12
+    final = FinalModel(RSModel(R, C, w, t), inl, float(rms))
     if refine and n_inl > 6:
         motion = prior if rolling else None
-        ref = frame_refinement(pool, (R, C, w, t), threshold_px, rolling, motion, rolling,
+        ref = frame_refinement(pool, final.model, threshold_px, rolling, motion, rolling,
                                max_iterations=0)  # fmt: skip
-    if options.plausibility.consistent_fit and inconsistent_fit(
-        pool.X, inl, (R, C, w, t), pool.views(), rolling, threshold_px, lambda: e,
-        lambda: information_condition(None if ref is None else ref.data_information, rolling,
-                                      compiled),
-        lambda m: _view_planar(pool, m), compiled, support_share=AGREE_SHARE,
-    ):  # fmt: skip
-        return failed(INCONSISTENT_FIT, drawn)
-    cov = G = None
-    if ref is not None:
-        cov = final_covariance(pool, (R, C, w, t), ref, threshold_px, rolling, e)
-    if cov is not None and rolling:
-        rate = None if prior is None else (gyro_time, prior.information()[3:, 3:])
-        G = final_sensitivity(pool, (R, C, w, t), ref.covariance, ref, threshold_px, rate)
-    out = (
-        (None, None, None)
-        if cov is None
-        else output_covariance(cov, R, C, w, 0.0 if still else 1.0, not pool.numpy)
-    )
+        final.information = ref.data_information
+        final.covariance = final_covariance(pool, final.model, ref, threshold_px, rolling, e)
+        if final.covariance is not None and rolling:
+            rate = None if prior is None else (gyro_time, prior.information()[3:, 3:])
+            final.sensitivity = final_sensitivity(
+                pool, final.model, ref.covariance, ref, threshold_px, rate
+            )  # fmt: skip
+    # (a camera's finish on every camera's model: last checks, consistent fit, outputs)
+    try:
+        behind, out = checked_outputs(
+            pool, final, rolling, pool.spr if rolling else 0.0,
+            options.plausibility.consistent_fit, threshold_px, lambda: e,
+            lambda: information_condition(final.information, rolling, compiled),
+            lambda m: _view_planar(pool, m), compiled,
+            bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
+        )  # fmt: skip
+    except EstimationFailed as failure:
+        return failed(failure.reason, drawn, failure.behind)
     return _rig_estimate(
         pool,
-        (R, C, w, t),
+        final.model,
         inl,
-        out,
+        (None, None, None) if out is None else out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=float(rms),
+        rmse_px=final.rmse_px,
         num_behind=behind,
-        model_covariance=cov,
+        model_covariance=final.covariance,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
-        acceleration_sensitivity=G,
+        acceleration_sensitivity=final.sensitivity,
         initial_explained=explained,
         initial_used=seeded is not None,
         gyro_used=prior is not None,
