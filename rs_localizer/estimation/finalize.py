@@ -44,7 +44,6 @@ from .refine import (
     DEFAULT_REFINE,
     RefineResult,
     RefineSettings,
-    exact_errors,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
@@ -103,8 +102,10 @@ __all__ = [
     "refine_final_model",
     "refined_model",
     "rolling_shutter_check",
+    "selected_final",
     "still_fallback",
     "still_final",
+    "with_covariance",
 ]
 
 #: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
@@ -799,24 +800,12 @@ def refine_final_model(
     ref, prior_used, evidence = final_refinement(
         fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens
     )
-    final = FinalModel(
-        RSModel(R, C, w, t),
-        inliers,
-        np.nan,
-        prior_used=prior_used,
-        motion_chi2=evidence,
-    )
-    if finite_model(ref.R, ref.C, ref.w, ref.t):
-        final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
-        final.covariance = final_covariance(fr, final.model, ref, th, rolling)
-        final.information = ref.data_information
-    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
-    inl_ref, n_ref, rms = final_inliers(errors, th)
-    if n_ref < min_inliers:
-        raise EstimationFailed(TOO_FEW_INLIERS)
-    final.inliers, final.rmse_px = inl_ref, float(rms * fr.f)
-    if want_sens:
-        final.sensitivity = final_sensitivity(fr, final.model, final.covariance, ref, th)
+    # (a refinement that gives no finite model leaves RANSAC's, without a covariance)
+    fitted = bool(finite_model(ref.R, ref.C, ref.w, ref.t))
+    model = RSModel(ref.R, ref.C, ref.w, ref.t) if fitted else RSModel(R, C, w, t)
+    final = selected_final(fr, model, th, min_inliers, fr.f)
+    final.prior_used, final.motion_chi2 = prior_used, evidence
+    with_covariance(fr, final, ref, th, rolling, sensitivity=want_sens, fitted=fitted)
     corr = opts.correlated_noise
     if final.covariance is not None and corr.sigma_px > 0 and ref.sigma > 0:
         # the same estimate's covariance under white + correlated image error (on the final
@@ -835,6 +824,61 @@ def refine_final_model(
             corr.length_px,
             fr.W[inl].reshape(-1, 2, 2) if len(fr.W) else None,
         )
+    return final
+
+
+def selected_final(
+    fr: RefinementView,
+    model: Model,
+    th: float,
+    min_inliers: int,
+    scale: float = 1.0,
+    errors: np.ndarray | None = None,
+) -> FinalModel:
+    """The final model ``model`` of a camera's or a rig's frame (``fr``) with its inliers: the
+    points whose errors (``errors``, (N,), or ``fr.errors(model)``, in the units of the
+    threshold ``th``) lie below ``th`` (:func:`~.outputs.final_inliers`), and their RMS error
+    times ``scale`` (px per unit of the errors: a camera's focal length, a rig's 1).
+
+    Raises:
+        EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers``.
+    """
+    e = fr.errors(model) if errors is None else errors
+    inl, n, rms = (final_inliers if fr.compiled else final_inliers.py_func)(e, th)
+    if n < min_inliers:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    return FinalModel(model, inl, float(rms * scale))
+
+
+def with_covariance(
+    fr: RefinementView,
+    final: FinalModel,
+    ref: RefineResult | None,
+    th: float,
+    rolling: bool,
+    *,
+    sensitivity: bool = False,
+    alone: bool = True,
+    fitted: bool = True,
+    rate_prior: tuple[float, np.ndarray] | None = None,
+    errors: np.ndarray | None = None,
+) -> FinalModel:
+    """``final`` (a camera's or a rig's frame ``fr``) with what its final refinement ``ref``
+    (:func:`frame_refinement` at ``final.model``, threshold ``th``, ``rolling``: the 12
+    parameters, else the pose's 6; None: none ran) says of it, set in place: its information
+    (``ref.data_information``) and its covariance (:func:`final_covariance`; ``errors``:
+    ``final.model``'s (N,) errors when computed), unless the refinement gave no finite model
+    (``fitted`` False), and with ``sensitivity`` its acceleration sensitivity
+    (:func:`final_sensitivity`, ``rate_prior`` as there) from the refinement's covariance, or
+    without a covariance (``alone``: a camera's) from the points alone."""
+    if ref is None:
+        return final
+    if fitted:
+        final.information = ref.data_information
+        final.covariance = final_covariance(fr, final.model, ref, th, rolling, errors)
+    if sensitivity and (alone or final.covariance is not None):
+        normal = None if final.covariance is None else ref.covariance
+        final.sensitivity = final_sensitivity(fr, final.model, normal, ref, th, rate_prior)
     return final
 
 

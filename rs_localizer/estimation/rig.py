@@ -144,17 +144,16 @@ from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
-    FinalModel,
     checked_outputs,
     chosen_refinement,
-    final_covariance,
-    final_sensitivity,
     frame_refinement,
     image_alone,
     information_condition,
     refined_model,
     rolling_shutter_check,
+    selected_final,
     still_fallback,
+    with_covariance,
 )
 from .frame import (
     camera_values,
@@ -173,7 +172,6 @@ from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_defaul
 from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
-from .outputs import final_inliers
 from .plausibility import (
     collinear_3d,
     image_degenerate,
@@ -2067,37 +2065,27 @@ def _estimate(
             pool, model, threshold_px, not still, prior, search.cost, search.errors,
             search.cameras, CONTRADICTION_GATE, first,
         )  # fmt: skip
-    e = search.errors(model)
-    R, C, w, t = _copies(model)
-    # (the inliers and their RMS error as a camera's final model's)
-    selected = final_inliers.py_func if pool.numpy else final_inliers
-    inl, n_inl, rms = selected(e, threshold_px)
-    if n_inl < r.min_inliers:
-        if still and not spread:  # (every sample corrected across the cameras: docstring)
-            return _estimate(
-                pool, options, initial_model, generalized, prior, True, True, gyro_time
-            )
-        return failed(TOO_FEW_INLIERS, drawn)
-    # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
-    if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
-        return failed(DEGENERATE_GEOMETRY, drawn)
-    # (the final refinement's Jacobian at the model, no step, as a camera's final refinement
-    # gives it: its information, its covariance, its J^T W D)
-    compiled, rolling = not pool.numpy, free == 12
-    final = FinalModel(RSModel(R, C, w, t), inl, float(rms))
-    if refine and n_inl > 6:
-        motion = prior if rolling else None
-        ref = frame_refinement(pool, final.model, threshold_px, rolling, motion, rolling,
-                               max_iterations=0)  # fmt: skip
-        final.information = ref.data_information
-        final.covariance = final_covariance(pool, final.model, ref, threshold_px, rolling, e)
-        if final.covariance is not None and rolling:
-            rate = None if prior is None else (gyro_time, prior.information()[3:, 3:])
-            final.sensitivity = final_sensitivity(
-                pool, final.model, ref.covariance, ref, threshold_px, rate
-            )  # fmt: skip
-    # (a camera's finish on every camera's model: last checks, consistent fit, outputs)
+    e, compiled, rolling = search.errors(model), not pool.numpy, free == 12
+    # (a camera's final stages with the rig's steps: the inliers and their RMS error, not on
+    # one 3D line, the final refinement's Jacobian at the model (no step, as a camera's final
+    # refinement gives it: its information, covariance and J^T W D), the last checks on every
+    # camera's model, the consistent fit, the outputs)
     try:
+        final = selected_final(pool, RSModel(*_copies(model)), threshold_px, r.min_inliers,
+                               errors=e)  # fmt: skip
+        # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
+        inl = final.inliers
+        if not inl.all() and collinear_3d(pool.X[inl], compiled=compiled):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        ref = rate = None
+        if refine and np.count_nonzero(inl) > 6:
+            ref = frame_refinement(pool, final.model, threshold_px, rolling,
+                                   prior if rolling else None, rolling,
+                                   max_iterations=0)  # fmt: skip
+        if prior is not None:
+            rate = (gyro_time, prior.information()[3:, 3:])
+        with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
+                        alone=False, rate_prior=rate, errors=e)  # fmt: skip
         behind, out = checked_outputs(
             pool, final, rolling, pool.spr if rolling else 0.0,
             options.plausibility.consistent_fit, threshold_px, lambda: e,
@@ -2106,6 +2094,11 @@ def _estimate(
             bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
         )  # fmt: skip
     except EstimationFailed as failure:
+        if failure.reason == TOO_FEW_INLIERS and still and not spread:
+            # (every sample corrected across the cameras: docstring)
+            return _estimate(
+                pool, options, initial_model, generalized, prior, True, True, gyro_time
+            )
         return failed(failure.reason, drawn, failure.behind)
     return _rig_estimate(
         pool,
