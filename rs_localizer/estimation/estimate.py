@@ -52,7 +52,6 @@ from .frame import configure_frame, prepare_frame, undistorted_frame
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
-    gyro_image_chi2,
     gyro_prior,
 )
 from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
@@ -292,15 +291,11 @@ def _estimate_rs_pose(
     )
     if est.few_points:  # (a few points cannot judge the gyro: its rate is held, not checked)
         return est
-    img = image[0] if image else None
-    chi2, image_inliers = np.inf, 0
-    if est.success and img is not None:
-        chi2 = gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar, compiled)
-        image_inliers = img.num_inliers
     return gyro_checked(
         est,
-        chi2,
-        image_inliers,
+        gyro,
+        image[0] if image else None,
+        lambda: est.planar,
         est.num_valid,
         lambda: _estimate(
             *args,
@@ -311,6 +306,7 @@ def _estimate_rs_pose(
             ignored=unused,
             compiled=compiled,
         ),
+        compiled,
     )
 
 

@@ -165,7 +165,6 @@ from .frame import (
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
-    gyro_image_chi2,
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
@@ -1330,19 +1329,16 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstim
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
     prior = gyro_prior(gyro, compiled=not pool.numpy)
     est = _estimate(pool, *settings, prior=prior, gyro_time=gyro_time)
-    chi2, image_inliers = np.inf, 0
-    if est.success:
-        image = image_alone(pool, est.model, threshold_px, None)
-        if image is not None:
-            inl = pool.errors(est.model) < threshold_px
-            planar = bool(planarity(pool.X[inl], compiled=not pool.numpy) < PLANAR_TOLERANCE)
-            chi2 = gyro_image_chi2(
-                gyro, image.angular_velocity, image.covariance, planar, not pool.numpy
-            )
-            image_inliers = image.num_inliers
+    compiled = not pool.numpy
+    image = image_alone(pool, est.model, threshold_px, None) if est.success else None
+
+    def planar() -> bool:
+        inl = pool.errors(est.model) < threshold_px
+        return bool(planarity(pool.X[inl], compiled=compiled) < PLANAR_TOLERANCE)
+
     return gyro_checked(
-        est, chi2, image_inliers, len(pool.cam),
-        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)),
+        est, gyro, image, planar, len(pool.cam),
+        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)), compiled,
     )  # fmt: skip
 
 
