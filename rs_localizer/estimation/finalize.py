@@ -2,14 +2,20 @@
 constant-velocity model (paper eq. 4) with its covariance (:func:`refine_final_model`), the
 last checks and the outputs (:func:`final_estimate`).
 
-A camera's frame and a rig frame's cameras go through the same functions: they take the
-frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`, one view at
-the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the refinement
-(:func:`frame_refinement`), the covariance with the mountings' uncertainty
-(:func:`final_covariance`), the acceleration sensitivity (:func:`final_sensitivity`), the last
-checks (:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points)
-and the consistent-fit test (:func:`inconsistent_fit`, view by view), the global-shutter
-fallback and the gyro's image-alone check."""
+A camera's frame and a rig frame's cameras go through the same stages, in the same order:
+they take the frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`,
+one view at the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the
+refinement (:func:`frame_refinement`); the final model's inliers and their RMS error, enough
+of them (:func:`selected_final`); its information, covariance with the mountings'
+uncertainty (:func:`final_covariance`) and acceleration sensitivity
+(:func:`final_sensitivity`) from its refinement (:func:`with_covariance`); the last checks
+(:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points), the
+consistent-fit test (:func:`inconsistent_fit`, view by view) and the output covariances
+(:func:`checked_outputs`); the global-shutter fallback (:func:`still_fallback`) and the
+gyro's image-alone refinement (:func:`image_alone`). What differs is given as arguments: a
+camera's refinement of RANSAC's model (:func:`final_refinement`) or a rig's choice among
+refinements at the threshold (:func:`chosen_refinement`) and its Jacobian at the chosen
+model, the units of the errors, the velocity bounds, the views that support a fit."""
 
 from __future__ import annotations
 
@@ -711,16 +717,12 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    inl, n, rms = final_inliers(fr.errors((R, C, zero, zero)), th)
-    if n < min_inliers:
+    try:
+        still = selected_final(fr, RSModel(R, C, zero, zero.copy()), th, min_inliers, fr.f)
+    except EstimationFailed:
         return None
-    return FinalModel(
-        RSModel(R, C, zero.copy(), zero.copy()),
-        inl,
-        float(rms * fr.f),
-        covariance=final.covariance,
-        information=final.information,
-    )
+    still.covariance, still.information = final.covariance, final.information
+    return still
 
 
 @dataclass(frozen=True)
