@@ -43,7 +43,6 @@ from .finalize import (
     image_alone,
     prior_at_rest,
     refine_final_model,
-    rolling_shutter_check,
     still_fallback,
     still_final,
     unobserved_twist,
@@ -442,10 +441,9 @@ def _estimate(
                     point_sigma=point_sigma,
                     ignored=ignored,
                 ),
-                lambda gs: rolling_shutter_check(
-                    fr, gs.model, fr.threshold, fr.prior if fr.planar else None
-                ),
-                fr.spr,
+                fr,
+                fr.threshold,
+                fr.prior if fr.planar else None,
             )
             if still is not None:
                 return replace(still, solver=solver)

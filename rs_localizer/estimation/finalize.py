@@ -586,14 +586,14 @@ def motion_significant(chi2: float, num_points: int) -> bool:
 def still_fallback(
     failure: str | None,
     solve: Callable[[], Estimate],
-    motion: Callable[[Estimate], tuple[np.ndarray, np.ndarray, np.ndarray] | None],
-    seconds_per_unit: float,
-    compiled: bool = True,
+    fr: RefinementView,
+    th: float,
+    prior: MotionPrior | None = None,
 ) -> Estimate | None:
     """A rolling-shutter estimate that failed with ``failure``, posed on the global-shutter
     model when its points show no motion: a single camera's frame
     (:func:`~.estimate.estimate_rs_pose`) and a rig's (:func:`~.rig.estimate_rig_pose`), each
-    with its own steps.
+    with its own global-shutter estimator.
 
     A readout too short to observe motion (nanoseconds to microseconds per line) turns the
     noise's apparent motion into absurd velocities in every minimal sample; such frames are
@@ -607,12 +607,11 @@ def still_fallback(
         solve: ``solve()`` the estimate on the global-shutter model (P3P samples, the
             refinement of the pose alone): an estimate with ``success``, ``model`` (its
             ``R`` (3, 3), ``C`` (3,) first) and ``num_inliers``.
-        motion: ``motion(estimate)`` the rolling-shutter model refined from that estimate's
-            pose: ``(covariance (12, 12) over (delta, C, w, t), w (3,), t (3,))``, velocities
-            per unit of the caller's time, or None (no finite fit or covariance).
-        seconds_per_unit: seconds per unit of that time (a camera's seconds per unit r, a
-            rig's 1).
-        compiled: False: the chi-square and the covariance in Python.
+        fr: the frame (a camera's or a rig's, :class:`~.frame.RefinementView`; its
+            ``compiled``: else the chi-square and the covariance in Python), on which the
+            rolling-shutter model is refined from that estimate's pose
+            (:func:`rolling_shutter_check` at the threshold ``th``, in ``fr.errors``'s units,
+            MAP with ``prior``): velocities per unit of the frame's time, ``fr.spr`` s each.
     Returns:
         the global-shutter estimate with the twist covariance of the rolling-shutter fit
         (:func:`~.result.output_covariance`: what the points say of the velocities), or None:
@@ -625,14 +624,15 @@ def still_fallback(
     est = solve()
     if not est.success:
         return None
-    fit = motion(est)
+    fit = rolling_shutter_check(fr, est.model, th, prior)
     if fit is None:
         return None
     cov, w, t = fit
+    compiled = fr.compiled
     if motion_significant(motion_chi2(cov, w, t, compiled), est.num_inliers):
         return None
     R, C = est.model[:2]
-    return replace(est, **unobserved_twist(est.covariance, cov, R, C, seconds_per_unit, compiled))
+    return replace(est, **unobserved_twist(est.covariance, cov, R, C, fr.spr, compiled))
 
 
 def unobserved_twist(

@@ -150,7 +150,6 @@ from .finalize import (
     image_alone,
     information_condition,
     refined_model,
-    rolling_shutter_check,
     selected_final,
     still_fallback,
     with_covariance,
@@ -1356,9 +1355,8 @@ def _still_if_no_motion(pool: _Pool, settings: tuple, est: RSPoseEstimate) -> RS
     still = still_fallback(
         est.failure,
         lambda: _estimate(pool, *settings, still=True),
-        lambda gs: rolling_shutter_check(pool, gs.model, options.ransac.threshold_px),
-        1.0,
-        not pool.numpy,
+        pool,
+        options.ransac.threshold_px,
     )
     return est if still is None else still
 
