@@ -37,6 +37,7 @@ from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import (
     GLOBAL_SHUTTER,
+    STILL_FALLBACK,
     ImageAlone,
     checked_final,
     final_estimate,
@@ -424,7 +425,12 @@ def _estimate(
             image.append(image_alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
-        if compiled and gyro is None and solver_info(solver).rolling:
+        if (
+            compiled
+            and gyro is None
+            and solver_info(solver).rolling
+            and failure.reason in STILL_FALLBACK  # (the frame configured: its threshold set)
+        ):
             # (a frame that shows no motion, on the global-shutter model; its twist
             # covariance from the rolling-shutter fit, with the motion prior where the final
             # refinement uses it from the start: planar frames)
