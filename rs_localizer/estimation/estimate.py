@@ -37,13 +37,13 @@ from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import (
     GLOBAL_SHUTTER,
+    STILL_FALLBACK,
     ImageAlone,
     checked_final,
     final_estimate,
     image_alone,
     prior_at_rest,
     refine_final_model,
-    rolling_shutter_check,
     still_fallback,
     still_final,
     unobserved_twist,
@@ -52,7 +52,6 @@ from .frame import configure_frame, prepare_frame, undistorted_frame
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
-    gyro_image_chi2,
     gyro_prior,
 )
 from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
@@ -292,15 +291,11 @@ def _estimate_rs_pose(
     )
     if est.few_points:  # (a few points cannot judge the gyro: its rate is held, not checked)
         return est
-    img = image[0] if image else None
-    chi2, image_inliers = np.inf, 0
-    if est.success and img is not None:
-        chi2 = gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar, compiled)
-        image_inliers = img.num_inliers
     return gyro_checked(
         est,
-        chi2,
-        image_inliers,
+        gyro,
+        image[0] if image else None,
+        lambda: est.planar,
         est.num_valid,
         lambda: _estimate(
             *args,
@@ -311,6 +306,7 @@ def _estimate_rs_pose(
             ignored=unused,
             compiled=compiled,
         ),
+        compiled,
     )
 
 
@@ -429,7 +425,12 @@ def _estimate(
             image.append(image_alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
-        if compiled and gyro is None and solver_info(solver).rolling:
+        if (
+            compiled
+            and gyro is None
+            and solver_info(solver).rolling
+            and failure.reason in STILL_FALLBACK  # (the frame configured: its threshold set)
+        ):
             # (a frame that shows no motion, on the global-shutter model; its twist
             # covariance from the rolling-shutter fit, with the motion prior where the final
             # refinement uses it from the start: planar frames)
@@ -446,10 +447,9 @@ def _estimate(
                     point_sigma=point_sigma,
                     ignored=ignored,
                 ),
-                lambda gs: rolling_shutter_check(
-                    fr, gs.model, fr.threshold, fr.prior if fr.planar else None
-                ),
-                fr.spr,
+                fr,
+                fr.threshold,
+                fr.prior if fr.planar else None,
             )
             if still is not None:
                 return replace(still, solver=solver)

@@ -2,14 +2,20 @@
 constant-velocity model (paper eq. 4) with its covariance (:func:`refine_final_model`), the
 last checks and the outputs (:func:`final_estimate`).
 
-A camera's frame and a rig frame's cameras go through the same functions: they take the
-frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`, one view at
-the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the refinement
-(:func:`frame_refinement`), the covariance with the mountings' uncertainty
-(:func:`final_covariance`), the acceleration sensitivity (:func:`final_sensitivity`), the last
-checks (:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points)
-and the consistent-fit test (:func:`inconsistent_fit`, view by view), the global-shutter
-fallback and the gyro's image-alone check."""
+A camera's frame and a rig frame's cameras go through the same stages, in the same order:
+they take the frame as a :class:`~.frame.RefinementView` (a camera's :class:`~.frame.Frame`,
+one view at the identity mounting, or the rig's cameras stacked, :mod:`~.rig`): the
+refinement (:func:`frame_refinement`); the final model's inliers and their RMS error, enough
+of them (:func:`selected_final`); its information, covariance with the mountings'
+uncertainty (:func:`final_covariance`) and acceleration sensitivity
+(:func:`final_sensitivity`) from its refinement (:func:`with_covariance`); the last checks
+(:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points), the
+consistent-fit test (:func:`inconsistent_fit`, view by view) and the output covariances
+(:func:`checked_outputs`); the global-shutter fallback (:func:`still_fallback`) and the
+gyro's image-alone refinement (:func:`image_alone`). What differs is given as arguments: a
+camera's refinement of RANSAC's model (:func:`final_refinement`) or a rig's choice among
+refinements at the threshold (:func:`chosen_refinement`) and its Jacobian at the chosen
+model, the units of the errors, the velocity bounds, the views that support a fit."""
 
 from __future__ import annotations
 
@@ -44,7 +50,6 @@ from .refine import (
     DEFAULT_REFINE,
     RefineResult,
     RefineSettings,
-    exact_errors,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
@@ -85,6 +90,7 @@ __all__ = [
     "FinalModel",
     "ImageAlone",
     "checked_final",
+    "checked_outputs",
     "chosen_refinement",
     "final_covariance",
     "final_estimate",
@@ -102,8 +108,10 @@ __all__ = [
     "refine_final_model",
     "refined_model",
     "rolling_shutter_check",
+    "selected_final",
     "still_fallback",
     "still_final",
+    "with_covariance",
 ]
 
 #: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
@@ -578,14 +586,14 @@ def motion_significant(chi2: float, num_points: int) -> bool:
 def still_fallback(
     failure: str | None,
     solve: Callable[[], Estimate],
-    motion: Callable[[Estimate], tuple[np.ndarray, np.ndarray, np.ndarray] | None],
-    seconds_per_unit: float,
-    compiled: bool = True,
+    fr: RefinementView,
+    th: float,
+    prior: MotionPrior | None = None,
 ) -> Estimate | None:
     """A rolling-shutter estimate that failed with ``failure``, posed on the global-shutter
     model when its points show no motion: a single camera's frame
     (:func:`~.estimate.estimate_rs_pose`) and a rig's (:func:`~.rig.estimate_rig_pose`), each
-    with its own steps.
+    with its own global-shutter estimator.
 
     A readout too short to observe motion (nanoseconds to microseconds per line) turns the
     noise's apparent motion into absurd velocities in every minimal sample; such frames are
@@ -599,12 +607,11 @@ def still_fallback(
         solve: ``solve()`` the estimate on the global-shutter model (P3P samples, the
             refinement of the pose alone): an estimate with ``success``, ``model`` (its
             ``R`` (3, 3), ``C`` (3,) first) and ``num_inliers``.
-        motion: ``motion(estimate)`` the rolling-shutter model refined from that estimate's
-            pose: ``(covariance (12, 12) over (delta, C, w, t), w (3,), t (3,))``, velocities
-            per unit of the caller's time, or None (no finite fit or covariance).
-        seconds_per_unit: seconds per unit of that time (a camera's seconds per unit r, a
-            rig's 1).
-        compiled: False: the chi-square and the covariance in Python.
+        fr: the frame (a camera's or a rig's, :class:`~.frame.RefinementView`; its
+            ``compiled``: else the chi-square and the covariance in Python), on which the
+            rolling-shutter model is refined from that estimate's pose
+            (:func:`rolling_shutter_check` at the threshold ``th``, in ``fr.errors``'s units,
+            MAP with ``prior``): velocities per unit of the frame's time, ``fr.spr`` s each.
     Returns:
         the global-shutter estimate with the twist covariance of the rolling-shutter fit
         (:func:`~.result.output_covariance`: what the points say of the velocities), or None:
@@ -617,14 +624,15 @@ def still_fallback(
     est = solve()
     if not est.success:
         return None
-    fit = motion(est)
+    fit = rolling_shutter_check(fr, est.model, th, prior)
     if fit is None:
         return None
     cov, w, t = fit
+    compiled = fr.compiled
     if motion_significant(motion_chi2(cov, w, t, compiled), est.num_inliers):
         return None
     R, C = est.model[:2]
-    return replace(est, **unobserved_twist(est.covariance, cov, R, C, seconds_per_unit, compiled))
+    return replace(est, **unobserved_twist(est.covariance, cov, R, C, fr.spr, compiled))
 
 
 def unobserved_twist(
@@ -709,16 +717,12 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    inl, n, rms = final_inliers(fr.errors((R, C, zero, zero)), th)
-    if n < min_inliers:
+    try:
+        still = selected_final(fr, RSModel(R, C, zero, zero.copy()), th, min_inliers, fr.f)
+    except EstimationFailed:
         return None
-    return FinalModel(
-        RSModel(R, C, zero.copy(), zero.copy()),
-        inl,
-        float(rms * fr.f),
-        covariance=final.covariance,
-        information=final.information,
-    )
+    still.covariance, still.information = final.covariance, final.information
+    return still
 
 
 @dataclass(frozen=True)
@@ -798,24 +802,12 @@ def refine_final_model(
     ref, prior_used, evidence = final_refinement(
         fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens
     )
-    final = FinalModel(
-        RSModel(R, C, w, t),
-        inliers,
-        np.nan,
-        prior_used=prior_used,
-        motion_chi2=evidence,
-    )
-    if finite_model(ref.R, ref.C, ref.w, ref.t):
-        final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
-        final.covariance = final_covariance(fr, final.model, ref, th, rolling)
-        final.information = ref.data_information
-    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
-    inl_ref, n_ref, rms = final_inliers(errors, th)
-    if n_ref < min_inliers:
-        raise EstimationFailed(TOO_FEW_INLIERS)
-    final.inliers, final.rmse_px = inl_ref, float(rms * fr.f)
-    if want_sens:
-        final.sensitivity = final_sensitivity(fr, final.model, final.covariance, ref, th)
+    # (a refinement that gives no finite model leaves RANSAC's, without a covariance)
+    fitted = bool(finite_model(ref.R, ref.C, ref.w, ref.t))
+    model = RSModel(ref.R, ref.C, ref.w, ref.t) if fitted else RSModel(R, C, w, t)
+    final = selected_final(fr, model, th, min_inliers, fr.f)
+    final.prior_used, final.motion_chi2 = prior_used, evidence
+    with_covariance(fr, final, ref, th, rolling, sensitivity=want_sens, fitted=fitted)
     corr = opts.correlated_noise
     if final.covariance is not None and corr.sigma_px > 0 and ref.sigma > 0:
         # the same estimate's covariance under white + correlated image error (on the final
@@ -834,6 +826,61 @@ def refine_final_model(
             corr.length_px,
             fr.W[inl].reshape(-1, 2, 2) if len(fr.W) else None,
         )
+    return final
+
+
+def selected_final(
+    fr: RefinementView,
+    model: Model,
+    th: float,
+    min_inliers: int,
+    scale: float = 1.0,
+    errors: np.ndarray | None = None,
+) -> FinalModel:
+    """The final model ``model`` of a camera's or a rig's frame (``fr``) with its inliers: the
+    points whose errors (``errors``, (N,), or ``fr.errors(model)``, in the units of the
+    threshold ``th``) lie below ``th`` (:func:`~.outputs.final_inliers`), and their RMS error
+    times ``scale`` (px per unit of the errors: a camera's focal length, a rig's 1).
+
+    Raises:
+        EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers``.
+    """
+    e = fr.errors(model) if errors is None else errors
+    inl, n, rms = (final_inliers if fr.compiled else final_inliers.py_func)(e, th)
+    if n < min_inliers:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    return FinalModel(model, inl, float(rms * scale))
+
+
+def with_covariance(
+    fr: RefinementView,
+    final: FinalModel,
+    ref: RefineResult | None,
+    th: float,
+    rolling: bool,
+    *,
+    sensitivity: bool = False,
+    alone: bool = True,
+    fitted: bool = True,
+    rate_prior: tuple[float, np.ndarray] | None = None,
+    errors: np.ndarray | None = None,
+) -> FinalModel:
+    """``final`` (a camera's or a rig's frame ``fr``) with what its final refinement ``ref``
+    (:func:`frame_refinement` at ``final.model``, threshold ``th``, ``rolling``: the 12
+    parameters, else the pose's 6; None: none ran) says of it, set in place: its information
+    (``ref.data_information``) and its covariance (:func:`final_covariance`; ``errors``:
+    ``final.model``'s (N,) errors when computed), unless the refinement gave no finite model
+    (``fitted`` False), and with ``sensitivity`` its acceleration sensitivity
+    (:func:`final_sensitivity`, ``rate_prior`` as there) from the refinement's covariance, or
+    without a covariance (``alone``: a camera's) from the points alone."""
+    if ref is None:
+        return final
+    if fitted:
+        final.information = ref.data_information
+        final.covariance = final_covariance(fr, final.model, ref, th, rolling, errors)
+    if sensitivity and (alone or final.covariance is not None):
+        normal = None if final.covariance is None else ref.covariance
+        final.sensitivity = final_sensitivity(fr, final.model, normal, ref, th, rate_prior)
     return final
 
 
@@ -1121,23 +1168,76 @@ def solved_estimate(
     return RSPoseEstimate._trusted(success=True, failure=None, **(given | fields))
 
 
-def checked_final(fr: Frame, final: FinalModel, compiled: bool = True) -> int:
-    """The last checks of :func:`final_estimate` on ``final`` (:func:`last_checks` within
-    the frame's :attr:`~.frame.Frame.motion_bounds`): the number of the frame's points behind
-    the camera.
+def checked_final(
+    fr: RefinementView,
+    final: FinalModel,
+    compiled: bool = True,
+    bounds2: tuple[float, float] | None = None,
+) -> int:
+    """The last checks of a final model (:func:`last_checks` on ``final`` within the squared
+    velocity bounds ``bounds2``, per unit of the frame's time; None: a camera's
+    :attr:`~.frame.Frame.motion_bounds`): the number of the frame's points behind their
+    cameras.
 
     Raises:
-        EstimationFailed: ``implausible_motion``, ``cheirality``.
+        EstimationFailed: ``implausible_motion``, ``cheirality`` (with the points behind).
     """
-    bounds = fr.motion_bounds
-    w2max, v2max = (
-        (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
-    )
+    if bounds2 is None:
+        bounds = fr.motion_bounds
+        bounds2 = (
+            (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+        )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    failure, n_behind = last_checks(fr, final.model, final.inliers, w2max, v2max, compiled)
+    failure, n_behind = last_checks(fr, final.model, final.inliers, *bounds2, compiled)
     if failure is not None:
-        raise EstimationFailed(failure)
+        raise EstimationFailed(failure, n_behind)
     return n_behind
+
+
+def checked_outputs(
+    fr: RefinementView,
+    final: FinalModel,
+    rolling: bool,
+    seconds_per_unit: float,
+    consistent_fit: bool,
+    threshold: float,
+    errors: Callable[[], np.ndarray],
+    condition: Callable[[], float],
+    view_planar: Callable[[int], bool],
+    compiled: bool = True,
+    *,
+    bounds2: tuple[float, float] | None = None,
+    support_share: float = 0.0,
+    flat: float | None = None,
+) -> tuple[int, tuple | None]:
+    """The finish of a final model of a camera's or a rig's frame (``fr``, its
+    :meth:`~.frame.RefinementView.views`), in order: the last checks (:func:`checked_final`
+    within ``bounds2``), with ``consistent_fit`` the consistent-fit test
+    (:func:`inconsistent_fit` with ``threshold``, ``errors``, ``condition``, ``view_planar``,
+    ``support_share`` and ``flat`` as there), and the output covariances of
+    ``final.covariance`` (:func:`~.result.output_covariance` at ``seconds_per_unit`` s per
+    unit of the frame's time; 0: no twist).
+
+    Args:
+        rolling: a rolling-shutter fit.
+
+    Returns:
+        (the number of points behind their cameras, ``(covariance (12, 12), pose (6, 6),
+        twist (6, 6) or None)`` in ROS order, or None without ``final.covariance``).
+
+    Raises:
+        EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
+    """
+    behind = checked_final(fr, final, compiled, bounds2)
+    if consistent_fit and inconsistent_fit(
+        fr.X, final.inliers, final.model, fr.views(), rolling, threshold, errors, condition,
+        view_planar, compiled, support_share=support_share, flat=flat,
+    ):  # fmt: skip
+        raise EstimationFailed(INCONSISTENT_FIT)
+    if final.covariance is None:
+        return behind, None
+    R, C, w, _ = final.model
+    return behind, output_covariance(final.covariance, R, C, w, seconds_per_unit, compiled)
 
 
 def final_estimate(
@@ -1195,34 +1295,20 @@ def final_estimate(
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
     (R, C, w, t), inl = final.model, final.inliers
-    n_behind = checked_final(fr, final, compiled)
     rolling = solver_info(solver).rolling
     flat = planarity(fr.X, inl, compiled) if flat is None else flat
-    position = camera_position(R, C)
     cond = information_condition(final.information, rolling, compiled)
     cond = cond if condition is None else condition
-    if consistent_fit and inconsistent_fit(
-        fr.X,
-        inl,
-        final.model,
-        None,
-        rolling,
-        threshold,
-        lambda: fr.errors(final.model, compiled),
-        lambda: cond,
-        lambda m: fr.planar,
-        compiled,
+    n_behind, cov = checked_outputs(
+        fr, final, rolling, fr.spr, consistent_fit, threshold,
+        lambda: fr.errors(final.model, compiled), lambda: cond, lambda m: fr.planar, compiled,
         flat=flat,
-    ):
-        raise EstimationFailed(INCONSISTENT_FIT)
-    cov = None
-    if final.covariance is not None:
-        cov = output_covariance(final.covariance, R, C, w, fr.spr, compiled)
+    )  # fmt: skip
     return solved_estimate(
         fr,
         solver,
         (R, C, w, t),
-        position,
+        camera_position(R, C),
         inl,
         n_behind,
         physical_velocities(R, C, w, t, fr.spr, compiled),

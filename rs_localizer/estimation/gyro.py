@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from numba import njit
@@ -112,32 +112,45 @@ _Estimate = TypeVar("_Estimate")
 
 def gyro_checked(
     aided: _Estimate,
-    chi2: float,
-    image_inliers: int,
+    gyro: GyroMeasurement,
+    image: Any,
+    planar: Callable[[], bool],
     num_valid: int,
     unaided: Callable[[], _Estimate],
+    compiled: bool = True,
 ) -> _Estimate:
     """The gyro-aided estimate, or the image's own when the gyro is not to be trusted: the
     rule of the camera's and the rig's estimator alike.
 
     ``aided`` (a successful one) is kept when the image agrees with the gyro (``chi2``, from
-    :func:`gyro_image_chi2`, within :data:`GYRO_CHI2_THRESHOLD`) and it explains at least
-    :data:`GYRO_RECHECK_FRACTION` of the ``num_valid`` points and within
-    :data:`GYRO_INLIER_MARGIN` as many as the image-alone refinement (``image_inliers``);
-    otherwise the unaided estimate (``unaided()``, run at most once) is run, and ``aided`` is
-    still kept unless the unaided one succeeds with more than ``1 / (1 - margin)`` times its
-    inliers. A rejected gyro gives the unaided estimate with ``gyro_rejected`` and
-    ``gyro_rejection`` (``contradicted``, ``fewer_inliers`` or ``aided_failed``), unless both
-    failed (then the unaided one as it is). The estimate returned records ``chi2``
-    (``gyro_chi2``) where ``aided`` succeeded.
+    :func:`gyro_image_chi2` of what the image alone says near it, within
+    :data:`GYRO_CHI2_THRESHOLD`) and it explains at least :data:`GYRO_RECHECK_FRACTION` of the
+    ``num_valid`` points and within :data:`GYRO_INLIER_MARGIN` as many as the image-alone
+    refinement; otherwise the unaided estimate (``unaided()``, run at most once) is run, and
+    ``aided`` is still kept unless the unaided one succeeds with more than ``1 / (1 -
+    margin)`` times its inliers. A rejected gyro gives the unaided estimate with
+    ``gyro_rejected`` and ``gyro_rejection`` (``contradicted``, ``fewer_inliers`` or
+    ``aided_failed``), unless both failed (then the unaided one as it is). The estimate
+    returned records ``chi2`` (``gyro_chi2``) where ``aided`` succeeded.
 
     Args:
         aided: the gyro-aided estimate (``success``, ``num_inliers``).
-        chi2: the gyro against the image alone (``inf`` when the image gives no rate).
-        image_inliers: the inliers of the image-alone refinement near ``aided``.
+        gyro: the measurement, in the frame of the estimate's angular velocity.
+        image: what the image alone says near ``aided`` (``angular_velocity`` (3,) rad/s,
+            ``covariance`` (3, 3), ``num_inliers``: :class:`~.finalize.ImageAlone`), or None
+            (no rate: ``chi2`` is ``inf``).
+        planar: ``planar()``: the aided estimate's inliers are coplanar (asked only with
+            ``image``; :func:`gyro_image_chi2`).
         num_valid: the points the estimate could use.
         unaided: runs the estimator without the gyro.
+        compiled: False: the chi-square in NumPy.
     """
+    chi2, image_inliers = np.inf, 0
+    if aided.success and image is not None:
+        chi2 = gyro_image_chi2(
+            gyro, image.angular_velocity, image.covariance, planar(), compiled
+        )  # fmt: skip
+        image_inliers = image.num_inliers
     done = None
     why = "aided_failed"
     if aided.success:

@@ -20,12 +20,12 @@ import numpy as np
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel
 from ..solvers.registry import solver_info
-from .finalize import FINAL_CUTOFF, FinalModel, posterior_if_consistent
+from .finalize import FINAL_CUTOFF, FinalModel, posterior_if_consistent, selected_final
 from .frame import Frame
-from .outputs import final_inliers
 from .plausibility import finite_model
 from .prior import prior_arrays
 from .refine import RefineResult, exact_errors, least_squares_exact_model
+from .result import EstimationFailed
 
 __all__ = ["check_point_sigma", "point_weights", "weighted_final_model"]
 
@@ -138,8 +138,9 @@ def weighted_final_model(
                 cov, prior_used = post.covariance, True
     else:
         cov = None
-    errors = exact_errors(*model, fr.X, fr.x, tau, fr.W)
-    inl, n, rms = final_inliers(errors, th)
-    if n < min_inliers:
+    try:
+        weighted = selected_final(fr, model, th, min_inliers, fr.f)
+    except EstimationFailed:
         return final
-    return FinalModel(model, inl, float(rms * fr.f), cov, info, None, prior_used)
+    weighted.covariance, weighted.information, weighted.prior_used = cov, info, prior_used
+    return weighted

@@ -136,11 +136,12 @@ GYRO_REJECTIONS = ("contradicted", "fewer_inliers", "aided_failed")
 class EstimationFailed(Exception):
     """A stage of the estimator found that the frame gives no pose; ``reason`` is one of
     :data:`FAILURE_REASONS`. Caught by the estimator, which returns
-    :func:`failed_estimate` (never raised to its caller)."""
+    :func:`failed_estimate` (never raised to its caller). ``behind``: the frame's points
+    behind their cameras where the last checks found them (``cheirality``), else 0."""
 
-    def __init__(self, reason: str):
+    def __init__(self, reason: str, behind: int = 0):
         super().__init__(reason)
-        self.reason = reason
+        self.reason, self.behind = reason, int(behind)
 
 
 @dataclass(frozen=True)

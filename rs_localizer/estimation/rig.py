@@ -144,17 +144,15 @@ from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
+    checked_outputs,
     chosen_refinement,
-    final_covariance,
-    final_sensitivity,
     frame_refinement,
     image_alone,
-    inconsistent_fit,
     information_condition,
-    last_checks,
     refined_model,
-    rolling_shutter_check,
+    selected_final,
     still_fallback,
+    with_covariance,
 )
 from .frame import (
     camera_values,
@@ -166,14 +164,12 @@ from .frame import (
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
-    gyro_image_chi2,
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
-from .outputs import final_inliers
 from .plausibility import (
     collinear_3d,
     image_degenerate,
@@ -190,7 +186,6 @@ from .refine import (
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
-    INCONSISTENT_FIT,
     RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
     TOO_FEW_POINTS,
@@ -1333,19 +1328,16 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstim
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
     prior = gyro_prior(gyro, compiled=not pool.numpy)
     est = _estimate(pool, *settings, prior=prior, gyro_time=gyro_time)
-    chi2, image_inliers = np.inf, 0
-    if est.success:
-        image = image_alone(pool, est.model, threshold_px, None)
-        if image is not None:
-            inl = pool.errors(est.model) < threshold_px
-            planar = bool(planarity(pool.X[inl], compiled=not pool.numpy) < PLANAR_TOLERANCE)
-            chi2 = gyro_image_chi2(
-                gyro, image.angular_velocity, image.covariance, planar, not pool.numpy
-            )
-            image_inliers = image.num_inliers
+    compiled = not pool.numpy
+    image = image_alone(pool, est.model, threshold_px, None) if est.success else None
+
+    def planar() -> bool:
+        inl = pool.errors(est.model) < threshold_px
+        return bool(planarity(pool.X[inl], compiled=compiled) < PLANAR_TOLERANCE)
+
     return gyro_checked(
-        est, chi2, image_inliers, len(pool.cam),
-        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)),
+        est, gyro, image, planar, len(pool.cam),
+        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)), compiled,
     )  # fmt: skip
 
 
@@ -1363,9 +1355,8 @@ def _still_if_no_motion(pool: _Pool, settings: tuple, est: RSPoseEstimate) -> RS
     still = still_fallback(
         est.failure,
         lambda: _estimate(pool, *settings, still=True),
-        lambda gs: rolling_shutter_check(pool, gs.model, options.ransac.threshold_px),
-        1.0,
-        not pool.numpy,
+        pool,
+        options.ransac.threshold_px,
     )
     return est if still is None else still
 
@@ -2068,64 +2059,53 @@ def _estimate(
             pool, model, threshold_px, not still, prior, search.cost, search.errors,
             search.cameras, CONTRADICTION_GATE, first,
         )  # fmt: skip
-    e = search.errors(model)
-    R, C, w, t = _copies(model)
-    # (the inliers and their RMS error as a camera's final model's)
-    selected = final_inliers.py_func if pool.numpy else final_inliers
-    inl, n_inl, rms = selected(e, threshold_px)
-    if n_inl < r.min_inliers:
-        if still and not spread:  # (every sample corrected across the cameras: docstring)
+    e, compiled, rolling = search.errors(model), not pool.numpy, free == 12
+    # (a camera's final stages with the rig's steps: the inliers and their RMS error, not on
+    # one 3D line, the final refinement's Jacobian at the model (no step, as a camera's final
+    # refinement gives it: its information, covariance and J^T W D), the last checks on every
+    # camera's model, the consistent fit, the outputs)
+    try:
+        final = selected_final(pool, RSModel(*_copies(model)), threshold_px, r.min_inliers,
+                               errors=e)  # fmt: skip
+        # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
+        inl = final.inliers
+        if not inl.all() and collinear_3d(pool.X[inl], compiled=compiled):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        ref = rate = None
+        if refine and np.count_nonzero(inl) > 6:
+            ref = frame_refinement(pool, final.model, threshold_px, rolling,
+                                   prior if rolling else None, rolling,
+                                   max_iterations=0)  # fmt: skip
+        if prior is not None:
+            rate = (gyro_time, prior.information()[3:, 3:])
+        with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
+                        alone=False, rate_prior=rate, errors=e)  # fmt: skip
+        behind, out = checked_outputs(
+            pool, final, rolling, pool.spr if rolling else 0.0,
+            options.plausibility.consistent_fit, threshold_px, lambda: e,
+            lambda: information_condition(final.information, rolling, compiled),
+            lambda m: _view_planar(pool, m), compiled,
+            bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
+        )  # fmt: skip
+    except EstimationFailed as failure:
+        if failure.reason == TOO_FEW_INLIERS and still and not spread:
+            # (every sample corrected across the cameras: docstring)
             return _estimate(
                 pool, options, initial_model, generalized, prior, True, True, gyro_time
             )
-        return failed(TOO_FEW_INLIERS, drawn)
-    # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
-    if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
-        return failed(DEGENERATE_GEOMETRY, drawn)
-    # (the camera's last checks on every camera's model)
-    failure, behind = last_checks(
-        pool, (R, C, w, t), inl, search._w2max, search._v2max, not pool.numpy
-    )
-    if failure is not None:
-        return failed(failure, drawn, behind)
-    # (the final refinement's Jacobian at the model, no step, as a camera's final refinement
-    # gives it: its information, its covariance, its J^T W D)
-    ref, compiled = None, not pool.numpy
-    rolling = free == 12
-    if refine and n_inl > 6:
-        motion = prior if rolling else None
-        ref = frame_refinement(pool, (R, C, w, t), threshold_px, rolling, motion, rolling,
-                               max_iterations=0)  # fmt: skip
-    if options.plausibility.consistent_fit and inconsistent_fit(
-        pool.X, inl, (R, C, w, t), pool.views(), rolling, threshold_px, lambda: e,
-        lambda: information_condition(None if ref is None else ref.data_information, rolling,
-                                      compiled),
-        lambda m: _view_planar(pool, m), compiled, support_share=AGREE_SHARE,
-    ):  # fmt: skip
-        return failed(INCONSISTENT_FIT, drawn)
-    cov = G = None
-    if ref is not None:
-        cov = final_covariance(pool, (R, C, w, t), ref, threshold_px, rolling, e)
-    if cov is not None and rolling:
-        rate = None if prior is None else (gyro_time, prior.information()[3:, 3:])
-        G = final_sensitivity(pool, (R, C, w, t), ref.covariance, ref, threshold_px, rate)
-    out = (
-        (None, None, None)
-        if cov is None
-        else output_covariance(cov, R, C, w, 0.0 if still else 1.0, not pool.numpy)
-    )
+        return failed(failure.reason, drawn, failure.behind)
     return _rig_estimate(
         pool,
-        (R, C, w, t),
+        final.model,
         inl,
-        out,
+        (None, None, None) if out is None else out,
         failure=None,
         ransac_iterations=drawn,
-        rmse_px=float(rms),
+        rmse_px=final.rmse_px,
         num_behind=behind,
-        model_covariance=cov,
+        model_covariance=final.covariance,
         motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
-        acceleration_sensitivity=G,
+        acceleration_sensitivity=final.sensitivity,
         initial_explained=explained,
         initial_used=seeded is not None,
         gyro_used=prior is not None,
