@@ -121,6 +121,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -380,11 +381,12 @@ def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
-    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of them (:func:`~.frame.prepare_frame`:
-    its checks, :func:`~.frame.correspondences`, :func:`~.frame.valid_correspondences` with
-    every coordinate of a point within ``max_norm`` m of the origin (the options'
-    ``plausibility.max_point_norm``), :func:`~.frame.normalized_rows`; its undistortion and RS
-    coordinates, :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
+    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of
+    them (:func:`~.frame.prepare_frame`: its checks, :func:`~.frame.correspondences`,
+    :func:`~.frame.valid_correspondences` with every coordinate of a point within
+    ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
+    :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
+    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
     m = v.mounting
@@ -510,15 +512,16 @@ def _mounting_stacks(views: Sequence[RigView], parts: list) -> tuple[np.ndarray,
     """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
     (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
     share them; read only, as every pool's)."""
-    key = tuple(id(v.mounting) for v in views)
+    mountings = tuple([v.mounting for v in views])
+    key = tuple(map(id, mountings))
     hit = _MOUNTING_STACKS.get(key)
-    if hit is not None and all(a is v.mounting for a, v in zip(hit[0], views, strict=True)):
+    if hit is not None and all(map(operator.is_, hit[0], mountings)):
         return hit[1], hit[2]
     R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
     c = np.array([q[1] for q in parts]).reshape(-1, 3)
     if len(_MOUNTING_STACKS) >= 64:
         _MOUNTING_STACKS.clear()
-    _MOUNTING_STACKS[key] = (tuple(v.mounting for v in views), R, c)
+    _MOUNTING_STACKS[key] = (mountings, R, c)
     return R, c
 
 
@@ -582,7 +585,7 @@ class _Pool:
         n = [len(q[5]) for q in parts]
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
-        self._sizes_valid = tuple(int(k) for k in n)
+        self._sizes_valid = tuple(n)
         #: every input row of every camera is valid (the pool's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
         self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
@@ -1957,8 +1960,7 @@ def _rig_estimate(
     identity and zeros, no inliers); ``record``: the other fields by name. ``fresh``: the
     model's arrays are float64, contiguous and the caller's own (taken, not copied)."""
     if model is None:
-        z = np.zeros(3)
-        model = (np.eye(3), z, z, z.copy())
+        model, fresh = (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)), True
     R, C, w, t = model if fresh else _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
