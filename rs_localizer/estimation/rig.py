@@ -121,6 +121,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -374,12 +375,13 @@ def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
 def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
-    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
-    n valid rows: the rows a single camera's frame takes of them (:func:`~.frame.prepare_frame`:
-    its checks, :func:`~.frame.correspondences`, :func:`~.frame.valid_correspondences` with
-    every coordinate of a point within ``max_norm`` m of the origin (the options'
-    ``plausibility.max_point_norm``), :func:`~.frame.normalized_rows`; its undistortion and RS
-    coordinates, :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
+    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
+    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of
+    them (:func:`~.frame.prepare_frame`: its checks, :func:`~.frame.correspondences`,
+    :func:`~.frame.valid_correspondences` with every coordinate of a point within
+    ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
+    :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
+    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
     m = v.mounting
@@ -422,9 +424,9 @@ def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
         # when every row is valid)
         x = cam.undistort(uv)
         if kernel_ready(x):
-            valid, idx, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
+            valid, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
             if valid:
-                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, idx, focal, A)
+                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, None, focal, A)
     # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`)
     ok = valid_correspondences(uv, X, max_norm, kernels)
     if ok.all():
@@ -456,18 +458,17 @@ def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
     """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
     (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
     camera's rule, :func:`~.sampling.valid_rows`, every point within ``max_norm`` m) with a
-    finite ``x``, its rows (n,) 0..n-1, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
+    finite ``x``, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
     Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
     ``d, fisheye, fx, fy``)``."""
     n = x.shape[0]
-    idx = np.arange(n)
     tau = np.empty(n)
     ok = valid_rows(uv, X, max_norm)
     for i in range(n):
         if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
-            return False, idx, tau, np.empty((0, 4))
+            return False, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
-    return True, idx, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
+    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
 
 
 @njit(cache=True)
@@ -506,15 +507,16 @@ def _mounting_stacks(views: Sequence[RigView], parts: list) -> tuple[np.ndarray,
     """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
     (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
     share them; read only, as every pool's)."""
-    key = tuple(id(v.mounting) for v in views)
+    mountings = tuple([v.mounting for v in views])
+    key = tuple(map(id, mountings))
     hit = _MOUNTING_STACKS.get(key)
-    if hit is not None and all(a is v.mounting for a, v in zip(hit[0], views, strict=True)):
+    if hit is not None and all(map(operator.is_, hit[0], mountings)):
         return hit[1], hit[2]
     R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
     c = np.array([q[1] for q in parts]).reshape(-1, 3)
     if len(_MOUNTING_STACKS) >= 64:
         _MOUNTING_STACKS.clear()
-    _MOUNTING_STACKS[key] = (tuple(v.mounting for v in views), R, c)
+    _MOUNTING_STACKS[key] = (mountings, R, c)
     return R, c
 
 
@@ -578,16 +580,17 @@ class _Pool:
         n = [len(q[5]) for q in parts]
         #: each camera's points in the pool (stacked by camera)
         self.slices = _stacked(n)
-        self._sizes_valid = tuple(int(k) for k in n)
+        self._sizes_valid = tuple(n)
         #: every input row of every camera is valid (the pool's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
+        self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
         if len(parts) == 1:  # (one camera: its arrays copied, as concatenated alone)
             q = parts[0]
             self.cam = np.zeros(n[0], dtype=np.int64)
             self.focal = np.empty(n[0])
             self.focal.fill(q[9])
             self.x, self.X, self.uv = q[4].copy(), q[5].copy(), q[6].copy()
-            self.tau, self.row, self.A = q[7].copy(), q[8].copy(), q[10].copy()
+            self.tau, self.A = q[7].copy(), q[10].copy()
         elif parts:
             self.cam = np.empty(sum(n), dtype=np.int64)
             self.focal = np.empty(len(self.cam))
@@ -598,15 +601,23 @@ class _Pool:
             self.X = np.concatenate([q[5] for q in parts])
             self.uv = np.concatenate([q[6] for q in parts])
             self.tau = np.concatenate([q[7] for q in parts])
-            self.row = np.concatenate([q[8] for q in parts])
             self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
         else:
             self.cam = np.zeros(0, dtype=np.int64)
             self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
-            self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
+            self.tau = np.zeros(0)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
         self.tau_spread = _spread(self.tau, self.numpy) if len(self.tau) else 0.0
+
+    @functools.cached_property
+    def row(self) -> np.ndarray:
+        """(N,) int64: each point's row in its view's input rows (stacked by camera)."""
+        rows = [
+            np.arange(n, dtype=np.int64) if q is None else q.copy()
+            for q, n in zip(self._rows, self._sizes_valid, strict=True)
+        ]
+        return np.concatenate(rows) if len(rows) > 1 else rows[0] if rows else np.zeros(0, np.int64)
 
     @property
     def r(self) -> np.ndarray:
@@ -634,12 +645,18 @@ class _Pool:
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
-        return _errors_px(self, *_one(model))[0][0]
+        return self.scored(model, np.inf)[0]
 
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
         the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        e, cost = _errors_px(self, *_one(model), th2)
+        if self.numpy:
+            e, cost = _errors_px(self, *(np.asarray(a)[None] for a in model), th2)
+        else:  # (_errors_px's kernel on the model's contiguous float64 copies or views)
+            f = [np.ascontiguousarray(a, dtype=np.float64)[None] for a in model]
+            e, cost = _errors_kernel(
+                *f, self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2
+            )  # fmt: skip
         return e[0], float(cost[0])
 
     def per_camera(self, mask: np.ndarray) -> tuple:
@@ -1054,10 +1071,6 @@ def _copies(model) -> tuple:
             np.array(model[2], dtype=f), np.array(model[3], dtype=f))  # fmt: skip
 
 
-def _one(model):
-    return tuple(np.asarray(a)[None] for a in model)
-
-
 def estimate_rig_pose(
     views: Sequence[RigView],
     options: EstimateOptions | None = None,
@@ -1407,8 +1420,7 @@ def _consensus(
     joint estimate is returned without solving the others.
     The joint estimate's point count never decides: a camera with most of the points is
     outvoted by two that agree with each other."""
-    valid = np.asarray(est.num_valid_per_view)
-    voters = [c for c in range(len(valid)) if valid[c] >= VOTE_MIN_POINTS]
+    voters = [c for c, n in enumerate(est.num_valid_per_view) if n >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
     if prediction is not None:
@@ -1762,9 +1774,10 @@ class _RigSearch(RansacLoop):
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
         #: more points, whatever the best model (every sample corrected)
         self.spread = spread
-        self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+        # (each camera's points in the pool: np.bincount of its cameras)
+        self._counts = np.array(pool.counts(), dtype=np.int64)
         #: the number of cameras with points in the pool
-        self.cameras = int(np.count_nonzero(self._counts))
+        self.cameras = sum(1 for n in pool.counts() if n)
         self.missed = self._counts >= 3 if spread and still else None
         #: each batch drawn, solved and scored in one compiled call (:meth:`_batch`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
@@ -1791,8 +1804,12 @@ class _RigSearch(RansacLoop):
             if m is model:  # (the same object, measured again: local optimization's)
                 return cost
         e, cost = self.pool.scored(model, self.th2)
-        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
+        self._kept(model, e, cost)
         return cost
+
+    def _kept(self, model, e: np.ndarray, cost: float) -> None:
+        """Keep ``model``'s errors and cost for :meth:`cost` and :meth:`errors`."""
+        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
@@ -1898,6 +1915,8 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        if not self.pool.numpy:  # (the compiled errors and cost of :meth:`cost`, to the bit)
+            self._kept(model, self._e, self._cost)
         if self.fused or (self.subset is None and not self.pool.numpy):  # (compiled)
             n, missed = self._n, self._missed
             if not self.fused:
@@ -1932,8 +1951,7 @@ def _rig_estimate(
     identity and zeros, no inliers); ``record``: the other fields by name. ``fresh``: the
     model's arrays are float64, contiguous and the caller's own (taken, not copied)."""
     if model is None:
-        z = np.zeros(3)
-        model = (np.eye(3), z, z, z.copy())
+        model, fresh = (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)), True
     R, C, w, t = model if fresh else _copies(model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
@@ -1945,7 +1963,7 @@ def _rig_estimate(
         model=RSModel(R, C, w, t),
         inliers=np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
         inliers_per_view=per,
-        num_inliers_per_view=pool.counts(inl),
+        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
         num_valid_per_view=pool.counts(),
         num_valid=len(pool.cam),
         num_dropped=sum(pool.sizes) - len(pool.cam) + record.get("num_behind", 0),
