@@ -94,7 +94,8 @@ from scipy.stats import chi2
 from benchmarks.tagslam_data import FOLDER, RealRig, errors, extrinsics, load_tagslam
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
-from rs_localizer.estimation.rig import RIG_OPTIONS, RigView, estimate_rig_pose
+from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
+from rs_localizer.estimation.view import View
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.frames import Mounting
@@ -149,7 +150,7 @@ def poselib_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
 
 def ours_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
     """The rig estimator on one rig frame: ``(R, C)`` world -> rig, or its failure reason."""
-    rv = [RigView(uv, X, rig.cameras[n], rig.mountings[n], name=n) for n, (uv, X) in views.items()]
+    rv = [View(uv, X, rig.cameras[n], rig.mountings[n], name=n) for n, (uv, X) in views.items()]
     e = estimate_rig_pose(rv, options)
     return (e.model.R, e.model.C) if e.success else e.failure
 
@@ -496,7 +497,7 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
             for n, (uv, X) in views.items():
                 m = estimates[n].mount
                 m = Mounting(m.R, m.c) if exact else m
-                rv.append(RigView(uv, X, rig.cameras[n], m, name=n))
+                rv.append(View(uv, X, rig.cameras[n], m, name=n))
             e = estimate_rig_pose(rv, RIG_OPTIONS)
             if not e.success or e.covariance is None:
                 continue

@@ -51,7 +51,8 @@ from benchmarks.bench_rig import (
 )
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.result import rig_model_of_camera
-from rs_localizer.estimation.rig import RigView, estimate_rig_pose
+from rs_localizer.estimation.rig import estimate_rig_pose
+from rs_localizer.estimation.view import View
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.pose import RSPose
@@ -91,7 +92,7 @@ def _undistorted_views(views):
         xn = v.camera.undistort(v.uv)
         K = v.camera.K
         uv = xn @ K[:2, :2].T + K[:2, 2]
-        out.append(RigView(uv, v.X, v.camera, v.mounting, v.stamp_offset, v.name))
+        out.append(View(uv, v.X, v.camera, v.mounting, v.stamp_offset, v.name))
     return out
 
 
@@ -134,7 +135,7 @@ def run(rendered: dict, fps: float = 30.0) -> dict:
         for c in cams:
             f = fr[(c.name, k)]
             t_ref = c.offset + k / fps + float(c.camera.line_time(c.camera.reference_line))
-            views.append(RigView(f.uv, f.xyz, c.camera, c.mounting, t_ref - t_rig, c.name))
+            views.append(View(f.uv, f.xyz, c.camera, c.mounting, t_ref - t_rig, c.name))
         points.append([len(v.uv) for v in views])
         est, dt = _timed(lambda views=views: estimate_rig_pose(views, _rig_options()))
         add("rig", _errors(est.pose, truth) if est.success else nan3, dt)

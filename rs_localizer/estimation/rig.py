@@ -123,7 +123,7 @@ import functools
 import math
 import operator
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 from numba import njit
@@ -192,7 +192,6 @@ from .result import (
     TOO_FEW_POINTS,
     EstimationFailed,
     RSPoseEstimate,
-    camera_model_of_rig,
     output_covariance,
     rig_model_jacobian,
     rig_model_of_camera,
@@ -209,6 +208,7 @@ from .rig_batch import (
 from .sampling import draw_samples_numpy, valid_rows
 from .scoring import exact_errors2_numpy
 from .single_tag import MIN_PLANAR_POINTS, posed_planarity
+from .view import View
 
 __all__ = [
     "AGREE_SHARE",
@@ -228,7 +228,6 @@ __all__ = [
     "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
-    "RigView",
     "estimate_rig_pose",
 ]
 
@@ -319,44 +318,7 @@ VERIFY_ALL_EXPLAINED = 0.95
 PREDICTION_MARGIN = 2.0
 
 
-@dataclass(frozen=True, eq=False)
-class RigView:
-    """One camera's part of a rig frame.
-
-    Attributes:
-        uv: (N, 2) measured (distorted) pixels. X: (N, 3) world points (m).
-        camera: the camera's intrinsics and RS timing.
-        mounting: the camera's :class:`~rs_localizer.frames.Mounting` on the rig (``x_cam =
-            mounting.R x_rig + mounting.c``; default: the identity mounting). Its
-            ``covariance`` (rotation of the camera on the rig [rad, rig axes], its optical
-            centre in the rig frame [m]), when given, enters the rig pose's covariance to
-            first order: the refined model's sensitivity to the mounting times this
-            covariance; None takes the mounting as exact. ``mounting=None`` stands for a
-            camera whose mounting is unknown: :func:`estimate_rig_pose` refuses it, naming the
-            camera.
-        stamp_offset: capture time of the camera's reference line (``camera.reference_line``)
-            minus the rig's reference time (s).
-        name: the camera's name in error messages (default: its index in the rig frame).
-    """
-
-    uv: np.ndarray
-    X: np.ndarray
-    camera: CameraModel
-    mounting: Mounting | None = field(default_factory=lambda: Mounting(np.eye(3), np.zeros(3)))
-    stamp_offset: float = 0.0
-    name: str = ""
-
-    def camera_model(self, model: RSModel | tuple) -> RSModel:
-        """This view's camera's own model at its reference line (per unit r, as its own
-        estimate's ``model``) from the rig's ``model`` (``w``, ``t`` per second, an
-        estimate's ``model``): :func:`camera_model_of_rig` at this view's mounting and stamp
-        offset."""
-        return camera_model_of_rig(
-            model, self.mounting, self.stamp_offset, self.camera.seconds_per_unit_r
-        )
-
-
-def _label(c: int, v: RigView) -> str:
+def _label(c: int, v: View) -> str:
     return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
 
 
@@ -372,7 +334,7 @@ def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
     return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
 
 
-def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
+def _view_part(c: int, v: View, numpy: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
@@ -382,12 +344,12 @@ def _view_part(c: int, v: RigView, numpy: bool, max_norm: float) -> tuple:
     ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
     :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
     :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
-    if not isinstance(v, RigView):
-        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
+    if not isinstance(v, View):
+        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a View")
     m = v.mounting
     if m is None:
         raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)} has no mounting (RigView.mounting is None: the "
+            f"estimate_rig_pose: {_label(c, v)} has no mounting (View.mounting is None: the "
             "camera's pose on the rig is unknown)"
         )
     if not isinstance(m, Mounting):
@@ -503,7 +465,7 @@ def _selected_per_camera(mask, cam, M):
 _MOUNTING_STACKS: dict = {}
 
 
-def _mounting_stacks(views: Sequence[RigView], parts: list) -> tuple[np.ndarray, np.ndarray]:
+def _mounting_stacks(views: Sequence[View], parts: list) -> tuple[np.ndarray, np.ndarray]:
     """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
     (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
     share them; read only, as every pool's)."""
@@ -553,7 +515,7 @@ class _Pool:
 
     def __init__(
         self,
-        views: Sequence[RigView],
+        views: Sequence[View],
         numpy: bool = False,
         cache: dict | None = None,
         max_norm: float = EstimateOptions().plausibility.max_point_norm,
@@ -1072,7 +1034,7 @@ def _copies(model) -> tuple:
 
 
 def estimate_rig_pose(
-    views: Sequence[RigView],
+    views: Sequence[View],
     options: EstimateOptions | None = None,
     *,
     initial_model: InitialModel | RSModel | tuple | None = None,
@@ -1087,7 +1049,7 @@ def estimate_rig_pose(
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
     Args:
-        views: one :class:`RigView` per camera (pixels, world points, camera, mounting, stamp
+        views: one :class:`View` per camera (pixels, world points, camera, mounting, stamp
             offset); a camera may have no points.
         options: the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (default
@@ -1167,7 +1129,7 @@ def estimate_rig_pose(
             :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
             refuse a setting out of its range, naming it), a gyro that is not a
             :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
-            not a :class:`RigView`, a camera without a mounting (``mounting`` None; the
+            not a :class:`View`, a camera without a mounting (``mounting`` None; the
             message names it) or with a mounting that is not a
             :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
             shapes.
@@ -1252,7 +1214,7 @@ def estimate_rig_pose(
 
 
 def _one_camera_alone(
-    views: Sequence[RigView], pool: _Pool, options: EstimateOptions, initial_model, gyro
+    views: Sequence[View], pool: _Pool, options: EstimateOptions, initial_model, gyro
 ) -> RSPoseEstimate | None:
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
     than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed as that camera alone
@@ -1383,10 +1345,10 @@ def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
 
-def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
+def _only(views: Sequence[View], drop: set[int]) -> list[View]:
     """The views with the points of cameras ``drop`` removed (the cameras keep their place)."""
     return [
-        RigView(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
+        View(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
         if c in drop
         else v
         for c, v in enumerate(views)
@@ -1394,7 +1356,7 @@ def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
 
 
 def _consensus(
-    views: Sequence[RigView],
+    views: Sequence[View],
     pool: _Pool,
     est: RSPoseEstimate,
     threshold_px: float,

@@ -54,8 +54,9 @@ from ..estimation.refine import (
     untruncated_variance,
 )
 from ..estimation.result import camera_model_of_rig
-from ..estimation.rig import RigView, estimate_rig_pose
+from ..estimation.rig import estimate_rig_pose
 from ..estimation.scoring import exact_msac_scores
+from ..estimation.view import View
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from ..solvers.gr6p_1lin import still_solve_rotated
@@ -568,12 +569,12 @@ def warm_rig(
             uv = cam.project_rs(points[name], *model) + rng.normal(0, 0.3, (60, 2))
             uv[:6] += 40.0
             ok = np.isfinite(uv).all(1)
-            views[still].append(RigView(uv[ok], points[name][ok], cam, m))
+            views[still].append(View(uv[ok], points[name][ok], cam, m))
     estimate_rig_pose(views[True], settings.options)
     # (one camera's four corners alone: a rig frame posed by that camera's few-points path,
     # its frame taken from the rig's undistorted points)
     cam, uv, X, _ = synthetic_problem(4, scene="planar")
-    estimate_rig_pose([RigView(uv, X, cam)], settings.options)
+    estimate_rig_pose([View(uv, X, cam)], settings.options)
     if settings.imu is not None:
         gyro = GyroMeasurement(om, 1e-4 * np.eye(3))
         estimate_rig_pose(views[False], settings.options, gyro=gyro)

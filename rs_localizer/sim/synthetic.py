@@ -361,7 +361,7 @@ class RigFrame:
     """One simulated rig frame.
 
     Attributes:
-        views: one :class:`~rs_localizer.estimation.rig.RigView` per camera (what
+        views: one :class:`~rs_localizer.estimation.rig.View` per camera (what
             :func:`~rs_localizer.estimation.rig.estimate_rig_pose` takes).
         truth: the rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference
             time (``w`` rad/s, ``t`` m/s: :mod:`~rs_localizer.estimation.rig`).
@@ -460,7 +460,7 @@ def rig_frame(
     Raises:
         ValueError: ``counts`` of another length than the rig's cameras.
     """
-    from ..estimation.rig import RigView
+    from ..estimation.view import View
 
     if len(counts) != len(rig):
         raise ValueError(f"rig_frame: {len(counts)} counts for {len(rig)} cameras")
@@ -468,6 +468,6 @@ def rig_frame(
     views, bad_rows = [], []
     for k, n in zip(rig.cameras, counts, strict=True):
         uv, X, bad = camera_frame(k.camera, k.model(truth), n, rng, noise_px, outliers, depth)
-        views.append(RigView(uv, X, k.camera, k.mounting, k.stamp_offset, name=k.name))
+        views.append(View(uv, X, k.camera, k.mounting, k.stamp_offset, name=k.name))
         bad_rows.append(bad)
     return RigFrame(views, truth, tuple(bad_rows), rig)

@@ -44,7 +44,8 @@ from scipy.stats import chi2
 
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.result import CONTRADICTS_TRACK, UNCONFIRMED, RSPoseEstimate
-from ..estimation.rig import VOTE_MIN_POINTS, RigView
+from ..estimation.rig import VOTE_MIN_POINTS
+from ..estimation.view import View
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSPose
 from .fusion import FusedState
@@ -539,9 +540,7 @@ def _offsets_text(offsets: dict) -> str:
     return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
 
 
-def alone_deg(
-    view: RigView, est: RSPoseEstimate, implementation: str | None = None
-) -> float | None:
+def alone_deg(view: View, est: RSPoseEstimate, implementation: str | None = None) -> float | None:
     """deg between the camera's rotation posed alone (the single-camera estimator, on
     ``implementation``) and where the rig's pose and the camera's mounting put it; None when
     it is not posed alone (or the rig frame was not posed)."""

@@ -50,7 +50,8 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, default_implementation
 from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
-from ..estimation.rig import RigView, estimate_rig_pose
+from ..estimation.rig import estimate_rig_pose
+from ..estimation.view import View
 from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
 from ..pose import PoseMeasurement, RSModel
@@ -649,7 +650,7 @@ class RSTracker(TrackerPath):
             to.prior_from_prediction == "planar" and self._planar
         )
         view = FrameViews(
-            (RigView(points2d, points3d, camera, _OWN_FRAME),), self.options,
+            (View(points2d, points3d, camera, _OWN_FRAME),), self.options,
             self.tracked_options, solver=self.solver, scores=scores, gyro=gyro,
             implementation=implementation,
             prior_inflation=to.prior_inflation if prior and camera.seconds_per_unit_r > 0 else None,
@@ -700,7 +701,7 @@ class FrameViews:
     each other; a camera has none to decide between: solved cold).
 
     Args:
-        views: the frame's :class:`~rs_localizer.estimation.rig.RigView`\\ s: a camera's
+        views: the frame's :class:`~rs_localizer.estimation.rig.View`\\ s: a camera's
             one (its mounting and stamp offset unused) or a rig's.
         options, tracked_options: the estimator's
             :class:`~rs_localizer.estimation.options.EstimateOptions` of cold (and
@@ -719,7 +720,7 @@ class FrameViews:
 
     def __init__(
         self,
-        views: Sequence[RigView],
+        views: Sequence[View],
         options: EstimateOptions,
         tracked_options: EstimateOptions,
         *,

@@ -164,7 +164,8 @@ from ..estimation.result import (
     camera_estimate,
     camera_model_of_rig,
 )
-from ..estimation.rig import RIG_OPTIONS, RigView
+from ..estimation.rig import RIG_OPTIONS
+from ..estimation.view import View
 from ..frames import Mounting
 from ..pose import RSModel
 from ..solvers.registry import DEFAULT_SOLVER, solver_info
@@ -1611,7 +1612,7 @@ class Localizer(GyroReadouts):
             out.stamp_offsets[n] = off
             out.tags[n] = frame.tag
             out.frames[n] = frame
-            view = RigView(frame.points2d, frame.points3d, frame.camera, m, off)
+            view = View(frame.points2d, frame.points3d, frame.camera, m, off)
             views.append(view)
         self._impl = impl = None if self._implementation is None else self._implementation()
         self._filter_kernels(impl)
@@ -1840,7 +1841,7 @@ class Localizer(GyroReadouts):
         m = self._cams[n].mount
         if not out.success or n not in out.stamp_offsets or frame.camera is None:
             return None
-        view = RigView(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
+        view = View(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
         return alone_deg(view, out.estimate)
 
     def _finish(self, out: LocalizerOutput, est, path, names, views) -> None:

@@ -11,7 +11,8 @@ import pytest
 from rs_localizer.camera import MAX_LINE_DELAY, MAX_READOUT_TIME, CameraModel
 from rs_localizer.estimation import EstimateOptions, estimate_rs_pose
 from rs_localizer.estimation.options import LocalOptimizationOptions, RansacOptions
-from rs_localizer.estimation.rig import RigView, estimate_rig_pose
+from rs_localizer.estimation.rig import estimate_rig_pose
+from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.ros.params import PARAMETERS, RIG_CAMERA_PARAMETERS
 
@@ -81,8 +82,8 @@ def _rig_views():
     uv = X[:, :2] / X[:, 2:] * 500 + [320, 240]
     R0, R1 = np.eye(3), np.diag([-1.0, 1.0, -1.0])
     return [
-        RigView(uv, X, cam, Mounting(R0, np.zeros(3))),
-        RigView(uv, X, cam, Mounting(R1, np.zeros(3))),
+        View(uv, X, cam, Mounting(R0, np.zeros(3))),
+        View(uv, X, cam, Mounting(R1, np.zeros(3))),
     ]
 
 

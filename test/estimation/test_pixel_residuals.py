@@ -11,8 +11,9 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.frame import SCORE_AT_MEASURED_TIME, prepare_frame
 from rs_localizer.estimation.refine import Mountings, RefineSettings, refine_rs_pose
-from rs_localizer.estimation.rig import RigView, _errors_px, _Pool
+from rs_localizer.estimation.rig import _errors_px, _Pool
 from rs_localizer.estimation.scoring import msac_evaluate
+from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 
@@ -153,7 +154,7 @@ def test_rig_errors_are_measured_image_pixels():
     phi = rng.uniform(-np.pi, np.pi, n)
     noise = err[:, None] * np.stack([np.cos(phi), np.sin(phi)], 1)
     R, C, uv, X = _fisheye_scene(n, noise, 9)
-    view = RigView(uv=uv, X=X, camera=FISHEYE)
+    view = View(uv=uv, X=X, camera=FISHEYE)
     pool = _Pool([view])
     e = _errors_px(pool, R[None], C[None], np.zeros((1, 3)), np.zeros((1, 3)))[0][0]
     # first order: within a few % at 3 px (the focal length alone: up to ~2x off here)
@@ -180,8 +181,8 @@ def test_rig_implementations_agree_on_a_fisheye_rig():
     Pc1 = R @ Xs.T + C[:, None]  # (3, n) the points in camera 1's frame
     X1 = ((Rm.T @ (Pc1 - cm[:, None])).T - C) @ R  # world points: Rm (R X1 + C) + cm = Pc1
     views = [
-        RigView(uv=uv0, X=X0, camera=FISHEYE),
-        RigView(uv=uv1, X=X1, camera=FISHEYE, mounting=Mounting(Rm, cm)),
+        View(uv=uv0, X=X0, camera=FISHEYE),
+        View(uv=uv1, X=X1, camera=FISHEYE, mounting=Mounting(Rm, cm)),
     ]
     c = estimate_rig_pose(views, implementation="compiled")
     p = estimate_rig_pose(views, implementation="numpy")

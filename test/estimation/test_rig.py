@@ -16,9 +16,9 @@ from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.result import camera_estimate
 from rs_localizer.estimation.rig import (
     RIG_FAILURE_REASONS,
-    RigView,
     estimate_rig_pose,
 )
+from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
@@ -162,7 +162,7 @@ def test_bad_input():
     with pytest.raises(ValueError):
         estimate_rig_pose([])
     with pytest.raises(ValueError):
-        estimate_rig_pose([RigView(np.zeros((3, 2)), np.zeros((4, 3)), cams[0])])
+        estimate_rig_pose([View(np.zeros((3, 2)), np.zeros((4, 3)), cams[0])])
 
 
 def _poselib_generalized(views):
@@ -321,16 +321,16 @@ def test_a_camera_without_mounting_is_named():
     cams, R_m, c_m, stamps = make_rig(rng, 2)
     views = rig_frame(rng, cams, R_m, c_m, stamps, [20, 20], rig_truth(rng))
     v = views[1]
-    bad = RigView(v.uv, v.X, v.camera, None, v.stamp_offset, name="rear")
+    bad = View(v.uv, v.X, v.camera, None, v.stamp_offset, name="rear")
     with pytest.raises(ValueError, match=r"camera 1 \('rear'\) has no mounting"):
         estimate_rig_pose([views[0], bad])
     with pytest.raises(ValueError, match="must be a rotation"):
         Mounting(-np.eye(3), v.mounting.c)
-    loose = RigView(v.uv, v.X, v.camera, (np.eye(3), np.zeros(3)), name="left")
+    loose = View(v.uv, v.X, v.camera, (np.eye(3), np.zeros(3)), name="left")
     with pytest.raises(ValueError, match=r"'left'.*not a Mounting"):
         estimate_rig_pose([views[0], loose])
     with pytest.raises(ValueError, match="camera 0"):
-        estimate_rig_pose([RigView(np.zeros((3, 3)), np.zeros((3, 3)), cams[0])])
+        estimate_rig_pose([View(np.zeros((3, 3)), np.zeros((3, 3)), cams[0])])
 
 
 def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
@@ -347,13 +347,12 @@ def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
     a, b = views[0].X[0], views[0].X[-1]
     for v in views:
         X = a + np.linspace(0, 1, len(v.X))[:, None] * (b - a)
-        line.append(RigView(v.uv, X, v.camera, v.mounting, v.stamp_offset))
+        line.append(View(v.uv, X, v.camera, v.mounting, v.stamp_offset))
     est = estimate_rig_pose(line)
     assert not est.success and est.failure == "degenerate_geometry"
     # every camera's pixels on one image row (each camera's rays in one plane)
     flat = [
-        RigView(np.c_[v.uv[:, 0], np.full(len(v.uv), 240.0)], v.X, v.camera, v.mounting)
-        for v in views
+        View(np.c_[v.uv[:, 0], np.full(len(v.uv), 240.0)], v.X, v.camera, v.mounting) for v in views
     ]
     est = estimate_rig_pose(flat)
     assert not est.success and est.failure == "degenerate_geometry"
@@ -381,7 +380,7 @@ def test_points_behind_a_camera_are_counted_not_inliers():
     v = views[0]
     X = np.vstack([v.X, 2 * centre - v.X[:5]])
     uv = np.vstack([v.uv, v.uv[:5]])
-    est = estimate_rig_pose([RigView(uv, X, v.camera, v.mounting, v.stamp_offset), views[1]])
+    est = estimate_rig_pose([View(uv, X, v.camera, v.mounting, v.stamp_offset), views[1]])
     assert est.success and est.num_behind >= 5
     assert not est.inliers_per_view[0][40:].any()
 
@@ -398,7 +397,7 @@ def test_points_beyond_max_point_norm_are_dropped_as_a_camera_drops_them(impleme
     views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], truth, outliers=0.0)
     v = views[0]
     far = v.X[:3] * (2e6 / np.abs(v.X[:3]).max(axis=1, keepdims=True))
-    view = RigView(np.vstack([v.uv, v.uv[:3]]), np.vstack([v.X, far]), v.camera, v.mounting,
+    view = View(np.vstack([v.uv, v.uv[:3]]), np.vstack([v.X, far]), v.camera, v.mounting,
                    v.stamp_offset)  # fmt: skip
     est = estimate_rig_pose([view, views[1]], implementation=implementation)
     assert est.success and est.num_dropped == 3
@@ -1021,7 +1020,7 @@ def _one_tag_per_camera(seed, side=0.15, depth=(2.0, 3.5), noise_px=0.3):
         P = square @ facing.T + centre  # (the tag's corners in the camera)
         X = ((P - cam.mounting.c) @ cam.mounting.R - C) @ R  # (camera -> rig -> world)
         uv = cam.camera.project(P) + rng.normal(scale=noise_px, size=(4, 2))
-        views.append(RigView(uv, X, cam.camera, cam.mounting))
+        views.append(View(uv, X, cam.camera, cam.mounting))
     return views, (R, C)
 
 
@@ -1101,9 +1100,9 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
     X = (tag + [0.0, 0.0, 0.8] - Cc1) @ Rc1  # (world points: x_cam = Rc1 X + Cc1)
     uv = cams[1].project(X @ Rc1.T + Cc1) + rng.normal(0, 0.3, (4, 2))
     views = [
-        RigView(np.zeros((0, 2)), np.zeros((0, 3)), cams[0], Mounting(R_m[0], c_m[0])),
-        RigView(uv, X, cams[1], Mounting(R_m[1], c_m[1])),
-        RigView(np.zeros((0, 2)), np.zeros((0, 3)), cams[2], Mounting(R_m[2], c_m[2])),
+        View(np.zeros((0, 2)), np.zeros((0, 3)), cams[0], Mounting(R_m[0], c_m[0])),
+        View(uv, X, cams[1], Mounting(R_m[1], c_m[1])),
+        View(np.zeros((0, 2)), np.zeros((0, 3)), cams[2], Mounting(R_m[2], c_m[2])),
     ]
     est = estimate_rig_pose(views)
     assert est.success, est.failure
