@@ -130,16 +130,17 @@ def fused_messages(
 def camera_outcome(res: FrameResult, failed: int = 0) -> FrameOutcome:
     """The outcome of the single camera's frame ``res``: solved, its output (the camera's
     estimate, or the robot base's state with ``base_frame``) at its reference-line stamp and
-    the camera's view, with the fused twists now final unless its own twist is
-    (``twist_now``); failed, the fused twists now final and the line ``frame dropped
-    (<reason>): <detail>`` with ``failed``, the count of frames failed so far for that reason."""
+    the camera's view, with the fused twists now final (also when its own twist is final,
+    ``twist_now``: an earlier track's, e.g. before the solver became a global-shutter one);
+    failed, the fused twists now final and the line ``frame dropped (<reason>): <detail>``
+    with ``failed``, the count of frames failed so far for that reason."""
     if not res.solved:
         line = LogLine(str(res.failure), f"frame dropped ({res.failure}): {res.detail}", failed)
         return FrameOutcome(None, res.fused, (line,))
     view = CameraView("", res.estimate, res.points2d, res.points3d, res.camera,
                       res.stamp_ns, res.out_stamp_ns, res.frame_id, res.image)  # fmt: skip
     posed = PosedFrame(res.output, res.out_stamp_ns, res.output_frame, res.twist_now, (view,))
-    return FrameOutcome(posed, () if res.twist_now else res.fused)
+    return FrameOutcome(posed, res.fused)
 
 
 def outcome_messages(
@@ -177,20 +178,20 @@ def pose_messages(
     wanted: Callable[[str], bool] = _everything,
 ) -> list[tuple[str, Any]]:
     """``(topic, message)`` of a published pose, of a camera's frame or a rig frame, in order:
-    ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist with
-    ``twist_now``, e.g. without tracking; then the ``fused`` twists now final),
-    ``pose_with_covariance`` and ``tf``. ``out``: a
+    ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (the ``fused`` twists of
+    earlier frames now final, then its own twist with ``twist_now``, e.g. without tracking:
+    each topic's stamps in order), ``pose_with_covariance`` and ``tf``. ``out``: a
     :class:`~rs_localizer.pose.PoseWithCovariance` (its ``pose`` in ``map_frame``, its twist
     in ``frame``), ``stamp``: ns."""
     msgs: list[tuple[str, Any]] = [("pose", cv.pose_stamped(out.pose, stamp, map_frame))]
     if wanted("twist_single_frame"):
         msgs.append(("twist_single_frame", cv.twist_stamped(out.pose, stamp, frame)))
+    msgs += fused_messages(fused, map_frame, wanted)  # (earlier frames': their stamps first)
     if twist_now:
         if wanted("twist"):
             msgs.append(("twist", cv.twist_stamped(out.pose, stamp, frame)))
         if wanted("odom"):
             msgs.append(("odom", cv.odometry(out, stamp, map_frame, frame)))
-    msgs += fused_messages(fused, map_frame, wanted)
     if wanted("pose_with_covariance"):
         msgs.append(
             ("pose_with_covariance", cv.pose_with_covariance_stamped(out, stamp, map_frame))

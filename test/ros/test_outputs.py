@@ -60,7 +60,8 @@ def _stamp(m) -> int:
 
 def test_a_posed_rig_frame_its_own_twist_then_the_fused_its_path_and_cameras():
     """A rig frame posed with its own twist final and an earlier frame's fused twist: pose,
-    twist_single_frame, its twist and odom, the fused twist and odom, pose_with_covariance
+    twist_single_frame, the fused twist and odom, its own twist and odom (each topic's
+    stamps in order), pose_with_covariance
     (tf not subscribed), each as conversions builds it; the path (the node's viz) gets the
     rig's pose and the very pose message sent; the camera's view goes to the camera's viz
     with its image (no pose message: its pose is not the rig's); the log line is warned."""
@@ -91,14 +92,14 @@ def test_a_posed_rig_frame_its_own_twist_then_the_fused_its_path_and_cameras():
     expected = [
         cv.pose_stamped(rig.pose, 2_000, "world"),
         cv.twist_stamped(rig.pose, 2_000, "base"),
-        cv.twist_stamped(rig.pose, 2_000, "base"),
-        cv.odometry(rig, 2_000, "world", "base"),
         cv.twist_stamped(earlier.pose, 1_000, "base"),
         cv.odometry(earlier, 1_000, "world", "base"),
+        cv.twist_stamped(rig.pose, 2_000, "base"),
+        cv.odometry(rig, 2_000, "world", "base"),
         cv.pose_with_covariance_stamped(rig, 2_000, "world"),
     ]
     assert msgs == expected
-    assert [_stamp(m) for m in msgs] == [2_000] * 4 + [1_000] * 2 + [2_000]
+    assert [_stamp(m) for m in msgs] == [2_000] * 2 + [1_000] * 2 + [2_000] * 3
     ((kind, est, *_, pose_msg),) = path.calls
     assert kind == "publish" and est is rig and pose_msg is msgs[0]
     drawn = ("publish", cam, uv, "model", 2_010, 2_005, "left_optical", None)
@@ -111,7 +112,8 @@ def test_the_single_camera_s_outcome_its_view_draws_the_path():
     """The single camera (its viz the node's, with the path): solved, its view drawn once with
     the camera's estimate and the sent pose message when that pose is the camera's, none
     (the path makes the camera's own) when the output is the robot base's; the fused twists
-    follow the frame's own twist unless that is final; failed, the fused twists alone and
+    go out also when the frame's own twist is final (an earlier track's), before it; failed,
+    the fused twists alone and
     the line ``frame dropped (<reason>): <detail>`` with its count."""
     from rs_localizer.ros.outputs import camera_outcome, fused_messages, publish_frame
     from rs_localizer.ros.pipeline import FrameResult, FusedOutput
@@ -133,6 +135,17 @@ def test_the_single_camera_s_outcome_its_view_draws_the_path():
         drawn = ("publish", est, "uv", "model", 5_100, 5_000, "cam", pose_msg)
         assert viz.calls == [("image", None), drawn]
         assert node.warned == []
+    # (its own twist final at once, an earlier track's fused twist final with it: both out,
+    # the earlier stamp first)
+    res = FrameResult(stamp_ns=5_100, out_stamp_ns=5_000, frame_id="cam", camera="model",
+                      points2d="uv", points3d="X", estimate=est, output=est, output_frame="cam",
+                      twist_now=True, fused=fused, image=None)  # fmt: skip
+    node = _Node(_Viz(), {"": _Viz()})
+    publish_frame(node, camera_outcome(res))
+    twists = [m for t, m in node.sent if t == "twist"]
+    assert [t for t, _ in node.sent][2:6] == ["twist", "odom", "twist", "odom"]
+    assert node.sent[2:4] == fused_messages(fused, "world")
+    assert [_stamp(m) for m in twists] == [4_000, 5_000]
     res = FrameResult(failure="too_few_inliers", detail="9 points", fused=fused)
     viz = _Viz()
     node = _Node(viz, {"": viz})
