@@ -250,6 +250,17 @@ def test_tests_import_helpers_not_tests():
     assert not found, "test modules importing tests or conftest:\n" + "\n".join(found)
 
 
+def test_test_modules_have_unique_names():
+    """pytest imports the test folders' modules by their file names (no packages): two test
+    files of one name in two folders stop the suite at collection."""
+    tests = PKG.parent / "test"
+    seen: dict[str, list[str]] = {}
+    for path in sorted(tests.rglob("test_*.py")):
+        seen.setdefault(path.name, []).append(str(path.relative_to(tests)))
+    twice = {name: paths for name, paths in seen.items() if len(paths) > 1}
+    assert not twice, f"test modules of one name: {twice}"
+
+
 #: the modules that define front ends: the registry builds them by name, the package re-exports
 #: what the rest of the library uses
 FRONTEND_MODULES = {"aruco", "boards", "features", "tracking"}
