@@ -1370,3 +1370,110 @@ def test_a_camera_s_compressed_images_follow_a_remap_of_its_image_raw(ros_contex
         "/cams/front_image/compressed": "CompressedImage",
         "/rig/left/image_raw/compressed": "CompressedImage",
     }, got
+
+
+def _rig_config_of(overrides, names=("front",)):
+    """The single camera's and the rig's configurations of the default parameters with
+    ``overrides`` for a rig of cameras ``names`` (each at its default ``rig.<c>.*``, at the
+    identity mounting)."""
+    from rs_localizer.ros import config as C
+    from rs_localizer.ros import params as P
+
+    values = {k: p.default for k, p in P.PARAMETERS.items()}
+    values.update({k: p.default for k, p in P.RIG_PARAMETERS.items()})
+    values.update(overrides, **{"rig.cameras": list(names)})
+    own = {k: p.default for k, p in P.RIG_CAMERA_PARAMETERS.items()}
+    cams = {n: {**own, "mounting": [0.0, 0, 0, 0, 0, 0, 1]} for n in names}
+    config = C.rig_config(values, cams)
+    return C.build_config(C.rig_used_values(values, config.settings.single_camera)), config
+
+
+def _fake_node(logs, **attrs):
+    from types import SimpleNamespace
+
+    log = SimpleNamespace(info=lambda t: logs.append(("info", t)),
+                          warning=lambda t: logs.append(("warning", t)))  # fmt: skip
+    warmup = SimpleNamespace(value=True)
+    return SimpleNamespace(get_logger=lambda: log, get_parameter=lambda name: warmup, **attrs)
+
+
+def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(monkeypatch):
+    """A solver changed at run time on a rig of one camera (which takes ``solver``) is logged
+    and its kernels warmed up in the background with the new settings, as the single
+    camera's (``warmup``); the same solver set again neither logs nor warms up."""
+    import rs_localizer.ros.rig_node as R
+
+    calls = []
+    monkeypatch.setattr(R, "warm_kernels", lambda k, label, *a: calls.append((k, label, a[2])))
+    old, new = _rig_config_of({}), _rig_config_of({"solver": "p3p"})
+    assert new[1].settings.single_camera and new[1].settings.solver == "p3p" != old[0].solver
+    logs = []
+    mode = R.RigMode.__new__(R.RigMode)  # (the rig's mode without its localizer)
+    mode.node, mode.cfg, mode.config = _fake_node(logs), *old
+    changed = []
+    mode._change_to = lambda built, overrides: changed.append(built)
+    mode.apply_change(new, {"solver": "p3p"})
+    assert logs == [("info", f"solver: {old[0].solver} -> p3p")] and changed == [new]
+    [(kernels, label, background)] = calls
+    assert kernels.settings is new[1].settings and label == "rig" and background is True
+    assert set(kernels.timing) == {"front"}
+    mode.cfg = new[0]
+    mode.apply_change(new, {"solver": "p3p"})
+    assert len(calls) == 1 and len(logs) == 1 and changed == [new, new]
+
+
+def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
+    """The ``ready`` line of either mode ends alike: the landmarks loaded from
+    ``landmarks_file`` (their count) and the front end on the images with its map; a rig's
+    warnings (the single camera's parameters it does not use) come before it, as a camera's
+    global-shutter warning."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.node import CameraMode
+    from rs_localizer.ros.rig_node import RigMode
+
+    over = {"landmarks_file": "lm.csv", "frontend": "aruco", "frontend_map": "m.yaml"}
+    single, config = _rig_config_of({**over, "camera.fx": 600.0}, ("front", "rear"))
+    assert config.unused_text
+    landmarks = (np.arange(7), np.zeros((7, 3)))
+    logs = []
+    rig = RigMode.__new__(RigMode)
+    rig.node = _fake_node(logs, landmarks=landmarks, map_frame="map",
+                          images_of={"front": "x", "rear": "x"})  # fmt: skip
+    rig.cfg, rig.config = single, config
+    rig.log_ready()
+    timing = f"line delay {single.line_delay * 1e6:.2f} us/line {single.direction}"
+    assert logs == [
+        ("warning", config.unused_text),
+        ("info", f"ready: rig of 2 cameras (front {timing}; rear {timing}) posed as "
+                 f"base_link in map, 7 landmarks from lm.csv, aruco front end on each "
+                 f"camera's image_raw (map m.yaml)"),
+    ]  # fmt: skip
+    logs.clear()
+    cam = CameraMode.__new__(CameraMode)
+    cam.node = _fake_node(logs, landmarks=landmarks, images_of={"": "/image"})
+    cam.pipeline = SimpleNamespace(config=single)
+    cam.log_ready()
+    assert logs == [
+        ("info", f"ready: solver {single.solver}, line delay {single.line_delay * 1e6:.2f} "
+                 f"us/line, intrinsics from camera_info, 7 landmarks from lm.csv, aruco front "
+                 f"end on /image (map m.yaml)"),
+    ]  # fmt: skip
+
+
+def test_republish_turned_on_at_run_time_opens_every_camera_s_output_in_both_modes():
+    """``republish_correspondences`` with a front end makes each camera's
+    ``correspondences_out`` at once when the configuration is taken (a rig's cameras by
+    name, the single camera's ""), as without a front end none."""
+    from rs_localizer.ros.core import ModeBase
+
+    opened = []
+    for names in (("front", "rear"), ("",)):
+        for over, want in (({}, []), ({"frontend": "aruco", "frontend_map": "m.yaml"}, names)):
+            single, _ = _rig_config_of({**over, "republish_correspondences": True})
+            mode = ModeBase(_fake_node([], inputs=dict.fromkeys(names), queue_size=0,
+                                       open_found_output=opened.append))  # fmt: skip
+            mode._settle(single, None)
+            assert opened == list(want) and mode.node.republish is True
+            assert mode.node.frontend_kind == over.get("frontend", "none")
+            opened.clear()
