@@ -174,7 +174,6 @@ class ModeBase:
     image_topic = "image"
     keypoints_always = True
     images_text: str | None = None
-    info_qos_overridable = True
     busy_key = "skipped"
     busy_text = (
         "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
@@ -438,9 +437,8 @@ class NodeCore:
         the gyro's ``imu`` (:meth:`_subscribe_imu`), created at configure (a managed node's:
         before activate), before the frame inputs: a camera_info or IMU sample ready together
         with a frame is taken first."""
-        overriding = QoSOverridingOptions.with_default_policies
         for name in self._camera_names():
-            self._subscribe_info(name, overriding() if self.mode.info_qos_overridable else None)
+            self._subscribe_info(name)
         self._subscribe_imu()
 
     def _subscribe_imu(self) -> None:
@@ -542,18 +540,18 @@ class NodeCore:
                                       dropped=self._frames.dropped)  # fmt: skip
         self._log.warning(self.mode.busy_key, text)
 
-    def _subscribe_info(self, name: str, qos_overriding=None):
+    def _subscribe_info(self, name: str):
         """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
-        sensor-data QoS), each message to the camera's input stage
-        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp);
-        ``qos_overriding``: its ``QoSOverridingOptions`` (the single camera's; None: not
-        overridable). Kept with the configured inputs."""
+        sensor-data QoS, overridable as ``qos_overrides.<topic>.subscription.*``), each
+        message to the camera's input stage
+        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp). Kept with
+        the configured inputs."""
         sub = self.create_subscription(
             CameraInfo,
             f"{name}/camera_info" if name else "camera_info",
             lambda msg: self._input_of(name).add_camera_info(msg),
             qos_profile_sensor_data,
-            qos_overriding_options=qos_overriding,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )
         self._info_subs.append(sub)
         return sub

@@ -30,8 +30,9 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
                          ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage; of
                          ``<c>/image_raw`` resolved: a remap of it moves it too)
-    The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
-    single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
+    The frame inputs are best effort (history 100 clouds / 10 images); they and the
+    camera_infos are overridable as the single-camera node's
+    (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 and, with ``imu.enabled``, one for the rig:
     imu                  sensor_msgs/Imu (sensor-data QoS): a gyro on the rig, ``imu.rotation``
                          its rotation IMU -> base_frame; every rig frame is solved with its
@@ -165,7 +166,6 @@ class RigMode(ModeBase):
     image_topic = "image_raw"
     keypoints_always = False
     images_text: str | None = "the camera's images"
-    info_qos_overridable = False
     busy_key = "queue_full"
     busy_text = (
         "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "

@@ -823,8 +823,9 @@ def test_a_rig_camera_s_frame_passes_the_single_camera_s_entry_checks(ros_contex
 def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
     """With ``imu.enabled`` the managed rig node subscribes ``imu`` at configure, as the
     single camera's does (the samples are taken while it is inactive), with its QoS
-    overridable (``qos_overrides./rig/imu.subscription.*``), and keeps it over deactivate and
-    activate (its ``imu_rejected`` counting on); cleanup drops it."""
+    overridable (``qos_overrides./rig/imu.subscription.*``, each camera's camera_info's too),
+    and keeps it over deactivate and activate (its ``imu_rejected`` counting on); cleanup
+    drops it, a configure again makes it."""
     from rclpy.lifecycle import TransitionCallbackReturn
 
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
@@ -843,6 +844,8 @@ def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
         assert node.trigger_configure() == ok
         assert imu_subs() == 1
         assert node.has_parameter("qos_overrides./rig/imu.subscription.reliability")
+        for c in cams:  # (each camera's camera_info too, as the single camera's)
+            assert node.has_parameter(f"qos_overrides./rig/{c.name}/camera_info.subscription.depth")
         node.mode.imu_rejected["bad_stamp"] = 1
         assert node.trigger_activate() == ok and imu_subs() == 1
         assert node.trigger_deactivate() == ok and imu_subs() == 1
@@ -850,6 +853,7 @@ def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
         assert node.mode.imu_rejected == {"bad_stamp": 1}
         assert node.trigger_deactivate() == ok and node.trigger_cleanup() == ok
         assert imu_subs() == 0
+        assert node.trigger_configure() == ok and imu_subs() == 1  # (declared again: kept)
     finally:
         node.destroy_node()
 
