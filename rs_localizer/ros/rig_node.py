@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Collection, Iterator
 from typing import Any
 
 from ..camera import CameraModel
@@ -183,10 +183,6 @@ class RigMode(ModeBase):
     def configured_as(self) -> str:
         """What the managed node's ``configured: ... (inactive)`` line names."""
         return f"rig of {len(self.config.cameras)} cameras"
-
-    @property
-    def _take_imu(self) -> Callable[[Any], str | None]:
-        return self._on_imu
 
     def _configuration(self) -> tuple[LocalizerConfig, RigConfig, dict]:
         """The configuration at configure (each camera's ``rig.<camera>.*`` declared on first
@@ -514,7 +510,7 @@ class RigMode(ModeBase):
                 f"{name}.skipped.no_camera_info), the rig runs on the others",
             )
 
-    def _on_imu(self, msg) -> str | None:
+    def _take_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
         ``imu_rejected.<reason>``, as the single-camera node's)."""
         reason = take_gyro_sample(msg, self.rig.add_imu)
