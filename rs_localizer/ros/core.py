@@ -173,7 +173,6 @@ class ModeBase:
     cloud_kind = "correspondences"
     image_topic = "image"
     keypoints_always = True
-    images_text: str | None = None
     busy_key = "skipped"
     busy_text = (
         "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
@@ -479,7 +478,7 @@ class NodeCore:
             if self.image_transport == "compressed":  # (on image_transport's topic name)
                 topic, msg_type = self.resolve_topic_name(topic) + "/compressed", CompressedImage
             sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
-            images[n] = self.mode.images_text or sub.topic_name
+            images[n] = sub.topic_name
         self.images_of = images
 
     def _create_pose_outputs(self) -> None:

@@ -165,7 +165,6 @@ class RigMode(ModeBase):
     cloud_kind = "cloud"
     image_topic = "image_raw"
     keypoints_always = False
-    images_text: str | None = "the camera's images"
     busy_key = "queue_full"
     busy_text = (
         "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "

@@ -1295,11 +1295,17 @@ def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
     """With a front end (which runs on the cameras' images), a camera's correspondences
     cloud is solved as given and counted ``<c>.frames_beside_frontend``, as the
     single-camera node counts its ``frames_beside_frontend``; without a front end the key is
-    not in the status."""
+    not in the status. The first such cloud is named in one warning with the camera's own
+    image topic, as the single camera's names its image topic."""
+    import re
+    from types import SimpleNamespace
+
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=100, seed=4)
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
     h = rig_harness(ros_context, cams, params)
+    warned, real = [], h.node.get_logger()
+    h.node.get_logger = lambda: SimpleNamespace(warning=warned.append, info=real.info)
     try:
         h.send_info(cams)
         h.send_clouds(frames)
@@ -1307,6 +1313,12 @@ def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
         for c in cams:
             sent = sum(f.name == c.name for f in frames)
             assert v[f"{c.name}.frames_beside_frontend"] == str(sent) == v[f"{c.name}.received"]
+        beside = [w for w in warned if "front end runs on" in w]
+        pattern = (
+            r"received correspondences on /rig/(\w+)/correspondences while the aruco front "
+            r"end runs on /rig/\1/image_raw: "
+        )
+        assert len(beside) == 1 and re.match(pattern, beside[0]), warned
     finally:
         h.close()
     h = rig_harness(ros_context, cams, rig_parameters(cams))
