@@ -21,15 +21,13 @@ node's transitions: ``_declare_parameters``, ``_init_state`` (the mode made),
 ``_configure``, ``_create_outputs``, ``_create_info_inputs``, ``_create_frame_inputs``,
 ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``, ``_release_configured``.
 
-A mode has: ``configure()`` (RuntimeError for invalid parameters), ``configured_as()``,
-``log_ready()``, ``imu_input()`` (what takes the ``imu`` messages, subscribed with the
-camera_infos at configure; None: no gyro), ``camera_of(item)``, ``take_frame(item, camera)``,
+A mode derives from :class:`ModeBase` (``configure()``, RuntimeError for invalid parameters;
+``apply_change(built, overrides)``, ``log_ready()``, ``imu_input()``, ``close_track()``,
+``frame_inputs_destroyed()``, its topics and texts as data, written once) and adds
+``configured_as()``, ``camera_of(item)``, ``take_frame(item, camera)``,
 ``publish_taken(item, taken)``, ``idle_twists()`` (under the worker's lock),
-``close_track()``, ``frame_inputs_destroyed()``, ``changed_configuration(overrides)`` and
-``apply_change(built, overrides)``, ``diagnostics()`` (its status as data), and its topics
-and texts as data (``cloud_kind``, ``image_topic``, ``keypoints_always``,
-``images_text``, ``info_qos_overridable``, ``busy_key``,
-``busy_text``, ``count_image_frames``, ``mode_note``). What a mode calls on the node:
+``changed_configuration(overrides)``, ``diagnostics()`` (its status as data) and the steps
+:class:`ModeBase` names. What a mode calls on the node:
 ``set_cameras(inputs, counts, log, group, worker)`` (its cameras and a frame queue for them),
 ``stopping()``, ``between_frames()`` (the worker's lock), ``first_frame``,
 ``param_values(overrides)``, ``open_found_output(name)``, ``warn(key, text, count)`` (the
@@ -96,7 +94,7 @@ if TYPE_CHECKING:
     from ..tracking.video import LocalizerOutput
     from .pipeline import FrameResult
 
-__all__ = ["NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
+__all__ = ["ModeBase", "NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
@@ -157,6 +155,98 @@ class TakenFrame:
     result: FrameResult | None = None
     outs: list[LocalizerOutput] = field(default_factory=list)
     found: list = field(default_factory=list)
+
+
+class ModeBase:
+    """What both modes (:class:`~rs_localizer.ros.node.CameraMode`,
+    :class:`~rs_localizer.ros.rig_node.RigMode`) do at each phase, written once. A mode adds
+    its configuration (``_configuration()`` at configure, ``changed_configuration(overrides)``
+    at run time, both -> ``built``, whose first item is the single camera's
+    :class:`~.config.LocalizerConfig`, :attr:`cfg` once taken), how it takes it
+    (``_start_with(built)``, ``_change_to(built, overrides)``), its kernels' warm-up
+    (``_warm_kernels(built)``), its gyro's input (``_take_imu``) and its ``ready`` line's
+    subject and warnings (``_ready_subject()``, ``_ready_warnings()``). The topics and texts
+    as data are the single camera's (the rig's mode sets its own)."""
+
+    #: the single camera counts its image frames (``image_frames``)
+    count_image_frames = True
+    cloud_kind = "correspondences"
+    image_topic = "image"
+    keypoints_always = True
+    busy_key = "skipped"
+    busy_text = (
+        "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
+        "[{dropped} skipped so far]"
+    )
+    #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
+    mode_note = ""
+    cfg = None  # (the single camera's configuration of the parameters; None: not configured)
+
+    def __init__(self, node: NodeCore):
+        self.node = node
+
+    def configure(self) -> None:
+        """Parameters -> configuration, taken, then the kernels warmed up (:meth:`_warm_up`).
+        Raises RuntimeError for invalid parameters (naming them; the maps loaded released)."""
+        try:
+            built = self._configuration()
+        except ConfigError as e:
+            SHARED_MAPS.release(self.node)
+            raise RuntimeError(f"invalid parameters: {e}") from None
+        self._start_with(built)
+        self._warm_up(built)
+
+    def _warm_up(self, built: tuple) -> None:
+        """With ``warmup``, the kernels of ``built`` loaded from numba's cache or compiled in
+        another process while the frames are solved uncompiled (nothing waits)."""
+        if self.node.get_parameter("warmup").value:
+            self._warm_kernels(built)
+
+    def apply_change(self, built: tuple, overrides: dict) -> None:
+        """A run-time parameter change (:meth:`NodeCore._on_set_parameters`): a solver change
+        logged and its kernels warmed up (:meth:`_warm_up`), then the configuration taken."""
+        old, new = self.cfg.solver, built[0].solver
+        if new != old:
+            self.node.get_logger().info(f"solver: {old} -> {new}")
+            self._warm_up(built)
+        self._change_to(built, overrides)
+
+    def _settle(self, cfg: Any, landmarks: Any) -> None:
+        """The node's settings of ``cfg`` (:attr:`NodeCore.queue_size` ... ``map_frame``;
+        ``landmarks``: ``(ids, points)`` or None); with ``republish_correspondences`` and a
+        front end each camera's ``correspondences_out`` made (once the outputs exist)."""
+        node = self.node
+        node.queue_size, node.frontend_kind = cfg.queue_size, cfg.frontend_kind
+        node.image_transport, node.landmarks = cfg.image_transport, landmarks
+        node.republish, node.map_frame = bool(cfg.republish_correspondences), cfg.map_frame
+        if node.republish and cfg.frontend_kind != "none":
+            for name in node.inputs:
+                node.open_found_output(name)
+
+    def imu_input(self) -> Callable[[Any], str | None] | None:
+        """With ``imu.enabled``, what takes an ``imu`` message (the mode's gyro); else None."""
+        return None if self.cfg.imu is None else self._take_imu
+
+    def log_ready(self) -> None:
+        """The mode's warnings, then ``ready: <subject>``, the landmarks of
+        ``landmarks_file`` and the front end on the images with its map."""
+        cfg, log, node = self.cfg, self.node.get_logger(), self.node
+        for warning in self._ready_warnings():
+            log.warning(warning)
+        text = f"ready: {self._ready_subject()}"
+        if node.landmarks:
+            text += f", {len(node.landmarks[0])} landmarks from {cfg.landmarks_file}"
+        if node.images_of:
+            images = node.images_of.get("", f"each camera's {self.image_topic}")
+            text += f", {cfg.frontend_kind} front end on {images} (map {cfg.frontend_map})"
+        log.info(text)
+
+    def frame_inputs_destroyed(self) -> None:
+        """After the frame inputs' end (:meth:`NodeCore._destroy_frame_inputs`): nothing."""
+
+    def close_track(self) -> list[FrameOutcome]:
+        """:meth:`NodeCore._end_video`: nothing left to publish."""
+        return []
 
 
 class NodeCore:
@@ -346,9 +436,8 @@ class NodeCore:
         the gyro's ``imu`` (:meth:`_subscribe_imu`), created at configure (a managed node's:
         before activate), before the frame inputs: a camera_info or IMU sample ready together
         with a frame is taken first."""
-        overriding = QoSOverridingOptions.with_default_policies
         for name in self._camera_names():
-            self._subscribe_info(name, overriding() if self.mode.info_qos_overridable else None)
+            self._subscribe_info(name)
         self._subscribe_imu()
 
     def _subscribe_imu(self) -> None:
@@ -389,7 +478,7 @@ class NodeCore:
             if self.image_transport == "compressed":  # (on image_transport's topic name)
                 topic, msg_type = self.resolve_topic_name(topic) + "/compressed", CompressedImage
             sub = self._subscribe_frames(n, "image", msg_type, topic, IMAGE_QOS)
-            images[n] = self.mode.images_text or sub.topic_name
+            images[n] = sub.topic_name
         self.images_of = images
 
     def _create_pose_outputs(self) -> None:
@@ -450,18 +539,18 @@ class NodeCore:
                                       dropped=self._frames.dropped)  # fmt: skip
         self._log.warning(self.mode.busy_key, text)
 
-    def _subscribe_info(self, name: str, qos_overriding=None):
+    def _subscribe_info(self, name: str):
         """Camera ``name``'s ``camera_info`` (a rig camera's ``<name>/camera_info``;
-        sensor-data QoS), each message to the camera's input stage
-        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp);
-        ``qos_overriding``: its ``QoSOverridingOptions`` (the single camera's; None: not
-        overridable). Kept with the configured inputs."""
+        sensor-data QoS, overridable as ``qos_overrides.<topic>.subscription.*``), each
+        message to the camera's input stage
+        (:meth:`.camera_input.CameraInput.add_camera_info`: checked, kept by stamp). Kept with
+        the configured inputs."""
         sub = self.create_subscription(
             CameraInfo,
             f"{name}/camera_info" if name else "camera_info",
             lambda msg: self._input_of(name).add_camera_info(msg),
             qos_profile_sensor_data,
-            qos_overriding_options=qos_overriding,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )
         self._info_subs.append(sub)
         return sub

@@ -50,46 +50,30 @@ from rclpy.node import Node
 from ..correspondences import FrontendHooks
 from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
-from .core import NodeCore, QueuedFrame, TakenFrame
+from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame
 from .diagnostics import CameraPart, GyroState, StatusParts, frontend_values
 from .frame_queue import frame_accounting
-from .outputs import FrameOutcome, camera_outcome, publish_frame
-from .params import PARAMETERS, ConfigError
+from .outputs import camera_outcome, publish_frame
+from .params import PARAMETERS
 from .pipeline import FramePipeline, StatsSnapshot, log_warm_up
 from .rig_node import RigMode
 
 __all__ = ["PARAMETERS", "CameraMode", "RSLocalizerNode", "camera_status_parts"]
 
 
-class CameraMode:
+class CameraMode(ModeBase):
     """The single camera's part of :class:`RSLocalizerNode` (``rig.cameras`` empty): the
     camera's topics without prefix, its frames through a
     :class:`~rs_localizer.ros.pipeline.FramePipeline` on the node's worker thread, what the
     pipeline returns published, the camera's diagnostics. The node
-    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing; this object what
-    the camera's mode does at each phase (the interface :class:`~.core.NodeCore` names; the
-    rig's is :class:`~rs_localizer.ros.rig_node.RigMode`). Made with the node's state
-    (``_init_state``): the pipeline without configuration, the camera's input stage and
-    counts (named ""), the frame queue."""
-
-    #: the single camera counts its image frames (``image_frames``)
-    count_image_frames = True
-    #: the single camera's topics and texts (:class:`~rs_localizer.ros.core.NodeCore`)
-    cloud_kind = "correspondences"
-    image_topic = "image"
-    keypoints_always = True
-    images_text = None
-    info_qos_overridable = True
-    busy_key = "skipped"
-    busy_text = (
-        "busy: frame queue full (queue_size {size}), dropped the oldest waiting frame "
-        "[{dropped} skipped so far]"
-    )
-    #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
-    mode_note = ""
+    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing, the modes' shared
+    base (:class:`~rs_localizer.ros.core.ModeBase`) what both modes do alike; this object
+    what only the camera's does (the rig's is :class:`~rs_localizer.ros.rig_node.RigMode`).
+    Made with the node's state (``_init_state``): the pipeline without configuration, the
+    camera's input stage and counts (named ""), the frame queue."""
 
     def __init__(self, node: NodeCore):
-        self.node = node
+        super().__init__(node)
         self.pipeline = FramePipeline(log=node.get_logger(), stopped=node.stopping)
         # (the one camera, named "")
         node.set_cameras({"": self.pipeline.camera_input}, {"": self.pipeline.stats},
@@ -108,73 +92,56 @@ class CameraMode:
         """None: :meth:`take_frame` finds the camera model (the pipeline's)."""
         return None
 
-    def configure(self) -> None:
-        """Parameters -> configuration (camera model, landmarks, front end and its map), then
-        the JIT warm-up. Raises RuntimeError for invalid parameters."""
-        try:
-            cfg, maps = self.changed_configuration({})
-        except ConfigError as e:
-            raise RuntimeError(f"invalid parameters: {e}") from None
-        self._apply_config(cfg, maps)
-        self._warm_up(cfg, background=True)
+    def _configuration(self) -> tuple[LocalizerConfig, LoadedMaps]:
+        return self.changed_configuration({})
 
-    def _warm_up(self, cfg: LocalizerConfig, background: bool = False) -> None:
-        """With ``warmup``, the kernels of ``cfg``'s solver, tracking and gyro compiled or
-        loaded (:func:`.pipeline.log_warm_up`; ``background``: its)."""
-        if self.node.get_parameter("warmup").value:
-            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.node.get_logger(),
-                        cfg.imu is not None, background)  # fmt: skip
+    def _warm_kernels(self, built: tuple[LocalizerConfig, LoadedMaps]) -> None:
+        """The kernels of the configuration's solver, tracking and gyro, compiled or loaded
+        (:func:`.pipeline.log_warm_up`, in the background)."""
+        cfg = built[0]
+        log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.node.get_logger(),
+                    cfg.imu is not None, True)  # fmt: skip
 
-    def imu_input(self) -> Callable[[Any], str | None] | None:
-        """With ``imu.enabled`` (read-only), what takes an ``imu`` message: the pipeline's
-        gyro (:meth:`.pipeline.FramePipeline.add_imu`); else None
-        (:meth:`.core.NodeCore._subscribe_imu`)."""
-        return None if self.cfg.imu is None else self.pipeline.add_imu
+    @property
+    def _take_imu(self) -> Callable[[Any], str | None]:
+        """The pipeline's gyro (:meth:`.pipeline.FramePipeline.add_imu`)."""
+        return self.pipeline.add_imu
 
     def frame_inputs_destroyed(self) -> None:
         """After the frame inputs' end (the frames still queued dropped): the track is
         dropped too (nothing is left for :meth:`.core.NodeCore._end_video` to publish)."""
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
 
-    def close_track(self) -> list[FrameOutcome]:
-        """None left: the single camera's track is dropped with its frame inputs."""
-        return []
-
-    def log_ready(self) -> None:
-        cfg = self.cfg
-        if cfg.line_delay == 0 and cfg.readout_time == 0:
-            self.node.get_logger().warning(
+    def _ready_warnings(self) -> list[str]:
+        """A global-shutter timing (the twist is then zero)."""
+        if self.cfg.line_delay == 0 and self.cfg.readout_time == 0:
+            return [
                 "rs.line_delay and rs.readout_time are 0: global-shutter "
                 "timing, the published twist will be zero"
-            )
-        text = f"ready: solver {cfg.solver}, line delay {cfg.line_delay * 1e6:.2f} us/line"
+            ]
+        return []
+
+    def _ready_subject(self) -> str:
+        cfg = self.cfg
+        text = f"solver {cfg.solver}, line delay {cfg.line_delay * 1e6:.2f} us/line"
         if cfg.readout_time > 0:
             text += f", readout {cfg.readout_time * 1e3:.2f} ms"
-        text += f", intrinsics from {'parameters' if cfg.fallback else 'camera_info'}"
-        landmarks = self._maps().landmarks
-        if landmarks:
-            text += f", {len(landmarks[0])} landmarks from {cfg.landmarks_file}"
-        if "" in self.node.images_of:
-            text += f", {cfg.frontend_kind} front end on {self.node.images_of['']} (map "
-            text += f"{cfg.frontend_map})"
-        self.node.get_logger().info(text)
+        return text + f", intrinsics from {'parameters' if cfg.fallback else 'camera_info'}"
 
     # ------------------------------------------------------------------ parameters
     def _maps(self) -> LoadedMaps:
         """The landmarks and the front end loaded for the configuration in use."""
         return self.pipeline.maps
 
-    def _apply_config(self, cfg: LocalizerConfig, maps: LoadedMaps):
+    def _start_with(self, built: tuple[LocalizerConfig, LoadedMaps]) -> None:
+        """The pipeline configured (camera models rebuilt: the RS timing may have changed),
+        the node's settings (:meth:`~.core.ModeBase._settle`); a reloaded front end, the
+        marker detector that runs and a default RS timing with images logged."""
+        cfg, maps = built
         old = self.cfg
         old_fe = self._maps().frontend
-        # (the RS timing may have changed: camera models rebuilt)
         self.pipeline.configure(cfg, maps)
-        self.node.queue_size, self.node.frontend_kind = cfg.queue_size, cfg.frontend_kind
-        self.node.image_transport, self.node.landmarks = cfg.image_transport, maps.landmarks
-        self.node.republish, self.node.map_frame = (
-            bool(cfg.republish_correspondences),
-            cfg.map_frame,
-        )
+        self._settle(cfg, maps.landmarks)
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.node.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
@@ -186,8 +153,6 @@ class CameraMode:
             line, fallback = detector
             log = self.node.get_logger().warning if fallback else self.node.get_logger().info
             log(f"marker detector: {line}")
-        if cfg.republish_correspondences and maps.frontend is not None:
-            self.node.open_found_output()
         note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
         if note is not None:
             self.node.warn_once("default_timing", note)
@@ -198,17 +163,10 @@ class CameraMode:
         cfg = build_config(self.node.param_values(overrides))
         return cfg, load_maps(cfg, owner=self, current=self._maps())
 
-    def apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
-        """The pipeline reconfigured (:meth:`_apply_config`); a solver change logged (and its
-        kernels warmed up with ``warmup``: loaded from numba's cache, or, not cached and the
-        solver has a NumPy implementation, compiled in another process while its frames are
-        solved uncompiled, as at start: the parameter service answers at once), reloaded
-        landmarks logged."""
+    def _change_to(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
+        """The pipeline reconfigured (:meth:`_start_with`), reloaded landmarks logged."""
+        self._start_with(built)
         cfg, maps = built
-        if "solver" in overrides and overrides["solver"] != self.cfg.solver:
-            self.node.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
-            self._warm_up(cfg, background=True)
-        self._apply_config(cfg, maps)
         if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.node.get_logger().info(
                 f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.landmarks_file}"

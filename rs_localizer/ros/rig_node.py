@@ -30,8 +30,9 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
                          ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage; of
                          ``<c>/image_raw`` resolved: a remap of it moves it too)
-    The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
-    single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
+    The frame inputs are best effort (history 100 clouds / 10 images); they and the
+    camera_infos are overridable as the single-camera node's
+    (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 and, with ``imu.enabled``, one for the rig:
     imu                  sensor_msgs/Imu (sensor-data QoS): a gyro on the rig, ``imu.rotation``
                          its rotation IMU -> base_frame; every rig frame is solved with its
@@ -79,11 +80,10 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Collection, Iterator
 from typing import Any
 
 from ..camera import CameraModel
-from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
 from .camera_input import (
@@ -104,7 +104,7 @@ from .config import (
     rig_used_values,
     same_value,
 )
-from .core import NodeCore, QueuedFrame, TakenFrame
+from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts
@@ -148,86 +148,73 @@ def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
         counts.stage_time("estimate", toc - taken_at - (frontend_s or 0.0))
 
 
-class RigMode:
+class RigMode(ModeBase):
     """The rig's part of :class:`~rs_localizer.ros.node.RSLocalizerNode` (``rig.cameras``
     set; module docstring): each camera's topics under ``<c>/``, its frames to one
     :class:`~rs_localizer.tracking.video.Localizer` on the node's worker thread, the rig
     frames they complete published, the rig's diagnostics with a section per camera. The node
-    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing; this object what
-    the rig's mode does at each phase (the interface :class:`~.core.NodeCore` names; the
-    single camera's is :class:`~rs_localizer.ros.node.CameraMode`). Nothing before
-    ``configure`` (:meth:`configure`: the cameras, their inputs and counts, the frame queue,
-    the localizer)."""
+    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing, the modes' shared
+    base (:class:`~rs_localizer.ros.core.ModeBase`) what both modes do alike; this object
+    what only the rig's does (the single camera's is
+    :class:`~rs_localizer.ros.node.CameraMode`). Nothing before ``configure``
+    (:meth:`_start_with`: the cameras, their inputs and counts, the frame queue, the
+    localizer)."""
 
     #: the rig's topics and texts (:class:`~rs_localizer.ros.core.NodeCore`)
     count_image_frames = False
     cloud_kind = "cloud"
     image_topic = "image_raw"
     keypoints_always = False
-    images_text: str | None = "the camera's images"
-    info_qos_overridable = False
     busy_key = "queue_full"
     busy_text = (
         "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
         "the oldest waiting frame [{dropped} dropped so far]"
     )
-    #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
     mode_note = ", rig mode"
     rig = None  # (None: not configured)
+    #: the rig's configuration (:class:`~.config.RigConfig`; None: not configured)
     config = None
 
     def __init__(self, node: NodeCore):
-        self.node = node
+        super().__init__(node)
         self.imu_rejected: dict[str, int] = {}
 
     def configured_as(self) -> str:
         """What the managed node's ``configured: ... (inactive)`` line names."""
         return f"rig of {len(self.config.cameras)} cameras"
 
-    def imu_input(self) -> Callable[[Any], str | None] | None:
-        """With ``imu.enabled``, what takes an ``imu`` message: the rig's gyro
-        (:meth:`_on_imu`); else None (:meth:`.core.NodeCore._subscribe_imu`, at configure as
-        the single camera's)."""
-        return None if self.config.settings.imu is None else self._on_imu
+    def _configuration(self) -> tuple[LocalizerConfig, RigConfig, dict]:
+        """The configuration at configure (each camera's ``rig.<camera>.*`` declared on first
+        use; :meth:`changed_configuration` unchecked) and the landmarks and front-end map
+        loaded once, a front end object per camera (camera name -> its maps).
 
-    def frame_inputs_destroyed(self) -> None:
-        """Nothing: the rig frames still open are published at the end of the frame inputs
-        (:meth:`close_track`)."""
-
-    def configure(self) -> None:
-        """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
-        use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
-        rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
+        Raises:
+            ConfigError: a value that cannot be used (naming it).
+        """
         node = self.node
-        try:  # (the names first: they make parameter and topic names)
-            names = rig_camera_names(node.get_parameter("rig.cameras").value)
-        except ConfigError as e:
-            raise RuntimeError(f"invalid parameters: {e}") from None
+        # (the names first: they make parameter and topic names)
+        names = rig_camera_names(node.get_parameter("rig.cameras").value)
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
         for n in names:
             if not node.has_parameter(f"rig.{n}.line_delay"):
                 declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
                 declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
-        try:
-            self.config, single = self.changed_configuration({}, check=False)
-            # (the landmarks and the front end's map loaded once, a front end object each)
-            loaded = {c.name: load_maps(single, owner=node) for c in self.config.cameras}
-        except ConfigError as e:
-            SHARED_MAPS.release(node)
-            raise RuntimeError(f"invalid parameters: {e}") from None
-        #: the landmarks of ``landmarks_file`` (``(ids, points)``) the cameras' keypoints name
-        node.landmarks = next(iter(loaded.values())).landmarks
-        node.map_frame = str(single.map_frame)
-        node.frontend_kind = single.frontend_kind
-        node.image_transport = single.image_transport
+        single, config = self.changed_configuration({}, check=False)
+        return single, config, {c.name: load_maps(single, owner=node) for c in config.cameras}
+
+    def _start_with(self, built: tuple[LocalizerConfig, RigConfig, dict]) -> None:
+        """The configuration taken: the node's settings (:meth:`~.core.ModeBase._settle`), a
+        front end per camera when ``frontend`` is set, the rig localizer, the cameras' inputs
+        and counts and their frame queue (:meth:`.core.NodeCore.set_cameras`)."""
+        node = self.node
+        self.cfg, self.config, loaded = built
+        single = self.cfg
         log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = Localizer(self.config.settings, log=log, implementation=ready_implementation)
         if single.frontend_kind != "none":
             for n, maps in loaded.items():
                 self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
-        node.queue_size = int(single.queue_size)
-        node.republish = bool(single.republish_correspondences)
         self._group_ns = int(self.config.settings.window * 1e9)
         # (the worker's map-fit check over the rig frames, its times per stage)
         self._rig_counts = CameraCounts()
@@ -236,39 +223,36 @@ class RigMode:
         # messages lost, the worker's time per frame) and its input (its camera_infos by
         # stamp, its clouds' rows, its images), a frame queue for them
         counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        #: (the landmarks of ``landmarks_file``, ``(ids, points)``, the cameras' keypoints name)
+        landmarks = next(iter(loaded.values())).landmarks
         inputs = rig_camera_inputs(self.config, log, self._count_input, stopped=node.stopping,
                                    wait=single.camera_info_wait,
-                                   landmarks=node.landmarks)  # fmt: skip
+                                   landmarks=landmarks)  # fmt: skip
         node.set_cameras(inputs, counts, log, self._same_rig_frame, "rs_localizer_rig_worker")
+        self._settle(single, landmarks)
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
-        if node.get_parameter("warmup").value:
-            self._warm_up()
 
-    def _warm_up(self) -> None:
-        """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
-        (:func:`~rs_localizer.runtime.warmup.rig_cached`) they are loaded before the first
-        frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
-        every camera's RS timing, ``rs-localizer compile --params-file``'s: a few seconds);
-        else nothing waits: they compile in another process
-        (:func:`~rs_localizer.runtime.background.start_background_compile` with its
-        :class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved
-        on the NumPy implementation (tracked, with the gyro, as on the compiled one) until
-        they are loaded. Logged with the kernels compiled and the time. Without ``warmup``
-        the first rig frame pays for them while the cameras' frames queue (a full queue drops
-        them). Never raises (a failure is logged; the frames compile instead): the single
-        camera's :func:`.pipeline.warm_kernels`."""
+    def _warm_kernels(self, built: tuple[LocalizerConfig, RigConfig, Any]) -> None:
+        """The rig's kernels (:func:`.pipeline.warm_kernels`, as the single camera's): in
+        numba's cache (:func:`~rs_localizer.runtime.warmup.rig_cached`), loaded before the
+        next frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
+        every camera's RS timing); else compiled in another process
+        (:class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved
+        on the NumPy implementation. Without ``warmup`` the first rig frame pays for them
+        while the cameras' frames queue."""
         from ..runtime.background import RigKernels
         from ..runtime.warmup import warm_rig
 
-        timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
+        config = built[1]
+        timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in config.cameras}
 
         def warm() -> tuple[float, str]:
             tic = time.perf_counter()
-            posed = warm_rig(self.config.settings, timing)
+            posed = warm_rig(config.settings, timing)
             return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
 
-        kernels = RigKernels(self.config.settings, timing)
+        kernels = RigKernels(config.settings, timing)
         warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
                      "`rs-localizer compile --params-file`")  # fmt: skip
 
@@ -281,12 +265,11 @@ class RigMode:
         pending = self.rig.flush() + self.rig.reset()
         return [*closed, FrameOutcome(fused=fused_outputs(pending, self.config.base_frame))]
 
-    def log_ready(self) -> None:
-        images = (
-            f", {self.node.frontend_kind} front end on each camera's image_raw"
-            if self.node.frontend_kind != "none"
-            else ""
-        )
+    def _ready_warnings(self) -> list[str]:
+        """The single camera's parameters set but not used by the rig."""
+        return [self.config.unused_text] if self.config.unused_text else []
+
+    def _ready_subject(self) -> str:
         timing = []
         for c in self.config.cameras:
             t = (
@@ -295,24 +278,22 @@ class RigMode:
                 else f"line delay {c.line_delay * 1e6:.2f} us/line"
             )
             timing.append(f"{c.name} {t} {c.direction}")
-        self.node.get_logger().info(
-            f"ready: rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
-            f"{self.config.base_frame} in {self.node.map_frame}{images}"
+        return (
+            f"rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
+            f"{self.config.base_frame} in {self.node.map_frame}"
         )
-        if self.config.unused_text:
-            self.node.get_logger().warning(self.config.unused_text)
 
     # ---------------------------------------------------------------- parameters
     def changed_configuration(
         self, overrides: dict, check: bool = True
-    ) -> tuple[RigConfig, LocalizerConfig]:
-        """The rig's configuration of the parameters with ``overrides`` (name -> value of
-        :data:`~.params.PARAMETERS`; ``{}``: at configure) and the single camera's of the same
-        values (its front end, and every value it uses checked as for one camera:
-        :func:`.config.rig_used_values`), as
-        :func:`.config.rig_config` and :func:`.config.build_config` make them. ``check``: a
-        change while the rig runs, refused for the parameters it cannot take without a restart
-        (:func:`.config.rig_change_refused`) unless their value stays the same.
+    ) -> tuple[LocalizerConfig, RigConfig]:
+        """The single camera's configuration of the parameters with ``overrides`` (name ->
+        value of :data:`~.params.PARAMETERS`; ``{}``: at configure; its front end, and every
+        value it uses checked as for one camera: :func:`.config.rig_used_values`) and the
+        rig's of the same values, as :func:`.config.build_config` and
+        :func:`.config.rig_config` make them. ``check``: a change while the rig runs, refused
+        for the parameters it cannot take without a restart (:func:`.config.rig_change_refused`)
+        unless their value stays the same.
 
         Raises:
             ConfigError: a value that cannot be used, or a change refused (naming them).
@@ -337,26 +318,22 @@ class RigMode:
             for n in names
         }
         config = rig_config(values, cams)
-        return config, build_config(rig_used_values(values, config.settings.single_camera))
+        return build_config(rig_used_values(values, config.settings.single_camera)), config
 
-    def apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
+    def _change_to(self, built: tuple[LocalizerConfig, RigConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on
         (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
-        config, single = built
-        old = self.config.settings.solver
-        if config.settings.single_camera and config.settings.solver != old:
-            self.node.get_logger().info(f"solver: {old} -> {config.settings.solver}")
+        single, config = built
         with self.node.between_frames():  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
-            self.config = config
+            self.cfg, self.config = single, config
             for inp in self.node.inputs.values():
                 inp.max_points = config.settings.max_points
                 inp.wait = float(single.camera_info_wait)
-        self.node.queue_size = single.queue_size
-        self.node.republish = bool(single.republish_correspondences)
+        self._settle(single, self.node.landmarks)
 
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
@@ -532,7 +509,7 @@ class RigMode:
                 f"{name}.skipped.no_camera_info), the rig runs on the others",
             )
 
-    def _on_imu(self, msg) -> str | None:
+    def _take_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
         ``imu_rejected.<reason>``, as the single-camera node's)."""
         reason = take_gyro_sample(msg, self.rig.add_imu)

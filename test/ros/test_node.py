@@ -1150,7 +1150,7 @@ def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monke
     )
     mode = N.CameraMode.__new__(N.CameraMode)  # (the camera's mode without its pipeline)
     mode.node, mode.pipeline = node, SimpleNamespace(config=old)
-    mode._apply_config = lambda cfg, maps: None
+    mode._change_to = lambda built, overrides: None
     mode.apply_change((new, None), {"solver": "p3p"})
     assert calls == [("p3p", True, {})]
     assert logs == [f"solver: {old.solver} -> p3p"]

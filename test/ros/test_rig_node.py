@@ -823,8 +823,9 @@ def test_a_rig_camera_s_frame_passes_the_single_camera_s_entry_checks(ros_contex
 def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
     """With ``imu.enabled`` the managed rig node subscribes ``imu`` at configure, as the
     single camera's does (the samples are taken while it is inactive), with its QoS
-    overridable (``qos_overrides./rig/imu.subscription.*``), and keeps it over deactivate and
-    activate (its ``imu_rejected`` counting on); cleanup drops it."""
+    overridable (``qos_overrides./rig/imu.subscription.*``, each camera's camera_info's too),
+    and keeps it over deactivate and activate (its ``imu_rejected`` counting on); cleanup
+    drops it, a configure again makes it."""
     from rclpy.lifecycle import TransitionCallbackReturn
 
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
@@ -843,6 +844,8 @@ def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
         assert node.trigger_configure() == ok
         assert imu_subs() == 1
         assert node.has_parameter("qos_overrides./rig/imu.subscription.reliability")
+        for c in cams:  # (each camera's camera_info too, as the single camera's)
+            assert node.has_parameter(f"qos_overrides./rig/{c.name}/camera_info.subscription.depth")
         node.mode.imu_rejected["bad_stamp"] = 1
         assert node.trigger_activate() == ok and imu_subs() == 1
         assert node.trigger_deactivate() == ok and imu_subs() == 1
@@ -850,6 +853,7 @@ def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
         assert node.mode.imu_rejected == {"bad_stamp": 1}
         assert node.trigger_deactivate() == ok and node.trigger_cleanup() == ok
         assert imu_subs() == 0
+        assert node.trigger_configure() == ok and imu_subs() == 1  # (declared again: kept)
     finally:
         node.destroy_node()
 
@@ -1291,11 +1295,17 @@ def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
     """With a front end (which runs on the cameras' images), a camera's correspondences
     cloud is solved as given and counted ``<c>.frames_beside_frontend``, as the
     single-camera node counts its ``frames_beside_frontend``; without a front end the key is
-    not in the status."""
+    not in the status. The first such cloud is named in one warning with the camera's own
+    image topic, as the single camera's names its image topic."""
+    import re
+    from types import SimpleNamespace
+
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=100, seed=4)
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
     h = rig_harness(ros_context, cams, params)
+    warned, real = [], h.node.get_logger()
+    h.node.get_logger = lambda: SimpleNamespace(warning=warned.append, info=real.info)
     try:
         h.send_info(cams)
         h.send_clouds(frames)
@@ -1303,6 +1313,12 @@ def test_clouds_beside_the_front_end_are_counted_per_camera(ros_context):
         for c in cams:
             sent = sum(f.name == c.name for f in frames)
             assert v[f"{c.name}.frames_beside_frontend"] == str(sent) == v[f"{c.name}.received"]
+        beside = [w for w in warned if "front end runs on" in w]
+        pattern = (
+            r"received correspondences on /rig/(\w+)/correspondences while the aruco front "
+            r"end runs on /rig/\1/image_raw: "
+        )
+        assert len(beside) == 1 and re.match(pattern, beside[0]), warned
     finally:
         h.close()
     h = rig_harness(ros_context, cams, rig_parameters(cams))
@@ -1370,3 +1386,110 @@ def test_a_camera_s_compressed_images_follow_a_remap_of_its_image_raw(ros_contex
         "/cams/front_image/compressed": "CompressedImage",
         "/rig/left/image_raw/compressed": "CompressedImage",
     }, got
+
+
+def _rig_config_of(overrides, names=("front",)):
+    """The single camera's and the rig's configurations of the default parameters with
+    ``overrides`` for a rig of cameras ``names`` (each at its default ``rig.<c>.*``, at the
+    identity mounting)."""
+    from rs_localizer.ros import config as C
+    from rs_localizer.ros import params as P
+
+    values = {k: p.default for k, p in P.PARAMETERS.items()}
+    values.update({k: p.default for k, p in P.RIG_PARAMETERS.items()})
+    values.update(overrides, **{"rig.cameras": list(names)})
+    own = {k: p.default for k, p in P.RIG_CAMERA_PARAMETERS.items()}
+    cams = {n: {**own, "mounting": [0.0, 0, 0, 0, 0, 0, 1]} for n in names}
+    config = C.rig_config(values, cams)
+    return C.build_config(C.rig_used_values(values, config.settings.single_camera)), config
+
+
+def _fake_node(logs, **attrs):
+    from types import SimpleNamespace
+
+    log = SimpleNamespace(info=lambda t: logs.append(("info", t)),
+                          warning=lambda t: logs.append(("warning", t)))  # fmt: skip
+    warmup = SimpleNamespace(value=True)
+    return SimpleNamespace(get_logger=lambda: log, get_parameter=lambda name: warmup, **attrs)
+
+
+def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(monkeypatch):
+    """A solver changed at run time on a rig of one camera (which takes ``solver``) is logged
+    and its kernels warmed up in the background with the new settings, as the single
+    camera's (``warmup``); the same solver set again neither logs nor warms up."""
+    import rs_localizer.ros.rig_node as R
+
+    calls = []
+    monkeypatch.setattr(R, "warm_kernels", lambda k, label, *a: calls.append((k, label, a[2])))
+    old, new = _rig_config_of({}), _rig_config_of({"solver": "p3p"})
+    assert new[1].settings.single_camera and new[1].settings.solver == "p3p" != old[0].solver
+    logs = []
+    mode = R.RigMode.__new__(R.RigMode)  # (the rig's mode without its localizer)
+    mode.node, mode.cfg, mode.config = _fake_node(logs), *old
+    changed = []
+    mode._change_to = lambda built, overrides: changed.append(built)
+    mode.apply_change(new, {"solver": "p3p"})
+    assert logs == [("info", f"solver: {old[0].solver} -> p3p")] and changed == [new]
+    [(kernels, label, background)] = calls
+    assert kernels.settings is new[1].settings and label == "rig" and background is True
+    assert set(kernels.timing) == {"front"}
+    mode.cfg = new[0]
+    mode.apply_change(new, {"solver": "p3p"})
+    assert len(calls) == 1 and len(logs) == 1 and changed == [new, new]
+
+
+def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
+    """The ``ready`` line of either mode ends alike: the landmarks loaded from
+    ``landmarks_file`` (their count) and the front end on the images with its map; a rig's
+    warnings (the single camera's parameters it does not use) come before it, as a camera's
+    global-shutter warning."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.node import CameraMode
+    from rs_localizer.ros.rig_node import RigMode
+
+    over = {"landmarks_file": "lm.csv", "frontend": "aruco", "frontend_map": "m.yaml"}
+    single, config = _rig_config_of({**over, "camera.fx": 600.0}, ("front", "rear"))
+    assert config.unused_text
+    landmarks = (np.arange(7), np.zeros((7, 3)))
+    logs = []
+    rig = RigMode.__new__(RigMode)
+    rig.node = _fake_node(logs, landmarks=landmarks, map_frame="map",
+                          images_of={"front": "x", "rear": "x"})  # fmt: skip
+    rig.cfg, rig.config = single, config
+    rig.log_ready()
+    timing = f"line delay {single.line_delay * 1e6:.2f} us/line {single.direction}"
+    assert logs == [
+        ("warning", config.unused_text),
+        ("info", f"ready: rig of 2 cameras (front {timing}; rear {timing}) posed as "
+                 f"base_link in map, 7 landmarks from lm.csv, aruco front end on each "
+                 f"camera's image_raw (map m.yaml)"),
+    ]  # fmt: skip
+    logs.clear()
+    cam = CameraMode.__new__(CameraMode)
+    cam.node = _fake_node(logs, landmarks=landmarks, images_of={"": "/image"})
+    cam.pipeline = SimpleNamespace(config=single)
+    cam.log_ready()
+    assert logs == [
+        ("info", f"ready: solver {single.solver}, line delay {single.line_delay * 1e6:.2f} "
+                 f"us/line, intrinsics from camera_info, 7 landmarks from lm.csv, aruco front "
+                 f"end on /image (map m.yaml)"),
+    ]  # fmt: skip
+
+
+def test_republish_turned_on_at_run_time_opens_every_camera_s_output_in_both_modes():
+    """``republish_correspondences`` with a front end makes each camera's
+    ``correspondences_out`` at once when the configuration is taken (a rig's cameras by
+    name, the single camera's ""), as without a front end none."""
+    from rs_localizer.ros.core import ModeBase
+
+    opened = []
+    for names in (("front", "rear"), ("",)):
+        for over, want in (({}, []), ({"frontend": "aruco", "frontend_map": "m.yaml"}, names)):
+            single, _ = _rig_config_of({**over, "republish_correspondences": True})
+            mode = ModeBase(_fake_node([], inputs=dict.fromkeys(names), queue_size=0,
+                                       open_found_output=opened.append))  # fmt: skip
+            mode._settle(single, None)
+            assert opened == list(want) and mode.node.republish is True
+            assert mode.node.frontend_kind == over.get("frontend", "none")
+            opened.clear()
