@@ -335,7 +335,7 @@ def built_estimate(
     num_rows: int,
     covariances: tuple | None = None,
     per_view: tuple | None = None,
-    **fields,
+    **fields: object,
 ) -> RSPoseEstimate:
     """The :class:`RSPoseEstimate` of one camera's frame or of a rig frame (its views' rows in
     order), posed or failed: the one builder of both estimators' results
