@@ -1253,6 +1253,26 @@ def final_estimate(
         cov = (cov[0], cov[1], None)
     mask = np.zeros(fr.num_rows, dtype=bool)
     mask[fr.rows[inl]] = True
+    record = {
+        "solver": solver,
+        "num_behind": n_behind,
+        "planar": bool(flat < PLANAR_TOLERANCE),
+        "planarity": flat,
+        "condition_number": cond,
+        "motion_model": ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
+        "ransac_iterations": iterations,
+        "timings": timings,
+        "rmse_px": final.rmse_px,
+        "motion_prior_used": final.prior_used,
+        "initial_explained": initial[0],
+        "initial_used": initial[1],
+        "acceleration_sensitivity": final.sensitivity,
+        "gyro_used": gyro_used,
+        "ignored_inputs": ignored_inputs,
+        "model_covariance": final.covariance,
+    }
+    if not compiled:
+        record["implementation"] = NUMPY
     return built_estimate(
         None,
         RSModel(R, C, w, t),
@@ -1261,22 +1281,5 @@ def final_estimate(
         len(fr.x),
         fr.num_rows,
         cov,
-        solver=solver,
-        num_behind=n_behind,
-        planar=bool(flat < PLANAR_TOLERANCE),
-        planarity=flat,
-        condition_number=cond,
-        motion_model=ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
-        ransac_iterations=iterations,
-        timings=timings,
-        rmse_px=final.rmse_px,
-        motion_prior_used=final.prior_used,
-        initial_explained=initial[0],
-        initial_used=initial[1],
-        acceleration_sensitivity=final.sensitivity,
-        gyro_used=gyro_used,
-        ignored_inputs=ignored_inputs,
-        model_covariance=final.covariance,
-        **({} if compiled else {"implementation": NUMPY}),
-        **fields,
+        **(record | fields),
     )
