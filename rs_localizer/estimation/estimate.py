@@ -74,7 +74,7 @@ from .result import (
     DEGENERATE_GEOMETRY,
     EstimationFailed,
     RSPoseEstimate,
-    failed_estimate,
+    built_estimate,
     physical_velocities,
 )
 from .single_tag import (
@@ -453,16 +453,8 @@ def _estimate(
             )
             if still is not None:
                 return replace(still, solver=solver)
-        return failed_estimate(
-            failure.reason,
-            solver,
-            fr.num_rows,
-            len(fr.x),
-            search.iterations,
-            timings,
-            COMPILED if compiled else NUMPY,
-            ignored,
-        )
+        impl = COMPILED if compiled else NUMPY
+        return _failed(failure.reason, solver, fr, search.iterations, timings, ignored, impl)
     timings["total"] = time.perf_counter() - t_start
     if model_solver == solver:
         return est
@@ -502,11 +494,28 @@ def _few_points(
             flat=flat, name=name,
         )  # fmt: skip
     except EstimationFailed as failure:
-        return failed_estimate(
-            failure.reason, name, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
-        )
+        return _failed(failure.reason, name, fr, 0, timings, ignored)
     timings["few_points"] = time.perf_counter() - t_start
     return est
+
+
+def _failed(
+    reason: str,
+    solver: str,
+    fr,
+    iterations: int,
+    timings: dict[str, float],
+    ignored: tuple[str, ...],
+    implementation: str = COMPILED,
+) -> RSPoseEstimate:
+    """The failed estimate (``reason``) of the prepared frame ``fr`` after ``iterations``
+    RANSAC hypotheses, by ``implementation`` (which could not use ``ignored``):
+    :func:`~.result.built_estimate`, no inlier among its ``fr.num_rows`` rows."""
+    return built_estimate(
+        reason, None, None, np.zeros(fr.num_rows, dtype=bool), len(fr.x), fr.num_rows,
+        solver=solver, ransac_iterations=iterations, timings=timings,
+        implementation=implementation, ignored_inputs=ignored,
+    )  # fmt: skip
 
 
 def _configure_few_points(fr, camera: CameraModel, opts: EstimateOptions, flat: float) -> None:

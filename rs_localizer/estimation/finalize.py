@@ -62,6 +62,7 @@ from .result import (
     TOO_FEW_INLIERS,
     EstimationFailed,
     RSPoseEstimate,
+    built_estimate,
     output_covariance,
     physical_velocities,
 )
@@ -1110,64 +1111,6 @@ def inconsistent_fit(
     return bool(near > NEAR_MISS_RATIO * n_inl)
 
 
-def solved_estimate(
-    fr: Any,
-    solver: str,
-    model: Model,
-    position: np.ndarray,
-    inliers: np.ndarray,
-    num_behind: int,
-    velocities: tuple,
-    covariances: tuple | None,
-    flat: float,
-    condition: float,
-    /,
-    **fields: Any,
-) -> RSPoseEstimate:
-    """The successful :class:`RSPoseEstimate` of a checked final model, for the compiled and
-    the NumPy implementation alike.
-
-    Args:
-        fr: the prepared frame (``x`` (n, 2) valid rows, ``rows`` their indices among the
-            ``num_rows`` input rows).
-        model: ``(R, C, w, t)`` (eq. 5); position: (3,) m, the camera centre in the world.
-        inliers: (n,) bool over the valid rows; num_behind: valid rows behind the camera.
-        velocities: ``(angular, linear, ...)`` (3,) rad/s and m/s, camera frame (the first
-            two of :func:`~.result.physical_velocities`; the estimate's pose derives the
-            world-frame ones).
-        covariances: ``(12x12, pose 6x6, twist 6x6)`` in ROS order, or None.
-        flat: the inliers' planarity; condition: the information matrix's condition number.
-        fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...), or fields
-            set here (``solver``, ``motion_model``, ``twist_covariance``, ...) to other values.
-    """
-    R, C, w, t = model
-    om, vc = velocities[0], velocities[1]
-    cov = pose_cov = twist_cov = None
-    if covariances is not None:
-        cov, pose_cov, twist_cov = covariances
-        if not solver_info(solver).rolling:
-            twist_cov = None
-    mask = np.zeros(fr.num_rows, dtype=bool)
-    mask[fr.rows[inliers]] = True
-    given = {
-        "solver": solver,
-        "model": RSModel(R, C, w, t),
-        "pose": RSPose._trusted(R.T, position, om, vc),
-        "inliers": mask,
-        "num_valid": len(fr.x),
-        "num_dropped": fr.num_rows - len(fr.x) + num_behind,
-        "num_behind": num_behind,
-        "covariance": cov,
-        "pose_covariance": pose_cov,
-        "twist_covariance": twist_cov,
-        "planar": bool(flat < PLANAR_TOLERANCE),
-        "planarity": flat,
-        "condition_number": condition,
-        "motion_model": ROLLING_SHUTTER if solver_info(solver).rolling else GLOBAL_SHUTTER,
-    }
-    return RSPoseEstimate._trusted(success=True, failure=None, **(given | fields))
-
-
 def checked_final(
     fr: RefinementView,
     final: FinalModel,
@@ -1289,7 +1232,8 @@ def final_estimate(
     records); ``flat``: the inliers' planarity and ``condition``: the condition number the
     estimate reports, when the caller has them (None: :func:`~.degeneracy.planarity` of the
     inliers, :func:`information_condition` of ``final.information``); ``fields``: other
-    values of the estimate's fields (:func:`solved_estimate`).
+    values of the estimate's fields, set or replacing those set here (``solver``,
+    ``motion_model``, ``twist_covariance``, ...; :func:`~.result.built_estimate`).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -1304,27 +1248,38 @@ def final_estimate(
         lambda: fr.errors(final.model, compiled), lambda: cond, lambda m: fr.planar, compiled,
         flat=flat,
     )  # fmt: skip
-    return solved_estimate(
-        fr,
-        solver,
-        (R, C, w, t),
-        camera_position(R, C),
-        inl,
-        n_behind,
-        physical_velocities(R, C, w, t, fr.spr, compiled),
+    om, vc = physical_velocities(R, C, w, t, fr.spr, compiled)[:2]
+    if cov is not None and not rolling:
+        cov = (cov[0], cov[1], None)
+    mask = np.zeros(fr.num_rows, dtype=bool)
+    mask[fr.rows[inl]] = True
+    record = {
+        "solver": solver,
+        "num_behind": n_behind,
+        "planar": bool(flat < PLANAR_TOLERANCE),
+        "planarity": flat,
+        "condition_number": cond,
+        "motion_model": ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
+        "ransac_iterations": iterations,
+        "timings": timings,
+        "rmse_px": final.rmse_px,
+        "motion_prior_used": final.prior_used,
+        "initial_explained": initial[0],
+        "initial_used": initial[1],
+        "acceleration_sensitivity": final.sensitivity,
+        "gyro_used": gyro_used,
+        "ignored_inputs": ignored_inputs,
+        "model_covariance": final.covariance,
+    }
+    if not compiled:
+        record["implementation"] = NUMPY
+    return built_estimate(
+        None,
+        RSModel(R, C, w, t),
+        RSPose._trusted(R.T, camera_position(R, C), om, vc),
+        mask,
+        len(fr.x),
+        fr.num_rows,
         cov,
-        flat,
-        cond,
-        ransac_iterations=iterations,
-        timings=timings,
-        rmse_px=final.rmse_px,
-        motion_prior_used=final.prior_used,
-        initial_explained=initial[0],
-        initial_used=initial[1],
-        acceleration_sensitivity=final.sensitivity,
-        gyro_used=gyro_used,
-        ignored_inputs=ignored_inputs,
-        model_covariance=final.covariance,
-        **({} if compiled else {"implementation": NUMPY}),
-        **fields,
+        **(record | fields),
     )

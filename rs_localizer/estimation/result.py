@@ -47,9 +47,9 @@ __all__ = [
     "UNCONFIRMED",
     "EstimationFailed",
     "RSPoseEstimate",
+    "built_estimate",
     "camera_estimate",
     "camera_model_of_rig",
-    "failed_estimate",
     "output_covariance",
     "physical_velocities",
     "rig_model_jacobian",
@@ -135,8 +135,8 @@ GYRO_REJECTIONS = ("contradicted", "fewer_inliers", "aided_failed")
 
 class EstimationFailed(Exception):
     """A stage of the estimator found that the frame gives no pose; ``reason`` is one of
-    :data:`FAILURE_REASONS`. Caught by the estimator, which returns
-    :func:`failed_estimate` (never raised to its caller). ``behind``: the frame's points
+    :data:`FAILURE_REASONS`. Caught by the estimator, which returns its failed estimate
+    (:func:`built_estimate`; never raised to its caller). ``behind``: the frame's points
     behind their cameras where the last checks found them (``cheirality``), else 0."""
 
     def __init__(self, reason: str, behind: int = 0):
@@ -326,37 +326,65 @@ class RSPoseEstimate(PoseWithCovariance):
         return frozen_instance(cls, values)
 
 
-def failed_estimate(
-    reason: str,
-    solver: str,
-    num_rows: int,
+def built_estimate(
+    failure: str | None,
+    model: RSModel | None,
+    pose: RSPose | None,
+    inliers: np.ndarray,
     num_valid: int,
-    iterations: int,
-    timings: dict[str, float],
-    implementation: str = "compiled",
-    ignored_inputs: tuple[str, ...] = (),
+    num_rows: int,
+    covariances: tuple | None = None,
+    per_view: tuple | None = None,
+    **fields: object,
 ) -> RSPoseEstimate:
-    """The unsuccessful :class:`RSPoseEstimate` of a frame with ``num_rows`` input rows, of which
-    ``num_valid`` passed validation, after ``iterations`` RANSAC hypotheses, by
-    ``implementation`` (which could not use ``ignored_inputs``).
+    """The :class:`RSPoseEstimate` of one camera's frame or of a rig frame (its views' rows in
+    order), posed or failed: the one builder of both estimators' results
+    (:func:`~.estimate.estimate_rs_pose`, :func:`~.rig.estimate_rig_pose`).
+
+    Args:
+        failure: None (a pose) or the reason there is none (:data:`FAILURE_REASONS`,
+            :data:`RIG_FAILURE_REASONS`).
+        model: the final ``(R, C, w, t)`` (its arrays taken, not copied), or None: the
+            identity and zeros (a failure's).
+        pose: the :class:`~rs_localizer.pose.RSPose` of ``model``, or None: the identity and
+            zeros.
+        inliers: (num_rows,) bool over the input rows (every view's, in order).
+        num_valid: rows that passed validation; num_rows: the input rows. ``num_dropped`` is
+            their difference plus ``fields``' ``num_behind`` (0 if not given).
+        covariances: ``(covariance (12, 12), pose (6, 6), twist (6, 6) or None)`` in ROS order
+            (:func:`output_covariance`), or None.
+        per_view: a rig frame's ``(inliers_per_view, num_inliers_per_view,
+            num_valid_per_view)``; None: one camera's estimate, which leaves them empty.
+        fields: the estimate's other fields by name; they also replace those set here.
 
     Raises:
-        ValueError: ``reason`` is not one of :data:`FAILURE_REASONS`.
+        ValueError: ``failure`` is not a known reason.
     """
-    if reason not in FAILURE_REASONS:
-        raise ValueError(f"unknown failure reason {reason!r}; expected one of {FAILURE_REASONS}")
-    return RSPoseEstimate(
-        success=False,
-        failure=reason,
-        solver=solver,
-        inliers=np.zeros(num_rows, dtype=bool),
-        num_valid=num_valid,
-        num_dropped=num_rows - num_valid,
-        ransac_iterations=iterations,
-        timings=timings,
-        implementation=implementation,
-        ignored_inputs=ignored_inputs,
-    )
+    if failure is not None and failure not in _REASONS:
+        raise ValueError(f"unknown failure reason {failure!r}; expected one of {_REASONS}")
+    values = {
+        "success": failure is None,
+        "failure": failure,
+        "inliers": inliers,
+        "num_valid": num_valid,
+        "num_dropped": num_rows - num_valid + fields.get("num_behind", 0),
+    }
+    if model is not None:
+        values["model"] = model
+    if pose is not None:
+        values["pose"] = pose
+    if covariances is not None:
+        cov = covariances
+        values["covariance"], values["pose_covariance"], values["twist_covariance"] = cov
+    if per_view is not None:
+        per = per_view
+        values["inliers_per_view"], values["num_inliers_per_view"] = per[0], per[1]
+        values["num_valid_per_view"] = per[2]
+    return RSPoseEstimate._trusted(**(values | fields))
+
+
+#: every failure reason of a camera's or a rig's estimate (:func:`built_estimate`)
+_REASONS = FAILURE_REASONS + tuple(r for r in RIG_FAILURE_REASONS if r not in FAILURE_REASONS)
 
 
 def physical_velocities(

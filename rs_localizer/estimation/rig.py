@@ -140,7 +140,7 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .estimate import estimate_rs_pose, few_points_pose
+from .estimate import FewPointsPose, estimate_rs_pose, few_points_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
@@ -192,6 +192,7 @@ from .result import (
     TOO_FEW_POINTS,
     EstimationFailed,
     RSPoseEstimate,
+    built_estimate,
     output_covariance,
     rig_model_jacobian,
     rig_model_of_camera,
@@ -1287,9 +1288,9 @@ def _one_camera_alone(
 
 
 #: the fields of a camera's estimate a rig frame posed by that camera alone takes as they are
-#: (:func:`_one_camera_alone`)
-_CAMERA_FIELDS = ("rmse_px", "num_behind", "motion_model", "initial_explained", "initial_used",
-                  "gyro_used", "planar", "single_tag")  # fmt: skip
+#: (:func:`_one_camera_alone`): :class:`~.estimate.FewPointsPose`'s record, after its model,
+#: covariance and inliers (which the rig's mounting maps)
+_CAMERA_FIELDS = FewPointsPose._fields[FewPointsPose._fields.index("rmse_px") :]
 
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
@@ -1907,11 +1908,12 @@ def _rig_estimate(
     fresh: bool = False,
     **record,
 ) -> RSPoseEstimate:
-    """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R,
-    C, w, t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the
-    ROS pose and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the
-    identity and zeros, no inliers); ``record``: the other fields by name. ``fresh``: the
-    model's arrays are float64, contiguous and the caller's own (taken, not copied)."""
+    """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``
+    (:func:`~.result.built_estimate`, the rig's views): of ``model`` ``(R, C, w, t)`` with the
+    (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the ROS pose and twist
+    blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the identity and zeros,
+    no inliers); ``record``: the other fields by name. ``fresh``: the model's arrays are
+    float64, contiguous and the caller's own (taken, not copied)."""
     if model is None:
         model, fresh = (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)), True
     R, C, w, t = model if fresh else _copies(model)
@@ -1919,20 +1921,16 @@ def _rig_estimate(
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
-    return RSPoseEstimate._trusted(
-        success=record.get("failure") is None,
+    return built_estimate(
+        record.pop("failure", None),
+        RSModel(R, C, w, t),
+        RSPose.from_model((R, C, w, t), 1.0, compiled=not pool.numpy),
+        np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
+        len(pool.cam),
+        sum(pool.sizes),
+        outputs,
+        (per, tuple(int(np.count_nonzero(m)) for m in per), pool.counts()),
         solver=RIG_SOLVER,
-        model=RSModel(R, C, w, t),
-        inliers=np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
-        inliers_per_view=per,
-        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
-        num_valid_per_view=pool.counts(),
-        num_valid=len(pool.cam),
-        num_dropped=sum(pool.sizes) - len(pool.cam) + record.get("num_behind", 0),
-        covariance=outputs[0],
-        pose=RSPose.from_model((R, C, w, t), 1.0, compiled=not pool.numpy),
-        pose_covariance=outputs[1],
-        twist_covariance=outputs[2],
         **record,
     )
 
