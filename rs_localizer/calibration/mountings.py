@@ -9,6 +9,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from itertools import permutations
 from typing import Any
 
 import numpy as np
@@ -146,11 +147,8 @@ def _rig_frames(poses: dict, window: float, max_step: float) -> list:
         if start is not None and (t - start) * 1e-9 <= window:
             continue
         start = t
-        seen = {}
-        for n, ts in times.items():
-            c = _carried(poses[n], ts, t, window, max_step)
-            if c is not None:
-                seen[n] = c
+        seen = {n: c for n, ts in times.items()
+                if (c := _carried(poses[n], ts, t, window, max_step)) is not None}  # fmt: skip
         if len(seen) >= 2:
             out.append((t, seen))
     return out
@@ -161,8 +159,7 @@ def _pair_mean(rel: list) -> tuple:
     robust mean: the chordal mean of the rotations and the mean position over the inliers
     (rotations more than 3 times the median angle and 0.05 deg from the mean are outliers,
     twice; positions more than 3 times the median distance and 0.1 mm from the median)."""
-    Rs = np.array([r for r, _ in rel])
-    ps = np.array([p for _, p in rel])
+    Rs, ps = (np.array(x) for x in zip(*rel, strict=True))
     keep = np.ones(len(Rs), dtype=bool)
     for _ in range(3):
         U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
@@ -180,12 +177,9 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     share the most rig frames first); cameras not connected to the reference are missing."""
     rel: dict = {}
     for _, seen in rig_frames:
-        for a in seen:
-            for b in seen:
-                if a != b:
-                    Oa, pa = seen[a][:2]
-                    Ob, pb = seen[b][:2]
-                    rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
+        for a, b in permutations(seen, 2):
+            (Oa, pa), (Ob, pb) = seen[a][:2], seen[b][:2]
+            rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
     mounts = {reference: (base.R.T, base.position)}
     frontier = [reference]
     while frontier:
@@ -196,8 +190,6 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
                 reverse=True,
             )
             for _, b in pairs:
-                if b in mounts:
-                    continue
                 M, p = _pair_mean(rel[(a, b)])
                 Ra, pa = mounts[a]
                 mounts[b] = (Ra @ M, pa + Ra @ p)
