@@ -208,13 +208,13 @@ def _adjust(
     rig_frames: list,
     mounts: dict,
     reference: str,
-    outlier: dict | None = None,
+    outlier: frozenset | set = frozenset(),
     offsets: bool = False,
 ):
     """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
     frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
     rig rotation, position), the start) to the cameras' poses posed alone; camera frames in
-    ``outlier`` ((rig frame, camera) -> True) and cameras no longer connected to the
+    ``outlier`` ((rig frame, camera) pairs) and cameras no longer connected to the
     reference left out. ``offsets``: each free camera's time offset (s) adjusted too, to
     first order (its frames' poses moved along their twist). Returns ``(mounts, the whitened
     Jacobian (sparse; columns: the rig frames' poses, the mountings, 6 each, then the
@@ -242,17 +242,13 @@ def _adjust(
             continue
     use = []
     for g, (_, seen) in enumerate(rig_frames):
-        known = [n for n in seen if n in mounts and n in whiten and not (outlier or {}).get((g, n))]
+        known = [n for n in seen if n in mounts and n in whiten and (g, n) not in outlier]
         if len(known) >= 2:
             use.append((g, known))
     # the cameras still connected to the reference through the rig frames used
-    linked, grow = {reference}, True
-    while grow:
-        grow = False
-        for _, known in use:
-            if linked & set(known) and not set(known) <= linked:
-                linked |= set(known)
-                grow = True
+    linked = {reference}
+    while grown := {n for _, known in use if linked & set(known) for n in known} - linked:
+        linked |= grown
     free = [n for n in mounts if n != reference and n in linked]
     fidx = {n: i for i, n in enumerate(free)}
     obs = []  # (rig frame index, its index in rig_frames, camera, O, p, whitening (6, 6))
@@ -480,7 +476,7 @@ def calibrate_mountings(
         # camera frames that contradict the others, left out (at the errors' median scale)
         d2 = np.sum(r * r, axis=1)
         scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
-        bad = {(g, n): True for (_, g, n, *_), e in zip(obs, d2, strict=True)
+        bad = {(g, n) for (_, g, n, *_), e in zip(obs, d2, strict=True)
                if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
         if bad:
             mounts, J, r, obs, G, free, dts = _adjust(
