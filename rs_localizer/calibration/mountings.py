@@ -6,12 +6,16 @@ step, with its measurements: docs/rig_node.md, "Mountings from data".
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from itertools import permutations
 from typing import Any
 
 import numpy as np
-from scipy.linalg import block_diag
+from scipy.linalg import LinAlgWarning, block_diag, lu_factor, lu_solve
+from scipy.optimize import least_squares
+from scipy.sparse import bmat, coo_matrix, identity, kron
 from scipy.stats import chi2
 
 from ..camera import reference_stamp_ns
@@ -143,11 +147,8 @@ def _rig_frames(poses: dict, window: float, max_step: float) -> list:
         if start is not None and (t - start) * 1e-9 <= window:
             continue
         start = t
-        seen = {}
-        for n, ts in times.items():
-            c = _carried(poses[n], ts, t, window, max_step)
-            if c is not None:
-                seen[n] = c
+        seen = {n: c for n, ts in times.items()
+                if (c := _carried(poses[n], ts, t, window, max_step)) is not None}  # fmt: skip
         if len(seen) >= 2:
             out.append((t, seen))
     return out
@@ -158,8 +159,7 @@ def _pair_mean(rel: list) -> tuple:
     robust mean: the chordal mean of the rotations and the mean position over the inliers
     (rotations more than 3 times the median angle and 0.05 deg from the mean are outliers,
     twice; positions more than 3 times the median distance and 0.1 mm from the median)."""
-    Rs = np.array([r for r, _ in rel])
-    ps = np.array([p for _, p in rel])
+    Rs, ps = (np.array(x) for x in zip(*rel, strict=True))
     keep = np.ones(len(Rs), dtype=bool)
     for _ in range(3):
         U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
@@ -177,12 +177,9 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     share the most rig frames first); cameras not connected to the reference are missing."""
     rel: dict = {}
     for _, seen in rig_frames:
-        for a in seen:
-            for b in seen:
-                if a != b:
-                    Oa, pa = seen[a][:2]
-                    Ob, pb = seen[b][:2]
-                    rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
+        for a, b in permutations(seen, 2):
+            (Oa, pa), (Ob, pb) = seen[a][:2], seen[b][:2]
+            rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
     mounts = {reference: (base.R.T, base.position)}
     frontier = [reference]
     while frontier:
@@ -193,8 +190,6 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
                 reverse=True,
             )
             for _, b in pairs:
-                if b in mounts:
-                    continue
                 M, p = _pair_mean(rel[(a, b)])
                 Ra, pa = mounts[a]
                 mounts[b] = (Ra @ M, pa + Ra @ p)
@@ -213,22 +208,19 @@ def _adjust(
     rig_frames: list,
     mounts: dict,
     reference: str,
-    outlier: dict | None = None,
+    outlier: frozenset | set = frozenset(),
     offsets: bool = False,
 ):
     """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
     frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
     rig rotation, position), the start) to the cameras' poses posed alone; camera frames in
-    ``outlier`` ((rig frame, camera) -> True) and cameras no longer connected to the
+    ``outlier`` ((rig frame, camera) pairs) and cameras no longer connected to the
     reference left out. ``offsets``: each free camera's time offset (s) adjusted too, to
     first order (its frames' poses moved along their twist). Returns ``(mounts, the whitened
     Jacobian (sparse; columns: the rig frames' poses, the mountings, 6 each, then the
     offsets), whitened errors (m, 6), the observations (rig frame used, rig frame, camera, O,
     p, whitening, twist), rig frames used, adjusted cameras, their offsets (s; {} without
     ``offsets``))``."""
-    from scipy.optimize import least_squares
-    from scipy.sparse import lil_matrix
-
     # each camera's pose errors weighted by its frames' typical covariance (the mean of
     # those within 3 times the median trace) in its own axes (block_diag(R_wc^T, R_wc^T):
     # world -> camera axes), as the depth direction turns with the camera (on make-bag --rig
@@ -250,17 +242,13 @@ def _adjust(
             continue
     use = []
     for g, (_, seen) in enumerate(rig_frames):
-        known = [n for n in seen if n in mounts and n in whiten and not (outlier or {}).get((g, n))]
+        known = [n for n in seen if n in mounts and n in whiten and (g, n) not in outlier]
         if len(known) >= 2:
             use.append((g, known))
     # the cameras still connected to the reference through the rig frames used
-    linked, grow = {reference}, True
-    while grow:
-        grow = False
-        for _, known in use:
-            if linked & set(known) and not set(known) <= linked:
-                linked |= set(known)
-                grow = True
+    linked = {reference}
+    while grown := {n for _, known in use if linked & set(known) for n in known} - linked:
+        linked |= grown
     free = [n for n in mounts if n != reference and n in linked]
     fidx = {n: i for i, n in enumerate(free)}
     obs = []  # (rig frame index, its index in rig_frames, camera, O, p, whitening (6, 6))
@@ -286,17 +274,11 @@ def _adjust(
             obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), twist))
     G, F = len(R0g), len(free)
     D = F if offsets else 0  # (a time offset per free camera, s, after the mountings)
-    R0m = [mounts[n][0] for n in free]
-    p0m = [mounts[n][1] for n in free]
+    R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
+    p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
     Rref, pref = mounts[reference]
-
-    def unpack(x):
-        xg = x[: 6 * G].reshape(G, 6)
-        xm = x[6 * G : 6 * (G + F)].reshape(F, 6)
-        return xg, xm, x[6 * (G + F) :]
-
     gi_ = np.array([o[0] for o in obs], dtype=int)
-    ci_ = np.array([-1 if o[2] == reference else fidx[o[2]] for o in obs], dtype=int)
+    ci_ = np.array([fidx.get(o[2], -1) for o in obs], dtype=int)  # (the reference's: -1)
     Ot = np.array([o[3].T for o in obs]).reshape(-1, 3, 3)
     po = np.array([o[4] for o in obs]).reshape(-1, 3)
     Whs = np.array([o[5] for o in obs]).reshape(-1, 6, 6)
@@ -306,102 +288,88 @@ def _adjust(
     ang = np.array([o[6][0] for o in obs]).reshape(-1, 3)
     lin = np.array([o[6][1] for o in obs]).reshape(-1, 3)
     R0g_, P0g_ = np.array(R0g).reshape(-1, 3, 3), np.array(P0g).reshape(-1, 3)
-    R0m_, p0m_ = np.array(R0m).reshape(-1, 3, 3), np.array(p0m).reshape(-1, 3)
 
     def fun(x):
-        xg, xm, xd = unpack(x)
+        xg = x[: 6 * G].reshape(G, 6)
+        xm = x[6 * G : 6 * (G + F)].reshape(F, 6)
+        xd = x[6 * (G + F) :]
         Rg = rotvec_to_matrix(xg[:, :3]) @ R0g_
-        Pg = P0g_ + xg[:, 3:]
-        Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m_, Rref[None]]) if F else Rref[None]
-        pm = np.concatenate([p0m_ + xm[:, 3:], pref[None]])
-        Rgi, Rci = Rg[gi_], Rm[ci_]
-        O_t, p_t = Ot, po
+        Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m, Rref[None]]) if F else Rref[None]
+        pm = np.concatenate([p0m + xm[:, 3:], pref[None]])
+        Rgi, O_t, p_t = Rg[gi_], Ot, po
         if D:
             dt = np.concatenate([xd, [0.0]])[ci_]  # (the reference's: 0)
             O_t = Ot @ rotvec_to_matrix(dt[:, None] * ang)  # ((expm(-dt [w]x) O)^T)
             p_t = po - dt[:, None] * lin
         e = np.concatenate(
-            [matrix_to_rotvec(Rgi @ Rci @ O_t),
-             Pg[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - p_t], axis=1,
+            [matrix_to_rotvec(Rgi @ Rm[ci_] @ O_t),
+             (P0g_ + xg[:, 3:])[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - p_t], axis=1,
         )  # fmt: skip
-        out = np.einsum("nij,nj->ni", Whs, e).ravel()
-        return np.concatenate([out, xd / TIME_OFFSET_PRIOR]) if D else out
+        return np.concatenate([np.einsum("nij,nj->ni", Whs, e).ravel(), xd / TIME_OFFSET_PRIOR])
 
-    sp = lil_matrix((6 * len(obs) + D, 6 * (G + F) + D), dtype=int)
-    for i in range(D):  # (the offsets' weak prior, one row each)
-        sp[6 * len(obs) + i, 6 * (G + F) + i] = 1
-    for i, (gi, _, n, *_) in enumerate(obs):
-        sp[6 * i : 6 * i + 6, 6 * gi : 6 * gi + 6] = 1
-        if n != reference:
-            k = 6 * G + 6 * fidx[n]
-            sp[6 * i : 6 * i + 6, k : k + 6] = 1
-            if D:
-                sp[6 * i : 6 * i + 6, 6 * (G + F) + fidx[n]] = 1
-    x0 = np.zeros(6 * (G + F) + D)
-    res = least_squares(fun, x0, jac_sparsity=sp, method="trf", xtol=1e-10, ftol=1e-10,
-                        max_nfev=100)  # fmt: skip
-    _, xm, xd = unpack(res.x)
+    # the Jacobian's structure: each observation's 6 rows on its rig frame's pose, its
+    # camera's mounting and time offset (not the reference's), then the offsets' prior rows
+    m, mine = len(obs), np.flatnonzero(ci_ >= 0)
+    rows, cols = np.r_[np.arange(m), mine], np.r_[gi_, G + ci_[mine]]
+    sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (m, G + F)), np.ones((6, 6)))
+    if D:
+        T = coo_matrix((np.ones(len(mine)), (mine, ci_[mine])), (m, F))
+        sp = bmat([[sp, kron(T, np.ones((6, 1)))], [None, identity(D)]])
+    res = least_squares(fun, np.zeros(6 * (G + F) + D), jac_sparsity=sp, method="trf",
+                        xtol=1e-10, ftol=1e-10, max_nfev=100)  # fmt: skip
+    xm, xd = res.x[6 * G : 6 * (G + F)].reshape(F, 6), res.x[6 * (G + F) :]
     out = {reference: (Rref, pref)}
-    for n in free:
-        i = fidx[n]
+    for i, n in enumerate(free):
         out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
-    shifts = {n: float(xd[fidx[n]]) for n in free} if D else {}
-    return out, res.jac, res.fun[: 6 * len(obs)].reshape(-1, 6), obs, G, free, shifts
+    shifts = {n: float(xd[i]) for i, n in enumerate(free)} if D else {}
+    return out, res.jac, res.fun[: 6 * m].reshape(-1, 6), obs, G, free, shifts
 
 
-def _mounting_covariance(
-    J, r: np.ndarray, obs: list, G: int, free: list, reference: str
-) -> tuple[dict, dict]:
+def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list) -> tuple[dict, dict]:
     """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
     [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J``)
     inflated by the batch means of :func:`_std_of_mean`, plus each camera's bias
     (:data:`MOUNTING_BIAS_SHARE` of its per-axis scatter in its own axes) propagated through
     the adjustment to first order (docs/rig_node.md, "Mountings from data", step 5). Also
-    each free camera's time offset's std (s) when the adjustment had them, inflated alike."""
-    m, n = r.shape[0], J.shape[1]
-    H = (J.T @ J).toarray() if hasattr(J, "toarray") else J.T @ J
-    dof = max(6 * m - n, 1)
-    s2 = float(np.sum(r * r)) / dof
+    each free camera's time offset's std (s) when the adjustment had them, inflated alike.
+    NaN where ``H`` is singular."""
+    n, k, mc = J.shape[1], 6 * G, 6 * len(free)  # (columns: rig frames, mountings, offsets)
+    s2 = float(np.sum(r * r)) / max(6 * len(r) - n, 1)
+    cam = np.array([o[2] for o in obs])
+    cams = sorted(set(cam))
     inflate = 1.0
-    cams = sorted({o[2] for o in obs})
     for c in cams:
-        rc = r[[i for i, o in enumerate(obs) if o[2] == c]]
+        rc = r[cam == c]
         if len(rc) >= 16:
             iid = np.sum(np.var(rc, axis=0, ddof=1)) / len(rc)
             inflate = max(inflate, _std_of_mean(rc) ** 2 / max(iid, 1e-300))
-    cols = np.arange(6 * G, 6 * G + 6 * len(free))
-    dcols = np.arange(6 * G + 6 * len(free), n)  # (the time offsets, if adjusted)
-    E = np.zeros((n, n - 6 * G))
-    E[np.arange(6 * G, n), np.arange(n - 6 * G)] = 1.0
-    try:
-        Hinv = np.linalg.solve(H, E)
-    except np.linalg.LinAlgError:  # (not expected: every camera is connected)
-        nan = np.full((6, 6), np.nan)
-        return {name: nan for name in free}, {name: np.nan for name in free}
-    Hinv_m = Hinv[cols][:, : len(cols)]
-    dt_std = {
-        name: float(np.sqrt(s2 * inflate * Hinv[dcols[i], len(cols) + i]))
-        for i, name in enumerate(free)
-        if len(dcols)
-    }
-    cov = s2 * inflate * Hinv_m
-    Jt = J.T.tocsr() if hasattr(J, "tocsr") else J.T
-    bias = np.concatenate([np.full(3, MOUNTING_BIAS_SHARE["rotation"]),
-                           np.full(3, MOUNTING_BIAS_SHARE["position"])])  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LinAlgWarning)
+        lu = lu_factor((J.T @ J).toarray())
+    Hinv = s2 * inflate * lu_solve(lu, np.eye(n)[:, k:])[k:]
+    cov = Hinv[:mc, :mc]
+    dt_std = {f: float(np.sqrt(Hinv[mc + i, mc + i])) for i, f in enumerate(free) if n > k + mc}
+    Jt = J.T.tocsr()
+    bias = np.repeat([MOUNTING_BIAS_SHARE["rotation"], MOUNTING_BIAS_SHARE["position"]], 3)
+    e = _errors(obs, r)
     for c in cams:
-        rows = [i for i, o in enumerate(obs) if o[2] == c]
         Z = np.zeros((J.shape[0], 6))  # (the offsets' prior rows, if any, last)
         e_cam = []
-        for i in rows:
-            Oc, Wh = obs[i][3], obs[i][5]
-            Z[6 * i : 6 * i + 6] = Wh @ block_diag(Oc, Oc)
-            e = np.linalg.solve(Wh, r[i])
-            e_cam.append(np.concatenate([Oc.T @ e[:3], Oc.T @ e[3:]]))
+        for i in np.flatnonzero(cam == c):
+            Oc = obs[i][3]
+            Z[6 * i : 6 * i + 6] = obs[i][5] @ block_diag(Oc, Oc)
+            e_cam.append(np.concatenate([Oc.T @ e[i, :3], Oc.T @ e[i, 3:]]))
         B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
-        K = np.linalg.solve(H, Jt @ Z)[cols]
+        K = lu_solve(lu, Jt @ Z)[k : k + mc]
         cov = cov + K @ B @ K.T
     cov = 0.5 * (cov + cov.T)
     return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
+
+
+def _errors(obs: list, r: np.ndarray) -> np.ndarray:
+    """The adjustment's pose errors (m, 6) (rotation rad, position m; world axes) from its
+    whitened ones ``r`` (m, 6): each unwhitened by its observation's whitening."""
+    return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
 
 
 def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
@@ -508,7 +476,7 @@ def calibrate_mountings(
         # camera frames that contradict the others, left out (at the errors' median scale)
         d2 = np.sum(r * r, axis=1)
         scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
-        bad = {(g, n): True for (_, g, n, *_), e in zip(obs, d2, strict=True)
+        bad = {(g, n) for (_, g, n, *_), e in zip(obs, d2, strict=True)
                if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
         if bad:
             mounts, J, r, obs, G, free, dts = _adjust(
@@ -518,7 +486,7 @@ def calibrate_mountings(
             break  # (the offsets of the last adjustment: dts, beyond those shifted)
         # the cameras' frames regrouped at the offsets found, those the video shows (beyond
         # 3 std; a rig that hardly moves shows none: its offsets stay)
-        covariances = _mounting_covariance(J, r, obs, G, free, reference)
+        covariances = _mounting_covariance(J, r, obs, G, free)
         std = covariances[1]
         step = {n: dt for n, dt in dts.items()
                 if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
@@ -529,28 +497,23 @@ def calibrate_mountings(
             poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
         rig_frames = _rig_frames(poses, window, max_step)
     # (the last round's, when it regrouped nothing, is the final adjustment's)
-    cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free, reference)
+    cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free)
+    cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
-        if name not in mounts:
+        if name not in mounts or (name != reference and not np.isfinite(cov[name]).all()):
             continue
-        n_used = sum(1 for o in obs if o[2] == name)
-        n_bad = sum(1 for (_, n) in bad if n == name)
+        n_used, n_bad = cam.count(name), sum(1 for (_, n) in bad if n == name)
         offset = given.get(name, 0.0) + shifted.get(name, 0.0) + dts.get(name, 0.0)
         if name == reference:
-            out[name] = MountingEstimate(
-                name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, given.get(name, 0.0)
-            )
-            continue
-        if not np.isfinite(cov[name]).all():
+            out[name] = MountingEstimate(name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, offset)
             continue
         R, p = mounts[name]
         C = cov[name]
         # one camera frame's scatter about the rig: its pose errors against the adjustment
-        mine = [i for i, o in enumerate(obs) if o[2] == name]
-        e = np.array([np.linalg.solve(obs[i][5], r[i]) for i in mine])
-        scat_r = float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))) if len(e) else 0.0
-        scat_p = float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))) if len(e) else 0.0
+        mine = e[np.array(cam) == name]
+        scat_r = float(np.sqrt(np.mean(np.sum(mine[:, :3] ** 2, axis=1))))
+        scat_p = float(np.sqrt(np.mean(np.sum(mine[:, 3:] ** 2, axis=1))))
         out[name] = MountingEstimate(
             name, Mounting.from_pose(R, p, covariance=C), n_used, n_bad,
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),

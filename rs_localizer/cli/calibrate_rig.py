@@ -257,13 +257,12 @@ def run(args: argparse.Namespace) -> int:
     from ..estimation import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_rig_frames
     from ..ros.config import mounting_covariance_values, mounting_values
+    from ..ros.params import ConfigError
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
     for f in args.params_file:
         A.input_file(f, "parameter file")
-    from ..ros.params import ConfigError
-
     try:
         read = read_rig_frames(bag, args.params_file, A.param_overrides(args.param))
     except ConfigError as e:
@@ -294,9 +293,10 @@ def run(args: argparse.Namespace) -> int:
             f"directly or through other cameras (frames posed alone within --window "
             f"{args.window} s of each other)"
         )
-    if ref_mount is None:
+    if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
         frame = _optical_frame_id(bag, ref)
         where = f"camera {ref}'s optical frame: z forward, x right, y down"
+        given = relative_to(given, ref)
     else:
         frame = str(values.get("base_frame") or "").strip() or "base_link"
         where = f"base_frame, camera {ref} at its mounting of the parameters"
@@ -304,11 +304,8 @@ def run(args: argparse.Namespace) -> int:
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
         f"in the rig frame {frame} ({where})"
     ]
-    if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
-        given = relative_to(given, ref)
-    for n in names:
-        if any(read.counts[n].values()):
-            notes.append(rows_note(n, read.counts[n], int(values["max_points"])))
+    notes += [rows_note(n, read.counts[n], int(values["max_points"]))
+              for n in names if any(read.counts[n].values())]  # fmt: skip
     report = {}
     for n in names:
         e = est[n]
