@@ -1233,7 +1233,10 @@ def final_estimate(
     estimate reports, when the caller has them (None: :func:`~.degeneracy.planarity` of the
     inliers, :func:`information_condition` of ``final.information``); ``fields``: other
     values of the estimate's fields, set or replacing those set here (``solver``,
-    ``motion_model``, ``twist_covariance``, ...; :func:`~.result.built_estimate`).
+    ``motion_model``, ``twist_covariance``, ...; :func:`~.result.built_estimate`). The
+    estimate's per-view fields are those of its one view: ``inliers_per_view`` its
+    ``inliers``, ``num_inliers_per_view`` its ``num_inliers``, ``num_valid_per_view`` its
+    ``num_valid``.
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -1273,13 +1276,15 @@ def final_estimate(
     }
     if not compiled:
         record["implementation"] = NUMPY
+    n_valid = len(fr.x)
     return built_estimate(
         None,
         RSModel(R, C, w, t),
         RSPose._trusted(R.T, camera_position(R, C), om, vc),
         mask,
-        len(fr.x),
+        n_valid,
         fr.num_rows,
         cov,
+        ((mask,), (int(np.count_nonzero(mask)),), (n_valid,)),
         **(record | fields),
     )

@@ -153,8 +153,8 @@ class RSPoseEstimate(PoseWithCovariance):
     ``model`` and the estimator's record. Frames: world/map, and the body the estimate poses:
     the camera optical frame (REP 103) of one camera's estimate, the rig's frame (the frame of
     the mountings) of a rig's. A rig estimate's rows are its views' rows in order; its
-    per-view fields say which view each count belongs to (one camera's estimate leaves them
-    empty).
+    per-view fields say which view each count belongs to (one camera's estimate: its one
+    view's).
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
@@ -262,12 +262,12 @@ class RSPoseEstimate(PoseWithCovariance):
             (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; ``inf`` when the image
             alone gives no angular velocity; NaN when no gyro was checked or the aided
             estimate failed).
-        inliers_per_view: a rig's ``inliers`` split by view: one (N_c,) bool per view over its
-            input rows; ``()`` for one camera's estimate.
-        num_inliers_per_view: (M,) a rig's inliers of each view (zeros on failure, but with
-            ``cameras_disagree``: the joint fit's); ``()`` for one camera's estimate.
-        num_valid_per_view: (M,) a rig's valid rows of each view; ``()`` for one camera's
-            estimate.
+        inliers_per_view: ``inliers`` split by view: one (N_c,) bool per view over its input
+            rows (one camera's estimate: its one view's, ``(inliers,)``).
+        num_inliers_per_view: (M,) the inliers of each view (zeros on failure, but with a
+            rig's ``cameras_disagree``: the joint fit's; one camera's: ``(num_inliers,)``).
+        num_valid_per_view: (M,) the valid rows of each view (one camera's:
+            ``(num_valid,)``).
         disagreeing: a rig's voting views (at least
             :data:`~rs_localizer.estimation.rig.VOTE_MIN_POINTS` points) the cameras' consensus
             left out: on success those outvoted by the cameras that posed the rig (their points
@@ -353,8 +353,9 @@ def built_estimate(
             their difference plus ``fields``' ``num_behind`` (0 if not given).
         covariances: ``(covariance (12, 12), pose (6, 6), twist (6, 6) or None)`` in ROS order
             (:func:`output_covariance`), or None.
-        per_view: a rig frame's ``(inliers_per_view, num_inliers_per_view,
-            num_valid_per_view)``; None: one camera's estimate, which leaves them empty.
+        per_view: ``(inliers_per_view, num_inliers_per_view, num_valid_per_view)``: a rig
+            frame's views', or one camera's one view's (``((inliers,), (num_inliers,),
+            (num_valid,))``); None leaves them empty.
         fields: the estimate's other fields by name; they also replace those set here.
 
     Raises:

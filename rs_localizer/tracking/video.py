@@ -1900,10 +1900,10 @@ def _new_track(settings: LocalizerSettings) -> TrackerPath | None:
 
 def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEstimate:
     """A camera's estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`) as the rig
-    estimate of a rig of one: the same pose, twist, covariances, inliers and record; the
-    model's velocities per second (the rig's ``w``, ``t``: the camera's over
-    ``seconds_per_unit_r`` s; a global shutter's zeros kept) and its ``model_covariance``
-    with them; the per-view fields of its one view."""
+    estimate of a rig of one: the same pose, twist, covariances, inliers, per-view fields (its
+    one view's) and record; the model's velocities per second (the rig's ``w``, ``t``: the
+    camera's over ``seconds_per_unit_r`` s; a global shutter's zeros kept) and its
+    ``model_covariance`` with them."""
     spr = float(seconds_per_unit_r)
     model, cov = est.model, est.model_covariance
     if spr > 0:
@@ -1912,11 +1912,4 @@ def _camera_as_rig(est: RSPoseEstimate, seconds_per_unit_r: float) -> RSPoseEsti
         if cov is not None:
             k = np.concatenate([np.ones(6), np.full(6, 1.0 / spr)])
             cov = cov * k[:, None] * k[None, :]
-    return replace(
-        est,
-        model=model,
-        model_covariance=cov,
-        inliers_per_view=(est.inliers,),
-        num_inliers_per_view=(est.num_inliers,),
-        num_valid_per_view=(est.num_valid,),
-    )
+    return replace(est, model=model, model_covariance=cov)
