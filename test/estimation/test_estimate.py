@@ -7,6 +7,7 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import (
     SOLVERS,
     EstimateOptions,
+    InitialModel,
     RansacOptions,
     estimate_rs_pose,
     physical_velocities,
@@ -211,6 +212,46 @@ def test_too_few_valid_points_and_nan_rows():
     assert e.success and e.num_dropped == 3
     assert not e.inliers[[3, 5, 7]].any() and e.inliers.shape == (40,)
     assert rotation_angle_deg(e.model.R, f.R) < 0.2
+
+
+def test_a_cameras_estimate_carries_its_one_views_fields_posed_or_failed():
+    # a camera's estimate is a rig of one view's: its per-view fields are that view's
+    # (ground truth: the generator's outliers, the rows made invalid, a tag's four corners)
+    f = make_frame(9, 60, rs_speed=0.3, noise_px=0.5, outlier_ratio=0.2)
+    u = f.points_px.copy()
+    u[[2, 11]] = np.nan  # (two invalid rows: never inliers, not counted as valid)
+    truth = f.inlier.copy()
+    truth[[2, 11]] = False
+    for impl in ("compiled", "numpy"):
+        e = estimate_rs_pose(u, f.X, CAM, "r6p_1lin", implementation=impl)
+        assert e.success, (impl, e.failure)
+        (mask,) = e.inliers_per_view
+        assert mask.shape == (60,) and mask.dtype == bool
+        np.testing.assert_array_equal(mask, e.inliers)
+        assert not (mask & ~truth).any() and mask.sum() >= 0.9 * truth.sum()
+        assert e.num_inliers_per_view == (int(mask.sum()),) and e.num_valid_per_view == (58,)
+    # failures: random pixels (no pose), too few valid rows
+    rng = np.random.default_rng(0)
+    e = estimate_rs_pose(rng.uniform(0, 999, (300, 2)), rng.uniform(-1, 1, (300, 3)), CAM)
+    assert not e.success and len(e.inliers_per_view) == 1
+    assert e.inliers_per_view[0].shape == (300,) and not e.inliers_per_view[0].any()
+    assert e.num_inliers_per_view == (0,) and e.num_valid_per_view == (300,)
+    u[:56, 0] = np.nan  # (4 valid rows left, not on one plane)
+    e = estimate_rs_pose(u, f.X, CAM, "r6p_1lin")
+    assert e.failure == "too_few_points" and e.num_valid_per_view == (4,)
+    assert e.num_inliers_per_view == (0,) and e.inliers_per_view[0].shape == (60,)
+    # a few points (one tag's corners): posed from all four, or refused
+    cam = CameraModel(K=np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), width=640,
+                      height=480, line_delay=30e-6)  # fmt: skip
+    X = np.array([[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0]])
+    R, C = rotvec_to_matrix(np.array([0.6, 0.0, 0.0])) @ np.diag([1.0, -1.0, -1.0]), [0, 0, 0.8]
+    guess = InitialModel((R, np.array(C), np.zeros(3), np.zeros(3)))
+    for off, ok in ((0.0, True), (10.0, False)):
+        bent = cam.project_rs(X, R, np.array(C)) + np.array([[off, 0.0], [0, 0], [0, 0], [0, 0]])
+        e = estimate_rs_pose(bent, X, cam, initial_model=guess)
+        assert e.success == ok and e.few_points == ok, (off, e.failure)
+        assert e.num_valid_per_view == (4,) and e.num_inliers_per_view == (4 if ok else 0,)
+        np.testing.assert_array_equal(e.inliers_per_view[0], np.full(4, ok))
 
 
 def test_collinear_and_duplicated_points_fail_cleanly():
