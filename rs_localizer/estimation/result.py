@@ -179,7 +179,7 @@ class RSPoseEstimate(PoseWithCovariance):
             (3,) model velocities per unit RS coordinate (rad, m per normalized unit); a rig's:
             world -> rig at the rig's reference time (``x_rig = R X + C``), ``w``, ``t`` per
             second (rad/s, m/s; each view's own model:
-            :meth:`~rs_localizer.estimation.rig.View.camera_model`); the identity and zeros
+            :meth:`~rs_localizer.estimation.view.View.camera_model`); the identity and zeros
             on failure.
         pose: the same as a :class:`~rs_localizer.pose.RSPose` (no stamp): ``orientation``
             (3, 3) camera -> world (``R^T``), ``position`` (3,) camera centre in the world (m),
@@ -526,7 +526,7 @@ def camera_estimate(
         est: a rig frame's estimate (:func:`~.rig.estimate_rig_pose`).
         index: the camera's view in the rig frame. camera: its model.
         mounting (:class:`~rs_localizer.frames.Mounting`), stamp_offset (s): its mounting
-            and its reference line's time after the rig's (:class:`~.rig.View`).
+            and its reference line's time after the rig's (:class:`~.view.View`).
         points2d: (N, 2) px, the rows the camera gave the rig; points3d: (N, 3) m, their
             world points, for ``rmse_px`` (None: NaN).
     Returns:

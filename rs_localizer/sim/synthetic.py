@@ -361,7 +361,7 @@ class RigFrame:
     """One simulated rig frame.
 
     Attributes:
-        views: one :class:`~rs_localizer.estimation.rig.View` per camera (what
+        views: one :class:`~rs_localizer.estimation.view.View` per camera (what
             :func:`~rs_localizer.estimation.rig.estimate_rig_pose` takes).
         truth: the rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference
             time (``w`` rad/s, ``t`` m/s: :mod:`~rs_localizer.estimation.rig`).

@@ -701,7 +701,7 @@ class FrameViews:
     each other; a camera has none to decide between: solved cold).
 
     Args:
-        views: the frame's :class:`~rs_localizer.estimation.rig.View`\\ s: a camera's
+        views: the frame's :class:`~rs_localizer.estimation.view.View`\\ s: a camera's
             one (its mounting and stamp offset unused) or a rig's.
         options, tracked_options: the estimator's
             :class:`~rs_localizer.estimation.options.EstimateOptions` of cold (and
