@@ -613,13 +613,7 @@ class _Pool:
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
         the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        if self.numpy:
-            e, cost = _errors_px(self, *(np.asarray(a)[None] for a in model), th2)
-        else:  # (_errors_px's kernel on the model's contiguous float64 copies or views)
-            f = [np.ascontiguousarray(a, dtype=np.float64)[None] for a in model]
-            e, cost = _errors_kernel(
-                *f, self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A, th2
-            )  # fmt: skip
+        e, cost = _errors_px(self, *(np.asarray(a)[None] for a in model), th2)
         return e[0], float(cost[0])
 
     def per_camera(self, mask: np.ndarray) -> tuple:
@@ -1738,9 +1732,10 @@ class _RigSearch(RansacLoop):
         #: more points, whatever the best model (every sample corrected)
         self.spread = spread
         # (each camera's points in the pool: np.bincount of its cameras)
-        self._counts = np.array(pool.counts(), dtype=np.int64)
+        counts = pool.counts()
+        self._counts = np.array(counts, dtype=np.int64)
         #: the number of cameras with points in the pool
-        self.cameras = sum(1 for n in pool.counts() if n)
+        self.cameras = sum(1 for n in counts if n)
         self.missed = self._counts >= 3 if spread and still else None
         #: each batch drawn, solved and scored in one compiled call (:meth:`_batch`)
         self.fused = not (generalized or pool.numpy) and (still or prior is None)
@@ -2077,6 +2072,7 @@ def _estimate(
         final.model,
         inl,
         (None, None, None) if out is None else out,
+        True,  # (final.model: the copies selected_final was given)
         failure=None,
         ransac_iterations=drawn,
         rmse_px=final.rmse_px,
