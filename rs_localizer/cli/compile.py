@@ -107,14 +107,14 @@ def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
     if not params_files:
         return None
     from ..ros.bags.bag_frames import rig_parameter_values
-    from ..ros.config import rig_config
+    from ..ros.config import build_config
     from ..ros.params import ConfigError
 
     try:
         values, cams = rig_parameter_values(None, params_files)
         if not values["rig.cameras"]:
             return None
-        cfg = rig_config(values, cams)
+        cfg = build_config(values, cams)
     except (ConfigError, OSError, TypeError, ValueError) as e:
         raise A.CliError(f"--params-file: {e}") from None
     timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in cfg.cameras}

@@ -625,7 +625,8 @@ def rig_camera_inputs(
     all take the same rows of a cloud and count them alike.
 
     Args:
-        config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.
+        config: the rig's :class:`~rs_localizer.ros.config.LocalizerConfig` (each camera's
+            models made by its :meth:`~rs_localizer.ros.config.CameraConfig.camera_from_info`).
         log: the log the cameras share (:class:`CameraInput`'s ``log``); each camera's texts
             come after ``rig camera '<camera>': ``.
         count: ``count(camera, key, n)`` adds ``n`` to camera ``camera``'s count ``key``
@@ -643,14 +644,8 @@ def rig_camera_inputs(
     for c in config.cameras:
         inp = CameraInput(log, partial(count, c.name), f"rig camera {c.name!r}: ", stopped,
                           name=c.name, rig=True)  # fmt: skip
-        make_camera = partial(
-            cv.camera_model_from_camera_info,
-            line_delay=c.line_delay,
-            readout_time=c.readout_time,
-            readout=c.direction,
-            reference_row=config.reference_row,
-        )
-        inp.configure(make_camera, config.settings.max_points, wait=wait, landmarks=landmarks)
+        inp.configure(c.camera_from_info, config.settings.max_points, wait=wait,
+                      landmarks=landmarks)  # fmt: skip
         inputs[c.name] = inp
     return inputs
 

@@ -3,8 +3,10 @@
 The node, the managed node and ``rs-localizer replay`` turn a full set of parameter values
 (:mod:`.params`: :data:`~.params.PARAMETERS`; :func:`.param_files.parameter_values` for files)
 into a :class:`LocalizerConfig` with :func:`build_config`, which raises
-:class:`~.params.ConfigError` naming the parameter when a value cannot be used; the rig mode
-into a :class:`RigConfig` with :func:`rig_config`. The configuration holds values and paths:
+:class:`~.params.ConfigError` naming the parameter when a value cannot be used: one camera's
+(``rig.cameras`` empty) or a rig's, a single camera being a rig of one camera named "" (each
+camera's :class:`CameraConfig` made by the one builder :func:`camera_config`). The
+configuration holds values and paths:
 the library's settings (the estimator's and tracker's options, the gyro's use, built with
 :mod:`rs_localizer.tracking.settings`; the front end's options,
 :func:`rs_localizer.frontends.registry.frontend_options`), the frames, the fallback camera,
@@ -38,10 +40,10 @@ from .params import IMAGE_TRANSPORTS, OPTION_GROUPS, PARAMETERS, ConfigError, op
 __all__ = [
     "RIG_RUN_TIME_PARAMETERS",
     "RIG_UNUSED_PARAMETERS",
+    "CameraConfig",
     "LocalizerConfig",
-    "RigCameraConfig",
-    "RigConfig",
     "build_config",
+    "camera_config",
     "default_timing_note",
     "estimate_options",
     "imu_config",
@@ -49,11 +51,9 @@ __all__ = [
     "mounting_covariance_values",
     "mounting_values",
     "rig_change_refused",
-    "rig_config",
     "rig_parameter_file",
     "rig_unused",
     "rig_unused_text",
-    "rig_used_values",
     "same_value",
     "tracker_options",
 ]
@@ -99,69 +99,51 @@ def imu_config(values: Mapping[str, Any]) -> GyroSettings | None:
     return gyro_settings(values["imu.rotation"], bias, option_fields("imu", values))
 
 
-@dataclass(frozen=True, eq=False)
-class LocalizerConfig:
-    """Everything the localizer derives from its parameters (see :data:`.params.PARAMETERS` for
-    the meaning of each; built by :func:`build_config`).
+@dataclass(frozen=True)
+class CameraConfig:
+    """One camera of the localizer (built by :func:`camera_config`): the single camera, named
+    "", or a camera of a rig, named as in ``rig.cameras``.
 
     Attributes:
-        solver: minimal solver name. options: the estimator's options.
-        tracking: the video tracker's options, None = every frame alone.
-        imu: the gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`), None = no
-            gyro.
+        name: the camera's name ("" the single camera; a rig camera's topics are under
+            ``<name>/``).
         line_delay (s/line), readout_time (s, > 0 wins), direction, reference_row (px, None =
-            image centre), stamp_row (px): the rolling-shutter timing of every camera model.
-        map_frame, camera_frame ("" = the input's frame id), base_frame ("" = none) and
-            mounting (the camera's :class:`~rs_localizer.frames.Mounting` in base_frame, None
-            without base_frame).
-        max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
-            than this (ns) resets the time-dependent state. queue_size: frames waiting.
-        camera_info_wait: s a frame may wait for its camera_info.
-        fallback: the camera model of the ``camera.*`` parameters (None: camera.fx <= 0).
-        landmarks_file: the landmark table (CSV) of keypoint frames.
-        frontend_kind (``none``, ``aruco``, ...), frontend_map: the image front end and its
-            map file, image_transport (``raw``/``compressed``), republish_correspondences,
-            frontend_options (the front end's keyword arguments: the ``features.*`` and
-            ``aruco.*`` parameters).
+            image centre): the rolling-shutter timing of its camera models.
+        mount: its :class:`~rs_localizer.frames.Mounting` in ``base_frame`` (a rig camera's
+            ``rig.<name>.mounting``; the single camera's ``camera_to_base.*``, the transform
+            of its outputs to ``base_frame``, None without ``base_frame``).
+        fallback: the camera model of the ``camera.*`` parameters (the single camera's; None:
+            camera.fx <= 0, and a rig camera: its intrinsics are its camera_info's).
+        frame: its frame id (``camera_frame``; "" = the input's frame id).
+        time_offset: s added to its stamps on the rig's clock (``rig.<name>.time_offset``; 0
+            for the single camera).
+        landmarks_file: the landmark table (CSV) its keypoint frames name.
+        frontend_kind (``none``, ``aruco``, ...), frontend_map, image_transport (``raw`` /
+            ``compressed``), frontend_options (the front end's keyword arguments: the
+            ``features.*`` and ``aruco.*`` parameters): its image input.
 
-    Values and paths only: the maps they name are loaded by
-    :func:`load_maps` where the pipeline is built.
+    Values and paths only: the maps they name are loaded by :func:`load_maps`.
     """
 
-    solver: str
-    options: EstimateOptions
-    tracking: TrackerOptions | None
+    name: str
     line_delay: float
     readout_time: float
     direction: str
     reference_row: float | None
-    stamp_row: float
-    map_frame: str
-    camera_frame: str
-    base_frame: str
-    mounting: Mounting | None
-    max_points: int
-    time_reset_ns: int
-    queue_size: int
-    camera_info_wait: float
+    mount: Mounting | None
     fallback: CameraModel | None
+    frame: str
+    time_offset: float
     landmarks_file: str
     frontend_kind: str
     frontend_map: str
     image_transport: str
-    republish_correspondences: bool
-    imu: GyroSettings | None = None
     #: keyword arguments of the front end (``features.*`` for ``features``)
     frontend_options: dict = dataclasses.field(default_factory=dict)
 
-    @property
-    def min_points(self) -> int:
-        """Fewest correspondences a pose needs (:func:`points_needed`)."""
-        return points_needed(self.solver, self.options)
-
     def camera_from_info(self, msg: Any) -> CameraModel:
         """The camera model of a ``sensor_msgs/CameraInfo`` (rclpy or rosbags) with this
-        configuration's timing.
+        camera's timing.
 
         Raises:
             CameraInfoError (a ValueError): see :func:`.conversions.camera_model_from_camera_info`.
@@ -169,6 +151,68 @@ class LocalizerConfig:
         return cv.camera_model_from_camera_info(
             msg, self.line_delay, self.readout_time, self.direction, self.reference_row
         )
+
+
+@dataclass(frozen=True, eq=False)
+class LocalizerConfig:
+    """Everything the localizer derives from its parameters (see :data:`.params.PARAMETERS` for
+    the meaning of each; built by :func:`build_config`), for one camera or a rig: a single
+    camera is a rig of one camera named "".
+
+    Attributes:
+        cameras: each camera's :class:`CameraConfig`, in the order of ``rig.cameras`` (the
+            single camera: one, named "").
+        solver: minimal solver name. options: the estimator's options.
+        tracking: the video tracker's options, None = every frame alone.
+        imu: the gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`), None = no
+            gyro.
+        map_frame, base_frame: the output frames (the single camera's ``base_frame``: "" =
+            none; a rig's: ``base_frame``, or ``base_link`` when empty).
+        stamp_row (px): the image row a frame's stamp is the capture time of.
+        max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
+            than this (ns) resets the time-dependent state. queue_size: frames waiting (per
+            camera). camera_info_wait: s a frame may wait for its camera_info.
+        republish_correspondences: what a front end found published.
+        settings: a rig's :class:`~rs_localizer.tracking.video.LocalizerSettings` (None for the
+            single camera, whose pipeline makes its own).
+        unused: a rig's: the single camera's parameters given a value other than their
+            default, which the rig mode does not use (:func:`rig_unused`).
+
+    Values and paths only: the maps they name are loaded by :func:`load_maps` where the
+    pipeline is built.
+    """
+
+    cameras: tuple[CameraConfig, ...]
+    solver: str
+    options: EstimateOptions
+    tracking: TrackerOptions | None
+    imu: GyroSettings | None
+    map_frame: str
+    base_frame: str
+    stamp_row: float
+    max_points: int
+    time_reset_ns: int
+    queue_size: int
+    camera_info_wait: float
+    republish_correspondences: bool
+    settings: Any = None
+    unused: tuple = ()
+
+    @property
+    def camera(self) -> CameraConfig:
+        """The first camera (the single camera's; the image input, front end and landmarks
+        of every camera of a rig are the same parameters')."""
+        return self.cameras[0]
+
+    @property
+    def min_points(self) -> int:
+        """Fewest correspondences a pose needs (:func:`points_needed`)."""
+        return points_needed(self.solver, self.options)
+
+    @property
+    def unused_text(self) -> str | None:
+        """The warning that names :attr:`unused` (:func:`rig_unused_text`), or None."""
+        return rig_unused_text(self.unused)
 
 
 def _estimation(
@@ -206,17 +250,17 @@ def _estimation(
 
 
 def _timing(p: Mapping[str, Any]) -> tuple[float, float, str, float | None]:
-    """Stage of :func:`build_config`: the rolling-shutter timing ``(line_delay, readout_time,
-    direction, reference_row or None)`` of the ``rs.*`` parameters (checked with the fallback
-    camera, then alone)."""
+    """Stage of :func:`camera_config`: the rolling-shutter timing ``(line_delay, readout_time,
+    direction, reference_row or None)`` of the ``rs.*`` parameters (checked by
+    :func:`_check_timing`)."""
     ref = float(p["rs.reference_row"])
     line_delay, readout_time = float(p["rs.line_delay"]), float(p["rs.readout_time"])
     return line_delay, readout_time, p["rs.direction"], (None if ref < 0 else ref)
 
 
 def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
-    """Stage of :func:`build_config`: the camera model of the ``camera.*`` parameters (None:
-    ``camera.fx <= 0``), then the check of the rolling-shutter timing on its own."""
+    """Stage of :func:`camera_config`: the camera model of the ``camera.*`` parameters (None:
+    ``camera.fx <= 0``)."""
     if not all(
         math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx", "camera.cy")
     ):
@@ -226,50 +270,78 @@ def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
         raise ConfigError(
             f"invalid fallback camera parameters: camera.d must be finite, got {list(d)}"
         )
-    fallback = None
-    if float(p["camera.fx"]) > 0:
-        K = np.array(
-            [
-                [p["camera.fx"], 0.0, p["camera.cx"]],
-                [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
-                [0.0, 0.0, 1.0],
-            ],
-            dtype=float,
-        )
-        try:
-            fallback = cv.camera_model(
-                K,
-                list(d),
-                p["camera.width"],
-                p["camera.height"],
-                p["camera.distortion_model"],
-                *timing,
-            )
-        except ValueError as e:
-            raise ConfigError(f"invalid fallback camera parameters: {e}") from None
+    if float(p["camera.fx"]) <= 0:
+        return None
+    K = np.array(
+        [
+            [p["camera.fx"], 0.0, p["camera.cx"]],
+            [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
+            [0.0, 0.0, 1.0],
+        ],
+        dtype=float,
+    )
+    try:
+        return cv.camera_model(
+            K, list(d), p["camera.width"], p["camera.height"], p["camera.distortion_model"],
+            *timing,
+        )  # fmt: skip
+    except ValueError as e:
+        raise ConfigError(f"invalid fallback camera parameters: {e}") from None
+
+
+def _check_timing(timing: tuple) -> None:
+    """Stage of :func:`camera_config`: the ``rs.*`` rolling-shutter timing checked on its own
+    (a camera model made with it)."""
     try:
         cv.camera_model(np.eye(3), [], 10, 10, "plumb_bob", *timing)
     except ValueError as e:
         raise ConfigError(f"invalid rolling-shutter parameters: {e}") from None
-    return fallback
 
 
-def _mounting(p: Mapping[str, Any]) -> tuple[str, Mounting | None]:
-    """Stage of :func:`build_config`: ``(base_frame, the base_frame -> camera mounting or
-    None)``."""
-    base_frame, mounting = str(p["base_frame"]).strip(), None
-    if base_frame:
-        try:
-            mounting = Mounting.from_translation_quaternion(
-                p["camera_to_base.translation"], p["camera_to_base.rotation"]
-            )
-        except ValueError as e:
-            raise ConfigError(f"invalid camera_to_base: {e}") from None
-    return base_frame, mounting
+def _mounting(p: Mapping[str, Any]) -> Mounting | None:
+    """Stage of :func:`camera_config`: the single camera's ``base_frame -> camera`` mounting of
+    ``camera_to_base.*`` (None without ``base_frame``)."""
+    if not str(p["base_frame"]).strip():
+        return None
+    try:
+        return Mounting.from_translation_quaternion(
+            p["camera_to_base.translation"], p["camera_to_base.rotation"]
+        )
+    except ValueError as e:
+        raise ConfigError(f"invalid camera_to_base: {e}") from None
+
+
+def _own_timing(n: str, own: Mapping[str, Any], timing: tuple) -> tuple[float, float, str]:
+    """Stage of :func:`camera_config`: a rig camera's ``(line_delay, readout_time, direction)``
+    of its ``rig.<n>.line_delay``, ``readout_time``, ``direction`` (negative or empty: the
+    ``rs.*`` value of ``timing``)."""
+    line_delay, readout_time, direction = timing[:3]
+    ld = float(own.get("line_delay", -1.0))
+    rt = float(own.get("readout_time", -1.0))
+    for key, v, top in (("line_delay", ld, MAX_LINE_DELAY), ("readout_time", rt, MAX_READOUT_TIME)):
+        if not (math.isfinite(v) and v <= top):  # (negative: the rs.* value)
+            raise ConfigError(f"rig.{n}.{key} must be at most {top:g} s, got {v!r}")
+    d = str(own.get("direction", "") or direction).strip()
+    if d not in READOUT_DIRECTIONS:
+        raise ConfigError(
+            f"rig.{n}.direction: unknown readout direction {d!r}; expected one of "
+            f"{list(READOUT_DIRECTIONS)}"
+        )
+    return (line_delay if ld < 0 else ld), (readout_time if rt < 0 else rt), d
+
+
+def _time_offset(n: str, own: Mapping[str, Any]) -> float:
+    """Stage of :func:`camera_config`: a rig camera's ``rig.<n>.time_offset`` (s)."""
+    dt = own.get("time_offset", 0.0)
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt):
+        raise ConfigError(f"rig.{n}.time_offset must be a number of seconds, got {dt!r}")
+    if abs(dt) > 1.0:
+        raise ConfigError(f"rig.{n}.time_offset must be within 1 s, got {dt!r}")
+    return float(dt)
 
 
 def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
-    """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
+    """Stage of :func:`camera_config`: ``(front end kind, its map, image transport)``."""
     kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
     choices = ("none", *FRONTEND_KINDS)  # (read now: the registry is the one list)
     if kind not in choices:
@@ -285,56 +357,116 @@ def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
     return kind, fmap, transport
 
 
-def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
-    """The configuration of a full set of parameter values (one per
-    :data:`.params.PARAMETERS` name), values and paths (the maps are loaded by
-    :func:`load_maps`). Reads no file. Types and ranges are not checked
-    here (ROS does it for the node, :func:`.params.check_parameter` for replay).
+def camera_config(
+    name: str, values: Mapping[str, Any], own: Mapping[str, Any] | None = None
+) -> CameraConfig:
+    """Camera ``name``'s configuration of a full set of :data:`.params.PARAMETERS` ``values``:
+    the one builder of the single camera (``own`` None, ``name`` "": its fallback model of
+    ``camera.*``, its output transform of ``camera_to_base.*`` with ``base_frame``, its frame
+    id ``camera_frame``, the timing of ``rs.*``) and of each camera of a rig (``own``: its
+    :data:`.params.RIG_CAMERA_PARAMETERS` values, ``mounting`` None: not given; its mounting,
+    its timing over the ``rs.*`` one, its time offset; no fallback model, its input's frame
+    id). Both: the image input, front end and landmarks of the node's parameters.
 
     Raises:
-        ConfigError: the first unusable value, with a message naming the parameter (unknown
-            solver, direction, front end or transport; estimator or tracking options their
-            classes reject; ``max_points`` below what a pose needs; non-finite or invalid
-            fallback intrinsics; rolling-shutter timing; ``camera_to_base``; a front end
-            without ``frontend_map``).
+        ConfigError: naming the parameter: non-finite or invalid fallback intrinsics, the
+            rolling-shutter timing, ``camera_to_base``; a rig camera without a usable
+            mounting, timing or time offset; an unknown front end or transport, a front end
+            without ``frontend_map``, front-end options it rejects.
     """
-    p = values
-    opts, tracking, imu = _estimation(p)
-    timing = _timing(p)
-    fallback = _fallback_camera(p, timing)
-    base_frame, mounting = _mounting(p)
-    kind, fmap, transport = _image_input(p)
+    timing = _timing(values)
     line_delay, readout_time, direction, reference_row = timing
-    return LocalizerConfig(
-        solver=p["solver"],
-        options=opts,
-        tracking=tracking,
+    if own is None:
+        fallback = _fallback_camera(values, timing)
+        _check_timing(timing)
+        mount, frame, offset = _mounting(values), values["camera_frame"], 0.0
+    else:
+        _check_timing(timing)
+        fallback, frame = None, ""
+        mount = rig_mounting(name, own.get("mounting"), own.get("mounting_covariance"))
+        line_delay, readout_time, direction = _own_timing(name, own, timing)
+        offset = _time_offset(name, own)
+    kind, fmap, transport = _image_input(values)
+    return CameraConfig(
+        name=name,
         line_delay=line_delay,
         readout_time=readout_time,
         direction=direction,
         reference_row=reference_row,
-        stamp_row=float(p["rs.stamp_row"]),
+        mount=mount,
+        fallback=fallback,
+        frame=frame,
+        time_offset=offset,
+        landmarks_file=values["landmarks_file"],
+        frontend_kind=kind,
+        frontend_map=fmap,
+        image_transport=transport,
+        frontend_options=_frontend_options(kind, values),
+    )
+
+
+def build_config(
+    values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]] | None = None
+) -> LocalizerConfig:
+    """The configuration of a full set of parameter values (one per
+    :data:`.params.PARAMETERS` name), values and paths (the maps are loaded by
+    :func:`load_maps`): ``cameras`` None, the single camera (one camera named "",
+    :func:`camera_config`); else a rig's, ``values`` also holding the
+    :data:`.params.RIG_PARAMETERS` and ``cameras`` each camera of ``rig.cameras`` its
+    :data:`.params.RIG_CAMERA_PARAMETERS` values (:func:`camera_config` per camera). Reads no
+    file. Types and ranges are not checked here (ROS does it for the node,
+    :func:`.params.check_parameter` for replay).
+
+    Raises:
+        ConfigError: the first unusable value, with a message naming the parameter (unknown
+            solver, direction, front end or transport; estimator or tracking options their
+            classes reject; ``max_points`` below what a pose needs; a camera's
+            (:func:`camera_config`); a rig's: no cameras, a camera name that is not valid in
+            a topic name or listed twice, settings the rig's localizer rejects).
+    """
+    p = values
+    names = None if cameras is None else rig_camera_names(p["rig.cameras"])
+    opts, tracking, imu = _estimation(p)
+    shared = dict(
+        solver=p["solver"],
+        options=opts,
+        tracking=tracking,
+        imu=imu,
         map_frame=p["map_frame"],
-        camera_frame=p["camera_frame"],
-        base_frame=base_frame,
-        mounting=mounting,
+        stamp_row=float(p["rs.stamp_row"]),
         max_points=int(p["max_points"]),
         time_reset_ns=int(float(p["time_reset_threshold"]) * 1e9),
         queue_size=int(p["queue_size"]),
         camera_info_wait=float(p["camera_info_wait"]),
-        fallback=fallback,
-        landmarks_file=p["landmarks_file"],
-        frontend_kind=kind,
-        frontend_map=fmap,
-        image_transport=transport,
         republish_correspondences=bool(p["republish_correspondences"]),
-        imu=imu,
-        frontend_options=_frontend_options(kind, p),
     )
+    if names is None:
+        base = str(p["base_frame"]).strip()
+        return LocalizerConfig((camera_config("", p),), base_frame=base, **shared)
+    out = tuple(camera_config(n, p, cameras.get(n, {})) for n in names)
+    try:
+        settings = rig_settings(
+            {c.name: c.mount for c in out},
+            opts,
+            tracking,
+            window=float(p["rig.window"]),
+            stop_after=float(p["rig.stop_after"]),
+            stamp_row=shared["stamp_row"],
+            time_reset_ns=shared["time_reset_ns"],
+            imu=imu,
+            max_points=shared["max_points"],
+            time_offsets={c.name: c.time_offset for c in out if c.time_offset},
+            solver=str(p["solver"]),
+        )
+    except ValueError as e:
+        raise ConfigError(f"rig: {e}") from None
+    base = str(p["base_frame"]).strip() or "base_link"
+    unused = rig_unused(p, settings.single_camera)
+    return LocalizerConfig(out, base_frame=base, settings=settings, unused=unused, **shared)
 
 
 def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
-    """Stage of :func:`build_config`: the front end's keyword arguments of the ``aruco.*`` and
+    """Stage of :func:`camera_config`: the front end's keyword arguments of the ``aruco.*`` and
     ``features.*`` parameters (:func:`~rs_localizer.frontends.registry.frontend_options`)."""
     try:
         return frontend_options(kind, p)
@@ -343,11 +475,12 @@ def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
 
 
 def load_maps(
-    cfg: LocalizerConfig, *, owner: object | None = None, current: LoadedMaps | None = None
+    camera: CameraConfig, *, owner: object | None = None, current: LoadedMaps | None = None
 ) -> LoadedMaps:
-    """The maps ``cfg`` names: the landmark table of ``landmarks_file`` and the front end of
-    ``frontend_map``, loaded through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on
-    behalf of ``owner`` (one copy per process, released with ``SHARED_MAPS.release(owner)``;
+    """The maps ``camera`` (a :class:`CameraConfig`) names: the landmark table of
+    ``landmarks_file`` and the front end of ``frontend_map``, loaded through
+    :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on behalf of ``owner`` (one copy per
+    process, released with ``SHARED_MAPS.release(owner)``;
     :meth:`~rs_localizer.frontends.shared.MapCache.load_maps`). The front end of ``current``
     is reused when its kind and map are unchanged. Called where the node and replay build
     their pipeline, and again when a parameter names another file.
@@ -358,10 +491,10 @@ def load_maps(
     """
     try:
         return SHARED_MAPS.load_maps(
-            cfg.landmarks_file,
-            cfg.frontend_kind,
-            cfg.frontend_map,
-            cfg.frontend_options,
+            camera.landmarks_file,
+            camera.frontend_kind,
+            camera.frontend_map,
+            camera.frontend_options,
             owner=owner,
             current=current,
         )
@@ -372,49 +505,17 @@ def load_maps(
 def default_timing_note(cfg: LocalizerConfig) -> str | None:
     """A warning when the RS timing is the parameters' default (``rs.line_delay`` unchanged,
     ``rs.readout_time`` unset): the line delay is then likely no camera's own, and a wrong
-    one biases the angular and linear velocity. None when the timing was set."""
-    if cfg.line_delay != PARAMETERS["rs.line_delay"].default or cfg.readout_time > 0:
+    one biases the angular and linear velocity. None when the timing was set (the single
+    camera's, :attr:`LocalizerConfig.camera`)."""
+    cam = cfg.camera
+    if cam.line_delay != PARAMETERS["rs.line_delay"].default or cam.readout_time > 0:
         return None
     return (
-        f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
+        f"rs.line_delay is the default {cam.line_delay * 1e6:g} us/line (rs.readout_time "
         "unset): set your camera's, measured with `rs-localizer calibrate-readout` or from "
         "the published values in docs/video.md; a wrong line delay biases the angular and "
         "linear velocity"
     )
-
-
-@dataclass(frozen=True)
-class RigCameraConfig:
-    """One camera of the rig: its ``name``, ``mount`` (a
-    :class:`~rs_localizer.frames.Mounting`, rig = ``base_frame``) and RS timing
-    (``line_delay`` s/line, ``readout_time`` s, ``direction``) for its camera_info's model."""
-
-    name: str
-    mount: Any
-    line_delay: float
-    readout_time: float
-    direction: str
-
-
-@dataclass(frozen=True)
-class RigConfig:
-    """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
-    ``settings`` (:class:`~rs_localizer.tracking.video.LocalizerSettings`; its ``max_points`` also
-    caps each camera's clouds in the node), ``base_frame`` (the rig's
-    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``, ``unused`` (the
-    single camera's parameters given a value other than their default, which the rig mode
-    does not use: :func:`rig_unused`)."""
-
-    cameras: tuple
-    settings: Any
-    base_frame: str
-    reference_row: float | None
-    unused: tuple = ()
-
-    @property
-    def unused_text(self) -> str | None:
-        """The warning that names :attr:`unused` (:func:`rig_unused_text`), or None."""
-        return rig_unused_text(self.unused)
 
 
 _TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -536,75 +637,6 @@ def rig_parameter_file(
     return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
 
 
-def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:
-    """The rig's configuration of a full set of :data:`.params.PARAMETERS` and
-    :data:`.params.RIG_PARAMETERS` values and, per camera of ``rig.cameras``, its
-    :data:`.params.RIG_CAMERA_PARAMETERS` values (``mounting`` None: not given).
-
-    Raises:
-        ConfigError: no cameras, a camera name that is not valid in a topic name or listed
-            twice, a camera without a usable mounting (naming it), an unknown readout
-            direction, estimator or tracking options their classes reject, ``max_points``
-            below what a pose needs, an unknown ``solver`` (what a rig of one camera at the
-            identity mounting is solved with, as its camera's video).
-    """
-    names = rig_camera_names(values["rig.cameras"])
-    opts, tracking, imu = _estimation(values)
-    line_delay, readout_time, direction, reference_row = _timing(values)
-    out = []
-    for n in names:
-        c = cameras.get(n, {})
-        mount = rig_mounting(n, c.get("mounting"), c.get("mounting_covariance"))
-        ld = float(c.get("line_delay", -1.0))
-        rt = float(c.get("readout_time", -1.0))
-        for key, v, top in (
-            ("line_delay", ld, MAX_LINE_DELAY),
-            ("readout_time", rt, MAX_READOUT_TIME),
-        ):
-            if not (math.isfinite(v) and v <= top):  # (negative: the rs.* value)
-                raise ConfigError(f"rig.{n}.{key} must be at most {top:g} s, got {v!r}")
-        d = str(c.get("direction", "") or direction).strip()
-        if d not in READOUT_DIRECTIONS:
-            raise ConfigError(
-                f"rig.{n}.direction: unknown readout direction {d!r}; expected one of "
-                f"{list(READOUT_DIRECTIONS)}"
-            )
-        out.append(
-            RigCameraConfig(
-                n, mount, line_delay if ld < 0 else ld, readout_time if rt < 0 else rt, d
-            )
-        )
-    offsets = {}
-    for n in names:
-        dt = cameras.get(n, {}).get("time_offset", 0.0)
-        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt):
-            raise ConfigError(f"rig.{n}.time_offset must be a number of seconds, got {dt!r}")
-        if abs(dt) > 1.0:
-            raise ConfigError(f"rig.{n}.time_offset must be within 1 s, got {dt!r}")
-        if dt:
-            offsets[n] = float(dt)
-    try:
-        settings = rig_settings(
-            {c.name: c.mount for c in out},
-            opts,
-            tracking,
-            window=float(values["rig.window"]),
-            stop_after=float(values["rig.stop_after"]),
-            stamp_row=float(values["rs.stamp_row"]),
-            time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
-            imu=imu,
-            max_points=int(values["max_points"]),
-            time_offsets=offsets,
-            solver=str(values["solver"]),
-        )
-    except ValueError as e:
-        raise ConfigError(f"rig: {e}") from None
-    base = str(values["base_frame"]).strip() or "base_link"
-    unused = rig_unused(values, settings.single_camera)
-    return RigConfig(tuple(out), settings, base, reference_row, unused)
-
-
-#: the single camera's parameters that the rig mode does not use, with what the rig takes
 #: in their place: its own estimator (``gr6p_1lin`` on every camera's points at once), each
 #: camera's camera_info (intrinsics), frame id and ``rig.<camera>.mounting``
 RIG_UNUSED_PARAMETERS = (
@@ -643,15 +675,6 @@ def rig_unused(values: Mapping[str, Any], single: bool = False) -> tuple[str, ..
         and name in values
         and not same_value(values[name], par.default)
     )
-
-
-def rig_used_values(values: Mapping[str, Any], single: bool = False) -> dict:
-    """``values`` (name -> value) with the single camera's parameters that a rig does not use
-    (:func:`rig_unused`) at their defaults: what the rig mode checks as a single camera's
-    configuration (its front end, queue and frames; :func:`build_config`), so that a value
-    only a single camera uses (e.g. an incomplete ``camera.*`` fallback model) neither stops
-    nor changes a rig. ``single``: a rig of one camera (:func:`rig_unused`)."""
-    return {**values, **{name: PARAMETERS[name].default for name in rig_unused(values, single)}}
 
 
 def same_value(a: Any, b: Any) -> bool:

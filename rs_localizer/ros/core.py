@@ -161,9 +161,9 @@ class ModeBase:
     """What both modes (:class:`~rs_localizer.ros.node.CameraMode`,
     :class:`~rs_localizer.ros.rig_node.RigMode`) do at each phase, written once. A mode adds
     its configuration (``_configuration()`` at configure, ``changed_configuration(overrides)``
-    at run time, both -> ``built``, whose first item is the single camera's
-    :class:`~.config.LocalizerConfig`, :attr:`cfg` once taken), how it takes it
-    (``_start_with(built)``, ``_change_to(built, overrides)``), its kernels' warm-up
+    at run time, both -> ``built``, whose first item is its
+    :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
+    how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its kernels' warm-up
     (``_warm_kernels(built)``), its gyro's input (``_take_imu``) and its ``ready`` line's
     subject and warnings (``_ready_subject()``, ``_ready_warnings()``). The topics and texts
     as data are the single camera's (the rig's mode sets its own)."""
@@ -180,7 +180,7 @@ class ModeBase:
     )
     #: the mode in the managed node's start line (``unconfigured (lifecycle node...)``)
     mode_note = ""
-    cfg = None  # (the single camera's configuration of the parameters; None: not configured)
+    cfg = None  # (the configuration of the parameters; None: not configured)
 
     def __init__(self, node: NodeCore):
         self.node = node
@@ -216,10 +216,10 @@ class ModeBase:
         ``landmarks``: ``(ids, points)`` or None); with ``republish_correspondences`` and a
         front end each camera's ``correspondences_out`` made (once the outputs exist)."""
         node = self.node
-        node.queue_size, node.frontend_kind = cfg.queue_size, cfg.frontend_kind
-        node.image_transport, node.landmarks = cfg.image_transport, landmarks
+        node.queue_size, node.frontend_kind = cfg.queue_size, cfg.camera.frontend_kind
+        node.image_transport, node.landmarks = cfg.camera.image_transport, landmarks
         node.republish, node.map_frame = bool(cfg.republish_correspondences), cfg.map_frame
-        if node.republish and cfg.frontend_kind != "none":
+        if node.republish and cfg.camera.frontend_kind != "none":
             for name in node.inputs:
                 node.open_found_output(name)
 
@@ -235,10 +235,11 @@ class ModeBase:
             log.warning(warning)
         text = f"ready: {self._ready_subject()}"
         if node.landmarks:
-            text += f", {len(node.landmarks[0])} landmarks from {cfg.landmarks_file}"
+            text += f", {len(node.landmarks[0])} landmarks from {cfg.camera.landmarks_file}"
         if node.images_of:
             images = node.images_of.get("", f"each camera's {self.image_topic}")
-            text += f", {cfg.frontend_kind} front end on {images} (map {cfg.frontend_map})"
+            cam = cfg.camera
+            text += f", {cam.frontend_kind} front end on {images} (map {cam.frontend_map})"
         log.info(text)
 
     def frame_inputs_destroyed(self) -> None:

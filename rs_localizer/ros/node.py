@@ -114,7 +114,7 @@ class CameraMode(ModeBase):
 
     def _ready_warnings(self) -> list[str]:
         """A global-shutter timing (the twist is then zero)."""
-        if self.cfg.line_delay == 0 and self.cfg.readout_time == 0:
+        if self.cfg.camera.line_delay == 0 and self.cfg.camera.readout_time == 0:
             return [
                 "rs.line_delay and rs.readout_time are 0: global-shutter "
                 "timing, the published twist will be zero"
@@ -122,11 +122,11 @@ class CameraMode(ModeBase):
         return []
 
     def _ready_subject(self) -> str:
-        cfg = self.cfg
-        text = f"solver {cfg.solver}, line delay {cfg.line_delay * 1e6:.2f} us/line"
-        if cfg.readout_time > 0:
-            text += f", readout {cfg.readout_time * 1e3:.2f} ms"
-        return text + f", intrinsics from {'parameters' if cfg.fallback else 'camera_info'}"
+        cfg, cam = self.cfg, self.cfg.camera
+        text = f"solver {cfg.solver}, line delay {cam.line_delay * 1e6:.2f} us/line"
+        if cam.readout_time > 0:
+            text += f", readout {cam.readout_time * 1e3:.2f} ms"
+        return text + f", intrinsics from {'parameters' if cam.fallback else 'camera_info'}"
 
     # ------------------------------------------------------------------ parameters
     def _maps(self) -> LoadedMaps:
@@ -144,7 +144,7 @@ class CameraMode(ModeBase):
         self._settle(cfg, maps.landmarks)
         if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.node.get_logger().info(
-                f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
+                f"reloaded the {cfg.camera.frontend_kind} front end from {cfg.camera.frontend_map}"
             )
         detector = None if maps.frontend is None else maps.frontend.marker_detector_note()
         if detector is not None and maps.frontend is not old_fe:
@@ -161,7 +161,7 @@ class CameraMode(ModeBase):
         """The configuration of the parameters with ``overrides`` and the maps it names
         (a changed ``landmarks_file`` or ``frontend_map`` loaded; ConfigError: not loadable)."""
         cfg = build_config(self.node.param_values(overrides))
-        return cfg, load_maps(cfg, owner=self, current=self._maps())
+        return cfg, load_maps(cfg.camera, owner=self, current=self._maps())
 
     def _change_to(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
         """The pipeline reconfigured (:meth:`_start_with`), reloaded landmarks logged."""
@@ -169,7 +169,7 @@ class CameraMode(ModeBase):
         cfg, maps = built
         if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.node.get_logger().info(
-                f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.landmarks_file}"
+                f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.camera.landmarks_file}"
             )
 
     # ------------------------------------------------------------------ frames
@@ -209,7 +209,7 @@ class CameraMode(ModeBase):
                                 p.gyro_inconsistent)  # fmt: skip
         parts = camera_status_parts(cfg, stats, p.tracking_values(), p.camera_source(),
                                     p.stats.messages_lost, gyro, self._maps().frontend)  # fmt: skip
-        return cfg.camera_frame or "camera", parts
+        return cfg.camera.frame or "camera", parts
 
 
 def camera_status_parts(
@@ -254,7 +254,8 @@ def camera_status_parts(
         },
         stage_times=stats.stage_times,
         with_frontend=frontend is not None,
-        frontend={} if frontend is None else frontend_values(cfg.frontend_kind, frontend, stats),
+        frontend={} if frontend is None else frontend_values(cfg.camera.frontend_kind, frontend,
+                                                             stats),
         gyro=gyro,
         counts=c,
     )  # fmt: skip

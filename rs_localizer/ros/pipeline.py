@@ -427,7 +427,8 @@ class FramePipeline:
     """The per-frame pipeline of the localizer (see the module docstring).
 
     Args:
-        config: the :class:`~rs_localizer.ros.config.LocalizerConfig` (None: set it with
+        config: the :class:`~rs_localizer.ros.config.LocalizerConfig` of one camera (its
+            :attr:`~rs_localizer.ros.config.LocalizerConfig.camera`; None: set it with
             :meth:`configure` before the first frame).
         maps: the landmarks and the front end loaded for ``config`` (:func:`~.config.load_maps`;
             None: none).
@@ -493,14 +494,15 @@ class FramePipeline:
                 max_points=config.max_points,
             )
         )
-        self.sequence.set_frontend(self.maps.frontend, config.frontend_kind)
+        cam = config.camera
+        self.sequence.set_frontend(self.maps.frontend, cam.frontend_kind)
         self.camera_input.configure(
-            config.camera_from_info,
+            cam.camera_from_info,
             config.max_points,
-            config.fallback,
+            cam.fallback,
             config.camera_info_wait,
             self.maps.landmarks,
-            config.camera_frame,
+            cam.frame,
         )
 
     @property
@@ -644,8 +646,8 @@ class FramePipeline:
         if est.single_tag:
             self.stats.add("frames_single_tag")
         res.output, res.output_frame = est, res.frame_id
-        if cfg.mounting is not None:
-            res.output, res.output_frame = camera_to_base(est, cfg.mounting), cfg.base_frame
+        if cfg.camera.mount is not None:
+            res.output, res.output_frame = camera_to_base(est, cfg.camera.mount), cfg.base_frame
         res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
@@ -677,10 +679,10 @@ class FramePipeline:
 
     def _fused_outputs(self, fused: list[FusedPose], cfg: LocalizerConfig) -> list[FusedOutput]:
         """twist / odom of the frames whose fused state is final (:func:`fused_outputs`: in
-        the camera's frame, or with ``mounting`` the robot's ``base_frame``)."""
-        if cfg.mounting is None:
+        the camera's frame, or with its mounting the robot's ``base_frame``)."""
+        if cfg.camera.mount is None:
             return fused_outputs(fused)
-        return fused_outputs(fused, cfg.base_frame, cfg.mounting)
+        return fused_outputs(fused, cfg.base_frame, cfg.camera.mount)
 
     def flush_idle(self, now: float | None = None) -> list[FusedOutput]:
         """After ``tracking.max_gap`` s (wall clock) without frames the track is over (the

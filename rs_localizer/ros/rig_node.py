@@ -81,7 +81,6 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from collections.abc import Collection, Iterator
-from typing import Any
 
 from ..camera import CameraModel
 from ..runtime.background import ready_implementation
@@ -95,13 +94,10 @@ from .camera_input import (
 )
 from .config import (
     LocalizerConfig,
-    RigConfig,
     build_config,
     load_maps,
     rig_camera_names,
     rig_change_refused,
-    rig_config,
-    rig_used_values,
     same_value,
 )
 from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame
@@ -172,8 +168,6 @@ class RigMode(ModeBase):
     )
     mode_note = ", rig mode"
     rig = None  # (None: not configured)
-    #: the rig's configuration (:class:`~.config.RigConfig`; None: not configured)
-    config = None
 
     def __init__(self, node: NodeCore):
         super().__init__(node)
@@ -181,9 +175,9 @@ class RigMode(ModeBase):
 
     def configured_as(self) -> str:
         """What the managed node's ``configured: ... (inactive)`` line names."""
-        return f"rig of {len(self.config.cameras)} cameras"
+        return f"rig of {len(self.cfg.cameras)} cameras"
 
-    def _configuration(self) -> tuple[LocalizerConfig, RigConfig, dict]:
+    def _configuration(self) -> tuple[LocalizerConfig, dict]:
         """The configuration at configure (each camera's ``rig.<camera>.*`` declared on first
         use; :meth:`changed_configuration` unchecked) and the landmarks and front-end map
         loaded once, a front end object per camera (camera name -> its maps).
@@ -199,41 +193,41 @@ class RigMode(ModeBase):
             if not node.has_parameter(f"rig.{n}.line_delay"):
                 declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
                 declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
-        single, config = self.changed_configuration({}, check=False)
-        return single, config, {c.name: load_maps(single, owner=node) for c in config.cameras}
+        (config,) = self.changed_configuration({}, check=False)
+        return config, {c.name: load_maps(c, owner=node) for c in config.cameras}
 
-    def _start_with(self, built: tuple[LocalizerConfig, RigConfig, dict]) -> None:
+    def _start_with(self, built: tuple[LocalizerConfig, dict]) -> None:
         """The configuration taken: the node's settings (:meth:`~.core.ModeBase._settle`), a
         front end per camera when ``frontend`` is set, the rig localizer, the cameras' inputs
         and counts and their frame queue (:meth:`.core.NodeCore.set_cameras`)."""
         node = self.node
-        self.cfg, self.config, loaded = built
-        single = self.cfg
+        self.cfg, loaded = built
+        config = self.cfg
         log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = Localizer(self.config.settings, log=log, implementation=ready_implementation)
-        if single.frontend_kind != "none":
-            for n, maps in loaded.items():
-                self.rig.set_frontend(n, maps.frontend, single.frontend_kind)
-        self._group_ns = int(self.config.settings.window * 1e9)
+        self.rig = Localizer(config.settings, log=log, implementation=ready_implementation)
+        for c in config.cameras:
+            if c.frontend_kind != "none":
+                self.rig.set_frontend(c.name, loaded[c.name].frontend, c.frontend_kind)
+        self._group_ns = int(config.settings.window * 1e9)
         # (the worker's map-fit check over the rig frames, its times per stage)
         self._rig_counts = CameraCounts()
         # each camera's own counts (the diagnostics' inputs, ``<c>.<key>``: its frames
         # received, handed on, skipped or failed before the rig, its input stage's counts, its
         # messages lost, the worker's time per frame) and its input (its camera_infos by
         # stamp, its clouds' rows, its images), a frame queue for them
-        counts = {c.name: CameraCounts(c.name) for c in self.config.cameras}
+        counts = {c.name: CameraCounts(c.name) for c in config.cameras}
         #: (the landmarks of ``landmarks_file``, ``(ids, points)``, the cameras' keypoints name)
         landmarks = next(iter(loaded.values())).landmarks
-        inputs = rig_camera_inputs(self.config, log, self._count_input, stopped=node.stopping,
-                                   wait=single.camera_info_wait,
+        inputs = rig_camera_inputs(config, log, self._count_input, stopped=node.stopping,
+                                   wait=config.camera_info_wait,
                                    landmarks=landmarks)  # fmt: skip
         node.set_cameras(inputs, counts, log, self._same_rig_frame, "rs_localizer_rig_worker")
-        self._settle(single, landmarks)
+        self._settle(config, landmarks)
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         self._map_fit = MapFitCheck("rig frames")  # (the worker's)
 
-    def _warm_kernels(self, built: tuple[LocalizerConfig, RigConfig, Any]) -> None:
+    def _warm_kernels(self, built: tuple) -> None:
         """The rig's kernels (:func:`.pipeline.warm_kernels`, as the single camera's): in
         numba's cache (:func:`~rs_localizer.runtime.warmup.rig_cached`), loaded before the
         next frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
@@ -244,7 +238,7 @@ class RigMode(ModeBase):
         from ..runtime.background import RigKernels
         from ..runtime.warmup import warm_rig
 
-        config = built[1]
+        config = built[0]
         timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in config.cameras}
 
         def warm() -> tuple[float, str]:
@@ -263,15 +257,15 @@ class RigMode(ModeBase):
             return []
         closed = [self._outcome(out) for out in self.rig.close()]
         pending = self.rig.flush() + self.rig.reset()
-        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.config.base_frame))]
+        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.cfg.base_frame))]
 
     def _ready_warnings(self) -> list[str]:
         """The single camera's parameters set but not used by the rig."""
-        return [self.config.unused_text] if self.config.unused_text else []
+        return [self.cfg.unused_text] if self.cfg.unused_text else []
 
     def _ready_subject(self) -> str:
         timing = []
-        for c in self.config.cameras:
+        for c in self.cfg.cameras:
             t = (
                 f"readout {c.readout_time * 1e3:.2f} ms"
                 if c.readout_time > 0
@@ -279,19 +273,15 @@ class RigMode(ModeBase):
             )
             timing.append(f"{c.name} {t} {c.direction}")
         return (
-            f"rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
-            f"{self.config.base_frame} in {self.node.map_frame}"
+            f"rig of {len(self.cfg.cameras)} cameras ({'; '.join(timing)}) posed as "
+            f"{self.cfg.base_frame} in {self.node.map_frame}"
         )
 
     # ---------------------------------------------------------------- parameters
-    def changed_configuration(
-        self, overrides: dict, check: bool = True
-    ) -> tuple[LocalizerConfig, RigConfig]:
-        """The single camera's configuration of the parameters with ``overrides`` (name ->
-        value of :data:`~.params.PARAMETERS`; ``{}``: at configure; its front end, and every
-        value it uses checked as for one camera: :func:`.config.rig_used_values`) and the
-        rig's of the same values, as :func:`.config.build_config` and
-        :func:`.config.rig_config` make them. ``check``: a change while the rig runs, refused
+    def changed_configuration(self, overrides: dict, check: bool = True) -> tuple[LocalizerConfig]:
+        """The rig's configuration of the parameters with ``overrides`` (name -> value of
+        :data:`~.params.PARAMETERS`; ``{}``: at configure) and each camera's ``rig.<c>.*``, as
+        :func:`.config.build_config` makes it. ``check``: a change while the rig runs, refused
         for the parameters it cannot take without a restart (:func:`.config.rig_change_refused`)
         unless their value stays the same.
 
@@ -304,7 +294,7 @@ class RigMode(ModeBase):
                 for n, v in overrides.items()
                 if not same_value(v, self.node.get_parameter(n).value)
             ]
-            refused = rig_change_refused(changed, self.config.settings.single_camera)
+            refused = rig_change_refused(changed, self.cfg.settings.single_camera)
             if refused is not None:
                 raise ConfigError(refused)
         names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
@@ -317,23 +307,22 @@ class RigMode(ModeBase):
             n: {k: self.node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
             for n in names
         }
-        config = rig_config(values, cams)
-        return build_config(rig_used_values(values, config.settings.single_camera)), config
+        return (build_config(values, cams),)
 
-    def _change_to(self, built: tuple[LocalizerConfig, RigConfig], overrides: dict) -> None:
+    def _change_to(self, built: tuple[LocalizerConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on
         (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
-        single, config = built
+        (config,) = built
         with self.node.between_frames():  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
-            self.cfg, self.config = single, config
+            self.cfg = config
             for inp in self.node.inputs.values():
                 inp.max_points = config.settings.max_points
-                inp.wait = float(single.camera_info_wait)
-        self._settle(single, self.node.landmarks)
+                inp.wait = float(config.camera_info_wait)
+        self._settle(config, self.node.landmarks)
 
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
@@ -356,7 +345,7 @@ class RigMode(ModeBase):
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
         stamp without one), as the rig groups it
         (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns`)."""
-        return self.config.settings.reference_ns(
+        return self.cfg.settings.reference_ns(
             item.name, item.stamp, self.node.inputs[item.name].newest
         )
 
@@ -524,7 +513,7 @@ class RigMode(ModeBase):
         (:meth:`Localizer.flush_idle`; none unconfigured)."""
         if self.rig is None:
             return []
-        return fused_outputs(self.rig.flush_idle(), self.config.base_frame)
+        return fused_outputs(self.rig.flush_idle(), self.cfg.base_frame)
 
     def _outcome(self, out: LocalizerOutput, logged: bool = False) -> FrameOutcome:
         """What a rig frame publishes (:class:`.outputs.FrameOutcome`): posed, the rig's pose
@@ -534,7 +523,7 @@ class RigMode(ModeBase):
         ``<c>/markers`` is watched as the rig's pose and its mounting put it
         (:func:`.visualization.rig_camera_views`, with its image kept by :meth:`_take`); the
         fused twists it made final; ``logged``: its :meth:`_failure_line`."""
-        base = self.config.base_frame
+        base = self.cfg.base_frame
         fused = fused_outputs(out.fused, base)
         line = self._failure_line(out) if logged else None
         log = () if line is None else (line,)
@@ -547,7 +536,7 @@ class RigMode(ModeBase):
     def _views(self, out: LocalizerOutput) -> Iterator[CameraView]:
         """The cameras of a posed rig frame whose debug views are watched, as
         :class:`.outputs.CameraView` s (their frame's image, the last kept of its stamp)."""
-        mounts = {c.name: c.mount for c in self.config.cameras}
+        mounts = {c.name: c.mount for c in self.cfg.cameras}
 
         def wanted(n: str) -> bool:
             viz = self.node.camera_viz.get(n)
@@ -566,7 +555,7 @@ class RigMode(ModeBase):
         node's counts and times per camera)."""
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
-        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
+        waited = first is not None and time.monotonic() - first > self.cfg.settings.stop_after
         with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
             counts = Counter(self._rig_counts.counts())
             for cc in self.node.camera_counts.values():
@@ -576,7 +565,7 @@ class RigMode(ModeBase):
             inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
                                self._rig_counts.stage_times())  # fmt: skip
-            return self.config.base_frame, rig_status_parts(self.rig, waiting, inputs)
+            return self.cfg.base_frame, rig_status_parts(self.rig, waiting, inputs)
 
 
 def rig_status_parts(

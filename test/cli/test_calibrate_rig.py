@@ -70,9 +70,9 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
         assert np.degrees(np.sqrt(np.trace(C[3:, 3:]))) == pytest.approx(got["std_deg"], rel=1e-4)
     # the node's configuration reads it back as each mounting's covariance
     from rs_localizer.ros.bags.bag_frames import rig_parameter_values
-    from rs_localizer.ros.config import rig_config
+    from rs_localizer.ros.config import build_config
 
-    cfg = rig_config(*rig_parameter_values(None, [out]))
+    cfg = build_config(*rig_parameter_values(None, [out]))
     covs = {c.name: c.mount.covariance for c in cfg.cameras}
     assert covs["front"] is None and covs["left"].shape == covs["right"].shape == (6, 6)
 

@@ -136,15 +136,15 @@ def test_line_delay_within_physical_bounds():
 def test_rig_config_refuses_a_line_delay_of_seconds():
     """A rig camera's own line delay or readout time above the limits (a parameter file read
     without ROS's range check) stops the configuration, naming the camera."""
-    from rs_localizer.ros.config import rig_config
+    from rs_localizer.ros.config import build_config
     from rs_localizer.ros.params import RIG_PARAMETERS, ConfigError, default_values
 
     values = {**default_values(), **{k: v.default for k, v in RIG_PARAMETERS.items()}}
     values["rig.cameras"] = ["a"]
     cam = {k: p.default for k, p in RIG_CAMERA_PARAMETERS.items()}
     cam["mounting"] = [0, 0, 0, 0, 0, 0, 1.0]
-    assert rig_config(values, {"a": cam}).cameras[0].line_delay == values["rs.line_delay"]
+    assert build_config(values, {"a": cam}).cameras[0].line_delay == values["rs.line_delay"]
     with pytest.raises(ConfigError, match=r"rig\.a\.line_delay must be at most 0\.01 s"):
-        rig_config(values, {"a": {**cam, "line_delay": 1.0}})
+        build_config(values, {"a": {**cam, "line_delay": 1.0}})
     with pytest.raises(ConfigError, match=r"rig\.a\.readout_time must be at most 1 s"):
-        rig_config(values, {"a": {**cam, "readout_time": 100.0}})
+        build_config(values, {"a": {**cam, "readout_time": 100.0}})

@@ -262,7 +262,7 @@ def test_node_parameters_reach_the_detector():
         small_tags=True,
     )
     assert cfg.frontend_options["detector_options"] == want
-    det = load_maps(cfg).frontend.detector
+    det = load_maps(cfg.camera).frontend.detector
     assert det.backend == ("apriltag" if md.apriltag_binding() else "opencv")
     if det.backend == "apriltag":
         assert det.options == want and det.min_decision_margin == 40.0

@@ -416,9 +416,8 @@ def _pinned_states():
             return None
 
     cfg = build_config(default_values())
-    gyro_cfg = replace(
-        build_config({**default_values(), "imu.enabled": True}), frontend_kind="aruco"
-    )
+    gyro_cfg = build_config({**default_values(), "imu.enabled": True})
+    gyro_cfg = replace(gyro_cfg, cameras=(replace(gyro_cfg.camera, frontend_kind="aruco"),))
     none = {"decode": [], "frontend": [], "estimate": [], "publish": []}
     fresh = StatsSnapshot({}, [], False, float("nan"), 0, none)
     yield "fresh", (cfg, fresh, {"track_state": "lost"}, "camera_info", 0, [], [])

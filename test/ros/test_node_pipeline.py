@@ -129,15 +129,16 @@ def test_values_are_checked_as_ros_does(name, value, message):
 def test_invalid_configurations_raise_with_the_parameter_named(changes, message):
     """The configuration (or, for the map files, loading its maps) names the parameter."""
     with pytest.raises(P.ConfigError, match=message):
-        load_maps(C.build_config({**P.default_values(), **changes}))
+        load_maps(C.build_config({**P.default_values(), **changes}).camera)
 
 
 def test_config_from_the_defaults():
     cfg = C.build_config(P.default_values())
     assert cfg.solver == "r6p_1lin" and cfg.tracking.fusion.lag == 1
     assert cfg.options == C.estimate_options(P.default_values())
-    assert cfg.reference_row is None and cfg.fallback is None and cfg.frontend_kind == "none"
-    assert load_maps(cfg).frontend is None and load_maps(cfg).landmarks is None
+    cam = cfg.camera
+    assert cam.reference_row is None and cam.fallback is None and cam.frontend_kind == "none"
+    assert load_maps(cfg.camera).frontend is None and load_maps(cfg.camera).landmarks is None
     assert cfg.time_reset_ns == 1_000_000_000 and cfg.min_points == 12
     off = C.build_config({**P.default_values(), "tracking.enabled": False})
     assert off.tracking is None
@@ -408,7 +409,7 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
             "frontend_map": str(fmap),
         }
     )
-    maps = load_maps(cfg, owner=owner)
+    maps = load_maps(cfg.camera, owner=owner)
     warned = []
 
     class Log:

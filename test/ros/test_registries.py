@@ -62,11 +62,11 @@ def test_a_front_end_added_to_the_registry_is_accepted_by_both_nodes(monkeypatch
     with pytest.raises(C.ConfigError, match="unknown frontend 'dots'"):
         C.build_config(values)
     monkeypatch.setitem(registry.FRONTEND_KINDS, "dots", kind)
-    cfg = C.build_config({**values, "ransac.threshold_px": 3.5})
+    cfg = C.build_config({**values, "ransac.threshold_px": 3.5}).camera
     assert cfg.frontend_kind == "dots" and cfg.frontend_options == {"scale": 3.5}
     with pytest.raises(C.ConfigError, match=r"needs frontend_map \(dots \.npy\)"):
         C.build_config({**values, "frontend_map": ""})
-    # the camera node's and the rig node's front end: load_maps(build_config(values)).frontend
+    # the camera node's and the rig node's front end: load_maps(camera).frontend
     cache = MapCache()
     fe = [cache.load_maps("", cfg.frontend_kind, cfg.frontend_map, cfg.frontend_options)]
     fe.append(cache.load_maps("", cfg.frontend_kind, cfg.frontend_map, cfg.frontend_options))
@@ -107,7 +107,7 @@ def test_solvers_and_lens_models_are_the_tables_entries():
                 "camera.distortion_model": model,
                 "camera.d": [0.01] * n or [0.0],
             }
-        ).fallback
+        ).camera.fallback
         assert cam.distortion_model == model
 
 

@@ -501,7 +501,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.camera_input import DroppedFrame, to_rig
-    from rs_localizer.ros.config import rig_config
+    from rs_localizer.ros.config import build_config
     from rs_localizer.tracking.video import Localizer
 
     b = bag_with_unread_clouds(tmp_path)
@@ -536,7 +536,7 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     # the grouping: the rig mode's, each unread cloud with a stamp handed to it as the node does
     ends, formed = rig_frame_grouping(b.bag)
     values, cam_values = rig_parameter_values(b.bag)
-    rig = Localizer(rig_config(values, cam_values).settings)
+    rig = Localizer(build_config(values, cam_values).settings)
     truth = {}
     for f in read.items:
         k = len(to_rig(rig, f))
@@ -571,7 +571,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.play import rig_frame_grouping
     from rs_localizer.ros.camera_input import to_rig
-    from rs_localizer.ros.config import rig_config
+    from rs_localizer.ros.config import build_config
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
 
@@ -591,7 +591,7 @@ def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
     ends, formed = rig_frame_grouping(bag)
     values, cam_values = rig_parameter_values(bag)
     assert float(values["rig.stop_after"]) < 1.0
-    rig = Localizer(rig_config(values, cam_values).settings)
+    rig = Localizer(build_config(values, cam_values).settings)
     truth, with_left = {}, 0
     for f in read_rig_frames(bag).items:
         outs = to_rig(rig, f)

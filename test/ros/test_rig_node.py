@@ -218,7 +218,7 @@ def test_an_integer_mounting_is_taken(ros_context):
     overrides = [Parameter(k, value=v) for k, v in params.items()]
     node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
     try:
-        m = node.mode.config.cameras[0].mount
+        m = node.mode.cfg.cameras[0].mount
         assert np.allclose(m.R, np.eye(3)) and np.allclose(m.c, 0.0)
     finally:
         node.destroy_node()
@@ -793,7 +793,7 @@ def test_a_rig_camera_s_frame_passes_the_single_camera_s_entry_checks(ros_contex
     node = _direct_node(ros_context, cams, frames + frames[:1], logged)
     try:
         late = STAMP_MAX_NS - 1000
-        ref = node.mode.config.settings.reference_ns("front", late, node.inputs["front"].newest)
+        ref = node.mode.cfg.settings.reference_ns("front", late, node.inputs["front"].newest)
         assert ref > STAMP_MAX_NS  # (the reference line read after the stamp's)
         bad = 0
         for f in frames:
@@ -1146,12 +1146,12 @@ def test_a_rig_node_names_the_single_cameras_parameters_it_was_given(ros_context
     frames, _, _ = generate_rig_video(cams, duration=0.05, num_points=60, seed=25)
     node = _direct_node(ros_context, cams, frames, solver="p3p", **{"camera.fx": 600.0})
     try:
-        assert node.mode.config.unused == ("solver", "camera.fx")
+        assert node.mode.cfg.unused == ("solver", "camera.fx")
         logged = []
         log = SimpleNamespace(info=lambda text: None, warning=logged.append)
         node.get_logger = lambda: log
         node._log_ready()
-        assert logged == [node.mode.config.unused_text] and "solver (the rig estimator" in logged[0]
+        assert logged == [node.mode.cfg.unused_text] and "solver (the rig estimator" in logged[0]
     finally:
         node.destroy_node()
 
@@ -1189,9 +1189,7 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
         assert _set(node, "base_frame", "").successful  # (unchanged)
         assert node.mode.rig.track_state == "lost"
         assert _set(node, "tracking.enabled", False).successful
-        assert (
-            node.mode.rig.track_state == "disabled" and node.mode.config.settings.tracking is None
-        )
+        assert node.mode.rig.track_state == "disabled" and node.mode.cfg.settings.tracking is None
         assert _set(node, "max_points", 40).successful and _set(node, "queue_size", 7).successful
         assert node.mode.rig.settings.max_points == 40 and node.queue_size == 7
         assert [node.inputs[c.name].max_points for c in cams] == [40, 40, 40]
@@ -1389,9 +1387,9 @@ def test_a_camera_s_compressed_images_follow_a_remap_of_its_image_raw(ros_contex
 
 
 def _rig_config_of(overrides, names=("front",)):
-    """The single camera's and the rig's configurations of the default parameters with
-    ``overrides`` for a rig of cameras ``names`` (each at its default ``rig.<c>.*``, at the
-    identity mounting)."""
+    """The rig mode's ``built`` (its configuration alone, as at a run-time change) of the
+    default parameters with ``overrides`` for a rig of cameras ``names`` (each at its default
+    ``rig.<c>.*``, at the identity mounting)."""
     from rs_localizer.ros import config as C
     from rs_localizer.ros import params as P
 
@@ -1400,8 +1398,7 @@ def _rig_config_of(overrides, names=("front",)):
     values.update(overrides, **{"rig.cameras": list(names)})
     own = {k: p.default for k, p in P.RIG_CAMERA_PARAMETERS.items()}
     cams = {n: {**own, "mounting": [0.0, 0, 0, 0, 0, 0, 1]} for n in names}
-    config = C.rig_config(values, cams)
-    return C.build_config(C.rig_used_values(values, config.settings.single_camera)), config
+    return (C.build_config(values, cams),)
 
 
 def _fake_node(logs, **attrs):
@@ -1422,16 +1419,16 @@ def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(mo
     calls = []
     monkeypatch.setattr(R, "warm_kernels", lambda k, label, *a: calls.append((k, label, a[2])))
     old, new = _rig_config_of({}), _rig_config_of({"solver": "p3p"})
-    assert new[1].settings.single_camera and new[1].settings.solver == "p3p" != old[0].solver
+    assert new[0].settings.single_camera and new[0].settings.solver == "p3p" != old[0].solver
     logs = []
     mode = R.RigMode.__new__(R.RigMode)  # (the rig's mode without its localizer)
-    mode.node, mode.cfg, mode.config = _fake_node(logs), *old
+    mode.node, mode.cfg = _fake_node(logs), old[0]
     changed = []
     mode._change_to = lambda built, overrides: changed.append(built)
     mode.apply_change(new, {"solver": "p3p"})
     assert logs == [("info", f"solver: {old[0].solver} -> p3p")] and changed == [new]
     [(kernels, label, background)] = calls
-    assert kernels.settings is new[1].settings and label == "rig" and background is True
+    assert kernels.settings is new[0].settings and label == "rig" and background is True
     assert set(kernels.timing) == {"front"}
     mode.cfg = new[0]
     mode.apply_change(new, {"solver": "p3p"})

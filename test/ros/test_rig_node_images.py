@@ -102,7 +102,7 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
             n: len(m) for n, m in clouds.items()
         }
         values = {**default_values(), "frontend": "aruco", "frontend_map": "aruco_room"}
-        alone = load_maps(build_config(values), owner=clouds).frontend
+        alone = load_maps(build_config(values).camera, owner=clouds).frontend
         for c in cams:
             mine = [f for f in frames if f.name == c.name]
             got = clouds[c.name]

@@ -386,7 +386,7 @@ def test_a_rig_of_one_is_solved_with_the_solver_parameter_and_publishes_its_twis
     try:
         rig = h.node.mode.rig
         assert rig.settings.single_camera and rig.settings.solver == "p3p"
-        assert h.node.mode.config.unused == ()
+        assert h.node.mode.cfg.unused == ()
         h.send_info(cams)
         h.send_clouds(frames)
         _, v = h.last_diag()

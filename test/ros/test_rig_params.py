@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rs_localizer.ros.config import rig_config
+from rs_localizer.ros.config import build_config
 from rs_localizer.ros.param_files import read_params_file
 from rs_localizer.ros.params import (
     RIG_CAMERA_PARAMETERS,
@@ -68,7 +68,7 @@ def _values(tree: dict) -> tuple[dict, dict]:
 def test_the_pages_example_gives_the_simulated_rigs_mountings(tmp_path):
     text = DOC.read_text().split("```yaml\n")[1].split("```")[0]
     (tmp_path / "rig.yaml").write_text(text)
-    cfg = rig_config(*_values(read_params_file(tmp_path / "rig.yaml")))
+    cfg = build_config(*_values(read_params_file(tmp_path / "rig.yaml")))
     assert cfg.base_frame == "base_link" and cfg.settings.window == 0.015
     for c, sim in zip(cfg.cameras, default_rig(3), strict=True):
         assert c.name == sim.name and c.direction == sim.camera.readout
@@ -80,20 +80,20 @@ def test_the_pages_example_gives_the_simulated_rigs_mountings(tmp_path):
 def test_errors_name_the_camera():
     good = {"rig.cameras": ["a", "b"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0]}
     with pytest.raises(ConfigError, match="rig camera 'b' has no mounting"):
-        rig_config(*_values(good))
+        build_config(*_values(good))
     with pytest.raises(ConfigError, match=r"rig\.b\.mounting must be 7"):
-        rig_config(*_values({**good, "rig.b.mounting": [1.0, 2.0]}))
+        build_config(*_values({**good, "rig.b.mounting": [1.0, 2.0]}))
     with pytest.raises(ConfigError, match=r"rig\.b\.direction"):
         bad = {**good, "rig.b.mounting": [0, 0, 0, 0, 0, 0, 1.0], "rig.b.direction": "sideways"}
-        rig_config(*_values(bad))
+        build_config(*_values(bad))
     with pytest.raises(ConfigError, match=r"rig\.a\.mounting_covariance must be 36"):
-        rig_config(*_values({**good, "rig.a.mounting_covariance": [1.0] * 6}))
+        build_config(*_values({**good, "rig.a.mounting_covariance": [1.0] * 6}))
     with pytest.raises(ConfigError, match="positive semi-definite"):
-        rig_config(*_values({**good, "rig.a.mounting_covariance": [-1.0] * 36}))
+        build_config(*_values({**good, "rig.a.mounting_covariance": [-1.0] * 36}))
     with pytest.raises(ConfigError, match="listed twice"):
-        rig_config(*_values({**good, "rig.cameras": ["a", "a"]}))
+        build_config(*_values({**good, "rig.cameras": ["a", "a"]}))
     with pytest.raises(ConfigError, match="needs camera names"):
-        rig_config(*_values({"rig.cameras": []}))
+        build_config(*_values({"rig.cameras": []}))
 
 
 def test_a_cameras_time_offset_reaches_the_rig():
@@ -101,24 +101,24 @@ def test_a_cameras_time_offset_reaches_the_rig():
     value beyond 1 s or not a number is refused naming the parameter."""
     one = {"rig.cameras": ["a", "b"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0],
            "rig.b.mounting": [0.1, 0, 0, 0, 0, 0, 1.0]}  # fmt: skip
-    assert rig_config(*_values(one)).settings.time_offsets == {}
-    cfg = rig_config(*_values({**one, "rig.b.time_offset": -0.0125}))
+    assert build_config(*_values(one)).settings.time_offsets == {}
+    cfg = build_config(*_values({**one, "rig.b.time_offset": -0.0125}))
     assert cfg.settings.time_offsets == {"b": -0.0125}
     assert cfg.settings.reference_ns("b", 10**9, None) == 10**9 - 12_500_000
     with pytest.raises(ConfigError, match=r"rig\.b\.time_offset must be within 1 s"):
-        rig_config(*_values({**one, "rig.b.time_offset": 1.5}))
+        build_config(*_values({**one, "rig.b.time_offset": 1.5}))
     with pytest.raises(ConfigError, match=r"rig\.a\.time_offset must be a number"):
-        rig_config(*_values({**one, "rig.a.time_offset": "late"}))
+        build_config(*_values({**one, "rig.a.time_offset": "late"}))
 
 
 def test_max_points_is_the_rigs_one_cap():
     """The one ``max_points`` parameter sets the rig's cap on its cameras' image rows
     (``LocalizerSettings.max_points``), 5000 by default; below what a pose needs it is refused."""
     one = {"rig.cameras": ["a"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0]}
-    assert rig_config(*_values(one)).settings.max_points == default_values()["max_points"]
-    assert rig_config(*_values({**one, "max_points": 77})).settings.max_points == 77
+    assert build_config(*_values(one)).settings.max_points == default_values()["max_points"]
+    assert build_config(*_values({**one, "max_points": 77})).settings.max_points == 77
     with pytest.raises(ConfigError, match="max_points 3 is below"):
-        rig_config(*_values({**one, "max_points": 3}))
+        build_config(*_values({**one, "max_points": 3}))
 
 
 def test_a_mounting_covariance_in_ros_order_is_the_mountings():
@@ -132,7 +132,7 @@ def test_a_mounting_covariance_in_ros_order_is_the_mountings():
         "rig.b.mounting": [0.1, 0, 0, 0, 0, 0, 1.0],
         "rig.b.mounting_covariance": [float(x) for x in cov.ravel()],
     }
-    a, b = rig_config(*_values(tree)).cameras
+    a, b = build_config(*_values(tree)).cameras
     assert a.mount.covariance is None
     P = [3, 4, 5, 0, 1, 2]
     assert np.array_equal(b.mount.covariance, cov[np.ix_(P, P)])
@@ -154,7 +154,7 @@ def test_camera_names_must_be_a_list_of_topic_name_tokens(cameras, error):
     """Every name the rig refuses is refused by ROS as a topic name token too (checked with
     rclpy's own validator when it is there); one line names the parameter and the fix."""
     with pytest.raises(ConfigError, match=error) as e:
-        rig_config(*_values({"rig.cameras": cameras, "rig.front.mounting": [0.0] * 6 + [1.0]}))
+        build_config(*_values({"rig.cameras": cameras, "rig.front.mounting": [0.0] * 6 + [1.0]}))
     assert "\n" not in str(e.value)
     if isinstance(cameras, list) and all(isinstance(c, str) for c in cameras):
         rclpy_names = pytest.importorskip("rclpy.validate_topic_name")
@@ -169,12 +169,12 @@ def test_names_ros_takes_are_taken_and_an_integer_mounting_is_read_as_floats():
     good.update({f"rig.{n}.mounting": [0.0, 0.1 * k, 0.0, 0.0, 0.0, 0.0, 1.0]
                  for k, n in enumerate(names)})  # fmt: skip
     good["rig.front.mounting"] = [0, 0, 0, 0, 0, 0, 1]  # (integers, as YAML reads them)
-    cfg = rig_config(*_values(good))
+    cfg = build_config(*_values(good))
     assert [c.name for c in cfg.cameras] == names
     assert np.allclose(cfg.cameras[0].mount.R, np.eye(3)) and np.allclose(cfg.cameras[0].mount.c, 0)
     assert np.allclose(cfg.cameras[2].mount.position, [0.0, 0.2, 0.0])
     with pytest.raises(ConfigError, match=r"rig\.front\.mounting must be 7 finite numbers"):
-        rig_config(*_values({**good, "rig.front.mounting": ["0"] * 6 + ["1"]}))
+        build_config(*_values({**good, "rig.front.mounting": ["0"] * 6 + ["1"]}))
 
 
 def test_the_node_takes_a_mounting_covariance(ros_context):
@@ -196,7 +196,7 @@ def test_the_node_takes_a_mounting_covariance(ros_context):
     overrides = [Parameter(k, value=v) for k, v in params.items()]
     node = RSLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
     try:
-        front, left = (c.mount for c in node.mode.config.cameras)
+        front, left = (c.mount for c in node.mode.cfg.cameras)
         assert front.covariance is None
         assert np.allclose(np.diag(left.covariance), [1e-8] * 3 + [1e-6] * 3)
     finally:

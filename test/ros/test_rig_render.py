@@ -120,7 +120,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     from rs_localizer.ros.bags.bag_frames import read_rig_frames, rig_parameter_values
     from rs_localizer.ros.bags.bag_io import write_rig_bag
     from rs_localizer.ros.bags.play import rig_frame_grouping
-    from rs_localizer.ros.config import rig_config
+    from rs_localizer.ros.config import build_config
     from rs_localizer.sim.trajectory import default_rig, generate_rig_video
     from rs_localizer.tracking.video import Localizer
 
@@ -131,7 +131,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
     ends = rig_frame_grouping(bag)[0]
     values, cam_values = rig_parameter_values(bag)
-    rig = Localizer(rig_config(values, cam_values).settings)
+    rig = Localizer(build_config(values, cam_values).settings)
     truth = {}
     for f in read_rig_frames(bag).frames:
         k = len(rig.add(f))

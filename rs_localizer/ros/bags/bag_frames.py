@@ -17,7 +17,7 @@ node reads them: :func:`iter_rig_frames` (each camera's messages through its
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from ...camera import CameraModel
 from .. import conversions as cv
-from ..config import RigConfig, rig_config
+from ..config import LocalizerConfig, build_config
 from ..param_files import read_params_file
 from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
 from .bag_io import (
@@ -235,7 +235,7 @@ def rig_parameter_values(
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
 ) -> tuple[dict, dict]:
-    """``(values, camera values)`` for :func:`~rs_localizer.ros.config.rig_config`: the
+    """``(values, camera values)`` for :func:`~rs_localizer.ros.config.build_config`: the
     defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
     then ``params``."""
     values = default_values()
@@ -265,10 +265,10 @@ def rig_bag_config(
     params: Mapping[str, Any] | None = None,
     *,
     mountings: bool = True,
-) -> tuple[dict, dict, RigConfig]:
+) -> tuple[dict, dict, LocalizerConfig]:
     """``(values, camera values, config)``: the parameter values of
     :func:`rig_parameter_values` and the rig's configuration of them
-    (:func:`~rs_localizer.ros.config.rig_config`), as the rig node takes them.
+    (:func:`~rs_localizer.ros.config.build_config`), as the rig node takes them.
 
     ``mountings`` False: the cameras' mountings are not read (the config's are the identity;
     the camera values keep the parameters' own), for readers of the cameras' frames alone
@@ -283,7 +283,7 @@ def rig_bag_config(
     if not mountings:
         given = {str(n).strip(): {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
                  for n, c in cams.items()}  # fmt: skip
-    return values, cams, rig_config(values, given)
+    return values, cams, build_config(values, given)
 
 
 def is_rig_bag(
@@ -303,7 +303,7 @@ def is_rig_bag(
 
 
 def rig_frontends(
-    bag: str | os.PathLike, values: Mapping[str, Any], cfg: RigConfig, owner: object
+    bag: str | os.PathLike, values: Mapping[str, Any], cfg: LocalizerConfig, owner: object
 ) -> dict | None:
     """Each camera's front end of the parameter ``values`` (``frontend``, ``frontend_map``,
     ``aruco.*``, ...; one map loaded, a front end object per camera, as the rig node makes
@@ -315,7 +315,7 @@ def rig_frontends(
         ~rs_localizer.ros.params.ConfigError: a front end for a bag without the cameras'
             images (``<namespace>/<camera>/image_raw``), or whose map does not load.
     """
-    from ..config import build_config, load_maps, rig_used_values
+    from ..config import load_maps
 
     kind = str(values.get("frontend", "none")).strip() or "none"
     if kind == "none":
@@ -327,11 +327,10 @@ def rig_frontends(
             f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
             "without a front end (frontend: none) its correspondences are read"
         )
-    single = build_config(rig_used_values(values, cfg.settings.single_camera))
-    return {c.name: load_maps(single, owner=owner).frontend for c in cfg.cameras}
+    return {c.name: load_maps(c, owner=owner).frontend for c in cfg.cameras}
 
 
-def rig_landmarks(values: Mapping[str, Any], cfg: RigConfig, owner: object) -> tuple | None:
+def rig_landmarks(values: Mapping[str, Any], cfg: LocalizerConfig, owner: object) -> tuple | None:
     """The landmarks of the parameter ``landmarks_file`` that the cameras' keypoints name
     (``(ids (M,), points (M, 3) m)``), loaded as the rig node loads them (on behalf of
     ``owner``: release with ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``);
@@ -340,12 +339,11 @@ def rig_landmarks(values: Mapping[str, Any], cfg: RigConfig, owner: object) -> t
     Raises:
         ~rs_localizer.ros.params.ConfigError: a landmark table that does not load.
     """
-    from ..config import build_config, load_maps, rig_used_values
+    from ..config import load_maps
 
     if not str(values.get("landmarks_file", "")).strip():
         return None
-    only = rig_used_values({**values, "frontend": "none"}, cfg.settings.single_camera)
-    return load_maps(build_config(only), owner=owner).landmarks
+    return load_maps(replace(cfg.camera, frontend_kind="none"), owner=owner).landmarks
 
 
 class QuietLog:

@@ -42,7 +42,7 @@ from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
 from ..camera_input import DroppedFrame
-from ..config import LocalizerConfig, RigConfig, build_config, default_timing_note, load_maps
+from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
 from ..outputs import frame_messages, fused_messages, pose_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
@@ -116,8 +116,8 @@ class ReplayResult:
     ``rows`` (one dict per frame, the CSV's columns, :class:`ReplayRows`), ``summary``
     (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors` of the
     published pose and twist, with ``frame_fit``), ``failures`` (reason -> frames), the files
-    written, the configuration (a camera's :class:`~rs_localizer.ros.config.LocalizerConfig`,
-    a rig's :class:`~rs_localizer.ros.config.RigConfig`) and parameter values used, the maps
+    written, the configuration (a camera's or a rig's
+    :class:`~rs_localizer.ros.config.LocalizerConfig`) and parameter values used, the maps
     loaded for a camera (``maps``: the landmarks and the front end,
     :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
     their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
@@ -153,7 +153,7 @@ class ReplayResult:
     failures: dict = field(default_factory=dict)
     out_bag: Path | None = None
     out_csv: Path | None = None
-    config: LocalizerConfig | RigConfig | None = None
+    config: LocalizerConfig | None = None
     maps: LoadedMaps | None = None
     parameters: dict = field(default_factory=dict)
     solver: str = ""
@@ -745,7 +745,7 @@ def _replay_config(
     token = object()
     try:
         cfg = build_config(values)
-        maps = load_maps(cfg, owner=token)
+        maps = load_maps(cfg.camera, owner=token)
     finally:
         SHARED_MAPS.release(token)  # (maps keeps what it loaded)
     if source is None:
@@ -775,10 +775,10 @@ def _replay_topics(
     """
     info = read_bag_info(path)
     prefer = (image_topic, info.get("topics", {}).get("image"))
-    frames = frame_topic(topics, source, cfg.image_transport == "compressed", prefer)
+    frames = frame_topic(topics, source, cfg.camera.image_transport == "compressed", prefer)
     info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
     if frames is None:
-        what = f"*/{source}" if source != "image" else f"{cfg.image_transport} image"
+        what = f"*/{source}" if source != "image" else f"{cfg.camera.image_transport} image"
         raise ValueError(f"{path}: no {what} topic (topics: {sorted(topics)})")
     if debug_outputs and source != "image" and image_topic is None:
         images = [t for t, mt in topics.items() if mt == IMAGE]
