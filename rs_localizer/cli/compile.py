@@ -117,8 +117,7 @@ def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
         cfg = build_config(values, cams)
     except (ConfigError, OSError, TypeError, ValueError) as e:
         raise A.CliError(f"--params-file: {e}") from None
-    timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in cfg.cameras}
-    return cfg.settings, timing
+    return cfg.settings, cfg.timings
 
 
 def run(args: argparse.Namespace) -> int:

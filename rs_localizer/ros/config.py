@@ -210,6 +210,13 @@ class LocalizerConfig:
         return points_needed(self.solver, self.options)
 
     @property
+    def timings(self) -> dict[str, tuple[float, float, str]]:
+        """Each camera's rolling-shutter timing: name -> ``(line_delay s/line, readout_time s,
+        direction)`` (what a rig's kernels are warmed up with:
+        :func:`~rs_localizer.runtime.warmup.warm_rig`)."""
+        return {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.cameras}
+
+    @property
     def unused_text(self) -> str | None:
         """The warning that names :attr:`unused` (:func:`rig_unused_text`), or None."""
         return rig_unused_text(self.unused)

@@ -49,7 +49,7 @@ def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
 
 def declare_dynamic(node: Any, name: str, par: Parameter) -> Any:
     """Declare parameter ``name`` (a :class:`~rs_localizer.ros.params.Parameter` ``par``) of any
-    type (its value checked by :func:`.config.rig_config`, which names the parameter and the
+    type (its value checked by :func:`.config.build_config`, which names the parameter and the
     fix: ``rig.cameras: front`` instead of ``[front]``, a mounting of integers); returns its
     value (None: not set)."""
     d = ParameterDescriptor(

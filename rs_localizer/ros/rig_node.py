@@ -201,8 +201,8 @@ class RigMode(ModeBase):
         front end per camera when ``frontend`` is set, the rig localizer, the cameras' inputs
         and counts and their frame queue (:meth:`.core.NodeCore.set_cameras`)."""
         node = self.node
-        self.cfg, loaded = built
-        config = self.cfg
+        config, loaded = built
+        self.cfg = config
         log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = Localizer(config.settings, log=log, implementation=ready_implementation)
@@ -239,7 +239,7 @@ class RigMode(ModeBase):
         from ..runtime.warmup import warm_rig
 
         config = built[0]
-        timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in config.cameras}
+        timing = config.timings
 
         def warm() -> tuple[float, str]:
             tic = time.perf_counter()
