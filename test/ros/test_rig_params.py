@@ -111,6 +111,37 @@ def test_a_cameras_time_offset_reaches_the_rig():
         build_config(*_values({**one, "rig.a.time_offset": "late"}))
 
 
+def test_a_single_camera_is_a_rig_of_one_camera_named_empty():
+    """Without ``rig.cameras`` the configuration holds one camera named "", built as a rig's
+    cameras are: its ``camera_to_base.*`` pose in ``base_frame`` is the mounting a rig camera
+    of the same ``rig.<camera>.mounting`` numbers gets, its timing the ``rs.*`` one a rig
+    camera without its own takes; the camera model of a camera_info is the same. Without
+    ``base_frame`` it has no mounting; a rig camera has no fallback model nor frame id."""
+    from types import SimpleNamespace
+
+    pose = [0.1, -0.2, 0.3, 0.5, -0.5, 0.5, -0.5]
+    timing = {"rs.line_delay": 2e-5, "rs.direction": "left_to_right", "rs.reference_row": 100.0}
+    single = build_config({**default_values(), **timing, "base_frame": "robot",
+                           "camera_frame": "cam", "camera_to_base.translation": pose[:3],
+                           "camera_to_base.rotation": pose[3:]})  # fmt: skip
+    rig = build_config(*_values({**timing, "rig.cameras": ["a"], "rig.a.mounting": pose}))
+    (cam,) = single.cameras
+    assert cam.name == "" and single.camera is cam and single.base_frame == "robot"
+    assert single.settings is None and cam.frame == "cam" and cam.fallback is None
+    (a,) = rig.cameras
+    assert a.name == "a" and a.frame == "" and a.fallback is None
+    assert np.allclose(cam.mount.R, a.mount.R, atol=1e-12)
+    assert np.allclose(cam.mount.position, pose[:3]) and np.allclose(a.mount.position, pose[:3])
+    for k in ("line_delay", "readout_time", "direction", "reference_row"):
+        assert getattr(cam, k) == getattr(a, k), k
+    assert (cam.line_delay, cam.direction, cam.reference_row) == (2e-5, "left_to_right", 100.0)
+    info = SimpleNamespace(k=[500.0, 0, 320, 0, 500, 240, 0, 0, 1], d=[0.0] * 5, width=640,
+                           height=480, distortion_model="plumb_bob")  # fmt: skip
+    m1, m2 = cam.camera_from_info(info), a.camera_from_info(info)
+    assert np.array_equal(m1.K, m2.K) and m1.line_delay == m2.line_delay == 2e-5
+    assert build_config(default_values()).camera.mount is None
+
+
 def test_max_points_is_the_rigs_one_cap():
     """The one ``max_points`` parameter sets the rig's cap on its cameras' image rows
     (``LocalizerSettings.max_points``), 5000 by default; below what a pose needs it is refused."""
