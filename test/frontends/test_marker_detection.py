@@ -261,7 +261,7 @@ def test_node_parameters_reach_the_detector():
         edge_refinement=True,
         small_tags=True,
     )
-    assert cfg.frontend_options["detector_options"] == want
+    assert cfg.camera.frontend_options["detector_options"] == want
     det = load_maps(cfg.camera).frontend.detector
     assert det.backend == ("apriltag" if md.apriltag_binding() else "opencv")
     if det.backend == "apriltag":

@@ -182,7 +182,7 @@ SHAPES = {shapes!r}
 msgs = RosbagsMessages()
 cfg = C.build_config({{**P.default_values(), "camera_info_wait": 0.0, "frontend": "aruco",
                       "frontend_map": "apriltag_board", "tracking.enabled": False}})
-maps = C.load_maps(cfg, owner=object())
+maps = C.load_maps(cfg.camera, owner=object())
 out = {{}}
 rng = np.random.default_rng(1)
 for k, (h, w) in enumerate(SHAPES):

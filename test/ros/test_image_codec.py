@@ -356,7 +356,7 @@ def test_the_camera_node_and_the_rig_node_decode_alike():
         {**P.default_values(), "camera_info_wait": 0.0, "frontend": "aruco",
          "frontend_map": "apriltag_board", "tracking.enabled": False}
     )  # fmt: skip
-    maps = C.load_maps(cfg, owner=object())
+    maps = C.load_maps(cfg.camera, owner=object())
     rng = np.random.default_rng(7)
     vga, k = _camera(640, 480), MIN_IMAGE_SIDE
     rgb = _img((480, 640, 3), seed=4)

@@ -1442,20 +1442,24 @@ def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
     global-shutter warning."""
     from types import SimpleNamespace
 
+    from rs_localizer.ros import config as C
+    from rs_localizer.ros import params as P
     from rs_localizer.ros.node import CameraMode
     from rs_localizer.ros.rig_node import RigMode
 
     over = {"landmarks_file": "lm.csv", "frontend": "aruco", "frontend_map": "m.yaml"}
-    single, config = _rig_config_of({**over, "camera.fx": 600.0}, ("front", "rear"))
+    (config,) = _rig_config_of({**over, "camera.fx": 600.0}, ("front", "rear"))
+    single = C.build_config({**P.default_values(), **over})
     assert config.unused_text
     landmarks = (np.arange(7), np.zeros((7, 3)))
     logs = []
     rig = RigMode.__new__(RigMode)
     rig.node = _fake_node(logs, landmarks=landmarks, map_frame="map",
                           images_of={"front": "x", "rear": "x"})  # fmt: skip
-    rig.cfg, rig.config = single, config
+    rig.cfg = config
     rig.log_ready()
-    timing = f"line delay {single.line_delay * 1e6:.2f} us/line {single.direction}"
+    front = config.camera
+    timing = f"line delay {front.line_delay * 1e6:.2f} us/line {front.direction}"
     assert logs == [
         ("warning", config.unused_text),
         ("info", f"ready: rig of 2 cameras (front {timing}; rear {timing}) posed as "
@@ -1468,7 +1472,7 @@ def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
     cam.pipeline = SimpleNamespace(config=single)
     cam.log_ready()
     assert logs == [
-        ("info", f"ready: solver {single.solver}, line delay {single.line_delay * 1e6:.2f} "
+        ("info", f"ready: solver {single.solver}, line delay {single.camera.line_delay * 1e6:.2f} "
                  f"us/line, intrinsics from camera_info, 7 landmarks from lm.csv, aruco front "
                  f"end on /image (map m.yaml)"),
     ]  # fmt: skip
@@ -1483,10 +1487,10 @@ def test_republish_turned_on_at_run_time_opens_every_camera_s_output_in_both_mod
     opened = []
     for names in (("front", "rear"), ("",)):
         for over, want in (({}, []), ({"frontend": "aruco", "frontend_map": "m.yaml"}, names)):
-            single, _ = _rig_config_of({**over, "republish_correspondences": True})
+            (cfg,) = _rig_config_of({**over, "republish_correspondences": True})
             mode = ModeBase(_fake_node([], inputs=dict.fromkeys(names), queue_size=0,
                                        open_found_output=opened.append))  # fmt: skip
-            mode._settle(single, None)
+            mode._settle(cfg, None)
             assert opened == list(want) and mode.node.republish is True
             assert mode.node.frontend_kind == over.get("frontend", "none")
             opened.clear()

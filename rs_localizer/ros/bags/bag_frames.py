@@ -25,7 +25,7 @@ import numpy as np
 
 from ...camera import CameraModel
 from .. import conversions as cv
-from ..config import LocalizerConfig, build_config
+from ..config import LocalizerConfig, build_config, load_maps, rig_camera_names
 from ..param_files import read_params_file
 from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
 from .bag_io import (
@@ -276,9 +276,19 @@ def rig_bag_config(
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
-            no ``rig.cameras``).
+            no ``rig.cameras``); a front end (``frontend`` not ``none``) for a bag without the
+            cameras' images (``<namespace>/<camera>/image_raw``).
     """
     values, cams = rig_parameter_values(bag, params_files, params)
+    kind = str(values.get("frontend", "none")).strip() or "none"
+    if bag is not None and kind != "none":
+        names = tuple(rig_camera_names(values["rig.cameras"]))
+        wanted = RigTopics(rig_namespace(bag, names), names).of(("image",))
+        if not set(wanted) & set(bag_topics(bag)):
+            raise ConfigError(
+                f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
+                "without a front end (frontend: none) its correspondences are read"
+            )
     given = cams
     if not mountings:
         given = {str(n).strip(): {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
@@ -302,35 +312,22 @@ def is_rig_bag(
     return any(str(n).strip() for n in values["rig.cameras"] or ())
 
 
-def rig_frontends(
-    bag: str | os.PathLike, values: Mapping[str, Any], cfg: LocalizerConfig, owner: object
-) -> dict | None:
-    """Each camera's front end of the parameter ``values`` (``frontend``, ``frontend_map``,
-    ``aruco.*``, ...; one map loaded, a front end object per camera, as the rig node makes
-    them, on behalf of ``owner``: release with
+def rig_frontends(cfg: LocalizerConfig, owner: object) -> dict | None:
+    """Each camera's front end of the rig's configuration ``cfg`` (:func:`rig_bag_config`: its
+    cameras' ``frontend``, ``frontend_map``, ``aruco.*``, ...; one map loaded, a front end
+    object per camera, as the rig node makes them, on behalf of ``owner``: release with
     ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``), camera name -> front end;
     None when ``frontend`` is ``none`` (the bag's correspondences are read instead).
 
     Raises:
-        ~rs_localizer.ros.params.ConfigError: a front end for a bag without the cameras'
-            images (``<namespace>/<camera>/image_raw``), or whose map does not load.
+        ~rs_localizer.ros.params.ConfigError: a front-end map that does not load.
     """
-    from ..config import load_maps
-
-    kind = str(values.get("frontend", "none")).strip() or "none"
-    if kind == "none":
+    if cfg.camera.frontend_kind == "none":
         return None
-    names = tuple(c.name for c in cfg.cameras)
-    wanted = RigTopics(rig_namespace(bag, names), names).of(("image",))
-    if not set(wanted) & set(bag_topics(bag)):
-        raise ConfigError(
-            f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
-            "without a front end (frontend: none) its correspondences are read"
-        )
     return {c.name: load_maps(c, owner=owner).frontend for c in cfg.cameras}
 
 
-def rig_landmarks(values: Mapping[str, Any], cfg: LocalizerConfig, owner: object) -> tuple | None:
+def rig_landmarks(cfg: LocalizerConfig, owner: object) -> tuple | None:
     """The landmarks of the parameter ``landmarks_file`` that the cameras' keypoints name
     (``(ids (M,), points (M, 3) m)``), loaded as the rig node loads them (on behalf of
     ``owner``: release with ``rs_localizer.frontends.shared.SHARED_MAPS.release(owner)``);
@@ -339,9 +336,7 @@ def rig_landmarks(values: Mapping[str, Any], cfg: LocalizerConfig, owner: object
     Raises:
         ~rs_localizer.ros.params.ConfigError: a landmark table that does not load.
     """
-    from ..config import load_maps
-
-    if not str(values.get("landmarks_file", "")).strip():
+    if not str(cfg.camera.landmarks_file).strip():
         return None
     return load_maps(replace(cfg.camera, frontend_kind="none"), owner=owner).landmarks
 
@@ -432,8 +427,8 @@ def read_rig_frames(
 
     owner = object()  # (the front ends' maps, released once read)
     try:
-        frontends = rig_frontends(bag, values, cfg, owner)
-        landmarks = rig_landmarks(values, cfg, owner)
+        frontends = rig_frontends(cfg, owner)
+        landmarks = rig_landmarks(cfg, owner)
         inputs = rig_camera_inputs(cfg, QuietLog(), count, landmarks=landmarks)
         items = list(iter_rig_frames(bag, inputs, frontends))
     finally:

@@ -608,8 +608,8 @@ class _RigReplay(_Run):
         ns = rig_namespace(path, names)
         self.imu_topic = f"{ns}/imu" if cfg.settings.imu is not None else None
         try:
-            frontends = rig_frontends(path, values, cfg, owner=self)
-            self.landmarks = rig_landmarks(values, cfg, owner=self)
+            frontends = rig_frontends(cfg, owner=self)
+            self.landmarks = rig_landmarks(cfg, owner=self)
         except BaseException:
             SHARED_MAPS.release(self)
             raise
