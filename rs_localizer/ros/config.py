@@ -383,13 +383,12 @@ def camera_config(
     """
     timing = _timing(values)
     line_delay, readout_time, direction, reference_row = timing
+    fallback = _fallback_camera(values, timing) if own is None else None
+    _check_timing(timing)
     if own is None:
-        fallback = _fallback_camera(values, timing)
-        _check_timing(timing)
         mount, frame, offset = _mounting(values), values["camera_frame"], 0.0
     else:
-        _check_timing(timing)
-        fallback, frame = None, ""
+        frame = ""
         mount = rig_mounting(name, own.get("mounting"), own.get("mounting_covariance"))
         line_delay, readout_time, direction = _own_timing(name, own, timing)
         offset = _time_offset(name, own)
