@@ -58,9 +58,9 @@ undistorted plane), then:
 ``--reference joint`` measures everything against the recording's joint solution instead of
 TagSLAM's published poses (:func:`~benchmarks.joint_reference.joint_reference`: one bundle
 adjustment of every rig pose, tag pose and mounting from all the corners, started at TagSLAM's
-solution in its gauge; cached in ``--joint-cache``): its tag map, its mountings and its rig
-poses replace TagSLAM's; the output first prints both references' corner fit and how far
-they are apart (:func:`compare_references`).
+solution in its gauge, robust loss at ``--joint-scale`` px; cached in ``--joint-cache``): its
+tag map, its mountings and its rig poses replace TagSLAM's; the output first prints both
+references' corner fit and how far they are apart (:func:`compare_references`).
 
 ``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
 extrinsics of the same rig too (and prints how far the two references are apart).
@@ -84,7 +84,7 @@ errors on them; CPU time per rig frame with tags.
     python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
         [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER] [--time-offsets]
         [--video [--stop-after S] [--max-gap S]] [--reference {tagslam,joint}]
-        [--joint-cache DIR]
+        [--joint-cache DIR] [--joint-scale 2]
 """
 
 from __future__ import annotations
@@ -767,13 +767,20 @@ def main(argv: list[str] | None = None) -> None:
         default=CACHE,
         help="--reference joint: the folder keeping the joint solutions (reruns read them)",
     )
+    ap.add_argument(
+        "--joint-scale",
+        type=float,
+        default=2.0,
+        help="--reference joint: px; the joint bundle adjustment's robust loss scale (soft_l1; "
+        "a large value: plain least squares, TagSLAM's own cost)",
+    )
     a = ap.parse_args(argv)
     if not a.folder.is_dir():
         print(f"{a.folder} absent: nothing to measure")
         return
     rig = load_tagslam(a.folder, a.stamp_tolerance)
     if a.reference == "joint":
-        sol = joint_reference(rig, a.joint_cache)
+        sol = joint_reference(rig, a.joint_cache, a.joint_scale)
         joint = with_reference(rig, sol)
         d = compare_references(rig, joint)
         (m0, p0), (m1, p1) = d["fit"]
