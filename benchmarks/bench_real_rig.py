@@ -543,17 +543,36 @@ def reference_residuals(rig: RealRig) -> np.ndarray:
     return np.concatenate(rows)
 
 
+#: px; a reference misses a camera's corners in a rig frame beyond this (median) in
+#: :func:`compare_references`' count
+MISFIT_PX = 2.0
+
+
+def _camera_misses(rig: RealRig, stamp: float, views: dict) -> list:
+    """Each camera's median corner error (px, the image) at the reference's pose of ``stamp``."""
+    R, C = rig.reference[stamp]
+    out = []
+    for n, (uv, X) in views.items():
+        Rm, cm = rig.mounts[n]
+        out.append(np.median(np.linalg.norm(rig.cameras[n].project((X @ R.T + C) @ Rm.T + cm)
+                                            - uv, axis=1)))  # fmt: skip
+    return out
+
+
 def compare_references(rig: RealRig, other: RealRig) -> dict:
     """Two references of one recording (e.g. TagSLAM's and
     :func:`~benchmarks.joint_reference.with_reference`'s): ``"fit"``: each one's corners'
     error in the image at its own poses (px, :func:`reference_residuals`), ``(median, p90)``
     per reference; ``"poses"``: the rig poses' rotation (deg) and position (mm) differences
     over the stamps both hold, ``(median, max)`` each; ``"mounts"``: camera -> ``(deg, mm)``
-    between the two mountings."""
-    fit = []
+    between the two mountings; ``"misfit"``: per reference, its rig frames with tags in two or
+    more cameras where a camera's corners miss its pose by more than ``MISFIT_PX`` (median)."""
+    fit, misfit = [], []
     for r in (rig, other):
         e = reference_residuals(r)[:, 1]
         fit.append((float(np.median(e)), float(np.percentile(e, 90))))
+        misfit.append(sum(len(v) >= 2 and max(_camera_misses(r, s, v)) > MISFIT_PX
+                          for s, v in r.frames if s in r.reference))  # fmt: skip
     d = np.array([errors(*other.reference[s], rig.reference[s]) for s in rig.reference
                   if s in other.reference]).reshape(-1, 2)  # fmt: skip
     mounts = {}
@@ -562,6 +581,7 @@ def compare_references(rig: RealRig, other: RealRig) -> dict:
         mounts[n] = (rotation_angle_deg(R, R1), 1e3 * float(np.linalg.norm(R.T @ c - R1.T @ c1)))
     return {
         "fit": fit,
+        "misfit": misfit,
         "poses": (tuple(np.median(d, axis=0)), tuple(np.max(d, axis=0))),
         "mounts": mounts,
     }
@@ -788,7 +808,10 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"{rig.name} references, corners' error in the image (px) median, p90: TagSLAM's "
             f"{m0:.3f}, {p0:.3f}; the joint solution's {m1:.3f}, {p1:.3f} ({sol.info['corners']} "
-            f"corners, {sol.info['outliers']} not projected at the start and left out)"
+            f"corners, {sol.info['outliers']} not projected at the start and left out); rig "
+            f"frames with tags in two or more cameras where it misses a camera's corners by "
+            f"more than {MISFIT_PX:g} px (median): TagSLAM's {d['misfit'][0]}, the joint "
+            f"solution's {d['misfit'][1]}"
         )
         print(
             f"  joint vs TagSLAM: rig poses {rm:.4f} deg, {pm:.3f} mm median (max {rx:.4f} deg,"
