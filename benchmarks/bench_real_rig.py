@@ -55,6 +55,13 @@ undistorted plane), then:
    covariance: how many rig poses are within 3 sigma of the reference (rotation and position
    NEES, 3 degrees of freedom each, below the 99.73 % quantile).
 
+``--reference joint`` measures everything against the recording's joint solution instead of
+TagSLAM's published poses (:func:`~benchmarks.joint_reference.joint_reference`: one bundle
+adjustment of every rig pose, tag pose and mounting from all the corners, started at TagSLAM's
+solution in its gauge, robust loss at ``--joint-scale`` px; cached in ``--joint-cache``): its
+tag map, its mountings and its rig poses replace TagSLAM's; the output first prints both
+references' corner fit and how far they are apart (:func:`compare_references`).
+
 ``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
 extrinsics of the same rig too (and prints how far the two references are apart).
 ``--time-offsets`` calibrates each camera's time offset with its mounting (``calibrate-rig
@@ -76,7 +83,8 @@ errors on them; CPU time per rig frame with tags.
 
     python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
         [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER] [--time-offsets]
-        [--video [--stop-after S] [--max-gap S]]
+        [--video [--stop-after S] [--max-gap S]] [--reference {tagslam,joint}]
+        [--joint-cache DIR] [--joint-scale 2]
 """
 
 from __future__ import annotations
@@ -91,6 +99,7 @@ import cv2
 import numpy as np
 from scipy.stats import chi2
 
+from benchmarks.joint_reference import CACHE, joint_reference, with_reference
 from benchmarks.tagslam_data import FOLDER, RealRig, errors, extrinsics, load_tagslam
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
@@ -111,6 +120,7 @@ __all__ = [
     "calibrate_estimates",
     "calibrated_rig_run",
     "camera_alone",
+    "compare_references",
     "msac_cost",
     "reference_residuals",
     "rig_run",
@@ -533,6 +543,50 @@ def reference_residuals(rig: RealRig) -> np.ndarray:
     return np.concatenate(rows)
 
 
+#: px; a reference misses a camera's corners in a rig frame beyond this (median) in
+#: :func:`compare_references`' count
+MISFIT_PX = 2.0
+
+
+def _camera_misses(rig: RealRig, stamp: float, views: dict) -> list:
+    """Each camera's median corner error (px, the image) at the reference's pose of ``stamp``."""
+    R, C = rig.reference[stamp]
+    out = []
+    for n, (uv, X) in views.items():
+        Rm, cm = rig.mounts[n]
+        out.append(np.median(np.linalg.norm(rig.cameras[n].project((X @ R.T + C) @ Rm.T + cm)
+                                            - uv, axis=1)))  # fmt: skip
+    return out
+
+
+def compare_references(rig: RealRig, other: RealRig) -> dict:
+    """Two references of one recording (e.g. TagSLAM's and
+    :func:`~benchmarks.joint_reference.with_reference`'s): ``"fit"``: each one's corners'
+    error in the image at its own poses (px, :func:`reference_residuals`), ``(median, p90)``
+    per reference; ``"poses"``: the rig poses' rotation (deg) and position (mm) differences
+    over the stamps both hold, ``(median, max)`` each; ``"mounts"``: camera -> ``(deg, mm)``
+    between the two mountings; ``"misfit"``: per reference, its rig frames with tags in two or
+    more cameras where a camera's corners miss its pose by more than ``MISFIT_PX`` (median)."""
+    fit, misfit = [], []
+    for r in (rig, other):
+        e = reference_residuals(r)[:, 1]
+        fit.append((float(np.median(e)), float(np.percentile(e, 90))))
+        misfit.append(sum(len(v) >= 2 and max(_camera_misses(r, s, v)) > MISFIT_PX
+                          for s, v in r.frames if s in r.reference))  # fmt: skip
+    d = np.array([errors(*other.reference[s], rig.reference[s]) for s in rig.reference
+                  if s in other.reference]).reshape(-1, 2)  # fmt: skip
+    mounts = {}
+    for n, (R, c) in rig.mounts.items():
+        R1, c1 = other.mounts[n]
+        mounts[n] = (rotation_angle_deg(R, R1), 1e3 * float(np.linalg.norm(R.T @ c - R1.T @ c1)))
+    return {
+        "fit": fit,
+        "misfit": misfit,
+        "poses": (tuple(np.median(d, axis=0)), tuple(np.max(d, axis=0))),
+        "mounts": mounts,
+    }
+
+
 def _stats(e: np.ndarray) -> str:
     return f"{np.median(e):7.3f} {np.percentile(e, 90):7.3f}"
 
@@ -720,11 +774,52 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="--video: the tracking's max_gap s (default its default)",
     )
+    ap.add_argument(
+        "--reference",
+        choices=("tagslam", "joint"),
+        default="tagslam",
+        help="what to measure against: TagSLAM's published solution, or the joint bundle "
+        "adjustment of the recording (benchmarks.joint_reference) started at it",
+    )
+    ap.add_argument(
+        "--joint-cache",
+        type=Path,
+        default=CACHE,
+        help="--reference joint: the folder keeping the joint solutions (reruns read them)",
+    )
+    ap.add_argument(
+        "--joint-scale",
+        type=float,
+        default=2.0,
+        help="--reference joint: px; the joint bundle adjustment's robust loss scale (soft_l1; "
+        "a large value: plain least squares, TagSLAM's own cost)",
+    )
     a = ap.parse_args(argv)
     if not a.folder.is_dir():
         print(f"{a.folder} absent: nothing to measure")
         return
     rig = load_tagslam(a.folder, a.stamp_tolerance)
+    if a.reference == "joint":
+        sol = joint_reference(rig, a.joint_cache, a.joint_scale)
+        joint = with_reference(rig, sol)
+        d = compare_references(rig, joint)
+        (m0, p0), (m1, p1) = d["fit"]
+        (rm, pm), (rx, px) = d["poses"]
+        print(
+            f"{rig.name} references, corners' error in the image (px) median, p90: TagSLAM's "
+            f"{m0:.3f}, {p0:.3f}; the joint solution's {m1:.3f}, {p1:.3f} ({sol.info['corners']} "
+            f"corners, {sol.info['outliers']} not projected at the start and left out); rig "
+            f"frames with tags in two or more cameras where it misses a camera's corners by "
+            f"more than {MISFIT_PX:g} px (median): TagSLAM's {d['misfit'][0]}, the joint "
+            f"solution's {d['misfit'][1]}"
+        )
+        print(
+            f"  joint vs TagSLAM: rig poses {rm:.4f} deg, {pm:.3f} mm median (max {rx:.4f} deg,"
+            f" {px:.3f} mm); mountings "
+            + ", ".join(f"{n} {r:.4f} deg {t:.3f} mm" for n, (r, t) in d["mounts"].items())
+        )
+        print("  measured below against the joint solution (its tag map, mountings, rig poses)")
+        rig = joint
     n_cams = len(rig.cameras)
     share = "two or more cameras" if n_cams > 2 else "both cameras"
     how = (

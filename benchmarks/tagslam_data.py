@@ -101,14 +101,21 @@ class RealRig:
             stamp, else the tolerance the stamps were grouped with.
         messages: ``(stamp s, camera name, rig frame stamp s)`` of every detection message of
             the cameras (with tags or none), in stamp order: a camera's video.
+        tags: tag id -> ``(R (3, 3), p (3,) m, side m)``: the reference's tag pose
+            ``x_map = R x_tag + p`` and its side (its corners: ``tag_corners(side) @ R.T + p``).
+        tag_ids: stamp -> ``{name: (N // 4,) tag ids}``: the tag of each block of 4 rows of
+            that rig frame's view in :attr:`frames`.
+        anchors: the ids of the tags ``tagslam.yaml`` gives a pose (TagSLAM's gauge).
     """
 
     def __init__(self, cameras, mounts, frames, reference, name="", stamps_shared=(0, 0, 0),
-                 tolerance=0.0, messages=()):  # fmt: skip
+                 tolerance=0.0, messages=(), tags=None, tag_ids=None, anchors=()):  # fmt: skip
         self.cameras, self.mounts, self.frames, self.reference = cameras, mounts, frames, reference
         self.mountings = {n: Mounting(*m) for n, m in mounts.items()}
         self.name, self.stamps_shared, self.tolerance = name, stamps_shared, tolerance
         self.messages = list(messages)
+        self.tags, self.tag_ids = tags or {}, tag_ids or {}
+        self.anchors = frozenset(anchors)
 
 
 def _pose(t: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -201,12 +208,13 @@ def _cameras(folder: Path) -> tuple[dict, dict]:
     return cams, topics
 
 
-def _tag_sizes(folder: Path) -> tuple[dict, dict]:
-    """``tagslam.yaml`` -> (tag id -> its own size, body -> its tags' default size) (m)."""
+def _tag_sizes(folder: Path) -> tuple[dict, dict, set]:
+    """``tagslam.yaml`` -> (tag id -> its own size, body -> its tags' default size (m), the
+    ids of the tags given a pose)."""
     import yaml
 
     cfg = yaml.safe_load((folder / "tagslam.yaml").read_text())
-    own, default = {}, {}
+    own, default, anchors = {}, {}, set()
     for entry in cfg.get("bodies", []):
         for body, b in entry.items():
             size = b.get("default_tag_size", (b.get("board") or {}).get("tag_size"))
@@ -215,7 +223,9 @@ def _tag_sizes(folder: Path) -> tuple[dict, dict]:
             for t in b.get("tags") or []:
                 if "size" in t:
                     own[int(t["id"])] = float(t["size"])
-    return own, default
+                if "pose" in t:
+                    anchors.add(int(t["id"]))
+    return own, default, anchors
 
 
 def _in_map(tf: list) -> dict:
@@ -255,9 +265,9 @@ def load_tagslam(folder: Path = FOLDER, tolerance: float | None = None) -> RealR
     """
     cameras, topics = _cameras(folder)
     det, odo, tf = read_records(folder)
-    own, default = _tag_sizes(folder)
+    own, default, anchors = _tag_sizes(folder)
     in_map = _in_map(tf)
-    tags, mounts = {}, {}
+    tags, mounts, poses = {}, {}, {}
     for t in tf:
         c = t["child"]
         if c.startswith("tag_") and c[4:].isdigit():
@@ -267,6 +277,7 @@ def load_tagslam(folder: Path = FOLDER, tolerance: float | None = None) -> RealR
                 raise KeyError(f"{folder}: tag {i} (on {t['parent']}) has no size")
             R, p = in_map[c]  # tag -> map
             tags[i] = tag_corners(side) @ R.T + p
+            poses[i] = (R, p, side)
         elif t["parent"] == "rig" and c in cameras:
             R, p = _pose(t)  # camera -> rig
             mounts[c] = (R.T, -R.T @ p)
@@ -311,18 +322,21 @@ def load_tagslam(folder: Path = FOLDER, tolerance: float | None = None) -> RealR
             for s in ss:
                 groups[s] = with_ref[0] if with_ref else g
     by_stamp: dict = defaultdict(dict)
+    ids: dict = defaultdict(dict)
     for m in msgs:
         known = [t for t in m["tags"] if t["id"] in tags]
         if not known:
             continue
         uv = np.concatenate([np.asarray(t["corners"], dtype=float) for t in known])
         X = np.concatenate([tags[t["id"]] for t in known])
-        by_stamp[groups[round(m["stamp"], 6)]][topics[m["topic"]]] = (uv, X)
+        g = groups[round(m["stamp"], 6)]
+        by_stamp[g][topics[m["topic"]]] = (uv, X)
+        ids[g][topics[m["topic"]]] = np.array([t["id"] for t in known])
     frames = sorted(by_stamp.items())
     messages = sorted((round(m["stamp"], 6), topics[m["topic"]], groups[round(m["stamp"], 6)])
                       for m in msgs)  # fmt: skip
     return RealRig(cameras, mounts, frames, reference, folder.name, (*shared, near), tolerance,
-                   messages)  # fmt: skip
+                   messages, poses, dict(ids), anchors)  # fmt: skip
 
 
 def load_test2(folder: Path = FOLDER) -> RealRig:
