@@ -140,7 +140,7 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .estimate import FewPointsPose, estimate_rs_pose, few_points_pose
+from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
@@ -193,9 +193,6 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     built_estimate,
-    output_covariance,
-    rig_model_jacobian,
-    rig_model_of_camera,
 )
 from .rig_batch import (
     best_msac,
@@ -208,7 +205,7 @@ from .rig_batch import (
 )
 from .sampling import draw_samples_numpy, valid_rows
 from .scoring import exact_errors2_numpy
-from .single_tag import MIN_PLANAR_POINTS, posed_planarity
+from .single_tag import posed_planarity
 from .view import View
 
 __all__ = [
@@ -1212,79 +1209,31 @@ def _one_camera_alone(
     views: Sequence[View], pool: _Pool, options: EstimateOptions, initial_model, gyro
 ) -> RSPoseEstimate | None:
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
-    than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed as that camera alone
-    poses them
-    (:func:`~.estimate.estimate_rs_pose`'s few-points path,
-    :func:`~.single_tag.few_points_estimate`: one marker's corners or a few on more than one
-    plane, the velocities held at the rig's prediction or gyro mapped into the camera; the
-    fields taken of that estimate alone, :func:`~.estimate.few_points_pose`, without a gyro) and
-    mapped to the rig through the camera's mounting (:func:`rig_model_of_camera`, the
-    covariance to first order); None for any other rig frame (or on the NumPy
-    implementation, which has no few-points path) or a camera whose points that path does
-    not take."""
+    than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed by that camera's
+    estimator given its view (:func:`~.estimate.estimate_rs_pose` with ``view``: its
+    few-points path, :func:`~.single_tag.few_points_estimate`, one marker's corners or a few
+    on more than one plane, the velocities held at the rig's prediction or gyro; the estimate
+    the rig's, :func:`~.result.body_estimate`), as one of the rig frame's views
+    (:func:`_restored`); None for any other rig frame (or on the NumPy implementation, which
+    has no few-points path) or a camera whose points that path does not take."""
     counts = pool.counts()
     with_points = [c for c, n in enumerate(counts) if n]
     # (fewer than the rig solver's sample and one more, or the options' min_inliers)
     need = max(options.ransac.min_inliers, 7)
     if pool.numpy or len(with_points) != 1 or len(pool.cam) >= need:
         return None
-    if len(pool.cam) < MIN_PLANAR_POINTS:  # (too few for any pose: posed_planarity's rule)
-        return None
     c = with_points[0]
-    v, s = views[c], pool.slices[c]
-    spr = camera_values(v.camera).spr
-    start = None
-    if initial_model is not None:
-        im = (
-            initial_model
-            if isinstance(initial_model, InitialModel)
-            else InitialModel(initial_model)
-        )
-        start = replace(im, model=v.camera_model(im.model))
-    est = None
-    if gyro is None or v.camera.line_delay <= 0:  # (a global shutter's estimate ignores a gyro)
-        # (the pool's undistorted points and pixel Jacobians of every row: the frame's;
-        # an equidistant camera's Jacobian is computed again, with NumPy's arctangent)
-        seen = None
-        if pool.all_valid:
-            A = None if v.camera.distortion_model == "equidistant" else pool.A[s]
-            seen = (pool.x[s], A)
-        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen)
-    if est is None:
-        if posed_planarity(pool.X[s]) is None:  # (single_tag.few_points's rule)
-            return None
-        cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
-        est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
-                               gyro=cam_gyro)  # fmt: skip
-    if not est.success:
-        return _rig_estimate(pool, failure=est.failure)
-    model = rig_model_of_camera(est.model, v.mounting, v.stamp_offset, spr)
-    R, C, w, _ = model
-    cov = out = None
-    if est.model_covariance is not None:
-        J = rig_model_jacobian(est.model, v.mounting, v.stamp_offset, spr)
-        cov = J @ est.model_covariance @ J.T
-        out = output_covariance(cov, R, C, w, 1.0)
-    inl = np.zeros(len(pool.cam), dtype=bool)
-    inl[s] = np.asarray(est.inliers, dtype=bool)[pool.row[s]]
-    return _rig_estimate(
-        pool,
-        model,
-        inl,
-        (None, None, None) if out is None else (out[0], out[1], None),
-        True,  # (rig_model_of_camera's new arrays)
-        failure=None,
-        ransac_iterations=0,
-        model_covariance=cov,
-        few_points=True,
-        **{k: getattr(est, k) for k in _CAMERA_FIELDS},
-    )
-
-
-#: the fields of a camera's estimate a rig frame posed by that camera alone takes as they are
-#: (:func:`_one_camera_alone`): :class:`~.estimate.FewPointsPose`'s record, after its model,
-#: covariance and inliers (which the rig's mounting maps)
-_CAMERA_FIELDS = FewPointsPose._fields[FewPointsPose._fields.index("rmse_px") :]
+    if posed_planarity(pool.X[pool.slices[c]]) is None:  # (single_tag.few_points's rule)
+        return None
+    im = initial_model
+    if im is not None and not isinstance(im, InitialModel):
+        im = InitialModel(im)
+    v = views[c]
+    est = estimate_rs_pose(
+        v.uv, v.X, v.camera, options=options, initial_model=im, gyro=gyro,
+        implementation=COMPILED, view=v,
+    )  # fmt: skip
+    return _restored(est, pool, c)
 
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
@@ -1617,16 +1566,26 @@ def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimat
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: _Pool) -> RSPoseEstimate:
-    """An estimate on views some of whose points were removed (:func:`_only`) as one of the
-    full views ``pool``: their valid point counts, and no inlier among the removed points."""
+def _restored(est: RSPoseEstimate, pool: _Pool, view: int | None = None) -> RSPoseEstimate:
+    """An estimate on views some of whose points were removed (:func:`_only`), or of the one
+    view ``view`` of them (a camera's own estimate, its one view's per-view fields), as one of
+    the full views ``pool``: their valid point counts, and no inlier among the removed points
+    or in the other views."""
+    own = est.inliers_per_view
+    if view is not None:
+        own = tuple(
+            own[0] if c == view else np.zeros(0, dtype=bool) for c in range(len(pool.sizes))
+        )
     per = tuple(
-        m if len(m) == n else np.zeros(n, dtype=bool)
-        for m, n in zip(est.inliers_per_view, pool.sizes, strict=True)
+        m if len(m) == n else np.zeros(n, dtype=bool) for m, n in zip(own, pool.sizes, strict=True)
     )
+    counts = est.num_inliers_per_view
+    if view is not None:
+        counts = tuple(int(np.count_nonzero(m)) for m in per)
     return replace(
         est, inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
+        num_inliers_per_view=counts, num_valid=len(pool.cam),
+        num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
     )  # fmt: skip
 
 

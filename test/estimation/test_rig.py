@@ -1110,6 +1110,10 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
     assert est.motion_model == "global_shutter" and est.twist_covariance is None
     alone = estimate_rs_pose(uv, X, cams[1], options=_opts(min_inliers=8))
     assert alone.success and alone.single_tag
+    # (the camera's estimator posed it: its record of the fit is the camera's own)
+    assert est.planarity == alone.planarity and est.condition_number == alone.condition_number
+    assert est.rmse_px == alone.rmse_px and est.solver == alone.solver
+    np.testing.assert_array_equal(est.inliers_per_view[1], alone.inliers)
     base = camera_to_base(alone, Mounting(R_m[1], c_m[1]))
     assert rotation_angle_deg(est.pose.orientation, base.pose.orientation) < 1e-9
     np.testing.assert_allclose(est.pose.position, base.pose.position, atol=1e-12)
