@@ -100,7 +100,14 @@ _KEEP = 4
 _SAMPLE_ITERATIONS = 5
 
 
-def errors2(fr: Frame | Any, R, C, w, t, m: int | None = None) -> np.ndarray:
+def errors2(
+    fr: Frame | Any,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    m: int | None = None,
+) -> np.ndarray:
     """(H, n) squared reprojection errors of H models (R (H, 3, 3); C, w, t (H, 3)) at the
     first ``m`` points (default all) at their measured capture times ``fr.tau``, exact model
     (paper eq. 4; :func:`~.scoring.exact_errors2_numpy`); ``inf`` behind the camera. A

@@ -178,7 +178,8 @@ class RSPoseEstimate(PoseWithCovariance):
             ``ambiguous_tag`` (a frame of a few coplanar points, too few for the solver, e.g.
             one marker's four corners, whose two plane poses fit them alike and no prediction
             tells apart: :mod:`.single_tag`).
-        solver: solver name used (a rig's: ``gr6p_1lin``, whatever its ``motion_model``).
+        solver: solver name used (a rig's: ``gr6p_1lin``, whatever its ``motion_model``; a
+            rig frame posed by one camera's few points alone: that camera's estimator's).
         model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
             ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
             (3,) model velocities per unit RS coordinate (rad, m per normalized unit); a rig's:

@@ -229,7 +229,8 @@ __all__ = [
 ]
 
 #: ``RSPoseEstimate.solver`` of a rig's estimate: the rig solver that poses it (on the
-#: global-shutter model too, where it corrects the P3P samples with the velocities held at 0)
+#: global-shutter model too, where it corrects the P3P samples with the velocities held at 0;
+#: a rig frame of one camera's few points records that camera's, :func:`_one_camera_alone`)
 RIG_SOLVER = "gr6p_1lin"
 
 #: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
