@@ -211,11 +211,11 @@ def estimate_rs_pose(
     Raises:
         ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
             without it, arrays that are not (N, 2) / (N, 3) / (N,), or a ``view`` whose camera
-            is not ``camera``.
+            is not ``camera`` or without a mounting.
     """
     if view is not None:
-        if view.camera is not camera:
-            raise ValueError("estimate_rs_pose: view.camera is not the camera given")
+        if view.camera is not camera or view.mounting is None:
+            raise ValueError("estimate_rs_pose: a view must have the camera given and a mounting")
         if initial_model is not None:
             initial_model = replace(initial_model, model=view.camera_model(initial_model.model))
         if gyro is not None:

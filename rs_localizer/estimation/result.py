@@ -26,6 +26,7 @@ from ..pose import (
     model_twist,
     model_twist_jacobian,
 )
+from .implementation import NUMPY
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
@@ -650,7 +651,7 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
     """
     if not est.success:
         return est
-    compiled = est.implementation != "numpy"
+    compiled = est.implementation != NUMPY
     m, s, spr = view.mounting, view.stamp_offset, view.camera.seconds_per_unit_r
     model = rig_model_of_camera(est.model, m, s, spr)
     R, C, w, _ = model

@@ -4,8 +4,11 @@ estimate's fields, the inlier threshold on a tag whose corners fit a square only
 Ground truth: rendered corners. (Against OpenCV's IPPE and a real tag:
 test/benchmarks/test_bench_single_tag.py.)"""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
+import pytest
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import (
@@ -486,6 +489,9 @@ def test_a_mounted_views_estimate_is_the_bodys():
             body_im = InitialModel((R1, Rm.T @ (Ck - mount.c) - offset * t, w, t))
         view = View(uv, X, cam, mount, offset)
         est = estimate_rs_pose(uv, X, cam, initial_model=body_im, view=view)
+        for wrong in (replace(view, camera=gs if cam is rs else rs), replace(view, mounting=None)):
+            with pytest.raises(ValueError, match="a view must have"):
+                estimate_rs_pose(uv, X, cam, view=wrong)
         assert (est.success, est.failure) == (own.success, own.failure)
         outcomes.add(est.failure or est.motion_model)
         np.testing.assert_array_equal(est.inliers, own.inliers)
