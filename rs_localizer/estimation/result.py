@@ -10,7 +10,7 @@ between a camera's model and the model of the body (a rig) it is mounted on
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -331,6 +331,17 @@ class RSPoseEstimate(PoseWithCovariance):
         Raises:
             TypeError: a name that is no field, or no ``success``."""
         return frozen_instance(cls, values)
+
+    def _replaced(self, **changes) -> RSPoseEstimate:
+        """This estimate with the fields ``changes`` (by name) replaced: what
+        ``dataclasses.replace`` returns, built as :meth:`_trusted` builds an estimate (no
+        copies, no checks; an estimate per rig frame of one camera's points)."""
+        d = self.__dict__
+        return frozen_instance(type(self), {n: d[n] for n in _FIELD_NAMES} | changes)
+
+
+#: the names of :class:`RSPoseEstimate`'s fields (:meth:`RSPoseEstimate._replaced`)
+_FIELD_NAMES = tuple(f.name for f in fields(RSPoseEstimate) if f.init)
 
 
 def built_estimate(
@@ -660,8 +671,7 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
         J = rig_model_jacobian(est.model, m, s, spr)
         cov = J @ est.model_covariance @ J.T
         out = output_covariance(cov, R, C, w, 1.0, compiled)
-    return replace(
-        est,
+    return est._replaced(
         model=model,
         pose=RSPose.from_model(model, 1.0, compiled=compiled),
         model_covariance=cov,

@@ -1549,8 +1549,8 @@ def _restored(est: RSPoseEstimate, pool: _Pool, view: int | None = None) -> RSPo
     counts = est.num_inliers_per_view
     if view is not None:
         counts = tuple(int(np.count_nonzero(m)) for m in per)
-    return replace(
-        est, inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
+    return est._replaced(
+        inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
         num_inliers_per_view=counts, num_valid=len(pool.cam),
         num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
     )  # fmt: skip
