@@ -27,19 +27,16 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..camera import CameraModel
-from ..pose import RSModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import (
-    GLOBAL_SHUTTER,
     STILL_FALLBACK,
     ImageAlone,
-    checked_final,
     final_estimate,
     image_alone,
     prior_at_rest,
@@ -48,7 +45,7 @@ from .finalize import (
     still_final,
     unobserved_twist,
 )
-from .frame import configure_frame, prepare_frame, undistorted_frame
+from .frame import configure_frame, prepare_frame
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -74,22 +71,23 @@ from .result import (
     DEGENERATE_GEOMETRY,
     EstimationFailed,
     RSPoseEstimate,
+    body_estimate,
     built_estimate,
     physical_velocities,
 )
 from .single_tag import (
     MIN_PLANAR_POINTS,
-    PREDICTED_MOTION,
     few_points_estimate,
-    few_points_model,
     few_points_planarity,
 )
+
+if TYPE_CHECKING:
+    from .view import View
 
 __all__ = [
     "SOLVERS",
     "CorrelatedNoise",
     "EstimateOptions",
-    "FewPointsPose",
     "GyroMeasurement",
     "InitialModel",
     "LocalOptimizationOptions",
@@ -99,7 +97,6 @@ __all__ = [
     "RansacOptions",
     "RefineOptions",
     "estimate_rs_pose",
-    "few_points_pose",
     "physical_velocities",
     "points_needed",
     "sample_size",
@@ -125,6 +122,7 @@ def estimate_rs_pose(
     gyro: GyroMeasurement | None = None,
     point_sigma: np.ndarray | None = None,
     implementation: str | None = None,
+    view: View | None = None,
 ) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
@@ -186,6 +184,15 @@ def estimate_rs_pose(
             unless numba is unusable here or ``RS_LOCALIZER_COMPILED=0``). A process whose
             kernels compile in the background asks
             :func:`rs_localizer.runtime.warmup.ready_implementation` which one is ready.
+        view: the :class:`~rs_localizer.estimation.view.View` whose points these are
+            (``points2d``, ``points3d`` and ``camera`` its own) when its camera is mounted
+            on a body, e.g. a rig frame of one camera with points: the estimate is then the
+            body's (:func:`~.result.body_estimate` at the view's mounting and stamp offset:
+            ``model`` per second in the body's frame, the pose and covariances of it, the
+            view's inliers and per-view fields), and ``initial_model`` (its model the
+            body's) and ``gyro`` (the body's angular velocity in its frame) are given in the
+            body's terms (:meth:`~rs_localizer.estimation.view.View.camera_model`, the gyro
+            turned by the mounting's rotation). None: the camera's own estimate.
 
     A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones
     or :data:`~.single_tag.MIN_SPREAD_POINTS` or more on more than one plane, or exactly four
@@ -203,9 +210,17 @@ def estimate_rs_pose(
         validation are counted in ``num_dropped``.
     Raises:
         ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
-            without it, or arrays that are not (N, 2) / (N, 3) / (N,).
+            without it, arrays that are not (N, 2) / (N, 3) / (N,), or a ``view`` whose camera
+            is not ``camera`` or without a mounting.
     """
-    return _estimate_rs_pose(
+    if view is not None:
+        if view.camera is not camera or view.mounting is None:
+            raise ValueError("estimate_rs_pose: a view must have the camera given and a mounting")
+        if initial_model is not None:
+            initial_model = replace(initial_model, model=view.camera_model(initial_model.model))
+        if gyro is not None:
+            gyro = gyro.rotated(view.mounting.R)
+    est = _estimate_rs_pose(
         points2d,
         points3d,
         camera,
@@ -218,6 +233,7 @@ def estimate_rs_pose(
         implementation,
         solver,
     )
+    return est if view is None else body_estimate(est, view)
 
 
 def _estimate_rs_pose(
@@ -536,89 +552,3 @@ def _configure_few_points(fr, camera: CameraModel, opts: EstimateOptions, flat: 
         opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
     )
     fr.planar = bool(len(fr.x) >= MIN_PLANAR_POINTS and flat < PLANAR_TOLERANCE)
-
-
-class FewPointsPose(NamedTuple):
-    """The fields of :func:`estimate_rs_pose`'s estimate of a frame of a few points that a
-    rig frame posed by that camera alone takes (:func:`few_points_pose`), the same values;
-    ``model``, ``model_covariance`` and ``inliers`` None on a failure."""
-
-    success: bool
-    failure: str | None
-    model: RSModel | None = None
-    model_covariance: np.ndarray | None = None
-    inliers: np.ndarray | None = None
-    rmse_px: float = float("nan")
-    num_behind: int = 0
-    motion_model: str = GLOBAL_SHUTTER
-    initial_explained: int = -1
-    initial_used: bool = False
-    gyro_used: bool = False
-    planar: bool = False
-    single_tag: bool = False
-
-
-def few_points_pose(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    options: EstimateOptions | None = None,
-    initial_model: InitialModel | None = None,
-    solver: str = "r6p_1lin",
-    *,
-    undistorted: tuple | None = None,
-) -> FewPointsPose | None:
-    """:func:`estimate_rs_pose`'s estimate of the frame (its arguments as there, without a
-    gyro, the default implementation) when it poses it from a few points
-    (:func:`~.single_tag.few_points_estimate`), without the outputs derived from the model
-    (pose, velocities, covariances in ROS order, condition number): a
-    :class:`FewPointsPose` of the estimate's own values, or of its failure; None when the
-    estimator would not take its few-points path (too many points for ``solver``, points it
-    does not pose, the NumPy implementation), nor compute anything of that estimate.
-
-    A caller that has undistorted the points already (a rig frame's camera, :mod:`~.rig`)
-    passes what it has, and the estimate is the same: ``undistorted``: ``(x (N, 2), A (N, 4)
-    or None)``, every row's undistorted normalized point and pixel Jacobian
-    (:func:`~.frame.undistorted_frame`; a row it cannot take: the frame is prepared as
-    without it).
-
-    Raises:
-        ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
-    """
-    if camera.line_delay <= 0 and solver_info(solver).rolling:
-        solver = GS_SOLVER  # (a global shutter: :func:`_estimate_rs_pose`)
-    if resolve_implementation(None, solver) != COMPILED:
-        return None
-    opts = options or EstimateOptions()
-    max_norm, rng = opts.plausibility.max_point_norm, SeededShuffle(opts.ransac.seed)
-    fr = None
-    if undistorted is not None:
-        fr = undistorted_frame(points2d, points3d, *undistorted, camera, max_norm, rng)
-    if fr is None:
-        fr = prepare_frame(points2d, points3d, camera, max_norm, rng)
-    flat = few_points_planarity(fr, points_needed(solver, opts))
-    if flat is None:
-        return None
-    try:
-        _configure_few_points(fr, camera, opts, flat)
-        fit = few_points_model(fr, opts, initial_model)
-        n_behind = checked_final(fr, fit.final)
-    except EstimationFailed as failure:
-        return FewPointsPose(False, failure.reason)
-    final = fit.final
-    inliers = np.zeros(fr.num_rows, dtype=bool)
-    inliers[fr.rows] = True  # (every point: :func:`~.single_tag.few_points_model`)
-    return FewPointsPose(
-        True,
-        None,
-        final.model,
-        final.covariance,
-        inliers,
-        final.rmse_px,
-        n_behind,
-        PREDICTED_MOTION if fit.moving else GLOBAL_SHUTTER,
-        *fit.initial,
-        False,
-        bool(flat < PLANAR_TOLERANCE),
-        fr.planar,
-    )

@@ -8,7 +8,6 @@ from __future__ import annotations
 from typing import NamedTuple, Protocol
 
 import numpy as np
-from numba import njit
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..pose import RSModel
@@ -42,7 +41,6 @@ __all__ = [
     "kernel_ready",
     "normalized_rows",
     "prepare_frame",
-    "undistorted_frame",
     "valid_correspondences",
     "varying_pixel_jacobian",
 ]
@@ -351,82 +349,6 @@ def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
     return np.isfinite(x.sum(axis=1) + r)
 
 
-def undistorted_frame(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    undistorted: np.ndarray,
-    jacobians: np.ndarray | None,
-    camera: CameraModel,
-    max_point_norm: float,
-    rng: np.random.Generator | None = None,
-) -> Frame | None:
-    """:func:`prepare_frame`'s frame (compiled) of correspondences already undistorted: the
-    same frame, the same values, without undistorting them again (a rig frame's camera,
-    :mod:`~.rig`).
-
-    Args:
-        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
-        undistorted: (N, 2) every row's undistorted normalized point
-            (:meth:`~rs_localizer.camera.CameraModel.undistort`, compiled; each point's own).
-        jacobians: (N, 4) every row's row-major pixel Jacobian as
-            :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian_exact` gives it at that
-            point (None: computed here, when the camera's varies,
-            :func:`varying_pixel_jacobian`).
-        camera, max_point_norm (m), rng: as :func:`prepare_frame`'s.
-    Returns:
-        the :class:`Frame`, or None when :func:`prepare_frame` would leave a row out (a
-        non-finite pixel, point or undistorted point, a point beyond ``max_point_norm``).
-    """
-    u = np.asarray(points2d, dtype=np.float64)
-    X = np.asarray(points3d, dtype=np.float64)
-    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
-        return None
-    if len(undistorted) != len(u) or not valid_rows(u, X, max_point_norm).all():
-        return None
-    rows = np.arange(len(u))  # (np.flatnonzero of every row)
-    if rng is not None:
-        rows = rng.permutation(rows)
-    r0, focal, varying, d, _, _ = camera_values(camera)
-    J = jacobians if varying else None  # (a camera whose Jacobian does not vary: no W)
-    arrays = (u, X, undistorted) if J is None else (u, X, undistorted, J)
-    if rows.dtype == np.int64 and all(kernel_ready(a) for a in arrays):
-        # (the rows taken, checked and their RS coordinates in one compiled call: the same
-        # formulas, the same values)
-        axis, sign, _ = READOUT_DIRECTIONS[camera.readout]
-        K = camera.K
-        code, x, u_px, Xr, r, r0e, W = _undistorted_rows(
-            u, X, undistorted, _NO_JACOBIANS if J is None else J, rows,
-            float(K[axis, axis]), float(K[axis, 2]), axis, float(sign), float(d[0]),
-            float(d[1]), float(r0), float(focal),
-        )  # fmt: skip
-        if code == _NOT_FINITE:
-            return None
-        if code == _TAKEN:
-            fr = Frame(x, Xr, r, r0e, r0, np.array(d), focal)
-            fr.rows, fr.num_rows, fr.u_px = rows, len(u), u_px
-            if varying:
-                if J is None:
-                    W = np.ascontiguousarray(camera.pixel_jacobian_exact(x).reshape(-1, 4) / focal)
-                fr.W = W
-            return fr
-    x = undistorted.take(rows, axis=0)
-    if not np.isfinite(x).all():
-        return None
-    u_px = u.take(rows, axis=0)
-    # (CameraModel.normalize's r and r0e in NumPy: the same values as its compiled ones)
-    r, r0e = camera.rs_coordinates(u_px, x, compiled=False)
-    J = None if jacobians is None else jacobians.take(rows, axis=0)
-    return _frame(u, X, rows, u_px, x, r, r0e, camera, True, J)
-
-
-#: :func:`_undistorted_rows`' outcomes: a row's undistorted point not finite (no frame), the
-#: frame's rows taken, a row's RS coordinate not finite (:func:`_frame` leaves it out)
-_NOT_FINITE, _TAKEN, _LEFT_OUT = 0, 1, 2
-
-#: no pixel Jacobians (:func:`_undistorted_rows`)
-_NO_JACOBIANS = np.zeros((0, 4))
-
-
 def kernel_ready(a: np.ndarray) -> bool:
     """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
     small kernels of a frame's preparation (:func:`_undistorted_rows`, the rig's view
@@ -434,44 +356,6 @@ def kernel_ready(a: np.ndarray) -> bool:
     read-only array would compile another specialization during a frame)."""
     f = a.flags
     return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
-
-
-@njit(cache=True)
-def _undistorted_rows(u, X, x_all, J_all, rows, k_axis, c_axis, axis, sign, d0, d1, r0, f):
-    """:func:`undistorted_frame`'s rows ``rows`` (m,) of the (N, 2) pixels ``u``, (N, 3)
-    points ``X``, (N, 2) undistorted points ``x_all`` and (N, 4) pixel Jacobians ``J_all``
-    ((0, 4): none), with their RS coordinates as :meth:`~rs_localizer.camera.CameraModel.
-    rs_coordinates` computes them (``k_axis``, ``c_axis``: the camera matrix's focal length
-    and principal point along the readout ``axis``; ``sign``, ``d0``, ``d1``, ``r0``: its
-    readout direction and reference coordinate) and the whitening ``J / f``: ``(code, x (m,
-    2), u_px (m, 2), X (m, 3), r (m,), r0e (m,), W (m, 4) or (0, 4))``, ``code`` one of
-    :data:`_NOT_FINITE`, :data:`_TAKEN`, :data:`_LEFT_OUT`."""
-    m = rows.shape[0]
-    x = np.empty((m, 2))
-    u_px = np.empty((m, 2))
-    Xr = np.empty((m, 3))
-    r = np.empty(m)
-    r0e = np.empty(m)
-    W = np.empty((m if J_all.shape[0] > 0 else 0, 4))
-    for k in range(m):
-        i = rows[k]
-        x[k, 0], x[k, 1] = x_all[i, 0], x_all[i, 1]
-        if not (np.isfinite(x[k, 0]) and np.isfinite(x[k, 1])):
-            return _NOT_FINITE, x, u_px, Xr, r, r0e, W
-    code = _TAKEN
-    for k in range(m):
-        i = rows[k]
-        u_px[k, 0], u_px[k, 1] = u[i, 0], u[i, 1]
-        for a in range(3):
-            Xr[k, a] = X[i, a]
-        r[k] = sign * (u_px[k, axis] - c_axis) / k_axis
-        r0e[k] = r0 - (r[k] - (d0 * x[k, 0] + d1 * x[k, 1]))
-        if not np.isfinite(r[k]):
-            code = _LEFT_OUT
-        if W.shape[0] > 0:
-            for j in range(4):
-                W[k, j] = J_all[i, j] / f
-    return code, x, u_px, Xr, r, r0e, W
 
 
 class CameraValues(NamedTuple):
@@ -516,14 +400,10 @@ def camera_values(camera: CameraModel) -> CameraValues:
     return out
 
 
-def _frame(
-    u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool, J: np.ndarray | None = None
-) -> Frame:
+def _frame(u, X, rows, u_px, x, r, r0e, camera: CameraModel, compiled: bool) -> Frame:
     """The :class:`Frame` of :func:`prepare_frame` from its (N, 2) pixels ``u``, (N, 3) points
     ``X``, valid rows ``rows`` (shuffled) and their pixels ``u_px``, normalized points ``x``,
-    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`); ``J``:
-    (N, 4) the rows' pixel Jacobians when known (every row finite; None: computed here when
-    the camera's varies)."""
+    RS coordinates ``r``, ``r0e`` (:meth:`~rs_localizer.camera.CameraModel.normalize`)."""
     good = normalized_rows(x, r)
     if good is not None:
         rows, x, r, r0e, u_px = rows[good], x[good], r[good], r0e[good], u_px[good]
@@ -540,8 +420,7 @@ def _frame(
     fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u_px
     if varying:
-        if J is None:
-            J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
+        J = camera.pixel_jacobian_exact(fr.x) if compiled else camera.pixel_jacobian(fr.x)
         fr.W = np.ascontiguousarray(J.reshape(-1, 4) / fr.f)
     return fr
 

@@ -87,7 +87,7 @@ from .sampling import draw_samples_numpy
 from .scoring import exact_errors2_numpy
 from .sensitivity import physical_sensitivity
 
-__all__ = ["NumpyRansac", "NumpySamples", "final_model"]
+__all__ = ["NumpyRansac", "NumpySamples", "errors2", "final_model"]
 
 #: :func:`_refine`'s default prior: the frame's own
 _FRAME_PRIOR = object()
@@ -100,11 +100,32 @@ _KEEP = 4
 _SAMPLE_ITERATIONS = 5
 
 
-def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
-    """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
-    t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
-    model (paper eq. 4); ``inf`` behind the camera."""
-    return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
+def errors2(
+    fr: Frame | Any,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    m: int | None = None,
+) -> np.ndarray:
+    """(H, n) squared reprojection errors of H models (R (H, 3, 3); C, w, t (H, 3)) at the
+    first ``m`` points (default all) at their measured capture times ``fr.tau``, exact model
+    (paper eq. 4; :func:`~.scoring.exact_errors2_numpy`); ``inf`` behind the camera. A
+    camera's frame (``fr.views()`` None): normalized units. A rig frame's stacked views
+    (:meth:`~.frame.RefinementView.views`: each camera's mounting and rows; every point,
+    ``m`` None): each camera's points under the models seen from it (the rig's ``Rm R, Rm C
+    + cm, Rm w, Rm t``, :func:`~.scoring.mounted_pose`), whitened into px by their pixel
+    Jacobians ``fr.A`` (n, 4)."""
+    views = fr.views()
+    if views is None:
+        return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
+    out = np.empty((len(R), len(fr.X)))
+    for Rm, cm, (a, b) in zip(*views, strict=True):
+        out[:, a:b] = exact_errors2_numpy(
+            Rm @ R, C @ Rm.T + cm, w @ Rm.T, t @ Rm.T, fr.X[a:b], fr.x[a:b], fr.tau[a:b],
+            fr.A[a:b],
+        )  # fmt: skip
+    return out
 
 
 def p3p_roots(X3: np.ndarray, x3: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,10 +269,10 @@ class NumpySamples:
             return ScoredBatch(-1, np.inf, R, C, w, t, n_bad)
         R, C, w, t = R[fine], C[fine], w[fine], t[fine]
         if len(R) > _KEEP and len(fr.x) > 2 * self.pretest:
-            part = np.minimum(_errors2(fr, R, C, w, t, self.pretest), self.th2).sum(axis=1)
+            part = np.minimum(errors2(fr, R, C, w, t, self.pretest), self.th2).sum(axis=1)
             keep = np.argpartition(part, _KEEP - 1)[:_KEEP]
             R, C, w, t = R[keep], C[keep], w[keep], t[keep]
-        sc = np.minimum(_errors2(fr, R, C, w, t), self.th2).sum(axis=1)
+        sc = np.minimum(errors2(fr, R, C, w, t), self.th2).sum(axis=1)
         h = int(np.argmin(sc))
         return ScoredBatch(h, float(sc[h]), R, C, w, t, n_bad)
 
@@ -276,17 +297,17 @@ class NumpyRansac(Ransac):
         R, C, w, t = (np.asarray(a, dtype=float) for a in model)
         if not plausible_models(C[None], w[None], t[None], self.fr.motion_bounds)[0]:
             return np.inf, np.zeros(len(self.fr.x), dtype=bool)
-        e2 = _errors2(self.fr, R[None], C[None], w[None], t[None])[0]
+        e2 = errors2(self.fr, R[None], C[None], w[None], t[None])[0]
         return float(np.minimum(e2, self.th2).sum()), e2 < self.th2
 
     def seed_steps(self) -> dict[str, Any]:
         fr = self.fr
 
-        def errors2(model) -> np.ndarray:
+        def model_errors2(model) -> np.ndarray:
             R, C, w, t = (np.asarray(a, dtype=float)[None] for a in model)
-            return _errors2(fr, R, C, w, t)[0]
+            return errors2(fr, R, C, w, t)[0]
 
-        return {"errors2": errors2, "evaluate": self.evaluate, "refine": _lo_refine}
+        return {"errors2": model_errors2, "evaluate": self.evaluate, "refine": _lo_refine}
 
     def local_optimization(self, scored: Scored) -> Scored:
         return local_optimization(
@@ -394,7 +415,7 @@ def final_model(
             solver_info(solver).rolling,
             sens=opts.refine.acceleration_sensitivity,
         )
-    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
+    e = np.sqrt(errors2(fr, R[None], C[None], w[None], t[None])[0])
     inl = e < th
     if np.count_nonzero(inl) < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)

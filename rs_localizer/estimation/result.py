@@ -3,14 +3,15 @@ failure reasons (a camera's and a rig's, documented once: :data:`FAILURE_REASONS
 :data:`RIG_FAILURE_REASONS`, :data:`RIG_REFUSALS`), and the conversions of the model (R, C, w,
 t per unit RS coordinate) to the camera's physical velocities and the output covariances, and
 between a camera's model and the model of the body (a rig) it is mounted on
-(:func:`camera_model_of_rig`, :func:`rig_model_of_camera`, :func:`camera_estimate`; a camera
-alone is the body at the identity mounting).
+(:func:`camera_model_of_rig`, :func:`rig_model_of_camera`, :func:`camera_estimate`,
+:func:`body_estimate`; a camera alone is the body at the identity mounting).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,8 +26,12 @@ from ..pose import (
     model_twist,
     model_twist_jacobian,
 )
+from .implementation import NUMPY
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
+
+if TYPE_CHECKING:
+    from .view import View
 
 __all__ = [
     "AMBIGUOUS_TAG",
@@ -47,6 +52,7 @@ __all__ = [
     "UNCONFIRMED",
     "EstimationFailed",
     "RSPoseEstimate",
+    "body_estimate",
     "built_estimate",
     "camera_estimate",
     "camera_model_of_rig",
@@ -173,7 +179,8 @@ class RSPoseEstimate(PoseWithCovariance):
             ``ambiguous_tag`` (a frame of a few coplanar points, too few for the solver, e.g.
             one marker's four corners, whose two plane poses fit them alike and no prediction
             tells apart: :mod:`.single_tag`).
-        solver: solver name used (a rig's: ``gr6p_1lin``, whatever its ``motion_model``).
+        solver: solver name used (a rig's: ``gr6p_1lin``, whatever its ``motion_model``; a
+            rig frame posed by one camera's few points alone: that camera's estimator's).
         model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
             ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
             (3,) model velocities per unit RS coordinate (rad, m per normalized unit); a rig's:
@@ -324,6 +331,17 @@ class RSPoseEstimate(PoseWithCovariance):
         Raises:
             TypeError: a name that is no field, or no ``success``."""
         return frozen_instance(cls, values)
+
+    def _replaced(self, **changes) -> RSPoseEstimate:
+        """This estimate with the fields ``changes`` (by name) replaced: what
+        ``dataclasses.replace`` returns, built as :meth:`_trusted` builds an estimate (no
+        copies, no checks; an estimate per rig frame of one camera's points)."""
+        d = self.__dict__
+        return frozen_instance(type(self), {n: d[n] for n in _FIELD_NAMES} | changes)
+
+
+#: the names of :class:`RSPoseEstimate`'s fields (:meth:`RSPoseEstimate._replaced`)
+_FIELD_NAMES = tuple(f.name for f in fields(RSPoseEstimate) if f.init)
 
 
 def built_estimate(
@@ -536,8 +554,10 @@ def camera_estimate(
         ``pose`` its optical frame's; ``inliers`` (N,) the view's
         (``est.inliers_per_view[index]``; none where the rig frame has no such view);
         ``rmse_px`` the RMS error of those inliers under that model (px, the camera's
-        projection at each row's capture time, NaN without ``points3d`` or inliers). The
-        covariances stay the rig's own: None here.
+        projection at each row's capture time, NaN without ``points3d`` or inliers); its one
+        view's per-view fields (``inliers_per_view`` ``(inliers,)``, ``num_inliers_per_view``
+        their count, ``num_valid_per_view`` ``(N,)``, as ``num_valid``). The covariances stay
+        the rig's own: None here.
     """
     n = len(points2d)
     per = est.inliers_per_view
@@ -563,6 +583,9 @@ def camera_estimate(
         rmse_px=rmse,
         motion_model=est.motion_model,
         implementation=est.implementation,
+        inliers_per_view=(inl,),
+        num_inliers_per_view=(int(np.count_nonzero(inl)),),
+        num_valid_per_view=(n,),
     )
 
 
@@ -623,3 +646,37 @@ def rig_model_jacobian(
     J[3:6, 9:12] = (-s / spr) * Rt
     J[6:9, 6:9] = J[9:12, 9:12] = Rt / spr
     return J
+
+
+def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
+    """The estimate of the body (a rig) that ``view``'s camera is mounted on, of that camera's
+    own estimate ``est`` of the view's points (:func:`~.estimate.estimate_rs_pose` with
+    ``view``): ``model`` the body's (:func:`rig_model_of_camera` at the view's mounting and
+    stamp offset: ``w``, ``t`` per second), ``pose`` its :class:`~rs_localizer.pose.RSPose`
+    (one second per unit), ``model_covariance`` mapped to first order
+    (:func:`rig_model_jacobian`) and the output covariances of it
+    (:func:`output_covariance`; the twist's where ``est`` has one); every other field,
+    among them the inliers and the per-view fields of the view, ``est``'s own. The
+    ``acceleration_sensitivity`` (in the camera's frame) is not carried: None. A failed
+    estimate is returned as it is (the identity and zeros are every failure's).
+    """
+    if not est.success:
+        return est
+    compiled = est.implementation != NUMPY
+    m, s, spr = view.mounting, view.stamp_offset, view.camera.seconds_per_unit_r
+    model = rig_model_of_camera(est.model, m, s, spr)
+    R, C, w, _ = model
+    cov = out = None
+    if est.model_covariance is not None:
+        J = rig_model_jacobian(est.model, m, s, spr)
+        cov = J @ est.model_covariance @ J.T
+        out = output_covariance(cov, R, C, w, 1.0, compiled)
+    return est._replaced(
+        model=model,
+        pose=RSPose.from_model(model, 1.0, compiled=compiled),
+        model_covariance=cov,
+        covariance=None if out is None else out[0],
+        pose_covariance=None if out is None else out[1],
+        twist_covariance=None if out is None or est.twist_covariance is None else out[2],
+        acceleration_sensitivity=None,
+    )

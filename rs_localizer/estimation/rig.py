@@ -140,7 +140,7 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .estimate import FewPointsPose, estimate_rs_pose, few_points_pose
+from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
@@ -169,7 +169,7 @@ from .gyro import (
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed, polish, view_seed_steps
-from .numpy_impl import p3p_roots
+from .numpy_impl import errors2, p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
@@ -193,9 +193,6 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     built_estimate,
-    output_covariance,
-    rig_model_jacobian,
-    rig_model_of_camera,
 )
 from .rig_batch import (
     best_msac,
@@ -207,8 +204,7 @@ from .rig_batch import (
     still_batch,
 )
 from .sampling import draw_samples_numpy, valid_rows
-from .scoring import exact_errors2_numpy
-from .single_tag import MIN_PLANAR_POINTS, posed_planarity
+from .single_tag import posed_planarity
 from .view import View
 
 __all__ = [
@@ -233,7 +229,8 @@ __all__ = [
 ]
 
 #: ``RSPoseEstimate.solver`` of a rig's estimate: the rig solver that poses it (on the
-#: global-shutter model too, where it corrects the P3P samples with the velocities held at 0)
+#: global-shutter model too, where it corrects the P3P samples with the velocities held at 0;
+#: a rig frame of one camera's few points records that camera's, :func:`_one_camera_alone`)
 RIG_SOLVER = "gr6p_1lin"
 
 #: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
@@ -335,7 +332,7 @@ def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
     return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
 
 
-def _view_part(c: int, v: View, numpy: bool, max_norm: float) -> tuple:
+def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
     prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
@@ -380,8 +377,8 @@ def _view_part(c: int, v: View, numpy: bool, max_norm: float) -> tuple:
         return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
                 np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
     stamp = float(v.stamp_offset)
-    args = None if numpy else args  # (a distorted camera's, compiled)
-    kernels = not numpy and kernel_ready(uv) and kernel_ready(X)
+    args = args if compiled else None  # (a distorted camera's, compiled)
+    kernels = compiled and kernel_ready(uv) and kernel_ready(X)
     if args is not None and spr == 0.0 and kernels:
         # (a global shutter with distortion: the checks and rows below in one compiled call
         # when every row is valid)
@@ -398,7 +395,7 @@ def _view_part(c: int, v: View, numpy: bool, max_norm: float) -> tuple:
         idx = np.flatnonzero(ok)
         uv_g, X_g = uv[idx], X[idx]
     # (a camera's undistortion and RS coordinates, CameraModel.normalize)
-    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
+    x, r, _ = cam.normalize(uv_g, compiled=compiled)
     ok = normalized_rows(x, r)
     if ok is not None:
         idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
@@ -408,7 +405,7 @@ def _view_part(c: int, v: View, numpy: bool, max_norm: float) -> tuple:
     else:
         tau = stamp + (r - k.r0) * spr
     if jacobian:
-        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+        A = cam.pixel_jacobian(x, compiled=compiled).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = focal
@@ -432,24 +429,6 @@ def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
             return False, tau, np.empty((0, 4))
         tau[i] = stamp + 0.0
     return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-@njit(cache=True)
-def _spread_kernel(tau):
-    """``tau.max() - tau.min()`` of a non-empty finite (N,) float64 array."""
-    lo = hi = tau[0]
-    for v in tau:
-        if v < lo:
-            lo = v
-        if v > hi:
-            hi = v
-    return hi - lo
-
-
-def _spread(tau: np.ndarray, numpy: bool) -> float:
-    """``float(tau.max() - tau.min())`` of a non-empty finite (N,) array (``numpy``: in
-    NumPy, nothing compiles)."""
-    return float(tau.max() - tau.min()) if numpy else float(_spread_kernel(tau))
 
 
 @njit(cache=True)
@@ -499,8 +478,8 @@ class _Pool:
     (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, px per normalized unit: the
     normalized error times it is to first order the error in the measured, distorted image;
     the focal length times the identity for a camera without distortion and with fx = fy);
-    ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
-    implementation, :func:`estimate_rig_pose`); ``max_norm`` (m): a point with a coordinate
+    ``compiled`` False: every step in NumPy/SciPy (the ``"numpy"`` implementation,
+    :func:`estimate_rig_pose`; :attr:`numpy`); ``max_norm`` (m): a point with a coordinate
     farther from the origin is dropped, as a single camera drops it (the options'
     ``plausibility.max_point_norm``).
 
@@ -517,11 +496,11 @@ class _Pool:
     def __init__(
         self,
         views: Sequence[View],
-        numpy: bool = False,
+        compiled: bool = True,
         cache: dict | None = None,
         max_norm: float = EstimateOptions().plausibility.max_point_norm,
     ):
-        self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
+        self.compiled = bool(compiled)
         # ``cache``: id(view) -> (view, camera index, its checked and normalized part), shared
         # by the pools of one rig frame (the consensus solves the rig again on some of its
         # cameras: their views are the same objects, checked and undistorted once)
@@ -532,7 +511,7 @@ class _Pool:
             if hit is not None and hit[0] is v and hit[1] == c:
                 parts.append(hit[2])
                 continue
-            part = _view_part(c, v, self.numpy, max_norm)
+            part = _view_part(c, v, self.compiled, max_norm)
             cache[id(v)] = (v, c, part)
             parts.append(part)
         self.R_mount, self.c_mount = _mounting_stacks(views, parts)
@@ -571,7 +550,7 @@ class _Pool:
             self.tau = np.zeros(0)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
-        self.tau_spread = _spread(self.tau, self.numpy) if len(self.tau) else 0.0
+        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
 
     @functools.cached_property
     def row(self) -> np.ndarray:
@@ -587,8 +566,9 @@ class _Pool:
         return self.tau
 
     @property
-    def compiled(self) -> bool:
-        return not self.numpy
+    def numpy(self) -> bool:
+        """The NumPy implementation's pool (not :attr:`compiled`)."""
+        return not self.compiled
 
     def views(self) -> tuple:
         """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
@@ -604,7 +584,7 @@ class _Pool:
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:func:`_mountings`, checked for the
         compiled kernel: :func:`_kernel_mountings`)."""
-        return _mountings(self) if self.numpy else _kernel_mountings(self)
+        return _kernel_mountings(self) if self.compiled else _mountings(self)
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
@@ -634,7 +614,7 @@ class _Pool:
             return self._sizes_valid
         if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one camera: all its points)
             return (int(np.count_nonzero(mask)),)
-        if self.numpy or mask.dtype != np.bool_ or not kernel_ready(mask):
+        if not self.compiled or mask.dtype != np.bool_ or not kernel_ready(mask):
             return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
         return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
 
@@ -642,18 +622,18 @@ class _Pool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
         undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
         rays in one plane through its centre)."""
-        if not self.numpy:  # (the same tests in one compiled call, unless it needs eigenvalues)
+        if self.compiled:  # (the same tests in one compiled call, unless it needs eigenvalues)
             code = views_degenerate(
                 self.X, self.uv, self.x, self.focal, _bounds(self), float(threshold_px)
             )
             if code >= 0:
                 return bool(code)
-        if collinear_3d(self.X, compiled=not self.numpy):
+        if collinear_3d(self.X, compiled=self.compiled):
             return True
         for s in self.slices:
             # (one or two rays always lie in a plane through the camera's centre)
             if s.stop - s.start >= 3 and not image_degenerate(
-                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, not self.numpy
+                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, self.compiled
             ):
                 return False
         return True
@@ -671,30 +651,14 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
     return e, cost
 
 
-def _errors2_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
-    """(H, N) squared image errors (px^2) of H models on every point of the pool in NumPy
-    (nothing compiles): each camera's points (the pool is stacked by camera) under the models
-    seen from that camera (:func:`~.scoring.mounted_pose`'s ``Rm R, Rm C + cm, Rm w, Rm
-    t``), the camera's :func:`~.scoring.exact_errors2_numpy` whitened by the points' pixel
-    Jacobians; inf behind the camera."""
-    R, C, w, t = (np.asarray(a, dtype=float) for a in (R, C, w, t))
-    out = np.empty((len(R), len(pool.cam)))
-    for m, s in enumerate(pool.slices):
-        Rm = pool.R_mount[m]
-        out[:, s] = exact_errors2_numpy(
-            Rm @ R, C @ Rm.T + pool.c_mount[m], w @ Rm.T, t @ Rm.T, pool.X[s], pool.x[s],
-            pool.tau[s], pool.A[s],
-        )  # fmt: skip
-    return out
-
-
 def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
     with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
     (inf for a point behind its camera), and their MSAC costs at ``th2`` px^2. Returns
-    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`; NumPy: :func:`_errors2_numpy`)."""
-    if pool.numpy:
-        e2 = _errors2_numpy(pool, R, C, w, t)
+    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`; NumPy: the NumPy
+    implementation's :func:`~.numpy_impl.errors2` of the stacked views)."""
+    if not pool.compiled:
+        e2 = errors2(pool, *(np.asarray(a, dtype=float) for a in (R, C, w, t)))
         return np.sqrt(e2), np.minimum(e2, th2).sum(axis=1)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     return _errors_kernel(
@@ -1009,7 +973,7 @@ def _kernel_arrays(pool: _Pool) -> tuple:
 
 def _view_planar(pool: _Pool, c: int) -> bool:
     """Camera c's points in the pool are coplanar."""
-    return planarity(pool.X[pool.slices[c]], compiled=not pool.numpy) < PLANAR_TOLERANCE
+    return planarity(pool.X[pool.slices[c]], compiled=pool.compiled) < PLANAR_TOLERANCE
 
 
 def _bounds(pool: _Pool) -> np.ndarray:
@@ -1185,10 +1149,10 @@ def estimate_rig_pose(
             f"estimate_rig_pose: implementation must be one of {IMPLEMENTATIONS}, got "
             f"{implementation!r}"
         )
-    numpy = implementation == NUMPY
+    compiled = implementation == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
-    pool = _Pool(views, numpy, cache, max_norm)
+    pool = _Pool(views, compiled, cache, max_norm)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
@@ -1202,7 +1166,7 @@ def estimate_rig_pose(
         prediction = given.model if isinstance(given, InitialModel) else given
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs, numpy, cache, max_norm), settings, gyro, gyro_time),
+        lambda vs: _estimate_pool(_Pool(vs, compiled, cache, max_norm), settings, gyro, gyro_time),
         prediction,
         verify_cameras,
     )  # fmt: skip
@@ -1212,79 +1176,31 @@ def _one_camera_alone(
     views: Sequence[View], pool: _Pool, options: EstimateOptions, initial_model, gyro
 ) -> RSPoseEstimate | None:
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
-    than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed as that camera alone
-    poses them
-    (:func:`~.estimate.estimate_rs_pose`'s few-points path,
-    :func:`~.single_tag.few_points_estimate`: one marker's corners or a few on more than one
-    plane, the velocities held at the rig's prediction or gyro mapped into the camera; the
-    fields taken of that estimate alone, :func:`~.estimate.few_points_pose`, without a gyro) and
-    mapped to the rig through the camera's mounting (:func:`rig_model_of_camera`, the
-    covariance to first order); None for any other rig frame (or on the NumPy
-    implementation, which has no few-points path) or a camera whose points that path does
-    not take."""
+    than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed by that camera's
+    estimator given its view (:func:`~.estimate.estimate_rs_pose` with ``view``: its
+    few-points path, :func:`~.single_tag.few_points_estimate`, one marker's corners or a few
+    on more than one plane, the velocities held at the rig's prediction or gyro; the estimate
+    the rig's, :func:`~.result.body_estimate`), as one of the rig frame's views
+    (:func:`_restored`); None for any other rig frame (or on the NumPy implementation, which
+    has no few-points path) or a camera whose points that path does not take."""
     counts = pool.counts()
     with_points = [c for c, n in enumerate(counts) if n]
     # (fewer than the rig solver's sample and one more, or the options' min_inliers)
     need = max(options.ransac.min_inliers, 7)
-    if pool.numpy or len(with_points) != 1 or len(pool.cam) >= need:
-        return None
-    if len(pool.cam) < MIN_PLANAR_POINTS:  # (too few for any pose: posed_planarity's rule)
+    if not pool.compiled or len(with_points) != 1 or len(pool.cam) >= need:
         return None
     c = with_points[0]
-    v, s = views[c], pool.slices[c]
-    spr = camera_values(v.camera).spr
-    start = None
-    if initial_model is not None:
-        im = (
-            initial_model
-            if isinstance(initial_model, InitialModel)
-            else InitialModel(initial_model)
-        )
-        start = replace(im, model=v.camera_model(im.model))
-    est = None
-    if gyro is None or v.camera.line_delay <= 0:  # (a global shutter's estimate ignores a gyro)
-        # (the pool's undistorted points and pixel Jacobians of every row: the frame's;
-        # an equidistant camera's Jacobian is computed again, with NumPy's arctangent)
-        seen = None
-        if pool.all_valid:
-            A = None if v.camera.distortion_model == "equidistant" else pool.A[s]
-            seen = (pool.x[s], A)
-        est = few_points_pose(v.uv, v.X, v.camera, options, start, undistorted=seen)
-    if est is None:
-        if posed_planarity(pool.X[s]) is None:  # (single_tag.few_points's rule)
-            return None
-        cam_gyro = None if gyro is None else gyro.rotated(v.mounting.R)
-        est = estimate_rs_pose(v.uv, v.X, v.camera, options=options, initial_model=start,
-                               gyro=cam_gyro)  # fmt: skip
-    if not est.success:
-        return _rig_estimate(pool, failure=est.failure)
-    model = rig_model_of_camera(est.model, v.mounting, v.stamp_offset, spr)
-    R, C, w, _ = model
-    cov = out = None
-    if est.model_covariance is not None:
-        J = rig_model_jacobian(est.model, v.mounting, v.stamp_offset, spr)
-        cov = J @ est.model_covariance @ J.T
-        out = output_covariance(cov, R, C, w, 1.0)
-    inl = np.zeros(len(pool.cam), dtype=bool)
-    inl[s] = np.asarray(est.inliers, dtype=bool)[pool.row[s]]
-    return _rig_estimate(
-        pool,
-        model,
-        inl,
-        (None, None, None) if out is None else (out[0], out[1], None),
-        True,  # (rig_model_of_camera's new arrays)
-        failure=None,
-        ransac_iterations=0,
-        model_covariance=cov,
-        few_points=True,
-        **{k: getattr(est, k) for k in _CAMERA_FIELDS},
-    )
-
-
-#: the fields of a camera's estimate a rig frame posed by that camera alone takes as they are
-#: (:func:`_one_camera_alone`): :class:`~.estimate.FewPointsPose`'s record, after its model,
-#: covariance and inliers (which the rig's mounting maps)
-_CAMERA_FIELDS = FewPointsPose._fields[FewPointsPose._fields.index("rmse_px") :]
+    if posed_planarity(pool.X[pool.slices[c]]) is None:  # (single_tag.few_points's rule)
+        return None
+    im = initial_model
+    if im is not None and not isinstance(im, InitialModel):
+        im = InitialModel(im)
+    v = views[c]
+    est = estimate_rs_pose(
+        v.uv, v.X, v.camera, options=options, initial_model=im, gyro=gyro,
+        implementation=COMPILED, view=v,
+    )  # fmt: skip
+    return _restored(est, pool, c)
 
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
@@ -1296,9 +1212,9 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstim
         return _still_if_no_motion(pool, settings, _estimate(pool, *settings))
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    prior = gyro_prior(gyro, compiled=not pool.numpy)
+    prior = gyro_prior(gyro, compiled=pool.compiled)
     est = _estimate(pool, *settings, prior=prior, gyro_time=gyro_time)
-    compiled = not pool.numpy
+    compiled = pool.compiled
     image = image_alone(pool, est.model, threshold_px, None) if est.success else None
 
     def planar() -> bool:
@@ -1617,16 +1533,26 @@ def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimat
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: _Pool) -> RSPoseEstimate:
-    """An estimate on views some of whose points were removed (:func:`_only`) as one of the
-    full views ``pool``: their valid point counts, and no inlier among the removed points."""
+def _restored(est: RSPoseEstimate, pool: _Pool, view: int | None = None) -> RSPoseEstimate:
+    """An estimate on views some of whose points were removed (:func:`_only`), or of the one
+    view ``view`` of them (a camera's own estimate, its one view's per-view fields), as one of
+    the full views ``pool``: their valid point counts, and no inlier among the removed points
+    or in the other views."""
+    own = est.inliers_per_view
+    if view is not None:
+        own = tuple(
+            own[0] if c == view else np.zeros(0, dtype=bool) for c in range(len(pool.sizes))
+        )
     per = tuple(
-        m if len(m) == n else np.zeros(n, dtype=bool)
-        for m, n in zip(est.inliers_per_view, pool.sizes, strict=True)
+        m if len(m) == n else np.zeros(n, dtype=bool) for m, n in zip(own, pool.sizes, strict=True)
     )
-    return replace(
-        est, inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
+    counts = est.num_inliers_per_view
+    if view is not None:
+        counts = tuple(int(np.count_nonzero(m)) for m in per)
+    return est._replaced(
+        inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
+        num_inliers_per_view=counts, num_valid=len(pool.cam),
+        num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
     )  # fmt: skip
 
 
@@ -1859,7 +1785,7 @@ class _RigSearch(RansacLoop):
         if self.fused:  # (:meth:`_batch`'s best, scored)
             self._cost, model, self._e, self._n, self._missed = hyp
             return self._cost, model
-        if pool.numpy:
+        if not pool.compiled:
             e, cost = _errors_px(pool, *hyp, self.th2)
             h = int(np.argmin(cost))
             self._e, self._cost = e[h], float(cost[h])
@@ -1915,11 +1841,11 @@ def _rig_estimate(
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
-    record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
+    record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
         record.pop("failure", None),
         RSModel(R, C, w, t),
-        RSPose.from_model((R, C, w, t), 1.0, compiled=not pool.numpy),
+        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled),
         np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
         len(pool.cam),
         sum(pool.sizes),
@@ -2032,7 +1958,7 @@ def _estimate(
             pool, model, threshold_px, not still, prior, search.cost, search.errors,
             search.cameras, CONTRADICTION_GATE, first,
         )  # fmt: skip
-    e, compiled, rolling = search.errors(model), not pool.numpy, free == 12
+    e, compiled, rolling = search.errors(model), pool.compiled, free == 12
     # (a camera's final stages with the rig's steps: the inliers and their RMS error, not on
     # one 3D line, the final refinement's Jacobian at the model (no step, as a camera's final
     # refinement gives it: its information, covariance and J^T W D), the last checks on every

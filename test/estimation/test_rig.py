@@ -473,6 +473,11 @@ def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
         )
         np.testing.assert_allclose(part.model.w, spr * v.mounting.R @ w, atol=1e-15)
         np.testing.assert_array_equal(part.inliers, est.inliers_per_view[k])
+        # (its one view's per-view fields, as a camera's own estimate carries them)
+        np.testing.assert_array_equal(part.inliers_per_view[0], est.inliers_per_view[k])
+        assert len(part.inliers_per_view) == 1
+        assert part.num_inliers_per_view == (est.num_inliers_per_view[k],)
+        assert part.num_valid_per_view == (len(v.uv),) == (part.num_valid,)
         inl = part.inliers
         e = v.camera.project_rs(v.X[inl], *part.model) - v.uv[inl]
         assert part.rmse_px == pytest.approx(np.sqrt(np.mean(np.sum(e * e, axis=1))))
@@ -483,6 +488,7 @@ def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
     assert failed.failure == "too_few_points"
     part = camera_estimate(failed, 0, v.camera, v.mounting, 0.0, v.uv[:2], v.X[:2])
     assert not part.success and not part.inliers.any() and np.isnan(part.rmse_px)
+    assert part.num_inliers_per_view == (0,) and part.num_valid_per_view == (2,)
 
 
 def _poselib_pose(views):
@@ -1110,6 +1116,10 @@ def test_a_rig_frame_of_one_cameras_tag_is_posed_as_that_camera_alone():
     assert est.motion_model == "global_shutter" and est.twist_covariance is None
     alone = estimate_rs_pose(uv, X, cams[1], options=_opts(min_inliers=8))
     assert alone.success and alone.single_tag
+    # (the camera's estimator posed it: its record of the fit is the camera's own)
+    assert est.planarity == alone.planarity and est.condition_number == alone.condition_number
+    assert est.rmse_px == alone.rmse_px and est.solver == alone.solver
+    np.testing.assert_array_equal(est.inliers_per_view[1], alone.inliers)
     base = camera_to_base(alone, Mounting(R_m[1], c_m[1]))
     assert rotation_angle_deg(est.pose.orientation, base.pose.orientation) < 1e-9
     np.testing.assert_allclose(est.pose.position, base.pose.position, atol=1e-12)

@@ -55,7 +55,7 @@ def _step_by_step(views, seed, K, missed, rounds, subset, th):
     pool = rig_mod._Pool(views)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
     hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
-    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)[0]
+    e = rig_mod._errors_px(rig_mod._Pool(views, compiled=False), *hyp)[0]
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
@@ -138,7 +138,7 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
-    e = rig_mod._errors_px(rig_mod._Pool(views, numpy=True), *hyp)[0]
+    e = rig_mod._errors_px(rig_mod._Pool(views, compiled=False), *hyp)[0]
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     if w_max < np.inf:
@@ -185,7 +185,7 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
                                        pool_counts, *state, out)  # fmt: skip
     assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K)
-    numpy_pool = rig_mod._Pool(views, numpy=True)
+    numpy_pool = rig_mod._Pool(views, compiled=False)
     s = 6 if moving else 3
 
     def best_of(j):  # (the lowest MSAC cost among the first j samples' models, its inliers)

@@ -4,8 +4,11 @@ estimate's fields, the inlier threshold on a tag whose corners fit a square only
 Ground truth: rendered corners. (Against OpenCV's IPPE and a real tag:
 test/benchmarks/test_bench_single_tag.py.)"""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
+import pytest
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import (
@@ -437,19 +440,28 @@ def test_the_fits_kernel_is_opencvs_rotation_and_the_refinement_of_each_start():
     assert kinds == {True, False}
 
 
-def test_the_rigs_few_points_pose_is_the_estimates_own_fields():
-    """``few_points_pose`` (what a rig frame posed by one camera's few points takes of that
-    camera's estimate) against ``estimate_rs_pose`` on the same frames: one tag seen by a
-    global and a rolling shutter, with and without a prediction (held velocities), an
-    ambiguous tag, a wrong match, two tags on two planes: the same fields to the bit, the same
-    failures; None on points the estimator does not pose from a few (a 3D cloud of 12)."""
-    from rs_localizer.estimation.estimate import FewPointsPose, few_points_pose
+def test_a_mounted_views_estimate_is_the_bodys():
+    """``estimate_rs_pose(..., view=)`` (a rig frame posed by one camera's few points) against
+    the camera's own estimate of the same frame carried to the body by an independent
+    computation: the body's model (the mounting and stamp offset applied to the camera's
+    model), its covariance (the map's central differences times the camera's), the ROS pose
+    covariance of it, the same inliers, per-view fields and record; the prediction given in
+    the body's terms. One tag seen by a global and a rolling shutter, with and without a
+    prediction (held velocities), an ambiguous tag, a wrong match, two tags on two planes."""
+    from scipy.spatial.transform import Rotation
+
+    from rs_localizer.estimation.result import output_covariance
+    from rs_localizer.estimation.view import View
+    from rs_localizer.frames import Mounting
+    from rs_localizer.geometry import rotvec_to_matrix
 
     rng = np.random.default_rng(8)
     gs = CameraModel(K=K, width=640, height=480)
     rs = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
     R, C = _view(35, [0.05, -0.02, 0.8])
     moving = InitialModel((R, C, np.array([1e-4, -2e-4, 3e-4]), np.array([2e-4, 1e-4, -1e-4])))
+    Rm = rotvec_to_matrix(np.radians(40.0) * np.array([0.3, -1.0, 0.2]) / np.sqrt(1.13))
+    mount, offset = Mounting(Rm, np.array([0.1, -0.05, 0.02])), 0.004
     cases = []
     for cam in (gs, rs):
         uv = cam.project_rs(tag_corners(0.2), R, C) + rng.normal(0, 0.3, (4, 2))
@@ -464,28 +476,69 @@ def test_the_rigs_few_points_pose_is_the_estimates_own_fields():
         ]
         X2 = _two_walls()
         cases.append((cam.project_rs(X2, R, C) + rng.normal(0, 0.3, (8, 2)), X2, cam, None))
-    cloud = rng.uniform(-1, 1, (12, 3)) + [0, 0, 4]
-    cases.append((gs.project(cloud), cloud, gs, None))
     outcomes = set()
     for uv, X, cam, im in cases:
-        est = estimate_rs_pose(uv, X, cam, initial_model=im)
-        fp = few_points_pose(uv, X, cam, initial_model=im)
-        if fp is None:
-            assert not est.few_points and len(X) == 12
-            outcomes.add("none")
+        spr = cam.seconds_per_unit_r
+        own = estimate_rs_pose(uv, X, cam, initial_model=im)
+        body_im = None
+        if im is not None:  # (the prediction of the body: the camera's, carried by hand)
+            Rk, Ck, wk, tk = im.model
+            w = Rm.T @ wk / spr if spr > 0 else np.zeros(3)
+            t = Rm.T @ tk / spr if spr > 0 else np.zeros(3)
+            R1 = rotvec_to_matrix(-offset * w) @ Rm.T @ Rk
+            body_im = InitialModel((R1, Rm.T @ (Ck - mount.c) - offset * t, w, t))
+        view = View(uv, X, cam, mount, offset)
+        est = estimate_rs_pose(uv, X, cam, initial_model=body_im, view=view)
+        for wrong in (replace(view, camera=gs if cam is rs else rs), replace(view, mounting=None)):
+            with pytest.raises(ValueError, match="a view must have"):
+                estimate_rs_pose(uv, X, cam, view=wrong)
+        assert (est.success, est.failure) == (own.success, own.failure)
+        outcomes.add(est.failure or est.motion_model)
+        np.testing.assert_array_equal(est.inliers, own.inliers)
+        assert est.inliers_per_view[0] is est.inliers or np.array_equal(
+            est.inliers_per_view[0], est.inliers
+        )
+        assert est.num_inliers_per_view == own.num_inliers_per_view == (own.num_inliers,)
+        assert est.num_valid_per_view == own.num_valid_per_view == (own.num_valid,)
+        if not est.success:
+            assert np.array_equal(est.model.R, np.eye(3))
             continue
-        assert isinstance(fp, FewPointsPose)
-        assert (fp.success, fp.failure) == (est.success, est.failure)
-        outcomes.add(fp.failure or fp.motion_model)
-        if not fp.success:
+        for name in ("few_points", "single_tag", "motion_model", "initial_used", "solver"):
+            assert getattr(est, name) == getattr(own, name), name
+        for name in ("rmse_px", "planarity", "condition_number", "num_behind"):
+            assert np.isclose(getattr(est, name), getattr(own, name), rtol=1e-9), name
+        # (the camera's model carried to the body: x_cam = Rm x_body + c at offset + tau)
+        Rk, Ck, wk, tk = own.model
+        w = Rm.T @ wk / spr if spr > 0 else np.zeros(3)
+        t = Rm.T @ tk / spr if spr > 0 else np.zeros(3)
+        R1 = rotvec_to_matrix(-offset * w) @ Rm.T @ Rk
+        want = (R1, Rm.T @ (Ck - mount.c) - offset * t, w, t)
+        for got, exp in zip(est.model, want, strict=True):
+            np.testing.assert_allclose(got, exp, rtol=1e-7, atol=1e-10)
+        if own.model_covariance is None:
+            assert est.model_covariance is None and est.pose_covariance is None
             continue
-        for name in FewPointsPose._fields:
-            got, want = getattr(fp, name), getattr(est, name)
-            if name == "model":
-                assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
-            elif isinstance(want, np.ndarray):
-                assert np.array_equal(got, want), name
-            else:
-                assert got == want, name
-    assert {"none", "global_shutter", "predicted_motion", "ambiguous_tag"} <= outcomes
+        J = np.zeros((12, 12))  # (central differences of the map, rotation on the left)
+        for k in range(12):
+            d = np.zeros(12)
+            d[k] = 1e-7
+            ends = []
+            for sgn in (1.0, -1.0):
+                Rp = rotvec_to_matrix(sgn * d[:3]) @ Rk
+                Cp, wp, tp = Ck + sgn * d[3:6], wk + sgn * d[6:9], tk + sgn * d[9:12]
+                wb = Rm.T @ wp / spr if spr > 0 else np.zeros(3)
+                tb = Rm.T @ tp / spr if spr > 0 else np.zeros(3)
+                Rb = rotvec_to_matrix(-offset * wb) @ Rm.T @ Rp
+                dv = Rotation.from_matrix(Rb @ R1.T).as_rotvec()
+                ends.append(np.concatenate([dv, Rm.T @ (Cp - mount.c) - offset * tb, wb, tb]))
+            J[:, k] = (ends[0] - ends[1]) / 2e-7
+        cov = J @ own.model_covariance @ J.T
+        scale = np.abs(cov).max()
+        np.testing.assert_allclose(est.model_covariance, cov, rtol=0, atol=1e-5 * scale)
+        pose_cov = output_covariance(cov, *want[:3], 1.0)[1]
+        np.testing.assert_allclose(
+            est.pose_covariance, pose_cov, rtol=0, atol=1e-5 * np.abs(pose_cov).max()
+        )
+        assert est.twist_covariance is None and own.twist_covariance is None
+    assert {"global_shutter", "predicted_motion", "ambiguous_tag"} <= outcomes
     assert "too_few_inliers" in outcomes
