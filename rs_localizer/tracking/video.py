@@ -1355,7 +1355,9 @@ class Localizer(GyroReadouts):
         marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
         A camera's own video (``camera_video``) returns no rig frame for an image skipped
         before the estimator and counts nothing for it (its caller reports the failure,
-        :meth:`last_search`); its rows are counted by its ``count`` and carry their scores.
+        :meth:`last_search`); its rows are counted by its ``count``. A camera's rows carry
+        their scores (a rig of one's estimator, the camera's, weighs them; a rig of several's
+        takes none).
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``,
@@ -1409,8 +1411,6 @@ class Localizer(GyroReadouts):
         uv, xyz, scores = self._usable_rows(name, uv, xyz, found.valid_scores())
         r.points2d, r.points3d = uv, xyz
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        if self._rig:  # (a rig's cameras' frames without their scores)
-            scores = None
         frame = CameraFrame(stamp, camera, uv, xyz, scores, tag, camera_name=name)
         return self._observed(self._add(frame, ref))
 
