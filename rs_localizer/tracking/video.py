@@ -559,9 +559,10 @@ class Localizer(GyroReadouts):
             found the previous one again or found too few correspondences in is not the
             rig's to count (no frame received nor skipped, the idle timer not reset, no
             warning): the caller reads the failure from :meth:`last_search` and reports it.
-        count: a camera video's counter of its images' rows (``count(key, n)``:
-            ``points_dropped``, ``capped_clouds``, ``capped_points``, under the caller's names;
-            its capping warned as ``capped``); None: counted ``<camera>.points_dropped`` etc.
+        count: the counter of its images' rows (``count(key, n)``: ``points_dropped``,
+            ``capped_clouds``, ``capped_points``, under the caller's names; its capping warned
+            as ``capped``), a camera video's or a rig of one's counted as its camera's; None:
+            counted ``<camera>.points_dropped`` etc.
 
     One camera and a rig share one clock and time-reset policy, one gyro input, one twist
     queue and one front-end driver per camera (:meth:`search_image`). A rig of one

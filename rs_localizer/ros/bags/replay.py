@@ -1,16 +1,16 @@
 """Offline replay: the localizer node over every frame of a bag, without middleware; a camera's
 bag, or a rig bag's cameras (a camera alone is a rig of one).
 
-A camera's frames go through the node's own per-frame pipeline
-(:class:`~rs_localizer.ros.pipeline.FramePipeline`) configured from the node's parameters
+Both go through the rig mode as the rig node runs it, configured from the node's parameters
 (:mod:`..params`; :mod:`..param_files`: defaults, then ROS 2 parameter files, then
-overrides), so a replay publishes what the node would: the pose, the frame's own twist
-(``twist_single_frame``) and, with tracking (the default), the fused twist on ``twist`` and
-``odom`` when it is final. A rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.
-is_rig_bag`) go through the rig mode as the rig node runs it, a rig frame for a frame. Either
-way it is one run: the bag's messages read once in log-time order, each camera_info to its
-camera's input, the gyro's samples read first, the mode's frame step the only difference;
-and the outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
+overrides): a rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`) a rig
+frame for a frame, a camera's bag as a rig of one camera (its frames solved as the camera's
+video solves them, with the camera's parameters), so that a replay publishes what the node
+would: the pose, the frame's own twist (``twist_single_frame``) and, with tracking (the
+default), the fused twist on ``twist`` and ``odom`` when it is final. It is one run: the
+bag's messages read once in log-time order, each camera_info to its camera's input, the
+gyro's samples read first, each frame message through the rig node's frame step; and the
+outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
 frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth (``/ground_truth/*``)
 when it has one and, with ``debug_outputs``, the node's visualization topics in the output bag
 (``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`; of a rig,
@@ -123,14 +123,18 @@ class ReplayResult:
     loaded for a camera (``maps``: the landmarks and the front end,
     :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
     their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
-    twist), and the counters (``counts``: a camera's pipeline's, e.g. ``frames_with_gyro``,
-    ``gyro_rejected``, ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the
-    node's diagnostics; a rig's gyro counts by the same names), ``gyro_bias`` and
-    ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used, the online
-    estimate with ``imu.estimate_bias``; None without ``imu.enabled``), ``readout`` (the check
-    of the rolling-shutter timing on the video at its end, ``readout_suspect``,
-    ``readout_contradicted``: :meth:`~rs_localizer.tracking.video.Localizer.readout_values`;
-    a camera's with its tracking's other values), ``notes`` (warnings for the user).
+    twist), and the counters (``counts``: a camera's, as the node's diagnostics name them:
+    its frames' (``received``, ``failed.<reason>`` for those its input dropped), its rows'
+    (``points_dropped``, ``capped_clouds``, ``unknown_landmark_ids``...), ``time_resets``,
+    ``imu_rejected.<reason>``, the gyro's (``frames_with_gyro``, ``gyro_rejected``,
+    ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``...) and the map-fit check's
+    (``frames_failed_with_matches``, ``map_fit_doubtful``); a rig's gyro counts by the same
+    names), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last
+    frame used, the online estimate with ``imu.estimate_bias``; None without
+    ``imu.enabled``), ``readout`` (the tracking's values at the end of the video with the
+    check of the rolling-shutter timing, ``readout_suspect``, ``readout_contradicted``:
+    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`), ``notes`` (warnings
+    for the user).
 
     A rig bag's replay also has (empty for a camera's):
 
@@ -144,10 +148,12 @@ class ReplayResult:
       disagreeing), how far off it is: deg between its rotation posed alone and where the
       rig's pose and its mounting put it (NaN where it could not be posed alone;
       :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`), summed up by
-      :attr:`disagreeing`;
-    - ``outputs``: every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`
-      (each camera frame tagged with its frame id, as the rig node tags it); ``flushed``:
-      the fused poses still pending at the end of the video.
+      :attr:`disagreeing`.
+
+    Both have ``outputs``, every rig frame's
+    :class:`~rs_localizer.tracking.video.LocalizerOutput` (a camera's: its rig of one's, of
+    each frame that reached it; each camera frame tagged with its frame id, as the rig node
+    tags it), and ``flushed``, the fused poses still pending at the end of the video.
     """
 
     rows: list = field(default_factory=list)
@@ -267,10 +273,11 @@ def replay(
     imu_topic: str | None = None,
     log: Any = None,
 ) -> ReplayResult:
-    """Run the localizer node over every frame of a bag, offline: a camera's frames through
-    its per-frame pipeline, or a rig bag's cameras through the rig mode
+    """Run the localizer node over every frame of a bag, offline, through the rig mode
+    (:class:`_Run`): a rig bag's cameras
     (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`: ``make-bag --rig``, ``render-bag
-    --rig``, or a recording with ``rig.cameras`` in the parameters), a rig frame for a frame.
+    --rig``, or a recording with ``rig.cameras`` in the parameters), a rig frame for a frame;
+    a camera's bag as a rig of one camera, a frame for a frame.
 
     Args:
         path: bag directory (make-bag or render-bag output, or a recording), or its storage
@@ -306,8 +313,8 @@ def replay(
         imu_topic: with ``imu.enabled`` the ``sensor_msgs/Imu`` topic whose gyro the frames
             use (default: the bag's only IMU topic; a rig's ``<namespace>/imu``); all its
             samples are buffered first.
-        progress: stream for the progress bar (None: none). log: logger for the pipeline's
-            warnings (None: silent).
+        progress: stream for the progress bar (None: none). log: logger (``info``,
+            ``warning``) for a camera's warnings, throttled as the node's (None: silent).
 
     Raises:
         ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
