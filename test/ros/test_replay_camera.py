@@ -10,6 +10,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from helpers.transforms import transform, twist_hat
+
 from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
 from rs_localizer.frames import Mounting
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
@@ -59,19 +61,6 @@ def test_a_rig_of_one_weighs_its_cloud_s_scores_and_draws_its_camera_s_estimate(
     assert differs >= 1
 
 
-def _T(R, p):
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, p
-    return T
-
-
-def _hat(w, v):
-    X = np.zeros((4, 4))
-    X[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
-    X[:3, 3] = v
-    return X
-
-
 def _frame_ids(out_bag) -> set:
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
 
@@ -94,7 +83,7 @@ def test_a_camera_s_replay_moves_its_outputs_to_the_base(sample_bag, tmp_path):
 
     q_bc = Rotation.from_euler("xyz", [-95, 3, -88], degrees=True).as_quat()
     t_bc = np.array([0.35, -0.12, 0.6])
-    T_bc = _T(Rotation.from_quat(q_bc).as_matrix(), t_bc)
+    T_bc = transform(Rotation.from_quat(q_bc).as_matrix(), t_bc)
     T_cb = np.linalg.inv(T_bc)
     params = {"base_frame": "base_link", "camera_to_base.translation": t_bc.tolist(),
               "camera_to_base.rotation": q_bc.tolist()}  # fmt: skip
@@ -104,14 +93,15 @@ def test_a_camera_s_replay_moves_its_outputs_to_the_base(sample_bag, tmp_path):
     for a, b in zip(cam.rows, base.rows, strict=True):
         assert (a["stamp_ns"], a["out_stamp_ns"]) == (b["stamp_ns"], b["out_stamp_ns"])
         R = Rotation.from_quat([a[f"q{k}"] for k in "xyzw"]).as_matrix()
-        T = _T(R, [a[f"p{k}"] for k in "xyz"]) @ T_cb
+        T = transform(R, [a[f"p{k}"] for k in "xyz"]) @ T_cb
         Rb = Rotation.from_quat([b[f"q{k}"] for k in "xyzw"]).as_matrix()
         np.testing.assert_allclose(Rb, T[:3, :3], atol=1e-9)
         np.testing.assert_allclose([b[f"p{k}"] for k in "xyz"], T[:3, 3], atol=1e-9)
         for w in ("", "single_"):
             if f"{w}wx" not in a:
                 continue
-            X = T_bc @ _hat([a[f"{w}w{k}"] for k in "xyz"], [a[f"{w}v{k}"] for k in "xyz"]) @ T_cb
+            xi = twist_hat([a[f"{w}w{k}"] for k in "xyz"], [a[f"{w}v{k}"] for k in "xyz"])
+            X = T_bc @ xi @ T_cb
             np.testing.assert_allclose([b[f"{w}w{k}"] for k in "xyz"], [X[2, 1], X[0, 2], X[1, 0]],
                                        atol=1e-9)  # fmt: skip
             np.testing.assert_allclose([b[f"{w}v{k}"] for k in "xyz"], X[:3, 3], atol=1e-9)
