@@ -690,7 +690,6 @@ class _Run:
         logged at its time (a camera's bag: at its frame message's); how far off each camera
         of a posed one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
         from ..outputs import FrameOutcome, PosedFrame, outcome_messages
-        from ..visualization import rig_camera_views
 
         result, mf, steps = self.result, self.map_frame, []
         done = time.perf_counter()
@@ -726,7 +725,11 @@ class _Run:
                     self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
                 step.pose, step.out_stamp_ns, step.estimate = posed.pose, t, est
                 step.twist_now = posed.twist_now
-                drawn = rig_camera_views(o, self.mounts) if views else ()
+                drawn: Iterable = ()
+                if views:  # (its module, with the visualization messages, only for them)
+                    from ..visualization import rig_camera_views
+
+                    drawn = rig_camera_views(o, self.mounts)
                 step.views = [
                     _View(self.prefixes[n], view, f.points2d, f.points3d, f.camera, f.stamp_ns,
                           f.tag or n, ref)
