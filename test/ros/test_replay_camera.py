@@ -116,8 +116,7 @@ def test_a_camera_s_replay_moves_its_outputs_to_the_base(sample_bag, tmp_path):
 
 def test_a_camera_s_replay_has_a_row_for_each_frame_its_input_drops(keypoints_bag, tmp_path):
     """Keypoints none of whose ids is in the landmark map: every frame message is a failed row
-    (``unknown_landmarks``, with its header stamp and its output stamp), counted as the node
-    counts it (``failed.unknown_landmarks``)."""
+    (``unknown_landmarks``, with its header stamp and its output stamp)."""
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
     from rs_localizer.ros.bags.replay import replay
 
@@ -134,4 +133,4 @@ def test_a_camera_s_replay_has_a_row_for_each_frame_its_input_drops(keypoints_ba
     assert res.failures == {"unknown_landmarks": len(stamps)}
     for r, s in zip(res.rows, stamps, strict=True):
         assert r["stamp_ns"] == s.sec * 10**9 + s.nanosec and r["out_stamp_ns"] >= 0
-    assert res.counts["failed.unknown_landmarks"] == len(stamps)
+    assert res.counts["unknown_landmark_ids"] >= len(stamps)

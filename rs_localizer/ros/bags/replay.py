@@ -123,9 +123,9 @@ class ReplayResult:
     loaded for a camera (``maps``: the landmarks and the front end,
     :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
     their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
-    twist), and the counters (``counts``: a camera's, as the node's diagnostics name them:
-    its frames' (``received``, ``failed.<reason>`` for those its input dropped), its rows'
-    (``points_dropped``, ``capped_clouds``, ``unknown_landmark_ids``...), ``time_resets``,
+    twist), and the counters (``counts``: a camera's, as the node's diagnostics name them
+    (its frames are its rows, not counted here): its rows' (``points_dropped``,
+    ``capped_clouds``, ``unknown_landmark_ids``...), ``time_resets``,
     ``imu_rejected.<reason>``, the gyro's (``frames_with_gyro``, ``gyro_rejected``,
     ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``...) and the map-fit check's
     (``frames_failed_with_matches``, ``map_fit_doubtful``); a rig's gyro counts by the same
@@ -629,11 +629,12 @@ class _Run:
     def frame(self, name: str, kind: str, msg: Any, views: bool) -> list[_Step]:
         """A camera's frame message through its input to the rig, in the rig node's frame step
         (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`; a frame it drops counted
-        ``failed.<reason>`` by the node alone), the gyro's samples up to
+        ``failed.<reason>`` by the node alone; a camera's bag: its row), the gyro's samples up to
         :data:`GYRO_AHEAD_NS` after its stamp first: the steps of the rig frames it completes
         (a camera's bag: of its frame, also one dropped or skipped)."""
         own, inp = self.own[name], self.inputs[name]
-        own.add("received")  # (as the node: every message, taken at once)
+        if not self.per_frame:  # (as the rig node: every message, taken at once; a camera's
+            own.add("received")  # frames are its rows)
         stamp = inp.check(msg, kind)
         if not inp.rig and not isinstance(stamp, DroppedFrame):
             # (the single camera's stamp noted on its video's clock first: a time reset acts
@@ -643,10 +644,10 @@ class _Run:
         taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp), self.frontends,
                           self._gyro_to)  # fmt: skip
         if isinstance(taken, DroppedFrame):
-            own.add(f"failed.{taken.reason}")
+            if not self.per_frame:
+                own.add(f"failed.{taken.reason}")
             return self._dropped(taken.stamp_ns, taken.reason)
         if isinstance(taken.item, DroppedFrame) and not inp.rig:  # (never given to its rig)
-            own.add(f"failed.{taken.item.reason}")
             return self._dropped(taken.item.stamp_ns, taken.item.reason)
         if not taken.outs and self.per_frame:  # (its image skipped before the estimator)
             return self._dropped(taken.item.stamp_ns, self.engine.last_search(name).failure)
