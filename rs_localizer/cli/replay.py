@@ -1,6 +1,6 @@
 """``rs-localizer replay``: the localizer node over a bag, offline (the node's parameters and
-outputs, no ROS graph): a camera's frames through its per-frame pipeline, a rig bag's cameras
-through the rig mode, reported alike."""
+outputs, no ROS graph): a rig bag's cameras through the rig mode, a camera's bag through it as
+a rig of one camera, reported alike."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     r = sub.add_parser(
         "replay",
         help=HELP,
-        description="Run the node's per-frame pipeline over every frame of a bag, with the "
+        description="Run the node's frame step over every frame of a bag, with the "
         "node's parameters: the defaults, then each --params-file (ROS 2 format: the /** and "
         "rs_localizer sections), then --param and the options below. Tracking is on as in "
         "the node: twist and odom carry the fused twist, twist_single_frame each frame's own "

@@ -249,8 +249,10 @@ class CameraInput:
         rig: take frames as a rig does: a frame without a camera model (before its
             camera_info), an empty cloud, a keypoints cloud of no known id go on to the rig
             (which counts them), not dropped; a cloud that cannot be read is dropped as
-            ``bad_input``; the rows go without their scores. Else as the single camera:
-            each of those dropped for its own reason (:data:`DROP_REASONS`).
+            ``bad_input``; the rows keep their scores (a rig of one solves them with the
+            camera's estimator, which weighs them; a rig of several's takes none). Else as
+            the single camera: each of those dropped for its own reason
+            (:data:`DROP_REASONS`).
 
     Threads: camera_infos on one thread, frames on another (the history is thread-safe).
     """
@@ -495,8 +497,6 @@ class CameraInput:
             if not hasattr(e, "reason") and (kind == "image" or not self.rig):
                 raise
             return self._dropped(stamp, camera, e)
-        if self.rig:
-            scores = None
         return CameraFrame(stamp, camera, uv, xyz, scores, tag, self.name)
 
     def step(

@@ -40,6 +40,7 @@ from ..runtime.background import ready_implementation
 from ..tracking.gyro import ImuBuffer
 from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
+from ..tracking.gyro_input import GyroReadouts
 from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
 from .camera_input import CameraCounts, CameraInput, DroppedFrame, ImageFrame
@@ -56,6 +57,7 @@ __all__ = [
     "ThrottledLog",
     "fused_outputs",
     "log_warm_up",
+    "take_imu_message",
 ]
 
 #: kinds of frame message: a correspondence cloud, a keypoint cloud (ids into the landmark
@@ -240,6 +242,30 @@ def take_gyro_sample(msg: Any, add: Callable[[int, Any], str | None]) -> str | N
     except cv.ImuError as e:
         return e.reason
     return add(stamp, omega)
+
+
+def take_imu_message(
+    msg: Any, video: GyroReadouts, count: Callable[[str], Any], warn: Callable[[str, str], Any]
+) -> str | None:
+    """The gyro sample of a ``sensor_msgs/Imu`` buffered by a camera's video (``video``: its
+    :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, or its rig of one's
+    :class:`~rs_localizer.tracking.video.Localizer`; :func:`take_gyro_sample`). Returns
+    None, or the reason it was rejected: ``disabled`` (no gyro: nothing counted), else
+    counted ``count("imu_rejected")`` and ``count("imu_rejected.<reason>")`` and warned
+    ``warn("imu.<reason>", text)``; a buffered sample that this one shows to have been a
+    lone stamp jump ahead (dropped from the buffer) likewise as ``stamp_jumped_ahead``."""
+    buf = video.imu
+    if buf is None:
+        return "disabled"
+    dropped = buf.dropped
+    reason = take_gyro_sample(msg, video.add_imu)
+    for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
+        buf.dropped - dropped
+    ):
+        count("imu_rejected")
+        count(f"imu_rejected.{why}")
+        warn(f"imu.{why}", f"IMU sample rejected ({why})")
+    return reason
 
 
 class _Drop(ValueError):
@@ -557,18 +583,7 @@ class FramePipeline:
         NaN or saturated rates). A buffered sample that this one shows to have been a lone
         stamp jump ahead (dropped from the buffer) is counted as
         ``imu_rejected.stamp_jumped_ahead``."""
-        buf = self.sequence.imu
-        if buf is None:
-            return "disabled"
-        dropped = buf.dropped
-        reason = take_gyro_sample(msg, self.sequence.add_imu)
-        for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
-            buf.dropped - dropped
-        ):
-            self.stats.add("imu_rejected")
-            self.stats.add(f"imu_rejected.{why}")
-            self.log.warning(f"imu.{why}", f"IMU sample rejected ({why})")
-        return reason
+        return take_imu_message(msg, self.sequence, self.stats.add, self.log.warning)
 
     # ---------------------------------------------------------------- frames
     def process(self, msg: Any, kind: str, stamp: Any = None) -> FrameResult:

@@ -209,9 +209,11 @@ def rig_camera_views(
     (:class:`~rs_localizer.tracking.video.LocalizerOutput`) as its ``<camera>/debug_image`` and
     ``<camera>/markers`` draw it: ``(name, its frame, its estimate, its reference line's
     stamp ns)``, the estimate the camera as the rig's pose and its mounting put it
-    (:func:`~rs_localizer.estimation.result.camera_estimate`), the stamp the rig frame's time
-    plus the camera's offset. ``mounts``: camera name -> its mounting; ``wanted``: camera
-    name -> whether to draw it (None: every camera with a frame in ``out``)."""
+    (:func:`~rs_localizer.estimation.result.camera_estimate`; a rig of one camera: its
+    camera's own estimate, :attr:`~rs_localizer.tracking.video.LocalizerOutput.camera_estimate`,
+    the one the rig's is made from), the stamp the rig frame's time plus the camera's offset.
+    ``mounts``: camera name -> its mounting; ``wanted``: camera name -> whether to draw it
+    (None: every camera with a frame in ``out``)."""
     from ..estimation.result import camera_estimate
 
     for k, n in enumerate(out.cameras):
@@ -219,6 +221,9 @@ def rig_camera_views(
         if frame is None or (wanted is not None and not wanted(n)):
             continue
         off = out.stamp_offsets.get(n, 0.0)
+        if out.camera_estimate is not None:  # (a rig of one: its camera's own estimate)
+            yield n, frame, out.camera_estimate, out.stamp_ns + int(round(off * 1e9))
+            continue
         view = camera_estimate(out.estimate, k, frame.camera, mounts[n], off,
                                frame.points2d, frame.points3d)  # fmt: skip
         yield n, frame, view, out.stamp_ns + int(round(off * 1e9))

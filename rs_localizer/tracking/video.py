@@ -559,9 +559,10 @@ class Localizer(GyroReadouts):
             found the previous one again or found too few correspondences in is not the
             rig's to count (no frame received nor skipped, the idle timer not reset, no
             warning): the caller reads the failure from :meth:`last_search` and reports it.
-        count: a camera video's counter of its images' rows (``count(key, n)``:
-            ``points_dropped``, ``capped_clouds``, ``capped_points``, under the caller's names;
-            its capping warned as ``capped``); None: counted ``<camera>.points_dropped`` etc.
+        count: the counter of its images' rows (``count(key, n)``: ``points_dropped``,
+            ``capped_clouds``, ``capped_points``, under the caller's names; its capping warned
+            as ``capped``), a camera video's or a rig of one's counted as its camera's; None:
+            counted ``<camera>.points_dropped`` etc.
 
     One camera and a rig share one clock and time-reset policy, one gyro input, one twist
     queue and one front-end driver per camera (:meth:`search_image`). A rig of one
@@ -1355,7 +1356,9 @@ class Localizer(GyroReadouts):
         marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
         A camera's own video (``camera_video``) returns no rig frame for an image skipped
         before the estimator and counts nothing for it (its caller reports the failure,
-        :meth:`last_search`); its rows are counted by its ``count`` and carry their scores.
+        :meth:`last_search`); its rows are counted by its ``count``. A camera's rows carry
+        their scores (a rig of one's estimator, the camera's, weighs them; a rig of several's
+        takes none).
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``,
@@ -1409,8 +1412,6 @@ class Localizer(GyroReadouts):
         uv, xyz, scores = self._usable_rows(name, uv, xyz, found.valid_scores())
         r.points2d, r.points3d = uv, xyz
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        if self._rig:  # (a rig's cameras' frames without their scores)
-            scores = None
         frame = CameraFrame(stamp, camera, uv, xyz, scores, tag, camera_name=name)
         return self._observed(self._add(frame, ref))
 

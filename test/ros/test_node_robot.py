@@ -11,21 +11,9 @@ pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
 from helpers.ros import start_node, stop_node
+from helpers.transforms import transform, twist_hat
 
 OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_covariance")
-
-
-def _T(R, p):
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, p
-    return T
-
-
-def _hat(w, v):
-    X = np.zeros((4, 4))
-    X[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
-    X[:3, 3] = v
-    return X
 
 
 def _base_ground_truth(gt, T_bc):
@@ -37,10 +25,10 @@ def _base_ground_truth(gt, T_bc):
     out = GroundTruth(stamps=gt.stamps.copy())
     T_cb = np.linalg.inv(T_bc)
     for s in gt.stamps:
-        T = _T(gt.orientation[s], gt.position[s]) @ T_cb
+        T = transform(gt.orientation[s], gt.position[s]) @ T_cb
         out.orientation[s], out.position[s] = T[:3, :3], T[:3, 3]
         if s in gt.angular_velocity:
-            X = T_bc @ _hat(gt.angular_velocity[s], gt.linear_velocity[s]) @ T_cb
+            X = T_bc @ twist_hat(gt.angular_velocity[s], gt.linear_velocity[s]) @ T_cb
             out.angular_velocity[s] = np.array([X[2, 1], X[0, 2], X[1, 0]])
             out.linear_velocity[s] = X[:3, 3]
     return out
@@ -80,7 +68,7 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
         )
         assert res.answered == len(res.frames) == 12, node.log
         gt = _base_ground_truth(
-            load_ground_truth(sample_bag), _T(Rotation.from_quat(q_bc).as_matrix(), t_bc)
+            load_ground_truth(sample_bag), transform(Rotation.from_quat(q_bc).as_matrix(), t_bc)
         )
         s = summarize_errors(evaluate_outputs(res.frames, gt, ["/camera"])["/camera"])
         # the camera-frame limits of test_node.py; a missing or wrong transform is off by the

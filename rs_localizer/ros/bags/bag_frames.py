@@ -547,8 +547,7 @@ def camera_messages(
     of :func:`iter_rig_frames`): the messages of ``topics`` (topic -> ``(kind, camera name)``,
     kind ``info`` for a ``sensor_msgs/CameraInfo``) in log-time order, deserialized, each
     camera_info given to its camera's input as it comes (``inputs[camera name].
-    add_camera_info(msg)``: a :class:`~rs_localizer.ros.camera_input.CameraInput`, or a
-    camera's :class:`~rs_localizer.ros.pipeline.FramePipeline`).
+    add_camera_info(msg)``: a :class:`~rs_localizer.ros.camera_input.CameraInput`).
 
     Yields:
         ``(kind, camera name, message, log time ns)`` of every message, camera_infos included.

@@ -1,16 +1,16 @@
 """Offline replay: the localizer node over every frame of a bag, without middleware; a camera's
 bag, or a rig bag's cameras (a camera alone is a rig of one).
 
-A camera's frames go through the node's own per-frame pipeline
-(:class:`~rs_localizer.ros.pipeline.FramePipeline`) configured from the node's parameters
+Both go through the rig mode as the rig node runs it, configured from the node's parameters
 (:mod:`..params`; :mod:`..param_files`: defaults, then ROS 2 parameter files, then
-overrides), so a replay publishes what the node would: the pose, the frame's own twist
-(``twist_single_frame``) and, with tracking (the default), the fused twist on ``twist`` and
-``odom`` when it is final. A rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.
-is_rig_bag`) go through the rig mode as the rig node runs it, a rig frame for a frame. Either
-way it is one run: the bag's messages read once in log-time order, each camera_info to its
-camera's input, the gyro's samples read first, the mode's frame step the only difference;
-and the outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
+overrides): a rig bag's cameras (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`) a rig
+frame for a frame, a camera's bag as a rig of one camera (its frames solved as the camera's
+video solves them, with the camera's parameters), so that a replay publishes what the node
+would: the pose, the frame's own twist (``twist_single_frame``) and, with tracking (the
+default), the fused twist on ``twist`` and ``odom`` when it is final. It is one run: the
+bag's messages read once in log-time order, each camera_info to its camera's input, the
+gyro's samples read first, each frame message through the rig node's frame step; and the
+outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
 frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth (``/ground_truth/*``)
 when it has one and, with ``debug_outputs``, the node's visualization topics in the output bag
 (``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`; of a rig,
@@ -25,6 +25,7 @@ import math
 import os
 import shutil
 import sys
+import time
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,14 +39,15 @@ from ...accuracy import (
     frame_fit_summary,
     summarize_errors,
 )
+from ...frames import camera_to_base
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..outputs import frame_messages, fused_messages, pose_messages
+from ..outputs import fused_messages
 from ..param_files import parameter_values, read_params_file
-from ..pipeline import FramePipeline, FrameResult, FusedOutput, MapFitCheck
+from ..pipeline import FusedOutput, MapFitCheck, fused_outputs
 from .bag_frames import (
     QuietLog,
     camera_messages,
@@ -121,14 +123,18 @@ class ReplayResult:
     loaded for a camera (``maps``: the landmarks and the front end,
     :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
     their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
-    twist), and the counters (``counts``: a camera's pipeline's, e.g. ``frames_with_gyro``,
-    ``gyro_rejected``, ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the
-    node's diagnostics; a rig's gyro counts by the same names), ``gyro_bias`` and
-    ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used, the online
-    estimate with ``imu.estimate_bias``; None without ``imu.enabled``), ``readout`` (the check
-    of the rolling-shutter timing on the video at its end, ``readout_suspect``,
-    ``readout_contradicted``: :meth:`~rs_localizer.tracking.video.Localizer.readout_values`;
-    a camera's with its tracking's other values), ``notes`` (warnings for the user).
+    twist), and the counters (``counts``: a camera's, as the node's diagnostics name them
+    (its frames are its rows, not counted here): its rows' (``points_dropped``,
+    ``capped_clouds``, ``unknown_landmark_ids``...), ``time_resets``,
+    ``imu_rejected.<reason>``, the gyro's (``frames_with_gyro``, ``gyro_rejected``,
+    ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``...) and the map-fit check's
+    (``frames_failed_with_matches``, ``map_fit_doubtful``); a rig's gyro counts by the same
+    names), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last
+    frame used, the online estimate with ``imu.estimate_bias``; None without
+    ``imu.enabled``), ``readout`` (the tracking's values at the end of the video with the
+    check of the rolling-shutter timing, ``readout_suspect``, ``readout_contradicted``:
+    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`), ``notes`` (warnings
+    for the user).
 
     A rig bag's replay also has (empty for a camera's):
 
@@ -142,10 +148,12 @@ class ReplayResult:
       disagreeing), how far off it is: deg between its rotation posed alone and where the
       rig's pose and its mounting put it (NaN where it could not be posed alone;
       :meth:`~rs_localizer.tracking.video.Localizer.camera_off_deg`), summed up by
-      :attr:`disagreeing`;
-    - ``outputs``: every rig frame's :class:`~rs_localizer.tracking.video.LocalizerOutput`
-      (each camera frame tagged with its frame id, as the rig node tags it); ``flushed``:
-      the fused poses still pending at the end of the video.
+      :attr:`disagreeing`.
+
+    Both have ``outputs``, every rig frame's
+    :class:`~rs_localizer.tracking.video.LocalizerOutput` (a camera's: its rig of one's, of
+    each frame that reached it; each camera frame tagged with its frame id, as the rig node
+    tags it), and ``flushed``, the fused poses still pending at the end of the video.
     """
 
     rows: list = field(default_factory=list)
@@ -265,10 +273,11 @@ def replay(
     imu_topic: str | None = None,
     log: Any = None,
 ) -> ReplayResult:
-    """Run the localizer node over every frame of a bag, offline: a camera's frames through
-    its per-frame pipeline, or a rig bag's cameras through the rig mode
+    """Run the localizer node over every frame of a bag, offline, through the rig mode
+    (:class:`_Run`): a rig bag's cameras
     (:func:`~rs_localizer.ros.bags.bag_frames.is_rig_bag`: ``make-bag --rig``, ``render-bag
-    --rig``, or a recording with ``rig.cameras`` in the parameters), a rig frame for a frame.
+    --rig``, or a recording with ``rig.cameras`` in the parameters), a rig frame for a frame;
+    a camera's bag as a rig of one camera, a frame for a frame.
 
     Args:
         path: bag directory (make-bag or render-bag output, or a recording), or its storage
@@ -304,8 +313,8 @@ def replay(
         imu_topic: with ``imu.enabled`` the ``sensor_msgs/Imu`` topic whose gyro the frames
             use (default: the bag's only IMU topic; a rig's ``<namespace>/imu``); all its
             samples are buffered first.
-        progress: stream for the progress bar (None: none). log: logger for the pipeline's
-            warnings (None: silent).
+        progress: stream for the progress bar (None: none). log: logger (``info``,
+            ``warning``) for a camera's warnings, throttled as the node's (None: silent).
 
     Raises:
         ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
@@ -327,10 +336,10 @@ def replay(
         if given:
             raise ValueError(f"{', '.join(given)}: not for a rig bag (its cameras' topics are "
                              "<namespace>/<camera>/..., its gyro's <namespace>/imu)")  # fmt: skip
-        run: _CameraReplay | _RigReplay = _RigReplay(path, params_files, params)
+        run = _Run.of_rig_bag(path, params_files, params)
     else:
-        run = _CameraReplay(path, params_files, params, source, image_topic, imu_topic,
-                            debug_outputs, log)  # fmt: skip
+        run = _Run.of_camera_bag(path, params_files, params, source, image_topic, imu_topic,
+                                 debug_outputs, log)  # fmt: skip
     result = run.result
     ts = typestore()
     gt = load_ground_truth(path) if GT_POSE in run.bag_topics else GroundTruth()
@@ -416,33 +425,178 @@ _WANTED = OUT_TYPES.__contains__
 
 
 class _Run:
-    """The one run of :func:`replay`, of a camera's bag or a rig's: the IMU's samples read
-    first, then the bag's camera messages once, in log-time order
+    """The one run of :func:`replay`: a bag's cameras through the rig mode, as the rig node
+    runs it, a rig bag's cameras (:meth:`of_rig_bag`) or a camera's bag as a rig of one camera
+    named ``""`` (:meth:`of_camera_bag`). The IMU's samples are read first, then the bag's
+    camera messages once, in log-time order
     (:func:`~rs_localizer.ros.bags.bag_frames.camera_messages`: each camera_info given to its
-    camera's input), each frame message through the mode's frame step (:meth:`frame`: a
-    camera's pipeline, or a rig camera's input and the rig), then the end of the video
-    (:meth:`close`) and the fused twists still pending; each frame's :class:`_Step` from
-    :meth:`steps`. A mode sets, on construction: ``path``, ``topics`` (topic -> ``(kind,
-    camera name)``), ``inputs`` (camera name -> what takes its camera_infos), ``imu_topic``
-    (None: no gyro), ``total`` and ``unit`` (the progress bar's), ``map_frame``, ``views``
-    (the cameras' prefixes of the debug outputs), ``image_topics`` (topic -> camera prefix:
-    the images they are drawn on), ``bag_topics`` (the bag's topic -> msgtype), ``result``
-    (:class:`ReplayResult`) and ``engine`` (whose ``gyro_bias_values`` it reports)."""
+    camera's input), each frame message through the rig node's frame step (:meth:`frame`:
+    :meth:`~rs_localizer.ros.camera_input.CameraInput.enter`: the entry checks, a frame they
+    drop counted ``failed.<reason>``, then the camera's rows or image to the rig, a
+    :class:`~rs_localizer.tracking.video.Localizer`), then the end of the video
+    (:meth:`close`) and the fused twists still pending; each rig frame's :class:`_Step` from
+    :meth:`steps`, published as the rig node publishes it (:func:`..outputs.outcome_messages`:
+    its pose in ``map_frame``, its twists in :attr:`base_frame`).
+
+    A camera's bag differs where a camera's frames do: each frame message is a row (also one
+    dropped before its rig of one or skipped by it, with its reason; stamped with its header
+    stamp), logged at its own log time; its IMU's samples are all buffered before the frames,
+    in the bag's order; its outputs are moved to the robot's ``base_frame`` by
+    ``camera_to_base.*`` when set (else in its frames' frame id).
+    """
+
+    #: a camera's bag: one row per frame message, logged at its log time (:meth:`of_camera_bag`)
+    per_frame = False
+    #: the outputs' frame (None: each frame's camera frame id) and the mounting that moves the
+    #: rig's pose there (None: as it is)
+    base_frame: str | None = None
+    out_mount: Any = None
+
+    @classmethod
+    def of_rig_bag(cls, path: Path, params_files: list, params) -> _Run:
+        """A rig bag's cameras through the rig mode (:func:`replay`): configured from the
+        parameters (:func:`~rs_localizer.ros.bags.bag_frames.rig_bag_config`: the defaults,
+        the bag's ``rig_params.yaml``, ``params_files``, ``params``): the rig, each camera's
+        input (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`) and front end.
+
+        Each camera's frame message (its clouds; with a front end, ``frontend`` other than
+        ``none``, its images ``<namespace>/<camera>/image_raw`` instead) takes the rig node's
+        frame step, so that each camera's counts are the rig node's on the same messages
+        (taken as they come, none dropped from a full queue). A gyro on the rig
+        (``imu.enabled``) is read from ``<namespace>/imu``, its samples up to
+        :data:`GYRO_AHEAD_NS` after a frame's stamp given to the rig before the frame. Each
+        rig frame is logged at its time.
+
+        Raises:
+            ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without
+                mounting, no ``rig.cameras``, a front end whose map does not load), or a front
+                end for a bag without camera images.
+        """
+        from ...tracking.video import Localizer
+        from ..camera_input import rig_camera_inputs
+
+        run = cls()
+        values, _, cfg = rig_bag_config(path, params_files, params)
+        run.path, run.cfg = path, cfg
+        run.engine = rig = Localizer(cfg.settings)
+        names = tuple(c.name for c in cfg.cameras)
+        run._cameras(names, {c.name: c.mount for c in cfg.cameras}, {n: f"{n}/" for n in names})
+        ns = rig_namespace(path, names)
+        run.imu_topic = f"{ns}/imu" if cfg.settings.imu is not None else None
+        try:
+            frontends = rig_frontends(cfg, owner=run)
+            run.landmarks = rig_landmarks(cfg, owner=run)
+        except BaseException:
+            SHARED_MAPS.release(run)
+            raise
+        run.inputs = rig_camera_inputs(cfg, QuietLog(), run._count, landmarks=run.landmarks)
+        for n, fe in (frontends or {}).items():  # (each camera's own, as the node runs them)
+            rig.set_frontend(n, fe, str(values["frontend"]).strip())
+        run.frontends = frontends is not None  # (images are read only with them)
+        kinds = rig_kinds(run.inputs, run.frontends)
+        run.topics = RigTopics(ns, names).of(("info", *kinds))
+        run.total, run.unit = None, " rig frames"
+        run.map_frame = str(values["map_frame"])
+        run.base_frame = str(values["base_frame"]).strip() or "base_link"
+        run.bag_topics = present = bag_topics(path)
+        run.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(ns, names).of(("image",))
+                            .items() if t in present}  # fmt: skip
+        run.twist_now = cfg.settings.tracking is None
+        run.result = ReplayResult(config=cfg, parameters=values, cameras=names,
+                                  tracked=not run.twist_now)  # fmt: skip
+        run.fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end)
+        return run
+
+    @classmethod
+    def of_camera_bag(cls, path: Path, params_files: list, params, source, image_topic,
+                      imu_topic, debug_outputs: bool, log: Any) -> _Run:  # fmt: skip
+        """A camera's bag through the rig mode as a rig of one camera named ``""`` at the
+        identity mounting (:func:`~rs_localizer.tracking.sequence.rig_of_one`: the camera's
+        solver, estimator options, tracking, gyro, ``stamp_row``, ``time_reset_ns``,
+        ``max_points``), configured from the node's parameters as the camera's node takes
+        them (:func:`_replay_config`: ``camera.*`` and its camera_infos with the ``rs.*``
+        timing, ``camera_frame``, ``camera_to_base.*``, ``imu.*``, the front end,
+        ``landmarks_file``...); its topics found (:func:`_replay_topics`). The camera's input
+        is the single camera's (:class:`~rs_localizer.ros.camera_input.CameraInput`: the
+        frames it refuses dropped with their reasons, its stamps noted on its video's clock
+        before their camera_info is looked up); its warnings and the gyro's to ``log``."""
+        from ...tracking.gyro_input import GyroInput
+        from ...tracking.sequence import SequenceSettings, rig_of_one
+        from ...tracking.video import Localizer
+        from ..camera_input import CameraInput
+        from ..pipeline import ThrottledLog
+
+        run = cls()
+        run.per_frame = True
+        values, cfg, maps, source = _replay_config(path, params_files, params, source)
+        counted = bag_connections(path)  # (the bag's topics, read once)
+        run.bag_topics = topics = {t: mt for t, (mt, _) in counted.items()}
+        frames, info_topic, viz_topic, run.imu_topic = _replay_topics(
+            path, topics, cfg, source, image_topic, imu_topic, debug_outputs)  # fmt: skip
+        run.total, run.unit = counted[frames][1], "frame"
+        run.topics = {frames: (source, "")}
+        if info_topic is not None:
+            run.topics[info_topic] = ("info", "")
+        if cfg.imu is not None:
+            # (offline every sample is buffered before the frames: no waiting)
+            cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
+        run.path, run.cfg = path, cfg
+        settings = rig_of_one(SequenceSettings(
+            solver=cfg.solver, options=cfg.options, tracking=cfg.tracking, imu=cfg.imu,
+            stamp_row=cfg.stamp_row, time_reset_ns=cfg.time_reset_ns, max_points=cfg.max_points,
+        ))  # fmt: skip
+        run.log = tlog = ThrottledLog(log)
+        run._cameras(("",), dict(settings.mounts), {"": ""})
+        own = run.own[""]
+        gyro = GyroInput(own.add, tlog, span=math.inf)  # (the camera's counts and wording)
+        run.engine = rig = Localizer(settings, tlog, gyro_input=gyro, count=own.add)
+        run.landmarks = maps.landmarks
+        inp = CameraInput(tlog, own.add, name="")
+        cam = cfg.camera
+        inp.configure(cam.camera_from_info, cfg.max_points, cam.fallback, 0.0, maps.landmarks,
+                      cam.frame)  # fmt: skip
+        run.inputs = {"": inp}
+        if maps.frontend is not None:
+            rig.set_frontend("", maps.frontend, cam.frontend_kind)
+        run.frontends = maps.frontend is not None
+        run.map_frame = cfg.map_frame
+        if cam.mount is not None:
+            run.base_frame, run.out_mount = cfg.base_frame, cam.mount
+        run.image_topics = {viz_topic: ""} if viz_topic else {}
+        run.twist_now = settings.tracking is None
+        run.result = ReplayResult(config=cfg, maps=maps, parameters=values, solver=cfg.solver,
+                                  tracked=not run.twist_now)  # fmt: skip
+        timing = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
+        for note in (timing, _imu_mount_note(cfg, read_bag_info(path))):
+            if note is not None:
+                run.result.notes.append(note)
+        run.fit = MapFitCheck()
+        return run
+
+    def _cameras(self, names: tuple, mounts: dict, prefixes: dict) -> None:
+        """The cameras' mountings, the node's counts of each, their debug outputs' prefixes."""
+        from ..camera_input import CameraCounts
+
+        self.mounts, self.prefixes = mounts, prefixes
+        self.views = tuple(prefixes.values())
+        self.own = {n: CameraCounts(n) for n in names}  # (the node's counts of each)
+        self.off_deg: dict[str, list] = {}
+        self.t_log = 0
 
     def steps(self, progress: TextIO | None, views: bool) -> Iterator[_Step]:
-        """Every frame's :class:`_Step` (a rig's: each rig frame its cameras' frames complete,
-        then those the end of the video closes), then the twists still pending at the end."""
+        """Every frame's :class:`_Step` (each rig frame its cameras' frames complete, then
+        those the end of the video closes), then the twists still pending at the end."""
         imu = self.imu_topic and camera_messages(self.path, {self.imu_topic: ("imu", "")}, {})
         self.start([msg for _, _, msg, _ in imu or ()])
         bar = progress_bar(progress, self.total, unit=self.unit)
-        t_log = 0
         try:
             for kind, name, msg, t_log in camera_messages(self.path, self.topics, self.inputs):
                 if kind != "info":
-                    steps = self.frame(name, kind, msg, t_log, views)
+                    self.t_log = t_log
+                    steps = self.frame(name, kind, msg, views)
                     yield from steps
                     bar.update(len(steps))
-            steps, t_end, fused = self.close(t_log, views)
+            steps, t_end, fused = self.close(views)
             yield from steps
             bar.update(len(steps))
             yield _Step(t_end, fused_messages(fused, self.map_frame, _WANTED), fused)
@@ -450,97 +604,193 @@ class _Run:
             bar.close()
             SHARED_MAPS.release(self)  # (a rig's cameras' front ends and landmarks)
 
-
-class _CameraReplay(_Run):
-    """A camera's bag through the node's per-frame pipeline (:func:`replay`), configured (and
-    its topics found) on construction: its IMU's samples all buffered first (no waiting), its
-    camera_infos to the pipeline, each frame through the pipeline."""
-
-    def __init__(self, path: Path, params_files: list, params, source, image_topic, imu_topic,
-                 debug_outputs: bool, log: Any):  # fmt: skip
-        values, cfg, maps, source = _replay_config(path, params_files, params, source)
-        counted = bag_connections(path)  # (the bag's topics, read once)
-        self.bag_topics = topics = {t: mt for t, (mt, _) in counted.items()}
-        frame_topic, info_topic, viz_topic, self.imu_topic = _replay_topics(
-            path, topics, cfg, source, image_topic, imu_topic, debug_outputs)  # fmt: skip
-        self.total, self.unit = counted[frame_topic][1], "frame"
-        self.topics = {frame_topic: ("frame", "")}
-        if info_topic is not None:
-            self.topics[info_topic] = ("info", "")
-        if cfg.imu is not None:
-            # (offline every sample is buffered before the frames: no waiting)
-            cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
-        self.path, self.cfg, self.source = path, cfg, source
-        self.map_frame, self.views = cfg.map_frame, ("",)
-        self.image_topics = {viz_topic: ""} if viz_topic else {}
-        self.result = ReplayResult(config=cfg, maps=maps, parameters=values, solver=cfg.solver,
-                                   tracked=cfg.tracking is not None)  # fmt: skip
-        note = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
-        if note is not None:
-            self.result.notes.append(note)
-        note = _imu_mount_note(cfg, read_bag_info(path))
-        if note is not None:
-            self.result.notes.append(note)
-        self.pipeline = self.engine = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
-        self.inputs = {"": self.pipeline}
+    def _count(self, name: str, key: str, n: int = 1) -> None:
+        self.own[name].add(key, n)
 
     def start(self, imu: list) -> None:
+        """The gyro's samples: a camera's all buffered now, in the bag's order (each rejected
+        one counted ``imu_rejected.<reason>``: :func:`~rs_localizer.ros.pipeline.
+        take_imu_message`); a rig's kept ``(stamp_ns, (wx, wy, wz))``, newest first (popped
+        oldest first, :meth:`_gyro_to`), those without an angular velocity or a readable
+        stamp left out."""
+        self.gyro: list = []
+        if self.per_frame:
+            from ..pipeline import take_imu_message
+
+            for msg in imu:
+                take_imu_message(msg, self.engine, self.own[""].add, self.log.warning)
+            return
         for msg in imu:
-            self.pipeline.add_imu(msg)
+            try:
+                self.gyro.append(cv.gyro_sample(msg))
+            except cv.ImuError:
+                continue
+        self.gyro.sort(key=lambda x: x[0], reverse=True)
 
-    def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
-        """A frame through the pipeline: its step."""
-        res = self.pipeline.process(msg, self.source)
-        est, ms = res.estimate, res.times.get("estimate", math.nan) * 1e3
-        row = _row(res.stamp_ns, res.out_stamp_ns, res.solved, res.failure or "", self.cfg.solver,
-                   est, 0 if est is None else len(res.points2d), ms)  # fmt: skip
-        step = _Step(t_log, frame_messages(res, self.map_frame, _WANTED), res.fused, row)
-        if res.solved:
-            step.pose, step.out_stamp_ns = res.output, res.out_stamp_ns
-            step.twist_now, step.estimate = res.twist_now, res.estimate
-            if views:
-                step.views = [_camera_view(res)]
-        return [step]
+    def frame(self, name: str, kind: str, msg: Any, views: bool) -> list[_Step]:
+        """A camera's frame message through its input to the rig, in the rig node's frame step
+        (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`; a frame it drops counted
+        ``failed.<reason>`` by the node alone; a camera's bag: its row), the gyro's samples up to
+        :data:`GYRO_AHEAD_NS` after its stamp first: the steps of the rig frames it completes
+        (a camera's bag: of its frame, also one dropped or skipped)."""
+        own, inp = self.own[name], self.inputs[name]
+        if not self.per_frame:  # (as the rig node: every message, taken at once; a camera's
+            own.add("received")  # frames are its rows)
+        stamp = inp.check(msg, kind)
+        if not inp.rig and not isinstance(stamp, DroppedFrame):
+            # (the single camera's stamp noted on its video's clock first: a time reset acts
+            # before its camera_info is looked up)
+            inp.note_time(stamp, self.engine.check_time)
+        self._ft = None
+        taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp), self.frontends,
+                          self._gyro_to)  # fmt: skip
+        if isinstance(taken, DroppedFrame):
+            if not self.per_frame:
+                own.add(f"failed.{taken.reason}")
+            return self._dropped(taken.stamp_ns, taken.reason)
+        if isinstance(taken.item, DroppedFrame) and not inp.rig:  # (never given to its rig)
+            return self._dropped(taken.item.stamp_ns, taken.item.reason)
+        if not taken.outs and self.per_frame:  # (its image skipped before the estimator)
+            return self._dropped(taken.item.stamp_ns, self.engine.last_search(name).failure)
+        return self._steps(taken.outs, views, taken)
 
-    def close(self, t_log: int, views: bool) -> tuple[list, int, list]:
-        """The end of the video: the twists still pending, at the bag's last log time."""
-        return [], t_log, self.pipeline.flush()
+    def _dropped(self, stamp: int | None, reason: str) -> list[_Step]:
+        """A camera's bag's frame that no rig frame poses: its failed row (its output stamp
+        when its times were made); a rig bag's: nothing (its camera's counts have it)."""
+        if not self.per_frame:
+            return []
+        out_stamp = None if self._ft is None else self._ft.reference_ns
+        row = _row(stamp, out_stamp, False, reason, self.result.solver, None)
+        return [_Step(self.t_log, [], [], row)]
+
+    def _gyro_to(self, ft: FrameTime) -> None:
+        self._ft = ft  # (the frame's times, made once)
+        while self.gyro and self.gyro[-1][0] <= ft.stamp_ns + GYRO_AHEAD_NS:  # (its readout's)
+            self.engine.add_imu(*self.gyro.pop())
+
+    def close(self, views: bool) -> tuple[list, int, list]:
+        """The end of the video: the rig frames it closes, then the fused twists still
+        pending, at the last rig frame's time (a camera's bag: its last message's)."""
+        rig, result = self.engine, self.result
+        tail = rig.close()
+        result.flushed = rig.flush()
+        steps = self._steps(tail, views)
+        t_end = self.t_log if self.per_frame else (
+            result.outputs[-1].stamp_ns if result.outputs else 0)  # fmt: skip
+        return steps, t_end, self._fused(result.flushed)
+
+    def _fused(self, fused: list) -> list[FusedOutput]:
+        """twist / odom of the rig frames whose fused twist is final, in :attr:`base_frame`
+        (moved there by :attr:`out_mount`), else in their camera's frame id."""
+        if self.base_frame is not None:
+            return fused_outputs(fused, self.base_frame, self.out_mount)
+        return [FusedOutput(f.pose.stamp_ns, f, next(iter(f.tag.values()))) for f in fused]
+
+    def _steps(self, outs: list, views: bool, taken: Any = None) -> list[_Step]:
+        """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
+        the rig node tags it; ``taken``: the frame step that completed them, its time), each
+        logged at its time (a camera's bag: at its frame message's); how far off each camera
+        of a posed one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
+        from ..outputs import FrameOutcome, PosedFrame, outcome_messages
+
+        result, mf, steps = self.result, self.map_frame, []
+        done = time.perf_counter()
+        for o in outs:
+            t, est = o.stamp_ns, o.estimate
+            if est is not None:
+                result.solver = result.solver or est.solver
+                if self.per_frame:  # (the camera's counts, as its node's diagnostics)
+                    self.fit.check(o.num_points, est, self.own[""], self.log.warning)
+                else:
+                    self.fit.update(o.num_points, est)
+            fused = self._fused(o.fused)
+            posed = None
+            if o.success:
+                base = self.base_frame or o.tags[o.cameras[0]]
+                pose = est if self.out_mount is None else camera_to_base(est, self.out_mount)
+                posed = PosedFrame(pose, t, base, self.twist_now or o.twist_now)
+            msgs = outcome_messages(FrameOutcome(posed, fused), mf, _WANTED)
+            failure = "" if o.success else (est.failure if est is not None else "error")
+            stamp, ms, solver = t, None, est.solver if est is not None else ""
+            if self.per_frame:  # (a camera's frame: its header stamp, its estimator's time)
+                stamp, solver = o.frames[o.cameras[0]].stamp_ns, result.solver
+                if not o.success:
+                    failure = (est.failure if est is not None else None) or "estimator_error"
+                ms = self._estimate_ms(taken, o, done)
+            row = _row(stamp, t, o.success, failure, solver, est, o.num_points, ms)
+            step = _Step(self.t_log if self.per_frame else t, msgs, fused, row)
+            result.outputs.append(o)
+            if o.success:
+                for n in (n for n in o.cameras if n in o.outvoted or n in o.disagreeing):
+                    f = o.frames.get(n)
+                    deg = None if f is None else self.engine.camera_off_deg(o, f)
+                    self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
+                step.pose, step.out_stamp_ns, step.estimate = posed.pose, t, est
+                step.twist_now = posed.twist_now
+                drawn: Iterable = ()
+                if views:  # (its module, with the visualization messages, only for them)
+                    from ..visualization import rig_camera_views
+
+                    drawn = rig_camera_views(o, self.mounts)
+                step.views = [
+                    _View(self.prefixes[n], view, f.points2d, f.points3d, f.camera, f.stamp_ns,
+                          f.tag or n, ref)
+                    for n, f, view, ref in drawn
+                ]  # fmt: skip
+            steps.append(step)
+        return steps
+
+    def _estimate_ms(self, taken: Any, o: Any, done: float) -> float | None:
+        """ms, a camera's frame's estimator time: its frame step after its frame was taken
+        (decoded, read), less its front end's search and the wait for its gyro samples."""
+        if taken is None:
+            return None
+        search = self.engine.last_search(o.cameras[0]) if self.frontends else None
+        front = search.seconds if search is not None else 0.0
+        return (done - taken.taken_at - front - o.gyro_seconds) * 1e3
 
     def finish(self, rows: ReplayRows) -> None:
-        """The pipeline's counts and the map-fit check's warning into the result."""
-        result, pipeline = self.result, self.pipeline
-        result.counts = pipeline.stats.snapshot().counts
-        if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
-            result.notes.append(pipeline.map_fit_text())
+        """The counts and the warnings of the video into the result: a camera's counts (its
+        input's, its gyro's, the map-fit check's, as the node's diagnostics name them); a
+        rig's cameras' and the rig's counts, the gyro's, the rig frames' own twist and the
+        cameras' disagreement."""
+        result, rig = self.result, self.engine
+        if self.per_frame:
+            result.counts = self.own[""].counts()
+        else:
+            result.camera_counts = {"rig": rig.rig_counts()}
+            for n in rig.cameras:
+                result.camera_counts[n] = camera_counts(rig, n, self.own[n].counts(),
+                                                        self.landmarks is not None)  # fmt: skip
+            result.off_deg = self.off_deg
+            result.own_twist = rows.own_twist()
+            if self.cfg.settings.imu is not None:
+                result.counts = rig.gyro_counts()
+        if self.fit.doubtful:
+            result.notes.append(self.fit.text())
+        if self.cfg.unused_text:  # (a parameter file shared with cameras)
+            result.notes.append(self.cfg.unused_text)
 
     def readout_values(self) -> dict:
-        """The tracking's values, with the check of the rolling-shutter timing."""
-        return self.pipeline.tracking_values()
+        """The tracking's values, with the check of the cameras' rolling-shutter timing on
+        the video (:meth:`~rs_localizer.tracking.video.Localizer.tracking_values`)."""
+        return self.engine.tracking_values()
 
 
-def _row(stamp_ns: int, out_stamp_ns: int | None, success: bool, failure: str, solver: str,
-         est: RSPoseEstimate | None, num_points: int = 0,
+def _row(stamp_ns: int | None, out_stamp_ns: int | None, success: bool, failure: str,
+         solver: str, est: RSPoseEstimate | None, num_points: int = 0,
          time_ms: float | None = None) -> dict:  # fmt: skip
     """The row of a frame, a camera's or a rig frame (:meth:`ReplayRows.add` numbers it and
-    adds its pose and twists): its stamps (ns; the outputs' None: a camera's frame dropped
-    before its times were made), ``success``, ``failure`` ("" when solved), ``solver``; with
-    an estimate (solved or failed): a camera's ``time_ms`` (the estimator's), ``num_points``
-    (a rig frame's: all its cameras'), the estimate's ``num_inliers`` and ``rmse_px``."""
+    adds its pose and twists): its stamps (ns; None: a camera's frame dropped before they were
+    made), ``success``, ``failure`` ("" when solved), ``solver``; with an estimate (solved or
+    failed): a camera's ``time_ms`` (the estimator's), ``num_points`` (a rig frame's: all its
+    cameras'), the estimate's ``num_inliers`` and ``rmse_px``."""
     row = {"stamp_ns": stamp_ns, "out_stamp_ns": out_stamp_ns, "success": success,
            "failure": failure, "solver": solver}  # fmt: skip
     if est is not None:
         row.update(time_ms=time_ms, num_points=num_points, num_inliers=est.num_inliers,
                    rmse_px=est.rmse_px)  # fmt: skip
     return {k: v for k, v in row.items() if v is not None or k not in ("out_stamp_ns", "time_ms")}
-
-
-def _camera_view(res: FrameResult) -> _View:
-    """The drawing of a camera's solved frame: on its decoded input image (image mode), else
-    on the bag's image of its stamp."""
-    image = res.image
-    image = image[:2] if image is not None and int(image[2]) == res.stamp_ns else None
-    return _View("", res.estimate, res.points2d, res.points3d, res.camera, res.stamp_ns,
-                 res.frame_id, res.out_stamp_ns, image)  # fmt: skip
 
 
 #: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
@@ -567,169 +817,6 @@ def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: boo
     why = (f"{n}.failed.", f"{n}.skipped.")
     out.update({k[len(n) + 1 :]: v for k, v in section.items() if k.startswith(why) and v})
     return out
-
-
-class _RigReplay(_Run):
-    """A rig bag's cameras through the rig mode, as the rig node runs it (:func:`replay`):
-    configured on construction from the parameters
-    (:func:`~rs_localizer.ros.bags.bag_frames.rig_bag_config`: the defaults, the bag's
-    ``rig_params.yaml``, ``params_files``, ``params``): the rig
-    (:class:`~rs_localizer.tracking.video.Localizer`), each camera's input
-    (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`) and front end.
-
-    Each camera's frame message (its clouds; with a front end, ``frontend`` other than
-    ``none``, its images ``<namespace>/<camera>/image_raw`` instead) takes the rig node's
-    frame step (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`: the entry checks,
-    a frame they drop counted ``failed.<reason>`` and never seen by the rig; then the
-    camera's rows or image to the rig, its stamp noted on the rig's clock), so that each
-    camera's counts are the rig node's on the same messages (taken as they come, none
-    dropped from a full queue). A gyro on the rig (``imu.enabled``) is read from
-    ``<namespace>/imu``, its samples up to :data:`GYRO_AHEAD_NS` after a frame's stamp given
-    to the rig before the frame. Each rig frame is published as the rig node publishes it:
-    its pose in ``map_frame``, its twist in ``base_frame``.
-
-    Raises:
-        ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
-            no ``rig.cameras``, a front end whose map does not load), or a front end for a bag
-            without camera images.
-    """
-
-    def __init__(self, path: Path, params_files: list, params):
-        from ...tracking.video import Localizer
-        from ..camera_input import CameraCounts, rig_camera_inputs
-
-        values, _, cfg = rig_bag_config(path, params_files, params)
-        self.path, self.cfg = path, cfg
-        self.engine = rig = Localizer(cfg.settings)
-        names = tuple(c.name for c in cfg.cameras)
-        self.mounts = {c.name: c.mount for c in cfg.cameras}
-        self.own = {n: CameraCounts(n) for n in names}  # (the node's counts of each)
-        self.off_deg: dict[str, list] = {}
-        ns = rig_namespace(path, names)
-        self.imu_topic = f"{ns}/imu" if cfg.settings.imu is not None else None
-        try:
-            frontends = rig_frontends(cfg, owner=self)
-            self.landmarks = rig_landmarks(cfg, owner=self)
-        except BaseException:
-            SHARED_MAPS.release(self)
-            raise
-        self.inputs = rig_camera_inputs(cfg, QuietLog(), self._count, landmarks=self.landmarks)
-        for n, fe in (frontends or {}).items():  # (each camera's own, as the node runs them)
-            rig.set_frontend(n, fe, str(values["frontend"]).strip())
-        self.frontends = frontends is not None  # (images are read only with them)
-        kinds = rig_kinds(self.inputs, self.frontends)
-        self.topics = RigTopics(ns, names).of(("info", *kinds))
-        self.total, self.unit = None, " rig frames"
-        self.map_frame = str(values["map_frame"])
-        self.base_frame = str(values["base_frame"]).strip() or "base_link"
-        self.views = tuple(f"{n}/" for n in names)
-        self.bag_topics = present = bag_topics(path)
-        self.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(ns, names).of(("image",))
-                             .items() if t in present}  # fmt: skip
-        self.twist_now = cfg.settings.tracking is None
-        self.result = ReplayResult(config=cfg, parameters=values, cameras=names,
-                                   tracked=not self.twist_now)  # fmt: skip
-        self.fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end)
-
-    def _count(self, name: str, key: str, n: int = 1) -> None:
-        self.own[name].add(key, n)
-
-    def start(self, imu: list) -> None:
-        """The gyro's samples ``(stamp_ns, (wx, wy, wz))``, newest first (popped oldest
-        first); samples without an angular velocity or a readable stamp left out."""
-        gyro = []
-        for msg in imu:
-            try:
-                gyro.append(cv.gyro_sample(msg))
-            except cv.ImuError:
-                continue
-        self.gyro = sorted(gyro, key=lambda x: x[0])[::-1]
-
-    def frame(self, name: str, kind: str, msg: Any, t_log: int, views: bool) -> list[_Step]:
-        """A camera's frame message through its input to the rig, in the rig node's frame step
-        (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`; a frame it drops counted
-        ``failed.<reason>`` by the node alone), the gyro's samples up to
-        :data:`GYRO_AHEAD_NS` after its stamp first: the steps of the rig frames it completes."""
-        own, inp = self.own[name], self.inputs[name]
-        own.add("received")  # (as the node: every message, taken at once)
-        stamp = inp.check(msg, kind)
-        taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp), self.frontends,
-                          self._gyro_to)  # fmt: skip
-        if isinstance(taken, DroppedFrame):
-            own.add(f"failed.{taken.reason}")
-            return []
-        return self._steps(taken.outs, views)
-
-    def _gyro_to(self, ft: FrameTime) -> None:
-        while self.gyro and self.gyro[-1][0] <= ft.stamp_ns + GYRO_AHEAD_NS:  # (its readout's)
-            self.engine.add_imu(*self.gyro.pop())
-
-    def close(self, t_log: int, views: bool) -> tuple[list, int, list]:
-        """The end of the video: the rig frames it closes, then the fused twists still
-        pending, at the last rig frame's time."""
-        rig, result = self.engine, self.result
-        tail = rig.close()
-        result.flushed = rig.flush()
-        steps = self._steps(tail, views)
-        t_end = result.outputs[-1].stamp_ns if result.outputs else 0
-        return steps, t_end, [FusedOutput(f.pose.stamp_ns, f, self.base_frame)
-                              for f in result.flushed]  # fmt: skip
-
-    def _steps(self, outs: list, views: bool) -> list[_Step]:
-        """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
-        the rig node tags it), each logged at its time; how far off each camera of a posed
-        one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
-        from ..visualization import rig_camera_views
-
-        result, base, mf, steps = self.result, self.base_frame, self.map_frame, []
-        for o in outs:
-            t, est = o.stamp_ns, o.estimate
-            if est is not None:
-                result.solver = result.solver or est.solver
-                self.fit.update(o.num_points, est)
-            fused = [FusedOutput(f.pose.stamp_ns, f, base) for f in o.fused]
-            msgs = pose_messages(est, t, mf, base, self.twist_now, (), _WANTED) if o.success else []
-            failure = "" if o.success else (est.failure if est is not None else "error")
-            row = _row(t, t, o.success, failure, est.solver if est is not None else "", est,
-                       o.num_points)  # fmt: skip
-            step = _Step(t, msgs + fused_messages(fused, mf, _WANTED), fused, row)
-            result.outputs.append(o)
-            if o.success:
-                for n in (n for n in o.cameras if n in o.outvoted or n in o.disagreeing):
-                    f = o.frames.get(n)
-                    deg = None if f is None else self.engine.camera_off_deg(o, f)
-                    self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
-                step.pose, step.out_stamp_ns, step.estimate = est, t, est
-                step.twist_now = self.twist_now or o.twist_now
-                drawn = rig_camera_views(o, self.mounts) if views else ()
-                step.views = [
-                    _View(f"{n}/", view, f.points2d, f.points3d, f.camera, f.stamp_ns,
-                          f.tag or n, ref)
-                    for n, f, view, ref in drawn
-                ]  # fmt: skip
-            steps.append(step)
-        return steps
-
-    def finish(self, rows: ReplayRows) -> None:
-        """The cameras' and the rig's counts, the gyro's, the rig frames' own twist, the
-        cameras' disagreement and the warnings of the video into the result."""
-        result, rig = self.result, self.engine
-        result.camera_counts = {"rig": rig.rig_counts()}
-        for n in rig.cameras:
-            result.camera_counts[n] = camera_counts(rig, n, self.own[n].counts(),
-                                                    self.landmarks is not None)  # fmt: skip
-        result.off_deg = self.off_deg
-        result.own_twist = rows.own_twist()
-        if self.cfg.settings.imu is not None:
-            result.counts = rig.gyro_counts()
-        if self.fit.doubtful:
-            result.notes.append(self.fit.text())
-        if self.cfg.unused_text:  # (a parameter file shared with single-camera nodes)
-            result.notes.append(self.cfg.unused_text)
-
-    def readout_values(self) -> dict:
-        """The check of the cameras' rolling-shutter timing on the video."""
-        return self.engine.readout_values()
 
 
 def _replay_config(
@@ -784,7 +871,7 @@ def _replay_topics(
         images = [t for t, mt in topics.items() if mt == IMAGE]
         ns = frames.rsplit("/", 1)[0] + "/"
         image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
-    viz_topic = image_topic if debug_outputs and source != "image" else None
+    viz_topic = (image_topic if source != "image" else frames) if debug_outputs else None
     if cfg.imu is not None:
         imus = [t for t, mt in topics.items() if mt == IMU]
         if imu_topic is None and len(imus) == 1:

@@ -1,0 +1,136 @@
+"""A camera alone is a rig of one: a rig camera's frame keeps its scores and a rig of one
+weighs them as the camera's estimator does, its debug views draw the camera's own estimate;
+``rs-localizer replay`` of a camera's bag runs the rig mode's rig of one, with the camera's
+output transform (``camera_to_base.*``) and one row per frame message."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from helpers.transforms import transform, twist_hat
+
+from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.frames import Mounting
+from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
+from rs_localizer.tracking.video import Localizer, LocalizerSettings
+
+IDENTITY = Mounting(np.eye(3), np.zeros(3))
+
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_a_rig_of_one_weighs_its_cloud_s_scores_and_draws_its_camera_s_estimate():
+    """Clouds with scores (20 % outliers, scored lower) through a rig camera's input into a
+    rig of one without tracking: each frame keeps the cloud's scores, its estimate is the
+    camera estimator's on the same rows and scores (``estimate_rs_pose``), bit for bit, and
+    its debug view draws that estimate at the frame's time; without the scores the estimates
+    differ (the scores order RANSAC's samples)."""
+    from rs_localizer.ros.camera_input import CameraInput
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud, read_correspondences
+    from rs_localizer.ros.visualization import rig_camera_views
+
+    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=6, num_points=120, seed=5))
+    opts = EstimateOptions()
+    rig = Localizer(LocalizerSettings({"c": IDENTITY}, options=opts, tracking=None))
+    inp = CameraInput(None, lambda key, n: None, name="c", rig=True)
+    inp.history.add(0, (), None, cam)  # (the camera model of every stamp)
+    differs = 0
+    for f in frames:
+        msg = correspondence_cloud(f.uv, f.xyz, scores=f.scores, stamp=ns_to_stamp(f.stamp_ns))
+        frame = inp.take(msg, "correspondences", f.stamp_ns, cam)
+        c = read_correspondences(msg)  # (the cloud's rows and scores, as stored)
+        assert _same(frame.scores, c.scores) and np.allclose(c.scores, f.scores, rtol=1e-6)
+        (out,) = rig.add(frame)
+        want = estimate_rs_pose(c.uv, c.xyz, cam, options=opts, scores=c.scores)
+        got = out.camera_estimate
+        assert got.success and want.success
+        for name in ("orientation", "position", "angular_velocity", "linear_velocity"):
+            assert _same(getattr(got.pose, name), getattr(want.pose, name)), name
+        assert _same(got.inliers, want.inliers) and _same(got.covariance, want.covariance)
+        ((n, drawn_frame, view, ref),) = rig_camera_views(out, {"c": IDENTITY})
+        assert n == "c" and drawn_frame is frame and view is got and ref == out.stamp_ns
+        alone = estimate_rs_pose(c.uv, c.xyz, cam, options=opts)
+        differs += not _same(alone.pose.orientation, want.pose.orientation)
+    assert differs >= 1
+
+
+def _frame_ids(out_bag) -> set:
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+
+    ts = typestore()
+    return {
+        ts.deserialize_cdr(raw, mt).header.frame_id
+        for _, mt, _, raw in iter_messages(out_bag, {"/rs_localizer/twist_single_frame"})
+    }
+
+
+def test_a_camera_s_replay_moves_its_outputs_to_the_base(sample_bag, tmp_path):
+    """``camera_to_base.*`` and ``base_frame`` move every pose and twist of a camera's replay
+    to the robot's base (checked with 4x4 transforms against the replay without them:
+    ``T_mb = T_mc T_bc^-1``, body twists by conjugation ``xi_b^ = T_bc xi_c^ T_bc^-1``), the
+    twists stamped in ``base_frame``; without them in the camera's frame id."""
+    from scipy.spatial.transform import Rotation
+
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.replay import replay
+
+    q_bc = Rotation.from_euler("xyz", [-95, 3, -88], degrees=True).as_quat()
+    t_bc = np.array([0.35, -0.12, 0.6])
+    T_bc = transform(Rotation.from_quat(q_bc).as_matrix(), t_bc)
+    T_cb = np.linalg.inv(T_bc)
+    params = {"base_frame": "base_link", "camera_to_base.translation": t_bc.tolist(),
+              "camera_to_base.rotation": q_bc.tolist()}  # fmt: skip
+    cam = replay(sample_bag, out_bag=tmp_path / "cam", progress=None)
+    base = replay(sample_bag, params=params, out_bag=tmp_path / "base", progress=None)
+    assert cam.solved == base.solved == len(base.rows) == len(cam.rows)
+    for a, b in zip(cam.rows, base.rows, strict=True):
+        assert (a["stamp_ns"], a["out_stamp_ns"]) == (b["stamp_ns"], b["out_stamp_ns"])
+        R = Rotation.from_quat([a[f"q{k}"] for k in "xyzw"]).as_matrix()
+        T = transform(R, [a[f"p{k}"] for k in "xyz"]) @ T_cb
+        Rb = Rotation.from_quat([b[f"q{k}"] for k in "xyzw"]).as_matrix()
+        np.testing.assert_allclose(Rb, T[:3, :3], atol=1e-9)
+        np.testing.assert_allclose([b[f"p{k}"] for k in "xyz"], T[:3, 3], atol=1e-9)
+        for w in ("", "single_"):
+            if f"{w}wx" not in a:
+                continue
+            xi = twist_hat([a[f"{w}w{k}"] for k in "xyz"], [a[f"{w}v{k}"] for k in "xyz"])
+            X = T_bc @ xi @ T_cb
+            np.testing.assert_allclose([b[f"{w}w{k}"] for k in "xyz"], [X[2, 1], X[0, 2], X[1, 0]],
+                                       atol=1e-9)  # fmt: skip
+            np.testing.assert_allclose([b[f"{w}v{k}"] for k in "xyz"], X[:3, 3], atol=1e-9)
+    assert _frame_ids(tmp_path / "base") == {"base_link"}
+    ts = typestore()
+    bag_ids = {
+        ts.deserialize_cdr(raw, mt).header.frame_id
+        for _, mt, _, raw in iter_messages(sample_bag, {"/camera/correspondences"})
+    }
+    assert _frame_ids(tmp_path / "cam") == bag_ids and "base_link" not in bag_ids
+
+
+def test_a_camera_s_replay_has_a_row_for_each_frame_its_input_drops(keypoints_bag, tmp_path):
+    """Keypoints none of whose ids is in the landmark map: every frame message is a failed row
+    (``unknown_landmarks``, with its header stamp and its output stamp)."""
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.replay import replay
+
+    table = tmp_path / "landmarks.csv"
+    table.write_text("id,x,y,z\n999999,0,0,1\n")
+    res = replay(keypoints_bag, source="keypoints", params={"landmarks_file": str(table)},
+                 progress=None)  # fmt: skip
+    ts = typestore()
+    stamps = [
+        ts.deserialize_cdr(raw, mt).header.stamp
+        for _, mt, _, raw in iter_messages(keypoints_bag, {"/camera/keypoints"})
+    ]
+    assert len(res.rows) == len(stamps) > 0 and res.solved == 0
+    assert res.failures == {"unknown_landmarks": len(stamps)}
+    for r, s in zip(res.rows, stamps, strict=True):
+        assert r["stamp_ns"] == s.sec * 10**9 + s.nanosec and r["out_stamp_ns"] >= 0
+    assert res.counts["unknown_landmark_ids"] >= len(stamps)
