@@ -59,6 +59,7 @@ __all__ = [
     "nonminimal_models",
     "prerotated_models",
     "prerotated_points",
+    "still_models",
 ]
 
 
@@ -291,8 +292,7 @@ def generate(
     else:
         R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
     if kind == GLOBAL_SHUTTER:
-        z = np.zeros((len(samples), 3))
-        return R_p, C_p, z, z.copy(), ok_p
+        return (*still_models(R_p, C_p), ok_p)
     if fr.known_w is None and kind != BATCHED:
         Xs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)[1]
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
@@ -301,6 +301,13 @@ def generate(
     Rs, Cs, ws, ts, ok = prerotated_models(samples, R_p, C_p, fr.x, fr.X, fr.r, solve)
     ok &= np.tile(ok_p, len(ok) // max(len(ok_p), 1))
     return Rs, Cs, ws, ts, ok
+
+
+def still_models(R: np.ndarray, C: np.ndarray) -> tuple:
+    """Global-shutter models of K poses ``R`` (K, 3, 3), ``C`` (K, 3) (a camera's or a rig's
+    P3P poses): ``(R, C, w, t)`` with ``w = t = 0`` (K, 3), each its own array."""
+    z = np.zeros((len(C), 3))
+    return R, C, z, z.copy()
 
 
 def _camera_solver(fr: Frame, solver: str, iterations: int, known_w: bool = False):

@@ -166,7 +166,13 @@ from .gyro import (
     gyro_checked,
     gyro_prior,
 )
-from .hypotheses import composed, half_threshold_rows, linear_refit, prerotated_models
+from .hypotheses import (
+    composed,
+    half_threshold_rows,
+    linear_refit,
+    prerotated_models,
+    still_models,
+)
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
@@ -719,21 +725,15 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
     (S, 6)."""
     counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
+    u = rng.random(7 * n_samples).reshape(7, n_samples)
     if pool.numpy:
-        # (three distinct points of the camera, then three of the n - 3 others: the camera's
-        # draws without replacement, the same uniforms in the same order as the kernel's)
-        cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
-        first = starts[cams][:, None] + draw_samples_numpy(
-            rng.random((3, n_samples)).T, counts[cams]
-        )
-        rest = draw_samples_numpy(rng.random((3, n_samples)).T, n - 3)
-        # map 0..n-4 onto the pool without the first three
-        taken = np.sort(first, axis=1)
-        for j in range(3):
-            rest += rest >= taken[:, j : j + 1]
-        out = np.concatenate([first, rest], axis=1)
-    else:  # (the same draws, in the same order, mapped in one compiled call)
-        u = rng.random(7 * n_samples).reshape(7, n_samples)
+        # (the camera, then three distinct points of it and three of every camera's others:
+        # a camera's draws (draw_samples_numpy) with the first three in the camera's range)
+        cams = eligible[cdf.searchsorted(u[0], side="right")]
+        size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
+        size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
+        out = draw_samples_numpy(u[1:].T, size, offset)
+    else:  # (the same draws, in the same order, in one compiled call)
         out = sample_kernel(u, cdf, eligible, counts, starts, n)
     return out if subset is None else subset[out]
 
@@ -826,12 +826,11 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     if p3p is None:
         return None
     R, C, own = p3p
-    z = np.zeros((len(own), 3))
     if missed is None:
-        return R, C, z, z.copy()
+        return still_models(R, C)
     spread = np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
     if len(spread) == 0:
-        return R, C, z, z.copy()
+        return still_models(R, C)
     # (one camera's P3P pose misses another camera's points by the lever arm times its
     # rotation error: a small tag's three corners leave a pose a degree off, pixels off in
     # a camera looking elsewhere; the rig solver with the velocities held at zero corrects
@@ -840,11 +839,9 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     for _ in range(rounds):
         Rg, Cg, valid = _held_solve(pool, S, Rg)
         if not valid.any():
-            return R, C, z, z.copy()
+            return still_models(R, C)
         S, Rg, Cg = S[valid], Rg[valid], Cg[valid]
-    R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
-    z = np.zeros((len(R), 3))
-    return R, C, z, z.copy()
+    return still_models(np.concatenate([R, Rg]), np.concatenate([C, Cg]))
 
 
 def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
@@ -868,11 +865,12 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
-    """n_samples samples of 6 distinct pool indices drawn uniformly (``subset``: among those
-    sorted pool indices, at least 6): the samples of the generalized P3P pre-rotation, whose
-    first 3 points may lie in any cameras. Returns (S, 6)."""
+    """n_samples samples of 6 distinct pool indices drawn uniformly as a camera's
+    (:func:`~.sampling.draw_samples_numpy`; ``subset``: among those sorted pool indices, at
+    least 6): the samples of the generalized P3P pre-rotation, whose first 3 points may lie in
+    any cameras. Returns (S, 6)."""
     n = len(pool.cam) if subset is None else len(subset)
-    u = rng.random((n_samples, n)).argpartition(6, axis=1)[:, :6]
+    u = draw_samples_numpy(rng.random((n_samples, 6)), n)
     return u if subset is None else subset[u]
 
 
