@@ -50,6 +50,7 @@ __all__ = [
     "SampleBySample",
     "SampleSolver",
     "ScoredBatch",
+    "anchor_prerotations",
     "composed",
     "generate",
     "half_threshold_rows",
@@ -128,6 +129,13 @@ def composed(v: np.ndarray, R_pre: np.ndarray, compiled: bool = True) -> np.ndar
     if compiled:
         return compose_rotvec(np.ascontiguousarray(v), R_pre)
     return np.einsum("hij,hjk->hik", rotvec_to_matrix(v), R_pre)
+
+
+def anchor_prerotations(anchor: tuple, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """K samples' pre-rotations by one ``anchor`` model ``(R (3, 3), C (3,), ...)`` (a
+    tracker's prediction, the best model so far): ``(R (K, 3, 3), C (K, 3))``, contiguous."""
+    R = np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[0], dtype=float), (K, 3, 3)))
+    return R, np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[1], dtype=float), (K, 3)))
 
 
 def prerotated_points(samples, R_pre, x, X, r, compiled: bool = True) -> tuple:
@@ -283,9 +291,7 @@ def generate(
     """
     kind = solver_info(solver).hypotheses
     if anchor is not None and kind != GLOBAL_SHUTTER:
-        R_pre, C_pre = anchor
-        R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
-        C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
+        R_p, C_p = anchor_prerotations(anchor, len(samples))
         ok_p = np.ones(len(samples), dtype=bool)
     elif fr.planar and kind != GLOBAL_SHUTTER:
         samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, fr.threshold**2)

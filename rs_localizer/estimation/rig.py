@@ -167,6 +167,7 @@ from .gyro import (
     gyro_prior,
 )
 from .hypotheses import (
+    anchor_prerotations,
     composed,
     half_threshold_rows,
     linear_refit,
@@ -795,10 +796,7 @@ def _hypotheses(
     anchor's translation) join every linear solve. Returns arrays of H valid models, or
     None."""
     if anchor is not None:
-        shape = (len(samples), 3, 3)
-        R0 = np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[0], dtype=float), shape))
-        C0 = np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[1], dtype=float), shape[:2]))
-        S = samples
+        (R0, C0), S = anchor_prerotations(anchor, len(samples)), samples
     else:
         pre = (p3p or _p3p_on_rig)(pool, samples)
         if pre is None:
