@@ -15,6 +15,15 @@ with one interface (:class:`HypothesisSource`):
 
 All three draw their samples from the same uniforms, so a source change never changes the
 random stream.
+
+A rig's estimator (:mod:`.rig`) makes its hypotheses with the same steps: samples pre-rotated
+by their P3P poses or an anchor (:func:`anchor_prerotations`) and solved by the linear RS
+solver (:func:`prerotated_models`), inlier sets refitted so (:func:`linear_refit`), P3P poses
+as still models (:func:`still_models`), its samples drawn by the camera's draws
+(:func:`~.sampling.draw_samples_numpy`, the first three in one camera's points). What differs
+is the solver (:data:`SampleSolver`): a camera's on its own points, the rig solver on points
+seen through their cameras' mountings; a camera is a rig of one camera at the identity
+mounting.
 """
 
 from __future__ import annotations
@@ -38,7 +47,7 @@ from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_bat
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .options import EstimateOptions, RansacOptions
 from .plausibility import plausible_motion
-from .prior import sample_prior_rows
+from .prior import MotionPrior, sample_prior_rows
 from .sampling import draw_samples, gather_prerotated, second_prerotations, select_prerotations
 from .scoring import exact_msac_scores
 
@@ -110,7 +119,13 @@ def _prior_rows(fr: Frame, Xs: np.ndarray, C0: np.ndarray):
 
 
 def half_threshold_rows(
-    prior, Xs: np.ndarray, C0: np.ndarray, spr: float, threshold, distance=False, compiled=True
+    prior: MotionPrior,
+    Xs: np.ndarray,
+    C0: np.ndarray,
+    spr: float,
+    threshold: float | np.ndarray,
+    distance: bool = False,
+    compiled: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A motion prior's ``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` for K samples pre-rotated
     (``Xs`` (K, n, 3), their pre-rotation translations ``C0`` (K, 3)), weighted as if the
@@ -138,7 +153,14 @@ def anchor_prerotations(anchor: tuple, K: int) -> tuple[np.ndarray, np.ndarray]:
     return R, np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[1], dtype=float), (K, 3)))
 
 
-def prerotated_points(samples, R_pre, x, X, r, compiled: bool = True) -> tuple:
+def prerotated_points(
+    samples: np.ndarray,
+    R_pre: np.ndarray,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The linear RS solver's input of K samples (K, s) pre-rotated by ``R_pre`` (K, 3, 3):
     ``(x[samples] (K, s, 2), R_pre[k] X[samples[k]] (K, s, 3), r[samples] (K, s))``
     (``compiled``: :func:`~.sampling.gather_prerotated`, else NumPy)."""
@@ -197,7 +219,15 @@ def prerotated_models(
     )
 
 
-def linear_refit(idx: np.ndarray, R: np.ndarray, C, x, X, r, solve: SampleSolver) -> RSModel | None:
+def linear_refit(
+    idx: np.ndarray,
+    R: np.ndarray,
+    C: np.ndarray | None,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    solve: SampleSolver,
+) -> RSModel | None:
     """Local optimization's linear step on one inlier set: the linear RS solver ``solve``
     (:data:`SampleSolver`) on the points ``idx`` (n,) int of ``x`` (N, 2), ``X`` (N, 3) at
     ``r`` (N,), pre-rotated by the current ``R`` (3, 3) (``C`` (3,) the current position:
