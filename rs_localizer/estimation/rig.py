@@ -130,11 +130,9 @@ from numba import njit
 
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
-from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
-    gr6p_1lin,
     gr6p_1lin_batch,
     still_solve_rotated,
 )
@@ -937,20 +935,10 @@ def _refit(
         return model
     solve = _rig_solver(pool, 10, prior, threshold_px)
     for _ in range(rounds):
-        if prior is not None or pool.numpy:  # (a batch of one: with the gyro's rows; NumPy)
-            m = linear_refit(idx, R, C, pool.x, pool.X, pool.tau, solve)
-            if m is None:
-                return model
-            R, C, w, t = m
-            continue
-        try:
-            s = gr6p_1lin(
-                pool.x[idx], pool.X[idx] @ R.T, pool.tau[idx], pool.cam[idx],
-                pool.R_mount, pool.c_mount, iterations=10, v_init=None,
-            )  # fmt: skip
-        except DegenerateInputError:
+        m = linear_refit(idx, R, C, pool.x, pool.X, pool.tau, solve)
+        if m is None:
             return model
-        R, C, w, t = rotvec_to_matrix(s.v) @ R, s.C, s.w, s.t
+        R, C, w, t = m
     return R, C, w, t
 
 
