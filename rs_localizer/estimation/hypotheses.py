@@ -47,7 +47,7 @@ from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_bat
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .options import EstimateOptions, RansacOptions
 from .plausibility import plausible_motion
-from .prior import MotionPrior, sample_prior_rows
+from .prior import sample_prior_rows
 from .sampling import draw_samples, gather_prerotated, second_prerotations, select_prerotations
 from .scoring import exact_msac_scores
 
@@ -62,7 +62,6 @@ __all__ = [
     "anchor_prerotations",
     "composed",
     "generate",
-    "half_threshold_rows",
     "hypothesis_iterations",
     "hypothesis_source",
     "linear_refit",
@@ -112,29 +111,11 @@ def _batched_rs(solver: str, xs, Xs, rs, r0, iterations, prior_rows=None) -> lis
 def _prior_rows(fr: Frame, Xs: np.ndarray, C0: np.ndarray):
     """Linearized motion-prior rows for K pre-rotated samples (``Xs`` (K, n, 3), their
     pre-rotation translations ``C0`` (K, 3)) when the frame asks for damped hypothesis solves
-    (planar scene, prior on), else None (:func:`half_threshold_rows`)."""
+    (planar scene, prior on), else None. The rows are weighted as if the image noise were half
+    the inlier threshold."""
     if not fr.regularize:
         return None
-    return half_threshold_rows(fr.prior, Xs, C0, fr.spr, fr.threshold)
-
-
-def half_threshold_rows(
-    prior: MotionPrior,
-    Xs: np.ndarray,
-    C0: np.ndarray,
-    spr: float,
-    threshold: float | np.ndarray,
-    distance: bool = False,
-    compiled: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
-    """A motion prior's ``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` for K samples pre-rotated
-    (``Xs`` (K, n, 3), their pre-rotation translations ``C0`` (K, 3)), weighted as if the
-    image noise were half the inlier ``threshold`` (normalized units; a float or (K,), each
-    sample's own): :func:`~.prior.sample_prior_rows` with ``spr`` s per unit of r (a rig: 1,
-    its time in seconds) and ``distance`` (the noise times the points' mean distance from
-    the body, a rig's)."""
-    return sample_prior_rows(prior, Xs, C0, spr, 0.5 * threshold, distance=distance,
-                             compiled=compiled)  # fmt: skip
+    return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * fr.threshold)
 
 
 def composed(v: np.ndarray, R_pre: np.ndarray, compiled: bool = True) -> np.ndarray:

@@ -167,7 +167,6 @@ from .gyro import (
 from .hypotheses import (
     anchor_prerotations,
     composed,
-    half_threshold_rows,
     linear_refit,
     prerotated_models,
     still_models,
@@ -182,7 +181,7 @@ from .plausibility import (
     plausible_motion,
     views_degenerate,
 )
-from .prior import MotionPrior
+from .prior import MotionPrior, sample_prior_rows
 from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
 from .refine import (
     KernelMountings,
@@ -333,7 +332,7 @@ def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
     """The rig's :data:`~.hypotheses.SampleSolver`: the rig solver
     (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`, each point seen through its
     camera's mounting, ``iterations`` linear steps) with the gyro ``prior``'s rows
-    (:func:`~.hypotheses.half_threshold_rows`: one second per unit of tau, half the inlier
+    (:func:`~.prior.sample_prior_rows`: one second per unit of tau, half the inlier
     threshold in the sample's first camera's normalized units times the points' mean distance
     from the rig) or, ``held``, the velocities held at zero (prior rows ``(w, t) = 0``)."""
 
@@ -343,8 +342,8 @@ def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
         elif prior is None:
             rows = None
         else:
-            rows = half_threshold_rows(prior, Xs, C0, 1.0, threshold_px / pool.focal[S[:, 0]],
-                                       True, pool.compiled)  # fmt: skip
+            noise = 0.5 * threshold_px / pool.focal[S[:, 0]]
+            rows = sample_prior_rows(prior, Xs, C0, 1.0, noise, True, pool.compiled)
         return [gr6p_1lin_batch(xs, Xs, rs, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
                                 prior_rows=rows, numpy=pool.numpy)]  # fmt: skip
 
