@@ -15,12 +15,22 @@ with one interface (:class:`HypothesisSource`):
 
 All three draw their samples from the same uniforms, so a source change never changes the
 random stream.
+
+A rig's estimator (:mod:`.rig`) makes its hypotheses with the same steps: samples pre-rotated
+by their P3P poses or an anchor (:func:`anchor_prerotations`) and solved by the linear RS
+solver (:func:`prerotated_models`), inlier sets refitted so (:func:`linear_refit`), P3P poses
+as still models (:func:`still_models`), its samples drawn by the camera's draws
+(:func:`~.sampling.draw_samples_numpy`, the first three in one camera's points). What differs
+is the solver (:data:`SampleSolver`): a camera's on its own points, the rig solver on points
+seen through their cameras' mountings; a camera is a rig of one camera at the identity
+mounting.
 """
 
 from __future__ import annotations
 
 import functools
 import inspect
+from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -47,11 +57,18 @@ __all__ = [
     "ColdSamples",
     "HypothesisSource",
     "SampleBySample",
+    "SampleSolver",
     "ScoredBatch",
+    "anchor_prerotations",
+    "composed",
     "generate",
     "hypothesis_iterations",
     "hypothesis_source",
+    "linear_refit",
     "nonminimal_models",
+    "prerotated_models",
+    "prerotated_points",
+    "still_models",
 ]
 
 
@@ -101,9 +118,70 @@ def _prior_rows(fr: Frame, Xs: np.ndarray, C0: np.ndarray):
     return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * fr.threshold)
 
 
-def _hypothesis_arrays(batches, R_pre):
-    """Stack RSBatch results (pre-rotated by R_pre per sample) into rotation/velocity arrays."""
-    Rs = [compose_rotvec(np.ascontiguousarray(b.v), R_pre) for b in batches]
+def composed(v: np.ndarray, R_pre: np.ndarray, compiled: bool = True) -> np.ndarray:
+    """(K, 3, 3) ``expm([v_k]x) R_pre[k]``: the rotations of K solutions ``v`` (K, 3) of
+    samples pre-rotated by ``R_pre`` (K, 3, 3) (``compiled``:
+    :func:`rs_localizer._so3.compose_rotvec`, else NumPy's Rodrigues and product)."""
+    if compiled:
+        return compose_rotvec(np.ascontiguousarray(v), R_pre)
+    return np.einsum("hij,hjk->hik", rotvec_to_matrix(v), R_pre)
+
+
+def anchor_prerotations(anchor: tuple, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """K samples' pre-rotations by one ``anchor`` model ``(R (3, 3), C (3,), ...)`` (a
+    tracker's prediction, the best model so far): ``(R (K, 3, 3), C (K, 3))``, contiguous."""
+    R = np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[0], dtype=float), (K, 3, 3)))
+    return R, np.ascontiguousarray(np.broadcast_to(np.asarray(anchor[1], dtype=float), (K, 3)))
+
+
+def prerotated_points(
+    samples: np.ndarray,
+    R_pre: np.ndarray,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The linear RS solver's input of K samples (K, s) pre-rotated by ``R_pre`` (K, 3, 3):
+    ``(x[samples] (K, s, 2), R_pre[k] X[samples[k]] (K, s, 3), r[samples] (K, s))``
+    (``compiled``: :func:`~.sampling.gather_prerotated`, else NumPy)."""
+    if compiled:
+        return gather_prerotated(samples, R_pre, x, X, r)
+    return x[samples], np.einsum("hij,hnj->hni", R_pre, X[samples]), r[samples]
+
+
+#: the linear RS solver of pre-rotated samples: ``solve(samples (K, s), xs (K, s, 2),
+#: Xs (K, s, 3) pre-rotated, rs (K, s), C_pre (K, 3))`` -> a list of
+#: :class:`~rs_localizer.solvers.RSBatch` (a camera's solver with its motion prior's rows at
+#: ``C_pre``, or the rig solver with the cameras' mountings of the samples' points)
+SampleSolver = Callable[..., list]
+
+
+def prerotated_models(
+    samples: np.ndarray,
+    R_pre: np.ndarray,
+    C_pre: np.ndarray,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    solve: SampleSolver,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The models of K samples (K, s) pre-rotated by ``R_pre`` (K, 3, 3) (their P3P poses or
+    an anchor's rotation; ``C_pre`` (K, 3) the translations, where the motion prior's rows
+    are linearized): the linear RS solver ``solve`` on the pre-rotated points
+    (:func:`prerotated_points` of the points ``x`` (N, 2), ``X`` (N, 3) at ``r`` (N,)), each
+    solution's rotation ``expm([v]x) R_pre`` (:func:`composed`). A camera's samples and a
+    rig's are solved so; they differ in ``solve`` alone (a rig's solver sees each point
+    through its camera's mounting).
+
+    Returns:
+        (R (M, 3, 3), C, w, t (M, 3), valid (M,)), the solver's batches one after the other
+        (M = K per batch).
+    """
+    xs, Xs, rs = prerotated_points(samples, R_pre, x, X, r, compiled)
+    batches = solve(samples, xs, Xs, rs, C_pre)
+    Rs = [composed(b.v, R_pre, compiled) for b in batches]
     if len(batches) == 1:
         b = batches[0]
         return (
@@ -120,6 +198,29 @@ def _hypothesis_arrays(batches, R_pre):
         np.concatenate([b.t for b in batches]),
         np.concatenate([b.valid for b in batches]),
     )
+
+
+def linear_refit(
+    idx: np.ndarray,
+    R: np.ndarray,
+    C: np.ndarray | None,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    solve: SampleSolver,
+) -> RSModel | None:
+    """Local optimization's linear step on one inlier set: the linear RS solver ``solve``
+    (:data:`SampleSolver`) on the points ``idx`` (n,) int of ``x`` (N, 2), ``X`` (N, 3) at
+    ``r`` (N,), pre-rotated by the current ``R`` (3, 3) (``C`` (3,) the current position:
+    where the motion prior's rows are linearized, or None). Returns the model (rotation
+    ``expm([v]x) R``) or None when the solve failed. A camera's inliers and a rig's are
+    refitted so, as their samples are (:func:`prerotated_models`)."""
+    Xr = (X[idx] @ R.T)[None]
+    C0 = None if C is None else np.asarray(C)[None]
+    b = solve(idx[None], x[idx][None], Xr, r[idx][None], C0)[0]
+    if not b.valid[0]:
+        return None
+    return RSModel(rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0])
 
 
 def _p3p_prerotations(fr: Frame, samples, th2=None):
@@ -201,44 +302,45 @@ def generate(
     """
     kind = solver_info(solver).hypotheses
     if anchor is not None and kind != GLOBAL_SHUTTER:
-        R_pre, C_pre = anchor
-        R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
-        C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
+        R_p, C_p = anchor_prerotations(anchor, len(samples))
         ok_p = np.ones(len(samples), dtype=bool)
     elif fr.planar and kind != GLOBAL_SHUTTER:
         samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, fr.threshold**2)
     else:
         R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
     if kind == GLOBAL_SHUTTER:
-        z = np.zeros((len(samples), 3))
-        return R_p, C_p, z, z.copy(), ok_p
-    xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
-    if fr.known_w is not None:
-        b = r5p_w_batch(
-            xs,
-            Xs,
-            fr.known_w,
-            rs,
-            fr.r0,
-            hypothesis_iterations(solver, ransac, True),
-            prior_rows=_prior_rows(fr, Xs, C_p),
-        )
-        Rs, Cs, ws, ts, ok = _hypothesis_arrays([b], R_p)
-        return Rs, Cs, ws, ts, ok & ok_p
-    if kind != BATCHED:
+        return (*still_models(R_p, C_p), ok_p)
+    if fr.known_w is None and kind != BATCHED:
+        Xs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)[1]
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
-    batches = _batched_rs(
-        solver,
-        xs,
-        Xs,
-        rs,
-        fr.r0,
-        hypothesis_iterations(solver, ransac),
-        _prior_rows(fr, Xs, C_p),
-    )
-    Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
-    ok &= np.tile(ok_p, len(batches))
+    known_w = fr.known_w is not None
+    solve = _camera_solver(fr, solver, hypothesis_iterations(solver, ransac, known_w), known_w)
+    Rs, Cs, ws, ts, ok = prerotated_models(samples, R_p, C_p, fr.x, fr.X, fr.r, solve)
+    ok &= np.tile(ok_p, len(ok) // max(len(ok_p), 1))
     return Rs, Cs, ws, ts, ok
+
+
+def still_models(R: np.ndarray, C: np.ndarray) -> tuple:
+    """Global-shutter models of K poses ``R`` (K, 3, 3), ``C`` (K, 3) (a camera's or a rig's
+    P3P poses): ``(R, C, w, t)`` with ``w = t = 0`` (K, 3), each its own array."""
+    z = np.zeros((len(C), 3))
+    return R, C, z, z.copy()
+
+
+def _camera_solver(fr: Frame, solver: str, iterations: int, known_w: bool = False):
+    """A camera's :data:`SampleSolver`: ``solver``'s batched kernels (with the frame's
+    ``known_w``, a gyro's angular velocity:
+    :func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`), ``iterations`` linear steps, the
+    motion prior's rows (:func:`_prior_rows`) where the frame asks for them and ``C_pre`` is
+    given."""
+
+    def solve(samples, xs, Xs, rs, C_pre) -> list:
+        rows = None if C_pre is None else _prior_rows(fr, Xs, C_pre)
+        if known_w:
+            return [r5p_w_batch(xs, Xs, fr.known_w, rs, fr.r0, iterations, prior_rows=rows)]
+        return _batched_rs(solver, xs, Xs, rs, fr.r0, iterations, rows)
+
+    return solve
 
 
 def nonminimal_models(
@@ -281,15 +383,12 @@ def nonminimal_models(
             iterations,
         )
         return [RSModel(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
-    Xr = fr.X[inliers] @ R.T
+    idx = np.flatnonzero(inliers)
     out = []
     for name in names:
-        rows = None if C is None else _prior_rows(fr, Xr[None], np.asarray(C)[None])
-        b = _batched_rs(
-            name, fr.x[inliers][None], Xr[None], fr.r[inliers][None], fr.r0, iterations, rows
-        )[0]
-        if b.valid[0]:
-            out.append(RSModel(rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
+        m = linear_refit(idx, R, C, fr.x, fr.X, fr.r, _camera_solver(fr, name, iterations))
+        if m is not None:
+            out.append(m)
     return out
 
 

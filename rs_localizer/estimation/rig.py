@@ -128,14 +128,11 @@ from dataclasses import replace
 import numpy as np
 from numba import njit
 
-from .._so3 import compose_rotvec
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
-from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import (
-    gr6p_1lin,
     gr6p_1lin_batch,
     still_solve_rotated,
 )
@@ -166,6 +163,13 @@ from .gyro import (
     GyroMeasurement,
     gyro_checked,
     gyro_prior,
+)
+from .hypotheses import (
+    anchor_prerotations,
+    composed,
+    linear_refit,
+    prerotated_models,
+    still_models,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed, polish, view_seed_steps
@@ -320,16 +324,27 @@ def _label(c: int, v: View) -> str:
     return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
 
 
-def _prior_rows(pool: _Pool, prior: MotionPrior, Xp: np.ndarray, C0: np.ndarray,
-                idx: np.ndarray, threshold_px: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The gyro ``prior``'s ``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K
-    samples ``idx`` (K, n) whose points ``Xp`` (K, n, 3) are pre-rotated, ``C0`` (K, 3) their
-    translations: a single camera's damped samples' rows
-    (:func:`~rs_localizer.estimation.prior.sample_prior_rows`, one second per unit of tau),
-    weighted by half the inlier threshold in the sample's first camera's normalized units times
-    the points' mean distance from the rig."""
-    noise = 0.5 * threshold_px / pool.focal[idx[:, 0]]
-    return sample_prior_rows(prior, Xp, C0, 1.0, noise, distance=True, compiled=pool.compiled)
+def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
+                threshold_px: float = 2.0, held: bool = False):  # fmt: skip
+    """The rig's :data:`~.hypotheses.SampleSolver`: the rig solver
+    (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`, each point seen through its
+    camera's mounting, ``iterations`` linear steps) with the gyro ``prior``'s rows
+    (:func:`~.prior.sample_prior_rows`: one second per unit of tau, half the inlier
+    threshold in the sample's first camera's normalized units times the points' mean distance
+    from the rig) or, ``held``, the velocities held at zero (prior rows ``(w, t) = 0``)."""
+
+    def solve(S, xs, Xs, rs, C0) -> list:
+        if held:
+            rows = (np.broadcast_to(np.eye(6), (len(S), 6, 6)), np.zeros((len(S), 6)))
+        elif prior is None:
+            rows = None
+        else:
+            noise = 0.5 * threshold_px / pool.focal[S[:, 0]]
+            rows = sample_prior_rows(prior, Xs, C0, 1.0, noise, True, pool.compiled)
+        return [gr6p_1lin_batch(xs, Xs, rs, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
+                                prior_rows=rows, numpy=pool.numpy)]  # fmt: skip
+
+    return solve
 
 
 def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
@@ -672,21 +687,15 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
     (S, 6)."""
     counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
+    u = rng.random(7 * n_samples).reshape(7, n_samples)
     if pool.numpy:
-        # (three distinct points of the camera, then three of the n - 3 others: the camera's
-        # draws without replacement, the same uniforms in the same order as the kernel's)
-        cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
-        first = starts[cams][:, None] + draw_samples_numpy(
-            rng.random((3, n_samples)).T, counts[cams]
-        )
-        rest = draw_samples_numpy(rng.random((3, n_samples)).T, n - 3)
-        # map 0..n-4 onto the pool without the first three
-        taken = np.sort(first, axis=1)
-        for j in range(3):
-            rest += rest >= taken[:, j : j + 1]
-        out = np.concatenate([first, rest], axis=1)
-    else:  # (the same draws, in the same order, mapped in one compiled call)
-        u = rng.random(7 * n_samples).reshape(7, n_samples)
+        # (the camera, then three distinct points of it and three of every camera's others:
+        # a camera's draws (draw_samples_numpy) with the first three in the camera's range)
+        cams = eligible[cdf.searchsorted(u[0], side="right")]
+        size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
+        size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
+        out = draw_samples_numpy(u[1:].T, size, offset)
+    else:  # (the same draws, in the same order, in one compiled call)
         out = sample_kernel(u, cdf, eligible, counts, starts, n)
     return out if subset is None else subset[out]
 
@@ -740,40 +749,27 @@ def _hypotheses(
     """Models (R, C, w, t) of the samples: P3P in the sample's first camera, mapped to the
     rig (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`), pre-rotates the
     rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
-    every sample instead, an initial model's or the best model's; ``(R, C)``); ``bounds``
-    ``(w_max rad/s, v_max m/s)`` or None: models moving faster are dropped
-    (:func:`~.plausibility.plausible_motion` with one second per unit of tau); ``prior``: a
-    gyro's motion prior, whose rows (:func:`_prior_rows` at the pre-rotation, P3P's or the
+    every sample instead, an initial model's or the best model's; ``(R, C)``), as a camera's
+    samples pre-rotate its solver (:func:`~.hypotheses.prerotated_models` with
+    :func:`_rig_solver`); ``bounds`` ``(w_max rad/s, v_max m/s)`` or None: models moving
+    faster are dropped (:func:`~.plausibility.plausible_motion` with one second per unit of
+    tau); ``prior``: a gyro's motion prior, whose rows (at the pre-rotation, P3P's or the
     anchor's translation) join every linear solve. Returns arrays of H valid models, or
     None."""
     if anchor is not None:
-        R0 = np.broadcast_to(np.asarray(anchor[0], dtype=float), (len(samples), 3, 3))
-        C0 = np.broadcast_to(np.asarray(anchor[1], dtype=float), (len(samples), 3))
-        S = samples
+        (R0, C0), S = anchor_prerotations(anchor, len(samples)), samples
     else:
         pre = (p3p or _p3p_on_rig)(pool, samples)
         if pre is None:
             return None
         R0, C0, own = pre
         S = samples[own]
-    Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
-    rows = None if prior is None else _prior_rows(pool, prior, Xp, C0, S, threshold_px)
-    b = _prerotated_solve(pool, S, Xp, pool.tau[S], iterations, rows)
-    ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds, pool.compiled)
+    solve = _rig_solver(pool, iterations, prior, threshold_px)
+    R, C, w, t, ok = prerotated_models(S, R0, C0, pool.x, pool.X, pool.tau, solve, pool.compiled)
+    ok &= plausible_motion(None, C, w, t, bounds, pool.compiled)
     if not ok.any():
         return None
-    return np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok]), b.C[ok], b.w[ok], b.t[ok]
-
-
-def _prerotated_solve(pool: _Pool, S: np.ndarray, Xp: np.ndarray, tau: np.ndarray,
-                      iterations: int, rows):  # fmt: skip
-    """The rig solver on the samples ``S`` (H, 6) with their world points ``Xp`` (H, 6, 3)
-    pre-rotated, each sample's by a rotation ``R0`` (3, 3), at capture times ``tau`` (H, 6) s,
-    ``rows`` its prior rows or None; each solution's rotation is ``expm([v]x) R0``."""
-    return gr6p_1lin_batch(
-        pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
-        prior_rows=rows, numpy=pool.numpy,
-    )  # fmt: skip
+    return R[ok], C[ok], w[ok], t[ok]
 
 
 def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, rounds=1):
@@ -789,56 +785,51 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     if p3p is None:
         return None
     R, C, own = p3p
-    z = np.zeros((len(own), 3))
     if missed is None:
-        return R, C, z, z.copy()
+        return still_models(R, C)
     spread = np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
     if len(spread) == 0:
-        return R, C, z, z.copy()
+        return still_models(R, C)
     # (one camera's P3P pose misses another camera's points by the lever arm times its
     # rotation error: a small tag's three corners leave a pose a degree off, pixels off in
     # a camera looking elsewhere; the rig solver with the velocities held at zero corrects
     # it on the sample's six points, from every camera it spans, as a generalized P3P would)
     S, Rg = samples[own[spread]], R[spread]
     for _ in range(rounds):
-        v, Cg, valid = _held_solve(pool, S, Rg)
+        Rg, Cg, valid = _held_solve(pool, S, Rg)
         if not valid.any():
-            return R, C, z, z.copy()
-        S, Cg = S[valid], Cg[valid]
-        if pool.numpy:
-            Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(v[valid]), Rg[valid])
-        else:  # (the compiled Rodrigues: the same rotations to rounding)
-            Rg = compose_rotvec(np.ascontiguousarray(v[valid]), np.ascontiguousarray(Rg[valid]))
-    R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
-    z = np.zeros((len(R), 3))
-    return R, C, z, z.copy()
+            return still_models(R, C)
+        S, Rg, Cg = S[valid], Rg[valid], Cg[valid]
+    return still_models(np.concatenate([R, Rg]), np.concatenate([C, Cg]))
 
 
 def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
     time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
-    ``(w, t) = 0``): ``(v (H, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x) Rg``.
-    Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution
-    from the pose's six unknowns alone)."""
-    k = len(S)
+    ``(w, t) = 0``): ``(R (H, 3, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x)
+    Rg`` (:func:`~.hypotheses.composed`). Compiled:
+    :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution from the
+    pose's six unknowns alone)."""
     if pool.numpy:
-        held = (np.broadcast_to(np.eye(6), (k, 6, 6)), np.zeros((k, 6)))  # ((w, t) = 0)
-        Xp = np.einsum("hij,hnj->hni", Rg, pool.X[S])
-        b = _prerotated_solve(pool, S, Xp, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
-        return b.v, b.C, b.valid
+        solve = _rig_solver(pool, STILL_SOLVER_ITERATIONS, held=True)
+        R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
+                                           solve, False)  # fmt: skip
+        return R, C, ok
     X, x = _kernel_arrays(pool)[:2]
     cam, Rm, cm, _ = _kernel_mountings(pool).views
     S = np.ascontiguousarray(S, dtype=np.int64)
-    out, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg, dtype=np.float64), cam, Rm, cm)
-    return out[:, 0:3], out[:, 3:6], ok
+    Rg = np.ascontiguousarray(Rg, dtype=np.float64)
+    out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
+    return composed(out[:, 0:3], Rg), out[:, 3:6], ok
 
 
 def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
-    """n_samples samples of 6 distinct pool indices drawn uniformly (``subset``: among those
-    sorted pool indices, at least 6): the samples of the generalized P3P pre-rotation, whose
-    first 3 points may lie in any cameras. Returns (S, 6)."""
+    """n_samples samples of 6 distinct pool indices drawn uniformly as a camera's
+    (:func:`~.sampling.draw_samples_numpy`; ``subset``: among those sorted pool indices, at
+    least 6): the samples of the generalized P3P pre-rotation, whose first 3 points may lie in
+    any cameras. Returns (S, 6)."""
     n = len(pool.cam) if subset is None else len(subset)
-    u = rng.random((n_samples, n)).argpartition(6, axis=1)[:, :6]
+    u = draw_samples_numpy(rng.random((n_samples, 6)), n)
     return u if subset is None else subset[u]
 
 
@@ -898,35 +889,19 @@ def _refit(
     prior: MotionPrior | None = None,
 ):
     """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times;
-    ``prior``: a gyro's motion prior, whose rows (:func:`_prior_rows` at ``threshold_px``)
-    join the solve."""
+    ``prior``: a gyro's motion prior, whose rows (:func:`_rig_solver`'s at ``threshold_px``)
+    join the solve: a camera's non-minimal step (:func:`~.hypotheses.linear_refit`) with the
+    rig solver."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
         return model
+    solve = _rig_solver(pool, 10, prior, threshold_px)
     for _ in range(rounds):
-        if prior is not None or pool.numpy:  # (a batch of one: with the gyro's rows; NumPy)
-            Xp = (pool.X[idx] @ R.T)[None]
-            rows = None
-            if prior is not None:
-                rows = _prior_rows(pool, prior, Xp, C[None], idx[None], threshold_px)
-            b = gr6p_1lin_batch(
-                pool.x[idx][None], Xp, pool.tau[idx][None],
-                pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
-                numpy=pool.numpy,
-            )  # fmt: skip
-            if not b.valid[0]:
-                return model
-            R, C, w, t = rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]
-            continue
-        try:
-            s = gr6p_1lin(
-                pool.x[idx], pool.X[idx] @ R.T, pool.tau[idx], pool.cam[idx],
-                pool.R_mount, pool.c_mount, iterations=10, v_init=None,
-            )  # fmt: skip
-        except DegenerateInputError:
+        m = linear_refit(idx, R, C, pool.x, pool.X, pool.tau, solve)
+        if m is None:
             return model
-        R, C, w, t = rotvec_to_matrix(s.v) @ R, s.C, s.w, s.t
+        R, C, w, t = m
     return R, C, w, t
 
 

@@ -68,16 +68,25 @@ def draw_sample(u, k, j0, s, pool, chosen, out, o0):
         out[k, o0 + j] = c
 
 
-def draw_samples_numpy(u: np.ndarray, pool: int | np.ndarray) -> np.ndarray:
+def draw_samples_numpy(
+    u: np.ndarray, pool: int | np.ndarray, offset: int | np.ndarray = 0
+) -> np.ndarray:
     """:func:`draw_samples` in NumPy, all K samples at once (the NumPy implementation): the
-    same (K, s) indices from the same ``u``; ``pool`` may also be (K,) int64, each sample's
-    own range (a rig's samples in their cameras). (The chosen indices are distinct and sorted, so
-    the kernel's walk over them, which stops at the first one above the pick, steps over
-    exactly those at or below it: one comparison per chosen index.)"""
+    same (K, s) indices from the same ``u``. ``pool`` may also be (K,) int64, each sample's
+    own range, or (K, s), each draw's: the j-th draw of sample k picks among the
+    ``pool[k, j] - j`` indices of ``offset[k, j] + range(pool[k, j])`` (``offset`` 0, (K,) or
+    (K, s) int64) not chosen yet. A rig's samples spread over its cameras so: their first
+    draws within one camera's points (its range of the stacked pool), the others among every
+    camera's (offset 0, the whole pool). (The chosen indices are distinct and sorted, so the
+    kernel's walk over them, which stops at the first one above the pick, steps over exactly
+    those at or below it: one comparison per chosen index.)"""
     K, s = u.shape
+    pool, offset = np.asarray(pool), np.asarray(offset)
     out = np.empty((K, s), dtype=np.int64)
     for j in range(s):
-        c = np.minimum((u[:, j] * (pool - j)).astype(np.int64), pool - j - 1)
+        p = pool[:, j] if pool.ndim == 2 else pool
+        c = np.minimum((u[:, j] * (p - j)).astype(np.int64), p - j - 1)
+        c += offset[:, j] if offset.ndim == 2 else offset
         if j:
             chosen = np.sort(out[:, :j], axis=1)
             for m in range(j):
