@@ -342,7 +342,7 @@ def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
             noise = 0.5 * threshold_px / pool.focal[S[:, 0]]
             rows = sample_prior_rows(prior, Xs, C0, 1.0, noise, True, pool.compiled)
         return [gr6p_1lin_batch(xs, Xs, rs, pool.cam[S], pool.R_mount, pool.c_mount, iterations,
-                                prior_rows=rows, numpy=pool.numpy)]  # fmt: skip
+                                prior_rows=rows, numpy=not pool.compiled)]  # fmt: skip
 
     return solve
 
@@ -580,11 +580,6 @@ class _Pool:
     def r(self) -> np.ndarray:
         return self.tau
 
-    @property
-    def numpy(self) -> bool:
-        """The NumPy implementation's pool (not :attr:`compiled`)."""
-        return not self.compiled
-
     def views(self) -> tuple:
         """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
         3), rows (M, 2))``, each camera's mounting and its rows in the pool."""
@@ -688,7 +683,7 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     (S, 6)."""
     counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
     u = rng.random(7 * n_samples).reshape(7, n_samples)
-    if pool.numpy:
+    if not pool.compiled:
         # (the camera, then three distinct points of it and three of every camera's others:
         # a camera's draws (draw_samples_numpy) with the first three in the camera's range)
         cams = eligible[cdf.searchsorted(u[0], side="right")]
@@ -810,7 +805,7 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
     Rg`` (:func:`~.hypotheses.composed`). Compiled:
     :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution from the
     pose's six unknowns alone)."""
-    if pool.numpy:
+    if not pool.compiled:
         solve = _rig_solver(pool, STILL_SOLVER_ITERATIONS, held=True)
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                            solve, False)  # fmt: skip
@@ -864,9 +859,9 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
-    (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
-    (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
-    if not pool.numpy:  # (solved and mapped to the rig in one compiled call)
+    (H,) of the samples that gave a solution; None when none did. The NumPy implementation's
+    pool: OpenCV's P3P (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
+    if pool.compiled:  # (solved and mapped to the rig in one compiled call)
         X, x, _, (cam, Rm, cm, _) = _kernel_arrays(pool)
         R, C, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
@@ -1639,7 +1634,7 @@ class _RigSearch(RansacLoop):
         self.cameras = sum(1 for n in counts if n)
         self.missed = self._counts >= 3 if spread and still else None
         #: each batch drawn, solved and scored in one compiled call (:meth:`_batch`)
-        self.fused = not (generalized or pool.numpy) and (still or prior is None)
+        self.fused = not generalized and pool.compiled and (still or prior is None)
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
         self._min_it, self._max_it = r.min_iterations, r.max_iterations
@@ -1774,9 +1769,9 @@ class _RigSearch(RansacLoop):
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
-        if not self.pool.numpy:  # (the compiled errors and cost of :meth:`cost`, to the bit)
+        if self.pool.compiled:  # (the compiled errors and cost of :meth:`cost`, to the bit)
             self._kept(model, self._e, self._cost)
-        if self.fused or (self.subset is None and not self.pool.numpy):  # (compiled)
+        if self.fused or (self.subset is None and self.pool.compiled):  # (compiled)
             n, missed = self._n, self._missed
             if not self.fused:
                 n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
