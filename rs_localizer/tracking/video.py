@@ -559,6 +559,11 @@ class Localizer(GyroReadouts):
             found the previous one again or found too few correspondences in is not the
             rig's to count (no frame received nor skipped, the idle timer not reset, no
             warning): the caller reads the failure from :meth:`last_search` and reports it.
+        camera_words: a rig of one camera's warnings worded as its camera's video words them
+            (``camera_video``'s: the rolling-shutter advice, a time reset the caller's to
+            report, an image the front end failed on or found the previous one again not
+            warned about, the caller's), its frames and outputs a rig of one's (a camera's
+            bag replayed through the rig mode). Only for a rig of one (else ValueError).
         count: the counter of its images' rows (``count(key, n)``: ``points_dropped``,
             ``capped_clouds``, ``capped_points``, under the caller's names; its capping warned
             as ``capped``), a camera video's or a rig of one's counted as its camera's; None:
@@ -605,14 +610,15 @@ class Localizer(GyroReadouts):
         gyro_input: GyroInput | None = None,
         camera_video: bool = False,
         count: Callable[[str, int], Any] | None = None,
+        camera_words: bool = False,
     ):
-        if camera_video and not settings.single_camera:
-            raise ValueError(
-                "camera_video needs a rig of one camera (LocalizerSettings.single_camera)"
-            )
+        if (camera_video or camera_words) and not settings.single_camera:
+            what = "camera_video" if camera_video else "camera_words"
+            raise ValueError(f"{what} needs a rig of one camera (LocalizerSettings.single_camera)")
         self.settings = settings
         # (a camera's own video: its warnings and its fused twists' tags are the camera's)
         self._rig = not camera_video
+        self._rig_words = self._rig and not camera_words  # (its warnings worded for a rig)
         self._rows_count = count  # (a camera video's: its rows counted under its names)
         self._implementation = implementation
         self._impl: str | None = None  # (the rig frame being solved: its implementation)
@@ -918,7 +924,7 @@ class Localizer(GyroReadouts):
         suspect = share >= READOUT_CHECK_SHARE
         if suspect and not self._readout_warned:
             self.log.warning(
-                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig)
+                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig_words)
             )
         self._readout_warned = suspect
         return out
@@ -1111,7 +1117,7 @@ class Localizer(GyroReadouts):
         if reset is not None:
             self.counts["rig.time_resets"] += 1
             self._reset = (self._reset[0] + 1, reset.detail, self._clock.newest)
-            if self._rig:  # (a camera's video: the caller reports it, check_time)
+            if self._rig_words:  # (a camera's video: the caller reports it, check_time)
                 self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
                 solved = self.close()
@@ -1391,7 +1397,7 @@ class Localizer(GyroReadouts):
             img.found[name] = r.found
             return []
         if r.failure == "frozen_image":
-            self.log.warning(
+            self._warn_image(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{r.difference:.2f} gray levels): skipped",
@@ -1399,7 +1405,7 @@ class Localizer(GyroReadouts):
             return self._observed(self._drop(name, stamp, ref, r.failure))
         if r.failure == "frontend_error":
             e = r.error
-            self.log.warning(
+            self._warn_image(
                 f"rig.frontend.{name}",
                 f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
@@ -1535,6 +1541,12 @@ class Localizer(GyroReadouts):
             self.log.warning(f"rig.{key}.{name}", f"rig camera {name!r}: {text}")
 
         return usable_rows(uv, xyz, scores, self.settings.max_points, count, warn)
+
+    def _warn_image(self, key: str, text: str) -> None:
+        """A rig camera's image skipped (frozen, its front end failed): warned, unless worded
+        for a camera (``camera_words``: its caller reports it)."""
+        if self._rig_words:
+            self.log.warning(key, text)
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
         """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)

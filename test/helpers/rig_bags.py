@@ -12,8 +12,9 @@ BAD_STAMP = 10
 
 
 def rewrite_bag(src, dst, edit):
-    """Copy the rig bag ``src`` to ``dst`` (its sequence.json and rig_params.yaml too), each
-    message through ``edit(topic, msg, log_time_ns)`` -> ``[(log_time_ns, msg), ...]``."""
+    """Copy the bag ``src`` (a rig's or a camera's) to ``dst`` (its sequence.json and
+    rig_params.yaml too, those it has), each message through ``edit(topic, msg,
+    log_time_ns)`` -> ``[(log_time_ns, msg), ...]``."""
     import shutil
 
     from rosbags.rosbag2 import Writer
@@ -29,7 +30,8 @@ def rewrite_bag(src, dst, edit):
             for t2, msg in edit(topic, ts.deserialize_cdr(raw, mt), t):
                 w.write(conns[topic], t2, ts.serialize_cdr(msg, mt))
     for name in ("sequence.json", "rig_params.yaml"):
-        shutil.copy(src / name, dst / name)
+        if (src / name).exists():
+            shutil.copy(src / name, dst / name)
     return dst
 
 

@@ -134,3 +134,96 @@ def test_a_camera_s_replay_has_a_row_for_each_frame_its_input_drops(keypoints_ba
     for r, s in zip(res.rows, stamps, strict=True):
         assert r["stamp_ns"] == s.sec * 10**9 + s.nanosec and r["out_stamp_ns"] >= 0
     assert res.counts["unknown_landmark_ids"] >= len(stamps)
+
+
+class _Log:
+    """A logger keeping ``(level, text)`` lines."""
+
+    def __init__(self):
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, text):
+        self.lines.append(("info", text))
+
+    def warning(self, text):
+        self.lines.append(("warning", text))
+
+    def error(self, text):
+        self.lines.append(("error", text))
+
+
+def _raise_on(monkeypatch, n: int) -> None:
+    """The rig's frame step (``Localizer.add``) raises at its ``n``-th call (from 0)."""
+    calls = iter(range(10**6))
+    add = Localizer.add
+
+    def failing(self, frame, *args, **kwargs):
+        if next(calls) == n:
+            raise RuntimeError("injected fault")
+        return add(self, frame, *args, **kwargs)
+
+    monkeypatch.setattr(Localizer, "add", failing)
+
+
+def test_a_camera_s_replay_fails_a_frame_whose_step_raises_and_goes_on(sample_bag, monkeypatch):
+    """A frame whose step raises is a failed row ``internal_error``, logged with the
+    exception as the node logs it, and every later frame is solved (the bag's 30 frames)."""
+    from rs_localizer.ros.bags.replay import replay
+
+    _raise_on(monkeypatch, 4)
+    log = _Log()
+    res = replay(sample_bag, progress=None, log=log)
+    assert len(res.rows) == 30 and res.failures == {"internal_error": 1}
+    assert res.rows[4]["failure"] == "internal_error" and not res.rows[4]["success"]
+    assert all(r["success"] for r in res.rows[5:]) and res.solved == 29
+    warned = [t for lv, t in log.lines if lv == "warning"]
+    assert warned == ["frame failed (internal_error): RuntimeError: injected fault"]
+
+
+def test_a_camera_s_replay_logs_a_time_reset_once_as_the_camera(sample_bag, tmp_path):
+    """A camera's bag whose stamps go back 2 s after its 15th frame: one time reset, counted
+    ``time_resets`` and logged once in the camera's words (``time reset: ...``, no rig's
+    warning), every frame solved."""
+    from dataclasses import replace
+
+    from helpers.rig_bags import rewrite_bag
+
+    from rs_localizer.ros.bags.replay import replay
+
+    seen = iter(range(10**6))
+
+    def edit(topic, msg, t):
+        if topic.endswith("/correspondences") and next(seen) >= 15:
+            s = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec - 2 * 10**9
+            stamp = replace(msg.header.stamp, sec=s // 10**9, nanosec=s % 10**9)
+            msg = replace(msg, header=replace(msg.header, stamp=stamp))
+        return [(t, msg)]
+
+    bag = rewrite_bag(sample_bag, tmp_path / "back", edit)
+    log = _Log()
+    res = replay(bag, progress=None, log=log)
+    assert res.solved == len(res.rows) == 30 and res.counts["time_resets"] == 1
+    warned = [t for lv, t in log.lines if lv == "warning"]
+    assert len(warned) == 1 and warned[0].startswith("time reset: stamp ")
+    assert "older than the previous frame" in warned[0]
+    assert not any("rig" in t for _, t in log.lines)
+
+
+def test_a_camera_s_replay_counts_its_estimator_and_front_end_as_its_node(sample_images_bag):
+    """A camera's replay of images through its front end counts what its node counts: each
+    image searched (``frontend_runs``) and the correspondences found (``frontend_points``:
+    the rows given to the estimator, none dropped nor capped), each frame's estimator path
+    (``frames_compiled`` + ``frames_uncompiled``: every frame) and the rows its estimator
+    left out (``points_dropped``)."""
+    from helpers.paths import CONFIG, IMAGES_CONFIG
+
+    from rs_localizer.ros.bags.replay import replay
+
+    res = replay(sample_images_bag, params_files=[CONFIG, IMAGES_CONFIG], progress=None)
+    c = res.counts
+    n = len(res.rows)
+    assert n > 0 and res.solved == n and "capped_clouds" not in c
+    assert c["frontend_runs"] == n
+    assert c["frontend_points"] == sum(r["num_points"] for r in res.rows)
+    assert c.get("frames_compiled", 0) + c.get("frames_uncompiled", 0) == n
+    assert c["points_dropped"] == 0

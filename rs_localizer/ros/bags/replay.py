@@ -26,7 +26,7 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -336,7 +336,7 @@ def replay(
         if given:
             raise ValueError(f"{', '.join(given)}: not for a rig bag (its cameras' topics are "
                              "<namespace>/<camera>/..., its gyro's <namespace>/imu)")  # fmt: skip
-        run = _Run.of_rig_bag(path, params_files, params)
+        run = _Run.of_rig_bag(path, params_files, params, log)
     else:
         run = _Run.of_camera_bag(path, params_files, params, source, image_topic, imu_topic,
                                  debug_outputs, log)  # fmt: skip
@@ -453,7 +453,7 @@ class _Run:
     out_mount: Any = None
 
     @classmethod
-    def of_rig_bag(cls, path: Path, params_files: list, params) -> _Run:
+    def of_rig_bag(cls, path: Path, params_files: list, params, log: Any = None) -> _Run:
         """A rig bag's cameras through the rig mode (:func:`replay`): configured from the
         parameters (:func:`~rs_localizer.ros.bags.bag_frames.rig_bag_config`: the defaults,
         the bag's ``rig_params.yaml``, ``params_files``, ``params``): the rig, each camera's
@@ -465,7 +465,8 @@ class _Run:
         (taken as they come, none dropped from a full queue). A gyro on the rig
         (``imu.enabled``) is read from ``<namespace>/imu``, its samples up to
         :data:`GYRO_AHEAD_NS` after a frame's stamp given to the rig before the frame. Each
-        rig frame is logged at its time.
+        rig frame is logged at its time. A frame step that raises is the node's
+        ``internal_error``, logged to ``log`` (:meth:`frame`).
 
         Raises:
             ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without
@@ -474,8 +475,10 @@ class _Run:
         """
         from ...tracking.video import Localizer
         from ..camera_input import rig_camera_inputs
+        from ..pipeline import ThrottledLog
 
         run = cls()
+        run.log = ThrottledLog(log)  # (a frame step's internal error, as the node logs it)
         values, _, cfg = rig_bag_config(path, params_files, params)
         run.path, run.cfg = path, cfg
         run.engine = rig = Localizer(cfg.settings)
@@ -549,7 +552,9 @@ class _Run:
         run._cameras(("",), dict(settings.mounts), {"": ""})
         own = run.own[""]
         gyro = GyroInput(own.add, tlog, span=math.inf)  # (the camera's counts and wording)
-        run.engine = rig = Localizer(settings, tlog, gyro_input=gyro, count=own.add)
+        # (its warnings worded as the camera's: a time reset its input's alone)
+        run.engine = rig = Localizer(settings, tlog, gyro_input=gyro, count=own.add,
+                                     camera_words=True)  # fmt: skip
         run.landmarks = maps.landmarks
         inp = CameraInput(tlog, own.add, name="")
         cam = cfg.camera
@@ -632,18 +637,28 @@ class _Run:
         (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`; a frame it drops counted
         ``failed.<reason>`` by the node alone; a camera's bag: its row), the gyro's samples up to
         :data:`GYRO_AHEAD_NS` after its stamp first: the steps of the rig frames it completes
-        (a camera's bag: of its frame, also one dropped or skipped)."""
+        (a camera's bag: of its frame, also one dropped or skipped). A frame step that raises
+        is a defect, as the node takes it: the frame failed (``internal_error``; a camera's
+        bag: its row, a rig bag's camera: counted ``failed.internal_error``), logged with the
+        exception, and the replay goes on."""
         own, inp = self.own[name], self.inputs[name]
         if not self.per_frame:  # (as the rig node: every message, taken at once; a camera's
             own.add("received")  # frames are its rows)
         stamp = inp.check(msg, kind)
-        if not inp.rig and not isinstance(stamp, DroppedFrame):
-            # (the single camera's stamp noted on its video's clock first: a time reset acts
-            # before its camera_info is looked up)
-            inp.note_time(stamp, self.engine.check_time)
         self._ft = None
-        taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp), self.frontends,
-                          self._gyro_to)  # fmt: skip
+        try:
+            if not inp.rig and not isinstance(stamp, DroppedFrame):
+                # (the single camera's stamp noted on its video's clock first: a time reset
+                # acts before its camera_info is looked up)
+                inp.note_time(stamp, self.engine.check_time)
+            taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp),
+                              self.frontends, self._gyro_to)  # fmt: skip
+        except Exception as e:  # (as the node's worker: this frame failed, the next ones go on)
+            text = f"{type(e).__name__}: {e}"
+            self.log.warning("internal_error", f"{inp.label}frame failed (internal_error): {text}")
+            taken = DroppedFrame(name, getattr(stamp, "stamp_ns", stamp), None, e, "internal_error")
+        if self.per_frame and kind == "image" and not isinstance(taken, DroppedFrame):
+            self._frontend_ran(name)
         if isinstance(taken, DroppedFrame):
             if not self.per_frame:
                 own.add(f"failed.{taken.reason}")
@@ -653,6 +668,15 @@ class _Run:
         if not taken.outs and self.per_frame:  # (its image skipped before the estimator)
             return self._dropped(taken.item.stamp_ns, self.engine.last_search(name).failure)
         return self._steps(taken.outs, views, taken)
+
+    def _frontend_ran(self, name: str) -> None:
+        """A camera's image searched by its front end: counted as its node counts it
+        (``frontend_runs``, ``frontend_points``: the correspondences it found; not an image
+        it found the previous one again or failed on)."""
+        search = self.engine.last_search(name)
+        if search is not None and search.found is not None:
+            self.own[name].add("frontend_runs")
+            self.own[name].add("frontend_points", len(search.found.points2d))
 
     def _dropped(self, stamp: int | None, reason: str) -> list[_Step]:
         """A camera's bag's frame that no rig frame poses: its failed row (its output stamp
@@ -697,9 +721,12 @@ class _Run:
         done = time.perf_counter()
         for o in outs:
             t, est = o.stamp_ns, o.estimate
+            if self.per_frame:  # (the camera's counts, as its node's diagnostics)
+                self.own[""].add("frames_compiled" if o.compiled else "frames_uncompiled")
             if est is not None:
                 result.solver = result.solver or est.solver
                 if self.per_frame:  # (the camera's counts, as its node's diagnostics)
+                    _count_estimate(self.own[""].add, o.camera_estimate)
                     self.fit.check(o.num_points, est, self.own[""], self.log.warning)
                 else:
                     self.fit.update(o.num_points, est)
@@ -775,6 +802,17 @@ class _Run:
         """The tracking's values, with the check of the cameras' rolling-shutter timing on
         the video (:meth:`~rs_localizer.tracking.video.Localizer.tracking_values`)."""
         return self.engine.tracking_values()
+
+
+def _count_estimate(count: Callable[[str, int], Any], est: RSPoseEstimate) -> None:
+    """A camera's estimate counted as its node counts it: ``points_dropped`` (the rows its
+    estimator left out), a pose from few points (``frames_few_points``) or one tag
+    (``frames_single_tag``)."""
+    count("points_dropped", int(est.num_dropped))
+    if est.success and est.few_points:
+        count("frames_few_points")
+    if est.success and est.single_tag:
+        count("frames_single_tag")
 
 
 def _row(stamp_ns: int | None, out_stamp_ns: int | None, success: bool, failure: str,
