@@ -837,3 +837,40 @@ def test_a_rig_camera_s_camera_infos_after_a_time_reset_are_forgotten_as_the_nod
     for o in late:
         for n, f in o.frames.items():
             np.testing.assert_array_equal(f.camera.K, true_k[n])
+
+
+def test_a_rig_camera_s_frame_whose_step_raises_fails_and_the_replay_goes_on(tmp_path, monkeypatch):
+    """The left camera's 3rd frame's step raises (the rig's frame step, ``Localizer.add``):
+    as the rig node takes it, the frame is counted ``failed.internal_error`` (received =
+    solved + failed + skipped + pending), logged with the exception, and the replay goes
+    on: every rig frame is posed, the left camera's later frames in them."""
+    from rs_localizer.ros.bags.bag_io import write_rig_bag
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
+    from rs_localizer.tracking.video import Localizer
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=3)
+    bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
+    left = sorted(f.stamp_ns for f in frames if f.name == "left")
+    add = Localizer.add
+
+    def failing(self, frame, *args, **kwargs):
+        if frame.camera_name == "left" and frame.stamp_ns == left[2]:
+            raise RuntimeError("injected fault")
+        return add(self, frame, *args, **kwargs)
+
+    monkeypatch.setattr(Localizer, "add", failing)
+    warned = []
+    log = type("Log", (), {"info": lambda s, t: None, "error": lambda s, t: None,
+                           "warning": lambda s, t: warned.append(t)})()  # fmt: skip
+    res = replay(bag, progress=None, log=log)
+    c = res.camera_counts["left"]
+    assert c["failed.internal_error"] == c["failed"] == 1 and c["received"] == len(left)
+    assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"]
+    assert warned == [
+        "rig camera 'left': frame failed (internal_error): RuntimeError: injected fault"
+    ]
+    assert res.solved == len(res.rows) > 0
+    later = {f.stamp_ns for o in res.outputs for n, f in o.frames.items() if n == "left"}
+    assert set(left[3:]) <= later and left[2] not in later
