@@ -124,8 +124,11 @@ class ReplayResult:
     :class:`~rs_localizer.frontends.shared.LoadedMaps`; None for a rig, whose cameras load
     their own), ``solver`` (the estimator's name), ``tracked`` (``twist`` carries the fused
     twist), and the counters (``counts``: a camera's, as the node's diagnostics name them
-    (its frames are its rows, not counted here): its rows' (``points_dropped``,
-    ``capped_clouds``, ``unknown_landmark_ids``...), ``time_resets``,
+    (its frames are its rows, not counted here): its rows' (``points_dropped``, with the
+    rows its estimator left out, ``capped_clouds``, ``unknown_landmark_ids``...), its
+    estimator's (``frames_compiled`` / ``frames_uncompiled``, ``frames_few_points``,
+    ``frames_single_tag``), its front end's (``frontend_runs``, ``frontend_points``),
+    ``time_resets``,
     ``imu_rejected.<reason>``, the gyro's (``frames_with_gyro``, ``gyro_rejected``,
     ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``...) and the map-fit check's
     (``frames_failed_with_matches``, ``map_fit_doubtful``); a rig's gyro counts by the same
@@ -314,7 +317,12 @@ def replay(
             use (default: the bag's only IMU topic; a rig's ``<namespace>/imu``); all its
             samples are buffered first.
         progress: stream for the progress bar (None: none). log: logger (``info``,
-            ``warning``) for a camera's warnings, throttled as the node's (None: silent).
+            ``warning``) for a camera's warnings, worded and throttled as the camera node's
+            (None: silent); of a rig bag, a frame whose step raised.
+
+    A frame whose step raises (a defect) fails as in the node: its row (a camera's bag)
+    or its camera's count ``failed.internal_error`` (a rig bag's), the exception logged, and
+    the replay goes on.
 
     Raises:
         ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
