@@ -13,6 +13,27 @@ import pytest
 from .paths import CONFIG
 
 
+class LineLog:
+    """A logger (``info``, ``warning``, ``error``, as a ``logging.Logger`` or rclpy's) keeping
+    each line as ``(level, text)`` in :attr:`lines`."""
+
+    def __init__(self):
+        self.lines: list[tuple[str, str]] = []
+
+    def info(self, text):
+        self.lines.append(("info", text))
+
+    def warning(self, text):
+        self.lines.append(("warning", text))
+
+    def error(self, text):
+        self.lines.append(("error", text))
+
+    def warnings(self) -> list[str]:
+        """The warnings' texts."""
+        return [t for level, t in self.lines if level == "warning"]
+
+
 @contextlib.contextmanager
 def spinning(context, *nodes):
     """Spin ``nodes`` on one executor in a background thread for the ``with`` block; then stop

@@ -7,7 +7,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from helpers.ros import Probe, start_node, stop_node
+from helpers.ros import LineLog, Probe, start_node, stop_node
 
 #: the camera-IMU mounting of make-bag --imu-rate (rs_localizer.sim.trajectory.R_IMU_CAMERA):
 #: IMU -> camera optical frame as a quaternion x y z w, and its simulated gyro bias
@@ -108,20 +108,6 @@ def plane_bag(tmp_path_factory):
     return out
 
 
-class _Log:
-    def __init__(self):
-        self.lines = []
-
-    def info(self, text):
-        self.lines.append(("info", text))
-
-    def warning(self, text):
-        self.lines.append(("warning", text))
-
-    def error(self, text):
-        self.lines.append(("error", text))
-
-
 @pytest.mark.parametrize("estimate_bias", [True, False])
 def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     """On a planar scene the per-frame test rejects a mount 90 deg off (about the optical
@@ -148,7 +134,7 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
 
     R_wrong = rotvec_to_matrix(np.array([0.0, 0.0, np.pi / 2])) @ R_IMU_CAMERA.T
     params = {**GYRO, "imu.estimate_bias": estimate_bias}
-    log = _Log()
+    log = LineLog()
     wrong = replay(
         plane_bag,
         params={**params, "imu.rotation": list(quaternion_from_matrix(R_wrong))},

@@ -10,6 +10,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from helpers.ros import LineLog
 from helpers.transforms import transform, twist_hat
 
 from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
@@ -136,22 +137,6 @@ def test_a_camera_s_replay_has_a_row_for_each_frame_its_input_drops(keypoints_ba
     assert res.counts["unknown_landmark_ids"] >= len(stamps)
 
 
-class _Log:
-    """A logger keeping ``(level, text)`` lines."""
-
-    def __init__(self):
-        self.lines: list[tuple[str, str]] = []
-
-    def info(self, text):
-        self.lines.append(("info", text))
-
-    def warning(self, text):
-        self.lines.append(("warning", text))
-
-    def error(self, text):
-        self.lines.append(("error", text))
-
-
 def _raise_on(monkeypatch, n: int) -> None:
     """The rig's frame step (``Localizer.add``) raises at its ``n``-th call (from 0)."""
     calls = iter(range(10**6))
@@ -171,13 +156,12 @@ def test_a_camera_s_replay_fails_a_frame_whose_step_raises_and_goes_on(sample_ba
     from rs_localizer.ros.bags.replay import replay
 
     _raise_on(monkeypatch, 4)
-    log = _Log()
+    log = LineLog()
     res = replay(sample_bag, progress=None, log=log)
     assert len(res.rows) == 30 and res.failures == {"internal_error": 1}
     assert res.rows[4]["failure"] == "internal_error" and not res.rows[4]["success"]
     assert all(r["success"] for r in res.rows[5:]) and res.solved == 29
-    warned = [t for lv, t in log.lines if lv == "warning"]
-    assert warned == ["frame failed (internal_error): RuntimeError: injected fault"]
+    assert log.warnings() == ["frame failed (internal_error): RuntimeError: injected fault"]
 
 
 def test_a_camera_s_replay_logs_a_time_reset_once_as_the_camera(sample_bag, tmp_path):
@@ -200,10 +184,10 @@ def test_a_camera_s_replay_logs_a_time_reset_once_as_the_camera(sample_bag, tmp_
         return [(t, msg)]
 
     bag = rewrite_bag(sample_bag, tmp_path / "back", edit)
-    log = _Log()
+    log = LineLog()
     res = replay(bag, progress=None, log=log)
     assert res.solved == len(res.rows) == 30 and res.counts["time_resets"] == 1
-    warned = [t for lv, t in log.lines if lv == "warning"]
+    warned = log.warnings()
     assert len(warned) == 1 and warned[0].startswith("time reset: stamp ")
     assert "older than the previous frame" in warned[0]
     assert not any("rig" in t for _, t in log.lines)

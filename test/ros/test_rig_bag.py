@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 from helpers.rig_bags import cut_image, recording_of, rewrite_bag
+from helpers.ros import LineLog
 
 pytest.importorskip("rosbags")
 
@@ -861,14 +862,12 @@ def test_a_rig_camera_s_frame_whose_step_raises_fails_and_the_replay_goes_on(tmp
         return add(self, frame, *args, **kwargs)
 
     monkeypatch.setattr(Localizer, "add", failing)
-    warned = []
-    log = type("Log", (), {"info": lambda s, t: None, "error": lambda s, t: None,
-                           "warning": lambda s, t: warned.append(t)})()  # fmt: skip
+    log = LineLog()
     res = replay(bag, progress=None, log=log)
     c = res.camera_counts["left"]
     assert c["failed.internal_error"] == c["failed"] == 1 and c["received"] == len(left)
     assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"]
-    assert warned == [
+    assert log.warnings() == [
         "rig camera 'left': frame failed (internal_error): RuntimeError: injected fault"
     ]
     assert res.solved == len(res.rows) > 0

@@ -381,9 +381,10 @@ def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
 
 
 def test_only_a_rig_of_one_is_a_camera_s_video():
-    """``camera_video`` and ``check_time`` are a rig of one's."""
-    with pytest.raises(ValueError, match="rig of one"):
-        Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}), camera_video=True)
+    """``camera_video``, ``camera_words`` and ``check_time`` are a rig of one's."""
+    for kw in ("camera_video", "camera_words"):
+        with pytest.raises(ValueError, match=f"{kw} needs a rig of one"):
+            Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}), **{kw: True})
     with pytest.raises(ValueError, match="rig of one"):
         Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
 
@@ -455,3 +456,25 @@ def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
             outs += rig.process_image("cam", frames[k].stamp_ns, image, cam, "mono8")
         assert len(outs) == taken
         assert rig.counts["cam.skipped.frozen_image"] == 2 - taken
+
+
+def test_a_rig_of_one_worded_for_its_camera_leaves_a_time_reset_to_its_caller(video):
+    """A frame going back (a time reset): a rig of one warns ``rig time reset: ...`` once;
+    worded for its camera (``camera_words``) it warns nothing (its caller reports it), and
+    both pose every frame the same."""
+    from helpers.rig import Log
+
+    frames, cam, _ = video
+    order = [*frames[:6], frames[2], frames[3]]  # (back to the 3rd frame's stamp)
+    logs, posed = [], []
+    for words in (False, True):
+        log = Log()
+        rig = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS), log,
+                        camera_words=words)  # fmt: skip
+        outs = [rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores, camera_name="cam"))
+                for f in order]  # fmt: skip
+        assert rig.counts["rig.time_resets"] == 1
+        logs.append([t for k, t in log.warnings if "time_reset" in k])
+        posed.append([o.estimate.pose.position for (o,) in outs])
+    assert len(logs[0]) == 1 and logs[0][0].startswith("rig time reset: ") and logs[1] == []
+    assert all(_same(a, b) for a, b in zip(*posed, strict=True))
