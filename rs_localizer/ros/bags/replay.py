@@ -665,14 +665,14 @@ class _Run:
             text = f"{type(e).__name__}: {e}"
             self.log.warning("internal_error", f"{inp.label}frame failed (internal_error): {text}")
             taken = DroppedFrame(name, getattr(stamp, "stamp_ns", stamp), None, e, "internal_error")
-        if self.per_frame and kind == "image" and not isinstance(taken, DroppedFrame):
-            self._frontend_ran(name)
         if isinstance(taken, DroppedFrame):
             if not self.per_frame:
                 own.add(f"failed.{taken.reason}")
             return self._dropped(taken.stamp_ns, taken.reason)
         if isinstance(taken.item, DroppedFrame) and not inp.rig:  # (never given to its rig)
             return self._dropped(taken.item.stamp_ns, taken.item.reason)
+        if self.per_frame and kind == "image":
+            self._frontend_ran(name)
         if not taken.outs and self.per_frame:  # (its image skipped before the estimator)
             return self._dropped(taken.item.stamp_ns, self.engine.last_search(name).failure)
         return self._steps(taken.outs, views, taken)
