@@ -463,7 +463,7 @@ def _refine_on_corners(
     sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (len(gi), G + F)), np.ones((2, 6)))
     res = least_squares(fun, np.zeros(6 * (G + F)), jac_sparsity=sp, loss="soft_l1",
                         f_scale=scale, x_scale="jac", method="trf", tr_solver="lsmr",
-                        ftol=1e-10, xtol=1e-10, max_nfev=_CORNER_NFEV)  # fmt: skip
+                        ftol=1e-8, xtol=1e-8, max_nfev=_CORNER_NFEV)  # fmt: skip
     xm = res.x[6 * G :].reshape(F, 6)
     out = {reference: mounts[reference]}
     for i, n in enumerate(free):
