@@ -20,6 +20,7 @@ from scipy.stats import chi2
 
 from ..camera import reference_stamp_ns
 from ..estimation.estimate import estimate_rs_pose
+from ..estimation.options import EstimateOptions
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
@@ -40,7 +41,8 @@ class MountingEstimate:
     Attributes:
         name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
             x_rig + c``) with its ``covariance`` (None for the reference camera, whose
-            mounting is given): the adjustment's ``s^2 (J^T J)^-1``, inflated for the errors
+            mounting is given): the pose-level adjustment's ``s^2 (J^T J)^-1`` (global-shutter
+            cameras: the mounting then refined on the corners), inflated for the errors
             neighbouring frames share, plus the bias of the single-camera poses that averaging
             does not remove (:data:`MOUNTING_BIAS_SHARE`; docs/rig_node.md, "Mountings from
             data", step 5).
@@ -107,12 +109,13 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
     change with the camera's time, between its frames before and after the nearest one (its
     own pose's error left out: a twist differenced from it would correlate with that error),
     else between its nearest frame and the next or previous one within ``max_step`` (a
-    global-shutter frame has no twist of its own), else its frame's own twist."""
+    global-shutter frame has no twist of its own), else its frame's own twist. Last, that
+    frame's index in ``items``."""
     k = int(np.argmin(np.abs(times - t_r)))
     dt = (t_r - times[k]) * 1e-9
     if abs(dt) > window:
         return None
-    _, Oc, p, om, v, cov = items[k]
+    _, Oc, p, om, v, cov = items[k][:6]
 
     def near(j: int) -> bool:
         return 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step
@@ -127,19 +130,19 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
         step = (times[b] - times[a]) * 1e-9
         twist = (Oa @ matrix_to_rotvec(Oa.T @ items[b][1]) / step, (items[b][2] - pa) / step)
     if dt == 0:
-        return Oc, p, cov, twist
+        return Oc, p, cov, twist, k
     if near(j):
         s_ = (t_r - times[k]) / (times[j] - times[k])
         O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
-        return O_t, p + s_ * (items[j][2] - p), cov, twist
-    return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov, twist
+        return O_t, p + s_ * (items[j][2] - p), cov, twist, k
+    return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov, twist, k
 
 
 def _rig_frames(poses: dict, window: float, max_step: float) -> list:
     """The rig frames of cameras posed alone: every camera frame's time, in order, starts a
     rig frame unless within ``window`` of the current one's start; per rig frame, each camera
     with a frame within ``window`` carried to the start (:func:`_carried`). Returns a list of
-    ``(t_ns, {camera: (O, p, cov)})`` with at least two cameras."""
+    ``(t_ns, {camera: (O, p, cov, twist, frame index)})`` with at least two cameras."""
     stamps = sorted(t for items in poses.values() for t, *_ in items)
     times = {n: np.array([i[0] for i in items]) for n, items in poses.items() if items}
     out, start = [], None
@@ -220,7 +223,8 @@ def _adjust(
     Jacobian (sparse; columns: the rig frames' poses, the mountings, 6 each, then the
     offsets), whitened errors (m, 6), the observations (rig frame used, rig frame, camera, O,
     p, whitening, twist), rig frames used, adjusted cameras, their offsets (s; {} without
-    ``offsets``))``."""
+    ``offsets``), the rig frames' poses (rig -> world rotations (G, 3, 3), positions (G, 3)
+    m))``."""
     # each camera's pose errors weighted by its frames' typical covariance (the mean of
     # those within 3 times the median trace) in its own axes (block_diag(R_wc^T, R_wc^T):
     # world -> camera axes), as the depth direction turns with the camera (on make-bag --rig
@@ -228,7 +232,7 @@ def _adjust(
     # axes 0.40/0.39 mm); each frame's weight then scaled by its own covariance's size
     covs: dict = {}
     for _, seen in rig_frames:
-        for n, (R_wc, _, c6, _) in seen.items():
+        for n, (R_wc, _, c6, *_) in seen.items():
             T = block_diag(R_wc.T, R_wc.T)
             covs.setdefault(n, []).append(T @ np.asarray(c6, dtype=float)[:6, :6] @ T.T)
     whiten = {}
@@ -265,7 +269,7 @@ def _adjust(
         R0g.append(Oa @ Ra.T)
         P0g.append(ppa - R0g[-1] @ pa)
         for n in known:
-            Oc, p, c6, twist = seen[n]
+            Oc, p, c6, twist = seen[n][:4]
             # the typical covariance's shape, scaled to the size of the frame's own (its
             # mean variance in the typical's whitened units): a frame of few inliers
             # counts less, its own shape (noisy with few points) is not used
@@ -322,7 +326,9 @@ def _adjust(
     for i, n in enumerate(free):
         out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
     shifts = {n: float(xd[i]) for i, n in enumerate(free)} if D else {}
-    return out, res.jac, res.fun[: 6 * m].reshape(-1, 6), obs, G, free, shifts
+    xg = res.x[: 6 * G].reshape(G, 6)
+    rig = (rotvec_to_matrix(xg[:, :3]) @ R0g_, P0g_ + xg[:, 3:])
+    return out, res.jac, res.fun[: 6 * m].reshape(-1, 6), obs, G, free, shifts, rig
 
 
 def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list) -> tuple[dict, dict]:
@@ -372,12 +378,106 @@ def _errors(obs: list, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
 
 
+#: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
+_CORNER_NFEV = 300
+
+
+def _refine_on_corners(
+    rig_frames: list, poses: dict, obs: list, rig: tuple, mounts: dict, reference: str, scale: float
+) -> dict | None:
+    """The mountings refined on the corners: the pose of every rig frame with two or more
+    cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
+    those cameras' frames, each corner's error in the distorted image of its camera
+    (:meth:`~rs_localizer.camera.CameraModel.project`) under SciPy's ``soft_l1`` loss at
+    ``scale`` px (``least_squares``, ``trf``, sparse Jacobian), started at the pose-level
+    adjustment (:func:`_adjust`: its observations ``obs``, rig poses ``rig`` and ``mounts``;
+    a rig frame it left out at the pose of its camera frame with the most corners). Camera
+    frames the adjustment left out as outliers take part: their corners, not their poses. A
+    camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose relative to
+    the carried one. None when a camera reads out rolling (its corners' times are not
+    modelled here: the pose-level adjustment stands) or no corner projects."""
+    start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
+    groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
+    Rg0, Pg0 = [], []
+    for g, (_, seen) in enumerate(rig_frames):
+        known = [n for n in seen if n in mounts]
+        if len(known) < 2:
+            continue
+        if g not in start:
+            n = max(known, key=lambda n: len(poses[n][seen[n][4]][6][0]))
+            (O_t, p_t), (Rm, pm) = seen[n][:2], mounts[n]
+            start[g] = (O_t @ Rm.T, p_t - O_t @ Rm.T @ pm)
+        gi = len(Rg0)
+        Rg0.append(start[g][0])
+        Pg0.append(start[g][1])
+        for n in known:
+            O_t, p_t, _, _, k = seen[n]
+            _, Oc, pc, _, _, _, (uv, X, cam) = poses[n][k]
+            if cam.readout_time != 0.0:
+                return None
+            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], []))
+            a[1].append(np.full(len(uv), gi))
+            a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))
+            a[3].append(np.broadcast_to(O_t.T @ (pc - p_t), (len(uv), 3)))
+            a[4].append(uv)
+            a[5].append(X)
+    Rg0, Pg0 = np.array(Rg0).reshape(-1, 3, 3), np.array(Pg0).reshape(-1, 3)
+    G = len(Rg0)
+    free = [n for n in mounts if n != reference]
+    fidx = {n: i for i, n in enumerate(free)}
+    F = len(free)
+    R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
+    p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
+    parts = []
+    for (n, _), (cam, *lists) in groups.items():
+        gi, Dr, Dp, uv, X = (np.concatenate(v) for v in lists)
+        parts.append((cam, fidx.get(n, -1), mounts[n], gi, Dr, Dp, uv, X))
+
+    def errors(x):
+        xg = x[: 6 * G].reshape(G, 6)
+        xm = x[6 * G :].reshape(F, 6)
+        Rg, Pg = rotvec_to_matrix(xg[:, :3]) @ Rg0, Pg0 + xg[:, 3:]
+        out = []
+        for cam, i, (Rm, pm), gi, Dr, Dp, uv, X in parts:
+            if i >= 0:
+                Rm, pm = rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:]
+            Ow = Rg[gi] @ Rm  # (camera -> world at the rig frame's time, then its own)
+            p = Pg[gi] + Rg[gi] @ pm + np.einsum("nij,nj->ni", Ow, Dp)
+            out.append(cam.project(np.einsum("nji,nj->ni", Ow @ Dr, X - p)) - uv)
+        return np.concatenate(out)
+
+    keep = np.isfinite(errors(np.zeros(6 * (G + F)))).all(axis=1)
+    if not keep.any():
+        return None
+
+    def fun(x):
+        e = errors(x)[keep]
+        return np.where(np.isfinite(e), e, 1e3 * scale).ravel()
+
+    # each corner's 2 rows on its rig frame's pose and its camera's mounting (not the
+    # reference's)
+    gi = np.concatenate([q[3] for q in parts])[keep]
+    ci = np.concatenate([np.full(len(q[3]), q[1]) for q in parts])[keep]
+    mine = np.flatnonzero(ci >= 0)
+    rows, cols = np.r_[np.arange(len(gi)), mine], np.r_[gi, G + ci[mine]]
+    sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (len(gi), G + F)), np.ones((2, 6)))
+    res = least_squares(fun, np.zeros(6 * (G + F)), jac_sparsity=sp, loss="soft_l1",
+                        f_scale=scale, x_scale="jac", method="trf", tr_solver="lsmr",
+                        ftol=1e-8, xtol=1e-8, max_nfev=_CORNER_NFEV)  # fmt: skip
+    xm = res.x[6 * G :].reshape(F, 6)
+    out = {reference: mounts[reference]}
+    for i, n in enumerate(free):
+        out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
+    return out
+
+
 def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
     """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
     those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
     ``(t ns on the rig's clock, orientation (3, 3) camera -> world, position (3,) m, angular
-    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12))`` in time
-    order (``t``: the reference line's capture time plus the camera's ``given`` offset, s)."""
+    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12), its inlier
+    corners ``(pixels (K, 2), map points (K, 3) m, camera model)``)`` in time order (``t``: the
+    reference line's capture time plus the camera's ``given`` offset, s)."""
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
@@ -390,9 +490,10 @@ def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float,
             continue
         t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
         t += int(round(given.get(f.camera_name, 0.0) * 1e9))
-        q = est.pose
+        q, inl = est.pose, np.asarray(est.inliers, dtype=bool)
+        corners = (np.asarray(f.points2d, float)[inl], np.asarray(f.points3d, float)[inl], f.camera)
         poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
-                                     q.linear_velocity, est.covariance))  # fmt: skip
+                                     q.linear_velocity, est.covariance, corners))  # fmt: skip
     for items in poses.values():
         items.sort(key=lambda i: i[0])
     return poses
@@ -425,7 +526,11 @@ def calibrate_mountings(
     ``least_squares``, sparse Jacobian; each camera's pose errors whitened by its frames'
     typical covariance in its own axes, scaled to each frame's own covariance's size); camera
     frames beyond the 99.9 % chi-square quantile (6 degrees of freedom, at the errors' median
-    scale) are left out and the adjustment is run again.
+    scale) are left out and the adjustment is run again. When every camera reads out at once
+    (global shutter) and no time offset is estimated, the mountings are then refined on the
+    corners (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's
+    error in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``); the
+    covariance stays the pose-level adjustment's.
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
@@ -470,7 +575,7 @@ def calibrate_mountings(
     rounds = TIME_OFFSET_ROUNDS if estimate_time_offsets else 1
     for k in range(rounds):
         covariances = None  # (of this round's adjustment, once computed)
-        mounts, J, r, obs, G, free, dts = _adjust(
+        mounts, J, r, obs, G, free, dts, rig = _adjust(
             rig_frames, mounts, reference, offsets=estimate_time_offsets
         )
         # camera frames that contradict the others, left out (at the errors' median scale)
@@ -479,7 +584,7 @@ def calibrate_mountings(
         bad = {(g, n) for (_, g, n, *_), e in zip(obs, d2, strict=True)
                if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
         if bad:
-            mounts, J, r, obs, G, free, dts = _adjust(
+            mounts, J, r, obs, G, free, dts, rig = _adjust(
                 rig_frames, mounts, reference, bad, offsets=estimate_time_offsets
             )
         if not dts or k == rounds - 1:
@@ -498,6 +603,9 @@ def calibrate_mountings(
         rig_frames = _rig_frames(poses, window, max_step)
     # (the last round's, when it regrouped nothing, is the final adjustment's)
     cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free)
+    if not estimate_time_offsets:
+        px = (options if options is not None else EstimateOptions()).ransac.threshold_px
+        mounts = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px) or mounts
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
