@@ -57,6 +57,9 @@ class MountingEstimate:
             ``estimate_time_offsets`` the estimate.
         time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
             the mounting's); NaN: not estimated (given, or the reference camera's).
+        corners_refined: the mounting was refined on the corners (:func:`_refine_on_corners`).
+        exposure_offset: s, the camera's time offset the video shows when it kept the
+            mountings from that refinement (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
     """
 
     name: str
@@ -69,6 +72,8 @@ class MountingEstimate:
     scatter_mm: float
     time_offset: float = 0.0
     time_offset_std: float = float("nan")
+    corners_refined: bool = False
+    exposure_offset: float = float("nan")
 
 
 #: ``estimate_time_offsets``: the adjustment is run again at the time offsets found until
@@ -80,6 +85,13 @@ TIME_OFFSET_ROUNDS = 4
 #: rig hardly moves (no information on the offsets) still gives the mountings; the offset's
 #: std then says it was not seen
 TIME_OFFSET_PRIOR = 1.0
+
+#: a camera whose time offset, estimated as with ``estimate_time_offsets`` (one adjustment),
+#: is beyond 3 of its std and moves a corner by more than this share of the RANSAC threshold
+#: at the rig's median angular speed (its frames' twist; the camera's mean focal length) does
+#: not expose with the reference: the mountings are not refined on the corners, which would
+#: take up the rig's motion between the exposures
+EXPOSED_APART_SHARE = 0.25
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
 #: share of one rig frame's scatter of the rotation and of the position: the bias of the
@@ -471,6 +483,28 @@ def _refine_on_corners(
     return out
 
 
+def _exposed_apart(
+    rig_frames: list, poses: dict, mounts: dict, reference: str, bad: set, px: float
+) -> dict:
+    """The cameras that do not expose with the reference: camera -> its time offset (s), those
+    the pose-level adjustment with a time offset per camera (:func:`_adjust`, ``offsets``;
+    started at ``mounts``, the camera frames in ``bad`` left out) finds beyond 3 of its std
+    (:func:`_mounting_covariance`) and large enough to move a corner by more than
+    :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median angular speed (the norm of its
+    frames' angular velocity, rad/s) times the camera's mean focal length (px)."""
+    _, J, r, obs, G, free, dts, _ = _adjust(rig_frames, mounts, reference, bad, offsets=True)
+    std = _mounting_covariance(J, r, obs, G, free)[1]
+    cam = np.array([o[2] for o in obs])
+    speed = np.linalg.norm(np.array([o[6][0] for o in obs]).reshape(-1, 3), axis=1)
+    out = {}
+    for n, dt in dts.items():
+        focal = poses[n][0][6][2].mean_focal
+        shift = abs(dt) * float(np.median(speed[cam == n])) * focal
+        if abs(dt) > 3.0 * std.get(n, np.inf) and shift > EXPOSED_APART_SHARE * px:
+            out[n] = dt
+    return out
+
+
 def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
     """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
     those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
@@ -527,7 +561,10 @@ def calibrate_mountings(
     typical covariance in its own axes, scaled to each frame's own covariance's size); camera
     frames beyond the 99.9 % chi-square quantile (6 degrees of freedom, at the errors' median
     scale) are left out and the adjustment is run again. When every camera reads out at once
-    (global shutter) and no time offset is estimated, the mountings are then refined on the
+    (global shutter), no time offset is estimated and the cameras expose together (no
+    camera's time offset, estimated as with ``estimate_time_offsets``, beyond 3 of its std and
+    moving a corner by more than :data:`EXPOSED_APART_SHARE` of the RANSAC threshold at the
+    rig's median angular speed), the mountings are then refined on the
     corners (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's
     error in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``); the
     covariance stays the pose-level adjustment's.
@@ -603,9 +640,15 @@ def calibrate_mountings(
         rig_frames = _rig_frames(poses, window, max_step)
     # (the last round's, when it regrouped nothing, is the final adjustment's)
     cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free)
-    if not estimate_time_offsets:
+    refined, apart = False, {}
+    rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
+    if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
-        mounts = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px) or mounts
+        apart = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
+        if not apart:
+            corner_mounts = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
+            refined = corner_mounts is not None
+            mounts = corner_mounts or mounts
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
@@ -614,7 +657,9 @@ def calibrate_mountings(
         n_used, n_bad = cam.count(name), sum(1 for (_, n) in bad if n == name)
         offset = given.get(name, 0.0) + shifted.get(name, 0.0) + dts.get(name, 0.0)
         if name == reference:
-            out[name] = MountingEstimate(name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, offset)
+            out[name] = MountingEstimate(
+                name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, offset, corners_refined=refined
+            )
             continue
         R, p = mounts[name]
         C = cov[name]
@@ -627,5 +672,6 @@ def calibrate_mountings(
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
             float(np.rad2deg(scat_r)), 1e3 * scat_p, offset, dt_std.get(name, float("nan")),
+            refined, apart.get(name, float("nan")),
         )  # fmt: skip
     return out

@@ -233,6 +233,12 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
                 f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "
                 "frames it shares; record one that moves"
             )
+    if np.isfinite(e.exposure_offset):
+        notes.append(
+            f"NOTE: {n}: the cameras do not seem to expose together ({n} about "
+            f"{1e3 * e.exposure_offset:+.1f} ms from the reference while the rig turns): the "
+            "mountings were not refined on the corners; --time-offsets estimates the offsets"
+        )
     if e.frames < MIN_RIG_FRAMES:
         notes.append(short_video_warning(n, e.frames))
     if given is None:

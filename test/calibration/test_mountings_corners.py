@@ -87,3 +87,25 @@ def test_global_shutter_mountings_are_the_corners_optimum(monkeypatch):
         deg_t = rotation_angle_deg(e.mount.R, truth[n].R)
         mm_t = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
         assert deg_t < 3 * e.std_deg and mm_t < 3 * e.std_mm, (n, deg_t, mm_t, e)
+
+
+def test_cameras_that_do_not_expose_together_keep_the_pose_level_mountings(monkeypatch):
+    """The left camera's frames stamped 10 ms after its exposures (the others' exact): the
+    video shows that offset (about -10 ms: added to its stamps), so the mountings are not
+    refined on the corners (the pose-level adjustment's, to the bit) and the estimate says
+    why; with exact stamps no camera shows one and the mountings are refined."""
+    cams, fr, _ = _video()
+    truth = mounts_of(cams)
+    late = [replace(f, stamp_ns=f.stamp_ns + 10_000_000) if f.camera_name == "left" else f
+            for f in fr]  # fmt: skip
+    out = calibrate_mountings(late, "front", reference_mount=truth["front"])
+    synced = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert all(e.corners_refined and np.isnan(e.exposure_offset) for e in synced.values())
+    assert not any(e.corners_refined for e in out.values())
+    assert abs(out["left"].exposure_offset + 0.010) < 1e-3, out["left"]
+    assert np.isnan(out["right"].exposure_offset) and np.isnan(out["front"].exposure_offset)
+    monkeypatch.setattr(mountings_module, "_refine_on_corners", lambda *a: None)
+    alone = calibrate_mountings(late, "front", reference_mount=truth["front"])
+    for n in ("left", "right"):
+        np.testing.assert_array_equal(out[n].mount.R, alone[n].mount.R)
+        np.testing.assert_array_equal(out[n].mount.position, alone[n].mount.position)

@@ -4,6 +4,7 @@ the bag's true mountings, written as the node's rig parameters."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -239,6 +240,23 @@ def test_a_short_video_is_warned_about(tmp_path, capsys):
         assert f"WARNING: {name}: only 3 rig frames" in err, err
     assert "up to 4.4x the std" in err and f"record {MIN_RIG_FRAMES} or more" in err
     assert "# WARNING: left: only 3 rig frames" in out.read_text()
+
+
+def test_cameras_that_do_not_expose_together_are_noted():
+    """A camera whose mounting was kept from the corners' refinement for the time offset the
+    video shows: a note with that offset naming --time-offsets; none without one."""
+    from rs_localizer.calibration.mountings import MountingEstimate
+    from rs_localizer.cli.calibrate_rig import _camera_notes
+    from rs_localizer.frames import Mounting
+
+    e = MountingEstimate("left", Mounting(np.eye(3), np.zeros(3)), 50, 0, 0.1, 1.0, 0.2, 2.0)
+    notes, _ = _camera_notes("left", replace(e, exposure_offset=-0.0088), None)
+    assert any(
+        "do not seem to expose together" in n and "-8.8 ms" in n and "--time-offsets" in n
+        for n in notes
+    ), notes
+    notes, _ = _camera_notes("left", replace(e, corners_refined=True), None)
+    assert not any("expose together" in n for n in notes), notes
 
 
 def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
