@@ -406,8 +406,9 @@ def _refine_on_corners(
     a rig frame it left out at the pose of its camera frame with the most corners). Camera
     frames the adjustment left out as outliers take part: their corners, not their poses. A
     camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose relative to
-    the carried one. None when a camera reads out rolling (its corners' times are not
-    modelled here: the pose-level adjustment stands) or no corner projects."""
+    the carried one. Only for global-shutter cameras (a rolling-shutter corner's time is not
+    modelled here: the caller keeps the pose-level adjustment for those). None when no corner
+    projects."""
     start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
@@ -425,8 +426,6 @@ def _refine_on_corners(
         for n in known:
             O_t, p_t, _, _, k = seen[n]
             _, Oc, pc, _, _, _, (uv, X, cam) = poses[n][k]
-            if cam.readout_time != 0.0:
-                return None
             a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], []))
             a[1].append(np.full(len(uv), gi))
             a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))

@@ -375,6 +375,11 @@ class CameraInput:
         ``frame_id``, else the camera's name (``camera`` for the single camera)."""
         return self.frame_id or msg.header.frame_id or self.name or "camera"
 
+    def failed_text(self, error: BaseException) -> str:
+        """The warning of a frame whose step raised ``error`` (a defect: the frame is failed
+        ``internal_error`` and the next ones go on), as the node and replay log it."""
+        return f"{self.label}frame failed (internal_error): {type(error).__name__}: {error}"
+
     def check(self, msg: Any, kind: str) -> Stamp | DroppedFrame:
         """A frame message's header stamp checked, the frame's one check of it
         (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`): the stamp (ns), or a

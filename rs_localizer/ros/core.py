@@ -640,11 +640,7 @@ class NodeCore:
                 taken = self.mode.take_frame(item, camera)
             except Exception as e:
                 taken = TakenFrame(("failed.internal_error",), "internal_error")
-                self._log.warning(
-                    "internal_error",
-                    f"{self._input_of(item.name).label}frame failed (internal_error): "
-                    f"{type(e).__name__}: {e}",
-                )
+                self._log.warning("internal_error", self._input_of(item.name).failed_text(e))
             counts = self._counts_of(item.name)
             counts.frame_done(time.perf_counter() - tic, *taken.counted)
         return taken

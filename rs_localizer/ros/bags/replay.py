@@ -662,8 +662,7 @@ class _Run:
             taken = inp.enter(self.engine, msg, kind, stamp, inp.camera_of(stamp),
                               self.frontends, self._gyro_to)  # fmt: skip
         except Exception as e:  # (as the node's worker: this frame failed, the next ones go on)
-            text = f"{type(e).__name__}: {e}"
-            self.log.warning("internal_error", f"{inp.label}frame failed (internal_error): {text}")
+            self.log.warning("internal_error", inp.failed_text(e))
             taken = DroppedFrame(name, getattr(stamp, "stamp_ns", stamp), None, e, "internal_error")
         if isinstance(taken, DroppedFrame):
             if not self.per_frame:
