@@ -35,7 +35,10 @@ RIG_ONLY = {
         "RigGrouping, CameraAgreement, refusal: the cameras' frames grouped into rig "
         "frames, their disagreement, the refusal of a rig frame one camera poses"
     ),
-    "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
+    "ros/rig_node.py": (
+        "the node's rig-only parts (rig.cameras set): its cameras' parameters, the grouping "
+        "of queued frames, its warm-up, log lines, debug views and status"
+    ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
     "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",

@@ -3,9 +3,9 @@ each camera of the rig node: its camera_infos checked and kept by stamp, and eac
 (a ``sensor_msgs/PointCloud2`` of correspondences or keypoints, a ``sensor_msgs/Image`` or
 ``CompressedImage``) made what the localizer takes, or dropped for one reason.
 
-:class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
-(``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
-:class:`~rs_localizer.ros.rig_node.RigMode` (the rig mode) and in the reader of a rig bag's
+:class:`CameraInput` is the camera's in the node's mode
+(:class:`~rs_localizer.ros.mode.LocalizerMode`: the camera alone's and each rig camera's) and
+in ``rs-localizer replay``, and each camera's in the reader of a rig bag's
 frames (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig`` and the
 rig-frame grouping of ``play --lockstep``) and in ``replay`` of a rig bag, the rig's made by
 :func:`rig_camera_inputs`. A frame message goes through it in three steps:
@@ -514,9 +514,9 @@ class CameraInput:
         reference_ns: int | None = None,
     ) -> FrameStep:
         """A camera's frame message of a checked ``stamp`` (:meth:`check`) and its ``camera``
-        (:meth:`camera_of`) to ``rig``, the one frame step of the single camera
-        (:class:`~rs_localizer.ros.pipeline.FramePipeline`, its rig of one) and of a rig's
-        camera (the rig node): :meth:`take`, then :func:`to_rig` (``reference_ns`` as there);
+        (:meth:`camera_of`) to ``rig``, the one frame step of the single camera (its rig of
+        one) and of a rig's camera (the node's mode, ``replay``): :meth:`take`, then
+        :func:`to_rig` (``reference_ns`` as there);
         a rig camera's stamp then noted on the rig's clock (:meth:`note_time` with
         :meth:`~rs_localizer.tracking.video.Localizer.took_time_reset`: its camera_infos after
         a time reset forgotten, as the single camera's, which notes its stamp ahead of the
@@ -623,7 +623,7 @@ def rig_camera_inputs(
     node takes the camera's inputs: its camera_infos made models with the camera's
     rolling-shutter timing (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else
     the ``rs.*`` values) and the rig's reference row, its clouds' rows capped to the rig's
-    ``max_points``. The rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`), ``replay`` of
+    ``max_points``. The node's rig (:class:`~rs_localizer.ros.mode.LocalizerMode`), ``replay`` of
     a rig bag and the reader of a rig bag's frames
     (:func:`~rs_localizer.ros.bags.bag_frames.iter_rig_frames`: ``calibrate-rig``, the
     rig-frame grouping of ``play --lockstep``) all read their cameras through them, so that

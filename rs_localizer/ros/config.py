@@ -710,7 +710,7 @@ def rig_unused_text(names: Iterable[str]) -> str | None:
 
 
 #: the parameters a running rig takes (``ros2 param set``; the node's
-#: :meth:`~rs_localizer.ros.rig_node.RigMode.apply_change`): those that only reach its
+#: :meth:`~rs_localizer.ros.mode.LocalizerMode.apply_change`): those that only reach its
 #: :class:`~rs_localizer.tracking.video.LocalizerSettings` (the estimator's options: ``ransac.*``,
 #: ``refine``, ``motion_prior.*``, ``correlated_noise.*``, the velocity bounds; ``tracking.*``;
 #: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap),

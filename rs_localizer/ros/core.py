@@ -9,10 +9,9 @@ output publishers (``pose``, ``twist``, ``pose_with_covariance``, ``odom``,
 ``<c>/image_raw`` of a rig camera), the frame queue's worker and the timers (diagnostics, the
 idle track's flush) started and stopped with the frame inputs, the subscriptions destroyed,
 the visualizations closed, the latency and stamp-age record, the diagnostics published and
-the node destroyed. What differs is the node's mode (:attr:`NodeCore.mode`), chosen by
-``rig.cameras``: the single camera's (:class:`~rs_localizer.ros.node.CameraMode`: its
-:class:`~rs_localizer.ros.pipeline.FramePipeline`) or the rig's
-(:class:`~rs_localizer.ros.rig_node.RigMode`: its cameras and one
+the node destroyed. What differs is the node's one mode (:attr:`NodeCore.mode`,
+:class:`~rs_localizer.ros.mode.LocalizerMode`: the camera alone, a rig of one camera named
+"", with ``rig.cameras`` empty, else the rig's cameras; either way one
 :class:`~rs_localizer.tracking.video.Localizer`): its configuration, what the worker does with
 a frame, what it publishes and its status.
 
@@ -92,7 +91,6 @@ from .visualization import NodeVisualization
 
 if TYPE_CHECKING:
     from ..tracking.video import LocalizerOutput
-    from .pipeline import FrameResult
 
 __all__ = ["ModeBase", "NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
@@ -143,7 +141,7 @@ class TakenFrame:
             ``failed.<reason>``, a rig camera's ``skipped.<reason>``; None: none).
         failure: the frame dropped for this reason (None: solved, or a rig camera's frame
             handed to the rig, whose fate is the rig's).
-        result: the single camera's :class:`~rs_localizer.ros.pipeline.FrameResult`.
+        result: the camera alone's :class:`~rs_localizer.ros.mode.CameraFrameResult`.
         outs: the rig frames it completed (a rig camera's).
         found: ``(camera, correspondences, stamp_ns)``: what the camera's front end found in
             the image (a :class:`~rs_localizer.correspondences.Correspondences`) and the
@@ -152,14 +150,14 @@ class TakenFrame:
 
     counted: tuple = ()
     failure: str | None = None
-    result: FrameResult | None = None
+    result: Any = None
     outs: list[LocalizerOutput] = field(default_factory=list)
     found: list = field(default_factory=list)
 
 
 class ModeBase:
-    """What both modes (:class:`~rs_localizer.ros.node.CameraMode`,
-    :class:`~rs_localizer.ros.rig_node.RigMode`) do at each phase, written once. A mode adds
+    """What the node's mode (:class:`~rs_localizer.ros.mode.LocalizerMode`, the camera alone
+    or a rig) does at each phase, written once. A mode adds
     its configuration (``_configuration()`` at configure, ``changed_configuration(overrides)``
     at run time, both -> ``built``, whose first item is its
     :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
@@ -273,9 +271,9 @@ class NodeCore:
         republish: ``republish_correspondences``: what a front end found in an image to its
             camera's ``correspondences_out``.
         map_frame: the frame the poses and fused twists are published in (``map_frame``).
-        mode: the single camera's :class:`~rs_localizer.ros.node.CameraMode` or the rig's
-            :class:`~rs_localizer.ros.rig_node.RigMode` (``rig.cameras``; made by
-            :meth:`_init_state` from the node class's ``_modes``).
+        mode: the node's one mode, :class:`~rs_localizer.ros.mode.LocalizerMode` (the camera
+            alone or a rig by ``rig.cameras``; made by :meth:`_init_state` from the node
+            class's ``_mode``).
     """
 
     _frames = None  # (the frame queue: made by the mode)
@@ -294,7 +292,7 @@ class NodeCore:
     map_frame = "map"
     _configured = False  # (configure done: the node's configuration in use)
     mode = None  # (the mode: made with the node's state, :meth:`_init_state`)
-    _modes: tuple = ()  # (the node class's: the camera's mode and the rig's)
+    _mode: Any = None  # (the node class's: its one mode, LocalizerMode)
     _first_frame: float | None = None  # (monotonic s: the first frame received)
     _unmanaged = False  # (every phase at construction: :meth:`_start_unmanaged`)
 
@@ -330,13 +328,13 @@ class NodeCore:
 
     def _init_state(self) -> None:
         """The node's state before ``configure``: the shared plumbing's
-        (:meth:`_init_plumbing`), then the mode of ``rig.cameras`` (read-only: the one the
-        node is configured with; :attr:`_modes`): the single camera's with ``rig.cameras``
-        empty (its pipeline, unconfigured), else the rig's (made at configure)."""
+        (:meth:`_init_plumbing`), then its mode (:attr:`_mode`) for ``rig.cameras``
+        (read-only: the one the node is configured with): the camera alone with
+        ``rig.cameras`` empty (its input stage and counts, unconfigured), else the rig's
+        (made at configure)."""
         self._init_plumbing()
         self.inputs, self.camera_counts, self._configured = {}, {}, False
-        camera, rig = self._modes
-        self.mode = (rig if names_a_rig(self.get_parameter("rig.cameras").value) else camera)(self)
+        self.mode = self._mode(self)
 
     def _configure(self) -> None:
         """Parameters -> configuration (the mode's; RuntimeError for invalid parameters,

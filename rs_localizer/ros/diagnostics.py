@@ -10,8 +10,8 @@ shared by both: the estimator's path, the map-fit check, the timing keys
 (:func:`timing_values`, the stage times a camera's counts keep,
 :meth:`~.camera_input.CameraCounts.stage_time`) and the gyro's values
 (:class:`GyroState`). The node (:meth:`.core.NodeCore.diagnostics_status`) calls it on what
-its mode hands as data: one camera's (:meth:`.node.CameraMode.diagnostics`, its pipeline's
-counters, :func:`frontend_values`) or a rig's (:meth:`.rig_node.RigMode.diagnostics`: the
+its mode hands as data (:meth:`.mode.LocalizerMode.diagnostics`): one camera's (its
+counters, :func:`frontend_values`) or a rig's (the
 rig frames' counts and each camera's section of :func:`rig_camera_status`, its lines of
 grouping, disagreement, mounting and clock offsets)."""
 
@@ -243,8 +243,8 @@ class StatusParts:
     :class:`CameraPart` per camera, a camera alone's named "" (its flat keys), each rig
     camera's named (its section ``<c>.*``). A camera alone is solved in ``frames``, any other
     set of cameras in ``rig frames``: the unit of the keys and the message. The node's mode
-    hands it (:meth:`~rs_localizer.ros.node.CameraMode.diagnostics`,
-    :meth:`~rs_localizer.ros.rig_node.RigMode.diagnostics`), the node lays it out.
+    hands it (:meth:`~rs_localizer.ros.mode.LocalizerMode.diagnostics`), the node lays it
+    out.
 
     Values, in publishing order: ``head``; the frame accounting (a camera alone's
     ``frames_received`` ... ``frames_pending``; a rig's ``rig_frames``, ``rig_frames_solved``
@@ -426,7 +426,7 @@ def _map_fit_note(unit: str) -> str:
 
 def frontend_values(kind: str, frontend: FrontendHooks, stats: StatsSnapshot) -> dict[str, Any]:
     """The single camera's front-end values (``frontend``: its image front end of ``kind``,
-    :attr:`.pipeline.FramePipeline.maps`; ``stats``: its counters): ``frontend``,
+    the camera's loaded maps'; ``stats``: its counters): ``frontend``,
     ``image_frames``, ``frames_beside_frontend``, ``frontend_ms_last``,
     ``frontend_correspondences_last``, ``frontend_correspondences_mean``, ``frontend_ms_p99``,
     then the front end's summary (a tracking front end's) or ``frontend_frames_global``, and
@@ -494,7 +494,7 @@ def _imu_values(g: GyroState) -> dict[str, Any]:
 # ---------------------------------------------------------------------- a rig of cameras
 @dataclass
 class RigInputs:
-    """What the rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) knows of the frames
+    """What the node's mode (:class:`~rs_localizer.ros.mode.LocalizerMode`) knows of a rig's frames
     before they reach the rig, for its cameras' sections (:func:`rig_camera_status`).
 
     ``counts``: the node's map-fit check over the rig frames

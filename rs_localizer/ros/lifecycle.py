@@ -22,7 +22,7 @@ The same processing, parameters and topics as ``rs_localizer_node``
 The ``cameras`` parameter runs one managed node per camera namespace (:mod:`.runner`); each is
 managed separately (``/robot/front/rs_localizer/change_state``, ...).
 
-With ``rig.cameras`` set the node runs the rig mode (:class:`~.rig_node.RigMode`):
+With ``rig.cameras`` set the node runs a rig (:class:`~.mode.LocalizerMode`, docs/rig_node.md):
 configure reads the rig's parameters (each camera's ``rig.<camera>.*``; a camera without
 mounting fails the transition, naming it), builds each camera's front end and creates the
 publishers (inactive), the cameras' ``camera_info`` subscriptions and, with ``imu.enabled``,
@@ -41,9 +41,8 @@ from __future__ import annotations
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from .core import NodeCore
-from .node import CameraMode
+from .mode import LocalizerMode
 from .qos import output_events
-from .rig_node import RigMode
 
 __all__ = ["RSLocalizerLifecycleNode"]
 
@@ -58,7 +57,7 @@ class RSLocalizerLifecycleNode(NodeCore, LifecycleNode):
     transitions.
     """
 
-    _modes = (CameraMode, RigMode)
+    _mode = LocalizerMode
     _outputs: list
 
     def _start(self) -> None:

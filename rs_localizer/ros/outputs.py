@@ -2,10 +2,9 @@
 order the node publishes them (shared by the node's publishers and ``rs-localizer replay``'s
 output bag), its debug views and its log line.
 
-A mode of the node turns its result into a :class:`FrameOutcome` (the single camera's
-:class:`~rs_localizer.ros.pipeline.FrameResult`: :func:`camera_outcome`; a rig frame, a
-:class:`~rs_localizer.tracking.video.LocalizerOutput`: the rig mode's) and hands it to
-:func:`publish_frame`.
+The node's mode (:class:`~rs_localizer.ros.mode.LocalizerMode`) turns what a frame gave (the
+camera alone's frame, or a rig frame, a :class:`~rs_localizer.tracking.video.LocalizerOutput`)
+into a :class:`FrameOutcome` and hands it to :func:`publish_frame`.
 
 Topics (relative names, as the node publishes them): ``pose`` (PoseStamped, map frame),
 ``twist_single_frame`` (the frame's own twist), ``twist`` and ``odom`` (the frame's own twist
@@ -27,7 +26,7 @@ from ..camera import CameraModel
 from ..estimation.result import RSPoseEstimate
 from ..pose import PoseWithCovariance
 from . import conversions as cv
-from .pipeline import FrameResult, FusedOutput
+from .pipeline import FusedOutput
 
 if TYPE_CHECKING:
     from .core import NodeCore
@@ -38,8 +37,6 @@ __all__ = [
     "FrameOutcome",
     "LogLine",
     "PosedFrame",
-    "camera_outcome",
-    "frame_messages",
     "fused_messages",
     "outcome_messages",
     "pose_messages",
@@ -127,22 +124,6 @@ def fused_messages(
     return out
 
 
-def camera_outcome(res: FrameResult, failed: int = 0) -> FrameOutcome:
-    """The outcome of the single camera's frame ``res``: solved, its output (the camera's
-    estimate, or the robot base's state with ``base_frame``) at its reference-line stamp and
-    the camera's view, with the fused twists now final (also when its own twist is final,
-    ``twist_now``: an earlier track's, e.g. before the solver became a global-shutter one);
-    failed, the fused twists now final and the line ``frame dropped (<reason>): <detail>``
-    with ``failed``, the count of frames failed so far for that reason."""
-    if not res.solved:
-        line = LogLine(str(res.failure), f"frame dropped ({res.failure}): {res.detail}", failed)
-        return FrameOutcome(None, res.fused, (line,))
-    view = CameraView("", res.estimate, res.points2d, res.points3d, res.camera,
-                      res.stamp_ns, res.out_stamp_ns, res.frame_id, res.image)  # fmt: skip
-    posed = PosedFrame(res.output, res.out_stamp_ns, res.output_frame, res.twist_now, (view,))
-    return FrameOutcome(posed, res.fused)
-
-
 def outcome_messages(
     outcome: FrameOutcome, map_frame: str, wanted: Callable[[str], bool] = _everything
 ) -> list[tuple[str, Any]]:
@@ -155,17 +136,6 @@ def outcome_messages(
         return fused_messages(outcome.fused, map_frame, wanted)
     return pose_messages(p.pose, p.stamp_ns, map_frame, p.frame_id, p.twist_now,
                          outcome.fused, wanted)  # fmt: skip
-
-
-def frame_messages(
-    res: FrameResult, map_frame: str, wanted: Callable[[str], bool] = _everything
-) -> list[tuple[str, Any]]:
-    """``(topic, message)`` of everything the single camera's frame result publishes, in
-    order (:func:`outcome_messages` of :func:`camera_outcome`): for a solved frame ``pose``,
-    ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist, or the fused twists
-    now final), ``pose_with_covariance`` and ``tf``; for a failed one the fused twists now
-    final. ``tf`` needs ``tf2_msgs``."""
-    return outcome_messages(camera_outcome(res), map_frame, wanted)
 
 
 def pose_messages(

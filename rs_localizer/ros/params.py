@@ -687,7 +687,7 @@ def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
 
 
 #: the rig mode's parameters (docs/rig_node.md), declared by every node: with ``rig.cameras``
-#: set the node runs the rig mode (:class:`~rs_localizer.ros.rig_node.RigMode`) instead of one
+#: set the node runs a rig (:class:`~rs_localizer.ros.mode.LocalizerMode`) instead of one
 #: localizer per camera; every parameter of :data:`PARAMETERS` applies to it too
 #: (``ransac.*``, ``tracking.*``, ``rs.*`` as every camera's default timing, ``map_frame``,
 #: ``base_frame``, ``publish_tf``, ``time_reset_threshold``, ``diagnostics_period``).

@@ -1,7 +1,10 @@
-"""The rig mode of ``rs_localizer_node``: one pose for a rig of rolling-shutter cameras.
+"""The rig's part of ``rs_localizer_node``: one pose for a rig of rolling-shutter cameras.
 
-With ``rig.cameras`` set (docs/rig_node.md) the process runs this node instead of one localizer
-per camera. Every camera of the rig sends its own frames, unsynchronized; the node hands them
+With ``rig.cameras`` set (docs/rig_node.md) the node's one mode
+(:class:`~rs_localizer.ros.mode.LocalizerMode`) runs the rig instead of one localizer per
+camera; this module holds what only a rig of several cameras needs: its cameras' parameters,
+the grouping of queued frames into rig frames, the rig's warm-up, its log lines, debug views
+and diagnostics. Every camera of the rig sends its own frames, unsynchronized; the node hands them
 to a :class:`~rs_localizer.tracking.video.Localizer` (frames grouped into rig frames by stamp,
 one pose per rig frame from all cameras, tracked, the rig's twist fused) and publishes the rig,
 ``base_frame``, as one body.
@@ -79,45 +82,49 @@ are refused with why (:func:`.config.rig_change_refused`). The managed node
 from __future__ import annotations
 
 import time
-from collections import Counter, deque
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Mapping
+from typing import Any
 
-from ..camera import CameraModel
-from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
-from .camera_input import (
-    CameraCounts,
-    DroppedFrame,
-    FrameStep,
-    ImageFrame,
-    rig_camera_inputs,
-)
-from .config import (
-    LocalizerConfig,
-    build_config,
-    load_maps,
-    rig_camera_names,
-    rig_change_refused,
-    same_value,
-)
-from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame
+from .camera_input import CameraCounts, DroppedFrame
+from .config import LocalizerConfig, build_config, rig_camera_names, rig_change_refused, same_value
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts
-from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
+from .outputs import CameraView, LogLine
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import (
-    FusedOutput,
-    MapFitCheck,
-    ThrottledLog,
-    fused_outputs,
-    take_gyro_sample,
-    warm_kernels,
-)
+from .pipeline import warm_kernels
 from .visualization import rig_camera_views
 
-__all__ = ["RigMode", "note_camera_frame", "rig_status_parts"]
+__all__ = [
+    "RIG_TEXTS",
+    "RigGrouping",
+    "declare_rig_cameras",
+    "note_camera_frame",
+    "rig_configuration",
+    "rig_failure_line",
+    "rig_ready_subject",
+    "rig_status_parts",
+    "rig_views",
+    "warm_rig_kernels",
+]
 
+#: the rig's topics and texts (:class:`~rs_localizer.ros.core.ModeBase`'s attributes): its
+#: cameras' clouds on ``<c>/correspondences`` as ``cloud`` frames, images on ``<c>/image_raw``,
+#: keypoints only with ``landmarks_file``, a frame dropped from a full queue counted
+#: ``<c>.skipped.queue_full``
+RIG_TEXTS = {
+    "count_image_frames": False,
+    "cloud_kind": "cloud",
+    "image_topic": "image_raw",
+    "keypoints_always": False,
+    "busy_key": "queue_full",
+    "busy_text": (
+        "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
+        "the oldest waiting frame [{dropped} dropped so far]"
+    ),
+    "mode_note": ", rig mode",
+}
 
 INPUT_SKIP_REASONS = {
     "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
@@ -144,428 +151,163 @@ def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
         counts.stage_time("estimate", toc - taken_at - (frontend_s or 0.0))
 
 
-class RigMode(ModeBase):
-    """The rig's part of :class:`~rs_localizer.ros.node.RSLocalizerNode` (``rig.cameras``
-    set; module docstring): each camera's topics under ``<c>/``, its frames to one
-    :class:`~rs_localizer.tracking.video.Localizer` on the node's worker thread, the rig
-    frames they complete published, the rig's diagnostics with a section per camera. The node
-    (:class:`~rs_localizer.ros.core.NodeCore`, ``node``) holds the plumbing, the modes' shared
-    base (:class:`~rs_localizer.ros.core.ModeBase`) what both modes do alike; this object
-    what only the rig's does (the single camera's is
-    :class:`~rs_localizer.ros.node.CameraMode`). Nothing before ``configure``
-    (:meth:`_start_with`: the cameras, their inputs and counts, the frame queue, the
-    localizer)."""
+def declare_rig_cameras(node: Any) -> list[str]:
+    """The rig's camera names of ``rig.cameras`` (they make parameter and topic names), each
+    camera's ``rig.<camera>.*`` declared on ``node`` on first use.
 
-    #: the rig's topics and texts (:class:`~rs_localizer.ros.core.NodeCore`)
-    count_image_frames = False
-    cloud_kind = "cloud"
-    image_topic = "image_raw"
-    keypoints_always = False
-    busy_key = "queue_full"
-    busy_text = (
-        "busy: frame queue full ({size} frames, queue_size {queue_size} per camera), dropped "
-        "the oldest waiting frame [{dropped} dropped so far]"
-    )
-    mode_note = ", rig mode"
-    rig = None  # (None: not configured)
+    Raises:
+        ConfigError: names that cannot be used.
+    """
+    names = rig_camera_names(node.get_parameter("rig.cameras").value)
+    own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
+    for n in names:
+        if not node.has_parameter(f"rig.{n}.line_delay"):
+            declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
+            declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
+    return names
 
-    def __init__(self, node: NodeCore):
-        super().__init__(node)
-        self.imu_rejected: dict[str, int] = {}
 
-    def configured_as(self) -> str:
-        """What the managed node's ``configured: ... (inactive)`` line names."""
-        return f"rig of {len(self.cfg.cameras)} cameras"
+def rig_configuration(node: Any, overrides: dict, current: LocalizerConfig | None = None
+                      ) -> LocalizerConfig:  # fmt: skip
+    """The rig's configuration of ``node``'s parameters with ``overrides`` (name -> value of
+    :data:`~.params.PARAMETERS`; ``{}``: at configure) and each camera's ``rig.<c>.*``, as
+    :func:`.config.build_config` makes it. ``current``: the configuration the rig runs with
+    (None: at configure, unchecked); a change refused for the parameters it cannot take
+    without a restart (:func:`.config.rig_change_refused`) unless their value stays the same.
 
-    def _configuration(self) -> tuple[LocalizerConfig, dict]:
-        """The configuration at configure (each camera's ``rig.<camera>.*`` declared on first
-        use; :meth:`changed_configuration` unchecked) and the landmarks and front-end map
-        loaded once, a front end object per camera (camera name -> its maps).
+    Raises:
+        ConfigError: a value that cannot be used, or a change refused (naming them).
+    """
+    if current is not None:
+        changed = [
+            n for n, v in overrides.items() if not same_value(v, node.get_parameter(n).value)
+        ]
+        refused = rig_change_refused(changed, current.settings.single_camera)
+        if refused is not None:
+            raise ConfigError(refused)
+    names = rig_camera_names(node.get_parameter("rig.cameras").value)
+    values = node.param_values(overrides)
+    values.update({n: node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"})
+    values["rig.cameras"] = names
+    cams = {
+        n: {k: node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
+        for n in names
+    }
+    return build_config(values, cams)
 
-        Raises:
-            ConfigError: a value that cannot be used (naming it).
-        """
-        node = self.node
-        # (the names first: they make parameter and topic names)
-        names = rig_camera_names(node.get_parameter("rig.cameras").value)
-        own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
-        for n in names:
-            if not node.has_parameter(f"rig.{n}.line_delay"):
-                declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
-                declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
-        (config,) = self.changed_configuration({}, check=False)
-        return config, {c.name: load_maps(c, owner=node) for c in config.cameras}
 
-    def _start_with(self, built: tuple[LocalizerConfig, dict]) -> None:
-        """The configuration taken: the node's settings (:meth:`~.core.ModeBase._settle`), a
-        front end per camera when ``frontend`` is set, the rig localizer, the cameras' inputs
-        and counts and their frame queue (:meth:`.core.NodeCore.set_cameras`)."""
-        node = self.node
-        config, loaded = built
-        self.cfg = config
-        log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
-        # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = Localizer(config.settings, log=log, implementation=ready_implementation)
-        for c in config.cameras:
-            if c.frontend_kind != "none":
-                self.rig.set_frontend(c.name, loaded[c.name].frontend, c.frontend_kind)
-        self._group_ns = int(config.settings.window * 1e9)
-        # (the worker's map-fit check over the rig frames, its times per stage)
-        self._rig_counts = CameraCounts()
-        # each camera's own counts (the diagnostics' inputs, ``<c>.<key>``: its frames
-        # received, handed on, skipped or failed before the rig, its input stage's counts, its
-        # messages lost, the worker's time per frame) and its input (its camera_infos by
-        # stamp, its clouds' rows, its images), a frame queue for them
-        counts = {c.name: CameraCounts(c.name) for c in config.cameras}
-        #: (the landmarks of ``landmarks_file``, ``(ids, points)``, the cameras' keypoints name)
-        landmarks = next(iter(loaded.values())).landmarks
-        inputs = rig_camera_inputs(config, log, self._count_input, stopped=node.stopping,
-                                   wait=config.camera_info_wait,
-                                   landmarks=landmarks)  # fmt: skip
-        node.set_cameras(inputs, counts, log, self._same_rig_frame, "rs_localizer_rig_worker")
-        self._settle(config, landmarks)
-        self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
-        self._map_fit = MapFitCheck("rig frames")  # (the worker's)
+class RigGrouping:
+    """Whether a waiting frame goes with the frames the worker takes (the frame queue's
+    ``group``, :class:`~.frame_queue.FrameQueue`): another camera's whose reference-line time
+    (by the camera's newest camera_info, ``inputs[name].newest``) is within ``rig.window`` of
+    the first's, as the rig groups them
+    (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns` of ``settings``). A rig
+    frame's frames are then taken together, and a full queue drops whole rig frames, not the
+    rest of the one being solved."""
 
-    def _warm_kernels(self, built: tuple) -> None:
-        """The rig's kernels (:func:`.pipeline.warm_kernels`, as the single camera's): in
-        numba's cache (:func:`~rs_localizer.runtime.warmup.rig_cached`), loaded before the
-        next frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
-        every camera's RS timing); else compiled in another process
-        (:class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved
-        on the NumPy implementation. Without ``warmup`` the first rig frame pays for them
-        while the cameras' frames queue."""
-        from ..runtime.background import RigKernels
-        from ..runtime.warmup import warm_rig
+    def __init__(self, settings: Any, inputs: Mapping):
+        self.settings, self.inputs = settings, inputs
+        self.window_ns = int(settings.window * 1e9)
 
-        config = built[0]
-        timing = config.timings
-
-        def warm() -> tuple[float, str]:
-            tic = time.perf_counter()
-            posed = warm_rig(config.settings, timing)
-            return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
-
-        kernels = RigKernels(config.settings, timing)
-        warm_kernels(kernels, "rig", warm, self.node.get_logger(), True,
-                     "`rs-localizer compile --params-file`")  # fmt: skip
-
-    def close_track(self) -> list[FrameOutcome]:
-        """:meth:`.core.NodeCore._end_video`: the rig frames still open, solved, then the
-        twists still pending (none unconfigured)."""
-        if self.rig is None:
-            return []
-        closed = [self._outcome(out) for out in self.rig.close()]
-        pending = self.rig.flush() + self.rig.reset()
-        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.cfg.base_frame))]
-
-    def _ready_warnings(self) -> list[str]:
-        """The single camera's parameters set but not used by the rig."""
-        return [self.cfg.unused_text] if self.cfg.unused_text else []
-
-    def _ready_subject(self) -> str:
-        timing = []
-        for c in self.cfg.cameras:
-            t = (
-                f"readout {c.readout_time * 1e3:.2f} ms"
-                if c.readout_time > 0
-                else f"line delay {c.line_delay * 1e6:.2f} us/line"
-            )
-            timing.append(f"{c.name} {t} {c.direction}")
-        return (
-            f"rig of {len(self.cfg.cameras)} cameras ({'; '.join(timing)}) posed as "
-            f"{self.cfg.base_frame} in {self.node.map_frame}"
-        )
-
-    # ---------------------------------------------------------------- parameters
-    def changed_configuration(self, overrides: dict, check: bool = True) -> tuple[LocalizerConfig]:
-        """The rig's configuration of the parameters with ``overrides`` (name -> value of
-        :data:`~.params.PARAMETERS`; ``{}``: at configure) and each camera's ``rig.<c>.*``, as
-        :func:`.config.build_config` makes it. ``check``: a change while the rig runs, refused
-        for the parameters it cannot take without a restart (:func:`.config.rig_change_refused`)
-        unless their value stays the same.
-
-        Raises:
-            ConfigError: a value that cannot be used, or a change refused (naming them).
-        """
-        if check:
-            changed = [
-                n
-                for n, v in overrides.items()
-                if not same_value(v, self.node.get_parameter(n).value)
-            ]
-            refused = rig_change_refused(changed, self.cfg.settings.single_camera)
-            if refused is not None:
-                raise ConfigError(refused)
-        names = rig_camera_names(self.node.get_parameter("rig.cameras").value)
-        values = self.node.param_values(overrides)
-        values.update(
-            {n: self.node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
-        )
-        values["rig.cameras"] = names
-        cams = {
-            n: {k: self.node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
-            for n in names
-        }
-        return (build_config(values, cams),)
-
-    def _change_to(self, built: tuple[LocalizerConfig], overrides: dict) -> None:
-        """The rig takes the new settings from its next rig frame on
-        (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
-        tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
-        a tracking change starting a new track), each camera's clouds the new ``max_points``,
-        the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
-        (config,) = built
-        with self.node.between_frames():  # (between two camera frames of the worker)
-            self.rig.configure(config.settings)
-            self.cfg = config
-            for inp in self.node.inputs.values():
-                inp.max_points = config.settings.max_points
-                inp.wait = float(config.camera_info_wait)
-        self._settle(config, self.node.landmarks)
-
-    # ---------------------------------------------------------------- inputs
-    def _count_input(self, name: str, key: str, n: int = 1) -> None:
-        """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
-        self.node.camera_counts[name].add(key, n)
-
-    def _same_rig_frame(self, batch: list, item) -> bool:
-        """Whether a waiting frame goes with the frames the worker takes (``batch``): another
-        camera's whose reference-line time (by the camera's newest camera_info) is within
-        ``rig.window`` of the first's, as the rig groups them. A rig frame's frames are then
-        taken together, and a full queue drops whole rig frames, not the rest of the one
-        being solved."""
+    def __call__(self, batch: list, item: Any) -> bool:
         if any(b.name == item.name for b in batch):
             return False
         if isinstance(item.stamp, DroppedFrame) or isinstance(batch[0].stamp, DroppedFrame):
             return False  # (a stamp the worker will refuse: not grouped)
-        return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
+        return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self.window_ns
 
-    def _ref_ns(self, item: QueuedFrame) -> int:
+    def _ref_ns(self, item: Any) -> int:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
-        stamp without one), as the rig groups it
-        (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns`)."""
-        return self.cfg.settings.reference_ns(
-            item.name, item.stamp, self.node.inputs[item.name].newest
+        stamp without one)."""
+        return self.settings.reference_ns(item.name, item.stamp, self.inputs[item.name].newest)
+
+
+def warm_rig_kernels(config: LocalizerConfig, logger: Any) -> None:
+    """The rig's kernels (:func:`.pipeline.warm_kernels`, as a camera's): in numba's cache
+    (:func:`~rs_localizer.runtime.warmup.rig_cached`), loaded before the next frame
+    (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every camera's
+    RS timing); else compiled in another process
+    (:class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved on
+    the NumPy implementation. Without ``warmup`` the first rig frame pays for them while the
+    cameras' frames queue."""
+    from ..runtime.background import RigKernels
+    from ..runtime.warmup import warm_rig
+
+    timing = config.timings
+
+    def warm() -> tuple[float, str]:
+        tic = time.perf_counter()
+        posed = warm_rig(config.settings, timing)
+        return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
+
+    kernels = RigKernels(config.settings, timing)
+    warm_kernels(kernels, "rig", warm, logger, True, "`rs-localizer compile --params-file`")
+
+
+def rig_ready_subject(cfg: LocalizerConfig, map_frame: str) -> str:
+    """The subject of the rig's ``ready:`` line: its cameras' RS timing, its frames."""
+    timing = []
+    for c in cfg.cameras:
+        t = (
+            f"readout {c.readout_time * 1e3:.2f} ms"
+            if c.readout_time > 0
+            else f"line delay {c.line_delay * 1e6:.2f} us/line"
         )
+        timing.append(f"{c.name} {t} {c.direction}")
+    return (
+        f"rig of {len(cfg.cameras)} cameras ({'; '.join(timing)}) posed as "
+        f"{cfg.base_frame} in {map_frame}"
+    )
 
-    def camera_of(self, item: QueuedFrame) -> CameraModel | None:
-        """The camera model of the frame's stamp, waiting up to ``camera_info_wait`` for its
-        camera_info: outside the worker's lock, which the diagnostics take on the executor
-        that delivers it."""
-        return self.node.inputs[item.name].camera_of(item.stamp)
 
-    def take_frame(self, item: QueuedFrame, camera: CameraModel | None) -> TakenFrame:
-        """The worker: one camera frame to the rig (:meth:`_take`), or why not (the rig never
-        sees it): the single camera's entry checks (:meth:`.camera_input.CameraInput.admit`:
-        a header stamp or an output stamp out of range, ``bad_stamp``; an image without a
-        front end, ``no_frontend``), counted ``failed.<reason>`` and logged. Under the
-        worker's lock with its count, so that a diagnostics snapshot sees the rig's and the
-        camera's counts of it at once; with
-        ``republish_correspondences`` what the camera's front end found in an image."""
-        name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
-        if kind == "image":
-            self._warn_no_info(name, "images")
-        tic = time.perf_counter()
-        # (the single camera's entry checks: its stamp, its times made once, its output stamp
-        # in range; then the frame step, a rig bag's replay's too)
-        frontend = self.node.frontend_kind != "none"
-        taken = self.node.inputs[name].enter(self.rig, msg, kind, stamp, camera, frontend)
-        if isinstance(taken, DroppedFrame):  # (the rig never sees it either)
-            self.node.warn(
-                f"{taken.reason}.{name}",
-                f"rig camera {name!r}: frame dropped ({taken.reason}): {taken.error}",
-                self.node.camera_counts[name].get(f"failed.{taken.reason}") + 1,
-            )
-            return TakenFrame((f"failed.{taken.reason}",), taken.reason)
-        found = []
-        outs = self._take(name, kind, taken, tic)
-        if kind == "image" and self.node.republish:
-            corr = self.rig.last_correspondences(name)
-            if corr is not None:  # (also an image where it found nothing)
-                found.append((name, corr, stamp))
-        return TakenFrame(outs=outs, found=found)
-
-    def _take(self, name: str, kind: str, taken: FrameStep, tic: float) -> list:
-        """A camera frame's step into the rig from ``tic`` (:func:`time.perf_counter` s;
-        :meth:`.camera_input.CameraInput.enter`: its checked times, then the single camera's
-        frame step, :meth:`.camera_input.CameraInput.step`: :meth:`~.camera_input.
-        CameraInput.take`, :func:`.camera_input.to_rig`, the stamp then noted on the rig's
-        clock: the camera's camera_infos stamped after a time reset forgotten), ``taken``,
-        counted and logged; returns the rig frames it completed.
-
-        A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
-        ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
-        known: a frame without rows, which the rig frame is posed without): its rows as the
-        single-camera node takes them (the non-finite ones dropped, counted
-        ``<c>.points_dropped``; capped to ``max_points``, counted ``<c>.capped_clouds``). One
-        that cannot be read is counted ``<c>.skipped.bad_input`` and goes to the rig as a
-        frame skipped (:meth:`Localizer.drop`), so the rig frame without it counts the camera
-        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named as
-        one whose clock is off).
-
-        An image: decoded and checked against ``camera`` as by the single-camera node (a
-        message that does not decode or is smaller than the front ends take: ``bad_image``;
-        another size than the camera_info's: ``image_size_mismatch``; both logged and counted
-        ``<c>.skipped.<reason>``, the rig not waiting for the camera at that time), then the
-        camera's front end and the rig (:meth:`Localizer.process_image`: the front end's rows
-        as a cloud's, the non-finite ones dropped and the rest capped to ``max_points``,
-        counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded
-        image kept for ``debug_image`` while someone watches. The frame's times per stage go
-        to the diagnostics (:func:`note_camera_frame`)."""
-        item, outs, taken_at = taken
-        search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
-        note_camera_frame(self._rig_counts, tic, taken_at, search and search.seconds,
-                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
-        if isinstance(item, DroppedFrame):
-            self._not_taken(kind, item)
-        elif kind != "image":
-            self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
-        viz = self.node.camera_viz.get(name)
-        if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
-            # (only while someone watches; drawn when the rig frame is published)
-            self._images.setdefault(name, deque(maxlen=4)).append(
-                (item.image, item.encoding, item.stamp_ns)
-            )
-        return outs
-
-    def _not_taken(self, kind: str, item: DroppedFrame) -> None:
-        """A frame of a checked stamp the camera's input stage dropped (the rig counts it
-        skipped, :func:`.camera_input.to_rig`), logged: one whose cloud cannot be read
-        (``bad_input``) also counted ``<c>.bad_input``."""
-        name, error = item.camera_name, item.error
-        if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
-            self.node.warn(
-                f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
-            )
-            return
-        self.node.camera_counts[name].add("bad_input")
-        if kind in ("cloud", "keypoints"):
-            self.node.warn(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
-        else:
-            self.node.warn(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
-
-    def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
-        """The worker, after the frame is counted: the rig frames it completed through the
-        map-fit check (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of the rig
-        frame together: counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a
-        throttled warning), then published with their log lines
-        (:func:`.outputs.publish_frame`, :meth:`_outcome`)."""
-        tic = time.perf_counter()
-        for out in taken.outs:
-            if out.estimate is not None:
-                self._map_fit.check(out.num_points, out.estimate, self._rig_counts,
-                                    self.node.warn)  # fmt: skip
-            publish_frame(self.node, self._outcome(out, logged=True))
-            if out.success:
-                self.node.record_timing(item.arrived, out.stamp_ns)
-        if any(o.success for o in taken.outs):
-            self._rig_counts.stage_time("publish", time.perf_counter() - tic)
-
-    def _failure_line(self, out: LocalizerOutput) -> LogLine | None:
-        """The line a rig frame logs (each reason at most once per 5 s): why it failed with
-        the count of rig frames failed so far for that reason, or on a posed one the cameras
-        outvoted by the others; None: nothing to say."""
-        if out.error is not None:
-            reason, detail = "error", f"the estimator raised {out.error}"
-        elif out.estimate is not None and not out.estimate.success:
-            reason = out.estimate.failure or "error"
-            detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
-            if reason == "cameras_disagree" and out.outvoted:
-                detail += f"; {', '.join(out.outvoted)} contradict each other"
-        elif out.outvoted:
-            names = ", ".join(out.outvoted)
-            return LogLine(
-                f"rig.outvoted.{names}",
-                f"rig camera {names}: outvoted by the others (its points contradict their "
-                "pose; its mounting, clock, line delay or matches are likely wrong) "
-                f"[{self.rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
-            )
-        else:
-            return None
-        n = self.rig.counts[f"rig.failed.{reason}"]
+def rig_failure_line(rig: Localizer, out: LocalizerOutput) -> LogLine | None:
+    """The line a rig frame logs (each reason at most once per 5 s): why it failed with the
+    count of rig frames failed so far for that reason, or on a posed one the cameras outvoted
+    by the others; None: nothing to say."""
+    if out.error is not None:
+        reason, detail = "error", f"the estimator raised {out.error}"
+    elif out.estimate is not None and not out.estimate.success:
+        reason = out.estimate.failure or "error"
+        detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
+        if reason == "cameras_disagree" and out.outvoted:
+            detail += f"; {', '.join(out.outvoted)} contradict each other"
+    elif out.outvoted:
+        names = ", ".join(out.outvoted)
         return LogLine(
-            f"rig.failed.{reason}",
-            f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
+            f"rig.outvoted.{names}",
+            f"rig camera {names}: outvoted by the others (its points contradict their "
+            "pose; its mounting, clock, line delay or matches are likely wrong) "
+            f"[{rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
         )
+    else:
+        return None
+    n = rig.counts[f"rig.failed.{reason}"]
+    return LogLine(
+        f"rig.failed.{reason}",
+        f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
+    )
 
-    def _warn_no_info(self, name: str, kind: str) -> None:
-        if self.node.inputs[name].newest is None:
-            self.node.warn(
-                f"no_info.{name}",
-                f"rig camera {name!r}: {kind} but no camera_info yet on "
-                f"{self.node.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
-                f"{name}.skipped.no_camera_info), the rig runs on the others",
-            )
 
-    def _take_imu(self, msg) -> str | None:
-        """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
-        ``imu_rejected.<reason>``, as the single-camera node's)."""
-        reason = take_gyro_sample(msg, self.rig.add_imu)
-        if reason is not None:
-            self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
-        return reason
+def rig_views(out: LocalizerOutput, cfg: LocalizerConfig, camera_viz: Mapping,
+              images: Mapping) -> Iterator[CameraView]:  # fmt: skip
+    """The cameras of a posed rig frame whose debug views are watched (``camera_viz``: camera
+    -> its visualization), as :class:`.outputs.CameraView` s as the rig's pose and each
+    camera's mounting put it (:func:`.visualization.rig_camera_views`), each with its frame's
+    image, the last kept of its stamp (``images``: camera -> its last ``(image, encoding,
+    stamp_ns)``)."""
+    mounts = {c.name: c.mount for c in cfg.cameras}
 
-    # ---------------------------------------------------------------- outputs
-    def idle_twists(self) -> list[FusedOutput]:
-        """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
-        still pending after ``tracking.max_gap`` s without camera frames
-        (:meth:`Localizer.flush_idle`; none unconfigured)."""
-        if self.rig is None:
-            return []
-        return fused_outputs(self.rig.flush_idle(), self.cfg.base_frame)
+    def wanted(n: str) -> bool:
+        viz = camera_viz.get(n)
+        return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
 
-    def _outcome(self, out: LocalizerOutput, logged: bool = False) -> FrameOutcome:
-        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): posed, the rig's pose
-        (``base_frame``) at the rig frame's time with its own twist when that is final at
-        once (without tracking, or a rig of one camera with a global shutter or a
-        global-shutter solver), and each camera of it whose ``<c>/debug_image`` or
-        ``<c>/markers`` is watched as the rig's pose and its mounting put it
-        (:func:`.visualization.rig_camera_views`, with its image kept by :meth:`_take`); the
-        fused twists it made final; ``logged``: its :meth:`_failure_line`."""
-        base = self.cfg.base_frame
-        fused = fused_outputs(out.fused, base)
-        line = self._failure_line(out) if logged else None
-        log = () if line is None else (line,)
-        if not out.success:
-            return FrameOutcome(None, fused, log)
-        views = () if self.node.viz is None else tuple(self._views(out))
-        return FrameOutcome(PosedFrame(out.estimate, out.stamp_ns, base, out.twist_now, views),
-                            fused, log)  # fmt: skip
-
-    def _views(self, out: LocalizerOutput) -> Iterator[CameraView]:
-        """The cameras of a posed rig frame whose debug views are watched, as
-        :class:`.outputs.CameraView` s (their frame's image, the last kept of its stamp)."""
-        mounts = {c.name: c.mount for c in self.cfg.cameras}
-
-        def wanted(n: str) -> bool:
-            viz = self.node.camera_viz.get(n)
-            return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
-
-        for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
-            image = None
-            for img in self._images.get(n, ()):
-                if img[2] == frame.stamp_ns:
-                    image = img
-            yield CameraView(n, view, frame.points2d, frame.points3d, frame.camera,
-                             frame.stamp_ns, ref, frame.tag or n, image)  # fmt: skip
-
-    def diagnostics(self) -> tuple[str, StatusParts]:
-        """The rig's hardware id (``base_frame``) and status (:func:`rig_status_parts` of the
-        node's counts and times per camera)."""
-        waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
-        first = self.node.first_frame
-        waited = first is not None and time.monotonic() - first > self.cfg.settings.stop_after
-        with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
-            counts = Counter(self._rig_counts.counts())
-            for cc in self.node.camera_counts.values():
-                counts.update(cc.prefixed())
-            frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
-            absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
-            inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
-                               self.node.frontend_kind != "none",
-                               self._rig_counts.stage_times())  # fmt: skip
-            return self.cfg.base_frame, rig_status_parts(self.rig, waiting, inputs)
+    for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
+        image = None
+        for img in images.get(n, ()):
+            if img[2] == frame.stamp_ns:
+                image = img
+        yield CameraView(n, view, frame.points2d, frame.points3d, frame.camera,
+                         frame.stamp_ns, ref, frame.tag or n, image)  # fmt: skip
 
 
 def rig_status_parts(

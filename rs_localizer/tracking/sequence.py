@@ -40,10 +40,9 @@ API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspon
 :class:`SequenceOutput`), :meth:`flush` (end of the video: the twists still pending),
 :meth:`reset` (forget everything but the configuration). Stamps are checked (a finite number
 within the int64 nanosecond range, else ValueError) and so is a frame's camera model (else
-TypeError). The node's :class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages,
-picks the camera model of a frame's stamp and keeps the frame accounting and the
-diagnostics; ``rs-localizer replay``, ``benchmarks/bench_gyro.py`` and
-``benchmarks/bench_video.py`` drive this same object.
+TypeError). The node (:class:`~rs_localizer.ros.mode.LocalizerMode`) and ``rs-localizer
+replay`` run a camera's messages on the same rig of one (:attr:`SequenceLocalizer.rig`)
+directly; ``benchmarks/bench_gyro.py`` and ``benchmarks/bench_video.py`` drive this object.
 
 Example (a video of correspondences and a gyro; ``camera`` a
 :class:`~rs_localizer.camera.CameraModel` with its rolling-shutter timing)::

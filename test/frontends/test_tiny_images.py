@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -171,13 +172,14 @@ def test_detectors_refuse_tiny_images_and_survive():
 
 
 _PIPELINE = """
-import json, time
+import json, sys, time
+sys.path.insert(0, {test_dir!r})  # (the tests' helpers)
 import numpy as np
 from rs_localizer.camera import CameraModel
 from rs_localizer.ros import config as C, params as P
 from rs_localizer.ros.bags.bag_io import RosbagsMessages
 from rs_localizer.ros.frame_queue import FrameQueue, frame_accounting
-from rs_localizer.ros.pipeline import FramePipeline
+from helpers.camera_node import CameraNode
 SHAPES = {shapes!r}
 msgs = RosbagsMessages()
 cfg = C.build_config({{**P.default_values(), "camera_info_wait": 0.0, "frontend": "aruco",
@@ -188,7 +190,7 @@ rng = np.random.default_rng(1)
 for k, (h, w) in enumerate(SHAPES):
     key = f"{{h}}x{{w}}"
     print(key, flush=True)
-    pipe = FramePipeline(cfg, maps=maps)
+    pipe = CameraNode(cfg, maps=maps)
     stamp = (k + 1) * 10**8
     ch, cw = max(h, 1), max(w, 1)  # (a camera_info of the image's size; 1x1 for 0x0)
     cam = CameraModel(K=np.array([[400.0, 0, cw / 2], [0, 400.0, ch / 2], [0, 0, 1]]),
@@ -223,7 +225,9 @@ def test_node_pipeline_counts_tiny_images_as_bad_image():
     that reason); the process survives; images of the minimum size and
     larger reach the front end (which finds no tags in noise)."""
     shapes = TINY + TAKEN
-    out = _child(_PIPELINE.format(shapes=shapes), timeout=240.0)
+    out = _child(
+        _PIPELINE.format(shapes=shapes, test_dir=str(Path(__file__).parents[1])), timeout=240.0
+    )
     for (h, w), key in zip(shapes, out, strict=True):
         failure, detail, received, accounted, failures = out[key]
         assert received == accounted == 1 and failures == {failure: 1}, (key, out[key])

@@ -315,12 +315,12 @@ class ParamClient:
 def camera_status(cfg, snap, tracking, source, lost, latencies=(), stamp_ages=(), rate_hz=None,
                   bias=None, inconsistent=False, idle_s=None, frontend=None):  # fmt: skip
     """``(level, message, values)`` of one camera's status as its node builds it: the
-    camera's parts (``rs_localizer.ros.node.camera_status_parts`` of its config ``cfg``, its
+    camera's parts (``rs_localizer.ros.mode.camera_status_parts`` of its config ``cfg``, its
     counters ``snap``, ``tracking`` values, camera ``source``, messages ``lost``, with
     ``imu.enabled`` its gyro of ``rate_hz``, ``bias``, ``inconsistent``, ``idle_s``, its
     ``frontend``) laid out with the node's ``latencies`` and ``stamp_ages`` (s)."""
     from rs_localizer.ros.diagnostics import GyroState, status
-    from rs_localizer.ros.node import camera_status_parts
+    from rs_localizer.ros.mode import camera_status_parts
 
     gyro = None
     if cfg.imu is not None:

@@ -8,12 +8,12 @@ from helpers.ros import camera_status, rig_status
 from rs_localizer.ros.config import build_config
 from rs_localizer.ros.frame_queue import FrameCounts
 from rs_localizer.ros.params import default_values
-from rs_localizer.ros.pipeline import FramePipeline
+from rs_localizer.ros.pipeline import PipelineStats
 
 
 def _values(stamp_ages):
     cfg = build_config(default_values())
-    snap = FramePipeline(cfg).stats.snapshot()
+    snap = PipelineStats().snapshot()
     n = len(stamp_ages)
     snap = replace(snap, counts={"received": n, "solved": n})
     return camera_status(cfg, snap, {}, "camera_info", 0, [0.01] * n, stamp_ages)[2]
@@ -88,7 +88,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     inputs = RigInputs(counts, times, stage_times=stages)
     level, message, v = rig_status(rig, (), inputs, (lat, age))
     cfg = build_config(default_values())
-    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 4, "solved": 4})
+    snap = replace(PipelineStats().snapshot(), counts={"received": 4, "solved": 4})
     camera = camera_status(cfg, snap, {}, "camera_info", 0, lat, age)[2]
     keys = ("latency_ms_last", "latency_ms_median", "latency_ms_p99", "stamp_age_ms_last",
             "stamp_age_ms_median", "stamps_off_clock")  # fmt: skip
@@ -194,7 +194,7 @@ def test_a_suspect_readout_timing_warns():
     from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
     cfg = build_config(default_values())
-    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 40, "solved": 40})
+    snap = replace(PipelineStats().snapshot(), counts={"received": 40, "solved": 40})
     for suspect, level in (("false", OK), ("true", WARN)):
         tracking = {"readout_contradicted": 12 if suspect == "true" else 0}
         tracking["readout_suspect"] = suspect
@@ -249,7 +249,7 @@ def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
         for f in frames:
             rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     cfg = build_config({**default_values(), "imu.enabled": True})
-    snap = replace(FramePipeline(cfg).stats.snapshot(), counts={"received": 3, "solved": 3})
+    snap = replace(PipelineStats().snapshot(), counts={"received": 3, "solved": 3})
     camera = camera_status(cfg, snap, {}, "", 0, rate_hz=0.0, idle_s=0.0)[2]
     camera_gyro = {k for k in camera if "gyro" in k or k.startswith("imu_")}
     level, message, v = rig_status(rigs[True], (), D.RigInputs())
@@ -516,7 +516,7 @@ def test_a_camera_lists_every_warning_as_a_rig_does(monkeypatch):
             "without the gyro; check the imu topic and its stamps",
         ]
 
-    snap = replace(FramePipeline(cfg).stats.snapshot(),
+    snap = replace(PipelineStats().snapshot(),
                    counts={"received": 4, "solved": 4, "imu_rejected": 3})  # fmt: skip
     level, message, _ = camera_status(cfg, snap, tracking, "camera_info", 0, [0.01], [0.01],
                                       200.0, None, True, 10.0)  # fmt: skip

@@ -167,12 +167,13 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
 def test_a_new_bias_parameter_restarts_the_estimate():
     """The estimate survives a change of other parameters; a new imu.gyro_bias (a new
     calibration) starts it again from the parameters; imu.estimate_bias false drops it."""
+    from helpers.camera_node import CameraNode
+
     from rs_localizer.ros.config import build_config
     from rs_localizer.ros.params import default_values
-    from rs_localizer.ros.pipeline import FramePipeline
 
     values = {**default_values(), **GYRO}
-    pipe = FramePipeline(build_config(values))
+    pipe = CameraNode(build_config(values))
     est = pipe.gyro_bias
     est.bias = np.array([0.3, 0.2, 0.1])  # (as if estimated)
     pipe.configure(build_config({**values, "ransac.threshold_px": 3.0}))
@@ -196,11 +197,12 @@ def test_a_new_bias_parameter_restarts_the_estimate():
 def test_pipeline_counts_rejected_imu_messages():
     from types import SimpleNamespace
 
+    from helpers.camera_node import CameraNode
+
     from rs_localizer.ros.config import build_config
     from rs_localizer.ros.params import default_values
-    from rs_localizer.ros.pipeline import FramePipeline
 
-    pipe = FramePipeline(build_config({**default_values(), **GYRO}))
+    pipe = CameraNode(build_config({**default_values(), **GYRO}))
 
     def imu(sec, w, cov0=0.0):
         return SimpleNamespace(
@@ -216,7 +218,7 @@ def test_pipeline_counts_rejected_imu_messages():
     assert pipe.add_imu(imu(3, (np.inf, 0.2, 0.3))) == "non_finite"
     c = pipe.stats.snapshot().counts
     assert c["imu_rejected"] == 4 and c["imu_rejected.no_angular_velocity"] == 1, c
-    off = FramePipeline(build_config(default_values()))
+    off = CameraNode(build_config(default_values()))
     assert off.add_imu(imu(1, (0.1, 0.2, 0.3))) == "disabled"
     assert "imu_rejected" not in off.stats.snapshot().counts
 

@@ -279,9 +279,9 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
     """The single-camera node's pipeline (no DDS) on ``msg`` after a camera_info of ``cam``:
     ``("image", array, encoding)`` as handed to the front end, or ``("drop", reason,
     detail)``."""
-    from rs_localizer.ros.pipeline import FramePipeline
+    from helpers.camera_node import CameraNode
 
-    pipe = FramePipeline(cfg, maps=maps)
+    pipe = CameraNode(cfg, maps=maps)
     assert pipe.add_camera_info(msgs.camera_info(cam, 0, "cam")) is not None
     res = pipe.process(msg, "image")
     if res.image is None:
@@ -291,12 +291,12 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 
 
 def _rig_node_decode(msg, cam):
-    """The rig node's image step (``RigMode._take`` of an image) on ``msg`` with the camera's
-    model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same
-    form."""
+    """The rig node's image step (``LocalizerMode._rig_step`` of an image) on ``msg`` with the
+    camera's model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the
+    same form."""
     from rs_localizer.camera import FrameTime
     from rs_localizer.ros.camera_input import CameraCounts, CameraInput
-    from rs_localizer.ros.rig_node import RigMode
+    from rs_localizer.ros.mode import LocalizerMode
 
     got, logged = [], []
 
@@ -322,14 +322,18 @@ def _rig_node_decode(msg, cam):
     camera_input = CameraInput(log, lambda key, n: None, name="c", rig=True)
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
-    mode = RigMode(SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}))
+    mode = LocalizerMode.__new__(LocalizerMode)  # (a rig's, not configured)
+    mode.node, mode.alone = (
+        SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}),
+        False,
+    )
     mode.rig, mode._images, mode._rig_counts = Rig(), {}, CameraCounts()
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
-    # (the rig camera's entry checks and frame step, as RigMode.take_frame makes them)
+    # (the rig camera's entry checks and frame step, as the mode's take_frame makes them)
     taken = camera_input.enter(mode.rig, msg, "image", stamp, camera, True)
-    assert mode._take("c", "image", taken, 0.0) == []
+    assert mode._rig_step("c", "image", taken, 0.0) == []
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

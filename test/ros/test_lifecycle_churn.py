@@ -66,7 +66,7 @@ def test_lifecycle_churn_while_frames_stream(ros_context, sample_bag):
                 k += 1
                 ex.spin_once(timeout_sec=0.03)
             assert node.trigger_deactivate() == OK
-            c = frame_accounting(node.mode.pipeline.stats.counts())
+            c = frame_accounting(node.camera_counts[""].counts())
             assert c.received == c.solved + c.failed + c.skipped + c.pending, (cycle, c)
             assert c.pending == 0, (cycle, c)
             solved.append(c.solved)

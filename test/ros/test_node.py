@@ -1137,7 +1137,7 @@ def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monke
     (no diagnostics, camera_info or parameter answers) for the whole compile."""
     from types import SimpleNamespace
 
-    import rs_localizer.ros.node as N
+    import rs_localizer.ros.mode as N
 
     calls = []
     monkeypatch.setattr(N, "log_warm_up", lambda *a, **k: calls.append((a[0], a[-1], k)))
@@ -1148,8 +1148,8 @@ def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monke
         get_logger=lambda: SimpleNamespace(info=logs.append, warning=logs.append),
         get_parameter=lambda name: SimpleNamespace(value=True),
     )
-    mode = N.CameraMode.__new__(N.CameraMode)  # (the camera's mode without its pipeline)
-    mode.node, mode.pipeline = node, SimpleNamespace(config=old)
+    mode = N.LocalizerMode.__new__(N.LocalizerMode)  # (the camera alone's, unconfigured)
+    mode.node, mode.cfg, mode.alone = node, old, True
     mode._change_to = lambda built, overrides: None
     mode.apply_change((new, None), {"solver": "p3p"})
     assert calls == [("p3p", True, {})]

@@ -314,10 +314,10 @@ def test_frame_queue_drops_the_oldest_and_stops():
 
 # ---------------------------------------------------------------------------- pipeline
 def _pipeline(**changes):
-    from rs_localizer.ros.pipeline import FramePipeline
+    from helpers.camera_node import CameraNode
 
     cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0, **changes})
-    return FramePipeline(cfg)
+    return CameraNode(cfg)
 
 
 def test_pipeline_tracks_a_sequence(msgs, sequence):
@@ -325,7 +325,7 @@ def test_pipeline_tracks_a_sequence(msgs, sequence):
     fused twist comes with the next frame, the last one with flush()."""
     import importlib.util
 
-    from rs_localizer.ros.outputs import frame_messages, fused_messages
+    from rs_localizer.ros.outputs import fused_messages, outcome_messages
 
     with_messages = importlib.util.find_spec("geometry_msgs") is not None
     frames, _, cam = sequence
@@ -345,12 +345,13 @@ def test_pipeline_tracks_a_sequence(msgs, sequence):
         assert np.degrees(np.linalg.norm(res.estimate.pose.orientation - f.orientation)) < 0.5
         fused += [o.stamp_ns for o in res.fused]
         if with_messages:  # the node's publishing order
-            topics = [t for t, _ in frame_messages(res, "map", lambda t: t != "tf")]
+            out = pipe.outcome(res)
+            topics = [t for t, _ in outcome_messages(out, "map", lambda t: t != "tf")]
             assert topics == ["pose", "twist_single_frame"] + ["twist", "odom"] * len(res.fused) + [
                 "pose_with_covariance"
             ]
             # only what has a subscriber is built (the pose always)
-            only = [t for t, _ in frame_messages(res, "map", lambda t: t == "odom")]
+            only = [t for t, _ in outcome_messages(out, "map", lambda t: t == "odom")]
             assert only == ["pose"] + ["odom"] * len(res.fused)
     assert fused == [f.t_ref_ns for f in frames[:-1]]  # one frame late
     last = pipe.flush()
@@ -390,10 +391,10 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
     """A feature map whose descriptors match none of an image's many keypoints: each such
     image counted (frontend_few_match_frames), one warning over several images."""
     import cv2
+    from helpers.camera_node import CameraNode
 
     from rs_localizer.frontends.shared import SHARED_MAPS
     from rs_localizer.maps.features import FeatureMap
-    from rs_localizer.ros.pipeline import FramePipeline
 
     _, _, cam = sequence
     rng = np.random.default_rng(0)
@@ -422,7 +423,7 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
         def error(self, text):
             pass
 
-    pipe = FramePipeline(cfg, log=Log(), maps=maps)
+    pipe = CameraNode(cfg, log=Log(), maps=maps)
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     texture = rng.integers(0, 256, (cam.height // 4, cam.width // 4), np.uint8)
     img = cv2.resize(texture, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
@@ -470,11 +471,13 @@ def test_pipeline_uncompiled_then_compiled(msgs, sequence):
 def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
     msgs, sequence, monkeypatch
 ):
-    """Along the camera node's route (message -> FramePipeline -> SequenceLocalizer -> front
+    """Along the camera node's route (message -> its mode's frame step -> its rig of one -> front
     end -> estimator), for a correspondence frame and an image frame alike, the stamp is
     validated once (at the message, where a bad one is ``bad_stamp``) and the reference time
     computed once; the output stamp is the reference row's capture time of the simulation
     (``t_ref_ns``, from the trajectory, not from the formula)."""
+    from helpers.camera_node import CameraNode
+
     import rs_localizer.camera as camera_mod
     import rs_localizer.ros.conversions as conversions_mod
     import rs_localizer.tracking.sequence as sequence_mod
@@ -482,7 +485,6 @@ def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
     from rs_localizer.correspondences import Correspondences
     from rs_localizer.frontends.shared import LoadedMaps
     from rs_localizer.ros.image_codec import image_fields
-    from rs_localizer.ros.pipeline import FramePipeline
 
     frames, _, cam = sequence
     checks, refs = [], []
@@ -511,7 +513,7 @@ def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
             return Correspondences(f.uv, f.xyz)
 
     cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0})
-    pipe = FramePipeline(cfg, maps=LoadedMaps(frontend=Frontend()))
+    pipe = CameraNode(cfg, maps=LoadedMaps(frontend=Frontend()))
     pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
     rng = np.random.default_rng(0)
     for k, f in enumerate(frames[:4]):
@@ -538,7 +540,8 @@ def test_an_image_after_a_time_reset_is_not_compared_with_the_last_one(msgs, seq
     ``SequenceLocalizer.process_image`` alone: not compared with the image before the reset
     (a new timeline), so the same picture again is searched, not refused ``frozen_image``;
     without a reset it is refused."""
-    from rs_localizer.ros.pipeline import FramePipeline
+    from helpers.camera_node import CameraNode
+
     from rs_localizer.tracking.sequence import SequenceLocalizer
 
     _, _, cam = sequence
@@ -556,8 +559,8 @@ def test_an_image_after_a_time_reset_is_not_compared_with_the_last_one(msgs, seq
 
             return Correspondences(np.zeros((3, 2)), np.zeros((3, 3)), np.arange(3))
 
-    pipe = FramePipeline(cfg)
-    pipe.sequence.set_frontend(Finds(), "test")
+    pipe = CameraNode(cfg)
+    pipe.set_frontend(Finds(), "test")
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     node = [pipe.process(msgs.image(image, t, "cam"), "image").failure for t in stamps]
     lib = SequenceLocalizer(frontend=Finds(), frontend_name="test")
@@ -593,3 +596,32 @@ def test_camera_input_notes_a_time_reset_and_names_its_intrinsics():
     assert seen == [int(1.5e9)] and counts.get("time_resets") == 1
     assert warned == [("rig camera 'a': time_reset", "rig camera 'a': time reset: went back")]
     assert inp.camera_for(5 * 10**9) is cams[1] and len(inp.history) == 1
+
+
+def test_a_frame_step_that_raises_fails_its_frame_as_internal_error(msgs, sequence, monkeypatch):
+    """A defect in the camera alone's frame step (its rig of one raising) fails that frame
+    ``internal_error`` with the exception as its detail, published as the line ``frame dropped
+    (internal_error): <type>: <text>`` and nothing else; the next frame is solved."""
+    from rs_localizer.ros.outputs import LogLine
+
+    frames, _, cam = sequence
+    pipe = _pipeline(**{"tracking.enabled": False})
+    pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(pipe.rig, "add", broken)
+    f0, f1 = frames[:2]
+    res = pipe.process(msgs.cloud(f0.uv, f0.xyz, f0.ids, f0.stamp_ns, "cam"), "correspondences")
+    assert (res.failure, res.detail) == ("internal_error", "RuntimeError: boom")
+    out = pipe.outcome(res)
+    line = "frame dropped (internal_error): RuntimeError: boom"
+    assert (
+        out.posed is None
+        and list(out.fused) == []
+        and out.log == (LogLine("internal_error", line, 0),)
+    )
+    monkeypatch.undo()
+    res = pipe.process(msgs.cloud(f1.uv, f1.xyz, f1.ids, f1.stamp_ns, "cam"), "correspondences")
+    assert res.solved and res.out_stamp_ns == f1.t_ref_ns

@@ -2,12 +2,11 @@
 files, replay writes the same poses and twists (fused ``twist`` and ``twist_single_frame``),
 stamp by stamp, as the node publishes when the bag is played to it over DDS in lock-step.
 
-The node runs its :class:`~rs_localizer.ros.pipeline.FramePipeline`, replay the rig mode's rig
-of one camera, which solves the frames as the camera's video does, on the same frames in the
-same order with the same camera_infos; the estimator and the tracker are deterministic (fixed
-RANSAC seed). With the PyPI wheels the two processes agree bit for bit; with Debian's NumPy and
-BLAS they were seen to differ in the last bits (2-4e-15 m on positions of a few metres), so the
-values are compared to 1e-12 relative to their magnitude.
+The node and replay both run the camera as the rig mode's rig of one camera named "", on the
+same frames in the same order with the same camera_infos; the estimator and the tracker are
+deterministic (fixed RANSAC seed). With the PyPI wheels the two processes agree bit for bit;
+with Debian's NumPy and BLAS they were seen to differ in the last bits (2-4e-15 m on positions
+of a few metres), so the values are compared to 1e-12 relative to their magnitude.
 """
 
 from __future__ import annotations

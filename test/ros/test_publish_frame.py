@@ -108,47 +108,57 @@ def test_a_posed_rig_frame_its_own_twist_then_the_fused_its_path_and_cameras():
     assert node.warned == [("rig.outvoted.right", "right outvoted", 0)]
 
 
-def test_the_single_camera_s_outcome_its_view_draws_the_path():
+def test_the_single_camera_s_outcome_its_view_draws_the_path(monkeypatch):
     """The single camera (its viz the node's, with the path): solved, its view drawn once with
     the camera's estimate and the sent pose message when that pose is the camera's, none
     (the path makes the camera's own) when the output is the robot base's; the fused twists
     go out also when the frame's own twist is final (an earlier track's), before it; failed,
     the fused twists alone and
     the line ``frame dropped (<reason>): <detail>`` with its count."""
-    from rs_localizer.ros.outputs import camera_outcome, fused_messages, publish_frame
-    from rs_localizer.ros.pipeline import FrameResult, FusedOutput
+    from types import SimpleNamespace
+
+    import rs_localizer.ros.mode as M
+    from rs_localizer.ros.outputs import fused_messages, publish_frame
+    from rs_localizer.ros.pipeline import FusedOutput
 
     est, base, earlier = _state(4, 5_000), _state(5, 5_000), _state(6, 4_000)
     fused = [FusedOutput(4_000, earlier, "cam")]
-    for output, frame in ((est, "cam"), (base, "base_link")):
-        res = FrameResult(stamp_ns=5_100, out_stamp_ns=5_000, frame_id="cam", camera="model",
-                          points2d="uv", points3d="X", estimate=est, output=output,
-                          output_frame=frame, twist_now=False, fused=fused, image=None)  # fmt: skip
+
+    def outcome(mount, twist_now=False, failure=None, failed=0):
+        """The camera alone's outcome (its mode's) of a frame posed at ``est``, its output moved
+        to the robot base (``base``) by ``mount`` when given."""
+        mode = SimpleNamespace(cfg=SimpleNamespace(camera=SimpleNamespace(mount=mount),
+                                                   base_frame="base_link"))  # fmt: skip
+        res = M.CameraFrameResult("cam")
+        res.stamp_ns, res.out_stamp_ns, res.camera = 5_100, 5_000, "model"
+        res.points2d, res.points3d, res.fused = "uv", "X", fused
+        res.failure, res.detail = failure, "9 points"
+        res.out = SimpleNamespace(camera_estimate=est, twist_now=twist_now)
+        return M.LocalizerMode._alone_outcome(mode, res, failed)
+
+    monkeypatch.setattr(M, "camera_to_base", lambda e, mount: base if e is est else None)
+    for mount, frame in ((None, "cam"), ("mount", "base_link")):
         viz = _Viz()
         node = _Node(viz, {"": viz})
-        publish_frame(node, camera_outcome(res))
+        publish_frame(node, outcome(mount))
         assert [t for t, _ in node.sent] == ["pose", "twist_single_frame", "twist", "odom",
                                              "pose_with_covariance"]  # fmt: skip
         assert node.sent[2:4] == fused_messages(fused, "world")
         assert node.sent[1][1].header.frame_id == frame
-        pose_msg = node.sent[0][1] if output is est else None
+        pose_msg = node.sent[0][1] if mount is None else None
         drawn = ("publish", est, "uv", "model", 5_100, 5_000, "cam", pose_msg)
         assert viz.calls == [("image", None), drawn]
         assert node.warned == []
     # (its own twist final at once, an earlier track's fused twist final with it: both out,
     # the earlier stamp first)
-    res = FrameResult(stamp_ns=5_100, out_stamp_ns=5_000, frame_id="cam", camera="model",
-                      points2d="uv", points3d="X", estimate=est, output=est, output_frame="cam",
-                      twist_now=True, fused=fused, image=None)  # fmt: skip
     node = _Node(_Viz(), {"": _Viz()})
-    publish_frame(node, camera_outcome(res))
+    publish_frame(node, outcome(None, twist_now=True))
     twists = [m for t, m in node.sent if t == "twist"]
     assert [t for t, _ in node.sent][2:6] == ["twist", "odom", "twist", "odom"]
     assert node.sent[2:4] == fused_messages(fused, "world")
     assert [_stamp(m) for m in twists] == [4_000, 5_000]
-    res = FrameResult(failure="too_few_inliers", detail="9 points", fused=fused)
     viz = _Viz()
     node = _Node(viz, {"": viz})
-    publish_frame(node, camera_outcome(res, 3))
+    publish_frame(node, outcome(None, failure="too_few_inliers", failed=3))
     assert node.sent == fused_messages(fused, "world") and viz.calls == []
     assert node.warned == [("too_few_inliers", "frame dropped (too_few_inliers): 9 points", 3)]

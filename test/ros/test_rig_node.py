@@ -149,9 +149,9 @@ def test_one_node_class_runs_one_camera_or_a_rig_by_rig_cameras(ros_context):
     from rclpy.parameter import Parameter
 
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
-    from rs_localizer.ros.node import CameraMode, RSLocalizerNode
+    from rs_localizer.ros.mode import LocalizerMode
+    from rs_localizer.ros.node import RSLocalizerNode
     from rs_localizer.ros.params import RIG_PARAMETERS
-    from rs_localizer.ros.rig_node import RigMode
 
     cams = default_rig(2)
     rig = rig_parameters(cams)  # (warmup false)
@@ -163,7 +163,8 @@ def test_one_node_class_runs_one_camera_or_a_rig_by_rig_cameras(ros_context):
             if cls is RSLocalizerLifecycleNode:
                 ok = TransitionCallbackReturn.SUCCESS
                 assert one.trigger_configure() == ok and two.trigger_configure() == ok
-            assert type(one.mode) is CameraMode and type(two.mode) is RigMode
+            assert type(one.mode) is type(two.mode) is LocalizerMode  # (one mode)
+            assert one.mode.alone and not two.mode.alone
             assert list(one.inputs) == [""] and list(two.inputs) == [c.name for c in cams]
             for name, par in RIG_PARAMETERS.items():
                 if name != "rig.cameras":
@@ -729,7 +730,7 @@ def test_a_bad_stamp_fails_as_the_camera_s_never_grouped(ros_context, monkeypatc
         return original(stamp_ns, what)
 
     grouped_bad = []
-    same = node.mode._same_rig_frame
+    same = node.mode._grouping
 
     def watched(batch, item):
         together = same(batch, item)
@@ -1414,6 +1415,7 @@ def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(mo
     """A solver changed at run time on a rig of one camera (which takes ``solver``) is logged
     and its kernels warmed up in the background with the new settings, as the single
     camera's (``warmup``); the same solver set again neither logs nor warms up."""
+    import rs_localizer.ros.mode as M
     import rs_localizer.ros.rig_node as R
 
     calls = []
@@ -1421,8 +1423,8 @@ def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(mo
     old, new = _rig_config_of({}), _rig_config_of({"solver": "p3p"})
     assert new[0].settings.single_camera and new[0].settings.solver == "p3p" != old[0].solver
     logs = []
-    mode = R.RigMode.__new__(R.RigMode)  # (the rig's mode without its localizer)
-    mode.node, mode.cfg = _fake_node(logs), old[0]
+    mode = M.LocalizerMode.__new__(M.LocalizerMode)  # (a rig's mode without its localizer)
+    mode.node, mode.cfg, mode.alone = _fake_node(logs), old[0], False
     changed = []
     mode._change_to = lambda built, overrides: changed.append(built)
     mode.apply_change(new, {"solver": "p3p"})
@@ -1440,12 +1442,10 @@ def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
     ``landmarks_file`` (their count) and the front end on the images with its map; a rig's
     warnings (the single camera's parameters it does not use) come before it, as a camera's
     global-shutter warning."""
-    from types import SimpleNamespace
-
     from rs_localizer.ros import config as C
     from rs_localizer.ros import params as P
-    from rs_localizer.ros.node import CameraMode
-    from rs_localizer.ros.rig_node import RigMode
+    from rs_localizer.ros.mode import LocalizerMode
+    from rs_localizer.ros.rig_node import RIG_TEXTS
 
     over = {"landmarks_file": "lm.csv", "frontend": "aruco", "frontend_map": "m.yaml"}
     (config,) = _rig_config_of({**over, "camera.fx": 600.0}, ("front", "rear"))
@@ -1453,7 +1453,10 @@ def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
     assert config.unused_text
     landmarks = (np.arange(7), np.zeros((7, 3)))
     logs = []
-    rig = RigMode.__new__(RigMode)
+    rig = LocalizerMode.__new__(LocalizerMode)
+    rig.alone = False
+    for k, v in RIG_TEXTS.items():  # (a rig's topics, as made with the node)
+        setattr(rig, k, v)
     rig.node = _fake_node(logs, landmarks=landmarks, map_frame="map",
                           images_of={"front": "x", "rear": "x"})  # fmt: skip
     rig.cfg = config
@@ -1467,9 +1470,10 @@ def test_both_modes_ready_lines_name_the_landmarks_and_the_front_end_s_map():
                  f"camera's image_raw (map m.yaml)"),
     ]  # fmt: skip
     logs.clear()
-    cam = CameraMode.__new__(CameraMode)
+    cam = LocalizerMode.__new__(LocalizerMode)
+    cam.alone = True
     cam.node = _fake_node(logs, landmarks=landmarks, images_of={"": "/image"})
-    cam.pipeline = SimpleNamespace(config=single)
+    cam.cfg = single
     cam.log_ready()
     assert logs == [
         ("info", f"ready: solver {single.solver}, line delay {single.camera.line_delay * 1e6:.2f} "

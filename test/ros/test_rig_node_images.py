@@ -211,8 +211,7 @@ def test_one_diagnostics_converter_for_both_nodes():
 
     from diagnostic_msgs.msg import DiagnosticStatus
 
-    from rs_localizer.ros import core, rig_node
-    from rs_localizer.ros import node as single
+    from rs_localizer.ros import core, mode, rig_node
     from rs_localizer.ros.diagnostics import ERROR, OK, WARN
     from rs_localizer.ros.status_msg import status_message
 
@@ -224,12 +223,13 @@ def test_one_diagnostics_converter_for_both_nodes():
         assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
     with pytest.raises(ValueError, match="unknown diagnostic level"):
         status_message("n", "hw", "FINE", "m", {})
-    # (the one node builds both modes' statuses with the one builder and converts them;
-    # neither mode builds a status or a message itself, each hands its status as data)
+    # (the one node builds a camera's and a rig's status with the one builder and converts
+    # them; its mode builds no status or message itself, it hands its status as data)
     assert "status_message(" in inspect.getsource(core)
     assert "status(parts, self._timing_snapshot())" in inspect.getsource(core.NodeCore)
-    for mod in (single, rig_node):
-        assert "def diagnostics(" in inspect.getsource(mod) and not hasattr(mod, "status")
+    assert "def diagnostics(" in inspect.getsource(mode.LocalizerMode)
+    for mod in (mode, rig_node):
+        assert not hasattr(mod, "status")
         assert "status_message(" not in inspect.getsource(mod)
         assert "DiagnosticStatus()" not in inspect.getsource(mod)
 

@@ -4,12 +4,12 @@ refused as ``ambiguous_tag``, two tags on different walls posed and counted in
 ``frames_few_points`` alone."""
 
 import numpy as np
+from helpers.camera_node import CameraNode
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.ros import config as C
 from rs_localizer.ros import params as P
-from rs_localizer.ros.pipeline import FramePipeline
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 
@@ -31,7 +31,7 @@ def test_one_tag_is_posed_and_counted_and_an_ambiguous_one_refused():
     msgs = RosbagsMessages()
     cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
     cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0, "tracking.enabled": False})
-    pipe = FramePipeline(cfg)
+    pipe = CameraNode(cfg)
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     rng = np.random.default_rng(1)
     X = _tag(0.2)
@@ -58,7 +58,7 @@ def test_two_tags_on_different_walls_are_posed_and_counted():
     msgs = RosbagsMessages()
     cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
     cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0, "tracking.enabled": False})
-    pipe = FramePipeline(cfg)
+    pipe = CameraNode(cfg)
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     # (one tag on the floor, one on a wall: 8 corners on two planes, fewer than min_inliers)
     quarter = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])

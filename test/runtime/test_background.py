@@ -134,7 +134,8 @@ from rs_localizer.runtime.background import background_state, compiled_ready
 from rs_localizer.ros import config as C
 from rs_localizer.ros import params as P
 from rs_localizer.ros.bags.bag_io import RosbagsMessages
-from rs_localizer.ros.pipeline import FramePipeline, log_warm_up
+from rs_localizer.ros.pipeline import log_warm_up
+from helpers.camera_node import CameraNode
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
 frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=200, seed=4))
@@ -143,7 +144,7 @@ logs = []
 log = type("L", (), {"info": lambda s, m: logs.append(m), "warning": lambda s, m: logs.append(m)})()
 log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, background=True)
 msgs = RosbagsMessages()
-pipe = FramePipeline(cfg)
+pipe = CameraNode(cfg)
 pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
 solved = [pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences").solved
           for f in frames]
@@ -160,7 +161,7 @@ def test_runs_without_numba():
         [sys.executable, "-c", _NO_NUMBA],
         capture_output=True,
         text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env={**os.environ, "PYTHONPATH": os.pathsep.join((str(ROOT), str(ROOT / "test")))},
         timeout=180,
     )
     assert r.returncode == 0, r.stderr

@@ -99,15 +99,15 @@ def test_idle_seconds_counts_from_the_last_usable_sample():
 def test_diagnostics_warn_when_no_usable_imu_sample_arrives():
     from dataclasses import replace
 
+    from helpers.camera_node import CameraNode
     from helpers.ros import camera_status
 
     from rs_localizer.ros.config import build_config
     from rs_localizer.ros.diagnostics import IMU_IDLE_WARN_S, OK, WARN
     from rs_localizer.ros.params import default_values
-    from rs_localizer.ros.pipeline import FramePipeline
 
     cfg = build_config({**default_values(), "imu.enabled": True})
-    stats = FramePipeline(cfg).stats
+    stats = CameraNode(cfg).stats
     for _ in range(50):
         stats.add("imu_rejected")
     idle = stats.snapshot()

@@ -1,0 +1,740 @@
+"""The one mode of ``rs_localizer_node``: one camera or a rig of cameras, through one path.
+
+:class:`LocalizerMode` is what the node (:class:`~rs_localizer.ros.core.NodeCore`) does with
+its cameras: their configuration, what the worker does with a frame, what it publishes and its
+status. ``rig.cameras`` empty: the node's camera is a rig of one camera named ``""`` at the
+identity mounting (:func:`~rs_localizer.tracking.sequence.rig_of_one`: the camera's solver,
+estimator options, tracking, gyro, ``stamp_row``, ``time_reset_ns``, ``max_points``), on the
+topics without prefix, its frames, counts, diagnostics and log lines a camera's (docs/node.md);
+``rig.cameras`` set: the rig's cameras, each on its ``<c>/`` topics, one pose for the rig
+(docs/rig_node.md; what only a rig of several needs: :mod:`.rig_node`).
+
+Either way each camera's frame message takes the one frame step into one
+:class:`~rs_localizer.tracking.video.Localizer`, the rig mode's: its camera's input stage
+(:class:`~rs_localizer.ros.camera_input.CameraInput`: its stamp checked as it arrived, its
+camera model of that stamp from its camera_infos), the entry checks and the rows or the
+image to the localizer (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`), then the
+rig frames it completes published (:func:`.outputs.publish_frame`). The camera alone is its
+rig of one as ``rs-localizer replay`` runs a camera's bag: its stamp noted on the localizer's
+clock before its camera_info is looked up (a time reset forgets the camera_infos stamped after
+it), its warnings worded as a camera's (``camera_words``), each frame counted ``solved`` or
+``failed.<reason>`` with the line ``frame dropped (<reason>): <detail>``, its pose in its
+optical frame (or with ``camera_to_base.*`` the robot's ``base_frame``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ..correspondences import Correspondences, FrontendHooks
+from ..frames import camera_to_base
+from ..frontends.shared import LoadedMaps
+from ..runtime.background import ready_implementation
+from ..tracking.gyro_input import GyroInput
+from ..tracking.sequence import SequenceSettings, rig_of_one
+from ..tracking.video import Localizer, LocalizerOutput
+from .camera_input import CameraCounts, CameraInput, DroppedFrame, FrameStep, ImageFrame
+from .config import LocalizerConfig, build_config, default_timing_note, load_maps
+from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame, names_a_rig
+from .diagnostics import CameraPart, GyroState, RigInputs, StatusParts, frontend_values
+from .frame_queue import frame_accounting
+from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
+from .pipeline import (
+    Drop,
+    FusedOutput,
+    MapFitCheck,
+    PipelineStats,
+    StatsSnapshot,
+    ThrottledLog,
+    fused_outputs,
+    log_warm_up,
+    take_gyro_sample,
+    take_imu_message,
+)
+from .rig_node import (
+    RIG_TEXTS,
+    RigGrouping,
+    declare_rig_cameras,
+    note_camera_frame,
+    rig_configuration,
+    rig_failure_line,
+    rig_ready_subject,
+    rig_status_parts,
+    rig_views,
+    warm_rig_kernels,
+)
+
+__all__ = ["CameraFrameResult", "LocalizerMode", "camera_status_parts"]
+
+
+class CameraFrameResult:
+    """What the camera alone's frame gave (:meth:`LocalizerMode._take_alone`): its rig of
+    one's rig frame (``out``; None: none), the rows the estimator was given, its camera
+    model, stamps (ns: header, reference line's), frame id, decoded image, what the front end
+    found to republish, the fused twists now final and, failed, why (``failure``,
+    ``detail``)."""
+
+    failure: str | None = None
+    detail: str = ""
+    out: LocalizerOutput | None = None
+    points2d: np.ndarray | None = None
+    points3d: np.ndarray | None = None
+    camera: Any = None
+    stamp_ns: int | None = None
+    out_stamp_ns: int | None = None
+    image: tuple | None = None
+    correspondences: Correspondences | None = None
+
+    def __init__(self, frame_id: str):
+        self.frame_id = frame_id
+        self.fused: list[FusedOutput] = []
+
+    @property
+    def solved(self) -> bool:
+        """The frame has a pose (no failure)."""
+        return self.failure is None
+
+    @property
+    def estimate(self) -> Any:
+        """The camera's :class:`~rs_localizer.estimation.RSPoseEstimate` (camera frame;
+        None: the estimator did not run)."""
+        return None if self.out is None else self.out.camera_estimate
+
+    @property
+    def twist_now(self) -> bool:
+        """The frame's own twist is final (no tracking, a global-shutter solver or timing);
+        else its fused twist comes in a later frame's :attr:`fused`."""
+        return self.out is not None and self.out.twist_now
+
+    @property
+    def compiled(self) -> bool:
+        """Solved on the compiled kernels (False: on the uncompiled path while they compile)."""
+        return self.out is None or self.out.compiled
+
+
+class LocalizerMode(ModeBase):
+    """The node's one mode (module docstring), for the camera alone (``rig.cameras`` empty,
+    :attr:`alone`) or a rig. The node (:class:`~rs_localizer.ros.core.NodeCore`, ``node``)
+    holds the plumbing, :class:`~rs_localizer.ros.core.ModeBase` the phases; this object its
+    cameras and its localizer (:attr:`rig`, made at configure). The camera alone's input
+    stage and counts (named "") are made with the node's state (``_init_state``), so that its
+    camera_infos and counts outlast a change of parameters; a rig's at configure."""
+
+    rig: Localizer | None = None  # (None: not configured)
+
+    def __init__(self, node: NodeCore):
+        super().__init__(node)
+        #: the camera alone, a rig of one (``rig.cameras`` empty)
+        self.alone = not names_a_rig(node.get_parameter("rig.cameras").value)
+        self.imu_rejected: dict[str, int] = {}  # (a rig's gyro)
+        self._loaded = LoadedMaps()  # (the camera alone's maps in use)
+        self._images: dict = {}  # (a rig camera -> its last decoded images, for debug_image)
+        if not self.alone:
+            for k, v in RIG_TEXTS.items():
+                setattr(self, k, v)
+            return
+        log = ThrottledLog(node.get_logger())
+        # (the camera's counts: the frame accounting, its input stage's, its estimates')
+        self._own = PipelineStats()
+        self._map_fit = MapFitCheck()
+        inp = CameraInput(log, self._own.add, stopped=node.stopping)
+        node.set_cameras({"": inp}, {"": self._own}, log)
+
+    def configured_as(self) -> str:
+        """What the managed node's ``configured: ... (inactive)`` line names."""
+        if self.alone:
+            return f"solver {self.cfg.solver}"
+        return f"rig of {len(self.cfg.cameras)} cameras"
+
+    def camera_of(self, item: QueuedFrame) -> Any:
+        """The camera model of a rig camera's frame stamp, waiting up to ``camera_info_wait``
+        for its camera_info: outside the worker's lock, which the diagnostics take on the
+        executor that delivers it. None for the camera alone: its stamp is noted on its
+        video's clock first (:meth:`_take_alone`)."""
+        if self.alone:
+            return None
+        return self.node.inputs[item.name].camera_of(item.stamp)
+
+    # ---------------------------------------------------------------- configuration
+    def _configuration(self) -> tuple[LocalizerConfig, Any]:
+        """The configuration at configure and the maps it names: the camera alone's
+        (:meth:`changed_configuration`), or the rig's (each camera's ``rig.<camera>.*``
+        declared on first use) with the landmarks and front-end map loaded once, a front end
+        object per camera (camera name -> its maps).
+
+        Raises:
+            ConfigError: a value that cannot be used (naming it).
+        """
+        if self.alone:
+            return self.changed_configuration({})
+        declare_rig_cameras(self.node)
+        config = rig_configuration(self.node, {})
+        return config, {c.name: load_maps(c, owner=self.node) for c in config.cameras}
+
+    def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, Any]:
+        """The configuration of the parameters with ``overrides`` and its maps: the camera
+        alone's (a changed ``landmarks_file`` or ``frontend_map`` loaded), or the rig's, a
+        change refused for the parameters a rig cannot take without a restart
+        (:func:`.rig_node.rig_configuration`).
+
+        Raises:
+            ConfigError: a value that cannot be used, a map that does not load, a change
+                refused (naming them).
+        """
+        if not self.alone:
+            return rig_configuration(self.node, overrides, self.cfg), None
+        cfg = build_config(self.node.param_values(overrides))
+        return cfg, load_maps(cfg.camera, owner=self, current=self._loaded)
+
+    def _warm_kernels(self, built: tuple) -> None:
+        """The kernels of the configuration's solver, tracking and gyro (the camera alone's,
+        :func:`.pipeline.log_warm_up`; a rig's, :func:`.rig_node.warm_rig_kernels`), compiled
+        or loaded in the background."""
+        cfg, log = built[0], self.node.get_logger()
+        if not self.alone:
+            warm_rig_kernels(cfg, log)
+            return
+        log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, cfg.imu is not None, True)
+
+    def _start_with(self, built: tuple) -> None:
+        """The configuration taken: the camera alone's (:meth:`_start_alone`) or the rig's
+        (:meth:`_start_rig`)."""
+        if self.alone:
+            self._start_alone(built)
+        else:
+            self._start_rig(built)
+
+    def _start_alone(self, built: tuple[LocalizerConfig, LoadedMaps]) -> None:
+        """The camera alone's configuration taken: its rig of one made, or configured from
+        its next frame on (its track, gyro and counts kept where they still apply), its front
+        end, its input stage (the camera models of the camera_infos so far rebuilt with the
+        new RS timing), the node's settings (:meth:`~.core.ModeBase._settle`); a reloaded
+        front end, the marker detector that runs and a default RS timing with images logged."""
+        cfg, maps = built
+        old, old_fe, log = self.cfg, self._loaded.frontend, self.node.get_logger()
+        self.cfg, self._loaded = cfg, maps
+        settings = rig_of_one(SequenceSettings(
+            solver=cfg.solver, options=cfg.options, tracking=cfg.tracking, imu=cfg.imu,
+            stamp_row=cfg.stamp_row, time_reset_ns=cfg.time_reset_ns, max_points=cfg.max_points,
+        ))  # fmt: skip
+        inp = self.node.inputs[""]
+        if self.rig is None:
+            # (its gyro counted and worded as a camera's; frames on the NumPy implementation
+            # while the kernels compile in the background)
+            gyro = GyroInput(self._own.add, inp.log, stopped=self.node.stopping)
+            impl = lambda: ready_implementation(self.cfg.solver)  # noqa: E731
+            self.rig = Localizer(settings, inp.log, impl, gyro_input=gyro, count=self._own.add,
+                                 camera_words=True)  # fmt: skip
+        else:
+            self.rig.configure(settings)
+        cam = cfg.camera
+        self.rig.set_frontend("", maps.frontend, cam.frontend_kind)
+        inp.configure(cam.camera_from_info, cfg.max_points, cam.fallback, cfg.camera_info_wait,
+                      maps.landmarks, cam.frame)  # fmt: skip
+        self._settle(cfg, maps.landmarks)
+        if old is not None and old_fe is not None and maps.frontend is not old_fe:
+            log.info(f"reloaded the {cam.frontend_kind} front end from {cam.frontend_map}")
+        detector = None if maps.frontend is None else maps.frontend.marker_detector_note()
+        if detector is not None and maps.frontend is not old_fe:
+            # (which marker detector runs; a missing AprilTag library: a warning with the
+            # install line)
+            line, fallback = detector
+            (log.warning if fallback else log.info)(f"marker detector: {line}")
+        note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
+        if note is not None:
+            self.node.warn_once("default_timing", note)
+
+    def _start_rig(self, built: tuple[LocalizerConfig, dict]) -> None:
+        """The rig's configuration taken: the rig localizer, a front end per camera when
+        ``frontend`` is set, each camera's input (its camera_infos by stamp, its clouds' rows,
+        its images, :func:`.camera_input.rig_camera_inputs`) and counts (the diagnostics'
+        ``<c>.<key>``), their frame queue grouped by rig frame (:class:`.rig_node.RigGrouping`),
+        the node's settings (:meth:`~.core.ModeBase._settle`)."""
+        from .camera_input import rig_camera_inputs
+
+        node = self.node
+        config, loaded = built
+        self.cfg = config
+        log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
+        # (rig frames on the NumPy implementation while the kernels compile in the background)
+        self.rig = Localizer(config.settings, log=log, implementation=ready_implementation)
+        for c in config.cameras:
+            if c.frontend_kind != "none":
+                self.rig.set_frontend(c.name, loaded[c.name].frontend, c.frontend_kind)
+        # (the worker's map-fit check over the rig frames, its times per stage)
+        self._rig_counts = CameraCounts()
+        self._map_fit = MapFitCheck("rig frames")
+        counts = {c.name: CameraCounts(c.name) for c in config.cameras}
+        landmarks = next(iter(loaded.values())).landmarks  # (the cameras' keypoints name them)
+        inputs = rig_camera_inputs(config, log, self._count_input, stopped=node.stopping,
+                                   wait=config.camera_info_wait, landmarks=landmarks)  # fmt: skip
+        self._grouping = RigGrouping(config.settings, inputs)
+        node.set_cameras(inputs, counts, log, self._grouping, "rs_localizer_rig_worker")
+        self._settle(config, landmarks)
+        self._images = {}
+
+    def _change_to(self, built: tuple, overrides: dict) -> None:
+        """A run-time change taken from the next frame on: the camera alone reconfigured
+        (:meth:`_start_alone`; reloaded landmarks logged); a rig's settings
+        (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
+        tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
+        a tracking change starting a new track), each camera's clouds the new ``max_points``,
+        the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
+        config = built[0]
+        if self.alone:
+            self._start_alone(built)
+            landmarks, path = built[1].landmarks, config.camera.landmarks_file
+            if overrides.get("landmarks_file") and landmarks is not None:
+                self.node.get_logger().info(f"reloaded {len(landmarks[0])} landmarks from {path}")
+            return
+        with self.node.between_frames():  # (between two camera frames of the worker)
+            self.rig.configure(config.settings)
+            self.cfg = config
+            self._grouping.settings = config.settings
+            for inp in self.node.inputs.values():
+                inp.max_points = config.settings.max_points
+                inp.wait = float(config.camera_info_wait)
+        self._settle(config, self.node.landmarks)
+
+    def _ready_warnings(self) -> list[str]:
+        """The camera alone's global-shutter timing (the twist is then zero); a rig's: the
+        single camera's parameters set but not used by the rig."""
+        if not self.alone:
+            return [self.cfg.unused_text] if self.cfg.unused_text else []
+        if self.cfg.camera.line_delay == 0 and self.cfg.camera.readout_time == 0:
+            return [
+                "rs.line_delay and rs.readout_time are 0: global-shutter "
+                "timing, the published twist will be zero"
+            ]
+        return []
+
+    def _ready_subject(self) -> str:
+        if not self.alone:
+            return rig_ready_subject(self.cfg, self.node.map_frame)
+        cfg, cam = self.cfg, self.cfg.camera
+        text = f"solver {cfg.solver}, line delay {cam.line_delay * 1e6:.2f} us/line"
+        if cam.readout_time > 0:
+            text += f", readout {cam.readout_time * 1e3:.2f} ms"
+        return text + f", intrinsics from {'parameters' if cam.fallback else 'camera_info'}"
+
+    # ---------------------------------------------------------------- gyro
+    @property
+    def _take_imu(self) -> Callable[[Any], str | None]:
+        return self._imu_alone if self.alone else self._imu_rig
+
+    def _imu_alone(self, msg: Any) -> str | None:
+        """The camera alone's gyro sample (:func:`.pipeline.take_imu_message`: rejected ones
+        counted ``imu_rejected.<reason>`` in its counts and warned)."""
+        return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
+
+    def _imu_rig(self, msg: Any) -> str | None:
+        """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
+        ``imu_rejected.<reason>``, as the camera's)."""
+        reason = take_gyro_sample(msg, self.rig.add_imu)
+        if reason is not None:
+            self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
+        return reason
+
+    # ---------------------------------------------------------------- frames
+    def take_frame(self, item: QueuedFrame, camera: Any = None) -> TakenFrame:
+        """The worker: one camera frame through the frame step (the camera alone's,
+        :meth:`_take_alone`; a rig camera's, :meth:`_take_rig`)."""
+        if self.alone:
+            return self._take_alone(item)
+        return self._take_rig(item, camera)
+
+    def _take_alone(self, item: QueuedFrame) -> TakenFrame:
+        """The camera alone's frame into its rig of one (:meth:`_run_alone`), counted
+        ``solved`` or ``failed.<reason>`` (an exception, a defect: ``internal_error``); with
+        ``republish_correspondences`` what the front end found in the image, as a
+        ``correspondences_out`` cloud."""
+        inp = self.node.inputs[""]
+        res = CameraFrameResult(inp.tag_of(item.msg))
+        try:
+            self._run_alone(item, inp, res)
+        except Drop as e:
+            res.failure, res.detail = e.reason, str(e)
+        except Exception as e:  # (a defect: this frame is dropped, the next ones go on)
+            drop = Drop("internal_error", f"{type(e).__name__}: {e}")
+            res.failure, res.detail = drop.reason, str(drop)
+        found = [] if res.correspondences is None else [("", res.correspondences, res.stamp_ns)]
+        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
+        return TakenFrame((outcome,), res.failure, res, found=found)
+
+    def _run_alone(self, item: QueuedFrame, inp: CameraInput, res: CameraFrameResult) -> None:
+        """Fill ``res`` with the camera alone's frame: its checked stamp noted on its rig of
+        one's clock (a time reset counted and logged, the camera_infos after it forgotten),
+        its camera model of that stamp, the frame step
+        (:meth:`~.camera_input.CameraInput.enter`: the entry checks, its rows or its image to
+        the rig of one), counted as the camera's estimate (:meth:`_solved_alone`). Raises
+        :class:`~.pipeline.Drop` for a frame dropped, with its reason."""
+        tic = time.perf_counter()
+        rig, stamp = self.rig, item.stamp
+        if not isinstance(stamp, DroppedFrame):
+            res.stamp_ns = stamp
+            inp.note_time(stamp, rig.check_time)
+        camera = inp.camera_of(stamp)
+        res.camera = camera
+
+        def noted(ft: Any) -> None:
+            res.out_stamp_ns = ft.reference_ns
+
+        frontend = self.node.frontend_kind != "none"
+        taken = inp.enter(rig, item.msg, item.kind, stamp, camera, frontend, noted)
+        if isinstance(taken, DroppedFrame):
+            raise Drop(taken.reason, str(taken.error))
+        frame, outs, t_decoded = taken
+        if isinstance(frame, DroppedFrame):
+            raise Drop(frame.reason, str(frame.error))
+        front = 0.0  # (s: the front end's search)
+        if isinstance(frame, ImageFrame):
+            res.image = (frame.image, frame.encoding, stamp)
+            search = rig.last_search("")
+            self._frontend_ran(search, outs, res)
+            res.points2d, res.points3d, front = search.points2d, search.points3d, search.seconds
+            t_decoded += front
+        else:
+            res.points2d, res.points3d = frame.points2d, frame.points3d
+        (out,) = outs
+        res.out = out
+        self._own.add("frames_compiled" if out.compiled else "frames_uncompiled")
+        t_estimated = time.perf_counter()
+        # (the wait for the gyro samples counts as decoding, as for camera_info)
+        decode = t_decoded - tic - front + out.gyro_seconds
+        estimate = t_estimated - t_decoded - out.gyro_seconds
+        res.fused = self._fused_alone(out.fused)
+        self._solved_alone(out, res)
+        self._own.stage_time("decode", decode)
+        self._own.stage_time("estimate", estimate)
+
+    def _frontend_ran(self, search: Any, outs: list, res: CameraFrameResult) -> None:
+        """The front end's run on the camera alone's image (its rig of one's last search)
+        counted (``frontend_runs``, ``frontend_points``, its time), what it found kept to
+        republish; raises :class:`~.pipeline.Drop` for an image it dropped:
+        ``frozen_image``, ``frontend_error``, ``frontend_too_few_points``."""
+        cfg, label = self.cfg, self.rig.camera_frontend("").label
+        if search.failure == "frozen_image":
+            raise Drop(search.failure, (
+                f"the image is the previous one again (mean difference {search.difference:.2f} "
+                "gray levels over one pixel in 64): a driver re-sending its last frame or a "
+                "stalled camera; the next new image is searched whole"))  # fmt: skip
+        if search.failure == "frontend_error":
+            e = search.error
+            raise Drop(search.failure, f"{label}: {type(e).__name__}: {e}")
+        found = search.found
+        uv = found.points2d
+        self._own.frontend_ran(len(uv), search.seconds)
+        if cfg.republish_correspondences:
+            res.correspondences = Correspondences(uv, found.points, found.ids,
+                                                  found.valid_scores())  # fmt: skip
+        if not outs:
+            n = len(uv)
+            what = f"{n // 4} markers" if label == "aruco" else f"{n} matches"
+            text = f"{label} front end found {what}: {n} correspondences, {search.need} needed"
+            raise Drop(search.failure, text)
+
+    def _solved_alone(self, out: LocalizerOutput, res: CameraFrameResult) -> None:
+        """The camera alone's estimate of its rig of one's rig frame ``out`` counted as its
+        node counts it: the rows its estimator left out (``points_dropped``), the map-fit
+        check (``frames_failed_with_matches``, ``map_fit_doubtful``), refused:
+        :class:`~.pipeline.Drop` with its reason; posed, its inliers and planarity, a pose
+        from few points (``frames_few_points``) or one tag (``frames_single_tag``)."""
+        est, n = out.camera_estimate, len(res.points2d)
+        if est is None:
+            raise Drop("estimator_error", out.error or "no estimate")
+        own = self._own
+        own.add("points_dropped", int(est.num_dropped))
+        self._map_fit.check(n, est, own, self.node.warn)
+        if not est.success:
+            text = f"{n} points, {est.num_inliers} inliers, solver {self.cfg.solver}"
+            raise Drop(est.failure or "estimator_error", text)
+        own.solved(est.num_inliers, est.planar, est.condition_number)
+        if est.few_points:
+            own.add("frames_few_points")
+        if est.single_tag:
+            own.add("frames_single_tag")
+
+    def _fused_alone(self, fused: list) -> list[FusedOutput]:
+        """twist / odom of the camera alone's frames whose fused state is final: in its frame
+        (each frame's tag), or with its mounting the robot's ``base_frame``."""
+        cam = self.cfg.camera
+        if cam.mount is not None:
+            return fused_outputs(fused, self.cfg.base_frame, cam.mount)
+        return [FusedOutput(f.pose.stamp_ns, f, next(iter(f.tag.values()))) for f in fused]
+
+    def _take_rig(self, item: QueuedFrame, camera: Any) -> TakenFrame:
+        """The worker: one rig camera's frame to the rig (:meth:`_rig_step`), or why not (the
+        rig never sees it): the entry checks (:meth:`.camera_input.CameraInput.admit`: a
+        header stamp or an output stamp out of range, ``bad_stamp``; an image without a front
+        end, ``no_frontend``), counted ``failed.<reason>`` and logged. Under the worker's lock
+        with its count, so that a diagnostics snapshot sees the rig's and the camera's counts
+        of it at once; with ``republish_correspondences`` what the camera's front end found
+        in an image."""
+        name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
+        if kind == "image":
+            self._warn_no_info(name, "images")
+        tic = time.perf_counter()
+        frontend = self.node.frontend_kind != "none"
+        taken = self.node.inputs[name].enter(self.rig, msg, kind, stamp, camera, frontend)
+        if isinstance(taken, DroppedFrame):  # (the rig never sees it either)
+            self.node.warn(
+                f"{taken.reason}.{name}",
+                f"rig camera {name!r}: frame dropped ({taken.reason}): {taken.error}",
+                self.node.camera_counts[name].get(f"failed.{taken.reason}") + 1,
+            )
+            return TakenFrame((f"failed.{taken.reason}",), taken.reason)
+        found = []
+        outs = self._rig_step(name, kind, taken, tic)
+        if kind == "image" and self.node.republish:
+            corr = self.rig.last_correspondences(name)
+            if corr is not None:  # (also an image where it found nothing)
+                found.append((name, corr, stamp))
+        return TakenFrame(outs=outs, found=found)
+
+    def _rig_step(self, name: str, kind: str, taken: FrameStep, tic: float) -> list:
+        """A rig camera frame's step into the rig from ``tic`` (:func:`time.perf_counter` s;
+        :meth:`.camera_input.CameraInput.enter`), ``taken``, counted and logged; returns the
+        rig frames it completed.
+
+        A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
+        ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
+        known: a frame without rows, which the rig frame is posed without): its rows as the
+        camera alone's (the non-finite ones dropped, counted ``<c>.points_dropped``; capped
+        to ``max_points``, counted ``<c>.capped_clouds``). One that cannot be read is counted
+        ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
+        (:meth:`Localizer.drop`), so the rig frame without it counts the camera
+        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named as
+        one whose clock is off).
+
+        An image: decoded and checked against its camera model as the camera alone's (a
+        message that does not decode or is smaller than the front ends take: ``bad_image``;
+        another size than the camera_info's: ``image_size_mismatch``; both logged and counted
+        ``<c>.skipped.<reason>``, the rig not waiting for the camera at that time), then the
+        camera's front end and the rig (:meth:`Localizer.process_image`); its decoded image
+        kept for ``debug_image`` while someone watches. The frame's times per stage go to the
+        diagnostics (:func:`.rig_node.note_camera_frame`)."""
+        item, outs, taken_at = taken
+        search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
+        note_camera_frame(self._rig_counts, tic, taken_at, search and search.seconds,
+                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
+        if isinstance(item, DroppedFrame):
+            self._not_taken(kind, item)
+        elif kind != "image":
+            self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
+        viz = self.node.camera_viz.get(name)
+        if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
+            # (only while someone watches; drawn when the rig frame is published)
+            self._images.setdefault(name, deque(maxlen=4)).append(
+                (item.image, item.encoding, item.stamp_ns)
+            )
+        return outs
+
+    def _not_taken(self, kind: str, item: DroppedFrame) -> None:
+        """A rig camera's frame of a checked stamp its input stage dropped (the rig counts it
+        skipped, :func:`.camera_input.to_rig`), logged: one whose cloud cannot be read
+        (``bad_input``) also counted ``<c>.bad_input``."""
+        name, error = item.camera_name, item.error
+        if item.reason != "bad_input":  # (an image refused: bad_image, image_size_mismatch)
+            self.node.warn(
+                f"image.{name}", f"rig camera {name!r}: image dropped ({item.reason}): {error}"
+            )
+            return
+        self.node.camera_counts[name].add("bad_input")
+        if kind in ("cloud", "keypoints"):
+            self.node.warn(f"{kind}.{name}", f"rig camera {name!r}: frame not read: {error}")
+        else:
+            self.node.warn(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
+
+    def _warn_no_info(self, name: str, kind: str) -> None:
+        if self.node.inputs[name].newest is None:
+            self.node.warn(
+                f"no_info.{name}",
+                f"rig camera {name!r}: {kind} but no camera_info yet on "
+                f"{self.node.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
+                f"{name}.skipped.no_camera_info), the rig runs on the others",
+            )
+
+    def _count_input(self, name: str, key: str, n: int = 1) -> None:
+        """Add ``n`` to rig camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
+        self.node.camera_counts[name].add(key, n)
+
+    # ---------------------------------------------------------------- outputs
+    def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
+        """The worker, after the frame is counted: what it gave published
+        (:func:`.outputs.publish_frame`): the camera alone's frame (:meth:`_alone_outcome`:
+        posed or failed, the fused twists it made final, its log line); a rig camera's, the
+        rig frames it completed through the map-fit check
+        (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of the rig frame together:
+        counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a throttled
+        warning), then with their log lines (:meth:`_outcome`)."""
+        tic = time.perf_counter()
+        if self.alone:
+            res = taken.result
+            failed = 0 if res.failure is None else self._own.get(f"failed.{res.failure}")
+            publish_frame(self.node, self._alone_outcome(res, failed))
+            if res.failure is None:
+                self._own.stage_time("publish", time.perf_counter() - tic)
+                self.node.record_timing(item.arrived, res.stamp_ns)
+            return
+        for out in taken.outs:
+            if out.estimate is not None:
+                self._map_fit.check(out.num_points, out.estimate, self._rig_counts,
+                                    self.node.warn)  # fmt: skip
+            publish_frame(self.node, self._outcome(out, logged=True))
+            if out.success:
+                self.node.record_timing(item.arrived, out.stamp_ns)
+        if any(o.success for o in taken.outs):
+            self._rig_counts.stage_time("publish", time.perf_counter() - tic)
+
+    def _alone_outcome(self, res: CameraFrameResult, failed: int = 0) -> FrameOutcome:
+        """What the camera alone's frame publishes: posed, its estimate (or the robot base's
+        state with ``camera_to_base.*``, in ``base_frame``) at its reference-line stamp with
+        its own twist when that is final at once, and the camera's view, with the fused
+        twists now final; failed, the fused twists now final and the line ``frame dropped
+        (<reason>): <detail>`` with ``failed``, the count of frames failed so far for that
+        reason."""
+        if res.failure is not None:
+            line = LogLine(res.failure, f"frame dropped ({res.failure}): {res.detail}", failed)
+            return FrameOutcome(None, res.fused, (line,))
+        out, cam = res.out, self.cfg.camera
+        est = out.camera_estimate
+        pose, frame = est, res.frame_id
+        if cam.mount is not None:
+            pose, frame = camera_to_base(est, cam.mount), self.cfg.base_frame
+        view = CameraView("", est, res.points2d, res.points3d, res.camera, res.stamp_ns,
+                          res.out_stamp_ns, res.frame_id, res.image)  # fmt: skip
+        posed = PosedFrame(pose, res.out_stamp_ns, frame, out.twist_now, (view,))
+        return FrameOutcome(posed, res.fused)
+
+    def _outcome(self, out: LocalizerOutput, logged: bool = False) -> FrameOutcome:
+        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): posed, the rig's pose
+        (``base_frame``) at the rig frame's time with its own twist when that is final at
+        once, and each camera of it whose ``<c>/debug_image`` or ``<c>/markers`` is watched
+        as the rig's pose and its mounting put it (:func:`.rig_node.rig_views`, with its
+        image kept by :meth:`_rig_step`); the fused twists it made final; ``logged``: its
+        :func:`.rig_node.rig_failure_line`."""
+        base = self.cfg.base_frame
+        fused = fused_outputs(out.fused, base)
+        line = rig_failure_line(self.rig, out) if logged else None
+        log = () if line is None else (line,)
+        if not out.success:
+            return FrameOutcome(None, fused, log)
+        views = ()
+        if self.node.viz is not None:
+            views = tuple(rig_views(out, self.cfg, self.node.camera_viz, self._images))
+        return FrameOutcome(PosedFrame(out.estimate, out.stamp_ns, base, out.twist_now, views),
+                            fused, log)  # fmt: skip
+
+    def idle_twists(self) -> list[FusedOutput]:
+        """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
+        still pending after ``tracking.max_gap`` s without camera frames
+        (:meth:`Localizer.flush_idle`; none unconfigured)."""
+        if self.rig is None:
+            return []
+        if self.alone:
+            return self._fused_alone(self.rig.flush_idle())
+        return fused_outputs(self.rig.flush_idle(), self.cfg.base_frame)
+
+    def frame_inputs_destroyed(self) -> None:
+        """After the frame inputs' end (the frames still queued dropped): the camera alone's
+        track is dropped too (nothing is left for :meth:`.core.NodeCore._end_video` to
+        publish; a reactivated node starts a new track)."""
+        if self.alone and self.rig is not None:
+            self.rig.end_track()
+
+    def close_track(self) -> list[FrameOutcome]:
+        """:meth:`.core.NodeCore._end_video`: a rig's rig frames still open, solved, then the
+        twists still pending (none unconfigured; the camera alone's track was dropped with
+        its frame inputs)."""
+        if self.rig is None or self.alone:
+            return []
+        closed = [self._outcome(out) for out in self.rig.close()]
+        pending = self.rig.flush() + self.rig.reset()
+        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.cfg.base_frame))]
+
+    # ---------------------------------------------------------------- diagnostics
+    def diagnostics(self) -> tuple[str, StatusParts]:
+        """The hardware id and status: the camera alone's (its ``camera_frame``, or
+        ``camera``; :func:`camera_status_parts` of its counts), or the rig's (``base_frame``;
+        :func:`.rig_node.rig_status_parts` of the node's counts and times per camera)."""
+        if self.alone:
+            return self._alone_diagnostics()
+        waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
+        first = self.node.first_frame
+        waited = first is not None and time.monotonic() - first > self.cfg.settings.stop_after
+        with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
+            counts = Counter(self._rig_counts.counts())
+            for cc in self.node.camera_counts.values():
+                counts.update(cc.prefixed())
+            frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
+            absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
+            inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
+                               self.node.frontend_kind != "none",
+                               self._rig_counts.stage_times())  # fmt: skip
+            return self.cfg.base_frame, rig_status_parts(self.rig, waiting, inputs)
+
+    def _alone_diagnostics(self) -> tuple[str, StatusParts]:
+        cfg, rig, own = self.cfg, self.rig, self._own
+        stats = own.snapshot()
+        gyro = None
+        if cfg.imu is not None:
+            gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
+                                rig.gyro_inconsistent)  # fmt: skip
+        parts = camera_status_parts(cfg, stats, rig.tracking_values(),
+                                    self.node.inputs[""].source(), own.messages_lost, gyro,
+                                    self._loaded.frontend)  # fmt: skip
+        return cfg.camera.frame or "camera", parts
+
+
+def camera_status_parts(
+    cfg: LocalizerConfig,
+    stats: StatsSnapshot,
+    tracking: dict[str, Any],
+    camera_source: str,
+    messages_lost: int,
+    gyro: GyroState | None = None,
+    frontend: FrontendHooks | None = None,
+) -> StatusParts:
+    """The camera alone's status as data (:func:`.diagnostics.status` lays it out): its
+    frames (:func:`~.frame_queue.frame_accounting` of its counts ``stats.counts``), its one
+    section named "" (its counts and ``messages_lost``); ``solver``, ``camera``
+    (``camera_source``); after the estimator's path ``frames_compiled`` /
+    ``frames_uncompiled`` (frames solved on each path), ``queue_size``, ``time_resets``,
+    then ``frames_few_points``, ``frames_single_tag``; the map-fit check of its counts;
+    ``inliers_last``, ``inliers_mean``, ``planar``, ``tracking`` (its rig of one's
+    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`),
+    ``condition_number_last``; its stage times; with an image front end (``frontend``) its
+    values (:func:`.diagnostics.frontend_values`); the ``gyro`` with ``imu.enabled``; its
+    counts by reason."""
+    c, inliers = stats.counts, stats.inliers
+    frames = frame_accounting(c)
+    return StatusParts(
+        frames=frames,
+        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
+                            frontend=frontend is not None)],
+        head={"solver": cfg.solver, "camera": camera_source},
+        path={"frames_compiled": c.get("frames_compiled", 0),
+              "frames_uncompiled": c.get("frames_uncompiled", 0),
+              "queue_size": cfg.queue_size, "time_resets": c.get("time_resets", 0)},
+        path_after={"frames_few_points": c.get("frames_few_points", 0),
+                    "frames_single_tag": c.get("frames_single_tag", 0)},
+        map_fit=c,
+        tracking={
+            "inliers_last": inliers[-1] if inliers else 0,
+            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
+            "planar": str(stats.planar).lower(),
+            **tracking,
+            "condition_number_last": f"{stats.condition_number:.3g}",
+        },
+        stage_times=stats.stage_times,
+        with_frontend=frontend is not None,
+        frontend={} if frontend is None else frontend_values(cfg.camera.frontend_kind, frontend,
+                                                             stats),
+        gyro=gyro,
+        counts=c,
+    )  # fmt: skip
