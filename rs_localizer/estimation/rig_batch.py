@@ -395,7 +395,10 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
                     beyond += 1
                     continue
             bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
-            c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, g, bound, e, v)
+            if still:  # (the flag a constant in each call, as in the kernels' own code)
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, True, g, bound, e, v)
+            else:
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, g, bound, e, v)
             if c >= 0 and c < best_cost:
                 best_cost, found = c, g
                 best_e[:] = e
