@@ -170,11 +170,14 @@ def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
 def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
     """The sizes of the batches of minimal samples a search draws, until adaptive termination
     (``loop.needed``, read before each batch) or ``r.max_iterations``: the first batch
-    ``r.batch_size``, each next one twice as large, but none more than termination still asks
-    for (at least ``r.min_iterations`` in all). The caller adds the samples each drew to
-    ``loop.iterations``."""
+    ``r.batch_size`` (no larger than ``r.min_iterations`` for an estimator that checks
+    termination after every sample, ``loop.per_sample``), each next one twice as large, but
+    none more than termination still asks for (at least ``r.min_iterations`` in all). The
+    caller adds the samples each drew to ``loop.iterations``."""
     batch = max(int(r.batch_size), 1)
     min_it, max_it = r.min_iterations, r.max_iterations
+    if loop.per_sample:  # (a frame whose best model asks for no more stops at min_iterations)
+        batch = max(1, min(batch, int(min_it)))
     while True:
         it, needed = loop.iterations, loop.needed
         if not (it < max_it and (it < needed or it < min_it)):
@@ -209,10 +212,15 @@ class RansacLoop:
 
     Attributes:
         s: the minimal sample's size. confidence: adaptive termination's.
+        per_sample: the estimator checks termination after every sample, as PoseLib's loop
+            does (a batch stops at the first sample at which it is reached): the first batch
+            is then no larger than ``min_iterations`` (:func:`batch_sizes`).
         best: the best model so far or None; score: its MSAC score.
         iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
             asks for; implausible: hypotheses rejected for their motion alone.
     """
+
+    per_sample = False
 
     def __init__(self, s: int, r: RansacOptions):
         self.s = s

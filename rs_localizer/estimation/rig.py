@@ -199,13 +199,11 @@ from .result import (
     built_estimate,
 )
 from .rig_batch import (
+    batch_samples,
     best_msac,
-    inliers_missed,
+    counted,
     lambda_twist_on_rig,
-    model_cost,
-    moving_batch,
-    sample_kernel,
-    still_batch,
+    search_batch,
 )
 from .sampling import draw_samples_numpy, valid_rows
 from .single_tag import posed_planarity
@@ -597,14 +595,14 @@ class _Pool:
         return _kernel_mountings(self) if self.compiled else _mountings(self)
 
     def errors(self, model) -> np.ndarray:
-        """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
+        """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_best_scored`)."""
         return self.scored(model, np.inf)[0]
 
     def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
-        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_errors_px`;
+        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_best_scored`;
         the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        e, cost = _errors_px(self, *(np.asarray(a)[None] for a in model), th2)
-        return e[0], float(cost[0])
+        _, cost, e = _best_scored(self, *(np.asarray(a)[None] for a in model), th2)
+        return e, cost
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -649,86 +647,57 @@ class _Pool:
         return True
 
 
-@njit(cache=True)
-def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2):
-    """``(errors (H, N), costs (H,))``: the image errors (px) of N points under H models ``R``
-    (H, 3, 3), ``C``, ``w``, ``t`` (H, 3) and each model's MSAC cost (the squares capped at
-    ``th2``, summed as ``np.sum`` sums them): :func:`~.rig_batch.model_cost` of each."""
-    H, N = R.shape[0], X.shape[0]
-    e, v, cost = np.empty((H, N)), np.empty(N), np.empty(H)
-    for h in range(H):
-        cost[h] = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, h, np.inf, e[h], v)
-    return e, cost
-
-
-def _errors_px(pool: _Pool, R, C, w, t, th2: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
-    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time
-    (inf for a point behind its camera), and their MSAC costs at ``th2`` px^2. Returns
-    ``(errors (H, N), costs (H,))`` (:func:`_errors_kernel`; NumPy: the NumPy
-    implementation's :func:`~.numpy_impl.errors2` of the stacked views)."""
+def _best_scored(pool: _Pool, R, C, w, t, th2: float) -> tuple[int, float, np.ndarray]:
+    """The model of the lowest MSAC cost among H models R (H, 3, 3), C, w, t (H, 3) on the
+    pool's points (each squared reprojection error (px^2) capped at ``th2``, the exact
+    rotation ``expm(tau [w]x)`` at each observation's measured capture time, inf for a point
+    behind its camera): ``(h, its cost, its (N,) errors px)``, ``h`` the first minimum as
+    ``np.argmin`` picks it. Compiled: :func:`~.rig_batch.best_msac` (the fused batches'
+    scoring); NumPy: the NumPy implementation's :func:`~.numpy_impl.errors2` of the stacked
+    views, a camera's errors with its mounting."""
     if not pool.compiled:
         e2 = errors2(pool, *(np.asarray(a, dtype=float) for a in (R, C, w, t)))
-        return np.sqrt(e2), np.minimum(e2, th2).sum(axis=1)
+        cost = np.minimum(e2, th2).sum(axis=1)
+        h = int(np.argmin(cost))
+        return h, float(cost[h]), np.sqrt(e2[h])
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
-    return _errors_kernel(
-        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A, th2
-    )  # fmt: skip
+    h, cost, e = best_msac(*f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x,
+                           pool.A, th2)  # fmt: skip
+    return int(h), float(cost), e
 
 
 def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
     proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
     pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
-    (S, 6)."""
-    counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
+    (S, 6). Compiled: :func:`~.rig_batch.batch_samples` (the fused batches' sampling, on the
+    same 7 draws per sample); NumPy: a camera's draws
+    (:func:`~.sampling.draw_samples_numpy`) with the first three in the chosen camera's range
+    of the pool, on :func:`_sampling_of`'s distribution."""
     u = rng.random(7 * n_samples).reshape(7, n_samples)
-    if not pool.compiled:
-        # (the camera, then three distinct points of it and three of every camera's others:
-        # a camera's draws (draw_samples_numpy) with the first three in the camera's range)
-        cams = eligible[cdf.searchsorted(u[0], side="right")]
-        size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
-        size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
-        out = draw_samples_numpy(u[1:].T, size, offset)
-    else:  # (the same draws, in the same order, in one compiled call)
-        out = sample_kernel(u, cdf, eligible, counts, starts, n)
+    if pool.compiled:
+        counts = np.array(pool.counts(), dtype=np.int64)
+        return batch_samples(u, pool.cam, counts, _NO_SUBSET if subset is None else subset)
+    counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
+    cams = eligible[cdf.searchsorted(u[0], side="right")]
+    size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
+    size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
+    out = draw_samples_numpy(u[1:].T, size, offset)
     return out if subset is None else subset[out]
 
 
 def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     """:func:`_sample`'s distribution over the pool's points (``subset``: among those):
     ``(counts (M,), starts (M,), eligible cameras (at least 3 points), cdf over them, n)``
-    (int64 arrays), computed once per pool and subset (a search draws several batches)."""
-    hit = pool.__dict__.get("_sampling")
-    if hit is not None and hit[0] is subset:
-        return hit[1]
-    if subset is None:  # (the pool's cameras' slices: the same numbers in Python floats)
-        n = pool.counts()
-        eligible = [c for c, k in enumerate(n) if k >= 3]
-        total, acc, cdf = 0, 0.0, []
-        for c in eligible:
-            total += n[c]
-        for c in eligible:  # (np.cumsum's sequential sums of the same quotients)
-            acc += n[c] / total
-            cdf.append(acc)
-        last = cdf[-1]  # (then divided by the last: IEEE divisions, as NumPy's)
-        cdf = np.array([a / last for a in cdf])
-        out = (np.array(n, dtype=np.int64), np.array([s.start for s in pool.slices], np.int64),
-               np.array(eligible, dtype=np.int64), cdf, len(pool.cam))  # fmt: skip
-        pool._sampling = (subset, out)
-        return out
-    cam = pool.cam[subset]
-    counts = np.bincount(cam, minlength=len(pool.sizes))
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
-    eligible = np.flatnonzero(counts >= 3)
-    # (Generator.choice(len(eligible), n_samples, p=counts / total)'s draws, without its
-    # checks of p: the inverse of the counts' cumulative distribution at uniform draws)
+    (int64 arrays; the cdf the quotients' running sums divided by the last): the NumPy twin
+    of :func:`~.rig_batch.batch_sampling`, the same numbers."""
+    cam = pool.cam if subset is None else pool.cam[subset]
+    counts = np.bincount(cam, minlength=len(pool.sizes)).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)  # (stacked by camera)
+    eligible = np.flatnonzero(counts >= 3).astype(np.int64)
     cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
     cdf /= cdf[-1]
-    out = (counts.astype(np.int64), starts.astype(np.int64), eligible.astype(np.int64), cdf,
-           len(cam))  # fmt: skip
-    pool._sampling = (subset, out)
-    return out
+    return counts, starts, eligible, cdf, len(cam)
 
 
 def _hypotheses(
@@ -1565,31 +1534,9 @@ def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
     return None
 
 
-@functools.lru_cache(maxsize=16)
-def _search_batches(r: RansacOptions) -> RansacOptions:
-    """The rig search's batches (:func:`~.ransac.batch_sizes`): ``r`` with the first batch
-    no larger than ``min_iterations``, so that a frame whose best model asks for no more
-    samples stops there, as PoseLib's loop (checked after every sample past min_iterations)
-    does (built once per options: a frozen dataclass, its checks cost as much as a batch)."""
-    return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
-
-
-#: the last options' batches (:func:`_search_batches_of`): ``[(options, batches)]``
-_LAST_BATCHES: list = [None]
-
-
-def _search_batches_of(r: RansacOptions) -> RansacOptions:
-    """:func:`_search_batches` of ``r``, the last options' kept by identity (a frozen
-    dataclass hashes all of its fields on every look-up)."""
-    hit = _LAST_BATCHES[0]
-    if hit is None or hit[0] is not r:
-        hit = _LAST_BATCHES[0] = (r, _search_batches(r))
-    return hit[1]
-
-
-#: :func:`~.rig_batch.still_batch`'s subset of no subset (every pool point sampled)
+#: :func:`~.rig_batch.search_batch`'s subset of no subset (every pool point sampled)
 _NO_SUBSET = np.zeros(0, dtype=np.int64)
-#: :func:`~.rig_batch.moving_batch`'s anchor of none (P3P pre-rotates the samples)
+#: :func:`~.rig_batch.search_batch`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
 #: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
@@ -1608,6 +1555,10 @@ class _RigSearch(RansacLoop):
     rig's local optimization runs once, after the search) and gives termination its inlier
     ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
+    #: a compiled batch checks termination after every sample (:mod:`.rig_batch`); the
+    #: step-by-step search's batches are the same
+    per_sample = True
+
     def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
         super().__init__(3 if still else 6, r)
@@ -1621,7 +1572,9 @@ class _RigSearch(RansacLoop):
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e, self._cost = np.zeros(0), 0.0
         self._costed: list = []
-        self.batches = _search_batches_of(r)
+        #: the search's batches: its options (:func:`~.ransac.batch_sizes`, the first no
+        #: larger than ``min_iterations``: :attr:`per_sample`)
+        self.batches = r
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
@@ -1695,100 +1648,74 @@ class _RigSearch(RansacLoop):
         return (tuple(a[ok] for a in hyp) if ok.any() else None), K
 
     def _batch(self, K: int) -> tuple:
-        """``generate_models`` in one compiled call (:func:`~.rig_batch.still_batch`, without
-        a gyro :func:`~.rig_batch.moving_batch`): K samples on the seed's next ``7 K`` random
-        draws (:func:`~.ransac.seeded_stream`: those :func:`_sample` takes), solved and scored
-        in turn, the batch stopping after the first sample at which termination is reached (a
-        new best's inlier ratio counted at once, as PoseLib's loop does after every sample).
-        Returns ``((cost, model, errors, inliers, missed cameras) of the batch's best model,
-        or None when none beat the best, samples drawn)``."""
+        """``generate_models`` in one compiled call (:func:`~.rig_batch.search_batch`): K
+        samples on the seed's next ``7 K`` random draws (:func:`~.ransac.seeded_stream`: those
+        :func:`_sample` takes), solved and scored in turn, the batch stopping after the first
+        sample at which termination is reached (a new best's inlier ratio counted at once, as
+        PoseLib's loop does after every sample). Returns ``((cost, model, errors, inliers,
+        missed cameras) of the batch's best model, or None when none beat the best, samples
+        drawn)``."""
         if self._args is None:
             pool, subset = self.pool, self.subset
             X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
             self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
-        # (the kernels read the batch's draws at their offset in the stream and the search's
-        # state as scalars, and return Python ints and floats)
+        # (the kernel reads the batch's draws at their offset in the stream and the search's
+        # state as scalars, and returns Python ints and floats)
         o = self._drawn
         self._drawn = o + 7 * K
         # (the batch's best errors, model and missed cameras are written into buffers, new
         # ones after each batch that found a best model: the search keeps that model)
-        out = self._out
-        if out is None:
+        if self._out is None:
             N, M = len(self.pool.cam), len(self._counts)
-            if self.still:
-                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(M, dtype=bool))
-            else:
-                out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3),
-                       np.empty(M, dtype=bool))  # fmt: skip
-            self._out = out
-        if self.still:
-            missed = self._no_missed if self.missed is None else self.missed
-            rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            drawn, h, cost, n = still_batch(
-                self._draws, o, K, *self._args, missed, rounds, self.th2, self.threshold_px,
-                self._counts, self.score, self.iterations, self._min_it, self.needed,
-                self._log_miss, out,
-            )  # fmt: skip
-            if h < 0:
-                return None, drawn
-            e, R, C, missed = out
-            w, t = np.zeros(3), np.zeros(3)
-        else:
-            anchor = _NO_ANCHOR
-            if self.anchored and self.best is not None:
-                anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-            drawn, h, cost, n, beyond = moving_batch(
-                self._draws, o, K, *self._args, anchor, self.solver_iterations, self._w2max,
-                self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-                self.iterations, self._min_it, self.needed, self._log_miss, out,
-            )  # fmt: skip
-            self.implausible += beyond
-            if h < 0:
-                return None, drawn
-            e, R, C, w, t, missed = out
+            self._out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.zeros(3), np.zeros(3),
+                         np.empty(M, dtype=bool))  # fmt: skip
+        anchor = _NO_ANCHOR
+        if self.anchored and self.best is not None and not self.still:
+            anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
+        drawn, h, cost, n, beyond = search_batch(
+            self._draws, o, K, *self._args, self.still,
+            self._no_missed if self.missed is None else self.missed,
+            SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
+            self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
+            self.iterations, self._min_it, self.needed, self._log_miss, self._out,
+        )  # fmt: skip
+        self.implausible += beyond
+        if h < 0:
+            return None, drawn
+        e, R, C, w, t, missed = self._out
         self._out = None
         return (cost, (R, C, w, t), e, n, missed), drawn
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
-        pool = self.pool
         if self.fused:  # (:meth:`_batch`'s best, scored)
             self._cost, model, self._e, self._n, self._missed = hyp
             return self._cost, model
-        if not pool.compiled:
-            e, cost = _errors_px(pool, *hyp, self.th2)
-            h = int(np.argmin(cost))
-            self._e, self._cost = e[h], float(cost[h])
-        else:  # (the same costs and choice in one compiled call, without the (H, N) errors)
-            f = [np.ascontiguousarray(a, dtype=np.float64) for a in hyp]
-            h, cost, self._e = best_msac(
-                *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A,
-                self.th2,
-            )  # fmt: skip
-            self._cost = float(cost)
+        h, self._cost, self._e = _best_scored(self.pool, *hyp, self.th2)
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
-        if self.pool.compiled:  # (the compiled errors and cost of :meth:`cost`, to the bit)
+        """The model as it is (the rig's local optimization runs after the search), its
+        errors and cost kept (:meth:`cost`), and the inlier ratio termination counts on
+        (among the seed's inliers ``subset`` when RANSAC verifies a seed); the cameras it
+        misses (:func:`~.rig_batch.counted`) correct the next global-shutter samples."""
+        pool = self.pool
+        if pool.compiled:  # (the compiled errors and cost of :meth:`cost`, to the bit)
             self._kept(model, self._e, self._cost)
-        if self.fused or (self.subset is None and self.pool.compiled):  # (compiled)
+        if self.fused:
             n, missed = self._n, self._missed
-            if not self.fused:
-                n, missed = inliers_missed(self._e, self.threshold_px, self.pool.cam, self._counts)
-            if self.still and not self.spread:
-                self.missed = missed if missed.any() else None
-            among = len(self._e) if self.subset is None else len(self.subset)
-            return self._cost, model, float(n / among)
-        inl = self._e < self.threshold_px
-        if self.still and not self.spread:
-            hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
+        elif pool.compiled:
+            subset = _NO_SUBSET if self.subset is None else self.subset
+            n, missed = counted(self._e, self.threshold_px, pool.cam, self._counts, subset)
+        else:  # (the same numbers in NumPy)
+            inl = self._e < self.threshold_px
+            hit = np.bincount(pool.cam[inl], minlength=len(pool.sizes))
             missed = (self._counts >= 3) & (hit == 0)
+            n = np.count_nonzero(inl if self.subset is None else inl[self.subset])
+        if self.still and not self.spread:
             self.missed = missed if missed.any() else None
-        if self.subset is not None:
-            inl = inl[self.subset]
-        ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
-        # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
-        return self._cost, model, float(ratio)
+        among = len(self._e) if self.subset is None else len(self.subset)
+        return self._cost, model, float(n / among)
 
 
 def _rig_estimate(

@@ -1,21 +1,22 @@
 """The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): each batch of
 the search (:class:`~.ransac.RansacLoop`, the batches of :func:`~.ransac.batch_sizes` on the
-seed's random stream) drawn, solved and scored in one numba call (:func:`still_batch`,
-:func:`moving_batch`), as :mod:`.batch` does for one camera. Termination is checked after
-every sample (:func:`~.ransac.required_samples` of the best model's inlier ratio, as
-PoseLib's loop does): a batch stops at the first sample at which the samples drawn reach
-``min_iterations`` and what termination asks for.
+seed's random stream) drawn, solved and scored in one numba call (:func:`search_batch`), as
+:mod:`.batch` does for one camera. Termination is checked after every sample
+(:func:`~.ransac.required_samples` of the best model's inlier ratio, as PoseLib's loop does):
+a batch stops at the first sample at which the samples drawn reach ``min_iterations`` and what
+termination asks for.
 
-:func:`still_batch` (a global-shutter rig frame: Lambda Twist P3P of one camera's 3 points
-mapped to the rig, corrected on the sample's 6 points by the rig solver with the velocities
-held at zero where the best model misses a camera) and :func:`moving_batch` (a rolling-shutter
-one without a gyro: the P3P or a prediction's rotation pre-rotating the rig solver
-(:func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), the motion bounds) end in
-:func:`model_cost`: the MSAC cost of each model on every point's reprojection error in pixels
-(a camera's exact-model error, :func:`~.scoring.pose_error2`, of the model seen from the
-point's camera through its mounting, :func:`~.scoring.mounted_pose`), summed as ``np.sum``
-sums, the lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
-generalized P3P, the NumPy implementation) calls the same kernels one by one.
+The rig's own part is its hypotheses: :func:`still_models` (a global-shutter rig frame: Lambda
+Twist P3P of one camera's 3 points mapped to the rig, corrected on the sample's 6 points by
+the rig solver with the velocities held at zero where the best model misses a camera) and
+:func:`moving_models` (a rolling-shutter one without a gyro: the P3P or a prediction's
+rotation pre-rotating the rig solver, :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`).
+Every model is scored by :func:`model_cost`: the MSAC cost on every point's reprojection
+error in pixels (a camera's exact-model error, :func:`~.scoring.pose_error2`, of the model
+seen from the point's camera through its mounting, :func:`~.scoring.mounted_pose`), summed as
+``np.sum`` sums, the lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
+generalized P3P) calls the same kernels one by one; its NumPy implementation the same steps
+in NumPy.
 """
 
 from __future__ import annotations
@@ -37,14 +38,14 @@ __all__ = [
     "best_msac",
     "block_sum",
     "counted",
-    "inliers_missed",
     "lambda_twist_on_rig",
     "model_cost",
-    "moving_batch",
+    "moving_models",
     "p3p_on_rig_into",
     "pairwise_sum",
     "sample_kernel",
-    "still_batch",
+    "search_batch",
+    "still_models",
 ]
 
 
@@ -261,94 +262,21 @@ def counted(e, k, cam, pool_counts, subset):
     """The inliers of errors ``e`` (N,) px (below ``k``; among ``subset`` when it is not
     empty) and the cameras of 3 or more points (``pool_counts``) with none: ``(inliers,
     those cameras (M,) bool)``."""
-    n_in, missed = inliers_missed(e, k, cam, pool_counts)
+    hit = np.zeros(len(pool_counts), dtype=np.int64)
+    n_in = 0
+    for i in range(len(e)):
+        if e[i] < k:
+            n_in += 1
+            hit[cam[i]] += 1
     if len(subset):
         n_in = 0
         for i in subset:
             if e[i] < k:
                 n_in += 1
+    missed = np.empty(len(pool_counts), dtype=np.bool_)
+    for c in range(len(pool_counts)):
+        missed[c] = pool_counts[c] >= 3 and hit[c] == 0
     return n_in, missed
-
-
-@njit(cache=True)
-def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, th2, k,
-                pool_counts, best_cost, it0, min_it, needed, log_miss, out):  # fmt: skip
-    """One global-shutter batch of the compiled search in one call: K samples of
-    :func:`~.rig._sample` from the uniform draws ``draws[o:o + 7 K]`` (the random stream's, as
-    (7, K); :func:`batch_sampling`'s distribution over the pool's points, ``subset`` (S,) the
-    sorted pool indices sampled among, or empty: the whole pool; ``x`` (N, 2) the normalized
-    points), :func:`~.rig._hypotheses_still` (Lambda Twist mapped to the rig; with ``missed``
-    (M,) bool any True, the samples with points in those cameras corrected ``rounds`` times
-    by the rig solver with the velocities held at zero), each sample's models scored in turn
-    (:func:`model_cost`, ``th2`` px^2) against the search's best, and its new best's inliers
-    (errors below ``k`` px; ``pool_counts`` (M,): every camera's points in the pool).
-
-    ``best_cost`` (inf: none), ``it0`` (samples drawn), ``min_iterations``, ``needed``
-    (samples termination asks for), ``log_miss`` (log(1 - confidence)): the search's; the
-    batch stops after the first sample at
-    which the samples drawn reach both ``min_iterations`` and what termination asks for at
-    the best model's inlier ratio (:func:`~.ransac.required_samples`, updated at each new best), as
-    PoseLib's loop checks after every sample.
-
-    Returns ``(samples drawn, h, cost, inliers (among ``subset`` when given))`` of the batch's
-    best model, the first of the lowest cost below the search's best, and writes into the
-    caller's ``out`` ``(errors (N,) px, R (3, 3), C (3,), the cameras of 3 or more points
-    with no inlier (M,) bool)`` its errors, model and missed cameras; ``h`` -1 when no model
-    beat it (``out`` then holds no model of this batch). The same best model as the batch's
-    steps called one by one on the samples drawn, bit for bit."""
-    samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
-    N = X.shape[0]
-    b, P = np.empty((3, 3)), np.empty((3, 3))
-    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
-    R, C = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
-    z = np.zeros((1, 3))
-    e, v = np.empty(N), np.empty(N)
-    best_e, R_best, C_best, missed_best = out
-    among = len(subset) if len(subset) else N
-    found, n_best = -1, 0
-    spread = missed.any()
-    drawn = K
-    for j in range(K):
-        # the sample's P3P models (solved as it is drawn), then (a point in a missed camera)
-        # their corrections
-        q = p3p_on_rig_into(x, X, samples[j], cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
-        Rg, Cg = R[:q], C[:q]
-        for r in range(rounds + 1 if spread and q > 0 else 1):
-            if r == 1:
-                hit = False
-                for i in range(6):
-                    if missed[cam[samples[j, i]]]:
-                        hit = True
-                if not hit:
-                    break
-                S = np.empty((q, 6), dtype=np.int64)
-                for h in range(q):
-                    S[h] = samples[j]
-            if r >= 1:
-                sol, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rg), cam, Rm, cm)
-                if not ok.any():
-                    break
-                keep = np.flatnonzero(ok)
-                S = S[keep]
-                Cg = sol[keep, 3:6]
-                Rg = compose_rotvec(np.ascontiguousarray(sol[keep, 0:3]), Rg[keep])
-                if r < rounds:
-                    continue
-            for h in range(Rg.shape[0]):
-                bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
-                c = model_cost(Rg, Cg, z, z, X, tau, cam, Rm, cm, x, A, th2, True, h, bound, e, v)
-                if c >= 0 and c < best_cost:
-                    best_cost, found = c, h
-                    best_e[:] = e
-                    R_best[:] = Rg[h]
-                    C_best[:] = Cg[h]
-                    n_best, m = counted(e, k, cam, pool_counts, subset)
-                    missed_best[:] = m
-                    needed = required_samples_kernel(n_best / among, 3, log_miss)
-        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
-            drawn = j + 1
-            break
-    return drawn, found, best_cost, n_best
 
 
 @njit(cache=True)
@@ -405,22 +333,131 @@ def batch_samples(u, cam, pool_counts, subset):
 
 
 @njit(cache=True)
-def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
-                 v2max, th2, k, pool_counts, best_cost, it0, min_it, needed, log_miss,
-                 out):  # fmt: skip
-    """One rolling-shutter batch of the compiled search without a gyro in one call, as
-    :func:`still_batch` (its arguments, without ``missed`` and ``rounds``; its termination,
-    at samples of 6 points): the samples' pre-rotations (Lambda Twist mapped to the rig, or
-    ``anchor`` (3, 3) for every sample when it is not empty), the rig solver on the
-    pre-rotated samples (``iterations``,
-    :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`), its valid solutions within the
-    motion bounds (``w2max`` (rad/s)^2, ``v2max`` (m/s)^2; :func:`~.rig._hypotheses`, then
-    ``generate_models``' bounds), each sample's scored in turn. Returns :func:`still_batch`'s
-    outputs and the number of valid solutions of the samples drawn beyond the bounds, ``out``
-    with the best model's ``w`` and ``t`` (3,) after its ``C``; the rotations by the compiled
-    Rodrigues (:func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
+def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
+                 iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
+                 log_miss, out):  # fmt: skip
+    """One batch of the compiled search in one call: K samples of :func:`~.rig._sample` on
+    the uniform draws ``draws[o:o + 7 K]`` (the stream's, as (7, K); :func:`batch_samples`,
+    among the sorted pool indices ``subset`` (S,) unless empty), each sample's models
+    (``still``: :func:`still_models` with ``missed``, ``rounds``; else :func:`moving_models`
+    with ``anchor``, ``iterations``, those beyond the bounds ``w2max`` (rad/s)^2, ``v2max``
+    (m/s)^2 counted, not scored) scored in turn by :func:`model_cost` (``th2`` px^2) against
+    the search's best, a new best's inliers below ``k`` px counted (:func:`counted`).
+    ``best_cost`` (inf: none), ``it0`` (samples drawn), ``min_it``, ``needed`` (samples
+    termination asks for), ``log_miss`` (log(1 - confidence)): the search's state; the batch
+    stops after the first sample at which the samples drawn reach ``min_it`` and what
+    termination asks for at the best model's inlier ratio (:func:`~.ransac.required_samples`),
+    as PoseLib's loop checks after every sample.
+
+    Returns ``(samples drawn, h, cost, inliers, models beyond the bounds)``: ``h`` -1 when no
+    model beat the search's best, else the batch's best (the first of the lowest cost) is
+    written into ``out`` ``(errors (N,) px, R (3, 3), C, w, t (3,), the cameras of 3 or more
+    points with no inlier (M,) bool)`` (``w``, ``t`` untouched when ``still``). The same best
+    model as the steps of :mod:`.rig` called one by one on the samples drawn, bit for bit (the
+    rotations by :func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
     samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
     N = X.shape[0]
+    e, v = np.empty(N), np.empty(N)
+    best_e, R_best, C_best, w_best, t_best, missed_best = out
+    among = len(subset) if len(subset) else N
+    s = 3 if still else 6
+    found, n_best, beyond, drawn = -1, 0, 0, K
+    # (the buffers of one sample's global-shutter models; a moving frame's models of every
+    # sample at once, ``own`` the sample of each)
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    Rp, Cp = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    z = np.zeros((2 * MAX_SOLUTIONS, 3))
+    if still:
+        R, C, w, t = np.empty((0, 3, 3)), np.empty((0, 3)), z, z
+        ok, own = np.empty(0, dtype=np.bool_), np.empty(0, dtype=np.int64)
+    else:
+        R, C, w, t, ok, own = moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations)
+    H, h = len(ok), 0
+    for j in range(K):
+        lo = h
+        if still:
+            R, C = still_models(samples[j], x, X, cam, Rm, cm, missed, rounds, b, P, R_cam,
+                                C_cam, Rp, Cp)  # fmt: skip
+            lo, h = 0, R.shape[0]
+        else:
+            while h < H and own[h] == j:
+                h += 1
+        for g in range(lo, h):
+            if not still:
+                if not ok[g]:
+                    continue
+                wn2, vn2 = motion_norms2(C[g, 0], C[g, 1], C[g, 2], w[g, 0], w[g, 1], w[g, 2],
+                                         t[g, 0], t[g, 1], t[g, 2])  # fmt: skip
+                if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
+                    continue
+                if not (wn2 <= w2max and vn2 <= v2max):
+                    beyond += 1
+                    continue
+            bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
+            if still:  # (the flag a constant in each call, as in the kernels' own code)
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, True, g, bound, e, v)
+            else:
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, g, bound, e, v)
+            if c >= 0 and c < best_cost:
+                best_cost, found = c, g
+                best_e[:] = e
+                R_best[:] = R[g]
+                C_best[:] = C[g]
+                if not still:
+                    w_best[:] = w[g]
+                    t_best[:] = t[g]
+                n_best, m = counted(e, k, cam, pool_counts, subset)
+                missed_best[:] = m
+                needed = required_samples_kernel(n_best / among, s, log_miss)
+        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
+            drawn = j + 1
+            break
+    return drawn, found, best_cost, n_best, beyond
+
+
+@njit(cache=True)
+def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
+    """One sample's global-shutter models (:func:`~.rig._hypotheses_still`), in the order
+    they are scored: Lambda Twist on its first 3 points mapped to the rig
+    (:func:`p3p_on_rig_into`, into the buffers ``R`` (4, 3, 3), ``C`` (4, 3)), then, when a
+    point of the sample (6 pool indices) lies in a camera ``missed`` ((M,) bool), those models
+    corrected ``rounds`` times by the rig solver with the velocities held at zero
+    (:func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`, each round pre-rotated by
+    the previous one's rotation; none when a round solves none). Returns ``(R (H, 3, 3), C
+    (H, 3))``."""
+    q = p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
+    Rg, Cg = R[:q], C[:q]
+    hit = False
+    if q > 0 and rounds > 0:
+        for i in range(6):
+            if missed[cam[sample[i]]]:
+                hit = True
+    if not hit:
+        return Rg, Cg
+    S = np.empty((q, 6), dtype=np.int64)
+    for h in range(q):
+        S[h] = sample
+    Rc, Cc = Rg, Cg
+    for _ in range(rounds):
+        sol, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rc), cam, Rm, cm)
+        if not ok.any():
+            return Rg, Cg
+        keep = np.flatnonzero(ok)
+        S = S[keep]
+        Cc = np.ascontiguousarray(sol[keep, 3:6])
+        Rc = compose_rotvec(np.ascontiguousarray(sol[keep, 0:3]), Rc[keep])
+    return np.concatenate((Rg, Rc)), np.concatenate((Cg, Cc))
+
+
+@njit(cache=True)
+def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
+    """The rolling-shutter models of K samples (K, 6) without a gyro
+    (:func:`~.rig._hypotheses`): each sample pre-rotated by its Lambda Twist poses mapped to
+    the rig (:func:`lambda_twist_on_rig`) or by ``anchor`` (3, 3) when it is not empty, then
+    the rig solver (``iterations``, :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`).
+    Returns ``(R (H, 3, 3), C, w, t (H, 3), valid (H,), the sample of each (H,))``."""
+    K = samples.shape[0]
     if anchor.shape[0]:
         R0 = np.empty((K, 3, 3))
         for h in range(K):
@@ -433,57 +470,8 @@ def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterati
         for h in range(len(own)):
             S[h] = samples[own[h]]
     sol, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
-    H = len(ok)
     R = compose_rotvec(np.ascontiguousarray(sol[:, 0:3]), R0)
     C = np.ascontiguousarray(sol[:, 3:6])
     w = np.ascontiguousarray(sol[:, 6:9])
     t = np.ascontiguousarray(sol[:, 9:12])
-    e, v = np.empty(N), np.empty(N)
-    best_e, R_best, C_best, w_best, t_best, missed_best = out
-    among = len(subset) if len(subset) else N
-    found, n_best, beyond = -1, 0, 0
-    h, drawn = 0, K
-    for j in range(K):
-        while h < H and own[h] == j:
-            if ok[h]:
-                wn2, vn2 = motion_norms2(C[h, 0], C[h, 1], C[h, 2], w[h, 0], w[h, 1], w[h, 2],
-                                         t[h, 0], t[h, 1], t[h, 2])  # fmt: skip
-                if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
-                    pass
-                elif wn2 <= w2max and vn2 <= v2max:
-                    bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
-                    c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, h, bound,
-                                   e, v)  # fmt: skip
-                    if c >= 0 and c < best_cost:
-                        best_cost, found = c, h
-                        best_e[:] = e
-                        R_best[:] = R[h]
-                        C_best[:] = C[h]
-                        w_best[:] = w[h]
-                        t_best[:] = t[h]
-                        n_best, m = counted(e, k, cam, pool_counts, subset)
-                        missed_best[:] = m
-                        needed = required_samples_kernel(n_best / among, 6, log_miss)
-                else:
-                    beyond += 1
-            h += 1
-        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
-            drawn = j + 1
-            break
-    return drawn, found, best_cost, n_best, beyond
-
-
-@njit(cache=True)
-def inliers_missed(e, k, cam, counts):
-    """``(the number of errors e (N,) below k, (M,) bool: the cameras of at least 3 points
-    (``counts``) with none of them)``."""
-    hit = np.zeros(len(counts), dtype=np.int64)
-    n = 0
-    for i in range(len(e)):
-        if e[i] < k:
-            n += 1
-            hit[cam[i]] += 1
-    missed = np.empty(len(counts), dtype=np.bool_)
-    for c in range(len(counts)):
-        missed[c] = counts[c] >= 3 and hit[c] == 0
-    return n, missed
+    return R, C, w, t, ok, own

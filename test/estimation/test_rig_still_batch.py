@@ -1,4 +1,4 @@
-"""The rig's RANSAC batches in one compiled call (``still_batch``, ``moving_batch``) against the
+"""The rig's RANSAC batches in one compiled call (``search_batch``) against the
 same batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
 cost): the same best model, cost, errors, inliers and missed cameras; and their termination
@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
-from rs_localizer.estimation.rig_batch import batch_sampling, moving_batch, still_batch
+from rs_localizer.estimation.rig_batch import batch_sampling, search_batch
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import synthetic as sim_rig
@@ -23,12 +24,32 @@ from rs_localizer.sim import synthetic as sim_rig
 _NO_STOP = (np.inf, 0, 2**62, np.inf, float(np.log(1e-4)))
 
 
-def _buffers(N, M, moving):
-    """A batch's output buffers (NaN, so that a value not written shows): errors (N,), R, C
-    (and w, t when ``moving``), missed cameras (M,)."""
+def _buffers(N, M):
+    """A batch's output buffers (NaN, so that a value not written shows): errors (N,), R, C,
+    w, t, missed cameras (M,)."""
     f = [np.full(N, np.nan), np.full((3, 3), np.nan), np.full(3, np.nan)]
-    f += [np.full(3, np.nan), np.full(3, np.nan)] if moving else []
+    f += [np.full(3, np.nan), np.full(3, np.nan)]
     return (*f, np.zeros(M, dtype=bool))
+
+
+def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, th2, k,
+                pool_counts, *state):  # fmt: skip
+    """``search_batch`` of a global-shutter rig frame: ``(drawn, h, cost, inliers)``."""
+    out = search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, True, missed, rounds,
+                       np.zeros((0, 3)), 1, np.inf, np.inf, th2, k, pool_counts,
+                       *state)  # fmt: skip
+    assert out[4] == 0
+    return out[:4]
+
+
+def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
+                 v2max, th2, k, pool_counts, *state):  # fmt: skip
+    """``search_batch`` of a rolling-shutter rig frame: ``(drawn, h, cost, inliers, beyond
+    the bounds)``."""
+    missed = np.zeros(len(pool_counts), dtype=bool)
+    return search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, False, missed, 1,
+                        anchor, iterations, w2max, v2max, th2, k, pool_counts,
+                        *state)  # fmt: skip
 
 
 def _frame(seed, counts, turn_deg=0.0):
@@ -55,7 +76,7 @@ def _step_by_step(views, seed, K, missed, rounds, subset, th):
     pool = rig_mod._Pool(views)
     samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
     hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
-    e = rig_mod._errors_px(rig_mod._Pool(views, compiled=False), *hyp)[0]
+    e = np.sqrt(errors2(rig_mod._Pool(views, compiled=False), *hyp))
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
@@ -84,13 +105,14 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     draws = np.random.default_rng(7 + seed).random(7 * K)
-    out = _buffers(len(cam), len(counts), False)
+    out = _buffers(len(cam), len(counts))
     drawn, hf, cf, n = still_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th, counts_all,
         *_NO_STOP, out,
     )  # fmt: skip
-    ef, Rf, Cf, missed_f = out
+    ef, Rf, Cf, wf, tf, missed_f = out
+    assert np.isnan(wf).all() and np.isnan(tf).all()  # (a still model's velocities: none)
     assert drawn == K and hf >= 0
     assert cf == pytest.approx(cost[h], rel=1e-12)
     np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
@@ -138,14 +160,14 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
-    e = rig_mod._errors_px(rig_mod._Pool(views, compiled=False), *hyp)[0]
+    e = np.sqrt(errors2(rig_mod._Pool(views, compiled=False), *hyp))
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     if w_max < np.inf:
         assert beyond > 0  # (the bounds drop some solutions)
     X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
     draws = np.random.default_rng(seed).random(7 * K)
-    out = _buffers(len(cam), len(counts), True)
+    out = _buffers(len(cam), len(counts))
     drawn, hf, cf, n, beyond_f = moving_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max**2,
@@ -176,7 +198,7 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     draws = np.random.default_rng(seed).random(7 * K)
     state = (np.inf, 0, min_it, np.inf, float(np.log(1 - 0.9999)))
     args = (draws, 0, K, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A)
-    out = _buffers(len(cam), len(counts), moving)
+    out = _buffers(len(cam), len(counts))
     if moving:
         drawn, hf, cf, n, _ = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th,
                                            th, pool_counts, *state, out)  # fmt: skip
@@ -192,7 +214,7 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
         S = samples[:j]
         hyp = (rig_mod._hypotheses(pool, S, 3) if moving
                else rig_mod._hypotheses_still(pool, S))  # fmt: skip
-        e = rig_mod._errors_px(numpy_pool, *hyp)[0]
+        e = np.sqrt(errors2(numpy_pool, *hyp))
         cost = np.minimum(e * e, th * th).sum(axis=1)
         h = int(np.argmin(cost))
         return cost[h], int(np.count_nonzero(e[h] < th))
