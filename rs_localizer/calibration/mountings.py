@@ -23,6 +23,7 @@ from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from .corners import CornerSolution, RigCorners
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",
@@ -396,19 +397,19 @@ _CORNER_NFEV = 300
 
 def _refine_on_corners(
     rig_frames: list, poses: dict, obs: list, rig: tuple, mounts: dict, reference: str, scale: float
-) -> dict | None:
+) -> tuple[dict, RigCorners, CornerSolution, np.ndarray] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
     cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
-    those cameras' frames, each corner's error in the distorted image of its camera
-    (:meth:`~rs_localizer.camera.CameraModel.project`) under SciPy's ``soft_l1`` loss at
-    ``scale`` px (``least_squares``, ``trf``, sparse Jacobian), started at the pose-level
-    adjustment (:func:`_adjust`: its observations ``obs``, rig poses ``rig`` and ``mounts``;
-    a rig frame it left out at the pose of its camera frame with the most corners). Camera
-    frames the adjustment left out as outliers take part: their corners, not their poses. A
-    camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose relative to
-    the carried one. Only for global-shutter cameras (a rolling-shutter corner's time is not
-    modelled here: the caller keeps the pose-level adjustment for those). None when no corner
-    projects."""
+    those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
+    corner's error in the distorted image of its camera under SciPy's ``soft_l1`` loss at
+    ``scale`` px), started at the pose-level adjustment (:func:`_adjust`: its observations
+    ``obs``, rig poses ``rig`` and ``mounts``; a rig frame it left out at the pose of its
+    camera frame with the most corners). Camera frames the adjustment left out as outliers
+    take part: their corners, not their poses. A camera frame carried to its rig frame's time
+    (:func:`_carried`) keeps its pose relative to the carried one. Only for global-shutter
+    cameras (a rolling-shutter corner's time is not modelled here: the caller keeps the
+    pose-level adjustment for those). Returns ``(mounts, the problem, its solution, (N,) each
+    corner's camera frame, an id)``; None when no corner projects."""
     start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
@@ -426,60 +427,31 @@ def _refine_on_corners(
         for n in known:
             O_t, p_t, _, _, k = seen[n]
             _, Oc, pc, _, _, _, (uv, X, cam) = poses[n][k]
-            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], []))
+            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], [], []))
             a[1].append(np.full(len(uv), gi))
             a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))
             a[3].append(np.broadcast_to(O_t.T @ (pc - p_t), (len(uv), 3)))
             a[4].append(uv)
             a[5].append(X)
-    Rg0, Pg0 = np.array(Rg0).reshape(-1, 3, 3), np.array(Pg0).reshape(-1, 3)
-    G = len(Rg0)
-    free = [n for n in mounts if n != reference]
-    fidx = {n: i for i, n in enumerate(free)}
-    F = len(free)
-    R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
-    p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
-    parts = []
-    for (n, _), (cam, *lists) in groups.items():
-        gi, Dr, Dp, uv, X = (np.concatenate(v) for v in lists)
-        parts.append((cam, fidx.get(n, -1), mounts[n], gi, Dr, Dp, uv, X))
-
-    def errors(x):
-        xg = x[: 6 * G].reshape(G, 6)
-        xm = x[6 * G :].reshape(F, 6)
-        Rg, Pg = rotvec_to_matrix(xg[:, :3]) @ Rg0, Pg0 + xg[:, 3:]
-        out = []
-        for cam, i, (Rm, pm), gi, Dr, Dp, uv, X in parts:
-            if i >= 0:
-                Rm, pm = rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:]
-            Ow = Rg[gi] @ Rm  # (camera -> world at the rig frame's time, then its own)
-            p = Pg[gi] + Rg[gi] @ pm + np.einsum("nij,nj->ni", Ow, Dp)
-            out.append(cam.project(np.einsum("nji,nj->ni", Ow @ Dr, X - p)) - uv)
-        return np.concatenate(out)
-
-    keep = np.isfinite(errors(np.zeros(6 * (G + F)))).all(axis=1)
-    if not keep.any():
+            a[6].append(np.full(len(uv), k))  # (the camera frame, for the covariance)
+    names = list(mounts)
+    cams, parts = [], []
+    for i, ((n, _), (cam, *lists)) in enumerate(groups.items()):
+        cams.append(cam)
+        gi, Dr, Dp, uv, X, k = (np.concatenate(v) for v in lists)
+        parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X, k))
+    camera, gi, m, Dr, Dp, uv, X, k = (np.concatenate(v) for v in zip(*parts, strict=True))
+    problem = RigCorners(
+        uv, cams, camera, gi, m, (np.array(Rg0), np.array(Pg0)),
+        (np.array([mounts[n][0] for n in names]), np.array([mounts[n][1] for n in names])),
+        np.array([n != reference for n in names]), X, offsets=(Dr, Dp),
+    )  # fmt: skip
+    sol = problem.solve(scale, max_nfev=_CORNER_NFEV)
+    if sol is None:
         return None
-
-    def fun(x):
-        e = errors(x)[keep]
-        return np.where(np.isfinite(e), e, 1e3 * scale).ravel()
-
-    # each corner's 2 rows on its rig frame's pose and its camera's mounting (not the
-    # reference's)
-    gi = np.concatenate([q[3] for q in parts])[keep]
-    ci = np.concatenate([np.full(len(q[3]), q[1]) for q in parts])[keep]
-    mine = np.flatnonzero(ci >= 0)
-    rows, cols = np.r_[np.arange(len(gi)), mine], np.r_[gi, G + ci[mine]]
-    sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (len(gi), G + F)), np.ones((2, 6)))
-    res = least_squares(fun, np.zeros(6 * (G + F)), jac_sparsity=sp, loss="soft_l1",
-                        f_scale=scale, x_scale="jac", method="trf", tr_solver="lsmr",
-                        ftol=1e-8, xtol=1e-8, max_nfev=_CORNER_NFEV)  # fmt: skip
-    xm = res.x[6 * G :].reshape(F, 6)
-    out = {reference: mounts[reference]}
-    for i, n in enumerate(free):
-        out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
-    return out
+    Rm, pm = sol.mounts
+    frames = m * (int(k.max()) + 1) + k  # (each corner's camera frame)
+    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, frames
 
 
 def _exposed_apart(
@@ -645,9 +617,10 @@ def calibrate_mountings(
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
         if not apart:
-            corner_mounts = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
-            refined = corner_mounts is not None
-            mounts = corner_mounts or mounts
+            corners = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
+            refined = corners is not None
+            if refined:
+                mounts = corners[0]
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
