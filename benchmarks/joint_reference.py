@@ -34,6 +34,8 @@ __all__ = [
     "CACHE",
     "JointSolution",
     "joint_reference",
+    "main",
+    "mounting_coverage",
     "soft_l1",
     "solve_joint",
     "with_reference",
@@ -217,3 +219,96 @@ def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:
     return RealRig(rig.cameras, dict(sol.mounts), frames, dict(sol.poses), rig.name,
                    rig.stamps_shared, rig.tolerance, rig.messages, dict(sol.tags),
                    rig.tag_ids, rig.anchors)  # fmt: skip
+
+
+def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
+    """Each calibrated mounting (``est``: camera -> ``MountingEstimate``) against a
+    reference's (``mounts``: camera -> ``(R, c)``, ``x_cam = R x_rig + c``; the reference
+    camera ``first`` left out): camera -> ``{"error_deg", "error_mm", "std_deg", "std_mm",
+    "k": the largest |error| / std over the 6 axes (rotation rig axes, position), "nees":
+    the error's squared Mahalanobis distance in the mounting's covariance (6 degrees of
+    freedom), "within": k <= 3 and nees below the 99.73 % chi-square quantile}``."""
+    from scipy.stats import chi2
+
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    out = {}
+    for n, e in est.items():
+        if n == first or n not in mounts or e.mount.covariance is None:
+            continue
+        R, c = mounts[n]
+        err = np.r_[matrix_to_rotvec(e.mount.R.T @ R), e.mount.position + R.T @ c]
+        C = e.mount.covariance
+        k = float(np.max(np.abs(err) / np.sqrt(np.diag(C))))
+        nees = float(err @ np.linalg.lstsq(C, err, rcond=None)[0])
+        out[n] = {
+            "error_deg": float(np.rad2deg(np.linalg.norm(err[:3]))),
+            "error_mm": float(1e3 * np.linalg.norm(err[3:])),
+            "std_deg": e.std_deg,
+            "std_mm": e.std_mm,
+            "k": k,
+            "nees": nees,
+            "within": bool(k <= 3.0 and nees <= chi2.ppf(0.9973, 6)),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m benchmarks.joint_reference --folder PATH/test_N``: the recording's joint
+    solution, then ``calibrate-rig`` (the first of ``--min-inliers`` that calibrates every
+    camera) on TagSLAM's tag map against TagSLAM's extrinsics and on the joint solution's
+    against its mountings: each mounting's error, std, the largest error over std of its 6
+    axes and its NEES; then the rig posed with those mountings, rig poses within 3 sigma of
+    the reference's (``bench_real_rig.calibrated_rig_run``)."""
+    import argparse
+
+    from benchmarks.bench_real_rig import calibrate_estimates, calibrated_rig_run
+    from benchmarks.tagslam_data import load_tagslam
+
+    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap.add_argument("--min-inliers", type=int, nargs="+", default=[20, 8])
+    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
+    a = ap.parse_args(argv)
+    if not a.folder.is_dir():
+        print(f"{a.folder} absent: nothing to measure")
+        return
+    rig = load_tagslam(a.folder)
+    sol = joint_reference(rig, a.cache)
+    print(f"{rig.name}: joint solution {sol.info}")
+    first = next(iter(rig.cameras))
+    for label, r in (("TagSLAM's", rig), ("the joint solution's", with_reference(rig, sol))):
+        est, mi = None, None
+        for mi in a.min_inliers:
+            try:
+                est = calibrate_estimates(r, mi)
+            except ValueError as exc:
+                print(f"calibrate-rig (min_inliers {mi}) on {label} tag map: {exc}")
+                continue
+            if len(est) == len(r.cameras):
+                break
+        if est is None:
+            continue
+        e = next(v for k, v in est.items() if k != first)
+        how = f"refined on the corners, misfit {e.corner_misfit:.1f}" if e.corners_refined else ""
+        print(
+            f"calibrate-rig (min_inliers {mi}) on {label} tag map vs its mountings ("
+            + (how or "pose-level")
+            + "): error deg, mm; std deg, mm; largest |error| / std of the 6 axes; NEES (6)"
+        )
+        for n, c in mounting_coverage(est, r.mounts, first).items():
+            print(
+                f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std {c['std_deg']:.3f}"
+                f" deg {c['std_mm']:.1f} mm; {c['k']:.1f}; {c['nees']:.1f}; within 3 sigma: "
+                f"{'yes' if c['within'] else 'no'}"
+            )
+        for v, (inside, posed, total) in calibrated_rig_run(r, est).items():
+            print(
+                f"  the rig with these mountings ({v}): {inside} of {posed} rig poses within "
+                f"3 sigma of the reference ({100 * inside / max(posed, 1):.1f} %; {total} rig "
+                "frames)"
+            )
+
+
+if __name__ == "__main__":
+    main()
