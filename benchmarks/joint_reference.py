@@ -296,7 +296,8 @@ def main(argv: list[str] | None = None) -> None:
             + (how or "pose-level")
             + "): error deg, mm; std deg, mm; largest |error| / std of the 6 axes; NEES (6)"
         )
-        for n, c in mounting_coverage(est, r.mounts, first).items():
+        cover = mounting_coverage(est, r.mounts, first)
+        for n, c in ((n, cover[n]) for n in r.cameras if n in cover):
             print(
                 f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std {c['std_deg']:.3f}"
                 f" deg {c['std_mm']:.1f} mm; {c['k']:.1f}; {c['nees']:.1f}; within 3 sigma: "
