@@ -6,10 +6,13 @@ TagSLAM publishes its rig poses while it runs; in ``optimizer_mode: fast`` they 
 optimized again with the later frames, so they can miss the corners by pixels. The joint
 solution is what a full optimization of the same factor graph gives: the residuals are each
 corner's error in the distorted image of its camera (the camera's own model,
-:meth:`~rs_localizer.camera.CameraModel.project`), under a robust loss (SciPy's ``soft_l1``
-at ``f_scale`` px: quadratic up to about that, linear beyond), minimized by SciPy's
-``least_squares`` (``trf``, ``lsmr``, a finite-difference Jacobian of the known sparsity
-``jac_sparsity``) from TagSLAM's reference. The gauge is TagSLAM's: the tags ``tagslam.yaml``
+:meth:`~rs_localizer.camera.CameraModel.project`) through its rig pose, its camera's mounting
+and its tag's pose, the problem ``calibrate-rig`` refines its mountings on
+(:class:`~rs_localizer.calibration.corners.RigCorners`, with the tags' poses free here),
+under a robust loss (``soft_l1`` of each corner's distance at ``f_scale`` px: quadratic up to
+about that, linear beyond), minimized by SciPy's ``least_squares`` (``trf``, ``lsmr``, a
+finite-difference Jacobian of the known sparsity ``jac_sparsity``) from TagSLAM's
+reference. The gauge is TagSLAM's: the tags ``tagslam.yaml``
 gives a pose (:attr:`~benchmarks.tagslam_data.RealRig.anchors`) and the first camera's
 mounting (``camera_poses.yaml``'s prior) stay at the reference's; the tags keep their sizes.
 Only the rig frames with a reference pose take part (their poses start at it).
@@ -23,16 +26,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
-from scipy.spatial.transform import Rotation
 
 from benchmarks.tagslam_data import RealRig, tag_corners
+from rs_localizer.calibration.corners import RigCorners, TagPoints, soft_l1
 
 __all__ = [
     "CACHE",
     "JointSolution",
     "joint_reference",
+    "main",
+    "mounting_coverage",
     "soft_l1",
     "solve_joint",
     "with_reference",
@@ -86,98 +89,6 @@ def _observations(rig: RealRig):
             np.tile(np.arange(4), n // 4), np.concatenate(c_idx), np.concatenate(uvs))  # fmt: skip
 
 
-def soft_l1(s: np.ndarray, f_scale: float) -> np.ndarray:
-    """The robust loss of corners of squared error ``s`` (px^2): ``2 f^2 (sqrt(1 + s / f^2) -
-    1)`` (``f`` = ``f_scale`` px): ``s`` for small errors, ``2 f |e|`` for large ones (SciPy's
-    ``soft_l1``, applied to a corner's error, both coordinates together)."""
-    return 2 * f_scale**2 * (np.sqrt(1 + s / f_scale**2) - 1)
-
-
-class _Problem:
-    """The bundle adjustment's parameters (increments from the start: a rotation vector
-    composed on the left, a translation added; rig poses, then the free tags, then the free
-    mountings) and residuals (px, the distorted image)."""
-
-    def __init__(self, rig: RealRig, f_scale: float):
-        self.f_scale = f_scale
-        (self.stamps, self.ids, self.names, self.f, self.t, self.k, self.c,
-         self.uv) = _observations(rig)  # fmt: skip
-        self.cams = [rig.cameras[n] for n in self.names]
-        self.R0f = np.array([rig.reference[s][0] for s in self.stamps])
-        self.C0f = np.array([rig.reference[s][1] for s in self.stamps])
-        self.R0t = np.array([rig.tags[i][0] for i in self.ids])
-        self.p0t = np.array([rig.tags[i][1] for i in self.ids])
-        self.local = np.array([tag_corners(rig.tags[i][2]) for i in self.ids])  # (T, 4, 3)
-        self.R0m = np.array([rig.mounts[n][0] for n in self.names])
-        self.c0m = np.array([rig.mounts[n][1] for n in self.names])
-        self.free_t = np.array([i not in rig.anchors for i in self.ids])
-        self.free_m = np.arange(len(self.names)) > 0
-        self.F, self.T, self.M = len(self.stamps), int(self.free_t.sum()), len(self.names) - 1
-        self.n = 6 * (self.F + self.T + self.M)
-        self.by_cam = [np.flatnonzero(self.c == i) for i in range(len(self.names))]
-        self.keep = np.ones(len(self.uv), dtype=bool)
-
-    def unpack(self, x: np.ndarray):
-        """``(R_f, C_f, R_t, p_t, R_m, c_m)`` of the parameters ``x``."""
-        F, T = self.F, self.T
-        d = x[: 6 * F].reshape(F, 6)
-        Rf = Rotation.from_rotvec(d[:, :3]).as_matrix() @ self.R0f
-        Cf = self.C0f + d[:, 3:]
-        Rt, pt = self.R0t.copy(), self.p0t.copy()
-        d = x[6 * F : 6 * (F + T)].reshape(T, 6)
-        if T:
-            Rt[self.free_t] = Rotation.from_rotvec(d[:, :3]).as_matrix() @ self.R0t[self.free_t]
-            pt[self.free_t] += d[:, 3:]
-        Rm, cm = self.R0m.copy(), self.c0m.copy()
-        d = x[6 * (F + T) :].reshape(self.M, 6)
-        if self.M:
-            Rm[self.free_m] = Rotation.from_rotvec(d[:, :3]).as_matrix() @ self.R0m[self.free_m]
-            cm[self.free_m] += d[:, 3:]
-        return Rf, Cf, Rt, pt, Rm, cm
-
-    def errors(self, x: np.ndarray) -> np.ndarray:
-        """(N, 2) every corner's projection minus its pixel (px; nan: not projected)."""
-        Rf, Cf, Rt, pt, Rm, cm = self.unpack(x)
-        t, f, c = self.t, self.f, self.c
-        X = np.einsum("nij,nj->ni", Rt[t], self.local[t, self.k]) + pt[t]
-        X = np.einsum("nij,nj->ni", Rf[f], X) + Cf[f]
-        X = np.einsum("nij,nj->ni", Rm[c], X) + cm[c]
-        out = np.empty_like(self.uv)
-        for cam, sel in zip(self.cams, self.by_cam, strict=True):
-            out[sel] = cam.project(X[sel])
-        return out - self.uv
-
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        """Each kept corner's error scaled to the robust loss: ``e sqrt(rho(|e|^2) / |e|^2)``
-        (their squares sum to the loss over the corners, :func:`soft_l1`)."""
-        e = self.errors(x)[self.keep]
-        e = np.where(np.isfinite(e), e, 0.0)
-        s = (e * e).sum(axis=1)
-        w = np.sqrt(soft_l1(s, self.f_scale) / np.where(s > 0, s, 1.0))
-        return (e * np.where(s > 0, w, 1.0)[:, None]).ravel()
-
-    def sparsity(self):
-        """The Jacobian's nonzeros: a corner's two rows depend on its rig pose, its tag (when
-        free) and its camera's mounting (when free)."""
-        n = int(self.keep.sum())
-        f, t, c = self.f[self.keep], self.t[self.keep], self.c[self.keep]
-        free_t = np.cumsum(self.free_t) - 1  # (the free tag's parameter block)
-        cols = [6 * f]
-        rows = [np.arange(n)]
-        ok = self.free_t[t]
-        cols.append(6 * (self.F + free_t[t[ok]]))
-        rows.append(np.flatnonzero(ok))
-        ok = c > 0
-        cols.append(6 * (self.F + self.T + c[ok] - 1))
-        rows.append(np.flatnonzero(ok))
-        r = np.concatenate(rows)
-        col = np.concatenate(cols)
-        rr = (2 * r[:, None] + np.arange(2)[None, :])[:, :, None]
-        cc = (col[:, None] + np.arange(6)[None, :])[:, None, :]
-        rr, cc = np.broadcast_arrays(rr, cc)
-        return coo_matrix((np.ones(rr.size), (rr.ravel(), cc.ravel())), shape=(2 * n, self.n))
-
-
 def solve_joint(
     rig: RealRig,
     f_scale: float = 2.0,
@@ -199,26 +110,39 @@ def solve_joint(
     if not rig.tags or not any(s in rig.reference for s, _ in rig.frames):
         raise ValueError(f"{rig.name}: no tag poses or no rig frame with a reference pose")
     t0 = time.process_time()
-    p = _Problem(rig, f_scale)
-    x0 = np.zeros(p.n)
-    p.keep = np.isfinite(p.errors(x0)).all(axis=1)
-    res = least_squares(p.residuals, x0, jac_sparsity=p.sparsity(), x_scale="jac",
-                        method="trf", tr_solver="lsmr", max_nfev=max_nfev,
-                        ftol=ftol, xtol=1e-12, verbose=verbose)  # fmt: skip
-    Rf, Cf, Rt, pt, Rm, cm = p.unpack(res.x)
+    stamps, ids, names, f, t, k, c, uv = _observations(rig)
+    R0f = np.array([rig.reference[s][0] for s in stamps])
+    C0f = np.array([rig.reference[s][1] for s in stamps])
+    R0m = np.array([rig.mounts[n][0] for n in names])
+    c0m = np.array([rig.mounts[n][1] for n in names])
+    tags = TagPoints(
+        t,
+        np.array([tag_corners(rig.tags[i][2]) for i in ids])[t, k],
+        np.array([rig.tags[i][0] for i in ids]),
+        np.array([rig.tags[i][1] for i in ids]),
+        np.array([i not in rig.anchors for i in ids]),
+    )
+    problem = RigCorners(uv, [rig.cameras[n] for n in names], c, f, c, (R0f, C0f), (R0m, c0m),
+                         np.arange(len(names)) > 0, tags, parameters="inverse")  # fmt: skip
+    sol = problem.solve(f_scale, loss="corner_soft_l1", max_nfev=max_nfev, ftol=ftol,
+                        xtol=1e-12, verbose=verbose)  # fmt: skip
+    if sol is None:
+        raise ValueError(f"{rig.name}: no corner projects at TagSLAM's solution")
+    (Rf, Cf), (Rc, cm), (Rt, pt) = sol.rig, sol.mounts, sol.tags
+    res = sol.result
     info = {
         "seconds": time.process_time() - t0,
         "nfev": int(res.nfev),
         "status": int(res.status),
-        "cost_start": 0.5 * float((p.residuals(x0) ** 2).sum()),
+        "cost_start": 0.5 * float((problem.residuals(np.zeros(problem.n), f_scale) ** 2).sum()),
         "cost": float(res.cost),
-        "corners": len(p.uv),
-        "outliers": int((~p.keep).sum()),
+        "corners": len(uv),
+        "outliers": int((~sol.keep).sum()),
     }
     return JointSolution(
-        {s: (Rf[i], Cf[i]) for i, s in enumerate(p.stamps)},
-        {i: (Rt[k], pt[k], rig.tags[i][2]) for k, i in enumerate(p.ids)},
-        {n: (Rm[k], cm[k]) for k, n in enumerate(p.names)},
+        {s: (Rf[i], Cf[i]) for i, s in enumerate(stamps)},
+        {i: (Rt[j], pt[j], rig.tags[i][2]) for j, i in enumerate(ids)},
+        {n: (Rc[j], cm[j]) for j, n in enumerate(names)},
         info,
     )
 
@@ -295,3 +219,97 @@ def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:
     return RealRig(rig.cameras, dict(sol.mounts), frames, dict(sol.poses), rig.name,
                    rig.stamps_shared, rig.tolerance, rig.messages, dict(sol.tags),
                    rig.tag_ids, rig.anchors)  # fmt: skip
+
+
+def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
+    """Each calibrated mounting (``est``: camera -> ``MountingEstimate``) against a
+    reference's (``mounts``: camera -> ``(R, c)``, ``x_cam = R x_rig + c``; the reference
+    camera ``first`` left out): camera -> ``{"error_deg", "error_mm", "std_deg", "std_mm",
+    "k": the largest |error| / std over the 6 axes (rotation rig axes, position), "nees":
+    the error's squared Mahalanobis distance in the mounting's covariance (6 degrees of
+    freedom), "within": k <= 3 and nees below the 99.73 % chi-square quantile}``."""
+    from scipy.stats import chi2
+
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    out = {}
+    for n, e in est.items():
+        if n == first or n not in mounts or e.mount.covariance is None:
+            continue
+        R, c = mounts[n]
+        err = np.r_[matrix_to_rotvec(e.mount.R.T @ R), e.mount.position + R.T @ c]
+        C = e.mount.covariance
+        k = float(np.max(np.abs(err) / np.sqrt(np.diag(C))))
+        nees = float(err @ np.linalg.lstsq(C, err, rcond=None)[0])
+        out[n] = {
+            "error_deg": float(np.rad2deg(np.linalg.norm(err[:3]))),
+            "error_mm": float(1e3 * np.linalg.norm(err[3:])),
+            "std_deg": e.std_deg,
+            "std_mm": e.std_mm,
+            "k": k,
+            "nees": nees,
+            "within": bool(k <= 3.0 and nees <= chi2.ppf(0.9973, 6)),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m benchmarks.joint_reference --folder PATH/test_N``: the recording's joint
+    solution, then ``calibrate-rig`` (the first of ``--min-inliers`` that calibrates every
+    camera) on TagSLAM's tag map against TagSLAM's extrinsics and on the joint solution's
+    against its mountings: each mounting's error, std, the largest error over std of its 6
+    axes and its NEES; then the rig posed with those mountings, rig poses within 3 sigma of
+    the reference's (``bench_real_rig.calibrated_rig_run``)."""
+    import argparse
+
+    from benchmarks.bench_real_rig import calibrate_estimates, calibrated_rig_run
+    from benchmarks.tagslam_data import load_tagslam
+
+    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap.add_argument("--min-inliers", type=int, nargs="+", default=[20, 8])
+    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
+    a = ap.parse_args(argv)
+    if not a.folder.is_dir():
+        print(f"{a.folder} absent: nothing to measure")
+        return
+    rig = load_tagslam(a.folder)
+    sol = joint_reference(rig, a.cache)
+    print(f"{rig.name}: joint solution {sol.info}")
+    first = next(iter(rig.cameras))
+    for label, r in (("TagSLAM's", rig), ("the joint solution's", with_reference(rig, sol))):
+        est, mi = None, None
+        for mi in a.min_inliers:
+            try:
+                est = calibrate_estimates(r, mi)
+            except ValueError as exc:
+                print(f"calibrate-rig (min_inliers {mi}) on {label} tag map: {exc}")
+                continue
+            if len(est) == len(r.cameras):
+                break
+        if est is None:
+            continue
+        e = next(v for k, v in est.items() if k != first)
+        how = f"refined on the corners, misfit {e.corner_misfit:.1f}" if e.corners_refined else ""
+        print(
+            f"calibrate-rig (min_inliers {mi}) on {label} tag map vs its mountings ("
+            + (how or "pose-level")
+            + "): error deg, mm; std deg, mm; largest |error| / std of the 6 axes; NEES (6)"
+        )
+        cover = mounting_coverage(est, r.mounts, first)
+        for n, c in ((n, cover[n]) for n in r.cameras if n in cover):
+            print(
+                f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std {c['std_deg']:.3f}"
+                f" deg {c['std_mm']:.1f} mm; {c['k']:.1f}; {c['nees']:.1f}; within 3 sigma: "
+                f"{'yes' if c['within'] else 'no'}"
+            )
+        for v, (inside, posed, total) in calibrated_rig_run(r, est).items():
+            print(
+                f"  the rig with these mountings ({v}): {inside} of {posed} rig poses within "
+                f"3 sigma of the reference ({100 * inside / max(posed, 1):.1f} %; {total} rig "
+                "frames)"
+            )
+
+
+if __name__ == "__main__":
+    main()

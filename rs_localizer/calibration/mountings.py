@@ -23,6 +23,7 @@ from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from .corners import CornerSolution, RigCorners
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",
@@ -41,11 +42,12 @@ class MountingEstimate:
     Attributes:
         name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
             x_rig + c``) with its ``covariance`` (None for the reference camera, whose
-            mounting is given): the pose-level adjustment's ``s^2 (J^T J)^-1`` (global-shutter
-            cameras: the mounting then refined on the corners), inflated for the errors
-            neighbouring frames share, plus the bias of the single-camera poses that averaging
-            does not remove (:data:`MOUNTING_BIAS_SHARE`; docs/rig_node.md, "Mountings from
-            data", step 5).
+            mounting is given): the pose-level adjustment's ``s^2 (J^T J)^-1``, inflated for
+            the errors neighbouring frames share, plus the bias of the single-camera poses
+            that averaging does not remove (:data:`MOUNTING_BIAS_SHARE`); a mounting refined
+            on the corners (``corners_refined``): the corners' solve's, each rig frame's
+            corners one group, scaled by ``corner_misfit`` (:func:`_corner_covariance`;
+            docs/rig_node.md, "Mountings from data", step 5).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -60,6 +62,8 @@ class MountingEstimate:
         corners_refined: the mounting was refined on the corners (:func:`_refine_on_corners`).
         exposure_offset: s, the camera's time offset the video shows when it kept the
             mountings from that refinement (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
+        corner_misfit: the scale of the refined mountings' covariance (at least
+            :data:`MISFIT_FLOOR`; the same for every camera of the rig); NaN when not refined.
     """
 
     name: str
@@ -74,6 +78,7 @@ class MountingEstimate:
     time_offset_std: float = float("nan")
     corners_refined: bool = False
     exposure_offset: float = float("nan")
+    corner_misfit: float = float("nan")
 
 
 #: ``estimate_time_offsets``: the adjustment is run again at the time offsets found until
@@ -390,25 +395,28 @@ def _errors(obs: list, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
 
 
+#: the least scale of the corners' covariance of a refined mounting (:func:`_corner_covariance`)
+MISFIT_FLOOR = 1.0
+
 #: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
 _CORNER_NFEV = 300
 
 
 def _refine_on_corners(
     rig_frames: list, poses: dict, obs: list, rig: tuple, mounts: dict, reference: str, scale: float
-) -> dict | None:
+) -> tuple[dict, RigCorners, CornerSolution] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
     cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
-    those cameras' frames, each corner's error in the distorted image of its camera
-    (:meth:`~rs_localizer.camera.CameraModel.project`) under SciPy's ``soft_l1`` loss at
-    ``scale`` px (``least_squares``, ``trf``, sparse Jacobian), started at the pose-level
-    adjustment (:func:`_adjust`: its observations ``obs``, rig poses ``rig`` and ``mounts``;
-    a rig frame it left out at the pose of its camera frame with the most corners). Camera
-    frames the adjustment left out as outliers take part: their corners, not their poses. A
-    camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose relative to
-    the carried one. Only for global-shutter cameras (a rolling-shutter corner's time is not
-    modelled here: the caller keeps the pose-level adjustment for those). None when no corner
-    projects."""
+    those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
+    corner's error in the distorted image of its camera under SciPy's ``soft_l1`` loss at
+    ``scale`` px), started at the pose-level adjustment (:func:`_adjust`: its observations
+    ``obs``, rig poses ``rig`` and ``mounts``; a rig frame it left out at the pose of its
+    camera frame with the most corners). Camera frames the adjustment left out as outliers
+    take part: their corners, not their poses. A camera frame carried to its rig frame's time
+    (:func:`_carried`) keeps its pose relative to the carried one. Only for global-shutter
+    cameras (a rolling-shutter corner's time is not modelled here: the caller keeps the
+    pose-level adjustment for those). Returns ``(mounts, the problem, its solution)``; None
+    when no corner projects."""
     start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
@@ -432,54 +440,49 @@ def _refine_on_corners(
             a[3].append(np.broadcast_to(O_t.T @ (pc - p_t), (len(uv), 3)))
             a[4].append(uv)
             a[5].append(X)
-    Rg0, Pg0 = np.array(Rg0).reshape(-1, 3, 3), np.array(Pg0).reshape(-1, 3)
-    G = len(Rg0)
-    free = [n for n in mounts if n != reference]
-    fidx = {n: i for i, n in enumerate(free)}
-    F = len(free)
-    R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
-    p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
-    parts = []
-    for (n, _), (cam, *lists) in groups.items():
+    names = list(mounts)
+    cams, parts = [], []
+    for i, ((n, _), (cam, *lists)) in enumerate(groups.items()):
+        cams.append(cam)
         gi, Dr, Dp, uv, X = (np.concatenate(v) for v in lists)
-        parts.append((cam, fidx.get(n, -1), mounts[n], gi, Dr, Dp, uv, X))
-
-    def errors(x):
-        xg = x[: 6 * G].reshape(G, 6)
-        xm = x[6 * G :].reshape(F, 6)
-        Rg, Pg = rotvec_to_matrix(xg[:, :3]) @ Rg0, Pg0 + xg[:, 3:]
-        out = []
-        for cam, i, (Rm, pm), gi, Dr, Dp, uv, X in parts:
-            if i >= 0:
-                Rm, pm = rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:]
-            Ow = Rg[gi] @ Rm  # (camera -> world at the rig frame's time, then its own)
-            p = Pg[gi] + Rg[gi] @ pm + np.einsum("nij,nj->ni", Ow, Dp)
-            out.append(cam.project(np.einsum("nji,nj->ni", Ow @ Dr, X - p)) - uv)
-        return np.concatenate(out)
-
-    keep = np.isfinite(errors(np.zeros(6 * (G + F)))).all(axis=1)
-    if not keep.any():
+        parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X))
+    camera, gi, m, Dr, Dp, uv, X = (np.concatenate(v) for v in zip(*parts, strict=True))
+    problem = RigCorners(
+        uv, cams, camera, gi, m, (np.array(Rg0), np.array(Pg0)),
+        (np.array([mounts[n][0] for n in names]), np.array([mounts[n][1] for n in names])),
+        np.array([n != reference for n in names]), X, offsets=(Dr, Dp),
+    )  # fmt: skip
+    sol = problem.solve(scale, max_nfev=_CORNER_NFEV)
+    if sol is None:
         return None
+    Rm, pm = sol.mounts
+    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol
 
-    def fun(x):
-        e = errors(x)[keep]
-        return np.where(np.isfinite(e), e, 1e3 * scale).ravel()
 
-    # each corner's 2 rows on its rig frame's pose and its camera's mounting (not the
-    # reference's)
-    gi = np.concatenate([q[3] for q in parts])[keep]
-    ci = np.concatenate([np.full(len(q[3]), q[1]) for q in parts])[keep]
-    mine = np.flatnonzero(ci >= 0)
-    rows, cols = np.r_[np.arange(len(gi)), mine], np.r_[gi, G + ci[mine]]
-    sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (len(gi), G + F)), np.ones((2, 6)))
-    res = least_squares(fun, np.zeros(6 * (G + F)), jac_sparsity=sp, loss="soft_l1",
-                        f_scale=scale, x_scale="jac", method="trf", tr_solver="lsmr",
-                        ftol=1e-8, xtol=1e-8, max_nfev=_CORNER_NFEV)  # fmt: skip
-    xm = res.x[6 * G :].reshape(F, 6)
-    out = {reference: mounts[reference]}
-    for i, n in enumerate(free):
-        out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
-    return out
+def _corner_covariance(
+    refined: dict, problem: RigCorners, sol: CornerSolution, start: dict, reference: str
+) -> tuple[dict, float]:
+    """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
+    rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
+    marginalized, each rig frame's corners a group whose errors may be correlated, rig
+    frames independent), scaled by the corners' misfit, also returned: the mean square of
+    the refinement's step from the pose-level mountings ``start`` to ``refined`` in that
+    covariance's units per degree of freedom (at least 1). Both are estimates of the same
+    mountings from the same corners; where they differ by more than the corners' noise
+    explains, the corners hold errors that are not independent noise (a camera model or a
+    map slightly off, which a camera posed alone takes up its own way), of about that size
+    (:data:`MISFIT_FLOOR`: the least the scale can be)."""
+    C = problem.mounting_covariance(sol, problem.frame)
+    free = [n for n in refined if n != reference]
+    d = np.concatenate([np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T),
+                              refined[n][1] - start[n][1]] for n in free])  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LinAlgWarning)
+        m2 = sum(float(d[6 * i : 6 * i + 6] @ np.linalg.lstsq(C[i], d[6 * i : 6 * i + 6],
+                                                             rcond=None)[0])
+                 for i in range(len(free)))  # fmt: skip
+    misfit = max(MISFIT_FLOOR, m2 / len(d))
+    return {n: misfit * C[i] for i, n in enumerate(free)}, misfit
 
 
 def _exposed_apart(
@@ -565,8 +568,9 @@ def calibrate_mountings(
     moving a corner by more than :data:`EXPOSED_APART_SHARE` of the RANSAC threshold at the
     rig's median angular speed), the mountings are then refined on the
     corners (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's
-    error in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``); the
-    covariance stays the pose-level adjustment's.
+    error in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``), each
+    with the covariance of that solve, the rig poses marginalized, scaled by how far the
+    refinement moved the mountings (:func:`_corner_covariance`).
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
@@ -639,15 +643,17 @@ def calibrate_mountings(
         rig_frames = _rig_frames(poses, window, max_step)
     # (the last round's, when it regrouped nothing, is the final adjustment's)
     cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free)
-    refined, apart = False, {}
+    refined, apart, misfit = False, {}, float("nan")
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
         if not apart:
-            corner_mounts = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
-            refined = corner_mounts is not None
-            mounts = corner_mounts or mounts
+            corners = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
+            refined = corners is not None
+            if refined:
+                cov, misfit = _corner_covariance(*corners, mounts, reference)
+                mounts = corners[0]
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
@@ -671,6 +677,6 @@ def calibrate_mountings(
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
             float(np.rad2deg(scat_r)), 1e3 * scat_p, offset, dt_std.get(name, float("nan")),
-            refined, apart.get(name, float("nan")),
+            refined, apart.get(name, float("nan")), misfit,
         )  # fmt: skip
     return out

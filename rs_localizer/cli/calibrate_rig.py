@@ -222,6 +222,12 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
         f"{e.std_mm:.2f} mm (one frame about the rig: {e.scatter_deg:.3f} deg "
         f"{e.scatter_mm:.1f} mm)"
     ]
+    if e.corners_refined:
+        notes.append(
+            f"{n}: refined on the corners; its std is the corners' solve's times "
+            f"{np.sqrt(e.corner_misfit):.1f} (their misfit: how far the refinement moved the "
+            "mountings from the cameras' poses in that solve's std)"
+        )
     if np.isfinite(e.time_offset_std):
         notes.append(
             f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
@@ -320,10 +326,13 @@ def run(args: argparse.Namespace) -> int:
             **{k: getattr(e, k) for k in ("frames", "rejected", "std_deg", "std_mm")},
             "mounting_covariance": mounting_covariance_values(e.mount),
             **{k: getattr(e, k) for k in ("scatter_deg", "scatter_mm", "time_offset")},
+            "corners_refined": e.corners_refined,
             **read.counts[n],
         }
         if np.isfinite(e.time_offset_std):
             report[n]["time_offset_std"] = e.time_offset_std
+        if n != ref and e.corners_refined:
+            report[n]["corner_misfit"] = e.corner_misfit
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:

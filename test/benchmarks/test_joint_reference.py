@@ -8,7 +8,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from benchmarks.bench_real_rig import reference_residuals, rig_run, summary
-from benchmarks.joint_reference import joint_reference, solve_joint, with_reference
+from benchmarks.joint_reference import (
+    joint_reference,
+    mounting_coverage,
+    solve_joint,
+    with_reference,
+)
 from benchmarks.tagslam_data import FOLDER, RealRig, errors, load_test2, tag_corners
 
 pytestmark = pytest.mark.skipif(not FOLDER.is_dir(), reason=f"{FOLDER} absent")
@@ -115,3 +120,24 @@ def test_the_rig_estimator_lands_near_the_joint_solution(rig, joint):
     rot, pos = np.median(s["ours"], axis=0)
     assert rot < 0.01 and pos < 0.3
     assert s["ratio_rot"] < 0.3 and s["ratio_pos"] < 0.3
+
+
+def test_mounting_coverage_measures_the_error_in_the_mountings_std():
+    # a mounting 0.2 deg about the rig's z axis and 2.5 mm along its x axis from the
+    # reference's, stated std 0.1 deg and 1 mm on every axis: k = 2.5 (the position's x),
+    # NEES 2^2 + 2.5^2 = 10.25
+    from rs_localizer.calibration import MountingEstimate
+    from rs_localizer.frames import Mounting
+
+    R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()  # (rig -> camera)
+    c = np.array([0.05, 0.01, -0.02])
+    turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(0.2)]).as_matrix()
+    Rm = turn @ R.T  # (camera -> rig, turned in rig axes)
+    pos = -R.T @ c + np.array([0.0025, 0.0, 0.0])
+    C = np.diag([np.deg2rad(0.1) ** 2] * 3 + [1e-6] * 3)
+    est = {"b": MountingEstimate("b", Mounting.from_pose(Rm, pos, covariance=C), 10, 0, 0, 0,
+                                 0, 0)}  # fmt: skip
+    out = mounting_coverage(est, {"b": (R, c)}, "a")["b"]
+    assert abs(out["error_deg"] - 0.2) < 1e-9 and abs(out["error_mm"] - 2.5) < 1e-9
+    assert abs(out["k"] - 2.5) < 1e-6 and abs(out["nees"] - 10.25) < 1e-6
+    assert out["within"]  # (10.25 < 20.06, the 99.73 % quantile of 6 degrees of freedom)

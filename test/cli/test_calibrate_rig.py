@@ -244,7 +244,8 @@ def test_a_short_video_is_warned_about(tmp_path, capsys):
 
 def test_cameras_that_do_not_expose_together_are_noted():
     """A camera whose mounting was kept from the corners' refinement for the time offset the
-    video shows: a note with that offset naming --time-offsets; none without one."""
+    video shows: a note with that offset naming --time-offsets; none without one (a refined
+    mounting's note says how its std was scaled)."""
     from rs_localizer.calibration.mountings import MountingEstimate
     from rs_localizer.cli.calibrate_rig import _camera_notes
     from rs_localizer.frames import Mounting
@@ -255,8 +256,12 @@ def test_cameras_that_do_not_expose_together_are_noted():
         "do not seem to expose together" in n and "-8.8 ms" in n and "--time-offsets" in n
         for n in notes
     ), notes
-    notes, _ = _camera_notes("left", replace(e, corners_refined=True), None)
+    notes, _ = _camera_notes("left", replace(e, corners_refined=True, corner_misfit=4.0), None)
     assert not any("expose together" in n for n in notes), notes
+    # a refined mounting's std: the corners' solve's times the root of their misfit
+    assert any("refined on the corners" in n and "times 2.0" in n for n in notes), notes
+    notes, _ = _camera_notes("left", e, None)
+    assert not any("refined on the corners" in n for n in notes), notes
 
 
 def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
