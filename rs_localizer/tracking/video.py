@@ -76,10 +76,11 @@ a rig frame posed from one camera while others run
 (:meth:`Localizer.process_image`) are taken as the camera's: an image with fewer
 correspondences than its solver needs is skipped before the estimator
 (``frontend_too_few_points``). Its counters are the rig's (``rig.*``, ``<camera>.*``). As its
-camera's own video (``camera_video``: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
-the node's single camera) an image skipped before the estimator is its caller's to count and
-report (:meth:`Localizer.last_search`), and its images' rows are counted by the caller's
-``count``.
+camera's own video (its camera named ``""``, :attr:`LocalizerSettings.camera_video`: the
+single camera of :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, of the node and of
+a camera's bag replayed) it speaks as the camera: its warnings, estimates and fused twists' tags
+are the camera's, an image skipped before the estimator is its caller's to count and report
+(:meth:`Localizer.last_search`), and its images' rows are counted by the caller's ``count``.
 
 With a gyro on the rig (:attr:`LocalizerSettings.imu`; samples fed by
 :meth:`Localizer.add_imu`) each rig frame is solved with the gyro's measurement over the rig
@@ -384,6 +385,16 @@ class LocalizerSettings:
         (m,) = self.mounts.values()
         return bool(m.covariance is None and np.array_equal(m.R, np.eye(3)) and not np.any(m.c))
 
+    @property
+    def camera_video(self) -> bool:
+        """The rig is a camera's own video: a rig of one (:attr:`single_camera`) whose camera
+        is named ``""``, the name a single camera's configuration gives it
+        (:func:`~rs_localizer.tracking.sequence.rig_of_one`,
+        :func:`~rs_localizer.ros.config.build_config` without ``rig.cameras``). Its
+        :class:`Localizer` speaks as the camera (:class:`Localizer`, ``camera_video``); a rig
+        of one camera of another name speaks as a rig."""
+        return self.cameras == ("",) and self.single_camera
+
     def reference_ns(self, name: str, stamp_ns: int, camera: CameraModel | None) -> int:
         """ns, camera ``name``'s frame stamped ``stamp_ns`` on the rig's clock: the capture
         time of its reference line (:func:`~rs_localizer.camera.reference_stamp_ns` from the
@@ -458,7 +469,8 @@ class LocalizerOutput(FrameOutput):
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
         camera_estimate: a rig of one camera (:attr:`LocalizerSettings.single_camera`): its
             camera's own estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`'s, the
-            model's velocities per unit RS coordinate), the one ``estimate`` is made from;
+            model's velocities per unit RS coordinate), the one ``estimate`` is made from (a
+            camera's video, :attr:`LocalizerSettings.camera_video`: ``estimate`` itself);
             None for a rig of several cameras or when the estimator did not run.
     """
 
@@ -488,6 +500,23 @@ class LocalizerOutput(FrameOutput):
         if est is None:
             return ()
         return tuple(self.cameras[k] for k in est.disagreeing if k < len(self.cameras))
+
+    def camera_counts(self) -> list[tuple[str, int]]:
+        """A rig of one camera's frame counted as its camera's node counts it (the node's
+        diagnostics' names, in the order it counts them): ``frames_compiled`` or
+        ``frames_uncompiled`` (:attr:`compiled`); with :attr:`camera_estimate`, the rows its
+        estimator left out (``points_dropped``, also 0) and a pose from few points
+        (``frames_few_points``) or from one tag (``frames_single_tag``). Returns ``(key, n)``
+        pairs to add to the camera's counts."""
+        out = [("frames_compiled" if self.compiled else "frames_uncompiled", 1)]
+        est = self.camera_estimate
+        if est is not None:
+            out.append(("points_dropped", int(est.num_dropped)))
+            if est.success and est.few_points:
+                out.append(("frames_few_points", 1))
+            if est.success and est.single_tag:
+                out.append(("frames_single_tag", 1))
+        return out
 
 
 # ---------------------------------------------------------------------- bookkeeping
@@ -547,23 +576,21 @@ class Localizer(GyroReadouts):
         gyro_input: the gyro's :class:`~rs_localizer.tracking.gyro_input.GyroInput` (its
             samples, bias, mount check, warnings and counters under the caller's names); None:
             the rig's own, counted ``rig.gyro_*``.
-        camera_video: the rig of one camera is that camera's own video
-            (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer` runs its frames
-            through it): its warnings are worded for a camera (the rolling-shutter timing's
-            advice names the camera's ``rs.*`` parameters; a time reset is the caller's to
-            report, :meth:`check_time`), its fused twists carry their frame's own tag
-            rather than a camera -> tag dict, and its outputs' ``estimate`` is the camera's own
-            (:attr:`LocalizerOutput.camera_estimate`: the model's velocities per unit RS coordinate,
-            not per second). Only for a rig of one (else ValueError). Its images
-            (:meth:`process_image`) are its camera's: an image the front end failed on,
-            found the previous one again or found too few correspondences in is not the
-            rig's to count (no frame received nor skipped, the idle timer not reset, no
-            warning): the caller reads the failure from :meth:`last_search` and reports it.
-        camera_words: a rig of one camera's warnings worded as its camera's video words them
-            (``camera_video``'s: the rolling-shutter advice, a time reset the caller's to
-            report, an image the front end failed on or found the previous one again not
-            warned about, the caller's), its frames and outputs a rig of one's (a camera's
-            bag replayed through the rig mode). Only for a rig of one (else ValueError).
+        camera_video, camera_words: redundant, for callers that pass them: a rig of one
+            camera named ``""`` (:attr:`LocalizerSettings.camera_video`) is that camera's own
+            video whether they are given or not (true for another rig: ValueError). As its
+            camera's video it speaks as the camera: its warnings are worded for a camera (the
+            rolling-shutter timing's advice names the camera's ``rs.*`` parameters; a time
+            reset, an image the front end failed on or found the previous one again are the
+            caller's to report: :meth:`check_time`, :meth:`last_search`), its fused twists
+            carry their frame's own tag rather than a camera -> tag dict, and its outputs'
+            ``estimate`` is the camera's own (:attr:`LocalizerOutput.camera_estimate`: the
+            model's velocities per unit RS coordinate, not per second; its ``pose`` and
+            covariances are the rig's). Its images (:meth:`process_image`) are its camera's:
+            an image the front end failed on, found the previous one again or found too few
+            correspondences in is not the rig's to count (no frame received nor skipped, the
+            idle timer not reset, no warning): the caller reads the failure from
+            :meth:`last_search` and reports it.
         count: the counter of its images' rows (``count(key, n)``: ``points_dropped``,
             ``capped_clouds``, ``capped_points``, under the caller's names; its capping warned
             as ``capped``), a camera video's or a rig of one's counted as its camera's; None:
@@ -612,13 +639,14 @@ class Localizer(GyroReadouts):
         count: Callable[[str, int], Any] | None = None,
         camera_words: bool = False,
     ):
-        if (camera_video or camera_words) and not settings.single_camera:
+        if (camera_video or camera_words) and not settings.camera_video:
             what = "camera_video" if camera_video else "camera_words"
-            raise ValueError(f"{what} needs a rig of one camera (LocalizerSettings.single_camera)")
+            raise ValueError(f'{what} needs a rig of one camera named "" '
+                             "(LocalizerSettings.camera_video)")  # fmt: skip
         self.settings = settings
-        # (a camera's own video: its warnings and its fused twists' tags are the camera's)
-        self._rig = not camera_video
-        self._rig_words = self._rig and not camera_words  # (its warnings worded for a rig)
+        # (a camera's own video: its warnings, its estimates, its fused twists' tags and its
+        # images' failures are the camera's)
+        self._rig = not settings.camera_video
         self._rows_count = count  # (a camera video's: its rows counted under its names)
         self._implementation = implementation
         self._impl: str | None = None  # (the rig frame being solved: its implementation)
@@ -924,7 +952,7 @@ class Localizer(GyroReadouts):
         suspect = share >= READOUT_CHECK_SHARE
         if suspect and not self._readout_warned:
             self.log.warning(
-                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig_words)
+                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig)
             )
         self._readout_warned = suspect
         return out
@@ -1117,7 +1145,7 @@ class Localizer(GyroReadouts):
         if reset is not None:
             self.counts["rig.time_resets"] += 1
             self._reset = (self._reset[0] + 1, reset.detail, self._clock.newest)
-            if self._rig_words:  # (a camera's video: the caller reports it, check_time)
+            if self._rig:  # (a camera's video: the caller reports it, check_time)
                 self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
             if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
                 solved = self.close()
@@ -1360,11 +1388,11 @@ class Localizer(GyroReadouts):
         one), and an image whose front end found fewer correspondences than its solver needs
         (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
         marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
-        A camera's own video (``camera_video``) returns no rig frame for an image skipped
-        before the estimator and counts nothing for it (its caller reports the failure,
-        :meth:`last_search`); its rows are counted by its ``count``. A camera's rows carry
-        their scores (a rig of one's estimator, the camera's, weighs them; a rig of several's
-        takes none).
+        A camera's own video (:attr:`LocalizerSettings.camera_video`) returns no rig frame
+        for an image skipped before the estimator and counts nothing for it (its caller
+        reports the failure, :meth:`last_search`); its rows are counted by its ``count``. A
+        camera's rows carry their scores (a rig of one's estimator, the camera's, weighs them;
+        a rig of several's takes none).
 
         Args:
             name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``,
@@ -1544,8 +1572,8 @@ class Localizer(GyroReadouts):
 
     def _warn_image(self, key: str, text: str) -> None:
         """A rig camera's image skipped (frozen, its front end failed): warned, unless worded
-        for a camera (``camera_words``: its caller reports it)."""
-        if self._rig_words:
+        for a camera (a camera's video: its caller reports it)."""
+        if self._rig:
             self.log.warning(key, text)
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:

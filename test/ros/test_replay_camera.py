@@ -5,6 +5,8 @@ output transform (``camera_to_base.*``) and one row per frame message."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -211,3 +213,44 @@ def test_a_camera_s_replay_counts_its_estimator_and_front_end_as_its_node(sample
     assert c["frontend_points"] == sum(r["num_points"] for r in res.rows)
     assert c.get("frames_compiled", 0) + c.get("frames_uncompiled", 0) == n
     assert c["points_dropped"] == 0
+
+
+def test_a_camera_s_video_speaks_as_the_camera_and_publishes_as_the_node():
+    """A rig of one camera named "" is the camera's video (``LocalizerSettings.camera_video``):
+    its outputs' estimate is the camera estimator's own (velocities per unit RS coordinate)
+    with the rig's pose, its fused twists carry the frame's tag; its frame is counted as the
+    camera's node counts it (``LocalizerOutput.camera_counts``: compiled, the estimator's
+    dropped rows) and published as the node publishes it (``frame_outcome``: its pose at its
+    time in its frame id, or moved to ``base_frame`` by its mounting as
+    ``camera_to_base`` moves it; a failed frame only its fused twists)."""
+    from rs_localizer.frames import camera_to_base
+    from rs_localizer.ros.bags.replay import frame_outcome
+    from rs_localizer.tracking.localizer import CameraFrame
+
+    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=8, num_points=120, seed=5))
+    video = Localizer(LocalizerSettings({"": IDENTITY}, options=EstimateOptions()))
+    rig = Localizer(LocalizerSettings({"c": IDENTITY}, options=EstimateOptions()))
+    assert video.settings.camera_video and not rig.settings.camera_video
+    mount = Mounting(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), np.array([0.1, 0, 0.3]))
+    fused = []
+    for f in frames:
+        (out,) = video.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores, tag="cam_optical"))
+        (other,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores, camera_name="c"))
+        est = out.estimate
+        assert est is out.camera_estimate and est.success
+        assert _same(est.model.w, other.camera_estimate.model.w)
+        assert _same(est.pose.angular_velocity, other.estimate.pose.angular_velocity)
+        assert out.camera_counts() == [("frames_compiled", 1), ("points_dropped", 0)]
+        plain = frame_outcome(out, None)
+        assert plain.posed.pose is est and plain.posed.frame_id == "cam_optical"
+        assert plain.posed.stamp_ns == out.stamp_ns and plain.posed.twist_now == out.twist_now
+        moved = frame_outcome(out, "robot", mount)
+        want = camera_to_base(est, mount)
+        assert moved.posed.frame_id == "robot"
+        assert np.allclose(moved.posed.pose.pose.position, want.pose.position, atol=0)
+        assert np.allclose(moved.posed.pose.pose.angular_velocity, want.pose.angular_velocity)
+        fused += out.fused
+        assert [x.frame_id for x in plain.fused] == ["cam_optical"] * len(out.fused)
+    assert fused and all(f.tag == "cam_optical" for f in fused)
+    failed = dataclasses.replace(out, estimate=dataclasses.replace(est, success=False))
+    assert frame_outcome(failed, "robot", mount).posed is None

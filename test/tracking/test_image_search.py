@@ -129,19 +129,20 @@ def test_a_frames_time_is_noted_once_and_its_reference_time_made_once(monkeypatc
 
 
 def test_a_camera_videos_image_failure_is_its_callers_a_rig_of_ones_is_counted():
-    # a rig of one at the identity mounting counts a skipped image as received and skipped;
-    # the same rig as a camera's own video (SequenceLocalizer's) returns it to its caller
-    # uncounted, its failure to read from last_search
-    rig = _localizer([""])
-    assert rig.process_image("", T0, _image(0), CAMERA) == []
-    assert rig.counts[".received"] == 1 and rig.counts[".skipped.frontend_too_few_points"] == 1
+    # a rig of one camera at the identity mounting counts a skipped image as received and
+    # skipped; a camera's own video (its camera named "": SequenceLocalizer's, a camera's bag
+    # replayed) returns it to its caller uncounted, its failure to read from last_search
+    rig = _localizer(["cam"])
+    assert rig.process_image("cam", T0, _image(0), CAMERA) == []
+    assert rig.counts["cam.received"] == 1
+    assert rig.counts["cam.skipped.frontend_too_few_points"] == 1
     seq = SequenceLocalizer(SequenceSettings(), frontend=FivePoints(), frontend_name="five")
-    video = seq.rig
-    assert video.process_image("", T0, _image(0), CAMERA) == []
-    assert video.last_search("").failure == "frontend_too_few_points"
-    assert len(video.last_search("").found) == 5 and sum(video.counts.values()) == 0
-    assert video.process_image("", T0 + 33_000_000, _image(0), CAMERA) == []
-    assert video.last_search("").failure == "frozen_image" and sum(video.counts.values()) == 0
+    for video in (seq.rig, _localizer([""])):
+        assert video.process_image("", T0, _image(0), CAMERA) == []
+        assert video.last_search("").failure == "frontend_too_few_points"
+        assert len(video.last_search("").found) == 5 and sum(video.counts.values()) == 0
+        assert video.process_image("", T0 + 33_000_000, _image(0), CAMERA) == []
+        assert video.last_search("").failure == "frozen_image" and sum(video.counts.values()) == 0
     out = seq.image_output(seq.frame_time(T0 + 33_000_000, CAMERA), [])
     assert out.failure == "frozen_image" and out.detail.startswith("the image is the previous")
     assert out.stamp_ns == reference_stamp_ns(T0 + 33_000_000, CAMERA, 0.0)

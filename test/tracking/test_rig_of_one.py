@@ -381,10 +381,17 @@ def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
 
 
 def test_only_a_rig_of_one_is_a_camera_s_video():
-    """``camera_video``, ``camera_words`` and ``check_time`` are a rig of one's."""
+    """A camera's video is a rig of one camera named "" (``LocalizerSettings.camera_video``;
+    ``camera_video``, ``camera_words`` given true for another rig refused); ``check_time`` is
+    a rig of one's."""
+    assert LocalizerSettings({"": IDENTITY}).camera_video
+    assert not LocalizerSettings({"cam": IDENTITY}).camera_video
+    assert not LocalizerSettings({"": Mounting(np.eye(3), np.array([0.1, 0, 0]))}).camera_video
     for kw in ("camera_video", "camera_words"):
-        with pytest.raises(ValueError, match=f"{kw} needs a rig of one"):
-            Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}), **{kw: True})
+        for mounts in ({"a": IDENTITY, "b": IDENTITY}, {"cam": IDENTITY}):
+            with pytest.raises(ValueError, match=f'{kw} needs a rig of one camera named ""'):
+                Localizer(LocalizerSettings(mounts), **{kw: True})
+        Localizer(LocalizerSettings({"": IDENTITY}), **{kw: True})  # (its camera's video)
     with pytest.raises(ValueError, match="rig of one"):
         Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
 
@@ -460,18 +467,17 @@ def test_a_rig_s_frozen_image_level_is_the_camera_s(video):
 
 def test_a_rig_of_one_worded_for_its_camera_leaves_a_time_reset_to_its_caller(video):
     """A frame going back (a time reset): a rig of one warns ``rig time reset: ...`` once;
-    worded for its camera (``camera_words``) it warns nothing (its caller reports it), and
-    both pose every frame the same."""
+    its camera named "" (its camera's video, worded for it) it warns nothing (its caller
+    reports it), and both pose every frame the same."""
     from helpers.rig import Log
 
     frames, cam, _ = video
     order = [*frames[:6], frames[2], frames[3]]  # (back to the 3rd frame's stamp)
     logs, posed = [], []
-    for words in (False, True):
+    for name in ("cam", ""):
         log = Log()
-        rig = Localizer(LocalizerSettings({"cam": IDENTITY}, options=OPTS), log,
-                        camera_words=words)  # fmt: skip
-        outs = [rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores, camera_name="cam"))
+        rig = Localizer(LocalizerSettings({name: IDENTITY}, options=OPTS), log)
+        outs = [rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores, camera_name=name))
                 for f in order]  # fmt: skip
         assert rig.counts["rig.time_resets"] == 1
         logs.append([t for k, t in log.warnings if "time_reset" in k])

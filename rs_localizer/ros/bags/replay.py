@@ -9,45 +9,40 @@ video solves them, with the camera's parameters), so that a replay publishes wha
 would: the pose, the frame's own twist (``twist_single_frame``) and, with tracking (the
 default), the fused twist on ``twist`` and ``odom`` when it is final. It is one run: the
 bag's messages read once in log-time order, each camera_info to its camera's input, the
-gyro's samples read first, each frame message through the rig node's frame step; and the
-outputs are written by one path: a bag (``/rs_localizer/<topic>``), a CSV (one line per
-frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth (``/ground_truth/*``)
-when it has one and, with ``debug_outputs``, the node's visualization topics in the output bag
-(``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`; of a rig,
-``<camera>/debug_image`` and ``<camera>/markers`` per camera), to open in Foxglove or RViz.
+gyro's samples read first, each frame message through the rig node's frame step, each rig
+frame published as the node publishes it (:class:`..outputs.FrameOutcome`); and the outputs
+are written by one path (:mod:`.replay_out`): a bag (``/rs_localizer/<topic>``), a CSV (one
+line per frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth
+(``/ground_truth/*``) when it has one and, with ``debug_outputs``, the node's visualization
+topics in the output bag (``debug_image``, ``markers``, ``path``:
+:mod:`rs_localizer.ros.visualization`; of a rig, ``<camera>/debug_image`` and
+``<camera>/markers`` per camera), to open in Foxglove or RViz.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 import os
-import shutil
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from ...accuracy import (
-    GroundTruth,
-    frame_errors,
-    frame_fit_summary,
-    summarize_errors,
-)
+from ...accuracy import GroundTruth
 from ...frames import camera_to_base
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from .. import conversions as cv
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..outputs import fused_messages
+from ..outputs import CameraView, FrameOutcome, PosedFrame, outcome_messages
 from ..param_files import parameter_values, read_params_file
-from ..pipeline import FusedOutput, MapFitCheck, fused_outputs
+from ..pipeline import MapFitCheck, fused_outputs
 from .bag_frames import (
     QuietLog,
     camera_messages,
@@ -67,20 +62,30 @@ from .bag_io import (
     RigTopics,
     bag_connections,
     bag_topics,
-    iter_messages,
     load_ground_truth,
     progress_bar,
     read_bag_info,
     rig_namespace,
-    storage_plugin,
     typestore,
+)
+from .replay_out import (
+    CSV_COLUMNS,
+    BagImages,
+    DebugWriter,
+    ReplayRows,
+    frame_row,
+    open_out_bag,
+    to_cdr,
+    view_prefix,
+    write_csv,
+    write_messages,
 )
 
 if TYPE_CHECKING:
-    from ...camera import CameraModel, FrameTime
+    from ...camera import FrameTime
     from ...estimation.result import RSPoseEstimate
-    from ...pose import PoseWithCovariance
-    from ...tracking.video import Localizer
+    from ...frames import Mounting
+    from ...tracking.video import Localizer, LocalizerOutput
 
 __all__ = [
     "BAG_TIMING",
@@ -90,6 +95,7 @@ __all__ = [
     "ReplayResult",
     "ReplayRows",
     "camera_counts",
+    "frame_outcome",
     "open_out_bag",
     "replay",
     "replay_parameters",
@@ -102,14 +108,6 @@ __all__ = [
 #: by make-bag and render-bag) when neither a parameter file nor an override sets them
 #: (``rs.readout_time`` is not among them: with 0 the line delay is used, as recorded)
 BAG_TIMING = ("rs.line_delay", "rs.direction", "rs.reference_row", "rs.stamp_row")
-
-
-def to_cdr(msg: Any, msgtype: str, ts: Any) -> bytes:
-    """rclpy message -> CDR bytes with zeroed padding (rclpy leaves the alignment padding
-    uninitialized, which makes bags non-reproducible): serialize, then let rosbags re-encode."""
-    from rclpy.serialization import serialize_message
-
-    return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
 
 
 @dataclass
@@ -155,8 +153,10 @@ class ReplayResult:
 
     Both have ``outputs``, every rig frame's
     :class:`~rs_localizer.tracking.video.LocalizerOutput` (a camera's: its rig of one's, of
-    each frame that reached it; each camera frame tagged with its frame id, as the rig node
-    tags it), and ``flushed``, the fused poses still pending at the end of the video.
+    each frame that reached it, the camera's video: its ``estimate`` the camera's own,
+    :attr:`~rs_localizer.tracking.video.LocalizerSettings.camera_video`; each camera frame
+    tagged with its frame id, as the rig node tags it), and ``flushed``, the fused poses still
+    pending at the end of the video.
     """
 
     rows: list = field(default_factory=list)
@@ -357,18 +357,22 @@ def replay(
         result.out_bag = Path(out_bag)
     viz = None
     if debug_outputs:
-        images = _BagImages(path, run.image_topics)
+        images = BagImages(path, run.image_topics)
         viz = DebugWriter(writer, conns, ts, path_length, run.map_frame, run.views, images)
     rows = ReplayRows(gt)
     steps = run.steps(progress, viz is not None)
     try:
         for s in steps:
+            posed = s.outcome.posed
             if s.row is not None:
-                rows.add(s.row, s.pose, s.out_stamp_ns, s.twist_now)
-            rows.fused(s.fused)
-            write_messages(writer, conns, ts, s.t_log, s.messages)
-            if viz is not None and s.views:
-                viz.frame(s)
+                rows.add(s.row, *((posed.pose, posed.stamp_ns, posed.twist_now) if posed
+                                  else (None, None, False)))  # fmt: skip
+            rows.fused(s.outcome.fused)
+            if writer is not None:
+                messages = outcome_messages(s.outcome, run.map_frame, _WANTED)
+                write_messages(writer, conns, ts, s.t_log, messages)
+            if viz is not None and posed is not None and posed.views:
+                viz.frame(s.t_log, s.estimate, posed)
     finally:
         steps.close()
         if viz is not None:
@@ -391,41 +395,18 @@ def replay(
 
 
 @dataclass
-class _View:
-    """A camera's drawing of a posed frame (``<prefix>debug_image``, ``<prefix>markers``):
-    its estimate (camera frame), rows ``uv`` (N, 2) px and ``X`` (N, 3) m, camera model,
-    header stamp (ns), frame id, the stamp of its pose (ns) and its image ((image, encoding),
-    None: the bag's of its stamp, :class:`_BagImages`)."""
-
-    prefix: str
-    estimate: RSPoseEstimate
-    uv: np.ndarray
-    X: np.ndarray
-    camera: CameraModel
-    stamp_ns: int
-    frame_id: str
-    ref_stamp_ns: int
-    image: tuple | None = None
-
-
-@dataclass
 class _Step:
     """What one frame (a camera's frame or a rig frame) gives the output path of
-    :func:`replay`: its ``row`` (:class:`ReplayRows`; None: the end of the video, only the
-    fused twists still pending), the published ``pose`` when posed (its ``out_stamp_ns``;
-    ``twist_now``: its own twist is final), the ``fused`` twists of earlier frames now final,
-    the output ``messages`` logged at ``t_log`` (ns), the ``estimate`` on the path and the
-    cameras' ``views`` (debug outputs)."""
+    :func:`replay`: its ``outcome`` as the node publishes it (:class:`..outputs.FrameOutcome`:
+    the pose when posed, with its cameras' views for the debug outputs; the fused twists of
+    earlier frames now final), logged at ``t_log`` (ns); its ``row`` (:class:`ReplayRows`;
+    None: the end of the video, only the fused twists still pending) and the ``estimate`` on
+    the path."""
 
     t_log: int
-    messages: list
-    fused: list
+    outcome: FrameOutcome
     row: dict | None = None
-    pose: PoseWithCovariance | None = None
-    out_stamp_ns: int | None = None
-    twist_now: bool = False
     estimate: RSPoseEstimate | None = None
-    views: list = field(default_factory=list)
 
 
 #: the output topics a replay's bag holds (``tf`` is not among them)
@@ -491,7 +472,7 @@ class _Run:
         run.path, run.cfg = path, cfg
         run.engine = rig = Localizer(cfg.settings)
         names = tuple(c.name for c in cfg.cameras)
-        run._cameras(names, {c.name: c.mount for c in cfg.cameras}, {n: f"{n}/" for n in names})
+        run._cameras({c.name: c.mount for c in cfg.cameras})
         ns = rig_namespace(path, names)
         run.imu_topic = f"{ns}/imu" if cfg.settings.imu is not None else None
         try:
@@ -510,11 +491,10 @@ class _Run:
         run.map_frame = str(values["map_frame"])
         run.base_frame = str(values["base_frame"]).strip() or "base_link"
         run.bag_topics = present = bag_topics(path)
-        run.image_topics = {t: f"{n}/" for t, (_, n) in RigTopics(ns, names).of(("image",))
+        run.image_topics = {t: view_prefix(n) for t, (_, n) in RigTopics(ns, names).of(("image",))
                             .items() if t in present}  # fmt: skip
-        run.twist_now = cfg.settings.tracking is None
         run.result = ReplayResult(config=cfg, parameters=values, cameras=names,
-                                  tracked=not run.twist_now)  # fmt: skip
+                                  tracked=cfg.settings.tracking is not None)  # fmt: skip
         run.fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end)
         return run
 
@@ -557,12 +537,12 @@ class _Run:
             stamp_row=cfg.stamp_row, time_reset_ns=cfg.time_reset_ns, max_points=cfg.max_points,
         ))  # fmt: skip
         run.log = tlog = ThrottledLog(log)
-        run._cameras(("",), dict(settings.mounts), {"": ""})
+        run._cameras(dict(settings.mounts))
         own = run.own[""]
         gyro = GyroInput(own.add, tlog, span=math.inf)  # (the camera's counts and wording)
         # (its warnings worded as the camera's: a time reset its input's alone)
-        run.engine = rig = Localizer(settings, tlog, gyro_input=gyro, count=own.add,
-                                     camera_words=True)  # fmt: skip
+        # (its camera named "": it speaks as the camera, LocalizerSettings.camera_video)
+        run.engine = rig = Localizer(settings, tlog, gyro_input=gyro, count=own.add)
         run.landmarks = maps.landmarks
         inp = CameraInput(tlog, own.add, name="")
         cam = cfg.camera
@@ -576,9 +556,8 @@ class _Run:
         if cam.mount is not None:
             run.base_frame, run.out_mount = cfg.base_frame, cam.mount
         run.image_topics = {viz_topic: ""} if viz_topic else {}
-        run.twist_now = settings.tracking is None
         run.result = ReplayResult(config=cfg, maps=maps, parameters=values, solver=cfg.solver,
-                                  tracked=not run.twist_now)  # fmt: skip
+                                  tracked=settings.tracking is not None)  # fmt: skip
         timing = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
         for note in (timing, _imu_mount_note(cfg, read_bag_info(path))):
             if note is not None:
@@ -586,12 +565,14 @@ class _Run:
         run.fit = MapFitCheck()
         return run
 
-    def _cameras(self, names: tuple, mounts: dict, prefixes: dict) -> None:
-        """The cameras' mountings, the node's counts of each, their debug outputs' prefixes."""
+    def _cameras(self, mounts: dict) -> None:
+        """The cameras' mountings (by name), the node's counts of each, their debug outputs'
+        prefixes (:func:`.replay_out.view_prefix`)."""
         from ..camera_input import CameraCounts
 
-        self.mounts, self.prefixes = mounts, prefixes
-        self.views = tuple(prefixes.values())
+        self.mounts = mounts
+        names = tuple(mounts)
+        self.views = tuple(view_prefix(n) for n in names)
         self.own = {n: CameraCounts(n) for n in names}  # (the node's counts of each)
         self.off_deg: dict[str, list] = {}
         self.t_log = 0
@@ -612,7 +593,7 @@ class _Run:
             steps, t_end, fused = self.close(views)
             yield from steps
             bar.update(len(steps))
-            yield _Step(t_end, fused_messages(fused, self.map_frame, _WANTED), fused)
+            yield _Step(t_end, FrameOutcome(None, fused))
         finally:
             bar.close()
             SHARED_MAPS.release(self)  # (a rig's cameras' front ends and landmarks)
@@ -691,8 +672,8 @@ class _Run:
         if not self.per_frame:
             return []
         out_stamp = None if self._ft is None else self._ft.reference_ns
-        row = _row(stamp, out_stamp, False, reason, self.result.solver, None)
-        return [_Step(self.t_log, [], [], row)]
+        row = frame_row(stamp, out_stamp, False, reason, self.result.solver, None)
+        return [_Step(self.t_log, FrameOutcome(), row)]
 
     def _gyro_to(self, ft: FrameTime) -> None:
         self._ft = ft  # (the frame's times, made once)
@@ -708,42 +689,19 @@ class _Run:
         steps = self._steps(tail, views)
         t_end = self.t_log if self.per_frame else (
             result.outputs[-1].stamp_ns if result.outputs else 0)  # fmt: skip
-        return steps, t_end, self._fused(result.flushed)
-
-    def _fused(self, fused: list) -> list[FusedOutput]:
-        """twist / odom of the rig frames whose fused twist is final, in :attr:`base_frame`
-        (moved there by :attr:`out_mount`), else in their camera's frame id."""
-        if self.base_frame is not None:
-            return fused_outputs(fused, self.base_frame, self.out_mount)
-        return [FusedOutput(f.pose.stamp_ns, f, next(iter(f.tag.values()))) for f in fused]
+        return steps, t_end, fused_outputs(result.flushed, self.base_frame, self.out_mount)
 
     def _steps(self, outs: list, views: bool, taken: Any = None) -> list[_Step]:
         """The steps of rig frames ``outs`` (each camera frame tagged with its frame id, as
         the rig node tags it; ``taken``: the frame step that completed them, its time), each
-        logged at its time (a camera's bag: at its frame message's); how far off each camera
-        of a posed one that disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
-        from ..outputs import FrameOutcome, PosedFrame, outcome_messages
-
-        result, mf, steps = self.result, self.map_frame, []
+        logged at its time (a camera's bag: at its frame message's), counted (:meth:`_counted`)
+        and published (:meth:`_outcome`); how far off each camera of a posed one that
+        disagrees with the others is, to :attr:`ReplayResult.off_deg`."""
+        result, steps = self.result, []
         done = time.perf_counter()
         for o in outs:
             t, est = o.stamp_ns, o.estimate
-            if self.per_frame:  # (the camera's counts, as its node's diagnostics)
-                self.own[""].add("frames_compiled" if o.compiled else "frames_uncompiled")
-            if est is not None:
-                result.solver = result.solver or est.solver
-                if self.per_frame:  # (the camera's counts, as its node's diagnostics)
-                    _count_estimate(self.own[""].add, o.camera_estimate)
-                    self.fit.check(o.num_points, est, self.own[""], self.log.warning)
-                else:
-                    self.fit.update(o.num_points, est)
-            fused = self._fused(o.fused)
-            posed = None
-            if o.success:
-                base = self.base_frame or o.tags[o.cameras[0]]
-                pose = est if self.out_mount is None else camera_to_base(est, self.out_mount)
-                posed = PosedFrame(pose, t, base, self.twist_now or o.twist_now)
-            msgs = outcome_messages(FrameOutcome(posed, fused), mf, _WANTED)
+            self._counted(o)
             failure = "" if o.success else (est.failure if est is not None else "error")
             stamp, ms, solver = t, None, est.solver if est is not None else ""
             if self.per_frame:  # (a camera's frame: its header stamp, its estimator's time)
@@ -751,28 +709,49 @@ class _Run:
                 if not o.success:
                     failure = (est.failure if est is not None else None) or "estimator_error"
                 ms = self._estimate_ms(taken, o, done)
-            row = _row(stamp, t, o.success, failure, solver, est, o.num_points, ms)
-            step = _Step(self.t_log if self.per_frame else t, msgs, fused, row)
+            row = frame_row(stamp, t, o.success, failure, solver, est, o.num_points, ms)
+            t_log = self.t_log if self.per_frame else t
+            steps.append(_Step(t_log, self._outcome(o, views), row, est if o.success else None))
             result.outputs.append(o)
-            if o.success:
-                for n in (n for n in o.cameras if n in o.outvoted or n in o.disagreeing):
-                    f = o.frames.get(n)
-                    deg = None if f is None else self.engine.camera_off_deg(o, f)
-                    self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
-                step.pose, step.out_stamp_ns, step.estimate = posed.pose, t, est
-                step.twist_now = posed.twist_now
-                drawn: Iterable = ()
-                if views:  # (its module, with the visualization messages, only for them)
-                    from ..visualization import rig_camera_views
-
-                    drawn = rig_camera_views(o, self.mounts)
-                step.views = [
-                    _View(self.prefixes[n], view, f.points2d, f.points3d, f.camera, f.stamp_ns,
-                          f.tag or n, ref)
-                    for n, f, view, ref in drawn
-                ]  # fmt: skip
-            steps.append(step)
+            off = [n for n in o.cameras if n in o.outvoted or n in o.disagreeing]
+            for n in off if o.success else ():
+                f = o.frames.get(n)
+                deg = None if f is None else self.engine.camera_off_deg(o, f)
+                self.off_deg.setdefault(n, []).append(math.nan if deg is None else deg)
         return steps
+
+    def _counted(self, o: LocalizerOutput) -> None:
+        """A rig frame's estimate counted: the estimator's name; a camera's counts as its node
+        counts them (:meth:`~rs_localizer.tracking.video.LocalizerOutput.camera_counts`) and
+        its map-fit check (:meth:`..pipeline.MapFitCheck.check`, warned); a rig's map-fit
+        check (its counts are the rig's, its warning at the end)."""
+        est = o.estimate
+        if self.per_frame:
+            for key, n in o.camera_counts():
+                self.own[""].add(key, n)
+        if est is None:
+            return
+        self.result.solver = self.result.solver or est.solver
+        if self.per_frame:
+            self.fit.check(o.num_points, est, self.own[""], self.log.warning)
+        else:
+            self.fit.update(o.num_points, est)
+
+    def _outcome(self, o: LocalizerOutput, views: bool) -> FrameOutcome:
+        """What a rig frame publishes (:func:`frame_outcome` in :attr:`base_frame`, moved
+        there by :attr:`out_mount`) with, for the debug outputs (``views``), each camera's
+        view (:func:`..visualization.rig_camera_views`; drawn on the bag's image of its
+        stamp)."""
+        drawn: Iterable = ()
+        if views and o.success:  # (its module, with the visualization messages, only for them)
+            from ..visualization import rig_camera_views
+
+            drawn = rig_camera_views(o, self.mounts)
+        seen = tuple(
+            CameraView(n, view, f.points2d, f.points3d, f.camera, f.stamp_ns, ref, f.tag or n)
+            for n, f, view, ref in drawn
+        )
+        return frame_outcome(o, self.base_frame, self.out_mount, seen)
 
     def _estimate_ms(self, taken: Any, o: Any, done: float) -> float | None:
         """ms, a camera's frame's estimator time: its frame step after its frame was taken
@@ -811,36 +790,31 @@ class _Run:
         return self.engine.tracking_values()
 
 
-def _count_estimate(count: Callable[[str, int], Any], est: RSPoseEstimate) -> None:
-    """A camera's estimate counted as its node counts it: ``points_dropped`` (the rows its
-    estimator left out), a pose from few points (``frames_few_points``) or one tag
-    (``frames_single_tag``)."""
-    count("points_dropped", int(est.num_dropped))
-    if est.success and est.few_points:
-        count("frames_few_points")
-    if est.success and est.single_tag:
-        count("frames_single_tag")
-
-
-def _row(stamp_ns: int | None, out_stamp_ns: int | None, success: bool, failure: str,
-         solver: str, est: RSPoseEstimate | None, num_points: int = 0,
-         time_ms: float | None = None) -> dict:  # fmt: skip
-    """The row of a frame, a camera's or a rig frame (:meth:`ReplayRows.add` numbers it and
-    adds its pose and twists): its stamps (ns; None: a camera's frame dropped before they were
-    made), ``success``, ``failure`` ("" when solved), ``solver``; with an estimate (solved or
-    failed): a camera's ``time_ms`` (the estimator's), ``num_points`` (a rig frame's: all its
-    cameras'), the estimate's ``num_inliers`` and ``rmse_px``."""
-    row = {"stamp_ns": stamp_ns, "out_stamp_ns": out_stamp_ns, "success": success,
-           "failure": failure, "solver": solver}  # fmt: skip
-    if est is not None:
-        row.update(time_ms=time_ms, num_points=num_points, num_inliers=est.num_inliers,
-                   rmse_px=est.rmse_px)  # fmt: skip
-    return {k: v for k, v in row.items() if v is not None or k not in ("out_stamp_ns", "time_ms")}
-
-
 #: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
 #: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
 GYRO_AHEAD_NS = 50_000_000
+
+
+def frame_outcome(
+    out: LocalizerOutput,
+    base_frame: str | None,
+    mount: Mounting | None = None,
+    views: tuple[CameraView, ...] = (),
+) -> FrameOutcome:
+    """What a rig frame ``out`` of a :class:`~rs_localizer.tracking.video.Localizer` publishes
+    (:class:`..outputs.FrameOutcome`), a camera's frame (its rig of one) or a rig's alike: the
+    fused twists it made final (:func:`..pipeline.fused_outputs`) and, posed, its pose at its
+    time with its own twist when that is final (:attr:`~rs_localizer.tracking.video.
+    LocalizerOutput.twist_now`) and the cameras' ``views``. In ``base_frame`` (None: the
+    frame id of its first camera's frame), moved there by the camera's ``mount``
+    (:func:`~rs_localizer.frames.camera_to_base`; None: as it is, the rig's pose)."""
+    fused = fused_outputs(out.fused, base_frame, mount)
+    if not out.success:
+        return FrameOutcome(None, fused)
+    est = out.estimate
+    pose = est if mount is None else camera_to_base(est, mount)
+    frame = base_frame or out.tags[out.cameras[0]]
+    return FrameOutcome(PosedFrame(pose, out.stamp_ns, frame, out.twist_now, views), fused)
 
 
 def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: bool = False) -> dict:
@@ -927,301 +901,3 @@ def _replay_topics(
                 f"{imus})"
             )
     return frames, info_topic, viz_topic, imu_topic
-
-
-def open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
-    """The output bag of a replay (of a camera or a rig): its open writer and its connections
-    by output name (:data:`OUT_TYPES`, as ``/rs_localizer/<name>``).
-
-    Raises:
-        FileExistsError: ``out_bag`` exists and not ``overwrite``.
-    """
-    from rosbags.rosbag2 import Writer
-
-    if out_bag.exists():
-        if not overwrite:
-            raise FileExistsError(f"{out_bag} exists (use --overwrite)")
-        shutil.rmtree(out_bag)
-    writer = Writer(out_bag, version=9, storage_plugin=storage_plugin(storage))
-    writer.open()
-    conns = {}
-    for name, mt in OUT_TYPES.items():
-        conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
-    return writer, conns
-
-
-def write_messages(
-    writer: Any, conns: dict, ts: Any, t_log: int, messages: Iterable[tuple[str, Any]]
-) -> None:
-    """Write ``(topic, message)`` pairs (:mod:`rs_localizer.ros.outputs`) into an output bag of
-    :func:`open_out_bag` at log time ``t_log`` (ns); topics it does not hold (``tf``) are left
-    out by the caller's ``wanted``; ``writer`` None: nothing."""
-    if writer is None:
-        return
-    for topic, m in messages:
-        writer.write(conns[topic], t_log, to_cdr(m, OUT_TYPES[topic], ts))
-
-
-def _xyz(prefix: str, v) -> dict:
-    return {f"{prefix}{a}": float(v[k]) for k, a in enumerate("xyz")}
-
-
-class ReplayRows:
-    """The rows of a replay's CSV and summary, one per frame (a camera's frame, or a rig
-    frame): the pose when solved, the published twist (the frame's own, or the fused one when
-    it comes) and the errors against ground truth (``gt``). Columns: :data:`CSV_COLUMNS`."""
-
-    def __init__(self, gt: GroundTruth):
-        self.gt = gt
-        self.rows: list[dict] = []
-        self.waiting: dict[int, tuple] = {}  # out stamp -> (row, orientation, position)
-        self.own: list[dict] = []  # the errors of each posed frame's own twist
-
-    def add(
-        self, row: dict, out: PoseWithCovariance | None, stamp: int | None, twist_now: bool
-    ) -> None:
-        """A frame's ``row`` (:func:`_row`; numbered here, ``frame``) and, when posed, its
-        published pose ``out`` at ``stamp`` (ns; ``twist_now``: its own twist is the one
-        published, else the fused one comes with :meth:`fused`)."""
-        row = {"frame": len(self.rows), **row}
-        self.rows.append(row)
-        if out is None:
-            return
-        q = cv.quaternion_from_matrix(out.pose.orientation)
-        row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
-        row.update(_xyz("p", out.pose.position))
-        row.update(_xyz("single_w", out.pose.angular_velocity))
-        row.update(_xyz("single_v", out.pose.linear_velocity))
-        self.own.append(frame_errors(out.pose.orientation, out.pose.position,
-                                     out.pose.angular_velocity, out.pose.linear_velocity,
-                                     self.gt, stamp))  # fmt: skip
-        self.waiting[stamp] = (row, out.pose.orientation, out.pose.position)
-        if twist_now:
-            self._twist(stamp, out.pose.angular_velocity, out.pose.linear_velocity)
-
-    def fused(self, fused: Iterable[FusedOutput]) -> None:
-        """The fused twists now final (of frames added before)."""
-        for f in fused:
-            self._twist(f.stamp_ns, f.source.pose.angular_velocity, f.source.pose.linear_velocity)
-
-    def _twist(self, stamp: int, w, v) -> None:
-        item = self.waiting.pop(stamp, None)
-        if item is None:
-            return
-        row, R, p = item
-        row.update(_xyz("w", w))
-        row.update(_xyz("v", v))
-        self._errors(row, R, p, w, v, stamp)
-
-    def _errors(self, row, R, p, w, v, stamp) -> None:
-        err = frame_errors(R, p, w, v, self.gt, stamp)
-        if err:
-            row.update({f"err_{k}": val for k, val in err.items()})
-
-    def own_twist(self) -> dict:
-        """The errors of the posed frames' own twists against ground truth (``frames``,
-        ``angvel``, ``linvel`` of :func:`~rs_localizer.accuracy.summarize_errors`)."""
-        s = summarize_errors(self.own)
-        return {k: v for k, v in s.items() if k in ("frames", "angvel", "linvel")}
-
-    def pose_pairs(self) -> tuple[list, list]:
-        """The solved frames' poses ``(R, p)`` and their ground truth's, for the rigid fit of
-        the frames."""
-        est, gt = [], []
-        for r in self.rows:
-            s = self.gt.nearest(r.get("out_stamp_ns", r["stamp_ns"])) if "qw" in r else None
-            if s is not None:
-                q = [r[f"q{a}"] for a in "xyzw"]
-                est.append((cv.matrix_from_quaternion(q), np.array([r[f"p{a}"] for a in "xyz"])))
-                gt.append((self.gt.orientation[s], np.asarray(self.gt.position[s])))
-        return est, gt
-
-    def finish(self) -> list[dict]:
-        """The rows; solved frames whose twist never came get their pose errors alone."""
-        for stamp, (row, R, p) in self.waiting.items():
-            self._errors(row, R, p, None, None, stamp)
-        self.waiting.clear()
-        return self.rows
-
-    def summary(self) -> tuple[list[dict], dict[str, int], dict]:
-        """``(rows, failures, summary)`` at the end of the video (:meth:`finish`):
-        ``failures`` reason -> frames, ``summary`` the errors of the published pose and twist
-        against ground truth (:func:`~rs_localizer.accuracy.summarize_errors`) and, with
-        errors, ``frame_fit`` (the errors after a rigid fit of the frames,
-        :func:`~rs_localizer.accuracy.frame_fit_summary`)."""
-        rows = self.finish()
-        failures: dict[str, int] = {}
-        for r in rows:
-            if not r["success"]:
-                failures[r["failure"]] = failures.get(r["failure"], 0) + 1
-        summary = summarize_errors(
-            [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in rows]
-        )
-        fit = frame_fit_summary(*self.pose_pairs())
-        if fit is not None and summary.get("frames"):
-            summary["frame_fit"] = fit
-        return rows, failures, summary
-
-
-class DebugWriter:
-    """Writes the visualization topics of posed frames into the replay's output bag, drawn by
-    the node's :class:`~rs_localizer.ros.visualization.VisualizationBuilder`:
-    ``/rs_localizer/path`` and, for each camera prefix of ``cameras`` (a camera's ``""``; a
-    rig's ``"<camera>/"``), ``/rs_localizer/<prefix>debug_image`` and ``<prefix>markers``.
-    ``images``: the bag's images to draw on (:class:`_BagImages`, by camera prefix; None:
-    only those a frame brings)."""
-
-    def __init__(
-        self,
-        writer: Any,
-        conns: dict,
-        ts: Any,
-        path_length: int,
-        map_frame: str,
-        cameras: Iterable[str] = ("",),
-        images: _BagImages | None = None,
-    ):
-        from ..visualization import VIZ_TOPICS, VisualizationBuilder
-
-        self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
-        self.types, self.images = VIZ_TOPICS, images
-        names = [p + n for p in cameras for n in ("debug_image", "markers")] + ["path"]
-        for name in names:
-            conns[name] = writer.add_connection(
-                f"/rs_localizer/{name}", VIZ_TOPICS[name.rsplit("/", 1)[-1]], typestore=ts
-            )
-        self.builder = VisualizationBuilder(path_length)
-
-    def _write(self, name: str, t_log: int, msg: Any) -> None:
-        kind = name.rsplit("/", 1)[-1]
-        self.writer.write(self.conns[name], t_log, to_cdr(msg, self.types[kind], self.ts))
-
-    def frame(self, step: _Step) -> None:
-        """A posed frame's (a camera's or a rig's) ``path``, then each of its cameras'
-        ``debug_image`` (drawn on its view's image, else on the bag's of its stamp, else on a
-        blank canvas) and ``markers``, logged at its ``t_log``."""
-        t_log = step.t_log
-        self.builder.add_pose(step.estimate, step.out_stamp_ns, self.map_frame)
-        self._write("path", t_log, self.builder.path(step.out_stamp_ns, self.map_frame))
-        for v in step.views:
-            image = v.image
-            if image is None and self.images is not None:
-                image = self.images.take(v.prefix, v.stamp_ns)
-            img, enc = (None, None) if image is None else image
-            if img is not None and img.shape[:2] != (v.camera.height, v.camera.width):
-                img, enc = None, None  # (not of the camera's size: a blank canvas)
-            self._write(v.prefix + "debug_image", t_log, self.builder.debug_image(
-                v.estimate, v.uv, v.X, v.camera, v.stamp_ns, v.frame_id, img, enc))  # fmt: skip
-            self._write(v.prefix + "markers", t_log, self.builder.markers(
-                v.estimate, v.X, v.camera, v.ref_stamp_ns, self.map_frame))  # fmt: skip
-
-
-class _BagImages:
-    """The images of a bag that the posed frames' debug images are drawn on (``topics``:
-    topic -> camera prefix), read from the bag as they are asked for, in frame order
-    (:meth:`take`). Each image read is kept undecoded by ``(prefix, header stamp)``, at most
-    :attr:`MAX_HELD` per camera (the oldest dropped), and decoded when asked for, once."""
-
-    MAX_HELD = 16
-
-    def __init__(self, bag: str | os.PathLike, topics: Mapping[str, str]):
-        self.topics = dict(topics)
-        self.held: dict[str, dict[int, Any]] = {k: {} for k in self.topics.values()}
-        self.newest: dict[str, int] = {}  # prefix -> the newest stamp of its images read
-        self.ts = typestore()
-        self._messages = iter_messages(bag, set(self.topics)) if self.topics else iter(())
-
-    def take(self, key: str, stamp_ns: int) -> tuple | None:
-        """``(image, encoding)`` of camera ``key``'s image stamped ``stamp_ns`` (None: the bag
-        has none, or it cannot be decoded). The bag is read on until it is found, an image of
-        that camera stamped later is read, or the bag ends."""
-        from ..image_codec import ImageRejected, decode_image
-
-        held = self.held.get(key)
-        if held is None:
-            return None
-        while stamp_ns not in held and self.newest.get(key, stamp_ns - 1) < stamp_ns:
-            if not self._read():
-                break
-        msg = held.pop(stamp_ns, None)
-        if msg is None:
-            return None
-        try:
-            return decode_image(msg)
-        except ImageRejected:
-            return None
-
-    def close(self) -> None:
-        """Close the bag (the images not read are not read)."""
-        close = getattr(self._messages, "close", None)
-        if close is not None:
-            close()
-
-    def _read(self) -> bool:
-        item = next(self._messages, None)
-        if item is None:
-            return False
-        topic, msgtype, _, raw = item
-        key = self.topics[topic]
-        msg = self.ts.deserialize_cdr(raw, msgtype)
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError:
-            return True
-        self.newest[key] = max(self.newest.get(key, stamp), stamp)
-        held = self.held[key]
-        held[stamp] = msg
-        while len(held) > self.MAX_HELD:
-            held.pop(min(held))
-        return True
-
-
-CSV_COLUMNS = [
-    "frame",
-    "stamp_ns",
-    "out_stamp_ns",
-    "solver",
-    "success",
-    "failure",
-    "num_points",
-    "num_inliers",
-    "rmse_px",
-    "time_ms",
-    "qx",
-    "qy",
-    "qz",
-    "qw",
-    "px",
-    "py",
-    "pz",
-    "wx",
-    "wy",
-    "wz",
-    "vx",
-    "vy",
-    "vz",
-    "err_rot_deg",
-    "err_pos_m",
-    "err_angvel",
-    "err_linvel",
-    "single_wx",
-    "single_wy",
-    "single_wz",
-    "single_vx",
-    "single_vy",
-    "single_vz",
-]
-
-
-def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
-    """Write a replay's ``rows`` (:class:`ReplayRows`) as CSV, :data:`CSV_COLUMNS`."""
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow(
-                {
-                    k: (f"{v:.9g}" if isinstance(v, float) and math.isfinite(v) else v)
-                    for k, v in r.items()
-                }
-            )
