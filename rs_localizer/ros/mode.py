@@ -465,7 +465,7 @@ class LocalizerMode(ModeBase):
         cam = self.cfg.camera
         if cam.mount is not None:
             return fused_outputs(fused, self.cfg.base_frame, cam.mount)
-        return [FusedOutput(f.pose.stamp_ns, f, next(iter(f.tag.values()))) for f in fused]
+        return fused_outputs(fused)
 
     def _take_rig(self, item: QueuedFrame, camera: Any) -> TakenFrame:
         """The worker: one rig camera's frame to the rig (:meth:`_rig_step`), or why not (the
