@@ -255,18 +255,9 @@ def _estimate_rs_pose(
     if camera.line_delay <= 0 and solver_info(solver).rolling:
         # a global shutter: every row at one time, nothing to fit the velocities to
         est = _estimate_rs_pose(
-            points2d,
-            points3d,
-            camera,
-            GS_SOLVER,
-            opts,
-            scores,
-            initial_model,
-            gyro,
-            point_sigma,
-            implementation,
-            name,
-        )
+            points2d, points3d, camera, GS_SOLVER, opts, scores, initial_model, gyro,
+            point_sigma, implementation, name,
+        )  # fmt: skip
         return est if est.solver == name else replace(est, solver=name)
     compiled = resolve_implementation(implementation, solver) == COMPILED
     unused: tuple[str, ...] = ()
@@ -279,15 +270,9 @@ def _estimate_rs_pose(
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         ignored = unused if gyro is None else ("gyro", *unused)
         return _estimate(
-            *args,
-            opts,
-            scores,
-            initial_model,
-            point_sigma=point_sigma,
-            ignored=ignored,
-            compiled=compiled,
-            name=name,
-        )
+            *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=ignored,
+            compiled=compiled, name=name,
+        )  # fmt: skip
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior, compiled))
     return gyro_checked_estimate(
         _CameraStages(
@@ -318,29 +303,11 @@ def _unused_by_numpy(
     return tuple(name for name, g in zip(NUMPY_UNUSED, given, strict=True) if g)
 
 
-def _estimate(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    solver: str,
-    opts: EstimateOptions,
-    scores: np.ndarray | None,
-    initial_model: InitialModel | None,
-    *,
-    point_sigma: np.ndarray | None = None,
-    ignored: tuple[str, ...] = (),
-    compiled: bool = True,
-    name: str | None = None,
-) -> RSPoseEstimate:
+def _estimate(*args, **kwargs) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options and no gyro: the staged estimator
     (:func:`~.driver.staged_estimate`) on the camera's :class:`_CameraStages` (arguments as
     there)."""
-    return staged_estimate(
-        _CameraStages(
-            points2d, points3d, camera, solver, opts, scores, initial_model,
-            point_sigma=point_sigma, ignored=ignored, compiled=compiled, name=name,
-        )
-    )  # fmt: skip
+    return staged_estimate(_CameraStages(*args, **kwargs))
 
 
 class _CameraStages:
