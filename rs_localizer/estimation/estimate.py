@@ -15,8 +15,11 @@ A frame of too few points for its solver but four or more coplanar ones (one squ
 corners) or six or more on more than one plane (a few markers' corners), or of exactly four
 coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from them alone.
 
-A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
-estimator turns it into a failed :class:`RSPoseEstimate` in one place.
+The stages run in :func:`~.driver.staged_estimate`, the one staged estimator of a camera's
+frame and of a rig frame's cameras (:func:`~.rig.estimate_rig_pose`), here on the camera's
+stages (:class:`_CameraStages`). A stage that finds the frame gives no pose raises
+:class:`~.result.EstimationFailed`; the driver turns it into a failed :class:`RSPoseEstimate`
+in one place.
 
 The same stages run with their compiled steps in NumPy and SciPy (:mod:`.numpy_impl`) when
 the ``implementation`` argument selects it (:mod:`.implementation`); every estimate records
@@ -325,12 +328,10 @@ class _CameraStages:
     global-shutter model of still frames). ``name``: the solver a few-points frame's estimate
     records (None: ``solver``).
 
-    The stages: :func:`~.frame.prepare_frame` and :func:`~.frame.configure_frame` (or a
-    few-points frame, :func:`_few_points`); LO-RANSAC (:class:`~.ransac.Ransac`, local
-    optimization on every new best inside the search); the final refinement
-    (:func:`~.finalize.refine_final_model`), the global-shutter model of a final model that
-    shows no motion (:func:`~.finalize.still_final`), the map points' weights; the last
-    checks and outputs (:func:`~.finalize.final_estimate`); after ``implausible_motion`` or
+    Its stages: :func:`~.frame.prepare_frame`, :func:`~.frame.configure_frame` (or
+    :func:`_few_points`); LO-RANSAC (:class:`~.ransac.Ransac`); the final refinement
+    (:func:`~.finalize.refine_final_model`, :func:`~.finalize.still_final`, the map points'
+    weights); :func:`~.finalize.final_estimate`; after ``implausible_motion`` or
     ``too_few_inliers`` the global-shutter estimator (:func:`~.finalize.still_fallback`)."""
 
     def __init__(

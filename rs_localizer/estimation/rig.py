@@ -17,7 +17,10 @@ rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.
 ``w x C - t`` m/s in the rig frame; :func:`~rs_localizer.pose.model_twist` with ``s = 1``).
 Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 
-:func:`estimate_rig_pose` runs RANSAC on every camera's correspondences at once:
+:func:`estimate_rig_pose` runs the single camera's staged estimator
+(:func:`~rs_localizer.estimation.driver.staged_estimate`: the same stages in the same order, a
+failure turned into its reason in one place) on the rig's stages (:class:`_RigStages`), with
+RANSAC on every camera's correspondences at once:
 
 - a sample is 3 points of one camera (drawn with probability proportional to its number of
   points, among cameras with at least 3) and 3 more points drawn uniformly from every camera's
@@ -258,7 +261,7 @@ RIG_SOLVER_ITERATIONS = 3
 STILL_SOLVER_ITERATIONS = 1
 
 #: the rounds of that correction in a global-shutter search run again because its model had
-#: too few inliers (:func:`_estimate`): each round pre-rotated by the previous round's
+#: too few inliers (:class:`_RigStages`): each round pre-rotated by the previous round's
 #: rotation (the rig solver's rotation is linear about its pre-rotation: one round from a P3P
 #: pose 10-30 degrees off, as three noisy corners of a small tag give, stays degrees off;
 #: a second one converges on the sample's six points)
@@ -1071,7 +1074,7 @@ def estimate_rig_pose(
     refinement and covariance of the pose alone) with ``w = t = 0`` and ``motion_model``
     ``"global_shutter"``. So is a rig frame whose rolling-shutter estimate fails
     (``implausible_motion``, ``too_few_inliers``) and whose points show no motion
-    (:func:`_still_if_no_motion`: cameras that read out in nanoseconds to microseconds).
+    (:class:`_RigStages`: cameras that read out in nanoseconds to microseconds).
 
     The cameras' consensus: a pose is returned only when the cameras with points agree on it.
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
@@ -1816,17 +1819,11 @@ class _RigStages:
     the global-shutter model (True) or not (False) whatever the observations' time spread
     (None: global shutter when they are within :data:`STILL_SPREAD`).
 
-    The stages: at least 6 points, 3 in one camera, that fix a pose
-    (:meth:`_Pool.degenerate`); the initial model's seed
-    (:func:`~.local_optimization.initial_model_seed`) and the rig's RANSAC
-    (:class:`_RigSearch`); local optimization, the single camera's rounds
-    (:func:`~.local_optimization.polish`) with the rig's steps (the rig solver on the inliers
-    and the final refinement's first; on a frame taken at one time that refinement alone,
-    kept where it lowers the cost); the final refinement of the lowest MSAC cost
-    (:func:`~.finalize.chosen_refinement`, :data:`CONTRADICTION_GATE`), its inliers, not on one
-    3D line, its Jacobian and covariance (:func:`~.finalize.frame_refinement` without a step,
-    :func:`~.finalize.with_covariance`); the last checks on every camera's model and the
-    consistent fit of the cameras that support it (:data:`AGREE_SHARE`), the outputs.
+    Its stages: at least 6 points, 3 in one camera, that fix a pose; the initial model's seed
+    and :class:`_RigSearch`; :func:`~.local_optimization.polish` with the rig's steps; the
+    final refinement of the lowest MSAC cost (:func:`~.finalize.chosen_refinement`,
+    :data:`CONTRADICTION_GATE`), its inliers, not on one 3D line, its covariance; the last
+    checks and the consistent fit of the cameras that support it (:data:`AGREE_SHARE`).
 
     A global-shutter search whose final model has fewer than ``ransac.min_inliers`` inliers
     searches again (``spread``) with every sample's P3P models corrected on the sample's six
