@@ -46,12 +46,14 @@ RIG_ONLY = {
 
 #: what computes a pose from observations: (module, name) -> why it is one
 ESTIMATORS = {
-    ("estimation/estimate.py", "estimate_rs_pose"): "one camera's frame: RANSAC + refinement",
+    ("estimation/driver.py", "staged_estimate"): (
+        "one view or many: a camera's frame (estimate_rs_pose) or a rig frame's"
+        " (estimate_rig_pose), each its Stages"
+    ),
     (
         "estimation/single_tag.py",
         "few_points_estimate",
     ): "too few points: one marker (IPPE) or a few (SQPnP)",
-    ("estimation/rig.py", "estimate_rig_pose"): "one rig frame of several cameras",
     ("tracking/tracker.py", "RSTracker"): "a camera's video: predicted RANSAC, relocalization",
     ("tracking/sequence.py", "SequenceLocalizer"): "a camera's video, the library entry point",
     ("tracking/video.py", "Localizer"): "a camera's or a rig's video (a camera: a rig of one)",

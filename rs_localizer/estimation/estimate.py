@@ -15,8 +15,11 @@ A frame of too few points for its solver but four or more coplanar ones (one squ
 corners) or six or more on more than one plane (a few markers' corners), or of exactly four
 coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from them alone.
 
-A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
-estimator turns it into a failed :class:`RSPoseEstimate` in one place.
+The stages run in :func:`~.driver.staged_estimate`, the one staged estimator of a camera's
+frame and of a rig frame's cameras (:func:`~.rig.estimate_rig_pose`), here on the camera's
+stages (:class:`_CameraStages`). A stage that finds the frame gives no pose raises
+:class:`~.result.EstimationFailed`; the driver turns it into a failed :class:`RSPoseEstimate`
+in one place.
 
 The same stages run with their compiled steps in NumPy and SciPy (:mod:`.numpy_impl`) when
 the ``implementation`` argument selects it (:mod:`.implementation`); every estimate records
@@ -34,8 +37,10 @@ import numpy as np
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
+from .driver import gyro_checked_estimate, staged_estimate
 from .finalize import (
     STILL_FALLBACK,
+    FinalModel,
     ImageAlone,
     final_estimate,
     image_alone,
@@ -45,12 +50,8 @@ from .finalize import (
     still_final,
     unobserved_twist,
 )
-from .frame import configure_frame, prepare_frame
-from .gyro import (
-    GyroMeasurement,
-    gyro_checked,
-    gyro_prior,
-)
+from .frame import Model, configure_frame, prepare_frame
+from .gyro import GyroMeasurement, gyro_prior
 from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
 from .map_weights import check_point_sigma, weighted_final_model
 from .numpy_impl import NumpyRansac, final_model
@@ -257,18 +258,9 @@ def _estimate_rs_pose(
     if camera.line_delay <= 0 and solver_info(solver).rolling:
         # a global shutter: every row at one time, nothing to fit the velocities to
         est = _estimate_rs_pose(
-            points2d,
-            points3d,
-            camera,
-            GS_SOLVER,
-            opts,
-            scores,
-            initial_model,
-            gyro,
-            point_sigma,
-            implementation,
-            name,
-        )
+            points2d, points3d, camera, GS_SOLVER, opts, scores, initial_model, gyro,
+            point_sigma, implementation, name,
+        )  # fmt: skip
         return est if est.solver == name else replace(est, solver=name)
     compiled = resolve_implementation(implementation, solver) == COMPILED
     unused: tuple[str, ...] = ()
@@ -281,49 +273,22 @@ def _estimate_rs_pose(
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         ignored = unused if gyro is None else ("gyro", *unused)
         return _estimate(
-            *args,
-            opts,
-            scores,
-            initial_model,
-            point_sigma=point_sigma,
-            ignored=ignored,
-            compiled=compiled,
-            name=name,
-        )
+            *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=ignored,
+            compiled=compiled, name=name,
+        )  # fmt: skip
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior, compiled))
-    image: list[ImageAlone | None] = []
-    est = _estimate(
-        *args,
-        aided,
-        scores,
-        initial_model,
+    return gyro_checked_estimate(
+        _CameraStages(
+            *args, aided, scores, initial_model, gyro, opts.motion_prior,
+            point_sigma=point_sigma, ignored=unused, compiled=compiled, name=name,
+        ),
         gyro,
-        image,
-        opts.motion_prior,
-        point_sigma=point_sigma,
-        ignored=unused,
-        compiled=compiled,
-        name=name,
-    )
-    if est.few_points:  # (a few points cannot judge the gyro: its rate is held, not checked)
-        return est
-    return gyro_checked(
-        est,
-        gyro,
-        image[0] if image else None,
-        lambda: est.planar,
-        est.num_valid,
         lambda: _estimate(
-            *args,
-            opts,
-            scores,
-            initial_model,
-            point_sigma=point_sigma,
-            ignored=unused,
+            *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=unused,
             compiled=compiled,
         ),
         compiled,
-    )
+    )  # fmt: skip
 
 
 def _unused_by_numpy(
@@ -341,58 +306,87 @@ def _unused_by_numpy(
     return tuple(name for name, g in zip(NUMPY_UNUSED, given, strict=True) if g)
 
 
-def _estimate(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    solver: str,
-    opts: EstimateOptions,
-    scores: np.ndarray | None,
-    initial_model: InitialModel | None,
-    gyro: GyroMeasurement | None = None,
-    image: list[ImageAlone | None] | None = None,
-    image_prior: MotionPrior | None = None,
-    *,
-    point_sigma: np.ndarray | None = None,
-    ignored: tuple[str, ...] = (),
-    compiled: bool = True,
-    name: str | None = None,
-) -> RSPoseEstimate:
-    """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
-    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
-    success has ``gyro_used`` set). With
-    ``image`` (a list), a success appends what the image alone (with ``image_prior``, the
-    motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
-    or None). ``point_sigma``: (num_rows,) the 3D points' standard deviations (m), or None
-    (:func:`~.map_weights.weighted_final_model`). ``ignored``: the estimate's
-    ``ignored_inputs``. ``compiled=False``: the NumPy implementation (:mod:`.numpy_impl`:
-    the same stages with their compiled steps in NumPy and SciPy; the gyro only through the
-    motion prior and ``image``, not in the minimal samples; without ``scores``,
-    ``point_sigma``, single-tag frames and the global-shutter model of still frames).
-    ``name``: the solver a few-points frame's estimate records (None: ``solver``)."""
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-    shuffle = SeededShuffle(opts.ransac.seed)  # (the generator built when RANSAC runs)
-    fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle, compiled=compiled
-    )
-    if gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
-        fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
-    order = prosac_order(fr, scores)
-    min_inliers = points_needed(solver, opts)
-    flat = few_points_planarity(fr, min_inliers) if compiled else None
-    if flat is not None:
-        return _few_points(
-            fr, camera, solver, opts, initial_model, gyro, timings, ignored, flat, name or solver
+def _estimate(*args, **kwargs) -> RSPoseEstimate:
+    """:func:`estimate_rs_pose` with one set of options and no gyro: the staged estimator
+    (:func:`~.driver.staged_estimate`) on the camera's :class:`_CameraStages` (arguments as
+    there)."""
+    return staged_estimate(_CameraStages(*args, **kwargs))
+
+
+class _CameraStages:
+    """One camera's frame as the staged estimator's :class:`~.driver.Stages`
+    (:func:`estimate_rs_pose` with one set of options, the motion prior possibly including a
+    gyro): with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
+    success has ``gyro_used`` set) and a success records what the image alone (with
+    ``image_prior``, the motion prior without the gyro) says near the final model
+    (:func:`~.finalize.image_alone`, :meth:`gyro_evidence`). ``point_sigma``: (num_rows,) the
+    3D points' standard deviations (m), or None (:func:`~.map_weights.weighted_final_model`).
+    ``ignored``: the estimate's ``ignored_inputs``. ``compiled=False``: the NumPy
+    implementation (:mod:`.numpy_impl`: the same stages with their compiled steps in NumPy and
+    SciPy; the gyro only through the motion prior and the image-alone check, not in the
+    minimal samples; without ``scores``, ``point_sigma``, single-tag frames and the
+    global-shutter model of still frames). ``name``: the solver a few-points frame's estimate
+    records (None: ``solver``).
+
+    Its stages: :func:`~.frame.prepare_frame`, :func:`~.frame.configure_frame` (or
+    :func:`_few_points`); LO-RANSAC (:class:`~.ransac.Ransac`); the final refinement
+    (:func:`~.finalize.refine_final_model`, :func:`~.finalize.still_final`, the map points'
+    weights); :func:`~.finalize.final_estimate`; after ``implausible_motion`` or
+    ``too_few_inliers`` the global-shutter estimator (:func:`~.finalize.still_fallback`)."""
+
+    def __init__(
+        self,
+        points2d: np.ndarray,
+        points3d: np.ndarray,
+        camera: CameraModel,
+        solver: str,
+        opts: EstimateOptions,
+        scores: np.ndarray | None,
+        initial_model: InitialModel | None,
+        gyro: GyroMeasurement | None = None,
+        image_prior: MotionPrior | None = None,
+        *,
+        point_sigma: np.ndarray | None = None,
+        ignored: tuple[str, ...] = (),
+        compiled: bool = True,
+        name: str | None = None,
+    ):
+        self.inputs = (points2d, points3d, camera)
+        self.solver, self.opts, self.scores = solver, opts, scores
+        self.initial_model, self.gyro, self.image_prior = initial_model, gyro, image_prior
+        self.point_sigma, self.ignored, self.compiled = point_sigma, ignored, compiled
+        self.name = name or solver
+        self.t_start = time.perf_counter()
+        self.timings: dict[str, float] = {}
+        self.image: ImageAlone | None = None
+        self.search: Ransac | None = None
+
+    def prepared(self) -> RSPoseEstimate | None:
+        (points2d, points3d, camera), opts, compiled = self.inputs, self.opts, self.compiled
+        shuffle = SeededShuffle(opts.ransac.seed)  # (the generator built when RANSAC runs)
+        self.fr = fr = prepare_frame(
+            points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle,
+            compiled=compiled,
+        )  # fmt: skip
+        if self.gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
+            fr.known_w = -camera.seconds_per_unit_r * self.gyro.angular_velocity
+        order = prosac_order(fr, self.scores)
+        self.min_inliers = min_inliers = points_needed(self.solver, opts)
+        flat = few_points_planarity(fr, min_inliers) if compiled else None
+        if flat is not None:
+            return _few_points(
+                fr, camera, self.solver, opts, self.initial_model, self.gyro, self.timings,
+                self.ignored, flat, self.name,
+            )  # fmt: skip
+        rng = shuffle.generator()
+        self.search = (Ransac if compiled else NumpyRansac)(
+            fr, self.solver, opts, rng, order, self.scores is not None
         )
-    rng = shuffle.generator()
-    search = (Ransac if compiled else NumpyRansac)(fr, solver, opts, rng, order, scores is not None)
-    try:
         try:
             configure_frame(
                 fr,
                 camera,
-                solver,
+                self.solver,
                 opts.ransac.min_inliers,
                 opts.ransac.threshold_px,
                 (opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity),
@@ -400,87 +394,110 @@ def _estimate(
                 compiled=compiled,
             )
         finally:
-            timings["prepare"] = time.perf_counter() - t_start
-        search.run(initial_model)
-        timings.update(search.timings)
-        model = search.result(min_inliers, opts.ransac.threshold_px)
+            self.timings["prepare"] = time.perf_counter() - self.t_start
+        return None
+
+    def searched(self) -> Model:
+        search = self.search
+        search.run(self.initial_model)
+        self.timings.update(search.timings)
+        return search.result(self.min_inliers, self.opts.ransac.threshold_px)
+
+    def polished(self, model: Model) -> Model:
+        return model  # (local optimization ran on every new best inside the search)
+
+    def final(self, model: Model) -> FinalModel:
+        fr, solver, opts, min_inliers = self.fr, self.solver, self.opts, self.min_inliers
         t0 = time.perf_counter()
-        if compiled:
-            final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
+        if self.compiled:
+            camera = self.inputs[2]
+            final = refine_final_model(
+                fr, camera, solver, opts, model, self.search.inliers, min_inliers
+            )
         else:
             final = final_model(fr, solver, opts, model, min_inliers)
-        model_solver = solver
+        self.model_solver = solver
         if (
-            compiled
-            and gyro is None
+            self.compiled
+            and self.gyro is None
             and solver_info(solver).rolling
             and (not final.prior_used or prior_at_rest(fr.final_prior))
         ):
             still = still_final(fr, final, min_inliers)
             if still is not None:
-                final, model_solver = still, GS_SOLVER
-        if point_sigma is not None:
-            final = weighted_final_model(fr, model_solver, final, point_sigma[fr.rows], min_inliers)
-        timings["refine"] = time.perf_counter() - t0
+                final, self.model_solver = still, GS_SOLVER
+        if self.point_sigma is not None:
+            sigma = self.point_sigma[fr.rows]
+            final = weighted_final_model(fr, self.model_solver, final, sigma, min_inliers)
+        self.timings["refine"] = time.perf_counter() - t0
+        return final
+
+    def finished(self, final: FinalModel) -> RSPoseEstimate:
+        fr, opts, search, timings = self.fr, self.opts, self.search, self.timings
         initial = (search.explained, search.anchor is not None)
         est = final_estimate(
             fr,
-            model_solver,
+            self.model_solver,
             final,
             search.iterations,
             initial,
             timings,
             opts.plausibility.consistent_fit,
-            gyro is not None,
+            self.gyro is not None,
             opts.ransac.threshold_px / fr.f,
-            ignored,
-            compiled,
+            self.ignored,
+            self.compiled,
         )
-        if image is not None:
+        if self.gyro is not None:
             t0 = time.perf_counter()
-            image.append(image_alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
+            th = opts.ransac.threshold_px / fr.f
+            self.image = image_alone(fr, final.model, th, self.image_prior)
             timings["gyro_check"] = time.perf_counter() - t0
-    except EstimationFailed as failure:
-        if (
-            compiled
-            and gyro is None
+        timings["total"] = time.perf_counter() - self.t_start
+        solver = self.solver
+        if self.model_solver == solver:
+            return est
+        # (a rolling-shutter solver's frame on the global-shutter model: the twist covariance
+        # is the rolling-shutter fit's, what the frame says of its motion; its (12, 12)
+        # covariance, the fit's, already carries it)
+        if final.covariance is None:
+            return replace(est, solver=solver, twist_covariance=None)
+        fields = unobserved_twist(None, final.covariance, *final.model[:2], fr.spr)
+        return replace(est, solver=solver, **fields)
+
+    def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
+        solver, fr = self.solver, self.fr
+        if not (
+            self.compiled
+            and self.gyro is None
             and solver_info(solver).rolling
             and failure.reason in STILL_FALLBACK  # (the frame configured: its threshold set)
         ):
-            # (a frame that shows no motion, on the global-shutter model; its twist
-            # covariance from the rolling-shutter fit, with the motion prior where the final
-            # refinement uses it from the start: planar frames)
-            still = still_fallback(
-                failure.reason,
-                lambda: _estimate(
-                    points2d,
-                    points3d,
-                    camera,
-                    GS_SOLVER,
-                    opts,
-                    scores,
-                    initial_model,
-                    point_sigma=point_sigma,
-                    ignored=ignored,
-                ),
-                fr,
-                fr.threshold,
-                fr.prior if fr.planar else None,
-            )
-            if still is not None:
-                return replace(still, solver=solver)
-        impl = COMPILED if compiled else NUMPY
-        return _failed(failure.reason, solver, fr, search.iterations, timings, ignored, impl)
-    timings["total"] = time.perf_counter() - t_start
-    if model_solver == solver:
-        return est
-    # (a rolling-shutter solver's frame on the global-shutter model: the twist covariance is
-    # the rolling-shutter fit's, what the frame says of its motion; its (12, 12) covariance,
-    # the fit's, already carries it)
-    if final.covariance is None:
-        return replace(est, solver=solver, twist_covariance=None)
-    fields = unobserved_twist(None, final.covariance, *final.model[:2], fr.spr)
-    return replace(est, solver=solver, **fields)
+            return None
+        # (a frame that shows no motion, on the global-shutter model; its twist covariance
+        # from the rolling-shutter fit, with the motion prior where the final refinement uses
+        # it from the start: planar frames)
+        still = still_fallback(
+            failure.reason,
+            lambda: _estimate(
+                *self.inputs, GS_SOLVER, self.opts, self.scores, self.initial_model,
+                point_sigma=self.point_sigma, ignored=self.ignored,
+            ),
+            fr,
+            fr.threshold,
+            fr.prior if fr.planar else None,
+        )  # fmt: skip
+        return None if still is None else replace(still, solver=solver)
+
+    def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
+        impl = COMPILED if self.compiled else NUMPY
+        return _failed(
+            failure.reason, self.solver, self.fr, self.search.iterations, self.timings,
+            self.ignored, impl,
+        )  # fmt: skip
+
+    def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
+        return self.image, lambda: est.planar, est.num_valid
 
 
 def _few_points(

@@ -17,7 +17,10 @@ rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.
 ``w x C - t`` m/s in the rig frame; :func:`~rs_localizer.pose.model_twist` with ``s = 1``).
 Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 
-:func:`estimate_rig_pose` runs RANSAC on every camera's correspondences at once:
+:func:`estimate_rig_pose` runs the single camera's staged estimator
+(:func:`~rs_localizer.estimation.driver.staged_estimate`: the same stages in the same order, a
+failure turned into its reason in one place) on the rig's stages (:class:`_RigStages`), with
+RANSAC on every camera's correspondences at once:
 
 - a sample is 3 points of one camera (drawn with probability proportional to its number of
   points, among cameras with at least 3) and 3 more points drawn uniformly from every camera's
@@ -137,11 +140,13 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import PLANAR_TOLERANCE, planarity
+from .driver import gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
+    FinalModel,
     checked_outputs,
     chosen_refinement,
     frame_refinement,
@@ -153,6 +158,7 @@ from .finalize import (
     with_covariance,
 )
 from .frame import (
+    Model,
     camera_values,
     correspondences,
     kernel_ready,
@@ -161,7 +167,6 @@ from .frame import (
 )
 from .gyro import (
     GyroMeasurement,
-    gyro_checked,
     gyro_prior,
 )
 from .hypotheses import (
@@ -254,7 +259,7 @@ RIG_SOLVER_ITERATIONS = 3
 STILL_SOLVER_ITERATIONS = 1
 
 #: the rounds of that correction in a global-shutter search run again because its model had
-#: too few inliers (:func:`_estimate`): each round pre-rotated by the previous round's
+#: too few inliers (:class:`_RigStages`): each round pre-rotated by the previous round's
 #: rotation (the rig solver's rotation is linear about its pre-rotation: one round from a P3P
 #: pose 10-30 degrees off, as three noisy corners of a small tag give, stays degrees off;
 #: a second one converges on the sample's six points)
@@ -1038,7 +1043,7 @@ def estimate_rig_pose(
     refinement and covariance of the pose alone) with ``w = t = 0`` and ``motion_model``
     ``"global_shutter"``. So is a rig frame whose rolling-shutter estimate fails
     (``implausible_motion``, ``too_few_inliers``) and whose points show no motion
-    (:func:`_still_if_no_motion`: cameras that read out in nanoseconds to microseconds).
+    (:class:`_RigStages`: cameras that read out in nanoseconds to microseconds).
 
     The cameras' consensus: a pose is returned only when the cameras with points agree on it.
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
@@ -1144,46 +1149,18 @@ def _one_camera_alone(
 
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
-    (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
-    refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
+    (``settings``: its arguments in :class:`_RigStages`' order), the gyro checked
+    (:func:`~.driver.gyro_checked_estimate`)."""
     still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
-    if gyro is None or still or not refine:
-        return _still_if_no_motion(pool, settings, _estimate(pool, *settings))
+    if gyro is None or still or not settings[0].refine.enabled:
+        return _estimate(pool, *settings)
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
     prior = gyro_prior(gyro, compiled=pool.compiled)
-    est = _estimate(pool, *settings, prior=prior, gyro_time=gyro_time)
-    compiled = pool.compiled
-    image = image_alone(pool, est.model, threshold_px, None) if est.success else None
-
-    def planar() -> bool:
-        inl = pool.errors(est.model) < threshold_px
-        return bool(planarity(pool.X[inl], compiled=compiled) < PLANAR_TOLERANCE)
-
-    return gyro_checked(
-        est, gyro, image, planar, len(pool.cam),
-        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)), compiled,
+    aided = _RigStages(pool, *settings, prior=prior, gyro_time=gyro_time)
+    return gyro_checked_estimate(
+        aided, gyro, lambda: _estimate(pool, *settings), pool.compiled
     )  # fmt: skip
-
-
-def _still_if_no_motion(pool: _Pool, settings: tuple, est: RSPoseEstimate) -> RSPoseEstimate:
-    """A rig frame whose rolling-shutter estimate failed, posed on the global-shutter model
-    when it shows no motion, as a single camera's (:func:`~.finalize.still_fallback`): the
-    rig's generalized absolute pose (P3P samples, the refinement of the pose alone, on the
-    global-shutter ``motion_model``) if the rolling-shutter model refined from it
-    (:func:`~.finalize.rolling_shutter_check`) finds velocities its noise explains, with that
-    refinement's twist covariance. Otherwise ``est`` as it is, and always without the
-    refinement (``options.refine``) or on a rig frame already taken at one time."""
-    options = settings[0]
-    if est.success or not options.refine.enabled or pool.tau_spread <= STILL_SPREAD:
-        return est
-    still = still_fallback(
-        est.failure,
-        lambda: _estimate(pool, *settings, still=True),
-        pool,
-        options.ransac.threshold_px,
-    )
-    return est if still is None else still
 
 
 def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
@@ -1753,22 +1730,27 @@ def _rig_estimate(
     )
 
 
-def _estimate(
-    pool: _Pool,
-    options: EstimateOptions,
-    initial_model,
-    generalized: bool,
-    prior: MotionPrior | None = None,
-    still: bool | None = None,
-    spread: bool = False,
-    gyro_time: float = 0.0,
-) -> RSPoseEstimate:
-    """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
-    a rig frame that is not still; :func:`~.gyro.gyro_prior`, the rig's twist with one second
-    per unit of tau; ``gyro_time``: s from the rig's reference time when the rig turned at the
-    measured rate, for the sensitivity to acceleration) or without one (arguments as there);
-    ``still``: on the global-shutter model (True) or not (False) whatever the observations'
-    time spread (None: global shutter when they are within :data:`STILL_SPREAD`).
+def _estimate(pool: _Pool, *settings, **kwargs) -> RSPoseEstimate:
+    """:func:`estimate_rig_pose` on the stacked views ``pool``: the staged estimator
+    (:func:`~.driver.staged_estimate`) on the rig's :class:`_RigStages` (arguments as
+    there)."""
+    return staged_estimate(_RigStages(pool, *settings, **kwargs))
+
+
+class _RigStages:
+    """A rig frame's stacked views ``pool`` as the staged estimator's
+    :class:`~.driver.Stages` (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior``
+    (on a rig frame that is not still; :func:`~.gyro.gyro_prior`, the rig's twist with one
+    second per unit of tau; ``gyro_time``: s from the rig's reference time when the rig turned
+    at the measured rate, for the sensitivity to acceleration) or without one; ``still``: on
+    the global-shutter model (True) or not (False) whatever the observations' time spread
+    (None: global shutter when they are within :data:`STILL_SPREAD`).
+
+    Its stages: at least 6 points, 3 in one camera, that fix a pose; the initial model's seed
+    and :class:`_RigSearch`; :func:`~.local_optimization.polish` with the rig's steps; the
+    final refinement of the lowest MSAC cost (:func:`~.finalize.chosen_refinement`,
+    :data:`CONTRADICTION_GATE`), its inliers, not on one 3D line, its covariance; the last
+    checks and the consistent fit of the cameras that support it (:data:`AGREE_SHARE`).
 
     A global-shutter search whose final model has fewer than ``ransac.min_inliers`` inliers
     searches again (``spread``) with every sample's P3P models corrected on the sample's six
@@ -1777,92 +1759,131 @@ def _estimate(
     with one round: three noisy corners of one small tag give P3P poses 10-30 degrees off,
     one round of the correction leaves them degrees off, and a pose that explains one
     camera's corners alone (or a few of every camera's) then has the lowest cost although a
-    pose between the cameras' own explains every corner."""
-    r = options.ransac
-    threshold_px, refine = float(r.threshold_px), options.refine.enabled
+    pose between the cameras' own explains every corner. A rolling-shutter rig frame without
+    a gyro whose estimate fails (``implausible_motion``, ``too_few_inliers``) is posed on the
+    global-shutter model when it shows no motion, as a single camera's
+    (:func:`~.finalize.still_fallback`): the rig's generalized absolute pose if the
+    rolling-shutter model refined from it (:func:`~.finalize.rolling_shutter_check`) finds
+    velocities its noise explains, with that refinement's twist covariance (not without the
+    refinement, ``options.refine``)."""
 
-    def failed(reason, iterations=0, behind=0):
-        return _rig_estimate(pool, failure=reason, ransac_iterations=iterations, num_behind=behind)
+    def __init__(
+        self,
+        pool: _Pool,
+        options: EstimateOptions,
+        initial_model,
+        generalized: bool,
+        prior: MotionPrior | None = None,
+        still: bool | None = None,
+        spread: bool = False,
+        gyro_time: float = 0.0,
+    ):
+        self.pool, self.options, self.initial_model = pool, options, initial_model
+        self.generalized, self.prior, self.still, self.spread = generalized, prior, still, spread
+        self.gyro_time = gyro_time
+        self.threshold_px = float(options.ransac.threshold_px)
+        self.refine = options.refine.enabled
+        self.search: _RigSearch | None = None
+        self.last = None
 
-    if len(pool.cam) < 6 or max(pool.counts()) < 3:
-        return failed(TOO_FEW_POINTS)
-    if pool.degenerate(threshold_px):
-        return failed(DEGENERATE_GEOMETRY)
-    # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
-    if still is None:
-        still = pool.tau_spread <= STILL_SPREAD
-    free, size = (6, 3) if still else (12, 6)
-    explained, anchored, subset, seeded = -1, False, None, None
-    if initial_model is not None:
-        # (tested on every point, pulled onto the explained ones, as a single camera's)
-        im = initial_model
-        if not isinstance(im, InitialModel):
-            im = InitialModel(im)
-        # (copies in the prediction's own memory order, which the kernels and BLAS see)
-        gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
-        explained, seeded, anchored = initial_model_seed(
-            model, im.min_explained, not still, size, gate,
-            *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
-        )  # fmt: skip
-        n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
-        # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies it,
-        # sampling among them)
-        need = max(int(im.min_explained), size + 1, 6)
-        if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
-            subset = np.flatnonzero(seeded[2])
-    search = _RigSearch(pool, options, still, generalized, prior, anchored, subset, spread)
-    if seeded is not None:
-        search.best, search.score = seeded[1], search.cost(seeded[1])
-        # (verifying a seed that explains the frame: RANSAC samples among its inliers, whose
-        # all-inlier probability is 1, as the single camera's verification)
-        search.needed = (
-            0.0
-            if subset is not None
-            else required_iterations(float(np.mean(seeded[2])), size, r.confidence)
+    def prepared(self) -> None:
+        pool = self.pool
+        if len(pool.cam) < 6 or max(pool.counts()) < 3:
+            raise EstimationFailed(TOO_FEW_POINTS)
+        if pool.degenerate(self.threshold_px):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
+        if self.still is None:
+            self.still = pool.tau_spread <= STILL_SPREAD
+        return None
+
+    def searched(self) -> Model:
+        pool, still, prior, threshold_px = self.pool, self.still, self.prior, self.threshold_px
+        r = self.options.ransac
+        free, size = (6, 3) if still else (12, 6)
+        explained, anchored, subset, seeded = -1, False, None, None
+        if self.initial_model is not None:
+            # (tested on every point, pulled onto the explained ones, as a single camera's)
+            im = self.initial_model
+            if not isinstance(im, InitialModel):
+                im = InitialModel(im)
+            # (copies in the prediction's own memory order, which the kernels and BLAS see)
+            gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
+            explained, seeded, anchored = initial_model_seed(
+                model, im.min_explained, not still, size, gate,
+                *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
+            )  # fmt: skip
+            n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
+            # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
+            # it, sampling among them)
+            need = max(int(im.min_explained), size + 1, 6)
+            if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
+                subset = np.flatnonzero(seeded[2])
+        self.explained, self.seeded = explained, seeded
+        self.search = search = _RigSearch(
+            pool, self.options, still, self.generalized, prior, anchored, subset, self.spread
         )
-    search.search(search, search.batches)
-    try:
-        model = search.found()
-    except EstimationFailed as e:
-        return failed(e.reason, search.iterations)
-    best_cost, drawn = search.score, search.iterations
+        if seeded is not None:
+            search.best, search.score = seeded[1], search.cost(seeded[1])
+            # (verifying a seed that explains the frame: RANSAC samples among its inliers,
+            # whose all-inlier probability is 1, as the single camera's verification)
+            search.needed = (
+                0.0
+                if subset is not None
+                else required_iterations(float(np.mean(seeded[2])), size, r.confidence)
+            )
+        search.search(search, search.batches)
+        return search.found()
 
-    # local optimization: the single camera's rounds (polish) with the rig's steps, the rig
-    # solver on the inliers and the final refinement's first; on a frame taken at one time
-    # (no linear re-solve) its one round is that refinement alone, kept where it lowers the cost
-    def refit(m, inl):
-        return [_refit(pool, inl, m, threshold_px, prior=prior)]
+    def polished(self, model: Model) -> Model:
+        # local optimization: the single camera's rounds (polish) with the rig's steps, the
+        # rig solver on the inliers and the final refinement's first; on a frame taken at one
+        # time (no linear re-solve) its one round is that refinement alone, kept where it
+        # lowers the cost
+        pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
+        best_cost, refine = search.score, self.refine
 
-    def evaluate(m):
-        return search.cost(m), search.errors(m) < threshold_px
+        def refit(m, inl):
+            return [_refit(pool, inl, m, threshold_px, prior=prior)]
 
-    exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not still, prior=prior)
-    if still:
-        last = (model, exact(model)) if refine else None
-        if last is not None and search.cost(last[1]) < best_cost:
-            model = last[1]
-    else:
-        best = (best_cost, model, search.errors(model) < threshold_px)
-        steps = (refit, exact if refine else None)
-        (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
-    if refine:  # the final refinement, the model of the lowest MSAC cost (chosen_refinement)
-        # (local optimization's last refinement is the final one's first, whether it took it,
-        # or did not and the model is still the one it started from)
-        first = None
-        if last is not None and (last[0] is model or last[1] is model):
-            first = last[1]
-        model = chosen_refinement(
-            pool, model, threshold_px, not still, prior, search.cost, search.errors,
-            search.cameras, CONTRADICTION_GATE, first,
-        )  # fmt: skip
-    e, compiled, rolling = search.errors(model), pool.compiled, free == 12
-    # (a camera's final stages with the rig's steps: the inliers and their RMS error, not on
-    # one 3D line, the final refinement's Jacobian at the model (no step, as a camera's final
-    # refinement gives it: its information, covariance and J^T W D), the last checks on every
-    # camera's model, the consistent fit, the outputs)
-    try:
-        final = selected_final(pool, RSModel(*_copies(model)), threshold_px, r.min_inliers,
-                               errors=e)  # fmt: skip
+        def evaluate(m):
+            return search.cost(m), search.errors(m) < threshold_px
+
+        exact = functools.partial(
+            refined_model, pool, th=threshold_px, rolling=not self.still, prior=prior
+        )
+        if self.still:
+            last = (model, exact(model)) if refine else None
+            if last is not None and search.cost(last[1]) < best_cost:
+                model = last[1]
+        else:
+            best = (best_cost, model, search.errors(model) < threshold_px)
+            steps = (refit, exact if refine else None)
+            (_, model, _), last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
+        self.last = last
+        return model
+
+    def final(self, model: Model) -> FinalModel:
+        pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
+        still, refine, last = self.still, self.refine, self.last
+        if refine:  # the final refinement, the model of the lowest MSAC cost (chosen_refinement)
+            # (local optimization's last refinement is the final one's first, whether it took
+            # it, or did not and the model is still the one it started from)
+            first = None
+            if last is not None and (last[0] is model or last[1] is model):
+                first = last[1]
+            model = chosen_refinement(
+                pool, model, threshold_px, not still, prior, search.cost, search.errors,
+                search.cameras, CONTRADICTION_GATE, first,
+            )  # fmt: skip
+        self.e = e = search.errors(model)
+        compiled, rolling = pool.compiled, not still
+        # (a camera's final stages with the rig's steps: the inliers and their RMS error, not
+        # on one 3D line, the final refinement's Jacobian at the model (no step, as a camera's
+        # final refinement gives it: its information, covariance and J^T W D), the last checks
+        # on every camera's model, the consistent fit, the outputs)
+        final = selected_final(pool, RSModel(*_copies(model)), threshold_px,
+                               self.options.ransac.min_inliers, errors=e)  # fmt: skip
         # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
         inl = final.inliers
         if not inl.all() and collinear_3d(pool.X[inl], compiled=compiled):
@@ -1873,37 +1894,73 @@ def _estimate(
                                    prior if rolling else None, rolling,
                                    max_iterations=0)  # fmt: skip
         if prior is not None:
-            rate = (gyro_time, prior.information()[3:, 3:])
-        with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
-                        alone=False, rate_prior=rate, errors=e)  # fmt: skip
+            rate = (self.gyro_time, prior.information()[3:, 3:])
+        return with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
+                               alone=False, rate_prior=rate, errors=e)  # fmt: skip
+
+    def finished(self, final: FinalModel) -> RSPoseEstimate:
+        pool, search, e, threshold_px = self.pool, self.search, self.e, self.threshold_px
+        compiled, still = pool.compiled, self.still
+        rolling = not still
         behind, out = checked_outputs(
             pool, final, rolling, pool.spr if rolling else 0.0,
-            options.plausibility.consistent_fit, threshold_px, lambda: e,
+            self.options.plausibility.consistent_fit, threshold_px, lambda: e,
             lambda: information_condition(final.information, rolling, compiled),
             lambda m: _view_planar(pool, m), compiled,
             bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
         )  # fmt: skip
-    except EstimationFailed as failure:
-        if failure.reason == TOO_FEW_INLIERS and still and not spread:
-            # (every sample corrected across the cameras: docstring)
+        return _rig_estimate(
+            pool,
+            final.model,
+            final.inliers,
+            (None, None, None) if out is None else out,
+            True,  # (final.model: the copies selected_final was given)
+            failure=None,
+            ransac_iterations=search.iterations,
+            rmse_px=final.rmse_px,
+            num_behind=behind,
+            model_covariance=final.covariance,
+            motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
+            acceleration_sensitivity=final.sensitivity,
+            initial_explained=self.explained,
+            initial_used=self.seeded is not None,
+            gyro_used=self.prior is not None,
+        )
+
+    def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
+        pool, still = self.pool, self.still
+        if still is None:  # (refused before the time spread was looked at)
+            return None
+        if still:
+            if failure.reason != TOO_FEW_INLIERS or self.spread:
+                return None
+            # (every sample corrected across the cameras: the class docstring)
             return _estimate(
-                pool, options, initial_model, generalized, prior, True, True, gyro_time
-            )
-        return failed(failure.reason, drawn, failure.behind)
-    return _rig_estimate(
-        pool,
-        final.model,
-        inl,
-        (None, None, None) if out is None else out,
-        True,  # (final.model: the copies selected_final was given)
-        failure=None,
-        ransac_iterations=drawn,
-        rmse_px=final.rmse_px,
-        num_behind=behind,
-        model_covariance=final.covariance,
-        motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
-        acceleration_sensitivity=final.sensitivity,
-        initial_explained=explained,
-        initial_used=seeded is not None,
-        gyro_used=prior is not None,
-    )
+                pool, self.options, self.initial_model, self.generalized, self.prior, True,
+                True, self.gyro_time,
+            )  # fmt: skip
+        if self.prior is not None or not self.refine:
+            return None
+        # (a rolling-shutter rig frame that shows no motion: the global-shutter model)
+        return still_fallback(
+            failure.reason,
+            lambda: _estimate(pool, self.options, self.initial_model, self.generalized,
+                              still=True),
+            pool,
+            self.threshold_px,
+        )  # fmt: skip
+
+    def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
+        iterations = 0 if self.search is None else self.search.iterations
+        return _rig_estimate(pool=self.pool, failure=failure.reason,
+                             ransac_iterations=iterations, num_behind=failure.behind)  # fmt: skip
+
+    def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
+        pool, threshold_px, compiled = self.pool, self.threshold_px, self.pool.compiled
+        image = image_alone(pool, est.model, threshold_px, None) if est.success else None
+
+        def planar() -> bool:
+            inl = pool.errors(est.model) < threshold_px
+            return bool(planarity(pool.X[inl], compiled=compiled) < PLANAR_TOLERANCE)
+
+        return image, planar, len(pool.cam)
