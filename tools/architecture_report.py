@@ -40,6 +40,7 @@ RIG_ONLY = {
         "of queued frames, its warm-up, log lines, debug views and status"
     ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
+    "calibration/corners.py": "RigCorners: a rig video's corners as one least-squares problem",
     "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
     "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",
 }
