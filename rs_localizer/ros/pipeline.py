@@ -358,12 +358,15 @@ def fused_outputs(
     """twist / odom of the frames whose fused state is final, a camera's or a rig's alike
     (:class:`~rs_localizer.tracking.localizer.FusedPose` s): each frame's own pose (as
     published) with its fused twist and their covariances, stamped with the frame's time, in
-    ``frame_id`` (None: each frame's tag, the camera's frame); ``mounting``: the camera's
+    ``frame_id`` (None: each frame's tag, the camera's frame, or a rig of one's camera's
+    tag); ``mounting``: the camera's
     :class:`~rs_localizer.frames.Mounting` on the robot, each frame moved to ``frame_id``
     (:func:`~rs_localizer.frames.camera_to_base`; None: as it is)."""
     out = []
     for f in fused:
         src: PoseWithCovariance = f if mounting is None else camera_to_base(f, mounting)
-        frame = cast(str, f.tag) if frame_id is None else frame_id  # (a tag is a frame_id)
+        frame = frame_id
+        if frame is None:  # (a tag is a frame_id; a rig of one's, camera -> tag: its camera's)
+            frame = cast(str, f.tag if isinstance(f.tag, str) else next(iter(f.tag.values())))
         out.append(FusedOutput(f.pose.stamp_ns, src, frame))
     return out
