@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -337,18 +336,13 @@ class LocalizerMode(ModeBase):
         return text + f", intrinsics from {'parameters' if cam.fallback else 'camera_info'}"
 
     # ---------------------------------------------------------------- gyro
-    @property
-    def _take_imu(self) -> Callable[[Any], str | None]:
-        return self._imu_alone if self.alone else self._imu_rig
-
-    def _imu_alone(self, msg: Any) -> str | None:
-        """The camera alone's gyro sample (:func:`.pipeline.take_imu_message`: rejected ones
-        counted ``imu_rejected.<reason>`` in its counts and warned)."""
-        return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
-
-    def _imu_rig(self, msg: Any) -> str | None:
-        """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
-        ``imu_rejected.<reason>``, as the camera's)."""
+    def _take_imu(self, msg: Any) -> str | None:
+        """A gyro sample of the IMU to the localizer; returns None or why it was rejected,
+        counted ``imu_rejected.<reason>``: the camera alone's in its counts, warned, a lone
+        stamp jump ahead found later counted too (:func:`.pipeline.take_imu_message`); a
+        rig's in the rig's diagnostics (:func:`.pipeline.take_gyro_sample`)."""
+        if self.alone:
+            return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
         reason = take_gyro_sample(msg, self.rig.add_imu)
         if reason is not None:
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
@@ -655,6 +649,7 @@ class LocalizerMode(ModeBase):
             return []
         closed = [self._outcome(out) for out in self.rig.close()]
         return [*closed, FrameOutcome(fused=self._fused(self.rig.flush() + self.rig.reset()))]
+
     # ---------------------------------------------------------------- diagnostics
     def diagnostics(self) -> tuple[str, StatusParts]:
         """The hardware id and status: the camera alone's (its ``camera_frame``, or
