@@ -212,19 +212,15 @@ class LocalizerMode(ModeBase):
         log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, cfg.imu is not None, True)
 
     def _start_with(self, built: tuple) -> None:
-        """The configuration taken: the camera alone's (:meth:`_start_alone`) or the rig's
-        (:meth:`_start_rig`)."""
-        if self.alone:
-            self._start_alone(built)
-        else:
+        """The configuration taken (a rig's: :meth:`_start_rig`). The camera alone's: its rig
+        of one made, or configured from its next frame on (its track, gyro and counts kept
+        where they still apply), its front end, its input stage (the camera models of the
+        camera_infos so far rebuilt with the new RS timing), the node's settings
+        (:meth:`~.core.ModeBase._settle`); a reloaded front end, the marker detector that
+        runs and a default RS timing with images logged."""
+        if not self.alone:
             self._start_rig(built)
-
-    def _start_alone(self, built: tuple[LocalizerConfig, LoadedMaps]) -> None:
-        """The camera alone's configuration taken: its rig of one made, or configured from
-        its next frame on (its track, gyro and counts kept where they still apply), its front
-        end, its input stage (the camera models of the camera_infos so far rebuilt with the
-        new RS timing), the node's settings (:meth:`~.core.ModeBase._settle`); a reloaded
-        front end, the marker detector that runs and a default RS timing with images logged."""
+            return
         cfg, maps = built
         old, old_fe, log = self.cfg, self._loaded.frontend, self.node.get_logger()
         self.cfg, self._loaded = cfg, maps
@@ -292,14 +288,14 @@ class LocalizerMode(ModeBase):
 
     def _change_to(self, built: tuple, overrides: dict) -> None:
         """A run-time change taken from the next frame on: the camera alone reconfigured
-        (:meth:`_start_alone`; reloaded landmarks logged); a rig's settings
+        (:meth:`_start_with`; reloaded landmarks logged); a rig's settings
         (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
         config = built[0]
         if self.alone:
-            self._start_alone(built)
+            self._start_with(built)
             landmarks, path = built[1].landmarks, config.camera.landmarks_file
             if overrides.get("landmarks_file") and landmarks is not None:
                 self.node.get_logger().info(f"reloaded {len(landmarks[0])} landmarks from {path}")
@@ -410,24 +406,10 @@ class LocalizerMode(ModeBase):
         s), ``taken``, noted in ``res``: the rig frames it completed (``res.outs``), an
         image's decoded image (``res.image``) and, with ``republish_correspondences``, what
         the front end found in it. The camera alone's frame is then counted as its camera's
-        (:meth:`_as_camera`; a :class:`~.pipeline.Drop` for a frame dropped); a rig camera's:
-
-        A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
-        ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
-        known: a frame without rows, which the rig frame is posed without): its rows as the
-        camera alone's (the non-finite ones dropped, counted ``<c>.points_dropped``; capped
-        to ``max_points``, counted ``<c>.capped_clouds``). One that cannot be read is counted
-        ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
-        (:meth:`Localizer.drop`), so the rig frame without it counts the camera
-        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named as
-        one whose clock is off).
-
-        An image: decoded and checked against its camera model as the camera alone's (a
-        message that does not decode or is smaller than the front ends take: ``bad_image``;
-        another size than the camera_info's: ``image_size_mismatch``; both logged and counted
-        ``<c>.skipped.<reason>``, the rig not waiting for the camera at that time), then the
-        camera's front end and the rig (:meth:`Localizer.process_image`); its decoded image
-        kept for ``debug_image`` while someone watches. The frame's times per stage go to the
+        (:meth:`_as_camera`; a :class:`~.pipeline.Drop` for a frame dropped). A rig camera's
+        (docs/rig_node.md): a frame its input stage refused goes to the rig as skipped and is
+        logged (:meth:`_not_taken`); a cloud before any camera_info warned about; an image
+        kept for ``debug_image`` while someone watches; its times per stage to the
         diagnostics (:func:`.rig_node.note_camera_frame`)."""
         frame, outs, taken_at = taken
         res.outs = outs
@@ -655,11 +637,20 @@ class LocalizerMode(ModeBase):
         """The hardware id and status: the camera alone's (its ``camera_frame``, or
         ``camera``; :func:`camera_status_parts` of its counts), or the rig's (``base_frame``;
         :func:`.rig_node.rig_status_parts` of the node's counts and times per camera)."""
-        if self.alone:
-            return self._alone_diagnostics()
+        cfg, rig = self.cfg, self.rig
+        if self.alone:  # (its status as a camera's: its counts, its one section named "")
+            stats = self._own.snapshot()
+            gyro = None
+            if cfg.imu is not None:
+                gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
+                                    rig.gyro_inconsistent)  # fmt: skip
+            parts = camera_status_parts(cfg, stats, rig.tracking_values(),
+                                        self.node.inputs[""].source(), self._own.messages_lost,
+                                        gyro, self._loaded.frontend)  # fmt: skip
+            return cfg.camera.frame or "camera", parts
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
-        waited = first is not None and time.monotonic() - first > self.cfg.settings.stop_after
+        waited = first is not None and time.monotonic() - first > cfg.settings.stop_after
         with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
             counts = Counter(self._counts.counts())
             for cc in self.node.camera_counts.values():
@@ -669,19 +660,7 @@ class LocalizerMode(ModeBase):
             inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
                                self._counts.stage_times())  # fmt: skip
-            return self.cfg.base_frame, rig_status_parts(self.rig, waiting, inputs)
-
-    def _alone_diagnostics(self) -> tuple[str, StatusParts]:
-        cfg, rig, own = self.cfg, self.rig, self._own
-        stats = own.snapshot()
-        gyro = None
-        if cfg.imu is not None:
-            gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
-                                rig.gyro_inconsistent)  # fmt: skip
-        parts = camera_status_parts(cfg, stats, rig.tracking_values(),
-                                    self.node.inputs[""].source(), own.messages_lost, gyro,
-                                    self._loaded.frontend)  # fmt: skip
-        return cfg.camera.frame or "camera", parts
+            return cfg.base_frame, rig_status_parts(rig, waiting, inputs)
 
 
 def camera_status_parts(
