@@ -17,16 +17,16 @@ image to the localizer (:meth:`~rs_localizer.ros.camera_input.CameraInput.enter`
 rig frames it completes published (:func:`.outputs.publish_frame`). The camera alone is its
 rig of one as ``rs-localizer replay`` runs a camera's bag: its stamp noted on the localizer's
 clock before its camera_info is looked up (a time reset forgets the camera_infos stamped after
-it), its warnings worded as a camera's (``camera_words``), each frame counted ``solved`` or
-``failed.<reason>`` with the line ``frame dropped (<reason>): <detail>``, its pose in its
-optical frame (or with ``camera_to_base.*`` the robot's ``base_frame``).
+it), its warnings worded as a camera's (a camera's video,
+:attr:`~rs_localizer.tracking.video.LocalizerSettings.camera_video`), each frame counted
+``solved`` or ``failed.<reason>`` with the line ``frame dropped (<reason>): <detail>``, its
+pose in its optical frame (or with ``camera_to_base.*`` the robot's ``base_frame``).
 """
 
 from __future__ import annotations
 
 import time
 from collections import Counter, deque
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -73,15 +73,14 @@ __all__ = ["CameraFrameResult", "LocalizerMode", "camera_status_parts"]
 
 
 class CameraFrameResult:
-    """What the camera alone's frame gave (:meth:`LocalizerMode._take_alone`): its rig of
-    one's rig frame (``out``; None: none), the rows the estimator was given, its camera
-    model, stamps (ns: header, reference line's), frame id, decoded image, what the front end
-    found to republish, the fused twists now final and, failed, why (``failure``,
-    ``detail``)."""
+    """What a camera's frame gave in the frame step (:meth:`LocalizerMode.take_frame`): the
+    rig frames it completed (``outs``; the camera alone's: its rig of one's, ``out``), its
+    camera model, stamps (ns: header, reference line's), frame id, decoded image, what the
+    front end found to republish and, failed, why (``failure``, ``detail``); the camera
+    alone's also the rows its estimator was given and the fused twists now final."""
 
     failure: str | None = None
     detail: str = ""
-    out: LocalizerOutput | None = None
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
     camera: Any = None
@@ -92,7 +91,17 @@ class CameraFrameResult:
 
     def __init__(self, frame_id: str):
         self.frame_id = frame_id
+        self.outs: list[LocalizerOutput] = []
         self.fused: list[FusedOutput] = []
+
+    def noted(self, ft: Any) -> None:
+        """The frame's times as the localizer's entry made them (its reference-line stamp)."""
+        self.out_stamp_ns = ft.reference_ns
+
+    @property
+    def out(self) -> LocalizerOutput | None:
+        """The camera alone's rig frame (its rig of one's; None: none)."""
+        return self.outs[0] if self.outs else None
 
     @property
     def solved(self) -> bool:
@@ -134,13 +143,15 @@ class LocalizerMode(ModeBase):
         self.imu_rejected: dict[str, int] = {}  # (a rig's gyro)
         self._loaded = LoadedMaps()  # (the camera alone's maps in use)
         self._images: dict = {}  # (a rig camera -> its last decoded images, for debug_image)
+        #: the fused twists' frame and mounting (:meth:`_fused`), set at configure
+        self._fused_in: tuple = (None, None)
         if not self.alone:
             for k, v in RIG_TEXTS.items():
                 setattr(self, k, v)
             return
         log = ThrottledLog(node.get_logger())
         # (the camera's counts: the frame accounting, its input stage's, its estimates')
-        self._own = PipelineStats()
+        self._own = self._counts = PipelineStats()
         self._map_fit = MapFitCheck()
         inp = CameraInput(log, self._own.add, stopped=node.stopping)
         node.set_cameras({"": inp}, {"": self._own}, log)
@@ -155,7 +166,7 @@ class LocalizerMode(ModeBase):
         """The camera model of a rig camera's frame stamp, waiting up to ``camera_info_wait``
         for its camera_info: outside the worker's lock, which the diagnostics take on the
         executor that delivers it. None for the camera alone: its stamp is noted on its
-        video's clock first (:meth:`_take_alone`)."""
+        video's clock first (:meth:`_camera_at`)."""
         if self.alone:
             return None
         return self.node.inputs[item.name].camera_of(item.stamp)
@@ -202,19 +213,15 @@ class LocalizerMode(ModeBase):
         log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, cfg.imu is not None, True)
 
     def _start_with(self, built: tuple) -> None:
-        """The configuration taken: the camera alone's (:meth:`_start_alone`) or the rig's
-        (:meth:`_start_rig`)."""
-        if self.alone:
-            self._start_alone(built)
-        else:
+        """The configuration taken (a rig's: :meth:`_start_rig`). The camera alone's: its rig
+        of one made, or configured from its next frame on (its track, gyro and counts kept
+        where they still apply), its front end, its input stage (the camera models of the
+        camera_infos so far rebuilt with the new RS timing), the node's settings
+        (:meth:`~.core.ModeBase._settle`); a reloaded front end, the marker detector that
+        runs and a default RS timing with images logged."""
+        if not self.alone:
             self._start_rig(built)
-
-    def _start_alone(self, built: tuple[LocalizerConfig, LoadedMaps]) -> None:
-        """The camera alone's configuration taken: its rig of one made, or configured from
-        its next frame on (its track, gyro and counts kept where they still apply), its front
-        end, its input stage (the camera models of the camera_infos so far rebuilt with the
-        new RS timing), the node's settings (:meth:`~.core.ModeBase._settle`); a reloaded
-        front end, the marker detector that runs and a default RS timing with images logged."""
+            return
         cfg, maps = built
         old, old_fe, log = self.cfg, self._loaded.frontend, self.node.get_logger()
         self.cfg, self._loaded = cfg, maps
@@ -228,11 +235,11 @@ class LocalizerMode(ModeBase):
             # while the kernels compile in the background)
             gyro = GyroInput(self._own.add, inp.log, stopped=self.node.stopping)
             impl = lambda: ready_implementation(self.cfg.solver)  # noqa: E731
-            self.rig = Localizer(settings, inp.log, impl, gyro_input=gyro, count=self._own.add,
-                                 camera_words=True)  # fmt: skip
+            self.rig = Localizer(settings, inp.log, impl, gyro_input=gyro, count=self._own.add)
         else:
             self.rig.configure(settings)
         cam = cfg.camera
+        self._fused_in = (None, None) if cam.mount is None else (cfg.base_frame, cam.mount)
         self.rig.set_frontend("", maps.frontend, cam.frontend_kind)
         inp.configure(cam.camera_from_info, cfg.max_points, cam.fallback, cfg.camera_info_wait,
                       maps.landmarks, cam.frame)  # fmt: skip
@@ -267,8 +274,9 @@ class LocalizerMode(ModeBase):
             if c.frontend_kind != "none":
                 self.rig.set_frontend(c.name, loaded[c.name].frontend, c.frontend_kind)
         # (the worker's map-fit check over the rig frames, its times per stage)
-        self._rig_counts = CameraCounts()
+        self._counts = CameraCounts()
         self._map_fit = MapFitCheck("rig frames")
+        self._fused_in = (config.base_frame, None)
         counts = {c.name: CameraCounts(c.name) for c in config.cameras}
         landmarks = next(iter(loaded.values())).landmarks  # (the cameras' keypoints name them)
         inputs = rig_camera_inputs(config, log, self._count_input, stopped=node.stopping,
@@ -280,14 +288,14 @@ class LocalizerMode(ModeBase):
 
     def _change_to(self, built: tuple, overrides: dict) -> None:
         """A run-time change taken from the next frame on: the camera alone reconfigured
-        (:meth:`_start_alone`; reloaded landmarks logged); a rig's settings
+        (:meth:`_start_with`; reloaded landmarks logged); a rig's settings
         (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
         the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
         config = built[0]
         if self.alone:
-            self._start_alone(built)
+            self._start_with(built)
             landmarks, path = built[1].landmarks, config.camera.landmarks_file
             if overrides.get("landmarks_file") and landmarks is not None:
                 self.node.get_logger().info(f"reloaded {len(landmarks[0])} landmarks from {path}")
@@ -295,6 +303,7 @@ class LocalizerMode(ModeBase):
         with self.node.between_frames():  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.cfg = config
+            self._fused_in = (config.base_frame, None)
             self._grouping.settings = config.settings
             for inp in self.node.inputs.values():
                 inp.max_points = config.settings.max_points
@@ -323,18 +332,13 @@ class LocalizerMode(ModeBase):
         return text + f", intrinsics from {'parameters' if cam.fallback else 'camera_info'}"
 
     # ---------------------------------------------------------------- gyro
-    @property
-    def _take_imu(self) -> Callable[[Any], str | None]:
-        return self._imu_alone if self.alone else self._imu_rig
-
-    def _imu_alone(self, msg: Any) -> str | None:
-        """The camera alone's gyro sample (:func:`.pipeline.take_imu_message`: rejected ones
-        counted ``imu_rejected.<reason>`` in its counts and warned)."""
-        return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
-
-    def _imu_rig(self, msg: Any) -> str | None:
-        """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
-        ``imu_rejected.<reason>``, as the camera's)."""
+    def _take_imu(self, msg: Any) -> str | None:
+        """A gyro sample of the IMU to the localizer; returns None or why it was rejected,
+        counted ``imu_rejected.<reason>``: the camera alone's in its counts, warned, a lone
+        stamp jump ahead found later counted too (:func:`.pipeline.take_imu_message`); a
+        rig's in the rig's diagnostics (:func:`.pipeline.take_gyro_sample`)."""
+        if self.alone:
+            return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
         reason = take_gyro_sample(msg, self.rig.add_imu)
         if reason is not None:
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
@@ -342,77 +346,118 @@ class LocalizerMode(ModeBase):
 
     # ---------------------------------------------------------------- frames
     def take_frame(self, item: QueuedFrame, camera: Any = None) -> TakenFrame:
-        """The worker: one camera frame through the frame step (the camera alone's,
-        :meth:`_take_alone`; a rig camera's, :meth:`_take_rig`)."""
-        if self.alone:
-            return self._take_alone(item)
-        return self._take_rig(item, camera)
-
-    def _take_alone(self, item: QueuedFrame) -> TakenFrame:
-        """The camera alone's frame into its rig of one (:meth:`_run_alone`), counted
-        ``solved`` or ``failed.<reason>`` (an exception, a defect: ``internal_error``); with
-        ``republish_correspondences`` what the front end found in the image, as a
-        ``correspondences_out`` cloud."""
-        inp = self.node.inputs[""]
+        """The worker: one camera frame through the one frame step, the camera alone's and a
+        rig camera's alike: its camera model (a rig camera's looked up before the worker's
+        lock, :meth:`camera_of`; the camera alone's after its stamp is noted on its clock,
+        :meth:`_camera_at`), the entry checks and the frame into the localizer
+        (:meth:`.camera_input.CameraInput.enter`: a header stamp or an output stamp out of
+        range, ``bad_stamp``; an image without a front end, ``no_frontend``; the camera
+        alone's frame without camera_info, ``no_camera_info``: the localizer never sees
+        them), then what it gave noted (:meth:`_entered`). A frame dropped is counted
+        ``failed.<reason>`` and its line logged when it is published (:meth:`outcomes`); the
+        camera alone's frame is otherwise counted ``solved`` (an exception, a defect:
+        ``internal_error``), a rig camera's frame's fate is the rig's (an exception: the
+        node's ``internal_error``). Under the worker's lock with its count, so that a
+        diagnostics snapshot sees the localizer's and the camera's counts of it at once; with
+        ``republish_correspondences`` what the camera's front end found in an image."""
+        name, kind, stamp = item.name, item.kind, item.stamp
+        inp = self.node.inputs[name]
         res = CameraFrameResult(inp.tag_of(item.msg))
+        tic = time.perf_counter()
         try:
-            self._run_alone(item, inp, res)
+            if not isinstance(stamp, DroppedFrame):
+                res.stamp_ns = stamp
+            if self.alone:
+                camera = self._camera_at(inp, stamp)
+            elif kind == "image":
+                self._warn_no_info(name, "images")
+            res.camera = camera
+            frontend = self.node.frontend_kind != "none"
+            taken = inp.enter(self.rig, item.msg, kind, stamp, camera, frontend, res.noted)
+            if isinstance(taken, DroppedFrame):  # (the localizer never sees it)
+                raise Drop(taken.reason, str(taken.error))
+            self._entered(name, kind, taken, tic, res)
         except Drop as e:
             res.failure, res.detail = e.reason, str(e)
-        except Exception as e:  # (a defect: this frame is dropped, the next ones go on)
+        except Exception as e:
+            if not self.alone:  # (the node counts it failed.internal_error and logs it)
+                raise
             drop = Drop("internal_error", f"{type(e).__name__}: {e}")
             res.failure, res.detail = drop.reason, str(drop)
-        found = [] if res.correspondences is None else [("", res.correspondences, res.stamp_ns)]
-        outcome = "solved" if res.failure is None else f"failed.{res.failure}"
-        return TakenFrame((outcome,), res.failure, res, found=found)
+        found = [] if res.correspondences is None else [(name, res.correspondences, res.stamp_ns)]
+        if res.failure is not None:
+            counted: tuple = (f"failed.{res.failure}",)
+        else:
+            counted = ("solved",) if self.alone else ()
+        return TakenFrame(counted, res.failure, res, res.outs, found)
 
-    def _run_alone(self, item: QueuedFrame, inp: CameraInput, res: CameraFrameResult) -> None:
-        """Fill ``res`` with the camera alone's frame: its checked stamp noted on its rig of
-        one's clock (a time reset counted and logged, the camera_infos after it forgotten),
-        its camera model of that stamp, the frame step
-        (:meth:`~.camera_input.CameraInput.enter`: the entry checks, its rows or its image to
-        the rig of one), counted as the camera's estimate (:meth:`_solved_alone`). Raises
-        :class:`~.pipeline.Drop` for a frame dropped, with its reason."""
-        tic = time.perf_counter()
-        rig, stamp = self.rig, item.stamp
+    def _camera_at(self, inp: CameraInput, stamp: Any) -> Any:
+        """The camera alone's frame's camera model: its checked ``stamp`` noted on its rig of
+        one's clock first (a time reset counted and logged, the camera_infos stamped after it
+        forgotten), then the model of that stamp (a :class:`.camera_input.DroppedFrame`
+        without one: ``no_camera_info``)."""
         if not isinstance(stamp, DroppedFrame):
-            res.stamp_ns = stamp
-            inp.note_time(stamp, rig.check_time)
-        camera = inp.camera_of(stamp)
-        res.camera = camera
+            inp.note_time(stamp, self.rig.check_time)
+        return inp.camera_of(stamp)
 
-        def noted(ft: Any) -> None:
-            res.out_stamp_ns = ft.reference_ns
+    def _entered(self, name: str, kind: str, taken: FrameStep, tic: float,
+                 res: CameraFrameResult) -> None:  # fmt: skip
+        """A camera frame's step into the localizer from ``tic`` (:func:`time.perf_counter`
+        s), ``taken``, noted in ``res``: the rig frames it completed (``res.outs``), an
+        image's decoded image (``res.image``) and, with ``republish_correspondences``, what
+        the front end found in it. The camera alone's frame is then counted as its camera's
+        (:meth:`_as_camera`; a :class:`~.pipeline.Drop` for a frame dropped). A rig camera's
+        (docs/rig_node.md): a frame its input stage refused goes to the rig as skipped and is
+        logged (:meth:`_not_taken`); a cloud before any camera_info warned about; an image
+        kept for ``debug_image`` while someone watches; its times per stage to the
+        diagnostics (:func:`.rig_node.note_camera_frame`)."""
+        frame, outs, taken_at = taken
+        res.outs = outs
+        search = None
+        if isinstance(frame, ImageFrame):
+            res.image = (frame.image, frame.encoding, frame.stamp_ns)
+            search = self.rig.last_search(name)
+        if self.alone:  # (its counts, stage times and drops as a camera's)
+            self._as_camera(frame, search, taken_at, tic, res)
+            return
+        note_camera_frame(self._counts, tic, taken_at, search and search.seconds,
+                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
+        if isinstance(frame, DroppedFrame):
+            self._not_taken(kind, frame)
+        elif kind != "image":
+            self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
+        viz = self.node.camera_viz.get(name)
+        if res.image is not None and viz is not None and viz.wants("debug_image"):
+            # (only while someone watches; drawn when the rig frame is published)
+            self._images.setdefault(name, deque(maxlen=4)).append(res.image)
+        if kind == "image" and self.node.republish:
+            res.correspondences = self.rig.last_correspondences(name)
 
-        frontend = self.node.frontend_kind != "none"
-        taken = inp.enter(rig, item.msg, item.kind, stamp, camera, frontend, noted)
-        if isinstance(taken, DroppedFrame):
-            raise Drop(taken.reason, str(taken.error))
-        frame, outs, t_decoded = taken
+    def _as_camera(self, frame: Any, search: Any, taken_at: float, tic: float,
+                   res: CameraFrameResult) -> None:  # fmt: skip
+        """The camera alone's frame counted as its camera's: a frame its input stage refused,
+        its front end's run (:meth:`_frontend_ran`), the estimate of its rig frame
+        (:meth:`_solved_alone`), the path it was solved on (``frames_compiled``,
+        ``frames_uncompiled``) and its times per stage (the wait for the gyro samples counts
+        as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
+        dropped, with its reason."""
         if isinstance(frame, DroppedFrame):
             raise Drop(frame.reason, str(frame.error))
         front = 0.0  # (s: the front end's search)
-        if isinstance(frame, ImageFrame):
-            res.image = (frame.image, frame.encoding, stamp)
-            search = rig.last_search("")
-            self._frontend_ran(search, outs, res)
+        if search is not None:
+            self._frontend_ran(search, res)
             res.points2d, res.points3d, front = search.points2d, search.points3d, search.seconds
-            t_decoded += front
         else:
             res.points2d, res.points3d = frame.points2d, frame.points3d
-        (out,) = outs
-        res.out = out
+        (out,) = res.outs
         self._own.add("frames_compiled" if out.compiled else "frames_uncompiled")
         t_estimated = time.perf_counter()
-        # (the wait for the gyro samples counts as decoding, as for camera_info)
-        decode = t_decoded - tic - front + out.gyro_seconds
-        estimate = t_estimated - t_decoded - out.gyro_seconds
-        res.fused = self._fused_alone(out.fused)
+        res.fused = self._fused(out.fused)
         self._solved_alone(out, res)
-        self._own.stage_time("decode", decode)
-        self._own.stage_time("estimate", estimate)
+        self._own.stage_time("decode", taken_at - tic + out.gyro_seconds)
+        self._own.stage_time("estimate", t_estimated - taken_at - front - out.gyro_seconds)
 
-    def _frontend_ran(self, search: Any, outs: list, res: CameraFrameResult) -> None:
+    def _frontend_ran(self, search: Any, res: CameraFrameResult) -> None:
         """The front end's run on the camera alone's image (its rig of one's last search)
         counted (``frontend_runs``, ``frontend_points``, its time), what it found kept to
         republish; raises :class:`~.pipeline.Drop` for an image it dropped:
@@ -432,7 +477,7 @@ class LocalizerMode(ModeBase):
         if cfg.republish_correspondences:
             res.correspondences = Correspondences(uv, found.points, found.ids,
                                                   found.valid_scores())  # fmt: skip
-        if not outs:
+        if not res.outs:
             n = len(uv)
             what = f"{n // 4} markers" if label == "aruco" else f"{n} matches"
             text = f"{label} front end found {what}: {n} correspondences, {search.need} needed"
@@ -458,81 +503,6 @@ class LocalizerMode(ModeBase):
             own.add("frames_few_points")
         if est.single_tag:
             own.add("frames_single_tag")
-
-    def _fused_alone(self, fused: list) -> list[FusedOutput]:
-        """twist / odom of the camera alone's frames whose fused state is final: in its frame
-        (each frame's tag), or with its mounting the robot's ``base_frame``."""
-        cam = self.cfg.camera
-        if cam.mount is not None:
-            return fused_outputs(fused, self.cfg.base_frame, cam.mount)
-        return fused_outputs(fused)
-
-    def _take_rig(self, item: QueuedFrame, camera: Any) -> TakenFrame:
-        """The worker: one rig camera's frame to the rig (:meth:`_rig_step`), or why not (the
-        rig never sees it): the entry checks (:meth:`.camera_input.CameraInput.admit`: a
-        header stamp or an output stamp out of range, ``bad_stamp``; an image without a front
-        end, ``no_frontend``), counted ``failed.<reason>`` and logged. Under the worker's lock
-        with its count, so that a diagnostics snapshot sees the rig's and the camera's counts
-        of it at once; with ``republish_correspondences`` what the camera's front end found
-        in an image."""
-        name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
-        if kind == "image":
-            self._warn_no_info(name, "images")
-        tic = time.perf_counter()
-        frontend = self.node.frontend_kind != "none"
-        taken = self.node.inputs[name].enter(self.rig, msg, kind, stamp, camera, frontend)
-        if isinstance(taken, DroppedFrame):  # (the rig never sees it either)
-            self.node.warn(
-                f"{taken.reason}.{name}",
-                f"rig camera {name!r}: frame dropped ({taken.reason}): {taken.error}",
-                self.node.camera_counts[name].get(f"failed.{taken.reason}") + 1,
-            )
-            return TakenFrame((f"failed.{taken.reason}",), taken.reason)
-        found = []
-        outs = self._rig_step(name, kind, taken, tic)
-        if kind == "image" and self.node.republish:
-            corr = self.rig.last_correspondences(name)
-            if corr is not None:  # (also an image where it found nothing)
-                found.append((name, corr, stamp))
-        return TakenFrame(outs=outs, found=found)
-
-    def _rig_step(self, name: str, kind: str, taken: FrameStep, tic: float) -> list:
-        """A rig camera frame's step into the rig from ``tic`` (:func:`time.perf_counter` s;
-        :meth:`.camera_input.CameraInput.enter`), ``taken``, counted and logged; returns the
-        rig frames it completed.
-
-        A cloud (``kind`` ``cloud``, or ``keypoints``: u, v, id, its rows the points of the
-        ``landmarks_file`` it names, unknown ids counted ``<c>.unknown_landmark_ids``, none
-        known: a frame without rows, which the rig frame is posed without): its rows as the
-        camera alone's (the non-finite ones dropped, counted ``<c>.points_dropped``; capped
-        to ``max_points``, counted ``<c>.capped_clouds``). One that cannot be read is counted
-        ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
-        (:meth:`Localizer.drop`), so the rig frame without it counts the camera
-        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named as
-        one whose clock is off).
-
-        An image: decoded and checked against its camera model as the camera alone's (a
-        message that does not decode or is smaller than the front ends take: ``bad_image``;
-        another size than the camera_info's: ``image_size_mismatch``; both logged and counted
-        ``<c>.skipped.<reason>``, the rig not waiting for the camera at that time), then the
-        camera's front end and the rig (:meth:`Localizer.process_image`); its decoded image
-        kept for ``debug_image`` while someone watches. The frame's times per stage go to the
-        diagnostics (:func:`.rig_node.note_camera_frame`)."""
-        item, outs, taken_at = taken
-        search = self.rig.last_search(name) if isinstance(item, ImageFrame) else None
-        note_camera_frame(self._rig_counts, tic, taken_at, search and search.seconds,
-                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
-        if isinstance(item, DroppedFrame):
-            self._not_taken(kind, item)
-        elif kind != "image":
-            self._warn_no_info(name, "keypoints" if kind == "keypoints" else "correspondences")
-        viz = self.node.camera_viz.get(name)
-        if isinstance(item, ImageFrame) and viz is not None and viz.wants("debug_image"):
-            # (only while someone watches; drawn when the rig frame is published)
-            self._images.setdefault(name, deque(maxlen=4)).append(
-                (item.image, item.encoding, item.stamp_ns)
-            )
-        return outs
 
     def _not_taken(self, kind: str, item: DroppedFrame) -> None:
         """A rig camera's frame of a checked stamp its input stage dropped (the rig counts it
@@ -566,79 +536,85 @@ class LocalizerMode(ModeBase):
     # ---------------------------------------------------------------- outputs
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: what it gave published
-        (:func:`.outputs.publish_frame`): the camera alone's frame (:meth:`_alone_outcome`:
-        posed or failed, the fused twists it made final, its log line); a rig camera's, the
-        rig frames it completed through the map-fit check
-        (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of the rig frame together:
-        counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a throttled
-        warning), then with their log lines (:meth:`_outcome`)."""
+        (:func:`.outputs.publish_frame` of each of :meth:`outcomes`), a posed one's delay
+        since the frame arrived recorded, the time it took in the stage times."""
         tic = time.perf_counter()
-        if self.alone:
-            res = taken.result
-            failed = 0 if res.failure is None else self._own.get(f"failed.{res.failure}")
-            publish_frame(self.node, self._alone_outcome(res, failed))
-            if res.failure is None:
-                self._own.stage_time("publish", time.perf_counter() - tic)
-                self.node.record_timing(item.arrived, res.stamp_ns)
-            return
-        for out in taken.outs:
-            if out.estimate is not None:
-                self._map_fit.check(out.num_points, out.estimate, self._rig_counts,
-                                    self.node.warn)  # fmt: skip
-            publish_frame(self.node, self._outcome(out, logged=True))
-            if out.success:
-                self.node.record_timing(item.arrived, out.stamp_ns)
-        if any(o.success for o in taken.outs):
-            self._rig_counts.stage_time("publish", time.perf_counter() - tic)
+        res, posed = taken.result, False
+        for outcome in self.outcomes(item.name, res):
+            publish_frame(self.node, outcome)
+            if outcome.posed is not None:
+                posed = True
+                stamp = res.stamp_ns if self.alone else outcome.posed.stamp_ns
+                self.node.record_timing(item.arrived, stamp)
+        if posed:
+            self._counts.stage_time("publish", time.perf_counter() - tic)
 
-    def _alone_outcome(self, res: CameraFrameResult, failed: int = 0) -> FrameOutcome:
-        """What the camera alone's frame publishes: posed, its estimate (or the robot base's
-        state with ``camera_to_base.*``, in ``base_frame``) at its reference-line stamp with
-        its own twist when that is final at once, and the camera's view, with the fused
-        twists now final; failed, the fused twists now final and the line ``frame dropped
-        (<reason>): <detail>`` with ``failed``, the count of frames failed so far for that
-        reason."""
+    def outcomes(self, name: str, res: CameraFrameResult) -> list[FrameOutcome]:
+        """What camera ``name``'s frame of the frame step (``res``) publishes
+        (:class:`.outputs.FrameOutcome` s): dropped, the fused twists it made final and the
+        line ``frame dropped (<reason>): <detail>`` (after the camera's label: a rig's
+        ``rig camera '<c>':``, keyed ``<reason>.<c>``) with the count of frames failed so far
+        for that reason; else each rig frame it completed (:meth:`_outcome`), a rig's through
+        the map-fit check first (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of
+        the rig frame together: counted ``rig_frames_failed_with_matches``,
+        ``map_fit_doubtful``; a throttled warning) and with its log line."""
         if res.failure is not None:
-            line = LogLine(res.failure, f"frame dropped ({res.failure}): {res.detail}", failed)
-            return FrameOutcome(None, res.fused, (line,))
-        out, cam = res.out, self.cfg.camera
-        est = out.camera_estimate
-        pose, frame = est, res.frame_id
-        if cam.mount is not None:
-            pose, frame = camera_to_base(est, cam.mount), self.cfg.base_frame
-        view = CameraView("", est, res.points2d, res.points3d, res.camera, res.stamp_ns,
-                          res.out_stamp_ns, res.frame_id, res.image)  # fmt: skip
-        posed = PosedFrame(pose, res.out_stamp_ns, frame, out.twist_now, (view,))
-        return FrameOutcome(posed, res.fused)
+            key = f"{res.failure}.{name}" if name else res.failure
+            failed = self.node.camera_counts[name].get(f"failed.{res.failure}")
+            text = f"{self.node.inputs[name].label}frame dropped ({res.failure}): {res.detail}"
+            return [FrameOutcome(None, res.fused, (LogLine(key, text, failed),))]
+        if self.alone:
+            return [self._outcome(res.out, view=res)]
+        for out in res.outs:
+            if out.estimate is not None:
+                self._map_fit.check(out.num_points, out.estimate, self._counts,
+                                    self.node.warn)  # fmt: skip
+        return [self._outcome(out, logged=True) for out in res.outs]
 
-    def _outcome(self, out: LocalizerOutput, logged: bool = False) -> FrameOutcome:
-        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): posed, the rig's pose
-        (``base_frame``) at the rig frame's time with its own twist when that is final at
-        once, and each camera of it whose ``<c>/debug_image`` or ``<c>/markers`` is watched
-        as the rig's pose and its mounting put it (:func:`.rig_node.rig_views`, with its
-        image kept by :meth:`_rig_step`); the fused twists it made final; ``logged``: its
-        :func:`.rig_node.rig_failure_line`."""
-        base = self.cfg.base_frame
-        fused = fused_outputs(out.fused, base)
+    def _outcome(self, out: LocalizerOutput, logged: bool = False,
+                 view: CameraFrameResult | None = None) -> FrameOutcome:  # fmt: skip
+        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): the fused twists it
+        made final (:meth:`_fused`); ``logged``: its :func:`.rig_node.rig_failure_line`;
+        posed, its pose with its own twist when that is final at once: the camera alone's
+        (``view``: its frame of the frame step) its own estimate at its reference-line stamp
+        in its optical frame (or the robot base's state with ``camera_to_base.*``, in
+        ``base_frame``) with the camera's view; a rig's the rig's pose (``base_frame``) at the
+        rig frame's time with each camera of it whose ``<c>/debug_image`` or ``<c>/markers``
+        is watched as the rig's pose and its mounting put it (:func:`.rig_node.rig_views`,
+        with its image kept by :meth:`_entered`)."""
+        fused = self._fused(out.fused) if view is None else view.fused
         line = rig_failure_line(self.rig, out) if logged else None
         log = () if line is None else (line,)
         if not out.success:
             return FrameOutcome(None, fused, log)
+        if view is not None:
+            est, cam = out.camera_estimate, self.cfg.camera
+            pose, frame = est, view.frame_id
+            if cam.mount is not None:
+                pose, frame = camera_to_base(est, cam.mount), self.cfg.base_frame
+            views = (CameraView("", est, view.points2d, view.points3d, view.camera,
+                                view.stamp_ns, view.out_stamp_ns, view.frame_id,
+                                view.image),)  # fmt: skip
+            return FrameOutcome(PosedFrame(pose, view.out_stamp_ns, frame, out.twist_now, views),
+                                fused, log)  # fmt: skip
         views = ()
         if self.node.viz is not None:
             views = tuple(rig_views(out, self.cfg, self.node.camera_viz, self._images))
+        base = self.cfg.base_frame
         return FrameOutcome(PosedFrame(out.estimate, out.stamp_ns, base, out.twist_now, views),
                             fused, log)  # fmt: skip
+
+    def _fused(self, fused: list) -> list[FusedOutput]:
+        """twist / odom of the rig frames whose fused state is final
+        (:func:`.pipeline.fused_outputs`): a rig's in ``base_frame``; the camera alone's in
+        its frame (each frame's tag), or with its mounting the robot's ``base_frame``."""
+        return fused_outputs(fused, *self._fused_in)
 
     def idle_twists(self) -> list[FusedOutput]:
         """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
         still pending after ``tracking.max_gap`` s without camera frames
         (:meth:`Localizer.flush_idle`; none unconfigured)."""
-        if self.rig is None:
-            return []
-        if self.alone:
-            return self._fused_alone(self.rig.flush_idle())
-        return fused_outputs(self.rig.flush_idle(), self.cfg.base_frame)
+        return [] if self.rig is None else self._fused(self.rig.flush_idle())
 
     def frame_inputs_destroyed(self) -> None:
         """After the frame inputs' end (the frames still queued dropped): the camera alone's
@@ -654,41 +630,37 @@ class LocalizerMode(ModeBase):
         if self.rig is None or self.alone:
             return []
         closed = [self._outcome(out) for out in self.rig.close()]
-        pending = self.rig.flush() + self.rig.reset()
-        return [*closed, FrameOutcome(fused=fused_outputs(pending, self.cfg.base_frame))]
+        return [*closed, FrameOutcome(fused=self._fused(self.rig.flush() + self.rig.reset()))]
 
     # ---------------------------------------------------------------- diagnostics
     def diagnostics(self) -> tuple[str, StatusParts]:
         """The hardware id and status: the camera alone's (its ``camera_frame``, or
         ``camera``; :func:`camera_status_parts` of its counts), or the rig's (``base_frame``;
         :func:`.rig_node.rig_status_parts` of the node's counts and times per camera)."""
-        if self.alone:
-            return self._alone_diagnostics()
+        cfg, rig = self.cfg, self.rig
+        if self.alone:  # (its status as a camera's: its counts, its one section named "")
+            stats = self._own.snapshot()
+            gyro = None
+            if cfg.imu is not None:
+                gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
+                                    rig.gyro_inconsistent)  # fmt: skip
+            parts = camera_status_parts(cfg, stats, rig.tracking_values(),
+                                        self.node.inputs[""].source(), self._own.messages_lost,
+                                        gyro, self._loaded.frontend)  # fmt: skip
+            return cfg.camera.frame or "camera", parts
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
-        waited = first is not None and time.monotonic() - first > self.cfg.settings.stop_after
+        waited = first is not None and time.monotonic() - first > cfg.settings.stop_after
         with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
-            counts = Counter(self._rig_counts.counts())
+            counts = Counter(self._counts.counts())
             for cc in self.node.camera_counts.values():
                 counts.update(cc.prefixed())
             frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
             absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
             inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
                                self.node.frontend_kind != "none",
-                               self._rig_counts.stage_times())  # fmt: skip
-            return self.cfg.base_frame, rig_status_parts(self.rig, waiting, inputs)
-
-    def _alone_diagnostics(self) -> tuple[str, StatusParts]:
-        cfg, rig, own = self.cfg, self.rig, self._own
-        stats = own.snapshot()
-        gyro = None
-        if cfg.imu is not None:
-            gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
-                                rig.gyro_inconsistent)  # fmt: skip
-        parts = camera_status_parts(cfg, stats, rig.tracking_values(),
-                                    self.node.inputs[""].source(), own.messages_lost, gyro,
-                                    self._loaded.frontend)  # fmt: skip
-        return cfg.camera.frame or "camera", parts
+                               self._counts.stage_times())  # fmt: skip
+            return cfg.base_frame, rig_status_parts(rig, waiting, inputs)
 
 
 def camera_status_parts(

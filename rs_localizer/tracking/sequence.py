@@ -294,7 +294,6 @@ class SequenceLocalizer(GyroReadouts):
             self.log,
             lambda: implementation(self.settings.solver),
             gyro_input=self.gyro_input,
-            camera_video=True,
             count=self._count,
         )
         # the front end and the fingerprint of the previous image: the rig of one's camera's

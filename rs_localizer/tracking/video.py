@@ -576,25 +576,24 @@ class Localizer(GyroReadouts):
         gyro_input: the gyro's :class:`~rs_localizer.tracking.gyro_input.GyroInput` (its
             samples, bias, mount check, warnings and counters under the caller's names); None:
             the rig's own, counted ``rig.gyro_*``.
-        camera_video, camera_words: redundant, for callers that pass them: a rig of one
-            camera named ``""`` (:attr:`LocalizerSettings.camera_video`) is that camera's own
-            video whether they are given or not (true for another rig: ValueError). As its
-            camera's video it speaks as the camera: its warnings are worded for a camera (the
-            rolling-shutter timing's advice names the camera's ``rs.*`` parameters; a time
-            reset, an image the front end failed on or found the previous one again are the
-            caller's to report: :meth:`check_time`, :meth:`last_search`), its fused twists
-            carry their frame's own tag rather than a camera -> tag dict, and its outputs'
-            ``estimate`` is the camera's own (:attr:`LocalizerOutput.camera_estimate`: the
-            model's velocities per unit RS coordinate, not per second; its ``pose`` and
-            covariances are the rig's). Its images (:meth:`process_image`) are its camera's:
-            an image the front end failed on, found the previous one again or found too few
-            correspondences in is not the rig's to count (no frame received nor skipped, the
-            idle timer not reset, no warning): the caller reads the failure from
-            :meth:`last_search` and reports it.
         count: the counter of its images' rows (``count(key, n)``: ``points_dropped``,
             ``capped_clouds``, ``capped_points``, under the caller's names; its capping warned
             as ``capped``), a camera video's or a rig of one's counted as its camera's; None:
             counted ``<camera>.points_dropped`` etc.
+
+    A rig of one camera named ``""`` at the identity mounting
+    (:attr:`LocalizerSettings.camera_video`) is that camera's own video. As its camera's video
+    it speaks as the camera: its warnings are worded for a camera (the rolling-shutter timing's
+    advice names the camera's ``rs.*`` parameters; a time reset, an image the front end failed
+    on or found the previous one again are the caller's to report: :meth:`check_time`,
+    :meth:`last_search`), its fused twists carry their frame's own tag rather than a camera ->
+    tag dict, and its outputs' ``estimate`` is the camera's own
+    (:attr:`LocalizerOutput.camera_estimate`: the model's velocities per unit RS coordinate, not
+    per second; its ``pose`` and covariances are the rig's). Its images (:meth:`process_image`)
+    are its camera's: an image the front end failed on, found the previous one again or found
+    too few correspondences in is not the rig's to count (no frame received nor skipped, the
+    idle timer not reset, no warning): the caller reads the failure from :meth:`last_search` and
+    reports it.
 
     One camera and a rig share one clock and time-reset policy, one gyro input, one twist
     queue and one front-end driver per camera (:meth:`search_image`). A rig of one
@@ -635,14 +634,8 @@ class Localizer(GyroReadouts):
         implementation: Callable[[], str] | None = None,
         *,
         gyro_input: GyroInput | None = None,
-        camera_video: bool = False,
         count: Callable[[str, int], Any] | None = None,
-        camera_words: bool = False,
     ):
-        if (camera_video or camera_words) and not settings.camera_video:
-            what = "camera_video" if camera_video else "camera_words"
-            raise ValueError(f'{what} needs a rig of one camera named "" '
-                             "(LocalizerSettings.camera_video)")  # fmt: skip
         self.settings = settings
         # (a camera's own video: its warnings, its estimates, its fused twists' tags and its
         # images' failures are the camera's)

@@ -114,12 +114,12 @@ class CameraNode:
     def outcome(self, res: Any) -> Any:
         """What the node publishes for the frame's result (a
         :class:`~rs_localizer.ros.outputs.FrameOutcome`)."""
-        failed = 0 if res.solved else self.stats.get(f"failed.{res.failure}")
-        return self.mode._alone_outcome(res, failed)
+        (outcome,) = self.mode.outcomes("", res)
+        return outcome
 
     def flush(self) -> list:
         """The end of the video: the fused twists still pending, as published."""
-        return self.mode._fused_alone(self.rig.flush())
+        return self.mode._fused(self.rig.flush())
 
     def tracking_values(self) -> dict:
         return self.rig.tracking_values()

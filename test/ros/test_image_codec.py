@@ -291,11 +291,12 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 
 
 def _rig_node_decode(msg, cam):
-    """The rig node's image step (``LocalizerMode._rig_step`` of an image) on ``msg`` with the
+    """The rig node's image step (``LocalizerMode.take_frame`` of an image) on ``msg`` with the
     camera's model ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the
     same form."""
     from rs_localizer.camera import FrameTime
     from rs_localizer.ros.camera_input import CameraCounts, CameraInput
+    from rs_localizer.ros.core import QueuedFrame
     from rs_localizer.ros.mode import LocalizerMode
 
     got, logged = [], []
@@ -323,17 +324,16 @@ def _rig_node_decode(msg, cam):
     camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     warn = lambda key, text, count=0: log.warning(key, text)  # noqa: E731 (the node's warn)
     mode = LocalizerMode.__new__(LocalizerMode)  # (a rig's, not configured)
-    mode.node, mode.alone = (
-        SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={}),
-        False,
-    )
-    mode.rig, mode._images, mode._rig_counts = Rig(), {}, CameraCounts()
+    node = SimpleNamespace(warn=warn, inputs={"c": camera_input}, camera_viz={},
+                           frontend_kind="aruco", republish=False)  # fmt: skip
+    mode.node, mode.alone = node, False
+    mode.rig, mode._images, mode._counts = Rig(), {}, CameraCounts()
     mode._warn_no_info = lambda name, what: None
     stamp = camera_input.check(msg, "image")
     camera = camera_input.camera_of(stamp)
-    # (the rig camera's entry checks and frame step, as the mode's take_frame makes them)
-    taken = camera_input.enter(mode.rig, msg, "image", stamp, camera, True)
-    assert mode._rig_step("c", "image", taken, 0.0) == []
+    # (the rig camera's frame step, the mode's take_frame: its entry checks, then the rig)
+    taken = mode.take_frame(QueuedFrame("c", "image", msg, 0.0, stamp), camera)
+    assert taken.outs == [] and taken.failure is None
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

@@ -127,14 +127,18 @@ def test_the_single_camera_s_outcome_its_view_draws_the_path(monkeypatch):
     def outcome(mount, twist_now=False, failure=None, failed=0):
         """The camera alone's outcome (its mode's) of a frame posed at ``est``, its output moved
         to the robot base (``base``) by ``mount`` when given."""
-        mode = SimpleNamespace(cfg=SimpleNamespace(camera=SimpleNamespace(mount=mount),
-                                                   base_frame="base_link"))  # fmt: skip
+        mode = M.LocalizerMode.__new__(M.LocalizerMode)  # (the camera alone's, its node a stand-in)
+        mode.alone, mode.rig = True, None
+        mode.cfg = SimpleNamespace(camera=SimpleNamespace(mount=mount), base_frame="base_link")
+        mode.node = SimpleNamespace(camera_counts={"": SimpleNamespace(get=lambda key: failed)},
+                                    inputs={"": SimpleNamespace(label="")})  # fmt: skip
         res = M.CameraFrameResult("cam")
         res.stamp_ns, res.out_stamp_ns, res.camera = 5_100, 5_000, "model"
         res.points2d, res.points3d, res.fused = "uv", "X", fused
         res.failure, res.detail = failure, "9 points"
-        res.out = SimpleNamespace(camera_estimate=est, twist_now=twist_now)
-        return M.LocalizerMode._alone_outcome(mode, res, failed)
+        res.outs = [SimpleNamespace(camera_estimate=est, twist_now=twist_now, success=True)]
+        (out,) = mode.outcomes("", res)
+        return out
 
     monkeypatch.setattr(M, "camera_to_base", lambda e, mount: base if e is est else None)
     for mount, frame in ((None, "cam"), ("mount", "base_link")):
