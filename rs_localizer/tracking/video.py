@@ -1762,6 +1762,9 @@ class Localizer(GyroReadouts):
                                            implementation=impl)  # fmt: skip
             except Exception as e:  # (the estimator raised: the frame failed)
                 out.fused += ended
+                # (the old track ended above: the next frame continues the one this frame
+                # started, not another reset)
+                self._track_over = False
                 out.error = f"{type(e).__name__}: {e}"
                 self._count_rig((name,), "error")
                 self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)

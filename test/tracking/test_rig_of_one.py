@@ -367,6 +367,37 @@ def test_a_rig_of_one_s_frozen_image_starts_a_new_track(video):
     assert rig.tracking_values()["resets"] == 1
 
 
+def test_a_frame_whose_estimator_raises_after_restart_track_ends_the_track_once(video, monkeypatch):
+    """After :meth:`Localizer.restart_track` a camera's video ends its track at the next frame
+    (one reset); when that frame's estimator raises (the frame failed, ``error`` set), the frame
+    after it continues from there: still one reset, its path cold, as a camera's after one new
+    track."""
+    from rs_localizer.tracking import tracker
+
+    frames, cam, _ = video
+    rig = Localizer(LocalizerSettings({"": IDENTITY}, options=OPTS, tracking=TrackerOptions()))
+    for f in frames[:3]:
+        (o,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores))
+        assert o.error is None
+    assert rig.tracking_values()["resets"] == 0
+    rig.restart_track()
+    real = tracker.RSTracker.process
+
+    def raising(self, *a, **k):
+        raise RuntimeError("estimator failed")
+
+    monkeypatch.setattr(tracker.RSTracker, "process", raising)
+    f = frames[3]
+    (o,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores))
+    assert o.error == "RuntimeError: estimator failed" and o.estimate is None
+    assert rig.tracking_values()["resets"] == 1
+    monkeypatch.setattr(tracker.RSTracker, "process", real)
+    f = frames[4]
+    (o,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores))
+    assert o.error is None and o.estimate is not None and o.path == "cold"
+    assert rig.tracking_values()["resets"] == 1
+
+
 def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
     """Without tracking the last posed frame, carried at its own twist, predicts the next
     frame of :meth:`Localizer.add` as of :meth:`Localizer.process_image`, as the
