@@ -529,6 +529,39 @@ class TrackerPath:
             s = estimator.relocalize(model, predicted)
         return PathFrame(s.estimate, "relocalized", predicted, explained, s.prior)
 
+    def track(
+        self,
+        stamp_ns: int,
+        estimator: FrameViews,
+        judge: Callable[[PathFrame], PathFrame] | None = None,
+    ) -> TrackResult:
+        """One frame through the track: :meth:`solve` with ``estimator``, then :meth:`update`
+        with the estimate kept (``judge``: the caller's last word on the solved frame, e.g. a
+        rig's refusal of a pose it cannot stand behind; None: the estimate as solved), its
+        inlier ratio over the rows given (:func:`frame_inlier_ratio` of
+        ``estimator.num_points``) and the motion prior its refinement used. The one use of the
+        tracker path, a camera's (:meth:`RSTracker.process`) and a rig's
+        (:class:`~rs_localizer.tracking.video.Localizer`).
+
+        Returns:
+            :class:`TrackResult` (``final``: the states of a track ended before the frame,
+            ``estimator.final``, then those the frame made final).
+        Raises:
+            whatever the estimator raises (as :meth:`solve`).
+        """
+        f = self.solve(stamp_ns, estimator)
+        if judge is not None:
+            f = judge(f)
+        est = f.estimate
+        if not est.success:
+            self.update(stamp_ns, est, f.path)
+            return TrackResult(est, f.path, None, estimator.final, f.predicted, f.explained)
+        ratio = frame_inlier_ratio(est, estimator.num_points)
+        step = self.update(stamp_ns, est, f.path, ratio, f.prior)
+        return TrackResult(
+            est, f.path, step, estimator.final + step.final, f.predicted, f.explained
+        )
+
     def update(
         self,
         stamp_ns: int,
@@ -643,25 +676,37 @@ class RSTracker(TrackerPath):
         Raises:
             ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
         """
+        return self.track(
+            stamp_ns,
+            self.frame_views(points2d, points3d, camera, scores, gyro, implementation),
+        )
+
+    def frame_views(
+        self,
+        points2d: np.ndarray,
+        points3d: np.ndarray,
+        camera: CameraModel,
+        scores: np.ndarray | None = None,
+        gyro: GyroMeasurement | None = None,
+        implementation: str | None = None,
+    ) -> FrameViews:
+        """A camera's frame as the estimator of :meth:`~TrackerPath.track` (:meth:`process`'s
+        arguments): its one view solved with the tracker's solver, options and tracked
+        options (the prediction's twist as the tracked solve's motion prior where
+        ``prior_from_prediction`` asks for it, a rolling shutter's); the twist filter's
+        kernels set for ``implementation``."""
         self._implementation(implementation)
         to = self.tracker_options
         # (the prediction's twist as the motion prior: a rolling shutter's, where asked)
         prior = to.prior_from_prediction == "always" or (
             to.prior_from_prediction == "planar" and self._planar
         )
-        view = FrameViews(
+        return FrameViews(
             (View(points2d, points3d, camera, _OWN_FRAME),), self.options,
             self.tracked_options, solver=self.solver, scores=scores, gyro=gyro,
             implementation=implementation,
             prior_inflation=to.prior_inflation if prior and camera.seconds_per_unit_r > 0 else None,
         )  # fmt: skip
-        f = self.solve(stamp_ns, view)
-        est = f.estimate
-        if not est.success:
-            self.update(stamp_ns, est, f.path)
-            return TrackResult(est, f.path, None, view.final, f.predicted, f.explained)
-        step = self.update(stamp_ns, est, f.path, frame_inlier_ratio(est, len(points2d)), f.prior)
-        return TrackResult(est, f.path, step, view.final + step.final, f.predicted, f.explained)
 
     def update(
         self,

@@ -153,9 +153,13 @@ import numpy as np
 
 from ..camera import CameraModel, FrameTime, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, Frontend, VideoFrontend
-from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.implementation import NUMPY, compiled_by_default, default_implementation
+from ..estimation.implementation import (
+    COMPILED,
+    NUMPY,
+    compiled_by_default,
+    default_implementation,
+)
 from ..estimation.options import EstimateOptions
 from ..estimation.result import (
     CAMERAS_DISAGREE,
@@ -193,9 +197,11 @@ from .tracker import (
     STATES,
     CarriedPrediction,
     FrameViews,
+    PathFrame,
     RSTracker,
     TrackerOptions,
     TrackerPath,
+    TrackResult,
     carried_model,
     model_from_state,
 )
@@ -692,7 +698,6 @@ class Localizer(GyroReadouts):
         self._reset: tuple[int, str, int | None] = (0, "", None)
         self._reset_taken: dict[str, int] = {}
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
-        self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
         self._tracked: tuple = (None, None)  # (settings, their tracked rig frames' options)
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
@@ -750,18 +755,6 @@ class Localizer(GyroReadouts):
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
-
-    def _gyro_for(self, g: OpenRigFrame, views) -> GyroMeasurement | None:
-        """The gyro measurement over the rig frame's capture times (rig frame;
-        :meth:`_gyro_readouts` of its cameras,
-        each at its reference time after the rig frame's), waiting up to ``imu.wait`` for its
-        samples; None without a gyro or its samples (counted)."""
-        return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
-
-    def _gyro_done(self, out: LocalizerOutput) -> None:
-        """The gyro's outcome of a rig frame (:meth:`~.gyro_input.GyroInput.solved`, a
-        camera's rule)."""
-        self.gyro_input.solved(out.stamp_ns, out.estimate, out.path in ("cold", "reset"))
 
     # ---------------------------------------------------------------- read-outs
     @property
@@ -880,26 +873,29 @@ class Localizer(GyroReadouts):
             self._noted = None
         return out
 
-    def _gyro_readouts(
-        self, t0: int, readouts: list[tuple[CameraModel, float, float | None]]
-    ) -> GyroMeasurement | None:
+    def _frame_gyro(self, t0: int, clocks: list[tuple[CameraModel, int]]) -> GyroMeasurement | None:
         """A frame's gyro measurement (:meth:`~rs_localizer.tracking.gyro_input.GyroInput.
-        measurement`) from the first line of
-        its cameras' earliest readout to the last line of the latest, ``readouts`` per camera
-        ``(camera, s after t0 ns, the line read then)``
-        (:func:`~rs_localizer.tracking.gyro.readout_window`; None: the
-        reference line); the window's middle kept (``_gyro_time``, s after ``t0``)."""
+        measurement`), a camera's or a rig frame's (``t0``: its time, ns), over its capture
+        times: from the first line of its cameras' earliest readout to the last line of the
+        latest, each camera's readout from its frame's stamp on the clock (``clocks``:
+        ``(camera, ns)``, :meth:`_on_clock`; the stamp the capture time of row ``stamp_row``,
+        :func:`~rs_localizer.tracking.gyro.readout_window`); the window's middle kept
+        (``_gyro_time``, s after ``t0``). None without a gyro, or for a frame taken at one
+        instant (every camera without readout time, at one stamp: no motion within it to
+        measure, as a global-shutter camera's frame)."""
         if self.gyro_input.settings is None:
             return None
+        if all(c.line_delay <= 0 for c, _ in clocks) and len({t for _, t in clocks}) == 1:
+            return None
+        row = self.settings.stamp_row
         first, last = [], []
-        for camera, t, line in readouts:
-            a, b = readout_window(camera, t, line)
-            first.append(a)
-            last.append(b)
-        self._gyro_time = 0.5 * (min(first) + max(last))
-        return self.gyro_input.measurement(
-            (t0 + int(round(min(first) * 1e9)), t0 + int(round(max(last) * 1e9)))
-        )
+        for camera, t in clocks:
+            a, b = readout_window(camera, 0.0, row)
+            first.append(t + int(round(a * 1e9)))
+            last.append(t + int(round(b * 1e9)))
+        lo, hi = min(first), max(last)
+        self._gyro_time = 0.5 * ((lo - t0) + (hi - t0)) * 1e-9
+        return self.gyro_input.measurement((lo, hi))
 
     # ---------------------------------------------------------------- pending twists
     @property
@@ -1033,13 +1029,9 @@ class Localizer(GyroReadouts):
         if self._single:  # (no other camera to wait for: no grouping, every frame solved)
             self._note_alone(stamp)
             self._frames.solved_at_once(name, ref)
-            return [self._solve_alone(name, frame, ref, stamp)]
-        out: list[LocalizerOutput] = []
-        reset = self._clock.step(ref, self._frames.last_ref(name))
-        if reset is not None:
-            if reset.reason == "stamp_jump":
-                self.counts[f"{name}.stamp_jumped_ahead"] += 1
-            out += self._time_reset(reset)  # (every camera's timeline started again)
+            return [self._solve_alone(name, frame, ref)]
+        # (a time reset: every camera's timeline started again)
+        out = self._note_time(name, ref, self._frames.last_ref(name))[1]
         if not self._frames.take(name, frame, ref, self.settings.window):
             return out
         return out + self._ready()
@@ -1103,13 +1095,27 @@ class Localizer(GyroReadouts):
         if t == self._noted:
             return None
         self._noted = t
-        reset = self._clock.step(t, self._clock.newest)
+        (name,) = self._cams
+        reset = self._note_time(name, t, self._clock.newest)[0]
+        return None if reset is None else reset.detail
+
+    def _note_time(self, name: str, t: int, previous: int | None) -> tuple:
+        """Camera ``name``'s frame at ``t`` (ns) on the video's clock, a camera's or a rig's
+        (``previous``: its camera's previous frame time, a camera alone's the clock's newest):
+        on a time reset (:class:`~rs_localizer.tracking.clock.VideoClock`) a jump ahead is
+        counted ``<name>.stamp_jumped_ahead``, the video's timelines start again
+        (:meth:`_time_reset`: a rig's open rig frames) and every camera's last image is
+        forgotten (a new timeline's first image is not compared with it: frozen image).
+        Returns ``(the time reset or None, the rig frames it solved)``."""
+        reset = self._clock.step(t, previous)
         if reset is None:
-            return None
-        self._time_reset(reset)
+            return None, []
+        if reset.reason == "stamp_jump":
+            self.counts[f"{name}.stamp_jumped_ahead"] += 1
+        out = self._time_reset(reset)
         for fe in () if self._img is None else self._img.frontends.values():
             fe.last_sample = None
-        return reset.detail
+        return reset, out
 
     def restart_track(self) -> None:
         """The next rig frame starts a new track, and nothing predicts a frame before it
@@ -1257,12 +1263,12 @@ class Localizer(GyroReadouts):
             ref = self.frame_time(name, stamp_ns, camera).reference_ns
         return self._predict(ref, camera, cam)
 
-    def _filter_kernels(self, impl: str | None) -> None:
-        """The twist filter's steps for a rig frame on ``impl`` (None: the default): plain
-        Python on ``"numpy"``, so that nothing compiles while the kernels compile in the
-        background (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
+    def _filter_kernels(self, impl: str) -> None:
+        """The twist filter's steps for a frame on ``impl``: plain Python on ``"numpy"``, so
+        that nothing compiles while the kernels compile in the background
+        (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
         if self._track is not None:
-            self._track.filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
+            self._track.filter.compiled = impl != NUMPY
 
     def _tracked_prediction(
         self, ref: int, camera: CameraModel, view: _Camera
@@ -1282,16 +1288,20 @@ class Localizer(GyroReadouts):
             return False, None
         if not t.predicts(ref):
             return True, None
-        self._filter_kernels(None if self._implementation is None else self._implementation())
+        self._filter_kernels(self._implementation_now())
         return True, t.predict(ref)
 
     def _implementation_now(self) -> str:
-        """A rig of one's estimator implementation for its next frame (``implementation()``,
-        default: its solver's, :func:`~rs_localizer.estimation.implementation.
-        default_implementation`)."""
-        if self._implementation is None:
+        """The estimator's implementation for the next frame, a camera's or a rig's:
+        ``implementation()``, else the estimator's default: a camera alone's its solver's
+        (:func:`~rs_localizer.estimation.implementation.default_implementation`), the rig
+        estimator's (every step has a NumPy form: compiled unless this process cannot
+        compile, :func:`~rs_localizer.estimation.implementation.compiled_by_default`)."""
+        if self._implementation is not None:
+            return self._implementation()
+        if self._single:
             return default_implementation(self.settings.solver)
-        return self._implementation()
+        return COMPILED if compiled_by_default() else NUMPY
 
     def _key(self, camera: CameraModel) -> tuple:
         """What a rig of one's tracker is made for: its solver, options, tracking options and
@@ -1570,15 +1580,12 @@ class Localizer(GyroReadouts):
             self.log.warning(key, text)
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
-        """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)
-        and keep the last rig pose (the prediction without tracking)."""
+        """Tell each camera's front end how its frame in ``outs`` was solved
+        (:meth:`process_image`)."""
         img = self._image_input()
         for out in outs:
             est = out.estimate
             alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
-            if not self._single:  # (posed: the prediction without tracking; a rig of one
-                # carries each frame posed as it is solved)
-                self._carried.update(out.stamp_ns, est)
             for k, n in enumerate(out.cameras):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)
@@ -1622,9 +1629,9 @@ class Localizer(GyroReadouts):
         return LocalizerOutput(stamp_ns=g.lo, cameras=self._frames.closed(g))
 
     def _solve(self, g: OpenRigFrame) -> LocalizerOutput:
+        """A rig frame complete (:meth:`_ready`, :meth:`close`): its cameras missing counted,
+        then solved as every frame is (:meth:`_solve_frame`)."""
         out = self._closed(g)
-        names = list(out.cameras)
-        out.fused, self._carry = self._carry, []
         for n in self._cams:
             if n not in g.frames:
                 reason = self._frames.missing_reason(n, g, self.settings.window)
@@ -1633,168 +1640,217 @@ class Localizer(GyroReadouts):
         if out.missing:
             self.counts["rig.incomplete"] += 1
         self._agreement.update_apart(out.cameras, out.missing, self.settings.window)
-        if self._track_over:  # (restart_track: the old track's twists, final)
-            self._track_over = False
-            if self._track is not None:
-                out.fused += self._end_track(keep=True)
-                self._track_counts["resets"] += 1
+        return self._solve_frame(out, {n: g.frames[n] for n in out.cameras})
+
+    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> LocalizerOutput:
+        """A rig of one camera's frame (reference time ``ref`` ns, the frame's time), solved
+        at once as its camera's video solves it (:meth:`_solve_frame`)."""
+        out = LocalizerOutput(stamp_ns=ref, cameras=(name,))
+        return self._solve_frame(out, {name: (frame, ref)})
+
+    def _solve_frame(self, out: LocalizerOutput, frames: dict) -> LocalizerOutput:
+        """Solve a frame, a camera's or a rig's (``frames``: camera -> ``(CameraFrame,
+        reference time ns)``; ``out`` its output, at its time ``out.stamp_ns``), the one way:
+
+        1. the twists of tracks ended before it go out with it (a time reset's, a configure's,
+           :meth:`restart_track`'s: the track's pending twists final as they are);
+        2. the estimator's implementation (:meth:`_implementation_now`) and the gyro's
+           measurement over the frame's capture times (:meth:`_frame_gyro`);
+        3. the estimator of its views (:meth:`_estimator`) on the track
+           (:meth:`~rs_localizer.tracking.tracker.TrackerPath.track`; a rig's pose judged by
+           :meth:`_judged` before the track takes it), cold without tracking;
+        4. counted, its shares, its twist held for the fused twist unless final now
+           (:meth:`_twist_now`), the states final released (:meth:`_fused`).
+
+        A camera alone's estimate is its camera's own (:attr:`LocalizerOutput.camera_estimate`),
+        in the rig's terms in ``estimate`` (:func:`_camera_as_rig`; a camera's video: its
+        own). An estimator that raises fails the frame (``error``)."""
+        s = self.settings
+        names = list(out.cameras)
         views = []
         for n in names:
-            frame, ref = g.frames[n]
-            m = self._cams[n].mount
-            off = (ref - g.lo) * 1e-9
-            out.stamp_offsets[n] = off
+            frame, ref = frames[n]
+            out.stamp_offsets[n] = off = (ref - out.stamp_ns) * 1e-9
             out.tags[n] = frame.tag
             out.frames[n] = frame
-            view = View(frame.points2d, frame.points3d, frame.camera, m, off)
-            views.append(view)
-        self._impl = impl = None if self._implementation is None else self._implementation()
-        self._filter_kernels(impl)
-        out.compiled = impl != NUMPY
-        if not out.compiled:  # (while the kernels compile: tracked all the same)
-            self.counts["rig.uncompiled"] += 1
-        out.gyro = self._gyro = self._gyro_for(g, views)
-        try:
-            est, path, estimator = self._estimate(g.lo, views, out)
-        except Exception as e:  # (the estimator raised: the rig frame failed)
-            out.error = f"{type(e).__name__}: {e}"
-            self._count_rig(names, "error")
-            self._gyro_done(out)
-            return out
-        out.estimate, out.path = est, path
-        refusal = self._refusal(out, est) if est.success else None
-        if refusal == CONTRADICTS_TRACK and est.disagreeing:
-            # the prediction outvoted a camera into a pose it contradicts itself: it does not
-            # decide between these cameras; the rig frame solved without it stands if it
-            # poses more than one camera (cameras a little apart, posed jointly)
-            alone = estimator.cold().estimate
-            if alone.success and self._refusal(out, alone) is None:
-                est, refusal = alone, None
-                out.estimate, out.path = est, path = alone, "relocalized"
-                self.counts["rig.track_outvote_undone"] += 1
-        if refusal is not None:
-            est = out.estimate = replace(est, success=False, failure=refusal)
-            if refusal == CONTRADICTS_TRACK:
-                self.log.warning(
-                    "rig.contradicts_track",
-                    f"rig frame of camera {names[0]!r} alone refused: its pose contradicts the "
-                    "rig's track (its clock or stamp is likely off, or its matches are wrong)",
-                )
-        if not est.success:
-            if self._track is not None:
-                self._track.update(out.stamp_ns, est, path)  # (counted: a failure)
-            self._count_rig(names, est.failure or "error")
-            if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
-                n_pts = np.asarray(est.num_valid_per_view)
-                n_in = np.asarray(est.num_inliers_per_view)
-                out.disagreeing = self._agreement.update(
-                    names, n_pts, n_in, views, est, self.settings, self._impl
-                )
-            self._gyro_done(out)
-            return out
-        self._finish(out, est, path, names, views)
-        self._gyro_done(out)
-        return out
-
-    def _solve_alone(
-        self, name: str, frame: CameraFrame, ref: int, on_clock: int
-    ) -> LocalizerOutput:
-        """A rig of one camera's frame (reference time ``ref`` ns, the rig frame's time; its
-        stamp on the rig's clock ``on_clock`` ns, :meth:`_on_clock`), solved as its camera's
-        video solves it: on its camera's tracker
-        (:meth:`~rs_localizer.tracking.tracker.RSTracker.process`, made again when its solver,
-        options, tracking options or camera model changed; after :meth:`restart_track` a new
-        track) or alone without tracking (:func:`~rs_localizer.estimation.estimate_rs_pose`;
-        the tracker dropped, its twists still pending with it), with the gyro's measurement
-        over the camera's readout from its stamp. The estimate in the rig's terms
-        (:func:`_camera_as_rig`; a camera's video: its own), the camera's own kept
-        (:attr:`LocalizerOutput.camera_estimate`: the last posed frame carried, the front end's
-        feedback). A rolling-shutter frame's
-        twist is held for its fused twist; a global-shutter solver's or camera's is final
-        (:attr:`LocalizerOutput.twist_now`)."""
-        s = self.settings
-        camera = frame.camera
-        out = LocalizerOutput(stamp_ns=ref, cameras=(name,))
-        out.fused, self._carry = self._carry, []
-        out.stamp_offsets[name] = 0.0
-        out.tags[name] = frame.tag
-        out.frames[name] = frame
+            m = self._cams[n].mount
+            views.append(View(frame.points2d, frame.points3d, frame.camera, m, off))
+        with self._lock:
+            out.fused, self._carry = self._carry, []
+            self._restart_if_asked(out)
         # (while the kernels compile in the background: the NumPy implementation, tracked and
         # with the gyro all the same; runtime.background)
         self._impl = impl = self._implementation_now()
         out.compiled = impl != NUMPY
         if not out.compiled:
             self.counts["rig.uncompiled"] += 1
-        t0 = time.perf_counter()
-        gyro = None
-        if camera.line_delay > 0:
-            gyro = self._gyro_readouts(on_clock, [(camera, 0.0, s.stamp_row)])
-        out.gyro = self._gyro = gyro
+        t0 = time.perf_counter()  # (the gyro's samples waited for outside the lock)
+        clocks = [(f.camera, self._on_clock(n, f.stamp_ns)) for n, (f, _) in frames.items()]
+        out.gyro = self._gyro = self._frame_gyro(out.stamp_ns, clocks)
         out.gyro_seconds = time.perf_counter() - t0
-        uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
         with self._lock:
-            # (ended: the frames of a track ended here, final; final: the tracker's states
-            # final now)
-            ended, final = [], []
+            self._filter_kernels(impl)
             try:
-                if s.tracking is not None:
-                    if self._track_over and self._track is not None:
-                        # (the camera moved on unseen: the track's pending twists are final,
-                        # the frame starts a new track, as after a gap)
-                        ended = self._end_track(keep=True)
-                        self._track_counts["resets"] += 1
-                    key = self._key(camera)
-                    if self._track is None or key != self._track_key:
-                        if self._track is not None:
-                            ended += self._end_track(keep=True)
-                            self._track_counts["resets"] += 1
-                        self._track = RSTracker(s.solver, s.options, s.tracking)
-                        self._track_key = key
-                        self._track_camera = camera  # (keeps id(camera) unique while in use)
-                    r = self._track.process(
-                        ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
-                    )
-                    est, out.path, final = r.estimate, r.state, r.final
+                estimator = self._estimator(out, views, frames[names[0]][0].scores)
+                judge = None if self._single else lambda f: self._judged(out, f, estimator)
+                if self._track is None:
+                    f = PathFrame(estimator.cold().estimate, None)
+                    f = f if judge is None else judge(f)
+                    r = TrackResult(f.estimate, None)
                 else:
-                    self._end_track()
-                    est = estimate_rs_pose(uv, xyz, camera, solver=s.solver, options=s.options,
-                                           scores=scores, gyro=gyro,
-                                           implementation=impl)  # fmt: skip
+                    r = self._track.track(out.stamp_ns, estimator, judge)
             except Exception as e:  # (the estimator raised: the frame failed)
-                out.fused += ended
-                # (the old track ended above: the next frame continues the one this frame
-                # started, not another reset)
-                self._track_over = False
                 out.error = f"{type(e).__name__}: {e}"
-                self._count_rig((name,), "error")
-                self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)
+                self._count_rig(names, "error")
+                self.gyro_input.solved(out.stamp_ns, None, False)  # (the pairing restarts)
                 return out
-            self._track_over = False
-            spr = camera.seconds_per_unit_r
-            # (a camera's video reports the camera's own estimate)
-            out.camera_estimate = est
-            out.estimate = _camera_as_rig(est, spr) if self._rig else est
-            self._carried.update(ref, est)
-            self.gyro_input.solved(ref, est, out.path in ("cold", "reset"))
+            est, out.path = r.estimate, r.state
+            if self._single:  # (a camera alone: its camera's own estimate kept)
+                out.camera_estimate = est
+                spr = views[0].camera.seconds_per_unit_r
+                out.estimate = _camera_as_rig(est, spr) if self._rig else est
+            else:
+                out.estimate = est
+            self._carried.update(out.stamp_ns, est)
+            self.gyro_input.solved(out.stamp_ns, est, out.path in ("cold", "reset"))
             if not est.success:
-                self._count_rig((name,), est.failure or "error")
-                out.fused += ended + self._fused(final)
+                self._count_rig(names, est.failure or "error")
+                if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
+                    n_pts = np.asarray(est.num_valid_per_view)
+                    n_in = np.asarray(est.num_inliers_per_view)
+                    out.disagreeing = self._agreement.update(
+                        names, n_pts, n_in, views, est, s, self._impl
+                    )
+                out.fused += self._fused(r.final)
                 return out
-            self._count_rig((name,), None)
+            self._count_rig(names, None)
             if out.path is not None:
                 self.counts[f"rig.path.{out.path}"] += 1
-            n_in, n_pts = int(est.num_inliers), len(uv)
-            share = CameraShare(n_pts, n_in, 1.0 if n_in else 0.0,
-                                n_in / n_pts if n_pts else float("nan"))  # fmt: skip
-            out.shares[name] = self._cams[name].last_share = share
-            out.twist_now = s.tracking is None or not solver_info(s.solver).rolling or spr <= 0
+            self._shares(out, est, views)
+            out.twist_now = self._twist_now(views)
             if not out.twist_now:  # (its fused twist comes when final)
-                tag = frame.tag if not self._rig else dict(out.tags)
-                self._twists.hold(ref, est, tag, out.path == "relocalized")
+                tag = out.tags[names[0]] if not self._rig else dict(out.tags)
+                self._twists.hold(out.stamp_ns, est, tag, out.path == "relocalized")
             # (also with the frame's own twist final: an earlier track's, e.g. before the
             # solver became a global-shutter one)
-            out.fused += ended + self._fused(final)
+            out.fused += self._fused(r.final)
         return out
+
+    def _restart_if_asked(self, out: LocalizerOutput) -> None:
+        """After :meth:`restart_track` the frame starts a new track: the track's pending twists
+        out with ``out``, final as they are; counted a reset. Once, whatever becomes of the
+        frame (an estimator that raises: the next frame continues the track it started)."""
+        if not self._track_over:
+            return
+        self._track_over = False
+        if self.settings.tracking is not None and self._track is not None:
+            out.fused += self._end_track(keep=True)
+            self._track_counts["resets"] += 1
+
+    def _estimator(
+        self, out: LocalizerOutput, views: list, scores: np.ndarray | None
+    ) -> FrameViews:
+        """The frame's views as the estimator of the tracker path
+        (:class:`~rs_localizer.tracking.tracker.FrameViews`) with the frame's gyro on its
+        implementation. A camera alone: its camera's tracker's
+        (:meth:`~rs_localizer.tracking.tracker.RSTracker.frame_views`: its solver, options and
+        tracked options, made again when its solver, options, tracking or camera model
+        changed: the old track's twists out with ``out``, a reset) or, without tracking, its
+        solver and ``options`` (the tracker dropped); ``scores``: its rows'. A rig: the rig
+        estimator with ``options``, tracked with at most ``tracking.tracked_max_iterations``
+        RANSAC samples (default :data:`RIG_TRACKED_MAX_ITERATIONS`)."""
+        s = self.settings
+        if self._single:
+            v = views[0]
+            if s.tracking is None:
+                self._end_track()
+                return FrameViews(views, s.options, s.options, solver=s.solver, scores=scores,
+                                  gyro=self._gyro, implementation=self._impl)  # fmt: skip
+            key = self._key(v.camera)
+            if self._track is None or key != self._track_key:
+                if self._track is not None:
+                    out.fused += self._end_track(keep=True)
+                    self._track_counts["resets"] += 1
+                self._track = RSTracker(s.solver, s.options, s.tracking)
+                self._track_key = key
+                self._track_camera = v.camera  # (keeps id(camera) unique while in use)
+            return self._track.frame_views(v.uv, v.X, v.camera, scores, self._gyro, self._impl)
+        if self._tracked[0] is not s:  # (the tracked options: made once per settings)
+            t = s.tracking
+            n = None if t is None else t.tracked_max_iterations
+            n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
+            o = s.options
+            self._tracked = (s, replace(o, ransac=replace(o.ransac, max_iterations=n)))
+        return FrameViews(
+            views, s.options, self._tracked[1], gyro=self._gyro, gyro_time=self._gyro_time,
+            implementation=self._impl,
+        )  # fmt: skip
+
+    def _judged(self, out: LocalizerOutput, f: PathFrame, estimator: FrameViews) -> PathFrame:
+        """A rig frame's solve judged before the track takes it: a pose from one voting camera
+        alone while another camera of the rig runs refused
+        (:func:`~rs_localizer.tracking.rig.refusal`); when the prediction outvoted a camera
+        into a pose it contradicts itself, the rig frame solved without the prediction stands
+        if nothing refuses it (``relocalized``, counted ``rig.track_outvote_undone``)."""
+        est = f.estimate
+        why = refusal(est, out.cameras, self._frames, f.predicted) if est.success else None
+        if why == CONTRADICTS_TRACK and est.disagreeing:
+            # the prediction does not decide between these cameras; the rig frame solved
+            # without it stands if it poses more than one camera (cameras a little apart)
+            alone = estimator.cold()
+            a = alone.estimate
+            if a.success and refusal(a, out.cameras, self._frames, f.predicted) is None:
+                self.counts["rig.track_outvote_undone"] += 1
+                return replace(f, estimate=a, path="relocalized", prior=alone.prior)
+        if why is None:
+            return f
+        if why == CONTRADICTS_TRACK:
+            self.log.warning(
+                "rig.contradicts_track",
+                f"rig frame of camera {out.cameras[0]!r} alone refused: its pose contradicts "
+                "the rig's track (its clock or stamp is likely off, or its matches are wrong)",
+            )
+        return replace(f, estimate=replace(est, success=False, failure=why))
+
+    def _shares(self, out: LocalizerOutput, est: RSPoseEstimate, views: list) -> None:
+        """A posed frame's :class:`CameraShare` per camera (a camera alone: its inliers of its
+        rows) and, for a rig, its cameras outvoted and their agreement
+        (:class:`~rs_localizer.tracking.rig.CameraAgreement`)."""
+        names = list(out.cameras)
+        total_in = int(est.num_inliers)
+        if self._single:
+            n_pts = len(views[0].uv)
+            share = CameraShare(n_pts, total_in, 1.0 if total_in else 0.0,
+                                total_in / n_pts if n_pts else float("nan"))  # fmt: skip
+            out.shares[names[0]] = self._cams[names[0]].last_share = share
+            return
+        for k in est.disagreeing:  # (outvoted by the cameras that posed the rig)
+            self.counts[f"{names[k]}.outvoted"] += 1
+        n_pts = np.asarray(est.num_valid_per_view)
+        n_in = np.asarray(est.num_inliers_per_view)
+        for k, n in enumerate(names):
+            pts, i = int(n_pts[k]), int(n_in[k])
+            share = CameraShare(pts, i, i / total_in if total_in else 0.0,
+                                i / pts if pts else float("nan"),
+                                k in est.disagreeing)  # fmt: skip
+            out.shares[n] = share
+            self._cams[n].last_share = share
+        out.disagreeing = self._agreement.update(
+            names, n_pts, n_in, views, est, self.settings, self._impl
+        )
+
+    def _twist_now(self, views: list) -> bool:
+        """Whether a posed frame's own twist is its final twist (none comes in a later
+        ``fused``): nothing fuses it (no tracking), or it measures no twist: a camera alone
+        whose solver is a global-shutter one, or whose camera has no readout time (its
+        frame taken at one instant). A rig's views measure the twist across their cameras'
+        readouts and stamps: fused."""
+        s = self.settings
+        if s.tracking is None:
+            return True
+        if not self._single:
+            return False
+        return not solver_info(s.solver).rolling or views[0].camera.seconds_per_unit_r <= 0
 
     def _count_rig(self, names, failure: str | None) -> None:
         if failure is None:
@@ -1806,44 +1862,6 @@ class Localizer(GyroReadouts):
         self.counts[f"rig.failed.{failure}"] += 1
         for n in names:
             self.counts[f"{n}.failed"] += 1
-
-    def _frame_views(self, views, out: LocalizerOutput) -> FrameViews:
-        """The rig frame's views as the tracker path's estimator
-        (:class:`~rs_localizer.tracking.tracker.FrameViews`: the rig estimator with the rig
-        frame's gyro on its implementation, ``options``; tracked with at most
-        ``tracking.tracked_max_iterations`` RANSAC samples, default
-        :data:`RIG_TRACKED_MAX_ITERATIONS`); a track ended before it: its twists out with
-        ``out``."""
-        s = self.settings
-        if self._tracked[0] is not s:  # (the tracked options: made once per settings)
-            t = s.tracking
-            n = None if t is None else t.tracked_max_iterations
-            n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
-            o = s.options
-            self._tracked = (s, replace(o, ransac=replace(o.ransac, max_iterations=n)))
-        return FrameViews(
-            views, s.options, self._tracked[1], gyro=self._gyro, gyro_time=self._gyro_time,
-            implementation=self._impl,
-            ended=lambda final: out.fused.extend(self._track_ended(final)),
-        )  # fmt: skip
-
-    def _estimate(self, stamp: int, views: list, out: LocalizerOutput) -> tuple:
-        """The rig frame's estimate on the tracker path
-        (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, its views the estimator:
-        :meth:`_frame_views`), cold without tracking. Returns (estimate, path, the
-        estimator)."""
-        self._prediction = None
-        estimator = self._frame_views(views, out)
-        if self._track is None:
-            return estimator.cold().estimate, None, estimator
-        f = self._track.solve(stamp, estimator)
-        self._prediction = f.predicted
-        return f.estimate, f.path, estimator
-
-    def _refusal(self, out: LocalizerOutput, est: RSPoseEstimate) -> str | None:
-        """Why a rig frame posed from one voting camera alone while another camera of the rig
-        runs is refused (:func:`~rs_localizer.tracking.rig.refusal`), or None."""
-        return refusal(est, out.cameras, self._frames, self._prediction)
 
     def clock_offsets(self, name: str) -> dict:
         """Camera ``name``'s apparent clock offset against each other camera (other camera ->
@@ -1880,34 +1898,6 @@ class Localizer(GyroReadouts):
             return None
         view = View(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
         return alone_deg(view, out.estimate)
-
-    def _finish(self, out: LocalizerOutput, est, path, names, views) -> None:
-        self._count_rig(names, None)
-        if path is not None:
-            self.counts[f"rig.path.{path}"] += 1
-        # per camera: points, inliers, share; who disagrees
-        total_in = int(est.num_inliers)
-        for k in est.disagreeing:  # (outvoted by the cameras that posed the rig)
-            self.counts[f"{names[k]}.outvoted"] += 1
-        n_pts = np.asarray(est.num_valid_per_view)
-        n_in = np.asarray(est.num_inliers_per_view)
-        for k, n in enumerate(names):
-            pts, i = int(n_pts[k]), int(n_in[k])
-            share = CameraShare(pts, i, i / total_in if total_in else 0.0,
-                                i / pts if pts else float("nan"),
-                                k in est.disagreeing)  # fmt: skip
-            out.shares[n] = share
-            self._cams[n].last_share = share
-        out.disagreeing = self._agreement.update(
-            names, n_pts, n_in, views, est, self.settings, self._impl
-        )
-        out.twist_now = self._track is None
-        if self._track is None:
-            return
-        ratio = total_in / max(int(n_pts.sum()), 1)
-        step = self._track.update(out.stamp_ns, est, path, ratio)
-        self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
-        out.fused += self._fused(step.final)
 
     def camera_partner(self, name: str) -> str | None:
         """The other camera when ``name`` is one of two cameras that disagree with each other

@@ -381,17 +381,15 @@ def test_a_frame_whose_estimator_raises_after_restart_track_ends_the_track_once(
         assert o.error is None
     assert rig.tracking_values()["resets"] == 0
     rig.restart_track()
-    real = tracker.RSTracker.process
-
     def raising(self, *a, **k):
         raise RuntimeError("estimator failed")
 
-    monkeypatch.setattr(tracker.RSTracker, "process", raising)
+    monkeypatch.setattr(tracker.RSTracker, "track", raising)
     f = frames[3]
     (o,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores))
     assert o.error == "RuntimeError: estimator failed" and o.estimate is None
     assert rig.tracking_values()["resets"] == 1
-    monkeypatch.setattr(tracker.RSTracker, "process", real)
+    monkeypatch.undo()
     f = frames[4]
     (o,) = rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, f.scores))
     assert o.error is None and o.estimate is not None and o.path == "cold"
