@@ -413,6 +413,55 @@ def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
         assert a[k]["median"] < 1.5 * b[k]["median"], k
 
 
+def test_a_rig_bags_replay_counts_the_imu_messages_it_rejects_as_the_rig_node(tmp_path):
+    """A ``make-bag --rig 2 --imu-rate 400`` bag copied with 3 of its IMU messages saying they
+    carry no angular velocity (``angular_velocity_covariance[0] = -1``) and one message sent
+    twice (the same stamp again): the replay counts them as the rig node does,
+    ``imu_rejected.no_angular_velocity`` 3 and ``imu_rejected.stamp_not_increasing`` 1 (the
+    gyro buffer's reason), ``imu_rejected`` 4; the clean bag counts none."""
+    import dataclasses
+    import shutil
+
+    from rosbags.rosbag2 import Reader, Writer
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.bag_io import storage_plugin, typestore
+    from rs_localizer.ros.bags.replay import replay
+
+    bag, bad = tmp_path / "rig", tmp_path / "bad"
+    assert main(["make-bag", str(bag), "--rig", "2", "--frames", "6", "--points", "60",
+                 "--imu-rate", "400", "--quiet"]) == 0  # fmt: skip
+    ts = typestore()
+    with Reader(bag) as r, Writer(bad, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns = {
+            c.id: w.add_connection(c.topic, c.msgtype, typestore=ts, serialization_format="cdr")
+            for c in r.connections
+        }
+        k = 0
+        for c, t, raw in r.messages():
+            w.write(conns[c.id], t, raw)
+            if c.topic != "/rig/imu":
+                continue
+            k += 1
+            if k in (10, 20, 30):  # (written again without its angular velocity)
+                m = ts.deserialize_cdr(raw, c.msgtype)
+                cov = np.array(m.angular_velocity_covariance, float)
+                cov[0] = -1.0
+                m = dataclasses.replace(m, angular_velocity_covariance=cov)
+                w.write(conns[c.id], t, bytes(ts.serialize_cdr(m, c.msgtype)))
+            elif k == 40:  # (the same message again)
+                w.write(conns[c.id], t, raw)
+    for f in bag.iterdir():
+        if f.suffix in (".json", ".yaml", ".csv") and f.name != "metadata.yaml":
+            shutil.copy(f, bad / f.name)
+    clean, got = replay(bag, progress=None), replay(bad, progress=None)
+    assert not any(key.startswith("imu_rejected") for key in clean.counts), clean.counts
+    c = got.counts
+    assert c["imu_rejected.no_angular_velocity"] == 3, c
+    assert c["imu_rejected.stamp_not_increasing"] == 1 and c["imu_rejected"] == 4, c
+    assert got.solved == clean.solved
+
+
 def test_replay_of_a_rig_warns_when_its_video_contradicts_the_cameras_timing(tmp_path, capsys):
     """A 60-frame rig bag of three cameras replayed with their line delays: no timing warning;
     with every camera's line delay doubled (parameters), most rig frames are refused (the
@@ -619,7 +668,8 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth, typestore
-    from rs_localizer.ros.bags.replay import CSV_COLUMNS, replay
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.bags.replay_out import CSV_COLUMNS
     from rs_localizer.ros.conversions import matrix_from_quaternion
 
     bag, cam = tmp_path / "rig", tmp_path / "cam"

@@ -57,7 +57,7 @@ def test_marker_array_against_the_pose():
     from visualization_msgs.msg import Marker
 
     from rs_localizer.ros.bags.bag_io import typestore
-    from rs_localizer.ros.bags.replay import to_cdr
+    from rs_localizer.ros.bags.replay_out import to_cdr
     from rs_localizer.ros.visualization import marker_array
 
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)

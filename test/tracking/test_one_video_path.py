@@ -107,7 +107,7 @@ def test_a_rig_frame_taken_at_one_instant_asks_no_gyro_as_a_global_shutter_camer
     for apart in (0, 4_000_000):
         rig = Localizer(LocalizerSettings(mounts_of(gs), imu=imu, tracking=None))
         asked = _windows(rig)
-        outs = _add_all(rig, first, gs, stamp=lambda f, d=apart: T0 + (d if f.name == "left" else 0))
+        outs = _add_all(rig, first, gs, stamp=lambda f, d=apart: T0 + d * (f.name == "left"))
         assert len(outs) == 1 and set(outs[0].cameras) == {c.name for c in gs}
         if apart == 0:
             assert asked == [] and outs[0].gyro is None

@@ -381,6 +381,7 @@ def test_a_frame_whose_estimator_raises_after_restart_track_ends_the_track_once(
         assert o.error is None
     assert rig.tracking_values()["resets"] == 0
     rig.restart_track()
+
     def raising(self, *a, **k):
         raise RuntimeError("estimator failed")
 

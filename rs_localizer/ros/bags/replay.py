@@ -12,7 +12,7 @@ bag's messages read once in log-time order, each camera_info to its camera's inp
 gyro's samples read first, each frame message through the rig node's frame step, each rig
 frame published as the node publishes it (:class:`..outputs.FrameOutcome`); and the outputs
 are written by one path (:mod:`.replay_out`): a bag (``/rs_localizer/<topic>``), a CSV (one
-line per frame, :data:`CSV_COLUMNS`), the comparison with the bag's ground truth
+line per frame, :data:`.replay_out.CSV_COLUMNS`), the comparison with the bag's ground truth
 (``/ground_truth/*``) when it has one and, with ``debug_outputs``, the node's visualization
 topics in the output bag (``debug_image``, ``markers``, ``path``:
 :mod:`rs_localizer.ros.visualization`; of a rig, ``<camera>/debug_image`` and
@@ -37,7 +37,6 @@ from ...accuracy import GroundTruth
 from ...frames import camera_to_base
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
-from .. import conversions as cv
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
 from ..outputs import CameraView, FrameOutcome, PosedFrame, outcome_messages
@@ -69,13 +68,11 @@ from .bag_io import (
     typestore,
 )
 from .replay_out import (
-    CSV_COLUMNS,
     BagImages,
     DebugWriter,
     ReplayRows,
     frame_row,
     open_out_bag,
-    to_cdr,
     view_prefix,
     write_csv,
     write_messages,
@@ -89,19 +86,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BAG_TIMING",
-    "CSV_COLUMNS",
     "GYRO_AHEAD_NS",
-    "DebugWriter",
     "ReplayResult",
-    "ReplayRows",
     "camera_counts",
     "frame_outcome",
-    "open_out_bag",
     "replay",
     "replay_parameters",
-    "to_cdr",
-    "write_csv",
-    "write_messages",
 ]
 
 #: RS timing parameters a replay takes from the bag's ``sequence.json`` (``rs`` section, written
@@ -113,7 +103,7 @@ BAG_TIMING = ("rs.line_delay", "rs.direction", "rs.reference_row", "rs.stamp_row
 @dataclass
 class ReplayResult:
     """Outcome of :func:`replay`, of a camera's bag or a rig bag (a rig frame for a frame):
-    ``rows`` (one dict per frame, the CSV's columns, :class:`ReplayRows`), ``summary``
+    ``rows`` (one dict per frame, the CSV's columns, :class:`.replay_out.ReplayRows`), ``summary``
     (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors` of the
     published pose and twist, with ``frame_fit``), ``failures`` (reason -> frames), the files
     written, the configuration (a camera's or a rig's
@@ -130,12 +120,13 @@ class ReplayResult:
     ``imu_rejected.<reason>``, the gyro's (``frames_with_gyro``, ``gyro_rejected``,
     ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``...) and the map-fit check's
     (``frames_failed_with_matches``, ``map_fit_doubtful``); a rig's gyro counts by the same
-    names), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last
-    frame used, the online estimate with ``imu.estimate_bias``; None without
-    ``imu.enabled``), ``readout`` (the tracking's values at the end of the video with the
-    check of the rolling-shutter timing, ``readout_suspect``, ``readout_contradicted``:
-    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`), ``notes`` (warnings
-    for the user).
+    names, with its IMU messages rejected as the rig node counts them, ``imu_rejected`` and
+    ``imu_rejected.<reason>``, when any were), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s,
+    IMU frame: the bias the last frame used, the online estimate with ``imu.estimate_bias``;
+    None without ``imu.enabled``), ``readout`` (the tracking's values at the end of the video
+    with the check of the rolling-shutter timing, ``readout_suspect``, ``readout_contradicted``:
+    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`), ``notes`` (warnings for the
+    user).
 
     A rig bag's replay also has (empty for a camera's):
 
@@ -299,8 +290,8 @@ def replay(
         out_bag: write the outputs here (``/rs_localizer/pose``, ``twist``,
             ``twist_single_frame``, ``pose_with_covariance``, ``odom``: the node's messages,
             each logged at the bag time of the frame that made it final; a rig frame's at its
-            time). out_csv: one line per frame (:data:`CSV_COLUMNS`: the pose, the twist on
-            ``twist`` and the frame's own twist, errors against ground truth). storage:
+            time). out_csv: one line per frame (:data:`.replay_out.CSV_COLUMNS`: the pose, the
+            twist on ``twist`` and the frame's own twist, errors against ground truth). storage:
             ``mcap`` or ``sqlite3``.
         debug_outputs: (needs ``out_bag``) add, for every solved frame,
             ``/rs_localizer/debug_image`` (stamped like the input frame, drawn on the input
@@ -399,9 +390,9 @@ class _Step:
     """What one frame (a camera's frame or a rig frame) gives the output path of
     :func:`replay`: its ``outcome`` as the node publishes it (:class:`..outputs.FrameOutcome`:
     the pose when posed, with its cameras' views for the debug outputs; the fused twists of
-    earlier frames now final), logged at ``t_log`` (ns); its ``row`` (:class:`ReplayRows`;
-    None: the end of the video, only the fused twists still pending) and the ``estimate`` on
-    the path."""
+    earlier frames now final), logged at ``t_log`` (ns); its ``row``
+    (:class:`.replay_out.ReplayRows`; None: the end of the video, only the fused twists still
+    pending) and the ``estimate`` on the path."""
 
     t_log: int
     outcome: FrameOutcome
@@ -605,21 +596,33 @@ class _Run:
         """The gyro's samples: a camera's all buffered now, in the bag's order (each rejected
         one counted ``imu_rejected.<reason>``: :func:`~rs_localizer.ros.pipeline.
         take_imu_message`); a rig's kept ``(stamp_ns, (wx, wy, wz))``, newest first (popped
-        oldest first, :meth:`_gyro_to`), those without an angular velocity or a readable
-        stamp left out."""
-        self.gyro: list = []
-        if self.per_frame:
-            from ..pipeline import take_imu_message
+        oldest first, :meth:`_gyro_to`), each message read as the rig node reads it
+        (:func:`~rs_localizer.ros.pipeline.take_gyro_sample`): one without an angular
+        velocity or a readable stamp left out and counted ``imu_rejected.<reason>``
+        (:meth:`_imu_rejected`)."""
+        from ..pipeline import take_gyro_sample, take_imu_message
 
+        self.gyro: list = []
+        self.imu_rejected: dict[str, int] = {}
+        if self.per_frame:
             for msg in imu:
                 take_imu_message(msg, self.engine, self.own[""].add, self.log.warning)
             return
         for msg in imu:
-            try:
-                self.gyro.append(cv.gyro_sample(msg))
-            except cv.ImuError:
-                continue
+            self._imu_rejected(take_gyro_sample(msg, self._keep_gyro))
         self.gyro.sort(key=lambda x: x[0], reverse=True)
+
+    def _keep_gyro(self, stamp_ns: int, rate: Any) -> None:
+        """A rig's gyro sample kept for its frame (:meth:`_gyro_to`); rejected by nothing
+        yet (None)."""
+        self.gyro.append((stamp_ns, rate))
+
+    def _imu_rejected(self, reason: str | None) -> None:
+        """A rig's IMU message rejected for ``reason`` (None: taken), counted as the rig node
+        counts it: ``imu_rejected`` and ``imu_rejected.<reason>``
+        (:attr:`ReplayResult.counts`)."""
+        if reason is not None:
+            self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
 
     def frame(self, name: str, kind: str, msg: Any, views: bool) -> list[_Step]:
         """A camera's frame message through its input to the rig, in the rig node's frame step
@@ -678,7 +681,7 @@ class _Run:
     def _gyro_to(self, ft: FrameTime) -> None:
         self._ft = ft  # (the frame's times, made once)
         while self.gyro and self.gyro[-1][0] <= ft.stamp_ns + GYRO_AHEAD_NS:  # (its readout's)
-            self.engine.add_imu(*self.gyro.pop())
+            self._imu_rejected(self.engine.add_imu(*self.gyro.pop()))
 
     def close(self, views: bool) -> tuple[list, int, list]:
         """The end of the video: the rig frames it closes, then the fused twists still
@@ -779,6 +782,11 @@ class _Run:
             result.own_twist = rows.own_twist()
             if self.cfg.settings.imu is not None:
                 result.counts = rig.gyro_counts()
+                if self.imu_rejected:  # (as the rig node's diagnostics count them)
+                    result.counts["imu_rejected"] = sum(self.imu_rejected.values())
+                    result.counts.update(
+                        {f"imu_rejected.{k}": v for k, v in sorted(self.imu_rejected.items())}
+                    )
         if self.fit.doubtful:
             result.notes.append(self.fit.text())
         if self.cfg.unused_text:  # (a parameter file shared with cameras)
