@@ -85,7 +85,9 @@ are the camera's, an image skipped before the estimator is its caller's to count
 With a gyro on the rig (:attr:`LocalizerSettings.imu`; samples fed by
 :meth:`Localizer.add_imu`) each rig frame is solved with the gyro's measurement over the rig
 frame's capture times (from the first line of its earliest camera to the last line of its
-latest; in the rig frame through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which
+latest, each camera's readout from its frame's stamp, the capture time of row ``stamp_row``, as
+a camera's; none for a rig frame taken at one instant: global-shutter cameras at one stamp; in
+the rig frame through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which
 rejects a gyro the image contradicts. With ``imu.estimate_bias`` the gyro's bias is estimated
 online from the rotation between consecutive solved rig frames
 (:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
@@ -572,7 +574,9 @@ class Localizer(GyroReadouts):
         implementation: ``implementation()`` names the rig estimator's implementation a rig
             frame runs on, ``"compiled"`` or ``"numpy"``
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``),
-            asked once per rig frame; None: the estimator's default. A node whose kernels
+            asked once per frame; None: the estimator's default (a camera alone's solver's,
+            :func:`~rs_localizer.estimation.implementation.default_implementation`; the rig
+            estimator's: compiled unless this process cannot compile). A node whose kernels
             compile in the background passes
             :func:`rs_localizer.runtime.background.ready_implementation`: until the kernels
             are ready the rig frames are solved on ``"numpy"`` (the refinement and covariance
@@ -601,19 +605,29 @@ class Localizer(GyroReadouts):
     idle timer not reset, no warning): the caller reads the failure from :meth:`last_search` and
     reports it.
 
-    One camera and a rig share one clock and time-reset policy, one gyro input, one twist
-    queue and one front-end driver per camera (:meth:`search_image`). A rig of one
+    One camera and a rig share one clock and time-reset policy (a jump ahead counted
+    ``<camera>.stamp_jumped_ahead``, every camera's last image forgotten), one gyro input and
+    one gyro window (each camera's readout from its frame's stamp), one twist queue, one
+    front-end driver per camera (:meth:`search_image`) and one way to solve a frame: the
+    estimator's implementation (``implementation()``, else the estimator's default), the
+    frame's estimator on the tracker path
+    (:meth:`~rs_localizer.tracking.tracker.TrackerPath.track`: the same gate, update and
+    restart after :meth:`restart_track`), the last posed frame carried (the prediction without
+    tracking, for :meth:`add` as for :meth:`process_image`). A rig of one
     (:attr:`LocalizerSettings.single_camera`) differs only where a camera alone differs from
     a rig: nothing to group (each frame solved at once, any step back a time reset:
     :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the camera's own, so its
     tracker is its camera's (:class:`~rs_localizer.tracking.tracker.RSTracker`, made per
     solver, options, tracking and camera model; it resets itself on a time reset, predicts
-    in the camera's terms and is dropped when its track ends) where a rig's is the tracker
-    path over the rig estimator; and no other camera sees what it misses (a frozen image
-    restarts its track, an image with too few correspondences never reaches its solver).
+    in the camera's terms and is dropped when its track ends); its own twist is final when its
+    solver or camera measures none (:attr:`LocalizerOutput.twist_now`); and no other camera
+    sees what it misses (a frozen image restarts its track, an image with too few
+    correspondences never reaches its solver). A rig frame's pose is judged before the track
+    takes it (the refusals, :data:`RIG_REFUSALS`).
 
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
-    ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
+    ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.stamp_jumped_ahead`` (its
+    frames that started the clock again by a jump ahead), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
     was found to disagree), ``.apart`` (times its frames were found apart from the others'),
     ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`LocalizerOutput.outvoted`),
