@@ -1255,16 +1255,16 @@ class Localizer(GyroReadouts):
         """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
         of row ``stamp_row``): the camera's model (:class:`~rs_localizer.pose.RSModel`
         ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
-        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the rig's
-        predicted pose and twist at the frame's reference time mapped through the camera's
-        mounting (:func:`~rs_localizer.estimation.result.camera_model_of_rig`). The rig's
-        prediction is the twist filter's (tracking), or without tracking the last rig frame
-        posed through :meth:`process_image` carried at its own twist. None when nothing
-        predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
-        tracking) after the last, or not after it
+        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the
+        rig's predicted pose and twist at the frame's reference time mapped through the
+        camera's mounting (:func:`~rs_localizer.estimation.result.camera_model_of_rig`). The
+        rig's prediction is the twist filter's (tracking), or without tracking the last rig
+        frame posed (of :meth:`add` or :meth:`process_image`) carried at its own twist. None
+        when nothing predicts the frame: no rig frame posed yet, or more than ``max_gap`` s
+        (0.5 s without tracking) after the last, or not after it
         (:func:`~rs_localizer.tracking.tracker.predictable`). ``reference_ns``: the frame's
-        time on the rig's clock (:meth:`LocalizerSettings.reference_ns`) when the caller made it;
-        None: made here.
+        time on the rig's clock (:meth:`LocalizerSettings.reference_ns`) when the caller
+        made it; None: made here.
 
         Raises:
             ValueError: a camera not in the rig, a stamp beyond the int64 ns range.
