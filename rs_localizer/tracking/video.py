@@ -1678,7 +1678,8 @@ class Localizer(GyroReadouts):
 
         A camera alone's estimate is its camera's own (:attr:`LocalizerOutput.camera_estimate`),
         in the rig's terms in ``estimate`` (:func:`_camera_as_rig`; a camera's video: its
-        own). An estimator that raises fails the frame (``error``)."""
+        own). An estimator that raises fails the frame (``error``); the twists of a track
+        that ended before it (a gap) go out with it all the same."""
         s = self.settings
         names = list(out.cameras)
         views = []
@@ -1704,6 +1705,7 @@ class Localizer(GyroReadouts):
         out.gyro_seconds = time.perf_counter() - t0
         with self._lock:
             self._filter_kernels(impl)
+            estimator = None
             try:
                 estimator = self._estimator(out, views, frames[names[0]][0].scores)
                 judge = None if self._single else lambda f: self._judged(out, f, estimator)
@@ -1717,6 +1719,8 @@ class Localizer(GyroReadouts):
                 out.error = f"{type(e).__name__}: {e}"
                 self._count_rig(names, "error")
                 self.gyro_input.solved(out.stamp_ns, None, False)  # (the pairing restarts)
+                if estimator is not None:  # (a track ended before it: its twists, final)
+                    out.fused += self._fused(estimator.final)
                 return out
             est, out.path = r.estimate, r.state
             if self._single:  # (a camera alone: its camera's own estimate kept)

@@ -218,3 +218,48 @@ def test_a_rig_without_tracking_carries_its_last_pose_for_frames_added(video):
     R_rig, _, _, _ = rig_truth(traj, (nxt.stamp_ns - T0) * 1e-9)
     R_world_cam = R_rig @ cams[0].R_rig_cam  # (rig -> world after camera -> rig)
     assert rotation_angle_deg(model[0].T, R_world_cam) < 2.0  # (the model's R: world -> camera)
+
+
+@pytest.mark.parametrize("alone", [True, False])
+def test_a_frame_whose_estimator_raises_after_a_gap_releases_the_ended_tracks_twists(
+    video, monkeypatch, alone
+):
+    """A frame 0.7 s after the last (beyond ``max_gap``, within ``time_reset_ns``: the track
+    resets at it) whose estimator raises: the frame fails (``error``) and the twists the
+    ended track still held go out with it, final as they are: every frame posed before it
+    has had its fused twist handed out exactly once, a camera's video as a rig (before: a
+    camera's stayed pending, never handed out)."""
+    from rs_localizer.tracking import tracker
+
+    cams, frames, _ = video
+    if alone:
+        cams = cams[:1]
+        frames = [f for f in frames if f.name == cams[0].name]
+        mounts = {"": Mounting(np.eye(3), np.zeros(3))}
+    else:
+        mounts = mounts_of(cams)
+    name = {c.name: "" if alone else c.name for c in cams}
+    by = {c.name: c.camera for c in cams}
+    rig = Localizer(LocalizerSettings(mounts))
+    head = sorted((f for f in frames if f.index < 5), key=lambda f: f.stamp_ns)
+    outs = []
+    for f in head:
+        outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=name[f.name]))
+    if not alone:
+        outs += rig.close()
+    posed = {o.stamp_ns for o in outs if o.success}
+    fused = [p.pose.stamp_ns for o in outs for p in o.fused]
+    assert len(posed) >= 4 and rig.pending > 0
+
+    def raising(*a, **k):
+        raise RuntimeError("estimator failed")
+
+    monkeypatch.setattr(tracker, "estimate_rs_pose" if alone else "estimate_rig_pose", raising)
+    late = [f for f in frames if f.index == 5]
+    for f in late:
+        s = f.stamp_ns + 700_000_000
+        got = rig.add(CameraFrame(s, by[f.name], f.uv, f.xyz, camera_name=name[f.name]))
+        got += [] if alone else rig.close()
+        fused += [p.pose.stamp_ns for o in got for p in o.fused]
+        assert all(o.error == "RuntimeError: estimator failed" for o in got)
+    assert sorted(fused) == sorted(posed) and rig.pending == 0
