@@ -1547,11 +1547,13 @@ def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default
     front end and input stage, and with images the lines a camera logs at configure, the
     marker detector that runs (``marker detector: <line>``, once) and the warning of a
     default RS timing (``rs.line_delay`` unchanged; once), which a rig did not log before;
-    a run-time change (``max_points``) reaches each camera's input stage, the front ends
-    kept."""
+    a run-time change (``max_points``) reaches each camera's input stage (its camera models
+    rebuilt, as a camera's), the front ends kept."""
     import threading
 
+    from rs_localizer.camera import CameraModel
     from rs_localizer.frontends.shared import LoadedMaps
+    from rs_localizer.ros import conversions as cv
     from rs_localizer.ros.mode import LocalizerMode
 
     over = {"frontend": "aruco", "frontend_map": "m.yaml"}
@@ -1583,7 +1585,15 @@ def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default
     for n in fronts:
         assert mode.rig.camera_frontend(n).frontend is not None
         assert node.inputs[n].max_points == config.max_points
+    info = cv.camera_info_msg(CameraModel(np.diag([500.0, 500.0, 1.0])), "front", 10**9)
+    before = node.inputs["front"].add_camera_info(info)
     mode._change_to((changed, maps), {"max_points": 300})
     assert all(node.inputs[n].max_points == 300 for n in fronts)
+    # (each camera's models rebuilt as a camera's: equal, new objects; a rig of one camera
+    # then starts a new track at its next frame, as the camera alone does)
+    after = node.inputs["front"].newest
+    assert after is not before and np.array_equal(after.K, before.K)
     assert mode.rig.settings is changed.settings and mode._grouping.settings is changed.settings
-    assert len(logs) == 1 and warned == ["default_timing", "default_timing"]
+    assert logs[0] == ("info", "marker detector: OpenCV ArUco (DICT_4X4_50)")
+    assert not any("marker detector" in t for _, t in logs[1:])
+    assert warned == ["default_timing", "default_timing"]  # (the node warns once)
