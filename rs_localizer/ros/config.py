@@ -31,7 +31,7 @@ from ..frames import Mounting
 from ..frontends.registry import FRONTEND_KINDS, frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
-from ..tracking.sequence import GyroSettings
+from ..tracking.sequence import GyroSettings, SequenceSettings, rig_of_one
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
 from ..tracking.tracker import TrackerOptions
 from . import conversions as cv
@@ -215,6 +215,32 @@ class LocalizerConfig:
         direction)`` (what a rig's kernels are warmed up with:
         :func:`~rs_localizer.runtime.warmup.warm_rig`)."""
         return {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.cameras}
+
+    @property
+    def video_settings(self) -> Any:
+        """The settings of the localizer of these cameras
+        (:class:`~rs_localizer.tracking.video.LocalizerSettings`): a rig's :attr:`settings`;
+        the single camera's its rig of one (:func:`~rs_localizer.tracking.sequence.rig_of_one`
+        of its solver, estimator options, tracking, gyro, ``stamp_row``, ``time_reset_ns``,
+        ``max_points``), made anew at each call."""
+        if self.settings is not None:
+            return self.settings
+        return rig_of_one(SequenceSettings(
+            solver=self.solver, options=self.options, tracking=self.tracking, imu=self.imu,
+            stamp_row=self.stamp_row, time_reset_ns=self.time_reset_ns,
+            max_points=self.max_points,
+        ))  # fmt: skip
+
+    @property
+    def fused_frame(self) -> tuple[str | None, Mounting | None]:
+        """``(frame_id, mounting)`` of the fused twists as published
+        (:func:`~rs_localizer.ros.pipeline.fused_outputs`): a rig's in ``base_frame`` as the
+        rig's pose; the single camera's in each frame's tag (None) or, with
+        ``camera_to_base.*``, moved by its mounting to ``base_frame``."""
+        if self.settings is not None:
+            return self.base_frame, None
+        mount = self.camera.mount
+        return (None, None) if mount is None else (self.base_frame, mount)
 
     @property
     def unused_text(self) -> str | None:

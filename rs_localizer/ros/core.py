@@ -84,6 +84,7 @@ from .diagnostics import status
 from .frame_queue import FrameQueue
 from .outputs import FrameOutcome, publish_frame
 from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
+from .pipeline import warm_localizer
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .status_msg import status_message
@@ -161,10 +162,10 @@ class ModeBase:
     its configuration (``_configuration()`` at configure, ``changed_configuration(overrides)``
     at run time, both -> ``built``, whose first item is its
     :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
-    how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its kernels' warm-up
-    (``_warm_kernels(built)``), its gyro's input (``_take_imu``) and its ``ready`` line's
-    subject and warnings (``_ready_subject()``, ``_ready_warnings()``). The topics and texts
-    as data are the single camera's (the rig's mode sets its own)."""
+    how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its gyro's
+    input (``_take_imu``) and its ``ready`` line's subject and warnings (``_ready_subject()``,
+    ``_ready_warnings()``). The topics and texts as data are the single camera's (the rig's
+    mode sets its own)."""
 
     #: the single camera counts its image frames (``image_frames``)
     count_image_frames = True
@@ -196,9 +197,10 @@ class ModeBase:
 
     def _warm_up(self, built: tuple) -> None:
         """With ``warmup``, the kernels of ``built`` loaded from numba's cache or compiled in
-        another process while the frames are solved uncompiled (nothing waits)."""
+        another process while the frames are solved uncompiled (nothing waits;
+        :func:`.pipeline.warm_localizer`, the camera alone's and a rig's)."""
         if self.node.get_parameter("warmup").value:
-            self._warm_kernels(built)
+            warm_localizer(built[0], self.node.get_logger())
 
     def apply_change(self, built: tuple, overrides: dict) -> None:
         """A run-time parameter change (:meth:`NodeCore._on_set_parameters`): a solver change

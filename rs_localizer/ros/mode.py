@@ -36,9 +36,8 @@ from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
 from ..tracking.gyro_input import GyroInput
-from ..tracking.sequence import SequenceSettings, rig_of_one
 from ..tracking.video import Localizer, LocalizerOutput
-from .camera_input import CameraCounts, CameraInput, DroppedFrame, FrameStep, ImageFrame
+from .camera_input import CameraInput, DroppedFrame, FrameStep, ImageFrame
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame, names_a_rig
 from .diagnostics import CameraPart, GyroState, RigInputs, StatusParts, frontend_values
@@ -52,21 +51,19 @@ from .pipeline import (
     StatsSnapshot,
     ThrottledLog,
     fused_outputs,
-    log_warm_up,
-    take_gyro_sample,
     take_imu_message,
 )
 from .rig_node import (
     RIG_TEXTS,
     RigGrouping,
     declare_rig_cameras,
+    new_rig_cameras,
     note_camera_frame,
-    rig_configuration,
     rig_failure_line,
     rig_ready_subject,
     rig_status_parts,
+    rig_values,
     rig_views,
-    warm_rig_kernels,
 )
 
 __all__ = ["CameraFrameResult", "LocalizerMode", "camera_status_parts"]
@@ -135,26 +132,19 @@ class LocalizerMode(ModeBase):
     camera_infos and counts outlast a change of parameters; a rig's at configure."""
 
     rig: Localizer | None = None  # (None: not configured)
+    _grouping: RigGrouping | None = None  # (a rig's grouping of queued frames)
 
     def __init__(self, node: NodeCore):
         super().__init__(node)
         #: the camera alone, a rig of one (``rig.cameras`` empty)
         self.alone = not names_a_rig(node.get_parameter("rig.cameras").value)
-        self.imu_rejected: dict[str, int] = {}  # (a rig's gyro)
-        self._loaded = LoadedMaps()  # (the camera alone's maps in use)
+        self._loaded: dict = {}  # (camera name -> its maps in use)
         self._images: dict = {}  # (a rig camera -> its last decoded images, for debug_image)
         #: the fused twists' frame and mounting (:meth:`_fused`), set at configure
         self._fused_in: tuple = (None, None)
         if not self.alone:
             for k, v in RIG_TEXTS.items():
                 setattr(self, k, v)
-            return
-        log = ThrottledLog(node.get_logger())
-        # (the camera's counts: the frame accounting, its input stage's, its estimates')
-        self._own = self._counts = PipelineStats()
-        self._map_fit = MapFitCheck()
-        inp = CameraInput(log, self._own.add, stopped=node.stopping)
-        node.set_cameras({"": inp}, {"": self._own}, log)
 
     def configured_as(self) -> str:
         """What the managed node's ``configured: ... (inactive)`` line names."""
@@ -172,143 +162,108 @@ class LocalizerMode(ModeBase):
         return self.node.inputs[item.name].camera_of(item.stamp)
 
     # ---------------------------------------------------------------- configuration
-    def _configuration(self) -> tuple[LocalizerConfig, Any]:
-        """The configuration at configure and the maps it names: the camera alone's
-        (:meth:`changed_configuration`), or the rig's (each camera's ``rig.<camera>.*``
-        declared on first use) with the landmarks and front-end map loaded once, a front end
-        object per camera (camera name -> its maps).
+    def _configuration(self) -> tuple[LocalizerConfig, dict]:
+        """The configuration at configure (:meth:`changed_configuration` without overrides),
+        each rig camera's ``rig.<camera>.*`` declared first on first use (none for the camera
+        alone).
 
         Raises:
             ConfigError: a value that cannot be used (naming it).
         """
-        if self.alone:
-            return self.changed_configuration({})
         declare_rig_cameras(self.node)
-        config = rig_configuration(self.node, {})
-        return config, {c.name: load_maps(c, owner=self.node) for c in config.cameras}
+        return self.changed_configuration({})
 
-    def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, Any]:
-        """The configuration of the parameters with ``overrides`` and its maps: the camera
-        alone's (a changed ``landmarks_file`` or ``frontend_map`` loaded), or the rig's, a
-        change refused for the parameters a rig cannot take without a restart
-        (:func:`.rig_node.rig_configuration`).
+    def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, dict]:
+        """The configuration of the parameters with ``overrides`` (with a rig's own
+        parameters, :func:`.rig_node.rig_values`: a change refused for those a rig cannot
+        take without a restart) and each camera's maps (camera name -> its
+        :class:`~rs_localizer.frontends.shared.LoadedMaps`, held by the node: the landmarks of
+        ``landmarks_file``, the camera's own front end of ``frontend_map``, the one in use
+        kept while its kind and map stay the same).
 
         Raises:
             ConfigError: a value that cannot be used, a map that does not load, a change
                 refused (naming them).
         """
-        if not self.alone:
-            return rig_configuration(self.node, overrides, self.cfg), None
-        cfg = build_config(self.node.param_values(overrides))
-        return cfg, load_maps(cfg.camera, owner=self, current=self._loaded)
+        rig, cams = rig_values(self.node, overrides, self.cfg)
+        cfg = build_config({**self.node.param_values(overrides), **rig}, cams)
+        return cfg, {c.name: load_maps(c, owner=self.node, current=self._loaded.get(c.name))
+                     for c in cfg.cameras}  # fmt: skip
 
-    def _warm_kernels(self, built: tuple) -> None:
-        """The kernels of the configuration's solver, tracking and gyro (the camera alone's,
-        :func:`.pipeline.log_warm_up`; a rig's, :func:`.rig_node.warm_rig_kernels`), compiled
-        or loaded in the background."""
-        cfg, log = built[0], self.node.get_logger()
+    def _change_to(self, built: tuple, overrides: dict) -> None:
+        """A run-time change taken from the next frame on, between two frames of the worker
+        (:meth:`_start_with`); reloaded landmarks logged."""
+        with self.node.between_frames():
+            self._start_with(built)
+        landmarks, path = built[0].camera.landmarks_file, built[1][built[0].camera.name]
+        if overrides.get("landmarks_file") and path.landmarks is not None:
+            self.node.get_logger().info(
+                f"reloaded {len(path.landmarks[0])} landmarks from {landmarks}"
+            )
+
+    def _new_cameras(self, cfg: LocalizerConfig, settings: Any) -> None:
+        """The mode's cameras handed to the node (:meth:`.core.NodeCore.set_cameras`) and its
+        localizer: the camera alone's (its counts :class:`~.pipeline.PipelineStats`, its
+        frames', input stage's, estimates' and gyro's, worded as a camera's; its frames on
+        the NumPy implementation of its solver while the kernels compile), or a rig's
+        (:func:`.rig_node.new_rig_cameras`: each camera's input and counts, the rig's own
+        counts, the frames grouped by rig frame), with the localizer's ``settings``."""
+        node = self.node
         if not self.alone:
-            warm_rig_kernels(cfg, log)
+            self.rig, self._counts, self._grouping = new_rig_cameras(node, cfg)
+            self._map_fit = MapFitCheck("rig frames")
+            self._images = {}
             return
-        log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, cfg.imu is not None, True)
+        log = ThrottledLog(node.get_logger())
+        self._own = self._counts = PipelineStats()
+        self._map_fit = MapFitCheck()
+        inp = CameraInput(log, self._own.add, stopped=node.stopping)
+        gyro = GyroInput(self._own.add, inp.log, stopped=node.stopping)
+        impl = lambda: ready_implementation(self.cfg.solver)  # noqa: E731
+        self.rig = Localizer(settings, inp.log, impl, gyro_input=gyro, count=self._own.add)
+        node.set_cameras({"": inp}, {"": self._own}, log)
 
     def _start_with(self, built: tuple) -> None:
-        """The configuration taken (a rig's: :meth:`_start_rig`). The camera alone's: its rig
-        of one made, or configured from its next frame on (its track, gyro and counts kept
-        where they still apply), its front end, its input stage (the camera models of the
-        camera_infos so far rebuilt with the new RS timing), the node's settings
-        (:meth:`~.core.ModeBase._settle`); a reloaded front end, the marker detector that
-        runs and a default RS timing with images logged."""
-        if not self.alone:
-            self._start_rig(built)
-            return
+        """The configuration ``built`` taken, at configure and at a change, by the camera
+        alone and a rig alike: the mode's cameras made at configure (:meth:`_new_cameras`),
+        else its localizer configured from its next frame on
+        (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
+        tracking, gyro, time resets, ``max_points``; its track, gyro and counts kept where
+        they still apply), each camera's front end and input stage (the camera models of its
+        camera_infos so far rebuilt with its RS timing, its clouds' ``max_points``, its
+        ``camera_info_wait``, its landmarks), the rig frames' grouping, the node's settings
+        (:meth:`~.core.ModeBase._settle`); a reloaded front end, the marker detector that runs
+        and a default RS timing with images logged."""
         cfg, maps = built
-        old, old_fe, log = self.cfg, self._loaded.frontend, self.node.get_logger()
+        old, old_maps, log = self.cfg, self._loaded, self.node.get_logger()
         self.cfg, self._loaded = cfg, maps
-        settings = rig_of_one(SequenceSettings(
-            solver=cfg.solver, options=cfg.options, tracking=cfg.tracking, imu=cfg.imu,
-            stamp_row=cfg.stamp_row, time_reset_ns=cfg.time_reset_ns, max_points=cfg.max_points,
-        ))  # fmt: skip
-        inp = self.node.inputs[""]
+        settings = cfg.video_settings
         if self.rig is None:
-            # (its gyro counted and worded as a camera's; frames on the NumPy implementation
-            # while the kernels compile in the background)
-            gyro = GyroInput(self._own.add, inp.log, stopped=self.node.stopping)
-            impl = lambda: ready_implementation(self.cfg.solver)  # noqa: E731
-            self.rig = Localizer(settings, inp.log, impl, gyro_input=gyro, count=self._own.add)
+            self._new_cameras(cfg, settings)
         else:
             self.rig.configure(settings)
+        if self._grouping is not None:
+            self._grouping.settings = settings
+        self._fused_in = cfg.fused_frame
+        for c in cfg.cameras:
+            self.rig.set_frontend(c.name, maps[c.name].frontend, c.frontend_kind)
+            self.node.inputs[c.name].configure(c.camera_from_info, cfg.max_points, c.fallback,
+                                               cfg.camera_info_wait, maps[c.name].landmarks,
+                                               c.frame)  # fmt: skip
         cam = cfg.camera
-        self._fused_in = (None, None) if cam.mount is None else (cfg.base_frame, cam.mount)
-        self.rig.set_frontend("", maps.frontend, cam.frontend_kind)
-        inp.configure(cam.camera_from_info, cfg.max_points, cam.fallback, cfg.camera_info_wait,
-                      maps.landmarks, cam.frame)  # fmt: skip
-        self._settle(cfg, maps.landmarks)
-        if old is not None and old_fe is not None and maps.frontend is not old_fe:
+        fe, old_fe = maps[cam.name].frontend, old_maps.get(cam.name, LoadedMaps()).frontend
+        self._settle(cfg, maps[cam.name].landmarks)
+        if old is not None and old_fe is not None and fe is not old_fe:
             log.info(f"reloaded the {cam.frontend_kind} front end from {cam.frontend_map}")
-        detector = None if maps.frontend is None else maps.frontend.marker_detector_note()
-        if detector is not None and maps.frontend is not old_fe:
+        detector = None if fe is None else fe.marker_detector_note()
+        if detector is not None and fe is not old_fe:
             # (which marker detector runs; a missing AprilTag library: a warning with the
             # install line)
             line, fallback = detector
             (log.warning if fallback else log.info)(f"marker detector: {line}")
-        note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
+        note = default_timing_note(cfg) if fe is not None else None  # (images)
         if note is not None:
             self.node.warn_once("default_timing", note)
-
-    def _start_rig(self, built: tuple[LocalizerConfig, dict]) -> None:
-        """The rig's configuration taken: the rig localizer, a front end per camera when
-        ``frontend`` is set, each camera's input (its camera_infos by stamp, its clouds' rows,
-        its images, :func:`.camera_input.rig_camera_inputs`) and counts (the diagnostics'
-        ``<c>.<key>``), their frame queue grouped by rig frame (:class:`.rig_node.RigGrouping`),
-        the node's settings (:meth:`~.core.ModeBase._settle`)."""
-        from .camera_input import rig_camera_inputs
-
-        node = self.node
-        config, loaded = built
-        self.cfg = config
-        log = ThrottledLog(node.get_logger(), period=5.0)  # (each kind once per 5 s)
-        # (rig frames on the NumPy implementation while the kernels compile in the background)
-        self.rig = Localizer(config.settings, log=log, implementation=ready_implementation)
-        for c in config.cameras:
-            if c.frontend_kind != "none":
-                self.rig.set_frontend(c.name, loaded[c.name].frontend, c.frontend_kind)
-        # (the worker's map-fit check over the rig frames, its times per stage)
-        self._counts = CameraCounts()
-        self._map_fit = MapFitCheck("rig frames")
-        self._fused_in = (config.base_frame, None)
-        counts = {c.name: CameraCounts(c.name) for c in config.cameras}
-        landmarks = next(iter(loaded.values())).landmarks  # (the cameras' keypoints name them)
-        inputs = rig_camera_inputs(config, log, self._count_input, stopped=node.stopping,
-                                   wait=config.camera_info_wait, landmarks=landmarks)  # fmt: skip
-        self._grouping = RigGrouping(config.settings, inputs)
-        node.set_cameras(inputs, counts, log, self._grouping, "rs_localizer_rig_worker")
-        self._settle(config, landmarks)
-        self._images = {}
-
-    def _change_to(self, built: tuple, overrides: dict) -> None:
-        """A run-time change taken from the next frame on: the camera alone reconfigured
-        (:meth:`_start_with`; reloaded landmarks logged); a rig's settings
-        (:meth:`~rs_localizer.tracking.video.Localizer.configure`: the estimator's options,
-        tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
-        a tracking change starting a new track), each camera's clouds the new ``max_points``,
-        the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
-        config = built[0]
-        if self.alone:
-            self._start_with(built)
-            landmarks, path = built[1].landmarks, config.camera.landmarks_file
-            if overrides.get("landmarks_file") and landmarks is not None:
-                self.node.get_logger().info(f"reloaded {len(landmarks[0])} landmarks from {path}")
-            return
-        with self.node.between_frames():  # (between two camera frames of the worker)
-            self.rig.configure(config.settings)
-            self.cfg = config
-            self._fused_in = (config.base_frame, None)
-            self._grouping.settings = config.settings
-            for inp in self.node.inputs.values():
-                inp.max_points = config.settings.max_points
-                inp.wait = float(config.camera_info_wait)
-        self._settle(config, self.node.landmarks)
 
     def _ready_warnings(self) -> list[str]:
         """The camera alone's global-shutter timing (the twist is then zero); a rig's: the
@@ -333,16 +288,12 @@ class LocalizerMode(ModeBase):
 
     # ---------------------------------------------------------------- gyro
     def _take_imu(self, msg: Any) -> str | None:
-        """A gyro sample of the IMU to the localizer; returns None or why it was rejected,
-        counted ``imu_rejected.<reason>``: the camera alone's in its counts, warned, a lone
-        stamp jump ahead found later counted too (:func:`.pipeline.take_imu_message`); a
-        rig's in the rig's diagnostics (:func:`.pipeline.take_gyro_sample`)."""
-        if self.alone:
-            return take_imu_message(msg, self.rig, self._own.add, self.node.warn)
-        reason = take_gyro_sample(msg, self.rig.add_imu)
-        if reason is not None:
-            self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
-        return reason
+        """A gyro sample of the IMU to the localizer, for the camera alone and a rig alike
+        (:func:`.pipeline.take_imu_message`); returns None or why it was rejected, counted
+        ``imu_rejected`` and ``imu_rejected.<reason>`` in the mode's counts (the camera
+        alone's, or the rig's own beside its cameras') and warned, a lone stamp jump ahead
+        found later counted too (``stamp_jumped_ahead``)."""
+        return take_imu_message(msg, self.rig, self._counts.add, self.node.warn)
 
     # ---------------------------------------------------------------- frames
     def take_frame(self, item: QueuedFrame, camera: Any = None) -> TakenFrame:
@@ -529,10 +480,6 @@ class LocalizerMode(ModeBase):
                 f"{name}.skipped.no_camera_info), the rig runs on the others",
             )
 
-    def _count_input(self, name: str, key: str, n: int = 1) -> None:
-        """Add ``n`` to rig camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
-        self.node.camera_counts[name].add(key, n)
-
     # ---------------------------------------------------------------- outputs
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: what it gave published
@@ -646,7 +593,7 @@ class LocalizerMode(ModeBase):
                                     rig.gyro_inconsistent)  # fmt: skip
             parts = camera_status_parts(cfg, stats, rig.tracking_values(),
                                         self.node.inputs[""].source(), self._own.messages_lost,
-                                        gyro, self._loaded.frontend)  # fmt: skip
+                                        gyro, self._loaded[""].frontend)  # fmt: skip
             return cfg.camera.frame or "camera", parts
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
@@ -657,7 +604,9 @@ class LocalizerMode(ModeBase):
                 counts.update(cc.prefixed())
             frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
             absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
-            inputs = RigInputs(counts, frame_times, dict(self.imu_rejected), absent,
+            imu = {k[len("imu_rejected.") :]: v for k, v in counts.items()
+                   if k.startswith("imu_rejected.")}  # fmt: skip
+            inputs = RigInputs(counts, frame_times, imu, absent,
                                self.node.frontend_kind != "none",
                                self._counts.stage_times())  # fmt: skip
             return cfg.base_frame, rig_status_parts(rig, waiting, inputs)

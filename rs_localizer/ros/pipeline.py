@@ -1,9 +1,9 @@
 """The node's per-frame helpers, without ROS, for one camera and a rig alike: the throttled
 log (:class:`ThrottledLog`), a camera's counters for the diagnostics (:class:`PipelineStats`),
 the map-fit check (:class:`MapFitCheck`), a gyro sample taken from a ``sensor_msgs/Imu``
-(:func:`take_gyro_sample`, :func:`take_imu_message`), the fused twists that became final as
-published (:class:`FusedOutput`, :func:`fused_outputs`), the kernels' warm-up
-(:func:`log_warm_up`, :func:`warm_kernels`) and a frame dropped with its reason (``Drop``).
+(:func:`take_imu_message`), the fused twists that became final as published
+(:class:`FusedOutput`, :func:`fused_outputs`), the kernels' warm-up (:func:`warm_localizer`,
+:func:`log_warm_up`, :func:`warm_kernels`) and a frame dropped with its reason (``Drop``).
 What the node does with each frame is its mode's (:class:`~rs_localizer.ros.mode.LocalizerMode`);
 ``rs-localizer replay`` takes a bag's frames the same way. No module-level ROS import.
 """
@@ -36,6 +36,7 @@ __all__ = [
     "fused_outputs",
     "log_warm_up",
     "take_imu_message",
+    "warm_localizer",
 ]
 
 #: kinds of frame message: a correspondence cloud, a keypoint cloud (ids into the landmark
@@ -164,6 +165,31 @@ def log_warm_up(
                  failed if background else None)  # fmt: skip
 
 
+def warm_localizer(cfg: Any, logger: Any) -> None:
+    """The kernels of a configuration (``cfg``, a :class:`~.config.LocalizerConfig`) compiled
+    or loaded in the background, for the camera alone and a rig alike (:func:`warm_kernels`):
+    the camera alone's estimator's of its solver, tracking and gyro (:func:`log_warm_up`), a
+    rig's (``cfg.settings``) in numba's cache
+    (:func:`~rs_localizer.runtime.warmup.rig_cached`) loaded before the next frame
+    (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every camera's
+    RS timing), else compiled in another process
+    (:class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved on
+    the NumPy implementation."""
+    if cfg.settings is None:  # (the camera alone: its own estimator's kernels)
+        log_warm_up(cfg.solver, cfg.options, cfg.tracking, logger, cfg.imu is not None, True)
+        return
+    from ..runtime.background import RigKernels
+    from ..runtime.warmup import warm_rig
+
+    def warm() -> tuple[float, str]:
+        tic = time.perf_counter()
+        posed = warm_rig(cfg.settings, cfg.timings)
+        return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
+
+    kernels = RigKernels(cfg.settings, cfg.timings)
+    warm_kernels(kernels, "rig", warm, logger, True, "`rs-localizer compile --params-file`")
+
+
 def warm_kernels(
     kernels: Any,
     label: str,
@@ -209,26 +235,15 @@ def warm_kernels(
     logger.info(f"warm-up ({label}): {seconds:.2f} s, {outcome}, {done}")
 
 
-def take_gyro_sample(msg: Any, add: Callable[[int, Any], str | None]) -> str | None:
-    """A ``sensor_msgs/Imu``'s gyro sample handed on, for one camera and a rig alike: its
-    stamp (ns) and angular velocity ``(x, y, z)`` (rad/s, the IMU's frame;
-    :func:`.conversions.gyro_sample`) to ``add``, which returns None or why it rejected the
-    sample; a message without a usable sample: its reason (``no_angular_velocity``,
-    ``bad_stamp``). Returns None or the reason (counted ``imu_rejected.<reason>``)."""
-    try:
-        stamp, omega = cv.gyro_sample(msg)
-    except cv.ImuError as e:
-        return e.reason
-    return add(stamp, omega)
-
-
 def take_imu_message(
     msg: Any, video: GyroReadouts, count: Callable[[str], Any], warn: Callable[[str, str], Any]
 ) -> str | None:
-    """The gyro sample of a ``sensor_msgs/Imu`` buffered by a camera's video (``video``: its
-    :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, or its rig of one's
-    :class:`~rs_localizer.tracking.video.Localizer`; :func:`take_gyro_sample`). Returns
-    None, or the reason it was rejected: ``disabled`` (no gyro: nothing counted), else
+    """The gyro sample of a ``sensor_msgs/Imu`` buffered by a camera's or a rig's video
+    (``video``: its :class:`~rs_localizer.tracking.video.Localizer`): its stamp (ns) and
+    angular velocity ``(x, y, z)`` (rad/s, the IMU's frame; :func:`.conversions.gyro_sample`)
+    to ``video.add_imu``. Returns None, or the reason it was rejected: ``disabled`` (no
+    gyro: nothing counted), a message without a usable sample (``no_angular_velocity``,
+    ``bad_stamp``, ...) or a sample the buffer refused, each
     counted ``count("imu_rejected")`` and ``count("imu_rejected.<reason>")`` and warned
     ``warn("imu.<reason>", text)``; a buffered sample that this one shows to have been a
     lone stamp jump ahead (dropped from the buffer) likewise as ``stamp_jumped_ahead``."""
@@ -236,7 +251,12 @@ def take_imu_message(
     if buf is None:
         return "disabled"
     dropped = buf.dropped
-    reason = take_gyro_sample(msg, video.add_imu)
+    try:
+        stamp, omega = cv.gyro_sample(msg)
+    except cv.ImuError as e:
+        reason = e.reason
+    else:
+        reason = video.add_imu(stamp, omega)
     for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
         buf.dropped - dropped
     ):

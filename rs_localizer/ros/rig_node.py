@@ -1,112 +1,58 @@
 """The rig's part of ``rs_localizer_node``: one pose for a rig of rolling-shutter cameras.
 
-With ``rig.cameras`` set (docs/rig_node.md) the node's one mode
-(:class:`~rs_localizer.ros.mode.LocalizerMode`) runs the rig instead of one localizer per
-camera; this module holds what only a rig of several cameras needs: its cameras' parameters,
-the grouping of queued frames into rig frames, the rig's warm-up, its log lines, debug views
-and diagnostics. Every camera of the rig sends its own frames, unsynchronized; the node hands them
-to a :class:`~rs_localizer.tracking.video.Localizer` (frames grouped into rig frames by stamp,
-one pose per rig frame from all cameras, tracked, the rig's twist fused) and publishes the rig,
-``base_frame``, as one body.
-
-Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.cameras``:
-    <c>/correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame];
-                         rows with a NaN or inf dropped (``<c>.points_dropped``), then at most
-                         ``max_points`` rows (``<c>.capped_clouds``), as by the single-camera
-                         node
-    <c>/keypoints        sensor_msgs/PointCloud2  with ``landmarks_file``: u, v, id; each row
-                         the 3D point of its id in the landmarks (ids not there counted
-                         ``<c>.unknown_landmark_ids``), then as a correspondences cloud
-    <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics, checked as by the
-                         single-camera node (a rejected one is counted
-                         ``<c>.camera_info_rejected.<reason>`` and logged, the camera's
-                         previous model stays; the first one accepted is logged); until one
-                         arrives the camera's frames wait (state ``waiting``, counted
-                         ``<c>.skipped.no_camera_info``, a warning names the topic) and the
-                         rig runs on the others
-    <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
-                         set: each camera's own front end (``frontend``, ``frontend_map``,
-                         ``aruco.*`` / ``features.*``) searching with the rig's prediction
-                         mapped into the camera, its rows dropped and capped as a cloud's
-                         (``<c>.points_dropped``, ``<c>.capped_clouds``); decoded and checked
-                         as the single-camera node does (``bad_image``, ``image_size_mismatch``,
-                         counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
-                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage; of
-                         ``<c>/image_raw`` resolved: a remap of it moves it too)
-    The frame inputs are best effort (history 100 clouds / 10 images); they and the
-    camera_infos are overridable as the single-camera node's
-    (``qos_overrides./rig/front/image_raw.subscription.reliability``).
-and, with ``imu.enabled``, one for the rig:
-    imu                  sensor_msgs/Imu (sensor-data QoS): a gyro on the rig, ``imu.rotation``
-                         its rotation IMU -> base_frame; every rig frame is solved with its
-                         angular velocity over the rig frame's capture times (rejected when
-                         the image contradicts it; counted ``rig.gyro_used``,
-                         ``rig.gyro_rejected``, ``rig.gyro_missing``); a rig frame does not
-                         wait for samples (``imu.wait`` unused: it is solved once its cameras
-                         moved past it)
-Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_frame``:
-    pose, pose_with_covariance, twist_single_frame (the rig frame's own twist), twist and odom
-    (the fused twist ``tracking.lag`` rig frames later, stamped with that rig frame's time;
-    the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
-    /diagnostics (one status: the rig's counts and every camera's, with warnings);
-    path (the rig's poses), <c>/debug_image and <c>/markers (each camera as the rig's pose and
-    its mounting put it): the single-camera node's visualization (:mod:`.visualization`,
-    ``viz.*``), built only when subscribed; <c>/correspondences_out with a front end and
-    ``republish_correspondences``: what camera ``<c>``'s front end found in each image, as the
-    single-camera node's ``correspondences_out`` (stamped like the image, published even when
-    the rig frame then fails). After ``tracking.max_gap`` without camera frames
-    the twists still pending are published (as by the single-camera node).
-
-The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
-``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted
-``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order (a rig
-frame's frames taken together) and publishes what they complete, so the executor stays free
-for the cameras' next frames however slow a rig frame is. Per camera ``received = solved +
-failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
-in an open rig frame). Each camera's inputs are taken by a
-:class:`~rs_localizer.ros.camera_input.CameraInput`, as the single-camera node's: its
-camera_infos kept by stamp (a frame uses the camera_info of its stamp,
-:mod:`.camera_info_history`), its clouds' rows, its images decoded, and each frame checked at
-the localizer's entry in the single camera's code (:meth:`.camera_input.CameraInput.admit`:
-a header stamp out of range, or its time on the rig's clock, the rig frame's stamp, out of
-[0, 2^31 s) counted ``<c>.failed.bad_stamp``, an image without a front end
-``<c>.failed.no_frontend``; the rig never sees them). A parameter change at
-run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_parameters`): the
-parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
-``max_points`` and ``queue_size`` apply from the next rig frame on
-(:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when drawing, and the others
-are refused with why (:func:`.config.rig_change_refused`). The managed node
-(:class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode`) runs the same mode.
+With ``rig.cameras`` set the node's one mode (:class:`~rs_localizer.ros.mode.LocalizerMode`)
+takes each camera's frames on its ``<c>/`` topics (``<c>/correspondences``,
+``<c>/keypoints`` with ``landmarks_file``, ``<c>/camera_info``, ``<c>/image_raw`` with a
+front end) through the same steps as the camera alone's (its configuration, input stage,
+frame step into one :class:`~rs_localizer.tracking.video.Localizer`, gyro input, warm-up,
+outputs and diagnostics builder) and publishes the rig, ``base_frame``, as one body; the
+topics, parameters, counts and diagnostics are in docs/rig_node.md. This module holds what
+only a rig of several cameras needs: its cameras' parameters (``rig.<c>.*``,
+:func:`declare_rig_cameras`, :func:`rig_values`), its cameras' inputs and counts with the
+frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
+:class:`RigGrouping`: a full queue drops whole rig frames, counted
+``<c>.skipped.queue_full``), a rig camera's stage times (:func:`note_camera_frame`), the
+rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
+rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and
+their mountings put them (:func:`rig_views`) and its status (:func:`rig_status_parts`: rig
+frames, a section per camera). Per camera ``received = solved + failed + skipped +
+pending`` in every diagnostics snapshot (pending: waiting in the queue or in an open rig
+frame). A parameter change at run time takes the camera alone's path
+(:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and gyro,
+``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply from
+the next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when
+drawing, and the others are refused with why (:func:`.config.rig_change_refused`).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Collection, Iterator, Mapping
 from typing import Any
 
+from ..runtime.background import ready_implementation
 from ..tracking.video import Localizer, LocalizerOutput
-from .camera_input import CameraCounts, DroppedFrame
-from .config import LocalizerConfig, build_config, rig_camera_names, rig_change_refused, same_value
+from .camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
+from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
+from .core import names_a_rig
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts
 from .outputs import CameraView, LogLine
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import warm_kernels
+from .pipeline import ThrottledLog
 from .visualization import rig_camera_views
 
 __all__ = [
     "RIG_TEXTS",
     "RigGrouping",
     "declare_rig_cameras",
+    "new_rig_cameras",
     "note_camera_frame",
-    "rig_configuration",
     "rig_failure_line",
     "rig_ready_subject",
     "rig_status_parts",
+    "rig_values",
     "rig_views",
-    "warm_rig_kernels",
 ]
 
 #: the rig's topics and texts (:class:`~rs_localizer.ros.core.ModeBase`'s attributes): its
@@ -152,13 +98,15 @@ def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
 
 
 def declare_rig_cameras(node: Any) -> list[str]:
-    """The rig's camera names of ``rig.cameras`` (they make parameter and topic names), each
-    camera's ``rig.<camera>.*`` declared on ``node`` on first use.
+    """The rig's camera names of ``rig.cameras`` (they make parameter and topic names; none
+    for the camera alone, ``rig.cameras`` empty), each camera's ``rig.<camera>.*`` declared
+    on ``node`` on first use.
 
     Raises:
         ConfigError: names that cannot be used.
     """
-    names = rig_camera_names(node.get_parameter("rig.cameras").value)
+    value = node.get_parameter("rig.cameras").value
+    names = rig_camera_names(value) if names_a_rig(value) else []
     own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
     for n in names:
         if not node.has_parameter(f"rig.{n}.line_delay"):
@@ -167,17 +115,21 @@ def declare_rig_cameras(node: Any) -> list[str]:
     return names
 
 
-def rig_configuration(node: Any, overrides: dict, current: LocalizerConfig | None = None
-                      ) -> LocalizerConfig:  # fmt: skip
-    """The rig's configuration of ``node``'s parameters with ``overrides`` (name -> value of
-    :data:`~.params.PARAMETERS`; ``{}``: at configure) and each camera's ``rig.<c>.*``, as
-    :func:`.config.build_config` makes it. ``current``: the configuration the rig runs with
-    (None: at configure, unchecked); a change refused for the parameters it cannot take
-    without a restart (:func:`.config.rig_change_refused`) unless their value stays the same.
+def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
+               ) -> tuple[dict, dict | None]:  # fmt: skip
+    """A rig's own parameter values for :func:`.config.build_config`: ``(values, cameras)``,
+    the :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` its names) and each camera's
+    ``rig.<c>.*``; ``({}, None)`` for the camera alone (``rig.cameras`` empty). With
+    ``current``, the configuration the rig runs with (None: at configure, unchecked), a change
+    of ``overrides`` (name -> value) is refused for the parameters a rig cannot take without
+    a restart (:func:`.config.rig_change_refused`) unless their value stays the same.
 
     Raises:
-        ConfigError: a value that cannot be used, or a change refused (naming them).
+        ConfigError: names that cannot be used, or a change refused (naming them).
     """
+    value = node.get_parameter("rig.cameras").value
+    if not names_a_rig(value):
+        return {}, None
     if current is not None:
         changed = [
             n for n, v in overrides.items() if not same_value(v, node.get_parameter(n).value)
@@ -185,15 +137,36 @@ def rig_configuration(node: Any, overrides: dict, current: LocalizerConfig | Non
         refused = rig_change_refused(changed, current.settings.single_camera)
         if refused is not None:
             raise ConfigError(refused)
-    names = rig_camera_names(node.get_parameter("rig.cameras").value)
-    values = node.param_values(overrides)
-    values.update({n: node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"})
+    names = rig_camera_names(value)
+    values = {n: node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
     values["rig.cameras"] = names
     cams = {
         n: {k: node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
         for n in names
     }
-    return build_config(values, cams)
+    return values, cams
+
+
+def new_rig_cameras(node: Any, config: LocalizerConfig) -> tuple[Localizer, CameraCounts, Any]:
+    """A rig's cameras handed to ``node`` (:meth:`.core.NodeCore.set_cameras`): each camera's
+    input (its camera_infos by stamp, its clouds' rows, its images,
+    :func:`.camera_input.rig_camera_inputs`) and counts (the diagnostics' ``<c>.<key>``), the
+    frame queue grouped by rig frame (:class:`RigGrouping`), its log (each kind once per
+    5 s). Returns the rig's localizer (its rig frames on the NumPy implementation while the
+    kernels compile in the background), the rig's own counts (the worker's map-fit check
+    over the rig frames, its times per stage, its IMU messages rejected) and the grouping."""
+    log = ThrottledLog(node.get_logger(), period=5.0)
+    rig = Localizer(config.settings, log=log, implementation=ready_implementation)
+    counts = {c.name: CameraCounts(c.name) for c in config.cameras}
+
+    def count(name: str, key: str, n: int = 1) -> None:
+        node.camera_counts[name].add(key, n)
+
+    inputs = rig_camera_inputs(config, log, count, stopped=node.stopping,
+                               wait=config.camera_info_wait)  # fmt: skip
+    grouping = RigGrouping(config.settings, inputs)
+    node.set_cameras(inputs, counts, log, grouping, "rs_localizer_rig_worker")
+    return rig, CameraCounts(), grouping
 
 
 class RigGrouping:
@@ -220,28 +193,6 @@ class RigGrouping:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
         stamp without one)."""
         return self.settings.reference_ns(item.name, item.stamp, self.inputs[item.name].newest)
-
-
-def warm_rig_kernels(config: LocalizerConfig, logger: Any) -> None:
-    """The rig's kernels (:func:`.pipeline.warm_kernels`, as a camera's): in numba's cache
-    (:func:`~rs_localizer.runtime.warmup.rig_cached`), loaded before the next frame
-    (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every camera's
-    RS timing); else compiled in another process
-    (:class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved on
-    the NumPy implementation. Without ``warmup`` the first rig frame pays for them while the
-    cameras' frames queue."""
-    from ..runtime.background import RigKernels
-    from ..runtime.warmup import warm_rig
-
-    timing = config.timings
-
-    def warm() -> tuple[float, str]:
-        tic = time.perf_counter()
-        posed = warm_rig(config.settings, timing)
-        return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
-
-    kernels = RigKernels(config.settings, timing)
-    warm_kernels(kernels, "rig", warm, logger, True, "`rs-localizer compile --params-file`")
 
 
 def rig_ready_subject(cfg: LocalizerConfig, map_frame: str) -> str:

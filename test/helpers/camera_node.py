@@ -73,10 +73,10 @@ class CameraNode:
         maps = maps if maps is not None else LoadedMaps()
         own = maps.frontend is not None and cfg.camera.frontend_kind == "none"
         if own:  # (a test's own front end, not a parameter's)
-            self.mode._start_with((cfg, LoadedMaps(landmarks=maps.landmarks)))
+            self.mode._start_with((cfg, {"": LoadedMaps(landmarks=maps.landmarks)}))
             self.set_frontend(maps.frontend, "custom")
             return
-        self.mode._start_with((cfg, maps))
+        self.mode._start_with((cfg, {"": maps}))
 
     def set_frontend(self, frontend: Any, label: str) -> None:
         """A test's own front end on the camera's images."""

@@ -1138,9 +1138,10 @@ def test_a_solver_change_does_not_hold_the_parameter_service_for_a_compile(monke
     from types import SimpleNamespace
 
     import rs_localizer.ros.mode as N
+    import rs_localizer.ros.pipeline as W
 
     calls = []
-    monkeypatch.setattr(N, "log_warm_up", lambda *a, **k: calls.append((a[0], a[-1], k)))
+    monkeypatch.setattr(W, "log_warm_up", lambda *a, **k: calls.append((a[0], a[-1], k)))
     old = _config_of({})
     new = _config_of({"solver": "p3p"})
     logs = []

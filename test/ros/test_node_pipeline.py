@@ -625,3 +625,27 @@ def test_a_frame_step_that_raises_fails_its_frame_as_internal_error(msgs, sequen
     monkeypatch.undo()
     res = pipe.process(msgs.cloud(f1.uv, f1.xyz, f1.ids, f1.stamp_ns, "cam"), "correspondences")
     assert res.solved and res.out_stamp_ns == f1.t_ref_ns
+
+
+def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
+    """The camera alone takes a run-time change between two frames of the worker, as a rig
+    does (under the worker's lock): while a frame is taken the change waits, then the next
+    frame is solved with the new settings."""
+    from helpers.camera_node import CameraNode
+
+    from rs_localizer.frontends.shared import LoadedMaps
+
+    values = P.default_values()
+    cfg = C.build_config(values)
+    new = C.build_config({**values, "ransac.threshold_px": 3.0})
+    assert new.options.ransac.threshold_px != cfg.options.ransac.threshold_px
+    pipe = CameraNode(cfg)
+    change = ((new, {"": LoadedMaps()}), {"ransac.threshold_px": 3.0})
+    with pipe.node.between_frames():  # (the worker on a frame)
+        t = threading.Thread(target=pipe.mode._change_to, args=change)
+        t.start()
+        t.join(0.3)
+        assert t.is_alive() and pipe.mode.cfg is cfg
+    t.join(10.0)
+    assert not t.is_alive() and pipe.mode.cfg is new
+    assert pipe.rig.settings.options.ransac.threshold_px == 3.0

@@ -289,10 +289,10 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
             m.header.stamp = ns_to_stamp(int(t))
             m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
             m.angular_velocity_covariance[0] = cov
-            n = h.node.mode.rig.imu.received + sum(h.node.mode.imu_rejected.values())
+            n = h.node.mode.rig.imu.received + h.node.mode._counts.get("imu_rejected")
             pub.publish(m)
             assert h.wait(
-                lambda: h.node.mode.rig.imu.received + sum(h.node.mode.imu_rejected.values()) > n
+                lambda: h.node.mode.rig.imu.received + h.node.mode._counts.get("imu_rejected") > n
             )
 
         send_imu(stamps[0], rates[0], -1.0)
@@ -847,11 +847,11 @@ def test_a_managed_rig_subscribes_its_imu_at_configure_as_a_camera(ros_context):
         assert node.has_parameter("qos_overrides./rig/imu.subscription.reliability")
         for c in cams:  # (each camera's camera_info too, as the single camera's)
             assert node.has_parameter(f"qos_overrides./rig/{c.name}/camera_info.subscription.depth")
-        node.mode.imu_rejected["bad_stamp"] = 1
+        node.mode._counts.add("imu_rejected.bad_stamp")
         assert node.trigger_activate() == ok and imu_subs() == 1
         assert node.trigger_deactivate() == ok and imu_subs() == 1
         assert node.trigger_activate() == ok and imu_subs() == 1
-        assert node.mode.imu_rejected == {"bad_stamp": 1}
+        assert node.mode._counts.get("imu_rejected.bad_stamp") == 1
         assert node.trigger_deactivate() == ok and node.trigger_cleanup() == ok
         assert imu_subs() == 0
         assert node.trigger_configure() == ok and imu_subs() == 1  # (declared again: kept)
@@ -1416,10 +1416,10 @@ def test_a_rig_of_one_warms_its_kernels_on_a_solver_change_as_the_camera_does(mo
     and its kernels warmed up in the background with the new settings, as the single
     camera's (``warmup``); the same solver set again neither logs nor warms up."""
     import rs_localizer.ros.mode as M
-    import rs_localizer.ros.rig_node as R
+    import rs_localizer.ros.pipeline as W
 
     calls = []
-    monkeypatch.setattr(R, "warm_kernels", lambda k, label, *a: calls.append((k, label, a[2])))
+    monkeypatch.setattr(W, "warm_kernels", lambda k, label, *a: calls.append((k, label, a[2])))
     old, new = _rig_config_of({}), _rig_config_of({"solver": "p3p"})
     assert new[0].settings.single_camera and new[0].settings.solver == "p3p" != old[0].solver
     logs = []
@@ -1498,3 +1498,102 @@ def test_republish_turned_on_at_run_time_opens_every_camera_s_output_in_both_mod
             assert opened == list(want) and mode.node.republish is True
             assert mode.node.frontend_kind == over.get("frontend", "none")
             opened.clear()
+
+
+def test_a_rig_takes_its_imu_messages_as_a_camera_does():
+    """A rig's gyro input is the camera's (:func:`rs_localizer.ros.pipeline.take_imu_message`):
+    a message without a usable sample is counted ``imu_rejected.<reason>`` in the rig's own
+    counts and warned (``IMU sample rejected (<reason>)``), and a lone stamp jump ahead, found
+    when the next sample goes back before it, is dropped from the buffer and counted
+    ``imu_rejected.stamp_jumped_ahead`` (a rig counted neither before it took the camera's
+    path); the rig's diagnostics read its counts (``imu_rejected``, by reason)."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.camera_input import CameraCounts
+    from rs_localizer.ros.mode import LocalizerMode
+    from rs_localizer.tracking.video import Localizer
+
+    (config,) = _rig_config_of({"imu.enabled": True}, ("front", "rear"))
+    logs = []
+    mode = LocalizerMode.__new__(LocalizerMode)
+    mode.node = _fake_node(logs, warn=lambda key, text, count=0: logs.append((key, text)))
+    mode.rig, mode._counts = Localizer(config.settings), CameraCounts()
+
+    def imu(ns, cov0=0.0):
+        return SimpleNamespace(
+            header=SimpleNamespace(stamp=SimpleNamespace(sec=ns // 10**9, nanosec=ns % 10**9)),
+            angular_velocity=SimpleNamespace(x=0.1, y=0.2, z=0.3),
+            angular_velocity_covariance=[cov0] + [0.0] * 8,
+        )
+
+    t0 = 5 * 10**9
+    assert mode._take_imu(imu(t0)) is None
+    assert mode._take_imu(imu(t0 + 2_500_000)) is None
+    assert mode._take_imu(imu(t0 + 600_000_000)) is None  # (a lone stamp 0.6 s ahead)
+    assert mode._take_imu(imu(t0 + 5_000_000)) is None  # (back: the jump was a bad stamp)
+    assert mode._take_imu(imu(t0 + 7_500_000, cov0=-1.0)) == "no_angular_velocity"
+    c = mode._counts.counts()
+    assert c["imu_rejected"] == 2, c
+    assert c["imu_rejected.stamp_jumped_ahead"] == c["imu_rejected.no_angular_velocity"] == 1
+    assert mode.rig.imu.dropped == 1 and len(mode.rig.imu) == 3
+    assert logs == [
+        ("imu.stamp_jumped_ahead", "IMU sample rejected (stamp_jumped_ahead)"),
+        ("imu.no_angular_velocity", "IMU sample rejected (no_angular_velocity)"),
+    ]
+
+
+def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default_timing():
+    """A rig takes its configuration through the camera alone's steps: each camera its own
+    front end and input stage, and with images the lines a camera logs at configure, the
+    marker detector that runs (``marker detector: <line>``, once) and the warning of a
+    default RS timing (``rs.line_delay`` unchanged; once), which a rig did not log before;
+    a run-time change (``max_points``) reaches each camera's input stage (its camera models
+    rebuilt, as a camera's), the front ends kept."""
+    import threading
+
+    from rs_localizer.camera import CameraModel
+    from rs_localizer.frontends.shared import LoadedMaps
+    from rs_localizer.ros import conversions as cv
+    from rs_localizer.ros.mode import LocalizerMode
+
+    over = {"frontend": "aruco", "frontend_map": "m.yaml"}
+    (config,) = _rig_config_of(over, ("front", "rear"))
+    (changed,) = _rig_config_of({**over, "max_points": 300}, ("front", "rear"))
+
+    class Frontend:
+        def process(self, *a, **k):
+            raise AssertionError("not run")
+
+        def marker_detector_note(self):
+            return "OpenCV ArUco (DICT_4X4_50)", False
+
+    logs, warned = [], []
+    node = _fake_node(logs, stopping=lambda: False, frontend_kind="none")
+    node.warn_once = lambda key, text: warned.append(key)
+    node.set_cameras = lambda inputs, counts, log, group=None, worker="": (
+        setattr(node, "inputs", inputs) or setattr(node, "camera_counts", counts)
+    )
+    node.between_frames = threading.Lock
+    mode = LocalizerMode.__new__(LocalizerMode)
+    mode.node, mode.alone, mode.cfg, mode._loaded, mode._images = node, False, None, {}, {}
+    fronts = {n: Frontend() for n in ("front", "rear")}
+    maps = {n: LoadedMaps(None, fe, "aruco", "m.yaml") for n, fe in fronts.items()}
+    mode._start_with((config, maps))
+    assert logs == [("info", "marker detector: OpenCV ArUco (DICT_4X4_50)")]
+    assert warned == ["default_timing"]
+    assert set(node.inputs) == {"front", "rear"} and mode._grouping is not None
+    for n in fronts:
+        assert mode.rig.camera_frontend(n).frontend is not None
+        assert node.inputs[n].max_points == config.max_points
+    info = cv.camera_info_msg(CameraModel(np.diag([500.0, 500.0, 1.0])), "front", 10**9)
+    before = node.inputs["front"].add_camera_info(info)
+    mode._change_to((changed, maps), {"max_points": 300})
+    assert all(node.inputs[n].max_points == 300 for n in fronts)
+    # (each camera's models rebuilt as a camera's: equal, new objects; a rig of one camera
+    # then starts a new track at its next frame, as the camera alone does)
+    after = node.inputs["front"].newest
+    assert after is not before and np.array_equal(after.K, before.K)
+    assert mode.rig.settings is changed.settings and mode._grouping.settings is changed.settings
+    assert logs[0] == ("info", "marker detector: OpenCV ArUco (DICT_4X4_50)")
+    assert not any("marker detector" in t for _, t in logs[1:])
+    assert warned == ["default_timing", "default_timing"]  # (the node warns once)
