@@ -597,10 +597,11 @@ class _Run:
         one counted ``imu_rejected.<reason>``: :func:`~rs_localizer.ros.pipeline.
         take_imu_message`); a rig's kept ``(stamp_ns, (wx, wy, wz))``, newest first (popped
         oldest first, :meth:`_gyro_to`), each message read as the rig node reads it
-        (:func:`~rs_localizer.ros.pipeline.take_gyro_sample`): one without an angular
+        (:func:`~rs_localizer.ros.conversions.gyro_sample`): one without an angular
         velocity or a readable stamp left out and counted ``imu_rejected.<reason>``
         (:meth:`_imu_rejected`)."""
-        from ..pipeline import take_gyro_sample, take_imu_message
+        from .. import conversions as cv
+        from ..pipeline import take_imu_message
 
         self.gyro: list = []
         self.imu_rejected: dict[str, int] = {}
@@ -609,13 +610,11 @@ class _Run:
                 take_imu_message(msg, self.engine, self.own[""].add, self.log.warning)
             return
         for msg in imu:
-            self._imu_rejected(take_gyro_sample(msg, self._keep_gyro))
+            try:
+                self.gyro.append(cv.gyro_sample(msg))
+            except cv.ImuError as e:
+                self._imu_rejected(e.reason)
         self.gyro.sort(key=lambda x: x[0], reverse=True)
-
-    def _keep_gyro(self, stamp_ns: int, rate: Any) -> None:
-        """A rig's gyro sample kept for its frame (:meth:`_gyro_to`); rejected by nothing
-        yet (None)."""
-        self.gyro.append((stamp_ns, rate))
 
     def _imu_rejected(self, reason: str | None) -> None:
         """A rig's IMU message rejected for ``reason`` (None: taken), counted as the rig node
