@@ -4,14 +4,17 @@ again.
 :class:`VideoClock` notes each frame's time (ns) and tells a **time reset**
 (:class:`TimeReset`, a reason of :data:`TIME_RESET_REASONS`):
 
-- ``stamp_back``: the frame is older than the previous frame of its source by more than
-  ``back_tolerance_ns`` (a bag replayed again, a driver restarted). The gyro's samples so far
-  belong to the old timeline: all are dropped (:attr:`TimeReset.keep_from` None);
+- ``stamp_back``: the frame is older than its source's (its camera's) newest frame since the last
+  reset by more than ``back_tolerance_ns`` (a bag replayed again, a driver restarted). The gyro's
+  samples so far belong to the old timeline: all are dropped (:attr:`TimeReset.keep_from` None);
 - ``stamp_jump``: the frame is newer than the video's newest frame by more than
   ``time_reset_ns`` (a gap in a bag, a clock that jumped ahead). The gyro's samples from the
   newest frame on are kept (:attr:`TimeReset.keep_from`), the older ones dropped.
 
-On either, the gyro's timeline starts again
+A frame's time is its camera's stamp on the video's clock (the capture time of row
+``stamp_row`` plus the camera's time offset), noted once, before its image is searched, a
+camera's and a rig camera's alike (:meth:`~rs_localizer.tracking.video.Localizer._note`).
+On either reset, the gyro's timeline starts again
 (:meth:`~rs_localizer.tracking.gyro_input.GyroInput.restart`: the samples above, the pairing of
 the bias estimator and of the mount check). What else starts again is the localizer's:
 
@@ -79,12 +82,15 @@ class VideoClock:
         self.time_reset_ns = time_reset_ns
         self.back_tolerance_ns = back_tolerance_ns
         self.newest: int | None = None
+        self._last: dict = {}  # (source -> its newest frame time since the last reset, ns)
 
-    def step(self, stamp: int, previous: int | None) -> TimeReset | None:
-        """Note a frame's time ``stamp`` (ns); ``previous``: its source's previous frame time
-        (ns; None: its first; for a video of one source :attr:`newest`). Returns the time
-        reset it makes, or None. After a reset :attr:`newest` is ``stamp``."""
-        last = self.newest
+    def step(self, stamp: int, source: str = "") -> TimeReset | None:
+        """Note a frame's time ``stamp`` (ns) of ``source`` (a camera's name), compared with
+        that source's newest frame time since the last reset (a step back) and with the
+        video's :attr:`newest` (a jump ahead); for a video of one source they are the same
+        time. Returns the time reset it makes, or None. After a reset :attr:`newest` and the
+        source's newest are ``stamp``, the other sources have none."""
+        last, previous = self.newest, self._last.get(source)
         reset = None
         if previous is not None and previous - stamp > self.back_tolerance_ns:
             reset = TimeReset(
@@ -100,8 +106,12 @@ class VideoClock:
                 last,
             )
         self.newest = stamp if reset is not None or last is None else max(last, stamp)
+        if reset is not None:
+            self._last = {}
+        self._last[source] = stamp if previous is None or reset else max(previous, stamp)
         return reset
 
     def reset(self) -> None:
         """Forget the frames' time (the video forgotten)."""
         self.newest = None
+        self._last = {}

@@ -479,9 +479,13 @@ class TrackerPath:
             self.last_ns, int(stamp_ns), self.path_options.max_gap
         )
 
-    def predict(self, stamp_ns: int) -> FusedState | None:
+    def predict(self, stamp_ns: int, implementation: str | None = None) -> FusedState | None:
         """The filter's prediction of the state at ``stamp_ns`` (ns; computed once until the
-        next update), None when the frame is not predicted (:meth:`predicts`)."""
+        next update), None when the frame is not predicted (:meth:`predicts`).
+        ``implementation``: the estimator's for the frame (on ``"numpy"`` the filter's steps
+        run as plain Python: nothing compiles); None: the filter's kernels as they are."""
+        if implementation is not None:
+            self.filter.compiled = implementation != NUMPY
         return self._predict_at(stamp_ns)
 
     def _predict_at(self, stamp_ns: int) -> FusedState | None:

@@ -39,8 +39,8 @@ releases its state (:class:`~rs_localizer.tracking.localizer.PendingTwists`):
 ``tracking.max_gap`` s, wall clock), :meth:`Localizer.end_track` (the twists still pending
 dropped) hand them out as :class:`~rs_localizer.tracking.localizer.FusedPose`. A camera's
 image front end searches with the prediction of its frame (:meth:`Localizer.predict_camera`):
-the track's prediction of the body at the frame's reference time while the track predicts,
-else the last posed frame carried at its own twist
+the track's prediction of the body at the frame's reference time while the track has a state,
+else (no tracking, a new track) the last posed frame carried at its own twist
 (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`), either seen by the camera through
 its mounting. The video also checks the cameras' rolling-shutter timing
 (:meth:`Localizer.readout_values`, :data:`~rs_localizer.tracking.localizer.READOUT_CHECK_SHARE`
@@ -274,12 +274,13 @@ class LocalizerSettings:
             camera's own frame intervals.
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
         time_reset_ns: a time reset (:mod:`~rs_localizer.tracking.clock`, the single
-            camera's policy): a camera's frame older than its previous frame by more than this
-            (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
-            rig frames dropped), and so does a frame newer than the rig's newest by more than
-            this (a gap in a bag, a clock jump: the open rig frames solved first); counted
-            ``rig.time_resets``. A rig of one camera takes the camera's policy: any step back
-            is a time reset, its frame solved (:meth:`Localizer.check_time`).
+            camera's policy, on each camera's stamps on the rig's clock: the stamp plus its
+            :attr:`time_offsets` entry): a camera's frame older than its newest frame by more
+            than this (ns; less is ``out_of_order``) starts the rig again (a bag played again:
+            the open rig frames dropped), and so does a frame newer than the rig's newest by
+            more than this (a gap in a bag, a clock jump: the open rig frames solved first);
+            counted ``rig.time_resets``. A rig of one camera takes the camera's policy: any step
+            back is a time reset, its frame solved (:meth:`Localizer.check_time`).
         options: the rig estimator's options, the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
@@ -705,7 +706,8 @@ class Localizer(GyroReadouts):
         # back_tolerance_ns (less: its frame out of order; a rig of one: any step back), a
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
-        self._noted: int | None = None  # (a rig of one: the frame time noted last, _note_alone)
+        self._noted: dict[str, int] = {}  # (camera -> the frame time it noted last, _note)
+        self._reset_solved: list = []  # (rig frames a time reset noted before its frame solved)
         self._img: _ImageInput | None = None  # (the image search, made on first use)
         # (the last time reset's number, detail and the new timeline's first time on the
         # clock, ns; each camera's number taken: took_time_reset)
@@ -765,7 +767,7 @@ class Localizer(GyroReadouts):
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = settings.time_reset_ns
             self._clock.back_tolerance_ns = settings.back_tolerance_ns
-            self._noted = None  # (the next frame noted on the clock again, with these)
+            self._noted = {}  # (the next frame noted on the clock again, with these)
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
@@ -858,8 +860,8 @@ class Localizer(GyroReadouts):
         (``view``: which of the body's cameras): its model
         (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at the camera's reference row,
         ``w``, ``t`` per unit RS coordinate), what its front end searches with. The track's
-        prediction while the track decides (:meth:`_tracked_prediction`), else the last posed
-        frame carried at its own twist; None when nothing predicts the frame."""
+        prediction while the track has a state (:meth:`_tracked_prediction`), else the last
+        posed frame carried at its own twist; None when nothing predicts the frame."""
         with self._lock:
             decided, state = self._tracked_prediction(ref, camera, view)
             if decided:
@@ -884,7 +886,7 @@ class Localizer(GyroReadouts):
             out = self._time_reset(None)
             self._forget_last_pose()
             self._clock.reset()
-            self._noted = None
+            self._noted = {}
         return out
 
     def _frame_gyro(self, t0: int, clocks: list[tuple[CameraModel, int]]) -> GyroMeasurement | None:
@@ -1028,7 +1030,20 @@ class Localizer(GyroReadouts):
     def _add(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
         """:meth:`add` of a frame (its stamp checked: a
         :class:`~rs_localizer.tracking.localizer.CameraFrame`'s) with its reference time
-        ``ref`` (ns; None without a camera model)."""
+        ``ref`` (ns; None without a camera model): the rig frames a time reset at it solved
+        (:meth:`_note`, also when its image search noted it) first."""
+        out = self._add_frame(frame, ref)
+        return self._solved_by_reset() + out
+
+    def _solved_by_reset(self) -> list[LocalizerOutput]:
+        """The rig frames a time reset solved (a jump ahead: the old timeline's open rig
+        frames, :meth:`_note`) not handed out yet; they go out with the frame that made it."""
+        out, self._reset_solved = self._reset_solved, []
+        return out
+
+    def _add_frame(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
+        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), solved at
+        once (a rig of one) or grouped into its rig frame."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
@@ -1040,15 +1055,13 @@ class Localizer(GyroReadouts):
         if frame.camera is None:
             self._frames.no_camera_info(name, stamp)
             return self._ready()
+        self._note(name, stamp)  # (a time reset: every camera's timeline started again)
         if self._single:  # (no other camera to wait for: no grouping, every frame solved)
-            self._note_alone(stamp)
             self._frames.solved_at_once(name, ref)
             return [self._solve_alone(name, frame, ref)]
-        # (a time reset: every camera's timeline started again)
-        out = self._note_time(name, ref, self._frames.last_ref(name))[1]
         if not self._frames.take(name, frame, ref, self.settings.window):
-            return out
-        return out + self._ready()
+            return []
+        return self._ready()
 
     def check_time(self, stamp_ns: int) -> str | None:
         """A rig of one camera: note a frame's stamp (ns, the capture time of row
@@ -1068,7 +1081,8 @@ class Localizer(GyroReadouts):
         if not self._single:
             raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
         (name,) = self._cams
-        return self._note_alone(self._on_clock(name, checked_stamp(stamp_ns)))
+        reset = self._note(name, self._on_clock(name, checked_stamp(stamp_ns)))
+        return None if reset is None else reset.detail
 
     def took_time_reset(self, name: str, stamp_ns: int | None = None) -> str | None:
         """Camera ``name``'s first call since the rig's clock last started again (a time
@@ -1097,39 +1111,32 @@ class Localizer(GyroReadouts):
         from (:meth:`LocalizerSettings.reference_ns` without a camera model)."""
         return self.settings.reference_ns(name, stamp, None)
 
-    def _note_alone(self, t: int) -> str | None:
-        """A rig of one's frame at ``t`` (ns, :meth:`_on_clock`) noted on the video's clock,
-        once per frame: :meth:`check_time` notes it ahead of the frame (the node, to act on a
-        time reset before the frame is decoded), then the frame's image search
-        (:meth:`search_image`) and :meth:`add` take it as noted. Returns the time reset's
-        detail (None: none, or noted already); on a time reset the camera's last image is
-        forgotten: a new timeline's first image is not compared with it (frozen image). (A
-        time the clock noted last is its newest again: noting it twice would change
-        nothing.)"""
-        if t == self._noted:
+    def _note(self, name: str, t: int) -> TimeReset | None:
+        """Camera ``name``'s frame at ``t`` (ns, its stamp on the rig's clock, :meth:`_on_clock`)
+        noted on the video's clock, a camera's or a rig camera's the one way, once per frame
+        and before its image is searched: :meth:`check_time` (a camera alone, ahead of the
+        frame), the image search (:meth:`search_image`) and :meth:`add` take it as noted (a
+        time the camera noted last is its newest again: noting it twice changes nothing). The
+        clock (:class:`~rs_localizer.tracking.clock.VideoClock`) compares it with the
+        camera's newest frame time (a step back; a camera alone: the video's newest) and the
+        video's newest (a jump ahead). On a time reset a jump ahead is counted
+        ``<name>.stamp_jumped_ahead``, the video's timelines start again
+        (:meth:`_time_reset`: a rig's open rig frames, solved on a jump ahead, go out with
+        the frame, :meth:`_solved_by_reset`) and every camera's last image is forgotten (a
+        new timeline's first image, this frame's too, is not compared with it: frozen
+        image). Returns the time reset, or None."""
+        if self._noted.get(name) == t:
             return None
-        self._noted = t
-        (name,) = self._cams
-        reset = self._note_time(name, t, self._clock.newest)[0]
-        return None if reset is None else reset.detail
-
-    def _note_time(self, name: str, t: int, previous: int | None) -> tuple:
-        """Camera ``name``'s frame at ``t`` (ns) on the video's clock, a camera's or a rig's
-        (``previous``: its camera's previous frame time, a camera alone's the clock's newest):
-        on a time reset (:class:`~rs_localizer.tracking.clock.VideoClock`) a jump ahead is
-        counted ``<name>.stamp_jumped_ahead``, the video's timelines start again
-        (:meth:`_time_reset`: a rig's open rig frames) and every camera's last image is
-        forgotten (a new timeline's first image is not compared with it: frozen image).
-        Returns ``(the time reset or None, the rig frames it solved)``."""
-        reset = self._clock.step(t, previous)
+        self._noted[name] = t
+        reset = self._clock.step(t, name)
         if reset is None:
-            return None, []
+            return None
         if reset.reason == "stamp_jump":
             self.counts[f"{name}.stamp_jumped_ahead"] += 1
-        out = self._time_reset(reset)
+        self._reset_solved += self._time_reset(reset)
         for fe in () if self._img is None else self._img.frontends.values():
             fe.last_sample = None
-        return reset, out
+        return reset
 
     def restart_track(self) -> None:
         """The next rig frame starts a new track, and nothing predicts a frame before it
@@ -1258,8 +1265,9 @@ class Localizer(GyroReadouts):
         :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the
         rig's predicted pose and twist at the frame's reference time mapped through the
         camera's mounting (:func:`~rs_localizer.estimation.result.camera_model_of_rig`). The
-        rig's prediction is the twist filter's (tracking), or without tracking the last rig
-        frame posed (of :meth:`add` or :meth:`process_image`) carried at its own twist. None
+        rig's prediction is the twist filter's while the track has a state, else (no
+        tracking, a new track) the last rig frame posed (of :meth:`add` or
+        :meth:`process_image`) carried at its own twist, as a camera's video predicts. None
         when nothing predicts the frame: no rig frame posed yet, or more than ``max_gap`` s
         (0.5 s without tracking) after the last, or not after it
         (:func:`~rs_localizer.tracking.tracker.predictable`). ``reference_ns``: the frame's
@@ -1287,23 +1295,21 @@ class Localizer(GyroReadouts):
     def _tracked_prediction(
         self, ref: int, camera: CameraModel, view: _Camera
     ) -> tuple[bool, FusedState | None]:
-        """With tracking the twist filter decides (:meth:`predict_camera`); after
-        :meth:`restart_track` nothing predicts the next frame. A rig of one camera, as its
-        camera's video: its tracker decides while it has a state and tracks with the current
-        settings and this camera model, else the last posed frame carried predicts."""
+        """Whether the track decides the prediction (:meth:`predict_camera`) and its state
+        predicted at ``ref``: after :meth:`restart_track` nothing predicts the next frame;
+        the track decides while it has a state (a rig of one's camera tracker: made for the
+        current settings and this camera model), else the last posed frame carried predicts
+        (no tracking, a new track), a camera's and a rig's alike."""
         if self._track_over:
             return True, None
         t = self._track
-        if self._single:  # (its camera tracker: made per camera model and settings)
-            if t is None or not t.filter.initialized or self._track_key != self._key(camera):
-                return False, None
-            return True, t.predict(ref, self._implementation_now())
-        if t is None:
+        # (a rig of one's camera tracker is made per camera model and settings: another's
+        # frame starts a new one)
+        if self._single and self._track_key != self._key(camera):
+            t = None
+        if t is None or not t.filter.initialized:
             return False, None
-        if not t.predicts(ref):
-            return True, None
-        self._filter_kernels(self._implementation_now())
-        return True, t.predict(ref)
+        return True, t.predict(ref, self._implementation_now())
 
     def _implementation_now(self) -> str:
         """The estimator's implementation for the next frame, a camera's or a rig's:
@@ -1369,7 +1375,8 @@ class Localizer(GyroReadouts):
         self._skip(name, reason)
         self._frames.note_first(self._on_clock(name, stamp))
         self._frames.skipped(name, t)
-        return self._ready()
+        out = self._ready()
+        return self._solved_by_reset() + out
 
     def process_image(
         self,
@@ -1399,12 +1406,12 @@ class Localizer(GyroReadouts):
         the others); an image whose front end raised (``frontend_error``) or that is the
         camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`);
         after a frozen image a rig of one camera's next frame starts a new track, searched
-        whole, as its camera's video does (:meth:`restart_track`). A rig of one camera takes
-        its images as its camera's video does: its time noted first
-        (:meth:`check_time`; after a time reset the image is not compared with the last
-        one), and an image whose front end found fewer correspondences than its solver needs
-        (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one
-        marker's coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
+        whole, as its camera's video does (:meth:`restart_track`). Every camera's image has its time
+        noted first, as a camera's video notes it (:meth:`check_time`, :meth:`_note`: after a time
+        reset, this image's too, the image is not compared with the camera's last one); a rig of one
+        camera's image whose front end found fewer correspondences than its solver needs
+        (:func:`~rs_localizer.tracking.localizer.too_few_points`: unless they are one marker's
+        coplanar corners or a few markers') skipped as ``frontend_too_few_points``.
         A camera's own video (:attr:`LocalizerSettings.camera_video`) returns no rig frame
         for an image skipped before the estimator and counts nothing for it (its caller
         reports the failure, :meth:`last_search`); its rows are counted by its ``count``. A
@@ -1440,7 +1447,7 @@ class Localizer(GyroReadouts):
         r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
         if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
             img.found[name] = r.found
-            return []
+            return self._solved_by_reset()
         if r.failure == "frozen_image":
             self._warn_image(
                 f"rig.frozen.{name}",
@@ -1497,14 +1504,15 @@ class Localizer(GyroReadouts):
         :meth:`process_image` runs on a rig camera's image and a camera's alike
         (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.process_image`).
 
-        A rig of one camera adds its camera's rules, which a rig of several does not have:
-        its time is noted first (:meth:`check_time`, unless the caller noted it already; after
-        a time reset the image is not compared with the last one), a frozen image
-        makes its next frame start a new track (:meth:`restart_track`: the camera moved by an
-        unknown amount unseen, while a rig's other cameras keep its track), and an image with
-        fewer correspondences than its solver needs fails ``frontend_too_few_points``
-        (:func:`~rs_localizer.tracking.localizer.too_few_points`; a rig frame is posed from
-        its other cameras' points as well).
+        Its time is noted first, a camera's and a rig camera's alike (:meth:`_note`, unless the
+        caller noted it already, :meth:`check_time`; after a time reset the image is not compared
+        with the last one; a rig's open rig frames a jump ahead solves go out with the frame's
+        :meth:`add`). A rig of one camera adds its camera's rules, which a rig of several does not
+        have: a frozen image makes its next frame start a new track (:meth:`restart_track`: the
+        camera moved by an unknown amount unseen, while a rig's other cameras keep its track), and
+        an image with fewer correspondences than its solver needs fails ``frontend_too_few_points``
+        (:func:`~rs_localizer.tracking.localizer.too_few_points`; a rig frame is posed from its
+        other cameras' points as well).
 
         Returns:
             :class:`~rs_localizer.tracking.localizer.ImageSearch`.
@@ -1530,8 +1538,7 @@ class Localizer(GyroReadouts):
         """:meth:`search_image` with camera ``name``'s front end ``fe`` and the frame's times
         ``t`` (its stamp checked, its reference time)."""
         stamp, ref = t.stamp_ns, t.reference_ns
-        if self._single:  # (as its camera: its time noted first, unless check_time noted it)
-            self._note_alone(self._on_clock(name, stamp))
+        self._note(name, self._on_clock(name, stamp))  # (first, unless check_time noted it)
         view = self._cams[name]
         r = search_image(
             fe, stamp, image, camera, encoding, lambda: self._predict(ref, camera, view),

@@ -18,6 +18,7 @@ from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.sequence import GyroSettings
+from rs_localizer.tracking.tracker import TrackerOptions
 from rs_localizer.tracking.video import Localizer, LocalizerSettings
 
 
@@ -263,3 +264,77 @@ def test_a_frame_whose_estimator_raises_after_a_gap_releases_the_ended_tracks_tw
         fused += [p.pose.stamp_ns for o in got for p in o.fused]
         assert all(o.error == "RuntimeError: estimator failed" for o in got)
     assert sorted(fused) == sorted(posed) and rig.pending == 0
+
+
+def test_a_rig_cameras_image_that_resets_the_time_is_not_compared_with_its_last(video):
+    """A rig camera's frame time is noted before its image is searched, as a camera's: its
+    image 2 s after the rig's newest frame (a time reset) that is the same picture as its
+    last one is the new timeline's first image, taken, not skipped as ``frozen_image``, and
+    the reset is counted (before: compared with its old timeline's last image and skipped,
+    the reset not noted at all)."""
+    cams, frames, _ = video
+    current = {}
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    for c in cams:
+        rig.set_frontend(c.name, _Rows(current), "rows")
+    by = {c.name: c.camera for c in cams}
+    rng = np.random.default_rng(5)
+    images = {}
+
+    def send(f, dt=0, image=None):
+        current["frame"] = f
+        images[f.name] = rng.integers(0, 255, (48, 64), np.uint8) if image is None else image
+        return rig.process_image(f.name, f.stamp_ns + dt, images[f.name], by[f.name], "mono8")
+
+    for f in sorted((f for f in frames if f.index < 2), key=lambda f: f.stamp_ns):
+        send(f)
+    a = next(f for f in frames if f.index == 2 and f.name == cams[0].name)
+    send(a, 2_000_000_000, images[a.name])  # (camera a's last picture, 2 s on)
+    assert rig.counts["rig.time_resets"] == 1
+    assert rig.counts[f"{a.name}.stamp_jumped_ahead"] == 1
+    assert rig.counts[f"{a.name}.skipped.frozen_image"] == 0
+    assert rig.camera_counts(a.name)["pending"] == 1  # (its frame in the new rig frame)
+    rig.close()
+    assert_balanced(rig)
+
+
+def test_a_rig_notes_its_cameras_stamps_on_the_clock_as_a_camera_does(video):
+    """The time-reset policy reads each camera's stamp on the rig's clock, as a camera's video
+    reads its stamps, not its reference line's capture time: a global-shutter camera's frame
+    stamped 1.005 s after a rolling-shutter camera's frame is a jump ahead of more than
+    ``time_reset_ns`` (1 s), a time reset (before: not one, the rolling shutter's
+    reference line, read 10.8 ms after its stamp's row, put the two 0.994 s apart)."""
+    cams, frames, _ = video
+    rs, gs = cams[0], replace(cams[1], camera=replace(cams[1].camera, line_delay=0.0))
+    assert rs.camera.readout == "top_to_bottom"
+    # (the reference line: the middle row, 359.5 rows of 30 us after row 0)
+    ref_after = LocalizerSettings(mounts_of(cams)).reference_ns(rs.name, T0, rs.camera) - T0
+    assert ref_after == round(359.5 * 30e-6 * 1e9)
+    rig = Localizer(LocalizerSettings(mounts_of([rs, gs]), tracking=None))
+    f_rs = next(f for f in frames if f.index == 0 and f.name == rs.name)
+    f_gs = next(f for f in frames if f.index == 0 and f.name == gs.name)
+    rig.add(CameraFrame(T0, rs.camera, f_rs.uv, f_rs.xyz, camera_name=rs.name))
+    rig.add(CameraFrame(T0 + 1_005_000_000, gs.camera, f_gs.uv, f_gs.xyz, camera_name=gs.name))
+    assert rig.counts["rig.time_resets"] == 1
+    assert rig.counts[f"{gs.name}.stamp_jumped_ahead"] == 1
+    rig.close()
+    assert_balanced(rig)
+
+
+def test_a_rig_whose_track_has_no_state_predicts_from_its_last_posed_frame(video):
+    """With no state in the rig's track (a new track, other tracking options given to
+    ``configure``) the next frame of a camera is predicted, as a camera's video predicts it,
+    from the last rig frame posed carried at its own twist through the camera's mounting:
+    within 2 deg of the truth (before: no prediction until the new track had a state)."""
+    cams, frames, traj = video
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    outs = _add_all(rig, [f for f in frames if f.index < 4], cams)
+    assert outs[-1].success and rig.track_state == "tracking"
+    rig.configure(replace(rig.settings, tracking=TrackerOptions(gate_px=12.0)))
+    assert rig.track_state == "lost"
+    nxt = next(f for f in frames if f.index == 4 and f.name == cams[0].name)
+    model = rig.predict_camera(nxt.name, nxt.stamp_ns, cams[0].camera)
+    assert model is not None
+    R_rig, _, _, _ = rig_truth(traj, (nxt.stamp_ns - T0) * 1e-9)
+    R_world_cam = R_rig @ cams[0].R_rig_cam  # (rig -> world after camera -> rig)
+    assert rotation_angle_deg(model[0].T, R_world_cam) < 2.0  # (the model's R: world -> camera)

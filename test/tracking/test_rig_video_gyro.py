@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from helpers.rig import T0
 
-from rs_localizer.camera import reference_stamp_ns
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_gyro, rig_truth
@@ -221,9 +220,11 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
 
 def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
     """The rig's gyro follows the single camera's time-reset policy: a frame more than
-    ``time_reset_ns`` after the rig's newest keeps the samples from that newest frame's time
-    on (the older ones dropped), a frame going back by more drops them all; both counted
-    ``rig.time_resets``; the bias estimate is kept (the same IMU), its pairing restarted."""
+    ``time_reset_ns`` after the rig's newest keeps the samples from that newest frame's stamp
+    on (its first line's capture time here, ``stamp_row`` 0: its whole readout; before: from
+    its reference line's, mid-readout), the older ones dropped; a frame going back by more
+    drops them all; both counted ``rig.time_resets``; the bias estimate is kept (the same
+    IMU), its pairing restarted."""
     cams, frames, _ = video
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(R_cam_imu=R_RIG_IMU, buffer=100.0, estimate_bias=True)
@@ -235,7 +236,7 @@ def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
     first = [f for f in frames if f.stamp_ns < T0 + 200_000_000]
     for f in first:
         rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
-    newest = max(reference_stamp_ns(f.stamp_ns, by[f.name], 0.0) for f in first)
+    newest = max(f.stamp_ns for f in first)
     bias = rig.gyro_bias
     assert rig.counts["rig.time_resets"] == 0 and len(rig.imu) == 100
     f = frames[len(first)]
