@@ -292,13 +292,14 @@ class StackedViews:
         self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
         if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
             q = parts[0]
-            self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.full(n[0], float(q[9]))
+            self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
+            self.focal.fill(q[9])
             self.x, self.X, self.uv, self.tau, self.A = [q[k].copy() for k in (4, 5, 6, 7, 10)]
         else:
             if not parts:
                 raise ValueError("StackedViews: needs at least one view")
-            self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
-            self.focal = np.repeat([float(q[9]) for q in parts], n)
+            self.cam = np.arange(len(parts), dtype=np.int64).repeat(n)
+            self.focal = np.array([q[9] for q in parts], dtype=float).repeat(n)
             self.x, self.X, self.uv, self.tau, self.A = [
                 np.concatenate([q[k] for q in parts]) for k in (4, 5, 6, 7, 10)
             ]
