@@ -333,7 +333,6 @@ def _hypotheses(
     pool: StackedViews,
     samples: np.ndarray,
     iterations: int,
-    bounds=None,
     anchor=None,
     prior: MotionPrior | None = None,
     threshold_px: float = 2.0,
@@ -344,11 +343,9 @@ def _hypotheses(
     rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
     every sample instead, an initial model's or the best model's; ``(R, C)``), as a camera's
     samples pre-rotate its solver (:func:`~.hypotheses.prerotated_models` with
-    :func:`_rig_solver`); ``bounds`` ``(w_max rad/s, v_max m/s)`` or None: models moving
-    faster are dropped (:func:`~.plausibility.plausible_motion` with one second per unit of
-    tau); ``prior``: a gyro's motion prior, whose rows (at the pre-rotation, P3P's or the
-    anchor's translation) join every linear solve. Returns arrays of H valid models, or
-    None."""
+    :func:`_rig_solver`); ``prior``: a gyro's motion prior, whose rows (at the pre-rotation,
+    P3P's or the anchor's translation) join every linear solve. Returns arrays of the H finite
+    models (the search drops those beyond its velocity bounds), or None."""
     if anchor is not None:
         (R0, C0), S = anchor_prerotations(anchor, len(samples)), samples
     else:
@@ -359,7 +356,7 @@ def _hypotheses(
         S = samples[own]
     solve = _rig_solver(pool, iterations, prior, threshold_px)
     R, C, w, t, ok = prerotated_models(S, R0, C0, pool.x, pool.X, pool.tau, solve, pool.compiled)
-    ok &= plausible_motion(None, C, w, t, bounds, pool.compiled)
+    ok &= plausible_motion(None, C, w, t, None, pool.compiled)
     if not ok.any():
         return None
     return R[ok], C[ok], w[ok], t[ok]
@@ -1159,8 +1156,7 @@ class _RigSearch(RansacLoop):
             return _hypotheses_still(pool, samples, p3p, self.missed, rounds), K
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(
-            pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
-            p3p,
+            pool, samples, self.solver_iterations, anchor, self.prior, self.threshold_px, p3p
         )  # fmt: skip
         if hyp is None:
             return None, K

@@ -158,7 +158,7 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     subset = np.flatnonzero(np.arange(len(pool.cam)) % 3 != 1) if guided else None
     anchor = (truth.R, truth.C) if anchored else None
     samples = pool.samples(np.random.default_rng(seed), K, subset)
-    hyp = rig_mod._hypotheses(pool, samples, iterations, None, anchor)
+    hyp = rig_mod._hypotheses(pool, samples, iterations, anchor)
     ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
