@@ -72,6 +72,12 @@ def planarity(X: np.ndarray, mask: np.ndarray | None = None, compiled: bool = Tr
     return float(_planarity(X, mask))
 
 
+def coplanar(X: np.ndarray, compiled: bool = True) -> bool:
+    """Whether the points ``X`` (N, 3) (m) are coplanar: :func:`planarity` below
+    :data:`PLANAR_TOLERANCE` (a camera's frame, a rig's views, a few points' tag)."""
+    return bool(planarity(X, compiled=compiled) < PLANAR_TOLERANCE)
+
+
 def _planarity_numpy(X: np.ndarray) -> float:
     if len(X) < 3:
         return 0.0

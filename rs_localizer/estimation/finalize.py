@@ -32,7 +32,7 @@ from ..camera import CameraModel
 from ..geometry import camera_position
 from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
-from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
+from .degeneracy import PLANAR_TOLERANCE, condition_number, coplanar, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model, RefinementView
 from .implementation import NUMPY
 from .noise_model import correlated_noise_covariance, pixel_jacobians
@@ -1093,11 +1093,7 @@ def inconsistent_fit(
         support = np.zeros(len(inliers), dtype=bool)
         for m in supporting:
             support[int(rows[m][0]) : int(rows[m][1])] = True
-    if (
-        view_planar(0)
-        if views is None
-        else planarity(X[support], compiled=compiled) < PLANAR_TOLERANCE
-    ):
+    if view_planar(0) if views is None else coplanar(X[support], compiled):
         return False
     cond = condition()
     if n_inl < PARTIAL_FIT_FRACTION * n and cond > PARTIAL_FIT_CONDITION:

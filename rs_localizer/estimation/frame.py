@@ -12,7 +12,7 @@ import numpy as np
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
-from .degeneracy import PLANAR_TOLERANCE, planarity
+from .degeneracy import coplanar
 from .plausibility import (
     degenerate_points,
     degenerate_points_numpy,
@@ -457,7 +457,7 @@ def configure_frame(
     fr.threshold = threshold_px / fr.f
     fr.spr = spr = camera.seconds_per_unit_r
     fr.motion_bounds = motion_bounds(*velocity_bounds, spr)
-    fr.planar = bool(planarity(fr.X, compiled=compiled) < PLANAR_TOLERANCE)
+    fr.planar = coplanar(fr.X, compiled)
     if fr.planar and not info.coplanar:
         raise EstimationFailed(PLANAR_SCENE)
     prior_on = bool(prior is not None and prior.enabled and spr > 0 and info.rolling)

@@ -19,12 +19,15 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 
 :func:`estimate_rig_pose` runs the single camera's staged estimator
 (:func:`~rs_localizer.estimation.driver.staged_estimate`: the same stages in the same order, a
-failure turned into its reason in one place) on the rig's stages (:class:`_RigStages`), with
-RANSAC on every camera's correspondences at once:
+failure turned into its reason in one place) on the rig's stages (:class:`_RigStages`), on
+the rig frame's views stacked (:class:`~.view.StackedViews`: each camera's rows checked and
+normalized as a camera's frame's, their degeneracy, scoring and samples), with RANSAC on every
+camera's correspondences at once:
 
 - a sample is 3 points of one camera (drawn with probability proportional to its number of
   points, among cameras with at least 3) and 3 more points drawn uniformly from every camera's
-  remaining points, so samples spread over cameras as the points do;
+  remaining points, so samples spread over cameras as the points do
+  (:meth:`~.view.StackedViews.samples`);
 - the camera's 3 points give P3P poses (Lambda Twist, global shutter), mapped to the rig
   (``R_rig = R_c^T R_cam``); each pre-rotates the sample's world points and the batched
   :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` solves the 6 points;
@@ -32,7 +35,8 @@ RANSAC on every camera's correspondences at once:
   the others are scored by MSAC on the reprojection error in pixels with each camera's exact
   model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
   camera's pixel Jacobian at the point turning normalized errors into pixels of the measured,
-  distorted image: :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, first order);
+  distorted image: :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, first order;
+  :meth:`~.view.StackedViews.best_scored`);
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
@@ -48,7 +52,7 @@ RANSAC on every camera's correspondences at once:
   first), at most :data:`LO_ROUNDS` rounds (the camera's stop rules); a step is taken where it
   lowers the MSAC cost of every point;
 - the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
-  rig frame's cameras stacked as one :class:`~rs_localizer.estimation.frame.RefinementView`
+  rig frame's views stacked, one :class:`~rs_localizer.estimation.frame.RefinementView`
   (each point seen through its camera's mounting at its own time, errors in its camera's
   pixels, one second per unit of ``tau``; a camera alone is one view at the identity
   mounting): the final refinement (:func:`~.finalize.frame_refinement`: Levenberg-Marquardt
@@ -121,25 +125,19 @@ of one small tag per camera, whose P3P poses are tens of degrees off).
 
 from __future__ import annotations
 
-import copy
 import functools
-import math
-import operator
 from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
-from numba import njit
 
-from ..camera import CameraModel, distortion_jacobian
-from ..frames import Mounting
 from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
 from ..solvers.gr6p_1lin import (
     gr6p_1lin_batch,
     still_solve_rotated,
 )
-from .degeneracy import PLANAR_TOLERANCE, planarity
+from .degeneracy import coplanar
 from .driver import gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
 from .finalize import (
@@ -159,11 +157,6 @@ from .finalize import (
 )
 from .frame import (
     Model,
-    camera_values,
-    correspondences,
-    kernel_ready,
-    normalized_rows,
-    valid_correspondences,
 )
 from .gyro import (
     GyroMeasurement,
@@ -178,21 +171,14 @@ from .hypotheses import (
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .local_optimization import initial_model_seed, polish, view_seed_steps
-from .numpy_impl import errors2, p3p_roots
+from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
-    image_degenerate,
     plausible_motion,
-    views_degenerate,
 )
 from .prior import MotionPrior, sample_prior_rows
 from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
-from .refine import (
-    KernelMountings,
-    Mountings,
-    kernel_mountings_of,
-)
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
@@ -204,15 +190,12 @@ from .result import (
     built_estimate,
 )
 from .rig_batch import (
-    batch_samples,
-    best_msac,
     counted,
     lambda_twist_on_rig,
     search_batch,
 )
-from .sampling import draw_samples_numpy, valid_rows
 from .single_tag import posed_planarity
-from .view import View
+from .view import StackedViews, View
 
 __all__ = [
     "AGREE_SHARE",
@@ -323,11 +306,7 @@ VERIFY_ALL_EXPLAINED = 0.95
 PREDICTION_MARGIN = 2.0
 
 
-def _label(c: int, v: View) -> str:
-    return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
-
-
-def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
+def _rig_solver(pool: StackedViews, iterations: int, prior: MotionPrior | None = None,
                 threshold_px: float = 2.0, held: bool = False):  # fmt: skip
     """The rig's :data:`~.hypotheses.SampleSolver`: the rig solver
     (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`, each point seen through its
@@ -350,366 +329,10 @@ def _rig_solver(pool: _Pool, iterations: int, prior: MotionPrior | None = None,
     return solve
 
 
-def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
-    """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
-    prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
-    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
-    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of
-    them (:func:`~.frame.prepare_frame`: its checks, :func:`~.frame.correspondences`,
-    :func:`~.frame.valid_correspondences` with every coordinate of a point within
-    ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
-    :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
-    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
-    if not isinstance(v, View):
-        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a View")
-    m = v.mounting
-    if m is None:
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)} has no mounting (View.mounting is None: the "
-            "camera's pose on the rig is unknown)"
-        )
-    if not isinstance(m, Mounting):
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)}: mounting is a {type(m).__name__}, not a Mounting"
-        )
-    if not isinstance(v.camera, CameraModel):
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
-    if not math.isfinite(float(v.stamp_offset)):
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
-    Rm, cm, mc = m.R, m.c, m.covariance  # (checked by Mounting; the covariance symmetric)
-    mc = None if mc is None or not mc.any() else mc
-    uv = np.asarray(v.uv, dtype=float)
-    X = np.asarray(v.X, dtype=float)
-    # (a camera's checks, :func:`~.frame.correspondences`; an empty view of any shape: no rows)
-    try:
-        uv, X = correspondences(
-            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X
-        )
-    except ValueError as e:
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
-    cam = v.camera
-    k = camera_values(cam)  # (kept per camera object)
-    spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
-    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2 = np.zeros((0, 2))
-        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
-                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    stamp = float(v.stamp_offset)
-    args = args if compiled else None  # (a distorted camera's, compiled)
-    kernels = compiled and kernel_ready(uv) and kernel_ready(X)
-    if args is not None and spr == 0.0 and kernels:
-        # (a global shutter with distortion: the checks and rows below in one compiled call
-        # when every row is valid)
-        x = cam.undistort(uv)
-        if kernel_ready(x):
-            valid, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
-            if valid:
-                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, None, focal, A)
-    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`)
-    ok = valid_correspondences(uv, X, max_norm, kernels)
-    if ok.all():
-        idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
-    else:
-        idx = np.flatnonzero(ok)
-        uv_g, X_g = uv[idx], X[idx]
-    # (a camera's undistortion and RS coordinates, CameraModel.normalize)
-    x, r, _ = cam.normalize(uv_g, compiled=compiled)
-    ok = normalized_rows(x, r)
-    if ok is not None:
-        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
-    if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.empty(len(uv_g))
-        tau.fill(stamp + 0.0)
-    else:
-        tau = stamp + (r - k.r0) * spr
-    if jacobian:
-        A = cam.pixel_jacobian(x, compiled=compiled).reshape(-1, 4)
-    else:
-        A = np.zeros((len(idx), 4))
-        A[:, 0] = A[:, 3] = focal
-    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
-            focal, A)  # fmt: skip
-
-
-@njit(cache=True)
-def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
-    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
-    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
-    camera's rule, :func:`~.sampling.valid_rows`, every point within ``max_norm`` m) with a
-    finite ``x``, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
-    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
-    ``d, fisheye, fx, fy``)``."""
-    n = x.shape[0]
-    tau = np.empty(n)
-    ok = valid_rows(uv, X, max_norm)
-    for i in range(n):
-        if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
-            return False, tau, np.empty((0, 4))
-        tau[i] = stamp + 0.0
-    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
-
-
-@njit(cache=True)
-def _selected_per_camera(mask, cam, M):
-    """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
-    out = np.zeros(M, dtype=np.int64)
-    for i in range(len(mask)):
-        if mask[i]:
-            out[cam[i]] += 1
-    return out
-
-
-#: the mountings' stacks of :func:`_mounting_stacks`: ids -> (mountings, R (M, 3, 3), c (M, 3))
-_MOUNTING_STACKS: dict = {}
-
-
-def _mounting_stacks(views: Sequence[View], parts: list) -> tuple[np.ndarray, np.ndarray]:
-    """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
-    (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
-    share them; read only, as every pool's)."""
-    mountings = tuple([v.mounting for v in views])
-    key = tuple(map(id, mountings))
-    hit = _MOUNTING_STACKS.get(key)
-    if hit is not None and all(map(operator.is_, hit[0], mountings)):
-        return hit[1], hit[2]
-    R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
-    c = np.array([q[1] for q in parts]).reshape(-1, 3)
-    if len(_MOUNTING_STACKS) >= 64:
-        _MOUNTING_STACKS.clear()
-    _MOUNTING_STACKS[key] = (mountings, R, c)
-    return R, c
-
-
-def _stacked(counts: Sequence[int]) -> list[slice]:
-    """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
-    out, a = [], 0
-    for n in counts:
-        out.append(slice(a, a + int(n)))
-        a += int(n)
-    return out
-
-
-class _Pool:
-    """Every camera's valid correspondences stacked: normalized points, world points, tau,
-    camera index, the camera's focal length (px per normalized unit), measured pixels, and
-    ``A`` (N, 4): each point's row-major 2x2 pixel Jacobian of its camera
-    (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, px per normalized unit: the
-    normalized error times it is to first order the error in the measured, distorted image;
-    the focal length times the identity for a camera without distortion and with fx = fy);
-    ``compiled`` False: every step in NumPy/SciPy (the ``"numpy"`` implementation,
-    :func:`estimate_rig_pose`; :attr:`numpy`); ``max_norm`` (m): a point with a coordinate
-    farther from the origin is dropped, as a single camera drops it (the options'
-    ``plausibility.max_point_norm``).
-
-    It is the final stage's :class:`~.frame.RefinementView` of the rig frame (the refinements
-    of :mod:`~.finalize` a single camera's frame takes): time ``r = tau`` (s, ``r0 = 0``, one
-    second per unit), the errors in px through each camera's mounting."""
-
-    #: the time of :class:`~.frame.RefinementView`: tau itself, in seconds
-    r0 = 0.0
-    spr = 1.0
-    #: the rig passes no planar motion prior to the final stage (:class:`~.frame.RefinementView`)
-    planar = False
-
-    def __init__(
-        self,
-        views: Sequence[View],
-        compiled: bool = True,
-        cache: dict | None = None,
-        max_norm: float = EstimateOptions().plausibility.max_point_norm,
-    ):
-        self.compiled = bool(compiled)
-        # ``cache``: id(view) -> (view, camera index, its checked and normalized part), shared
-        # by the pools of one rig frame (the consensus solves the rig again on some of its
-        # cameras: their views are the same objects, checked and undistorted once)
-        cache = {} if cache is None else cache
-        parts = []
-        for c, v in enumerate(views):
-            hit = cache.get(id(v))
-            if hit is not None and hit[0] is v and hit[1] == c:
-                parts.append(hit[2])
-                continue
-            part = _view_part(c, v, self.compiled, max_norm)
-            cache[id(v)] = (v, c, part)
-            parts.append(part)
-        self.R_mount, self.c_mount = _mounting_stacks(views, parts)
-        self.mount_cov = [q[2] for q in parts]
-        #: some camera's mounting has a covariance
-        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
-        self.sizes = [q[3] for q in parts]
-        n = [len(q[5]) for q in parts]
-        #: each camera's points in the pool (stacked by camera)
-        self.slices = _stacked(n)
-        self._sizes_valid = tuple(n)
-        #: every input row of every camera is valid (the pool's rows are the views' in order)
-        self.all_valid = self._sizes_valid == tuple(self.sizes)
-        self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
-        if len(parts) == 1:  # (one camera: its arrays copied, as concatenated alone)
-            q = parts[0]
-            self.cam = np.zeros(n[0], dtype=np.int64)
-            self.focal = np.empty(n[0])
-            self.focal.fill(q[9])
-            self.x, self.X, self.uv = q[4].copy(), q[5].copy(), q[6].copy()
-            self.tau, self.A = q[7].copy(), q[10].copy()
-        elif parts:
-            self.cam = np.empty(sum(n), dtype=np.int64)
-            self.focal = np.empty(len(self.cam))
-            for c, (q, s) in enumerate(zip(parts, self.slices, strict=True)):
-                self.cam[s] = c
-                self.focal[s] = q[9]
-            self.x = np.concatenate([q[4] for q in parts])
-            self.X = np.concatenate([q[5] for q in parts])
-            self.uv = np.concatenate([q[6] for q in parts])
-            self.tau = np.concatenate([q[7] for q in parts])
-            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
-        else:
-            self.cam = np.zeros(0, dtype=np.int64)
-            self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
-            self.tau = np.zeros(0)
-            self.focal, self.A = np.zeros(0), np.zeros((0, 4))
-        #: s: the observation times' spread (np.ptp of tau; 0 without points)
-        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
-
-    @functools.cached_property
-    def row(self) -> np.ndarray:
-        """(N,) int64: each point's row in its view's input rows (stacked by camera)."""
-        rows = [
-            np.arange(n, dtype=np.int64) if q is None else q.copy()
-            for q, n in zip(self._rows, self._sizes_valid, strict=True)
-        ]
-        return np.concatenate(rows) if len(rows) > 1 else rows[0] if rows else np.zeros(0, np.int64)
-
-    @property
-    def r(self) -> np.ndarray:
-        return self.tau
-
-    def views(self) -> tuple:
-        """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
-        3), rows (M, 2))``, each camera's mounting and its rows in the pool."""
-        return self.R_mount, self.c_mount, _bounds(self)
-
-    def mounting_covariances(self) -> tuple | None:
-        """``(the pool's :class:`~.refine.Mountings`, each camera's mounting covariance (6, 6)
-        or None)`` when some camera's mounting has one, else None
-        (:meth:`~.frame.RefinementView.mounting_covariances`)."""
-        return (_mountings(self), self.mount_cov) if self.has_mount_cov else None
-
-    def mountings(self) -> Mountings | KernelMountings:
-        """The refinement's mountings of every point (:func:`_mountings`, checked for the
-        compiled kernel: :func:`_kernel_mountings`)."""
-        return _kernel_mountings(self) if self.compiled else _mountings(self)
-
-    def errors(self, model) -> np.ndarray:
-        """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_best_scored`)."""
-        return self.scored(model, np.inf)[0]
-
-    def scored(self, model, th2: float) -> tuple[np.ndarray, float]:
-        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:func:`_best_scored`;
-        the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
-        _, cost, e = _best_scored(self, *(np.asarray(a)[None] for a in model), th2)
-        return e, cost
-
-    def per_camera(self, mask: np.ndarray) -> tuple:
-        """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
-        out = []
-        for n, s in zip(self.sizes, self.slices, strict=True):
-            if s.stop - s.start == n:  # (every row valid: the rows are 0..n-1 in order)
-                out.append(np.array(mask[s], dtype=bool))
-                continue
-            m = np.zeros(n, dtype=bool)
-            m[self.row[s]] = mask[s]
-            out.append(m)
-        return tuple(out)
-
-    def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
-        """(M,) number of pool points (``mask``: of those selected) per camera."""
-        if mask is None:
-            return self._sizes_valid
-        if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one camera: all its points)
-            return (int(np.count_nonzero(mask)),)
-        if not self.compiled or mask.dtype != np.bool_ or not kernel_ready(mask):
-            return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
-        return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
-
-    def degenerate(self, threshold_px: float) -> bool:
-        """The world points identical or on one 3D line, or every camera's pixels (measured or
-        undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
-        rays in one plane through its centre)."""
-        if self.compiled:  # (the same tests in one compiled call, unless it needs eigenvalues)
-            code = views_degenerate(
-                self.X, self.uv, self.x, self.focal, _bounds(self), float(threshold_px)
-            )
-            if code >= 0:
-                return bool(code)
-        if collinear_3d(self.X, compiled=self.compiled):
-            return True
-        for s in self.slices:
-            # (one or two rays always lie in a plane through the camera's centre)
-            if s.stop - s.start >= 3 and not image_degenerate(
-                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, self.compiled
-            ):
-                return False
-        return True
-
-
-def _best_scored(pool: _Pool, R, C, w, t, th2: float) -> tuple[int, float, np.ndarray]:
-    """The model of the lowest MSAC cost among H models R (H, 3, 3), C, w, t (H, 3) on the
-    pool's points (each squared reprojection error (px^2) capped at ``th2``, the exact
-    rotation ``expm(tau [w]x)`` at each observation's measured capture time, inf for a point
-    behind its camera): ``(h, its cost, its (N,) errors px)``, ``h`` the first minimum as
-    ``np.argmin`` picks it. Compiled: :func:`~.rig_batch.best_msac` (the fused batches'
-    scoring); NumPy: the NumPy implementation's :func:`~.numpy_impl.errors2` of the stacked
-    views, a camera's errors with its mounting."""
-    if not pool.compiled:
-        e2 = errors2(pool, *(np.asarray(a, dtype=float) for a in (R, C, w, t)))
-        cost = np.minimum(e2, th2).sum(axis=1)
-        h = int(np.argmin(cost))
-        return h, float(cost[h]), np.sqrt(e2[h])
-    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
-    h, cost, e = best_msac(*f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x,
-                           pool.A, th2)  # fmt: skip
-    return int(h), float(cost), e
-
-
-def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
-    """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
-    proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
-    pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
-    (S, 6). Compiled: :func:`~.rig_batch.batch_samples` (the fused batches' sampling, on the
-    same 7 draws per sample); NumPy: a camera's draws
-    (:func:`~.sampling.draw_samples_numpy`) with the first three in the chosen camera's range
-    of the pool, on :func:`_sampling_of`'s distribution."""
-    u = rng.random(7 * n_samples).reshape(7, n_samples)
-    if pool.compiled:
-        counts = np.array(pool.counts(), dtype=np.int64)
-        return batch_samples(u, pool.cam, counts, _NO_SUBSET if subset is None else subset)
-    counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
-    cams = eligible[cdf.searchsorted(u[0], side="right")]
-    size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
-    size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
-    out = draw_samples_numpy(u[1:].T, size, offset)
-    return out if subset is None else subset[out]
-
-
-def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
-    """:func:`_sample`'s distribution over the pool's points (``subset``: among those):
-    ``(counts (M,), starts (M,), eligible cameras (at least 3 points), cdf over them, n)``
-    (int64 arrays; the cdf the quotients' running sums divided by the last): the NumPy twin
-    of :func:`~.rig_batch.batch_sampling`, the same numbers."""
-    cam = pool.cam if subset is None else pool.cam[subset]
-    counts = np.bincount(cam, minlength=len(pool.sizes)).astype(np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)  # (stacked by camera)
-    eligible = np.flatnonzero(counts >= 3).astype(np.int64)
-    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
-    cdf /= cdf[-1]
-    return counts, starts, eligible, cdf, len(cam)
-
-
 def _hypotheses(
-    pool: _Pool,
+    pool: StackedViews,
     samples: np.ndarray,
     iterations: int,
-    bounds=None,
     anchor=None,
     prior: MotionPrior | None = None,
     threshold_px: float = 2.0,
@@ -720,11 +343,9 @@ def _hypotheses(
     rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
     every sample instead, an initial model's or the best model's; ``(R, C)``), as a camera's
     samples pre-rotate its solver (:func:`~.hypotheses.prerotated_models` with
-    :func:`_rig_solver`); ``bounds`` ``(w_max rad/s, v_max m/s)`` or None: models moving
-    faster are dropped (:func:`~.plausibility.plausible_motion` with one second per unit of
-    tau); ``prior``: a gyro's motion prior, whose rows (at the pre-rotation, P3P's or the
-    anchor's translation) join every linear solve. Returns arrays of H valid models, or
-    None."""
+    :func:`_rig_solver`); ``prior``: a gyro's motion prior, whose rows (at the pre-rotation,
+    P3P's or the anchor's translation) join every linear solve. Returns arrays of the H finite
+    models (the search drops those beyond its velocity bounds), or None."""
     if anchor is not None:
         (R0, C0), S = anchor_prerotations(anchor, len(samples)), samples
     else:
@@ -735,13 +356,13 @@ def _hypotheses(
         S = samples[own]
     solve = _rig_solver(pool, iterations, prior, threshold_px)
     R, C, w, t, ok = prerotated_models(S, R0, C0, pool.x, pool.X, pool.tau, solve, pool.compiled)
-    ok &= plausible_motion(None, C, w, t, bounds, pool.compiled)
+    ok &= plausible_motion(None, C, w, t, None, pool.compiled)
     if not ok.any():
         return None
     return R[ok], C[ok], w[ok], t[ok]
 
 
-def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, rounds=1):
+def _hypotheses_still(pool: StackedViews, samples: np.ndarray, p3p=None, missed=None, rounds=1):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
     (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``
     (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). ``missed``: (M,)
@@ -772,7 +393,7 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, r
     return still_models(np.concatenate([R, Rg]), np.concatenate([C, Cg]))
 
 
-def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
+def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero on the samples ``S`` (H, 6) at one
     time, pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`; prior rows
     ``(w, t) = 0``): ``(R (H, 3, 3), C (H, 3), valid (H,))``, each rotation ``expm([v]x)
@@ -784,25 +405,15 @@ def _held_solve(pool: _Pool, S: np.ndarray, Rg: np.ndarray) -> tuple:
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                            solve, False)  # fmt: skip
         return R, C, ok
-    X, x = _kernel_arrays(pool)[:2]
-    cam, Rm, cm, _ = _kernel_mountings(pool).views
+    X, x = pool.kernel_arrays[:2]
+    cam, Rm, cm, _ = pool.compiled_mountings.views
     S = np.ascontiguousarray(S, dtype=np.int64)
     Rg = np.ascontiguousarray(Rg, dtype=np.float64)
     out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
     return composed(out[:, 0:3], Rg), out[:, 3:6], ok
 
 
-def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
-    """n_samples samples of 6 distinct pool indices drawn uniformly as a camera's
-    (:func:`~.sampling.draw_samples_numpy`; ``subset``: among those sorted pool indices, at
-    least 6): the samples of the generalized P3P pre-rotation, whose first 3 points may lie in
-    any cameras. Returns (S, 6)."""
-    n = len(pool.cam) if subset is None else len(subset)
-    u = draw_samples_numpy(rng.random((n_samples, 6)), n)
-    return u if subset is None else subset[u]
-
-
-def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
+def _gp3p_on_rig(pool: StackedViews, samples: np.ndarray):
     """Generalized P3P (PoseLib's ``gp3p``) on each sample's first 3 points, in whatever
     cameras they lie: the rays ``R_c^T x`` from the camera centres ``-R_c^T c_c`` in the rig
     frame give the rig's ``R`` (H, 3, 3) and ``C`` (H, 3) directly (``x_rig = R X + C``); and
@@ -830,13 +441,13 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
     return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
-def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
+def _p3p_on_rig(pool: StackedViews, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. The NumPy implementation's
     pool: OpenCV's P3P (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     if pool.compiled:  # (solved and mapped to the rig in one compiled call)
-        X, x, _, (cam, Rm, cm, _) = _kernel_arrays(pool)
+        X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
         R, C, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
@@ -850,7 +461,7 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
 
 
 def _refit(
-    pool: _Pool,
+    pool: StackedViews,
     inl: np.ndarray,
     model,
     threshold_px: float,
@@ -872,61 +483,6 @@ def _refit(
             return model
         R, C, w, t = m
     return R, C, w, t
-
-
-def _mountings(pool: _Pool) -> Mountings:
-    """The pool's observations as the refinement's :class:`~.refine.Mountings`: each camera's
-    mounting, errors in px (its pixel Jacobian at each point, ``A``, as the scale). Built once
-    per pool."""
-    m = pool.__dict__.get("_mountings")
-    if m is None:
-        m = Mountings(
-            np.ascontiguousarray(pool.cam, dtype=np.int64),
-            np.ascontiguousarray(pool.R_mount),
-            np.ascontiguousarray(pool.c_mount),
-            pool.A.reshape(-1, 2, 2),
-        )
-        pool._mountings = m
-    return m
-
-
-def _kernel_mountings(pool: _Pool) -> KernelMountings:
-    """:func:`_mountings` in the refinement kernel's form
-    (:func:`~.refine.kernel_mountings_of`: the pool's own arrays, consistent by construction),
-    once per pool: every refinement and the covariance of a rig frame take it."""
-    m = pool.__dict__.get("_kernel_mountings")
-    if m is None:
-        m = kernel_mountings_of(pool.cam, pool.R_mount, pool.c_mount, pool.A)
-        pool._kernel_mountings = m
-    return m
-
-
-def _kernel_arrays(pool: _Pool) -> tuple:
-    """The pool's ``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous
-    float64 arrays, :func:`_kernel_mountings`' views), built once per pool: a rig frame
-    refines and scores several times."""
-    a = pool.__dict__.get("_kernel_arrays")
-    if a is None:
-        f = np.float64
-        a = pool._kernel_arrays = (
-            np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
-            np.ascontiguousarray(pool.tau, dtype=f), _kernel_mountings(pool).views,
-        )  # fmt: skip
-    return a
-
-
-def _view_planar(pool: _Pool, c: int) -> bool:
-    """Camera c's points in the pool are coplanar."""
-    return planarity(pool.X[pool.slices[c]], compiled=pool.compiled) < PLANAR_TOLERANCE
-
-
-def _bounds(pool: _Pool) -> np.ndarray:
-    """(M, 2) int64: each camera's first and end row in the pool, built once per pool."""
-    b = pool.__dict__.get("_bounds")
-    if b is None:
-        b = pool._bounds = np.array([(s.start, s.stop) for s in pool.slices], np.int64)
-        b = pool._bounds = b.reshape(-1, 2)
-    return b
 
 
 def _copies(model) -> tuple:
@@ -1094,9 +650,11 @@ def estimate_rig_pose(
             f"{implementation!r}"
         )
     compiled = implementation == COMPILED
+    if initial_model is not None and not isinstance(initial_model, InitialModel):
+        initial_model = InitialModel(initial_model)  # (a bare model: the default gate)
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
-    pool = _Pool(views, compiled, cache, max_norm)
+    pool = StackedViews(views, compiled, cache, max_norm)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
@@ -1106,18 +664,17 @@ def estimate_rig_pose(
     if not consensus or not est.success:
         return est
     if prediction is None and initial_model is not None:
-        given = initial_model
-        prediction = given.model if isinstance(given, InitialModel) else given
+        prediction = initial_model.model
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs, compiled, cache, max_norm), settings, gyro, gyro_time),
-        prediction,
-        verify_cameras,
+        lambda vs: _estimate_pool(StackedViews(vs, compiled, cache, max_norm), settings, gyro,
+                                  gyro_time),
+        prediction, verify_cameras,
     )  # fmt: skip
 
 
 def _one_camera_alone(
-    views: Sequence[View], pool: _Pool, options: EstimateOptions, initial_model, gyro
+    views: Sequence[View], pool: StackedViews, options: EstimateOptions, initial_model, gyro
 ) -> RSPoseEstimate | None:
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
     than ``ransac.min_inliers`` or 7, e.g. one tag's four corners) posed by that camera's
@@ -1136,18 +693,15 @@ def _one_camera_alone(
     c = with_points[0]
     if posed_planarity(pool.X[pool.slices[c]]) is None:  # (single_tag.few_points's rule)
         return None
-    im = initial_model
-    if im is not None and not isinstance(im, InitialModel):
-        im = InitialModel(im)
     v = views[c]
     est = estimate_rs_pose(
-        v.uv, v.X, v.camera, options=options, initial_model=im, gyro=gyro,
+        v.uv, v.X, v.camera, options=options, initial_model=initial_model, gyro=gyro,
         implementation=COMPILED, view=v,
     )  # fmt: skip
     return _restored(est, pool, c)
 
 
-def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
+def _estimate_pool(pool: StackedViews, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
     (``settings``: its arguments in :class:`_RigStages`' order), the gyro checked
     (:func:`~.driver.gyro_checked_estimate`)."""
@@ -1166,8 +720,13 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstim
 def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
     """The voting cameras that agree with a solved estimate: inlier ratio at least
     :data:`AGREE_SHARE` times the best voting camera's."""
-    n, k = est.num_valid_per_view, est.num_inliers_per_view
-    ratio = {c: int(k[c]) / int(n[c]) for c in voters}  # (float64 quotients, to the bit)
+    return _sharing(est.num_inliers_per_view, est.num_valid_per_view, voters)
+
+
+def _sharing(hits, valid, voters: list[int]) -> set[int]:
+    """The voting cameras c whose share ``hits[c] / valid[c]`` of their valid points is at
+    least :data:`AGREE_SHARE` times the best voting camera's, and not 0."""
+    ratio = {c: int(hits[c]) / int(valid[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
@@ -1184,7 +743,7 @@ def _only(views: Sequence[View], drop: set[int]) -> list[View]:
 
 def _consensus(
     views: Sequence[View],
-    pool: _Pool,
+    pool: StackedViews,
     est: RSPoseEstimate,
     threshold_px: float,
     solve,
@@ -1260,19 +819,16 @@ def _consensus(
     return _disagree(est, pool, a | b)
 
 
-def _gated(pool: _Pool, est, voters, gate_px: float, model=None) -> set[int]:
+def _gated(pool: StackedViews, est, voters, gate_px: float, model=None) -> set[int]:
     """The voting cameras whose share of points within ``gate_px`` of ``est``'s pose (or of
     ``model`` ``(R, C, w, t)``) is at least :data:`AGREE_SHARE` times the best voting
     camera's."""
     ok = pool.errors(est.model if model is None else model) < gate_px
-    n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
-    valid = np.asarray(est.num_valid_per_view, dtype=float)
-    ratio = {c: n_ok[c] / valid[c] for c in voters}
-    best = max(ratio.values())
-    return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+    return _sharing(np.bincount(pool.cam[ok], minlength=len(pool.sizes)),
+                    est.num_valid_per_view, voters)  # fmt: skip
 
 
-def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=None) -> bool:
+def _one_pose(pool: StackedViews, est, voters, cams: set, threshold_px: float, start=None) -> bool:
     """Whether one pose fitted from ``start``'s (default ``est``'s) with
     :data:`CONTRADICTION_GATE` inlier thresholds as its threshold, every voting camera weighed
     alike (:func:`_evened`), explains the cameras ``cams`` within that gate (:func:`_gated`,
@@ -1285,7 +841,7 @@ def _one_pose(pool: _Pool, est, voters, cams: set, threshold_px: float, start=No
 
 
 def _near(
-    pool: _Pool, first, second, a: set, b: set, voters, threshold_px: float, tried=False
+    pool: StackedViews, first, second, a: set, b: set, voters, threshold_px: float, tried=False
 ) -> bool:
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each
     explain the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or
@@ -1311,7 +867,7 @@ def _near(
     )
 
 
-def _evened(pool: _Pool, voters) -> _Pool:
+def _evened(pool: StackedViews, voters) -> StackedViews:
     """``pool`` with each voting camera's points repeated so that every voting camera counts
     about as many points as the one with most (``round(most / own)`` copies; the other
     cameras' points once): a least-squares fit on it weighs the voting cameras alike, as
@@ -1322,19 +878,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
     copies = [max(1, round(most / n[c])) if c in voters and n[c] else 1 for c in range(len(n))]
     if all(k == 1 for k in copies):
         return pool
-    idx = np.concatenate(
-        [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
-    )
-    out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_kernel_arrays", "_sampling", "_bounds"):
-        out.__dict__.pop(cached, None)
-    for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
-        setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
-    sizes = [k * (s.stop - s.start) for s, k in zip(pool.slices, copies, strict=True)]
-    out.slices = _stacked(sizes)
-    out._sizes_valid = tuple(sizes)
-    out.all_valid = False
-    return out
+    return pool.repeated(copies)
 
 
 def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
@@ -1346,13 +890,8 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     explain agree with the others or are only a little apart from them: the prediction was
     off for them, and a small inconsistency between cameras is the consensus's to settle,
     not the prediction's)."""
-    valid = np.asarray(est.num_valid_per_view)
     model = tuple(np.asarray(a, dtype=float) for a in prediction)
-    ok = pool.errors(model) < PREDICTION_GATE * threshold_px
-    n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
-    ratio = {c: n_ok[c] / valid[c] for c in voters}
-    best = max(ratio.values())
-    explained = {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+    explained = _gated(pool, est, voters, PREDICTION_GATE * threshold_px, model)
     suspect = set(voters) - explained
     if not explained or not suspect or len(explained) < len(suspect):
         return None  # (a track never outvotes more cameras than it keeps)
@@ -1435,7 +974,7 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     return _outvoted(fits[choice], pool, set(voters) - groups[choice])
 
 
-def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimate:
+def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with the joint estimate's per
     camera counts."""
     none, identity = np.zeros(len(pool.cam), dtype=bool), RSModel.identity()
@@ -1449,7 +988,7 @@ def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimat
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: _Pool, view: int | None = None) -> RSPoseEstimate:
+def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None) -> RSPoseEstimate:
     """An estimate on views some of whose points were removed (:func:`_only`), or of the one
     view ``view`` of them (a camera's own estimate, its one view's per-view fields), as one of
     the full views ``pool``: their valid point counts, and no inlier among the removed points
@@ -1472,7 +1011,7 @@ def _restored(est: RSPoseEstimate, pool: _Pool, view: int | None = None) -> RSPo
     )  # fmt: skip
 
 
-def _outvoted(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimate:
+def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
     """``est`` with the voting cameras ``cams`` left out: none of their points an inlier."""
     inliers = tuple(
         np.zeros(pool.sizes[c], dtype=bool) if c in cams else np.asarray(m, dtype=bool)
@@ -1490,7 +1029,7 @@ def _joined(per_view: tuple) -> np.ndarray:
     return np.concatenate(per_view) if per_view else np.zeros(0, dtype=bool)
 
 
-def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
+def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
     """0 or 1: the estimate whose pose is nearer the predicted model ``(R, C, ...)`` by
     :data:`PREDICTION_MARGIN` (rotation angle in rad plus the positions' distance over the
     points' median depth), None without a prediction or when neither is."""
@@ -1524,12 +1063,13 @@ _ERRORS_KEPT = 6
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
-    ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
-    generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
-    dropping models beyond the velocity bounds (``implausible``; a compiled search draws,
-    solves and scores each batch in one call, :meth:`_batch`); ``score_models`` is MSAC on
-    every point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the
-    rig's local optimization runs once, after the search) and gives termination its inlier
+    ``generate_models`` draws 6 points (:meth:`~.view.StackedViews.samples`, or
+    :meth:`~.view.StackedViews.uniform_samples` for the generalized P3P) and solves them
+    (:func:`_hypotheses`, :func:`_hypotheses_still`), dropping models beyond the velocity
+    bounds (``implausible``; a compiled search draws, solves and scores each batch in one
+    call, :meth:`_batch`); ``score_models`` is MSAC on every point's reprojection error in
+    pixels; ``refine_model`` keeps the model as it is (the rig's local optimization runs
+    once, after the search) and gives termination its inlier
     ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
     #: a compiled batch checks termination after every sample (:mod:`.rig_batch`); the
@@ -1608,15 +1148,15 @@ class _RigSearch(RansacLoop):
         if self.fused:
             return self._batch(K)
         pool = self.pool
-        samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
+        draw = pool.uniform_samples if self.generalized else pool.samples
+        samples = draw(self.rng, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
             return _hypotheses_still(pool, samples, p3p, self.missed, rounds), K
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(
-            pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
-            p3p,
+            pool, samples, self.solver_iterations, anchor, self.prior, self.threshold_px, p3p
         )  # fmt: skip
         if hyp is None:
             return None, K
@@ -1627,14 +1167,14 @@ class _RigSearch(RansacLoop):
     def _batch(self, K: int) -> tuple:
         """``generate_models`` in one compiled call (:func:`~.rig_batch.search_batch`): K
         samples on the seed's next ``7 K`` random draws (:func:`~.ransac.seeded_stream`: those
-        :func:`_sample` takes), solved and scored in turn, the batch stopping after the first
-        sample at which termination is reached (a new best's inlier ratio counted at once, as
-        PoseLib's loop does after every sample). Returns ``((cost, model, errors, inliers,
-        missed cameras) of the batch's best model, or None when none beat the best, samples
-        drawn)``."""
+        :meth:`~.view.StackedViews.samples` takes), solved and scored in turn, the batch
+        stopping after the first sample at which termination is reached (a new best's inlier
+        ratio counted at once, as PoseLib's loop does after every sample). Returns ``((cost,
+        model, errors, inliers, missed cameras) of the batch's best model, or None when none
+        beat the best, samples drawn)``."""
         if self._args is None:
             pool, subset = self.pool, self.subset
-            X, x, tau, (cam, Rm, cm, A) = _kernel_arrays(pool)
+            X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
             self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
         # (the kernel reads the batch's draws at their offset in the stream and the search's
@@ -1668,7 +1208,7 @@ class _RigSearch(RansacLoop):
         if self.fused:  # (:meth:`_batch`'s best, scored)
             self._cost, model, self._e, self._n, self._missed = hyp
             return self._cost, model
-        h, self._cost, self._e = _best_scored(self.pool, *hyp, self.th2)
+        h, self._cost, self._e = self.pool.best_scored(*hyp, self.th2)
         return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
@@ -1696,7 +1236,7 @@ class _RigSearch(RansacLoop):
 
 
 def _rig_estimate(
-    pool: _Pool,
+    pool: StackedViews,
     model=None,
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
@@ -1730,7 +1270,7 @@ def _rig_estimate(
     )
 
 
-def _estimate(pool: _Pool, *settings, **kwargs) -> RSPoseEstimate:
+def _estimate(pool: StackedViews, *settings, **kwargs) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``: the staged estimator
     (:func:`~.driver.staged_estimate`) on the rig's :class:`_RigStages` (arguments as
     there)."""
@@ -1769,7 +1309,7 @@ class _RigStages:
 
     def __init__(
         self,
-        pool: _Pool,
+        pool: StackedViews,
         options: EstimateOptions,
         initial_model,
         generalized: bool,
@@ -1805,8 +1345,6 @@ class _RigStages:
         if self.initial_model is not None:
             # (tested on every point, pulled onto the explained ones, as a single camera's)
             im = self.initial_model
-            if not isinstance(im, InitialModel):
-                im = InitialModel(im)
             # (copies in the prediction's own memory order, which the kernels and BLAS see)
             gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
             explained, seeded, anchored = initial_model_seed(
@@ -1906,7 +1444,7 @@ class _RigStages:
             pool, final, rolling, pool.spr if rolling else 0.0,
             self.options.plausibility.consistent_fit, threshold_px, lambda: e,
             lambda: information_condition(final.information, rolling, compiled),
-            lambda m: _view_planar(pool, m), compiled,
+            pool.view_planar, compiled,
             bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
         )  # fmt: skip
         return _rig_estimate(
@@ -1960,7 +1498,6 @@ class _RigStages:
         image = image_alone(pool, est.model, threshold_px, None) if est.success else None
 
         def planar() -> bool:
-            inl = pool.errors(est.model) < threshold_px
-            return bool(planarity(pool.X[inl], compiled=compiled) < PLANAR_TOLERANCE)
+            return coplanar(pool.X[pool.errors(est.model) < threshold_px], compiled)
 
         return image, planar, len(pool.cam)

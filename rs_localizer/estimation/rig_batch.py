@@ -11,10 +11,10 @@ Twist P3P of one camera's 3 points mapped to the rig, corrected on the sample's 
 the rig solver with the velocities held at zero where the best model misses a camera) and
 :func:`moving_models` (a rolling-shutter one without a gyro: the P3P or a prediction's
 rotation pre-rotating the rig solver, :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`).
-Every model is scored by :func:`model_cost`: the MSAC cost on every point's reprojection
-error in pixels (a camera's exact-model error, :func:`~.scoring.pose_error2`, of the model
-seen from the point's camera through its mounting, :func:`~.scoring.mounted_pose`), summed as
-``np.sum`` sums, the lowest kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
+Its samples are :func:`~.sampling.batch_samples`' (3 points of one camera, 3 of every
+camera's), every model scored by :func:`~.scoring.model_cost`: the MSAC cost on every point's
+reprojection error in pixels of the views stacked (:class:`~.view.StackedViews`), the lowest
+kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
 generalized P3P) calls the same kernels one by one; its NumPy implementation the same steps
 in NumPy.
 """
@@ -24,182 +24,22 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, compose_rotvec
+from .._so3 import compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 from .plausibility import motion_norms2
 from .ransac import required_samples_kernel
-from .sampling import draw_sample
-from .scoring import mounted_pose, pose_error2
+from .sampling import batch_samples
+from .scoring import STOP, model_cost
 
 __all__ = [
-    "batch_samples",
-    "batch_sampling",
-    "best_msac",
-    "block_sum",
     "counted",
     "lambda_twist_on_rig",
-    "model_cost",
     "moving_models",
     "p3p_on_rig_into",
-    "pairwise_sum",
-    "sample_kernel",
     "search_batch",
     "still_models",
 ]
-
-
-@njit(cache=True)
-def block_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
-    block: sequentially below 8, else in 8 interleaved partial sums."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    m = n - n % 8
-    while i < m:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True)
-def pairwise_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
-    float64 row, to the bit): blocks of at most 128 (:func:`block_sum`), larger ranges
-    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
-    stack)."""
-    if n <= 128:
-        return block_sum(a, lo, n)
-    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
-    vals = np.empty(128)
-    sp, vp = 1, 0
-    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
-    while sp > 0:
-        sp -= 1
-        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
-        if m <= 128:
-            vals[vp] = block_sum(a, a0, m)
-            vp += 1
-        elif done:
-            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
-            vp -= 1
-        else:
-            n2 = m // 2
-            n2 -= n2 % 8
-            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
-            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
-            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
-            sp += 3
-    return vals[0]
-
-
-@njit(cache=True, fastmath=FMA)
-def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
-    """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
-    ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
-    squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
-    model then left before its last points: see :func:`best_msac`). Each point's error is
-    its camera's (:func:`~.scoring.pose_error2` of :func:`~.scoring.mounted_pose`, the latter
-    computed again where the camera changes: once per camera in a pool stacked by camera).
-    ``still``: every ``w`` and ``t`` zero."""
-    N = X.shape[0]
-    run = 0.0
-    c_ = -1
-    z = 0.0
-    pose = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
-    for i in range(N):
-        if cam[i] != c_:
-            c_ = cam[i]
-            pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
-        q = pose_error2(pose, X, x, tau, A, i, still)
-        e[i] = np.sqrt(q)
-        v[i] = th2 if q > th2 else q
-        run += v[i]
-        if run > bound:
-            return -1.0
-    return pairwise_sum(v, 0, N)
-
-
-#: a model is left once the plain running sum of its first capped squares exceeds the best
-#: cost by this factor (:func:`model_cost`): its pairwise sum over every point is then larger
-#: (each sum of N non-negative terms is within N * 2^-52 of the exact one), so it is not the
-#: lowest
-STOP = 1.0 + 1e-9
-
-
-@njit(cache=True)
-def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
-    """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
-    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
-    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
-    or the first NaN). A model whose running cost already exceeds the best one's is left
-    before its last points (:data:`STOP`): the hypotheses' models and the points are finite,
-    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero."""
-    H, N = R.shape[0], X.shape[0]
-    e = np.empty(N)
-    v = np.empty(N)
-    best_e = np.zeros(N)
-    best, best_cost = -1, 0.0
-    for h in range(H):
-        bound = best_cost * STOP if best >= 0 and np.isfinite(best_cost) else np.inf
-        c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v)
-        if c < 0:
-            continue
-        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
-            best, best_cost = h, c
-            best_e[:] = e
-    return best, best_cost, best_e
-
-
-@njit(cache=True)
-def sample_kernel(u, cdf, eligible, counts, starts, n):
-    """:func:`~.rig._sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
-    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it, three
-    distinct points of the ``n - 3`` others (:func:`~.sampling.draw_sample`'s draws)."""
-    S = u.shape[1]
-    out = np.empty((S, 6), dtype=np.int64)
-    chosen = np.empty(3, dtype=np.int64)
-    v = u.T  # (the draws of sample k in row k)
-    for k in range(S):
-        j = 0
-        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
-            j += 1
-        cam = eligible[min(j, len(cdf) - 1)]
-        draw_sample(v, k, 1, 3, counts[cam], chosen, out, 0)
-        s0 = starts[cam]
-        for i in range(3):
-            out[k, i] += s0
-        # (the three sorted: the others mapped onto the pool without them)
-        t0, t1, t2 = chosen[0] + s0, chosen[1] + s0, chosen[2] + s0
-        draw_sample(v, k, 4, 3, n - 3, chosen, out, 3)
-        for i in range(3, 6):
-            r = out[k, i]
-            if r >= t0:
-                r += 1
-            if r >= t1:
-                r += 1
-            if r >= t2:
-                r += 1
-            out[k, i] = r
-    return out
 
 
 @njit(cache=True)
@@ -280,74 +120,22 @@ def counted(e, k, cam, pool_counts, subset):
 
 
 @njit(cache=True)
-def batch_sampling(cam, pool_counts, subset):
-    """:func:`~.rig._sampling_of` compiled: :func:`~.rig._sample`'s distribution over a pool
-    stacked by camera (``cam`` (N,) each point's camera, ``pool_counts`` (M,) each camera's
-    points), among the pool indices ``subset`` when it is not empty: ``(counts (M,), starts
-    (M,), eligible cameras (at least 3 points), cdf over them, n)``, the same numbers (the
-    cdf's quotients summed in order, then divided by the last)."""
-    M = len(pool_counts)
-    counts = np.zeros(M, dtype=np.int64)
-    if len(subset):
-        for i in subset:
-            counts[cam[i]] += 1
-        n = len(subset)
-    else:
-        counts[:] = pool_counts
-        n = len(cam)
-    starts = np.empty(M, dtype=np.int64)
-    a, m, total = 0, 0, 0
-    for c in range(M):
-        starts[c] = a
-        a += counts[c]
-        if counts[c] >= 3:
-            m += 1
-            total += counts[c]
-    eligible = np.empty(m, dtype=np.int64)
-    cdf = np.empty(m)
-    acc, j = 0.0, 0
-    for c in range(M):
-        if counts[c] >= 3:
-            eligible[j] = c
-            acc += counts[c] / total
-            cdf[j] = acc
-            j += 1
-    if m:
-        last = cdf[m - 1]
-        for j in range(m):
-            cdf[j] = cdf[j] / last
-    return counts, starts, eligible, cdf, n
-
-
-@njit(cache=True)
-def batch_samples(u, cam, pool_counts, subset):
-    """:func:`sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) on
-    :func:`batch_sampling`'s distribution, mapped through ``subset`` when it is not empty."""
-    counts, starts, eligible, cdf, n = batch_sampling(cam, pool_counts, subset)
-    samples = sample_kernel(u, cdf, eligible, counts, starts, n)
-    if len(subset):
-        for a in range(samples.shape[0]):
-            for b in range(6):
-                samples[a, b] = subset[samples[a, b]]
-    return samples
-
-
-@njit(cache=True)
 def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
                  iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
                  log_miss, out):  # fmt: skip
-    """One batch of the compiled search in one call: K samples of :func:`~.rig._sample` on
-    the uniform draws ``draws[o:o + 7 K]`` (the stream's, as (7, K); :func:`batch_samples`,
-    among the sorted pool indices ``subset`` (S,) unless empty), each sample's models
-    (``still``: :func:`still_models` with ``missed``, ``rounds``; else :func:`moving_models`
-    with ``anchor``, ``iterations``, those beyond the bounds ``w2max`` (rad/s)^2, ``v2max``
-    (m/s)^2 counted, not scored) scored in turn by :func:`model_cost` (``th2`` px^2) against
-    the search's best, a new best's inliers below ``k`` px counted (:func:`counted`).
-    ``best_cost`` (inf: none), ``it0`` (samples drawn), ``min_it``, ``needed`` (samples
-    termination asks for), ``log_miss`` (log(1 - confidence)): the search's state; the batch
-    stops after the first sample at which the samples drawn reach ``min_it`` and what
-    termination asks for at the best model's inlier ratio (:func:`~.ransac.required_samples`),
-    as PoseLib's loop checks after every sample.
+    """One batch of the compiled search in one call: K samples of
+    :meth:`~.view.StackedViews.samples` on the uniform draws ``draws[o:o + 7 K]`` (the
+    stream's, as (7, K); :func:`~.sampling.batch_samples`, among the sorted pool indices
+    ``subset`` (S,) unless empty), each sample's models (``still``: :func:`still_models` with
+    ``missed``, ``rounds``; else :func:`moving_models` with ``anchor``, ``iterations``, those
+    beyond the bounds ``w2max`` (rad/s)^2, ``v2max`` (m/s)^2 counted, not scored) scored in
+    turn by :func:`~.scoring.model_cost` (``th2`` px^2) against the search's best, a new
+    best's inliers below ``k`` px counted (:func:`counted`). ``best_cost`` (inf: none),
+    ``it0`` (samples drawn), ``min_it``, ``needed`` (samples termination asks for),
+    ``log_miss`` (log(1 - confidence)): the search's state; the batch stops after the first
+    sample at which the samples drawn reach ``min_it`` and what termination asks for at the
+    best model's inlier ratio (:func:`~.ransac.required_samples`), as PoseLib's loop checks
+    after every sample.
 
     Returns ``(samples drawn, h, cost, inliers, models beyond the bounds)``: ``h`` -1 when no
     model beat the search's best, else the batch's best (the first of the lowest cost) is

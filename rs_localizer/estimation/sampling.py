@@ -1,8 +1,9 @@
 """Numba kernels that prepare RANSAC's data and turn its minimal samples into RS solver input
 (paper sec. 4).
 
-Row validation, sampling without replacement, the choice of each sample's P3P pre-rotation,
-and the gather of the pre-rotated sample points, each one call per frame or per batch of
+Row validation, sampling without replacement (a camera's, and over views stacked by view: a
+rig frame's, :func:`batch_samples`), the choice of each sample's P3P pre-rotation, and the
+gather of the pre-rotated sample points, each one call per frame or per batch of
 samples, so that the estimator's cost is the solvers themselves and not array glue (a NumPy
 call costs 5-10 us here).
 """
@@ -209,3 +210,103 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
             for a in range(3):
                 Rout[k, a, a] = 1.0
     return Rout, Cout, kept
+
+
+@njit(cache=True)
+def sample_kernel(u, cdf, eligible, counts, starts, n):
+    """:meth:`~.view.StackedViews.samples`' (S, 6) samples from its uniform draws ``u`` (7, S)
+    in the order the NumPy form takes them: the view (inverse of ``cdf``), three distinct
+    points of it, three distinct points of the ``n - 3`` others (:func:`draw_sample`'s
+    draws)."""
+    S = u.shape[1]
+    out = np.empty((S, 6), dtype=np.int64)
+    chosen = np.empty(3, dtype=np.int64)
+    v = u.T  # (the draws of sample k in row k)
+    for k in range(S):
+        j = 0
+        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
+            j += 1
+        cam = eligible[min(j, len(cdf) - 1)]
+        draw_sample(v, k, 1, 3, counts[cam], chosen, out, 0)
+        s0 = starts[cam]
+        for i in range(3):
+            out[k, i] += s0
+        # (the three sorted: the others mapped onto the pool without them)
+        t0, t1, t2 = chosen[0] + s0, chosen[1] + s0, chosen[2] + s0
+        draw_sample(v, k, 4, 3, n - 3, chosen, out, 3)
+        for i in range(3, 6):
+            r = out[k, i]
+            if r >= t0:
+                r += 1
+            if r >= t1:
+                r += 1
+            if r >= t2:
+                r += 1
+            out[k, i] = r
+    return out
+
+
+@njit(cache=True)
+def batch_sampling(cam, pool_counts, subset):
+    """:func:`view_sampling` compiled: :meth:`~.view.StackedViews.samples`' distribution over a pool
+    stacked by camera (``cam`` (N,) each point's camera, ``pool_counts`` (M,) each camera's
+    points), among the pool indices ``subset`` when it is not empty: ``(counts (M,), starts
+    (M,), eligible cameras (at least 3 points), cdf over them, n)``, the same numbers (the
+    cdf's quotients summed in order, then divided by the last)."""
+    M = len(pool_counts)
+    counts = np.zeros(M, dtype=np.int64)
+    if len(subset):
+        for i in subset:
+            counts[cam[i]] += 1
+        n = len(subset)
+    else:
+        counts[:] = pool_counts
+        n = len(cam)
+    starts = np.empty(M, dtype=np.int64)
+    a, m, total = 0, 0, 0
+    for c in range(M):
+        starts[c] = a
+        a += counts[c]
+        if counts[c] >= 3:
+            m += 1
+            total += counts[c]
+    eligible = np.empty(m, dtype=np.int64)
+    cdf = np.empty(m)
+    acc, j = 0.0, 0
+    for c in range(M):
+        if counts[c] >= 3:
+            eligible[j] = c
+            acc += counts[c] / total
+            cdf[j] = acc
+            j += 1
+    if m:
+        last = cdf[m - 1]
+        for j in range(m):
+            cdf[j] = cdf[j] / last
+    return counts, starts, eligible, cdf, n
+
+
+@njit(cache=True)
+def batch_samples(u, cam, pool_counts, subset):
+    """:func:`sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) on
+    :func:`batch_sampling`'s distribution, mapped through ``subset`` when it is not empty."""
+    counts, starts, eligible, cdf, n = batch_sampling(cam, pool_counts, subset)
+    samples = sample_kernel(u, cdf, eligible, counts, starts, n)
+    if len(subset):
+        for a in range(samples.shape[0]):
+            for b in range(6):
+                samples[a, b] = subset[samples[a, b]]
+    return samples
+
+
+def view_sampling(cam: np.ndarray, M: int) -> tuple:
+    """The distribution of :meth:`~.view.StackedViews.samples` over points stacked by view
+    (``cam`` (N,) each point's view among M): ``(counts (M,), starts (M,), eligible views (at
+    least 3 points), cdf over them, n)`` (int64 arrays; the cdf the quotients' running sums
+    divided by the last): the NumPy twin of :func:`batch_sampling`, the same numbers."""
+    counts = np.bincount(cam, minlength=M).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)  # (stacked by view)
+    eligible = np.flatnonzero(counts >= 3).astype(np.int64)
+    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
+    cdf /= cdf[-1]
+    return counts, starts, eligible, cdf, len(cam)

@@ -40,7 +40,7 @@ from scipy.optimize import least_squares
 
 from ..geometry import rotation_angle_deg, skew
 from ..pose import RSModel
-from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .degeneracy import PLANAR_TOLERANCE, condition_number, coplanar, planarity
 from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
 from .frame import Frame
 from .options import EstimateOptions, InitialModel
@@ -121,7 +121,7 @@ def coplanar_points(points3d: np.ndarray) -> bool:
     X = np.ascontiguousarray(points3d, dtype=np.float64).reshape(-1, 3)
     if len(X) < MIN_PLANAR_POINTS or not np.isfinite(X).all():
         return False
-    return bool(planarity(X) < PLANAR_TOLERANCE)
+    return coplanar(X)
 
 
 def planar_points(fr: Frame) -> bool:

@@ -1,22 +1,46 @@
-"""A view: one camera's correspondences with the camera, its mounting and its time.
+"""A view: one camera's correspondences with the camera, its mounting and its time; and the
+views of one frame stacked (:class:`StackedViews`).
 
 The estimators take views: :func:`~rs_localizer.estimation.rig.estimate_rig_pose` one or many
 (a rig frame), the video (:class:`~rs_localizer.tracking.tracker.FrameViews`) a camera's own
-view or a rig frame's.
+view or a rig frame's. A frame's views stacked are one point set (a camera alone: one view at
+the identity mounting): each point seen through its camera's mounting at its own time, its
+error in its camera's pixels; their checks, degeneracy, MSAC scoring, minimal samples over
+the views and the final stage's :class:`~.frame.RefinementView`.
 """
 
 from __future__ import annotations
 
+import copy
+import functools
+import math
+import operator
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
-from ..camera import CameraModel
+from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..pose import RSModel
+from .degeneracy import coplanar
+from .frame import (
+    camera_values,
+    correspondences,
+    kernel_ready,
+    normalized_rows,
+    valid_correspondences,
+)
+from .numpy_impl import errors2
+from .options import EstimateOptions
+from .plausibility import collinear_3d, image_degenerate, views_degenerate
+from .refine import KernelMountings, Mountings, kernel_mountings_of
 from .result import camera_model_of_rig
+from .sampling import batch_samples, draw_samples_numpy, valid_rows, view_sampling
+from .scoring import best_msac
 
-__all__ = ["View"]
+__all__ = ["StackedViews", "View"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,3 +81,416 @@ class View:
         return camera_model_of_rig(
             model, self.mounting, self.stamp_offset, self.camera.seconds_per_unit_r
         )
+
+
+def _label(c: int, v: View) -> str:
+    return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
+
+
+def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
+    """Camera ``c``'s view checked (the errors :func:`~.rig.estimate_rig_pose` raises) and
+    prepared for :class:`StackedViews`: ``(R (3, 3), c (3,), mounting covariance or None,
+    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
+    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of
+    them (:func:`~.frame.prepare_frame`: its checks, :func:`~.frame.correspondences`,
+    :func:`~.frame.valid_correspondences` with every coordinate of a point within
+    ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
+    :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
+    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
+    if not isinstance(v, View):
+        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a View")
+    m = v.mounting
+    if m is None:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)} has no mounting (View.mounting is None: the "
+            "camera's pose on the rig is unknown)"
+        )
+    if not isinstance(m, Mounting):
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: mounting is a {type(m).__name__}, not a Mounting"
+        )
+    if not isinstance(v.camera, CameraModel):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
+    if not math.isfinite(float(v.stamp_offset)):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
+    Rm, cm, mc = m.R, m.c, m.covariance  # (checked by Mounting; the covariance symmetric)
+    mc = None if mc is None or not mc.any() else mc
+    uv = np.asarray(v.uv, dtype=float)
+    X = np.asarray(v.X, dtype=float)
+    # (a camera's checks, :func:`~.frame.correspondences`; an empty view of any shape: no rows)
+    try:
+        uv, X = correspondences(
+            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X
+        )
+    except ValueError as e:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
+    cam = v.camera
+    k = camera_values(cam)  # (kept per camera object)
+    spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
+    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
+        z2 = np.zeros((0, 2))
+        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
+                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
+    stamp = float(v.stamp_offset)
+    args = args if compiled else None  # (a distorted camera's, compiled)
+    kernels = compiled and kernel_ready(uv) and kernel_ready(X)
+    if args is not None and spr == 0.0 and kernels:
+        # (a global shutter with distortion: the checks and rows below in one compiled call
+        # when every row is valid)
+        x = cam.undistort(uv)
+        if kernel_ready(x):
+            valid, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
+            if valid:
+                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, None, focal, A)
+    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`)
+    ok = valid_correspondences(uv, X, max_norm, kernels)
+    if ok.all():
+        idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
+    else:
+        idx = np.flatnonzero(ok)
+        uv_g, X_g = uv[idx], X[idx]
+    # (a camera's undistortion and RS coordinates, CameraModel.normalize)
+    x, r, _ = cam.normalize(uv_g, compiled=compiled)
+    ok = normalized_rows(x, r)
+    if ok is not None:
+        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
+    if spr == 0.0:  # (a global shutter: every point at the stamp)
+        tau = np.empty(len(uv_g))
+        tau.fill(stamp + 0.0)
+    else:
+        tau = stamp + (r - k.r0) * spr
+    if jacobian:
+        A = cam.pixel_jacobian(x, compiled=compiled).reshape(-1, 4)
+    else:
+        A = np.zeros((len(idx), 4))
+        A[:, 0] = A[:, 3] = focal
+    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
+            focal, A)  # fmt: skip
+
+
+@njit(cache=True)
+def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
+    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
+    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
+    camera's rule, :func:`~.sampling.valid_rows`, every point within ``max_norm`` m) with a
+    finite ``x``, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
+    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
+    ``d, fisheye, fx, fy``)``."""
+    n = x.shape[0]
+    tau = np.empty(n)
+    ok = valid_rows(uv, X, max_norm)
+    for i in range(n):
+        if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
+            return False, tau, np.empty((0, 4))
+        tau[i] = stamp + 0.0
+    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
+
+
+@njit(cache=True)
+def _selected_per_camera(mask, cam, M):
+    """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
+    out = np.zeros(M, dtype=np.int64)
+    for i in range(len(mask)):
+        if mask[i]:
+            out[cam[i]] += 1
+    return out
+
+
+#: the mountings' stacks of :func:`_mounting_stacks`: ids -> (mountings, R (M, 3, 3), c (M, 3))
+_MOUNTING_STACKS: dict = {}
+
+
+def _mounting_stacks(views: Sequence[View], parts: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
+    (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
+    share them; read only, as every stack's)."""
+    mountings = tuple([v.mounting for v in views])
+    key = tuple(map(id, mountings))
+    hit = _MOUNTING_STACKS.get(key)
+    if hit is not None and all(map(operator.is_, hit[0], mountings)):
+        return hit[1], hit[2]
+    R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
+    c = np.array([q[1] for q in parts]).reshape(-1, 3)
+    if len(_MOUNTING_STACKS) >= 64:
+        _MOUNTING_STACKS.clear()
+    _MOUNTING_STACKS[key] = (mountings, R, c)
+    return R, c
+
+
+def _stacked(counts: Sequence[int]) -> list[slice]:
+    """The slices of consecutive blocks of ``counts`` rows each (the views of a stack)."""
+    out, a = [], 0
+    for n in counts:
+        out.append(slice(a, a + int(n)))
+        a += int(n)
+    return out
+
+
+class StackedViews:
+    """The valid correspondences of one frame's views stacked by view (a camera alone: one
+    view at the identity mounting; a rig frame: one per camera): normalized points ``x``
+    (N, 2), world points ``X`` (N, 3), ``tau`` (N,) each point's capture time from the
+    frame's reference time (s), ``cam`` (N,) its view, ``focal`` (N,) its camera's focal
+    length (px per normalized unit), ``uv`` (N, 2) its measured pixels, and ``A`` (N, 4):
+    each point's row-major 2x2 pixel Jacobian of its camera
+    (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, px per normalized unit: the
+    normalized error times it is to first order the error in the measured, distorted image;
+    the focal length times the identity for a camera without distortion and with fx = fy);
+    ``compiled`` False: every step in NumPy/SciPy (the ``"numpy"`` implementation,
+    :mod:`~.implementation`); ``max_norm`` (m): a point with a coordinate farther from the
+    origin is dropped, as a single camera's frame drops it (the options'
+    ``plausibility.max_point_norm``).
+
+    It is the final stage's :class:`~.frame.RefinementView` of the frame (the refinements of
+    :mod:`~.finalize` a single camera's frame takes): time ``r = tau`` (s, ``r0 = 0``, one
+    second per unit), the errors in px through each camera's mounting.
+
+    Raises:
+        ValueError: a view that is not a :class:`View`, a camera without a mounting
+            (``mounting`` None; the message names it) or with a mounting that is not a
+            :class:`~rs_localizer.frames.Mounting`, no :class:`~rs_localizer.camera.CameraModel`,
+            a stamp offset not finite, mismatched pixel and point counts or shapes."""
+
+    #: the time of :class:`~.frame.RefinementView`: tau itself, in seconds
+    r0 = 0.0
+    spr = 1.0
+    #: no planar motion prior in the final stage (:class:`~.frame.RefinementView`)
+    planar = False
+
+    def __init__(
+        self,
+        views: Sequence[View],
+        compiled: bool = True,
+        cache: dict | None = None,
+        max_norm: float = EstimateOptions().plausibility.max_point_norm,
+    ):
+        self.compiled = bool(compiled)
+        # ``cache``: id(view) -> (view, its index, its checked and normalized part), shared by
+        # the stacks of one frame (a rig's consensus solves again on some of its cameras:
+        # their views are the same objects, checked and undistorted once)
+        cache = {} if cache is None else cache
+        parts = []
+        for c, v in enumerate(views):
+            hit = cache.get(id(v))
+            if hit is not None and hit[0] is v and hit[1] == c:
+                parts.append(hit[2])
+                continue
+            part = _view_part(c, v, self.compiled, max_norm)
+            cache[id(v)] = (v, c, part)
+            parts.append(part)
+        self.R_mount, self.c_mount = _mounting_stacks(views, parts)
+        self.mount_cov = [q[2] for q in parts]
+        #: some camera's mounting has a covariance
+        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
+        self.sizes = [q[3] for q in parts]
+        n = [len(q[5]) for q in parts]
+        #: each view's points in the stack
+        self.slices = _stacked(n)
+        self._sizes_valid = tuple(n)
+        #: every input row of every view is valid (the stack's rows are the views' in order)
+        self.all_valid = self._sizes_valid == tuple(self.sizes)
+        self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
+        if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
+            q = parts[0]
+            self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
+            self.focal.fill(q[9])
+            self.x, self.X, self.uv, self.tau, self.A = [q[k].copy() for k in (4, 5, 6, 7, 10)]
+        else:
+            if not parts:
+                raise ValueError("StackedViews: needs at least one view")
+            self.cam = np.arange(len(parts), dtype=np.int64).repeat(n)
+            self.focal = np.array([q[9] for q in parts], dtype=float).repeat(n)
+            self.x, self.X, self.uv, self.tau, self.A = [
+                np.concatenate([q[k] for q in parts]) for k in (4, 5, 6, 7, 10)
+            ]
+        #: s: the observation times' spread (np.ptp of tau; 0 without points)
+        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
+
+    @functools.cached_property
+    def row(self) -> np.ndarray:
+        """(N,) int64: each point's row in its view's input rows (stacked by view)."""
+        rows = [
+            np.arange(n, dtype=np.int64) if q is None else q.copy()
+            for q, n in zip(self._rows, self._sizes_valid, strict=True)
+        ]
+        return np.concatenate(rows) if len(rows) > 1 else rows[0] if rows else np.zeros(0, np.int64)
+
+    @property
+    def r(self) -> np.ndarray:
+        return self.tau
+
+    @functools.cached_property
+    def bounds(self) -> np.ndarray:
+        """(M, 2) int64: each view's first and end row in the stack."""
+        return np.array([(s.start, s.stop) for s in self.slices], np.int64).reshape(-1, 2)
+
+    @functools.cached_property
+    def plain_mountings(self) -> Mountings:
+        """The points as the refinement's :class:`~.refine.Mountings`: each camera's mounting,
+        errors in px (its pixel Jacobian at each point, ``A``, as the scale)."""
+        return Mountings(
+            np.ascontiguousarray(self.cam, dtype=np.int64),
+            np.ascontiguousarray(self.R_mount),
+            np.ascontiguousarray(self.c_mount),
+            self.A.reshape(-1, 2, 2),
+        )
+
+    @functools.cached_property
+    def compiled_mountings(self) -> KernelMountings:
+        """:attr:`plain_mountings` in the refinement kernel's form
+        (:func:`~.refine.kernel_mountings_of`: the stack's own arrays, consistent by
+        construction): every refinement and the covariance of a frame take it."""
+        return kernel_mountings_of(self.cam, self.R_mount, self.c_mount, self.A)
+
+    @functools.cached_property
+    def kernel_arrays(self) -> tuple:
+        """``(X, x, tau, mountings)`` as the compiled kernels take them (contiguous float64
+        arrays, :attr:`compiled_mountings`' views): a frame refines and scores several times."""
+        f = np.float64
+        return (np.ascontiguousarray(self.X, dtype=f), np.ascontiguousarray(self.x, dtype=f),
+                np.ascontiguousarray(self.tau, dtype=f), self.compiled_mountings.views)  # fmt: skip
+
+    def views(self) -> tuple:
+        """The cameras of :class:`~.frame.RefinementView`: ``(R_mount (M, 3, 3), c_mount (M,
+        3), rows (M, 2))``, each camera's mounting and its rows in the stack."""
+        return self.R_mount, self.c_mount, self.bounds
+
+    def mounting_covariances(self) -> tuple | None:
+        """``(the stack's :class:`~.refine.Mountings`, each camera's mounting covariance
+        (6, 6) or None)`` when some camera's mounting has one, else None
+        (:meth:`~.frame.RefinementView.mounting_covariances`)."""
+        return (self.plain_mountings, self.mount_cov) if self.has_mount_cov else None
+
+    def mountings(self) -> Mountings | KernelMountings:
+        """The refinement's mountings of every point (:attr:`plain_mountings`, checked for the
+        compiled kernel: :attr:`compiled_mountings`)."""
+        return self.compiled_mountings if self.compiled else self.plain_mountings
+
+    def errors(self, model: RSModel | tuple) -> np.ndarray:
+        """(N,) errors (px) of one model ``(R, C, w, t)`` (:meth:`best_scored`)."""
+        return self.scored(model, np.inf)[0]
+
+    def scored(self, model: RSModel | tuple, th2: float) -> tuple[np.ndarray, float]:
+        """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:meth:`best_scored`;
+        the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
+        _, cost, e = self.best_scored(*(np.asarray(a)[None] for a in model), th2)
+        return e, cost
+
+    def best_scored(
+        self, R: np.ndarray, C: np.ndarray, w: np.ndarray, t: np.ndarray, th2: float
+    ) -> tuple[int, float, np.ndarray]:
+        """The model of the lowest MSAC cost among H models R (H, 3, 3), C, w, t (H, 3) on the
+        stack's points (each squared reprojection error (px^2) capped at ``th2``, the exact
+        rotation ``expm(tau [w]x)`` at each observation's measured capture time, inf for a
+        point behind its camera): ``(h, its cost, its (N,) errors px)``, ``h`` the first
+        minimum as ``np.argmin`` picks it. Compiled: :func:`~.scoring.best_msac`; NumPy: the
+        NumPy implementation's :func:`~.numpy_impl.errors2` of the stacked views, a camera's
+        errors with its mounting."""
+        if not self.compiled:
+            e2 = errors2(self, *(np.asarray(a, dtype=float) for a in (R, C, w, t)))
+            cost = np.minimum(e2, th2).sum(axis=1)
+            h = int(np.argmin(cost))
+            return h, float(cost[h]), np.sqrt(e2[h])
+        f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
+        h, cost, e = best_msac(*f, self.X, self.tau, self.cam, self.R_mount, self.c_mount,
+                               self.x, self.A, th2)  # fmt: skip
+        return int(h), float(cost), e
+
+    def per_camera(self, mask: np.ndarray) -> tuple:
+        """(N,) bool -> one (N_c,) bool per view over its input rows."""
+        out = []
+        for n, s in zip(self.sizes, self.slices, strict=True):
+            if s.stop - s.start == n:  # (every row valid: the rows are 0..n-1 in order)
+                out.append(np.array(mask[s], dtype=bool))
+                continue
+            m = np.zeros(n, dtype=bool)
+            m[self.row[s]] = mask[s]
+            out.append(m)
+        return tuple(out)
+
+    def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
+        """(M,) number of the stack's points (``mask``: of those selected) per view."""
+        if mask is None:
+            return self._sizes_valid
+        if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one view: all its points)
+            return (int(np.count_nonzero(mask)),)
+        if not self.compiled or mask.dtype != np.bool_ or not kernel_ready(mask):
+            return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
+        return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
+
+    def view_planar(self, c: int) -> bool:
+        """View c's points are coplanar (:func:`~.degeneracy.coplanar`)."""
+        return coplanar(self.X[self.slices[c]], self.compiled)
+
+    def degenerate(self, threshold_px: float) -> bool:
+        """The world points identical or on one 3D line, or every camera's pixels (measured or
+        undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
+        rays in one plane through its centre)."""
+        if self.compiled:  # (the same tests in one compiled call, unless it needs eigenvalues)
+            code = views_degenerate(
+                self.X, self.uv, self.x, self.focal, self.bounds, float(threshold_px)
+            )
+            if code >= 0:
+                return bool(code)
+        if collinear_3d(self.X, compiled=self.compiled):
+            return True
+        for s in self.slices:
+            # (one or two rays always lie in a plane through the camera's centre)
+            if s.stop - s.start >= 3 and not image_degenerate(
+                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, self.compiled
+            ):
+                return False
+        return True
+
+    def repeated(self, copies: Sequence[int]) -> StackedViews:
+        """The stack with view c's points repeated ``copies[c]`` times (a least-squares fit on
+        it weighs the views so). Only for fitting: its rows no longer map to the views'."""
+        idx = np.concatenate(
+            [
+                np.tile(np.arange(s.start, s.stop), k)
+                for s, k in zip(self.slices, copies, strict=True)
+            ]
+        )
+        out = copy.copy(self)
+        for cached in ("plain_mountings", "compiled_mountings", "kernel_arrays", "bounds"):
+            out.__dict__.pop(cached, None)
+        for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
+            setattr(out, name, np.ascontiguousarray(getattr(self, name)[idx]))
+        sizes = [k * (s.stop - s.start) for s, k in zip(self.slices, copies, strict=True)]
+        out.slices = _stacked(sizes)
+        out._sizes_valid = tuple(sizes)
+        out.all_valid = False
+        return out
+
+    def samples(
+        self, rng: np.random.Generator, n_samples: int, subset: np.ndarray | None = None
+    ) -> np.ndarray:
+        """n_samples samples of 6 indices of the stack: 3 from one view with >= 3 points
+        (chosen in proportion to its points), then 3 distinct others from all views;
+        ``subset`` (sorted indices, at least 3 of one view and 6 in all): drawn among those
+        only. Returns (S, 6). Compiled: :func:`~.sampling.batch_samples` (on the same 7
+        draws per sample); NumPy: a camera's draws (:func:`~.sampling.draw_samples_numpy`)
+        with the first three in the chosen view's range of the stack, on
+        :func:`~.sampling.view_sampling`'s distribution."""
+        u = rng.random(7 * n_samples).reshape(7, n_samples)
+        no = np.zeros(0, dtype=np.int64)
+        if self.compiled:
+            counts = np.array(self.counts(), dtype=np.int64)
+            return batch_samples(u, self.cam, counts, no if subset is None else subset)
+        cam = self.cam if subset is None else self.cam[subset]
+        counts, starts, eligible, cdf, n = view_sampling(cam, len(self.sizes))
+        cams = eligible[cdf.searchsorted(u[0], side="right")]
+        size, offset = np.full((n_samples, 6), n), np.zeros((n_samples, 6), dtype=np.int64)
+        size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
+        out = draw_samples_numpy(u[1:].T, size, offset)
+        return out if subset is None else subset[out]
+
+    def uniform_samples(
+        self, rng: np.random.Generator, n_samples: int, subset: np.ndarray | None = None
+    ) -> np.ndarray:
+        """n_samples samples of 6 distinct indices drawn uniformly as a camera's
+        (:func:`~.sampling.draw_samples_numpy`; ``subset``: among those sorted indices, at
+        least 6), whose first 3 points may lie in any views. Returns (S, 6)."""
+        n = len(self.cam) if subset is None else len(subset)
+        u = draw_samples_numpy(rng.random((n_samples, 6)), n)
+        return u if subset is None else subset[u]

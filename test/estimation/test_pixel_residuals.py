@@ -11,9 +11,8 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.frame import SCORE_AT_MEASURED_TIME, prepare_frame
 from rs_localizer.estimation.refine import Mountings, RefineSettings, refine_rs_pose
-from rs_localizer.estimation.rig import _Pool
 from rs_localizer.estimation.scoring import msac_evaluate
-from rs_localizer.estimation.view import View
+from rs_localizer.estimation.view import StackedViews, View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 
@@ -155,7 +154,7 @@ def test_rig_errors_are_measured_image_pixels():
     noise = err[:, None] * np.stack([np.cos(phi), np.sin(phi)], 1)
     R, C, uv, X = _fisheye_scene(n, noise, 9)
     view = View(uv=uv, X=X, camera=FISHEYE)
-    pool = _Pool([view])
+    pool = StackedViews([view])
     e = pool.errors((R, C, np.zeros(3), np.zeros(3)))
     # first order: within a few % at 3 px (the focal length alone: up to ~2x off here)
     np.testing.assert_allclose(e, err[pool.row], rtol=0.05, atol=1e-3)

@@ -12,13 +12,12 @@ from rs_localizer.estimation import (
     RansacOptions,
     estimate_rs_pose,
 )
-from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.result import camera_estimate
 from rs_localizer.estimation.rig import (
     RIG_FAILURE_REASONS,
     estimate_rig_pose,
 )
-from rs_localizer.estimation.view import View
+from rs_localizer.estimation.view import StackedViews, View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
@@ -306,14 +305,14 @@ def test_a_rig_frame_takes_its_own_mountings_when_they_change():
     rng = np.random.default_rng(22)
     cams, R_m, c_m, stamps = make_rig(rng, 2)
     views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], rig_truth(rng))
-    first = rig_mod._Pool(views)
+    first = StackedViews(views)
     turned = Mounting(rotvec_to_matrix(np.array([0.0, 0.1, 0.0])) @ R_m[1], c_m[1] + 0.05)
     moved = [views[0], replace(views[1], mounting=turned)]
-    second = rig_mod._Pool(moved)
+    second = StackedViews(moved)
     np.testing.assert_array_equal(first.R_mount[1], R_m[1])
     np.testing.assert_array_equal(second.R_mount, np.stack([R_m[0], turned.R]))
     np.testing.assert_array_equal(second.c_mount, np.stack([c_m[0], turned.c]))
-    np.testing.assert_array_equal(rig_mod._Pool(views).R_mount, np.stack(R_m[:2]))
+    np.testing.assert_array_equal(StackedViews(views).R_mount, np.stack(R_m[:2]))
 
 
 def test_a_camera_without_mounting_is_named():

@@ -14,7 +14,9 @@ from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
-from rs_localizer.estimation.rig_batch import batch_sampling, search_batch
+from rs_localizer.estimation.rig_batch import search_batch
+from rs_localizer.estimation.sampling import batch_sampling, view_sampling
+from rs_localizer.estimation.view import StackedViews
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import synthetic as sim_rig
@@ -73,10 +75,10 @@ def _frame(seed, counts, turn_deg=0.0):
 def _step_by_step(views, seed, K, missed, rounds, subset, th):
     """The batch as the search ran it before: ``_sample``, ``_hypotheses_still``, then the
     errors of every hypothesis in NumPy and the first lowest MSAC cost."""
-    pool = rig_mod._Pool(views)
-    samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
+    pool = StackedViews(views)
+    samples = pool.samples(np.random.default_rng(seed), K, subset)
     hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
-    e = np.sqrt(errors2(rig_mod._Pool(views, compiled=False), *hyp))
+    e = np.sqrt(errors2(StackedViews(views, compiled=False), *hyp))
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
@@ -97,12 +99,12 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     th, K = 2.0, 40
     views = _frame(seed, counts, turn)
     m = None if missed is None else np.array(missed)
-    pool0 = rig_mod._Pool(views)
+    pool0 = StackedViews(views)
     subset = np.flatnonzero(np.arange(len(pool0.cam)) % 3 != 1) if guided else None
     hyp, e, cost, h, pool, n_p3p = _step_by_step(views, 7 + seed, K, m, rounds, subset, th)
     assert n_p3p > K // 2  # (P3P gave models; the correction added some for missed cameras)
     assert (len(hyp[0]) > n_p3p) == (m is not None)
-    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     draws = np.random.default_rng(7 + seed).random(7 * K)
     out = _buffers(len(cam), len(counts))
@@ -152,20 +154,20 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     number of solutions beyond the bounds."""
     th, K, iterations, v_max = 2.0, 40, 3, 10.0
     views, truth = _moving_frame(seed, counts)
-    pool = rig_mod._Pool(views)
+    pool = StackedViews(views)
     subset = np.flatnonzero(np.arange(len(pool.cam)) % 3 != 1) if guided else None
     anchor = (truth.R, truth.C) if anchored else None
-    samples = rig_mod._sample(np.random.default_rng(seed), pool, K, subset)
-    hyp = rig_mod._hypotheses(pool, samples, iterations, None, anchor)
+    samples = pool.samples(np.random.default_rng(seed), K, subset)
+    hyp = rig_mod._hypotheses(pool, samples, iterations, anchor)
     ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], (w_max, v_max))
     beyond = int(np.count_nonzero(~ok))
     hyp = tuple(a[ok] for a in hyp)
-    e = np.sqrt(errors2(rig_mod._Pool(views, compiled=False), *hyp))
+    e = np.sqrt(errors2(StackedViews(views, compiled=False), *hyp))
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
     if w_max < np.inf:
         assert beyond > 0  # (the bounds drop some solutions)
-    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
     draws = np.random.default_rng(seed).random(7 * K)
     out = _buffers(len(cam), len(counts))
     drawn, hf, cf, n, beyond_f = moving_batch(
@@ -192,8 +194,8 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     the batch's, and on fewer samples termination would not have been reached."""
     th, K, min_it = 2.0, 60, 5
     views = _moving_frame(seed, counts)[0] if moving else _frame(seed, counts)
-    pool = rig_mod._Pool(views)
-    X, x, tau, (cam, Rm, cm, A) = rig_mod._kernel_arrays(pool)
+    pool = StackedViews(views)
+    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
     pool_counts = np.bincount(pool.cam, minlength=len(counts))
     draws = np.random.default_rng(seed).random(7 * K)
     state = (np.inf, 0, min_it, np.inf, float(np.log(1 - 0.9999)))
@@ -206,8 +208,8 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
         drawn, hf, cf, n = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th,
                                        pool_counts, *state, out)  # fmt: skip
     assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
-    samples = rig_mod._sample(np.random.default_rng(seed), pool, K)
-    numpy_pool = rig_mod._Pool(views, compiled=False)
+    samples = pool.samples(np.random.default_rng(seed), K)
+    numpy_pool = StackedViews(views, compiled=False)
     s = 6 if moving else 3
 
     def best_of(j):  # (the lowest MSAC cost among the first j samples' models, its inliers)
@@ -229,14 +231,14 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
 
 @pytest.mark.parametrize(("counts", "every"), [((30, 24, 12), 0), ((16, 2, 20), 3), ((5, 4), 2)])
 def test_the_compiled_sampling_distribution_is_the_pools(counts, every):
-    """``batch_sampling`` (computed in each compiled batch) gives ``_sampling_of``'s counts,
+    """``batch_sampling`` (computed in each compiled batch) gives ``view_sampling``'s counts,
     starts, eligible cameras, cdf and point count, bit for bit, over the whole pool or a
     subset (every point but each ``every``-th)."""
-    pool = rig_mod._Pool(_frame(31, counts))
+    pool = StackedViews(_frame(31, counts))
     subset = np.flatnonzero(np.arange(len(pool.cam)) % every != 1) if every else None
     got = batch_sampling(pool.cam, np.bincount(pool.cam, minlength=len(counts)),
                          rig_mod._NO_SUBSET if subset is None else subset)  # fmt: skip
-    want = rig_mod._sampling_of(pool, subset)
+    want = view_sampling(pool.cam if subset is None else pool.cam[subset], len(counts))
     for g, w in zip(got[:4], want[:4], strict=True):
         np.testing.assert_array_equal(g, w)
         assert g.dtype == w.dtype
