@@ -74,27 +74,10 @@ camera's correspondences at once:
   :data:`CONTRADICTION_GATE` thresholds, the one of the lower MSAC cost kept, or the fit of
   the inliers alone where its cost is significantly lower: cameras whose mountings
   disagree). The rig's own part is the estimate's per-camera fields (:func:`_rig_estimate`);
-- the cameras' consensus: every camera with enough points must agree with the pose; cameras
-  that contradict each other (one side's pose explains none of the other side's points) are
-  decided by the number of cameras on each side, a tie by the prediction, never by their
-  numbers of points; a tie the prediction does not break is refused (``cameras_disagree``,
-  :func:`estimate_rig_pose`) unless each side's pose explains the other side's points within
-  :data:`CONTRADICTION_GATE` inlier thresholds, or one pose fitted to both sides with that
-  gate as its threshold, every camera weighed alike whatever its number of points, explains
-  both sides' points within it (a small inconsistency: the joint fit poses the rig).
-
-With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
-starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
-the model is tested on every point, pulled onto those within its gate, seeds RANSAC and
-pre-rotates its samples instead of P3P, and when it explains the frame RANSAC only verifies it
-(samples among its inliers, as a camera's verification, at least
-``ransac.min_iterations``); local optimization and the final refinement run on
-every point as without it.
-
-With a gyro on the rig (``gyro``: the rig's angular velocity in the rig frame) the estimator
-uses it as a single camera's does (``estimate_rs_pose(..., gyro=)``): its rows in every
-sample's linear solve, maximum a posteriori local optimization and refinement, then the gyro
-judged by the image alone and rejected when they disagree (:func:`estimate_rig_pose`).
+- the cameras' consensus: every camera with enough points must agree with the pose, cameras
+  that contradict each other decided by their number, never by their numbers of points
+  (:func:`estimate_rig_pose`, which also says how an initial model, a prediction and a gyro
+  on the rig are used: as a single camera's estimator uses its own).
 
 The estimator runs in one of the single camera's two implementations (``implementation``,
 :mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, numba kernels (the
