@@ -33,6 +33,7 @@ from rs_localizer.calibration.corners import RigCorners, TagPoints, soft_l1
 __all__ = [
     "CACHE",
     "JointSolution",
+    "halves",
     "joint_reference",
     "main",
     "mounting_coverage",
@@ -221,6 +222,12 @@ def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:
                    rig.tag_ids, rig.anchors)  # fmt: skip
 
 
+def _part(rig: RealRig, frames: list) -> RealRig:
+    """``rig`` with only ``frames`` (a part of its rig frames)."""
+    return RealRig(rig.cameras, rig.mounts, frames, rig.reference, rig.name, rig.stamps_shared,
+                   rig.tolerance, rig.messages, rig.tags, rig.tag_ids, rig.anchors)  # fmt: skip
+
+
 def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
     """Each calibrated mounting (``est``: camera -> ``MountingEstimate``) against a
     reference's (``mounts``: camera -> ``(R, c)``, ``x_cam = R x_rig + c``; the reference
@@ -249,6 +256,31 @@ def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
             "k": k,
             "nees": nees,
             "within": bool(k <= 3.0 and nees <= chi2.ppf(0.9973, 6)),
+        }
+    return out
+
+
+def halves(est_a: dict, est_b: dict, first: str) -> dict:
+    """Two calibrations of the same rig from disjoint parts of a video (camera ->
+    ``MountingEstimate``; the reference camera ``first`` left out) against each other, an
+    independent check of their std (a reference solved from the same corners shares their
+    errors): camera -> ``{"diff_deg", "diff_mm", "k": the largest |difference| / std over
+    the 6 axes (rotation rig axes, position; the difference's covariance: the sum of the
+    two), "ratio": the smallest std / |difference| of those axes}``."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    out = {}
+    for n, a in est_a.items():
+        b = est_b.get(n)
+        if n == first or b is None or a.mount.covariance is None or b.mount.covariance is None:
+            continue
+        d = np.r_[matrix_to_rotvec(a.mount.R.T @ b.mount.R), a.mount.position - b.mount.position]
+        s = np.sqrt(np.diag(a.mount.covariance + b.mount.covariance))
+        out[n] = {
+            "diff_deg": float(np.rad2deg(np.linalg.norm(d[:3]))),
+            "diff_mm": float(1e3 * np.linalg.norm(d[3:])),
+            "k": float(np.max(np.abs(d) / s)),
+            "ratio": float(np.min(s / np.maximum(np.abs(d), 1e-12))),
         }
     return out
 
@@ -308,6 +340,24 @@ def main(argv: list[str] | None = None) -> None:
                 f"  the rig with these mountings ({v}): {inside} of {posed} rig poses within "
                 f"3 sigma of the reference ({100 * inside / max(posed, 1):.1f} %; {total} rig "
                 "frames)"
+            )
+        if label == "TagSLAM's":
+            continue
+        h = len(r.frames) // 2
+        try:
+            parts = [calibrate_estimates(_part(r, fr), mi) for fr in (r.frames[:h], r.frames[h:])]
+        except ValueError as exc:
+            print(f"  each half of the video: {exc}")
+            continue
+        print(
+            f"  calibrate-rig on each half of the video (min_inliers {mi}), the halves against "
+            "each other: difference deg, mm; largest |difference| / std of the 6 axes (std: "
+            "both halves'); smallest std / |difference|"
+        )
+        for n, c in halves(*parts, first).items():
+            print(
+                f"    {n}: {c['diff_deg']:.3f} deg {c['diff_mm']:.1f} mm; {c['k']:.1f}; "
+                f"{c['ratio']:.1f}"
             )
 
 

@@ -395,45 +395,81 @@ def _errors(obs: list, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
 
 
-#: the least scale of the corners' covariance of a refined mounting (:func:`_corner_covariance`)
+#: the least misfit of a refined mounting's two estimates (:func:`_corner_covariance`): at it
+#: no systematic error is added to the corners' covariance
 MISFIT_FLOOR = 1.0
 
 #: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
 _CORNER_NFEV = 300
 
 
+def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float) -> tuple:
+    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position
+    m): of the rig poses its camera frames give through their mountings (``seen``: camera ->
+    :func:`_carried`'s tuple; ``every``: camera -> :func:`_posed_alone`'s items), the one
+    whose projections of all its cameras' corners miss least (the sum of each corner's squared
+    error in px, capped at ``(4 scale)^2``: a camera frame posed wrongly, e.g. one tag's
+    mirrored pose, costs its corners the cap)."""
+    best, out = np.inf, None
+    for n in known:
+        O_t, p_t = seen[n][:2]
+        Rm, pm = mounts[n]
+        Rg = O_t @ Rm.T
+        Pg = p_t - Rg @ pm
+        cost = 0.0
+        for m in known:
+            uv, X, cam = every[m][seen[m][4]][6]
+            Ow = Rg @ mounts[m][0]
+            x_cam = (X - (Pg + Rg @ mounts[m][1])) @ Ow
+            e2 = np.sum((cam.project(x_cam) - uv) ** 2, axis=1)
+            cost += float(np.minimum(np.nan_to_num(e2, nan=np.inf), (4.0 * scale) ** 2).sum())
+        if cost < best:
+            best, out = cost, (Rg, Pg)
+    return out
+
+
 def _refine_on_corners(
-    rig_frames: list, poses: dict, obs: list, rig: tuple, mounts: dict, reference: str, scale: float
+    rig_frames: list,
+    every: dict,
+    obs: list,
+    rig: tuple,
+    mounts: dict,
+    reference: str,
+    scale: float,
+    window: float,
+    max_step: float,
 ) -> tuple[dict, RigCorners, CornerSolution] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
     cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
     those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
     corner's error in the distorted image of its camera under SciPy's ``soft_l1`` loss at
-    ``scale`` px), started at the pose-level adjustment (:func:`_adjust`: its observations
-    ``obs``, rig poses ``rig`` and ``mounts``; a rig frame it left out at the pose of its
-    camera frame with the most corners). Camera frames the adjustment left out as outliers
-    take part: their corners, not their poses. A camera frame carried to its rig frame's time
-    (:func:`_carried`) keeps its pose relative to the carried one. Only for global-shutter
-    cameras (a rolling-shutter corner's time is not modelled here: the caller keeps the
-    pose-level adjustment for those). Returns ``(mounts, the problem, its solution)``; None
-    when no corner projects."""
-    start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
+    ``scale`` px). The camera frames are ``every`` camera frame posed alone (camera -> the
+    items of :func:`_posed_alone`), those with fewer inliers than the pose-level adjustment
+    takes among them (a frame of one or two tags: its pose alone is too loose to average,
+    its corners fix the mountings as well as any), grouped into rig frames as
+    :func:`_rig_frames` does (``window``, ``max_step``). A rig frame starts at the pose-level
+    adjustment's pose of the rig frame of the same time (:func:`_adjust`: its ``rig_frames``,
+    observations ``obs``, rig poses ``rig`` and ``mounts``), else at the rig pose of the
+    camera frame whose pose best predicts the rig frame's corners (:func:`_rig_start`).
+    Camera frames the adjustment left out as outliers take part: their corners, not their
+    poses. A camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose
+    relative to the carried one. Only for global-shutter cameras (a rolling-shutter corner's
+    time is not modelled here: the caller keeps the pose-level adjustment for those).
+    Returns ``(mounts, the problem, its solution)``; None when no corner projects."""
+    start_at = {rig_frames[g][0]: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
-    for g, (_, seen) in enumerate(rig_frames):
+    for t, seen in _rig_frames(every, window, max_step):
         known = [n for n in seen if n in mounts]
         if len(known) < 2:
             continue
-        if g not in start:
-            n = max(known, key=lambda n: len(poses[n][seen[n][4]][6][0]))
-            (O_t, p_t), (Rm, pm) = seen[n][:2], mounts[n]
-            start[g] = (O_t @ Rm.T, p_t - O_t @ Rm.T @ pm)
+        Rg, Pg = start_at[t] if t in start_at else _rig_start(seen, every, mounts, known, scale)
         gi = len(Rg0)
-        Rg0.append(start[g][0])
-        Pg0.append(start[g][1])
+        Rg0.append(Rg)
+        Pg0.append(Pg)
         for n in known:
             O_t, p_t, _, _, k = seen[n]
-            _, Oc, pc, _, _, _, (uv, X, cam) = poses[n][k]
+            _, Oc, pc, _, _, _, (uv, X, cam) = every[n][k]
             a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], []))
             a[1].append(np.full(len(uv), gi))
             a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))
@@ -459,30 +495,46 @@ def _refine_on_corners(
     return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol
 
 
+#: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
+#: frames, each run's corners one group (:func:`_corner_covariance`)
+CORNER_BLOCKS = 10
+
+
 def _corner_covariance(
-    refined: dict, problem: RigCorners, sol: CornerSolution, start: dict, reference: str
+    refined: dict,
+    problem: RigCorners,
+    sol: CornerSolution,
+    start: dict,
+    reference: str,
+    pose_cov: dict,
 ) -> tuple[dict, float]:
     """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
     rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
-    marginalized, each rig frame's corners a group whose errors may be correlated, rig
-    frames independent), scaled by the corners' misfit, also returned: the mean square of
-    the refinement's step from the pose-level mountings ``start`` to ``refined`` in that
-    covariance's units per degree of freedom (at least 1). Both are estimates of the same
-    mountings from the same corners; where they differ by more than the corners' noise
-    explains, the corners hold errors that are not independent noise (a camera model or a
-    map slightly off, which a camera posed alone takes up its own way), of about that size
-    (:data:`MISFIT_FLOOR`: the least the scale can be)."""
-    C = problem.mounting_covariance(sol, problem.frame)
+    marginalized), the rig frames in :data:`CORNER_BLOCKS` runs of consecutive ones, each
+    run's corners a group whose errors may be correlated (a tag map's or a camera model's
+    error is shared by the frames that see the same tags from about the same place), runs
+    independent (times ``B / (B - 1)`` for the few groups), plus the systematic error the two
+    estimates disagree by: the pose-level adjustment's ``start`` (its covariance
+    ``pose_cov``) and the corners' ``refined`` estimate the same mountings from the same
+    corners, so their difference ``d`` has about the pose-level covariance (the corners'
+    estimate's is much the smaller); its excess ``m = d^T pose_cov^-1 d`` per degree of
+    freedom over all cameras, beyond 1 (also returned, at least :data:`MISFIT_FLOOR`), is
+    an error both carry, not the corners' noise (a camera model or a map slightly off, which
+    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added."""
     free = [n for n in refined if n != reference]
-    d = np.concatenate([np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T),
-                              refined[n][1] - start[n][1]] for n in free])  # fmt: skip
+    blocks = min(CORNER_BLOCKS, problem.G)
+    C = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G)
+    C = C * (blocks / max(blocks - 1, 1))
+    d = [np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T), refined[n][1] - start[n][1]]
+         for n in free]  # fmt: skip
+    seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LinAlgWarning)
-        m2 = sum(float(d[6 * i : 6 * i + 6] @ np.linalg.lstsq(C[i], d[6 * i : 6 * i + 6],
-                                                             rcond=None)[0])
-                 for i in range(len(free)))  # fmt: skip
-    misfit = max(MISFIT_FLOOR, m2 / len(d))
-    return {n: misfit * C[i] for i, n in enumerate(free)}, misfit
+        m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
+    misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
+    return {
+        n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)
+    }, misfit
 
 
 def _exposed_apart(
@@ -600,7 +652,10 @@ def calibrate_mountings(
         ValueError: no frame of ``reference`` posed.
     """
     given = {n: float(v) for n, v in (time_offsets or {}).items()}
-    poses = _posed_alone(frames, options, min_inliers, stamp_row, given)
+    # every camera frame posed alone (the corners' refinement takes them all), those with at
+    # least min_inliers inliers for the pose-level adjustment
+    every = _posed_alone(frames, options, 0, stamp_row, given)
+    poses = {n: [i for i in items if len(i[6][0]) >= min_inliers] for n, items in every.items()}
     if not poses.get(reference):
         raise ValueError(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
@@ -649,10 +704,12 @@ def calibrate_mountings(
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
         if not apart:
-            corners = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
+            corners = _refine_on_corners(
+                rig_frames, every, obs, rig, mounts, reference, px, window, max_step
+            )
             refined = corners is not None
             if refined:
-                cov, misfit = _corner_covariance(*corners, mounts, reference)
+                cov, misfit = _corner_covariance(*corners, mounts, reference, cov)
                 mounts = corners[0]
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
