@@ -98,8 +98,8 @@ TIME_OFFSET_PRIOR = 1.0
 #: a camera whose time offset, estimated as with ``estimate_time_offsets`` (one adjustment),
 #: is beyond 3 of its std and moves a corner by more than this share of the RANSAC threshold
 #: at the rig's median angular speed (its frames' twist; the camera's mean focal length) does
-#: not expose with the reference: the mountings are not refined on the corners, which would
-#: take up the rig's motion between the exposures
+#: not expose with the reference: the refinement on the corners then adjusts a time offset per
+#: camera, else its mountings would take up the rig's motion between the exposures
 EXPOSED_APART_SHARE = 0.25
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
