@@ -33,6 +33,7 @@ from rs_localizer.calibration.corners import RigCorners, TagPoints, soft_l1
 __all__ = [
     "CACHE",
     "JointSolution",
+    "halves",
     "joint_reference",
     "main",
     "mounting_coverage",
@@ -221,6 +222,12 @@ def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:
                    rig.tag_ids, rig.anchors)  # fmt: skip
 
 
+def _part(rig: RealRig, frames: list) -> RealRig:
+    """``rig`` with only ``frames`` (a part of its rig frames)."""
+    return RealRig(rig.cameras, rig.mounts, frames, rig.reference, rig.name, rig.stamps_shared,
+                   rig.tolerance, rig.messages, rig.tags, rig.tag_ids, rig.anchors)  # fmt: skip
+
+
 def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
     """Each calibrated mounting (``est``: camera -> ``MountingEstimate``) against a
     reference's (``mounts``: camera -> ``(R, c)``, ``x_cam = R x_rig + c``; the reference
@@ -253,13 +260,42 @@ def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
     return out
 
 
+def halves(est_a: dict, est_b: dict, first: str) -> dict:
+    """Two calibrations of the same rig from disjoint parts of a video (camera ->
+    ``MountingEstimate``; the reference camera ``first`` left out) against each other, an
+    independent check of their std (a reference solved from the same corners shares their
+    errors): camera -> ``{"diff_deg", "diff_mm", "k": the largest |difference| / std over
+    the 6 axes (rotation rig axes, position; the difference's covariance: the sum of the
+    two), "std_deg", "std_mm": the difference's std (norms over the 3 axes)}``."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    out = {}
+    for n, a in est_a.items():
+        b = est_b.get(n)
+        if n == first or b is None or a.mount.covariance is None or b.mount.covariance is None:
+            continue
+        d = np.r_[matrix_to_rotvec(a.mount.R.T @ b.mount.R), a.mount.position - b.mount.position]
+        s = np.sqrt(np.diag(a.mount.covariance + b.mount.covariance))
+        out[n] = {
+            "diff_deg": float(np.rad2deg(np.linalg.norm(d[:3]))),
+            "diff_mm": float(1e3 * np.linalg.norm(d[3:])),
+            "k": float(np.max(np.abs(d) / s)),
+            "std_deg": float(np.rad2deg(np.linalg.norm(s[:3]))),
+            "std_mm": float(1e3 * np.linalg.norm(s[3:])),
+        }
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m benchmarks.joint_reference --folder PATH/test_N``: the recording's joint
     solution, then ``calibrate-rig`` (the first of ``--min-inliers`` that calibrates every
     camera) on TagSLAM's tag map against TagSLAM's extrinsics and on the joint solution's
     against its mountings: each mounting's error, std, the largest error over std of its 6
     axes and its NEES; then the rig posed with those mountings, rig poses within 3 sigma of
-    the reference's (``bench_real_rig.calibrated_rig_run``)."""
+    the reference's (``bench_real_rig.calibrated_rig_run``); on the joint solution's map also
+    calibrate-rig on each half of the video, the halves against each other (:func:`halves`:
+    an independent check of the std, which the joint solution, solved from the same corners,
+    is not)."""
     import argparse
 
     from benchmarks.bench_real_rig import calibrate_estimates, calibrated_rig_run
@@ -308,6 +344,24 @@ def main(argv: list[str] | None = None) -> None:
                 f"  the rig with these mountings ({v}): {inside} of {posed} rig poses within "
                 f"3 sigma of the reference ({100 * inside / max(posed, 1):.1f} %; {total} rig "
                 "frames)"
+            )
+        if label == "TagSLAM's":
+            continue
+        h = len(r.frames) // 2
+        try:
+            parts = [calibrate_estimates(_part(r, fr), mi) for fr in (r.frames[:h], r.frames[h:])]
+        except ValueError as exc:
+            print(f"  each half of the video: {exc}")
+            continue
+        print(
+            f"  calibrate-rig on each half of the video (min_inliers {mi}), the halves against "
+            "each other: difference deg, mm; its std deg, mm (both halves'); largest "
+            "|difference| / std of the 6 axes"
+        )
+        for n, c in halves(*parts, first).items():
+            print(
+                f"    {n}: {c['diff_deg']:.3f} deg {c['diff_mm']:.1f} mm; std "
+                f"{c['std_deg']:.3f} deg {c['std_mm']:.1f} mm; {c['k']:.1f}"
             )
 
 

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import LinAlgWarning
 from scipy.optimize import least_squares
-from scipy.sparse import bsr_matrix, coo_matrix, csr_matrix, kron
+from scipy.sparse import bsr_matrix, coo_matrix, csr_matrix, hstack, kron
 
 from ..geometry import rotvec_to_matrix
 
@@ -90,7 +90,7 @@ class RigCorners:
     camera's mounting and, where a camera frame was carried to its rig frame's time, the
     camera's pose in its own frame relative to the carried one (module docstring: frames,
     units, parameters). The parameters are the rig poses, then the free tags' poses, then the
-    free mountings' (6 each).
+    free mountings' (6 each), then the time offsets (``motion``; 1 each).
 
     Args:
         uv: (N, 2) px, the corners in the distorted image.
@@ -106,6 +106,12 @@ class RigCorners:
             world rotation ``O Dr``, position ``p + O Dp``); None: the same.
         parameters: ``"rig"`` or ``"inverse"``: the rig poses and mountings given in
             ``rig`` and ``mounts`` (and adjusted) as the module docstring says.
+        motion: ``(index (N,) int, angular (N, 3) rad/s, linear (N, 3) m/s)``: each
+            corner's time offset (an index into the offsets, -1: none) and its camera's twist
+            (world axes): a corner seen ``dt`` s later than its rig frame's pose says, its
+            camera's pose moved along the twist (camera -> world rotation ``expm(dt [w]x)
+            O``, position ``p + dt v``), a camera's stamps off from its exposures (Kalibr's
+            ``timeshift``); the offsets (s) are parameters after the mountings. None: none.
 
     Raises:
         ValueError: arrays of inconsistent lengths, an index out of range, an unknown
@@ -125,9 +131,14 @@ class RigCorners:
         points: np.ndarray | TagPoints,
         offsets: tuple | None = None,
         parameters: str = "rig",
+        motion: tuple | None = None,
     ):
-        if parameters not in ("rig", "inverse") or (parameters == "inverse" and offsets):
-            raise ValueError(f"RigCorners: parameters {parameters!r} (with offsets: 'rig' only)")
+        if parameters not in ("rig", "inverse") or (
+            parameters == "inverse" and (offsets or motion)
+        ):
+            raise ValueError(
+                f"RigCorners: parameters {parameters!r} (with offsets or motion: 'rig' only)"
+            )
         self.inverse = parameters == "inverse"
         self.uv = np.asarray(uv, dtype=float).reshape(-1, 2)
         n = len(self.uv)
@@ -147,6 +158,15 @@ class RigCorners:
         lengths.add(len(self.tags.tag) if self.tags is not None else len(self.X))
         if offsets is not None:
             lengths |= {len(offsets[0]), len(offsets[1])}
+        self.motion = None
+        if motion is not None:
+            k, w, v = (np.asarray(a) for a in motion)
+            self.motion = (
+                k.astype(int),
+                w.astype(float).reshape(-1, 3),
+                v.astype(float).reshape(-1, 3),
+            )
+            lengths |= {len(a) for a in self.motion}
         if lengths != {n}:
             raise ValueError(f"RigCorners: {n} corners but per-corner arrays of lengths {lengths}")
         G, M = len(self.R0g), len(self.R0m)
@@ -160,7 +180,8 @@ class RigCorners:
         self.G, self.M = G, M
         self.T = int(self.tags.free.sum()) if self.tags is not None else 0
         self.F = int(self.free.sum())
-        self.n = 6 * (G + self.T + self.F)
+        self.D = int(self.motion[0].max()) + 1 if self.motion is not None and n else 0
+        self.n = 6 * (G + self.T + self.F) + self.D
         # each free mounting's parameter block (-1: fixed), each free tag's
         self.block_m = np.where(self.free, np.cumsum(self.free) - 1, -1)
         if self.tags is not None:
@@ -186,7 +207,7 @@ class RigCorners:
             tags = (Rt, pt)
         Rm, pm = self.R0m.copy(), self.p0m.copy()
         if F:
-            d = x[6 * (G + T) :].reshape(F, 6)
+            d = x[6 * (G + T) : 6 * (G + T + F)].reshape(F, 6)
             Rm[self.free] = rotvec_to_matrix(d[:, :3]) @ self.R0m[self.free]
             pm[self.free] = self.p0m[self.free] + d[:, 3:]
         return rig, (Rm, pm), tags
@@ -210,7 +231,17 @@ class RigCorners:
             Dr, Dp = self.offsets
             p = p + np.einsum("nij,nj->ni", Ow, Dp)
             Ow = Ow @ Dr
+        if self.D:  # (each corner's camera dt later: moved along its twist, world axes)
+            k, w, v = self.motion
+            dt = np.where(k >= 0, self.time_offsets(x)[np.maximum(k, 0)], 0.0)[:, None]
+            Ow = rotvec_to_matrix(dt * w) @ Ow
+            p = p + dt * v
         return self._projected(np.einsum("nji,nj->ni", Ow, X - p))
+
+    def time_offsets(self, x: np.ndarray) -> np.ndarray:
+        """(D,) s: the time offsets of the parameters ``x`` (the last ``D``; none without
+        ``motion``)."""
+        return x[self.n - self.D :]
 
     def _projected(self, x_cam: np.ndarray) -> np.ndarray:
         """(N, 2) px: the corners ``x_cam`` (N, 3) (their cameras' optical frames) projected
@@ -240,7 +271,7 @@ class RigCorners:
         its rig pose, its tag (when free) and its mounting (when free)."""
         k = self.keep
         g, m = self.frame[k], self.block_m[self.mounting[k]]
-        K, nb = len(g), self.n // 6
+        K = len(g)
         rows, cols = [np.arange(K)], [g]
         if self.tags is not None:
             t = self.block_t[self.tags.tag[k]]
@@ -249,7 +280,14 @@ class RigCorners:
         rows.append(np.flatnonzero(m >= 0))
         cols.append(self.G + self.T + m[m >= 0])
         r, c = np.concatenate(rows), np.concatenate(cols)
-        return kron(coo_matrix((np.ones(len(r)), (r, c)), (K, nb)), np.ones((2, 6)))
+        nb = (self.n - self.D) // 6
+        sp = kron(coo_matrix((np.ones(len(r)), (r, c)), (K, nb)), np.ones((2, 6)))
+        if not self.D:
+            return sp
+        d = self.motion[0][k]
+        rd = np.flatnonzero(d >= 0)
+        T = kron(coo_matrix((np.ones(len(rd)), (rd, d[rd])), (K, self.D)), np.ones((2, 1)))
+        return hstack([sp, T]).tocoo()
 
     def solve(
         self,
@@ -292,8 +330,8 @@ class RigCorners:
         return CornerSolution(rig, mounts, tags, self.keep.copy(), res)
 
     def mounting_covariance(
-        self, sol: CornerSolution, clusters: np.ndarray | None = None
-    ) -> np.ndarray:
+        self, sol: CornerSolution, clusters: np.ndarray | None = None, offsets: bool = False
+    ) -> np.ndarray | tuple:
         """(F, 6, 6): each free mounting's covariance over (rotation [rad, rig axes], position
         [m, rig frame]; ``parameters="rig"``) at ``sol``, the rig poses marginalized (the Schur
         complement of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
@@ -307,6 +345,10 @@ class RigCorners:
         cost on the mountings, the rig poses' part projected out), so corners that share an
         error, e.g. a tag map's or a camera model's, count once per group.
 
+        With ``motion``, the time offsets are estimated with the mountings (their covariance
+        is part of the mountings'); ``offsets``: also return their standard deviations (D,) s,
+        as ``(covariances, std)``.
+
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
         """
@@ -314,7 +356,7 @@ class RigCorners:
             raise ValueError("RigCorners.mounting_covariance: no free mounting")
         J = csr_matrix(sol.result.jac)
         r = np.asarray(sol.result.fun, dtype=float)
-        k, mc = 6 * self.G, 6 * self.F
+        k, mc = 6 * self.G, 6 * self.F + self.D
         lo = 6 * (self.G + self.T)
         Jg, Jm = J[:, :k], J[:, lo : lo + mc]
         Hgg = bsr_matrix((Jg.T @ Jg).tocsr(), blocksize=(6, 6))
@@ -347,4 +389,7 @@ class RigCorners:
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
         C = 0.5 * (C + C.T)
-        return np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
+        blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
+        if offsets:
+            return blocks, np.sqrt(np.diag(C)[6 * self.F :])
+        return blocks

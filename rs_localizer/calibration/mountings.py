@@ -45,9 +45,9 @@ class MountingEstimate:
             mounting is given): the pose-level adjustment's ``s^2 (J^T J)^-1``, inflated for
             the errors neighbouring frames share, plus the bias of the single-camera poses
             that averaging does not remove (:data:`MOUNTING_BIAS_SHARE`); a mounting refined
-            on the corners (``corners_refined``): the corners' solve's, each rig frame's
-            corners one group, scaled by ``corner_misfit`` (:func:`_corner_covariance`;
-            docs/rig_node.md, "Mountings from data", step 5).
+            on the corners (``corners_refined``): the corners' solve's, runs of rig frames
+            as groups, plus the error the two estimates disagree by (``corner_misfit``,
+            :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -60,10 +60,14 @@ class MountingEstimate:
         time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
             the mounting's); NaN: not estimated (given, or the reference camera's).
         corners_refined: the mounting was refined on the corners (:func:`_refine_on_corners`).
-        exposure_offset: s, the camera's time offset the video shows when it kept the
-            mountings from that refinement (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
-        corner_misfit: the scale of the refined mountings' covariance (at least
-            :data:`MISFIT_FLOOR`; the same for every camera of the rig); NaN when not refined.
+        exposure_offset: s, the camera's time offset the pose-level adjustment shows when
+            the cameras do not expose together (:data:`EXPOSED_APART_SHARE`; the refinement
+            on the corners then estimates a time offset per camera: ``time_offset``); NaN
+            otherwise.
+        corner_misfit: the squared step from the pose-level to the refined mountings in
+            the pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`;
+            the same for every camera of the rig): its excess over 1 times the pose-level
+            covariance is in the refined one; NaN when not refined.
     """
 
     name: str
@@ -94,8 +98,8 @@ TIME_OFFSET_PRIOR = 1.0
 #: a camera whose time offset, estimated as with ``estimate_time_offsets`` (one adjustment),
 #: is beyond 3 of its std and moves a corner by more than this share of the RANSAC threshold
 #: at the rig's median angular speed (its frames' twist; the camera's mean focal length) does
-#: not expose with the reference: the mountings are not refined on the corners, which would
-#: take up the rig's motion between the exposures
+#: not expose with the reference: the refinement on the corners then adjusts a time offset per
+#: camera, else its mountings would take up the rig's motion between the exposures
 EXPOSED_APART_SHARE = 0.25
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
@@ -395,62 +399,109 @@ def _errors(obs: list, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
 
 
-#: the least scale of the corners' covariance of a refined mounting (:func:`_corner_covariance`)
+#: the least misfit of a refined mounting's two estimates (:func:`_corner_covariance`): at it
+#: no systematic error is added to the corners' covariance
 MISFIT_FLOOR = 1.0
 
 #: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
 _CORNER_NFEV = 300
 
 
+def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float) -> tuple:
+    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position
+    m): of the rig poses its camera frames give through their mountings (``seen``: camera ->
+    :func:`_carried`'s tuple; ``every``: camera -> :func:`_posed_alone`'s items), the one
+    whose projections of all its cameras' corners miss least (the sum of each corner's squared
+    error in px, capped at ``(4 scale)^2``: a camera frame posed wrongly, e.g. one tag's
+    mirrored pose, costs its corners the cap)."""
+    best, out = np.inf, None
+    for n in known:
+        O_t, p_t = seen[n][:2]
+        Rm, pm = mounts[n]
+        Rg = O_t @ Rm.T
+        Pg = p_t - Rg @ pm
+        cost = 0.0
+        for m in known:
+            uv, X, cam = every[m][seen[m][4]][6]
+            Ow = Rg @ mounts[m][0]
+            x_cam = (X - (Pg + Rg @ mounts[m][1])) @ Ow
+            e2 = np.sum((cam.project(x_cam) - uv) ** 2, axis=1)
+            cost += float(np.minimum(np.nan_to_num(e2, nan=np.inf), (4.0 * scale) ** 2).sum())
+        if cost < best:
+            best, out = cost, (Rg, Pg)
+    return out
+
+
 def _refine_on_corners(
-    rig_frames: list, poses: dict, obs: list, rig: tuple, mounts: dict, reference: str, scale: float
+    rig_frames: list,
+    every: dict,
+    obs: list,
+    rig: tuple,
+    mounts: dict,
+    reference: str,
+    scale: float,
+    window: float,
+    max_step: float,
+    timed: bool = False,
 ) -> tuple[dict, RigCorners, CornerSolution] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
     cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
     those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
     corner's error in the distorted image of its camera under SciPy's ``soft_l1`` loss at
-    ``scale`` px), started at the pose-level adjustment (:func:`_adjust`: its observations
-    ``obs``, rig poses ``rig`` and ``mounts``; a rig frame it left out at the pose of its
-    camera frame with the most corners). Camera frames the adjustment left out as outliers
-    take part: their corners, not their poses. A camera frame carried to its rig frame's time
-    (:func:`_carried`) keeps its pose relative to the carried one. Only for global-shutter
-    cameras (a rolling-shutter corner's time is not modelled here: the caller keeps the
-    pose-level adjustment for those). Returns ``(mounts, the problem, its solution)``; None
-    when no corner projects."""
-    start = {g: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
+    ``scale`` px). The camera frames are ``every`` camera frame posed alone (camera -> the
+    items of :func:`_posed_alone`), those with fewer inliers than the pose-level adjustment
+    takes among them (a frame of one or two tags: its pose alone is too loose to average,
+    its corners fix the mountings as well as any), grouped into rig frames as
+    :func:`_rig_frames` does (``window``, ``max_step``). A rig frame starts at the pose-level
+    adjustment's pose of the rig frame of the same time (:func:`_adjust`: its ``rig_frames``,
+    observations ``obs``, rig poses ``rig`` and ``mounts``), else at the rig pose of the
+    camera frame whose pose best predicts the rig frame's corners (:func:`_rig_start`).
+    Camera frames the adjustment left out as outliers take part: their corners, not their
+    poses. A camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose
+    relative to the carried one. ``timed``: each free camera's time offset (s added to its
+    stamps) adjusted too, started at 0: its corners' camera pose moved along its twist at
+    its rig frame (:class:`~rs_localizer.calibration.corners.RigCorners` ``motion``; the
+    offsets in the free cameras' order of ``mounts``). Only for global-shutter cameras (a
+    rolling-shutter corner's time is not modelled here: the caller keeps the pose-level
+    adjustment for those). Returns ``(mounts, the problem, its solution)``; None when no
+    corner projects."""
+    free = [n for n in mounts if n != reference]
+    start_at = {rig_frames[g][0]: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
-    for g, (_, seen) in enumerate(rig_frames):
+    for t, seen in _rig_frames(every, window, max_step):
         known = [n for n in seen if n in mounts]
         if len(known) < 2:
             continue
-        if g not in start:
-            n = max(known, key=lambda n: len(poses[n][seen[n][4]][6][0]))
-            (O_t, p_t), (Rm, pm) = seen[n][:2], mounts[n]
-            start[g] = (O_t @ Rm.T, p_t - O_t @ Rm.T @ pm)
+        Rg, Pg = start_at[t] if t in start_at else _rig_start(seen, every, mounts, known, scale)
         gi = len(Rg0)
-        Rg0.append(start[g][0])
-        Pg0.append(start[g][1])
+        Rg0.append(Rg)
+        Pg0.append(Pg)
         for n in known:
-            O_t, p_t, _, _, k = seen[n]
-            _, Oc, pc, _, _, _, (uv, X, cam) = poses[n][k]
-            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], []))
+            O_t, p_t, _, twist, k = seen[n]
+            _, Oc, pc, _, _, _, (uv, X, cam) = every[n][k]
+            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], [], [], []))
             a[1].append(np.full(len(uv), gi))
             a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))
             a[3].append(np.broadcast_to(O_t.T @ (pc - p_t), (len(uv), 3)))
             a[4].append(uv)
             a[5].append(X)
+            a[6].append(np.broadcast_to(twist[0], (len(uv), 3)))
+            a[7].append(np.broadcast_to(twist[1], (len(uv), 3)))
     names = list(mounts)
     cams, parts = [], []
     for i, ((n, _), (cam, *lists)) in enumerate(groups.items()):
         cams.append(cam)
-        gi, Dr, Dp, uv, X = (np.concatenate(v) for v in lists)
-        parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X))
-    camera, gi, m, Dr, Dp, uv, X = (np.concatenate(v) for v in zip(*parts, strict=True))
+        gi, Dr, Dp, uv, X, w, v = (np.concatenate(v) for v in lists)
+        d = np.full(len(gi), free.index(n) if n in free else -1)
+        parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X,
+                      d, w, v))  # fmt: skip
+    camera, gi, m, Dr, Dp, uv, X, d, w, v = (np.concatenate(v) for v in zip(*parts, strict=True))
     problem = RigCorners(
         uv, cams, camera, gi, m, (np.array(Rg0), np.array(Pg0)),
         (np.array([mounts[n][0] for n in names]), np.array([mounts[n][1] for n in names])),
         np.array([n != reference for n in names]), X, offsets=(Dr, Dp),
+        motion=(d, w, v) if timed else None,
     )  # fmt: skip
     sol = problem.solve(scale, max_nfev=_CORNER_NFEV)
     if sol is None:
@@ -459,43 +510,59 @@ def _refine_on_corners(
     return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol
 
 
+#: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
+#: frames, each run's corners one group (:func:`_corner_covariance`)
+CORNER_BLOCKS = 10
+
+
 def _corner_covariance(
-    refined: dict, problem: RigCorners, sol: CornerSolution, start: dict, reference: str
-) -> tuple[dict, float]:
+    refined: dict,
+    problem: RigCorners,
+    sol: CornerSolution,
+    start: dict,
+    reference: str,
+    pose_cov: dict,
+) -> tuple[dict, float, dict]:
     """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
     rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
-    marginalized, each rig frame's corners a group whose errors may be correlated, rig
-    frames independent), scaled by the corners' misfit, also returned: the mean square of
-    the refinement's step from the pose-level mountings ``start`` to ``refined`` in that
-    covariance's units per degree of freedom (at least 1). Both are estimates of the same
-    mountings from the same corners; where they differ by more than the corners' noise
-    explains, the corners hold errors that are not independent noise (a camera model or a
-    map slightly off, which a camera posed alone takes up its own way), of about that size
-    (:data:`MISFIT_FLOOR`: the least the scale can be)."""
-    C = problem.mounting_covariance(sol, problem.frame)
+    marginalized), the rig frames in :data:`CORNER_BLOCKS` runs of consecutive ones, each
+    run's corners a group whose errors may be correlated (a tag map's or a camera model's
+    error is shared by the frames that see the same tags from about the same place), runs
+    independent (times ``B / (B - 1)`` for the few groups), plus the systematic error the two
+    estimates disagree by: the pose-level adjustment's ``start`` (its covariance
+    ``pose_cov``) and the corners' ``refined`` estimate the same mountings from the same
+    corners, so their difference ``d`` has about the pose-level covariance (the corners'
+    estimate's is much the smaller); its excess ``m = d^T pose_cov^-1 d`` per degree of
+    freedom over all cameras, beyond 1 (also returned, at least :data:`MISFIT_FLOOR`), is
+    an error both carry, not the corners' noise (a camera model or a map slightly off, which
+    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added."""
     free = [n for n in refined if n != reference]
-    d = np.concatenate([np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T),
-                              refined[n][1] - start[n][1]] for n in free])  # fmt: skip
+    blocks = min(CORNER_BLOCKS, problem.G)
+    C, dt_std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G, True)
+    C, dt_std = C * (blocks / max(blocks - 1, 1)), dt_std * np.sqrt(blocks / max(blocks - 1, 1))
+    d = [np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T), refined[n][1] - start[n][1]]
+         for n in free]  # fmt: skip
+    seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LinAlgWarning)
-        m2 = sum(float(d[6 * i : 6 * i + 6] @ np.linalg.lstsq(C[i], d[6 * i : 6 * i + 6],
-                                                             rcond=None)[0])
-                 for i in range(len(free)))  # fmt: skip
-    misfit = max(MISFIT_FLOOR, m2 / len(d))
-    return {n: misfit * C[i] for i, n in enumerate(free)}, misfit
+        m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
+    misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
+    cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
+    return cov, misfit, dict(zip(free, dt_std, strict=False))
 
 
 def _exposed_apart(
     rig_frames: list, poses: dict, mounts: dict, reference: str, bad: set, px: float
-) -> dict:
+) -> tuple[dict, dict, dict]:
     """The cameras that do not expose with the reference: camera -> its time offset (s), those
     the pose-level adjustment with a time offset per camera (:func:`_adjust`, ``offsets``;
     started at ``mounts``, the camera frames in ``bad`` left out) finds beyond 3 of its std
     (:func:`_mounting_covariance`) and large enough to move a corner by more than
     :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median angular speed (the norm of its
-    frames' angular velocity, rad/s) times the camera's mean focal length (px)."""
-    _, J, r, obs, G, free, dts, _ = _adjust(rig_frames, mounts, reference, bad, offsets=True)
-    std = _mounting_covariance(J, r, obs, G, free)[1]
+    frames' angular velocity, rad/s) times the camera's mean focal length (px). Also that
+    adjustment's mountings and their covariance (:func:`_mounting_covariance`)."""
+    adjusted, J, r, obs, G, free, dts, _ = _adjust(rig_frames, mounts, reference, bad, True)
+    cov, std = _mounting_covariance(J, r, obs, G, free)
     cam = np.array([o[2] for o in obs])
     speed = np.linalg.norm(np.array([o[6][0] for o in obs]).reshape(-1, 3), axis=1)
     out = {}
@@ -504,7 +571,7 @@ def _exposed_apart(
         shift = abs(dt) * float(np.median(speed[cam == n])) * focal
         if abs(dt) > 3.0 * std.get(n, np.inf) and shift > EXPOSED_APART_SHARE * px:
             out[n] = dt
-    return out
+    return out, adjusted, cov
 
 
 def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
@@ -567,10 +634,12 @@ def calibrate_mountings(
     camera's time offset, estimated as with ``estimate_time_offsets``, beyond 3 of its std and
     moving a corner by more than :data:`EXPOSED_APART_SHARE` of the RANSAC threshold at the
     rig's median angular speed), the mountings are then refined on the
-    corners (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's
-    error in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``), each
-    with the covariance of that solve, the rig poses marginalized, scaled by how far the
-    refinement moved the mountings (:func:`_corner_covariance`).
+    corners of every camera frame posed alone, those with fewer than ``min_inliers`` inliers
+    too (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's error
+    in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``), each with
+    the covariance of that solve, the rig poses marginalized, runs of rig frames as groups,
+    plus the error the pose-level and the refined mountings disagree by beyond the pose-level
+    covariance (:func:`_corner_covariance`).
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
@@ -579,7 +648,8 @@ def calibrate_mountings(
             (its known mounting on the rig) places it: the rig frame is then that mounting's.
         window: s; frames further apart are not one rig frame.
         stamp_row: the row whose capture time is a frame's stamp.
-        min_inliers: frames posed with fewer inliers are not used.
+        min_inliers: frames posed with fewer inliers are left out of the pose-level
+            adjustment (the refinement on the corners takes their corners).
         max_step: s; the longest interval between a camera's two frames to interpolate over
             (beyond it a frame is carried by its own twist).
         options: the single-camera estimator's
@@ -600,7 +670,10 @@ def calibrate_mountings(
         ValueError: no frame of ``reference`` posed.
     """
     given = {n: float(v) for n, v in (time_offsets or {}).items()}
-    poses = _posed_alone(frames, options, min_inliers, stamp_row, given)
+    # every camera frame posed alone (the corners' refinement takes them all), those with at
+    # least min_inliers inliers for the pose-level adjustment
+    every = _posed_alone(frames, options, 0, stamp_row, given)
+    poses = {n: [i for i in items if len(i[6][0]) >= min_inliers] for n, items in every.items()}
     if not poses.get(reference):
         raise ValueError(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
@@ -647,13 +720,37 @@ def calibrate_mountings(
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
-        apart = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
-        if not apart:
-            corners = _refine_on_corners(rig_frames, poses, obs, rig, mounts, reference, px)
-            refined = corners is not None
-            if refined:
-                cov, misfit = _corner_covariance(*corners, mounts, reference)
-                mounts = corners[0]
+        apart, timed, timed_cov = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
+        corners = _refine_on_corners(
+            rig_frames, every, obs, rig, mounts, reference, px, window, max_step, bool(apart)
+        )
+        found = {}  # (s: with apart, the offsets the corners' solves found, summed)
+        for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
+            # the camera frames regrouped at the offsets found and solved again (the offsets
+            # the motion's first order leaves)
+            dt = corners[1].time_offsets(corners[2].result.x)
+            free = [n for n in corners[0] if n != reference]
+            for n, v in zip(free, dt, strict=True):
+                found[n] = found.get(n, 0.0) + float(v)
+                every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
+            again = _refine_on_corners(
+                rig_frames, every, obs, rig, mounts, reference, px, window, max_step, True
+            )
+            if again is None:
+                break
+            corners = again
+            if np.all(np.abs(dt) < TIME_OFFSET_TOL):
+                break
+        refined = corners is not None
+        if refined:
+            # (the two estimates compared alike: with a time offset per camera or without)
+            start, start_cov = (timed, timed_cov) if apart else (mounts, cov)
+            cov, misfit, dt_c = _corner_covariance(*corners, start, reference, start_cov)
+            mounts = corners[0]
+            if apart:
+                dt = corners[1].time_offsets(corners[2].result.x)
+                dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_c, dt, strict=True)}
+                dt_std = dt_c
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:

@@ -88,7 +88,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--min-inliers",
         type=A.positive_int,
         default=20,
-        help="camera frames posed with fewer inliers are not used",
+        help="camera frames posed with fewer inliers are left out of the pose-level "
+        "adjustment (a global-shutter rig's refinement on the corners takes their corners)",
     )
     c.add_argument(
         "--time-offsets",
@@ -224,9 +225,10 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
     ]
     if e.corners_refined:
         notes.append(
-            f"{n}: refined on the corners; its std is the corners' solve's times "
-            f"{np.sqrt(e.corner_misfit):.1f} (their misfit: how far the refinement moved the "
-            "mountings from the cameras' poses in that solve's std)"
+            f"{n}: refined on the corners; its std is the corners' solve's plus the error the "
+            f"cameras' poses and the corners disagree by (misfit {e.corner_misfit:.1f}: how "
+            "far the refinement moved the mountings in the pose-level std, squared, per degree "
+            "of freedom; 1: none added)"
         )
     if np.isfinite(e.time_offset_std):
         notes.append(
@@ -240,10 +242,15 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
                 "frames it shares; record one that moves"
             )
     if np.isfinite(e.exposure_offset):
+        how = (
+            "the mountings were refined on the corners with a time offset per camera (above)"
+            if e.corners_refined
+            else "the mountings were not refined on the corners; --time-offsets estimates "
+            "the offsets"
+        )
         notes.append(
             f"NOTE: {n}: the cameras do not seem to expose together ({n} about "
-            f"{1e3 * e.exposure_offset:+.1f} ms from the reference while the rig turns): the "
-            "mountings were not refined on the corners; --time-offsets estimates the offsets"
+            f"{1e3 * e.exposure_offset:+.1f} ms from the reference while the rig turns): {how}"
         )
     if e.frames < MIN_RIG_FRAMES:
         notes.append(short_video_warning(n, e.frames))

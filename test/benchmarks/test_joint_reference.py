@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from benchmarks.bench_real_rig import reference_residuals, rig_run, summary
 from benchmarks.joint_reference import (
+    halves,
     joint_reference,
     mounting_coverage,
     solve_joint,
@@ -141,3 +142,26 @@ def test_mounting_coverage_measures_the_error_in_the_mountings_std():
     assert abs(out["error_deg"] - 0.2) < 1e-9 and abs(out["error_mm"] - 2.5) < 1e-9
     assert abs(out["k"] - 2.5) < 1e-6 and abs(out["nees"] - 10.25) < 1e-6
     assert out["within"]  # (10.25 < 20.06, the 99.73 % quantile of 6 degrees of freedom)
+
+
+def test_halves_measures_the_difference_in_both_halves_std():
+    # two estimates of one mounting 0.3 deg apart about the rig's x axis and 4 mm apart along
+    # z, each with std 0.1 deg and 1 mm on every axis: the difference's std sqrt(2) times
+    # that, k = 4 / sqrt(2) (the position's z)
+    from rs_localizer.calibration import MountingEstimate
+    from rs_localizer.frames import Mounting
+
+    C = np.diag([np.deg2rad(0.1) ** 2] * 3 + [1e-6] * 3)
+    Ra = Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix()
+    Rb = Ra @ Rotation.from_rotvec([np.deg2rad(0.3), 0.0, 0.0]).as_matrix()
+    pa = np.array([0.1, 0.0, 0.02])
+
+    def est(R, p):
+        return {"b": MountingEstimate("b", Mounting.from_pose(R, p, covariance=C), 10, 0, 0, 0,
+                                      0, 0)}  # fmt: skip
+
+    out = halves(est(Ra, pa), est(Rb, pa + [0.0, 0.0, 0.004]), "a")["b"]
+    assert abs(out["diff_deg"] - 0.3) < 1e-9 and abs(out["diff_mm"] - 4.0) < 1e-9
+    assert abs(out["k"] - 4.0 / np.sqrt(2)) < 1e-6
+    assert abs(out["std_deg"] - 0.1 * np.sqrt(6)) < 1e-9
+    assert abs(out["std_mm"] - np.sqrt(6)) < 1e-9

@@ -258,8 +258,8 @@ def test_cameras_that_do_not_expose_together_are_noted():
     ), notes
     notes, _ = _camera_notes("left", replace(e, corners_refined=True, corner_misfit=4.0), None)
     assert not any("expose together" in n for n in notes), notes
-    # a refined mounting's std: the corners' solve's times the root of their misfit
-    assert any("refined on the corners" in n and "times 2.0" in n for n in notes), notes
+    # a refined mounting's std: the corners' solve's plus what the two estimates disagree by
+    assert any("refined on the corners" in n and "misfit 4.0" in n for n in notes), notes
     notes, _ = _camera_notes("left", e, None)
     assert not any("refined on the corners" in n for n in notes), notes
 
