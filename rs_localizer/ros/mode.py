@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..correspondences import Correspondences, FrontendHooks
+from ..correspondences import Correspondences
 from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
@@ -40,15 +40,19 @@ from ..tracking.video import Localizer, LocalizerOutput
 from .camera_input import CameraInput, DroppedFrame, FrameStep, ImageFrame
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame, names_a_rig
-from .diagnostics import CameraPart, GyroState, RigInputs, StatusParts, frontend_values
-from .frame_queue import frame_accounting
+from .diagnostics import (
+    CameraAlone,
+    RigInputs,
+    StatusParts,
+    frontend_values,
+    localizer_status_parts,
+)
 from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
 from .pipeline import (
     Drop,
     FusedOutput,
     MapFitCheck,
     PipelineStats,
-    StatsSnapshot,
     ThrottledLog,
     fused_outputs,
     take_imu_message,
@@ -61,12 +65,11 @@ from .rig_node import (
     note_camera_frame,
     rig_failure_line,
     rig_ready_subject,
-    rig_status_parts,
     rig_values,
     rig_views,
 )
 
-__all__ = ["CameraFrameResult", "LocalizerMode", "camera_status_parts"]
+__all__ = ["CameraFrameResult", "LocalizerMode"]
 
 
 class CameraFrameResult:
@@ -581,20 +584,18 @@ class LocalizerMode(ModeBase):
 
     # ---------------------------------------------------------------- diagnostics
     def diagnostics(self) -> tuple[str, StatusParts]:
-        """The hardware id and status: the camera alone's (its ``camera_frame``, or
-        ``camera``; :func:`camera_status_parts` of its counts), or the rig's (``base_frame``;
-        :func:`.rig_node.rig_status_parts` of the node's counts and times per camera)."""
+        """The hardware id (the camera alone's ``camera_frame``, or ``camera``; a rig's
+        ``base_frame``) and the status's parts of the one builder
+        (:func:`.diagnostics.localizer_status_parts` of the localizer): the camera alone's of
+        its counts (:class:`.diagnostics.CameraAlone`), a rig's of the node's counts and times
+        per camera, taken between two frames of the worker (one consistent count)."""
         cfg, rig = self.cfg, self.rig
-        if self.alone:  # (its status as a camera's: its counts, its one section named "")
-            stats = self._own.snapshot()
-            gyro = None
-            if cfg.imu is not None:
-                gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
-                                    rig.gyro_inconsistent)  # fmt: skip
-            parts = camera_status_parts(cfg, stats, rig.tracking_values(),
-                                        self.node.inputs[""].source(), self._own.messages_lost,
-                                        gyro, self._loaded[""].frontend)  # fmt: skip
-            return cfg.camera.frame or "camera", parts
+        if self.alone:  # (its counts as a camera's, its one section named "")
+            stats, fe = self._own.snapshot(), self._loaded[""].frontend
+            frontend = None if fe is None else frontend_values(cfg.camera.frontend_kind, fe, stats)
+            alone = CameraAlone(cfg.solver, self.node.inputs[""].source(), cfg.queue_size, stats,
+                                self._own.messages_lost, frontend)  # fmt: skip
+            return cfg.camera.frame or "camera", localizer_status_parts(rig, alone)
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
         waited = first is not None and time.monotonic() - first > cfg.settings.stop_after
@@ -609,53 +610,4 @@ class LocalizerMode(ModeBase):
             inputs = RigInputs(counts, frame_times, imu, absent,
                                self.node.frontend_kind != "none",
                                self._counts.stage_times())  # fmt: skip
-            return cfg.base_frame, rig_status_parts(rig, waiting, inputs)
-
-
-def camera_status_parts(
-    cfg: LocalizerConfig,
-    stats: StatsSnapshot,
-    tracking: dict[str, Any],
-    camera_source: str,
-    messages_lost: int,
-    gyro: GyroState | None = None,
-    frontend: FrontendHooks | None = None,
-) -> StatusParts:
-    """The camera alone's status as data (:func:`.diagnostics.status` lays it out): its
-    frames (:func:`~.frame_queue.frame_accounting` of its counts ``stats.counts``), its one
-    section named "" (its counts and ``messages_lost``); ``solver``, ``camera``
-    (``camera_source``); after the estimator's path ``frames_compiled`` /
-    ``frames_uncompiled`` (frames solved on each path), ``queue_size``, ``time_resets``,
-    then ``frames_few_points``, ``frames_single_tag``; the map-fit check of its counts;
-    ``inliers_last``, ``inliers_mean``, ``planar``, ``tracking`` (its rig of one's
-    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`),
-    ``condition_number_last``; its stage times; with an image front end (``frontend``) its
-    values (:func:`.diagnostics.frontend_values`); the ``gyro`` with ``imu.enabled``; its
-    counts by reason."""
-    c, inliers = stats.counts, stats.inliers
-    frames = frame_accounting(c)
-    return StatusParts(
-        frames=frames,
-        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
-                            frontend=frontend is not None)],
-        head={"solver": cfg.solver, "camera": camera_source},
-        path={"frames_compiled": c.get("frames_compiled", 0),
-              "frames_uncompiled": c.get("frames_uncompiled", 0),
-              "queue_size": cfg.queue_size, "time_resets": c.get("time_resets", 0)},
-        path_after={"frames_few_points": c.get("frames_few_points", 0),
-                    "frames_single_tag": c.get("frames_single_tag", 0)},
-        map_fit=c,
-        tracking={
-            "inliers_last": inliers[-1] if inliers else 0,
-            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
-            "planar": str(stats.planar).lower(),
-            **tracking,
-            "condition_number_last": f"{stats.condition_number:.3g}",
-        },
-        stage_times=stats.stage_times,
-        with_frontend=frontend is not None,
-        frontend={} if frontend is None else frontend_values(cfg.camera.frontend_kind, frontend,
-                                                             stats),
-        gyro=gyro,
-        counts=c,
-    )  # fmt: skip
+            return cfg.base_frame, localizer_status_parts(rig, None, waiting, inputs)

@@ -129,6 +129,34 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert v[f"{names[0]}.received"] == 0 and v["latency_ms_median"] == "nan"
 
 
+def test_the_rig_status_has_the_tracks_values_of_a_camera():
+    """A rig's status reports its track as a camera's does, the keys in the camera's order:
+    ``track_state``, ``frames_tracked``, ``relocalizations``, ``resets`` (gained by the rig:
+    its track's counts over its tracks), then the fused twists' and the readout check's."""
+    from helpers.rig import mounts_of
+
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    for f in frames:
+        rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+    v = rig_status(rig)[2]
+    track = rig.tracking_values()
+    cfg = build_config(default_values())
+    snap = replace(PipelineStats().snapshot(), counts={"received": 1, "solved": 1})
+    camera = camera_status(cfg, snap, track, "camera_info", 0)[2]
+    assert [k for k in v if k in track] == [k for k in camera if k in track] == list(track)
+    assert list(track)[:4] == ["track_state", "frames_tracked", "relocalizations", "resets"]
+    assert {k: v[k] for k in track} == track
+    assert v["track_state"] == "tracking" and 0 < v["frames_tracked"] <= v["rig_frames"]
+    assert v["resets"] == 0
+
+
 def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     """A rig's fused twists go through the camera's plausibility check, and its status counts
     them under the camera's keys: a rig frame whose fused state the filter hands out at
