@@ -62,7 +62,6 @@ from .rig_node import (
     RigGrouping,
     declare_rig_cameras,
     new_rig_cameras,
-    note_camera_frame,
     rig_failure_line,
     rig_ready_subject,
     rig_values,
@@ -364,7 +363,8 @@ class LocalizerMode(ModeBase):
         (docs/rig_node.md): a frame its input stage refused goes to the rig as skipped and is
         logged (:meth:`_not_taken`); a cloud before any camera_info warned about; an image
         kept for ``debug_image`` while someone watches; its times per stage to the
-        diagnostics (:func:`.rig_node.note_camera_frame`)."""
+        diagnostics as the camera alone's
+        (:meth:`.camera_input.CameraCounts.frame_stage_times`: the gyro wait as decoding)."""
         frame, outs, taken_at = taken
         res.outs = outs
         search = None
@@ -374,8 +374,12 @@ class LocalizerMode(ModeBase):
         if self.alone:  # (its counts, stage times and drops as a camera's)
             self._as_camera(frame, search, taken_at, tic, res)
             return
-        note_camera_frame(self._counts, tic, taken_at, search and search.seconds,
-                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
+        front = 0.0 if search is None else search.seconds
+        if search is not None:
+            self._counts.stage_time("frontend", front)
+        self._counts.frame_stage_times(tic, taken_at, time.perf_counter(), front,
+                                       sum(o.gyro_seconds for o in outs),
+                                       any(o.success for o in outs))  # fmt: skip
         if isinstance(frame, DroppedFrame):
             self._not_taken(kind, frame)
         elif kind != "image":
@@ -392,8 +396,9 @@ class LocalizerMode(ModeBase):
         """The camera alone's frame counted as its camera's: a frame its input stage refused,
         its front end's run (:meth:`_frontend_ran`), the estimate of its rig frame
         (:meth:`_solved_alone`), the path it was solved on (``frames_compiled``,
-        ``frames_uncompiled``) and its times per stage (the wait for the gyro samples counts
-        as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
+        ``frames_uncompiled``) and its times per stage
+        (:meth:`.camera_input.CameraCounts.frame_stage_times`: the wait for the gyro samples
+        counts as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
         dropped, with its reason."""
         if isinstance(frame, DroppedFrame):
             raise Drop(frame.reason, str(frame.error))
@@ -408,8 +413,7 @@ class LocalizerMode(ModeBase):
         t_estimated = time.perf_counter()
         res.fused = self._fused(out.fused)
         self._solved_alone(out, res)
-        self._own.stage_time("decode", taken_at - tic + out.gyro_seconds)
-        self._own.stage_time("estimate", t_estimated - taken_at - front - out.gyro_seconds)
+        self._own.frame_stage_times(tic, taken_at, t_estimated, front, out.gyro_seconds)
 
     def _frontend_ran(self, search: Any, res: CameraFrameResult) -> None:
         """The front end's run on the camera alone's image (its rig of one's last search)

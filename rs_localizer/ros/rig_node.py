@@ -9,18 +9,18 @@ outputs and diagnostics builder) and publishes the rig, ``base_frame``, as one b
 topics, parameters, counts and diagnostics are in docs/rig_node.md. This module holds what
 only a rig of several cameras needs: its cameras' parameters (``rig.<c>.*``,
 :func:`declare_rig_cameras`, :func:`rig_values`), its cameras' inputs and counts with the
-frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`, :class:`RigGrouping`: a
-full queue drops whole rig frames, counted ``<c>.skipped.queue_full``), a rig camera's stage times
-(:func:`note_camera_frame`), the rig's ready line and log lines (:func:`rig_ready_subject`,
-:func:`rig_failure_line`: failed rig frames by reason, outvoted cameras), its cameras' debug views
-as the rig's pose and their mountings put them (:func:`rig_views`); its status comes from the one
-builder (:func:`.diagnostics.localizer_status_parts`: rig frames, a section per camera). Per camera
-``received = solved + failed + skipped + pending`` in every diagnostics snapshot (pending: waiting
-in the queue or in an open rig frame). A parameter change at run time takes the camera alone's path
-(:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and gyro,
-``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply from the
-next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when drawing, and
-the others are refused with why (:func:`.config.rig_change_refused`).
+frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
+:class:`RigGrouping`: a full queue drops whole rig frames, counted ``<c>.skipped.queue_full``),
+the rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
+rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and their
+mountings put them (:func:`rig_views`); its status comes from the one builder
+(:func:`.diagnostics.localizer_status_parts`: rig frames, a section per camera). Per camera
+``received = solved + failed + skipped + pending`` in every diagnostics snapshot (pending:
+waiting in the queue or in an open rig frame). A parameter change at run time takes the camera
+alone's path (:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and
+gyro, ``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply
+from the next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when
+drawing, and the others are refused with why (:func:`.config.rig_change_refused`).
 """
 
 from __future__ import annotations
@@ -44,7 +44,6 @@ __all__ = [
     "RigGrouping",
     "declare_rig_cameras",
     "new_rig_cameras",
-    "note_camera_frame",
     "rig_failure_line",
     "rig_ready_subject",
     "rig_values",
@@ -76,21 +75,6 @@ INPUT_SKIP_REASONS = {
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own
 :data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
-
-
-def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
-                      frontend_s: float | None, posed: bool, toc: float) -> None:  # fmt: skip
-    """A rig camera's frame through the worker (:func:`time.perf_counter` s), its times per
-    stage in the rig's ``counts`` (:meth:`.camera_input.CameraCounts.stage_time`): taken by
-    its input stage from ``tic`` to ``taken_at`` (``decode``: decoding, its stamp and
-    camera_info), then the rig until ``toc``: the front end's ``frontend_s`` on an image (None:
-    not searched) and, when it completed a posed rig frame (``posed``), the rest
-    (``estimate``: grouping, the rig's estimate, its gyro wait and tracking)."""
-    counts.stage_time("decode", taken_at - tic)
-    if frontend_s is not None:
-        counts.stage_time("frontend", frontend_s)
-    if posed:
-        counts.stage_time("estimate", toc - taken_at - (frontend_s or 0.0))
 
 
 def declare_rig_cameras(node: Any) -> list[str]:
