@@ -169,6 +169,20 @@ class CameraCounts:
         with self._lock:
             self._stages[stage].append(seconds)
 
+    def frame_stage_times(self, tic: float, taken_at: float, toc: float, front_s: float,
+                          gyro_s: float, posed: bool = True) -> None:  # fmt: skip
+        """A camera frame's times through the worker (:func:`time.perf_counter` s), the camera
+        alone's and a rig camera's one way: taken by its input stage from ``tic`` to
+        ``taken_at``, then the localizer until ``toc``. ``decode``: the input stage (decoding,
+        its stamp and camera_info) and the wait for the gyro samples (``gyro_s``, the
+        localizer's ``gyro_seconds`` of the rig frames it completed); when it completed a
+        posed rig frame (``posed``), ``estimate``: the rest less its front end's search
+        (``front_s``, recorded under ``frontend`` by its caller) and the gyro wait."""
+        with self._lock:
+            self._stages["decode"].append(taken_at - tic + gyro_s)
+            if posed:
+                self._stages["estimate"].append(toc - taken_at - front_s - gyro_s)
+
     def stage_times(self) -> dict[str, list[float]]:
         """A consistent copy of the kept stage times: stage -> s, oldest first."""
         with self._lock:

@@ -10,10 +10,12 @@ shared by both: the estimator's path, the map-fit check, the timing keys
 (:func:`timing_values`, the stage times a camera's counts keep,
 :meth:`~.camera_input.CameraCounts.stage_time`) and the gyro's values
 (:class:`GyroState`). The node (:meth:`.core.NodeCore.diagnostics_status`) calls it on what
-its mode hands as data (:meth:`.mode.LocalizerMode.diagnostics`): one camera's (its
-counters, :func:`frontend_values`) or a rig's (the
-rig frames' counts and each camera's section of :func:`rig_camera_status`, its lines of
-grouping, disagreement, mounting and clock offsets)."""
+its mode hands as data (:meth:`.mode.LocalizerMode.diagnostics`), the parts of one builder
+(:func:`localizer_status_parts` of its localizer, :func:`status_parts`): a section per camera
+(the camera alone's :class:`CameraAlone`, its counters and :func:`frontend_values`, its keys
+at the top; each rig camera's of :func:`rig_camera_status`, its lines of grouping,
+disagreement, mounting and clock offsets), the track's and the gyro's values, and a rig's
+own part, its rig frames' counts."""
 
 from __future__ import annotations
 
@@ -40,17 +42,20 @@ __all__ = [
     "IMU_IDLE_WARN_S",
     "OK",
     "WARN",
+    "CameraAlone",
     "CameraPart",
     "GyroState",
     "RigInputs",
     "StatusParts",
     "camera_section",
     "frontend_values",
+    "localizer_status_parts",
     "rig_camera_frames",
     "rig_camera_part",
     "rig_camera_section",
     "rig_camera_status",
     "status",
+    "status_parts",
     "timing_values",
 ]
 
@@ -489,6 +494,160 @@ def _imu_values(g: GyroState) -> dict[str, Any]:
         "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
         "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
     }
+
+
+@dataclass
+class CameraAlone:
+    """The camera alone's own values of its status (:func:`status_parts`), its section's keys
+    at the top: its ``solver``, where its intrinsics come from (``source``: ``camera_info`` or
+    ``parameters``), ``queue_size``, its counters (``stats``: its
+    :class:`~rs_localizer.ros.pipeline.PipelineStats` snapshot), the messages the middleware
+    lost (``messages_lost``) and, with an image front end, its values (``frontend``,
+    :func:`frontend_values`; None: no front end)."""
+
+    solver: str
+    source: str
+    queue_size: int
+    stats: StatsSnapshot
+    messages_lost: int = 0
+    frontend: dict[str, Any] | None = None
+
+    def part(self) -> CameraPart:
+        """Its one section (:class:`CameraPart` named ""): its frames
+        (:func:`~rs_localizer.ros.frame_queue.frame_accounting` of its counts), its counts and
+        ``messages_lost``."""
+        c = self.stats.counts
+        return CameraPart("", frame_accounting(c), {**c, "messages_lost": self.messages_lost},
+                          frontend=self.frontend is not None)  # fmt: skip
+
+
+def status_parts(
+    cameras: Sequence[CameraPart],
+    tracking: Mapping[str, Any],
+    counts: Mapping[str, int] | None,
+    gyro: GyroState | None = None,
+    stage_times: Mapping[str, Sequence[float]] | None = None,
+    with_frontend: bool = False,
+    alone: CameraAlone | None = None,
+    rig_frames: FrameCounts | None = None,
+    rig_path: Mapping[str, Any] | None = None,
+    warnings: Sequence[str] = (),
+    absent: Sequence[str] = (),
+    map_fit: bool = True,
+) -> StatusParts:
+    """The one builder of a status's parts, of the camera alone and of a rig (:func:`status`
+    lays them out): a section per camera (``cameras``: the camera alone's
+    :meth:`CameraAlone.part`, its flat keys; each rig camera's :func:`rig_camera_status`),
+    the track's values (``tracking``:
+    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`), the mode's ``counts``
+    (the ``gyro_missing.<reason>``, ``gyro_rejected.<reason>``, ``imu_rejected.<reason>``
+    and, ``map_fit``, the map-fit check's; None: none known), the ``gyro`` with ``imu.enabled``, the
+    stage times (``frontend`` only ``with_frontend``). The camera alone (``alone``) is solved
+    in its section's frames, with its own values at the top: ``solver``, ``camera``; after
+    the estimator's path ``frames_compiled``, ``frames_uncompiled``, ``queue_size``,
+    ``time_resets``, then ``frames_few_points``, ``frames_single_tag``; ``inliers_last``,
+    ``inliers_mean``, ``planar`` before the track's values and ``condition_number_last``
+    after them; its front end's values. A rig's own part: its rig frames (``rig_frames``),
+    after the estimator's path ``rig_path`` (``rig_frames_uncompiled``, ``time_resets``), its
+    ``warnings`` and the cameras that sent nothing (``absent``)."""
+    head: dict[str, Any] = {}
+    path_after: dict[str, Any] = {}
+    frontend: dict[str, Any] = {}
+    track = dict(tracking)
+    if alone is not None:
+        c, s = alone.stats.counts, alone.stats
+        rig_frames = cameras[0].frames
+        head = {"solver": alone.solver, "camera": alone.source}
+        rig_path = {
+            "frames_compiled": c.get("frames_compiled", 0),
+            "frames_uncompiled": c.get("frames_uncompiled", 0),
+            "queue_size": alone.queue_size,
+            "time_resets": c.get("time_resets", 0),
+        }
+        path_after = {"frames_few_points": c.get("frames_few_points", 0),
+                      "frames_single_tag": c.get("frames_single_tag", 0)}  # fmt: skip
+        track = {
+            "inliers_last": s.inliers[-1] if s.inliers else 0,
+            "inliers_mean": f"{np.mean(s.inliers):.1f}" if s.inliers else "0",
+            "planar": str(s.planar).lower(),
+            **tracking,
+            "condition_number_last": f"{s.condition_number:.3g}",
+        }
+        frontend = alone.frontend or {}
+    return StatusParts(
+        frames=rig_frames,
+        cameras=list(cameras),
+        warnings=list(warnings),
+        head=head,
+        path=dict(rig_path or {}),
+        path_after=path_after,
+        map_fit=counts if map_fit else None,
+        tracking=track,
+        stage_times=stage_times,
+        with_frontend=with_frontend,
+        frontend=frontend,
+        gyro=gyro,
+        counts=counts or {},
+        absent=list(absent),
+    )
+
+
+def localizer_status_parts(
+    rig: Localizer,
+    alone: CameraAlone | None = None,
+    waiting_info: Collection[str] = (),
+    inputs: RigInputs | None = None,
+) -> StatusParts:
+    """The status's parts of the node's localizer ``rig`` (:func:`status_parts`), of the
+    camera alone (``alone``: its own values and counts, its gyro counted in them) or of a rig
+    of cameras: a section per camera (:func:`rig_camera_status`, ``waiting_info`` the
+    cameras waiting for their camera_info; with the node's ``inputs``, None: the rig's counts
+    alone, also its map-fit check, its stage times, each camera's and all cameras'
+    ``camera_frame_ms_median``, the IMU messages rejected, ``imu_rejected.<reason>``, and the
+    cameras that sent nothing, ``absent``) and the rig's own part: its rig frames
+    (``rig_frames``, ``rig_frames_solved`` ... ``_pending``; the rig estimator's failures by
+    reason, ``rig_frames_failed.<reason>``, ``error``: it raised), ``rig_frames_uncompiled``
+    (rig frames solved on the uncompiled path), ``time_resets`` and its warning when the
+    image rejects the gyro more often than it uses it (while the gyro is not found to
+    contradict the image). Either way the track's values
+    (:meth:`~rs_localizer.tracking.video.Localizer.tracking_values`) and, with
+    ``imu.enabled``, the gyro's (:class:`GyroState`; a rig's counts
+    :meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`, the rig frames for its
+    frames)."""
+    warnings: list[str] = []
+    if alone is not None:
+        cameras, counts = [alone.part()], alone.stats.counts
+        stage_times, frontend, gyro_counts = alone.stats.stage_times, alone.frontend, counts
+        frames = path = None
+        with_frontend = frontend is not None
+    else:  # (a rig's own part: its rig frames, its cameras' state in it)
+        cameras = [rig_camera_status(rig, n, waiting_info, inputs) for n in rig.cameras]
+        counts, stage_times, imu_rejected = {}, None, {}
+        if inputs is not None:
+            imu_rejected, stage_times = inputs.imu_rejected, inputs.stage_times
+            counts = {**inputs.counts, **{f"imu_rejected.{k}": v for k, v in imu_rejected.items()}}
+        with_frontend = inputs is not None and inputs.frontend
+        gyro_counts = {**rig.gyro_counts(), "imu_rejected": sum(imu_rejected.values())}
+        r, failed = rig.rig_counts(), "rig.failed."
+        failures = {k[len(failed) :]: v for k, v in rig.counts.items() if k.startswith(failed)}
+        frames = FrameCounts(r["rig_frames"], *(r[k] for k in FRAME_ACCOUNTING[1:]),
+                             failures=failures)  # fmt: skip
+        path = {"rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
+                "time_resets": rig.counts.get("rig.time_resets", 0)}  # fmt: skip
+        c = gyro_counts
+        if (rig.settings.imu is not None and not rig.gyro_inconsistent
+                and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0)):  # fmt: skip
+            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
+    gyro = None
+    if rig.settings.imu is not None:
+        gyro = GyroState.of(rig.settings.imu, gyro_counts, rig.imu, rig.gyro_bias_values(),
+                            rig.gyro_inconsistent)  # fmt: skip
+        if alone is None:
+            counts = {**gyro_counts, **counts}
+    absent = inputs.absent if inputs is not None else ()
+    return status_parts(cameras, rig.tracking_values(), counts, gyro, stage_times, with_frontend,
+                        alone, frames, path, warnings, absent,
+                        map_fit=alone is not None or inputs is not None)  # fmt: skip
 
 
 # ---------------------------------------------------------------------- a rig of cameras

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..correspondences import Correspondences, FrontendHooks
+from ..correspondences import Correspondences
 from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
@@ -40,15 +40,19 @@ from ..tracking.video import Localizer, LocalizerOutput
 from .camera_input import CameraInput, DroppedFrame, FrameStep, ImageFrame
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame, names_a_rig
-from .diagnostics import CameraPart, GyroState, RigInputs, StatusParts, frontend_values
-from .frame_queue import frame_accounting
+from .diagnostics import (
+    CameraAlone,
+    RigInputs,
+    StatusParts,
+    frontend_values,
+    localizer_status_parts,
+)
 from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
 from .pipeline import (
     Drop,
     FusedOutput,
     MapFitCheck,
     PipelineStats,
-    StatsSnapshot,
     ThrottledLog,
     fused_outputs,
     take_imu_message,
@@ -58,15 +62,13 @@ from .rig_node import (
     RigGrouping,
     declare_rig_cameras,
     new_rig_cameras,
-    note_camera_frame,
     rig_failure_line,
     rig_ready_subject,
-    rig_status_parts,
     rig_values,
     rig_views,
 )
 
-__all__ = ["CameraFrameResult", "LocalizerMode", "camera_status_parts"]
+__all__ = ["CameraFrameResult", "LocalizerMode"]
 
 
 class CameraFrameResult:
@@ -361,7 +363,8 @@ class LocalizerMode(ModeBase):
         (docs/rig_node.md): a frame its input stage refused goes to the rig as skipped and is
         logged (:meth:`_not_taken`); a cloud before any camera_info warned about; an image
         kept for ``debug_image`` while someone watches; its times per stage to the
-        diagnostics (:func:`.rig_node.note_camera_frame`)."""
+        diagnostics as the camera alone's
+        (:meth:`.camera_input.CameraCounts.frame_stage_times`: the gyro wait as decoding)."""
         frame, outs, taken_at = taken
         res.outs = outs
         search = None
@@ -371,8 +374,12 @@ class LocalizerMode(ModeBase):
         if self.alone:  # (its counts, stage times and drops as a camera's)
             self._as_camera(frame, search, taken_at, tic, res)
             return
-        note_camera_frame(self._counts, tic, taken_at, search and search.seconds,
-                          any(o.success for o in outs), time.perf_counter())  # fmt: skip
+        front = 0.0 if search is None else search.seconds
+        if search is not None:
+            self._counts.stage_time("frontend", front)
+        self._counts.frame_stage_times(tic, taken_at, time.perf_counter(), front,
+                                       sum(o.gyro_seconds for o in outs),
+                                       any(o.success for o in outs))  # fmt: skip
         if isinstance(frame, DroppedFrame):
             self._not_taken(kind, frame)
         elif kind != "image":
@@ -389,8 +396,9 @@ class LocalizerMode(ModeBase):
         """The camera alone's frame counted as its camera's: a frame its input stage refused,
         its front end's run (:meth:`_frontend_ran`), the estimate of its rig frame
         (:meth:`_solved_alone`), the path it was solved on (``frames_compiled``,
-        ``frames_uncompiled``) and its times per stage (the wait for the gyro samples counts
-        as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
+        ``frames_uncompiled``) and its times per stage
+        (:meth:`.camera_input.CameraCounts.frame_stage_times`: the wait for the gyro samples
+        counts as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
         dropped, with its reason."""
         if isinstance(frame, DroppedFrame):
             raise Drop(frame.reason, str(frame.error))
@@ -405,8 +413,7 @@ class LocalizerMode(ModeBase):
         t_estimated = time.perf_counter()
         res.fused = self._fused(out.fused)
         self._solved_alone(out, res)
-        self._own.stage_time("decode", taken_at - tic + out.gyro_seconds)
-        self._own.stage_time("estimate", t_estimated - taken_at - front - out.gyro_seconds)
+        self._own.frame_stage_times(tic, taken_at, t_estimated, front, out.gyro_seconds)
 
     def _frontend_ran(self, search: Any, res: CameraFrameResult) -> None:
         """The front end's run on the camera alone's image (its rig of one's last search)
@@ -581,20 +588,18 @@ class LocalizerMode(ModeBase):
 
     # ---------------------------------------------------------------- diagnostics
     def diagnostics(self) -> tuple[str, StatusParts]:
-        """The hardware id and status: the camera alone's (its ``camera_frame``, or
-        ``camera``; :func:`camera_status_parts` of its counts), or the rig's (``base_frame``;
-        :func:`.rig_node.rig_status_parts` of the node's counts and times per camera)."""
+        """The hardware id (the camera alone's ``camera_frame``, or ``camera``; a rig's
+        ``base_frame``) and the status's parts of the one builder
+        (:func:`.diagnostics.localizer_status_parts` of the localizer): the camera alone's of
+        its counts (:class:`.diagnostics.CameraAlone`), a rig's of the node's counts and times
+        per camera, taken between two frames of the worker (one consistent count)."""
         cfg, rig = self.cfg, self.rig
-        if self.alone:  # (its status as a camera's: its counts, its one section named "")
-            stats = self._own.snapshot()
-            gyro = None
-            if cfg.imu is not None:
-                gyro = GyroState.of(cfg.imu, stats.counts, rig.imu, rig.gyro_bias_values(),
-                                    rig.gyro_inconsistent)  # fmt: skip
-            parts = camera_status_parts(cfg, stats, rig.tracking_values(),
-                                        self.node.inputs[""].source(), self._own.messages_lost,
-                                        gyro, self._loaded[""].frontend)  # fmt: skip
-            return cfg.camera.frame or "camera", parts
+        if self.alone:  # (its counts as a camera's, its one section named "")
+            stats, fe = self._own.snapshot(), self._loaded[""].frontend
+            frontend = None if fe is None else frontend_values(cfg.camera.frontend_kind, fe, stats)
+            alone = CameraAlone(cfg.solver, self.node.inputs[""].source(), cfg.queue_size, stats,
+                                self._own.messages_lost, frontend)  # fmt: skip
+            return cfg.camera.frame or "camera", localizer_status_parts(rig, alone)
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
         waited = first is not None and time.monotonic() - first > cfg.settings.stop_after
@@ -609,53 +614,4 @@ class LocalizerMode(ModeBase):
             inputs = RigInputs(counts, frame_times, imu, absent,
                                self.node.frontend_kind != "none",
                                self._counts.stage_times())  # fmt: skip
-            return cfg.base_frame, rig_status_parts(rig, waiting, inputs)
-
-
-def camera_status_parts(
-    cfg: LocalizerConfig,
-    stats: StatsSnapshot,
-    tracking: dict[str, Any],
-    camera_source: str,
-    messages_lost: int,
-    gyro: GyroState | None = None,
-    frontend: FrontendHooks | None = None,
-) -> StatusParts:
-    """The camera alone's status as data (:func:`.diagnostics.status` lays it out): its
-    frames (:func:`~.frame_queue.frame_accounting` of its counts ``stats.counts``), its one
-    section named "" (its counts and ``messages_lost``); ``solver``, ``camera``
-    (``camera_source``); after the estimator's path ``frames_compiled`` /
-    ``frames_uncompiled`` (frames solved on each path), ``queue_size``, ``time_resets``,
-    then ``frames_few_points``, ``frames_single_tag``; the map-fit check of its counts;
-    ``inliers_last``, ``inliers_mean``, ``planar``, ``tracking`` (its rig of one's
-    :meth:`~rs_localizer.tracking.video.Localizer.tracking_values`),
-    ``condition_number_last``; its stage times; with an image front end (``frontend``) its
-    values (:func:`.diagnostics.frontend_values`); the ``gyro`` with ``imu.enabled``; its
-    counts by reason."""
-    c, inliers = stats.counts, stats.inliers
-    frames = frame_accounting(c)
-    return StatusParts(
-        frames=frames,
-        cameras=[CameraPart("", frames, {**c, "messages_lost": messages_lost},
-                            frontend=frontend is not None)],
-        head={"solver": cfg.solver, "camera": camera_source},
-        path={"frames_compiled": c.get("frames_compiled", 0),
-              "frames_uncompiled": c.get("frames_uncompiled", 0),
-              "queue_size": cfg.queue_size, "time_resets": c.get("time_resets", 0)},
-        path_after={"frames_few_points": c.get("frames_few_points", 0),
-                    "frames_single_tag": c.get("frames_single_tag", 0)},
-        map_fit=c,
-        tracking={
-            "inliers_last": inliers[-1] if inliers else 0,
-            "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
-            "planar": str(stats.planar).lower(),
-            **tracking,
-            "condition_number_last": f"{stats.condition_number:.3g}",
-        },
-        stage_times=stats.stage_times,
-        with_frontend=frontend is not None,
-        frontend={} if frontend is None else frontend_values(cfg.camera.frontend_kind, frontend,
-                                                             stats),
-        gyro=gyro,
-        counts=c,
-    )  # fmt: skip
+            return cfg.base_frame, localizer_status_parts(rig, None, waiting, inputs)

@@ -10,23 +10,22 @@ topics, parameters, counts and diagnostics are in docs/rig_node.md. This module 
 only a rig of several cameras needs: its cameras' parameters (``rig.<c>.*``,
 :func:`declare_rig_cameras`, :func:`rig_values`), its cameras' inputs and counts with the
 frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
-:class:`RigGrouping`: a full queue drops whole rig frames, counted
-``<c>.skipped.queue_full``), a rig camera's stage times (:func:`note_camera_frame`), the
-rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
-rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and
-their mountings put them (:func:`rig_views`) and its status (:func:`rig_status_parts`: rig
-frames, a section per camera). Per camera ``received = solved + failed + skipped +
-pending`` in every diagnostics snapshot (pending: waiting in the queue or in an open rig
-frame). A parameter change at run time takes the camera alone's path
-(:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and gyro,
-``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply from
-the next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when
+:class:`RigGrouping`: a full queue drops whole rig frames, counted ``<c>.skipped.queue_full``),
+the rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
+rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and their
+mountings put them (:func:`rig_views`); its status comes from the one builder
+(:func:`.diagnostics.localizer_status_parts`: rig frames, a section per camera). Per camera
+``received = solved + failed + skipped + pending`` in every diagnostics snapshot (pending:
+waiting in the queue or in an open rig frame). A parameter change at run time takes the camera
+alone's path (:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and
+gyro, ``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply
+from the next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when
 drawing, and the others are refused with why (:func:`.config.rig_change_refused`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from ..runtime.background import ready_implementation
@@ -35,8 +34,6 @@ from .camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
 from .declare import declare_dynamic, declare_parameters
-from .diagnostics import GyroState, RigInputs, StatusParts, rig_camera_status
-from .frame_queue import FRAME_ACCOUNTING, FrameCounts
 from .outputs import CameraView, LogLine
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import ThrottledLog
@@ -47,10 +44,8 @@ __all__ = [
     "RigGrouping",
     "declare_rig_cameras",
     "new_rig_cameras",
-    "note_camera_frame",
     "rig_failure_line",
     "rig_ready_subject",
-    "rig_status_parts",
     "rig_values",
     "rig_views",
 ]
@@ -80,21 +75,6 @@ INPUT_SKIP_REASONS = {
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own
 :data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
-
-
-def note_camera_frame(counts: CameraCounts, tic: float, taken_at: float,
-                      frontend_s: float | None, posed: bool, toc: float) -> None:  # fmt: skip
-    """A rig camera's frame through the worker (:func:`time.perf_counter` s), its times per
-    stage in the rig's ``counts`` (:meth:`.camera_input.CameraCounts.stage_time`): taken by
-    its input stage from ``tic`` to ``taken_at`` (``decode``: decoding, its stamp and
-    camera_info), then the rig until ``toc``: the front end's ``frontend_s`` on an image (None:
-    not searched) and, when it completed a posed rig frame (``posed``), the rest
-    (``estimate``: grouping, the rig's estimate, its gyro wait and tracking)."""
-    counts.stage_time("decode", taken_at - tic)
-    if frontend_s is not None:
-        counts.stage_time("frontend", frontend_s)
-    if posed:
-        counts.stage_time("estimate", toc - taken_at - (frontend_s or 0.0))
 
 
 def declare_rig_cameras(node: Any) -> list[str]:
@@ -259,49 +239,3 @@ def rig_views(out: LocalizerOutput, cfg: LocalizerConfig, camera_viz: Mapping,
                 image = img
         yield CameraView(n, view, frame.points2d, frame.points3d, frame.camera,
                          frame.stamp_ns, ref, frame.tag or n, image)  # fmt: skip
-
-
-def rig_status_parts(
-    rig: Localizer, waiting_info: Collection[str] = (), inputs: RigInputs | None = None
-) -> StatusParts:
-    """The rig's status as data (:func:`.diagnostics.status` lays it out, as one camera's):
-    its rig frames (``rig_frames``, ``rig_frames_solved`` ... ``_pending``; the rig
-    estimator's failures by reason, ``rig_frames_failed.<reason>``, ``error``: it raised), a
-    section per camera (:func:`.diagnostics.rig_camera_status`, ``waiting_info`` the cameras
-    waiting for their camera_info), after the estimator's path ``rig_frames_uncompiled``
-    (rig frames solved on the uncompiled path) and ``time_resets``; ``track_state``, the
-    fused twists' and the rolling-shutter timing check's values as a camera's; with a gyro
-    the camera's gyro values (:meth:`~rs_localizer.tracking.video.Localizer.gyro_counts`:
-    the rig frames for its frames) and the rig's own warning when the image rejects the gyro
-    more often than it uses it (while the gyro is not found to contradict the image). With
-    the node's ``inputs`` (None: the rig's counts alone) also its map-fit check, its stage
-    times, each camera's and all cameras' ``camera_frame_ms_median``, the IMU messages
-    rejected (``imu_rejected.<reason>``) and the cameras that sent nothing (``absent``)."""
-    gyro, warnings, counts = None, [], {}
-    if rig.settings.imu is not None:
-        c = rig.gyro_counts()
-        c["imu_rejected"] = sum(inputs.imu_rejected.values()) if inputs is not None else 0
-        if not rig.gyro_inconsistent and c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
-            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-        gyro = GyroState.of(rig.settings.imu, c, rig.imu, rig.gyro_bias_values(),
-                            rig.gyro_inconsistent)  # fmt: skip
-        counts = dict(c)
-    if inputs is not None:
-        counts.update({f"imu_rejected.{k}": v for k, v in inputs.imu_rejected.items()})
-    r, failed = rig.rig_counts(), "rig.failed."
-    failures = {k[len(failed) :]: v for k, v in rig.counts.items() if k.startswith(failed)}
-    return StatusParts(
-        frames=FrameCounts(r["rig_frames"], *(r[k] for k in FRAME_ACCOUNTING[1:]),
-                           failures=failures),
-        cameras=[rig_camera_status(rig, n, waiting_info, inputs) for n in rig.cameras],
-        warnings=warnings,
-        path={"rig_frames_uncompiled": rig.counts.get("rig.uncompiled", 0),
-              "time_resets": rig.counts.get("rig.time_resets", 0)},
-        map_fit=inputs.counts if inputs is not None else None,
-        tracking={"track_state": rig.track_state, **rig.twist_values(), **rig.readout_values()},
-        stage_times=inputs.stage_times if inputs is not None else None,
-        with_frontend=inputs is not None and inputs.frontend,
-        gyro=gyro,
-        counts=counts,
-        absent=list(inputs.absent) if inputs is not None else [],
-    )  # fmt: skip

@@ -315,25 +315,32 @@ class ParamClient:
 def camera_status(cfg, snap, tracking, source, lost, latencies=(), stamp_ages=(), rate_hz=None,
                   bias=None, inconsistent=False, idle_s=None, frontend=None):  # fmt: skip
     """``(level, message, values)`` of one camera's status as its node builds it: the
-    camera's parts (``rs_localizer.ros.mode.camera_status_parts`` of its config ``cfg``, its
-    counters ``snap``, ``tracking`` values, camera ``source``, messages ``lost``, with
-    ``imu.enabled`` its gyro of ``rate_hz``, ``bias``, ``inconsistent``, ``idle_s``, its
-    ``frontend``) laid out with the node's ``latencies`` and ``stamp_ages`` (s)."""
-    from rs_localizer.ros.diagnostics import GyroState, status
-    from rs_localizer.ros.mode import camera_status_parts
+    camera's parts (``rs_localizer.ros.diagnostics.status_parts`` of the camera alone,
+    ``CameraAlone``, of its config ``cfg``, its counters ``snap``, camera ``source``,
+    messages ``lost``, its front end's values ``frontend``; its ``tracking`` values, with
+    ``imu.enabled`` its gyro of ``rate_hz``, ``bias``, ``inconsistent``, ``idle_s``) laid out
+    with the node's ``latencies`` and ``stamp_ages`` (s)."""
+    from rs_localizer.ros.diagnostics import CameraAlone, GyroState, status, status_parts
 
     gyro = None
     if cfg.imu is not None:
         gyro = GyroState(cfg.imu, snap.counts, rate_hz, bias, inconsistent, idle_s)
-    parts = camera_status_parts(cfg, snap, tracking, source, lost, gyro, frontend)
+    values = None
+    if frontend is not None:
+        from rs_localizer.ros.diagnostics import frontend_values
+
+        values = frontend_values(cfg.camera.frontend_kind, frontend, snap)
+    alone = CameraAlone(cfg.solver, source, cfg.queue_size, snap, lost, values)
+    parts = status_parts([alone.part()], tracking, snap.counts, gyro, snap.stage_times,
+                         values is not None, alone)  # fmt: skip
     return status(parts, (latencies, stamp_ages))
 
 
 def rig_status(rig, waiting=(), inputs=None, timing=None):
     """``(level, message, values)`` of a rig's status as the rig node builds it
-    (``rs_localizer.ros.rig_node.rig_status_parts`` of the ``rig``, the cameras ``waiting``
-    for their camera_info and the node's ``inputs``, laid out with its ``timing``)."""
-    from rs_localizer.ros.diagnostics import status
-    from rs_localizer.ros.rig_node import rig_status_parts
+    (``rs_localizer.ros.diagnostics.localizer_status_parts`` of the ``rig``, the cameras
+    ``waiting`` for their camera_info and the node's ``inputs``, laid out with its
+    ``timing``)."""
+    from rs_localizer.ros.diagnostics import localizer_status_parts, status
 
-    return status(rig_status_parts(rig, waiting, inputs), timing)
+    return status(localizer_status_parts(rig, None, waiting, inputs), timing)

@@ -19,22 +19,23 @@ def _values(stamp_ages):
     return camera_status(cfg, snap, {}, "camera_info", 0, [0.01] * n, stamp_ages)[2]
 
 
-def test_stage_times_of_a_rig_cameras_frame():
-    """A rig camera's frame through the worker: its input stage (``decode``) from the start to
-    its taking, the front end's own time on an image, and the rest of the rig's time
+def test_stage_times_of_a_cameras_frame():
+    """A camera's frame through the worker, the camera alone's and a rig camera's one way: its
+    input stage and the wait for its gyro samples (``decode``) from the start to its taking,
+    and the rest of the localizer's time less its front end's search and the gyro wait
     (``estimate``) only when it completed a posed rig frame; publishing apart."""
     from rs_localizer.ros.camera_input import CameraCounts
-    from rs_localizer.ros.rig_node import note_camera_frame
 
     st = CameraCounts(kept=2)
-    note_camera_frame(st, 10.0, 10.25, None, False, 10.5)  # (a cloud, no rig frame posed)
-    note_camera_frame(st, 20.0, 20.5, 0.125, True, 21.0)  # (an image completing a posed one)
+    st.frame_stage_times(10.0, 10.25, 10.5, 0.0, 0.0, False)  # (a cloud, no rig frame posed)
+    st.stage_time("frontend", 0.125)  # (an image completing a posed one, 1/16 s gyro wait)
+    st.frame_stage_times(20.0, 20.5, 21.0, 0.125, 0.0625, True)
     st.stage_time("publish", 0.0625)
-    assert st.stage_times() == {"decode": [0.25, 0.5], "frontend": [0.125], "estimate": [0.375],
-                                "publish": [0.0625]}  # fmt: skip
-    note_camera_frame(st, 30.0, 30.75, 0.0, True, 31.0)  # (kept: the last two of each)
-    assert st.stage_times()["decode"] == [0.5, 0.75]
-    assert st.stage_times()["estimate"] == [0.375, 0.25]
+    assert st.stage_times() == {"decode": [0.25, 0.5625], "frontend": [0.125],
+                                "estimate": [0.3125], "publish": [0.0625]}  # fmt: skip
+    st.frame_stage_times(30.0, 30.75, 31.0, 0.0, 0.0, True)  # (kept: the last two of each)
+    assert st.stage_times()["decode"] == [0.5625, 0.75]
+    assert st.stage_times()["estimate"] == [0.3125, 0.25]
 
 
 def test_stamp_age_leaves_out_stamps_of_another_clock():
@@ -127,6 +128,34 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
         f"no rig frame posed: no frame from camera {names[0]}"
     )
     assert v[f"{names[0]}.received"] == 0 and v["latency_ms_median"] == "nan"
+
+
+def test_the_rig_status_has_the_tracks_values_of_a_camera():
+    """A rig's status reports its track as a camera's does, the keys in the camera's order:
+    ``track_state``, ``frames_tracked``, ``relocalizations``, ``resets`` (gained by the rig:
+    its track's counts over its tracks), then the fused twists' and the readout check's."""
+    from helpers.rig import mounts_of
+
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    for f in frames:
+        rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+    v = rig_status(rig)[2]
+    track = rig.tracking_values()
+    cfg = build_config(default_values())
+    snap = replace(PipelineStats().snapshot(), counts={"received": 1, "solved": 1})
+    camera = camera_status(cfg, snap, track, "camera_info", 0)[2]
+    assert [k for k in v if k in track] == [k for k in camera if k in track] == list(track)
+    assert list(track)[:4] == ["track_state", "frames_tracked", "relocalizations", "resets"]
+    assert {k: v[k] for k in track} == track
+    assert v["track_state"] == "tracking" and 0 < v["frames_tracked"] <= v["rig_frames"]
+    assert v["resets"] == 0
 
 
 def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
