@@ -37,7 +37,7 @@ RIG_ONLY = {
     ),
     "ros/rig_node.py": (
         "the node's rig-only parts (rig.cameras set): its cameras' parameters, inputs and "
-        "counts, the grouping of queued frames, its log lines, debug views and status"
+        "counts, the grouping of queued frames, its ready and failure lines, debug views"
     ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "calibration/corners.py": "RigCorners: a rig video's corners as one least-squares problem",

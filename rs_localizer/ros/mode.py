@@ -491,7 +491,11 @@ class LocalizerMode(ModeBase):
     def publish_taken(self, item: QueuedFrame, taken: TakenFrame) -> None:
         """The worker, after the frame is counted: what it gave published
         (:func:`.outputs.publish_frame` of each of :meth:`outcomes`), a posed one's delay
-        since the frame arrived recorded, the time it took in the stage times."""
+        since the frame arrived recorded, the time it took in the stage times. A frame step
+        that raised (no result) publishes nothing: its frame was counted and logged
+        ``internal_error`` when it raised."""
+        if taken.result is None:
+            return
         tic = time.perf_counter()
         res, posed = taken.result, False
         for outcome in self.outcomes(item.name, res):

@@ -627,6 +627,24 @@ def test_a_frame_step_that_raises_fails_its_frame_as_internal_error(msgs, sequen
     assert res.solved and res.out_stamp_ns == f1.t_ref_ns
 
 
+def test_a_frame_step_that_raised_publishes_nothing(monkeypatch):
+    """A frame whose frame step raised (the worker counted it ``failed.internal_error`` and
+    logged it) reaches the publishing step without a result: nothing is published and no
+    second warning ("publishing failed") follows."""
+    from types import SimpleNamespace
+
+    import rs_localizer.ros.mode as N
+    from rs_localizer.ros.core import QueuedFrame, TakenFrame
+
+    published = []
+    monkeypatch.setattr(N, "publish_frame", lambda node, outcome: published.append(outcome))
+    mode = N.LocalizerMode.__new__(N.LocalizerMode)
+    mode.node, mode.alone = SimpleNamespace(), False
+    taken = TakenFrame(("failed.internal_error",), "internal_error")
+    mode.publish_taken(QueuedFrame("a", "correspondences", None, 0.0, 0), taken)
+    assert published == []
+
+
 def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     """The camera alone takes a run-time change between two frames of the worker, as a rig
     does (under the worker's lock): while a frame is taken the change waits, then the next
