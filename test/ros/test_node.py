@@ -1011,14 +1011,20 @@ def test_flood_accounting(tmp_path, ros_context, frames):
     skips none), then reliable at
     ~300 Hz on keypoints (4500 points, ~3 ms to solve: more than the node can keep up with at
     that rate; 1500 points no longer were once tracked frames got faster), 2 s each;
-    reliable frames reach the node (before: 53 % lost at 300 Hz). ``RS_FLOOD_SECONDS=60``: each
+    reliable frames reach the node (before: 53 % lost at 300 Hz): at least 80 % of those that
+    reach a bare subscriber of the node's QoS in another process (``helpers/count_messages.py``,
+    under the same load; on an idle machine both take all of them). ``RS_FLOOD_SECONDS=60``: each
     stream 60 s instead of 2. The node is stopped
     (SIGSTOP) for 0.7 s during a third, reliable stream. Every diagnostics message (20 Hz) keeps
     received = solved + failed + skipped + pending."""
     import os
     import signal
+    import subprocess
+    import sys
     import threading
+    from pathlib import Path
 
+    from helpers import count_messages
     from helpers.paths import CONFIG
 
     from rs_localizer.maps import save_landmarks_csv
@@ -1038,8 +1044,17 @@ def test_flood_accounting(tmp_path, ros_context, frames):
     node = NodeProcess([CONFIG, overlay], namespace=ns, env=ros_env(), log=tmp_path / "flood.log")
     assert node.wait_ready(120), node.log
     probe = Probe(ros_context, namespace=ns)
+    # the reference: a bare subscriber of the keypoints with the node's QoS in its own process
+    # (helpers/count_messages.py), under the same load as the node
+    ref_out = tmp_path / "reference_stamps.txt"
+    ref = subprocess.Popen(
+        [sys.executable, str(Path(count_messages.__file__)), f"{ns}/keypoints", "100", ref_out],
+        env=ros_env(), stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
     try:
+        assert ref.stdout.readline().strip() == "ready"
         probe.wait_matched()
+        assert probe.wait(lambda: probe.pub_kp.get_subscription_count() >= 2, 30)
         probe.pub_info.publish(camera_info_msg(cam, "cam", 0))
         probe.wait_diag(lambda v: v.get("camera") == "camera_info", timeout=10)
         t0 = 2_000_000_000_000
@@ -1085,8 +1100,6 @@ def test_flood_accounting(tmp_path, ros_context, frames):
             achieved = _flood(probe, pub, msgs, rate)
             for t in timers:
                 t.join()
-            t0 += n * dt + 1_000_000_000
-            st, _ = probe.node_diag()
             v = _settle(probe, timeout=60)
             st, v = probe.node_diag()
             d = {
@@ -1095,6 +1108,7 @@ def test_flood_accounting(tmp_path, ros_context, frames):
             }
             results[kind] = dict(
                 sent=n,
+                stamps=(t0, t0 + (n - 1) * dt),
                 rate=round(achieved),
                 **d,
                 latency_ms_median=v["latency_ms_median"],
@@ -1103,6 +1117,7 @@ def test_flood_accounting(tmp_path, ros_context, frames):
                 stamp_age_ms_median=v["stamp_age_ms_median"],
             )
             print(kind, results[kind])
+            t0 += n * dt + 1_000_000_000
             assert d["received"] == d["solved"] + d["failed"] + d["skipped"], (kind, d, v)
             assert v["frames_pending"] == "0"
             assert d["received"] <= n
@@ -1122,10 +1137,23 @@ def test_flood_accounting(tmp_path, ros_context, frames):
         for v in history:
             parts = [_n(v, f"frames_{k}") for k in ("solved", "failed", "skipped", "pending")]
             assert _n(v, "frames_received") == sum(parts), v
-        # (on an idle machine all of them; the callbacks compete for the CPU with the solver)
-        assert results["reliable"]["received"] >= 0.8 * results["reliable"]["sent"], results
         assert "frame queue full" in node.log
+        # the reliable frames reach the node as they reach a bare subscriber under the same
+        # load (on an idle machine all of them; a loaded one's middleware loses what a
+        # subscriber falls more than its depth of 100 behind): a node whose callbacks held the
+        # executor while frames are solved (~3 ms each at 300 Hz) took about half of them
+        ref.send_signal(signal.SIGTERM)
+        assert ref.wait(30) == 0
+        for kind in ("reliable", "stopped"):
+            results[kind]["reference"] = count_messages.count_in(ref_out, *results[kind]["stamps"])
+        print("reference", {k: results[k]["reference"] for k in ("reliable", "stopped")})
+        r = results["reliable"]
+        assert r["reference"] >= 0.5 * r["sent"], results  # (the reference itself kept up)
+        assert r["received"] >= 0.8 * r["reference"], results
     finally:
+        if ref.poll() is None:
+            ref.kill()
+            ref.wait()
         alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
 

@@ -263,11 +263,25 @@ def test_each_camera_s_debug_image_and_markers_and_the_rig_s_path(ros_context):
         assert h.wait(lambda: h.node.viz.wants("path"))
         left = next(c for c in cams if c.name == "left")
         h.send_info(cams)
+        rig = h.node.mode.rig
         for k in range(len(frames) // 3):  # (one rig frame at a time: each one drawn)
             h.send_clouds(frames[3 * k : 3 * k + 3])
-            n = len(h.poses)
-            assert h.wait(lambda n=n: len(got["path"]) >= n and len(got["image"]) >= n)
-        assert h.wait(lambda: len(got["markers"]) >= len(h.poses) >= 5)
+            # the worker done with the three camera frames (none left waiting: frames sent
+            # faster than a loaded machine solves them would fill the queue, which drops the
+            # oldest), then the outputs of every rig frame posed so far
+            assert h.wait(lambda: h.node._frames.pending == 0), rig.rig_counts()
+            n = rig.rig_counts()["solved"]
+            assert h.wait(lambda n=n: min(len(h.poses), *(len(v) for v in got.values())) >= n), (
+                {k: len(v) for k, v in got.items()},
+                len(h.poses),
+                rig.rig_counts(),
+            )
+        c = rig.rig_counts()
+        assert c["skipped"] == c["failed"] == 0 and c["solved"] >= 5, c
+        # every posed rig frame drawn: each camera frame's image and markers, the rig's path
+        assert h.wait(
+            lambda: len(got["markers"]) == len(got["image"]) == len(h.poses) == c["solved"]
+        )
         by_stamp = {f.stamp_ns: f for f in frames if f.name == "left"}
         for img in got["image"]:
             f = by_stamp[_stamp(img)]
