@@ -148,18 +148,18 @@ class _Rows:
         return None
 
 
-def test_a_rig_cameras_image_after_a_time_reset_is_not_compared_with_the_old_timelines(video):
-    """After a time reset (one camera's stamps 2 s ahead: the clock jumped) another camera's
-    image that is the same picture as its last one of the old timeline is a new timeline's
-    first image, taken, not skipped as ``frozen_image``, as a camera's video takes it (before:
-    skipped); the same image again within the new timeline still is."""
-    cams, frames, _ = video
+def _rig_of_row_images(cams, frames, seed):
+    """A rig video whose cameras' front ends give each frame's simulated rows
+    (:class:`_Rows`) for random mono images, the frames of indices 0 and 1 sent in stamp
+    order: the rig, ``send(frame, dt=0, image=None)`` (a frame's image, random unless given,
+    at its stamp plus ``dt`` ns; what ``process_image`` returned) and each camera's last
+    image sent."""
     current = {}
     rig = Localizer(LocalizerSettings(mounts_of(cams)))
     for c in cams:
         rig.set_frontend(c.name, _Rows(current), "rows")
     by = {c.name: c.camera for c in cams}
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed)
     images = {}
 
     def send(f, dt=0, image=None):
@@ -169,6 +169,16 @@ def test_a_rig_cameras_image_after_a_time_reset_is_not_compared_with_the_old_tim
 
     for f in sorted((f for f in frames if f.index < 2), key=lambda f: f.stamp_ns):
         send(f)
+    return rig, send, images
+
+
+def test_a_rig_cameras_image_after_a_time_reset_is_not_compared_with_the_old_timelines(video):
+    """After a time reset (one camera's stamps 2 s ahead: the clock jumped) another camera's
+    image that is the same picture as its last one of the old timeline is a new timeline's
+    first image, taken, not skipped as ``frozen_image``, as a camera's video takes it (before:
+    skipped); the same image again within the new timeline still is."""
+    cams, frames, _ = video
+    rig, send, images = _rig_of_row_images(cams, frames, seed=2)
     a, b = (next(f for f in frames if f.index == 2 and f.name == c.name) for c in cams)
     jump = 2_000_000_000
     send(a, jump)  # (a new picture, 2 s on: the time reset)
@@ -273,21 +283,7 @@ def test_a_rig_cameras_image_that_resets_the_time_is_not_compared_with_its_last(
     the reset is counted (before: compared with its old timeline's last image and skipped,
     the reset not noted at all)."""
     cams, frames, _ = video
-    current = {}
-    rig = Localizer(LocalizerSettings(mounts_of(cams)))
-    for c in cams:
-        rig.set_frontend(c.name, _Rows(current), "rows")
-    by = {c.name: c.camera for c in cams}
-    rng = np.random.default_rng(5)
-    images = {}
-
-    def send(f, dt=0, image=None):
-        current["frame"] = f
-        images[f.name] = rng.integers(0, 255, (48, 64), np.uint8) if image is None else image
-        return rig.process_image(f.name, f.stamp_ns + dt, images[f.name], by[f.name], "mono8")
-
-    for f in sorted((f for f in frames if f.index < 2), key=lambda f: f.stamp_ns):
-        send(f)
+    rig, send, images = _rig_of_row_images(cams, frames, seed=5)
     a = next(f for f in frames if f.index == 2 and f.name == cams[0].name)
     send(a, 2_000_000_000, images[a.name])  # (camera a's last picture, 2 s on)
     assert rig.counts["rig.time_resets"] == 1
