@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from ..correspondences import Correspondences
-from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
 from ..tracking.gyro_input import GyroInput
@@ -47,7 +46,7 @@ from .diagnostics import (
     frontend_values,
     localizer_status_parts,
 )
-from .outputs import CameraView, FrameOutcome, LogLine, PosedFrame, publish_frame
+from .outputs import CameraView, FrameOutcome, LogLine, frame_outcome, publish_frame
 from .pipeline import (
     Drop,
     FusedOutput,
@@ -380,6 +379,9 @@ class LocalizerMode(ModeBase):
         self._counts.frame_stage_times(tic, taken_at, time.perf_counter(), front,
                                        sum(o.gyro_seconds for o in outs),
                                        any(o.success for o in outs))  # fmt: skip
+        for out in outs:  # (the map-fit check over the rig frames: every camera's rows)
+            if out.estimate is not None:
+                self._map_fit.check(out.num_points, out.estimate, self._counts, self.node.warn)
         if isinstance(frame, DroppedFrame):
             self._not_taken(kind, frame)
         elif kind != "image":
@@ -394,9 +396,11 @@ class LocalizerMode(ModeBase):
     def _as_camera(self, frame: Any, search: Any, taken_at: float, tic: float,
                    res: CameraFrameResult) -> None:  # fmt: skip
         """The camera alone's frame counted as its camera's: a frame its input stage refused,
-        its front end's run (:meth:`_frontend_ran`), the estimate of its rig frame
-        (:meth:`_solved_alone`), the path it was solved on (``frames_compiled``,
-        ``frames_uncompiled``) and its times per stage
+        its front end's run (:meth:`_frontend_ran`), its rig frame's counts as ``replay``
+        counts a camera's frame (:meth:`~rs_localizer.tracking.video.LocalizerOutput.
+        camera_counts`: ``frames_compiled`` or ``frames_uncompiled``, ``points_dropped``,
+        ``frames_few_points``, ``frames_single_tag``), its estimate (:meth:`_solved_alone`)
+        and its times per stage
         (:meth:`.camera_input.CameraCounts.frame_stage_times`: the wait for the gyro samples
         counts as decoding, as for camera_info). Raises :class:`~.pipeline.Drop` for a frame
         dropped, with its reason."""
@@ -409,7 +413,8 @@ class LocalizerMode(ModeBase):
         else:
             res.points2d, res.points3d = frame.points2d, frame.points3d
         (out,) = res.outs
-        self._own.add("frames_compiled" if out.compiled else "frames_uncompiled")
+        for key, n in out.camera_counts():  # (as replay counts a camera's frame)
+            self._own.add(key, n)
         t_estimated = time.perf_counter()
         res.fused = self._fused(out.fused)
         self._solved_alone(out, res)
@@ -443,24 +448,17 @@ class LocalizerMode(ModeBase):
 
     def _solved_alone(self, out: LocalizerOutput, res: CameraFrameResult) -> None:
         """The camera alone's estimate of its rig of one's rig frame ``out`` counted as its
-        node counts it: the rows its estimator left out (``points_dropped``), the map-fit
-        check (``frames_failed_with_matches``, ``map_fit_doubtful``), refused:
-        :class:`~.pipeline.Drop` with its reason; posed, its inliers and planarity, a pose
-        from few points (``frames_few_points``) or one tag (``frames_single_tag``)."""
+        node counts it: the map-fit check (``frames_failed_with_matches``,
+        ``map_fit_doubtful``), refused: :class:`~.pipeline.Drop` with its reason; posed, its
+        inliers and planarity."""
         est, n = out.camera_estimate, len(res.points2d)
         if est is None:
             raise Drop("estimator_error", out.error or "no estimate")
-        own = self._own
-        own.add("points_dropped", int(est.num_dropped))
-        self._map_fit.check(n, est, own, self.node.warn)
+        self._map_fit.check(n, est, self._own, self.node.warn)
         if not est.success:
             text = f"{n} points, {est.num_inliers} inliers, solver {self.cfg.solver}"
             raise Drop(est.failure or "estimator_error", text)
-        own.solved(est.num_inliers, est.planar, est.condition_number)
-        if est.few_points:
-            own.add("frames_few_points")
-        if est.single_tag:
-            own.add("frames_single_tag")
+        self._own.solved(est.num_inliers, est.planar, est.condition_number)
 
     def _not_taken(self, kind: str, item: DroppedFrame) -> None:
         """A rig camera's frame of a checked stamp its input stage dropped (the rig counts it
@@ -512,55 +510,44 @@ class LocalizerMode(ModeBase):
         (:class:`.outputs.FrameOutcome` s): dropped, the fused twists it made final and the
         line ``frame dropped (<reason>): <detail>`` (after the camera's label: a rig's
         ``rig camera '<c>':``, keyed ``<reason>.<c>``) with the count of frames failed so far
-        for that reason; else each rig frame it completed (:meth:`_outcome`), a rig's through
-        the map-fit check first (:meth:`.pipeline.MapFitCheck.check`, every camera's rows of
-        the rig frame together: counted ``rig_frames_failed_with_matches``,
-        ``map_fit_doubtful``; a throttled warning) and with its log line."""
+        for that reason; else each rig frame it completed (:meth:`_outcome`)."""
         if res.failure is not None:
             key = f"{res.failure}.{name}" if name else res.failure
             failed = self.node.camera_counts[name].get(f"failed.{res.failure}")
             text = f"{self.node.inputs[name].label}frame dropped ({res.failure}): {res.detail}"
             return [FrameOutcome(None, res.fused, (LogLine(key, text, failed),))]
-        if self.alone:
-            return [self._outcome(res.out, view=res)]
-        for out in res.outs:
-            if out.estimate is not None:
-                self._map_fit.check(out.num_points, out.estimate, self._counts,
-                                    self.node.warn)  # fmt: skip
-        return [self._outcome(out, logged=True) for out in res.outs]
+        return [self._outcome(out, res) for out in res.outs]
 
-    def _outcome(self, out: LocalizerOutput, logged: bool = False,
-                 view: CameraFrameResult | None = None) -> FrameOutcome:  # fmt: skip
-        """What a rig frame publishes (:class:`.outputs.FrameOutcome`): the fused twists it
-        made final (:meth:`_fused`); ``logged``: its :func:`.rig_node.rig_failure_line`;
-        posed, its pose with its own twist when that is final at once: the camera alone's
-        (``view``: its frame of the frame step) its own estimate at its reference-line stamp
-        in its optical frame (or the robot base's state with ``camera_to_base.*``, in
-        ``base_frame``) with the camera's view; a rig's the rig's pose (``base_frame``) at the
-        rig frame's time with each camera of it whose ``<c>/debug_image`` or ``<c>/markers``
-        is watched as the rig's pose and its mounting put it (:func:`.rig_node.rig_views`,
-        with its image kept by :meth:`_entered`)."""
-        fused = self._fused(out.fused) if view is None else view.fused
-        line = rig_failure_line(self.rig, out) if logged else None
+    def _outcome(self, out: LocalizerOutput, res: CameraFrameResult | None = None
+                 ) -> FrameOutcome:  # fmt: skip
+        """What a rig frame publishes (:func:`.outputs.frame_outcome`, the one of the node
+        and ``replay``): the fused twists it made final, its
+        :func:`.rig_node.rig_failure_line` (none for the camera alone: a frame it cannot pose
+        is dropped in the frame step) and, posed, its pose at the rig frame's time
+        (the camera alone's: its reference line's) with its own twist when that is final, in
+        the fused twists' frame (:attr:`_fused_in`: a rig's ``base_frame``; the camera
+        alone's optical frame, or with ``camera_to_base.*`` the robot's ``base_frame``), with
+        its cameras' views (:meth:`_views`; ``res``: the camera frame that completed it,
+        None: a rig frame closed at the end of the video)."""
+        line = rig_failure_line(self.rig, out)
         log = () if line is None else (line,)
-        if not out.success:
-            return FrameOutcome(None, fused, log)
-        if view is not None:
-            est, cam = out.camera_estimate, self.cfg.camera
-            pose, frame = est, view.frame_id
-            if cam.mount is not None:
-                pose, frame = camera_to_base(est, cam.mount), self.cfg.base_frame
-            views = (CameraView("", est, view.points2d, view.points3d, view.camera,
-                                view.stamp_ns, view.out_stamp_ns, view.frame_id,
-                                view.image),)  # fmt: skip
-            return FrameOutcome(PosedFrame(pose, view.out_stamp_ns, frame, out.twist_now, views),
-                                fused, log)  # fmt: skip
-        views = ()
-        if self.node.viz is not None:
-            views = tuple(rig_views(out, self.cfg, self.node.camera_viz, self._images))
-        base = self.cfg.base_frame
-        return FrameOutcome(PosedFrame(out.estimate, out.stamp_ns, base, out.twist_now, views),
-                            fused, log)  # fmt: skip
+        views = self._views(out, res) if out.success else ()
+        return frame_outcome(out, *self._fused_in, views, log)
+
+    def _views(self, out: LocalizerOutput, res: CameraFrameResult | None) -> tuple:
+        """The cameras of a posed rig frame as their debug views draw them
+        (:class:`.outputs.CameraView` s). The camera alone's is its frame as the frame step
+        gave it (its rows, camera model, stamps, decoded image), always handed (its ``path``
+        is drawn from its camera's pose); a rig's (a rig frame groups several cameras'
+        frames) only those watched, each as the rig's pose and its mounting put it with the
+        image kept for it by :meth:`_entered` (:func:`.rig_node.rig_views`)."""
+        if self.alone and res is not None:
+            return (CameraView("", out.camera_estimate, res.points2d, res.points3d, res.camera,
+                               res.stamp_ns, res.out_stamp_ns, res.frame_id,
+                               res.image),)  # fmt: skip
+        if self.node.viz is None:
+            return ()
+        return tuple(rig_views(out, self.cfg, self.node.camera_viz, self._images))
 
     def _fused(self, fused: list) -> list[FusedOutput]:
         """twist / odom of the rig frames whose fused state is final
@@ -587,7 +574,8 @@ class LocalizerMode(ModeBase):
         its frame inputs)."""
         if self.rig is None or self.alone:
             return []
-        closed = [self._outcome(out) for out in self.rig.close()]
+        closed = [frame_outcome(out, *self._fused_in, self._views(out, None) if out.success
+                                else ()) for out in self.rig.close()]  # fmt: skip
         return [*closed, FrameOutcome(fused=self._fused(self.rig.flush() + self.rig.reset()))]
 
     # ---------------------------------------------------------------- diagnostics

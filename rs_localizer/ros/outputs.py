@@ -24,11 +24,14 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation.result import RSPoseEstimate
+from ..frames import camera_to_base
 from ..pose import PoseWithCovariance
 from . import conversions as cv
-from .pipeline import FusedOutput
+from .pipeline import FusedOutput, fused_outputs
 
 if TYPE_CHECKING:
+    from ..frames import Mounting
+    from ..tracking.video import LocalizerOutput
     from .core import NodeCore
 
 __all__ = [
@@ -37,6 +40,7 @@ __all__ = [
     "FrameOutcome",
     "LogLine",
     "PosedFrame",
+    "frame_outcome",
     "fused_messages",
     "outcome_messages",
     "pose_messages",
@@ -103,6 +107,31 @@ class FrameOutcome:
     posed: PosedFrame | None = None
     fused: Sequence[FusedOutput] = ()
     log: tuple[LogLine, ...] = ()
+
+
+def frame_outcome(
+    out: LocalizerOutput,
+    base_frame: str | None,
+    mount: Mounting | None = None,
+    views: tuple[CameraView, ...] = (),
+    log: tuple[LogLine, ...] = (),
+) -> FrameOutcome:
+    """What a rig frame ``out`` of a :class:`~rs_localizer.tracking.video.Localizer` publishes
+    (:class:`FrameOutcome`), a camera's frame (its rig of one) or a rig's alike, in the node
+    and in ``rs-localizer replay``: the fused twists it made final
+    (:func:`.pipeline.fused_outputs`), its ``log`` lines and, posed, its pose at its time
+    (``out.stamp_ns``, ns: the rig frame's reference-line time) with its own twist when that
+    is final (:attr:`~rs_localizer.tracking.video.LocalizerOutput.twist_now`) and the
+    cameras' ``views``. In ``base_frame`` (None: the frame id of its first camera's frame),
+    moved there by the camera's ``mount`` (:func:`~rs_localizer.frames.camera_to_base`;
+    None: as it is, the rig's pose)."""
+    fused = fused_outputs(out.fused, base_frame, mount)
+    if not out.success:
+        return FrameOutcome(None, fused, log)
+    est = out.estimate
+    pose = est if mount is None else camera_to_base(est, mount)
+    frame = base_frame or out.tags[out.cameras[0]]
+    return FrameOutcome(PosedFrame(pose, out.stamp_ns, frame, out.twist_now, views), fused, log)
 
 
 def _everything(topic: str) -> bool:

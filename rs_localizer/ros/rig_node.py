@@ -197,7 +197,7 @@ def rig_failure_line(rig: Localizer, out: LocalizerOutput) -> LogLine | None:
     by the others; None: nothing to say."""
     if out.error is not None:
         reason, detail = "error", f"the estimator raised {out.error}"
-    elif out.estimate is not None and not out.estimate.success:
+    elif out.estimate is not None and not out.success:
         reason = out.estimate.failure or "error"
         detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
         if reason == "cameras_disagree" and out.outvoted:

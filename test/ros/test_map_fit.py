@@ -90,3 +90,30 @@ def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
     right, _, _ = _mirrored_rig_bag(tmp_path, False)
     res = replay(right, progress=None)
     assert res.solved == len(res.outputs) and res.notes == []
+
+
+def test_a_rig_frame_is_checked_against_the_map_in_its_frame_step():
+    """The rig node's map-fit check runs in the frame step that completes the rig frame (under
+    the worker's lock, with the frame's count), as the camera alone's does: a diagnostics
+    snapshot taken between the frame step and its publication sees the rig frame refused
+    for its geometry counted (``rig_frames_failed_with_matches``, ``map_fit_doubtful``)."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.camera_input import CameraCounts, FrameStep
+    from rs_localizer.ros.mode import CameraFrameResult, LocalizerMode
+    from rs_localizer.ros.pipeline import MAP_FIT_MIN_POINTS, MAP_FIT_WINDOW, MapFitCheck
+
+    mode = LocalizerMode.__new__(LocalizerMode)  # (a rig's, its node a stand-in)
+    mode.alone, mode._counts, mode._map_fit = False, CameraCounts(), MapFitCheck("rig frames")
+    warned = []
+    mode.node = SimpleNamespace(inputs={"a": SimpleNamespace(newest=object())}, camera_viz={},
+                                republish=False, warn=lambda k, t: warned.append(k))  # fmt: skip
+    refused = SimpleNamespace(success=False, failure="cheirality")
+    out = SimpleNamespace(estimate=refused, num_points=MAP_FIT_MIN_POINTS, gyro_seconds=0.0,
+                          success=False)  # fmt: skip
+    n = MAP_FIT_WINDOW // 2
+    for _ in range(n):
+        res = CameraFrameResult("a")
+        mode._entered("a", "cloud", FrameStep(object(), [out], 0.0), 0.0, res)
+    assert mode._counts.get("rig_frames_failed_with_matches") == n
+    assert mode._counts.get("map_fit_doubtful") == 1 and warned == ["map_fit"]

@@ -118,29 +118,38 @@ def test_the_single_camera_s_outcome_its_view_draws_the_path(monkeypatch):
     from types import SimpleNamespace
 
     import rs_localizer.ros.mode as M
+    import rs_localizer.ros.outputs as O
     from rs_localizer.ros.outputs import fused_messages, publish_frame
     from rs_localizer.ros.pipeline import FusedOutput
 
     est, base, earlier = _state(4, 5_000), _state(5, 5_000), _state(6, 4_000)
     fused = [FusedOutput(4_000, earlier, "cam")]
+    pending = object()  # (the rig of one's fused states final now, as the localizer gives them)
 
     def outcome(mount, twist_now=False, failure=None, failed=0):
         """The camera alone's outcome (its mode's) of a frame posed at ``est``, its output moved
         to the robot base (``base``) by ``mount`` when given."""
         mode = M.LocalizerMode.__new__(M.LocalizerMode)  # (the camera alone's, its node a stand-in)
         mode.alone, mode.rig = True, None
-        mode.cfg = SimpleNamespace(camera=SimpleNamespace(mount=mount), base_frame="base_link")
+        mode._fused_in = (None, None) if mount is None else ("base_link", mount)
         mode.node = SimpleNamespace(camera_counts={"": SimpleNamespace(get=lambda key: failed)},
                                     inputs={"": SimpleNamespace(label="")})  # fmt: skip
         res = M.CameraFrameResult("cam")
         res.stamp_ns, res.out_stamp_ns, res.camera = 5_100, 5_000, "model"
         res.points2d, res.points3d, res.fused = "uv", "X", fused
         res.failure, res.detail = failure, "9 points"
-        res.outs = [SimpleNamespace(camera_estimate=est, twist_now=twist_now, success=True)]
+        res.outs = [SimpleNamespace(camera_estimate=est, estimate=est, twist_now=twist_now,
+                                    success=True, fused=[pending], error=None, outvoted=(),
+                                    stamp_ns=5_000, cameras=("",), tags={"": "cam"})]  # fmt: skip
         (out,) = mode.outcomes("", res)
         return out
 
-    monkeypatch.setattr(M, "camera_to_base", lambda e, mount: base if e is est else None)
+    def fused_outputs(given, frame, mount):  # (pipeline.fused_outputs: tested on its own)
+        assert given == [pending] and (frame, mount) in ((None, None), ("base_link", "mount"))
+        return fused
+
+    monkeypatch.setattr(O, "fused_outputs", fused_outputs)
+    monkeypatch.setattr(O, "camera_to_base", lambda e, mount: base if e is est else None)
     for mount, frame in ((None, "cam"), ("mount", "base_link")):
         viz = _Viz()
         node = _Node(viz, {"": viz})

@@ -34,12 +34,11 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from ...accuracy import GroundTruth
-from ...frames import camera_to_base
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..outputs import CameraView, FrameOutcome, PosedFrame, outcome_messages
+from ..outputs import CameraView, FrameOutcome, frame_outcome, outcome_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import MapFitCheck, fused_outputs
 from .bag_frames import (
@@ -81,7 +80,6 @@ from .replay_out import (
 if TYPE_CHECKING:
     from ...camera import FrameTime
     from ...estimation.result import RSPoseEstimate
-    from ...frames import Mounting
     from ...tracking.video import Localizer, LocalizerOutput
 
 __all__ = [
@@ -800,28 +798,6 @@ class _Run:
 #: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
 #: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
 GYRO_AHEAD_NS = 50_000_000
-
-
-def frame_outcome(
-    out: LocalizerOutput,
-    base_frame: str | None,
-    mount: Mounting | None = None,
-    views: tuple[CameraView, ...] = (),
-) -> FrameOutcome:
-    """What a rig frame ``out`` of a :class:`~rs_localizer.tracking.video.Localizer` publishes
-    (:class:`..outputs.FrameOutcome`), a camera's frame (its rig of one) or a rig's alike: the
-    fused twists it made final (:func:`..pipeline.fused_outputs`) and, posed, its pose at its
-    time with its own twist when that is final (:attr:`~rs_localizer.tracking.video.
-    LocalizerOutput.twist_now`) and the cameras' ``views``. In ``base_frame`` (None: the
-    frame id of its first camera's frame), moved there by the camera's ``mount``
-    (:func:`~rs_localizer.frames.camera_to_base`; None: as it is, the rig's pose)."""
-    fused = fused_outputs(out.fused, base_frame, mount)
-    if not out.success:
-        return FrameOutcome(None, fused)
-    est = out.estimate
-    pose = est if mount is None else camera_to_base(est, mount)
-    frame = base_frame or out.tags[out.cameras[0]]
-    return FrameOutcome(PosedFrame(pose, out.stamp_ns, frame, out.twist_now, views), fused)
 
 
 def camera_counts(rig: Localizer, n: str, own: Mapping[str, int], keypoints: bool = False) -> dict:
