@@ -143,13 +143,13 @@ class LocalizerMode(ModeBase):
         self._images: dict = {}  # (a rig camera -> its last decoded images, for debug_image)
         #: the fused twists' frame and mounting (:meth:`_fused`), set at configure
         self._fused_in: tuple = (None, None)
-        if not self.alone:
+        if not self.alone:  # (a rig's topics are its cameras' <c>/..., the camera's today's)
             for k, v in RIG_TEXTS.items():
                 setattr(self, k, v)
 
     def configured_as(self) -> str:
         """What the managed node's ``configured: ... (inactive)`` line names."""
-        if self.alone:
+        if self.alone:  # (the camera's line kept; a rig's names its cameras)
             return f"solver {self.cfg.solver}"
         return f"rig of {len(self.cfg.cameras)} cameras"
 
@@ -158,7 +158,7 @@ class LocalizerMode(ModeBase):
         for its camera_info: outside the worker's lock, which the diagnostics take on the
         executor that delivers it. None for the camera alone: its stamp is noted on its
         video's clock first (:meth:`_camera_at`)."""
-        if self.alone:
+        if self.alone:  # (its stamp first resets its clock, whose reset forgets camera_infos)
             return None
         return self.node.inputs[item.name].camera_of(item.stamp)
 
@@ -210,7 +210,7 @@ class LocalizerMode(ModeBase):
         (:func:`.rig_node.new_rig_cameras`: each camera's input and counts, the rig's own
         counts, the frames grouped by rig frame), with the localizer's ``settings``."""
         node = self.node
-        if not self.alone:
+        if not self.alone:  # (a rig frame groups several cameras' frames: counted apart)
             self.rig, self._counts, self._grouping = new_rig_cameras(node, cfg)
             self._map_fit = MapFitCheck("rig frames")
             self._images = {}
@@ -269,7 +269,7 @@ class LocalizerMode(ModeBase):
     def _ready_warnings(self) -> list[str]:
         """The camera alone's global-shutter timing (the twist is then zero); a rig's: the
         single camera's parameters set but not used by the rig."""
-        if not self.alone:
+        if not self.alone:  # (the camera's warning kept; a rig warns of unused parameters)
             return [self.cfg.unused_text] if self.cfg.unused_text else []
         if self.cfg.camera.line_delay == 0 and self.cfg.camera.readout_time == 0:
             return [
@@ -279,7 +279,7 @@ class LocalizerMode(ModeBase):
         return []
 
     def _ready_subject(self) -> str:
-        if not self.alone:
+        if not self.alone:  # (the camera's line kept; a rig's names each camera's timing)
             return rig_ready_subject(self.cfg, self.node.map_frame)
         cfg, cam = self.cfg, self.cfg.camera
         text = f"solver {cfg.solver}, line delay {cam.line_delay * 1e6:.2f} us/line"
@@ -319,7 +319,7 @@ class LocalizerMode(ModeBase):
         try:
             if not isinstance(stamp, DroppedFrame):
                 res.stamp_ns = stamp
-            if self.alone:
+            if self.alone:  # (its stamp on its clock before its camera_info, camera_of)
                 camera = self._camera_at(inp, stamp)
             elif kind == "image":
                 self._warn_no_info(name, "images")
@@ -332,7 +332,7 @@ class LocalizerMode(ModeBase):
         except Drop as e:
             res.failure, res.detail = e.reason, str(e)
         except Exception as e:
-            if not self.alone:  # (the node counts it failed.internal_error and logs it)
+            if not self.alone:  # (the node counts and logs it as replay words a rig camera's)
                 raise
             drop = Drop("internal_error", f"{type(e).__name__}: {e}")
             res.failure, res.detail = drop.reason, str(drop)
@@ -340,6 +340,7 @@ class LocalizerMode(ModeBase):
         if res.failure is not None:
             counted: tuple = (f"failed.{res.failure}",)
         else:
+            # (a rig camera's frame is solved or failed in its rig frame: the rig counts it)
             counted = ("solved",) if self.alone else ()
         return TakenFrame(counted, res.failure, res, res.outs, found)
 
@@ -370,7 +371,7 @@ class LocalizerMode(ModeBase):
         if isinstance(frame, ImageFrame):
             res.image = (frame.image, frame.encoding, frame.stamp_ns)
             search = self.rig.last_search(name)
-        if self.alone:  # (its counts, stage times and drops as a camera's)
+        if self.alone:  # (its frame is its rig frame: solved or dropped, counted as a camera's)
             self._as_camera(frame, search, taken_at, tic, res)
             return
         front = 0.0 if search is None else search.seconds
@@ -500,6 +501,7 @@ class LocalizerMode(ModeBase):
             publish_frame(self.node, outcome)
             if outcome.posed is not None:
                 posed = True
+                # (a camera's stamp age is its header stamp's; a rig frame has several)
                 stamp = res.stamp_ns if self.alone else outcome.posed.stamp_ns
                 self.node.record_timing(item.arrived, stamp)
         if posed:
@@ -541,7 +543,7 @@ class LocalizerMode(ModeBase):
         is drawn from its camera's pose); a rig's (a rig frame groups several cameras'
         frames) only those watched, each as the rig's pose and its mounting put it with the
         image kept for it by :meth:`_entered` (:func:`.rig_node.rig_views`)."""
-        if self.alone and res is not None:
+        if self.alone and res is not None:  # (a rig frame's views are drawn from kept images)
             return (CameraView("", out.camera_estimate, res.points2d, res.points3d, res.camera,
                                res.stamp_ns, res.out_stamp_ns, res.frame_id,
                                res.image),)  # fmt: skip
@@ -561,18 +563,15 @@ class LocalizerMode(ModeBase):
         (:meth:`Localizer.flush_idle`; none unconfigured)."""
         return [] if self.rig is None else self._fused(self.rig.flush_idle())
 
-    def frame_inputs_destroyed(self) -> None:
-        """After the frame inputs' end (the frames still queued dropped): the camera alone's
-        track is dropped too (nothing is left for :meth:`.core.NodeCore._end_video` to
-        publish; a reactivated node starts a new track)."""
-        if self.alone and self.rig is not None:
-            self.rig.end_track()
-
     def close_track(self) -> list[FrameOutcome]:
-        """:meth:`.core.NodeCore._end_video`: a rig's rig frames still open, solved, then the
-        twists still pending (none unconfigured; the camera alone's track was dropped with
-        its frame inputs)."""
-        if self.rig is None or self.alone:
+        """:meth:`.core.NodeCore._end_video` (after the frame inputs' end, the frames still
+        queued dropped): a rig's rig frames still open, solved, then the twists still pending,
+        published; the camera alone's track dropped with its pending twists (a reactivated
+        node starts a new track). None unconfigured."""
+        if self.rig is None:
+            return []
+        if self.alone:  # (a camera's node drops its pending twists at its end, a rig's publishes)
+            self.rig.end_track()
             return []
         closed = [frame_outcome(out, *self._fused_in, self._views(out, None) if out.success
                                 else ()) for out in self.rig.close()]  # fmt: skip
@@ -586,7 +585,7 @@ class LocalizerMode(ModeBase):
         its counts (:class:`.diagnostics.CameraAlone`), a rig's of the node's counts and times
         per camera, taken between two frames of the worker (one consistent count)."""
         cfg, rig = self.cfg, self.rig
-        if self.alone:  # (its counts as a camera's, its one section named "")
+        if self.alone:  # (its counts as a camera's, its frames its rig frames: one section "")
             stats, fe = self._own.snapshot(), self._loaded[""].frontend
             frontend = None if fe is None else frontend_values(cfg.camera.frontend_kind, fe, stats)
             alone = CameraAlone(cfg.solver, self.node.inputs[""].source(), cfg.queue_size, stats,
