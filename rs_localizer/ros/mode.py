@@ -549,7 +549,7 @@ class LocalizerMode(ModeBase):
                                res.image),)  # fmt: skip
         if self.node.viz is None:
             return ()
-        return tuple(rig_views(out, self.cfg, self.node.camera_viz, self._images))
+        return rig_views(out, self.cfg, self.node.camera_viz, self._images)
 
     def _fused(self, fused: list) -> list[FusedOutput]:
         """twist / odom of the rig frames whose fused state is final

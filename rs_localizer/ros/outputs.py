@@ -16,7 +16,7 @@ frame's time), ``pose_with_covariance`` and ``tf``; ``path``, and each camera's
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -45,6 +45,7 @@ __all__ = [
     "outcome_messages",
     "pose_messages",
     "publish_frame",
+    "rig_frame_views",
 ]
 
 #: every output topic of a solved frame, in publishing order
@@ -132,6 +133,31 @@ def frame_outcome(
     pose = est if mount is None else camera_to_base(est, mount)
     frame = base_frame or out.tags[out.cameras[0]]
     return FrameOutcome(PosedFrame(pose, out.stamp_ns, frame, out.twist_now, views), fused, log)
+
+
+def rig_frame_views(
+    out: LocalizerOutput,
+    mounts: Mapping[str, Any],
+    wanted: Callable[[str], bool] | None = None,
+    images: Mapping[str, Iterable[tuple]] | None = None,
+) -> tuple[CameraView, ...]:
+    """The cameras of a posed rig frame ``out`` as their debug views draw them, in the node
+    and in ``replay``'s debug outputs: each camera (``wanted``: camera name -> whether it is
+    drawn; None: each) as the rig's pose and its mounting (``mounts``: camera name -> its
+    mounting) put it (:func:`.visualization.rig_camera_views`), with its frame's image, the
+    last of ``images`` (camera -> its kept ``(image, encoding, stamp_ns)``) of its stamp
+    (None: none)."""
+    from .visualization import rig_camera_views  # (its module only for the debug views)
+
+    views = []
+    for n, f, view, ref in rig_camera_views(out, dict(mounts), wanted):
+        image = None
+        for img in (images or {}).get(n, ()):
+            if img[2] == f.stamp_ns:
+                image = img
+        views.append(CameraView(n, view, f.points2d, f.points3d, f.camera, f.stamp_ns, ref,
+                                f.tag or n, image))  # fmt: skip
+    return tuple(views)
 
 
 def _everything(topic: str) -> bool:

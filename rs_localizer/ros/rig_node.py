@@ -25,7 +25,7 @@ drawing, and the others are refused with why (:func:`.config.rig_change_refused`
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from ..runtime.background import ready_implementation
@@ -34,10 +34,9 @@ from .camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
 from .declare import declare_dynamic, declare_parameters
-from .outputs import CameraView, LogLine
+from .outputs import CameraView, LogLine, rig_frame_views
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import ThrottledLog
-from .visualization import rig_camera_views
 
 __all__ = [
     "RIG_TEXTS",
@@ -220,22 +219,14 @@ def rig_failure_line(rig: Localizer, out: LocalizerOutput) -> LogLine | None:
 
 
 def rig_views(out: LocalizerOutput, cfg: LocalizerConfig, camera_viz: Mapping,
-              images: Mapping) -> Iterator[CameraView]:  # fmt: skip
+              images: Mapping) -> tuple[CameraView, ...]:  # fmt: skip
     """The cameras of a posed rig frame whose debug views are watched (``camera_viz``: camera
-    -> its visualization), as :class:`.outputs.CameraView` s as the rig's pose and each
-    camera's mounting put it (:func:`.visualization.rig_camera_views`), each with its frame's
-    image, the last kept of its stamp (``images``: camera -> its last ``(image, encoding,
-    stamp_ns)``)."""
-    mounts = {c.name: c.mount for c in cfg.cameras}
+    -> its visualization; ``<c>/debug_image`` or ``<c>/markers``), each with its frame's
+    image of ``images`` (camera -> its last kept ``(image, encoding, stamp_ns)``):
+    :func:`.outputs.rig_frame_views`."""
 
     def wanted(n: str) -> bool:
         viz = camera_viz.get(n)
         return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
 
-    for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
-        image = None
-        for img in images.get(n, ()):
-            if img[2] == frame.stamp_ns:
-                image = img
-        yield CameraView(n, view, frame.points2d, frame.points3d, frame.camera,
-                         frame.stamp_ns, ref, frame.tag or n, image)  # fmt: skip
+    return rig_frame_views(out, {c.name: c.mount for c in cfg.cameras}, wanted, images)

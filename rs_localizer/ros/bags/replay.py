@@ -38,7 +38,7 @@ from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..outputs import CameraView, FrameOutcome, frame_outcome, outcome_messages
+from ..outputs import FrameOutcome, frame_outcome, outcome_messages, rig_frame_views
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import MapFitCheck, fused_outputs
 from .bag_frames import (
@@ -742,15 +742,7 @@ class _Run:
         there by :attr:`out_mount`) with, for the debug outputs (``views``), each camera's
         view (:func:`..visualization.rig_camera_views`; drawn on the bag's image of its
         stamp)."""
-        drawn: Iterable = ()
-        if views and o.success:  # (its module, with the visualization messages, only for them)
-            from ..visualization import rig_camera_views
-
-            drawn = rig_camera_views(o, self.mounts)
-        seen = tuple(
-            CameraView(n, view, f.points2d, f.points3d, f.camera, f.stamp_ns, ref, f.tag or n)
-            for n, f, view, ref in drawn
-        )
+        seen = rig_frame_views(o, self.mounts) if views and o.success else ()
         return frame_outcome(o, self.base_frame, self.out_mount, seen)
 
     def _estimate_ms(self, taken: Any, o: Any, done: float) -> float | None:
