@@ -434,13 +434,6 @@ def _refit(
     return R, C, w, t
 
 
-def _copies(model) -> tuple:
-    """Float64 copies of a model's ``(R, C, w, t)``."""
-    f = float
-    return (np.array(model[0], dtype=f), np.array(model[1], dtype=f),
-            np.array(model[2], dtype=f), np.array(model[3], dtype=f))  # fmt: skip
-
-
 def estimate_rig_pose(
     views: Sequence[View],
     options: EstimateOptions | None = None,
@@ -1109,21 +1102,17 @@ def _rig_estimate(
     model=None,
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
-    fresh: bool = False,
     **record,
 ) -> RSPoseEstimate:
     """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``
-    (:func:`~.result.built_estimate`, the rig's views): of ``model`` ``(R, C, w, t)`` with the
-    (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the ROS pose and twist
-    blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the identity and zeros,
-    no inliers); ``record``: the other fields by name. ``fresh``: the model's arrays are
-    float64, contiguous and the caller's own (taken, not copied)."""
-    if model is None:
-        model, fresh = (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)), True
-    R, C, w, t = model if fresh else _copies(model)
+    (:func:`~.result.built_estimate`, the rig's views): of ``model`` ``(R, C, w, t)`` (float64
+    arrays, taken, not copied) with the (N_pool,) ``inliers`` and ``outputs`` (the covariance
+    (12, 12), the ROS pose and twist blocks), or with ``failure=`` one of
+    :data:`RIG_FAILURE_REASONS` (the identity and zeros, no inliers); ``record``: the other
+    fields by name."""
+    R, C, w, t = RSModel.identity() if model is None else model
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
-    record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
         record.pop("failure", None),
@@ -1289,8 +1278,9 @@ class _RigStages:
         # on one 3D line, the final refinement's Jacobian at the model (no step, as a camera's
         # final refinement gives it: its information, covariance and J^T W D), the last checks
         # on every camera's model, the consistent fit, the outputs)
-        final = selected_final(pool, RSModel(*_copies(model)), threshold_px,
-                               self.options.ransac.min_inliers, errors=e)  # fmt: skip
+        copies = RSModel(*(np.array(a, dtype=float) for a in model))
+        final = selected_final(pool, copies, threshold_px, self.options.ransac.min_inliers,
+                               errors=e)  # fmt: skip
         # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
         inl = final.inliers
         if not inl.all() and collinear_3d(pool.X[inl], compiled=compiled):
@@ -1320,8 +1310,7 @@ class _RigStages:
             pool,
             final.model,
             final.inliers,
-            (None, None, None) if out is None else out,
-            True,  # (final.model: the copies selected_final was given)
+            (None, None, None) if out is None else out,  # (final.model: selected_final's copies)
             failure=None,
             ransac_iterations=search.iterations,
             rmse_px=final.rmse_px,
