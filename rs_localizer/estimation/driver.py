@@ -46,9 +46,10 @@ from typing import Protocol
 from .finalize import FinalModel, ImageAlone
 from .frame import Model
 from .gyro import GyroMeasurement, gyro_checked
+from .options import EstimateOptions, InitialModel
 from .result import EstimationFailed, RSPoseEstimate
 
-__all__ = ["Stages", "gyro_checked_estimate", "staged_estimate"]
+__all__ = ["Stages", "checked_inputs", "gyro_checked_estimate", "staged_estimate"]
 
 
 class Stages(Protocol):
@@ -91,6 +92,31 @@ class Stages(Protocol):
         (:func:`~.finalize.image_alone`, None when it failed), whether its inliers are
         coplanar, the number of valid points (:func:`~.gyro.gyro_checked`'s arguments)."""
         ...
+
+
+def checked_inputs(
+    who: str,
+    options: EstimateOptions | None,
+    default: EstimateOptions,
+    initial_model: object,
+    gyro: object,
+) -> tuple[EstimateOptions, InitialModel | None]:
+    """The inputs every estimator checks alike (``who``: its name, for the messages):
+    ``options`` (None: ``default``) and ``initial_model`` as an
+    :class:`~.options.InitialModel` (a bare model ``(R, C, w, t)``: one with the default
+    gate; None stays None).
+
+    Raises:
+        ValueError: ``options`` that are not an :class:`~.options.EstimateOptions`, a ``gyro``
+            that is not a :class:`~.gyro.GyroMeasurement` (None: none)."""
+    options = default if options is None else options
+    if not isinstance(options, EstimateOptions):
+        raise ValueError(f"{who}: options must be an EstimateOptions, got {type(options).__name__}")
+    if gyro is not None and not isinstance(gyro, GyroMeasurement):
+        raise ValueError(f"{who}: gyro must be a GyroMeasurement, got {gyro!r}")
+    if initial_model is not None and not isinstance(initial_model, InitialModel):
+        initial_model = InitialModel(initial_model)
+    return options, initial_model
 
 
 def staged_estimate(stages: Stages) -> RSPoseEstimate:

@@ -35,9 +35,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..camera import CameraModel
+from ..pose import RSModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
-from .driver import gyro_checked_estimate, staged_estimate
+from .driver import checked_inputs, gyro_checked_estimate, staged_estimate
 from .finalize import (
     STILL_FALLBACK,
     FinalModel,
@@ -119,7 +120,7 @@ def estimate_rs_pose(
     options: EstimateOptions | None = None,
     scores: np.ndarray | None = None,
     *,
-    initial_model: InitialModel | None = None,
+    initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
     point_sigma: np.ndarray | None = None,
     implementation: str | None = None,
@@ -144,8 +145,8 @@ def estimate_rs_pose(
         scores: optional (N,) match quality, higher is better (PROSAC-style sample ordering).
         initial_model: optional :class:`InitialModel` (a prediction, e.g. from the previous
             frames of a video): tested first; if it explains enough points it seeds RANSAC and
-            its rotation replaces P3P as the samples' pre-rotation. Without it the estimator is
-            unchanged.
+            its rotation replaces P3P as the samples' pre-rotation (a bare model ``(R, C, w,
+            t)``: one with the default gate). Without it the estimator is unchanged.
         gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of this
             frame's readout (camera optical frame): RANSAC solves its minimal samples with
             the angular velocity known (R5P_{v,C,t}^{w}, 5 points,
@@ -211,9 +212,14 @@ def estimate_rs_pose(
         validation are counted in ``num_dropped``.
     Raises:
         ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
-            without it, arrays that are not (N, 2) / (N, 3) / (N,), or a ``view`` whose camera
+            without it, arrays that are not (N, 2) / (N, 3) / (N,), ``options`` that are not
+            :class:`EstimateOptions`, a ``gyro`` that is not a
+            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, or a ``view`` whose camera
             is not ``camera`` or without a mounting.
     """
+    options, initial_model = checked_inputs(
+        "estimate_rs_pose", options, EstimateOptions(), initial_model, gyro
+    )
     if view is not None:
         if view.camera is not camera or view.mounting is None:
             raise ValueError("estimate_rs_pose: a view must have the camera given and a mounting")
@@ -242,7 +248,7 @@ def _estimate_rs_pose(
     points3d: np.ndarray,
     camera: CameraModel,
     solver: str,
-    options: EstimateOptions | None,
+    opts: EstimateOptions,
     scores: np.ndarray | None,
     initial_model: InitialModel | None,
     gyro: GyroMeasurement | None,
@@ -254,7 +260,6 @@ def _estimate_rs_pose(
     global shutter's frame of a rolling-shutter solver runs the global-shutter one)."""
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
-    opts = options or EstimateOptions()
     if camera.line_delay <= 0 and solver_info(solver).rolling:
         # a global shutter: every row at one time, nothing to fit the velocities to
         est = _estimate_rs_pose(

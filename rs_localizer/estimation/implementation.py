@@ -83,17 +83,18 @@ def compiled_by_default() -> bool:
 _BY_DEFAULT = os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_usable()
 
 
-def default_implementation(solver: str) -> str:
+def default_implementation(solver: str | None) -> str:
     """The implementation of ``estimate_rs_pose(..., implementation=None)``: ``"numpy"`` for a
-    solver of :data:`NUMPY_SOLVERS` unless :func:`compiled_by_default`; else
-    ``"compiled"``."""
-    if solver in NUMPY_SOLVERS and not compiled_by_default():
+    solver of :data:`NUMPY_SOLVERS` (None: the rig's estimator, which has both) unless
+    :func:`compiled_by_default`; else ``"compiled"``."""
+    if (solver is None or solver in NUMPY_SOLVERS) and not compiled_by_default():
         return NUMPY
     return COMPILED
 
 
-def resolve_implementation(implementation: str | None, solver: str) -> str:
-    """``implementation`` checked (``None``: :func:`default_implementation`).
+def resolve_implementation(implementation: str | None, solver: str | None) -> str:
+    """``implementation`` checked (``None``: :func:`default_implementation`) for ``solver``
+    (None: the rig's estimator, which has both implementations).
 
     Raises:
         ValueError: an implementation not in :data:`IMPLEMENTATIONS`, or ``"numpy"`` for a

@@ -18,80 +18,46 @@ rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.
 Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 
 :func:`estimate_rig_pose` runs the single camera's staged estimator
-(:func:`~rs_localizer.estimation.driver.staged_estimate`: the same stages in the same order, a
-failure turned into its reason in one place) on the rig's stages (:class:`_RigStages`), on
-the rig frame's views stacked (:class:`~.view.StackedViews`: each camera's rows checked and
-normalized as a camera's frame's, their degeneracy, scoring and samples), with RANSAC on every
-camera's correspondences at once:
+(:func:`~rs_localizer.estimation.driver.staged_estimate`, whose docstring lists the stages) on
+the rig's stages (:class:`_RigStages`) over the rig frame's views stacked
+(:class:`~.view.StackedViews`: each camera's rows checked and normalized as a camera's frame's,
+their degeneracy, scoring and samples). What is the rig's own:
 
 - a sample is 3 points of one camera (drawn with probability proportional to its number of
   points, among cameras with at least 3) and 3 more points drawn uniformly from every camera's
-  remaining points, so samples spread over cameras as the points do
-  (:meth:`~.view.StackedViews.samples`);
-- the camera's 3 points give P3P poses (Lambda Twist, global shutter), mapped to the rig
-  (``R_rig = R_c^T R_cam``); each pre-rotates the sample's world points and the batched
-  :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` solves the 6 points;
-- models moving faster than ``max_angular_velocity`` / ``max_linear_velocity`` are dropped;
-  the others are scored by MSAC on the reprojection error in pixels with each camera's exact
-  model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
-  camera's pixel Jacobian at the point turning normalized errors into pixels of the measured,
-  distorted image: :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, first order;
-  :meth:`~.view.StackedViews.best_scored`);
-- the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
-  options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
-  adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
-  random stream; compiled, each batch is drawn, solved and scored in one call
-  (:mod:`.rig_batch`) that checks termination after every sample, as PoseLib's loop does (a
-  batch stops at the first sample at which the samples drawn reach ``ransac.min_iterations``
-  and what the best model's inlier ratio asks for); no sample gives a model:
-  ``no_hypothesis``, or ``implausible_motion`` when some moved beyond the bounds;
+  remaining points (:meth:`~.view.StackedViews.samples`); the camera's 3 points give P3P poses
+  (Lambda Twist, global shutter) mapped to the rig (``R_rig = R_c^T R_cam``), each
+  pre-rotating the sample's world points for the batched
+  :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` on the 6 points;
+- the scoring is MSAC on the reprojection error in pixels of the measured, distorted image
+  with each camera's exact model at the observation's own capture time
+  (:meth:`~.view.StackedViews.best_scored`); the search is the single camera's
+  (:class:`~rs_localizer.estimation.ransac.RansacLoop`, :class:`_RigSearch`), compiled one
+  call per batch (:mod:`.rig_batch`) that checks termination after every sample, as
+  PoseLib's loop does;
 - local optimization is the single camera's rounds
   (:func:`~rs_localizer.estimation.local_optimization.polish`) with the rig's steps: the rig
-  solver on the best model's inliers (pre-rotated by the model, twice), then the exact-model
-  refinement on every point within ``FINAL_CUTOFF`` thresholds (the final refinement's
-  first), at most :data:`LO_ROUNDS` rounds (the camera's stop rules); a step is taken where it
-  lowers the MSAC cost of every point;
-- the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`), on the
-  rig frame's views stacked, one :class:`~rs_localizer.estimation.frame.RefinementView`
-  (each point seen through its camera's mounting at its own time, errors in its camera's
-  pixels, one second per unit of ``tau``; a camera alone is one view at the identity
-  mounting): the final refinement (:func:`~.finalize.frame_refinement`: Levenberg-Marquardt
-  on the exact model over every point within ``FINAL_CUTOFF`` inlier thresholds, Huber loss
-  at the threshold, the set re-selected at each iteration); its covariance ``sigma^2 (J^T W
-  J)^-1`` over ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``, ``sigma^2`` the per-axis
-  image variance of the inliers' errors in px^2, corrected for the threshold's truncation)
-  with the mountings' uncertainty (:func:`~.finalize.final_covariance`), the pose and twist
-  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance`), the
-  sensitivity to the rig's acceleration during the frame
-  (:func:`~.finalize.final_sensitivity`); the last checks (:data:`RIG_FAILURE_REASONS`):
-  enough inliers, not on one 3D line, plausible motion and every inlier in front of its camera
-  at its capture time (:func:`~.finalize.last_checks`, each camera's own model), and with
-  ``plausibility.consistent_fit`` a fit a rigid rig can give
-  (:func:`~.finalize.inconsistent_fit`, view by view, which a mirrored map fails); the
-  choice between refinements (:func:`~.finalize.chosen_refinement`, which takes a single
-  view's first: on a frame of several cameras, unless the first refinement explains every
-  point within the threshold, also the refinement from the model first fitted with
-  :data:`CONTRADICTION_GATE` thresholds, the one of the lower MSAC cost kept, or the fit of
-  the inliers alone where its cost is significantly lower: cameras whose mountings
-  disagree). The rig's own part is the estimate's per-camera fields (:func:`_rig_estimate`);
+  solver on the best model's inliers (:func:`_refit`), then the final refinement's first, at
+  most :data:`LO_ROUNDS` rounds;
+- the final stage is a single camera's (:mod:`~rs_localizer.estimation.finalize`) on the
+  stacked views as one :class:`~rs_localizer.estimation.frame.RefinementView` (each point
+  seen through its camera's mounting at its own time, errors in its camera's pixels, one
+  second per unit of ``tau``; the covariance with the mountings' uncertainty), with the
+  choice between refinements of :func:`~.finalize.chosen_refinement`
+  (:data:`CONTRADICTION_GATE`: cameras whose mountings disagree) and the consistent fit view
+  by view (:data:`AGREE_SHARE`); the rig's own part of the result is its per-camera fields
+  (:func:`_rig_estimate`);
 - the cameras' consensus: every camera with enough points must agree with the pose, cameras
   that contradict each other decided by their number, never by their numbers of points
-  (:func:`estimate_rig_pose`, which also says how an initial model, a prediction and a gyro
-  on the rig are used: as a single camera's estimator uses its own).
+  (:func:`_consensus`); an initial model, a prediction and a gyro on the rig are used as a
+  single camera's estimator uses its own (:func:`estimate_rig_pose`).
 
 The estimator runs in one of the single camera's two implementations (``implementation``,
-:mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, numba kernels (the
-refinement kernel above, Lambda Twist P3P, the rig solver, the scoring kernel); ``"numpy"``,
-nothing compiled: the refinement by SciPy's ``least_squares`` on the same exact model and
-mountings (:func:`~rs_localizer.estimation.refine.refine_rs_pose_numpy`, Huber loss at
-the threshold on the points within the cutoff, selected again after a fit), the covariance
-and acceleration block from the analytic Jacobian
-(:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma; OpenCV's P3P
-(:func:`~.numpy_impl.p3p_roots`, every root), the rig solver's NumPy form
-(:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` with ``numpy``), the scoring, checks and
-outputs in NumPy (the single camera's NumPy implementation's). A rig node takes it while its
-kernels compile in the background (:mod:`rs_localizer.runtime.background`): on a cold cache
-its first rig frame compiles nothing.
+:mod:`~rs_localizer.estimation.implementation`), its stages the camera's on either; on
+``"numpy"`` the rig's own parts are OpenCV's P3P (:func:`~.numpy_impl.p3p_roots`, every root)
+and the rig solver's NumPy form (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` with
+``numpy``). A rig node takes it while its kernels compile in the background
+(:mod:`rs_localizer.runtime.background`): on a cold cache its first rig frame compiles nothing.
 
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
@@ -121,7 +87,7 @@ from ..solvers.gr6p_1lin import (
     still_solve_rotated,
 )
 from .degeneracy import coplanar
-from .driver import gyro_checked_estimate, staged_estimate
+from .driver import checked_inputs, gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
 from .finalize import (
     FINAL_CUTOFF,
@@ -152,7 +118,7 @@ from .hypotheses import (
     prerotated_models,
     still_models,
 )
-from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
+from .implementation import COMPILED, NUMPY, resolve_implementation
 from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
@@ -468,13 +434,6 @@ def _refit(
     return R, C, w, t
 
 
-def _copies(model) -> tuple:
-    """Float64 copies of a model's ``(R, C, w, t)``."""
-    f = float
-    return (np.array(model[0], dtype=f), np.array(model[1], dtype=f),
-            np.array(model[2], dtype=f), np.array(model[3], dtype=f))  # fmt: skip
-
-
 def estimate_rig_pose(
     views: Sequence[View],
     options: EstimateOptions | None = None,
@@ -488,79 +447,45 @@ def estimate_rig_pose(
     verify_cameras: bool = False,
     implementation: str | None = None,
 ) -> RSPoseEstimate:
-    """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
+    """The pose and velocities of a rig of RS cameras from one rig frame (module docstring):
+    the many-view call of the staged estimator whose one-view call is
+    :func:`~.estimate.estimate_rs_pose`; its arguments are used as that one's.
 
     Args:
         views: one :class:`View` per camera (pixels, world points, camera, mounting, stamp
             offset); a camera may have no points.
-        options: the single camera's
-            :class:`~rs_localizer.estimation.options.EstimateOptions` (default
-            :data:`RIG_OPTIONS`), of which the rig uses ``ransac`` (``threshold_px``: the
-            inlier threshold on the reprojection error in px; ``max_iterations``,
-            ``min_iterations``, ``confidence``, ``batch_size``: the search and its adaptive
-            termination, as a camera's; ``min_inliers`` over all cameras; ``seed``;
-            ``solver_iterations``: rig-solver iterations per sample after the pre-rotation,
-            None: :data:`RIG_SOLVER_ITERATIONS`), ``refine.enabled`` (the Levenberg-Marquardt
-            refinement on the exact model and the covariance; without it the estimate is the
-            rig solver's refit of RANSAC's model) and ``plausibility``'s
-            ``max_angular_velocity`` (rad/s) and ``max_linear_velocity`` (m/s): hypotheses and
-            final models of a rig moving faster are implausible (``inf``: no bound), and
-            ``max_point_norm`` (m): a row whose world point has a coordinate farther from the
-            origin is dropped (counted in ``num_dropped``), as a single camera drops it. Its
-            other fields (local optimization, motion prior, correlated noise, sampling order
-            and pre-test) are the single camera's alone.
-        initial_model: optional :class:`~rs_localizer.estimation.InitialModel` whose
-            ``model`` is the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
-            reference time: a tracker's prediction; a bare model has the default gate):
-            tested first on every point; if at least ``min_explained`` are within its
-            ``gate_px`` it is pulled onto them and seeds RANSAC, and its rotation (then the
-            best model's) pre-rotates every sample instead of P3P; when it then has at least
-            ``min_explained`` inliers RANSAC only verifies it with samples drawn among them
-            (at least ``ransac.min_iterations``; as a single camera's estimator does with its
-            ``initial_model``). Without it the estimator is unchanged.
-        gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's
-            angular velocity during the rig frame (rad/s, **rig frame**: an IMU on the rig,
-            its rates turned by ``R_rig_imu``; e.g.
-            :func:`~rs_localizer.tracking.gyro.gyro_measurement` over the rig frame's capture
-            times). It is used as a single camera's estimator uses its gyro
-            (``estimate_rs_pose(..., gyro=)``): every RANSAC sample is solved with the gyro's
-            rows in the rig solver's linear system (the angular velocity held to the gyro's
-            within its covariance), and local optimization and the final refinement are
-            maximum a posteriori with it, the covariances including it; scoring is unchanged.
-            The gyro is then judged by the image alone: the aided model is refined once more
-            without it; if the gyro disagrees with that angular velocity
-            (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2` above
-            :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`), if the aided estimate
-            fails, or if it explains fewer than ``1 -``
-            :data:`~rs_localizer.estimation.gyro.GYRO_INLIER_MARGIN` of the inliers of the
-            unaided estimate (run when the aided one explains fewer than
-            :data:`~rs_localizer.estimation.gyro.GYRO_RECHECK_FRACTION` of the valid points,
-            or the image-alone refinement explains more than it), the rig frame is solved
-            again without it, with ``gyro_rejected`` and ``gyro_rejection`` set. Ignored on a
-            global-shutter rig frame (and without ``refine``: the estimate is then unaided).
-        gyro_time: s from the rig's reference time: the middle of the gyro's window (the
-            rig turned at the measured rate then, when it accelerates; the estimate's
-            ``acceleration_sensitivity`` includes the gyro's with it); None: the middle of
-            the rig frame's observation times.
-        pre_rotation: how RANSAC's samples are pre-rotated: ``"p3p"`` (default: 3 points of
-            one camera, Lambda Twist, mapped to the rig) or ``"gp3p"`` (PoseLib's generalized
-            P3P on 3 points drawn from all cameras, Nister-Stewenius' problem; samples of 6
-            points drawn uniformly; needs ``poselib``). Measured against each other with
-            ``python -m benchmarks.bench_rig --pre-rotation`` (docs/rig.md).
-        prediction: the rig's predicted model ``(R, C, w, t)`` (as ``initial_model``'s)
-            that decides between cameras that contradict each other (the cameras' consensus,
-            below); None: ``initial_model``'s model, if any.
-        consensus: check that the cameras with points agree (below); False: the joint
-            estimate as it is, whatever its cameras' inlier ratios.
-        verify_cameras: also pose every voting camera alone and compare (below): for a rig
-            frame nothing else checks (a track's first), at the cost of one more solve per
-            camera.
-        implementation: the implementation of the refinement and covariance (module
-            docstring), as ``estimate_rs_pose``'s (:mod:`~.implementation`):
-            ``"compiled"`` (the numba kernel) or ``"numpy"`` (SciPy's ``least_squares`` and
-            NumPy: nothing compiles the refinement kernel's rig specialization); None: the
-            compiled one unless this process cannot or must not compile
-            (:func:`~.implementation.compiled_by_default`). The estimate records it.
+        options: :class:`~rs_localizer.estimation.options.EstimateOptions` (default
+            :data:`RIG_OPTIONS`), of which the rig uses ``ransac`` (``min_inliers`` over all
+            cameras; ``solver_iterations`` None: :data:`RIG_SOLVER_ITERATIONS`),
+            ``refine.enabled`` (without it the estimate is the rig solver's refit of
+            RANSAC's model) and ``plausibility`` (velocity bounds in rad/s and m/s, rows
+            beyond ``max_point_norm`` dropped, ``consistent_fit``); its other fields are a
+            single camera's alone.
+        initial_model: an :class:`~rs_localizer.estimation.InitialModel` (a bare model: the
+            default gate) of the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
+            reference time), used as a camera's: tested on every point, pulled onto those
+            it explains, seeding RANSAC and pre-rotating its samples, verified with samples
+            among its inliers when it has ``min_explained``.
+        gyro: a :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's angular
+            velocity (rad/s, **rig frame**), used as a camera's: its rows in every sample's
+            rig solve, the refinements maximum a posteriori with it, then judged by the image
+            alone (:func:`~.driver.gyro_checked_estimate`: ``gyro_rejected`` and the frame
+            solved again without it on disagreement). Ignored on a global-shutter rig frame
+            and without ``refine``.
+        gyro_time: s from the rig's reference time: the middle of the gyro's window (for the
+            ``acceleration_sensitivity``); None: the middle of the observation times.
+        pre_rotation: ``"p3p"`` (3 points of one camera, Lambda Twist, mapped to the rig) or
+            ``"gp3p"`` (PoseLib's generalized P3P on 3 points drawn from all cameras, samples
+            drawn uniformly; needs ``poselib``; ``python -m benchmarks.bench_rig
+            --pre-rotation``, docs/rig.md).
+        prediction: the rig's predicted model that decides between cameras that contradict
+            each other (:func:`_consensus`); None: ``initial_model``'s model, if any.
+        consensus: check that the cameras with points agree (:func:`_consensus`); False: the
+            joint estimate as it is.
+        verify_cameras: also pose every voting camera alone and compare (:func:`_verified`):
+            for a rig frame nothing else checks (a track's first).
+        implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s
+            (:func:`~.implementation.resolve_implementation`); the estimate records it.
     Returns:
         :class:`RSPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
@@ -575,85 +500,33 @@ def estimate_rig_pose(
             message names it) or with a mounting that is not a
             :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
             shapes.
-
-    Every observation at one time (global-shutter cameras with equal stamps: capture times
-    within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
-    rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
-    refinement and covariance of the pose alone) with ``w = t = 0`` and ``motion_model``
-    ``"global_shutter"``. So is a rig frame whose rolling-shutter estimate fails
-    (``implausible_motion``, ``too_few_inliers``) and whose points show no motion
-    (:class:`_RigStages`: cameras that read out in nanoseconds to microseconds).
-
-    The cameras' consensus: a pose is returned only when the cameras with points agree on it.
-    Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
-    ratio under the joint estimate is below :data:`AGREE_SHARE` times the best voting
-    camera's disagrees. The rig is then solved again from the cameras that disagree; when
-    that pose explains the agreeing cameras' points no better, the two groups contradict each
-    other (a wrong mounting or stamp on one side) and the rig is posed by the group of more
-    cameras, whatever their numbers of points, on a tie by the group whose pose is nearer
-    ``prediction`` (:data:`PREDICTION_MARGIN`); the other group's cameras are
-    ``disagreeing`` (none of their points an inlier). Equal groups and no prediction that
-    tells them apart: ``cameras_disagree``, unless each group's pose explains the other
-    group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or one pose fitted
-    to both groups' points with that gate as its threshold (Huber loss; each voting camera's
-    points weighed so that every camera counts alike, as in the vote) explains both groups'
-    within it (a mounting a few tenths of a degree off, not a wrong one): the joint
-    estimate is returned. When all
-    cameras agree (the common case) this costs nothing. With a prediction, the cameras whose
-    points it explains (:data:`PREDICTION_GATE`) are checked first: when some voting cameras'
-    points are not, no more cameras than those it explains, and they disagree with the pose
-    of the others alone, the rig is posed by the others (a track never outvotes more cameras
-    than it keeps), unless the rig frame is posed on the global-shutter model and the
-    two groups are near (:func:`_near`, as for a tie: a prediction a degree off can explain
-    one camera's points and not another's a few tenths of a degree apart from it). A wrong
-    stamp on one of two cameras can leave both with a fair share of inliers under a joint
-    pose that is wrong (the velocities absorb part of the time error); ``verify_cameras``
-    catches it: every voting camera is posed alone, two cameras agree when either's own pose
-    explains at least :data:`VERIFY_SHARE` of the other's own inliers, and the largest group
-    of cameras that agree poses the rig (a tie as above).
     """
+    who = "estimate_rig_pose"
     if len(views) == 0:
-        raise ValueError("estimate_rig_pose: needs at least one camera")
-    options = RIG_OPTIONS if options is None else options
-    if not isinstance(options, EstimateOptions):
-        raise ValueError(
-            f"estimate_rig_pose: options must be an EstimateOptions, got {type(options).__name__}"
-        )
+        raise ValueError(f"{who}: needs at least one camera")
+    options, initial_model = checked_inputs(who, options, RIG_OPTIONS, initial_model, gyro)
     if pre_rotation not in PRE_ROTATIONS:
-        raise ValueError(
-            f"estimate_rig_pose: pre_rotation must be one of {PRE_ROTATIONS}, got {pre_rotation!r}"
-        )
-    if gyro is not None and not isinstance(gyro, GyroMeasurement):
-        raise ValueError(f"estimate_rig_pose: gyro must be a GyroMeasurement, got {gyro!r}")
-    if implementation is None:
-        implementation = COMPILED if compiled_by_default() else NUMPY
-    if implementation not in IMPLEMENTATIONS:
-        raise ValueError(
-            f"estimate_rig_pose: implementation must be one of {IMPLEMENTATIONS}, got "
-            f"{implementation!r}"
-        )
-    compiled = implementation == COMPILED
-    if initial_model is not None and not isinstance(initial_model, InitialModel):
-        initial_model = InitialModel(initial_model)  # (a bare model: the default gate)
+        raise ValueError(f"{who}: pre_rotation must be one of {PRE_ROTATIONS}: {pre_rotation!r}")
+    compiled = resolve_implementation(implementation, None) == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
+    settings = (options, initial_model, pre_rotation == "gp3p")
+
+    def solve(vs: Sequence[View]) -> RSPoseEstimate:
+        return _estimate_pool(StackedViews(vs, compiled, cache, max_norm), settings, gyro,
+                              gyro_time)  # fmt: skip
+
     pool = StackedViews(views, compiled, cache, max_norm)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
-    settings = (options, initial_model, pre_rotation == "gp3p")
-    threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
     if not consensus or not est.success:
         return est
     if prediction is None and initial_model is not None:
         prediction = initial_model.model
-    return _consensus(
-        views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(StackedViews(vs, compiled, cache, max_norm), settings, gyro,
-                                  gyro_time),
-        prediction, verify_cameras,
-    )  # fmt: skip
+    threshold_px = options.ransac.threshold_px
+    return _consensus(views, pool, est, threshold_px, solve, prediction, verify_cameras)
 
 
 def _one_camera_alone(
@@ -750,7 +623,11 @@ def _consensus(
     fitted from it explains every voting camera within the gate (:func:`_one_pose`), the
     joint estimate is returned without solving the others.
     The joint estimate's point count never decides: a camera with most of the points is
-    outvoted by two that agree with each other."""
+    outvoted by two that agree with each other. With a prediction, the cameras whose points
+    it explains are checked first (:func:`_by_track`: a track never outvotes more cameras
+    than it keeps); with ``verify``, every voting camera is posed alone (:func:`_verified`:
+    a wrong stamp on one of two cameras can leave both with a fair share of inliers under a
+    joint pose that is wrong, the velocities absorbing part of the time error)."""
     voters = [c for c, n in enumerate(est.num_valid_per_view) if n >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
@@ -903,9 +780,11 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
 
 def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     """``verify_cameras`` (:func:`estimate_rig_pose`): the estimate of the largest group of
-    voting cameras that agree posed alone; on a tie the prediction does not break, the joint
-    estimate when the two groups are near (:func:`_near`, as in :func:`_consensus`), else
-    ``cameras_disagree``; or None when every camera posed alone agrees with the others."""
+    voting cameras that agree posed alone (two cameras agree when either's own pose explains
+    at least :data:`VERIFY_SHARE` of the other's own inliers); on a tie the prediction does
+    not break, the joint estimate when the two groups are near (:func:`_near`, as in
+    :func:`_consensus`), else ``cameras_disagree``; or None when every camera posed alone
+    agrees with the others."""
     M = len(pool.sizes)
     valid = np.asarray(est.num_valid_per_view)
     voting = voters
@@ -1223,21 +1102,17 @@ def _rig_estimate(
     model=None,
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
-    fresh: bool = False,
     **record,
 ) -> RSPoseEstimate:
     """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``
-    (:func:`~.result.built_estimate`, the rig's views): of ``model`` ``(R, C, w, t)`` with the
-    (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the ROS pose and twist
-    blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the identity and zeros,
-    no inliers); ``record``: the other fields by name. ``fresh``: the model's arrays are
-    float64, contiguous and the caller's own (taken, not copied)."""
-    if model is None:
-        model, fresh = (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)), True
-    R, C, w, t = model if fresh else _copies(model)
+    (:func:`~.result.built_estimate`, the rig's views): of ``model`` ``(R, C, w, t)`` (float64
+    arrays, taken, not copied) with the (N_pool,) ``inliers`` and ``outputs`` (the covariance
+    (12, 12), the ROS pose and twist blocks), or with ``failure=`` one of
+    :data:`RIG_FAILURE_REASONS` (the identity and zeros, no inliers); ``record``: the other
+    fields by name."""
+    R, C, w, t = RSModel.identity() if model is None else model
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     per = pool.per_camera(inl)
-    record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
         record.pop("failure", None),
@@ -1403,8 +1278,9 @@ class _RigStages:
         # on one 3D line, the final refinement's Jacobian at the model (no step, as a camera's
         # final refinement gives it: its information, covariance and J^T W D), the last checks
         # on every camera's model, the consistent fit, the outputs)
-        final = selected_final(pool, RSModel(*_copies(model)), threshold_px,
-                               self.options.ransac.min_inliers, errors=e)  # fmt: skip
+        copies = RSModel(*(np.array(a, dtype=float) for a in model))
+        final = selected_final(pool, copies, threshold_px, self.options.ransac.min_inliers,
+                               errors=e)  # fmt: skip
         # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
         inl = final.inliers
         if not inl.all() and collinear_3d(pool.X[inl], compiled=compiled):
@@ -1434,8 +1310,7 @@ class _RigStages:
             pool,
             final.model,
             final.inliers,
-            (None, None, None) if out is None else out,
-            True,  # (final.model: the copies selected_final was given)
+            (None, None, None) if out is None else out,  # (final.model: selected_final's copies)
             failure=None,
             ransac_iterations=search.iterations,
             rmse_px=final.rmse_px,

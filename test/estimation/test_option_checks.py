@@ -98,6 +98,42 @@ def test_estimate_rig_pose_takes_the_camera_options_only(options):
         estimate_rig_pose(_rig_views(), EstimateOptions(ransac=RansacOptions(batch_size=0)))
 
 
+@pytest.mark.parametrize("options", [RansacOptions(), {"threshold_px": 2.0}, 2.0])
+def test_estimate_rs_pose_takes_estimate_options_only(options):
+    """A camera's estimator refuses what is not an EstimateOptions, and a gyro that is not a
+    GyroMeasurement, with the rig's messages (the two estimators' one input check): before,
+    a dict of options failed on an attribute deep in the frame's preparation."""
+    from rs_localizer.estimation.gyro import GyroMeasurement
+
+    cam = CameraModel(K=K, line_delay=30e-6)
+    with pytest.raises(ValueError, match=r"estimate_rs_pose: options must be an EstimateOptions"):
+        estimate_rs_pose(np.zeros((10, 2)), np.zeros((10, 3)), cam, options=options)
+    for who, call in (
+        ("estimate_rs_pose", lambda g: estimate_rs_pose(np.zeros((10, 2)), np.zeros((10, 3)),
+                                                        cam, gyro=g)),
+        ("estimate_rig_pose", lambda g: estimate_rig_pose(_rig_views(), gyro=g)),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=rf"{who}: gyro must be a GyroMeasurement"):
+            call(np.zeros(3))
+    ok = GyroMeasurement(np.zeros(3), np.eye(3) * 1e-4)  # (a GyroMeasurement is taken)
+    assert estimate_rs_pose(np.zeros((10, 2)), np.zeros((10, 3)), cam, gyro=ok).failure
+
+
+def test_estimate_rs_pose_takes_a_bare_initial_model():
+    """A bare model ``(R, C, w, t)`` as a camera's ``initial_model`` is an InitialModel with
+    the default gate, as the rig's is: the same estimate as the InitialModel of it."""
+    from rs_localizer.estimation import InitialModel
+    from rs_localizer.sim.synthetic import make_frame, paper_camera
+
+    f, cam = make_frame(4, 60, noise_px=0.5), paper_camera()
+    model = (f.R, f.C, f.w, f.t)
+    bare = estimate_rs_pose(f.points_px, f.X, cam, initial_model=model)
+    wrapped = estimate_rs_pose(f.points_px, f.X, cam, initial_model=InitialModel(model))
+    assert bare.success and bare.initial_used
+    for a, b in zip(bare.model, wrapped.model, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_estimate_rs_pose_refuses_options_before_any_work():
     """The options are checked where they are built, so estimate_rs_pose never gets bad
     ones: ``dataclasses.replace`` runs the checks too."""
