@@ -111,6 +111,10 @@ class VideoClock:
         self._last[source] = stamp if previous is None or reset else max(previous, stamp)
         return reset
 
+    def source_newest(self, source: str = "") -> int | None:
+        """ns, ``source``'s newest frame time since the last reset (None: none since)."""
+        return self._last.get(source)
+
     def reset(self) -> None:
         """Forget the frames' time (the video forgotten)."""
         self.newest = None

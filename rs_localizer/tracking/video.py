@@ -65,8 +65,9 @@ frame is taken (no ``out_of_order`` nor ``late``), a stamp going back or jumping
 time reset of the gyro's timeline only (:meth:`Localizer.check_time`; the track resets itself
 on such stamps). The last posed frame is carried (the prediction without tracking) for
 :meth:`Localizer.add` as for :meth:`Localizer.process_image`, a frozen image starts a new
-track at the next frame (:meth:`Localizer.restart_track`), and a global-shutter solver's or
-camera's own twist is final (:attr:`LocalizerOutput.twist_now`). Given the camera's
+track at the next frame (:meth:`Localizer.restart_track`), and, as for any frame, its own
+twist is final when its estimator measures none (a global-shutter solver's, a camera's
+without readout time: :attr:`LocalizerOutput.twist_now`). Given the camera's
 ``options`` (``EstimateOptions()``, not the default
 :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``, its estimates,
 paths and fused twists are the camera's localizer's, bit for bit. What only a rig of several
@@ -175,7 +176,7 @@ from ..estimation.rig import RIG_OPTIONS
 from ..estimation.view import View
 from ..frames import Mounting
 from ..pose import RSModel
-from ..solvers.registry import DEFAULT_SOLVER, solver_info
+from ..solvers.registry import DEFAULT_SOLVER
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro import readout_window
@@ -706,7 +707,6 @@ class Localizer(GyroReadouts):
         # back_tolerance_ns (less: its frame out of order; a rig of one: any step back), a
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
-        self._noted: dict[str, int] = {}  # (camera -> the frame time it noted last, _note)
         self._reset_solved: list = []  # (rig frames a time reset noted before its frame solved)
         self._img: _ImageInput | None = None  # (the image search, made on first use)
         # (the last time reset's number, detail and the new timeline's first time on the
@@ -767,7 +767,6 @@ class Localizer(GyroReadouts):
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = settings.time_reset_ns
             self._clock.back_tolerance_ns = settings.back_tolerance_ns
-            self._noted = {}  # (the next frame noted on the clock again, with these)
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
@@ -886,7 +885,6 @@ class Localizer(GyroReadouts):
             out = self._time_reset(None)
             self._forget_last_pose()
             self._clock.reset()
-            self._noted = {}
         return out
 
     def _frame_gyro(self, t0: int, clocks: list[tuple[CameraModel, int]]) -> GyroMeasurement | None:
@@ -1063,24 +1061,30 @@ class Localizer(GyroReadouts):
             return []
         return self._ready()
 
-    def check_time(self, stamp_ns: int) -> str | None:
-        """A rig of one camera: note a frame's stamp (ns, the capture time of row
-        ``stamp_row``), as its camera's video does. A stamp older than the previous frame's,
-        or newer by more than ``time_reset_ns``, is a time reset: returns why (else None), and
-        the gyro's timeline starts again (on a stamp going back the samples buffered so far
-        are dropped, on a jump forward those older than the previous frame; the bias
-        estimator's and the gyro check's pairing restart; counted ``rig.time_resets``). Its
-        track resets itself on the same stamps. :meth:`add` (an image: :meth:`search_image`)
-        notes each frame's stamp; called first for the frame's stamp (to act on a reset
-        before the frame is decoded), the frame takes it as noted: a frame is noted once.
+    def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
+        """Note camera ``name``'s frame stamp (ns, the capture time of row ``stamp_row``; None:
+        a rig of one's camera) on the video's clock ahead of its frame, to act on a time reset
+        before the frame is decoded (:meth:`_note`): returns the reset's reason text, else
+        None. A stamp older than the camera's previous frame's (a rig of one: any step back; a
+        rig's camera: by more than ``time_reset_ns``), or newer than the video's newest by
+        more than ``time_reset_ns``, is a time reset: the gyro's timeline starts again (on a
+        stamp going back the samples buffered so far are dropped, on a jump forward those
+        older than the previous frame; the bias estimator's and the gyro check's pairing
+        restart; counted ``rig.time_resets``), a rig's open rig frames are solved (a jump) or
+        dropped (a step back). A rig of one's track resets itself on the same stamps.
+        :meth:`add` (an image: :meth:`search_image`) notes each frame's stamp; the frame
+        takes a stamp noted here as noted: a frame is noted once.
 
         Raises:
-            ValueError: a rig of several cameras (each camera's frame is checked as it is
-                added), a stamp beyond the int64 nanosecond range.
+            ValueError: no ``name`` for a rig of several cameras, a camera not in the rig, a
+                stamp beyond the int64 nanosecond range.
         """
-        if not self._single:
-            raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
-        (name,) = self._cams
+        if name is None:
+            if not self._single:
+                raise ValueError("a rig's check_time names the camera")
+            (name,) = self._cams
+        elif name not in self._cams:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         reset = self._note(name, self._on_clock(name, checked_stamp(stamp_ns)))
         return None if reset is None else reset.detail
 
@@ -1116,7 +1120,7 @@ class Localizer(GyroReadouts):
         noted on the video's clock, a camera's or a rig camera's the one way, once per frame
         and before its image is searched: :meth:`check_time` (a camera alone, ahead of the
         frame), the image search (:meth:`search_image`) and :meth:`add` take it as noted (a
-        time the camera noted last is its newest again: noting it twice changes nothing). The
+        time equal to the camera's newest on the clock is noted already). The
         clock (:class:`~rs_localizer.tracking.clock.VideoClock`) compares it with the
         camera's newest frame time (a step back; a camera alone: the video's newest) and the
         video's newest (a jump ahead). On a time reset a jump ahead is counted
@@ -1125,9 +1129,8 @@ class Localizer(GyroReadouts):
         the frame, :meth:`_solved_by_reset`) and every camera's last image is forgotten (a
         new timeline's first image, this frame's too, is not compared with it: frozen
         image). Returns the time reset, or None."""
-        if self._noted.get(name) == t:
+        if self._clock.source_newest(name) == t:  # (noted already: once per frame)
             return None
-        self._noted[name] = t
         reset = self._clock.step(t, name)
         if reset is None:
             return None
@@ -1680,8 +1683,10 @@ class Localizer(GyroReadouts):
         3. the estimator of its views (:meth:`_estimator`) on the track
            (:meth:`~rs_localizer.tracking.tracker.TrackerPath.track`; a rig's pose judged by
            :meth:`_judged` before the track takes it), cold without tracking;
-        4. counted, its shares, its twist held for the fused twist unless final now
-           (:meth:`_twist_now`), the states final released (:meth:`_fused`).
+        4. counted, its shares, its twist held for the fused twist unless final now (no
+           tracking, or its estimator measures no twist:
+           :attr:`~rs_localizer.tracking.tracker.FrameViews.measures_twist`), the states
+           final released (:meth:`_fused`).
 
         A camera alone's estimate is its camera's own (:attr:`LocalizerOutput.camera_estimate`),
         in the rig's terms in ``estimate`` (:func:`_camera_as_rig`; a camera's video: its
@@ -1752,7 +1757,8 @@ class Localizer(GyroReadouts):
             if out.path is not None:
                 self.counts[f"rig.path.{out.path}"] += 1
             self._shares(out, est, views)
-            out.twist_now = self._twist_now(views)
+            # (its own twist final when nothing fuses it: no track, or no twist measured)
+            out.twist_now = s.tracking is None or not estimator.measures_twist
             if not out.twist_now:  # (its fused twist comes when final)
                 tag = out.tags[names[0]] if not self._rig else dict(out.tags)
                 self._twists.hold(out.stamp_ns, est, tag, out.path == "relocalized")
@@ -1863,19 +1869,6 @@ class Localizer(GyroReadouts):
         out.disagreeing = self._agreement.update(
             names, n_pts, n_in, views, est, self.settings, self._impl
         )
-
-    def _twist_now(self, views: list) -> bool:
-        """Whether a posed frame's own twist is its final twist (none comes in a later
-        ``fused``): nothing fuses it (no tracking), or it measures no twist: a camera alone
-        whose solver is a global-shutter one, or whose camera has no readout time (its
-        frame taken at one instant). A rig's views measure the twist across their cameras'
-        readouts and stamps: fused."""
-        s = self.settings
-        if s.tracking is None:
-            return True
-        if not self._single:
-            return False
-        return not solver_info(s.solver).rolling or views[0].camera.seconds_per_unit_r <= 0
 
     def _count_rig(self, names, failure: str | None) -> None:
         if failure is None:
