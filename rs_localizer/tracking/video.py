@@ -473,9 +473,10 @@ class LocalizerOutput(FrameOutput):
             given to the estimator: the rig's inliers per camera index them; e.g. a camera's
             debug image).
         twist_now: the frame's own twist is its final twist, none comes in a later
-            ``fused``: no tracking, or a rig of one camera whose solver is a global-shutter
-            one or whose camera has no readout time (as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
+            ``fused``: no tracking, or its estimator measures no twist
+            (:attr:`~rs_localizer.tracking.tracker.FrameViews.measures_twist`: a rig of one
+            camera whose solver is a global-shutter one or whose camera has no readout time,
+            as a camera's :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
         camera_estimate: a rig of one camera (:attr:`LocalizerSettings.single_camera`): its
             camera's own estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`'s, the
@@ -617,12 +618,13 @@ class Localizer(GyroReadouts):
     restart after :meth:`restart_track`), the last posed frame carried (the prediction without
     tracking, for :meth:`add` as for :meth:`process_image`). A rig of one
     (:attr:`LocalizerSettings.single_camera`) differs only where a camera alone differs from
-    a rig: nothing to group (each frame solved at once, any step back a time reset:
-    :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the camera's own, so its
-    tracker is its camera's (:class:`~rs_localizer.tracking.tracker.RSTracker`, made per
-    solver, options, tracking and camera model; it resets itself on a time reset, predicts
-    in the camera's terms and is dropped when its track ends); its own twist is final when its
-    solver or camera measures none (:attr:`LocalizerOutput.twist_now`); and no other camera
+    a rig: no other camera to wait for (each frame its rig frame, complete at once; any step
+    back a time reset: :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the
+    camera's own, so its tracker is its camera's (:class:`~rs_localizer.tracking.tracker.
+    RSTracker`, made per solver, options, tracking and camera model; it resets itself on a
+    time reset, predicts in the camera's terms and is dropped when its track ends) and its own
+    twist is final when its solver or camera measures none (:attr:`LocalizerOutput.twist_now`,
+    as any frame's whose estimator measures none); and no other camera
     sees what it misses (a frozen image restarts its track, an image with too few
     correspondences never reaches its solver). A rig frame's pose is judged before the track
     takes it (the refusals, :data:`RIG_REFUSALS`).
@@ -670,10 +672,10 @@ class Localizer(GyroReadouts):
         self._cams = {n: _Camera(n, m) for n, m in settings.mounts.items()}
         # the rig's grouping of its cameras' frames into rig frames, its cameras' agreement
         # (tracking/rig.py)
-        self._frames = RigGrouping(settings.cameras, self.counts, self.log, self._skip)
-        self._agreement = CameraAgreement(
-            settings.cameras, settings.disagree_history, self._frames, self.counts, self.log
-        )
+        self._frames = RigGrouping(settings.cameras, self.counts, self.log, self._skip,
+                                   ordered=not settings.single_camera)  # fmt: skip
+        self._agreement = CameraAgreement(settings.disagree_history, self._frames, self.counts,
+                                          self.log)  # fmt: skip
         # the frames waiting for their fused twist, their last camera frame's wall time
         # (tracking/localizer.py), the lock, the last posed frame carried
         self._twists = PendingTwists()
@@ -756,7 +758,7 @@ class Localizer(GyroReadouts):
         with self._lock:
             # (a rig's track path ends here; a rig of one's camera tracker is made again at its
             # next frame when its solver, options, tracking or camera model changed, a reset,
-            # as the camera's: _solve_alone)
+            # as the camera's: _estimator)
             if not self._single and settings.tracking != old.tracking:
                 # (the old track's twists: the old bounds)
                 self._carry += self._end_track(keep=True)
@@ -1040,8 +1042,9 @@ class Localizer(GyroReadouts):
         return out
 
     def _add_frame(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
-        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), solved at
-        once (a rig of one) or grouped into its rig frame."""
+        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), grouped
+        into its rig frame (a rig of one's complete at once) and the rig frames complete
+        solved."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
@@ -1051,12 +1054,9 @@ class Localizer(GyroReadouts):
         stamp = self._on_clock(name, frame.stamp_ns)
         self._frames.note_first(stamp)
         if frame.camera is None:
-            self._frames.no_camera_info(name, stamp)
+            self._frames.skipped(name, stamp, "no_camera_info")
             return self._ready()
         self._note(name, stamp)  # (a time reset: every camera's timeline started again)
-        if self._single:  # (no other camera to wait for: no grouping, every frame solved)
-            self._frames.solved_at_once(name, ref)
-            return [self._solve_alone(name, frame, ref)]
         if not self._frames.take(name, frame, ref, self.settings.window):
             return []
         return self._ready()
@@ -1375,9 +1375,8 @@ class Localizer(GyroReadouts):
         reference time, or its stamp without a camera model)."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        self._skip(name, reason)
         self._frames.note_first(self._on_clock(name, stamp))
-        self._frames.skipped(name, t)
+        self._frames.skipped(name, t, reason)
         out = self._ready()
         return self._solved_by_reset() + out
 
@@ -1666,12 +1665,6 @@ class Localizer(GyroReadouts):
         self._agreement.update_apart(out.cameras, out.missing, self.settings.window)
         return self._solve_frame(out, {n: g.frames[n] for n in out.cameras})
 
-    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> LocalizerOutput:
-        """A rig of one camera's frame (reference time ``ref`` ns, the frame's time), solved
-        at once as its camera's video solves it (:meth:`_solve_frame`)."""
-        out = LocalizerOutput(stamp_ns=ref, cameras=(name,))
-        return self._solve_frame(out, {name: (frame, ref)})
-
     def _solve_frame(self, out: LocalizerOutput, frames: dict) -> LocalizerOutput:
         """Solve a frame, a camera's or a rig's (``frames``: camera -> ``(CameraFrame,
         reference time ns)``; ``out`` its output, at its time ``out.stamp_ns``), the one way:
@@ -1746,11 +1739,7 @@ class Localizer(GyroReadouts):
             if not est.success:
                 self._count_rig(names, est.failure or "error")
                 if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
-                    n_pts = np.asarray(est.num_valid_per_view)
-                    n_in = np.asarray(est.num_inliers_per_view)
-                    out.disagreeing = self._agreement.update(
-                        names, n_pts, n_in, views, est, s, self._impl
-                    )
+                    out.disagreeing = self._agreement.update(names, views, est, s, self._impl)
                 out.fused += self._fused(r.final)
                 return out
             self._count_rig(names, None)
@@ -1866,9 +1855,7 @@ class Localizer(GyroReadouts):
                                 k in est.disagreeing)  # fmt: skip
             out.shares[n] = share
             self._cams[n].last_share = share
-        out.disagreeing = self._agreement.update(
-            names, n_pts, n_in, views, est, self.settings, self._impl
-        )
+        out.disagreeing = self._agreement.update(names, views, est, self.settings, self._impl)
 
     def _count_rig(self, names, failure: str | None) -> None:
         if failure is None:
