@@ -1052,10 +1052,12 @@ class Localizer(GyroReadouts):
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         stamp = self._on_clock(name, frame.stamp_ns)
-        self._frames.note_first(stamp)
-        if frame.camera is None:
+        if frame.camera is None:  # (noted as every frame: a time reset at it, then skipped)
+            self._note(name, stamp)
+            self._frames.note_first(stamp)
             self._frames.skipped(name, stamp, "no_camera_info")
             return self._ready()
+        self._frames.note_first(stamp)
         self._note(name, stamp)  # (a time reset: every camera's timeline started again)
         if not self._frames.take(name, frame, ref, self.settings.window):
             return []
@@ -1352,8 +1354,10 @@ class Localizer(GyroReadouts):
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
         """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
         :data:`SKIP_REASONS`: e.g. an image the caller could not decode); the camera still
-        counts as having sent a frame at that time (the rig does not wait for it). Returns the
-        rig frames that completes, solved (as :meth:`add`).
+        counts as having sent a frame at that time (the rig does not wait for it), its stamp
+        noted on the video's clock as every frame's (:meth:`_note`: a stamp going back or
+        jumping ahead is a time reset there, not at the camera's next frame). Returns the rig
+        frames that completes, solved (as :meth:`add`; a time reset's first).
 
         Raises:
             ValueError: a camera not in the rig, an unknown reason.
@@ -1375,7 +1379,9 @@ class Localizer(GyroReadouts):
         reference time, or its stamp without a camera model)."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        self._frames.note_first(self._on_clock(name, stamp))
+        on_clock = self._on_clock(name, stamp)
+        self._note(name, on_clock)  # (as every frame's; an image's search noted it already)
+        self._frames.note_first(on_clock)
         self._frames.skipped(name, t, reason)
         out = self._ready()
         return self._solved_by_reset() + out
