@@ -13,7 +13,8 @@ again.
 
 A frame's time is its camera's stamp on the video's clock (the capture time of row
 ``stamp_row`` plus the camera's time offset), noted once, before its image is searched, a
-camera's and a rig camera's alike (:meth:`~rs_localizer.tracking.video.Localizer._note`).
+camera's and a rig camera's alike, every frame received (one skipped, without a camera model or
+that could not be decoded, too: :meth:`~rs_localizer.tracking.video.Localizer._note`).
 On either reset, the gyro's timeline starts again
 (:meth:`~rs_localizer.tracking.gyro_input.GyroInput.restart`: the samples above, the pairing of
 the bias estimator and of the mount check). What else starts again is the localizer's:
@@ -110,6 +111,10 @@ class VideoClock:
             self._last = {}
         self._last[source] = stamp if previous is None or reset else max(previous, stamp)
         return reset
+
+    def source_newest(self, source: str = "") -> int | None:
+        """ns, ``source``'s newest frame time since the last reset (None: none since)."""
+        return self._last.get(source)
 
     def reset(self) -> None:
         """Forget the frames' time (the video forgotten)."""

@@ -1,6 +1,7 @@
-"""What only a rig of several cameras runs, as units the localizer
+"""What only a rig of several cameras needs, as units the localizer
 (:class:`~rs_localizer.tracking.video.Localizer`) holds and calls: a camera alone is a rig of
-one and runs none of it.
+one, each of its frames a rig frame complete at once, which nothing refuses and no other camera
+disagrees with.
 
 - :class:`RigGrouping`, the **grouping** of the cameras' frames into *rig frames* by the capture
   time of each frame's reference line (:func:`~rs_localizer.camera.reference_stamp_ns`): a
@@ -12,7 +13,8 @@ one and runs none of it.
   a rig frame (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not
   waited for and the rig runs on the others, and a camera that sends again joins again. A
   camera's frame not later than its previous one is ``out_of_order``, one older than the last
-  rig frame solved ``late``.
+  rig frame solved ``late`` (a rig of one takes every frame: any step back of its stamps is a
+  time reset, :mod:`~rs_localizer.tracking.clock`).
 - :class:`CameraAgreement`, the cameras' **disagreement** with the rig: per solved rig frame
   and camera its points and inliers; a camera whose points are outliers far more often than the
   others' over several rig frames *disagrees* with the rig (a mounting off by degrees, or the
@@ -130,8 +132,9 @@ class OpenRigFrame:
         self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
 
 
-class _CameraTimes:
-    """One camera's frames as the grouping sees them."""
+class _RigCamera:
+    """One camera of the rig: its frames as the grouping sees them, its agreement with the
+    others (:class:`CameraAgreement`)."""
 
     def __init__(self, name: str):
         self.name = name
@@ -141,6 +144,11 @@ class _CameraTimes:
         self.stopped = False
         self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
         self.dropped: deque = deque(maxlen=8)  # reference times of its last frames skipped
+        self.flags: deque = deque()  # (per rig frame: its points fit far worse; maxlen history)
+        self.disagrees = False
+        self.partner: str | None = None  # (two cameras that disagree: the other one)
+        self.apart_flags: deque = deque(maxlen=APART_HISTORY)  # (rig frames it was apart in)
+        self.apart = False
 
 
 class RigGrouping:
@@ -153,6 +161,10 @@ class RigGrouping:
         counts: the localizer's counters (``rig_frames``, ``<camera>.stopped``,
             ``rig.skipped[.time_reset]``). log: its warnings (a camera stopped, back).
         skip: ``skip(camera, reason)`` counts a camera's frame skipped.
+        ordered: its cameras' frames are kept in order (a frame not later than its camera's
+            previous one, or older than the last rig frame closed, skipped); False: a rig of
+            one, which takes every frame as its camera's video does (any step back of its
+            stamps is a time reset, :mod:`~rs_localizer.tracking.clock`).
 
     Attributes:
         open: the rig frames open, oldest first. first: ns, the first frame's time since the
@@ -160,19 +172,14 @@ class RigGrouping:
             last rig frame closed, None before one.
     """
 
-    def __init__(
-        self, cameras: tuple, counts: Counter, log: TrackLog, skip: Callable[[str, str], Any]
-    ):
-        self.cams = {n: _CameraTimes(n) for n in cameras}
+    def __init__(self, cameras: tuple, counts: Counter, log: TrackLog,
+                 skip: Callable[[str, str], Any], ordered: bool = True):  # fmt: skip
+        self.cams = {n: _RigCamera(n) for n in cameras}
+        self.ordered = ordered
         self.open: list[OpenRigFrame] = []
         self.first: int | None = None
         self.last_closed: int | None = None
         self.counts, self.log, self._skip = counts, log, skip
-
-    def last_ref(self, name: str) -> int | None:
-        """ns, the reference time of camera ``name``'s last frame taken (None: none since the
-        start or the last time reset)."""
-        return self.cams[name].last_ref
 
     def stopped(self, name: str) -> bool:
         """Camera ``name`` has stopped (no frame for ``stop_after`` s while others send)."""
@@ -192,42 +199,28 @@ class RigGrouping:
         if self.first is None:
             self.first = stamp
 
-    def no_camera_info(self, name: str, stamp: int) -> None:
-        """Camera ``name``'s frame at ``stamp`` (ns) has no camera model: skipped
-        (``no_camera_info``), the camera counted as having sent a frame then."""
-        cam = self.cams[name]
-        cam.no_info.append(stamp)
-        self._skip(name, "no_camera_info")
-        cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
-
-    def skipped(self, name: str, t: int) -> None:
-        """Camera ``name``'s frame at ``t`` (ns) was skipped (counted by the caller): the
-        camera counts as having sent a frame then (the rig does not wait for it)."""
-        cam = self.cams[name]
-        cam.dropped.append(t)
-        if cam.last_ref is None or t > cam.last_ref:
+    def skipped(self, name: str, t: int, reason: str) -> None:
+        """Camera ``name``'s frame at ``t`` (ns) skipped for ``reason`` (a key of
+        :data:`~rs_localizer.tracking.video.SKIP_REASONS`, counted): the camera counts as
+        having sent a frame then (the rig does not wait for it); one without a camera model
+        (``no_camera_info``, ``t`` its stamp) whatever its time."""
+        cam, info = self.cams[name], reason == "no_camera_info"
+        self._skip(name, reason)
+        (cam.no_info if info else cam.dropped).append(t)
+        if info or cam.last_ref is None or t > cam.last_ref:
             cam.newest = t if cam.newest is None else max(cam.newest, t)
-
-    def solved_at_once(self, name: str, ref: int) -> None:
-        """A rig of one camera's frame at reference time ``ref`` (ns), solved at once (no rig
-        frame waits): its time noted, the last rig frame's."""
-        cam = self.cams[name]
-        cam.last_ref = cam.newest = ref
-        cam.recent.append(ref)
-        self.note_first(ref)  # (after a time reset)
-        self.counts["rig_frames"] += 1
-        self.last_closed = ref
 
     def take(self, name: str, frame: CameraFrame, ref: int, window: float) -> bool:
         """Camera ``name``'s ``frame`` at reference time ``ref`` (ns) into the rig frame it
         fits (within ``window`` s of its earliest), or a new one; False (skipped, counted) when
         it is not later than the camera's previous frame (``out_of_order``) or older than the
-        last rig frame closed (``late``)."""
+        last rig frame closed (``late``); unordered (a rig of one), every frame is taken (its
+        rig frame complete at once)."""
         cam = self.cams[name]
-        if cam.last_ref is not None and ref <= cam.last_ref:
+        if self.ordered and cam.last_ref is not None and ref <= cam.last_ref:
             self._skip(name, "out_of_order")
             return False
-        if self.last_closed is not None and ref < self.last_closed:
+        if self.ordered and self.last_closed is not None and ref < self.last_closed:
             self._skip(name, "late")
             cam.last_ref = ref
             return False
@@ -284,7 +277,7 @@ class RigGrouping:
             self.open.pop(0)
             yield g
 
-    def stop_ns(self, cam: _CameraTimes, stop_after: float) -> float:
+    def stop_ns(self, cam: _RigCamera, stop_after: float) -> float:
         """ns without a frame of ``cam`` after which it counts as stopped: ``stop_after`` s, or
         :data:`STOP_INTERVALS` of its own frame intervals (the median over its recent frames;
         before it has two, the rig's cameras' together) when that is longer, so that a
@@ -367,41 +360,29 @@ def _frame_steps(recent) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- agreement
-class _CameraAgreement:
-    """One camera's agreement with the rig."""
-
-    def __init__(self, history: int):
-        self.flags: deque = deque(maxlen=history)
-        self.disagrees = False
-        self.partner: str | None = None  # (two cameras that disagree: the other one)
-        self.apart_flags: deque = deque(maxlen=APART_HISTORY)  # (rig frames it was apart in)
-        self.apart = False
-
-
 class CameraAgreement:
     """The cameras' agreement with the rig (module docstring): which disagree with it, which
     of them with one other camera alone (:meth:`partner`), whose frames are kept apart from the
     others' (:meth:`apart`).
 
     Args:
-        cameras: the cameras' names, in the rig's order. history: rig frames a camera's
-            disagreement looks back over (``disagree_history``).
-        frames: the rig's :class:`RigGrouping` (the cameras' apparent clock offsets).
+        history: rig frames a camera's disagreement looks back over (``disagree_history``).
+        frames: the rig's :class:`RigGrouping` (its cameras, in the rig's order, and their
+            apparent clock offsets).
         counts: the localizer's counters (``<camera>.disagreements``, ``<camera>.apart``).
         log: its warnings.
     """
 
-    def __init__(
-        self, cameras: tuple, history: int, frames: RigGrouping, counts: Counter, log: TrackLog
-    ):
-        self.cams = {n: _CameraAgreement(history) for n in cameras}
+    def __init__(self, history: int, frames: RigGrouping, counts: Counter, log: TrackLog):
+        self.cams = frames.cams  # (the grouping's cameras: their agreement kept with them)
+        for cam in self.cams.values():
+            cam.flags = deque(maxlen=history)
         self.frames, self.counts, self.log = frames, counts, log
 
     def disagrees(self, name: str) -> bool:
         """Camera ``name`` disagrees with the rig, or is the partner of one that disagrees with
         it alone (:meth:`partner`)."""
-        cam = self.cams[name]
-        return cam.disagrees or any(c.disagrees and c.partner == name for c in self.cams.values())
+        return self.cams[name].disagrees or self.partner(name) is not None
 
     def partner(self, name: str) -> str | None:
         """The other camera when ``name`` is one of two cameras that disagree with each other
@@ -455,20 +436,13 @@ class CameraAgreement:
                 self.log.info(f"rig camera {n!r} joins the others' rig frames again")
             cam.apart = apart
 
-    def update(
-        self,
-        names: list,
-        n_pts: np.ndarray,
-        n_in: np.ndarray,
-        views: list,
-        est: RSPoseEstimate,
-        settings: Any,
-        implementation: str | None = None,
-    ) -> tuple:
+    def update(self, names: list, views: list, est: RSPoseEstimate, settings: Any,
+               implementation: str | None = None) -> tuple:  # fmt: skip
         """Flag the cameras whose points fit the rig's pose far worse than the others' (module
-        docstring): rig frame's cameras ``names``, their points ``n_pts`` and inliers ``n_in``
-        (arrays), ``views`` and the estimate ``est`` (a camera found to disagree is posed alone
-        on ``implementation`` for its warning), the rule's ``settings``
+        docstring): rig frame's cameras ``names``, their ``views`` and the estimate ``est``
+        (each camera's points and inliers, ``num_valid_per_view`` and
+        ``num_inliers_per_view``; a camera found to disagree is posed alone on
+        ``implementation`` for its warning), the rule's ``settings``
         (``disagree_ratio``, ``disagree_min_points``, ``disagree_frames``). The others' verdict
         names a camera alone when at least two other cameras with points stand against it:
         when its points are compared with one other camera's only, the two disagree and either
@@ -476,6 +450,7 @@ class CameraAgreement:
         more, not shown wrong), so both are named (:meth:`partner`). Returns the cameras that
         disagree now (rig order)."""
         s = settings
+        n_pts, n_in = np.asarray(est.num_valid_per_view), np.asarray(est.num_inliers_per_view)
         strong = [j for j in range(len(names)) if int(n_pts[j]) >= s.disagree_min_points]
         for k, n in enumerate(names):
             cam = self.cams[n]
@@ -498,41 +473,38 @@ class CameraAgreement:
             if cam.disagrees and (not was or cam.partner != was_partner):
                 self.counts[f"{n}.disagreements"] += 1
                 deg = alone_deg(views[k], est, implementation)
-                if cam.partner is None:
-                    alone = (
-                        ""
-                        if deg is None
-                        else (f"; alone it is {deg:.1f} deg from where its mounting puts it")
-                    )
-                    text = (
-                        f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
-                        f"points fit the rig's pose ({100 * others:.0f} % of the others')"
-                        f"{alone}: its mounting is likely wrong (or its matches are, or its "
-                        f"clock: its stamps are {_offsets_text(self.frames.clock_offsets(n))})"
-                    )
-                else:
-                    p = cam.partner
-                    alone = (
-                        ""
-                        if deg is None
-                        else (
-                            f"; alone {n!r} is {deg:.1f} deg from where the mountings put it "
-                            f"relative to {p!r}"
-                        )
-                    )
-                    text = (
-                        f"rig cameras {n!r} and {p!r} disagree: {int(n_in[k])} of the {pts} points "
-                        f"of {n!r} fit the rig's pose ({100 * others:.0f} % of those of {p!r})"
-                        f"{alone}: "
-                        "the mounting of one of them is likely wrong (or its matches are); two "
-                        "cameras cannot tell which (the rig frames they disagree on are "
-                        "refused unless the rig's track tells): "
-                        "check both mountings, or let a third camera see the map"
-                    )  # fmt: skip
+                text = self._warning(n, cam.partner, int(n_in[k]), pts, others, deg)
                 self.log.warning(f"rig.disagrees.{n}", text)
             elif was and not cam.disagrees:
                 self.log.info(f"rig camera {n!r} agrees with the others again")
         return tuple(n for n in self.cams if self.disagrees(n))
+
+    def _warning(self, n: str, p: str | None, fit: int, pts: int, others: float,
+                 deg: float | None) -> str:  # fmt: skip
+        """The warning that camera ``n`` disagrees with the others (``p``: with that one camera
+        alone): ``fit`` of its ``pts`` points inliers of the rig's pose, ``others`` the others'
+        inlier share, ``deg`` its rotation posed alone from where its mounting puts it."""
+        alone = ""
+        if deg is not None and p is None:
+            alone = f"; alone it is {deg:.1f} deg from where its mounting puts it"
+        elif deg is not None:
+            alone = f"; alone {n!r} is {deg:.1f} deg from where the mountings put it "
+            alone += f"relative to {p!r}"
+        if p is None:
+            return (
+                f"rig camera {n!r} disagrees with the others: {fit} of its {pts} "
+                f"points fit the rig's pose ({100 * others:.0f} % of the others')"
+                f"{alone}: its mounting is likely wrong (or its matches are, or its "
+                f"clock: its stamps are {_offsets_text(self.frames.clock_offsets(n))})"
+            )
+        return (
+            f"rig cameras {n!r} and {p!r} disagree: {fit} of the {pts} points "
+            f"of {n!r} fit the rig's pose ({100 * others:.0f} % of those of {p!r}){alone}: "
+            "the mounting of one of them is likely wrong (or its matches are); two "
+            "cameras cannot tell which (the rig frames they disagree on are "
+            "refused unless the rig's track tells): "
+            "check both mountings, or let a third camera see the map"
+        )  # fmt: skip
 
 
 def _offsets_text(offsets: dict) -> str:

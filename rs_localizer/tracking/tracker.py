@@ -55,6 +55,7 @@ from ..estimation.view import View
 from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
 from ..pose import PoseMeasurement, RSModel
+from ..solvers.registry import solver_info
 from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
 
 __all__ = [
@@ -791,6 +792,16 @@ class FrameViews:
         # (the model's time unit: a camera's unit RS coordinate, a rig's second)
         self.seconds_per_unit = 1.0 if solver is None else views[0].camera.seconds_per_unit_r
         self.final: list = []
+
+    @property
+    def measures_twist(self) -> bool:
+        """The frame's estimate measures a twist for the track to fuse (its fused twist, not
+        its own, is then its final one): a rolling-shutter estimator's with readout time, the
+        rig estimator's (its model per second, across its cameras' readouts and stamps; a rig
+        frame at one instant fused as its pose) or a rolling-shutter solver's on a camera with
+        readout time; not a global-shutter solver's nor a camera's taken at one instant."""
+        rolling = self.solver is None or solver_info(self.solver).rolling
+        return rolling and self.seconds_per_unit > 0
 
     def ended(self, final: list) -> None:
         self.final = final

@@ -65,8 +65,9 @@ frame is taken (no ``out_of_order`` nor ``late``), a stamp going back or jumping
 time reset of the gyro's timeline only (:meth:`Localizer.check_time`; the track resets itself
 on such stamps). The last posed frame is carried (the prediction without tracking) for
 :meth:`Localizer.add` as for :meth:`Localizer.process_image`, a frozen image starts a new
-track at the next frame (:meth:`Localizer.restart_track`), and a global-shutter solver's or
-camera's own twist is final (:attr:`LocalizerOutput.twist_now`). Given the camera's
+track at the next frame (:meth:`Localizer.restart_track`), and, as for any frame, its own
+twist is final when its estimator measures none (a global-shutter solver's, a camera's
+without readout time: :attr:`LocalizerOutput.twist_now`). Given the camera's
 ``options`` (``EstimateOptions()``, not the default
 :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`), ``tracking`` and ``imu``, its estimates,
 paths and fused twists are the camera's localizer's, bit for bit. What only a rig of several
@@ -175,7 +176,7 @@ from ..estimation.rig import RIG_OPTIONS
 from ..estimation.view import View
 from ..frames import Mounting
 from ..pose import RSModel
-from ..solvers.registry import DEFAULT_SOLVER, solver_info
+from ..solvers.registry import DEFAULT_SOLVER
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro import readout_window
@@ -472,9 +473,10 @@ class LocalizerOutput(FrameOutput):
             given to the estimator: the rig's inliers per camera index them; e.g. a camera's
             debug image).
         twist_now: the frame's own twist is its final twist, none comes in a later
-            ``fused``: no tracking, or a rig of one camera whose solver is a global-shutter
-            one or whose camera has no readout time (as a camera's
-            :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
+            ``fused``: no tracking, or its estimator measures no twist
+            (:attr:`~rs_localizer.tracking.tracker.FrameViews.measures_twist`: a rig of one
+            camera whose solver is a global-shutter one or whose camera has no readout time,
+            as a camera's :attr:`~rs_localizer.tracking.sequence.SequenceOutput.twist_now`).
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
         camera_estimate: a rig of one camera (:attr:`LocalizerSettings.single_camera`): its
             camera's own estimate (:func:`~rs_localizer.estimation.estimate_rs_pose`'s, the
@@ -616,12 +618,13 @@ class Localizer(GyroReadouts):
     restart after :meth:`restart_track`), the last posed frame carried (the prediction without
     tracking, for :meth:`add` as for :meth:`process_image`). A rig of one
     (:attr:`LocalizerSettings.single_camera`) differs only where a camera alone differs from
-    a rig: nothing to group (each frame solved at once, any step back a time reset:
-    :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the camera's own, so its
-    tracker is its camera's (:class:`~rs_localizer.tracking.tracker.RSTracker`, made per
-    solver, options, tracking and camera model; it resets itself on a time reset, predicts
-    in the camera's terms and is dropped when its track ends); its own twist is final when its
-    solver or camera measures none (:attr:`LocalizerOutput.twist_now`); and no other camera
+    a rig: no other camera to wait for (each frame its rig frame, complete at once; any step
+    back a time reset: :attr:`LocalizerSettings.back_tolerance_ns`); its estimator is the
+    camera's own, so its tracker is its camera's (:class:`~rs_localizer.tracking.tracker.
+    RSTracker`, made per solver, options, tracking and camera model; it resets itself on a
+    time reset, predicts in the camera's terms and is dropped when its track ends) and its own
+    twist is final when its solver or camera measures none (:attr:`LocalizerOutput.twist_now`,
+    as any frame's whose estimator measures none); and no other camera
     sees what it misses (a frozen image restarts its track, an image with too few
     correspondences never reaches its solver). A rig frame's pose is judged before the track
     takes it (the refusals, :data:`RIG_REFUSALS`).
@@ -669,10 +672,10 @@ class Localizer(GyroReadouts):
         self._cams = {n: _Camera(n, m) for n, m in settings.mounts.items()}
         # the rig's grouping of its cameras' frames into rig frames, its cameras' agreement
         # (tracking/rig.py)
-        self._frames = RigGrouping(settings.cameras, self.counts, self.log, self._skip)
-        self._agreement = CameraAgreement(
-            settings.cameras, settings.disagree_history, self._frames, self.counts, self.log
-        )
+        self._frames = RigGrouping(settings.cameras, self.counts, self.log, self._skip,
+                                   ordered=not settings.single_camera)  # fmt: skip
+        self._agreement = CameraAgreement(settings.disagree_history, self._frames, self.counts,
+                                          self.log)  # fmt: skip
         # the frames waiting for their fused twist, their last camera frame's wall time
         # (tracking/localizer.py), the lock, the last posed frame carried
         self._twists = PendingTwists()
@@ -706,7 +709,6 @@ class Localizer(GyroReadouts):
         # back_tolerance_ns (less: its frame out of order; a rig of one: any step back), a
         # jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.back_tolerance_ns)
-        self._noted: dict[str, int] = {}  # (camera -> the frame time it noted last, _note)
         self._reset_solved: list = []  # (rig frames a time reset noted before its frame solved)
         self._img: _ImageInput | None = None  # (the image search, made on first use)
         # (the last time reset's number, detail and the new timeline's first time on the
@@ -756,7 +758,7 @@ class Localizer(GyroReadouts):
         with self._lock:
             # (a rig's track path ends here; a rig of one's camera tracker is made again at its
             # next frame when its solver, options, tracking or camera model changed, a reset,
-            # as the camera's: _solve_alone)
+            # as the camera's: _estimator)
             if not self._single and settings.tracking != old.tracking:
                 # (the old track's twists: the old bounds)
                 self._carry += self._end_track(keep=True)
@@ -767,7 +769,6 @@ class Localizer(GyroReadouts):
             self._carried.max_gap = settings.max_gap
             self._clock.time_reset_ns = settings.time_reset_ns
             self._clock.back_tolerance_ns = settings.back_tolerance_ns
-            self._noted = {}  # (the next frame noted on the clock again, with these)
             self.gyro_input.configure(
                 settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
             )
@@ -886,7 +887,6 @@ class Localizer(GyroReadouts):
             out = self._time_reset(None)
             self._forget_last_pose()
             self._clock.reset()
-            self._noted = {}
         return out
 
     def _frame_gyro(self, t0: int, clocks: list[tuple[CameraModel, int]]) -> GyroMeasurement | None:
@@ -1042,8 +1042,9 @@ class Localizer(GyroReadouts):
         return out
 
     def _add_frame(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
-        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), solved at
-        once (a rig of one) or grouped into its rig frame."""
+        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), grouped
+        into its rig frame (a rig of one's complete at once) and the rig frames complete
+        solved."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
@@ -1051,36 +1052,41 @@ class Localizer(GyroReadouts):
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         stamp = self._on_clock(name, frame.stamp_ns)
-        self._frames.note_first(stamp)
-        if frame.camera is None:
-            self._frames.no_camera_info(name, stamp)
+        if frame.camera is None:  # (noted as every frame: a time reset at it, then skipped)
+            self._note(name, stamp)
+            self._frames.note_first(stamp)
+            self._frames.skipped(name, stamp, "no_camera_info")
             return self._ready()
+        self._frames.note_first(stamp)
         self._note(name, stamp)  # (a time reset: every camera's timeline started again)
-        if self._single:  # (no other camera to wait for: no grouping, every frame solved)
-            self._frames.solved_at_once(name, ref)
-            return [self._solve_alone(name, frame, ref)]
         if not self._frames.take(name, frame, ref, self.settings.window):
             return []
         return self._ready()
 
-    def check_time(self, stamp_ns: int) -> str | None:
-        """A rig of one camera: note a frame's stamp (ns, the capture time of row
-        ``stamp_row``), as its camera's video does. A stamp older than the previous frame's,
-        or newer by more than ``time_reset_ns``, is a time reset: returns why (else None), and
-        the gyro's timeline starts again (on a stamp going back the samples buffered so far
-        are dropped, on a jump forward those older than the previous frame; the bias
-        estimator's and the gyro check's pairing restart; counted ``rig.time_resets``). Its
-        track resets itself on the same stamps. :meth:`add` (an image: :meth:`search_image`)
-        notes each frame's stamp; called first for the frame's stamp (to act on a reset
-        before the frame is decoded), the frame takes it as noted: a frame is noted once.
+    def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
+        """Note camera ``name``'s frame stamp (ns, the capture time of row ``stamp_row``; None:
+        a rig of one's camera) on the video's clock ahead of its frame, to act on a time reset
+        before the frame is decoded (:meth:`_note`): returns the reset's reason text, else
+        None. A stamp older than the camera's previous frame's (a rig of one: any step back; a
+        rig's camera: by more than ``time_reset_ns``), or newer than the video's newest by
+        more than ``time_reset_ns``, is a time reset: the gyro's timeline starts again (on a
+        stamp going back the samples buffered so far are dropped, on a jump forward those
+        older than the previous frame; the bias estimator's and the gyro check's pairing
+        restart; counted ``rig.time_resets``), a rig's open rig frames are solved (a jump) or
+        dropped (a step back). A rig of one's track resets itself on the same stamps.
+        :meth:`add` (an image: :meth:`search_image`) notes each frame's stamp; the frame
+        takes a stamp noted here as noted: a frame is noted once.
 
         Raises:
-            ValueError: a rig of several cameras (each camera's frame is checked as it is
-                added), a stamp beyond the int64 nanosecond range.
+            ValueError: no ``name`` for a rig of several cameras, a camera not in the rig, a
+                stamp beyond the int64 nanosecond range.
         """
-        if not self._single:
-            raise ValueError("check_time is a rig of one camera's: a rig checks each frame in add")
-        (name,) = self._cams
+        if name is None:
+            if not self._single:
+                raise ValueError("a rig's check_time names the camera")
+            (name,) = self._cams
+        elif name not in self._cams:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         reset = self._note(name, self._on_clock(name, checked_stamp(stamp_ns)))
         return None if reset is None else reset.detail
 
@@ -1116,7 +1122,7 @@ class Localizer(GyroReadouts):
         noted on the video's clock, a camera's or a rig camera's the one way, once per frame
         and before its image is searched: :meth:`check_time` (a camera alone, ahead of the
         frame), the image search (:meth:`search_image`) and :meth:`add` take it as noted (a
-        time the camera noted last is its newest again: noting it twice changes nothing). The
+        time equal to the camera's newest on the clock is noted already). The
         clock (:class:`~rs_localizer.tracking.clock.VideoClock`) compares it with the
         camera's newest frame time (a step back; a camera alone: the video's newest) and the
         video's newest (a jump ahead). On a time reset a jump ahead is counted
@@ -1125,9 +1131,8 @@ class Localizer(GyroReadouts):
         the frame, :meth:`_solved_by_reset`) and every camera's last image is forgotten (a
         new timeline's first image, this frame's too, is not compared with it: frozen
         image). Returns the time reset, or None."""
-        if self._noted.get(name) == t:
+        if self._clock.source_newest(name) == t:  # (noted already: once per frame)
             return None
-        self._noted[name] = t
         reset = self._clock.step(t, name)
         if reset is None:
             return None
@@ -1349,8 +1354,10 @@ class Localizer(GyroReadouts):
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
         """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
         :data:`SKIP_REASONS`: e.g. an image the caller could not decode); the camera still
-        counts as having sent a frame at that time (the rig does not wait for it). Returns the
-        rig frames that completes, solved (as :meth:`add`).
+        counts as having sent a frame at that time (the rig does not wait for it), its stamp
+        noted on the video's clock as every frame's (:meth:`_note`: a stamp going back or
+        jumping ahead is a time reset there, not at the camera's next frame). Returns the rig
+        frames that completes, solved (as :meth:`add`; a time reset's first).
 
         Raises:
             ValueError: a camera not in the rig, an unknown reason.
@@ -1372,9 +1379,10 @@ class Localizer(GyroReadouts):
         reference time, or its stamp without a camera model)."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        self._skip(name, reason)
-        self._frames.note_first(self._on_clock(name, stamp))
-        self._frames.skipped(name, t)
+        on_clock = self._on_clock(name, stamp)
+        self._note(name, on_clock)  # (as every frame's; an image's search noted it already)
+        self._frames.note_first(on_clock)
+        self._frames.skipped(name, t, reason)
         out = self._ready()
         return self._solved_by_reset() + out
 
@@ -1663,12 +1671,6 @@ class Localizer(GyroReadouts):
         self._agreement.update_apart(out.cameras, out.missing, self.settings.window)
         return self._solve_frame(out, {n: g.frames[n] for n in out.cameras})
 
-    def _solve_alone(self, name: str, frame: CameraFrame, ref: int) -> LocalizerOutput:
-        """A rig of one camera's frame (reference time ``ref`` ns, the frame's time), solved
-        at once as its camera's video solves it (:meth:`_solve_frame`)."""
-        out = LocalizerOutput(stamp_ns=ref, cameras=(name,))
-        return self._solve_frame(out, {name: (frame, ref)})
-
     def _solve_frame(self, out: LocalizerOutput, frames: dict) -> LocalizerOutput:
         """Solve a frame, a camera's or a rig's (``frames``: camera -> ``(CameraFrame,
         reference time ns)``; ``out`` its output, at its time ``out.stamp_ns``), the one way:
@@ -1680,8 +1682,10 @@ class Localizer(GyroReadouts):
         3. the estimator of its views (:meth:`_estimator`) on the track
            (:meth:`~rs_localizer.tracking.tracker.TrackerPath.track`; a rig's pose judged by
            :meth:`_judged` before the track takes it), cold without tracking;
-        4. counted, its shares, its twist held for the fused twist unless final now
-           (:meth:`_twist_now`), the states final released (:meth:`_fused`).
+        4. counted, its shares, its twist held for the fused twist unless final now (no
+           tracking, or its estimator measures no twist:
+           :attr:`~rs_localizer.tracking.tracker.FrameViews.measures_twist`), the states
+           final released (:meth:`_fused`).
 
         A camera alone's estimate is its camera's own (:attr:`LocalizerOutput.camera_estimate`),
         in the rig's terms in ``estimate`` (:func:`_camera_as_rig`; a camera's video: its
@@ -1741,18 +1745,15 @@ class Localizer(GyroReadouts):
             if not est.success:
                 self._count_rig(names, est.failure or "error")
                 if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
-                    n_pts = np.asarray(est.num_valid_per_view)
-                    n_in = np.asarray(est.num_inliers_per_view)
-                    out.disagreeing = self._agreement.update(
-                        names, n_pts, n_in, views, est, s, self._impl
-                    )
+                    out.disagreeing = self._agreement.update(names, views, est, s, self._impl)
                 out.fused += self._fused(r.final)
                 return out
             self._count_rig(names, None)
             if out.path is not None:
                 self.counts[f"rig.path.{out.path}"] += 1
             self._shares(out, est, views)
-            out.twist_now = self._twist_now(views)
+            # (its own twist final when nothing fuses it: no track, or no twist measured)
+            out.twist_now = s.tracking is None or not estimator.measures_twist
             if not out.twist_now:  # (its fused twist comes when final)
                 tag = out.tags[names[0]] if not self._rig else dict(out.tags)
                 self._twists.hold(out.stamp_ns, est, tag, out.path == "relocalized")
@@ -1860,22 +1861,7 @@ class Localizer(GyroReadouts):
                                 k in est.disagreeing)  # fmt: skip
             out.shares[n] = share
             self._cams[n].last_share = share
-        out.disagreeing = self._agreement.update(
-            names, n_pts, n_in, views, est, self.settings, self._impl
-        )
-
-    def _twist_now(self, views: list) -> bool:
-        """Whether a posed frame's own twist is its final twist (none comes in a later
-        ``fused``): nothing fuses it (no tracking), or it measures no twist: a camera alone
-        whose solver is a global-shutter one, or whose camera has no readout time (its
-        frame taken at one instant). A rig's views measure the twist across their cameras'
-        readouts and stamps: fused."""
-        s = self.settings
-        if s.tracking is None:
-            return True
-        if not self._single:
-            return False
-        return not solver_info(s.solver).rolling or views[0].camera.seconds_per_unit_r <= 0
+        out.disagreeing = self._agreement.update(names, views, est, self.settings, self._impl)
 
     def _count_rig(self, names, failure: str | None) -> None:
         if failure is None:

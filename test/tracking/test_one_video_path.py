@@ -334,3 +334,40 @@ def test_a_rig_whose_track_has_no_state_predicts_from_its_last_posed_frame(video
     R_rig, _, _, _ = rig_truth(traj, (nxt.stamp_ns - T0) * 1e-9)
     R_world_cam = R_rig @ cams[0].R_rig_cam  # (rig -> world after camera -> rig)
     assert rotation_angle_deg(model[0].T, R_world_cam) < 2.0  # (the model's R: world -> camera)
+
+
+def test_a_frames_own_twist_is_final_by_one_rule_for_a_camera_and_a_rig(video):
+    """One rule for ``twist_now``, a camera's frame's and a rig frame's: its own twist is final
+    when nothing fuses it (no tracking) or its estimator measures no twist
+    (``FrameViews.measures_twist``). A rolling-shutter camera alone and a rig hold their frames
+    for the fused twist (a rig frame of global-shutter cameras at one instant too: its pose is
+    fused into the rig's twist); a camera alone on P3P, or without readout time, measures
+    none: each frame's own twist final at once; without tracking every frame's is."""
+    cams, frames, _ = video
+    cam = cams[0]
+    mine = [f for f in frames if f.name == cam.name][:4]
+    alone = {"": Mounting(np.eye(3), np.zeros(3))}
+    gs_cam = replace(cam.camera, line_delay=0.0)
+    gs = [replace(c, camera=replace(c.camera, line_delay=0.0)) for c in cams]
+    first = [f for f in frames if f.index < 4]
+    cases = [
+        (LocalizerSettings(alone), cam.camera, False),
+        (LocalizerSettings(alone, solver="p3p"), cam.camera, True),
+        (LocalizerSettings(alone), gs_cam, True),
+        (LocalizerSettings(alone, tracking=None), cam.camera, True),
+    ]
+    for settings, camera, now in cases:
+        rig = Localizer(settings)
+        outs = [o for f in mine for o in rig.add(CameraFrame(f.stamp_ns, camera, f.uv, f.xyz))]
+        assert len(outs) == 4 and all(o.success for o in outs)
+        assert all(o.twist_now is now for o in outs), (settings.solver, camera.line_delay)
+        assert rig.pending == (0 if now else len(outs)) - sum(len(o.fused) for o in outs)
+    for rig_cams, stamp in ((cams, None), (gs, lambda f: T0 + 33_000_000 * f.index)):
+        rig = Localizer(LocalizerSettings(mounts_of(rig_cams)))
+        outs = [o for o in _add_all(rig, first, rig_cams, stamp=stamp) if o.success]
+        assert len(outs) >= 3 and not any(o.twist_now for o in outs)
+        if stamp is not None:
+            assert {o.estimate.motion_model for o in outs} == {"global_shutter"}
+    rig = Localizer(LocalizerSettings(mounts_of(cams), tracking=None))
+    outs = [o for o in _add_all(rig, first, cams) if o.success]
+    assert outs and all(o.twist_now for o in outs)

@@ -412,12 +412,23 @@ def test_a_rig_of_one_without_tracking_carries_its_last_pose_through_add(video):
 
 def test_only_a_rig_of_one_is_a_camera_s_video():
     """A camera's video is a rig of one camera named "" at the identity mounting
-    (``LocalizerSettings.camera_video``); ``check_time`` is a rig of one's."""
+    (``LocalizerSettings.camera_video``); ``check_time`` notes a rig camera's stamp ahead of
+    its frame as a camera's, by the camera's name (a rig's step back within ``time_reset_ns``
+    is no reset, one beyond it and a jump ahead are, as the frames' own would be)."""
     assert LocalizerSettings({"": IDENTITY}).camera_video
     assert not LocalizerSettings({"cam": IDENTITY}).camera_video
     assert not LocalizerSettings({"": Mounting(np.eye(3), np.array([0.1, 0, 0]))}).camera_video
-    with pytest.raises(ValueError, match="rig of one"):
-        Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY})).check_time(0)
+    rig = Localizer(LocalizerSettings({"a": IDENTITY, "b": IDENTITY}, time_reset_ns=10**9))
+    with pytest.raises(ValueError, match="names the camera"):
+        rig.check_time(0)
+    with pytest.raises(ValueError, match="not in the rig"):
+        rig.check_time(0, "c")
+    t = 5 * 10**9
+    assert rig.check_time(t, "a") is None and rig.check_time(t + 10**7, "b") is None
+    assert rig.check_time(t - 10**8, "a") is None  # (within time_reset_ns: out of order)
+    assert "older than the previous frame" in rig.check_time(t - 2 * 10**9, "b")
+    assert "since the previous frame" in rig.check_time(t + 10**9, "a")
+    assert rig.counts["rig.time_resets"] == 2 and rig.counts["a.stamp_jumped_ahead"] == 1
 
 
 def test_a_rig_of_one_drops_an_image_with_too_few_correspondences_as_the_camera(video):

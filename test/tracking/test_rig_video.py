@@ -222,6 +222,40 @@ def test_stamps_going_back_start_the_rig_again(video):
     assert_balanced(rig2)
 
 
+def test_a_jump_ahead_at_a_dropped_frame_is_the_time_reset_no_camera_stopped(video):
+    """A gap in the bag whose first frame after it is one a camera could not use (an image that
+    did not decode, ``Localizer.drop``; a frame without camera model): its stamp is noted on
+    the clock as every frame's, so the jump is the time reset there: the rig frame still open
+    is solved as the clock's jump solves it, no camera counts as stopped for the gap (before:
+    the frame left the clock, the skipped camera's time 3 s ahead made the other camera
+    ``stopped``, warned, and the reset came a frame later)."""
+    cams, frames, _ = video
+    by = {c.name: c.camera for c in cams}
+    jump, mid = 3 * 10**9, T0 + 290_000_000
+    for dropped in ("drop", "no_camera_info"):
+        log = Log()
+        rig = Localizer(LocalizerSettings(mounts_of(cams)), log=log)
+        outs, first_after = [], None
+        for f in sorted(frames, key=lambda f: f.stamp_ns):
+            stamp = f.stamp_ns if f.stamp_ns < mid else f.stamp_ns + jump
+            if stamp > mid and first_after is None:  # (the first frame after the gap)
+                first_after = f.name
+                if dropped == "drop":
+                    outs += rig.drop(f.name, stamp, by[f.name], "bad_input")
+                else:
+                    outs += rig.add(CameraFrame(stamp, None, f.uv, f.xyz, camera_name=f.name))
+                continue
+            outs += rig.add(CameraFrame(stamp, by[f.name], f.uv, f.xyz, camera_name=f.name))
+        outs += rig.close()
+        assert rig.counts["rig.time_resets"] == 1, dict(rig.counts)
+        assert not [k for k in rig.counts if k.endswith(".stopped")], dict(rig.counts)
+        assert not [k for k, _ in log.warnings if k == "rig.stopped"]
+        assert [o.path for o in outs].count("cold") == 2 and all(o.success for o in outs)
+        reason = "skipped" if dropped == "drop" else "no_camera_info"
+        assert [o.missing for o in outs if o.missing] == [{first_after: reason}]
+        assert_balanced(rig)
+
+
 def test_a_stamp_jump_ahead_starts_the_rig_again_as_for_one_camera(video):
     """The video's second half stamped 3 s later (a gap in a bag, a clock that jumped ahead:
     more than ``time_reset_ns`` after the rig's newest frame) is a time reset, as for one
