@@ -37,7 +37,7 @@ def test_velocities_match_the_ml_fit_at_rs_speed_1(fast_frames):
         e_om.append(np.linalg.norm(est.pose.angular_velocity - f.angular_velocity) / n_om)
         e_ml.append(np.linalg.norm(om - f.angular_velocity) / n_om)
     # measured (40 frames): median 0.027 %, max 0.088 % of |omega| from the ML fit; the fit on
-    # RANSAC's inliers alone (before) was 0.36 % away, with twice the ML fit's error
+    # RANSAC's inliers alone was 0.36 % away, with twice the ML fit's error
     assert np.median(d_om) < 1e-3 and np.max(d_om) < 3e-3
     assert np.median(d_v) < 0.02
     assert np.median(e_om) < 1.15 * np.median(e_ml)

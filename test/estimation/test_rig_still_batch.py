@@ -73,8 +73,9 @@ def _frame(seed, counts, turn_deg=0.0):
 
 
 def _step_by_step(views, seed, K, missed, rounds, subset, th):
-    """The batch as the search ran it before: ``_sample``, ``_hypotheses_still``, then the
-    errors of every hypothesis in NumPy and the first lowest MSAC cost."""
+    """The batch step by step, an independent computation: ``_sample``,
+    ``_hypotheses_still``, then the errors of every hypothesis in NumPy and the first lowest
+    MSAC cost."""
     pool = StackedViews(views)
     samples = pool.samples(np.random.default_rng(seed), K, subset)
     hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)

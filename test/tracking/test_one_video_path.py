@@ -45,7 +45,7 @@ def test_a_rig_without_an_implementation_runs_the_estimators_default_and_says_wh
     """In a process that does not compile by default (no usable numba) a rig given no
     implementation runs the rig estimator's default, NumPy, and says so as a camera does: each
     rig frame's ``compiled`` is what its estimate records it ran on, and the frames are
-    counted ``rig.uncompiled`` (before: ``compiled`` True and nothing counted)."""
+    counted ``rig.uncompiled``, never ``compiled`` True for a frame the NumPy path solved."""
     cams, frames, _ = video
     monkeypatch.setattr(implementation, "_BY_DEFAULT", False)
     rig = Localizer(LocalizerSettings(mounts_of(cams)))
@@ -99,7 +99,7 @@ def test_a_rig_frames_gyro_window_runs_from_each_cameras_stamp_row(video):
 def test_a_rig_frame_taken_at_one_instant_asks_no_gyro_as_a_global_shutter_camera(video):
     """Global-shutter cameras (no readout time): a rig frame of frames at one stamp has no
     motion within it to measure, so no gyro measurement is asked for (as a global-shutter
-    camera's frame; before: one over an empty window); frames 4 ms apart are measured over
+    camera's frame: none over an empty window); frames 4 ms apart are measured over
     exactly their two stamps."""
     cams, frames, _ = video
     gs = [replace(c, camera=replace(c.camera, line_delay=0.0)) for c in cams]
@@ -175,8 +175,8 @@ def _rig_of_row_images(cams, frames, seed):
 def test_a_rig_cameras_image_after_a_time_reset_is_not_compared_with_the_old_timelines(video):
     """After a time reset (one camera's stamps 2 s ahead: the clock jumped) another camera's
     image that is the same picture as its last one of the old timeline is a new timeline's
-    first image, taken, not skipped as ``frozen_image``, as a camera's video takes it (before:
-    skipped); the same image again within the new timeline still is."""
+    first image, taken, not skipped as ``frozen_image``, as a camera's video takes it;
+    the same image again within the new timeline still is."""
     cams, frames, _ = video
     rig, send, images = _rig_of_row_images(cams, frames, seed=2)
     a, b = (next(f for f in frames if f.index == 2 and f.name == c.name) for c in cams)
@@ -194,7 +194,7 @@ def test_a_rig_cameras_image_after_a_time_reset_is_not_compared_with_the_old_tim
 def test_a_rig_keeps_as_its_gate_the_inliers_over_the_rows_it_was_given(video):
     """The track's inlier ratio of a posed rig frame (the next frame's gate) is a camera's:
     its inliers over every row given, also rows it could not use (here 10 rows per camera
-    with a NaN world point), as the camera's tracker keeps it (before: over the usable rows)."""
+    with a NaN world point), as the camera's tracker keeps it, not over the usable rows alone."""
     cams, frames, _ = video
 
     def rows(f):
@@ -216,8 +216,8 @@ def test_a_rig_keeps_as_its_gate_the_inliers_over_the_rows_it_was_given(video):
 def test_a_rig_without_tracking_carries_its_last_pose_for_frames_added(video):
     """Without tracking a rig's frames given to ``add`` (no images) are carried as a
     camera's: the next frame of a camera is predicted from the last rig frame posed, carried at
-    its own twist through the camera's mounting, within 2 deg of the truth (before: only
-    rig frames of images were carried, ``add`` left no prediction)."""
+    its own twist through the camera's mounting, within 2 deg of the truth, as
+    after rig frames of images."""
     cams, frames, traj = video
     rig = Localizer(LocalizerSettings(mounts_of(cams), tracking=None))
     head = [f for f in frames if f.index < 4]
@@ -238,8 +238,8 @@ def test_a_frame_whose_estimator_raises_after_a_gap_releases_the_ended_tracks_tw
     """A frame 0.7 s after the last (beyond ``max_gap``, within ``time_reset_ns``: the track
     resets at it) whose estimator raises: the frame fails (``error``) and the twists the
     ended track still held go out with it, final as they are: every frame posed before it
-    has had its fused twist handed out exactly once, a camera's video as a rig (before: a
-    camera's stayed pending, never handed out)."""
+    has had its fused twist handed out exactly once, a camera's video as a rig: none
+    stays pending."""
     from rs_localizer.tracking import tracker
 
     cams, frames, _ = video
@@ -280,8 +280,7 @@ def test_a_rig_cameras_image_that_resets_the_time_is_not_compared_with_its_last(
     """A rig camera's frame time is noted before its image is searched, as a camera's: its
     image 2 s after the rig's newest frame (a time reset) that is the same picture as its
     last one is the new timeline's first image, taken, not skipped as ``frozen_image``, and
-    the reset is counted (before: compared with its old timeline's last image and skipped,
-    the reset not noted at all)."""
+    the reset is counted."""
     cams, frames, _ = video
     rig, send, images = _rig_of_row_images(cams, frames, seed=5)
     a = next(f for f in frames if f.index == 2 and f.name == cams[0].name)
@@ -298,8 +297,8 @@ def test_a_rig_notes_its_cameras_stamps_on_the_clock_as_a_camera_does(video):
     """The time-reset policy reads each camera's stamp on the rig's clock, as a camera's video
     reads its stamps, not its reference line's capture time: a global-shutter camera's frame
     stamped 1.005 s after a rolling-shutter camera's frame is a jump ahead of more than
-    ``time_reset_ns`` (1 s), a time reset (before: not one, the rolling shutter's
-    reference line, read 10.8 ms after its stamp's row, put the two 0.994 s apart)."""
+    ``time_reset_ns`` (1 s), a time reset, although the rolling
+    shutter's reference line, read 10.8 ms after its stamp's row, puts the two 0.994 s apart."""
     cams, frames, _ = video
     rs, gs = cams[0], replace(cams[1], camera=replace(cams[1].camera, line_delay=0.0))
     assert rs.camera.readout == "top_to_bottom"
@@ -321,7 +320,7 @@ def test_a_rig_whose_track_has_no_state_predicts_from_its_last_posed_frame(video
     """With no state in the rig's track (a new track, other tracking options given to
     ``configure``) the next frame of a camera is predicted, as a camera's video predicts it,
     from the last rig frame posed carried at its own twist through the camera's mounting:
-    within 2 deg of the truth (before: no prediction until the new track had a state)."""
+    within 2 deg of the truth, without waiting for the new track to have a state."""
     cams, frames, traj = video
     rig = Localizer(LocalizerSettings(mounts_of(cams)))
     outs = _add_all(rig, [f for f in frames if f.index < 4], cams)

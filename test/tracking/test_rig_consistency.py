@@ -55,9 +55,9 @@ def video():
 @pytest.mark.parametrize("offset", [-0.05, -0.02, 0.05])
 def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, offset):
     """The left camera's clock off by -50, -20 or +50 ms (its frames join the others' at a
-    wrong stamp, or never): no published pose is more than 1 deg or 5 cm off (before, its
-    lone rig frames were posed at its wrong stamps, up to 3.9 deg off, and a joint fit with
-    one other camera absorbed the time error); the others' rig frames are posed, at least
+    wrong stamp, or never): no published pose is more than 1 deg or 5 cm off (its lone rig
+    frames posed at its wrong stamps would be up to 3.9 deg off, and a joint fit with one
+    other camera would absorb the time error); the others' rig frames are posed, at least
     one per frame period; the cameras named (apart or disagreeing) are left alone. (+5 ms:
     the next test.)"""
     cams, frames, traj = video

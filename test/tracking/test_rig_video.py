@@ -226,9 +226,9 @@ def test_a_jump_ahead_at_a_dropped_frame_is_the_time_reset_no_camera_stopped(vid
     """A gap in the bag whose first frame after it is one a camera could not use (an image that
     did not decode, ``Localizer.drop``; a frame without camera model): its stamp is noted on
     the clock as every frame's, so the jump is the time reset there: the rig frame still open
-    is solved as the clock's jump solves it, no camera counts as stopped for the gap (before:
-    the frame left the clock, the skipped camera's time 3 s ahead made the other camera
-    ``stopped``, warned, and the reset came a frame later)."""
+    is solved as the clock's jump solves it, no camera counts as stopped for the gap (the
+    skipped camera's time 3 s ahead of the other's would otherwise make that one ``stopped``,
+    warned, and the reset a frame late)."""
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
     jump, mid = 3 * 10**9, T0 + 290_000_000

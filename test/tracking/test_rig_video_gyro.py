@@ -221,7 +221,7 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
 def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
     """The rig's gyro follows the single camera's time-reset policy: a frame more than
     ``time_reset_ns`` after the rig's newest keeps the samples from that newest frame's stamp
-    on (its first line's capture time here, ``stamp_row`` 0: its whole readout; before: from
+    on (its first line's capture time here, ``stamp_row`` 0: its whole readout, not from
     its reference line's, mid-readout), the older ones dropped; a frame going back by more
     drops them all; both counted ``rig.time_resets``; the bias estimate is kept (the same
     IMU), its pairing restarted."""
