@@ -58,7 +58,7 @@ from .pipeline import (
 )
 from .rig_node import (
     RIG_TEXTS,
-    RigGrouping,
+    SameRigFrame,
     declare_rig_cameras,
     new_rig_cameras,
     rig_failure_line,
@@ -133,7 +133,7 @@ class LocalizerMode(ModeBase):
     camera_infos and counts outlast a change of parameters; a rig's at configure."""
 
     rig: Localizer | None = None  # (None: not configured)
-    _grouping: RigGrouping | None = None  # (a rig's grouping of queued frames)
+    _grouping: SameRigFrame | None = None  # (a rig's grouping of queued frames)
 
     def __init__(self, node: NodeCore):
         super().__init__(node)

@@ -10,7 +10,7 @@ topics, parameters, counts and diagnostics are in docs/rig_node.md. This module 
 only a rig of several cameras needs: its cameras' parameters (``rig.<c>.*``,
 :func:`declare_rig_cameras`, :func:`rig_values`), its cameras' inputs and counts with the
 frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
-:class:`RigGrouping`: a full queue drops whole rig frames, counted ``<c>.skipped.queue_full``),
+:class:`SameRigFrame`: a full queue drops whole rig frames, counted ``<c>.skipped.queue_full``),
 the rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
 rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and their
 mountings put them (:func:`rig_views`); its status comes from the one builder
@@ -40,7 +40,7 @@ from .pipeline import ThrottledLog
 
 __all__ = [
     "RIG_TEXTS",
-    "RigGrouping",
+    "SameRigFrame",
     "declare_rig_cameras",
     "new_rig_cameras",
     "rig_failure_line",
@@ -130,7 +130,7 @@ def new_rig_cameras(node: Any, config: LocalizerConfig) -> tuple[Localizer, Came
     """A rig's cameras handed to ``node`` (:meth:`.core.NodeCore.set_cameras`): each camera's
     input (its camera_infos by stamp, its clouds' rows, its images,
     :func:`.camera_input.rig_camera_inputs`) and counts (the diagnostics' ``<c>.<key>``), the
-    frame queue grouped by rig frame (:class:`RigGrouping`), its log (each kind once per
+    frame queue grouped by rig frame (:class:`SameRigFrame`), its log (each kind once per
     5 s). Returns the rig's localizer (its rig frames on the NumPy implementation while the
     kernels compile in the background), the rig's own counts (the worker's map-fit check
     over the rig frames, its times per stage, its IMU messages rejected) and the grouping."""
@@ -143,12 +143,12 @@ def new_rig_cameras(node: Any, config: LocalizerConfig) -> tuple[Localizer, Came
 
     inputs = rig_camera_inputs(config, log, count, stopped=node.stopping,
                                wait=config.camera_info_wait)  # fmt: skip
-    grouping = RigGrouping(config.settings, inputs)
+    grouping = SameRigFrame(config.settings, inputs)
     node.set_cameras(inputs, counts, log, grouping, "rs_localizer_rig_worker")
     return rig, CameraCounts(), grouping
 
 
-class RigGrouping:
+class SameRigFrame:
     """Whether a waiting frame goes with the frames the worker takes (the frame queue's
     ``group``, :class:`~.frame_queue.FrameQueue`): another camera's whose reference-line time
     (by the camera's newest camera_info, ``inputs[name].newest``) is within ``rig.window`` of
