@@ -68,8 +68,9 @@ def test_outputs_reach_a_default_subscriber(ros_context):
 
 
 def test_one_executor_turn_takes_every_waiting_frame(ros_context):
-    """A frame subscription's callback takes every message already waiting in its reader, so
-    that a few executor turns count a whole burst ``received`` (the frame queue then drops and
+    """A frame subscription's callback takes every message already waiting in the readers of
+    the node's frame subscriptions (correspondences and keypoints here), so that a few
+    executor turns count a whole burst ``received`` (the frame queue then drops and
     counts what it cannot hold): an executor taking one message per turn, each turn rebuilding
     its wait set in Python and waiting for the GIL while the worker solves, falls behind a
     stream and the reader's history overwrites frames the node never counts."""
@@ -83,7 +84,7 @@ def test_one_executor_turn_takes_every_waiting_frame(ros_context):
     from sensor_msgs.msg import PointCloud2
 
     from rs_localizer.ros.node import RSLocalizerNode
-    from rs_localizer.ros.pointcloud import correspondence_cloud
+    from rs_localizer.ros.pointcloud import correspondence_cloud, keypoint_cloud
 
     node = RSLocalizerNode(
         "take_all",
@@ -97,15 +98,17 @@ def test_one_executor_turn_takes_every_waiting_frame(ros_context):
     try:
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         pub = source.create_publisher(PointCloud2, "/take_all/correspondences", qos)
+        pub_kp = source.create_publisher(PointCloud2, "/take_all/keypoints", qos)
         deadline = time.monotonic() + 20
-        while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+        while min(p.get_subscription_count() for p in (pub, pub_kp)) < 1:
+            assert time.monotonic() < deadline, "the node's frame subscriptions not matched"
             time.sleep(0.05)
-        assert pub.get_subscription_count() >= 1
         rng = np.random.default_rng(0)
-        n = 40  # (3 points each: failed at once, too few to solve)
-        for k in range(n):
-            pub.publish(correspondence_cloud(rng.random((3, 2)), rng.random((3, 3)),
-                                             stamp=1_000_000_000 + k * 10_000_000))  # fmt: skip
+        n = 40  # (3 points each: failed at once, too few to solve; keypoints without landmarks)
+        for k in range(n // 2):
+            stamp = 1_000_000_000 + k * 10_000_000
+            pub.publish(correspondence_cloud(rng.random((3, 2)), rng.random((3, 3)), stamp=stamp))
+            pub_kp.publish(keypoint_cloud(rng.random((3, 2)), np.arange(3), stamp=stamp + 1))
         time.sleep(1.0)  # (delivered to the reader before the executor's first turn)
         counts = node.camera_counts[""]
         for _ in range(4):  # (the timers may take a turn or two)
