@@ -3,9 +3,11 @@ QoS events its publishers watch (none).
 
 Frame subscriptions use the sensor-data QoS (best effort) with a deeper history than its 5:
 frames that arrive while the worker holds the GIL wait in the middleware until the callbacks
-move them to the node's queue, where a drop is counted (``frames_skipped``), instead of being
-overwritten unseen. Images keep 10 (they are big), IMU samples 200 (about 1 s at 200 Hz).
-The outputs are reliable with a history of 10; ``debug_image`` keeps 2.
+move them to the node's queue (each callback takes every frame waiting on the frame subscriptions:
+:meth:`~rs_localizer.ros.core.NodeCore._take_frames`), where a drop is counted
+(``frames_skipped``), instead of being overwritten unseen. Images keep 10 (they are big), IMU
+samples 200 (about 1 s at 200 Hz). The outputs are reliable with a history of 10;
+``debug_image`` keeps 2.
 """
 
 from __future__ import annotations

@@ -65,3 +65,63 @@ def test_outputs_reach_a_default_subscriber(ros_context):
     from helpers.ros import diagnostics_in_process
 
     assert diagnostics_in_process(ros_context, "wait_set_out", {}), "no /diagnostics from the node"
+
+
+def test_one_executor_turn_takes_every_waiting_frame(ros_context):
+    """A frame subscription's callback takes every message already waiting in the readers of
+    the node's frame subscriptions (correspondences and keypoints here), so that a few
+    executor turns count a whole burst ``received`` (the frame queue then drops and
+    counts what it cannot hold): an executor taking one message per turn, each turn rebuilding
+    its wait set in Python and waiting for the GIL while the worker solves, falls behind a
+    stream and the reader's history overwrites frames the node never counts."""
+    import time
+
+    import numpy as np
+    import rclpy
+    from helpers.ros import in_process_parameters
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from rs_localizer.ros.node import RSLocalizerNode
+    from rs_localizer.ros.pointcloud import correspondence_cloud, keypoint_cloud
+
+    node = RSLocalizerNode(
+        "take_all",
+        context=ros_context,
+        namespace="/take_all",
+        parameter_overrides=in_process_parameters({"queue_size": 3}),
+    )
+    source = rclpy.create_node("take_all_source", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    try:
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        pub = source.create_publisher(PointCloud2, "/take_all/correspondences", qos)
+        pub_kp = source.create_publisher(PointCloud2, "/take_all/keypoints", qos)
+        deadline = time.monotonic() + 20
+        while min(p.get_subscription_count() for p in (pub, pub_kp)) < 1:
+            assert time.monotonic() < deadline, "the node's frame subscriptions not matched"
+            time.sleep(0.05)
+        rng = np.random.default_rng(0)
+        n = 40  # (3 points each: failed at once, too few to solve; keypoints without landmarks)
+        for k in range(n // 2):
+            stamp = 1_000_000_000 + k * 10_000_000
+            pub.publish(correspondence_cloud(rng.random((3, 2)), rng.random((3, 3)), stamp=stamp))
+            pub_kp.publish(keypoint_cloud(rng.random((3, 2)), np.arange(3), stamp=stamp + 1))
+        time.sleep(1.0)  # (delivered to the reader before the executor's first turn)
+        counts = node.camera_counts[""]
+        for _ in range(4):  # (the timers may take a turn or two)
+            ex.spin_once(timeout_sec=1.0)
+        taken = counts.counts()
+        assert taken["received"] == n, taken
+        deadline = time.monotonic() + 20
+        while node._frames.pending and time.monotonic() < deadline:
+            time.sleep(0.05)
+        done = counts.counts()
+        outcomes = sum(v for k, v in done.items() if k == "solved" or "." in k)
+        assert done["received"] == outcomes == n, done
+    finally:
+        ex.shutdown()
+        source.destroy_node()
+        node.destroy_node()
