@@ -665,7 +665,7 @@ def _shifted(f, k, dt_ns):
 
 
 def test_implausible_frames_are_never_published(rel_node, rel, frames):
-    """Defect 1: a v field at u's offset, pixels with v == u, points reflected through the
+    """A v field at u's offset, pixels with v == u, points reflected through the
     camera centre: each fails with its reason and publishes nothing; rows behind the camera
     count in points_dropped."""
     from sensor_msgs.msg import PointField
@@ -709,7 +709,7 @@ def test_implausible_frames_are_never_published(rel_node, rel, frames):
 
 
 def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
-    """Defect 3: a camera_info published just before its frame is the one that frame uses (two
+    """A camera_info published just before its frame is the one that frame uses (two
     cameras alternate: principal points 40 px apart, ~2.3 deg of rotation if mixed up), also
     for the very first frame, and with the frame published before its camera_info (the order
     of image_transport's CameraPublisher; ``camera_info_wait`` 1 s: on a loaded machine the
@@ -768,7 +768,7 @@ def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
 
 
 def test_camera_info_validation_keeps_the_previous_camera(rel_node, rel, frames):
-    """Defect 5 (and 8's NaN cx): a ROI outside the image, a plumb_bob D with 3 or 6
+    """A ROI outside the image, a plumb_bob D with 3 or 6
     coefficients, a NaN cx are rejected with their reason; frames keep using the previous
     camera and stay accurate."""
     from rs_localizer.geometry import rotation_angle_deg
@@ -813,7 +813,7 @@ def test_camera_info_validation_keeps_the_previous_camera(rel_node, rel, frames)
 
 
 def test_invalid_stamps_are_rejected_never_wrapped(rel_node, rel, frames):
-    """Defect 6: nanosec >= 1e9, negative sec, and a stamp whose output (+ the reference row's
+    """A stamp with nanosec >= 1e9 or a negative sec, and one whose output (+ the reference row's
     10.8 ms) does not fit int32 seconds: each fails with bad_stamp; nothing wraps."""
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import stamp_to_ns
@@ -838,7 +838,7 @@ def test_invalid_stamps_are_rejected_never_wrapped(rel_node, rel, frames):
 
 
 def test_time_jumps_never_drop_valid_frames(rel_node, rel, ros_context, sample_bag, frames):
-    """Defect 4: the sample bag played twice into one node (a jump back of 0.967 s) is
+    """The sample bag played twice into one node (a jump back of 0.967 s) is
     answered in full both times; a frame stamped 0.9 s ahead does not drop the frames after
     it. Each jump back is a counted time reset."""
     from rs_localizer.ros import pointcloud as pc
@@ -886,8 +886,8 @@ def test_time_jumps_never_drop_valid_frames(rel_node, rel, ros_context, sample_b
 
 
 def test_landmarks_file_fifo_does_not_hang_the_node(rel_node, rel, ros_context, tmp_path, frames):
-    """Defect 7: landmarks_file set to a FIFO hung SetParameters and stopped the frames. Only
-    regular files are read; the rejection is immediate."""
+    """landmarks_file set to a FIFO (a read would hang SetParameters and stop the frames) is
+    refused at once: only regular files are read."""
     import os
 
     from rcl_interfaces.srv import SetParameters
@@ -923,7 +923,7 @@ def test_landmarks_file_fifo_does_not_hang_the_node(rel_node, rel, ros_context, 
 
 
 def test_smaller_defects(rel_node, rel, ros_context, frames):
-    """Defect 8: the cap applies after NaN rows are dropped; an extra field of unknown datatype
+    """The cap applies after NaN rows are dropped; an extra field of unknown datatype
     is ignored; identical points are degenerate_geometry; camera.d = NaN and max_points below
     the inliers a pose needs are rejected parameter values."""
     from sensor_msgs.msg import PointField
@@ -1004,14 +1004,14 @@ class _Messages:
 
 
 def test_flood_accounting(tmp_path, ros_context, frames):
-    """Defect 2: under a flood the node knows what it received and what it skipped:
+    """Under a flood the node knows what it received and what it skipped:
     received = solved + failed + skipped, skipped > 0, diagnostics WARN, latency measured
     from arrival. Best effort at ~2 kHz on correspondences (300 points; a loaded machine's
     middleware may drop most of them before the node, which then keeps up with the rest and
     skips none), then reliable at
     ~300 Hz on keypoints (4500 points, ~3 ms to solve: more than the node can keep up with at
     that rate; 1500 points no longer were once tracked frames got faster), 2 s each;
-    reliable frames reach the node (before: 53 % lost at 300 Hz): at least 80 % of those that
+    reliable frames reach the node: at least 80 % of those that
     reach a bare subscriber of the node's QoS in another process (``helpers/count_messages.py``,
     under the same load; on an idle machine both take all of them). ``RS_FLOOD_SECONDS=60``: each
     stream 60 s instead of 2. The node is stopped
