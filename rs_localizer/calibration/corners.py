@@ -368,7 +368,13 @@ class RigCorners:
 
         With ``motion``, the time offsets are estimated with the mountings (their covariance
         is part of the mountings'); ``offsets``: also return their standard deviations (D,) s,
-        as ``(covariances, std)``.
+        as ``(covariances, std)``, and with ``clusters`` also the variance (D,) s^2 of one
+        group's time offset about the solution's, ``(covariances, std, scatter)``: each
+        group's own estimate of each offset (one Gauss-Newton step on it alone from the
+        solution, the rig poses marginalized: its gradient over its information in that
+        group) scattered about the solution weighted by its information, times ``C / (C -
+        1)`` for ``C`` groups; a camera whose exposures drift against the reference's shows
+        a scatter its mean offset does not fix.
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -409,8 +415,17 @@ class RigCorners:
             U = np.zeros((ci.max() + 1, mc))
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
+            if offsets and self.D:
+                info = np.zeros((ci.max() + 1, self.D))
+                np.add.at(info, ci, A[:, mc - self.D :] ** 2)
+                g_ = U[:, mc - self.D :]
+                n_c = len(info)
+                own = np.sum(g_**2 / np.where(info > 0, info, np.inf), axis=0)
+                scatter = own / np.maximum(info.sum(axis=0), 1e-300) * n_c / max(n_c - 1, 1)
         C = 0.5 * (C + C.T)
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
+        if offsets and clusters is not None and self.D:
+            return blocks, np.sqrt(np.diag(C)[6 * self.F :]), scatter
         if offsets:
             return blocks, np.sqrt(np.diag(C)[6 * self.F :])
         return blocks

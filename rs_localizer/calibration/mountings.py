@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import LinAlgWarning, block_diag, lu_factor, lu_solve
 from scipy.optimize import least_squares
-from scipy.sparse import bmat, coo_matrix, csc_matrix, identity, kron
+from scipy.sparse import bmat, coo_matrix, identity, kron
 from scipy.stats import chi2
 
 from ..camera import reference_stamp_ns
@@ -48,9 +48,9 @@ class MountingEstimate:
             on the corners (``corners_refined``): the corners' solve's, runs of rig frames
             as groups, plus the error the two estimates disagree by (``corner_misfit``,
             :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5);
-            with time offsets on the corners also the camera's motion over the variance of
-            its exposure about its offset (:func:`_offsets_over_runs`,
-            :func:`_motion_moment`).
+            with time offsets on the corners also the variance of a rig frame's exposure
+            about the offset (the runs of rig frames' scatter) times the camera's motion on
+            the rig (:func:`_motion_moment`).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -59,12 +59,9 @@ class MountingEstimate:
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
         time_offset: s added to the camera's stamps to put its frames on the rig's clock (the
             reference camera's: as given): the one it was calibrated with, or with
-            ``estimate_time_offsets`` the estimate; refined on the corners with time offsets
-            (``exposure_offset`` finite), the weighted mean of its offsets over the runs of
-            rig frames (:func:`_offsets_over_runs`).
+            ``estimate_time_offsets`` the estimate.
         time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
-            the mounting's; on the corners, the runs' scatter about their mean); NaN: not
-            estimated (given, or the reference camera's).
+            the mounting's); NaN: not estimated (given, or the reference camera's).
         corners_refined: the mounting was refined on the corners (:func:`_refine_on_corners`).
         exposure_offset: s, the camera's time offset the pose-level adjustment shows when
             the cameras do not expose together (:data:`EXPOSED_APART_SHARE`; the refinement
@@ -448,7 +445,7 @@ def _refine_on_corners(
     scale: float,
     window: float,
     max_step: float,
-    edges: np.ndarray | None = None,
+    timed: bool = False,
     warm: dict | None = None,
 ) -> tuple[dict, RigCorners, CornerSolution, dict] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
@@ -465,17 +462,14 @@ def _refine_on_corners(
     camera frame whose pose best predicts the rig frame's corners (:func:`_rig_start`).
     Camera frames the adjustment left out as outliers take part: their corners, not their
     poses. A camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose
-    relative to the carried one. ``edges`` (ns, increasing; None: no time offsets): each free
-    camera's time offset (s added to its stamps) adjusted too, one per run of rig frames
-    between consecutive ``edges`` that the camera has corners in (:func:`_run`), started at
-    0: its corners' camera pose moved along its twist at its rig frame
-    (:class:`~rs_localizer.calibration.corners.RigCorners` ``motion``), so that a camera whose
-    exposures drift against the reference's over the video is followed. ``warm``: rig frame
-    time (ns) -> rig pose of a previous solve to start that rig frame from. Only for
+    relative to the carried one. ``timed``: each free camera's time offset (s added to its
+    stamps) adjusted too, started at 0: its corners' camera pose moved along its twist at
+    its rig frame (:class:`~rs_localizer.calibration.corners.RigCorners` ``motion``; the
+    offsets in the free cameras' order of ``mounts``). ``warm``: rig frame time (ns) -> rig
+    pose (rotation, position) of a previous solve to start that rig frame from. Only for
     global-shutter cameras (a rolling-shutter corner's time is not modelled here: the caller
     keeps the pose-level adjustment for those). Returns ``(mounts, the problem, its
-    solution, {"slots": (camera, run) of each time offset, "times": each rig frame's time
-    (ns), "run": each corner's run})``; None when no corner projects."""
+    solution, each rig frame's time (ns))``; None when no corner projects."""
     free = [n for n in mounts if n != reference]
     start_at = {rig_frames[g][0]: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
@@ -511,27 +505,17 @@ def _refine_on_corners(
         parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X,
                       d, w, v))  # fmt: skip
     camera, gi, m, Dr, Dp, uv, X, d, w, v = (np.concatenate(v) for v in zip(*parts, strict=True))
-    run = np.zeros(len(gi), dtype=int)
-    slots: list = []
-    if edges is not None:  # (a time offset per free camera and run it has corners in)
-        run = _run(edges, np.array(times, dtype=np.int64))[gi]
-        key = np.where(d >= 0, d * (len(edges) + 1) + run, -1)
-        used, inv = np.unique(key[key >= 0], return_inverse=True)
-        d = np.full(len(gi), -1)
-        d[key >= 0] = inv
-        slots = [(free[k // (len(edges) + 1)], int(k % (len(edges) + 1))) for k in used]
     problem = RigCorners(
         uv, cams, camera, gi, m, (np.array(Rg0), np.array(Pg0)),
         (np.array([mounts[n][0] for n in names]), np.array([mounts[n][1] for n in names])),
         np.array([n != reference for n in names]), X, offsets=(Dr, Dp),
-        motion=(d, w, v) if edges is not None else None,
+        motion=(d, w, v) if timed else None,
     )  # fmt: skip
     sol = problem.solve(scale, max_nfev=_CORNER_NFEV)
     if sol is None:
         return None
     Rm, pm = sol.mounts
-    extra = {"slots": slots, "times": times, "run": run}
-    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, extra
+    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, times
 
 
 #: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
@@ -546,7 +530,7 @@ def _corner_covariance(
     start: dict,
     reference: str,
     pose_cov: dict,
-) -> tuple[dict, float, np.ndarray]:
+) -> tuple[dict, float, dict, dict]:
     """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
     rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
     marginalized), the rig frames in :data:`CORNER_BLOCKS` runs of consecutive ones, each
@@ -559,13 +543,24 @@ def _corner_covariance(
     estimate's is much the smaller); its excess ``m = d^T pose_cov^-1 d`` per degree of
     freedom over all cameras, beyond 1 (also returned, at least :data:`MISFIT_FLOOR`), is
     an error both carry, not the corners' noise (a camera model or a map slightly off, which
-    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added. Also each of
-    the solve's time offsets' standard deviation (s; those runs as groups alike; none
-    without)."""
+    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added. With time
+    offsets (``motion``), each free camera's (camera -> s, those runs as groups alike) and
+    one run's offset's variance about it (camera -> s^2,
+    :meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`'s scatter plus
+    the offset's own variance: how far a rig frame's exposure is from the offset written);
+    without, two empty dicts."""
     free = [n for n in refined if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
-    C, dt_std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G, True)
-    C, dt_std = C * (blocks / max(blocks - 1, 1)), dt_std * np.sqrt(blocks / max(blocks - 1, 1))
+    runs = (problem.frame * blocks) // problem.G
+    dt_std, scatter = {}, {}
+    if problem.D:
+        C, std, var = problem.mounting_covariance(sol, runs, True)
+        std = std * np.sqrt(blocks / max(blocks - 1, 1))
+        dt_std = dict(zip(free, std.tolist(), strict=True))
+        scatter = {n: float(v) + dt_std[n] ** 2 for n, v in zip(free, var, strict=True)}
+    else:
+        C = problem.mounting_covariance(sol, runs)
+    C = C * (blocks / max(blocks - 1, 1))
     d = [np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T), refined[n][1] - start[n][1]]
          for n in free]  # fmt: skip
     seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
@@ -574,65 +569,17 @@ def _corner_covariance(
         m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
-    return cov, misfit, dt_std
+    return cov, misfit, dt_std, scatter
 
 
-def _block_edges(rig_frames: list, blocks: int) -> np.ndarray:
-    """(B - 1,) ns: the times that cut the rig frames (``(t_ns, ...)`` in time order) into
-    ``B = min(blocks, len(rig_frames))`` runs of about as many consecutive rig frames."""
-    t = np.array([f[0] for f in rig_frames], dtype=np.int64)
-    b = max(min(blocks, len(t)), 1)
-    return t[[len(t) * k // b for k in range(1, b)]]
-
-
-def _run(edges: np.ndarray, t):
-    """The run (:func:`_block_edges`) of time(s) ``t`` (ns): int or (K,) int."""
-    return np.searchsorted(edges, t, side="right")
-
-
-def _offsets_over_runs(corners: tuple, found: dict, slot_std: np.ndarray) -> tuple:
-    """Each free camera's time offset (s) from its offsets per run of rig frames
-    (:func:`_refine_on_corners` with ``edges``; the last solve's plus ``found``, those of the
-    earlier solves, (camera, run) -> s): their mean weighted by each one's information (the
-    squared norm of its column of the solve's robust-weighted Jacobian); its standard
-    deviation by the runs' scatter about it (the cluster-robust variance of a weighted mean,
-    times ``B / (B - 1)`` for ``B`` runs; a camera of one run: the solve's ``slot_std``); and
-    the variance (s^2) of one rig frame's offset about that mean, the runs' weighted scatter
-    plus the mean's variance: a camera whose exposures drift against the reference's is at
-    none of its runs' offsets for long, and that scatter is what a single offset leaves.
-    Returns ``(offsets, std, variance)``, each camera -> s, s, s^2."""
-    problem, sol, extra = corners[1], corners[2], corners[3]
-    cols = csc_matrix(sol.result.jac)[:, problem.n - problem.D :]
-    info = np.asarray(cols.multiply(cols).sum(axis=0)).ravel()
-    dt = problem.time_offsets(sol.result.x)
-    by: dict = {}
-    for i, key in enumerate(extra["slots"]):
-        by.setdefault(key[0], []).append((float(dt[i]) + found.get(key, 0.0), info[i], i))
-    offsets, std, var = {}, {}, {}
-    for n, items in by.items():
-        o, w, idx = (np.array(x) for x in zip(*items, strict=True))
-        B = len(o)
-        if B < 2 or w.sum() <= 0:
-            offsets[n], std[n] = float(o.mean()), float(slot_std[idx[0]])
-            var[n] = std[n] ** 2
-            continue
-        mean = float(w @ o / w.sum())
-        c = B / (B - 1)
-        std[n] = float(np.sqrt(c * np.sum((w * (o - mean)) ** 2)) / w.sum())
-        offsets[n] = mean
-        var[n] = float(c * (w @ (o - mean) ** 2) / w.sum()) + std[n] ** 2
-    return offsets, std, var
-
-
-def _motion_moment(problem: RigCorners, sol: CornerSolution, name: str, extra: dict) -> np.ndarray:
-    """(6, 6): the mean over camera ``name``'s corners of ``a a^T``, ``a`` its camera's
+def _motion_moment(problem: RigCorners, sol: CornerSolution, index: int) -> np.ndarray:
+    """(6, 6): the mean over the corners of time offset ``index`` of ``a a^T``, ``a`` its camera's
     twist in rig axes (angular rad/s, linear m/s; :class:`RigCorners` ``motion`` turned by its
     rig frame's pose of ``sol``): a time offset ``dt`` moves the camera's pose on the rig at
     its rig frame's time by ``dt a`` (rotation rig axes, position), so a variance ``s2`` of it
     adds ``s2`` times this to the mounting's covariance (the axes of
     :attr:`~rs_localizer.frames.Mounting.covariance`)."""
-    slots = [i for i, key in enumerate(extra["slots"]) if key[0] == name]
-    mine = np.isin(problem.motion[0], slots)
+    mine = problem.motion[0] == index
     if not mine.any():
         return np.zeros((6, 6))
     Rg = sol.rig[0][problem.frame[mine]]
@@ -812,12 +759,10 @@ def calibrate_mountings(
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart, timed, timed_cov = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
-        # (with apart: a time offset per camera and run of rig frames, CORNER_BLOCKS runs)
-        edges = _block_edges(rig_frames, CORNER_BLOCKS) if apart else None
         corners = _refine_on_corners(
-            rig_frames, every, obs, rig, mounts, reference, px, window, max_step, edges
+            rig_frames, every, obs, rig, mounts, reference, px, window, max_step, bool(apart)
         )
-        found: dict = {}  # ((camera, run) -> s: the offsets the corners' solves found, summed)
+        found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
         for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
             # the camera frames regrouped at the offsets found and solved again from the
             # solution (the offsets the motion's first order leaves), until they change by
@@ -825,15 +770,13 @@ def calibrate_mountings(
             dt = corners[1].time_offsets(corners[2].result.x)
             if np.all(np.abs(dt) < TIME_OFFSET_TOL):
                 break
-            step = dict(zip(corners[3]["slots"], dt.tolist(), strict=True))
-            for key, v in step.items():
-                found[key] = found.get(key, 0.0) + v
-            for n in every:
-                every[n] = [(t + int(round(step.get((n, _run(edges, t)), 0.0) * 1e9)), *rest)
-                            for t, *rest in every[n]]  # fmt: skip
-            warm = dict(zip(corners[3]["times"], zip(*corners[2].rig, strict=True), strict=True))
+            free = [n for n in corners[0] if n != reference]
+            for n, v in zip(free, dt.tolist(), strict=True):
+                found[n] = found.get(n, 0.0) + v
+                every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
+            warm = dict(zip(corners[3], zip(*corners[2].rig, strict=True), strict=True))
             again = _refine_on_corners(rig_frames, every, obs, rig, corners[0], reference, px,
-                                       window, max_step, edges, warm)  # fmt: skip
+                                       window, max_step, True, warm)  # fmt: skip
             if again is None:
                 break
             corners = again
@@ -841,12 +784,17 @@ def calibrate_mountings(
         if refined:
             # (the two estimates compared alike: with a time offset per camera or without)
             start, start_cov = (timed, timed_cov) if apart else (mounts, cov)
-            cov, misfit, slot_std = _corner_covariance(*corners[:3], start, reference, start_cov)
+            cov, misfit, dt_c, spread = _corner_covariance(
+                *corners[:3], start, reference, start_cov
+            )
             mounts = corners[0]
             if apart:
-                dts, dt_std, spread = _offsets_over_runs(corners, found, slot_std)
-                for n, var in spread.items():
-                    cov[n] = cov[n] + var * _motion_moment(corners[1], corners[2], n, corners[3])
+                dt = corners[1].time_offsets(corners[2].result.x)
+                dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_c, dt, strict=True)}
+                dt_std = dt_c
+                # (a rig frame's exposure off the offset moves the camera on the rig)
+                for i, n in enumerate(dt_c):
+                    cov[n] = cov[n] + spread[n] * _motion_moment(corners[1], corners[2], i)
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
