@@ -187,8 +187,25 @@ class RigCorners:
         if self.tags is not None:
             self.block_t = np.where(self.tags.free, np.cumsum(self.tags.free) - 1, -1)
         self.by_cam = [np.flatnonzero(self.camera == i) for i in range(len(self.cameras))]
+        self._views()
         self.keep = np.ones(n, dtype=bool)
         self.penalty = UNPROJECTED_PENALTY
+
+    def _views(self) -> None:
+        """The corners that share their camera's pose (the same rig frame, mounting, time
+        offset, pose offsets and twist, e.g. one camera frame's): ``view`` (N,) int, each
+        corner's, and per view its first corner ``first``, so that :meth:`errors` builds one
+        camera pose per view instead of one per corner."""
+        n = len(self.uv)
+        d = self.motion[0] if self.motion is not None else np.zeros(n, dtype=int)
+        key = np.stack([self.frame, self.mounting, d], axis=1)
+        _, first, view = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        view = view.ravel()
+        shared = list(self.offsets or ()) + (list(self.motion[1:]) if self.motion else [])
+        if not all((np.asarray(a)[first][view] == a).all() for a in shared):
+            # (corners of one key with their own pose offsets or twists: one view each)
+            first, view = np.arange(n), np.arange(n)
+        self.first, self.view = first, view
 
     def unpack(self, x: np.ndarray) -> tuple:
         """``((R_g, P_g), (R_m, p_m), (R_t, p_t) or None)`` of the parameters ``x`` (n,) (with
@@ -221,22 +238,26 @@ class RigCorners:
         else:
             t = self.tags.tag
             X = np.einsum("nij,nj->ni", tags[0][t], self.tags.local) + tags[1][t]
-        g, m = self.frame, self.mounting
+        # (each view's camera pose, then each corner through its view's)
+        f = self.first
+        g, m = self.frame[f], self.mounting[f]
         if self.inverse:  # (world -> rig, rig -> camera)
-            x_rig = np.einsum("nij,nj->ni", Rg[g], X) + Pg[g]
-            return self._projected(np.einsum("nij,nj->ni", Rm[m], x_rig) + pm[m])
+            R, c = Rm[m] @ Rg[g], np.einsum("nij,nj->ni", Rm[m], Pg[g]) + pm[m]
+            v = self.view
+            return self._projected(np.einsum("nij,nj->ni", R[v], X) + c[v])
         Ow = Rg[g] @ Rm[m]  # (camera -> world at the rig frame's time)
         p = Pg[g] + (Rg[g] @ pm[m][:, :, None])[:, :, 0]
         if self.offsets is not None:
-            Dr, Dp = self.offsets
+            Dr, Dp = self.offsets[0][f], self.offsets[1][f]
             p = p + np.einsum("nij,nj->ni", Ow, Dp)
             Ow = Ow @ Dr
         if self.D:  # (each corner's camera dt later: moved along its twist, world axes)
-            k, w, v = self.motion
+            k, w, v = (a[f] for a in self.motion)
             dt = np.where(k >= 0, self.time_offsets(x)[np.maximum(k, 0)], 0.0)[:, None]
             Ow = rotvec_to_matrix(dt * w) @ Ow
             p = p + dt * v
-        return self._projected(np.einsum("nji,nj->ni", Ow, X - p))
+        v = self.view
+        return self._projected(np.einsum("nji,nj->ni", Ow[v], X - p[v]))
 
     def time_offsets(self, x: np.ndarray) -> np.ndarray:
         """(D,) s: the time offsets of the parameters ``x`` (the last ``D``; none without
@@ -347,7 +368,13 @@ class RigCorners:
 
         With ``motion``, the time offsets are estimated with the mountings (their covariance
         is part of the mountings'); ``offsets``: also return their standard deviations (D,) s,
-        as ``(covariances, std)``.
+        as ``(covariances, std)``, and with ``clusters`` also the variance (D,) s^2 of one
+        group's time offset about the solution's, ``(covariances, std, scatter)``: each
+        group's own estimate of each offset (one Gauss-Newton step on it alone from the
+        solution, the rig poses marginalized: its gradient over its information in that
+        group) scattered about the solution weighted by its information, times ``C / (C -
+        1)`` for ``C`` groups; a camera whose exposures drift against the reference's shows
+        a scatter its mean offset does not fix.
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -388,8 +415,17 @@ class RigCorners:
             U = np.zeros((ci.max() + 1, mc))
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
+            if offsets and self.D:
+                info = np.zeros((ci.max() + 1, self.D))
+                np.add.at(info, ci, A[:, mc - self.D :] ** 2)
+                g_ = U[:, mc - self.D :]
+                n_c = len(info)
+                own = np.sum(g_**2 / np.where(info > 0, info, np.inf), axis=0)
+                scatter = own / np.maximum(info.sum(axis=0), 1e-300) * n_c / max(n_c - 1, 1)
         C = 0.5 * (C + C.T)
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
+        if offsets and clusters is not None and self.D:
+            return blocks, np.sqrt(np.diag(C)[6 * self.F :]), scatter
         if offsets:
             return blocks, np.sqrt(np.diag(C)[6 * self.F :])
         return blocks

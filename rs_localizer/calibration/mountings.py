@@ -47,7 +47,10 @@ class MountingEstimate:
             that averaging does not remove (:data:`MOUNTING_BIAS_SHARE`); a mounting refined
             on the corners (``corners_refined``): the corners' solve's, runs of rig frames
             as groups, plus the error the two estimates disagree by (``corner_misfit``,
-            :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5).
+            :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5);
+            with time offsets on the corners also the variance of a rig frame's exposure
+            about the offset (the runs of rig frames' scatter) times the camera's motion on
+            the rig (:func:`_motion_moment`).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -443,7 +446,8 @@ def _refine_on_corners(
     window: float,
     max_step: float,
     timed: bool = False,
-) -> tuple[dict, RigCorners, CornerSolution] | None:
+    warm: dict | None = None,
+) -> tuple[dict, RigCorners, CornerSolution, dict] | None:
     """The mountings refined on the corners: the pose of every rig frame with two or more
     cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
     those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
@@ -461,20 +465,24 @@ def _refine_on_corners(
     relative to the carried one. ``timed``: each free camera's time offset (s added to its
     stamps) adjusted too, started at 0: its corners' camera pose moved along its twist at
     its rig frame (:class:`~rs_localizer.calibration.corners.RigCorners` ``motion``; the
-    offsets in the free cameras' order of ``mounts``). Only for global-shutter cameras (a
-    rolling-shutter corner's time is not modelled here: the caller keeps the pose-level
-    adjustment for those). Returns ``(mounts, the problem, its solution)``; None when no
-    corner projects."""
+    offsets in the free cameras' order of ``mounts``). ``warm``: rig frame time (ns) -> rig
+    pose (rotation, position) of a previous solve to start that rig frame from. Only for
+    global-shutter cameras (a rolling-shutter corner's time is not modelled here: the caller
+    keeps the pose-level adjustment for those). Returns ``(mounts, the problem, its
+    solution, each rig frame's time (ns))``; None when no corner projects."""
     free = [n for n in mounts if n != reference]
     start_at = {rig_frames[g][0]: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
     groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
     Rg0, Pg0 = [], []
+    times = []
+    warm = warm or {}
     for t, seen in _rig_frames(every, window, max_step):
         known = [n for n in seen if n in mounts]
         if len(known) < 2:
             continue
-        Rg, Pg = start_at[t] if t in start_at else _rig_start(seen, every, mounts, known, scale)
+        Rg, Pg = warm.get(t) or start_at.get(t) or _rig_start(seen, every, mounts, known, scale)
         gi = len(Rg0)
+        times.append(t)
         Rg0.append(Rg)
         Pg0.append(Pg)
         for n in known:
@@ -507,7 +515,7 @@ def _refine_on_corners(
     if sol is None:
         return None
     Rm, pm = sol.mounts
-    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol
+    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, times
 
 
 #: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
@@ -522,7 +530,7 @@ def _corner_covariance(
     start: dict,
     reference: str,
     pose_cov: dict,
-) -> tuple[dict, float, dict]:
+) -> tuple[dict, float, dict, dict]:
     """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
     rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
     marginalized), the rig frames in :data:`CORNER_BLOCKS` runs of consecutive ones, each
@@ -535,11 +543,24 @@ def _corner_covariance(
     estimate's is much the smaller); its excess ``m = d^T pose_cov^-1 d`` per degree of
     freedom over all cameras, beyond 1 (also returned, at least :data:`MISFIT_FLOOR`), is
     an error both carry, not the corners' noise (a camera model or a map slightly off, which
-    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added."""
+    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added. With time
+    offsets (``motion``), each free camera's (camera -> s, those runs as groups alike) and
+    one run's offset's variance about it (camera -> s^2,
+    :meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`'s scatter plus
+    the offset's own variance: how far a rig frame's exposure is from the offset written);
+    without, two empty dicts."""
     free = [n for n in refined if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
-    C, dt_std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G, True)
-    C, dt_std = C * (blocks / max(blocks - 1, 1)), dt_std * np.sqrt(blocks / max(blocks - 1, 1))
+    runs = (problem.frame * blocks) // problem.G
+    dt_std, scatter = {}, {}
+    if problem.D:
+        C, std, var = problem.mounting_covariance(sol, runs, True)
+        std = std * np.sqrt(blocks / max(blocks - 1, 1))
+        dt_std = dict(zip(free, std.tolist(), strict=True))
+        scatter = {n: float(v) + dt_std[n] ** 2 for n, v in zip(free, var, strict=True)}
+    else:
+        C = problem.mounting_covariance(sol, runs)
+    C = C * (blocks / max(blocks - 1, 1))
     d = [np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T), refined[n][1] - start[n][1]]
          for n in free]  # fmt: skip
     seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
@@ -548,7 +569,24 @@ def _corner_covariance(
         m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
-    return cov, misfit, dict(zip(free, dt_std, strict=False))
+    return cov, misfit, dt_std, scatter
+
+
+def _motion_moment(problem: RigCorners, sol: CornerSolution, index: int) -> np.ndarray:
+    """(6, 6): the mean over the corners of time offset ``index`` of ``a a^T``, ``a`` its camera's
+    twist in rig axes (angular rad/s, linear m/s; :class:`RigCorners` ``motion`` turned by its
+    rig frame's pose of ``sol``): a time offset ``dt`` moves the camera's pose on the rig at
+    its rig frame's time by ``dt a`` (rotation rig axes, position), so a variance ``s2`` of it
+    adds ``s2`` times this to the mounting's covariance (the axes of
+    :attr:`~rs_localizer.frames.Mounting.covariance`)."""
+    mine = problem.motion[0] == index
+    if not mine.any():
+        return np.zeros((6, 6))
+    Rg = sol.rig[0][problem.frame[mine]]
+    _, w, v = problem.motion
+    a = np.concatenate([np.einsum("nji,nj->ni", Rg, w[mine]), np.einsum("nji,nj->ni", Rg, v[mine])],
+                       axis=1)  # fmt: skip
+    return a.T @ a / len(a)
 
 
 def _exposed_apart(
@@ -724,33 +762,39 @@ def calibrate_mountings(
         corners = _refine_on_corners(
             rig_frames, every, obs, rig, mounts, reference, px, window, max_step, bool(apart)
         )
-        found = {}  # (s: with apart, the offsets the corners' solves found, summed)
+        found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
         for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
-            # the camera frames regrouped at the offsets found and solved again (the offsets
-            # the motion's first order leaves)
+            # the camera frames regrouped at the offsets found and solved again from the
+            # solution (the offsets the motion's first order leaves), until they change by
+            # less than TIME_OFFSET_TOL
             dt = corners[1].time_offsets(corners[2].result.x)
+            if np.all(np.abs(dt) < TIME_OFFSET_TOL):
+                break
             free = [n for n in corners[0] if n != reference]
-            for n, v in zip(free, dt, strict=True):
-                found[n] = found.get(n, 0.0) + float(v)
+            for n, v in zip(free, dt.tolist(), strict=True):
+                found[n] = found.get(n, 0.0) + v
                 every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
-            again = _refine_on_corners(
-                rig_frames, every, obs, rig, mounts, reference, px, window, max_step, True
-            )
+            warm = dict(zip(corners[3], zip(*corners[2].rig, strict=True), strict=True))
+            again = _refine_on_corners(rig_frames, every, obs, rig, corners[0], reference, px,
+                                       window, max_step, True, warm)  # fmt: skip
             if again is None:
                 break
             corners = again
-            if np.all(np.abs(dt) < TIME_OFFSET_TOL):
-                break
         refined = corners is not None
         if refined:
             # (the two estimates compared alike: with a time offset per camera or without)
             start, start_cov = (timed, timed_cov) if apart else (mounts, cov)
-            cov, misfit, dt_c = _corner_covariance(*corners, start, reference, start_cov)
+            cov, misfit, dt_c, spread = _corner_covariance(
+                *corners[:3], start, reference, start_cov
+            )
             mounts = corners[0]
             if apart:
                 dt = corners[1].time_offsets(corners[2].result.x)
                 dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_c, dt, strict=True)}
                 dt_std = dt_c
+                # (a rig frame's exposure off the offset moves the camera on the rig)
+                for i, n in enumerate(dt_c):
+                    cov[n] = cov[n] + spread[n] * _motion_moment(corners[1], corners[2], i)
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:

@@ -235,7 +235,16 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
             f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
             f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
         )
-        if e.time_offset_std > UNSEEN_OFFSET_STD:
+        if e.time_offset_std > UNSEEN_OFFSET_STD and e.corners_refined:
+            # (refined with offsets: the rig moved enough to show one, so the runs of rig
+            # frames disagree on it)
+            notes.append(
+                f"WARNING: {n}: its time offset changes over the video (std "
+                f"{1e3 * e.time_offset_std:.0f} ms over runs of rig frames): the cameras do "
+                "not seem to be triggered together; its mounting's std includes the rig's "
+                "motion over that change; trigger the cameras together"
+            )
+        elif e.time_offset_std > UNSEEN_OFFSET_STD:
             notes.append(
                 f"WARNING: {n}: the video does not show its time offset (std "
                 f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "

@@ -262,6 +262,15 @@ def test_cameras_that_do_not_expose_together_are_noted():
     assert any("refined on the corners" in n and "misfit 4.0" in n for n in notes), notes
     notes, _ = _camera_notes("left", e, None)
     assert not any("refined on the corners" in n for n in notes), notes
+    # a poorly fixed offset: refined on the corners (the rig moved), the offset changes over
+    # the video; estimated at the pose level alone, the rig did not move enough to show it
+    timed = replace(e, time_offset=-0.006, time_offset_std=0.012, exposure_offset=-0.009)
+    notes, _ = _camera_notes("left", replace(timed, corners_refined=True), None)
+    assert any("changes over the video" in n and "12 ms" in n for n in notes), notes
+    assert not any("hardly moves" in n for n in notes), notes
+    notes, _ = _camera_notes("left", timed, None)
+    assert any("hardly moves" in n for n in notes), notes
+    assert not any("changes over the video" in n for n in notes), notes
 
 
 def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
