@@ -66,7 +66,7 @@ def _modules(package: str) -> list:
 def _node_reasons() -> set:
     from rs_localizer.estimation import FAILURE_REASONS
 
-    reasons = _literals(_modules("ros"), "_fail", "_Drop", "_Refused", "ImageRejected")
+    reasons = _literals(_modules("ros"), "_fail", "_Drop", "_Refused", "ImageRejected", "Failed")
     reasons |= set(FAILURE_REASONS)
     from rs_localizer.tracking.sequence import FRONTEND_FAILURES  # (the images' front end)
 

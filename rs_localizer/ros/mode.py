@@ -307,11 +307,13 @@ class LocalizerMode(ModeBase):
         alone's frame without camera_info, ``no_camera_info``: the localizer never sees
         them), then what it gave noted (:meth:`_entered`). A frame dropped is counted
         ``failed.<reason>`` and its line logged when it is published (:meth:`outcomes`); the
-        camera alone's frame is otherwise counted ``solved`` (an exception, a defect:
-        ``internal_error``), a rig camera's frame's fate is the rig's (an exception: the
-        node's ``internal_error``). Under the worker's lock with its count, so that a
-        diagnostics snapshot sees the localizer's and the camera's counts of it at once; with
-        ``republish_correspondences`` what the camera's front end found in an image."""
+        camera alone's frame is otherwise counted ``solved``, a rig camera's frame's fate is
+        the rig's. An exception (a defect) is raised to the worker, which counts the frame
+        ``failed.internal_error`` and logs ``frame failed (internal_error): <type>: <text>``,
+        as ``replay`` does (:meth:`.core.NodeCore._process`). Under the worker's lock with its
+        count, so that a diagnostics snapshot sees the localizer's and the camera's counts of it
+        at once; with ``republish_correspondences`` what the camera's front end found in an
+        image."""
         name, kind, stamp = item.name, item.kind, item.stamp
         inp = self.node.inputs[name]
         res = CameraFrameResult(inp.tag_of(item.msg))
@@ -331,11 +333,6 @@ class LocalizerMode(ModeBase):
             self._entered(name, kind, taken, tic, res)
         except Drop as e:
             res.failure, res.detail = e.reason, str(e)
-        except Exception as e:
-            if not self.alone:  # (the node counts and logs it as replay words a rig camera's)
-                raise
-            drop = Drop("internal_error", f"{type(e).__name__}: {e}")
-            res.failure, res.detail = drop.reason, str(drop)
         found = [] if res.correspondences is None else [(name, res.correspondences, res.stamp_ns)]
         if res.failure is not None:
             counted: tuple = (f"failed.{res.failure}",)
@@ -565,17 +562,22 @@ class LocalizerMode(ModeBase):
 
     def close_track(self) -> list[FrameOutcome]:
         """:meth:`.core.NodeCore._end_video` (after the frame inputs' end, the frames still
-        queued dropped): a rig's rig frames still open, solved, then the twists still pending,
-        published; the camera alone's track dropped with its pending twists (a reactivated
-        node starts a new track). None unconfigured."""
+        queued dropped): the rig frames still open (none for the camera alone: each frame is
+        solved at once), solved, then the twists still pending (:meth:`Localizer.flush`, the
+        fused twists' plausibility check as every one's), published, as ``replay`` does at a
+        bag's end; then the track ends (a reactivated node starts a new one): a rig's video
+        forgotten (:meth:`Localizer.reset`), the camera alone's track ended with its clock and
+        gyro samples kept (:meth:`Localizer.end_track`). None unconfigured."""
         if self.rig is None:
-            return []
-        if self.alone:  # (a camera's node drops its pending twists at its end, a rig's publishes)
-            self.rig.end_track()
             return []
         closed = [frame_outcome(out, *self._fused_in, self._views(out, None) if out.success
                                 else ()) for out in self.rig.close()]  # fmt: skip
-        return [*closed, FrameOutcome(fused=self._fused(self.rig.flush() + self.rig.reset()))]
+        fused = self.rig.flush()
+        if self.alone:  # (its clock and gyro kept: a stamp going back after it is a time reset)
+            self.rig.end_track()
+        else:
+            fused += self.rig.reset()
+        return [*closed, FrameOutcome(fused=self._fused(fused))]
 
     # ---------------------------------------------------------------- diagnostics
     def diagnostics(self) -> tuple[str, StatusParts]:

@@ -56,7 +56,8 @@ class CameraNode:
     a frame message as the node's worker does (its stamp checked as it arrived, then the
     mode's frame step) and returns the mode's
     :class:`~rs_localizer.ros.mode.CameraFrameResult`, without counting it (the node's queue
-    and worker count ``received``, ``solved``, ``failed.<reason>``)."""
+    and worker count ``received``, ``solved``, ``failed.<reason>``); an exception of the
+    frame step is raised (the node's worker counts it ``failed.internal_error``)."""
 
     def __init__(self, cfg: Any = None, log: Any = None, maps: Any = None):
         from rs_localizer.ros.mode import LocalizerMode

@@ -1193,3 +1193,101 @@ def _config_of(overrides):
     values = {k: p.default for k, p in P.PARAMETERS.items()}
     values.update(overrides)
     return C.build_config(values)
+
+
+def _direct_camera_node(ctx, cam, logged: list, published: list, queue: int, **params):
+    """The camera node without DDS (frames handed to its callback, its worker taking them),
+    with the camera's true camera_info; ``logged`` takes the texts it logs, ``published``
+    the ``(topic, message)`` pairs it publishes (``pose``, ``twist``, ``odom`` wanted)."""
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.conversions import camera_info_msg
+    from rs_localizer.ros.node import RSLocalizerNode
+
+    values = {"warmup": False, "publish_tf": False, "queue_size": queue, **params}
+    overrides = [Parameter(k, value=v) for k, v in values.items()]
+    node = RSLocalizerNode("rs_localizer", context=ctx, namespace="/direct",
+                           parameter_overrides=overrides)  # fmt: skip
+    node._log.logger = type("L", (), {"warning": logged.append, "info": logged.append,
+                                      "error": logged.append})()  # fmt: skip
+    node.wanted = lambda topic: topic in ("pose", "twist", "odom")
+    node.publish_messages = published.extend
+    node.inputs[""].add_camera_info(camera_info_msg(cam, "cam", 0))
+    return node
+
+
+def _send_and_drain(node, frames) -> None:
+    from rs_localizer.ros import pointcloud as pc
+    from rs_localizer.ros.frame_queue import frame_accounting
+
+    for f in frames:
+        node._on_frame("", "cloud", pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam",
+                                                            stamp=f.stamp_ns))  # fmt: skip
+    for _ in range(3000):
+        c = frame_accounting(node.camera_counts[""].counts())
+        if c.pending == 0 and c.received == len(frames):
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"frames not taken: {c}")
+
+
+def _stamps(published, topic) -> list[int]:
+    return [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            for t, m in published if t == topic]  # fmt: skip
+
+
+def test_the_end_of_the_video_publishes_every_posed_frame_s_fused_twist(ros_context, frames):
+    """The camera node's video ends (``deactivate``, the end of its inputs) mid-track: the last
+    ``tracking.lag`` frames, posed with their fused twist still pending, get it then (``odom``
+    and ``twist`` for every ``pose``, at its stamp), as a rig node's and ``replay`` at a bag's
+    end; before the end they wait."""
+    fr, _, cam = frames
+    logged, published = [], []
+    node = _direct_camera_node(ros_context, cam, logged, published, len(fr),
+                               **{"tracking.lag": 2})  # fmt: skip
+    try:
+        _send_and_drain(node, fr[:8])
+        poses = _stamps(published, "pose")
+        assert poses == [f.t_ref_ns for f in fr[:8]], logged
+        assert _stamps(published, "odom") == poses[:-2]  # (tracking.lag 2: two wait)
+        node._end_video()
+        assert _stamps(published, "odom") == _stamps(published, "twist") == poses
+        assert _stamps(published, "pose") == poses  # (nothing else published)
+    finally:
+        node.destroy_node()
+
+
+def test_a_frame_step_that_raises_is_a_failed_frame_worded_as_replay_and_the_rig(
+    ros_context, frames, monkeypatch
+):
+    """A defect in the camera node's frame step (its localizer raising on the 4th frame) is
+    the frame failed ``internal_error``: counted once ``failed.internal_error`` (received =
+    solved + failed + skipped + pending), logged ``frame failed (internal_error): <type>:
+    <text>`` as ``replay`` and a rig node log it, nothing published for it; the next frames
+    are solved."""
+    from rs_localizer.ros.frame_queue import frame_accounting
+
+    fr, _, cam = frames
+    logged, published = [], []
+    node = _direct_camera_node(ros_context, cam, logged, published, len(fr))
+    try:
+        rig, calls = node.mode.rig, []
+        add = rig.add
+
+        def faulty(*args, **kwargs):
+            calls.append(1)
+            if len(calls) == 4:
+                raise RuntimeError("injected fault")
+            return add(*args, **kwargs)
+
+        monkeypatch.setattr(rig, "add", faulty)
+        _send_and_drain(node, fr[:8])
+        counts = node.camera_counts[""]
+        c = frame_accounting(counts.counts())
+        assert (c.received, c.solved, c.failed, c.skipped, c.pending) == (8, 7, 1, 0, 0), c
+        assert c.failures == {"internal_error": 1}, c
+        line = "frame failed (internal_error): RuntimeError: injected fault"
+        assert [t for t in logged if "internal_error" in str(t)] == [line], logged
+        assert _stamps(published, "pose") == [f.t_ref_ns for k, f in enumerate(fr[:8]) if k != 3]
+    finally:
+        node.destroy_node()

@@ -598,12 +598,11 @@ def test_camera_input_notes_a_time_reset_and_names_its_intrinsics():
     assert inp.camera_for(5 * 10**9) is cams[1] and len(inp.history) == 1
 
 
-def test_a_frame_step_that_raises_fails_its_frame_as_internal_error(msgs, sequence, monkeypatch):
-    """A defect in the camera alone's frame step (its rig of one raising) fails that frame
-    ``internal_error`` with the exception as its detail, published as the line ``frame dropped
-    (internal_error): <type>: <text>`` and nothing else; the next frame is solved."""
-    from rs_localizer.ros.outputs import LogLine
-
+def test_a_frame_step_that_raises_raises_to_the_worker(msgs, sequence, monkeypatch):
+    """A defect in the camera alone's frame step (its rig of one raising) is raised to the
+    node's worker, as a rig camera's is (the worker counts the frame ``failed.internal_error``
+    and logs it: ``test_node.py``), not turned into a dropped frame's outcome; the next frame
+    is solved."""
     frames, _, cam = sequence
     pipe = _pipeline(**{"tracking.enabled": False})
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
@@ -613,15 +612,8 @@ def test_a_frame_step_that_raises_fails_its_frame_as_internal_error(msgs, sequen
 
     monkeypatch.setattr(pipe.rig, "add", broken)
     f0, f1 = frames[:2]
-    res = pipe.process(msgs.cloud(f0.uv, f0.xyz, f0.ids, f0.stamp_ns, "cam"), "correspondences")
-    assert (res.failure, res.detail) == ("internal_error", "RuntimeError: boom")
-    out = pipe.outcome(res)
-    line = "frame dropped (internal_error): RuntimeError: boom"
-    assert (
-        out.posed is None
-        and list(out.fused) == []
-        and out.log == (LogLine("internal_error", line, 0),)
-    )
+    with pytest.raises(RuntimeError, match="boom"):
+        pipe.process(msgs.cloud(f0.uv, f0.xyz, f0.ids, f0.stamp_ns, "cam"), "correspondences")
     monkeypatch.undo()
     res = pipe.process(msgs.cloud(f1.uv, f1.xyz, f1.ids, f1.stamp_ns, "cam"), "correspondences")
     assert res.solved and res.out_stamp_ns == f1.t_ref_ns
