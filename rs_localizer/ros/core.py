@@ -858,7 +858,7 @@ class NodeCore:
         )
 
     def _delivery_failed(self, e: BaseException) -> None:
-        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
+        self._log.warning("publishing_failed", f"publishing failed: {type(e).__name__}: {e}")
 
     def record_timing(self, arrived: float, stamp_ns: int) -> None:
         """A pose published: its latency from the frame's arrival (``time.perf_counter``) and

@@ -659,3 +659,19 @@ def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     t.join(10.0)
     assert not t.is_alive() and pipe.mode.cfg is new
     assert pipe.rig.settings.options.ransac.threshold_px == 3.0
+
+
+def test_a_publishing_failure_does_not_silence_a_frames_internal_error_line():
+    """Warnings are throttled per kind: a publishing failure's line and, within the throttle
+    period, a frame's ``internal_error`` line are both logged (neither hides the other)."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.core import NodeCore
+    from rs_localizer.ros.pipeline import ThrottledLog
+
+    lines = []
+    logger = SimpleNamespace(warning=lines.append, info=lines.append, error=lines.append)
+    core = SimpleNamespace(_log=ThrottledLog(logger, period=60.0))
+    NodeCore._delivery_failed(core, RuntimeError("no tf2_msgs"))
+    core._log.warning("internal_error", "frame failed (internal_error): RuntimeError: boom")
+    assert len(lines) == 2 and "publishing failed" in lines[0] and "boom" in lines[1], lines
