@@ -1223,7 +1223,8 @@ def _send_and_drain(node, frames) -> None:
     for f in frames:
         node._on_frame("", "cloud", pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam",
                                                             stamp=f.stamp_ns))  # fmt: skip
-    for _ in range(3000):
+    deadline = time.monotonic() + 300.0  # (a cold numba cache: the first frame compiles)
+    while time.monotonic() < deadline:
         c = frame_accounting(node.camera_counts[""].counts())
         if c.pending == 0 and c.received == len(frames):
             return
