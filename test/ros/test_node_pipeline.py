@@ -639,8 +639,11 @@ def test_a_frame_step_that_raised_publishes_nothing(monkeypatch):
 
 def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     """The camera alone takes a run-time change between two frames of the worker, as a rig
-    does (under the worker's lock): while a frame is taken the change waits, then the next
-    frame is solved with the new settings."""
+    does: while a frame is taken the change is handed to the worker (the parameter callback
+    returns at once, the frame keeps the old settings), then the next frame is solved with
+    the new settings."""
+    import time
+
     from helpers.camera_node import CameraNode
 
     from rs_localizer.frontends.shared import LoadedMaps
@@ -651,13 +654,14 @@ def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     assert new.options.ransac.threshold_px != cfg.options.ransac.threshold_px
     pipe = CameraNode(cfg)
     change = ((new, {"": LoadedMaps()}), {"ransac.threshold_px": 3.0})
-    with pipe.node.between_frames():  # (the worker on a frame)
+    with pipe.node._between.frame():  # (the worker on a frame)
         t = threading.Thread(target=pipe.mode._change_to, args=change)
+        tic = time.perf_counter()
         t.start()
-        t.join(0.3)
-        assert t.is_alive() and pipe.mode.cfg is cfg
-    t.join(10.0)
-    assert not t.is_alive() and pipe.mode.cfg is new
+        t.join(5.0)
+        assert not t.is_alive() and time.perf_counter() - tic < 1.0
+        assert pipe.mode.cfg is cfg  # (not during the frame)
+    assert pipe.mode.cfg is new  # (after it, before the next)
     assert pipe.rig.settings.options.ransac.threshold_px == 3.0
 
 
