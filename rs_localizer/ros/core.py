@@ -24,11 +24,13 @@ A mode derives from :class:`ModeBase` (``configure()``, RuntimeError for invalid
 ``apply_change(built, overrides)``, ``log_ready()``, ``imu_input()``, ``close_track()``,
 ``frame_inputs_destroyed()``, its topics and texts as data, written once) and adds
 ``configured_as()``, ``camera_of(item)``, ``take_frame(item, camera)``,
-``publish_taken(item, taken)``, ``idle_twists()`` (under the worker's lock),
-``changed_configuration(overrides)``, ``diagnostics()`` (its status as data) and the steps
+``publish_taken(item, taken)``, ``idle_twists()`` (between two frames of the worker),
+``changed_configuration(overrides)``, ``diagnostics()`` (its status as data, between two
+frames of the worker) and the steps
 :class:`ModeBase` names. What a mode calls on the node:
 ``set_cameras(inputs, counts, log, group, worker)`` (its cameras and a frame queue for them),
-``stopping()``, ``between_frames()`` (the worker's lock), ``first_frame``,
+``stopping()``, ``between_frames(step)`` (``step`` run between two frames of the worker,
+never waiting for one), ``first_frame``,
 ``param_values(overrides)``, ``open_found_output(name)``, ``warn(key, text, count)`` (the
 throttled log), ``warn_once(key, text)`` and ``record_timing(arrived, stamp_ns)``; its
 frames' outcomes (``close_track()``'s too) it publishes with
@@ -50,11 +52,19 @@ message the executor took and every other one waiting on the frame subscriptions
 of a camera's frame messages to :meth:`NodeCore._enqueue` (its stamp checked by the camera's
 input stage, a :class:`QueuedFrame` queued; the queue counts it ``received`` in the camera's
 counts), the
-worker takes it (:meth:`NodeCore._process`: the mode's ``take_frame``, under the worker's
-lock, and the frame's outcome counted in the camera's counts in the same step), then
-publishes what it gave (:meth:`NodeCore._deliver`: the front end's ``correspondences_out``,
-then the mode's ``publish_taken``). The single camera is named "" (its topics and counts
-without prefix); a rig's cameras by their names.
+worker takes it (:meth:`NodeCore._process`: the mode's ``take_frame``, in one of the
+worker's frames, :class:`~.frame_queue.BetweenFrames`, and the frame's outcome counted in the
+camera's counts in the same step), then publishes what it gave (:meth:`NodeCore._deliver`:
+the front end's ``correspondences_out``, then the mode's ``publish_taken``). The single camera
+is named "" (its topics and counts without prefix); a rig's cameras by their names.
+
+No callback on the executor's thread waits for the worker: what must see the mode between two
+frames (the diagnostics timer's status, a parameter change, the idle track's flush) runs at
+once while the worker is not on a frame, else the diagnostics and a parameter change are
+handed to the worker, which runs them after the frame it is on (the idle track's flush waits
+for the next tick: the worker on a frame is not idle). While a frame is solved the executor
+thus goes on taking the frame messages (counted ``received``) instead of letting a reliable
+stream overflow the subscriptions' history.
 """
 
 from __future__ import annotations
@@ -84,7 +94,7 @@ from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import status
-from .frame_queue import FrameQueue
+from .frame_queue import BetweenFrames, FrameQueue
 from .outputs import FrameOutcome, publish_frame
 from .params import PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import warm_localizer
@@ -385,9 +395,10 @@ class NodeCore:
         self._frame_inputs: list = []  # (subscription, camera name, kind) of each frame input
         self._diag_timer = self._flush_timer = None
         self._timing_lock = threading.Lock()
-        #: held by the worker while it takes a frame (the rig's diagnostics take it to see the
-        #: rig's and the cameras' counts of a frame at once)
-        self._worker_lock = threading.Lock()
+        #: the worker's frames and the steps run between two of them (the diagnostics: the
+        #: mode's and the cameras' counts of a frame at once; a parameter change)
+        self._between = BetweenFrames(self._between_failed)
+        self._diagnostics_handed = False  # (a diagnostics status waits for the worker's frame)
         self._corr_out: dict = {}  # camera -> its correspondences_out, made when first needed
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
@@ -661,14 +672,16 @@ class NodeCore:
             self._warn_busy(size)
 
     def _process(self, item: QueuedFrame) -> TakenFrame:
-        """The worker: one camera frame taken (the mode's ``take_frame``, under the worker's
-        lock) and counted in its camera's counts in the same step (its time and the keys of
-        its outcome), so that a diagnostics snapshot sees it once. An
+        """The worker: one camera frame taken (the mode's ``take_frame``, in one of the
+        worker's frames, :meth:`.frame_queue.BetweenFrames.frame`) and counted in its camera's
+        counts in the same step (its time and the keys of its outcome), so that a diagnostics
+        snapshot sees it once; then what was handed to the worker meanwhile (the diagnostics,
+        a parameter change) run. An
         exception is a defect: the frame is counted ``failed.internal_error`` and logged, the
         node goes on."""
         tic = time.perf_counter()
         camera = self.mode.camera_of(item)
-        with self._worker_lock:
+        with self._between.frame():
             try:
                 taken = self.mode.take_frame(item, camera)
             except Exception as e:
@@ -742,10 +755,10 @@ class NodeCore:
 
     def _end_video(self) -> None:
         """The end of the frame inputs: what the track still holds (the mode's
-        ``close_track()``, under the worker's lock: the outcomes of the frames it completes
-        and of the twists still pending) published (:func:`.outputs.publish_frame`); the
-        next frame starts a new track."""
-        with self._worker_lock:
+        ``close_track()``, in a frame of its own after the worker's: the outcomes of the
+        frames it completes and of the twists still pending) published
+        (:func:`.outputs.publish_frame`); the next frame starts a new track."""
+        with self._between.frame():
             closed = self.mode.close_track()
         for outcome in closed:
             publish_frame(self, outcome)
@@ -753,14 +766,14 @@ class NodeCore:
     def _flush_idle_track(self) -> None:
         """Timer: after ``tracking.max_gap`` s without frames the track is over (the next
         frame starts a new one): publish the twists still pending (the mode's
-        ``idle_twists()``, fused outputs, taken under the worker's lock; nothing while the
-        worker is on a frame: not idle)."""
-        if not self._worker_lock.acquire(blocking=False):
+        ``idle_twists()``, fused outputs, taken between two frames of the worker; nothing
+        while the worker is on a frame: not idle, and the timer does not wait for it)."""
+        if not self._between.hold_if_free():
             return
         try:
             fused = self.mode.idle_twists()
         finally:
-            self._worker_lock.release()
+            self._between.release()
         publish_frame(self, FrameOutcome(fused=fused))
 
     def _release_inputs(self) -> None:
@@ -799,11 +812,15 @@ class NodeCore:
         samples stops waiting)."""
         return self._frames is not None and self._frames.stopping
 
-    def between_frames(self) -> threading.Lock:
-        """The worker's lock, held while it takes a frame (``with node.between_frames():``
-        runs between two frames: a change of the mode's state, or a snapshot of the mode's
-        and the cameras' counts of a frame at once)."""
-        return self._worker_lock
+    def between_frames(self, step: Callable[[], None]) -> None:
+        """``step()`` run between two frames of the worker (a change of the mode's state):
+        at once when the worker is not on a frame, else after the frame it is on, before its
+        next (:meth:`.frame_queue.BetweenFrames.run`); the caller never waits for the frame.
+        An exception of a step handed to the worker is logged (:meth:`_between_failed`)."""
+        self._between.run(step)
+
+    def _between_failed(self, e: BaseException) -> None:
+        self.get_logger().error(f"between frames: {type(e).__name__}: {e}")
 
     @property
     def first_frame(self) -> float | None:
@@ -881,22 +898,41 @@ class NodeCore:
         return status_message(name, hardware_id, level, message, values)
 
     def diagnostics_status(self) -> DiagnosticStatus:
-        """The node's status, named after the node (:meth:`_status`): what the mode hands,
-        ``diagnostics()`` -> ``(hardware_id, parts)`` (its
-        :class:`~.diagnostics.StatusParts`), laid out by the one builder of both modes
-        (:func:`.diagnostics.status`) with the node's latencies and stamp ages (s, the last
-        1000 poses: :meth:`_timing_snapshot`)."""
+        """The node's status (:meth:`_status_between_frames`), taken after the frame the
+        worker is on (waiting for it: not for the executor's thread, whose timer uses
+        :meth:`publish_diagnostics`)."""
+        with self._between.frame():
+            return self._status_between_frames()
+
+    def _status_between_frames(self) -> DiagnosticStatus:
+        """The node's status, named after the node (:meth:`_status`), between two frames of
+        the worker (one consistent count): what the mode hands, ``diagnostics()`` ->
+        ``(hardware_id, parts)`` (its :class:`~.diagnostics.StatusParts`), laid out by the one
+        builder of both modes (:func:`.diagnostics.status`) with the node's latencies and
+        stamp ages (s, the last 1000 poses: :meth:`_timing_snapshot`)."""
         hardware_id, parts = self.mode.diagnostics()
         return self._status(hardware_id, *status(parts, self._timing_snapshot()))
 
     def publish_diagnostics(self) -> None:
-        """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""
-        if self.pub_diag is None:
+        """The diagnostics timer: the node's status published on ``/diagnostics`` between two
+        frames of the worker (:meth:`_publish_status`: now while the worker is not on a
+        frame, else by the worker after it; the timer never waits for it, and one status
+        waits at most); nothing unconfigured."""
+        if self.pub_diag is None or self._diagnostics_handed:
+            return
+        self._diagnostics_handed = True
+        self._between.run(self._publish_status)
+
+    def _publish_status(self) -> None:
+        """:meth:`_status_between_frames` published on ``/diagnostics``, stamped now."""
+        self._diagnostics_handed = False
+        pub = self.pub_diag
+        if pub is None:
             return
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [self.diagnostics_status()]
-        self.pub_diag.publish(msg)
+        msg.status = [self._status_between_frames()]
+        pub.publish(msg)
 
     # ---------------------------------------------------------------- the end
     def _close_viz(self) -> None:

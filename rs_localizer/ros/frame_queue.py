@@ -20,11 +20,20 @@ from __future__ import annotations
 
 import threading
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-__all__ = ["FRAME_ACCOUNTING", "Failed", "FrameCounts", "FrameQueue", "Outcome", "frame_accounting"]
+__all__ = [
+    "FRAME_ACCOUNTING",
+    "BetweenFrames",
+    "Failed",
+    "FrameCounts",
+    "FrameQueue",
+    "Outcome",
+    "frame_accounting",
+]
 
 
 class Outcome(Protocol):
@@ -108,6 +117,76 @@ def frame_accounting(counts: Mapping[str, int], handed: FrameCounts | None = Non
         failures=failures,
         skips=dict(skips) if handed is not None else {},
     )
+
+
+class BetweenFrames:
+    """The worker's frames and what must run between two of them, without the caller
+    waiting for the frame the worker is on.
+
+    The worker takes each frame inside :meth:`frame` (its lock held). :meth:`run` runs a step
+    between two frames from any thread: at once when no frame is being taken, else handed to
+    the worker, which runs the steps handed to it at the end of the frame it is on, before
+    its next, in the order they were handed (a state change taken from the next frame on, a
+    snapshot of counts that change together with a frame). The caller never waits for a
+    frame: a subscription, timer or parameter callback on the executor's thread returns at
+    once while the worker solves, so that the executor goes on taking messages. Whoever
+    releases the lock runs what was handed meanwhile, so that no step waits for a later
+    frame. A step's exception goes to ``on_error`` (default: ignored); the others still run.
+    No ROS import.
+    """
+
+    def __init__(self, on_error: Callable[[BaseException], None] | None = None):
+        self._lock = threading.Lock()
+        self._handed: deque[Callable[[], None]] = deque()
+        self._on_error = on_error
+
+    @contextmanager
+    def frame(self) -> Iterator[None]:
+        """The worker's frame (or an end of the video's, taken while no worker runs): the
+        lock held (waiting for a frame being taken), then the steps handed meanwhile run."""
+        self._lock.acquire()
+        try:
+            yield
+        finally:
+            self._release()
+
+    def run(self, step: Callable[[], None]) -> bool:
+        """``step()`` between two frames: now when no frame is being taken (True), else
+        handed to the worker, which runs it after the frame it is on (False). Never waits
+        for a frame."""
+        self._handed.append(step)
+        return self._run_handed_if_free()
+
+    def hold_if_free(self) -> bool:
+        """The lock taken if no frame is being taken (True; :meth:`release` it), else False
+        at once (nothing taken)."""
+        return self._lock.acquire(blocking=False)
+
+    def release(self) -> None:
+        """The lock of :meth:`hold_if_free` released, the steps handed meanwhile run first."""
+        self._release()
+
+    def _run_handed_if_free(self) -> bool:
+        if not self._lock.acquire(blocking=False):
+            return False
+        self._release()
+        return True
+
+    def _release(self) -> None:
+        """Run the steps handed (the lock held), release the lock; a step handed after the
+        last check while the lock was still held runs now (its caller found the lock taken)."""
+        try:
+            while self._handed:
+                step = self._handed.popleft()
+                try:
+                    step()
+                except Exception as e:
+                    if self._on_error is not None:
+                        self._on_error(e)
+        finally:
+            self._lock.release()
+        if self._handed:
+            self._run_handed_if_free()
 
 
 class FrameQueue:

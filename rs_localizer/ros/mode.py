@@ -155,9 +155,9 @@ class LocalizerMode(ModeBase):
 
     def camera_of(self, item: QueuedFrame) -> Any:
         """The camera model of a rig camera's frame stamp, waiting up to ``camera_info_wait``
-        for its camera_info: outside the worker's lock, which the diagnostics take on the
-        executor that delivers it. None for the camera alone: its stamp is noted on its
-        video's clock first (:meth:`_camera_at`)."""
+        for its camera_info: before the worker's frame, so that the steps run between two
+        frames (the diagnostics) do not wait for it. None for the camera alone: its stamp is
+        noted on its video's clock first (:meth:`_camera_at`)."""
         if self.alone:  # (its stamp first resets its clock, whose reset forgets camera_infos)
             return None
         return self.node.inputs[item.name].camera_of(item.stamp)
@@ -193,9 +193,10 @@ class LocalizerMode(ModeBase):
 
     def _change_to(self, built: tuple, overrides: dict) -> None:
         """A run-time change taken from the next frame on, between two frames of the worker
-        (:meth:`_start_with`); reloaded landmarks logged."""
-        with self.node.between_frames():
-            self._start_with(built)
+        (:meth:`_start_with`: now while the worker is not on a frame, else by the worker
+        after the frame it is on; the parameter callback does not wait for it); reloaded
+        landmarks logged."""
+        self.node.between_frames(lambda: self._start_with(built))
         landmarks, path = built[0].camera.landmarks_file, built[1][built[0].camera.name]
         if overrides.get("landmarks_file") and path.landmarks is not None:
             self.node.get_logger().info(
@@ -310,7 +311,7 @@ class LocalizerMode(ModeBase):
         camera alone's frame is otherwise counted ``solved``, a rig camera's frame's fate is
         the rig's. An exception (a defect) is raised to the worker, which counts the frame
         ``failed.internal_error`` and logs ``frame failed (internal_error): <type>: <text>``,
-        as ``replay`` does (:meth:`.core.NodeCore._process`). Under the worker's lock with its
+        as ``replay`` does (:meth:`.core.NodeCore._process`). In the worker's frame with its
         count, so that a diagnostics snapshot sees the localizer's and the camera's counts of it
         at once; with ``republish_correspondences`` what the camera's front end found in an
         image."""
@@ -555,7 +556,7 @@ class LocalizerMode(ModeBase):
         return fused_outputs(fused, *self._fused_in)
 
     def idle_twists(self) -> list[FusedOutput]:
-        """:meth:`.core.NodeCore._flush_idle_track` (under the worker's lock): the twists
+        """:meth:`.core.NodeCore._flush_idle_track` (between two frames of the worker): the twists
         still pending after ``tracking.max_gap`` s without camera frames
         (:meth:`Localizer.flush_idle`; none unconfigured)."""
         return [] if self.rig is None else self._fused(self.rig.flush_idle())
@@ -585,7 +586,8 @@ class LocalizerMode(ModeBase):
         ``base_frame``) and the status's parts of the one builder
         (:func:`.diagnostics.localizer_status_parts` of the localizer): the camera alone's of
         its counts (:class:`.diagnostics.CameraAlone`), a rig's of the node's counts and times
-        per camera, taken between two frames of the worker (one consistent count)."""
+        per camera. Called between two frames of the worker (one consistent count:
+        :meth:`.core.NodeCore.publish_diagnostics`)."""
         cfg, rig = self.cfg, self.rig
         if self.alone:  # (its counts as a camera's, its frames its rig frames: one section "")
             stats, fe = self._own.snapshot(), self._loaded[""].frontend
@@ -596,15 +598,13 @@ class LocalizerMode(ModeBase):
         waiting = {n for n, i in self.node.inputs.items() if i.newest is None}
         first = self.node.first_frame
         waited = first is not None and time.monotonic() - first > cfg.settings.stop_after
-        with self.node.between_frames():  # (after the frame the worker is on: one consistent count)
-            counts = Counter(self._counts.counts())
-            for cc in self.node.camera_counts.values():
-                counts.update(cc.prefixed())
-            frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
-            absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
-            imu = {k[len("imu_rejected.") :]: v for k, v in counts.items()
-                   if k.startswith("imu_rejected.")}  # fmt: skip
-            inputs = RigInputs(counts, frame_times, imu, absent,
-                               self.node.frontend_kind != "none",
-                               self._counts.stage_times())  # fmt: skip
-            return cfg.base_frame, localizer_status_parts(rig, None, waiting, inputs)
+        counts = Counter(self._counts.counts())
+        for cc in self.node.camera_counts.values():
+            counts.update(cc.prefixed())
+        frame_times = {n: cc.frame_times() for n, cc in self.node.camera_counts.items()}
+        absent = [n for n in self.node.inputs if waited and counts[f"{n}.received"] == 0]
+        imu = {k[len("imu_rejected.") :]: v for k, v in counts.items()
+               if k.startswith("imu_rejected.")}  # fmt: skip
+        inputs = RigInputs(counts, frame_times, imu, absent, self.node.frontend_kind != "none",
+                           self._counts.stage_times())  # fmt: skip
+        return cfg.base_frame, localizer_status_parts(rig, None, waiting, inputs)

@@ -5,7 +5,6 @@ frame message through the worker's frame step (``take_frame``) as the node takes
 from __future__ import annotations
 
 import logging
-import threading
 from types import SimpleNamespace
 from typing import Any
 
@@ -16,7 +15,9 @@ class _Plumbing:
 
     def __init__(self, logger: Any):
         self._logger = logger if logger is not None else logging.getLogger("rs_localizer.test")
-        self._lock = threading.Lock()
+        from rs_localizer.ros.frame_queue import BetweenFrames
+
+        self._between = BetweenFrames()  # (the worker's frames: the node's)
         self.inputs, self.camera_counts, self.landmarks = {}, {}, None
         self.frontend_kind, self.republish, self.map_frame = "none", False, "map"
         self.images_of, self.queue_size, self.image_transport = {}, 10, "raw"
@@ -45,8 +46,8 @@ class _Plumbing:
     def open_found_output(self, name: str = "") -> None:
         pass
 
-    def between_frames(self) -> threading.Lock:
-        return self._lock
+    def between_frames(self, step) -> None:
+        self._between.run(step)
 
 
 class CameraNode:

@@ -1292,3 +1292,65 @@ def test_a_frame_step_that_raises_is_a_failed_frame_worded_as_replay_and_the_rig
         assert _stamps(published, "pose") == [f.t_ref_ns for k, f in enumerate(fr[:8]) if k != 3]
     finally:
         node.destroy_node()
+
+
+def test_a_parameter_change_and_the_diagnostics_do_not_wait_for_the_frame_being_solved(
+    ros_context, frames
+):
+    """While the worker is on a slow frame (its localizer held 1 s), a run-time parameter
+    change (``ros2 param set``) and the diagnostics timer return at once, the frames that
+    arrive meanwhile counted ``received``; the change is taken after the slow frame (the
+    frames after it solved with it) and the status published then balances (received =
+    solved + failed + skipped + pending)."""
+    import threading
+
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros import pointcloud as pc
+    from rs_localizer.ros.frame_queue import frame_accounting
+
+    fr, _, cam = frames
+    logged, published, diag = [], [], []
+    node = _direct_camera_node(ros_context, cam, logged, published, len(fr))
+    node.pub_diag = type("Pub", (), {"publish": lambda self, msg: diag.append(msg)})()
+    try:
+        rig, entered, calls = node.mode.rig, threading.Event(), []
+        add = rig.add
+
+        def slow(*args, **kwargs):
+            calls.append(rig.settings.options.ransac.threshold_px)
+            if len(calls) == 1:
+                entered.set()
+                time.sleep(1.0)
+            return add(*args, **kwargs)
+
+        rig.add = slow
+        old = rig.settings.options.ransac.threshold_px
+
+        def cloud(f):
+            return pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam", stamp=f.stamp_ns)
+
+        node._on_frame("", "cloud", cloud(fr[0]))
+        assert entered.wait(10.0)
+        tic = time.perf_counter()
+        result = node.set_parameters([Parameter("ransac.threshold_px", value=old + 1.0)])
+        node.publish_diagnostics()
+        for f in fr[1:4]:
+            node._on_frame("", "cloud", cloud(f))
+        assert time.perf_counter() - tic < 0.3  # (the slow frame takes 1 s)
+        assert result[0].successful
+        assert frame_accounting(node.camera_counts[""].counts()).received == 4
+        assert diag == []  # (handed to the worker)
+        for _ in range(1000):
+            if frame_accounting(node.camera_counts[""].counts()).pending == 0:
+                break
+            time.sleep(0.01)
+        assert calls == [old] + [old + 1.0] * 3  # (the change between the frames)
+        (msg,) = diag
+        v = {kv.key: kv.value for kv in msg.status[0].values}
+        n = {k: int(v[f"frames_{k}"]) for k in ("received", "solved", "failed", "skipped",
+                                                 "pending")}  # fmt: skip
+        assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+        assert n["received"] == 4 and n["solved"] == 1, n
+    finally:
+        node.destroy_node()

@@ -639,8 +639,11 @@ def test_a_frame_step_that_raised_publishes_nothing(monkeypatch):
 
 def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     """The camera alone takes a run-time change between two frames of the worker, as a rig
-    does (under the worker's lock): while a frame is taken the change waits, then the next
-    frame is solved with the new settings."""
+    does: while a frame is taken the change is handed to the worker (the parameter callback
+    returns at once, the frame keeps the old settings), then the next frame is solved with
+    the new settings."""
+    import time
+
     from helpers.camera_node import CameraNode
 
     from rs_localizer.frontends.shared import LoadedMaps
@@ -651,13 +654,14 @@ def test_a_parameter_change_waits_for_the_frame_the_worker_is_on():
     assert new.options.ransac.threshold_px != cfg.options.ransac.threshold_px
     pipe = CameraNode(cfg)
     change = ((new, {"": LoadedMaps()}), {"ransac.threshold_px": 3.0})
-    with pipe.node.between_frames():  # (the worker on a frame)
+    with pipe.node._between.frame():  # (the worker on a frame)
         t = threading.Thread(target=pipe.mode._change_to, args=change)
+        tic = time.perf_counter()
         t.start()
-        t.join(0.3)
-        assert t.is_alive() and pipe.mode.cfg is cfg
-    t.join(10.0)
-    assert not t.is_alive() and pipe.mode.cfg is new
+        t.join(5.0)
+        assert not t.is_alive() and time.perf_counter() - tic < 1.0
+        assert pipe.mode.cfg is cfg  # (not during the frame)
+    assert pipe.mode.cfg is new  # (after it, before the next)
     assert pipe.rig.settings.options.ransac.threshold_px == 3.0
 
 
@@ -675,3 +679,44 @@ def test_a_publishing_failure_does_not_silence_a_frames_internal_error_line():
     NodeCore._delivery_failed(core, RuntimeError("no tf2_msgs"))
     core._log.warning("internal_error", "frame failed (internal_error): RuntimeError: boom")
     assert len(lines) == 2 and "publishing failed" in lines[0] and "boom" in lines[1], lines
+
+
+def test_between_frames_runs_a_step_at_once_or_after_the_frame_being_taken():
+    """:class:`BetweenFrames`: a step runs at once when no frame is being taken; while one
+    is, the caller returns at once and the steps run at the frame's end, in the order they
+    were handed, before the next frame; a step that raises goes to ``on_error`` and the
+    others still run; steps handed while a worker takes frames back to back all run, in
+    order."""
+    from rs_localizer.ros.frame_queue import BetweenFrames
+
+    errors, ran = [], []
+    between = BetweenFrames(errors.append)
+    assert between.run(lambda: ran.append("idle")) and ran == ["idle"]
+    with between.frame():
+        ran.append("frame")
+        tic = time.perf_counter()
+        t = threading.Thread(target=lambda: [between.run(lambda: ran.append("a")),
+                                             between.run(lambda: 1 / 0),
+                                             between.run(lambda: ran.append("b"))])  # fmt: skip
+        t.start()
+        t.join(5.0)
+        assert not t.is_alive() and time.perf_counter() - tic < 1.0
+        assert ran == ["idle", "frame"]
+        assert not between.hold_if_free()
+    assert ran == ["idle", "frame", "a", "b"]
+    assert len(errors) == 1 and isinstance(errors[0], ZeroDivisionError)
+    # (stress: steps handed while a worker takes frames back to back all run)
+    done, stop = [], threading.Event()
+
+    def worker():
+        while not stop.is_set():
+            with between.frame():
+                pass
+
+    w = threading.Thread(target=worker)
+    w.start()
+    for k in range(2000):
+        between.run(lambda k=k: done.append(k))
+    stop.set()
+    w.join(5.0)
+    assert done == list(range(2000))

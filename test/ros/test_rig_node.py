@@ -1549,8 +1549,6 @@ def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default
     default RS timing (``rs.line_delay`` unchanged; once), which a rig did not log before;
     a run-time change (``max_points``) reaches each camera's input stage (its camera models
     rebuilt, as a camera's), the front ends kept."""
-    import threading
-
     from rs_localizer.camera import CameraModel
     from rs_localizer.frontends.shared import LoadedMaps
     from rs_localizer.ros import conversions as cv
@@ -1573,7 +1571,7 @@ def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default
     node.set_cameras = lambda inputs, counts, log, group=None, worker="": (
         setattr(node, "inputs", inputs) or setattr(node, "camera_counts", counts)
     )
-    node.between_frames = threading.Lock
+    node.between_frames = lambda step: step()  # (no frame being taken)
     mode = LocalizerMode.__new__(LocalizerMode)
     mode.node, mode.alone, mode.cfg, mode._loaded, mode._images = node, False, None, {}, {}
     fronts = {n: Frontend() for n in ("front", "rear")}
@@ -1597,3 +1595,60 @@ def test_a_rig_is_configured_as_a_camera_logging_its_marker_detector_and_default
     assert logs[0] == ("info", "marker detector: OpenCV ArUco (DICT_4X4_50)")
     assert not any("marker detector" in t for _, t in logs[1:])
     assert warned == ["default_timing", "default_timing"]  # (the node warns once)
+
+
+def test_the_diagnostics_timer_does_not_wait_for_the_frame_being_solved(ros_context):
+    """While the worker is on a slow frame (its rig held 1 s in the frame step) the
+    diagnostics timer's callback returns at once (the executor goes on taking frames,
+    counted ``received`` meanwhile) and its status is published by the worker after that
+    frame, each camera's frames balanced (received = solved + failed + skipped + pending,
+    the frames that arrived during the slow frame received and pending)."""
+    import threading
+    import time
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
+    node = _direct_node(ros_context, cams, frames)
+    published = []
+    node.pub_diag = type("Pub", (), {"publish": lambda self, msg: published.append(msg)})()
+    rig, entered, calls = node.mode.rig, threading.Event(), []
+    add = rig.add
+
+    def slow(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            entered.set()
+            time.sleep(1.0)
+        return add(*args, **kwargs)
+
+    rig.add = slow
+
+    def cloud(f):
+        return correspondence_cloud(f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
+
+    try:
+        node._on_frame(frames[0].name, "cloud", cloud(frames[0]))
+        assert entered.wait(10.0)
+        tic = time.perf_counter()
+        node.publish_diagnostics()
+        for f in frames[1:6]:
+            node._on_frame(f.name, "cloud", cloud(f))
+        assert time.perf_counter() - tic < 0.3  # (the slow frame takes 1 s)
+        assert published == []  # (handed to the worker)
+        end = time.monotonic() + 10.0
+        while not published and time.monotonic() < end:
+            time.sleep(0.01)
+        (msg,) = published
+        v = {kv.key: kv.value for kv in msg.status[0].values}
+        received = 0
+        for c in cams:
+            n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
+                                                       "skipped", "pending")}  # fmt: skip
+            assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+            received += n["received"]
+        assert received == 6
+    finally:
+        node.destroy_node()
