@@ -487,10 +487,11 @@ def calibrate(
 def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None) -> dict:
     """The rig frames with tags in two or more cameras and a reference pose, posed by the rig
     estimator with the calibrated mountings (``estimates``: camera -> ``MountingEstimate``)
-    taken as exact (``"exact"``) and with their covariance (``"covariance"``): per variant
-    ``(poses within 3 sigma of the reference, poses, rig frames)``; within 3 sigma: the
-    rotation's and the position's NEES (3 degrees of freedom each) below the 99.73 %
-    quantile."""
+    taken as exact (``"exact"``) and with their covariance and time offset std
+    (``"covariance"``), each camera's estimated time offset added to its stamps (the node's
+    ``rig.<camera>.time_offset``): per variant ``(poses within 3 sigma of the reference,
+    poses, rig frames)``; within 3 sigma: the rotation's and the position's NEES (3 degrees
+    of freedom each) below the 99.73 % quantile."""
     from scipy.stats import chi2
 
     k = chi2.ppf(0.9973, 3)
@@ -505,9 +506,11 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
             total += 1
             rv = []
             for n, (uv, X) in views.items():
-                m = estimates[n].mount
-                m = Mounting(m.R, m.c) if exact else m
-                rv.append(View(uv, X, rig.cameras[n], m, name=n))
+                e = estimates[n]
+                m = Mounting(e.mount.R, e.mount.c)
+                s_t = e.time_offset_std if e.time_offset and np.isfinite(e.time_offset_std) else 0
+                m = m if exact else Mounting(m.R, m.c, e.mount.covariance, s_t)
+                rv.append(View(uv, X, rig.cameras[n], m, e.time_offset, name=n))
             e = estimate_rig_pose(rv, RIG_OPTIONS)
             if not e.success or e.covariance is None:
                 continue

@@ -280,8 +280,10 @@ class StackedViews:
             parts.append(part)
         self.R_mount, self.c_mount = _mounting_stacks(views, parts)
         self.mount_cov = [q[2] for q in parts]
-        #: some camera's mounting has a covariance
-        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
+        #: each camera's time offset std (s, its mounting's ``time_offset_std``)
+        self.time_std = [v.mounting.time_offset_std for v in views]
+        #: some camera's mounting has a covariance or a time offset std
+        self.has_mount_cov = any(mc is not None for mc in self.mount_cov) or any(self.time_std)
         self.sizes = [q[3] for q in parts]
         n = [len(q[5]) for q in parts]
         #: each view's points in the stack
@@ -357,9 +359,12 @@ class StackedViews:
 
     def mounting_covariances(self) -> tuple | None:
         """``(the stack's :class:`~.refine.Mountings`, each camera's mounting covariance
-        (6, 6) or None)`` when some camera's mounting has one, else None
+        (6, 6) or None, each camera's time offset std (s, 0: none))`` when some camera's
+        mounting has either, else None
         (:meth:`~.frame.RefinementView.mounting_covariances`)."""
-        return (self.plain_mountings, self.mount_cov) if self.has_mount_cov else None
+        if not self.has_mount_cov:
+            return None
+        return self.plain_mountings, self.mount_cov, self.time_std
 
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:attr:`plain_mountings`, checked for the
