@@ -256,6 +256,10 @@ class StackedViews:
     spr = 1.0
     #: no planar motion prior in the final stage (:class:`~.frame.RefinementView`)
     planar = False
+    #: the rig's ``(w (3,) rad/s, t (3,) m/s)`` known from outside the frame (a tracker's
+    #: prediction) for the time offsets' share of a global-shutter rig frame's covariance,
+    #: whose model has no twist (:func:`~.finalize.final_covariance`); None: none
+    twist = None
 
     def __init__(
         self,
@@ -359,12 +363,12 @@ class StackedViews:
 
     def mounting_covariances(self) -> tuple | None:
         """``(the stack's :class:`~.refine.Mountings`, each camera's mounting covariance
-        (6, 6) or None, each camera's time offset std (s, 0: none))`` when some camera's
-        mounting has either, else None
+        (6, 6) or None, each camera's time offset std (s, 0: none), :attr:`twist`)`` when
+        some camera's mounting has either, else None
         (:meth:`~.frame.RefinementView.mounting_covariances`)."""
         if not self.has_mount_cov:
             return None
-        return self.plain_mountings, self.mount_cov, self.time_std
+        return self.plain_mountings, self.mount_cov, self.time_std, self.twist
 
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:attr:`plain_mountings`, checked for the
