@@ -484,19 +484,39 @@ def calibrate(
     return out
 
 
+#: s; a tracker's twist from two posed rig frames at most this far apart and from the frame
+TRACKED_GAP = 0.25
+
+
+def _tracked_twist(last: list, stamp: float) -> tuple | None:
+    """The rig's twist ``(w rad/s, t m/s)`` in the model's convention (``x_rig = expm(tau
+    [w]x) R X + C + tau t``) at constant velocity from the last two posed rig frames
+    ``last`` (``(stamp s, model)``), None without two within :data:`TRACKED_GAP` of each other
+    and of ``stamp``."""
+    if len(last) < 2:
+        return None
+    (s0, m0), (s1, m1) = last
+    dt = s1 - s0
+    if not (0 < dt <= TRACKED_GAP and stamp - s1 <= TRACKED_GAP):
+        return None
+    return matrix_to_rotvec(m1.R @ m0.R.T) / dt, (m1.C - m0.C) / dt
+
+
 def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None) -> dict:
     """The rig frames with tags in two or more cameras and a reference pose, posed by the rig
     estimator with the calibrated mountings (``estimates``: camera -> ``MountingEstimate``)
-    taken as exact (``"exact"``) and with their covariance (``"covariance"``): per variant
-    ``(poses within 3 sigma of the reference, poses, rig frames)``; within 3 sigma: the
-    rotation's and the position's NEES (3 degrees of freedom each) below the 99.73 %
-    quantile."""
+    taken as exact (``"exact"``) and with their covariance and time offset std
+    (``"covariance"``; the rig's twist for the offsets' share, :func:`_tracked_twist`, from
+    the two rig frames posed before, as a tracker predicts it): per variant ``(poses within
+    3 sigma of the reference, poses, rig frames)``; within 3 sigma: the rotation's and the
+    position's NEES (3 degrees of freedom each) below the 99.73 % quantile."""
     from scipy.stats import chi2
 
     k = chi2.ppf(0.9973, 3)
     out = {}
     for label, exact in (("exact", True), ("covariance", False)):
         inside = posed = total = 0
+        last: list = []  # (the last two posed rig frames: stamp, model)
         for stamp, views in rig.frames[:frames]:
             if stamp not in rig.reference or len(views) < 2:
                 continue
@@ -505,12 +525,15 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
             total += 1
             rv = []
             for n, (uv, X) in views.items():
-                m = estimates[n].mount
-                m = Mounting(m.R, m.c) if exact else m
+                e = estimates[n]
+                m = Mounting(e.mount.R, e.mount.c)
+                s_t = e.time_offset_std if e.time_offset and np.isfinite(e.time_offset_std) else 0
+                m = m if exact else Mounting(m.R, m.c, e.mount.covariance, s_t)
                 rv.append(View(uv, X, rig.cameras[n], m, name=n))
-            e = estimate_rig_pose(rv, RIG_OPTIONS)
+            e = estimate_rig_pose(rv, RIG_OPTIONS, twist=_tracked_twist(last, stamp))
             if not e.success or e.covariance is None:
                 continue
+            last = [*last[-1:], (stamp, e.model)]
             posed += 1
             Rr, Cr = rig.reference[stamp]
             e_r = matrix_to_rotvec(e.model.R.T @ Rr)  # (rig -> world, world axes)

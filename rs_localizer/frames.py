@@ -26,6 +26,7 @@ Pure NumPy (model layer, no ROS); the node applies :func:`camera_to_base` in its
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -71,6 +72,11 @@ class Mounting:
             position in the body frame [m]), e.g. from
             :func:`~rs_localizer.calibration.calibrate_mountings`; the rig estimator adds it
             to the rig pose's covariance. None: the mounting is taken as exact.
+        time_offset_std: s, the standard deviation of the camera's time offset on the body's
+            clock (its stamps' error, e.g. ``calibrate-rig``'s estimate's); the rig estimator
+            adds, per rig frame, the pose's uncertainty of moving the camera's observations
+            along that frame's twist by it. 0 (default): the camera's stamps are taken as
+            exact.
         rotation: (3, 3) ``R_bc = R^T``, camera-frame vectors -> body-frame vectors.
         translation: (3,) m ``t_bc``, the camera's optical centre in the body frame (also
             :attr:`position`).
@@ -79,12 +85,13 @@ class Mounting:
         ValueError: ``R`` or ``c`` not finite (``a mounting must be finite``), ``R`` not a
             rotation (``R R^T`` off the identity by more than 1e-6, or a reflection), a
             covariance that is not (6, 6), finite and positive semi-definite (it is stored
-            symmetrized).
+            symmetrized), a ``time_offset_std`` that is negative or not finite.
     """
 
     R: np.ndarray
     c: np.ndarray
     covariance: np.ndarray | None = None
+    time_offset_std: float = 0.0
     rotation: np.ndarray = field(init=False, repr=False)
     translation: np.ndarray = field(init=False, repr=False)
 
@@ -107,14 +114,22 @@ class Mounting:
             if np.linalg.eigvalsh(C).min() < -1e-12 * max(1.0, float(np.abs(C).max())):
                 raise ValueError("a mounting's covariance must be positive semi-definite")
             object.__setattr__(self, "covariance", C)
+        s = float(self.time_offset_std)
+        if not (math.isfinite(s) and s >= 0.0):
+            raise ValueError("a mounting's time_offset_std must be finite and >= 0")
+        object.__setattr__(self, "time_offset_std", s)
 
     @classmethod
     def from_pose(
-        cls, R_body_cam: np.ndarray, p_body_cam: np.ndarray, covariance: np.ndarray | None = None
+        cls,
+        R_body_cam: np.ndarray,
+        p_body_cam: np.ndarray,
+        covariance: np.ndarray | None = None,
+        time_offset_std: float = 0.0,
     ) -> Mounting:
         """The mounting of a camera whose optical frame is at ``p_body_cam`` (3,) m in the body
         frame, turned by ``R_body_cam`` (3, 3) camera -> body (a static transform body ->
-        camera as tf gives it); ``covariance`` as the attribute.
+        camera as tf gives it); ``covariance``, ``time_offset_std`` as the attributes.
 
         Raises:
             ValueError: not finite, not a rotation, or a covariance that is not (6, 6)
@@ -122,7 +137,7 @@ class Mounting:
         """
         R = np.asarray(R_body_cam, dtype=float).T
         p = np.asarray(p_body_cam, dtype=float)
-        mounting = cls(R, -R @ p, covariance)
+        mounting = cls(R, -R @ p, covariance, time_offset_std)
         object.__setattr__(mounting, "rotation", mounting.R.T.copy())
         object.__setattr__(mounting, "translation", p.reshape(3).copy())
         return mounting

@@ -151,7 +151,8 @@ def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame
     mountings are in), ``rs.stamp_row``, ``rig.cameras`` (the keys of ``est``: camera ->
     :class:`~rs_localizer.calibration.MountingEstimate`) and per camera its ``mounting`` (and
     covariance), the RS timing it was read with (``cams``) and its ``time_offset`` (the one
-    calibrated with or estimated); ``notes``: comment lines on top."""
+    calibrated with or estimated) with the estimate's ``time_offset_std``; ``notes``: comment
+    lines on top."""
     from ..ros.config import mounting_covariance_values, mounting_values, rig_parameter_file
 
     body_cams = {}
@@ -163,6 +164,8 @@ def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame
                       if (v := cams[n].get(k)) not in (None, "", -1.0)})  # fmt: skip
         if e.time_offset:
             entry["time_offset"] = round(float(e.time_offset), 7) + 0.0
+            if np.isfinite(e.time_offset_std) and e.time_offset_std > 0:
+                entry["time_offset_std"] = round(float(e.time_offset_std), 7) + 0.0
         body_cams[n] = entry
     return rig_parameter_file(base_frame, stamp_row, body_cams, notes=notes)
 

@@ -52,6 +52,7 @@ from .refine import (
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    exact_time_jacobian,
     huber_weights,
     image_variance,
     posterior_step,
@@ -901,16 +902,22 @@ def final_covariance(
     order, ``A Sigma_m A^T`` per camera, ``A = H^-1 J^T W J_m`` the model's sensitivity to
     its mounting (``J``, ``J_m``: the image errors' analytic Jacobians over the model and the
     mounting, :func:`~.refine.exact_jacobian`, :func:`~.refine.exact_mounting_jacobian`, on
-    the points within :data:`FINAL_CUTOFF` thresholds ``th``, ``W`` their Huber weights),
-    then symmetrized. ``rolling``: over the 12 parameters, else the pose's 6. ``errors``:
-    the model's (N,) errors (``fr.errors``) when already computed."""
+    the points within :data:`FINAL_CUTOFF` thresholds ``th``, ``W`` their Huber weights);
+    with cameras whose time offsets have a std ``s_t`` (the mountings'
+    :attr:`~rs_localizer.frames.Mounting.time_offset_std`) each one's ``s_t^2 a a^T``, ``a =
+    H^-1 J^T W j_t``, ``j_t`` the image errors' derivative over the camera's capture times
+    (:func:`~.refine.exact_time_jacobian`: its points moved along this frame's twist, the
+    model's, or on the pose's 6 parameters the twist known from outside the frame, the
+    mountings' fourth item, if any), then symmetrized. ``rolling``: over the 12 parameters,
+    else the pose's 6. ``errors``: the model's (N,) errors (``fr.errors``) when already
+    computed."""
     cov = ref.covariance
     if cov is None or not np.isfinite(cov).all():
         return None
     mounted = fr.mounting_covariances()
     if mounted is None:
         return cov
-    mountings, mount_cov = mounted
+    mountings, mount_cov, time_std, twist = mounted
     th = float(th)
     free = 12 if rolling else 6
     e = fr.errors(model) if errors is None else errors
@@ -931,6 +938,16 @@ def final_covariance(
             continue
         A = Hinv @ (WJ[on].T @ Jm[on])
         share += A @ mc @ A.T
+    if any(time_std):
+        moving = theta
+        if not rolling and twist is not None:  # (a global-shutter model: no twist of its own)
+            moving = np.concatenate([theta[:6], *(np.asarray(a, dtype=float) for a in twist)])
+        Jt = exact_time_jacobian(moving, R0, X, x, tau, sub)
+        for c, s_t in enumerate(time_std):
+            on = rows == c
+            if s_t and on.any():
+                a = s_t * (Hinv @ (WJ[on].T @ Jt[on]))
+                share += np.outer(a, a)
     cov = cov.copy()
     cov[:free, :free] += share
     cov = 0.5 * (cov + cov.T)

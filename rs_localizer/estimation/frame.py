@@ -96,9 +96,10 @@ class RefinementView(Protocol):
 
     def mounting_covariances(self) -> tuple | None:
         """``(the points' :class:`~.refine.Mountings`, each camera's mounting covariance
-        (6, 6) over its rotation on the rig (rad) and its centre (m), or None)`` where some
-        camera's mounting has one (:func:`~.finalize.final_covariance` adds their share), else
-        None (a camera alone)."""
+        (6, 6) over its rotation on the rig (rad) and its centre (m), or None, each camera's
+        time offset std (s, 0: none), the rig's twist ``(w, t)`` per second known from
+        outside the frame or None)`` where some camera's mounting has either
+        (:func:`~.finalize.final_covariance` adds their share), else None (a camera alone)."""
         ...
 
 

@@ -286,6 +286,25 @@ def exact_mounting_jacobian(
     return J.reshape(2 * len(X), 6)
 
 
+def exact_time_jacobian(
+    theta: np.ndarray,
+    R0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    mountings: Mountings | None = None,
+) -> np.ndarray:
+    """(2N,) analytic derivative of :func:`exact_residuals` w.r.t. a shift of every
+    observation's capture time ``tau`` (units of ``tau``: s in a rig): the image motion of
+    each point under the model's twist. With ``p = expm(tau [w]x) q + C + tau t`` (``q = R
+    X``, :func:`~rs_localizer.geometry.exact_camera_points`), ``dp/dtau = w x (p - C - tau
+    t) + t`` through the residual's rows over ``p``."""
+    p, _ = _camera_points(theta, R0, X, tau)
+    C, w, t = theta[3:6], theta[6:9], theta[9:12]
+    dp = np.cross(w, p - C - tau[:, None] * t) + t
+    return np.einsum("nij,nj->ni", _projection_rows(p, mountings), dp).ravel()
+
+
 def exact_jacobian(
     theta: np.ndarray,
     R0: np.ndarray,

@@ -446,6 +446,7 @@ def estimate_rig_pose(
     consensus: bool = True,
     verify_cameras: bool = False,
     implementation: str | None = None,
+    twist: tuple | None = None,
 ) -> RSPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring):
     the many-view call of the staged estimator whose one-view call is
@@ -486,6 +487,11 @@ def estimate_rig_pose(
             for a rig frame nothing else checks (a track's first).
         implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s
             (:func:`~.implementation.resolve_implementation`); the estimate records it.
+        twist: the rig's ``(w (3,) rad/s, t (3,) m/s)`` in the model's convention (a
+            tracker's); None: ``prediction``'s or ``initial_model``'s, if any. Used only for
+            the share of the cameras' time offset std
+            (:attr:`~rs_localizer.frames.Mounting.time_offset_std`) in the covariance of a
+            global-shutter rig frame, whose model has no twist of its own.
     Returns:
         :class:`RSPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
@@ -511,12 +517,20 @@ def estimate_rig_pose(
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
     settings = (options, initial_model, pre_rotation == "gp3p")
+    if twist is None:
+        known = prediction if prediction is not None else initial_model
+        known = getattr(known, "model", known)
+        twist = None if known is None else tuple(known)[2:4]
+
+    def stacked(vs: Sequence[View]) -> StackedViews:
+        pool = StackedViews(vs, compiled, cache, max_norm)
+        pool.twist = twist
+        return pool
 
     def solve(vs: Sequence[View]) -> RSPoseEstimate:
-        return _estimate_pool(StackedViews(vs, compiled, cache, max_norm), settings, gyro,
-                              gyro_time)  # fmt: skip
+        return _estimate_pool(stacked(vs), settings, gyro, gyro_time)
 
-    pool = StackedViews(views, compiled, cache, max_norm)
+    pool = stacked(views)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone

@@ -256,6 +256,10 @@ class StackedViews:
     spr = 1.0
     #: no planar motion prior in the final stage (:class:`~.frame.RefinementView`)
     planar = False
+    #: the rig's ``(w (3,) rad/s, t (3,) m/s)`` known from outside the frame (a tracker's
+    #: prediction) for the time offsets' share of a global-shutter rig frame's covariance,
+    #: whose model has no twist (:func:`~.finalize.final_covariance`); None: none
+    twist = None
 
     def __init__(
         self,
@@ -280,8 +284,10 @@ class StackedViews:
             parts.append(part)
         self.R_mount, self.c_mount = _mounting_stacks(views, parts)
         self.mount_cov = [q[2] for q in parts]
-        #: some camera's mounting has a covariance
-        self.has_mount_cov = any(mc is not None for mc in self.mount_cov)
+        #: each camera's time offset std (s, its mounting's ``time_offset_std``)
+        self.time_std = [v.mounting.time_offset_std for v in views]
+        #: some camera's mounting has a covariance or a time offset std
+        self.has_mount_cov = any(mc is not None for mc in self.mount_cov) or any(self.time_std)
         self.sizes = [q[3] for q in parts]
         n = [len(q[5]) for q in parts]
         #: each view's points in the stack
@@ -357,9 +363,12 @@ class StackedViews:
 
     def mounting_covariances(self) -> tuple | None:
         """``(the stack's :class:`~.refine.Mountings`, each camera's mounting covariance
-        (6, 6) or None)`` when some camera's mounting has one, else None
+        (6, 6) or None, each camera's time offset std (s, 0: none), :attr:`twist`)`` when
+        some camera's mounting has either, else None
         (:meth:`~.frame.RefinementView.mounting_covariances`)."""
-        return (self.plain_mountings, self.mount_cov) if self.has_mount_cov else None
+        if not self.has_mount_cov:
+            return None
+        return self.plain_mountings, self.mount_cov, self.time_std, self.twist
 
     def mountings(self) -> Mountings | KernelMountings:
         """The refinement's mountings of every point (:attr:`plain_mountings`, checked for the

@@ -415,7 +415,12 @@ def camera_config(
         mount, frame, offset = _mounting(values), values["camera_frame"], 0.0
     else:
         frame = ""
-        mount = rig_mounting(name, own.get("mounting"), own.get("mounting_covariance"))
+        mount = rig_mounting(
+            name,
+            own.get("mounting"),
+            own.get("mounting_covariance"),
+            own.get("time_offset_std", 0.0),
+        )
         line_delay, readout_time, direction = _own_timing(name, own, timing)
         offset = _time_offset(name, own)
     kind, fmap, transport = _image_input(values)
@@ -583,15 +588,17 @@ def rig_camera_names(value: Any) -> list[str]:
     return names
 
 
-def rig_mounting(n: str, m: Any, cov_values: Any = None) -> Mounting:
+def rig_mounting(n: str, m: Any, cov_values: Any = None, time_std: Any = 0.0) -> Mounting:
     """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers x, y, z, qx, qy, qz, qw: its optical
     frame's pose in ``base_frame``; integers taken as floats) with its
-    ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none) as a
+    ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none) and its
+    ``rig.<n>.time_offset_std`` (``time_std``, s; 0: none) as a
     :class:`~rs_localizer.frames.Mounting`.
 
     Raises:
-        ConfigError: no mounting, not 7 finite numbers, not a rotation, or a covariance that
-            is not 36 finite numbers, naming the parameter.
+        ConfigError: no mounting, not 7 finite numbers, not a rotation, a covariance that
+            is not 36 finite numbers, or a time offset std that is not a finite number
+            >= 0, naming the parameter.
     """
     if m is None or (isinstance(m, (list, tuple)) and len(m) == 0):
         raise ConfigError(
@@ -620,8 +627,15 @@ def rig_mounting(n: str, m: Any, cov_values: Any = None) -> Mounting:
             )
         P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as Mounting.covariance)
         cov = C.reshape(6, 6)[np.ix_(P, P)]
+    ok = isinstance(time_std, (int, float)) and not isinstance(time_std, bool)
+    if not ok or not (math.isfinite(time_std) and time_std >= 0.0):
+        raise ConfigError(
+            f"rig.{n}.time_offset_std must be a finite number of seconds >= 0, got {time_std!r}"
+        )
     try:
-        return Mounting.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov)
+        return Mounting.from_pose(
+            cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov, time_offset_std=time_std
+        )
     except ValueError as e:
         raise ConfigError(f"rig.{n}.mounting: {e}") from None
 

@@ -755,4 +755,12 @@ RIG_CAMERA_PARAMETERS = {
         FloatRange(from_value=-1.0, to_value=1.0),
         read_only=True,
     ),
+    "time_offset_std": Parameter(
+        0.0,
+        "s, the standard deviation of the camera's time_offset (calibrate-rig writes it): "
+        "each rig frame's pose covariance adds the uncertainty of moving the camera's "
+        "observations along that frame's motion by it; 0: the camera's stamps are exact",
+        FloatRange(from_value=0.0, to_value=1.0),
+        read_only=True,
+    ),
 }

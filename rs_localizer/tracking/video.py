@@ -532,12 +532,14 @@ class LocalizerOutput(FrameOutput):
 
 # ---------------------------------------------------------------------- bookkeeping
 def _same_mount(a: Mounting, b: Mounting) -> bool:
-    """Whether two mountings are the same (rotation, position and covariance)."""
+    """Whether two mountings are the same (rotation, position, covariance and time offset
+    std)."""
     if a is b:
         return True
     cov = (a.covariance is None) == (b.covariance is None) and (
         a.covariance is None or np.array_equal(a.covariance, b.covariance)
     )
+    cov = cov and a.time_offset_std == b.time_offset_std
     return bool(cov and np.array_equal(a.R, b.R) and np.array_equal(a.c, b.c))
 
 

@@ -170,6 +170,24 @@ def test_a_mounting_covariance_in_ros_order_is_the_mountings():
     assert b.mount.covariance[0, 0] == 1e-8 and b.mount.covariance[3, 3] == 1e-6
 
 
+def test_a_time_offset_std_is_the_mountings():
+    """rig.<camera>.time_offset_std (s) becomes the mounting's time_offset_std; 0 (the
+    default): none; negative or not a number: an error naming the parameter."""
+    tree = {
+        "rig.cameras": ["a", "b"],
+        "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0],
+        "rig.b.mounting": [0.1, 0, 0, 0, 0, 0, 1.0],
+        "rig.b.time_offset": -0.004,
+        "rig.b.time_offset_std": 0.002,
+    }
+    a, b = build_config(*_values(tree)).cameras
+    assert a.mount.time_offset_std == 0.0 and b.mount.time_offset_std == 0.002
+    assert b.time_offset == -0.004
+    for bad in (-0.001, "x"):
+        with pytest.raises(ConfigError, match=r"rig\.b\.time_offset_std must be"):
+            build_config(*_values({**tree, "rig.b.time_offset_std": bad}))
+
+
 @pytest.mark.parametrize(
     "cameras, error",
     [
