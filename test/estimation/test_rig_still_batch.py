@@ -73,16 +73,16 @@ def _frame(seed, counts, turn_deg=0.0):
 
 
 def _step_by_step(views, seed, K, missed, rounds, subset, th):
-    """The batch step by step, an independent computation: ``_sample``,
-    ``_hypotheses_still``, then the errors of every hypothesis in NumPy and the first lowest
-    MSAC cost."""
+    """The batch step by step, an independent computation: ``_sample``, ``_hypotheses``
+    (global shutter), then the errors of every hypothesis in NumPy and the first lowest MSAC
+    cost."""
     pool = StackedViews(views)
     samples = pool.samples(np.random.default_rng(seed), K, subset)
-    hyp = rig_mod._hypotheses_still(pool, samples, None, missed, rounds)
+    hyp = rig_mod._hypotheses(pool, samples, 0, missed=missed, rounds=rounds)
     e = np.sqrt(errors2(StackedViews(views, compiled=False), *hyp))
     cost = np.minimum(e * e, th * th).sum(axis=1)
     h = int(np.argmin(cost))
-    plain = rig_mod._hypotheses_still(pool, samples)  # (P3P alone, no correction)
+    plain = rig_mod._hypotheses(pool, samples, 0)  # (P3P alone, no correction)
     return hyp, e[h], cost, h, pool, len(plain[0])
 
 
@@ -216,7 +216,7 @@ def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, movi
     def best_of(j):  # (the lowest MSAC cost among the first j samples' models, its inliers)
         S = samples[:j]
         hyp = (rig_mod._hypotheses(pool, S, 3) if moving
-               else rig_mod._hypotheses_still(pool, S))  # fmt: skip
+               else rig_mod._hypotheses(pool, S, 0))  # fmt: skip
         e = np.sqrt(errors2(numpy_pool, *hyp))
         cost = np.minimum(e * e, th * th).sum(axis=1)
         h = int(np.argmin(cost))
