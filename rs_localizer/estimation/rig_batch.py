@@ -1,22 +1,10 @@
 """The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): each batch of
-the search (:class:`~.ransac.RansacLoop`, the batches of :func:`~.ransac.batch_sizes` on the
-seed's random stream) drawn, solved and scored in one numba call (:func:`search_batch`), as
-:mod:`.batch` does for one camera. Termination is checked after every sample
-(:func:`~.ransac.required_samples` of the best model's inlier ratio, as PoseLib's loop does):
-a batch stops at the first sample at which the samples drawn reach ``min_iterations`` and what
-termination asks for.
-
-The rig's own part is its hypotheses: :func:`still_models` (a global-shutter rig frame: Lambda
-Twist P3P of one camera's 3 points mapped to the rig, corrected on the sample's 6 points by
-the rig solver with the velocities held at zero where the best model misses a camera) and
-:func:`moving_models` (a rolling-shutter one without a gyro: the P3P or a prediction's
-rotation pre-rotating the rig solver, :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`).
-Its samples are :func:`~.sampling.batch_samples`' (3 points of one camera, 3 of every
-camera's), every model scored by :func:`~.scoring.model_cost`: the MSAC cost on every point's
-reprojection error in pixels of the views stacked (:class:`~.view.StackedViews`), the lowest
-kept. The rig's step-by-step search (:mod:`.rig`: with a gyro, the
-generalized P3P) calls the same kernels one by one; its NumPy implementation the same steps
-in NumPy.
+the search drawn (:func:`~.sampling.batch_samples`), solved (:func:`still_models`,
+:func:`moving_models`: the rig's own hypotheses, :func:`~.rig._hypotheses`) and scored
+(:func:`~.scoring.model_cost`, MSAC on each point's error in pixels) in one numba call
+(:func:`search_batch`), as :mod:`.batch` does for one camera, termination checked after every
+sample as PoseLib's loop does. The rig's step-by-step search (with a gyro, the generalized
+P3P) calls the same kernels one by one.
 """
 
 from __future__ import annotations
@@ -44,13 +32,11 @@ __all__ = [
 
 @njit(cache=True)
 def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
-    """Lambda Twist (:func:`~rs_localizer.solvers.lambda_twist.lambda_twist`'s solutions, in
-    its order) on the first 3 points of one ``sample`` (>= 3 pool indices) of the pool's
-    normalized points (N, 2) (bearings ``(x, y, 1)``) and world points (N, 3), mapped to the
-    rig through the first point's
-    camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)): the n <= 4 rotations
-    and positions written to ``R[off:off + n]`` (3, 3) and ``C[off:off + n]`` (3,); returns
-    n. ``b``, ``P`` (3, 3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers."""
+    """Lambda Twist's solutions on the first 3 points of one ``sample`` (pool indices) of the
+    normalized points ``x`` (N, 2) and world points ``X`` (N, 3), mapped to the rig through
+    the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)) into
+    ``R[off:off + n]``, ``C[off:off + n]``; returns n <= 4. ``b``, ``P``, ``R_cam``,
+    ``C_cam``: the caller's buffers."""
     for j in range(3):
         i = sample[j]
         b[j, 0], b[j, 1], b[j, 2] = x[i, 0], x[i, 1], 1.0
@@ -76,12 +62,8 @@ def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
 
 @njit(cache=True)
 def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
-    of each sample (K, >= 3) of the pool's normalized points (N, 2) (bearings ``(x, y,
-    1)``) and world points (N, 3), mapped
-    to the rig through the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3),
-    ``cm`` (M, 3)): ``(R (H, 3, 3), C (H, 3), own (H,))`` as :func:`~.rig._p3p_on_rig`'s
-    (:func:`p3p_on_rig_into` sample by sample)."""
+    """:func:`p3p_on_rig_into` on each of the samples (K, >= 3): ``(R (H, 3, 3), C (H, 3),
+    the sample of each (H,))`` as :func:`~.rig._p3p_on_rig`'s."""
     K = samples.shape[0]
     R = np.empty((MAX_SOLUTIONS * K, 3, 3))
     C = np.empty((MAX_SOLUTIONS * K, 3))
@@ -123,26 +105,18 @@ def counted(e, k, cam, pool_counts, subset):
 def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
                  iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
                  log_miss, out):  # fmt: skip
-    """One batch of the compiled search in one call: K samples of
-    :meth:`~.view.StackedViews.samples` on the uniform draws ``draws[o:o + 7 K]`` (the
-    stream's, as (7, K); :func:`~.sampling.batch_samples`, among the sorted pool indices
-    ``subset`` (S,) unless empty), each sample's models (``still``: :func:`still_models` with
-    ``missed``, ``rounds``; else :func:`moving_models` with ``anchor``, ``iterations``, those
-    beyond the bounds ``w2max`` (rad/s)^2, ``v2max`` (m/s)^2 counted, not scored) scored in
-    turn by :func:`~.scoring.model_cost` (``th2`` px^2) against the search's best, a new
-    best's inliers below ``k`` px counted (:func:`counted`). ``best_cost`` (inf: none),
-    ``it0`` (samples drawn), ``min_it``, ``needed`` (samples termination asks for),
-    ``log_miss`` (log(1 - confidence)): the search's state; the batch stops after the first
-    sample at which the samples drawn reach ``min_it`` and what termination asks for at the
-    best model's inlier ratio (:func:`~.ransac.required_samples`), as PoseLib's loop checks
-    after every sample.
-
-    Returns ``(samples drawn, h, cost, inliers, models beyond the bounds)``: ``h`` -1 when no
-    model beat the search's best, else the batch's best (the first of the lowest cost) is
-    written into ``out`` ``(errors (N,) px, R (3, 3), C, w, t (3,), the cameras of 3 or more
-    points with no inlier (M,) bool)`` (``w``, ``t`` untouched when ``still``). The same best
-    model as the steps of :mod:`.rig` called one by one on the samples drawn, bit for bit (the
-    rotations by :func:`~rs_localizer._so3.compose_rotvec`: NumPy's to rounding)."""
+    """One batch of the compiled search: K samples of :meth:`~.view.StackedViews.samples` on
+    the draws ``draws[o:o + 7 K]`` (among the pool indices ``subset`` unless empty), each
+    sample's models (``still``: :func:`still_models` with ``missed``, ``rounds``; else
+    :func:`moving_models` with ``anchor``, ``iterations``, those beyond ``w2max`` (rad/s)^2,
+    ``v2max`` (m/s)^2 counted, not scored) scored in turn (``th2`` px^2) against the search's
+    state (``best_cost``, ``it0`` samples drawn, ``min_it``, ``needed``, ``log_miss`` =
+    log(1 - confidence)), a new best's inliers below ``k`` px counted (:func:`counted`); the
+    batch stops after the first sample at which termination is reached
+    (:func:`~.ransac.required_samples`). Returns ``(samples drawn, h, cost, inliers, models
+    beyond the bounds)``: ``h`` -1 when no model beat the best, else the batch's best is
+    written into ``out`` ``(errors (N,) px, R, C, w, t, missed cameras (M,) bool)``: the same
+    model as :mod:`.rig`'s steps one by one, bit for bit."""
     samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
     N = X.shape[0]
     e, v = np.empty(N), np.empty(N)
@@ -150,8 +124,7 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
     among = len(subset) if len(subset) else N
     s = 3 if still else 6
     found, n_best, beyond, drawn = -1, 0, 0, K
-    # (the buffers of one sample's global-shutter models; a moving frame's models of every
-    # sample at once, ``own`` the sample of each)
+    # (one sample's global-shutter models' buffers; a moving frame's models of every sample)
     b, P = np.empty((3, 3)), np.empty((3, 3))
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     Rp, Cp = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
@@ -206,14 +179,11 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
 
 @njit(cache=True)
 def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
-    """One sample's global-shutter models (:func:`~.rig._hypotheses_still`), in the order
-    they are scored: Lambda Twist on its first 3 points mapped to the rig
-    (:func:`p3p_on_rig_into`, into the buffers ``R`` (4, 3, 3), ``C`` (4, 3)), then, when a
-    point of the sample (6 pool indices) lies in a camera ``missed`` ((M,) bool), those models
-    corrected ``rounds`` times by the rig solver with the velocities held at zero
-    (:func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`, each round pre-rotated by
-    the previous one's rotation; none when a round solves none). Returns ``(R (H, 3, 3), C
-    (H, 3))``."""
+    """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
+    the order they are scored: :func:`p3p_on_rig_into` (into the buffers ``R``, ``C``), then,
+    when a point of the sample lies in a camera ``missed`` ((M,) bool), those corrected
+    ``rounds`` times by :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`. Returns
+    ``(R (H, 3, 3), C (H, 3))``."""
     q = p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
     hit = False
@@ -241,10 +211,10 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
 @njit(cache=True)
 def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
-    (:func:`~.rig._hypotheses`): each sample pre-rotated by its Lambda Twist poses mapped to
-    the rig (:func:`lambda_twist_on_rig`) or by ``anchor`` (3, 3) when it is not empty, then
-    the rig solver (``iterations``, :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`).
-    Returns ``(R (H, 3, 3), C, w, t (H, 3), valid (H,), the sample of each (H,))``."""
+    (:func:`~.rig._hypotheses`): pre-rotated by their P3P poses (:func:`lambda_twist_on_rig`)
+    or by ``anchor`` (3, 3) unless empty, then ``iterations`` of
+    :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`. Returns ``(R (H, 3, 3), C, w, t
+    (H, 3), valid (H,), the sample of each (H,))``."""
     K = samples.shape[0]
     if anchor.shape[0]:
         R0 = np.empty((K, 3, 3))
