@@ -660,7 +660,7 @@ class RigInputs:
     (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
     :class:`~rs_localizer.ros.camera_input.CameraCounts` after ``<c>.``: ``received`` (by
     the subscriptions), ``skipped.<reason>`` (the
-    node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
+    node's reasons, :data:`~rs_localizer.ros.frame_queue.QUEUE_SKIP_REASONS`),
     ``failed.internal_error``, its input stage's counts (``capped_clouds``,
     ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
     ``frames_beside_frontend``, ``messages_lost`` (:func:`camera_section`) and ``bad_input``

@@ -66,15 +66,6 @@ RIG_TEXTS = {
     "mode_note": ", rig mode",
 }
 
-INPUT_SKIP_REASONS = {
-    "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
-    "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
-    "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
-}
-"""The node's reasons for a camera frame dropped before it reaches the rig (counted
-``<c>.skipped.<reason>``, beside the rig's own
-:data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
-
 
 def declare_rig_cameras(node: Any) -> list[str]:
     """The rig's camera names of ``rig.cameras`` (they make parameter and topic names; none
