@@ -38,7 +38,7 @@ A rig frame's views are the tracker path's estimator as a camera's view is
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -68,6 +68,7 @@ __all__ = [
     "OpenRigFrame",
     "RigGrouping",
     "alone_deg",
+    "offsets_text",
     "refusal",
 ]
 
@@ -423,7 +424,7 @@ class CameraAgreement:
             apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
             if apart and not cam.apart:
                 self.counts[f"{n}.apart"] += 1
-                text = _offsets_text(self.frames.clock_offsets(n))
+                text = offsets_text(self.frames.clock_offsets(n))
                 self.log.warning(
                     f"rig.apart.{n}",
                     f"rig camera {n!r}: its frames never join the others' (window "
@@ -495,7 +496,7 @@ class CameraAgreement:
                 f"rig camera {n!r} disagrees with the others: {fit} of its {pts} "
                 f"points fit the rig's pose ({100 * others:.0f} % of the others')"
                 f"{alone}: its mounting is likely wrong (or its matches are, or its "
-                f"clock: its stamps are {_offsets_text(self.frames.clock_offsets(n))})"
+                f"clock: its stamps are {offsets_text(self.frames.clock_offsets(n))})"
             )
         return (
             f"rig cameras {n!r} and {p!r} disagree: {fit} of the {pts} points "
@@ -507,9 +508,15 @@ class CameraAgreement:
         )  # fmt: skip
 
 
-def _offsets_text(offsets: dict) -> str:
-    """Apparent clock offsets (other camera -> s) as ``+12.7 ms from 'front''s, ...``."""
-    return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
+def offsets_text(offsets: Mapping[str, float], quoted: bool = True, unknown: str = "unknown"
+                 ) -> str:  # fmt: skip
+    """A camera's apparent clock offsets (other camera -> s, :meth:`RigGrouping.clock_offsets`)
+    as a log line says them, ``+12.7 ms from 'front''s, ...``, or (``quoted`` False) as the
+    node's diagnostics do, ``+12.7 ms from front, ...``; ``unknown`` without any."""
+    name = "{!r}'s" if quoted else "{}"
+    return (
+        ", ".join(f"{1e3 * v:+.1f} ms from {name.format(m)}" for m, v in offsets.items()) or unknown
+    )
 
 
 def alone_deg(view: View, est: RSPoseEstimate, implementation: str | None = None) -> float | None:
