@@ -25,14 +25,8 @@ disagrees with.
   (:meth:`RigGrouping.clock_offsets`, a warning); its stamps are not shifted (stamps alone give
   an offset only up to the frame period and cannot tell a clock error from cameras out of phase
   by design): its frames are posed alone only where the track agrees.
-- :func:`refusal`, the rule by which a rig frame posed from one camera's points alone while
-  other cameras run is refused (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`): when the
-  track contradicts it (``contradicts_track``; a tag of a second camera that the pose explains,
-  :data:`CONFIRM_MIN_INLIERS`, makes it two), or when there is no track and two or more other
-  cameras run (``unconfirmed``).
-
-A rig frame's views are the tracker path's estimator as a camera's view is
-(:class:`~rs_localizer.tracking.tracker.FrameViews`).
+- :func:`refusal`, why a rig frame posed from one camera's points alone while other cameras
+  run is refused (``contradicts_track``, ``unconfirmed``).
 """
 
 from __future__ import annotations
@@ -253,18 +247,14 @@ class RigGrouping:
             return
         stop_ns = stop_after * 1e9
         for cam in self.cams.values():
-            last = cam.newest if cam.newest is not None else self.first
+            gap = now - (cam.newest if cam.newest is not None else self.first)
             # (stop_after first: the camera's own intervals only lengthen it)
-            if (
-                not cam.stopped
-                and now - last > stop_ns
-                and now - last > self.stop_ns(cam, stop_after)
-            ):
+            if not cam.stopped and gap > stop_ns and gap > self.stop_ns(cam, stop_after):
                 cam.stopped = True
                 self.counts[f"{cam.name}.stopped"] += 1
                 self.log.warning(
                     "rig.stopped",
-                    f"rig camera {cam.name!r}: no frame for {(now - last) * 1e-9:.2f} s "
+                    f"rig camera {cam.name!r}: no frame for {gap * 1e-9:.2f} s "
                     "(stop_after): the rig runs on the other cameras",
                 )
         window_ns = int(round(window * 1e9))
@@ -414,12 +404,9 @@ class CameraAgreement:
         last :data:`APART_HISTORY`."""
         alone = len(cameras) == 1 and "apart" in missing.values()
         for n, cam in self.cams.items():
-            if n in cameras:
-                cam.apart_flags.append(alone)
-            elif missing.get(n) == "apart":
-                cam.apart_flags.append(True)
-            else:
+            if n not in cameras and missing.get(n) != "apart":
                 continue
+            cam.apart_flags.append(alone or n not in cameras)
             f = cam.apart_flags
             apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
             if apart and not cam.apart:
@@ -456,10 +443,8 @@ class CameraAgreement:
         for k, n in enumerate(names):
             cam = self.cams[n]
             pts = int(n_pts[k])
-            if pts < s.disagree_min_points:
-                continue
             others_pts = int(n_pts.sum()) - pts
-            if others_pts < s.disagree_min_points:
+            if min(pts, others_pts) < s.disagree_min_points:
                 continue
             others = (int(n_in.sum()) - int(n_in[k])) / others_pts
             cam.flags.append(bool(n_in[k] / pts < s.disagree_ratio * others))
