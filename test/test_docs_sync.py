@@ -225,3 +225,20 @@ def test_parameter_defaults_follow_the_table():
     new, changed = sync_table(NODE_DOC.read_text(), wrong)
     assert {c[0] for c in changed} == {"ransac.threshold_px", "refine"}
     assert "| `ransac.threshold_px` | `3.5` |" in new
+
+
+def test_the_frame_queue_s_skip_reasons_are_documented():
+    """The reasons the frame queue counts a frame ``skipped.<reason>`` (the keys it counts in
+    ros/frame_queue.py) are its ``QUEUE_SKIP_REASONS``, and docs/rig_node.md names each as
+    ``<camera>.skipped.<reason>`` and lists exactly them as the node's reasons."""
+    from rs_localizer.ros.frame_queue import QUEUE_SKIP_REASONS
+
+    counted = set(
+        re.findall(r"\"skipped\.([a-z_]+)\"", (PKG / "ros" / "frame_queue.py").read_text())
+    )
+    assert counted == set(QUEUE_SKIP_REASONS) == {"queue_full", "stopped"}
+    doc = (ROOT / "docs" / "rig_node.md").read_text()
+    for reason in QUEUE_SKIP_REASONS:
+        assert f"`<camera>.skipped.{reason}`" in doc, reason
+    (listed,) = re.findall(r"and the node's ((?:`[a-z_]+`(?:, )?)+)\)", doc)
+    assert set(re.findall(r"`([a-z_]+)`", listed)) == set(QUEUE_SKIP_REASONS)

@@ -28,6 +28,7 @@ import numpy as np
 from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
 from ..tracking.localizer import readout_warning
+from ..tracking.rig import offsets_text
 from .frame_queue import FRAME_ACCOUNTING, FrameCounts, frame_accounting
 from .pipeline import StatsSnapshot
 
@@ -660,7 +661,7 @@ class RigInputs:
     (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and each camera's
     :class:`~rs_localizer.ros.camera_input.CameraCounts` after ``<c>.``: ``received`` (by
     the subscriptions), ``skipped.<reason>`` (the
-    node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
+    node's reasons, :data:`~rs_localizer.ros.frame_queue.QUEUE_SKIP_REASONS`),
     ``failed.internal_error``, its input stage's counts (``capped_clouds``,
     ``points_dropped``, ``camera_info_rejected[.<reason>]``, ``unknown_landmark_ids``),
     ``frames_beside_frontend``, ``messages_lost`` (:func:`camera_section`) and ``bad_input``
@@ -764,11 +765,8 @@ def rig_camera_status(
     for m, off in (apart or {}).items():
         values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
     if apart is not None:
-        offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
-        warnings.append(
-            f"camera {n}: frames never join the others' ({offs or 'offset unknown'}): "
-            "clock likely off"
-        )
+        offs = offsets_text(apart, quoted=False, unknown="offset unknown")
+        warnings.append(f"camera {n}: frames never join the others' ({offs}): clock likely off")
     partner = rig.camera_partner(n) if state == "disagrees" else None
     if partner is not None:
         warnings.append(  # (both cameras' text: the status names the pair once)

@@ -27,6 +27,7 @@ from typing import Any, Protocol
 
 __all__ = [
     "FRAME_ACCOUNTING",
+    "QUEUE_SKIP_REASONS",
     "BetweenFrames",
     "Failed",
     "FrameCounts",
@@ -53,6 +54,15 @@ class Failed:
 
 #: a camera's frame accounting (received = the other four summed)
 FRAME_ACCOUNTING = ("received", "solved", "failed", "skipped", "pending")
+
+QUEUE_SKIP_REASONS = {
+    "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
+    "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
+    "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
+}
+"""Why the queue drops a frame before it is solved (counted ``skipped.<reason>`` in its
+camera's counts, a rig camera's beside the rig's own
+:data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
 
 
 @dataclass(frozen=True)

@@ -75,9 +75,12 @@ class CameraFrameResult:
     rig frames it completed (``outs``; the camera alone's: its rig of one's, ``out``), its
     camera model, stamps (ns: header, reference line's), frame id, decoded image, what the
     front end found to republish and, failed, why (``failure``, ``detail``); the camera
-    alone's also the rows its estimator was given and the fused twists now final."""
+    alone's also the rows its estimator was given, the fused twists now final and, posed, its
+    count ``solved`` (``counted``; a rig camera's frame is solved or failed in its rig frame:
+    the rig counts it)."""
 
     failure: str | None = None
+    counted: tuple = ()
     detail: str = ""
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
@@ -335,11 +338,7 @@ class LocalizerMode(ModeBase):
         except Drop as e:
             res.failure, res.detail = e.reason, str(e)
         found = [] if res.correspondences is None else [(name, res.correspondences, res.stamp_ns)]
-        if res.failure is not None:
-            counted: tuple = (f"failed.{res.failure}",)
-        else:
-            # (a rig camera's frame is solved or failed in its rig frame: the rig counts it)
-            counted = ("solved",) if self.alone else ()
+        counted = res.counted if res.failure is None else (f"failed.{res.failure}",)
         return TakenFrame(counted, res.failure, res, res.outs, found)
 
     def _camera_at(self, inp: CameraInput, stamp: Any) -> Any:
@@ -449,7 +448,7 @@ class LocalizerMode(ModeBase):
         """The camera alone's estimate of its rig of one's rig frame ``out`` counted as its
         node counts it: the map-fit check (``frames_failed_with_matches``,
         ``map_fit_doubtful``), refused: :class:`~.pipeline.Drop` with its reason; posed, its
-        inliers and planarity."""
+        inliers and planarity, and the frame counted ``solved`` (``res.counted``)."""
         est, n = out.camera_estimate, len(res.points2d)
         if est is None:
             raise Drop("estimator_error", out.error or "no estimate")
@@ -458,6 +457,7 @@ class LocalizerMode(ModeBase):
             text = f"{n} points, {est.num_inliers} inliers, solver {self.cfg.solver}"
             raise Drop(est.failure or "estimator_error", text)
         self._own.solved(est.num_inliers, est.planar, est.condition_number)
+        res.counted = ("solved",)
 
     def _not_taken(self, kind: str, item: DroppedFrame) -> None:
         """A rig camera's frame of a checked stamp its input stage dropped (the rig counts it
@@ -516,23 +516,22 @@ class LocalizerMode(ModeBase):
             failed = self.node.camera_counts[name].get(f"failed.{res.failure}")
             text = f"{self.node.inputs[name].label}frame dropped ({res.failure}): {res.detail}"
             return [FrameOutcome(None, res.fused, (LogLine(key, text, failed),))]
-        return [self._outcome(out, res) for out in res.outs]
+        return [self._outcome(out, res, rig_failure_line(self.rig, out)) for out in res.outs]
 
-    def _outcome(self, out: LocalizerOutput, res: CameraFrameResult | None = None
-                 ) -> FrameOutcome:  # fmt: skip
+    def _outcome(self, out: LocalizerOutput, res: CameraFrameResult | None = None,
+                 line: LogLine | None = None) -> FrameOutcome:  # fmt: skip
         """What a rig frame publishes (:func:`.outputs.frame_outcome`, the one of the node
-        and ``replay``): the fused twists it made final, its
-        :func:`.rig_node.rig_failure_line` (none for the camera alone: a frame it cannot pose
-        is dropped in the frame step) and, posed, its pose at the rig frame's time
-        (the camera alone's: its reference line's) with its own twist when that is final, in
-        the fused twists' frame (:attr:`_fused_in`: a rig's ``base_frame``; the camera
-        alone's optical frame, or with ``camera_to_base.*`` the robot's ``base_frame``), with
-        its cameras' views (:meth:`_views`; ``res``: the camera frame that completed it,
-        None: a rig frame closed at the end of the video)."""
-        line = rig_failure_line(self.rig, out)
-        log = () if line is None else (line,)
+        and ``replay``): the fused twists it made final, its log ``line`` (a camera frame's
+        rig frames: :func:`.rig_node.rig_failure_line`, none for the camera alone, whose frame
+        that cannot be posed is dropped in the frame step; none for the rig frames closed at
+        the end of the video) and, posed, its pose at the rig frame's time (the camera
+        alone's: its reference line's) with its own twist when that is final, in the fused
+        twists' frame (:attr:`_fused_in`: a rig's ``base_frame``; the camera alone's optical
+        frame, or with ``camera_to_base.*`` the robot's ``base_frame``), with its cameras'
+        views (:meth:`_views`; ``res``: the camera frame that completed it, None: a rig frame
+        closed at the end of the video)."""
         views = self._views(out, res) if out.success else ()
-        return frame_outcome(out, *self._fused_in, views, log)
+        return frame_outcome(out, *self._fused_in, views, () if line is None else (line,))
 
     def _views(self, out: LocalizerOutput, res: CameraFrameResult | None) -> tuple:
         """The cameras of a posed rig frame as their debug views draw them
@@ -571,8 +570,7 @@ class LocalizerMode(ModeBase):
         gyro samples kept (:meth:`Localizer.end_track`). None unconfigured."""
         if self.rig is None:
             return []
-        closed = [frame_outcome(out, *self._fused_in, self._views(out, None) if out.success
-                                else ()) for out in self.rig.close()]  # fmt: skip
+        closed = [self._outcome(out) for out in self.rig.close()]
         fused = self.rig.flush()
         if self.alone:  # (its clock and gyro kept: a stamp going back after it is a time reset)
             self.rig.end_track()

@@ -1,26 +1,13 @@
-"""The rig's part of ``rs_localizer_node``: one pose for a rig of rolling-shutter cameras.
-
-With ``rig.cameras`` set the node's one mode (:class:`~rs_localizer.ros.mode.LocalizerMode`)
-takes each camera's frames on its ``<c>/`` topics (``<c>/correspondences``,
-``<c>/keypoints`` with ``landmarks_file``, ``<c>/camera_info``, ``<c>/image_raw`` with a
-front end) through the same steps as the camera alone's (its configuration, input stage,
-frame step into one :class:`~rs_localizer.tracking.video.Localizer`, gyro input, warm-up,
-outputs and diagnostics builder) and publishes the rig, ``base_frame``, as one body; the
-topics, parameters, counts and diagnostics are in docs/rig_node.md. This module holds what
-only a rig of several cameras needs: its cameras' parameters (``rig.<c>.*``,
-:func:`declare_rig_cameras`, :func:`rig_values`), its cameras' inputs and counts with the
-frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
-:class:`SameRigFrame`: a full queue drops whole rig frames, counted ``<c>.skipped.queue_full``),
-the rig's ready line and log lines (:func:`rig_ready_subject`, :func:`rig_failure_line`: failed
-rig frames by reason, outvoted cameras), its cameras' debug views as the rig's pose and their
-mountings put them (:func:`rig_views`); its status comes from the one builder
-(:func:`.diagnostics.localizer_status_parts`: rig frames, a section per camera). Per camera
-``received = solved + failed + skipped + pending`` in every diagnostics snapshot (pending:
-waiting in the queue or in an open rig frame). A parameter change at run time takes the camera
-alone's path (:meth:`.core.NodeCore._on_set_parameters`): the rig's estimator, tracking and
-gyro, ``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait`` apply
-from the next rig frame on (:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when
-drawing, and the others are refused with why (:func:`.config.rig_change_refused`).
+"""What only a rig of several cameras needs in ``rs_localizer_node`` (``rig.cameras`` set; the
+node's one mode, :class:`~rs_localizer.ros.mode.LocalizerMode`, takes each camera's frames on
+its ``<c>/`` topics through the camera alone's steps and publishes the rig, ``base_frame``, as
+one body; topics, parameters, counts and diagnostics: docs/rig_node.md): its cameras'
+parameters (``rig.<c>.*``, :func:`declare_rig_cameras`, :func:`rig_values`; a change at run
+time is refused for those a rig cannot take without a restart), its cameras' inputs and counts
+with the frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
+:class:`SameRigFrame`: a full queue drops whole rig frames), its ready line and log lines
+(:func:`rig_ready_subject`, :func:`rig_failure_line`) and its cameras' debug views
+(:func:`rig_views`).
 """
 
 from __future__ import annotations
@@ -65,15 +52,6 @@ RIG_TEXTS = {
     ),
     "mode_note": ", rig mode",
 }
-
-INPUT_SKIP_REASONS = {
-    "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
-    "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
-    "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
-}
-"""The node's reasons for a camera frame dropped before it reaches the rig (counted
-``<c>.skipped.<reason>``, beside the rig's own
-:data:`~rs_localizer.tracking.video.SKIP_REASONS`)."""
 
 
 def declare_rig_cameras(node: Any) -> list[str]:
@@ -137,12 +115,8 @@ def new_rig_cameras(node: Any, config: LocalizerConfig) -> tuple[Localizer, Came
     log = ThrottledLog(node.get_logger(), period=5.0)
     rig = Localizer(config.settings, log=log, implementation=ready_implementation)
     counts = {c.name: CameraCounts(c.name) for c in config.cameras}
-
-    def count(name: str, key: str, n: int = 1) -> None:
-        node.camera_counts[name].add(key, n)
-
-    inputs = rig_camera_inputs(config, log, count, stopped=node.stopping,
-                               wait=config.camera_info_wait)  # fmt: skip
+    inputs = rig_camera_inputs(config, log, lambda n, key, k=1: counts[n].add(key, k),
+                               stopped=node.stopping, wait=config.camera_info_wait)  # fmt: skip
     grouping = SameRigFrame(config.settings, inputs)
     node.set_cameras(inputs, counts, log, grouping, "rs_localizer_rig_worker")
     return rig, CameraCounts(), grouping
@@ -176,18 +150,12 @@ class SameRigFrame:
 
 def rig_ready_subject(cfg: LocalizerConfig, map_frame: str) -> str:
     """The subject of the rig's ``ready:`` line: its cameras' RS timing, its frames."""
-    timing = []
-    for c in cfg.cameras:
-        t = (
-            f"readout {c.readout_time * 1e3:.2f} ms"
-            if c.readout_time > 0
-            else f"line delay {c.line_delay * 1e6:.2f} us/line"
-        )
-        timing.append(f"{c.name} {t} {c.direction}")
-    return (
-        f"rig of {len(cfg.cameras)} cameras ({'; '.join(timing)}) posed as "
-        f"{cfg.base_frame} in {map_frame}"
-    )
+    timing = "; ".join(
+        f"{c.name} readout {c.readout_time * 1e3:.2f} ms {c.direction}" if c.readout_time > 0
+        else f"{c.name} line delay {c.line_delay * 1e6:.2f} us/line {c.direction}"
+        for c in cfg.cameras
+    )  # fmt: skip
+    return f"rig of {len(cfg.cameras)} cameras ({timing}) posed as {cfg.base_frame} in {map_frame}"
 
 
 def rig_failure_line(rig: Localizer, out: LocalizerOutput) -> LogLine | None:

@@ -25,20 +25,14 @@ disagrees with.
   (:meth:`RigGrouping.clock_offsets`, a warning); its stamps are not shifted (stamps alone give
   an offset only up to the frame period and cannot tell a clock error from cameras out of phase
   by design): its frames are posed alone only where the track agrees.
-- :func:`refusal`, the rule by which a rig frame posed from one camera's points alone while
-  other cameras run is refused (:data:`~rs_localizer.estimation.result.RIG_REFUSALS`): when the
-  track contradicts it (``contradicts_track``; a tag of a second camera that the pose explains,
-  :data:`CONFIRM_MIN_INLIERS`, makes it two), or when there is no track and two or more other
-  cameras run (``unconfirmed``).
-
-A rig frame's views are the tracker path's estimator as a camera's view is
-(:class:`~rs_localizer.tracking.tracker.FrameViews`).
+- :func:`refusal`, why a rig frame posed from one camera's points alone while other cameras
+  run is refused (``contradicts_track``, ``unconfirmed``).
 """
 
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -68,6 +62,7 @@ __all__ = [
     "OpenRigFrame",
     "RigGrouping",
     "alone_deg",
+    "offsets_text",
     "refusal",
 ]
 
@@ -252,18 +247,14 @@ class RigGrouping:
             return
         stop_ns = stop_after * 1e9
         for cam in self.cams.values():
-            last = cam.newest if cam.newest is not None else self.first
+            gap = now - (cam.newest if cam.newest is not None else self.first)
             # (stop_after first: the camera's own intervals only lengthen it)
-            if (
-                not cam.stopped
-                and now - last > stop_ns
-                and now - last > self.stop_ns(cam, stop_after)
-            ):
+            if not cam.stopped and gap > stop_ns and gap > self.stop_ns(cam, stop_after):
                 cam.stopped = True
                 self.counts[f"{cam.name}.stopped"] += 1
                 self.log.warning(
                     "rig.stopped",
-                    f"rig camera {cam.name!r}: no frame for {(now - last) * 1e-9:.2f} s "
+                    f"rig camera {cam.name!r}: no frame for {gap * 1e-9:.2f} s "
                     "(stop_after): the rig runs on the other cameras",
                 )
         window_ns = int(round(window * 1e9))
@@ -413,17 +404,14 @@ class CameraAgreement:
         last :data:`APART_HISTORY`."""
         alone = len(cameras) == 1 and "apart" in missing.values()
         for n, cam in self.cams.items():
-            if n in cameras:
-                cam.apart_flags.append(alone)
-            elif missing.get(n) == "apart":
-                cam.apart_flags.append(True)
-            else:
+            if n not in cameras and missing.get(n) != "apart":
                 continue
+            cam.apart_flags.append(alone or n not in cameras)
             f = cam.apart_flags
             apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
             if apart and not cam.apart:
                 self.counts[f"{n}.apart"] += 1
-                text = _offsets_text(self.frames.clock_offsets(n))
+                text = offsets_text(self.frames.clock_offsets(n))
                 self.log.warning(
                     f"rig.apart.{n}",
                     f"rig camera {n!r}: its frames never join the others' (window "
@@ -455,10 +443,8 @@ class CameraAgreement:
         for k, n in enumerate(names):
             cam = self.cams[n]
             pts = int(n_pts[k])
-            if pts < s.disagree_min_points:
-                continue
             others_pts = int(n_pts.sum()) - pts
-            if others_pts < s.disagree_min_points:
+            if min(pts, others_pts) < s.disagree_min_points:
                 continue
             others = (int(n_in.sum()) - int(n_in[k])) / others_pts
             cam.flags.append(bool(n_in[k] / pts < s.disagree_ratio * others))
@@ -495,7 +481,7 @@ class CameraAgreement:
                 f"rig camera {n!r} disagrees with the others: {fit} of its {pts} "
                 f"points fit the rig's pose ({100 * others:.0f} % of the others')"
                 f"{alone}: its mounting is likely wrong (or its matches are, or its "
-                f"clock: its stamps are {_offsets_text(self.frames.clock_offsets(n))})"
+                f"clock: its stamps are {offsets_text(self.frames.clock_offsets(n))})"
             )
         return (
             f"rig cameras {n!r} and {p!r} disagree: {fit} of the {pts} points "
@@ -507,9 +493,15 @@ class CameraAgreement:
         )  # fmt: skip
 
 
-def _offsets_text(offsets: dict) -> str:
-    """Apparent clock offsets (other camera -> s) as ``+12.7 ms from 'front''s, ...``."""
-    return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
+def offsets_text(offsets: Mapping[str, float], quoted: bool = True, unknown: str = "unknown"
+                 ) -> str:  # fmt: skip
+    """A camera's apparent clock offsets (other camera -> s, :meth:`RigGrouping.clock_offsets`)
+    as a log line says them, ``+12.7 ms from 'front''s, ...``, or (``quoted`` False) as the
+    node's diagnostics do, ``+12.7 ms from front, ...``; ``unknown`` without any."""
+    name = "{!r}'s" if quoted else "{}"
+    return (
+        ", ".join(f"{1e3 * v:+.1f} ms from {name.format(m)}" for m, v in offsets.items()) or unknown
+    )
 
 
 def alone_deg(view: View, est: RSPoseEstimate, implementation: str | None = None) -> float | None:

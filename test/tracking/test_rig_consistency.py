@@ -6,6 +6,7 @@ rig frame of one camera the track contradicts), against the rig's true trajector
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +17,8 @@ from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.trajectory import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.localizer import CameraFrame
 from rs_localizer.tracking.video import RIG_REFUSALS, Localizer, LocalizerSettings
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def run(frames, cams, mounts=None, shift=None, log=None):
@@ -81,6 +84,24 @@ def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, off
         assert len(text) == 1 and "'left'" in text[0] and "clock" in text[0], text
         assert rig.counts["rig.failed.contradicts_track"] >= 15
         assert "contradicts_track" in RIG_REFUSALS
+
+
+def test_the_clock_offsets_text_of_the_log_and_of_the_diagnostics_is_the_docs_one():
+    """One text of a camera's apparent clock offsets (``offsets_text``): the rig's log line's
+    and the node's diagnostics warning's as docs/rig_node.md shows them, and what each says
+    without offsets."""
+    from rs_localizer.tracking.rig import offsets_text
+
+    offsets = {"front": 0.0155, "right": 0.0055}
+    doc = " ".join((ROOT / "docs" / "rig_node.md").read_text().split())
+    log = offsets_text(offsets)
+    assert log == "+15.5 ms from 'front''s, +5.5 ms from 'right''s"
+    assert f"others' (window 15 ms): stamps {log} (median of nearest stamps)" in doc
+    status = offsets_text(offsets, quoted=False, unknown="offset unknown")
+    assert f"frames never join the others' ({status}): clock likely off" in doc
+    assert offsets_text({}) == "unknown"
+    assert offsets_text({}, quoted=False, unknown="offset unknown") == "offset unknown"
+    assert offsets_text({"b": -0.00125}, quoted=False) == "-1.2 ms from b"
 
 
 #: videos of the +5 ms case (generate_rig_video's seeds)
