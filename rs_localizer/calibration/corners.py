@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import LinAlgWarning
 from scipy.optimize import least_squares
-from scipy.sparse import bsr_matrix, coo_matrix, csr_matrix, hstack, kron
+from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
 from ..geometry import rotvec_to_matrix
 
@@ -337,16 +337,11 @@ class RigCorners:
         self.keep = np.isfinite(self.errors(x0)).all(axis=1)
         if not self.keep.any():
             return None
-        if loss == "soft_l1":
-            res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(), loss="soft_l1",
-                                f_scale=f_scale, x_scale="jac", method="trf", tr_solver="lsmr",
-                                ftol=ftol, xtol=xtol, max_nfev=max_nfev,
-                                verbose=verbose)  # fmt: skip
-        else:
-            res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(),
-                                x_scale="jac", method="trf", tr_solver="lsmr", ftol=ftol,
-                                xtol=xtol, max_nfev=max_nfev, verbose=verbose,
-                                kwargs={"corner_scale": f_scale})  # fmt: skip
+        robust = {"loss": "soft_l1", "f_scale": f_scale} if loss == "soft_l1" else {
+            "kwargs": {"corner_scale": f_scale}}  # fmt: skip
+        res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(), x_scale="jac",
+                            method="trf", tr_solver="lsmr", ftol=ftol, xtol=xtol,
+                            max_nfev=max_nfev, verbose=verbose, **robust)  # fmt: skip
         rig, mounts, tags = self.unpack(res.x)
         return CornerSolution(rig, mounts, tags, self.keep.copy(), res)
 
@@ -355,26 +350,17 @@ class RigCorners:
     ) -> np.ndarray | tuple:
         """(F, 6, 6): each free mounting's covariance over (rotation [rad, rig axes], position
         [m, rig frame]; ``parameters="rig"``) at ``sol``, the rig poses marginalized (the Schur
-        complement of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
-        ``least_squares`` returns; the free tags, if any, are held at the solution).
-
-        ``clusters`` None: ``s^2 [H^-1]_mm`` with ``s^2 = 2 cost / (2 K - n)`` (the residuals'
-        variance, ``cost`` the robust cost), as if every corner's error were independent.
-        ``clusters`` (N,) int, each corner's group: the errors of a group's corners taken as
-        correlated, groups as independent (the cluster-robust "sandwich" covariance
-        ``S^-1 (sum_c u_c u_c^T) S^-1`` with ``u_c`` the group's corners' gradient of the
-        cost on the mountings, the rig poses' part projected out), so corners that share an
-        error, e.g. a tag map's or a camera model's, count once per group.
-
-        With ``motion``, the time offsets are estimated with the mountings (their covariance
-        is part of the mountings'); ``offsets``: also return their standard deviations (D,) s,
-        as ``(covariances, std)``, and with ``clusters`` also the variance (D,) s^2 of one
-        group's time offset about the solution's, ``(covariances, std, scatter)``: each
-        group's own estimate of each offset (one Gauss-Newton step on it alone from the
-        solution, the rig poses marginalized: its gradient over its information in that
-        group) scattered about the solution weighted by its information, times ``C / (C -
-        1)`` for ``C`` groups; a camera whose exposures drift against the reference's shows
-        a scatter its mean offset does not fix.
+        complement ``S`` of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
+        ``least_squares`` returns; the free tags, if any, held at the solution).
+        ``clusters`` None: ``s^2 S^-1`` with ``s^2 = 2 cost / (2 K - n)``, every corner's error
+        independent; ``clusters`` (N,) int, each corner's group: the cluster-robust "sandwich"
+        ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
+        mountings, the rig poses' part projected out), so corners that share an error (a tag
+        map's, a camera model's) count once per group. ``offsets`` (with ``motion``): also
+        the time offsets' standard deviations (D,) s, ``(covariances, std)``, and with
+        ``clusters`` the variance (D,) s^2 of one group's own offset (one Gauss-Newton step
+        from the solution) about the solution's, weighted by its information, times ``C / (C
+        - 1)``: ``(covariances, std, scatter)`` (exposures that drift against the reference's).
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -386,12 +372,13 @@ class RigCorners:
         k, mc = 6 * self.G, 6 * self.F + self.D
         lo = 6 * (self.G + self.T)
         Jg, Jm = J[:, :k], J[:, lo : lo + mc]
-        Hgg = bsr_matrix((Jg.T @ Jg).tocsr(), blocksize=(6, 6))
+        # (a corner's two rows touch its rig frame's block alone: H_gg is block diagonal)
+        g = np.repeat(self.frame[self.keep], 2)
+        coo = Jg.tocoo()
+        Jgd = np.zeros((len(r), 6))
+        np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
         blocks = np.zeros((self.G, 6, 6))
-        for i in range(self.G):
-            for j in range(Hgg.indptr[i], Hgg.indptr[i + 1]):
-                if Hgg.indices[j] == i:
-                    blocks[i] = Hgg.data[j]
+        np.add.at(blocks, g, Jgd[:, :, None] * Jgd[:, None, :])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LinAlgWarning)
             inv = np.linalg.pinv(blocks)
@@ -404,11 +391,7 @@ class RigCorners:
             C = s2 * Sinv
         else:
             # each corner's gradient on the mountings with the rig poses' part projected out:
-            # J_m - J_g H_gg^-1 H_gm, row by row (2 rows a corner, its rig frame's block)
-            g = np.repeat(self.frame[self.keep], 2)
-            coo = Jg.tocoo()
-            Jgd = np.zeros((len(r), 6))
-            np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
+            # J_m - J_g H_gg^-1 H_gm, row by row
             A = Jm.toarray() - np.einsum("ri,rik->rk", Jgd, W[g])
             c = np.repeat(np.asarray(clusters)[self.keep], 2)
             _, ci = np.unique(c, return_inverse=True)
