@@ -42,25 +42,20 @@ class MountingEstimate:
 
     Attributes:
         name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
-            x_rig + c``) with its ``covariance`` (step 5; None for the reference camera,
-            whose mounting is given).
-        frames: rig frames the camera's pose entered the adjustment with (rig frames with at
-            least two cameras); rejected: its camera frames left out as outliers.
-        std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
-            its three axes) and of the camera's position on the rig (mm, norm), from
-            ``mount.covariance``; zero for the reference camera.
+            x_rig + c``) with its ``covariance`` (step 5; None for the reference camera).
+        frames: rig frames the camera's pose entered the adjustment with; rejected: its camera
+            frames left out as outliers.
+        std_deg, std_mm: standard deviation of the mounting's rotation (deg) and position (mm),
+            norms over the three axes, from ``mount.covariance``; zero for the reference.
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
-        time_offset: s added to the camera's stamps to put its frames on the rig's clock (the
-            reference camera's: as given): the one it was calibrated with, or the estimate.
-        time_offset_std: s, that estimate's standard deviation; NaN: not estimated (given,
-            or the reference camera's).
+        time_offset: s added to the camera's stamps (the given one, or the estimate);
+            time_offset_std: s, the estimate's standard deviation (NaN: not estimated).
         corners_refined: the mounting was refined on the corners (step 4).
-        exposure_offset: s, the camera's time offset the pose-level adjustment shows when
-            the cameras do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
-        corner_misfit: the squared step from the pose-level to the refined mountings in
-            the pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`;
-            the same for every camera of the rig); NaN when not refined.
-    """
+        exposure_offset: s, the time offset the pose-level adjustment shows when the cameras
+            do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
+        corner_misfit: the squared step from the pose-level to the refined mountings in the
+            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one for
+            the rig); NaN when not refined."""
 
     name: str
     mount: Mounting
@@ -87,11 +82,9 @@ TIME_OFFSET_ROUNDS = 4
 #: std then says it was not seen
 TIME_OFFSET_PRIOR = 1.0
 
-#: a camera whose time offset, estimated as with ``estimate_time_offsets`` (one adjustment),
-#: is beyond 3 of its std and moves a corner by more than this share of the RANSAC threshold
-#: at the rig's median angular speed (its frames' twist; the camera's mean focal length) does
-#: not expose with the reference: the refinement on the corners then adjusts a time offset per
-#: camera, else its mountings would take up the rig's motion between the exposures
+#: a camera whose time offset moves a corner by more than this share of the RANSAC threshold
+#: does not expose with the reference (:func:`_exposed_apart`): the refinement on the corners
+#: then adjusts a time offset per camera, else the mountings would take up the rig's motion
 EXPOSED_APART_SHARE = 0.25
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
@@ -118,9 +111,8 @@ CORNER_BLOCKS = 10
 
 def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
     """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
-    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
-    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
-    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
+    time order by batch means (neighbouring frames share slow errors): the scatter of the means
+    of ``blocks`` consecutive runs; 0 with fewer than 2 frames per block."""
     n = len(d)
     k = min(blocks, n // 2)
     if k < 2:
@@ -130,12 +122,12 @@ def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
 
 
 def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
-    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
-    those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
-    ``(t ns on the rig's clock, orientation (3, 3) camera -> world, position (3,) m, angular
-    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12), its inlier
-    corners ``(pixels (K, 2), map points (K, 3) m, camera model)``)`` in time order (``t``: the
-    reference line's capture time plus the camera's ``given`` offset, s)."""
+    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`,
+    step 1), those with at least ``min_inliers`` inliers and a finite covariance: camera -> list
+    of ``(t ns on the rig's clock (plus the camera's ``given`` offset), orientation (3, 3) camera
+    -> world, position (3,) m, angular rad/s and linear m/s velocity (3,) in camera axes,
+    covariance (12, 12), inlier corners (pixels (K, 2), map points (K, 3) m, camera model))``
+    in time order."""
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
@@ -159,15 +151,12 @@ def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float,
 
 def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: float):
     """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
-    carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s): the
-    constant twist between its own two frames around ``t_r`` (interpolated poses), or its
-    frame's own twist when it has no frame on the other side within ``max_step`` s. Also the
-    camera's motion there in world axes, ``(angular rad/s, linear m/s)``: the pose's rate of
-    change with the camera's time, between its frames before and after the nearest one (its
-    own pose's error left out: a twist differenced from it would correlate with that error),
-    else between its nearest frame and the next or previous one within ``max_step`` (a
-    global-shutter frame has no twist of its own), else its frame's own twist. Last, that
-    frame's index in ``items``."""
+    carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s), at the
+    constant twist between its own two frames around ``t_r`` (else its frame's own twist; frames
+    at most ``max_step`` s apart); its motion there in world axes (angular rad/s, linear m/s),
+    differenced between its frames before and after the nearest one (not from that frame's own
+    pose, whose error it would share) or next to it, else its frame's own twist; the frame's
+    index in ``items``."""
     k = int(np.argmin(np.abs(times - t_r)))
     dt = (t_r - times[k]) * 1e-9
     if abs(dt) > window:
@@ -196,11 +185,9 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
 
 
 def _rig_frames(poses: dict, window: float, max_step: float) -> list:
-    """The rig frames of cameras posed alone (step 2): every camera frame's time, in order,
-    starts a rig frame unless within ``window`` of the current one's start; per rig frame,
-    each camera with a frame within ``window`` carried to the start (:func:`_carried`).
-    Returns a list of ``(t_ns, {camera: (O, p, cov, twist, frame index)})`` with at least two
-    cameras."""
+    """The rig frames (step 2): every camera frame's time, in order, starts one unless within
+    ``window`` of the current one's start; each camera with a frame within ``window`` carried to
+    it (:func:`_carried`). Returns ``[(t_ns, {camera: _carried's tuple})]``, two cameras or more."""
     stamps = sorted(t for items in poses.values() for t, *_ in items)
     times = {n: np.array([i[0] for i in items]) for n, items in poses.items() if items}
     out, start = [], None
@@ -257,10 +244,10 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
 
 
 class _Fit(NamedTuple):
-    """One pose-level adjustment (:func:`_adjust`). Per observation (a camera frame in a rig
-    frame used; m of them): ``gi`` its rig pose, ``g`` its rig frame (an index into the rig
-    frames), ``cam`` its camera, ``O`` (m, 3, 3) camera -> world and ``p`` (m, 3) m its pose,
-    ``W`` (m, 6, 6) its whitening, ``w`` rad/s and ``v`` m/s (m, 3) its twist (world axes)."""
+    """One pose-level adjustment (:func:`_adjust`); per observation (a camera frame in a rig
+    frame, m of them) its rig pose ``gi``, rig frame ``g`` (an index into the rig frames),
+    camera, pose ``O`` (m, 3, 3) camera -> world and ``p`` (m, 3) m, whitening ``W`` (m, 6, 6)
+    and twist ``w`` rad/s, ``v`` m/s (m, 3) in world axes."""
 
     mounts: dict  # camera -> (camera -> rig rotation, position m), every adjusted camera's
     J: Any  # the whitened Jacobian (sparse; columns: rig poses, mountings, 6 each, offsets)
@@ -291,11 +278,10 @@ class _Fit(NamedTuple):
 
 
 def _whitening(rig_frames: list) -> dict:
-    """Per camera, the inverse Cholesky factor of its frames' typical pose covariance (the
-    mean of those within 3 times the median trace) in its own axes (``block_diag(R_wc^T,
-    R_wc^T)``: world -> camera axes), as the depth direction turns with the camera (on
-    make-bag --rig 3 --frames 300 --points 300 world axes gave 0.57/0.98 mm against the truth,
-    camera axes 0.40/0.39 mm); cameras whose covariance is singular are missing."""
+    """Per camera, the inverse Cholesky factor of its frames' typical pose covariance (the mean
+    of those within 3 times the median trace) in its own axes, as the depth direction turns with
+    the camera (make-bag --rig 3 --frames 300 --points 300: world axes 0.57/0.98 mm against the
+    truth, camera axes 0.40/0.39 mm); a camera whose covariance is singular is missing."""
     covs: dict = {}
     for _, seen in rig_frames:
         for n, (R_wc, _, c6, *_) in seen.items():
@@ -314,14 +300,12 @@ def _whitening(rig_frames: list) -> dict:
 
 
 def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(), offsets=False):
-    """One least-squares adjustment (step 4; SciPy ``least_squares``, sparse Jacobian) of
-    every rig frame's pose and every non-reference camera's mounting (``mounts``, the start)
-    to the cameras' poses posed alone, each camera's pose errors whitened by
-    :func:`_whitening` scaled to the size of each frame's own covariance; camera frames in
-    ``outlier`` ((rig frame, camera) pairs) and cameras no longer connected to the reference
-    left out. ``offsets``: each free camera's time offset (s) adjusted too, to first order
-    (its frames' poses moved along their twist), with a weak prior at 0
-    (:data:`TIME_OFFSET_PRIOR`). Returns a :class:`_Fit`."""
+    """One least-squares adjustment (step 4; SciPy ``least_squares``, sparse Jacobian) of every
+    rig frame's pose and every non-reference mounting (from ``mounts``) to the cameras' poses,
+    each camera's errors whitened (:func:`_whitening`, scaled to each frame's covariance), the
+    camera frames in ``outlier`` ((rig frame, camera)) and cameras cut off from the reference
+    left out; ``offsets``: a time offset per free camera too (s, first order along the twist;
+    prior :data:`TIME_OFFSET_PRIOR`). Returns a :class:`_Fit`."""
     whiten = _whitening(rig_frames)
     use = []
     for g, (_, seen) in enumerate(rig_frames):
@@ -397,12 +381,10 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
 
 
 def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
-    """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
-    [m, rig frame]) from the adjustment ``fit`` (step 5): ``s^2 H^-1`` (``H = J^T J``)
-    inflated by the batch means of :func:`_std_of_mean`, plus each camera's bias
-    (:data:`MOUNTING_BIAS_SHARE` of its per-axis scatter in its own axes) propagated through
-    the adjustment to first order. Also each free camera's time offset's std (s) when the
-    adjustment had them, inflated alike. NaN where ``H`` is singular."""
+    """Each free camera's mounting covariance (6, 6) (rotation rad, rig axes; position m)
+    from the adjustment ``fit`` (step 5): ``s^2 H^-1`` inflated by :func:`_std_of_mean`, plus
+    each camera's bias (:data:`MOUNTING_BIAS_SHARE` of its scatter in its own axes) propagated
+    to first order; and each time offset's std (s, inflated alike). NaN where ``H`` is singular."""
     J, r, cam, free = fit.J, fit.r, fit.cam, fit.free
     n, k, mc = J.shape[1], 6 * len(fit.rig[0]), 6 * len(free)  # (rig, mountings, offsets)
     s2 = float(np.sum(r * r)) / max(6 * len(r) - n, 1)
@@ -439,12 +421,10 @@ def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
 
 
 def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float) -> tuple:
-    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position
-    m): of the rig poses its camera frames give through their mountings (``seen``: camera ->
-    :func:`_carried`'s tuple; ``every``: camera -> :func:`_posed_alone`'s items), the one
-    whose projections of all its cameras' corners miss least (the sum of each corner's squared
-    error in px, capped at ``(4 scale)^2``: a camera frame posed wrongly, e.g. one tag's
-    mirrored pose, costs its corners the cap)."""
+    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position m):
+    of the rig poses its camera frames give through their mountings, the one whose projections
+    of all its corners miss least (squared px each, capped at ``(4 scale)^2``: a frame posed
+    wrongly, e.g. a tag's mirrored pose, costs its corners the cap)."""
     best, out = np.inf, None
     for n in known:
         O_t, p_t = seen[n][:2]
@@ -473,29 +453,16 @@ class _Refined(NamedTuple):
 
 
 def _refine_on_corners(
-    rig_frames: list,
-    every: dict,
-    fit: _Fit,
-    mounts: dict,
-    reference: str,
-    scale: float,
-    window: float,
-    max_step: float,
-    timed: bool = False,
-    warm: dict | None = None,
+    rig_frames, every, fit, mounts, reference, scale, window, max_step, timed=False, warm=None
 ) -> _Refined | None:
-    """The mountings refined on the corners (step 4): the pose of every rig frame with two or
-    more cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners
-    of ``every`` camera frame posed alone (:func:`_posed_alone`'s items, those with few
-    inliers too; grouped into rig frames as :func:`_rig_frames` does) by
-    :class:`~rs_localizer.calibration.corners.RigCorners` (SciPy's ``soft_l1`` at ``scale``
-    px). A rig frame starts at ``warm``'s pose (rig frame time ns -> rig pose of a previous
-    solve), else at the pose-level adjustment ``fit``'s pose of the rig frame of the same time
-    (one of ``rig_frames``), else at :func:`_rig_start`'s. A camera frame carried to its rig
-    frame's time (:func:`_carried`) keeps its pose relative to the carried one. ``timed``:
-    each free camera's time offset adjusted too, from 0 (``RigCorners`` ``motion``; the free
-    cameras in the order of ``mounts``). Global-shutter cameras only (a rolling-shutter
-    corner's time is not modelled). None when no corner projects."""
+    """The mountings refined on the corners (step 4): every rig frame's pose (two or more
+    cameras in ``mounts``) and every free mounting adjusted to the inlier corners of ``every``
+    camera frame posed alone (:func:`_posed_alone`, few inliers too; grouped as
+    :func:`_rig_frames` does) by :class:`~rs_localizer.calibration.corners.RigCorners`
+    (``soft_l1`` at ``scale`` px), each camera frame at its pose relative to the one carried to
+    its rig frame's time. A rig frame starts at ``warm``'s pose (time ns -> rig pose), else
+    ``fit``'s, else :func:`_rig_start`'s. ``timed``: a time offset per free camera too.
+    Global-shutter cameras only. None when no corner projects."""
     free = [n for n in mounts if n != reference]
     names = list(mounts)
     start_at = {rig_frames[g][0]: (fit.rig[0][i], fit.rig[1][i])
@@ -538,19 +505,16 @@ def _refine_on_corners(
     return _Refined({n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, times)
 
 
-def _corner_covariance(
-    refined: _Refined, start: dict, reference: str, pose_cov: dict
-) -> tuple[dict, float, dict, dict]:
-    """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
-    rig frame]), step 5: the corners' solve's
-    (:meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`, the rig poses
-    marginalized, :data:`CORNER_BLOCKS` runs of consecutive rig frames as groups, times ``B /
-    (B - 1)``) plus ``(misfit - 1) pose_cov``: ``misfit`` (returned, at least
-    :data:`MISFIT_FLOOR`) is the squared step from the pose-level mountings ``start`` to the
-    refined ones in their covariance ``pose_cov`` per degree of freedom over all cameras.
-    With time offsets also each free camera's offset's std (camera -> s) and one run's
-    offset's variance about it plus the offset's own (camera -> s^2); without, two empty
-    dicts."""
+def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov: dict) -> tuple:
+    """Each refined mounting's covariance (6, 6) (step 5): the corners' solve's
+    (:meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`, runs of rig
+    frames as :data:`CORNER_BLOCKS` groups, times ``B / (B - 1)``) plus ``(misfit - 1)
+    pose_cov``, ``misfit`` the squared step from the pose-level mountings ``start`` (covariance
+    ``pose_cov``) per degree of freedom (at least :data:`MISFIT_FLOOR`); with time offsets
+    plus one run's offset variance about the offset and the offset's own times the mean of
+    ``a a^T`` over the camera's corners, ``a`` its twist in rig axes (an exposure ``dt`` later
+    moves the camera on the rig by ``dt a``). Returns ``(covariances, misfit, camera -> time
+    offset std s ({} without))``."""
     problem, sol = refined.problem, refined.sol
     free = [n for n in refined.mounts if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
@@ -572,31 +536,20 @@ def _corner_covariance(
         m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
-    return cov, misfit, dt_std, scatter
-
-
-def _motion_moment(refined: _Refined, index: int) -> np.ndarray:
-    """(6, 6): the mean over the corners of time offset ``index`` of ``a a^T``, ``a`` its
-    camera's twist in rig axes (angular rad/s, linear m/s): a time offset ``dt`` moves the
-    camera on the rig by ``dt a``, so a variance ``s2`` of it adds ``s2`` times this to the
-    mounting's covariance (the axes of :attr:`~rs_localizer.frames.Mounting.covariance`)."""
-    problem = refined.problem
-    k, w, v = problem.motion
-    mine = k == index
-    if not mine.any():
-        return np.zeros((6, 6))
-    Rg = refined.sol.rig[0][problem.frame[mine]]
-    a = np.concatenate([np.einsum("nji,nj->ni", Rg, w[mine]), np.einsum("nji,nj->ni", Rg, v[mine])],
-                       axis=1)  # fmt: skip
-    return a.T @ a / len(a)
+    for i, n in enumerate(scatter):
+        mine = problem.motion[0] == i
+        if mine.any():
+            Rg, w, v = sol.rig[0][problem.frame[mine]], *(a[mine] for a in problem.motion[1:])
+            a = np.concatenate([np.einsum("nji,nj->ni", Rg, w), np.einsum("nji,nj->ni", Rg, v)], 1)
+            cov[n] = cov[n] + scatter[n] * (a.T @ a / len(a))
+    return cov, misfit, dt_std
 
 
 def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: float) -> tuple:
-    """The cameras that do not expose with the reference: camera -> its time offset (s), those
-    the pose-level adjustment with a time offset per camera (started at ``fit``'s mountings,
-    the camera frames in ``bad`` left out) finds beyond 3 of its std and moving a corner by
-    more than :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median angular speed times
-    the camera's mean focal length (px). Also that adjustment's mountings and covariance."""
+    """The cameras that do not expose with the reference (camera -> time offset s): those whose
+    offset in an adjustment with offsets (from ``fit``, ``bad`` left out) is beyond 3 std and
+    moves a corner by more than :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median
+    angular speed; also that adjustment's mountings and covariance."""
     timed = _adjust(rig_frames, fit.mounts, reference, bad, True)
     cov, std = _mounting_covariance(timed)
     speed = np.linalg.norm(timed.w, axis=1)
@@ -610,13 +563,10 @@ def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: f
 
 
 def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -> tuple:
-    """The pose-level adjustment (step 4): :func:`_adjust`, then again without the camera
-    frames that contradict the others; with ``timed`` (``estimate_time_offsets``) the camera
-    frames regrouped at the offsets the video shows (beyond 3 std; ``poses`` shifted in
-    place) and all run again until they change by less than :data:`TIME_OFFSET_TOL`, at most
-    :data:`TIME_OFFSET_ROUNDS` times. Returns ``(the last adjustment, its covariance and
-    offsets' std (:func:`_mounting_covariance`), the outliers, the rig frames, camera -> the
-    offsets regrouped at (s))``."""
+    """The pose-level adjustment (step 4), again without the outliers; with ``timed`` the frames
+    regrouped at the offsets found (beyond 3 std; ``poses`` shifted in place) until they change
+    by less than :data:`TIME_OFFSET_TOL` (:data:`TIME_OFFSET_ROUNDS` at most). Returns ``(fit,
+    (covariances, offsets' std), outliers, rig frames, camera -> offset regrouped at s)``."""
     shifted = {n: 0.0 for n in poses}
     rounds = TIME_OFFSET_ROUNDS if timed else 1
     for k in range(rounds):
@@ -642,13 +592,10 @@ def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -
 
 
 def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, max_step):
-    """The refinement on the corners (steps 4 and 5) after the pose-level adjustment ``fit``
-    (its covariance ``cov``, outliers ``bad``): with the cameras that expose apart
-    (:func:`_exposed_apart`) a time offset per camera, the camera frames regrouped at the
-    offsets found and solved again from the solution until they change by less than
-    :data:`TIME_OFFSET_TOL` (at most :data:`TIME_OFFSET_ROUNDS` solves). Returns ``(the
-    cameras apart (camera -> s), None or (mountings, covariances, misfit, camera -> time
-    offset s, camera -> its std s))``; ``every`` shifted in place."""
+    """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
+    that expose apart a time offset each, the frames regrouped at the offsets found (``every``
+    shifted in place) and solved again until they change by less than :data:`TIME_OFFSET_TOL`.
+    Returns ``(cameras apart, None or (mountings, covariances, misfit, offsets, their std))``."""
     apart, timed, timed_cov = _exposed_apart(rig_frames, poses, fit, reference, bad, px)
     args = (rig_frames, every, fit, fit.mounts, reference, px, window, max_step, bool(apart))
     corners = _refine_on_corners(*args)
@@ -670,14 +617,9 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, 
         return apart, None
     # (the two estimates compared alike: with a time offset per camera or without)
     start, start_cov = (timed, timed_cov) if apart else (fit.mounts, cov)
-    cov, misfit, dt_std, spread = _corner_covariance(corners, start, reference, start_cov)
-    dts = {}
-    if apart:
-        dt = corners.problem.time_offsets(corners.sol.result.x)
-        dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
-        # (a rig frame's exposure off the offset moves the camera on the rig)
-        for i, n in enumerate(dt_std):
-            cov[n] = cov[n] + spread[n] * _motion_moment(corners, i)
+    cov, misfit, dt_std = _corner_covariance(corners, start, reference, start_cov)
+    dt = corners.problem.time_offsets(corners.sol.result.x)
+    dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
     return apart, (corners.mounts, cov, misfit, dts, dt_std)
 
 
@@ -696,21 +638,18 @@ def calibrate_mountings(
 ) -> dict:
     """Every camera's mounting on the rig from a video of a known map, adjusted jointly, each
     with its covariance (docs/rig_node.md, "Mountings from data", has each step and its
-    measurements): each camera frame posed alone
-    (:func:`~rs_localizer.estimation.estimate_rs_pose`), grouped into rig frames; the
-    mountings started from the cameras' relative poses chained from the reference over the
-    cameras that share rig frames (a ring or a chain of cameras is calibrated), then every rig
-    frame's pose and every mounting adjusted in one least-squares problem (SciPy
-    ``least_squares``), outliers left out. When every camera reads out at once (global
-    shutter) and no time offset is estimated, the mountings are then refined on the corners
-    of every camera frame posed alone, with a time offset per camera when the cameras do not
-    expose together (:data:`EXPOSED_APART_SHARE`).
+    measurements): each camera frame posed alone, grouped into rig frames; the mountings
+    chained from the reference over the cameras that share rig frames (a ring or a chain is
+    calibrated), then every rig frame's pose and every mounting adjusted in one least-squares
+    problem, outliers left out; for global-shutter cameras without ``estimate_time_offsets``
+    then refined on the corners (with a time offset per camera when they do not expose
+    together, :data:`EXPOSED_APART_SHARE`).
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
             order; frames without a camera model are skipped).
         reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
-            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+            (its known mounting on the rig) places it.
         window: s; frames further apart are not one rig frame.
         stamp_row: the row whose capture time is a frame's stamp.
         min_inliers: frames posed with fewer inliers are left out of the pose-level
@@ -718,17 +657,13 @@ def calibrate_mountings(
         options: the single-camera estimator's
             :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults; its RANSAC
             threshold is the corners' loss scale).
-        max_step: s; the longest interval between a camera's two frames to interpolate over
-            (beyond it a frame is carried by its own twist).
+        max_step: s; the longest interval between a camera's two frames to interpolate over.
         time_offsets: camera -> s added to its stamps (a rig's
             :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
         estimate_time_offsets: also estimate every camera's time offset against the
-            reference camera's (its given one kept): a parameter per camera in the adjustment
-            (a camera frame's pose moved along its own twist), the frames regrouped at the
-            offsets found (those beyond 3 of their std) and the adjustment run again until
-            they change by less than :data:`TIME_OFFSET_TOL` (at most
-            :data:`TIME_OFFSET_ROUNDS` times). Only a rig that moves shows an offset: its std
-            says how well.
+            reference's (its given one kept), the frames regrouped at the offsets found until
+            they change by less than :data:`TIME_OFFSET_TOL`; only a rig that moves shows an
+            offset, its std says how well.
     Returns:
         camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
         a camera not connected to the reference through shared rig frames is missing).
@@ -753,16 +688,14 @@ def calibrate_mountings(
     fit, (cov, dt_std), bad, rig_frames, shifted = _pose_level(
         rig_frames, poses, mounts, reference, estimate_time_offsets, window, max_step
     )
-    mounts, dts, apart, refined = fit.mounts, fit.dts, {}, None
+    mounts, dts, misfit, apart, refined = fit.mounts, fit.dts, np.nan, {}, None
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
-        apart, refined = _on_corners(
-            rig_frames, every, poses, fit, cov, reference, bad, px, window, max_step
-        )
-    misfit = float("nan")
-    if refined is not None:
-        mounts, cov, misfit, dts, dt_std = refined
+        apart, refined = _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px,
+                                     window, max_step)  # fmt: skip
+        if refined is not None:
+            mounts, cov, misfit, dts, dt_std = refined
     e = fit.errors()  # (the camera frames' pose errors about the adjusted rig)
     out = {}
     for name in poses:
