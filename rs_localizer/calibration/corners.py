@@ -1,8 +1,5 @@
-"""The corners of a rig video as one least-squares problem: every corner's error in the
-distorted image of its camera through its rig frame's pose, its camera's mounting and the
-camera's own model (:class:`RigCorners`), minimized by SciPy's ``least_squares``
-(:meth:`RigCorners.solve`), and the mountings' covariance at the solution with the rig poses
-marginalized (:meth:`RigCorners.mounting_covariance`).
+"""The corners of a rig video as one least-squares problem (:class:`RigCorners`, what
+``calibrate-rig`` refines its mountings on), its solve and the mountings' covariance.
 
 Frames and units (``parameters="rig"``, the default): a rig pose is the rig -> world rotation
 ``R_g`` and the rig's position ``P_g`` (m) in the world (``x_world = R_g x_rig + P_g``); a
@@ -27,7 +24,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import LinAlgWarning
 from scipy.optimize import least_squares
-from scipy.sparse import bsr_matrix, coo_matrix, csr_matrix, hstack, kron
+from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
 from ..geometry import rotvec_to_matrix
 
@@ -85,33 +82,28 @@ class CornerSolution:
 
 
 class RigCorners:
-    """Every corner's error (px) in the distorted image of its camera (the camera's own model,
+    """Every corner's error (px) in the distorted image of its camera (its model's
     :meth:`~rs_localizer.camera.CameraModel.project`) through its rig frame's pose, its
     camera's mounting and, where a camera frame was carried to its rig frame's time, the
-    camera's pose in its own frame relative to the carried one (module docstring: frames,
-    units, parameters). The parameters are the rig poses, then the free tags' poses, then the
-    free mountings' (6 each), then the time offsets (``motion``; 1 each).
+    camera's pose in its own frame relative to the carried one (frames, units and parameters:
+    the module docstring). The parameters are the rig poses, the free tags' poses, the free
+    mountings' (6 each), then the time offsets (``motion``; 1 each).
 
     Args:
         uv: (N, 2) px, the corners in the distorted image.
         cameras: the camera models; ``camera`` (N,) int: each corner's model (an index).
-        frame: (N,) int, each corner's rig frame (an index into ``rig``).
-        mounting: (N,) int, each corner's camera mounting (an index into ``mounts``).
-        rig: ``(R (G, 3, 3), P (G, 3))``, the rig poses to start from.
-        mounts: ``(R (M, 3, 3), p (M, 3))``, the mountings to start from; ``free`` (M,) bool:
-            those adjusted.
+        frame: (N,) int, each corner's rig frame; ``mounting`` (N,) int, its camera mounting.
+        rig: ``(R (G, 3, 3), P (G, 3))`` and ``mounts``: ``(R (M, 3, 3), p (M, 3))``, the rig
+            poses and mountings to start from; ``free`` (M,) bool: the mountings adjusted.
         points: (N, 3) m, the corners' map points (fixed), or :class:`TagPoints`.
         offsets: ``(Dr (N, 3, 3), Dp (N, 3) m)``, each corner's camera pose at its own
             frame's time relative to its pose carried to the rig frame's time (camera ->
             world rotation ``O Dr``, position ``p + O Dp``); None: the same.
-        parameters: ``"rig"`` or ``"inverse"``: the rig poses and mountings given in
-            ``rig`` and ``mounts`` (and adjusted) as the module docstring says.
-        motion: ``(index (N,) int, angular (N, 3) rad/s, linear (N, 3) m/s)``: each
-            corner's time offset (an index into the offsets, -1: none) and its camera's twist
-            (world axes): a corner seen ``dt`` s later than its rig frame's pose says, its
-            camera's pose moved along the twist (camera -> world rotation ``expm(dt [w]x)
-            O``, position ``p + dt v``), a camera's stamps off from its exposures (Kalibr's
-            ``timeshift``); the offsets (s) are parameters after the mountings. None: none.
+        parameters: ``"rig"`` or ``"inverse"`` (the module docstring).
+        motion: ``(index (N,) int, angular (N, 3) rad/s, linear (N, 3) m/s)``: each corner's
+            time offset (-1: none) and its camera's twist (world axes): a corner seen ``dt`` s
+            after its rig frame's pose has its camera moved along the twist (rotation
+            ``expm(dt [w]x) O``, position ``p + dt v``; Kalibr's ``timeshift``). None: none.
 
     Raises:
         ValueError: arrays of inconsistent lengths, an index out of range, an unknown
@@ -143,30 +135,21 @@ class RigCorners:
         self.uv = np.asarray(uv, dtype=float).reshape(-1, 2)
         n = len(self.uv)
         self.cameras = list(cameras)
-        self.camera = np.asarray(camera, dtype=int)
-        self.frame = np.asarray(frame, dtype=int)
-        self.mounting = np.asarray(mounting, dtype=int)
-        self.R0g = np.asarray(rig[0], dtype=float).reshape(-1, 3, 3)
-        self.P0g = np.asarray(rig[1], dtype=float).reshape(-1, 3)
-        self.R0m = np.asarray(mounts[0], dtype=float).reshape(-1, 3, 3)
-        self.p0m = np.asarray(mounts[1], dtype=float).reshape(-1, 3)
+        self.camera, self.frame, self.mounting = (np.asarray(a, dtype=int)
+                                                  for a in (camera, frame, mounting))  # fmt: skip
+        self.R0g, self.R0m = (np.asarray(a[0], float).reshape(-1, 3, 3) for a in (rig, mounts))
+        self.P0g, self.p0m = (np.asarray(a[1], float).reshape(-1, 3) for a in (rig, mounts))
         self.free = np.asarray(free, dtype=bool)
         self.tags = points if isinstance(points, TagPoints) else None
         self.X = None if self.tags is not None else np.asarray(points, dtype=float).reshape(-1, 3)
         self.offsets = offsets
-        lengths = {len(self.camera), len(self.frame), len(self.mounting)}
-        lengths.add(len(self.tags.tag) if self.tags is not None else len(self.X))
-        if offsets is not None:
-            lengths |= {len(offsets[0]), len(offsets[1])}
         self.motion = None
         if motion is not None:
             k, w, v = (np.asarray(a) for a in motion)
-            self.motion = (
-                k.astype(int),
-                w.astype(float).reshape(-1, 3),
-                v.astype(float).reshape(-1, 3),
-            )
-            lengths |= {len(a) for a in self.motion}
+            self.motion = (k.astype(int), *(np.asarray(a, float).reshape(-1, 3) for a in (w, v)))
+        lengths = {len(a) for a in (self.camera, self.frame, self.mounting, *(offsets or ()),
+                                    *(self.motion or ()))}  # fmt: skip
+        lengths.add(len(self.tags.tag) if self.tags is not None else len(self.X))
         if lengths != {n}:
             raise ValueError(f"RigCorners: {n} corners but per-corner arrays of lengths {lengths}")
         G, M = len(self.R0g), len(self.R0m)
@@ -192,10 +175,9 @@ class RigCorners:
         self.penalty = UNPROJECTED_PENALTY
 
     def _views(self) -> None:
-        """The corners that share their camera's pose (the same rig frame, mounting, time
-        offset, pose offsets and twist, e.g. one camera frame's): ``view`` (N,) int, each
-        corner's, and per view its first corner ``first``, so that :meth:`errors` builds one
-        camera pose per view instead of one per corner."""
+        """``view`` (N,) int, each corner's group of corners that share their camera's pose
+        (rig frame, mounting, time offset, pose offsets, twist), and per view its first corner
+        ``first``: :meth:`errors` builds one camera pose per view."""
         n = len(self.uv)
         d = self.motion[0] if self.motion is not None else np.zeros(n, dtype=int)
         key = np.stack([self.frame, self.mounting, d], axis=1)
@@ -211,23 +193,18 @@ class RigCorners:
         """``((R_g, P_g), (R_m, p_m), (R_t, p_t) or None)`` of the parameters ``x`` (n,) (with
         ``parameters="inverse"``: ``((R_f, C_f), (R, c), ...)``)."""
         G, T, F = self.G, self.T, self.F
-        xg = x[: 6 * G].reshape(G, 6)
-        rig = (rotvec_to_matrix(xg[:, :3]) @ self.R0g, self.P0g + xg[:, 3:])
-        tags = None
-        if self.tags is not None:
-            Rt, pt = self.tags.R.copy(), self.tags.p.copy()
-            if T:
-                d = x[6 * G : 6 * (G + T)].reshape(T, 6)
-                f = self.tags.free
-                Rt[f] = rotvec_to_matrix(d[:, :3]) @ self.tags.R[f]
-                pt[f] = pt[f] + d[:, 3:]
-            tags = (Rt, pt)
-        Rm, pm = self.R0m.copy(), self.p0m.copy()
-        if F:
-            d = x[6 * (G + T) : 6 * (G + T + F)].reshape(F, 6)
-            Rm[self.free] = rotvec_to_matrix(d[:, :3]) @ self.R0m[self.free]
-            pm[self.free] = self.p0m[self.free] + d[:, 3:]
-        return rig, (Rm, pm), tags
+
+        def moved(R, p, d, sel):  # (the blocks sel of R, p moved by d (k, 6))
+            R, p = R.copy(), p.copy()
+            if len(d):
+                R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
+            return R, p
+
+        rig = moved(self.R0g, self.P0g, x[: 6 * G].reshape(G, 6), slice(None))
+        t = self.tags
+        tags = None if t is None else moved(t.R, t.p, x[6 * G : 6 * (G + T)].reshape(T, 6), t.free)
+        d = x[6 * (G + T) : 6 * (G + T + F)].reshape(F, 6)
+        return rig, moved(self.R0m, self.p0m, d, self.free), tags
 
     def errors(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) px: every corner's projection at the parameters ``x`` minus its pixel (NaN:
@@ -260,13 +237,11 @@ class RigCorners:
         return self._projected(np.einsum("nji,nj->ni", Ow[v], X - p[v]))
 
     def time_offsets(self, x: np.ndarray) -> np.ndarray:
-        """(D,) s: the time offsets of the parameters ``x`` (the last ``D``; none without
-        ``motion``)."""
+        """(D,) s: the time offsets of the parameters ``x`` (the last ``D``)."""
         return x[self.n - self.D :]
 
     def _projected(self, x_cam: np.ndarray) -> np.ndarray:
-        """(N, 2) px: the corners ``x_cam`` (N, 3) (their cameras' optical frames) projected
-        minus their pixels."""
+        """(N, 2) px: the corners ``x_cam`` (N, 3) (optical frames) projected minus their pixels."""
         out = np.empty_like(self.uv)
         for cam, sel in zip(self.cameras, self.by_cam, strict=True):
             out[sel] = cam.project(x_cam[sel])
@@ -275,10 +250,8 @@ class RigCorners:
     def residuals(self, x: np.ndarray, corner_scale: float | None = None) -> np.ndarray:
         """(2 K,) px: the kept corners' errors, a corner that no longer projects at
         :data:`UNPROJECTED_PENALTY` times the loss scale of the last :meth:`solve` (1 px
-        before any) on both coordinates.
-        ``corner_scale``: px; each corner's error scaled to the :func:`soft_l1` loss of its
-        distance (both coordinates together: ``e sqrt(rho(|e|^2) / |e|^2)``, their squares sum
-        to the loss over the corners); None: as they are."""
+        before any). ``corner_scale``: px; each corner's error scaled to the :func:`soft_l1`
+        loss of its distance (``e sqrt(rho(|e|^2) / |e|^2)``); None: as they are."""
         e = self.errors(x)[self.keep]
         e = np.where(np.isfinite(e), e, self.penalty)
         if corner_scale is None:
@@ -319,13 +292,11 @@ class RigCorners:
         xtol: float = 1e-8,
         verbose: int = 0,
     ) -> CornerSolution | None:
-        """The parameters minimizing the corners' robust cost, from the start (SciPy
-        ``least_squares``: ``trf``, ``lsmr``, ``x_scale="jac"``, a finite-difference Jacobian
-        of the known sparsity :meth:`sparsity`), the corners not projected at the start left
-        out. ``loss``: ``"soft_l1"``, SciPy's loss on each coordinate of a corner's error at
-        ``f_scale`` px, or ``"corner_soft_l1"``, :func:`soft_l1` of each corner's distance at
-        ``f_scale`` px. ``max_nfev``, ``ftol``, ``xtol``: ``least_squares``' bounds. None when
-        no corner projects at the start.
+        """The parameters minimizing the corners' robust cost from the start (SciPy
+        ``least_squares``, ``trf``, ``lsmr``, the Jacobian's sparsity :meth:`sparsity`; its
+        bounds ``max_nfev``, ``ftol``, ``xtol``), the corners not projected at the start left
+        out (None: none projects). ``loss``: ``"soft_l1"``, SciPy's on each coordinate at
+        ``f_scale`` px, or ``"corner_soft_l1"``, :func:`soft_l1` of each corner's distance.
 
         Raises:
             ValueError: an unknown ``loss``.
@@ -337,16 +308,11 @@ class RigCorners:
         self.keep = np.isfinite(self.errors(x0)).all(axis=1)
         if not self.keep.any():
             return None
-        if loss == "soft_l1":
-            res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(), loss="soft_l1",
-                                f_scale=f_scale, x_scale="jac", method="trf", tr_solver="lsmr",
-                                ftol=ftol, xtol=xtol, max_nfev=max_nfev,
-                                verbose=verbose)  # fmt: skip
-        else:
-            res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(),
-                                x_scale="jac", method="trf", tr_solver="lsmr", ftol=ftol,
-                                xtol=xtol, max_nfev=max_nfev, verbose=verbose,
-                                kwargs={"corner_scale": f_scale})  # fmt: skip
+        robust = {"loss": "soft_l1", "f_scale": f_scale} if loss == "soft_l1" else {
+            "kwargs": {"corner_scale": f_scale}}  # fmt: skip
+        res = least_squares(self.residuals, x0, jac_sparsity=self.sparsity(), x_scale="jac",
+                            method="trf", tr_solver="lsmr", ftol=ftol, xtol=xtol,
+                            max_nfev=max_nfev, verbose=verbose, **robust)  # fmt: skip
         rig, mounts, tags = self.unpack(res.x)
         return CornerSolution(rig, mounts, tags, self.keep.copy(), res)
 
@@ -355,26 +321,17 @@ class RigCorners:
     ) -> np.ndarray | tuple:
         """(F, 6, 6): each free mounting's covariance over (rotation [rad, rig axes], position
         [m, rig frame]; ``parameters="rig"``) at ``sol``, the rig poses marginalized (the Schur
-        complement of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
-        ``least_squares`` returns; the free tags, if any, are held at the solution).
-
-        ``clusters`` None: ``s^2 [H^-1]_mm`` with ``s^2 = 2 cost / (2 K - n)`` (the residuals'
-        variance, ``cost`` the robust cost), as if every corner's error were independent.
-        ``clusters`` (N,) int, each corner's group: the errors of a group's corners taken as
-        correlated, groups as independent (the cluster-robust "sandwich" covariance
-        ``S^-1 (sum_c u_c u_c^T) S^-1`` with ``u_c`` the group's corners' gradient of the
-        cost on the mountings, the rig poses' part projected out), so corners that share an
-        error, e.g. a tag map's or a camera model's, count once per group.
-
-        With ``motion``, the time offsets are estimated with the mountings (their covariance
-        is part of the mountings'); ``offsets``: also return their standard deviations (D,) s,
-        as ``(covariances, std)``, and with ``clusters`` also the variance (D,) s^2 of one
-        group's time offset about the solution's, ``(covariances, std, scatter)``: each
-        group's own estimate of each offset (one Gauss-Newton step on it alone from the
-        solution, the rig poses marginalized: its gradient over its information in that
-        group) scattered about the solution weighted by its information, times ``C / (C -
-        1)`` for ``C`` groups; a camera whose exposures drift against the reference's shows
-        a scatter its mean offset does not fix.
+        complement ``S`` of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
+        ``least_squares`` returns; the free tags, if any, held at the solution).
+        ``clusters`` None: ``s^2 S^-1`` with ``s^2 = 2 cost / (2 K - n)``, every corner's error
+        independent; ``clusters`` (N,) int, each corner's group: the cluster-robust "sandwich"
+        ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
+        mountings, the rig poses' part projected out), so corners that share an error (a tag
+        map's, a camera model's) count once per group. ``offsets`` (with ``motion``): also
+        the time offsets' standard deviations (D,) s, ``(covariances, std)``, and with
+        ``clusters`` the variance (D,) s^2 of one group's own offset (one Gauss-Newton step
+        from the solution) about the solution's, weighted by its information, times ``C / (C
+        - 1)``: ``(covariances, std, scatter)`` (exposures that drift against the reference's).
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -386,12 +343,13 @@ class RigCorners:
         k, mc = 6 * self.G, 6 * self.F + self.D
         lo = 6 * (self.G + self.T)
         Jg, Jm = J[:, :k], J[:, lo : lo + mc]
-        Hgg = bsr_matrix((Jg.T @ Jg).tocsr(), blocksize=(6, 6))
+        # (a corner's two rows touch its rig frame's block alone: H_gg is block diagonal)
+        g = np.repeat(self.frame[self.keep], 2)
+        coo = Jg.tocoo()
+        Jgd = np.zeros((len(r), 6))
+        np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
         blocks = np.zeros((self.G, 6, 6))
-        for i in range(self.G):
-            for j in range(Hgg.indptr[i], Hgg.indptr[i + 1]):
-                if Hgg.indices[j] == i:
-                    blocks[i] = Hgg.data[j]
+        np.add.at(blocks, g, Jgd[:, :, None] * Jgd[:, None, :])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LinAlgWarning)
             inv = np.linalg.pinv(blocks)
@@ -404,11 +362,7 @@ class RigCorners:
             C = s2 * Sinv
         else:
             # each corner's gradient on the mountings with the rig poses' part projected out:
-            # J_m - J_g H_gg^-1 H_gm, row by row (2 rows a corner, its rig frame's block)
-            g = np.repeat(self.frame[self.keep], 2)
-            coo = Jg.tocoo()
-            Jgd = np.zeros((len(r), 6))
-            np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
+            # J_m - J_g H_gg^-1 H_gm, row by row
             A = Jm.toarray() - np.einsum("ri,rik->rk", Jgd, W[g])
             c = np.repeat(np.asarray(clusters)[self.keep], 2)
             _, ci = np.unique(c, return_inverse=True)
@@ -418,14 +372,12 @@ class RigCorners:
             if offsets and self.D:
                 info = np.zeros((ci.max() + 1, self.D))
                 np.add.at(info, ci, A[:, mc - self.D :] ** 2)
-                g_ = U[:, mc - self.D :]
                 n_c = len(info)
-                own = np.sum(g_**2 / np.where(info > 0, info, np.inf), axis=0)
+                own = np.sum(U[:, mc - self.D :] ** 2 / np.where(info > 0, info, np.inf), axis=0)
                 scatter = own / np.maximum(info.sum(axis=0), 1e-300) * n_c / max(n_c - 1, 1)
         C = 0.5 * (C + C.T)
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
-        if offsets and clusters is not None and self.D:
-            return blocks, np.sqrt(np.diag(C)[6 * self.F :]), scatter
-        if offsets:
-            return blocks, np.sqrt(np.diag(C)[6 * self.F :])
-        return blocks
+        if not offsets:
+            return blocks
+        std = np.sqrt(np.diag(C)[6 * self.F :])
+        return (blocks, std, scatter) if clusters is not None and self.D else (blocks, std)

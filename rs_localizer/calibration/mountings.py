@@ -1,7 +1,8 @@
 """A rig's camera mountings from a video of a known map (:func:`calibrate_mountings`, what
 ``rs-localizer calibrate-rig`` runs), each with its covariance, which the rig estimator adds
 to the rig pose's (:attr:`~rs_localizer.frames.Mounting.covariance`). The method, step by
-step, with its measurements: docs/rig_node.md, "Mountings from data".
+step, with its measurements: docs/rig_node.md, "Mountings from data" (its steps are cited
+below as "step N").
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from itertools import permutations
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.linalg import LinAlgWarning, block_diag, lu_factor, lu_solve
@@ -41,37 +42,20 @@ class MountingEstimate:
 
     Attributes:
         name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
-            x_rig + c``) with its ``covariance`` (None for the reference camera, whose
-            mounting is given): the pose-level adjustment's ``s^2 (J^T J)^-1``, inflated for
-            the errors neighbouring frames share, plus the bias of the single-camera poses
-            that averaging does not remove (:data:`MOUNTING_BIAS_SHARE`); a mounting refined
-            on the corners (``corners_refined``): the corners' solve's, runs of rig frames
-            as groups, plus the error the two estimates disagree by (``corner_misfit``,
-            :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5);
-            with time offsets on the corners also the variance of a rig frame's exposure
-            about the offset (the runs of rig frames' scatter) times the camera's motion on
-            the rig (:func:`_motion_moment`).
-        frames: rig frames the camera's pose entered the adjustment with (rig frames with at
-            least two cameras); rejected: its camera frames left out as outliers.
-        std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
-            its three axes) and of the camera's position on the rig (mm, norm), from
-            ``mount.covariance``; zero for the reference camera.
+            x_rig + c``) with its ``covariance`` (step 5; None for the reference camera).
+        frames: rig frames the camera's pose entered the adjustment with; rejected: its camera
+            frames left out as outliers.
+        std_deg, std_mm: standard deviation of the mounting's rotation (deg) and position (mm),
+            norms over the three axes, from ``mount.covariance``; zero for the reference.
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
-        time_offset: s added to the camera's stamps to put its frames on the rig's clock (the
-            reference camera's: as given): the one it was calibrated with, or with
-            ``estimate_time_offsets`` the estimate.
-        time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
-            the mounting's); NaN: not estimated (given, or the reference camera's).
-        corners_refined: the mounting was refined on the corners (:func:`_refine_on_corners`).
-        exposure_offset: s, the camera's time offset the pose-level adjustment shows when
-            the cameras do not expose together (:data:`EXPOSED_APART_SHARE`; the refinement
-            on the corners then estimates a time offset per camera: ``time_offset``); NaN
-            otherwise.
-        corner_misfit: the squared step from the pose-level to the refined mountings in
-            the pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`;
-            the same for every camera of the rig): its excess over 1 times the pose-level
-            covariance is in the refined one; NaN when not refined.
-    """
+        time_offset: s added to the camera's stamps (the given one, or the estimate);
+            time_offset_std: s, the estimate's standard deviation (NaN: not estimated).
+        corners_refined: the mounting was refined on the corners (step 4).
+        exposure_offset: s, the time offset the pose-level adjustment shows when the cameras
+            do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
+        corner_misfit: the squared step from the pose-level to the refined mountings in the
+            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one for
+            the rig); NaN when not refined."""
 
     name: str
     mount: Mounting
@@ -98,11 +82,9 @@ TIME_OFFSET_ROUNDS = 4
 #: std then says it was not seen
 TIME_OFFSET_PRIOR = 1.0
 
-#: a camera whose time offset, estimated as with ``estimate_time_offsets`` (one adjustment),
-#: is beyond 3 of its std and moves a corner by more than this share of the RANSAC threshold
-#: at the rig's median angular speed (its frames' twist; the camera's mean focal length) does
-#: not expose with the reference: the refinement on the corners then adjusts a time offset per
-#: camera, else its mountings would take up the rig's motion between the exposures
+#: a camera whose time offset moves a corner by more than this share of the RANSAC threshold
+#: does not expose with the reference (:func:`_exposed_apart`): the refinement on the corners
+#: then adjusts a time offset per camera, else the mountings would take up the rig's motion
 EXPOSED_APART_SHARE = 0.25
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
@@ -110,12 +92,27 @@ EXPOSED_APART_SHARE = 0.25
 #: single-camera poses, which averaging over a video does not remove
 MOUNTING_BIAS_SHARE = {"rotation": 0.1, "position": 0.2}
 
+#: rig frames whose camera's whitened pose error (squared) is beyond this quantile of the
+#: chi-square distribution with 6 degrees of freedom (times the median's scale) are left out
+#: of the mountings' adjustment
+_OUTLIER_QUANTILE = 0.999
+
+#: the least misfit of a refined mounting's two estimates (:func:`_corner_covariance`): at it
+#: no systematic error is added to the corners' covariance
+MISFIT_FLOOR = 1.0
+
+#: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
+_CORNER_NFEV = 300
+
+#: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
+#: frames, each run's corners one group (:func:`_corner_covariance`)
+CORNER_BLOCKS = 10
+
 
 def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
     """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
-    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
-    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
-    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
+    time order by batch means (neighbouring frames share slow errors): the scatter of the means
+    of ``blocks`` consecutive runs; 0 with fewer than 2 frames per block."""
     n = len(d)
     k = min(blocks, n // 2)
     if k < 2:
@@ -124,17 +121,42 @@ def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
     return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
 
 
+def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
+    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`,
+    step 1), those with at least ``min_inliers`` inliers and a finite covariance: camera -> list
+    of ``(t ns on the rig's clock (plus the camera's ``given`` offset), orientation (3, 3) camera
+    -> world, position (3,) m, angular rad/s and linear m/s velocity (3,) in camera axes,
+    covariance (12, 12), inlier corners (pixels (K, 2), map points (K, 3) m, camera model))``
+    in time order."""
+    poses: dict[str, list] = {}
+    for f in frames:
+        if f.camera is None:
+            continue
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        poses.setdefault(f.camera_name, [])
+        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
+            continue
+        if not np.isfinite(est.covariance[:6, :6]).all():
+            continue
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
+        q, inl = est.pose, np.asarray(est.inliers, dtype=bool)
+        corners = (np.asarray(f.points2d, float)[inl], np.asarray(f.points3d, float)[inl], f.camera)
+        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
+                                     q.linear_velocity, est.covariance, corners))  # fmt: skip
+    for items in poses.values():
+        items.sort(key=lambda i: i[0])
+    return poses
+
+
 def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: float):
     """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
-    carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s): the
-    constant twist between its own two frames around ``t_r`` (interpolated poses), or its
-    frame's own twist when it has no frame on the other side within ``max_step`` s. Also the
-    camera's motion there in world axes, ``(angular rad/s, linear m/s)``: the pose's rate of
-    change with the camera's time, between its frames before and after the nearest one (its
-    own pose's error left out: a twist differenced from it would correlate with that error),
-    else between its nearest frame and the next or previous one within ``max_step`` (a
-    global-shutter frame has no twist of its own), else its frame's own twist. Last, that
-    frame's index in ``items``."""
+    carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s), at the
+    constant twist between its own two frames around ``t_r`` (else its frame's own twist; frames
+    at most ``max_step`` s apart); its motion there in world axes (angular rad/s, linear m/s),
+    differenced between its frames before and after the nearest one (not from that frame's own
+    pose, whose error it would share) or next to it, else its frame's own twist; the frame's
+    index in ``items``."""
     k = int(np.argmin(np.abs(times - t_r)))
     dt = (t_r - times[k]) * 1e-9
     if abs(dt) > window:
@@ -163,10 +185,9 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
 
 
 def _rig_frames(poses: dict, window: float, max_step: float) -> list:
-    """The rig frames of cameras posed alone: every camera frame's time, in order, starts a
-    rig frame unless within ``window`` of the current one's start; per rig frame, each camera
-    with a frame within ``window`` carried to the start (:func:`_carried`). Returns a list of
-    ``(t_ns, {camera: (O, p, cov, twist, frame index)})`` with at least two cameras."""
+    """The rig frames (step 2): every camera frame's time, in order, starts one unless within
+    ``window`` of the current one's start; each camera with a frame within ``window`` carried to
+    it (:func:`_carried`). Returns ``[(t_ns, {camera: _carried's tuple})]``, two cameras or more."""
     stamps = sorted(t for items in poses.values() for t, *_ in items)
     times = {n: np.array([i[0] for i in items]) for n, items in poses.items() if items}
     out, start = [], None
@@ -181,27 +202,14 @@ def _rig_frames(poses: dict, window: float, max_step: float) -> list:
     return out
 
 
-def _pair_mean(rel: list) -> tuple:
-    """Relative poses ``(R, p)`` of one camera in another's frame over rig frames -> their
-    robust mean: the chordal mean of the rotations and the mean position over the inliers
-    (rotations more than 3 times the median angle and 0.05 deg from the mean are outliers,
-    twice; positions more than 3 times the median distance and 0.1 mm from the median)."""
-    Rs, ps = (np.array(x) for x in zip(*rel, strict=True))
-    keep = np.ones(len(Rs), dtype=bool)
-    for _ in range(3):
-        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
-        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
-        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
-    d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
-    keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
-    return M, ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
-
-
 def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     """Each camera's mounting (camera -> rig rotation, position) chained from the reference's
-    over a spanning tree of the cameras that share rig frames (breadth first, the pairs that
-    share the most rig frames first); cameras not connected to the reference are missing."""
+    over a spanning tree of the cameras that share rig frames (step 3: breadth first, the
+    pairs that share the most rig frames first), each pair's relative pose the robust mean
+    over its rig frames (the chordal mean of the rotations and the mean position over the
+    inliers: rotations more than 3 times the median angle and 0.05 deg from the mean are
+    outliers, twice; positions more than 3 times the median distance and 0.1 mm from the
+    median); cameras not connected to the reference are missing."""
     rel: dict = {}
     for _, seen in rig_frames:
         for a, b in permutations(seen, 2):
@@ -217,7 +225,17 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
                 reverse=True,
             )
             for _, b in pairs:
-                M, p = _pair_mean(rel[(a, b)])
+                Rs, ps = (np.array(x) for x in zip(*rel[(a, b)], strict=True))
+                keep = np.ones(len(Rs), dtype=bool)
+                for _ in range(3):
+                    U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
+                    M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+                    off = matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs))  # (M^T R_i)
+                    angle = np.linalg.norm(off, axis=1)
+                    keep = angle <= max(3.0 * float(np.median(angle[keep])), np.deg2rad(0.05))
+                d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
+                keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
+                p = ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
                 Ra, pa = mounts[a]
                 mounts[b] = (Ra @ M, pa + Ra @ p)
                 nxt.append(b)
@@ -225,35 +243,45 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     return mounts
 
 
-#: rig frames whose camera's whitened pose error (squared) is beyond this quantile of the
-#: chi-square distribution with 6 degrees of freedom (times the median's scale) are left out
-#: of the mountings' adjustment
-_OUTLIER_QUANTILE = 0.999
+class _Fit(NamedTuple):
+    """One pose-level adjustment (:func:`_adjust`); per observation (a camera frame in a rig
+    frame, m of them) its rig pose ``gi``, rig frame ``g`` (an index into the rig frames),
+    camera, pose ``O`` (m, 3, 3) camera -> world and ``p`` (m, 3) m, whitening ``W`` (m, 6, 6)
+    and twist ``w`` rad/s, ``v`` m/s (m, 3) in world axes."""
+
+    mounts: dict  # camera -> (camera -> rig rotation, position m), every adjusted camera's
+    J: Any  # the whitened Jacobian (sparse; columns: rig poses, mountings, 6 each, offsets)
+    r: np.ndarray  # (m, 6) the whitened errors
+    gi: np.ndarray
+    g: np.ndarray
+    cam: np.ndarray
+    O: np.ndarray  # noqa: E741
+    p: np.ndarray
+    W: np.ndarray
+    w: np.ndarray
+    v: np.ndarray
+    free: list  # the adjusted cameras (all but the reference)
+    dts: dict  # camera -> its time offset (s; {} without offsets)
+    rig: tuple  # the rig poses: (rig -> world rotations (G, 3, 3), positions (G, 3) m)
+
+    def errors(self) -> np.ndarray:
+        """The pose errors (m, 6) (rotation rad, position m; world axes), unwhitened."""
+        return np.linalg.solve(self.W, self.r[..., None])[..., 0]
+
+    def outliers(self) -> set:
+        """(rig frame, camera) of the camera frames that contradict the others: whitened
+        error beyond :data:`_OUTLIER_QUANTILE` at the errors' median scale."""
+        d2 = np.sum(self.r * self.r, axis=1)
+        scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
+        bad = d2 > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)
+        return {(int(g), str(n)) for g, n in zip(self.g[bad], self.cam[bad], strict=True)}
 
 
-def _adjust(
-    rig_frames: list,
-    mounts: dict,
-    reference: str,
-    outlier: frozenset | set = frozenset(),
-    offsets: bool = False,
-):
-    """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
-    frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
-    rig rotation, position), the start) to the cameras' poses posed alone; camera frames in
-    ``outlier`` ((rig frame, camera) pairs) and cameras no longer connected to the
-    reference left out. ``offsets``: each free camera's time offset (s) adjusted too, to
-    first order (its frames' poses moved along their twist). Returns ``(mounts, the whitened
-    Jacobian (sparse; columns: the rig frames' poses, the mountings, 6 each, then the
-    offsets), whitened errors (m, 6), the observations (rig frame used, rig frame, camera, O,
-    p, whitening, twist), rig frames used, adjusted cameras, their offsets (s; {} without
-    ``offsets``), the rig frames' poses (rig -> world rotations (G, 3, 3), positions (G, 3)
-    m))``."""
-    # each camera's pose errors weighted by its frames' typical covariance (the mean of
-    # those within 3 times the median trace) in its own axes (block_diag(R_wc^T, R_wc^T):
-    # world -> camera axes), as the depth direction turns with the camera (on make-bag --rig
-    # 3 --frames 300 --points 300 world axes gave 0.57/0.98 mm against the truth, camera
-    # axes 0.40/0.39 mm); each frame's weight then scaled by its own covariance's size
+def _whitening(rig_frames: list) -> dict:
+    """Per camera, the inverse Cholesky factor of its frames' typical pose covariance (the mean
+    of those within 3 times the median trace) in its own axes, as the depth direction turns with
+    the camera (make-bag --rig 3 --frames 300 --points 300: world axes 0.57/0.98 mm against the
+    truth, camera axes 0.40/0.39 mm); a camera whose covariance is singular is missing."""
     covs: dict = {}
     for _, seen in rig_frames:
         for n, (R_wc, _, c6, *_) in seen.items():
@@ -268,6 +296,17 @@ def _adjust(
             whiten[n] = np.linalg.inv(np.linalg.cholesky(0.5 * (C6 + C6.T)))
         except np.linalg.LinAlgError:
             continue
+    return whiten
+
+
+def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(), offsets=False):
+    """One least-squares adjustment (step 4; SciPy ``least_squares``, sparse Jacobian) of every
+    rig frame's pose and every non-reference mounting (from ``mounts``) to the cameras' poses,
+    each camera's errors whitened (:func:`_whitening`, scaled to each frame's covariance), the
+    camera frames in ``outlier`` ((rig frame, camera)) and cameras cut off from the reference
+    left out; ``offsets``: a time offset per free camera too (s, first order along the twist;
+    prior :data:`TIME_OFFSET_PRIOR`). Returns a :class:`_Fit`."""
+    whiten = _whitening(rig_frames)
     use = []
     for g, (_, seen) in enumerate(rig_frames):
         known = [n for n in seen if n in mounts and n in whiten and (g, n) not in outlier]
@@ -278,18 +317,14 @@ def _adjust(
     while grown := {n for _, known in use if linked & set(known) for n in known} - linked:
         linked |= grown
     free = [n for n in mounts if n != reference and n in linked]
-    fidx = {n: i for i, n in enumerate(free)}
-    obs = []  # (rig frame index, its index in rig_frames, camera, O, p, whitening (6, 6))
-    R0g, P0g = [], []
+    obs, R0g, P0g = [], [], []  # (obs: the fields of _Fit from gi to v)
     for g, known in use:
         known = [n for n in known if n in linked]
         if len(known) < 2:
             continue
         seen = rig_frames[g][1]
         a = reference if reference in known else known[0]
-        Ra, pa = mounts[a]
-        Oa, ppa = seen[a][:2]
-        gi = len(R0g)
+        (Ra, pa), (Oa, ppa) = mounts[a], seen[a][:2]
         R0g.append(Oa @ Ra.T)
         P0g.append(ppa - R0g[-1] @ pa)
         for n in known:
@@ -299,74 +334,61 @@ def _adjust(
             # counts less, its own shape (noisy with few points) is not used
             Wn = whiten[n] @ block_diag(Oc.T, Oc.T)
             size = np.trace(Wn @ np.asarray(c6, dtype=float)[:6, :6] @ Wn.T) / 6.0
-            obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), twist))
-    G, F = len(R0g), len(free)
+            obs.append((len(R0g) - 1, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), *twist))
+    gi, g, cam, O, p, W, w, v = (np.array(x) for x in zip(*obs, strict=True))  # noqa: E741
+    G, F, m = len(R0g), len(free), len(obs)
     D = F if offsets else 0  # (a time offset per free camera, s, after the mountings)
     R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
     p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
     Rref, pref = mounts[reference]
-    gi_ = np.array([o[0] for o in obs], dtype=int)
-    ci_ = np.array([fidx.get(o[2], -1) for o in obs], dtype=int)  # (the reference's: -1)
-    Ot = np.array([o[3].T for o in obs]).reshape(-1, 3, 3)
-    po = np.array([o[4] for o in obs]).reshape(-1, 3)
-    Whs = np.array([o[5] for o in obs]).reshape(-1, 6, 6)
-    # each camera frame's pose changes with its camera's time at its twist (world axes): a
-    # time offset dt seen at the rig frame's time is the pose dt earlier on the camera's
-    # own time (constant twist), O -> expm(-dt [w]x) O, p -> p - dt v
-    ang = np.array([o[6][0] for o in obs]).reshape(-1, 3)
-    lin = np.array([o[6][1] for o in obs]).reshape(-1, 3)
-    R0g_, P0g_ = np.array(R0g).reshape(-1, 3, 3), np.array(P0g).reshape(-1, 3)
+    ci = np.array([free.index(n) if n in free else -1 for n in cam])  # (the reference's: -1)
+    R0g, P0g, O_T = np.array(R0g), np.array(P0g), np.array(O.transpose(0, 2, 1))
 
     def fun(x):
-        xg = x[: 6 * G].reshape(G, 6)
-        xm = x[6 * G : 6 * (G + F)].reshape(F, 6)
-        xd = x[6 * (G + F) :]
-        Rg = rotvec_to_matrix(xg[:, :3]) @ R0g_
+        xg, xm, xd = x[: 6 * G].reshape(G, 6), x[6 * G : 6 * (G + F)].reshape(F, 6), x[6 * (G + F) :]  # fmt: skip  # noqa: E501
+        Rg = rotvec_to_matrix(xg[:, :3]) @ R0g
         Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m, Rref[None]]) if F else Rref[None]
         pm = np.concatenate([p0m + xm[:, 3:], pref[None]])
-        Rgi, O_t, p_t = Rg[gi_], Ot, po
-        if D:
-            dt = np.concatenate([xd, [0.0]])[ci_]  # (the reference's: 0)
-            O_t = Ot @ rotvec_to_matrix(dt[:, None] * ang)  # ((expm(-dt [w]x) O)^T)
-            p_t = po - dt[:, None] * lin
+        Ot, p_t = O_T, p
+        if D:  # (a time offset dt at the rig frame's time is the pose dt earlier on the
+            # camera's own time, constant twist: O -> expm(-dt [w]x) O, p -> p - dt v)
+            dt = np.concatenate([xd, [0.0]])[ci]  # (the reference's: 0)
+            Ot, p_t = Ot @ rotvec_to_matrix(dt[:, None] * w), p - dt[:, None] * v
         e = np.concatenate(
-            [matrix_to_rotvec(Rgi @ Rm[ci_] @ O_t),
-             (P0g_ + xg[:, 3:])[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - p_t], axis=1,
+            [matrix_to_rotvec(Rg[gi] @ Rm[ci] @ Ot),
+             (P0g + xg[:, 3:])[gi] + np.einsum("nij,nj->ni", Rg[gi], pm[ci]) - p_t], axis=1,
         )  # fmt: skip
-        return np.concatenate([np.einsum("nij,nj->ni", Whs, e).ravel(), xd / TIME_OFFSET_PRIOR])
+        return np.concatenate([np.einsum("nij,nj->ni", W, e).ravel(), xd / TIME_OFFSET_PRIOR])
 
     # the Jacobian's structure: each observation's 6 rows on its rig frame's pose, its
     # camera's mounting and time offset (not the reference's), then the offsets' prior rows
-    m, mine = len(obs), np.flatnonzero(ci_ >= 0)
-    rows, cols = np.r_[np.arange(m), mine], np.r_[gi_, G + ci_[mine]]
+    mine = np.flatnonzero(ci >= 0)
+    rows, cols = np.r_[np.arange(m), mine], np.r_[gi, G + ci[mine]]
     sp = kron(coo_matrix((np.ones(len(rows)), (rows, cols)), (m, G + F)), np.ones((6, 6)))
     if D:
-        T = coo_matrix((np.ones(len(mine)), (mine, ci_[mine])), (m, F))
+        T = coo_matrix((np.ones(len(mine)), (mine, ci[mine])), (m, F))
         sp = bmat([[sp, kron(T, np.ones((6, 1)))], [None, identity(D)]])
     res = least_squares(fun, np.zeros(6 * (G + F) + D), jac_sparsity=sp, method="trf",
                         xtol=1e-10, ftol=1e-10, max_nfev=100)  # fmt: skip
-    xm, xd = res.x[6 * G : 6 * (G + F)].reshape(F, 6), res.x[6 * (G + F) :]
+    xg, xm = res.x[: 6 * G].reshape(G, 6), res.x[6 * G : 6 * (G + F)].reshape(F, 6)
     out = {reference: (Rref, pref)}
     for i, n in enumerate(free):
         out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
-    shifts = {n: float(xd[i]) for i, n in enumerate(free)} if D else {}
-    xg = res.x[: 6 * G].reshape(G, 6)
-    rig = (rotvec_to_matrix(xg[:, :3]) @ R0g_, P0g_ + xg[:, 3:])
-    return out, res.jac, res.fun[: 6 * m].reshape(-1, 6), obs, G, free, shifts, rig
+    dts = {n: float(res.x[6 * (G + F) + i]) for i, n in enumerate(free)} if D else {}
+    rig = (rotvec_to_matrix(xg[:, :3]) @ R0g, P0g + xg[:, 3:])
+    r = res.fun[: 6 * m].reshape(-1, 6)
+    return _Fit(out, res.jac, r, gi, g, cam, O, p, W, w, v, free, dts, rig)
 
 
-def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list) -> tuple[dict, dict]:
-    """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
-    [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J``)
-    inflated by the batch means of :func:`_std_of_mean`, plus each camera's bias
-    (:data:`MOUNTING_BIAS_SHARE` of its per-axis scatter in its own axes) propagated through
-    the adjustment to first order (docs/rig_node.md, "Mountings from data", step 5). Also
-    each free camera's time offset's std (s) when the adjustment had them, inflated alike.
-    NaN where ``H`` is singular."""
-    n, k, mc = J.shape[1], 6 * G, 6 * len(free)  # (columns: rig frames, mountings, offsets)
+def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
+    """Each free camera's mounting covariance (6, 6) (rotation rad, rig axes; position m)
+    from the adjustment ``fit`` (step 5): ``s^2 H^-1`` inflated by :func:`_std_of_mean`, plus
+    each camera's bias (:data:`MOUNTING_BIAS_SHARE` of its scatter in its own axes) propagated
+    to first order; and each time offset's std (s, inflated alike). NaN where ``H`` is singular."""
+    J, r, cam, free = fit.J, fit.r, fit.cam, fit.free
+    n, k, mc = J.shape[1], 6 * len(fit.rig[0]), 6 * len(free)  # (rig, mountings, offsets)
     s2 = float(np.sum(r * r)) / max(6 * len(r) - n, 1)
-    cam = np.array([o[2] for o in obs])
-    cams = sorted(set(cam))
+    cams = np.unique(cam)
     inflate = 1.0
     for c in cams:
         rc = r[cam == c]
@@ -381,14 +403,16 @@ def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list) -> tup
     dt_std = {f: float(np.sqrt(Hinv[mc + i, mc + i])) for i, f in enumerate(free) if n > k + mc}
     Jt = J.T.tocsr()
     bias = np.repeat([MOUNTING_BIAS_SHARE["rotation"], MOUNTING_BIAS_SHARE["position"]], 3)
-    e = _errors(obs, r)
+    e = fit.errors()
     for c in cams:
+        i = np.flatnonzero(cam == c)
         Z = np.zeros((J.shape[0], 6))  # (the offsets' prior rows, if any, last)
-        e_cam = []
-        for i in np.flatnonzero(cam == c):
-            Oc = obs[i][3]
-            Z[6 * i : 6 * i + 6] = obs[i][5] @ block_diag(Oc, Oc)
-            e_cam.append(np.concatenate([Oc.T @ e[i, :3], Oc.T @ e[i, 3:]]))
+        Oc = fit.O[i]
+        Z[: 6 * len(r)].reshape(-1, 6, 6)[i] = np.concatenate(
+            [fit.W[i, :, :3] @ Oc, fit.W[i, :, 3:] @ Oc], axis=2
+        )
+        e_cam = np.concatenate([np.einsum("nji,nj->ni", Oc, e[i, :3]),
+                                np.einsum("nji,nj->ni", Oc, e[i, 3:])], axis=1)  # fmt: skip
         B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
         K = lu_solve(lu, Jt @ Z)[k : k + mc]
         cov = cov + K @ B @ K.T
@@ -396,27 +420,11 @@ def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list) -> tup
     return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
 
 
-def _errors(obs: list, r: np.ndarray) -> np.ndarray:
-    """The adjustment's pose errors (m, 6) (rotation rad, position m; world axes) from its
-    whitened ones ``r`` (m, 6): each unwhitened by its observation's whitening."""
-    return np.linalg.solve(np.array([o[5] for o in obs]).reshape(-1, 6, 6), r[..., None])[..., 0]
-
-
-#: the least misfit of a refined mounting's two estimates (:func:`_corner_covariance`): at it
-#: no systematic error is added to the corners' covariance
-MISFIT_FLOOR = 1.0
-
-#: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
-_CORNER_NFEV = 300
-
-
 def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float) -> tuple:
-    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position
-    m): of the rig poses its camera frames give through their mountings (``seen``: camera ->
-    :func:`_carried`'s tuple; ``every``: camera -> :func:`_posed_alone`'s items), the one
-    whose projections of all its cameras' corners miss least (the sum of each corner's squared
-    error in px, capped at ``(4 scale)^2``: a camera frame posed wrongly, e.g. one tag's
-    mirrored pose, costs its corners the cap)."""
+    """A rig frame's pose to start the corners' solve from (rig -> world rotation, position m):
+    of the rig poses its camera frames give through their mountings, the one whose projections
+    of all its corners miss least (squared px each, capped at ``(4 scale)^2``: a frame posed
+    wrongly, e.g. a tag's mirrored pose, costs its corners the cap)."""
     best, out = np.inf, None
     for n in known:
         O_t, p_t = seen[n][:2]
@@ -435,76 +443,55 @@ def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float)
     return out
 
 
+class _Refined(NamedTuple):
+    """:func:`_refine_on_corners`' result."""
+
+    mounts: dict  # camera -> (camera -> rig rotation, position m)
+    problem: RigCorners
+    sol: CornerSolution
+    times: list  # each rig frame's time (ns)
+
+
 def _refine_on_corners(
-    rig_frames: list,
-    every: dict,
-    obs: list,
-    rig: tuple,
-    mounts: dict,
-    reference: str,
-    scale: float,
-    window: float,
-    max_step: float,
-    timed: bool = False,
-    warm: dict | None = None,
-) -> tuple[dict, RigCorners, CornerSolution, dict] | None:
-    """The mountings refined on the corners: the pose of every rig frame with two or more
-    cameras in ``mounts`` and every free camera's mounting adjusted to the inlier corners of
-    those cameras' frames (:class:`~rs_localizer.calibration.corners.RigCorners`: each
-    corner's error in the distorted image of its camera under SciPy's ``soft_l1`` loss at
-    ``scale`` px). The camera frames are ``every`` camera frame posed alone (camera -> the
-    items of :func:`_posed_alone`), those with fewer inliers than the pose-level adjustment
-    takes among them (a frame of one or two tags: its pose alone is too loose to average,
-    its corners fix the mountings as well as any), grouped into rig frames as
-    :func:`_rig_frames` does (``window``, ``max_step``). A rig frame starts at the pose-level
-    adjustment's pose of the rig frame of the same time (:func:`_adjust`: its ``rig_frames``,
-    observations ``obs``, rig poses ``rig`` and ``mounts``), else at the rig pose of the
-    camera frame whose pose best predicts the rig frame's corners (:func:`_rig_start`).
-    Camera frames the adjustment left out as outliers take part: their corners, not their
-    poses. A camera frame carried to its rig frame's time (:func:`_carried`) keeps its pose
-    relative to the carried one. ``timed``: each free camera's time offset (s added to its
-    stamps) adjusted too, started at 0: its corners' camera pose moved along its twist at
-    its rig frame (:class:`~rs_localizer.calibration.corners.RigCorners` ``motion``; the
-    offsets in the free cameras' order of ``mounts``). ``warm``: rig frame time (ns) -> rig
-    pose (rotation, position) of a previous solve to start that rig frame from. Only for
-    global-shutter cameras (a rolling-shutter corner's time is not modelled here: the caller
-    keeps the pose-level adjustment for those). Returns ``(mounts, the problem, its
-    solution, each rig frame's time (ns))``; None when no corner projects."""
+    rig_frames, every, fit, mounts, reference, scale, window, max_step, timed=False, warm=None
+) -> _Refined | None:
+    """The mountings refined on the corners (step 4): every rig frame's pose (two or more
+    cameras in ``mounts``) and every free mounting adjusted to the inlier corners of ``every``
+    camera frame posed alone (:func:`_posed_alone`, few inliers too; grouped as
+    :func:`_rig_frames` does) by :class:`~rs_localizer.calibration.corners.RigCorners`
+    (``soft_l1`` at ``scale`` px), each camera frame at its pose relative to the one carried to
+    its rig frame's time. A rig frame starts at ``warm``'s pose (time ns -> rig pose), else
+    ``fit``'s, else :func:`_rig_start`'s. ``timed``: a time offset per free camera too.
+    Global-shutter cameras only. None when no corner projects."""
     free = [n for n in mounts if n != reference]
-    start_at = {rig_frames[g][0]: (rig[0][gi], rig[1][gi]) for gi, g, *_ in obs}
-    groups: dict = {}  # (camera name, model id) -> lists of rig frame, pose offsets, corners
-    Rg0, Pg0 = [], []
-    times = []
-    warm = warm or {}
+    names = list(mounts)
+    start_at = {rig_frames[g][0]: (fit.rig[0][i], fit.rig[1][i])
+                for i, g in zip(fit.gi, fit.g, strict=True)}  # fmt: skip
+    groups: dict = {}  # (camera name, model id) -> the lists of the corners' arrays
+    Rg0, Pg0, times = [], [], []
     for t, seen in _rig_frames(every, window, max_step):
         known = [n for n in seen if n in mounts]
         if len(known) < 2:
             continue
-        Rg, Pg = warm.get(t) or start_at.get(t) or _rig_start(seen, every, mounts, known, scale)
-        gi = len(Rg0)
+        Rg, Pg = (warm or {}).get(t) or start_at.get(t) or _rig_start(seen, every, mounts, known,
+                                                                     scale)  # fmt: skip
         times.append(t)
         Rg0.append(Rg)
         Pg0.append(Pg)
         for n in known:
-            O_t, p_t, _, twist, k = seen[n]
+            O_t, p_t, _, (w, v), k = seen[n]
             _, Oc, pc, _, _, _, (uv, X, cam) = every[n][k]
-            a = groups.setdefault((n, id(cam)), (cam, [], [], [], [], [], [], []))
-            a[1].append(np.full(len(uv), gi))
-            a[2].append(np.broadcast_to(O_t.T @ Oc, (len(uv), 3, 3)))
-            a[3].append(np.broadcast_to(O_t.T @ (pc - p_t), (len(uv), 3)))
-            a[4].append(uv)
-            a[5].append(X)
-            a[6].append(np.broadcast_to(twist[0], (len(uv), 3)))
-            a[7].append(np.broadcast_to(twist[1], (len(uv), 3)))
-    names = list(mounts)
-    cams, parts = [], []
-    for i, ((n, _), (cam, *lists)) in enumerate(groups.items()):
-        cams.append(cam)
-        gi, Dr, Dp, uv, X, w, v = (np.concatenate(v) for v in lists)
-        d = np.full(len(gi), free.index(n) if n in free else -1)
-        parts.append((np.full(len(gi), i), gi, np.full(len(gi), names.index(n)), Dr, Dp, uv, X,
-                      d, w, v))  # fmt: skip
-    camera, gi, m, Dr, Dp, uv, X, d, w, v = (np.concatenate(v) for v in zip(*parts, strict=True))
+            K = len(uv)
+            parts = (np.full(K, len(Rg0) - 1), np.full(K, names.index(n)),
+                     np.broadcast_to(O_t.T @ Oc, (K, 3, 3)),
+                     np.broadcast_to(O_t.T @ (pc - p_t), (K, 3)), uv, X,
+                     np.full(K, free.index(n) if n in free else -1),
+                     np.broadcast_to(w, (K, 3)), np.broadcast_to(v, (K, 3)))  # fmt: skip
+            groups.setdefault((n, id(cam)), (cam, []))[1].append(parts)
+    cams = [cam for cam, _ in groups.values()]
+    per_cam = [[np.concatenate(a) for a in zip(*ls, strict=True)] for _, ls in groups.values()]
+    camera = np.concatenate([np.full(len(a[0]), i) for i, a in enumerate(per_cam)])
+    gi, m, Dr, Dp, uv, X, d, w, v = (np.concatenate(a) for a in zip(*per_cam, strict=True))
     problem = RigCorners(
         uv, cams, camera, gi, m, (np.array(Rg0), np.array(Pg0)),
         (np.array([mounts[n][0] for n in names]), np.array([mounts[n][1] for n in names])),
@@ -515,41 +502,21 @@ def _refine_on_corners(
     if sol is None:
         return None
     Rm, pm = sol.mounts
-    return {n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, times
+    return _Refined({n: (Rm[i], pm[i]) for i, n in enumerate(names)}, problem, sol, times)
 
 
-#: the rig frames of a refined mounting's covariance fall in this many runs of consecutive rig
-#: frames, each run's corners one group (:func:`_corner_covariance`)
-CORNER_BLOCKS = 10
-
-
-def _corner_covariance(
-    refined: dict,
-    problem: RigCorners,
-    sol: CornerSolution,
-    start: dict,
-    reference: str,
-    pose_cov: dict,
-) -> tuple[dict, float, dict, dict]:
-    """Each refined mounting's covariance (6, 6) over (rotation [rad, rig axes], position [m,
-    rig frame]): the corners' solve's (:meth:`RigCorners.mounting_covariance`, the rig poses
-    marginalized), the rig frames in :data:`CORNER_BLOCKS` runs of consecutive ones, each
-    run's corners a group whose errors may be correlated (a tag map's or a camera model's
-    error is shared by the frames that see the same tags from about the same place), runs
-    independent (times ``B / (B - 1)`` for the few groups), plus the systematic error the two
-    estimates disagree by: the pose-level adjustment's ``start`` (its covariance
-    ``pose_cov``) and the corners' ``refined`` estimate the same mountings from the same
-    corners, so their difference ``d`` has about the pose-level covariance (the corners'
-    estimate's is much the smaller); its excess ``m = d^T pose_cov^-1 d`` per degree of
-    freedom over all cameras, beyond 1 (also returned, at least :data:`MISFIT_FLOOR`), is
-    an error both carry, not the corners' noise (a camera model or a map slightly off, which
-    a camera posed alone takes up its own way): ``(m - 1) pose_cov`` is added. With time
-    offsets (``motion``), each free camera's (camera -> s, those runs as groups alike) and
-    one run's offset's variance about it (camera -> s^2,
-    :meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`'s scatter plus
-    the offset's own variance: how far a rig frame's exposure is from the offset written);
-    without, two empty dicts."""
-    free = [n for n in refined if n != reference]
+def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov: dict) -> tuple:
+    """Each refined mounting's covariance (6, 6) (step 5): the corners' solve's
+    (:meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`, runs of rig
+    frames as :data:`CORNER_BLOCKS` groups, times ``B / (B - 1)``) plus ``(misfit - 1)
+    pose_cov``, ``misfit`` the squared step from the pose-level mountings ``start`` (covariance
+    ``pose_cov``) per degree of freedom (at least :data:`MISFIT_FLOOR`); with time offsets
+    plus one run's offset variance about the offset and the offset's own times the mean of
+    ``a a^T`` over the camera's corners, ``a`` its twist in rig axes (an exposure ``dt`` later
+    moves the camera on the rig by ``dt a``). Returns ``(covariances, misfit, camera -> time
+    offset std s ({} without))``."""
+    problem, sol = refined.problem, refined.sol
+    free = [n for n in refined.mounts if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
     runs = (problem.frame * blocks) // problem.G
     dt_std, scatter = {}, {}
@@ -561,83 +528,99 @@ def _corner_covariance(
     else:
         C = problem.mounting_covariance(sol, runs)
     C = C * (blocks / max(blocks - 1, 1))
-    d = [np.r_[matrix_to_rotvec(refined[n][0] @ start[n][0].T), refined[n][1] - start[n][1]]
-         for n in free]  # fmt: skip
+    d = [np.r_[matrix_to_rotvec(refined.mounts[n][0] @ start[n][0].T),
+               refined.mounts[n][1] - start[n][1]] for n in free]  # fmt: skip
     seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LinAlgWarning)
         m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
-    return cov, misfit, dt_std, scatter
+    for i, n in enumerate(scatter):
+        mine = problem.motion[0] == i
+        if mine.any():
+            Rg, w, v = sol.rig[0][problem.frame[mine]], *(a[mine] for a in problem.motion[1:])
+            a = np.concatenate([np.einsum("nji,nj->ni", Rg, w), np.einsum("nji,nj->ni", Rg, v)], 1)
+            cov[n] = cov[n] + scatter[n] * (a.T @ a / len(a))
+    return cov, misfit, dt_std
 
 
-def _motion_moment(problem: RigCorners, sol: CornerSolution, index: int) -> np.ndarray:
-    """(6, 6): the mean over the corners of time offset ``index`` of ``a a^T``, ``a`` its camera's
-    twist in rig axes (angular rad/s, linear m/s; :class:`RigCorners` ``motion`` turned by its
-    rig frame's pose of ``sol``): a time offset ``dt`` moves the camera's pose on the rig at
-    its rig frame's time by ``dt a`` (rotation rig axes, position), so a variance ``s2`` of it
-    adds ``s2`` times this to the mounting's covariance (the axes of
-    :attr:`~rs_localizer.frames.Mounting.covariance`)."""
-    mine = problem.motion[0] == index
-    if not mine.any():
-        return np.zeros((6, 6))
-    Rg = sol.rig[0][problem.frame[mine]]
-    _, w, v = problem.motion
-    a = np.concatenate([np.einsum("nji,nj->ni", Rg, w[mine]), np.einsum("nji,nj->ni", Rg, v[mine])],
-                       axis=1)  # fmt: skip
-    return a.T @ a / len(a)
-
-
-def _exposed_apart(
-    rig_frames: list, poses: dict, mounts: dict, reference: str, bad: set, px: float
-) -> tuple[dict, dict, dict]:
-    """The cameras that do not expose with the reference: camera -> its time offset (s), those
-    the pose-level adjustment with a time offset per camera (:func:`_adjust`, ``offsets``;
-    started at ``mounts``, the camera frames in ``bad`` left out) finds beyond 3 of its std
-    (:func:`_mounting_covariance`) and large enough to move a corner by more than
-    :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median angular speed (the norm of its
-    frames' angular velocity, rad/s) times the camera's mean focal length (px). Also that
-    adjustment's mountings and their covariance (:func:`_mounting_covariance`)."""
-    adjusted, J, r, obs, G, free, dts, _ = _adjust(rig_frames, mounts, reference, bad, True)
-    cov, std = _mounting_covariance(J, r, obs, G, free)
-    cam = np.array([o[2] for o in obs])
-    speed = np.linalg.norm(np.array([o[6][0] for o in obs]).reshape(-1, 3), axis=1)
+def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: float) -> tuple:
+    """The cameras that do not expose with the reference (camera -> time offset s): those whose
+    offset in an adjustment with offsets (from ``fit``, ``bad`` left out) is beyond 3 std and
+    moves a corner by more than :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median
+    angular speed; also that adjustment's mountings and covariance."""
+    timed = _adjust(rig_frames, fit.mounts, reference, bad, True)
+    cov, std = _mounting_covariance(timed)
+    speed = np.linalg.norm(timed.w, axis=1)
     out = {}
-    for n, dt in dts.items():
+    for n, dt in timed.dts.items():
         focal = poses[n][0][6][2].mean_focal
-        shift = abs(dt) * float(np.median(speed[cam == n])) * focal
+        shift = abs(dt) * float(np.median(speed[timed.cam == n])) * focal
         if abs(dt) > 3.0 * std.get(n, np.inf) and shift > EXPOSED_APART_SHARE * px:
             out[n] = dt
-    return out, adjusted, cov
+    return out, timed.mounts, cov
 
 
-def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
-    """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`),
-    those with at least ``min_inliers`` inliers and a finite covariance: camera -> list of
-    ``(t ns on the rig's clock, orientation (3, 3) camera -> world, position (3,) m, angular
-    (3,) rad/s and linear (3,) m/s velocity in camera axes, covariance (12, 12), its inlier
-    corners ``(pixels (K, 2), map points (K, 3) m, camera model)``)`` in time order (``t``: the
-    reference line's capture time plus the camera's ``given`` offset, s)."""
-    poses: dict[str, list] = {}
-    for f in frames:
-        if f.camera is None:
-            continue
-        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
-        poses.setdefault(f.camera_name, [])
-        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
-            continue
-        if not np.isfinite(est.covariance[:6, :6]).all():
-            continue
-        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
-        q, inl = est.pose, np.asarray(est.inliers, dtype=bool)
-        corners = (np.asarray(f.points2d, float)[inl], np.asarray(f.points3d, float)[inl], f.camera)
-        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
-                                     q.linear_velocity, est.covariance, corners))  # fmt: skip
-    for items in poses.values():
-        items.sort(key=lambda i: i[0])
-    return poses
+def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -> tuple:
+    """The pose-level adjustment (step 4), again without the outliers; with ``timed`` the frames
+    regrouped at the offsets found (beyond 3 std; ``poses`` shifted in place) until they change
+    by less than :data:`TIME_OFFSET_TOL` (:data:`TIME_OFFSET_ROUNDS` at most). Returns ``(fit,
+    (covariances, offsets' std), outliers, rig frames, camera -> offset regrouped at s)``."""
+    shifted = {n: 0.0 for n in poses}
+    rounds = TIME_OFFSET_ROUNDS if timed else 1
+    for k in range(rounds):
+        covariance = None
+        fit = _adjust(rig_frames, mounts, reference, offsets=timed)
+        bad = fit.outliers()
+        if bad:
+            fit = _adjust(rig_frames, fit.mounts, reference, bad, offsets=timed)
+        mounts = fit.mounts
+        if not fit.dts or k == rounds - 1:
+            break
+        covariance = _mounting_covariance(fit)
+        std = covariance[1]
+        step = {n: dt for n, dt in fit.dts.items()
+                if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
+        if not step:
+            break
+        for n, dt in step.items():
+            shifted[n] += dt
+            poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
+        rig_frames = _rig_frames(poses, window, max_step)
+    return fit, covariance or _mounting_covariance(fit), bad, rig_frames, shifted
+
+
+def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, max_step):
+    """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
+    that expose apart a time offset each, the frames regrouped at the offsets found (``every``
+    shifted in place) and solved again until they change by less than :data:`TIME_OFFSET_TOL`.
+    Returns ``(cameras apart, None or (mountings, covariances, misfit, offsets, their std))``."""
+    apart, timed, timed_cov = _exposed_apart(rig_frames, poses, fit, reference, bad, px)
+    args = (rig_frames, every, fit, fit.mounts, reference, px, window, max_step, bool(apart))
+    corners = _refine_on_corners(*args)
+    found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
+    for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
+        dt = corners.problem.time_offsets(corners.sol.result.x)
+        if np.all(np.abs(dt) < TIME_OFFSET_TOL):
+            break
+        free = [n for n in corners.mounts if n != reference]
+        for n, v in zip(free, dt.tolist(), strict=True):
+            found[n] = found.get(n, 0.0) + v
+            every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
+        warm = dict(zip(corners.times, zip(*corners.sol.rig, strict=True), strict=True))
+        again = _refine_on_corners(*args[:3], corners.mounts, *args[4:], warm)
+        if again is None:
+            break
+        corners = again
+    if corners is None:
+        return apart, None
+    # (the two estimates compared alike: with a time offset per camera or without)
+    start, start_cov = (timed, timed_cov) if apart else (fit.mounts, cov)
+    cov, misfit, dt_std = _corner_covariance(corners, start, reference, start_cov)
+    dt = corners.problem.time_offsets(corners.sol.result.x)
+    dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
+    return apart, (corners.mounts, cov, misfit, dts, dt_std)
 
 
 def calibrate_mountings(
@@ -653,54 +636,34 @@ def calibrate_mountings(
     time_offsets: Mapping[str, float] | None = None,
     estimate_time_offsets: bool = False,
 ) -> dict:
-    """Every camera's mounting on the rig from a video of a known map, adjusted jointly
-    (docs/rig_node.md, "Mountings from data", has each step and its measurements).
-
-    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
-    pose, twist and covariance at its reference line's capture time, camera optical frame);
-    every camera frame's time starts a rig frame unless within ``window`` of the current one's
-    start, each camera's nearest frame carried to it with the camera's motion (interpolated
-    between its own two frames around it). The mountings start from the cameras' relative
-    poses chained from the reference over the cameras that share rig frames (any set of
-    cameras connected through shared rig frames, a ring or a chain, is calibrated), then every
-    rig frame's pose and every mounting are adjusted in one least-squares problem (SciPy
-    ``least_squares``, sparse Jacobian; each camera's pose errors whitened by its frames'
-    typical covariance in its own axes, scaled to each frame's own covariance's size); camera
-    frames beyond the 99.9 % chi-square quantile (6 degrees of freedom, at the errors' median
-    scale) are left out and the adjustment is run again. When every camera reads out at once
-    (global shutter), no time offset is estimated and the cameras expose together (no
-    camera's time offset, estimated as with ``estimate_time_offsets``, beyond 3 of its std and
-    moving a corner by more than :data:`EXPOSED_APART_SHARE` of the RANSAC threshold at the
-    rig's median angular speed), the mountings are then refined on the
-    corners of every camera frame posed alone, those with fewer than ``min_inliers`` inliers
-    too (:func:`_refine_on_corners`: one rig pose per rig frame, each inlier corner's error
-    in the distorted image, ``soft_l1`` at the RANSAC threshold of ``options``), each with
-    the covariance of that solve, the rig poses marginalized, runs of rig frames as groups,
-    plus the error the pose-level and the refined mountings disagree by beyond the pose-level
-    covariance (:func:`_corner_covariance`).
+    """Every camera's mounting on the rig from a video of a known map, adjusted jointly, each
+    with its covariance (docs/rig_node.md, "Mountings from data", has each step and its
+    measurements): each camera frame posed alone, grouped into rig frames; the mountings
+    chained from the reference over the cameras that share rig frames (a ring or a chain is
+    calibrated), then every rig frame's pose and every mounting adjusted in one least-squares
+    problem, outliers left out; for global-shutter cameras without ``estimate_time_offsets``
+    then refined on the corners (with a time offset per camera when they do not expose
+    together, :data:`EXPOSED_APART_SHARE`).
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
             order; frames without a camera model are skipped).
         reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
-            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+            (its known mounting on the rig) places it.
         window: s; frames further apart are not one rig frame.
         stamp_row: the row whose capture time is a frame's stamp.
         min_inliers: frames posed with fewer inliers are left out of the pose-level
             adjustment (the refinement on the corners takes their corners).
-        max_step: s; the longest interval between a camera's two frames to interpolate over
-            (beyond it a frame is carried by its own twist).
         options: the single-camera estimator's
-            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults; its RANSAC
+            threshold is the corners' loss scale).
+        max_step: s; the longest interval between a camera's two frames to interpolate over.
         time_offsets: camera -> s added to its stamps (a rig's
             :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
         estimate_time_offsets: also estimate every camera's time offset against the
-            reference camera's (its given one kept): a parameter per camera in the adjustment
-            (a camera frame's pose moved along its own twist), the frames regrouped at the
-            offsets found (those beyond 3 of their std) and the adjustment run again until
-            they change by less than :data:`TIME_OFFSET_TOL` (at most
-            :data:`TIME_OFFSET_ROUNDS` times). Only a rig that moves shows an offset: its std
-            says how well.
+            reference's (its given one kept), the frames regrouped at the offsets found until
+            they change by less than :data:`TIME_OFFSET_TOL`; only a rig that moves shows an
+            offset, its std says how well.
     Returns:
         camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
         a camera not connected to the reference through shared rig frames is missing).
@@ -722,102 +685,36 @@ def calibrate_mountings(
     if len(mounts) < 2:  # (no camera shares a rig frame with the reference)
         n_ref = len(poses[reference])
         return {reference: MountingEstimate(reference, base, n_ref, 0, 0.0, 0.0, 0.0, 0.0)}
-    shifted = {n: 0.0 for n in poses}  # (s: the time offsets found so far, beyond the given)
-    rounds = TIME_OFFSET_ROUNDS if estimate_time_offsets else 1
-    for k in range(rounds):
-        covariances = None  # (of this round's adjustment, once computed)
-        mounts, J, r, obs, G, free, dts, rig = _adjust(
-            rig_frames, mounts, reference, offsets=estimate_time_offsets
-        )
-        # camera frames that contradict the others, left out (at the errors' median scale)
-        d2 = np.sum(r * r, axis=1)
-        scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
-        bad = {(g, n) for (_, g, n, *_), e in zip(obs, d2, strict=True)
-               if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
-        if bad:
-            mounts, J, r, obs, G, free, dts, rig = _adjust(
-                rig_frames, mounts, reference, bad, offsets=estimate_time_offsets
-            )
-        if not dts or k == rounds - 1:
-            break  # (the offsets of the last adjustment: dts, beyond those shifted)
-        # the cameras' frames regrouped at the offsets found, those the video shows (beyond
-        # 3 std; a rig that hardly moves shows none: its offsets stay)
-        covariances = _mounting_covariance(J, r, obs, G, free)
-        std = covariances[1]
-        step = {n: dt for n, dt in dts.items()
-                if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
-        if not step:
-            break
-        for n, dt in step.items():
-            shifted[n] += dt
-            poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
-        rig_frames = _rig_frames(poses, window, max_step)
-    # (the last round's, when it regrouped nothing, is the final adjustment's)
-    cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free)
-    refined, apart, misfit = False, {}, float("nan")
+    fit, (cov, dt_std), bad, rig_frames, shifted = _pose_level(
+        rig_frames, poses, mounts, reference, estimate_time_offsets, window, max_step
+    )
+    mounts, dts, misfit, apart, refined = fit.mounts, fit.dts, np.nan, {}, None
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
-        apart, timed, timed_cov = _exposed_apart(rig_frames, poses, mounts, reference, bad, px)
-        corners = _refine_on_corners(
-            rig_frames, every, obs, rig, mounts, reference, px, window, max_step, bool(apart)
-        )
-        found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
-        for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
-            # the camera frames regrouped at the offsets found and solved again from the
-            # solution (the offsets the motion's first order leaves), until they change by
-            # less than TIME_OFFSET_TOL
-            dt = corners[1].time_offsets(corners[2].result.x)
-            if np.all(np.abs(dt) < TIME_OFFSET_TOL):
-                break
-            free = [n for n in corners[0] if n != reference]
-            for n, v in zip(free, dt.tolist(), strict=True):
-                found[n] = found.get(n, 0.0) + v
-                every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
-            warm = dict(zip(corners[3], zip(*corners[2].rig, strict=True), strict=True))
-            again = _refine_on_corners(rig_frames, every, obs, rig, corners[0], reference, px,
-                                       window, max_step, True, warm)  # fmt: skip
-            if again is None:
-                break
-            corners = again
-        refined = corners is not None
-        if refined:
-            # (the two estimates compared alike: with a time offset per camera or without)
-            start, start_cov = (timed, timed_cov) if apart else (mounts, cov)
-            cov, misfit, dt_c, spread = _corner_covariance(
-                *corners[:3], start, reference, start_cov
-            )
-            mounts = corners[0]
-            if apart:
-                dt = corners[1].time_offsets(corners[2].result.x)
-                dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_c, dt, strict=True)}
-                dt_std = dt_c
-                # (a rig frame's exposure off the offset moves the camera on the rig)
-                for i, n in enumerate(dt_c):
-                    cov[n] = cov[n] + spread[n] * _motion_moment(corners[1], corners[2], i)
-    cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
+        apart, refined = _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px,
+                                     window, max_step)  # fmt: skip
+        if refined is not None:
+            mounts, cov, misfit, dts, dt_std = refined
+    e = fit.errors()  # (the camera frames' pose errors about the adjusted rig)
     out = {}
     for name in poses:
         if name not in mounts or (name != reference and not np.isfinite(cov[name]).all()):
             continue
-        n_used, n_bad = cam.count(name), sum(1 for (_, n) in bad if n == name)
+        n_used, n_bad = int(np.sum(fit.cam == name)), sum(1 for (_, n) in bad if n == name)
         offset = given.get(name, 0.0) + shifted.get(name, 0.0) + dts.get(name, 0.0)
         if name == reference:
-            out[name] = MountingEstimate(
-                name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, offset, corners_refined=refined
-            )
+            out[name] = MountingEstimate(name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, offset,
+                                         corners_refined=refined is not None)  # fmt: skip
             continue
-        R, p = mounts[name]
-        C = cov[name]
-        # one camera frame's scatter about the rig: its pose errors against the adjustment
-        mine = e[np.array(cam) == name]
-        scat_r = float(np.sqrt(np.mean(np.sum(mine[:, :3] ** 2, axis=1))))
-        scat_p = float(np.sqrt(np.mean(np.sum(mine[:, 3:] ** 2, axis=1))))
+        C, mine = cov[name], e[fit.cam == name]
+        scat = np.sqrt(np.mean(np.sum(mine[:, :3] ** 2, axis=1))), np.sqrt(
+            np.mean(np.sum(mine[:, 3:] ** 2, axis=1)))  # fmt: skip
         out[name] = MountingEstimate(
-            name, Mounting.from_pose(R, p, covariance=C), n_used, n_bad,
+            name, Mounting.from_pose(*mounts[name], covariance=C), n_used, n_bad,
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
-            float(np.rad2deg(scat_r)), 1e3 * scat_p, offset, dt_std.get(name, float("nan")),
-            refined, apart.get(name, float("nan")), misfit,
+            float(np.rad2deg(scat[0])), float(1e3 * scat[1]), offset, dt_std.get(name, np.nan),
+            refined is not None, apart.get(name, np.nan), misfit,
         )  # fmt: skip
     return out

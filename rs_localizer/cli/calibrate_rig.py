@@ -25,86 +25,45 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c = sub.add_parser(
         "calibrate-rig",
         help=HELP,
-        description="Estimate every camera's mounting on the rig from a rig bag (each camera's "
-        "correspondences with a known map and camera_info, e.g. make-bag --rig N; with -p "
-        "frontend its images through the front end): each camera frame is posed alone; the "
-        "mountings start from the cameras' relative poses chained from the reference camera "
-        "over the cameras that share rig frames (a ring or a chain of cameras need not all see "
-        "the map with the reference), then every rig frame's pose and every mounting are "
-        "adjusted jointly by least squares (outliers left out), each mounting with its "
-        "covariance. Writes the node's rig parameters (rig.<camera>.mounting and "
-        "mounting_covariance) with each camera's RS timing. The cameras, their timing and "
+        description="Estimate every camera's mounting on the rig, with its covariance, from a "
+        "rig bag (each camera's correspondences with a known map and camera_info, e.g. "
+        "make-bag --rig N; with -p frontend its images through the front end), read as the rig "
+        "node reads them; the cameras need only be connected through shared frames (a ring, a "
+        "chain). Writes the node's rig parameters (rig.<camera>.mounting and "
+        "mounting_covariance, each camera's RS timing); the cameras, their timing and "
         "max_points come from the bag's rig_params.yaml, then --params-file, then -p. The "
-        "clouds are read as the rig node reads them; the rows and clouds left out are counted "
-        "and printed for each camera that had any (docs/tools.md#calibrate-rig).",
+        "method: docs/rig_node.md#mountings-from-data-calibrate-rig.",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
-    c.add_argument(
-        "-o",
-        "--output",
-        default=None,
-        help="parameter file to write (default: print it on stdout)",
-    )
-    c.add_argument(
-        "--params-file",
-        action="append",
-        default=[],
-        metavar="FILE",
-        help="the node's parameter file with rig.cameras and the cameras' RS timing "
-        "(repeatable; later ones win; over the bag's rig_params.yaml)",
-    )
-    c.add_argument(
-        "-p",
-        "--param",
-        action="append",
-        default=[],
-        metavar="NAME:=VALUE",
-        help="set a node parameter (YAML value, as ros2 run -p; repeatable; over the parameter "
-        "files), e.g. frontend:=aruco with frontend_map:=BAG/markers.yaml to read each "
-        "camera's images through its front end instead of its correspondences",
-    )
-    c.add_argument(
-        "--reference",
-        default=None,
-        help="the camera the others are measured from (default: the first of rig.cameras)",
-    )
-    c.add_argument(
-        "--optical-frame",
-        action="store_true",
-        help="the rig frame is the reference camera's optical frame (its mounting the "
-        "identity; the file's base_frame then names that frame, its camera_info's frame_id); "
-        "default: base_frame, with the reference camera's mounting of the parameters (the "
-        "optical frame if it has none)",
-    )
-    c.add_argument(
-        "--window",
-        type=A.nonneg_float,
-        default=0.015,
-        help="s; a camera frame further than this from the reference camera's is not paired",
-    )
+    c.add_argument("-o", "--output", help="parameter file to write (default: on stdout)")
+    c.add_argument("--params-file", action="append", default=[], metavar="FILE",
+                   help="the node's parameter file with rig.cameras and the cameras' RS timing "
+                   "(repeatable; later ones win; over the bag's rig_params.yaml)")  # fmt: skip
+    c.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="set a node parameter (YAML value, as ros2 run -p; repeatable; over the "
+                   "parameter files), e.g. frontend:=aruco with frontend_map:=BAG/markers.yaml "
+                   "to read each camera's images through its front end")  # fmt: skip
+    c.add_argument("--reference", help="the camera the others are measured from (default: the "
+                   "first of rig.cameras)")  # fmt: skip
+    c.add_argument("--optical-frame", action="store_true",
+                   help="the rig frame is the reference camera's optical frame (the file's "
+                   "base_frame its camera_info's frame_id); default: base_frame, the "
+                   "reference at its mounting of the parameters, if any")  # fmt: skip
+    c.add_argument("--window", type=A.nonneg_float, default=0.015,
+                   help="s; camera frames further apart are not one rig frame")  # fmt: skip
     c.add_argument("--threshold", type=A.positive_float, default=2.0, help="RANSAC threshold (px)")
-    c.add_argument(
-        "--min-inliers",
-        type=A.positive_int,
-        default=20,
-        help="camera frames posed with fewer inliers are left out of the pose-level "
-        "adjustment (a global-shutter rig's refinement on the corners takes their corners)",
-    )
-    c.add_argument(
-        "--time-offsets",
-        action="store_true",
-        help="also estimate each camera's time offset against the reference camera's (s added "
-        "to its stamps: a driver that stamps late or early) from the rig's rotation in the "
-        "video, with its std; written as rig.<camera>.time_offset. A rig that barely moves "
-        "shows none (its std says so)",
-    )
-    c.add_argument(
-        "--json",
-        action="store_true",
-        help="print the mountings and their uncertainty as JSON on stdout (the parameter "
-        "file then needs -o)",
-    )
+    c.add_argument("--min-inliers", type=A.positive_int, default=20,
+                   help="camera frames posed with fewer inliers are left out of the pose-level "
+                   "adjustment (a global-shutter rig's refinement on the corners takes their "
+                   "corners)")  # fmt: skip
+    c.add_argument("--time-offsets", action="store_true",
+                   help="also estimate each camera's time offset against the reference's (s "
+                   "added to its stamps), with its std, written as rig.<camera>.time_offset; a "
+                   "rig that barely moves shows none (its std says so)")  # fmt: skip
+    c.add_argument("--json", action="store_true",
+                   help="print the mountings and their uncertainty as JSON (then -o for the "
+                   "parameter file)")  # fmt: skip
     c.set_defaults(func=run)
     return c
 
@@ -118,10 +77,8 @@ MIN_RIG_FRAMES = 10
 
 
 def short_video_warning(name: str, frames: int) -> str:
-    """The warning for a camera whose mounting rests on ``frames`` rig frames (fewer than
-    ``MIN_RIG_FRAMES``): the std is the scatter of that few frames; the factor by which the
-    true std may exceed it is the 95 % upper bound of a std estimated from ``frames``
-    samples, ``sqrt((n - 1) / chi2_0.05(n - 1))``."""
+    """The warning for a camera whose mounting rests on ``frames`` (< ``MIN_RIG_FRAMES``) rig
+    frames: the error may exceed the std by the 95 % bound ``sqrt((n - 1) / chi2_0.05(n - 1))``."""
     from scipy.stats import chi2
 
     dof = max(frames - 1, 1)
@@ -134,10 +91,8 @@ def short_video_warning(name: str, frames: int) -> str:
 
 
 def rows_note(name: str, counts: dict, max_points: int) -> str:
-    """The line on camera ``name``'s rows and clouds left out of its frames: ``counts``
-    (``points_dropped``, ``capped_clouds``, ``capped_points``, ``bad_input``, then any other
-    reason, e.g. ``bad_stamp``, of :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`)
-    as ``replay`` names them."""
+    """The line on camera ``name``'s rows and clouds left out (``counts``:
+    :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`), named as ``replay`` names them."""
     return (
         f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
         + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
@@ -147,12 +102,10 @@ def rows_note(name: str, counts: dict, max_points: int) -> str:
 
 
 def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame: str) -> str:
-    """The node's parameter file of the calibrated rig: ``base_frame`` (the rig frame the
-    mountings are in), ``rs.stamp_row``, ``rig.cameras`` (the keys of ``est``: camera ->
-    :class:`~rs_localizer.calibration.MountingEstimate`) and per camera its ``mounting`` (and
-    covariance), the RS timing it was read with (``cams``) and its ``time_offset`` (the one
-    calibrated with or estimated) with the estimate's ``time_offset_std``; ``notes``: comment
-    lines on top."""
+    """The node's parameter file of the calibrated rig (``est``: camera ->
+    :class:`~rs_localizer.calibration.MountingEstimate`): per camera its ``mounting`` and
+    covariance, the RS timing it was read with (``cams``), its ``time_offset`` and
+    ``time_offset_std``; ``notes``: comment lines on top."""
     from ..ros.config import mounting_covariance_values, mounting_values, rig_parameter_file
 
     body_cams = {}
@@ -201,8 +154,8 @@ def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]
 
 
 def _optical_frame_id(bag, camera: str) -> str:
-    """The optical frame of ``camera`` in a rig bag: the ``frame_id`` of its first camera_info
-    (``<namespace>/<camera>/camera_info``), else ``<camera>_optical_frame``."""
+    """``camera``'s optical frame in a rig bag: its first camera_info's ``frame_id``, else
+    ``<camera>_optical_frame``."""
     from ..ros.bags.bag_io import bag_topics, iter_messages, typestore
 
     topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
@@ -216,9 +169,8 @@ def _optical_frame_id(bag, camera: str) -> str:
 
 
 def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
-    """The lines printed on a non-reference camera's :class:`MountingEstimate` ``e`` (its std,
-    time offset, warnings) and, with the parameters' mounting ``given``, how far that is from
-    ``e``'s (lines, and ``parameters_off_deg``/``_mm`` for its report)."""
+    """The lines printed on a non-reference camera's estimate ``e`` and, with the parameters'
+    mounting ``given``, how far that is (lines, and ``parameters_off_deg``/``_mm``)."""
     from ..geometry import rotation_angle_deg
 
     notes = [
@@ -298,25 +250,20 @@ def run(args: argparse.Namespace) -> int:
         read = read_rig_frames(bag, args.params_file, A.param_overrides(args.param))
     except ConfigError as e:
         raise A.CliError(f"invalid parameters: {e}") from None
-    frames, values, cams = read.frames, read.values, read.cameras
+    values, cams = read.values, read.cameras
     names = [str(n).strip() for n in values["rig.cameras"]]
     ref = args.reference or names[0]
     if ref not in names:
         raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
     given = parameter_mountings(cams, names)
     ref_mount = None if args.optical_frame else given.get(ref)
-    opts = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
     est = calibrate_mountings(
-        frames,
-        ref,
-        reference_mount=ref_mount,
-        window=args.window,
-        stamp_row=float(values["rs.stamp_row"]),
-        min_inliers=args.min_inliers,
-        options=opts,
+        read.frames, ref, reference_mount=ref_mount, window=args.window,
+        stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers,
+        options=EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold)),
         time_offsets=read.settings.time_offsets if read.settings is not None else None,
         estimate_time_offsets=args.time_offsets,
-    )
+    )  # fmt: skip
     missing = [n for n in names if n not in est]
     if missing:
         raise A.CliError(
@@ -347,11 +294,9 @@ def run(args: argparse.Namespace) -> int:
             **{k: getattr(e, k) for k in ("scatter_deg", "scatter_mm", "time_offset")},
             "corners_refined": e.corners_refined,
             **read.counts[n],
+            **({"time_offset_std": e.time_offset_std} if np.isfinite(e.time_offset_std) else {}),
+            **({"corner_misfit": e.corner_misfit} if n != ref and e.corners_refined else {}),
         }
-        if np.isfinite(e.time_offset_std):
-            report[n]["time_offset_std"] = e.time_offset_std
-        if n != ref and e.corners_refined:
-            report[n]["corner_misfit"] = e.corner_misfit
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
