@@ -22,8 +22,8 @@ in NumPy.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@kernel
 def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     """Lambda Twist (:func:`~rs_localizer.solvers.lambda_twist.lambda_twist`'s solutions, in
     its order) on the first 3 points of one ``sample`` (>= 3 pool indices) of the pool's
@@ -74,7 +74,7 @@ def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     return n
 
 
-@njit(cache=True)
+@kernel
 def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
     """:func:`~rs_localizer.solvers.lambda_twist.lambda_twist_batch` on the first 3 points
     of each sample (K, >= 3) of the pool's normalized points (N, 2) (bearings ``(x, y,
@@ -97,7 +97,7 @@ def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
     return R[:m].copy(), C[:m].copy(), own[:m].copy()
 
 
-@njit(cache=True)
+@kernel
 def counted(e, k, cam, pool_counts, subset):
     """The inliers of errors ``e`` (N,) px (below ``k``; among ``subset`` when it is not
     empty) and the cameras of 3 or more points (``pool_counts``) with none: ``(inliers,
@@ -119,7 +119,7 @@ def counted(e, k, cam, pool_counts, subset):
     return n_in, missed
 
 
-@njit(cache=True)
+@kernel
 def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
                  iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
                  log_miss, out):  # fmt: skip
@@ -204,7 +204,7 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
     return drawn, found, best_cost, n_best, beyond
 
 
-@njit(cache=True)
+@kernel
 def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
     """One sample's global-shutter models (:func:`~.rig._hypotheses_still`), in the order
     they are scored: Lambda Twist on its first 3 points mapped to the rig
@@ -238,7 +238,7 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
     return np.concatenate((Rg, Rc)), np.concatenate((Cg, Cc))
 
 
-@njit(cache=True)
+@kernel
 def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
     (:func:`~.rig._hypotheses`): each sample pre-rotated by its Lambda Twist poses mapped to
