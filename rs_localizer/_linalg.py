@@ -11,7 +11,8 @@ arrays are float64 and overwritten where the docstring says so.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ._jit import kernel
 
 __all__ = [
     "balance",
@@ -28,7 +29,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@kernel
 def householder_qr(B, M, V, Rd):
     """In-place Householder QR of B (m, n), m >= n (R left in its upper triangle), applying
     Q^T to M (m, k) as well.
@@ -74,7 +75,7 @@ def householder_qr(B, M, V, Rd):
     return rmin / rmax if rmax > 0.0 else 0.0
 
 
-@njit(cache=True)
+@kernel
 def householder_lstsq_into(Bqr, V, f, out):
     """Least squares ``B y = -f`` for B (m, n), m >= n, with the QR :func:`householder_qr` left
     in ``Bqr`` (R in its upper triangle) and ``V`` (m, n) (the reflectors): ``y`` (n,) goes to
@@ -93,7 +94,7 @@ def householder_lstsq_into(Bqr, V, f, out):
         out[k] = s / Bqr[k, k]
 
 
-@njit(cache=True)
+@kernel
 def balance(a, D):
     """Balance a square matrix in place (EISPACK balanc, radix 2), 1-based arrays:
     ``a_out = D^-1 a_in D`` with the diagonal D (n + 1,) returned in D."""
@@ -129,7 +130,7 @@ def balance(a, D):
                         a[j, i] *= f
 
 
-@njit(cache=True)
+@kernel
 def elmhes(a, Z):
     """Reduce to upper Hessenberg form in place by stabilised elimination (EISPACK elmhes),
     1-based arrays. Accumulates the similarity: on return ``a_in Z = Z a_out``."""
@@ -166,7 +167,7 @@ def elmhes(a, Z):
                         Z[j, m] += y * Z[j, i]
 
 
-@njit(cache=True)
+@kernel
 def hessenberg_lu(H, lam, T, swap):
     """LU factorisation of (H - lam I) for upper Hessenberg H (1-based, n x n, not modified) with
     partial pivoting (only rows k, k+1 compete): O(n^2). Factors go to T (multipliers in
@@ -201,7 +202,7 @@ def hessenberg_lu(H, lam, T, swap):
         T[n, n] = floor
 
 
-@njit(cache=True)
+@kernel
 def hessenberg_lu_solve(T, swap, y):
     """Solve with the factors of :func:`hessenberg_lu`; y (n + 1,) overwritten (1-based)."""
     n = T.shape[0] - 1
@@ -218,7 +219,7 @@ def hessenberg_lu_solve(T, swap, y):
         y[k] = sm / T[k, k]
 
 
-@njit(cache=True)
+@kernel
 def hqr(a, wr, wi):
     """Eigenvalues of an upper Hessenberg matrix (1-based, destroyed) by the Francis double-shift
     QR algorithm (EISPACK hqr). Returns False if an eigenvalue needs more than 60 iterations."""
@@ -351,7 +352,7 @@ def hqr(a, wr, wi):
     return True
 
 
-@njit(cache=True)
+@kernel
 def cholesky_into(A, n, L):
     """Cholesky factor of the leading n x n block of A (lower triangle read) into L[:n, :n]
     (lower triangle; the strict upper part is not written). False if A is not numerically
@@ -372,7 +373,7 @@ def cholesky_into(A, n, L):
     return True
 
 
-@njit(cache=True)
+@kernel
 def lu_solve(M, B, n, m):
     """Solve ``M Y = B`` in place (Y in B[:n, :m]) by Gaussian elimination with partial
     pivoting on the leading n x n block of M (destroyed): LAPACK gesv's method, which
@@ -407,7 +408,7 @@ def lu_solve(M, B, n, m):
     return True
 
 
-@njit(cache=True)
+@kernel
 def solve_symmetric(A, B, n, m, L, M):
     """Solve ``A Y = B`` in place in B[:n, :m] for the symmetric n x n block of A: Cholesky,
     or pivoted LU (``np.linalg.solve``'s method) when A is not numerically positive definite.
@@ -432,7 +433,7 @@ def solve_symmetric(A, B, n, m, L, M):
     return True
 
 
-@njit(cache=True)
+@kernel
 def solve_square(A, b, u, tol):
     """Gaussian elimination with partial pivoting for square A (n, n); A, b overwritten; the
     solution goes to u (which may be b itself).

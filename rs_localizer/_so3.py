@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from numba.core import ir as _numba_ir
+
+from ._jit import kernel
 
 #: numba fast-math flags of the hot kernels: fused multiply-add only (no reassociation, and
 #: NaN/inf semantics are kept, which the kernels rely on); ~30% faster scoring, results
@@ -18,7 +19,7 @@ FMA = {"contract"}
 INLINE = "always" if hasattr(_numba_ir.Var, "__deepcopy__") else "never"
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def so3_coefficients(th2):
     """Rodrigues/left-Jacobian coefficients for an angle t with ``t^2 = th2``:
     ``(sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3)``, so that
@@ -46,7 +47,7 @@ def so3_coefficients(th2):
     return s / th, (1.0 - np.cos(th)) / th2, (th - s) / (th2 * th)
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def rotate_small(a0, a1, a2, q0, q1, q2):
     """``expm([a]x) q = q + c1 a x q + c2 a x (a x q)`` (Rodrigues) for a point q, with the
     coefficients ``(c1, c2, c3)`` of :func:`so3_coefficients` at ``a``: six scalars. The
@@ -66,7 +67,7 @@ def rotate_small(a0, a1, a2, q0, q1, q2):
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def rotate_left_into(a0, a1, a2, R, out):
     """``out = expm([a]x) R`` for R, out (3, 3) (Rodrigues)."""
     sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
@@ -86,7 +87,7 @@ def rotate_left_into(a0, a1, a2, R, out):
         out[2, j] = e20 * r0 + e21 * r1 + e22 * r2
 
 
-@njit(cache=True, fastmath=FMA)
+@kernel(fastmath=FMA)
 def compose_rotvec(v, R_pre):
     """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
     on top of the pre-rotation."""
@@ -97,7 +98,7 @@ def compose_rotvec(v, R_pre):
     return out
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def copy_matrix3(src, dst):
     """``dst[:, :] = src`` for 3 x 3 arrays, element by element. A slice assignment between
     arrays also compiles numba's shape-mismatch error with its string formatting (seconds of
@@ -107,7 +108,7 @@ def copy_matrix3(src, dst):
             dst[a, b] = src[a, b]
 
 
-@njit(cache=True)
+@kernel
 def skew_matrix(v):
     """``[v]x`` (3, 3), a new array, of a 3-vector ``v`` (3,): ``[v]x a = v x a``."""
     S = np.zeros((3, 3))
@@ -116,7 +117,7 @@ def skew_matrix(v):
     return S
 
 
-@njit(cache=True)
+@kernel
 def rotation_log_into(R, v):
     """``v`` (3,) = the rotation vector (axis times angle in [0, pi], rad) of the rotation
     matrix ``R`` (3, 3): from the antisymmetric part (``0.5 (R - R^T)`` below 1e-6 rad), and

@@ -20,8 +20,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numba import njit
 
+from ._jit import kernel
 from .geometry import rotvec_to_matrix
 
 __all__ = [
@@ -644,7 +644,7 @@ def _field_limit(model: str, D: np.ndarray, distorted: bool) -> float:
     return float(lo)
 
 
-@njit(cache=True)
+@kernel
 def _pinhole_normalize(p, K):
     """(N, 2) pixels -> normalized coordinates ``K^-1 [u, v, 1]`` (upper-triangular K)."""
     out = np.empty((p.shape[0], 2))
@@ -655,7 +655,7 @@ def _pinhole_normalize(p, K):
     return out
 
 
-@njit(cache=True)
+@kernel
 def _rs_coordinates(p, x, K, axis, sign, d0, d1, r0):
     """RS coordinates ``r`` of the measured pixels p (N, 2) and the per-point reference
     ``r0 - (r - d . x)`` of :meth:`CameraModel.normalize` (x the undistorted points)."""
@@ -668,7 +668,7 @@ def _rs_coordinates(p, x, K, axis, sign, d0, d1, r0):
     return r, r0e
 
 
-@njit(cache=True)
+@kernel
 def _fisheye_scales(r, th, k):
     """``(s, g)`` of the equidistant model's distortion Jacobian ``s I + g x x^T`` at a point
     of undistorted radius ``r`` and angle ``th = arctan(r)`` from the optical axis, ``k`` its
@@ -681,7 +681,7 @@ def _fisheye_scales(r, th, k):
     return th * poly / r, ((dpoly / (1 + r * r) * r - th * poly) / (r * r)) / r
 
 
-@njit(cache=True)
+@kernel
 def distortion_jacobian(xn, d, fisheye, fx, fy):
     """:meth:`CameraModel.pixel_jacobian` with distortion, compiled: (N, 2, 2) at the (N, 2)
     undistorted normalized points ``xn``; ``d`` (8,) the equidistant model's k1..k4
@@ -713,7 +713,7 @@ def distortion_jacobian(xn, d, fisheye, fx, fy):
     return J
 
 
-@njit(cache=True)
+@kernel
 def fisheye_jacobian(xn, th, k, fx, fy):
     """:meth:`CameraModel.pixel_jacobian` of the equidistant model: (N, 2, 2) at the (N, 2)
     undistorted normalized points ``xn`` with ``th`` (N,) their angles from the optical axis

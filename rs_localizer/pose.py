@@ -46,7 +46,8 @@ from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
-from numba import njit
+
+from ._jit import kernel
 
 __all__ = [
     "PoseMeasurement",
@@ -60,7 +61,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@kernel
 def model_twist(C, w, t, s):
     """(6,) the camera's velocities ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (ROS twist
     order; m/s, rad/s, camera frame) from the model's ``C`` (3,) m, ``w`` (3,) rad and ``t``
@@ -81,7 +82,7 @@ def model_twist(C, w, t, s):
     return z
 
 
-@njit(cache=True)
+@kernel
 def model_twist_jacobian(C, w, s):
     """(6, 12) Jacobian of :func:`model_twist` over the model's ``(delta, C, w, t)`` (``delta``
     the rotation increment, on which the twist does not depend): ``dv/dC = [w]x / s``,

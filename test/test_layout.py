@@ -17,6 +17,7 @@ LAYER = {
     "camera": 0,
     "_so3": 0,
     "_linalg": 0,
+    "_jit": 0,  # (the kernels' decorator)
     "maps": 0,
     "accuracy": 0,
     "frames": 0,
@@ -198,7 +199,9 @@ def _public_functions(tree):
         elif (
             isinstance(node, ast.FunctionDef)
             and (not node.name.startswith("_") or node.name == "__init__")
-            and not any("jit" in ast.unparse(d) for d in node.decorator_list)
+            and not any(
+                ast.unparse(d).split("(")[0] in ("kernel", "njit") for d in node.decorator_list
+            )
         ):
             yield node.name, node
 

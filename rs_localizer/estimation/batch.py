@@ -15,8 +15,8 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import compose_rotvec, copy_matrix3
 from ..solvers.kernels import (
     KNOWN_W,
@@ -65,7 +65,7 @@ def fused_kernels(solver: str) -> tuple[KernelSet, np.ndarray] | None:
     )
 
 
-@njit(cache=True)
+@kernel
 def ransac_batch(
     u,
     pool,
@@ -169,7 +169,7 @@ def ransac_batch(
     )
 
 
-@njit(cache=True)
+@kernel
 def prerotated_batch(
     u,
     pool,
@@ -234,7 +234,7 @@ def prerotated_batch(
     )
 
 
-@njit(cache=True)
+@kernel
 def _solve_and_score(
     samples,
     R_p,
@@ -354,7 +354,7 @@ def _solve_and_score(
     return h, scores[h], Rs, Cs, ws, ts, n_implausible
 
 
-@njit(cache=True)
+@kernel
 def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterations):
     """Local optimization's nonminimal step in one call: each batched kernel of ``kernels`` on
     all points of ``inl``, pre-rotated by R.

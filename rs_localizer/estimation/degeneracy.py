@@ -23,8 +23,8 @@ Two measures, both reported in :class:`~rs_localizer.estimation.estimate.RSPoseE
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .plausibility import masked_scatter
 
 __all__ = ["PLANAR_TOLERANCE", "condition_number", "far_side_fraction", "planarity"]
@@ -34,7 +34,7 @@ __all__ = ["PLANAR_TOLERANCE", "condition_number", "far_side_fraction", "planari
 PLANAR_TOLERANCE = 0.05
 
 
-@njit(cache=True)
+@kernel
 def _planarity(X, mask):
     for i in range(X.shape[0]):
         if mask[i] and not (np.isfinite(X[i, 0]) and np.isfinite(X[i, 1]) and np.isfinite(X[i, 2])):
@@ -123,7 +123,7 @@ def far_side_fraction(X: np.ndarray, inliers: np.ndarray, centre: np.ndarray) ->
     return float(np.mean(np.sign(off) == -camera_side))
 
 
-@njit(cache=True)
+@kernel
 def _condition_number(H):
     n = H.shape[0]
     s = np.empty(n)

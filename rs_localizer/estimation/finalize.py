@@ -25,8 +25,8 @@ from functools import lru_cache
 from typing import Any, TypeVar
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._linalg import solve_square
 from ..camera import CameraModel
 from ..geometry import camera_position
@@ -496,7 +496,7 @@ def motion_chi2(
     )
 
 
-@njit(cache=True)
+@kernel
 def _velocity_chi2(cov, w, t):
     """:func:`motion_chi2` on arrays: ``z^T S^-1 z`` with ``z = (w, t)`` and ``S`` the
     ``[6:12, 6:12]`` block of ``cov``, by pivoted Gaussian elimination; ``inf`` where

@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 from typing import Any, TypeVar
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike
 
+from .._jit import kernel
 from .prior import MotionPrior, checked_symmetric, prior_arrays
 
 __all__ = [
@@ -199,7 +199,7 @@ def gyro_prior(
     return MotionPrior._from_information(mean, L, True)
 
 
-@njit(cache=True)
+@kernel
 def _combined(Sg, w, on, mb, Lb):
     """:func:`gyro_prior`'s arithmetic in one compiled call (NumPy's small-matrix calls cost
     ~100 us per frame there): ``(mean (6,), L (6, 6))``; the mean is the least-squares
@@ -240,7 +240,7 @@ def gyro_consistency(
     return float(_floored_chi2(w, gyro.angular_velocity, gyro.covariance, P))
 
 
-@njit(cache=True)
+@kernel
 def _floored_chi2(w, wg, Sg, P):
     """:func:`gyro_consistency`'s chi-square in one compiled call (NumPy's 3x3 calls cost
     ~40 us per frame there): floor the eigenvalues of ``D = S_gyro - P`` relative to
@@ -301,7 +301,7 @@ def gyro_image_chi2(
     )
 
 
-@njit(cache=True)
+@kernel
 def _image_chi2(r, Sg, P, scale, q):
     """:func:`gyro_image_chi2`'s arithmetic in one compiled call (NumPy's 3x3 calls cost
     ~100 us per frame): ``r^T (Sg + scale P + q I)^-1 r`` by Cholesky; ``inf`` for

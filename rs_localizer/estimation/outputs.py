@@ -11,14 +11,14 @@ by one compiled call; :mod:`rs_localizer.estimation.estimate` keeps the formulas
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ..pose import model_twist, model_twist_jacobian
 
 __all__ = ["final_inliers", "output_covariance_kernel", "physical_velocities_kernel"]
 
 
-@njit(cache=True)
+@kernel
 def final_inliers(e, th):
     """Inliers of the final model from its (N,) image distances ``e`` (``inf`` behind the
     camera): ``(mask e < th, count, RMS of e over the mask)`` (RMS NaN for no inlier)."""
@@ -34,7 +34,7 @@ def final_inliers(e, th):
     return mask, c, np.sqrt(ss / c) if c > 0 else np.nan
 
 
-@njit(cache=True)
+@kernel
 def physical_velocities_kernel(R, C, w, t, s):
     """See :func:`rs_localizer.estimation.estimate.physical_velocities` (``s > 0``): returns
     (omega_cam, v_cam, omega_world, v_world), each (3,); the camera-frame twist is
@@ -50,7 +50,7 @@ def physical_velocities_kernel(R, C, w, t, s):
     return om, vc, om_w, vc_w
 
 
-@njit(cache=True)
+@kernel
 def _skew_into(v, J, r, c, scale):
     """J[r:r+3, c:c+3] = scale * [v]x."""
     J[r, c + 1] = -scale * v[2]
@@ -61,7 +61,7 @@ def _skew_into(v, J, r, c, scale):
     J[r + 2, c + 1] = scale * v[0]
 
 
-@njit(cache=True)
+@kernel
 def output_covariance_kernel(cov12, R, C, w, s):
     """See :func:`rs_localizer.estimation.estimate._output_covariance`: the (12, 12)
     covariance ``J cov12 J^T`` of (camera rotation in the world, position, omega_cam, v_cam),

@@ -26,8 +26,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ..geometry import exact_camera_points
 
 __all__ = [
@@ -137,7 +137,7 @@ def plausible_models(
         return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """``(|w|^2, |w x C - t|^2)`` of a model's ``C`` (m), ``w`` (rad) and ``t`` (m per unit r),
     given as their nine components: the squared angular and linear speeds per unit RS
@@ -151,7 +151,7 @@ def motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2):
     return w0 * w0 + w1 * w1 + w2 * w2, v0 * v0 + v1 * v1 + v2 * v2
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _plausible1(C, w, t, w_max2, v_max2):
     """:func:`plausible_motion` of one model (C, w, t (3,))."""
     C0, C1, C2, w0, w1, w2, t0, t1, t2 = C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2]
@@ -177,7 +177,7 @@ def all_finite(*arrays: np.ndarray) -> bool:
     return all(np.isfinite(a).all() for a in arrays)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def finite_model(R, C, w, t):
     """True if every entry of the model R (3, 3), C, w, t (3,) is finite (one compiled call
     instead of four NumPy reductions)."""
@@ -188,7 +188,7 @@ def finite_model(R, C, w, t):
     return _plausible1(C, w, t, np.inf, np.inf)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _plausible(Cs, ws, ts, w_max2, v_max2):
     out = np.empty(Cs.shape[0], dtype=np.bool_)
     for k in range(Cs.shape[0]):
@@ -232,7 +232,7 @@ def depths_at_capture(
     )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _depths(R, C, w, t, X, tau):
     n = X.shape[0]
     out = np.empty(n)
@@ -255,7 +255,7 @@ def _depths(R, C, w, t, X, tau):
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _scatter(P):
     """Upper triangle of the scatter matrix of the centred rows of P (N, d), d = 2 or 3."""
     n, d = P.shape
@@ -341,7 +341,7 @@ def image_degenerate(
     )
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _line_rms_scaled(P, a, b, scale):
     """:func:`line_rms` of ``scale * P[a:b]`` (P (N, 2)), the same arithmetic."""
     n = b - a
@@ -356,7 +356,7 @@ def _line_rms_scaled(P, a, b, scale):
     return math.sqrt(max(lam, 0.0) / n)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def views_degenerate(X, points_px, points_normalized, focal, bounds, threshold_px, tol=1e-3):
     """:func:`collinear_3d` of the world points X (N, 3), or else :func:`image_degenerate` of
     every view's rows ``bounds[c, 0]:bounds[c, 1]`` of the pixels and normalized points (N, 2)
@@ -384,7 +384,7 @@ def views_degenerate(X, points_px, points_normalized, focal, bounds, threshold_p
     return 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def masked_scatter(P, mask, scale):
     """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number) for
     d = 2 or 3 columns, in one pass: sums and products of the rows relative to the first
@@ -425,7 +425,7 @@ def masked_scatter(P, mask, scale):
     return S, c
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _line_rms_masked(P, mask, scale):
     """:func:`line_rms` of ``scale * P[mask]``."""
     S, c = masked_scatter(P, mask, scale)
@@ -436,7 +436,7 @@ def _line_rms_masked(P, mask, scale):
     return math.sqrt(max(lam, 0.0) / c)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px, tol=1e-3):
     """``collinear_3d(X[mask], tol) or image_degenerate(points_px[mask],
     points_normalized[mask], focal, threshold_px)`` in one compiled call, without the fancy
@@ -485,7 +485,7 @@ def _line_rms_numpy(P: np.ndarray) -> float:
     return math.sqrt(max(np.linalg.eigvalsh(S)[0], 0.0) / len(P))
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def final_model_check(R, C, w, t, X, tau, mask, w_max2, v_max2):
     """:func:`check_final_model` on :func:`depths_at_capture` of the points ``mask`` selects,
     in one compiled call: returns (0 plausible, 1 implausible motion, 2 cheirality; the number
@@ -592,7 +592,7 @@ def final_check(
     return code, behind
 
 
-@njit(cache=True)
+@kernel
 def _views_final_check(RcR, RcC, Rcw, Rct, X, tau, mask, rows):
     """:func:`final_model_check` of each camera m's model ``(RcR[m], RcC[m], Rcw[m],
     Rct[m])`` on its points ``rows[m, 0]:rows[m, 1]`` (without motion bounds): (the largest

@@ -21,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._linalg import solve_square
 from ..pose import model_twist, model_twist_jacobian
 
@@ -243,7 +243,7 @@ def linear_prior_rows(
     return np.ascontiguousarray(P), np.ascontiguousarray(q)
 
 
-@njit(cache=True)
+@kernel
 def _rows_kernel(U, Um, Xs, C0, s, noise, distance, P, q):
     """:func:`sample_prior_rows` for K samples (loops instead of NumPy's per-call overhead)."""
     K, n = Xs.shape[0], Xs.shape[1]
@@ -322,7 +322,7 @@ def sample_prior_rows(
     return P, q
 
 
-@njit(cache=True)
+@kernel
 def _conflict(cov12, C, w, t, s, mean, Lam):
     z = model_twist(C, w, t, s)
     Jz = model_twist_jacobian(C, w, s)

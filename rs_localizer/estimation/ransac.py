@@ -27,8 +27,8 @@ from collections.abc import Iterator
 from typing import Any, Protocol
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
 from .hypotheses import KNOWN_W_SAMPLE, HypothesisSource, ScoredBatch, hypothesis_source
@@ -145,7 +145,7 @@ def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
 
 #: :func:`required_samples` compiled (the rig's batch kernels, :mod:`.rig_batch`, check it
 #: after every sample; compiled on its first call there)
-required_samples_kernel = njit(cache=True)(required_samples)
+required_samples_kernel = kernel(required_samples)
 
 
 def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import exact_camera_points, rotvec_to_matrix, skew
@@ -334,7 +334,7 @@ def exact_jacobian(
 _FMA_REASSOC = FMA | {"reassoc"}
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     """``A^T m`` and ``Jl^T m`` for ``A = I + sa [a]x + ca [a]x^2`` (Rodrigues) and its left
     Jacobian ``Jl = I + ca [a]x + cb [a]x^2``: six scalars."""
@@ -354,7 +354,7 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _huber_terms(en, p2, k, cutoff, rho_cut):
     """A point's terms of :func:`point_rows` from its image distance ``en`` and depth ``p2``:
     ``(used, rho, sqrt of its Huber weight, e2_inside)`` (Huber: weight 1 inside k, k / e
@@ -374,7 +374,7 @@ def _huber_terms(en, p2, k, cutoff, rho_cut):
     return used, rho, sw, e2_inside
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def pose_scalars(R, C, w, t):
     """The pose ``R`` (3, 3), ``C``, ``w``, ``t`` (3,) as the 18 scalars :func:`point_rows`
     takes: ``R`` row-major, then ``C``, ``w``, ``t``."""
@@ -382,7 +382,7 @@ def pose_scalars(R, C, w, t):
             C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])  # fmt: skip
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     """Point i's cost, residual and Jacobian rows at the pose ``(R (row-major), C, w, t)``
     given as 18 scalars. Everything is computed whether or not the point is used (no early
@@ -452,7 +452,7 @@ def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     )
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _store_rows(Jt, j0, j1, v):
     """Write a point's two weighted Jacobian rows (and residuals, row 12) from ``v`` (as
     returned by :func:`point_rows`) as columns j0 (even) and j1 = j0 + 1 of Jt (16, M), rows
@@ -468,7 +468,7 @@ def _store_rows(Jt, j0, j1, v):
     Jt[10, j1], Jt[11, j1], Jt[12, j1] = ti * d, ti * d12, e1
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _add_point(v, m, cost, ss, n_in, Jt):
     """Add a point from :func:`point_rows` to the running (m, cost, ss, n_in) of
     :func:`_fill_columns` and write its rows at columns 2m, 2m + 1 (overwritten by the next
@@ -481,7 +481,7 @@ def _add_point(v, m, cost, ss, n_in, Jt):
     return m + (1 if v[0] else 0), cost, ss, n_in
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     """Loop of :func:`_evaluate`: the used points' two rows as columns of Jt (the
     j-th used point's at 2j and 2j + 1). Returns (number of used points, cost, sum of e^2 and
@@ -501,7 +501,7 @@ def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     return m, cost, ss, n_in
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scale):
     """:func:`point_rows` for an observation of a camera mounted on a rig: the pose is the
     rig's, point i is seen by camera ``cam[i]`` at ``x_cam = Rm[c] x_rig + cm[c]`` and its
@@ -571,7 +571,7 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
     )  # fmt: skip
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _store_rows_mounted(Jt, j0, j1, v):
     """:func:`_store_rows` for :func:`point_rows_mounted`'s ``v`` (no structural zeros), and
     the point's ``tau`` in row 13 of the even column (for :func:`_acceleration_block`)."""
@@ -590,7 +590,7 @@ def _store_rows_mounted(Jt, j0, j1, v):
     Jt[13, j0] = ti
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _add_point_mounted(v, m, cost, ss, n_in, Jt):
     """:func:`_add_point` for :func:`point_rows_mounted`'s ``v``."""
     cost += v[1]
@@ -601,7 +601,7 @@ def _add_point_mounted(v, m, cost, ss, n_in, Jt):
     return m + (1 if v[0] else 0), cost, ss, n_in
 
 
-@njit(cache=True, fastmath=FMA)
+@kernel(fastmath=FMA)
 def _fill_columns_mounted(pose, X, x, tau, k, cutoff, rho_cut, Jt, cam, Rm, cm, scale):
     """:func:`_fill_columns` with :func:`point_rows_mounted` (arguments as there)."""
     n = X.shape[0]
@@ -616,7 +616,7 @@ def _fill_columns_mounted(pose, X, x, tau, k, cutoff, rho_cut, Jt, cam, Rm, cm, 
     return m, cost, ss, n_in
 
 
-@njit(cache=True, fastmath=_FMA_REASSOC)
+@kernel(fastmath=_FMA_REASSOC)
 def _gram16(Jt, m, G):
     """``G[a, b] = sum_j Jt[a, j] Jt[b, j]`` over the first m columns of Jt (16, M) for the
     4 x 4 blocks with ``a < 12`` on or above the diagonal (the other entries of G (16, 16)
@@ -653,7 +653,7 @@ def _gram16(Jt, m, G):
             G[a + 3, b], G[a + 3, b + 1], G[a + 3, b + 2], G[a + 3, b + 3] = s30, s31, s32, s33
 
 
-@njit(cache=True, fastmath=FMA)
+@kernel(fastmath=FMA)
 def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     """Cost and weighted Jacobian of the exact model at (R, C, w, t), for the increments
     (delta, dC, dw, dt) of all 12 parameters, ``R <- expm([delta]x) R``.
@@ -683,7 +683,7 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     return _fill_columns_mounted(pose, X, x, tau, k, cutoff, rho_cut, Jt, cam, Rm, cm, scale)
 
 
-@njit(cache=True)
+@kernel
 def _normal_matrix(Jt, m, G, H, g):
     """H (12, 12) (full, symmetric) and g (12,) overwritten with ``J^T W J`` and ``J^T W r``
     from the m used points of :func:`_evaluate`; G (16, 16) workspace."""
@@ -695,7 +695,7 @@ def _normal_matrix(Jt, m, G, H, g):
             H[b, a] = G[a, b]
 
 
-@njit(cache=True)
+@kernel
 def _acceleration_block(Jt, m, B, mounted):
     """B (12, 6) overwritten with ``J^T W D`` over the m used points of :func:`_evaluate`,
     D the columns of an in-readout acceleration (beta, b): ``tau / 2`` times the w and t
@@ -716,7 +716,7 @@ def _acceleration_block(Jt, m, B, mounted):
                         B[a, b] += ra * Jt[6 + b, c]
 
 
-@njit(cache=True)
+@kernel
 def _workspace(n):
     """Workspace (Jt (16, 2n), G (16, 16)) of :func:`_evaluate` and :func:`_normal_matrix`
     for n points, with the entries of Jt never written set to zero (padding rows 13-15,
@@ -730,7 +730,7 @@ def _workspace(n):
     return Jt, np.empty((16, 16))
 
 
-@njit(cache=True)
+@kernel
 def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff, mountings):
     """Huber-weighted normal equations (see :func:`_evaluate`; ``mountings`` as there) for
     the first ``n_free`` parameters (6: global shutter, ``w = t = 0`` fixed). Returns
@@ -743,7 +743,7 @@ def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff, mountings):
     return H[:n_free, :n_free].copy(), g[:n_free].copy(), cost
 
 
-@njit(cache=True)
+@kernel
 def _rotate_left(v0, v1, v2, R):
     """(3, 3) ``expm([v]x) R`` (Rodrigues)."""
     out = np.empty((3, 3))
@@ -751,7 +751,7 @@ def _rotate_left(v0, v1, v2, R):
     return out
 
 
-@njit(cache=True)
+@kernel
 def untruncated_variance(s2, k):
     """Per-axis variance ``sigma^2`` of 2D Gaussian image noise from ``s2``, the variance
     estimated from the residuals inside the Huber threshold ``k`` only (``sum e^2 / (2 n)``).
@@ -777,7 +777,7 @@ def untruncated_variance(s2, k):
     return v
 
 
-@njit(cache=True)
+@kernel
 def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
     """Motion prior of :func:`refine_rs_pose` at (C, w, t): ``scale2 (z - mu)^T Lam (z - mu)``
     with ``z = (v, omega)`` the camera's velocities (docs/architecture.md "Conventions":
@@ -805,7 +805,7 @@ def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
     return scale2 * cost
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _store_model(R, C, w, t, out):
     """The model part of the refinement kernels' output (:data:`OUT_R`, ..., :data:`OUT_T`)."""
     for i in range(3):
@@ -816,7 +816,7 @@ def _store_model(R, C, w, t, out):
         out[OUT_T + i] = t[i]
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _apply_step(R, C, w, t, B, n_free):
     """The model (R, C, w, t) moved by the step ``B[:n_free, 0]`` over (rotation, C, w, t)
     (rotation on the left, ``expm([d]x) R``): new (R, C, w, t); w, t are kept (the same
@@ -833,7 +833,7 @@ def _apply_step(R, C, w, t, B, n_free):
     return Rn, Cn, w, t
 
 
-@njit(cache=True)
+@kernel
 def _lm_refine(
     R,
     C,
@@ -984,7 +984,7 @@ def _lm_refine(
 LM_REFINE_KERNEL = _lm_refine
 
 
-@njit(cache=True)
+@kernel
 def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     """One Gauss-Newton step of the maximum-a-posteriori cost of :func:`_lm_refine` from
     (R, C, w, t) with the data's normal equations there (``Hd`` (12, 12) ``J^T W J``, ``gd``
@@ -1018,7 +1018,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     return True
 
 
-@njit(cache=True)
+@kernel
 def exact_errors(R, C, w, t, X, x, tau, W=None):
     """(N,) image distances (normalized units) of the exact model at the measured capture
     times; ``inf`` for points behind the camera. Same model as :func:`exact_residuals`.

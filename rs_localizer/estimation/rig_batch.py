@@ -10,8 +10,8 @@ P3P) calls the same kernels one by one.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import compose_rotvec
 from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
@@ -30,7 +30,7 @@ __all__ = [
 ]
 
 
-@njit(cache=True)
+@kernel
 def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     """Lambda Twist's solutions on the first 3 points of one ``sample`` (pool indices) of the
     normalized points ``x`` (N, 2) and world points ``X`` (N, 3), mapped to the rig through
@@ -60,7 +60,7 @@ def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     return n
 
 
-@njit(cache=True)
+@kernel
 def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
     """:func:`p3p_on_rig_into` on each of the samples (K, >= 3): ``(R (H, 3, 3), C (H, 3),
     the sample of each (H,))`` as :func:`~.rig._p3p_on_rig`'s."""
@@ -79,7 +79,7 @@ def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
     return R[:m].copy(), C[:m].copy(), own[:m].copy()
 
 
-@njit(cache=True)
+@kernel
 def counted(e, k, cam, pool_counts, subset):
     """The inliers of errors ``e`` (N,) px (below ``k``; among ``subset`` when it is not
     empty) and the cameras of 3 or more points (``pool_counts``) with none: ``(inliers,
@@ -101,7 +101,7 @@ def counted(e, k, cam, pool_counts, subset):
     return n_in, missed
 
 
-@njit(cache=True)
+@kernel
 def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
                  iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
                  log_miss, out):  # fmt: skip
@@ -177,7 +177,7 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
     return drawn, found, best_cost, n_best, beyond
 
 
-@njit(cache=True)
+@kernel
 def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
     """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
     the order they are scored: :func:`p3p_on_rig_into` (into the buffers ``R``, ``C``), then,
@@ -208,7 +208,7 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
     return np.concatenate((Rg, Rc)), np.concatenate((Cg, Cc))
 
 
-@njit(cache=True)
+@kernel
 def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
     (:func:`~.rig._hypotheses`): pre-rotated by their P3P poses (:func:`lambda_twist_on_rig`)

@@ -11,12 +11,12 @@ call costs 5-10 us here).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import INLINE, copy_matrix3
 
 
-@njit(cache=True)
+@kernel
 def valid_rows(u, X, max_norm):
     """(N,) bool: row i has finite pixels ``u[i]`` (N, 2) and a finite world point ``X[i]``
     (N, 3) with every coordinate within ``max_norm`` of the origin (points at infinity fail)."""
@@ -30,7 +30,7 @@ def valid_rows(u, X, max_norm):
     return out
 
 
-@njit(cache=True)
+@kernel
 def draw_samples(u, pool):
     """K samples of s distinct indices from ``range(pool)``, uniformly without replacement.
 
@@ -50,7 +50,7 @@ def draw_samples(u, pool):
     return out
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def draw_sample(u, k, j0, s, pool, chosen, out, o0):
     """Sample ``k`` of :func:`draw_samples`: ``s`` distinct indices of ``range(pool)`` into
     ``out[k, o0:o0 + s]`` from the uniform numbers ``u[k, j0:j0 + s]``, the j-th the
@@ -96,7 +96,7 @@ def draw_samples_numpy(
     return out
 
 
-@njit(cache=True)
+@kernel
 def gather_prerotated(samples, R_pre, x, X, r):
     """The solver input of K samples: ``x[samples]``, ``R_pre[k] X[samples[k]]``, ``r[samples]``.
 
@@ -122,7 +122,7 @@ def gather_prerotated(samples, R_pre, x, X, r):
     return xs, Xs, rs
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _sample_error(R, C, m, samples, k, X, x):
     """Global-shutter reprojection error of P3P solution ``m`` (``R[m] X + C[m]``) on sample
     ``k``'s points beyond the first three (all of them for 3-point samples): the sum of squared
@@ -143,7 +143,7 @@ def _sample_error(R, C, m, samples, k, X, x):
     return e
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _copy_pose(R, C, m, Rout, Cout, k):
     """``Rout[k], Cout[k] = R[m], C[m]`` element by element (see
     :func:`rs_localizer._so3.copy_matrix3`)."""
@@ -152,7 +152,7 @@ def _copy_pose(R, C, m, Rout, Cout, k):
         Cout[k, a] = C[m, a]
 
 
-@njit(cache=True)
+@kernel
 def select_prerotations(R, C, owner, samples, X, x, K):
     """For each of K samples pick, among its P3P solutions (R (M,3,3), C (M,3), owner (M,)),
     the one with the lowest global-shutter reprojection error on the sample's points beyond
@@ -176,7 +176,7 @@ def select_prerotations(R, C, owner, samples, X, x, K):
     return Rout, Cout, ok
 
 
-@njit(cache=True)
+@kernel
 def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
     """The runner-up pre-rotation of each sample on planar scenes: P3P on coplanar
     points is two-fold ambiguous (the two poses of a plane seen under near-affine projection,
@@ -212,7 +212,7 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
     return Rout, Cout, kept
 
 
-@njit(cache=True)
+@kernel
 def sample_kernel(u, cdf, eligible, counts, starts, n):
     """:meth:`~.view.StackedViews.samples`' (S, 6) samples from its uniform draws ``u`` (7, S)
     in the order the NumPy form takes them: the view (inverse of ``cdf``), three distinct
@@ -246,7 +246,7 @@ def sample_kernel(u, cdf, eligible, counts, starts, n):
     return out
 
 
-@njit(cache=True)
+@kernel
 def batch_sampling(cam, pool_counts, subset):
     """:func:`view_sampling` compiled: :meth:`~.view.StackedViews.samples`' distribution over a pool
     stacked by camera (``cam`` (N,) each point's camera, ``pool_counts`` (M,) each camera's
@@ -286,7 +286,7 @@ def batch_sampling(cam, pool_counts, subset):
     return counts, starts, eligible, cdf, n
 
 
-@njit(cache=True)
+@kernel
 def batch_samples(u, cam, pool_counts, subset):
     """:func:`sample_kernel`'s samples (K, 6) from the draws ``u`` (7, K) on
     :func:`batch_sampling`'s distribution, mapped through ``subset`` when it is not empty."""

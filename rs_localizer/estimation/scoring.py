@@ -13,13 +13,13 @@ frames while a frame is scored.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import FMA, INLINE, rotate_small
 from ..geometry import exact_camera_points
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, exact):
     """Squared reprojection error of one point whose rotated world point is ``q = R X``.
 
@@ -64,7 +64,7 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
     return _image_error2(x0, x1, P00 + tau * P10, P01 + tau * P11, P02 + tau * P12)
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _image_error2(x0, x1, px, py, pz):
     """Squared distance of the projection of the camera point p from x (``inf`` behind the
     camera)."""
@@ -102,7 +102,7 @@ def exact_errors2_numpy(
     return np.where(z > 0, e, np.inf)
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """Squared reprojection error of one point (``q = R X``) captured at ``tau = r - r0``,
     placed with the exact constant-velocity model ``expm(tau [w]x) q + C + tau t`` (paper
@@ -113,7 +113,7 @@ def exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     return _image_error2(x0, x1, Aq0 + C0 + tau * t0, Aq1 + C1 + tau * t1, Aq2 + C2 + tau * t2)
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """Squared reprojection error of one point (``q = R X``) at its measured capture time.
 
@@ -131,7 +131,7 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
     """:func:`_image_error2` with the error ``e`` whitened by the 2x2 ``a = (a00 a01; a10
     a11)``: ``|a e|^2`` (``inf`` behind the camera)."""
@@ -144,7 +144,7 @@ def image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
     return e0 * e0 + e1 * e1
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def measured_error2_whitened(
     x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
 ):
@@ -157,7 +157,7 @@ def measured_error2_whitened(
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def exact_error2_whitened(
     x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
 ):
@@ -176,7 +176,7 @@ def exact_error2_whitened(
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _turned(Rm, c, v0, v1, v2):
     """``Rm[c] v`` for a vector ``v``: three scalars."""
     return (
@@ -186,7 +186,7 @@ def _turned(Rm, c, v0, v1, v2):
     )
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def mounted_pose(R, C, w, t, h, Rm, cm, c):
     """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
     own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
@@ -204,7 +204,7 @@ def mounted_pose(R, C, w, t, h, Rm, cm, c):
             C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def pose_error2(pose, X, x, tau, A, i, still):
     """The squared image error of point ``i`` (``X`` (N, 3), ``x`` (N, 2)) under a camera's
     ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its
@@ -227,7 +227,7 @@ def pose_error2(pose, X, x, tau, A, i, still):
     )  # fmt: skip
 
 
-@njit(cache=True, inline=INLINE, fastmath=FMA)
+@kernel(inline=INLINE, fastmath=FMA)
 def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
     """Squared reprojection error of point i under hypothesis h (see :func:`project_error2`,
     :func:`measured_error2` if ``measured``; :func:`measured_error2_whitened` if ``W`` (N, 4)
@@ -256,7 +256,7 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
     )  # fmt: skip
 
 
-@njit(cache=True, fastmath=FMA, nogil=True)
+@kernel(fastmath=FMA)
 def _msac_points(
     x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured, W
 ):
@@ -276,7 +276,7 @@ def _msac_points(
     return s, c, True
 
 
-@njit(cache=True, fastmath=FMA, nogil=True)
+@kernel(fastmath=FMA)
 def msac_scores(
     x,
     X,
@@ -366,7 +366,7 @@ def msac_scores(
     return scores, counts
 
 
-@njit(cache=True, fastmath=FMA, nogil=True)
+@kernel(fastmath=FMA)
 def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
     """(N,) squared reprojection errors of one hypothesis (``inf`` where invalid); see
     :func:`project_error2` (:func:`measured_error2` if ``measured``, whitened by ``W`` (N, 4)
@@ -402,7 +402,7 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def exact_errors2(x, X, r0e, d, R, C, w, t, measured, W):
     """:func:`errors2` with ``exact=True`` (the estimator's errors), for callers in Python.
 
@@ -412,7 +412,7 @@ def exact_errors2(x, X, r0e, d, R, C, w, t, measured, W):
     return errors2(x, X, r0e, d, R, C, w, t, True, measured, W)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def exact_msac_scores(
     x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, pretest_n, pretest_min, pretest_fraction,
     measured, W,
@@ -426,7 +426,7 @@ def exact_msac_scores(
     )  # fmt: skip
 
 
-@njit(cache=True, fastmath=FMA, nogil=True)
+@kernel(fastmath=FMA)
 def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False, W=None):
     """MSAC score, inlier mask and inlier count of one model on all N points.
 
@@ -462,7 +462,7 @@ def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False, W=None):
     return s, inl, c
 
 
-@njit(cache=True)
+@kernel
 def block_sum(a, lo, n):
     """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
     block: sequentially below 8, else in 8 interleaved partial sums."""
@@ -493,7 +493,7 @@ def block_sum(a, lo, n):
     return res
 
 
-@njit(cache=True)
+@kernel
 def pairwise_sum(a, lo, n):
     """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
     float64 row, to the bit): blocks of at most 128 (:func:`block_sum`), larger ranges
@@ -524,7 +524,7 @@ def pairwise_sum(a, lo, n):
     return vals[0]
 
 
-@njit(cache=True, fastmath=FMA)
+@kernel(fastmath=FMA)
 def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
     """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
     ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
@@ -558,7 +558,7 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v
 STOP = 1.0 + 1e-9
 
 
-@njit(cache=True)
+@kernel
 def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
     """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
     each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,

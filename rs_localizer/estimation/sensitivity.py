@@ -22,8 +22,8 @@ in its state and uses G in its measurement model.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import skew_matrix
 from ..pose import model_twist_jacobian
 from .refine import point_rows, pose_scalars
@@ -31,7 +31,7 @@ from .refine import point_rows, pose_scalars
 __all__ = ["acceleration_sensitivity", "output_jacobian", "physical_sensitivity"]
 
 
-@njit(cache=True)
+@kernel
 def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
     """``J^T W J`` (12, 12; only if ``want_H``) and ``J^T W D`` (12, 6) over the points in
     front of the camera within ``cutoff`` (Huber weights with threshold k, as the
@@ -71,7 +71,7 @@ def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
     return H, B
 
 
-@njit(cache=True)
+@kernel
 def _output_jacobian(R, C, w, s):
     J = np.zeros((12, 12))
     Rt = np.ascontiguousarray(R.T)
@@ -92,7 +92,7 @@ def _output_jacobian(R, C, w, s):
     return J
 
 
-@njit(cache=True)
+@kernel
 def _physical(G, R, C, w, s):
     """``J_out G M``: model sensitivities per (beta, b) to outputs per (alpha, a_cam), with
     ``beta = -s^2 alpha`` and ``b = beta x C - s^2 a``."""

@@ -35,9 +35,9 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from numba import njit
 from scipy.optimize import least_squares
 
+from .._jit import kernel
 from ..geometry import rotation_angle_deg, skew
 from ..pose import RSModel
 from .degeneracy import PLANAR_TOLERANCE, condition_number, coplanar, planarity
@@ -254,7 +254,7 @@ def _opencv_starts(X: np.ndarray, x: np.ndarray, flag: int) -> tuple[np.ndarray,
     return rv, np.array(tvecs[:n], dtype=np.float64).reshape(n, 3)
 
 
-@njit(cache=True)
+@kernel
 def _rodrigues(r, R):
     """Write into ``R`` (3, 3) the rotation of the rotation vector ``r`` (3,) (rad) as OpenCV's
     ``cv2.Rodrigues`` computes it, the same operations in the same order (its values to the
@@ -295,7 +295,7 @@ _FIT_TOL = 1e-12
 _FIT_ITERATIONS = 200
 
 
-@njit(cache=True)
+@kernel
 def _best_first(R, rms):
     """The order of m fits by their RMS errors ``rms`` (m,) (a stable sort: ties in their
     order), without the second when its rotation (``R`` (m, 3, 3)) is within
@@ -318,7 +318,7 @@ def _best_first(R, rms):
     return order
 
 
-@njit(cache=True)
+@kernel
 def _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse):
     """:func:`_fit_starts` with the frame's kernel mountings ``views`` (None: the plain
     errors)."""
@@ -354,7 +354,7 @@ def _fit_all(rv, tv, X, x, tau, W, views, R, C, H, sse):
     return index[:m][_best_first(R[index[:m]], rms[:m])]
 
 
-@njit(cache=True)
+@kernel
 def _fit_starts(rv, tv, X, x, tau, W, R, C, H, sse):
     """The global-shutter fit of the frame's points (the velocities zero) from each of k
     starting poses, in one compiled call: start ``j`` (rotation vector ``rv[j]`` (3,) rad,

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ..camera import CameraModel, distortion_jacobian
 from ..frames import Mounting
 from ..pose import RSModel
@@ -168,7 +168,7 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
             focal, A)  # fmt: skip
 
 
-@njit(cache=True)
+@kernel
 def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
     """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
     (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
@@ -186,7 +186,7 @@ def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
     return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
 
 
-@njit(cache=True)
+@kernel
 def _selected_per_camera(mask, cam, M):
     """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
     out = np.zeros(M, dtype=np.int64)

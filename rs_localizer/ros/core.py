@@ -543,8 +543,9 @@ class NodeCore:
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
         self._flush_timer = self.create_timer(FLUSH_PERIOD_S, self._flush_idle_track)
-        # the worker holds the GIL while it solves; hand it to the subscription callbacks
-        # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
+        # the worker holds the GIL in its Python between the compiled kernels (which release
+        # it); hand it to the subscription callbacks often, so that frames leave the
+        # middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
 
@@ -634,9 +635,10 @@ class NodeCore:
         subscription per turn; at most the deepest history's number of rounds), each to
         :meth:`_on_frame` (queued and counted ``received``), then the CPU handed to the worker
         once. One executor turn empties the readers: the executor rebuilds its wait set in
-        Python for every turn and, while the worker solves, waits for the GIL at each turn, so
-        that taking one message per turn falls behind a stream and a reader's history (keep
-        last) overwrites frames the node never counts; the frame queue drops the oldest and
+        Python for every turn and, while the worker runs Python between its compiled kernels
+        (which release the GIL), waits for the GIL at each turn, so that taking one message
+        per turn falls behind a stream and a reader's history (keep last) overwrites frames
+        the node never counts; the frame queue drops the oldest and
         counts them instead (``skipped.queue_full``)."""
         self._on_frame(name, kind, msg)
         inputs = list(self._frame_inputs)

@@ -2,8 +2,9 @@
 QoS events its publishers watch (none).
 
 Frame subscriptions use the sensor-data QoS (best effort) with a deeper history than its 5:
-frames that arrive while the worker holds the GIL wait in the middleware until the callbacks
-move them to the node's queue (each callback takes every frame waiting on the frame subscriptions:
+frames that arrive while the executor waits for the CPU or the GIL (the worker's Python
+between its compiled kernels) wait in the middleware until the callbacks move them to the
+node's queue (each callback takes every frame waiting on the frame subscriptions:
 :meth:`~rs_localizer.ros.core.NodeCore._take_frames`), where a drop is counted
 (``frames_skipped``), instead of being overwritten unseen. Images keep 10 (they are big), IMU
 samples 200 (about 1 s at 200 Hz). The outputs are reliable with a history of 10;

@@ -1,10 +1,11 @@
 """Where numba keeps the compiled kernels, and progress reports while it compiles.
 
-numba compiles the package's kernels (``@njit(cache=True)``) on first use and caches the
-machine code next to the sources, in each subpackage's ``__pycache__``. An installed package
-is often read-only (a system install, a read-only image, another user's venv): numba then
-silently falls back to its own per-user directory, or compiles on every start. This module,
-called by ``rs_localizer/__init__.py`` before anything imports numba, makes that explicit:
+numba compiles the package's kernels (declared with :func:`rs_localizer._jit.kernel`:
+``cache=True``) on first use and caches the machine code next to the sources, in each
+subpackage's ``__pycache__``. An installed package is often read-only (a system install, a
+read-only image, another user's venv): numba then silently falls back to its own per-user
+directory, or compiles on every start. This module, called by ``rs_localizer/__init__.py``
+before anything imports numba, makes that explicit:
 
 * ``NUMBA_CACHE_DIR`` already set: kept (numba caches there).
 * package directory writable: numba's default (``__pycache__`` next to the sources).

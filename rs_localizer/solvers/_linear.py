@@ -16,8 +16,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._linalg import solve_square
 from .._so3 import INLINE
 from ._common import DegenerateInputError, RSBatch, RSSolution, check_batch, check_inputs
@@ -27,14 +27,14 @@ RANK_TOL = 1e-10
 PATIENCE = 3
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def cross_into(a0, a1, a2, b0, b1, b2, out, j):
     out[j] = a1 * b2 - a2 * b1
     out[j + 1] = a2 * b0 - a0 * b2
     out[j + 2] = a0 * b1 - a1 * b0
 
 
-@njit(cache=True)
+@kernel
 def lstsq(A, b, u):
     """Least squares ``min |A u - b|`` for A (m, n), m >= n (A, b overwritten): Gaussian
     elimination when square (minimal samples), Householder QR otherwise.
@@ -47,7 +47,7 @@ def lstsq(A, b, u):
     return householder_lstsq(A, b, u, 0.0)
 
 
-@njit(cache=True)
+@kernel
 def householder_lstsq(A, b, u, unit):
     """:func:`lstsq`'s Householder QR of A (m, n), m > n (A, b overwritten; False, u
     untouched, if the numerical rank is below n).
@@ -105,7 +105,7 @@ def householder_lstsq(A, b, u, unit):
     return True
 
 
-@njit(cache=True)
+@kernel
 def eq5_error(x, X, r, r0, v, C, w, t):
     """RMS algebraic residual of eq. 5 for one problem (x (N,2), X (N,3), r (N,))."""
     n = x.shape[0]
@@ -125,7 +125,7 @@ def eq5_error(x, X, r, r0, v, C, w, t):
     return np.sqrt(acc / n)
 
 
-@njit(cache=True)
+@kernel
 def rows_E(x, i, E):
     """The two elimination rows for point i into E (2, 3)."""
     E[0, 0] = 0.0
@@ -357,7 +357,7 @@ def alternating_solver(
     return solve, solve_batch
 
 
-@njit(cache=True)
+@kernel
 def build_pose_step(x, X, r, r0, w, t, estimate_t, A, b):
     """Rows of the R6P_{v,C} / R6P_{v,C,t} half-steps (paper sec. 3.1, 3.2): w (and t) fixed.
 
@@ -393,7 +393,7 @@ def build_pose_step(x, X, r, r0, w, t, estimate_t, A, b):
             b[2 * i + q] = -rhs
 
 
-@njit(cache=True)
+@kernel
 def build_motion_step(x, X, r, r0, v, C, t, estimate_t, A, b):
     """Rows of the R6P_{w,t} / R6P_{w} half-steps (paper sec. 3.1, 3.2): v, C (and t) fixed.
 
@@ -427,7 +427,7 @@ def build_motion_step(x, X, r, r0, v, C, t, estimate_t, A, b):
             b[2 * i + q] = -rhs
 
 
-@njit(cache=True)
+@kernel
 def alternate(x, X, r, r0, iterations, tol, pose_t, motion_t, out, ok, its, err):
     """Alternation of paper sec. 3.1/3.2 for K problems, starting from w = t = 0.
 

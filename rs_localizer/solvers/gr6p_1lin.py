@@ -56,8 +56,8 @@ this solver's.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ..geometry import cross
 from ._common import RSBatch, RSSolution
 from ._linear import (
@@ -104,7 +104,7 @@ def rig_times(
     return float(stamp_offset) + float(line_delay) * (np.asarray(r, dtype=np.float64) - float(r0))
 
 
-@njit(cache=True)
+@kernel
 def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
     """RMS algebraic residual of the rig eq. 5 for one problem (module docstring)."""
     n = x.shape[0]
@@ -127,7 +127,7 @@ def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
     return np.sqrt(acc / n)
 
 
-@njit(cache=True)
+@kernel
 def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
     """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
     tau (K, N), cam (K, N) indices into the mountings Rm (M, 3, 3), cm (M, 3)); with
@@ -207,7 +207,7 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
         err[k] = best
 
 
-@njit(cache=True)
+@kernel
 def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
     """:func:`_solve` of K problems whose observations were all taken at one time, with the
     velocities held at zero (``tau`` zero, the prior rows the identity with right-hand side
@@ -487,7 +487,7 @@ def rig_algebraic_error(
     return float(_rig_error(x, X, tau, cam, Rm, cm, *f))
 
 
-@njit(cache=True)
+@kernel
 def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
     """:func:`still_solve_kernel` of K problems whose world points ``X[S[k]]`` (``X`` (P, 3),
     ``S`` (K, N)) are pre-rotated by ``Rg[k]`` (K, 3, 3) here: ``(out (K, 6), ok (K,))``."""
@@ -504,7 +504,7 @@ def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
     return out, ok
 
 
-@njit(cache=True)
+@kernel
 def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
     """:func:`gr6p_1lin_batch`'s kernel (no prior rows, ``v_init`` zero, its default
     tolerance) on K problems whose world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are

@@ -22,9 +22,10 @@ import functools
 import sys
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.extending import NativeValue, models, overload, register_model, unbox
 
+from .._jit import kernel
 from .r5p_w import r5p_w_batch
 from .r6p_1lin import r6p_1lin_batch
 from .r6p_vC_wt import r6p_vC_wt_batch
@@ -239,7 +240,7 @@ def _run_kernels(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its,
     return impl
 
 
-@njit(cache=True)
+@kernel
 def _no_kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     """Stands in for a kernel a set does not have: solves nothing."""
     ok[:] = False

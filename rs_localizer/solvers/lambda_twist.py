@@ -43,8 +43,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import INLINE
 
 __all__ = ["MAX_SOLUTIONS", "lambda_twist", "lambda_twist_batch", "lambda_twist_into"]
@@ -58,7 +58,7 @@ _DEGENERATE_SIN2 = 1e-20
 _ORTHO_TOL = 1e-6
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     return (
         a00 * (a11 * a22 - a12 * a21)
@@ -67,7 +67,7 @@ def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     )
 
 
-@njit(cache=True)
+@kernel
 def _cubic_root(b, c, d):
     """The real root of ``g^3 + b g^2 + c g + d`` with the largest ``|f'|`` (closed form, then
     two Newton steps)."""
@@ -104,7 +104,7 @@ def _cubic_root(b, c, d):
     return g
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _best_cross(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """Unit vector orthogonal to the rows of a rank-2 3x3 matrix: the longest of the three row
     cross products (0 vector if the matrix has rank < 2)."""
@@ -132,7 +132,7 @@ def _best_cross(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     return v0 * n, v1 * n, v2 * n
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _quad(D00, D01, D02, D11, D12, D22, p0, p1, p2, q0, q1, q2):
     """p^T D q for a symmetric D given by its upper triangle."""
     return (
@@ -142,7 +142,7 @@ def _quad(D00, D01, D02, D11, D12, D22, p0, p1, p2, q0, q1, q2):
     )
 
 
-@njit(cache=True, inline=INLINE)
+@kernel(inline=INLINE)
 def _residuals(l1, l2, l3, a12, a13, a23, b12, b13, b23):
     r1 = l1 * l1 + l2 * l2 - 2.0 * b12 * l1 * l2 - a12
     r2 = l1 * l1 + l3 * l3 - 2.0 * b13 * l1 * l3 - a13
@@ -150,7 +150,7 @@ def _residuals(l1, l2, l3, a12, a13, a23, b12, b13, b23):
     return r1, r2, r3
 
 
-@njit(cache=True)
+@kernel
 def _refine(l1, l2, l3, a12, a13, a23, b12, b13, b23):
     """Verified Gauss-Newton steps on eq. 4 (sec. 3.8): a step is taken only if it lowers the
     sum of squared residuals. The system is square, so each step solves J d = -r (Cramer)."""
@@ -183,7 +183,7 @@ def _refine(l1, l2, l3, a12, a13, a23, b12, b13, b23):
     return l1, l2, l3
 
 
-@njit(cache=True)
+@kernel
 def lambda_twist_into(y, X, Rout, tout, off):
     """Lambda Twist on one triplet into the caller's buffers (for kernels that solve one
     sample at a time, :func:`lambda_twist` without its arrays): writes the n <= 4 solutions
@@ -361,7 +361,7 @@ def lambda_twist_into(y, X, Rout, tout, off):
     return n
 
 
-@njit(cache=True)
+@kernel
 def lambda_twist(bearings, X):
     """Lambda Twist P3P (Persson and Nordberg, ECCV 2018) on one triplet.
 
@@ -385,7 +385,7 @@ def lambda_twist(bearings, X):
     return R[:n].copy(), t[:n].copy()
 
 
-@njit(cache=True)
+@kernel
 def lambda_twist_batch(bearings, X):
     """Lambda Twist P3P on K triplets (RANSAC hypotheses), one thread.
 

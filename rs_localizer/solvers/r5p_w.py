@@ -26,8 +26,8 @@ seconds per unit r (:attr:`rs_localizer.camera.CameraModel.seconds_per_unit_r`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._so3 import (
     copy_matrix3,
     rotate_left_into,
@@ -41,7 +41,7 @@ from ._linear import lstsq, rows_E, run_batch_with_prior, run_single
 __all__ = ["r5p_w", "r5p_w_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, err):
     """The iteration of the module docstring for K problems with ``w_in[k]`` (K, 3) the known
     ``w``; with ``use_prior`` each solve also takes the 6 rows ``P[k] (w, t) = q[k]`` with
@@ -140,7 +140,7 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
         err[k] = np.sqrt(acc / N)
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     """The batched-kernel signature of ``_linear.run_batch``; ``v_init`` (K, 3) carries the
     known ``w`` of each problem (this solver has no other use for an initial ``v``)."""

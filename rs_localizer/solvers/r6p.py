@@ -48,8 +48,8 @@ import itertools
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from .._linalg import (
     balance,
     elmhes,
@@ -121,7 +121,7 @@ _MAX_NEWTON = 15  # Newton steps per root at most (2-3 are typical)
 
 
 # ---------------------------------------------------------------------------------------------
-@njit(cache=True)
+@kernel
 def _eq5_system(x, Xn, tau):
     """Coefficients of the 12 equations ``E . p_i`` of eq. 5.
 
@@ -164,7 +164,7 @@ def _eq5_system(x, Xn, tau):
     return M, B
 
 
-@njit(cache=True)
+@kernel
 def _action_matrix(A, mul11, mul22, quads, ccomp, csign, shift, g):
     """20 x 20 multiplication matrix of ``g . w`` from the 4 x 4 minors of A(w) (6, 4, 4).
 
@@ -248,7 +248,7 @@ def _action_matrix(A, mul11, mul22, quads, ccomp, csign, shift, g):
     return Mact, pmin / pmax
 
 
-@njit(cache=True)
+@kernel
 def _residual_jacobian(x, Xn, tau, z, F, J):
     """Residual F (12) of eq. 5 and its Jacobian J (12, 12) w.r.t. z = (v, w, C, t)."""
     v0, v1, v2 = z[0], z[1], z[2]
@@ -296,7 +296,7 @@ def _residual_jacobian(x, Xn, tau, z, F, J):
 # ---------------------------------------------------------------------------------------------
 # Small helpers. The njit functions are written with scalar loops: array expressions and
 # NumPy library calls inside njit functions multiply the one-off compile time.
-@njit(cache=True)
+@kernel
 def _norm(a):
     sm = 0.0
     for i in range(a.shape[0]):
@@ -304,7 +304,7 @@ def _norm(a):
     return np.sqrt(sm)
 
 
-@njit(cache=True)
+@kernel
 def _dist(a, b):
     sm = 0.0
     for i in range(a.shape[0]):
@@ -312,7 +312,7 @@ def _dist(a, b):
     return np.sqrt(sm)
 
 
-@njit(cache=True)
+@kernel
 def _finite(a):
     for i in range(a.shape[0]):  # noqa: SIM110 - numba compiles no generator inside all()
         if not np.isfinite(a[i]):
@@ -322,7 +322,7 @@ def _finite(a):
 
 # ---------------------------------------------------------------------------------------------
 # The action matrix's real roots (the eigenvalue kernels are in rs_localizer._linalg)
-@njit(cache=True)
+@kernel
 def _w_from_eigvec(u, shift, out):
     """w from an eigenvector u ~ [1, w1, w2, w3, w1^2, ...] (20,): w_k = u[w_k m] / u[m] with
     m the largest entry of degree <= 2 (accurate also for roots with large |w|)."""
@@ -337,7 +337,7 @@ def _w_from_eigvec(u, shift, out):
     return True
 
 
-@njit(cache=True)
+@kernel
 def _real_candidates(Mact, shift, imag_tol):
     """w at the real (or nearly real) eigenvalues of the multiplication matrix.
 
@@ -402,7 +402,7 @@ def _real_candidates(Mact, shift, imag_tol):
     return True, W[:k]
 
 
-@njit(cache=True)
+@kernel
 def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
     """From candidate w's: v, C, t by linear algebra, then Newton on eq. 5 (normalised units).
 
@@ -517,7 +517,7 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
     return Z[:n], its[:n]
 
 
-@njit(cache=True)
+@kernel
 def _normalise(x, X, r, r0, planar_tol):
     """Degeneracy checks and the exact reparametrisation of eq. 5.
 
@@ -598,7 +598,7 @@ def _normalise(x, X, r, r0, planar_tol):
     return 0, Xn, taun, m, s, st, maybe_planar
 
 
-@njit(cache=True)
+@kernel
 def _denormalise(x, X, r, r0, Z, m, s, st):
     """Undo the normalisation (X = s Xn + m, tau = st taun) and compute the RMS algebraic error of
     eq. 5 (as :func:`._common.algebraic_error`). Returns (Zout (n, 12), err (n,))."""
@@ -640,7 +640,7 @@ def _denormalise(x, X, r, r0, Z, m, s, st):
     return out, err
 
 
-@njit(cache=True)
+@kernel
 def _template(x, Xp, taun, proj_c):
     """Eq. 5 -> the 6 x 4 matrix A(w) and the QR of B (for C, t).
 
@@ -668,7 +668,7 @@ def _template(x, Xp, taun, proj_c):
     return ok, A, Au, B, V
 
 
-@njit(cache=True)
+@kernel
 def _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, proj_c, accept_tol, max_newton, zmax):
     """Candidates u (k, 3) -> polished, de-normalised roots sorted by algebraic error.
 
@@ -757,7 +757,7 @@ def _solve(x, X, r, r0):
     )
 
 
-@njit(cache=True)
+@kernel
 def _solve_core(x, X, r, r0):
     """:func:`_solve` in one compiled call for the common case (the module's constant tables
     are compile-time constants here). Returns (status, Z, its, err): status 0 with the roots;
@@ -790,7 +790,7 @@ def _solve_core(x, X, r, r0):
     return 0, Z, its, err
 
 
-@njit(cache=True)
+@kernel
 def _check6(x, X, r, r0):
     """True if the six rows of x (6, 2), X (6, 3), r (6,) and r0 are all finite."""
     if not np.isfinite(r0):

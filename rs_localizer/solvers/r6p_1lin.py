@@ -15,8 +15,8 @@ Coefficient rows, for each elimination row E of point i (see ``_linear``), with
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ._common import RSBatch, RSSolution
 from ._linear import (
     PATIENCE,
@@ -31,7 +31,7 @@ from ._linear import (
 __all__ = ["r6p_1lin", "r6p_1lin_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
     """The iteration of the module docstring for K problems; with ``use_prior`` each linear
     solve also takes the 6 rows ``P[k] (w, t) = q[k]`` (damped least squares, see
@@ -99,7 +99,7 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
         err[k] = best
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     # (no prior rows: the arguments of the same types as the prior path's, writable arrays
     # and a non-literal flag, so that both share one compiled _solve)

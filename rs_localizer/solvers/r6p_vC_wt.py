@@ -7,14 +7,13 @@ never estimated together.
 
 from __future__ import annotations
 
-from numba import njit
-
+from .._jit import kernel
 from ._linear import alternate, alternating_solver
 
 __all__ = ["r6p_vC_wt", "r6p_vC_wt_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     alternate(x, X, r, r0, iterations, tol, False, True, out, ok, its, err)
 

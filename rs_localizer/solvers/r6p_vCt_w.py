@@ -7,14 +7,13 @@ translational motion.
 
 from __future__ import annotations
 
-from numba import njit
-
+from .._jit import kernel
 from ._linear import alternate, alternating_solver
 
 __all__ = ["r6p_vCt_w", "r6p_vCt_w_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     alternate(x, X, r, r0, iterations, tol, True, False, out, ok, its, err)
 

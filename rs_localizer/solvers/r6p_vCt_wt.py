@@ -6,14 +6,13 @@ Each iteration fixes w and estimates (v, C, t) by R6P_{v,C,t}, then keeps (v, C)
 
 from __future__ import annotations
 
-from numba import njit
-
+from .._jit import kernel
 from ._linear import alternate, alternating_solver
 
 __all__ = ["r6p_vCt_wt", "r6p_vCt_wt_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     alternate(x, X, r, r0, iterations, tol, True, True, out, ok, its, err)
 

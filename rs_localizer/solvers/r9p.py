@@ -28,15 +28,15 @@ the noise level; near a global shutter it removes the noise-driven t).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from .._jit import kernel
 from ._common import RSBatch, RSSolution
 from ._linear import cross_into, lstsq, rows_E, run_batch, run_single
 
 __all__ = ["r9p", "r9p_batch"]
 
 
-@njit(cache=True)
+@kernel
 def _eq8_error(x, X, r, r0, u):
     n = x.shape[0]
     acc = 0.0
@@ -59,17 +59,17 @@ def _eq8_error(x, X, r, r0, u):
     return np.sqrt(acc / n)
 
 
-@njit(cache=True)
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     _solve(x, X, r, r0, True, out, ok, its, err)
 
 
-@njit(cache=True)
+@kernel
 def _kernel_raw(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     _solve(x, X, r, r0, False, out, ok, its, err)
 
 
-@njit(cache=True)
+@kernel
 def _solve(x, X, r, r0, gauge_fix, out, ok, its, err):
     K, N = x.shape[0], x.shape[1]
     A = np.empty((2 * N, 18))

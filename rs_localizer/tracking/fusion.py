@@ -66,9 +66,9 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from numba import njit
 from scipy.stats import chi2
 
+from .._jit import kernel
 from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
 from ..estimation.implementation import compiled_by_default
@@ -277,7 +277,7 @@ _ROW = 27
 # ------------------------------------------------------------------------- numba kernels
 # (the filter runs once per frame next to a ~1 ms estimator: NumPy's per-call overhead on
 # 3x3 to 36x36 matrices would cost more than the arithmetic)
-@njit(cache=True)
+@kernel
 def _chain_q(dt, order):
     """Discrete covariance of an ``order``-fold integrator chain driven by unit continuous
     white noise on its last state, over ``dt`` (order 2: position, velocity; 3: with the
@@ -293,7 +293,7 @@ def _chain_q(dt, order):
     )
 
 
-@njit(cache=True)
+@kernel
 def _mul3(A, B):
     """A B for A, B (3, 3) (plain loops: no BLAS call for 27 products)."""
     C = np.empty((3, 3))
@@ -303,7 +303,7 @@ def _mul3(A, B):
     return C
 
 
-@njit(cache=True)
+@kernel
 def _transition(x, dt, acc, qa, ql, out):
     """One step of the process model (module docstring) for ``dt`` s of the window row x
     (27,) (see ``_ROW``), written into the row ``out`` (but its v_cam: :func:`_outputs`).
@@ -376,7 +376,7 @@ def _transition(x, dt, acc, qa, ql, out):
     return F, Q
 
 
-@njit(cache=True)
+@kernel
 def _shift_covariance(P, F, Q, n, keep):
     """``Fa P Fa^T + Q`` for the window: the newest block propagated by F, the ``keep``
     newest old blocks shifted back one place (the rest dropped). P (k n, k n) symmetric,
@@ -416,7 +416,7 @@ def _shift_covariance(P, F, Q, n, keep):
     return out
 
 
-@njit(cache=True)
+@kernel
 def _cholesky(S):
     """Lower Cholesky factor L (n, n) of the symmetric S (n, n) and ok: False if S is not
     positive definite (L is not valid then); :func:`rs_localizer._linalg.cholesky_into` on
@@ -426,7 +426,7 @@ def _cholesky(S):
     return L, cholesky_into(S, n, L)
 
 
-@njit(cache=True)
+@kernel
 def _inverse_from_cholesky(L):
     """``S^-1 = L^-T L^-1`` (n, n), exactly symmetric, of ``S = L L^T`` from its lower
     Cholesky factor L (n, n). (Row operations, which the compiler vectorizes.)"""
@@ -453,7 +453,7 @@ def _inverse_from_cholesky(L):
     return out
 
 
-@njit(cache=True)
+@kernel
 def _kalman_update(P, H, y, R):
     """Kalman update with a measurement on the newest block (H (m, n) on the first n
     columns of the symmetric P (M, M)). Returns (nis, dx (M,), P' (M, M) symmetric (its
@@ -489,7 +489,7 @@ def _kalman_update(P, H, y, R):
     return z @ z, z @ W, P2, True
 
 
-@njit(cache=True)
+@kernel
 def _innovation(Ori, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
     """Innovation y (m,) and Jacobian H (m, n) on the newest state of a measurement of
     (rotation, position[, omega, v_cam = O^T v]); with ``use_G`` (acceleration model) the
@@ -525,7 +525,7 @@ def _innovation(Ori, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
     return y, H
 
 
-@njit(cache=True)
+@kernel
 def _deprior(cov, p, omega, v, mean, info, G):
     """Take a twist prior (ROS order mean (6,), information (6, 6)) out of a posterior
     estimate (covariance (12, 12) over (rotation, position, omega, v), values p, omega, v;
@@ -556,7 +556,7 @@ def _deprior(cov, p, omega, v, mean, info, G):
     return True, R_d @ rhs, R_d, R_d @ (L_post @ G)
 
 
-@njit(cache=True)
+@kernel
 def _prepare_measurement(
     m, cov, Ori, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
 ):
@@ -599,7 +599,7 @@ def _prepare_measurement(
     return True, deprior, zO, zp, zw, zv, R, Gm, has_G
 
 
-@njit(cache=True)
+@kernel
 def _camera_covariance(x, P, b, out):
     """Write into out (12, 12) the covariance of (phi, p, omega, v_cam = O^T v) of the
     window row x (27,) from its (n, n) block of P at (b, b) over (phi, p, omega, v, ...):
@@ -636,7 +636,7 @@ def _camera_covariance(x, P, b, out):
             out[9 + i, 9 + k] = out[9 + k, 9 + i] = 0.5 * (out[9 + i, 9 + k] + out[9 + k, 9 + i])
 
 
-@njit(cache=True)
+@kernel
 def _outputs(X, P, n):
     """Fill ``v_cam = O^T v`` (columns 24:27) of the window rows X (k, 27) and return their
     (k, 12, 12) covariances of (phi, p, omega, v_cam) from the window covariance P
@@ -655,7 +655,7 @@ def _outputs(X, P, n):
     return C
 
 
-@njit(cache=True)
+@kernel
 def _update_window(
     X,
     P,
@@ -735,7 +735,7 @@ def _update_window(
     return status, nis, Xn, Pn, _outputs(Xn, Pn, n)
 
 
-@njit(cache=True)
+@kernel
 def _predict_row(X, P, dt, acc, qa, ql):
     """The newest window row (of X (k, 27), error covariance P (k n, k n)) propagated by
     ``dt`` s: (row (27,), its (12, 12) covariance of (phi, p, omega, v_cam))."""

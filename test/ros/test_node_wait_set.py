@@ -72,7 +72,7 @@ def test_one_executor_turn_takes_every_waiting_frame(ros_context):
     the node's frame subscriptions (correspondences and keypoints here), so that a few
     executor turns count a whole burst ``received`` (the frame queue then drops and
     counts what it cannot hold): an executor taking one message per turn, each turn rebuilding
-    its wait set in Python and waiting for the GIL while the worker solves, falls behind a
+    its wait set in Python and waiting for the GIL while the worker runs Python, falls behind a
     stream and the reader's history overwrites frames the node never counts."""
     import time
 

@@ -37,8 +37,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from ..._jit import kernel
 from ...camera import CameraModel
 from ..synthetic import LAYOUTS, READOUTS
 from ..trajectory import (
@@ -351,7 +352,7 @@ def _pack(scene: Scene) -> _Packed:
 
 
 # ------------------------------------------------------------------------------ kernels
-@njit(cache=True, fastmath=True)
+@kernel(fastmath=True)
 def _bilinear(tbuf, tinfo, t, L, sx, sy):
     off, w, h = tinfo[t, L, 0], tinfo[t, L, 1], tinfo[t, L, 2]
     x = sx * w - 0.5
@@ -378,7 +379,7 @@ def _bilinear(tbuf, tinfo, t, L, sx, sy):
     return r, g, b
 
 
-@njit(cache=True, fastmath=True)
+@kernel(fastmath=True)
 def _trilinear(tbuf, tinfo, tnl, t, lod, sx, sy):
     nl = tnl[t]
     if lod <= 0.0:
@@ -392,7 +393,7 @@ def _trilinear(tbuf, tinfo, tnl, t, lod, sx, sy):
     return r0 + f * (r1 - r0), g0 + f * (g1 - g0), b0 + f * (b1 - b0)
 
 
-@njit(cache=True, fastmath=True)
+@kernel(fastmath=True)
 def _intersect(o0, o1, o2, d0, d1, d2, qo, qu, qv, qn, qsize):
     """Nearest quad hit of the ray o + lam d (lam > 0). Returns (quad or -1, lam, a, b, cos)."""
     best = np.inf
@@ -425,7 +426,7 @@ def _intersect(o0, o1, o2, d0, d1, d2, qo, qu, qv, qn, qsize):
     return bq, best, ba, bb, bcos
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@kernel(parallel=True, fastmath=True)
 def _render_kernel(
     dirs,
     ss,
@@ -517,7 +518,7 @@ def _render_kernel(
             out[py, px, 2] = ab * norm
 
 
-@njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def _cast_kernel(dirs, lines, Rs, ps, qo, qu, qv, qn, qsize, X, quad, depth):
     for i in prange(dirs.shape[0]):
         L = lines[i]
