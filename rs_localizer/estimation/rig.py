@@ -40,9 +40,10 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
@@ -80,7 +81,7 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, plausible_motion
 from .prior import MotionPrior, sample_prior_rows
-from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
+from .ransac import RansacLoop, SeededShuffle, required_iterations, seeded_stream
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
@@ -419,7 +420,6 @@ def estimate_rig_pose(
     compiled = resolve_implementation(implementation, None) == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
-    settings = (options, initial_model, pre_rotation == "gp3p")
     if twist is None:
         known = prediction if prediction is not None else initial_model
         known = getattr(known, "model", known)
@@ -430,6 +430,10 @@ def estimate_rig_pose(
         pool.twist = twist
         return pool
 
+    def estimated(pool: StackedViews) -> RSPoseEstimate:
+        stages = _RigStages(pool, options, initial_model, pre_rotation == "gp3p")
+        return _estimate_pool(stages, gyro, gyro_time)
+
     def solve(drop: set[int]) -> RSPoseEstimate:
         """The rig frame without the points of cameras ``drop`` (each keeps its place),
         restored to every view (:func:`_restored`) when it is posed."""
@@ -439,14 +443,14 @@ def estimate_rig_pose(
             else v
             for c, v in enumerate(views)
         ]
-        est = _estimate_pool(stacked(vs), settings, gyro, gyro_time)
+        est = estimated(stacked(vs))
         return _restored(est, pool) if est.success else est
 
     pool = stacked(views)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
-    est = _estimate_pool(pool, settings, gyro, gyro_time)
+    est = estimated(pool)
     if not consensus or not est.success:
         return est
     if prediction is None and initial_model is not None:
@@ -478,20 +482,16 @@ def _one_camera_alone(
     return _restored(est, pool, c)
 
 
-def _estimate_pool(pool: StackedViews, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
-    """:func:`estimate_rig_pose` on the stacked views ``pool`` before the consensus
-    (``settings``: :class:`_RigStages`' arguments), the gyro checked as a camera's
-    (:func:`~.driver.gyro_checked_estimate`)."""
-    still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
-    if gyro is None or still or not settings[0].refine.enabled:
-        return _estimate(pool, *settings)
+def _estimate_pool(stages: _RigStages, gyro, gyro_time) -> RSPoseEstimate:
+    """:func:`estimate_rig_pose` of the unaided ``stages`` before the consensus, the gyro
+    checked as a camera's (:func:`~.driver.gyro_checked_estimate`)."""
+    pool = stages.pool
+    if gyro is None or (len(pool.cam) and pool.tau_spread <= STILL_SPREAD) or not stages.refine:
+        return staged_estimate(stages)
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    prior = gyro_prior(gyro, compiled=pool.compiled)
-    aided = _RigStages(pool, *settings, prior=prior, gyro_time=gyro_time)
-    return gyro_checked_estimate(
-        aided, gyro, lambda: _estimate(pool, *settings), pool.compiled
-    )  # fmt: skip
+    aided = replace(stages, prior=gyro_prior(gyro, compiled=pool.compiled), gyro_time=gyro_time)
+    return gyro_checked_estimate(aided, gyro, lambda: staged_estimate(stages), pool.compiled)
 
 
 def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, solve, prediction,
@@ -663,25 +663,11 @@ def _verified(pool, est, threshold_px, voters, solve, prediction):
             ok = pool.errors(e.model) < threshold_px
             inl[c] = np.bincount(pool.cam[ok], minlength=M)
     cams = list(inl)
-
-    def agree(c, d):
-        return inl[c][d] >= VERIFY_SHARE * inl[d][d] or inl[d][c] >= VERIFY_SHARE * inl[c][c]
-
-    groups, seen = [], set()
-    for c in cams:  # (connected components of the agreement)
-        if c in seen:
-            continue
-        group, todo = {c}, [c]
-        while todo:
-            x = todo.pop()
-            for d in cams:
-                if d not in group and agree(x, d):
-                    group.add(d)
-                    todo.append(d)
-        seen |= group
-        groups.append(group)
-    if len(groups) < 2:
+    agree = [[inl[c][d] >= VERIFY_SHARE * inl[d][d] for d in cams] for c in cams]
+    n, label = connected_components(np.array(agree), directed=False)  # (c, d or d, c)
+    if n < 2:
         return None
+    groups = [{c for c, g in zip(cams, label, strict=True) if g == k} for k in range(n)]
     groups.sort(key=len, reverse=True)
     fits = [solve(set(checked) - g) for g in groups[:2]]
     return _decided(pool, est, fits, groups[:2], voters, set(checked), threshold_px, prediction)
@@ -792,7 +778,7 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset, self.spread = anchored, subset, spread
-        self._seed, self._rng = r.seed, None
+        self._seed, self.rng = r.seed, SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
@@ -816,14 +802,6 @@ class _RigSearch(RansacLoop):
         self._drawn = 0  # (the seed's random draws the batches took)
         self._out: tuple | None = None  # (:meth:`_batch`'s output buffers)
         self._n, self._missed = 0, self._no_missed
-
-    @property
-    def rng(self) -> np.random.Generator:
-        """The search's random generator (:func:`~.ransac.seeded_rng`; a compiled batch reads
-        the same stream, :func:`~.ransac.seeded_stream`)."""
-        if self._rng is None:
-            self._rng = seeded_rng(self._seed)
-        return self._rng
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for :meth:`errors`)."""
@@ -850,7 +828,7 @@ class _RigSearch(RansacLoop):
             return self._batch(K)
         pool = self.pool
         draw = pool.uniform_samples if self.generalized else pool.samples
-        samples = draw(self.rng, K, self.subset)
+        samples = draw(self.rng.generator(), K, self.subset)
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
             hyp = _hypotheses(pool, samples, 0, generalized=self.generalized, missed=self.missed,
@@ -951,11 +929,7 @@ def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = N
     )
 
 
-def _estimate(pool: StackedViews, *settings, **kwargs) -> RSPoseEstimate:
-    """The staged estimator (:func:`~.driver.staged_estimate`) on :class:`_RigStages`."""
-    return staged_estimate(_RigStages(pool, *settings, **kwargs))
-
-
+@dataclass
 class _RigStages:
     """A rig frame's stacked views ``pool`` as the staged estimator's
     :class:`~.driver.Stages` (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior``
@@ -974,14 +948,18 @@ class _RigStages:
     without a gyro that fails and shows no motion is posed on the global-shutter model
     (:func:`~.finalize.still_fallback`)."""
 
-    def __init__(self, pool: StackedViews, options: EstimateOptions, initial_model,
-                 generalized: bool, prior: MotionPrior | None = None, still: bool | None = None,
-                 spread: bool = False, gyro_time: float = 0.0):  # fmt: skip
-        self.pool, self.options, self.initial_model = pool, options, initial_model
-        self.generalized, self.prior, self.still, self.spread = generalized, prior, still, spread
-        self.gyro_time = gyro_time
-        self.threshold_px = float(options.ransac.threshold_px)
-        self.refine = options.refine.enabled
+    pool: StackedViews
+    options: EstimateOptions
+    initial_model: InitialModel | None
+    generalized: bool
+    prior: MotionPrior | None = None
+    still: bool | None = None
+    spread: bool = False
+    gyro_time: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.threshold_px = float(self.options.ransac.threshold_px)
+        self.refine = self.options.refine.enabled
         self.search: _RigSearch | None = None
         self.last = None
 
@@ -1105,21 +1083,17 @@ class _RigStages:
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
-        pool, still = self.pool, self.still
-        settings = (self.options, self.initial_model, self.generalized)
-        if still is None:  # (refused before the time spread was looked at)
+        if self.still is None:  # (refused before the time spread was looked at)
             return None
-        if still:
+        if self.still:
             if failure.reason != TOO_FEW_INLIERS or self.spread:
                 return None
-            return _estimate(pool, *settings, self.prior, True, True, self.gyro_time)
+            return staged_estimate(replace(self, spread=True))
         if self.prior is not None or not self.refine:
             return None
         # (a rolling-shutter rig frame that shows no motion: the global-shutter model)
-        return still_fallback(
-            failure.reason, lambda: _estimate(pool, *settings, still=True), pool,
-            self.threshold_px,
-        )  # fmt: skip
+        again = lambda: staged_estimate(replace(self, still=True))  # noqa: E731
+        return still_fallback(failure.reason, again, self.pool, self.threshold_px)
 
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
         iterations = 0 if self.search is None else self.search.iterations
