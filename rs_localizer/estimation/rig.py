@@ -18,16 +18,13 @@ rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.
 :func:`~.result.camera_model_of_rig`.
 
 :func:`estimate_rig_pose` runs the single camera's staged estimator
-(:func:`~.driver.staged_estimate`) on the rig's stages (:class:`_RigStages`) over the views
-stacked (:class:`~.view.StackedViews`), in either implementation (compiled, or NumPy with
-OpenCV's P3P). The rig's own parts: a sample is 3 points of one camera and 3 of any; its
-hypotheses are the P3P poses of the 3 mapped to the rig (``R_rig = R_c^T R_cam``)
-pre-rotating the rig solver (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`) on the
-6 (:func:`_hypotheses`; compiled, one call per batch: :mod:`.rig_batch`); the scoring is MSAC
-on each point's error in pixels of its camera's measured, distorted image at its own capture
-time; local optimization's linear step is :func:`_refit`; the final refinement chooses
-between cameras whose mountings disagree (:data:`CONTRADICTION_GATE`); and the cameras with
-points must agree on the pose (:func:`_consensus`; docs/rig.md, "The cameras' consensus").
+(:func:`~.driver.staged_estimate`) on the rig's stages (:class:`_RigStages`) over the stacked
+views (:class:`~.view.StackedViews`), compiled or in NumPy. The rig's own parts: a sample is 3
+points of one camera and 3 of any, its P3P poses mapped to the rig pre-rotating the rig solver
+(:func:`_hypotheses`; compiled: :mod:`.rig_batch`); MSAC on each point's pixel error in its
+camera's distorted image at its own capture time; the final refinement's choice between
+cameras whose mountings disagree (:data:`CONTRADICTION_GATE`); the cameras' consensus
+(:func:`_consensus`; docs/rig.md, "The cameras' consensus").
 
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized
@@ -39,8 +36,9 @@ best model misses a camera (three corners of a small tag leave a pose degrees of
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -103,14 +101,11 @@ __all__ = [
     "LO_ROUNDS",
     "PREDICTION_GATE",
     "PREDICTION_MARGIN",
-    "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "RIG_OPTIONS",
     "RIG_SOLVER",
-    "RIG_SOLVER_ITERATIONS",
     "SPREAD_CORRECTION_ROUNDS",
     "STILL_SPREAD",
-    "VERIFY_ALL_EXPLAINED",
     "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
@@ -130,17 +125,8 @@ VOTE_MIN_POINTS = 8
 #: voting camera of a few points alone
 RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
 
-#: the rig solver's iterations per sample after the pre-rotation when
-#: ``EstimateOptions.ransac.solver_iterations`` is None
-RIG_SOLVER_ITERATIONS = 3
-
-#: the held rig solver's iterations that correct a global-shutter sample's P3P pose
-STILL_SOLVER_ITERATIONS = 1
-
-#: the rounds of that correction when a global-shutter search runs again because its model
-#: had too few inliers, each pre-rotated by the previous round's rotation (the solver's
-#: rotation is linear about its pre-rotation: one round from a P3P pose 10-30 degrees off
-#: stays degrees off, a second converges)
+#: the rounds of the held rig solver's correction of a global-shutter sample's P3P pose when
+#: a global-shutter search runs again because its model had too few inliers (docs/rig.md)
 SPREAD_CORRECTION_ROUNDS = 2
 
 #: local optimization's rounds: the rig's refinement runs on every point until converged, so
@@ -149,15 +135,11 @@ SPREAD_CORRECTION_ROUNDS = 2
 #: ``benchmarks.bench_rig_rendered``, and made every TagSLAM recording slower)
 LO_ROUNDS = 1
 
-#: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
-PRE_ROTATIONS = ("p3p", "gp3p")
-
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
 
 #: a voting camera agrees with a model when its inlier ratio is at least this share of the
-#: best-fitting voting camera's (a camera whose mounting is 2 deg off or whose clock is 5 ms
-#: off has 0-5 % of its points inliers)
+#: best-fitting voting camera's (docs/rig.md, "The cameras' consensus")
 AGREE_SHARE = 0.3
 
 #: inlier thresholds within which two groups of cameras that disagree at the threshold are
@@ -180,11 +162,6 @@ VERIFY_SHARE = 0.5
 #: (from 8-12 corners a rolling-shutter pose's velocities fit its noise and miss cameras that
 #: agree with the rig: a correct first rig frame was refused)
 VERIFY_MIN_POINTS = 20
-
-#: ``verify_cameras``: a joint estimate that explains at least this share of every voting
-#: camera's points is not checked camera by camera (a camera posed alone extrapolates its
-#: velocities to cameras looking elsewhere)
-VERIFY_ALL_EXPLAINED = 0.95
 
 #: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
 #: other group's is at least this many times farther (rotation in rad plus position over
@@ -214,17 +191,9 @@ def _rig_solver(pool: StackedViews, iterations: int, prior: MotionPrior | None =
     return solve
 
 
-def _hypotheses(
-    pool: StackedViews,
-    samples: np.ndarray,
-    iterations: int,
-    anchor=None,
-    prior: MotionPrior | None = None,
-    threshold_px: float = 2.0,
-    generalized: bool = False,
-    missed: np.ndarray | None = None,
-    rounds: int = 1,
-):
+def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor=None,
+                prior: MotionPrior | None = None, threshold_px: float = 2.0, generalized=False,
+                missed: np.ndarray | None = None, rounds: int = 1):  # fmt: skip
     """Models (R, C, w, t) of the samples (K, 6), as a camera's samples are solved
     (:func:`~.hypotheses.prerotated_models`): each pre-rotated by its P3P poses mapped to the
     rig (:func:`_p3p_on_rig`) or by ``anchor`` ``(R, C)`` (an initial model's or the best
@@ -264,11 +233,11 @@ def _hypotheses(
 
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero on the samples ``S`` (H, 6),
-    pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`): ``(R (H, 3, 3), C
+    pre-rotated by ``Rg`` (H, 3, 3) (one linear step): ``(R (H, 3, 3), C
     (H, 3), valid (H,))``. Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`
     (the same solution from the pose's six unknowns alone)."""
     if not pool.compiled:
-        solve = _rig_solver(pool, STILL_SOLVER_ITERATIONS, held=True)
+        solve = _rig_solver(pool, 1, held=True)
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                            solve, False)  # fmt: skip
         return R, C, ok
@@ -361,22 +330,17 @@ def estimate_rig_pose(
             offset); a camera may have no points.
         options: :class:`~rs_localizer.estimation.options.EstimateOptions` (default
             :data:`RIG_OPTIONS`), of which the rig uses ``ransac`` (``min_inliers`` over all
-            cameras; ``solver_iterations`` None: :data:`RIG_SOLVER_ITERATIONS`),
+            cameras; ``solver_iterations`` None: 3 rig solver steps per sample),
             ``refine.enabled`` (without it the estimate is the rig solver's refit of
             RANSAC's model) and ``plausibility`` (velocity bounds in rad/s and m/s, rows
             beyond ``max_point_norm`` dropped, ``consistent_fit``); its other fields are a
             single camera's alone.
         initial_model: an :class:`~rs_localizer.estimation.InitialModel` (a bare model: the
             default gate) of the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
-            reference time), used as a camera's: tested on every point, pulled onto those
-            it explains, seeding RANSAC and pre-rotating its samples, verified with samples
-            among its inliers when it has ``min_explained``.
+            reference time), used as a camera's.
         gyro: a :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's angular
-            velocity (rad/s, **rig frame**), used as a camera's: its rows in every sample's
-            rig solve, the refinements maximum a posteriori with it, then judged by the image
-            alone (:func:`~.driver.gyro_checked_estimate`: ``gyro_rejected`` and the frame
-            solved again without it on disagreement). Ignored on a global-shutter rig frame
-            and without ``refine``.
+            velocity (rad/s, **rig frame**), used as a camera's (its rows also in every
+            sample's rig solve); ignored on a global-shutter rig frame and without ``refine``.
         gyro_time: s from the rig's reference time: the middle of the gyro's window (for the
             ``acceleration_sensitivity``); None: the middle of the observation times.
         pre_rotation: ``"p3p"`` (3 points of one camera, Lambda Twist, mapped to the rig) or
@@ -389,8 +353,7 @@ def estimate_rig_pose(
             joint estimate as it is. ``verify_cameras``: also pose every voting camera alone
             and compare (:func:`_verified`), for a rig frame nothing else checks (a track's
             first).
-        implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s
-            (:func:`~.implementation.resolve_implementation`); the estimate records it.
+        implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s.
         twist: the rig's ``(w (3,) rad/s, t (3,) m/s)`` in the model's convention (a
             tracker's); None: ``prediction``'s or ``initial_model``'s, if any. Used only for
             the share of the cameras' time offset std
@@ -402,28 +365,25 @@ def estimate_rig_pose(
         inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
         frame gives no pose.
     Raises:
-        ValueError: unknown ``pre_rotation`` or ``implementation``, ``options`` that are not
-            :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
-            refuse a setting out of its range, naming it), a gyro that is not a
-            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
-            not a :class:`View`, a camera without a mounting (``mounting`` None; the
-            message names it) or with a mounting that is not a
-            :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
+        ValueError: the inputs :func:`~.driver.checked_inputs` refuses, an unknown
+            ``pre_rotation`` or ``implementation``, no views, a view that is not a
+            :class:`View`, a camera without a mounting (named) or with a mounting that is not
+            a :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
             shapes.
     """
     who = "estimate_rig_pose"
     if len(views) == 0:
         raise ValueError(f"{who}: needs at least one camera")
     options, initial_model = checked_inputs(who, options, RIG_OPTIONS, initial_model, gyro)
-    if pre_rotation not in PRE_ROTATIONS:
-        raise ValueError(f"{who}: pre_rotation must be one of {PRE_ROTATIONS}: {pre_rotation!r}")
+    if pre_rotation not in ("p3p", "gp3p"):
+        raise ValueError(f"{who}: pre_rotation must be 'p3p' or 'gp3p': {pre_rotation!r}")
     compiled = resolve_implementation(implementation, None) == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
-    if twist is None:
-        known = prediction if prediction is not None else initial_model
-        known = getattr(known, "model", known)
-        twist = None if known is None else tuple(known)[2:4]
+    if prediction is None and initial_model is not None:
+        prediction = initial_model.model
+    if twist is None and prediction is not None:
+        twist = tuple(prediction)[2:4]
 
     def stacked(vs: Sequence[View]) -> StackedViews:
         pool = StackedViews(vs, compiled, cache, max_norm)
@@ -431,19 +391,24 @@ def estimate_rig_pose(
         return pool
 
     def estimated(pool: StackedViews) -> RSPoseEstimate:
+        """The rig frame of ``pool`` before the consensus, the gyro checked as a camera's
+        (:func:`~.driver.gyro_checked_estimate`)."""
         stages = _RigStages(pool, options, initial_model, pre_rotation == "gp3p")
-        return _estimate_pool(stages, gyro, gyro_time)
+        still = len(pool.cam) and pool.tau_spread <= STILL_SPREAD
+        if gyro is None or still or not stages.refine:
+            return staged_estimate(stages)
+        at = gyro_time
+        if at is None:  # (the middle of the observation times)
+            at = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
+        aided = replace(stages, prior=gyro_prior(gyro, compiled=pool.compiled), gyro_time=at)
+        return gyro_checked_estimate(aided, gyro, lambda: staged_estimate(stages), pool.compiled)
 
     def solve(drop: set[int]) -> RSPoseEstimate:
         """The rig frame without the points of cameras ``drop`` (each keeps its place),
         restored to every view (:func:`_restored`) when it is posed."""
-        vs = [
-            View(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
-            if c in drop
-            else v
-            for c, v in enumerate(views)
-        ]
-        est = estimated(stacked(vs))
+        none = {"uv": np.zeros((0, 2)), "X": np.zeros((0, 3))}
+        est = estimated(stacked([replace(v, **none) if c in drop else v
+                                 for c, v in enumerate(views)]))  # fmt: skip
         return _restored(est, pool) if est.success else est
 
     pool = stacked(views)
@@ -453,8 +418,6 @@ def estimate_rig_pose(
     est = estimated(pool)
     if not consensus or not est.success:
         return est
-    if prediction is None and initial_model is not None:
-        prediction = initial_model.model
     return _consensus(pool, est, options.ransac.threshold_px, solve, prediction, verify_cameras)
 
 
@@ -466,8 +429,7 @@ def _one_camera_alone(
     estimator's few-points path (:func:`~.estimate.estimate_rs_pose` with ``view``,
     :func:`~.single_tag.few_points_estimate`) as one of the rig frame's views; None for any
     other rig frame, on the NumPy implementation or when that path does not take them."""
-    counts = pool.counts()
-    with_points = [c for c, n in enumerate(counts) if n]
+    with_points = [c for c, n in enumerate(pool.counts()) if n]
     need = max(options.ransac.min_inliers, 7)  # (the rig solver's sample and one more)
     if not pool.compiled or len(with_points) != 1 or len(pool.cam) >= need:
         return None
@@ -482,16 +444,14 @@ def _one_camera_alone(
     return _restored(est, pool, c)
 
 
-def _estimate_pool(stages: _RigStages, gyro, gyro_time) -> RSPoseEstimate:
-    """:func:`estimate_rig_pose` of the unaided ``stages`` before the consensus, the gyro
-    checked as a camera's (:func:`~.driver.gyro_checked_estimate`)."""
-    pool = stages.pool
-    if gyro is None or (len(pool.cam) and pool.tau_spread <= STILL_SPREAD) or not stages.refine:
-        return staged_estimate(stages)
-    if gyro_time is None:
-        gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    aided = replace(stages, prior=gyro_prior(gyro, compiled=pool.compiled), gyro_time=gyro_time)
-    return gyro_checked_estimate(aided, gyro, lambda: staged_estimate(stages), pool.compiled)
+class _Vote(NamedTuple):
+    """What the cameras' consensus decides on (:func:`_consensus`'s arguments)."""
+
+    pool: StackedViews
+    threshold_px: float
+    voters: list
+    solve: Callable[[set[int]], RSPoseEstimate]
+    prediction: tuple | None
 
 
 def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, solve, prediction,
@@ -509,12 +469,13 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     voters = [c for c, n in enumerate(est.num_valid_per_view) if n >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
+    v = _Vote(pool, threshold_px, voters, solve, prediction)
     if prediction is not None:
-        tracked = _by_track(pool, est, threshold_px, voters, solve, prediction)
+        tracked = _by_track(v, est)
         if tracked is not None:
             return tracked
     if verify:
-        checked = _verified(pool, est, threshold_px, voters, solve, prediction)
+        checked = _verified(v, est)
         if checked is not None:
             return checked
     a = _agreeing(est, voters)
@@ -524,7 +485,7 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    if tried and _one_pose(pool, est, voters, set(voters), threshold_px):
+    if tried and _one_pose(v, est, set(voters)):
         return est  # (a tie of groups one pose fitted from the joint estimate explains)
     sub = solve(a)
     b = _agreeing(sub, voters) if sub.success else set()
@@ -536,11 +497,10 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
         sub = solve(set(voters) - b)
         if not sub.success:
             return _outvoted(est, pool, rest)
-    return _decided(pool, est, (est, sub), (a, b), voters, set(voters), threshold_px,
-                    prediction, tried)  # fmt: skip
+    return _decided(v, est, (est, sub), (a, b), set(voters), tried)
 
 
-def _decided(pool, est, fits, groups, voters, cams: set, threshold_px, prediction, tried=False):
+def _decided(v: _Vote, est, fits, groups, cams: set, tried=False) -> RSPoseEstimate:
     """Two groups of cameras ``groups`` that contradict each other, each posed by its
     estimate in ``fits`` (:func:`_consensus`, :func:`_verified`): the fit of the group of
     more cameras, on a tie the one nearer the ``prediction`` (:func:`_by_prediction`), the
@@ -550,12 +510,12 @@ def _decided(pool, est, fits, groups, voters, cams: set, threshold_px, predictio
     ok = all(f.success for f in fits)
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None and ok:
-        choice = _by_prediction(pool, *fits, prediction)
-        if choice is None and _near(pool, *fits, a, b, voters, threshold_px, tried):
+        choice = _by_prediction(v.pool, *fits, v.prediction)
+        if choice is None and _near(v, *fits, a, b, tried):
             return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice is None or not fits[choice].success:
-        return _disagree(est, pool, a | b)
-    return _outvoted(fits[choice], pool, cams - groups[choice])
+        return _disagree(est, v.pool, a | b)
+    return _outvoted(fits[choice], v.pool, cams - groups[choice])
 
 
 def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -> set[int]:
@@ -572,34 +532,31 @@ def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
 
-def _one_pose(pool: StackedViews, est, voters, cams: set, threshold_px: float, start=None) -> bool:
+def _one_pose(v: _Vote, est, cams: set, start=None) -> bool:
     """Whether one pose fitted from ``start``'s (default ``est``'s) with
     :data:`CONTRADICTION_GATE` inlier thresholds as its threshold, every voting camera weighed
     alike (:func:`_evened`; ``est``'s motion model), explains the cameras ``cams`` within that
     gate (:func:`_agreeing`)."""
-    gate = CONTRADICTION_GATE * threshold_px
-    rolling = est.motion_model != GLOBAL_SHUTTER
-    fit = refined_model(_evened(pool, voters), (est if start is None else start).model, gate,
-                        rolling)  # fmt: skip
-    return cams <= _agreeing(est, voters, pool, gate, fit)
+    gate, start = CONTRADICTION_GATE * v.threshold_px, est if start is None else start
+    fit = refined_model(_evened(v.pool, v.voters), start.model, gate,
+                        est.motion_model != GLOBAL_SHUTTER)  # fmt: skip
+    return cams <= _agreeing(est, v.voters, v.pool, gate, fit)
 
 
-def _near(pool: StackedViews, first, second, a: set, b: set, voters, threshold_px: float,
-          tried=False) -> bool:  # fmt: skip
+def _near(v: _Vote, first, second, a: set, b: set, tried=False) -> bool:
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each explain
     the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or that one
     pose fitted from either explains within them (:func:`_one_pose`; ``tried``: the fit from
     ``first`` already failed): a small inconsistency (a mounting or lens model a few tenths
     of a degree or pixels off), not a contradiction (a mounting degrees off, a wrong stamp)."""
-    gate = CONTRADICTION_GATE * threshold_px
+    gate, pool, voters = CONTRADICTION_GATE * v.threshold_px, v.pool, v.voters
     if b <= _agreeing(first, voters, pool, gate) and a <= _agreeing(second, voters, pool, gate):
         return True
     # (a group posed alone extrapolates its own uncertainty to the other group's cameras, so
     # their points can miss its pose by more than the gate although one pose explains both
     # groups within it; a wrong mounting or stamp leaves no such pose)
     return any(
-        _one_pose(pool, first, voters, a | b, threshold_px, start)
-        for start in ((second,) if tried else (first, second))
+        _one_pose(v, first, a | b, start) for start in ((second,) if tried else (first, second))
     )
 
 
@@ -615,15 +572,16 @@ def _evened(pool: StackedViews, voters) -> StackedViews:
     return pool.repeated(copies)
 
 
-def _by_track(pool, est, threshold_px, voters, solve, prediction):
+def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
     """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
     not: the estimate of the explained cameras alone with the others outvoted when those
     disagree with it too, are no more than the explained ones and, on the global-shutter
     model, are not near them (:func:`_near`: a prediction a degree off can miss one fisheye
     camera and not another a few tenths of a degree from it; a rolling-shutter pose's twist
     can absorb a wrong stamp, which the prediction's twist tells); else None."""
-    model = tuple(np.asarray(a, dtype=float) for a in prediction)
-    explained = _agreeing(est, voters, pool, PREDICTION_GATE * threshold_px, model)
+    pool, voters, solve = v.pool, v.voters, v.solve
+    model = tuple(np.asarray(a, dtype=float) for a in v.prediction)
+    explained = _agreeing(est, voters, pool, PREDICTION_GATE * v.threshold_px, model)
     suspect = set(voters) - explained
     if not explained or not suspect or len(explained) < len(suspect):
         return None  # (a track never outvotes more cameras than it keeps)
@@ -638,29 +596,30 @@ def _by_track(pool, est, threshold_px, voters, solve, prediction):
     if kept.motion_model == GLOBAL_SHUTTER:
         own = solve(explained)
         near = own.success and own.motion_model == GLOBAL_SHUTTER
-        if near and _near(pool, kept, own, explained, suspect, voters, threshold_px):
+        if near and _near(v, kept, own, explained, suspect):
             return None
     return _outvoted(kept, pool, suspect)
 
 
-def _verified(pool, est, threshold_px, voters, solve, prediction):
+def _verified(v: _Vote, est) -> RSPoseEstimate | None:
     """``verify_cameras``: every voting camera of :data:`VERIFY_MIN_POINTS` points posed
     alone; two agree when either's own pose explains at least :data:`VERIFY_SHARE` of the
     other's own inliers; the largest group that agrees poses the rig, a tie decided as the
     consensus decides one (:func:`_decided`); None when they all agree."""
-    M = len(pool.sizes)
-    valid = np.asarray(est.num_valid_per_view)
-    checked = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
+    pool, M, valid = v.pool, len(v.pool.sizes), np.asarray(est.num_valid_per_view)
+    checked = [c for c in v.voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(checked) < 2:
         return None
     inliers = np.asarray(est.num_inliers_per_view, dtype=float)
-    if all(inliers[c] >= VERIFY_ALL_EXPLAINED * valid[c] for c in checked):
-        return None  # (one pose explains every camera's points: nothing contradicts)
+    if all(inliers[c] >= 0.95 * valid[c] for c in checked):
+        # (one pose explains every camera's points: nothing contradicts, and a camera posed
+        # alone extrapolates its velocities to cameras looking elsewhere)
+        return None
     inl = {}
     for c in checked:
-        e = solve(set(checked) - {c})
+        e = v.solve(set(checked) - {c})
         if e.success:
-            ok = pool.errors(e.model) < threshold_px
+            ok = pool.errors(e.model) < v.threshold_px
             inl[c] = np.bincount(pool.cam[ok], minlength=M)
     cams = list(inl)
     agree = [[inl[c][d] >= VERIFY_SHARE * inl[d][d] for d in cams] for c in cams]
@@ -669,8 +628,8 @@ def _verified(pool, est, threshold_px, voters, solve, prediction):
         return None
     groups = [{c for c, g in zip(cams, label, strict=True) if g == k} for k in range(n)]
     groups.sort(key=len, reverse=True)
-    fits = [solve(set(checked) - g) for g in groups[:2]]
-    return _decided(pool, est, fits, groups[:2], voters, set(checked), threshold_px, prediction)
+    fits = [v.solve(set(checked) - g) for g in groups[:2]]
+    return _decided(v, est, fits, groups[:2], set(checked))
 
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
@@ -753,22 +712,15 @@ _NO_SUBSET = np.zeros(0, dtype=np.int64)
 #: :func:`~.rig_batch.search_batch`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
-#: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
-#: candidates and the one it returns
-_ERRORS_KEPT = 6
-
 
 class _RigSearch(RansacLoop):
-    """The rig's RANSAC: the single camera's :class:`~.ransac.RansacLoop` with the rig's
-    :class:`~.ransac.RansacEstimator`: ``generate_models`` draws 6 points
-    (:meth:`~.view.StackedViews.samples`, or :meth:`~.view.StackedViews.uniform_samples` for
-    the generalized P3P) and solves them (:func:`_hypotheses`), dropping models beyond the
-    velocity bounds (``implausible``; compiled without a gyro, each batch drawn, solved and
-    scored in one call, :meth:`_batch`); ``score_models`` is MSAC on every point's error in
-    pixels; ``refine_model`` keeps the model (local optimization runs after the search) and
-    gives termination its inlier ratio (among the seed's inliers ``subset`` when RANSAC
-    verifies a seed). ``spread``: every global-shutter sample corrected across the cameras
-    (:attr:`missed`)."""
+    """The rig's :class:`~.ransac.RansacEstimator` on the single camera's
+    :class:`~.ransac.RansacLoop`: samples of :meth:`~.view.StackedViews.samples` (or
+    ``uniform_samples`` for the generalized P3P) solved by :func:`_hypotheses` (compiled
+    without a gyro, a batch drawn, solved and scored in one call, :meth:`_batch`), MSAC on
+    every point's error in pixels; ``refine_model`` keeps the model (local optimization runs
+    after the search), its inlier ratio among the seed's inliers ``subset`` when RANSAC
+    verifies a seed."""
 
     #: a compiled batch checks termination after every sample, as PoseLib's loop does
     per_sample = True
@@ -778,29 +730,24 @@ class _RigSearch(RansacLoop):
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
         self.anchored, self.subset, self.spread = anchored, subset, spread
-        self._seed, self.rng = r.seed, SeededShuffle(r.seed)  # (the generator built on use)
+        self.rng = SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
-        self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
+        self.solver_iterations = r.solver_iterations or 3
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
-        self._e, self._cost = np.zeros(0), 0.0
-        self._costed: list = []
+        self._e, self._cost, self._costed = np.zeros(0), 0.0, []
         self.batches = r  # (:func:`~.ransac.batch_sizes` of the options)
-        counts = pool.counts()
-        self._counts = np.array(counts, dtype=np.int64)
-        #: the number of cameras with points in the pool
-        self.cameras = sum(1 for n in counts if n)
+        self._counts = np.array(pool.counts(), dtype=np.int64)
+        self.cameras = int(np.count_nonzero(self._counts))  # (the cameras with points)
         #: (M,) bool, the cameras of 3 or more points the best model explains none of (None:
         #: none), whose global-shutter samples are corrected (:func:`_hypotheses`)
         self.missed = self._counts >= 3 if spread and still else None
         self.fused = not generalized and pool.compiled and (still or prior is None)
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
-        self._min_it, self._max_it = r.min_iterations, r.max_iterations
-        self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
-        self._drawn = 0  # (the seed's random draws the batches took)
-        self._out: tuple | None = None  # (:meth:`_batch`'s output buffers)
+        # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
+        self._args, self._drawn, self._out = None, 0, None
         self._n, self._missed = 0, self._no_missed
 
     def cost(self, model) -> float:
@@ -813,11 +760,11 @@ class _RigSearch(RansacLoop):
         return cost
 
     def _kept(self, model, e: np.ndarray, cost: float) -> None:
-        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
+        self._costed = [*self._costed[-5:], (model, e, cost)]  # (the final refinement's 5)
 
     def errors(self, model) -> np.ndarray:
         """(N,) the errors (px) of ``model`` on every point, those :meth:`cost` kept when it is
-        one of the last :data:`_ERRORS_KEPT` models it measured (the same object)."""
+        one of the last 6 models it measured (the same object)."""
         for m, e, _ in self._costed:
             if m is model:
                 return e
@@ -853,7 +800,9 @@ class _RigSearch(RansacLoop):
             pool, subset = self.pool, self.subset
             X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
-            self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
+            self._draws = seeded_stream(
+                self.rng.seed, "random", 7 * int(self.batches.max_iterations)
+            )
         o = self._drawn
         self._drawn = o + 7 * K
         # (a batch that found a best model wrote it into these buffers: the search keeps them)
@@ -869,7 +818,7 @@ class _RigSearch(RansacLoop):
             self._no_missed if self.missed is None else self.missed,
             SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
             self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-            self.iterations, self._min_it, self.needed, self._log_miss, self._out,
+            self.iterations, self.batches.min_iterations, self.needed, self._log_miss, self._out,
         )  # fmt: skip
         self.implausible += beyond
         if h < 0:
@@ -916,37 +865,25 @@ def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = N
     per = pool.per_camera(inl)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
-        record.pop("failure", None),
-        RSModel(R, C, w, t),
+        record.pop("failure", None), RSModel(R, C, w, t),
         RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled),
-        np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
-        len(pool.cam),
-        sum(pool.sizes),
-        outputs,
+        np.array(inl, dtype=bool) if pool.all_valid else _joined(per), len(pool.cam),
+        sum(pool.sizes), outputs,
         (per, tuple(int(np.count_nonzero(m)) for m in per), pool.counts()),
-        solver=RIG_SOLVER,
-        **record,
-    )
+        solver=RIG_SOLVER, **record,
+    )  # fmt: skip
 
 
 @dataclass
 class _RigStages:
-    """A rig frame's stacked views ``pool`` as the staged estimator's
-    :class:`~.driver.Stages` (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior``
-    (:func:`~.gyro.gyro_prior`, one second per unit of tau; ``gyro_time``: s from the rig's
-    reference time, for the sensitivity to acceleration) or without one; ``still``: the
-    global-shutter model or not (None: when the observation times are within
-    :data:`STILL_SPREAD`).
-
-    Its stages, a camera's with the rig's steps: at least 6 points, 3 in one camera, that fix
-    a pose; the initial model's seed and :class:`_RigSearch`; :func:`~.local_optimization.polish`;
-    the final refinement of the lowest MSAC cost (:func:`~.finalize.chosen_refinement`), its
-    covariance, the last checks. Second ways: a global-shutter search whose model has too few
-    inliers searches again with every sample's P3P poses corrected across the cameras
-    (``spread``, :data:`SPREAD_CORRECTION_ROUNDS`: a pose between the cameras' own can explain
-    every corner where each P3P pose explains one camera's); a rolling-shutter rig frame
-    without a gyro that fails and shows no motion is posed on the global-shutter model
-    (:func:`~.finalize.still_fallback`)."""
+    """A rig frame's stacked views ``pool`` as the staged estimator's :class:`~.driver.Stages`
+    (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior`` (one second per unit of
+    tau; ``gyro_time``: s from the rig's reference time) or without; ``still``: the
+    global-shutter model or not (None: observation times within :data:`STILL_SPREAD`).
+    Second ways: a global-shutter search whose model has too few inliers runs again with every
+    sample's P3P poses corrected across the cameras (``spread``: a pose between the cameras'
+    own can explain every corner where each P3P pose explains one camera's); a rolling-shutter
+    rig frame without a gyro that shows no motion, on the global-shutter model."""
 
     pool: StackedViews
     options: EstimateOptions
@@ -971,12 +908,10 @@ class _RigStages:
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         if self.still is None:
             self.still = pool.tau_spread <= STILL_SPREAD
-        return None
 
     def searched(self) -> Model:
         pool, still, prior, threshold_px = self.pool, self.still, self.prior, self.threshold_px
-        r = self.options.ransac
-        free, size = (6, 3) if still else (12, 6)
+        size = 3 if still else 6
         explained, anchored, subset, seeded = -1, False, None, None
         if self.initial_model is not None:  # (as a single camera's: tested on every point)
             im = self.initial_model
@@ -984,7 +919,7 @@ class _RigStages:
             gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
             explained, seeded, anchored = initial_model_seed(
                 model, im.min_explained, not still, size, gate,
-                *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
+                *view_seed_steps(pool, threshold_px, gate, not still, prior),
             )  # fmt: skip
             n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
             # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
@@ -998,10 +933,9 @@ class _RigStages:
         )
         if seeded is not None:
             search.best, search.score = seeded[1], search.cost(seeded[1])
+            ratio = float(np.mean(seeded[2]))
             search.needed = (
-                0.0
-                if subset is not None
-                else required_iterations(float(np.mean(seeded[2])), size, r.confidence)
+                0.0 if subset is not None else required_iterations(ratio, size, search.confidence)
             )
         search.search(search, search.batches)
         return search.found()
@@ -1037,9 +971,7 @@ class _RigStages:
         if refine:  # the final refinement, the model of the lowest MSAC cost
             # (local optimization's last refinement is the final one's first, whether it took
             # it or the model is still the one it started from)
-            first = None
-            if last is not None and (last[0] is model or last[1] is model):
-                first = last[1]
+            first = last[1] if last and (last[0] is model or last[1] is model) else None
             model = chosen_refinement(
                 pool, model, threshold_px, rolling, prior, search.cost, search.errors,
                 search.cameras, CONTRADICTION_GATE, first,
@@ -1101,10 +1033,7 @@ class _RigStages:
                              ransac_iterations=iterations, num_behind=failure.behind)  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
-        pool, threshold_px, compiled = self.pool, self.threshold_px, self.pool.compiled
-        image = image_alone(pool, est.model, threshold_px, None) if est.success else None
-
-        def planar() -> bool:
-            return coplanar(pool.X[pool.errors(est.model) < threshold_px], compiled)
-
+        pool, th = self.pool, self.threshold_px
+        image = image_alone(pool, est.model, th, None) if est.success else None
+        planar = lambda: coplanar(pool.X[pool.errors(est.model) < th], pool.compiled)  # noqa: E731
         return image, planar, len(pool.cam)
