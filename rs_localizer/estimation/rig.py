@@ -143,11 +143,8 @@ STILL_SPREAD = 1e-9
 AGREE_SHARE = 0.3
 
 #: inlier thresholds within which two groups of cameras that disagree at the threshold are
-#: only a small inconsistency apart, not a contradiction: on TagSLAM's 4-camera ring
-#: (``python -m benchmarks.bench_real_rig --folder test_7``) two cameras disagreed at 2 px
-#: in 30 of 265 rig frames without it, in 4 with it (there their own poses are 2.6-5.9 deg
-#: apart and the reference pose misses both cameras' corners by 9-29 px); a mounting 2 deg
-#: off misses by 15 px and more at focal lengths of 450 px and more
+#: only a small inconsistency apart, not a contradiction (docs/rig.md; on TagSLAM's test_7
+#: two cameras disagreed at 2 px in 30 of 265 rig frames without it, in 4 with it)
 CONTRADICTION_GATE = 3.0
 
 #: with a prediction, a voting camera is explained by it when its share of points within
@@ -702,9 +699,7 @@ def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
         d.append(float(ang + np.linalg.norm(-R.T @ C - pp) / max(depth, 0.1)))
     if d[0] * PREDICTION_MARGIN <= d[1]:
         return 0
-    if d[1] * PREDICTION_MARGIN <= d[0]:
-        return 1
-    return None
+    return 1 if d[1] * PREDICTION_MARGIN <= d[0] else None
 
 
 #: :func:`~.rig_batch.search_batch`'s subset of no subset (every pool point sampled)
@@ -725,16 +720,17 @@ class _RigSearch(RansacLoop):
     #: a compiled batch checks termination after every sample, as PoseLib's loop does
     per_sample = True
 
-    def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
-        r = options.ransac
+    def __init__(self, stages: _RigStages, anchored: bool, subset: np.ndarray | None):
+        pool, still, spread, prior, r = (stages.pool, stages.still, stages.spread, stages.prior,
+                                         stages.options.ransac)  # fmt: skip
         super().__init__(3 if still else 6, r)
-        self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
+        self.pool, self.still, self.generalized, self.prior = pool, still, stages.generalized, prior
         self.anchored, self.subset, self.spread = anchored, subset, spread
         self.rng = SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
         self.solver_iterations = r.solver_iterations or 3
-        p = options.plausibility
+        p = stages.options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
         self._e, self._cost, self._costed = np.zeros(0), 0.0, []
@@ -744,7 +740,7 @@ class _RigSearch(RansacLoop):
         #: (M,) bool, the cameras of 3 or more points the best model explains none of (None:
         #: none), whose global-shutter samples are corrected (:func:`_hypotheses`)
         self.missed = self._counts >= 3 if spread and still else None
-        self.fused = not generalized and pool.compiled and (still or prior is None)
+        self.fused = not self.generalized and pool.compiled and (still or prior is None)
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
         # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
         self._args, self._drawn, self._out = None, 0, None
@@ -928,15 +924,11 @@ class _RigStages:
             if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
                 subset = np.flatnonzero(seeded[2])
         self.explained, self.seeded = explained, seeded
-        self.search = search = _RigSearch(
-            pool, self.options, still, self.generalized, prior, anchored, subset, self.spread
-        )
+        self.search = search = _RigSearch(self, anchored, subset)
         if seeded is not None:
             search.best, search.score = seeded[1], search.cost(seeded[1])
-            ratio = float(np.mean(seeded[2]))
-            search.needed = (
-                0.0 if subset is not None else required_iterations(ratio, size, search.confidence)
-            )
+            needed = required_iterations(float(np.mean(seeded[2])), size, search.confidence)
+            search.needed = 0.0 if subset is not None else needed
         search.search(search, search.batches)
         return search.found()
 
