@@ -229,10 +229,10 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 
 
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
-    """The rig solver with the velocities held at zero on the samples ``S`` (H, 6),
-    pre-rotated by ``Rg`` (H, 3, 3) (one linear step): ``(R (H, 3, 3), C
-    (H, 3), valid (H,))``. Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`
-    (the same solution from the pose's six unknowns alone)."""
+    """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
+    (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``. Compiled:
+    :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution from the
+    pose's six unknowns alone)."""
     if not pool.compiled:
         solve = _rig_solver(pool, 1, held=True)
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
@@ -281,9 +281,7 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
-    R = RcT @ R_cam
-    C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
-    return R, C, own
+    return RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0], own
 
 
 def _refit(pool: StackedViews, inl: np.ndarray, model, threshold_px: float, rounds: int = 2,
@@ -418,9 +416,8 @@ def estimate_rig_pose(
     return _consensus(pool, est, options.ransac.threshold_px, solve, prediction, verify_cameras)
 
 
-def _one_camera_alone(
-    views: Sequence[View], pool: StackedViews, options: EstimateOptions, initial_model, gyro
-) -> RSPoseEstimate | None:
+def _one_camera_alone(views: Sequence[View], pool: StackedViews, options: EstimateOptions,
+                      initial_model, gyro) -> RSPoseEstimate | None:  # fmt: skip
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
     than ``ransac.min_inliers`` or 7, e.g. one tag's corners) posed by that camera's
     estimator's few-points path (:func:`~.estimate.estimate_rs_pose` with ``view``,
@@ -564,9 +561,7 @@ def _evened(pool: StackedViews, voters) -> StackedViews:
     n = pool.counts()
     most = max(n[c] for c in voters)
     copies = [max(1, round(most / n[c])) if c in voters and n[c] else 1 for c in range(len(n))]
-    if all(k == 1 for k in copies):
-        return pool
-    return pool.repeated(copies)
+    return pool if all(k == 1 for k in copies) else pool.repeated(copies)
 
 
 def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
@@ -774,9 +769,8 @@ class _RigSearch(RansacLoop):
         samples = draw(self.rng.generator(), K, self.subset)
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            hyp = _hypotheses(pool, samples, 0, generalized=self.generalized, missed=self.missed,
-                              rounds=rounds)  # fmt: skip
-            return hyp, K
+            return _hypotheses(pool, samples, 0, generalized=self.generalized,
+                               missed=self.missed, rounds=rounds), K  # fmt: skip
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(pool, samples, self.solver_iterations, anchor, self.prior,
                           self.threshold_px, self.generalized)  # fmt: skip
@@ -937,9 +931,8 @@ class _RigStages:
         # the final refinement's first; on a frame taken at one time that refinement alone,
         # kept where it lowers the cost)
         pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
-        exact = functools.partial(
-            refined_model, pool, th=threshold_px, rolling=not self.still, prior=prior
-        )
+        exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not self.still,
+                                  prior=prior)  # fmt: skip
         if self.still:
             self.last = (model, exact(model)) if self.refine else None
             if self.last is not None and search.cost(self.last[1]) < search.score:
@@ -977,13 +970,11 @@ class _RigStages:
         inl = final.inliers
         if not inl.all() and collinear_3d(pool.X[inl], compiled=pool.compiled):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
-        ref = rate = None
+        ref, rate = None, None if prior is None else (self.gyro_time, prior.information()[3:, 3:])
         if refine and np.count_nonzero(inl) > 6:
             ref = frame_refinement(pool, final.model, threshold_px, rolling,
                                    prior if rolling else None, rolling,
                                    max_iterations=0)  # fmt: skip
-        if prior is not None:
-            rate = (self.gyro_time, prior.information()[3:, 3:])
         return with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
                                alone=False, rate_prior=rate, errors=e)  # fmt: skip
 
