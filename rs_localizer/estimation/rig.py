@@ -18,16 +18,13 @@ rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.
 :func:`~.result.camera_model_of_rig`.
 
 :func:`estimate_rig_pose` runs the single camera's staged estimator
-(:func:`~.driver.staged_estimate`) on the rig's stages (:class:`_RigStages`) over the views
-stacked (:class:`~.view.StackedViews`), in either implementation (compiled, or NumPy with
-OpenCV's P3P). The rig's own parts: a sample is 3 points of one camera and 3 of any; its
-hypotheses are the P3P poses of the 3 mapped to the rig (``R_rig = R_c^T R_cam``)
-pre-rotating the rig solver (:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`) on the
-6 (:func:`_hypotheses`; compiled, one call per batch: :mod:`.rig_batch`); the scoring is MSAC
-on each point's error in pixels of its camera's measured, distorted image at its own capture
-time; local optimization's linear step is :func:`_refit`; the final refinement chooses
-between cameras whose mountings disagree (:data:`CONTRADICTION_GATE`); and the cameras with
-points must agree on the pose (:func:`_consensus`; docs/rig.md, "The cameras' consensus").
+(:func:`~.driver.staged_estimate`) on the rig's stages (:class:`_RigStages`) over the stacked
+views (:class:`~.view.StackedViews`), compiled or in NumPy. The rig's own parts: a sample is 3
+points of one camera and 3 of any, its P3P poses mapped to the rig pre-rotating the rig solver
+(:func:`_hypotheses`; compiled: :mod:`.rig_batch`); MSAC on each point's pixel error in its
+camera's distorted image at its own capture time; the final refinement's choice between
+cameras whose mountings disagree (:data:`CONTRADICTION_GATE`); the cameras' consensus
+(:func:`_consensus`; docs/rig.md, "The cameras' consensus").
 
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized
@@ -39,10 +36,12 @@ best model misses a camera (three corners of a small tag leave a pose degrees of
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
-from dataclasses import replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
@@ -80,7 +79,7 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, plausible_motion
 from .prior import MotionPrior, sample_prior_rows
-from .ransac import RansacLoop, required_iterations, seeded_rng, seeded_stream
+from .ransac import RansacLoop, SeededShuffle, required_iterations, seeded_stream
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
@@ -102,14 +101,11 @@ __all__ = [
     "LO_ROUNDS",
     "PREDICTION_GATE",
     "PREDICTION_MARGIN",
-    "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "RIG_OPTIONS",
     "RIG_SOLVER",
-    "RIG_SOLVER_ITERATIONS",
     "SPREAD_CORRECTION_ROUNDS",
     "STILL_SPREAD",
-    "VERIFY_ALL_EXPLAINED",
     "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
@@ -129,17 +125,8 @@ VOTE_MIN_POINTS = 8
 #: voting camera of a few points alone
 RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
 
-#: the rig solver's iterations per sample after the pre-rotation when
-#: ``EstimateOptions.ransac.solver_iterations`` is None
-RIG_SOLVER_ITERATIONS = 3
-
-#: the held rig solver's iterations that correct a global-shutter sample's P3P pose
-STILL_SOLVER_ITERATIONS = 1
-
-#: the rounds of that correction when a global-shutter search runs again because its model
-#: had too few inliers, each pre-rotated by the previous round's rotation (the solver's
-#: rotation is linear about its pre-rotation: one round from a P3P pose 10-30 degrees off
-#: stays degrees off, a second converges)
+#: the rounds of the held rig solver's correction of a global-shutter sample's P3P pose when
+#: a global-shutter search runs again because its model had too few inliers (docs/rig.md)
 SPREAD_CORRECTION_ROUNDS = 2
 
 #: local optimization's rounds: the rig's refinement runs on every point until converged, so
@@ -148,23 +135,16 @@ SPREAD_CORRECTION_ROUNDS = 2
 #: ``benchmarks.bench_rig_rendered``, and made every TagSLAM recording slower)
 LO_ROUNDS = 1
 
-#: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
-PRE_ROTATIONS = ("p3p", "gp3p")
-
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
 
 #: a voting camera agrees with a model when its inlier ratio is at least this share of the
-#: best-fitting voting camera's (a camera whose mounting is 2 deg off or whose clock is 5 ms
-#: off has 0-5 % of its points inliers)
+#: best-fitting voting camera's (docs/rig.md, "The cameras' consensus")
 AGREE_SHARE = 0.3
 
 #: inlier thresholds within which two groups of cameras that disagree at the threshold are
-#: only a small inconsistency apart, not a contradiction: on TagSLAM's 4-camera ring
-#: (``python -m benchmarks.bench_real_rig --folder test_7``) two cameras disagreed at 2 px
-#: in 30 of 265 rig frames without it, in 4 with it (there their own poses are 2.6-5.9 deg
-#: apart and the reference pose misses both cameras' corners by 9-29 px); a mounting 2 deg
-#: off misses by 15 px and more at focal lengths of 450 px and more
+#: only a small inconsistency apart, not a contradiction (docs/rig.md; on TagSLAM's test_7
+#: two cameras disagreed at 2 px in 30 of 265 rig frames without it, in 4 with it)
 CONTRADICTION_GATE = 3.0
 
 #: with a prediction, a voting camera is explained by it when its share of points within
@@ -179,11 +159,6 @@ VERIFY_SHARE = 0.5
 #: (from 8-12 corners a rolling-shutter pose's velocities fit its noise and miss cameras that
 #: agree with the rig: a correct first rig frame was refused)
 VERIFY_MIN_POINTS = 20
-
-#: ``verify_cameras``: a joint estimate that explains at least this share of every voting
-#: camera's points is not checked camera by camera (a camera posed alone extrapolates its
-#: velocities to cameras looking elsewhere)
-VERIFY_ALL_EXPLAINED = 0.95
 
 #: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
 #: other group's is at least this many times farther (rotation in rad plus position over
@@ -213,17 +188,9 @@ def _rig_solver(pool: StackedViews, iterations: int, prior: MotionPrior | None =
     return solve
 
 
-def _hypotheses(
-    pool: StackedViews,
-    samples: np.ndarray,
-    iterations: int,
-    anchor=None,
-    prior: MotionPrior | None = None,
-    threshold_px: float = 2.0,
-    generalized: bool = False,
-    missed: np.ndarray | None = None,
-    rounds: int = 1,
-):
+def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor=None,
+                prior: MotionPrior | None = None, threshold_px: float = 2.0, generalized=False,
+                missed: np.ndarray | None = None, rounds: int = 1):  # fmt: skip
     """Models (R, C, w, t) of the samples (K, 6), as a camera's samples are solved
     (:func:`~.hypotheses.prerotated_models`): each pre-rotated by its P3P poses mapped to the
     rig (:func:`_p3p_on_rig`) or by ``anchor`` ``(R, C)`` (an initial model's or the best
@@ -262,12 +229,12 @@ def _hypotheses(
 
 
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
-    """The rig solver with the velocities held at zero on the samples ``S`` (H, 6),
-    pre-rotated by ``Rg`` (H, 3, 3) (:data:`STILL_SOLVER_ITERATIONS`): ``(R (H, 3, 3), C
-    (H, 3), valid (H,))``. Compiled: :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`
-    (the same solution from the pose's six unknowns alone)."""
+    """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
+    (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``. Compiled:
+    :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution from the
+    pose's six unknowns alone)."""
     if not pool.compiled:
-        solve = _rig_solver(pool, STILL_SOLVER_ITERATIONS, held=True)
+        solve = _rig_solver(pool, 1, held=True)
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                            solve, False)  # fmt: skip
         return R, C, ok
@@ -314,9 +281,7 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
-    R = RcT @ R_cam
-    C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
-    return R, C, own
+    return RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0], own
 
 
 def _refit(pool: StackedViews, inl: np.ndarray, model, threshold_px: float, rounds: int = 2,
@@ -360,22 +325,17 @@ def estimate_rig_pose(
             offset); a camera may have no points.
         options: :class:`~rs_localizer.estimation.options.EstimateOptions` (default
             :data:`RIG_OPTIONS`), of which the rig uses ``ransac`` (``min_inliers`` over all
-            cameras; ``solver_iterations`` None: :data:`RIG_SOLVER_ITERATIONS`),
+            cameras; ``solver_iterations`` None: 3 rig solver steps per sample),
             ``refine.enabled`` (without it the estimate is the rig solver's refit of
             RANSAC's model) and ``plausibility`` (velocity bounds in rad/s and m/s, rows
             beyond ``max_point_norm`` dropped, ``consistent_fit``); its other fields are a
             single camera's alone.
         initial_model: an :class:`~rs_localizer.estimation.InitialModel` (a bare model: the
             default gate) of the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
-            reference time), used as a camera's: tested on every point, pulled onto those
-            it explains, seeding RANSAC and pre-rotating its samples, verified with samples
-            among its inliers when it has ``min_explained``.
+            reference time), used as a camera's.
         gyro: a :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's angular
-            velocity (rad/s, **rig frame**), used as a camera's: its rows in every sample's
-            rig solve, the refinements maximum a posteriori with it, then judged by the image
-            alone (:func:`~.driver.gyro_checked_estimate`: ``gyro_rejected`` and the frame
-            solved again without it on disagreement). Ignored on a global-shutter rig frame
-            and without ``refine``.
+            velocity (rad/s, **rig frame**), used as a camera's (its rows also in every
+            sample's rig solve); ignored on a global-shutter rig frame and without ``refine``.
         gyro_time: s from the rig's reference time: the middle of the gyro's window (for the
             ``acceleration_sensitivity``); None: the middle of the observation times.
         pre_rotation: ``"p3p"`` (3 points of one camera, Lambda Twist, mapped to the rig) or
@@ -388,8 +348,7 @@ def estimate_rig_pose(
             joint estimate as it is. ``verify_cameras``: also pose every voting camera alone
             and compare (:func:`_verified`), for a rig frame nothing else checks (a track's
             first).
-        implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s
-            (:func:`~.implementation.resolve_implementation`); the estimate records it.
+        implementation: ``"compiled"``, ``"numpy"`` or None, as ``estimate_rs_pose``'s.
         twist: the rig's ``(w (3,) rad/s, t (3,) m/s)`` in the model's convention (a
             tracker's); None: ``prediction``'s or ``initial_model``'s, if any. Used only for
             the share of the cameras' time offset std
@@ -401,69 +360,70 @@ def estimate_rig_pose(
         inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
         frame gives no pose.
     Raises:
-        ValueError: unknown ``pre_rotation`` or ``implementation``, ``options`` that are not
-            :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
-            refuse a setting out of its range, naming it), a gyro that is not a
-            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
-            not a :class:`View`, a camera without a mounting (``mounting`` None; the
-            message names it) or with a mounting that is not a
-            :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
+        ValueError: the inputs :func:`~.driver.checked_inputs` refuses, an unknown
+            ``pre_rotation`` or ``implementation``, no views, a view that is not a
+            :class:`View`, a camera without a mounting (named) or with a mounting that is not
+            a :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
             shapes.
     """
     who = "estimate_rig_pose"
     if len(views) == 0:
         raise ValueError(f"{who}: needs at least one camera")
     options, initial_model = checked_inputs(who, options, RIG_OPTIONS, initial_model, gyro)
-    if pre_rotation not in PRE_ROTATIONS:
-        raise ValueError(f"{who}: pre_rotation must be one of {PRE_ROTATIONS}: {pre_rotation!r}")
+    if pre_rotation not in ("p3p", "gp3p"):
+        raise ValueError(f"{who}: pre_rotation must be 'p3p' or 'gp3p': {pre_rotation!r}")
     compiled = resolve_implementation(implementation, None) == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
-    settings = (options, initial_model, pre_rotation == "gp3p")
-    if twist is None:
-        known = prediction if prediction is not None else initial_model
-        known = getattr(known, "model", known)
-        twist = None if known is None else tuple(known)[2:4]
+    if prediction is None and initial_model is not None:
+        prediction = initial_model.model
+    if twist is None and prediction is not None:
+        twist = tuple(prediction)[2:4]
 
     def stacked(vs: Sequence[View]) -> StackedViews:
         pool = StackedViews(vs, compiled, cache, max_norm)
         pool.twist = twist
         return pool
 
+    def estimated(pool: StackedViews) -> RSPoseEstimate:
+        """The rig frame of ``pool`` before the consensus, the gyro checked as a camera's
+        (:func:`~.driver.gyro_checked_estimate`)."""
+        stages = _RigStages(pool, options, initial_model, pre_rotation == "gp3p")
+        still = len(pool.cam) and pool.tau_spread <= STILL_SPREAD
+        if gyro is None or still or not stages.refine:
+            return staged_estimate(stages)
+        at = gyro_time
+        if at is None:  # (the middle of the observation times)
+            at = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
+        aided = replace(stages, prior=gyro_prior(gyro, compiled=pool.compiled), gyro_time=at)
+        return gyro_checked_estimate(aided, gyro, lambda: staged_estimate(stages), pool.compiled)
+
     def solve(drop: set[int]) -> RSPoseEstimate:
         """The rig frame without the points of cameras ``drop`` (each keeps its place),
         restored to every view (:func:`_restored`) when it is posed."""
-        vs = [
-            View(np.zeros((0, 2)), np.zeros((0, 3)), v.camera, v.mounting, v.stamp_offset, v.name)
-            if c in drop
-            else v
-            for c, v in enumerate(views)
-        ]
-        est = _estimate_pool(stacked(vs), settings, gyro, gyro_time)
+        none = {"uv": np.zeros((0, 2)), "X": np.zeros((0, 3))}
+        est = estimated(stacked([replace(v, **none) if c in drop else v
+                                 for c, v in enumerate(views)]))  # fmt: skip
         return _restored(est, pool) if est.success else est
 
     pool = stacked(views)
     alone = _one_camera_alone(views, pool, options, initial_model, gyro)
     if alone is not None:
         return alone
-    est = _estimate_pool(pool, settings, gyro, gyro_time)
+    est = estimated(pool)
     if not consensus or not est.success:
         return est
-    if prediction is None and initial_model is not None:
-        prediction = initial_model.model
     return _consensus(pool, est, options.ransac.threshold_px, solve, prediction, verify_cameras)
 
 
-def _one_camera_alone(
-    views: Sequence[View], pool: StackedViews, options: EstimateOptions, initial_model, gyro
-) -> RSPoseEstimate | None:
+def _one_camera_alone(views: Sequence[View], pool: StackedViews, options: EstimateOptions,
+                      initial_model, gyro) -> RSPoseEstimate | None:  # fmt: skip
     """A rig frame whose points are all one camera's and too few for the rig's search (fewer
     than ``ransac.min_inliers`` or 7, e.g. one tag's corners) posed by that camera's
     estimator's few-points path (:func:`~.estimate.estimate_rs_pose` with ``view``,
     :func:`~.single_tag.few_points_estimate`) as one of the rig frame's views; None for any
     other rig frame, on the NumPy implementation or when that path does not take them."""
-    counts = pool.counts()
-    with_points = [c for c, n in enumerate(counts) if n]
+    with_points = [c for c, n in enumerate(pool.counts()) if n]
     need = max(options.ransac.min_inliers, 7)  # (the rig solver's sample and one more)
     if not pool.compiled or len(with_points) != 1 or len(pool.cam) >= need:
         return None
@@ -478,20 +438,14 @@ def _one_camera_alone(
     return _restored(est, pool, c)
 
 
-def _estimate_pool(pool: StackedViews, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
-    """:func:`estimate_rig_pose` on the stacked views ``pool`` before the consensus
-    (``settings``: :class:`_RigStages`' arguments), the gyro checked as a camera's
-    (:func:`~.driver.gyro_checked_estimate`)."""
-    still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
-    if gyro is None or still or not settings[0].refine.enabled:
-        return _estimate(pool, *settings)
-    if gyro_time is None:
-        gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    prior = gyro_prior(gyro, compiled=pool.compiled)
-    aided = _RigStages(pool, *settings, prior=prior, gyro_time=gyro_time)
-    return gyro_checked_estimate(
-        aided, gyro, lambda: _estimate(pool, *settings), pool.compiled
-    )  # fmt: skip
+class _Vote(NamedTuple):
+    """What the cameras' consensus decides on (:func:`_consensus`'s arguments)."""
+
+    pool: StackedViews
+    threshold_px: float
+    voters: list
+    solve: Callable[[set[int]], RSPoseEstimate]
+    prediction: tuple | None
 
 
 def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, solve, prediction,
@@ -509,12 +463,13 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     voters = [c for c, n in enumerate(est.num_valid_per_view) if n >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
+    v = _Vote(pool, threshold_px, voters, solve, prediction)
     if prediction is not None:
-        tracked = _by_track(pool, est, threshold_px, voters, solve, prediction)
+        tracked = _by_track(v, est)
         if tracked is not None:
             return tracked
     if verify:
-        checked = _verified(pool, est, threshold_px, voters, solve, prediction)
+        checked = _verified(v, est)
         if checked is not None:
             return checked
     a = _agreeing(est, voters)
@@ -524,7 +479,7 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    if tried and _one_pose(pool, est, voters, set(voters), threshold_px):
+    if tried and _one_pose(v, est, set(voters)):
         return est  # (a tie of groups one pose fitted from the joint estimate explains)
     sub = solve(a)
     b = _agreeing(sub, voters) if sub.success else set()
@@ -536,11 +491,10 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
         sub = solve(set(voters) - b)
         if not sub.success:
             return _outvoted(est, pool, rest)
-    return _decided(pool, est, (est, sub), (a, b), voters, set(voters), threshold_px,
-                    prediction, tried)  # fmt: skip
+    return _decided(v, est, (est, sub), (a, b), set(voters), tried)
 
 
-def _decided(pool, est, fits, groups, voters, cams: set, threshold_px, prediction, tried=False):
+def _decided(v: _Vote, est, fits, groups, cams: set, tried=False) -> RSPoseEstimate:
     """Two groups of cameras ``groups`` that contradict each other, each posed by its
     estimate in ``fits`` (:func:`_consensus`, :func:`_verified`): the fit of the group of
     more cameras, on a tie the one nearer the ``prediction`` (:func:`_by_prediction`), the
@@ -550,12 +504,12 @@ def _decided(pool, est, fits, groups, voters, cams: set, threshold_px, predictio
     ok = all(f.success for f in fits)
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None and ok:
-        choice = _by_prediction(pool, *fits, prediction)
-        if choice is None and _near(pool, *fits, a, b, voters, threshold_px, tried):
+        choice = _by_prediction(v.pool, *fits, v.prediction)
+        if choice is None and _near(v, *fits, a, b, tried):
             return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice is None or not fits[choice].success:
-        return _disagree(est, pool, a | b)
-    return _outvoted(fits[choice], pool, cams - groups[choice])
+        return _disagree(est, v.pool, a | b)
+    return _outvoted(fits[choice], v.pool, cams - groups[choice])
 
 
 def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -> set[int]:
@@ -572,34 +526,31 @@ def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
 
-def _one_pose(pool: StackedViews, est, voters, cams: set, threshold_px: float, start=None) -> bool:
+def _one_pose(v: _Vote, est, cams: set, start=None) -> bool:
     """Whether one pose fitted from ``start``'s (default ``est``'s) with
     :data:`CONTRADICTION_GATE` inlier thresholds as its threshold, every voting camera weighed
     alike (:func:`_evened`; ``est``'s motion model), explains the cameras ``cams`` within that
     gate (:func:`_agreeing`)."""
-    gate = CONTRADICTION_GATE * threshold_px
-    rolling = est.motion_model != GLOBAL_SHUTTER
-    fit = refined_model(_evened(pool, voters), (est if start is None else start).model, gate,
-                        rolling)  # fmt: skip
-    return cams <= _agreeing(est, voters, pool, gate, fit)
+    gate, start = CONTRADICTION_GATE * v.threshold_px, est if start is None else start
+    fit = refined_model(_evened(v.pool, v.voters), start.model, gate,
+                        est.motion_model != GLOBAL_SHUTTER)  # fmt: skip
+    return cams <= _agreeing(est, v.voters, v.pool, gate, fit)
 
 
-def _near(pool: StackedViews, first, second, a: set, b: set, voters, threshold_px: float,
-          tried=False) -> bool:  # fmt: skip
+def _near(v: _Vote, first, second, a: set, b: set, tried=False) -> bool:
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each explain
     the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or that one
     pose fitted from either explains within them (:func:`_one_pose`; ``tried``: the fit from
     ``first`` already failed): a small inconsistency (a mounting or lens model a few tenths
     of a degree or pixels off), not a contradiction (a mounting degrees off, a wrong stamp)."""
-    gate = CONTRADICTION_GATE * threshold_px
+    gate, pool, voters = CONTRADICTION_GATE * v.threshold_px, v.pool, v.voters
     if b <= _agreeing(first, voters, pool, gate) and a <= _agreeing(second, voters, pool, gate):
         return True
     # (a group posed alone extrapolates its own uncertainty to the other group's cameras, so
     # their points can miss its pose by more than the gate although one pose explains both
     # groups within it; a wrong mounting or stamp leaves no such pose)
     return any(
-        _one_pose(pool, first, voters, a | b, threshold_px, start)
-        for start in ((second,) if tried else (first, second))
+        _one_pose(v, first, a | b, start) for start in ((second,) if tried else (first, second))
     )
 
 
@@ -610,20 +561,19 @@ def _evened(pool: StackedViews, voters) -> StackedViews:
     n = pool.counts()
     most = max(n[c] for c in voters)
     copies = [max(1, round(most / n[c])) if c in voters and n[c] else 1 for c in range(len(n))]
-    if all(k == 1 for k in copies):
-        return pool
-    return pool.repeated(copies)
+    return pool if all(k == 1 for k in copies) else pool.repeated(copies)
 
 
-def _by_track(pool, est, threshold_px, voters, solve, prediction):
+def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
     """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
     not: the estimate of the explained cameras alone with the others outvoted when those
     disagree with it too, are no more than the explained ones and, on the global-shutter
     model, are not near them (:func:`_near`: a prediction a degree off can miss one fisheye
     camera and not another a few tenths of a degree from it; a rolling-shutter pose's twist
     can absorb a wrong stamp, which the prediction's twist tells); else None."""
-    model = tuple(np.asarray(a, dtype=float) for a in prediction)
-    explained = _agreeing(est, voters, pool, PREDICTION_GATE * threshold_px, model)
+    pool, voters, solve = v.pool, v.voters, v.solve
+    model = tuple(np.asarray(a, dtype=float) for a in v.prediction)
+    explained = _agreeing(est, voters, pool, PREDICTION_GATE * v.threshold_px, model)
     suspect = set(voters) - explained
     if not explained or not suspect or len(explained) < len(suspect):
         return None  # (a track never outvotes more cameras than it keeps)
@@ -638,53 +588,40 @@ def _by_track(pool, est, threshold_px, voters, solve, prediction):
     if kept.motion_model == GLOBAL_SHUTTER:
         own = solve(explained)
         near = own.success and own.motion_model == GLOBAL_SHUTTER
-        if near and _near(pool, kept, own, explained, suspect, voters, threshold_px):
+        if near and _near(v, kept, own, explained, suspect):
             return None
     return _outvoted(kept, pool, suspect)
 
 
-def _verified(pool, est, threshold_px, voters, solve, prediction):
+def _verified(v: _Vote, est) -> RSPoseEstimate | None:
     """``verify_cameras``: every voting camera of :data:`VERIFY_MIN_POINTS` points posed
     alone; two agree when either's own pose explains at least :data:`VERIFY_SHARE` of the
     other's own inliers; the largest group that agrees poses the rig, a tie decided as the
     consensus decides one (:func:`_decided`); None when they all agree."""
-    M = len(pool.sizes)
-    valid = np.asarray(est.num_valid_per_view)
-    checked = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
+    pool, M, valid = v.pool, len(v.pool.sizes), np.asarray(est.num_valid_per_view)
+    checked = [c for c in v.voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(checked) < 2:
         return None
     inliers = np.asarray(est.num_inliers_per_view, dtype=float)
-    if all(inliers[c] >= VERIFY_ALL_EXPLAINED * valid[c] for c in checked):
-        return None  # (one pose explains every camera's points: nothing contradicts)
+    if all(inliers[c] >= 0.95 * valid[c] for c in checked):
+        # (one pose explains every camera's points: nothing contradicts, and a camera posed
+        # alone extrapolates its velocities to cameras looking elsewhere)
+        return None
     inl = {}
     for c in checked:
-        e = solve(set(checked) - {c})
+        e = v.solve(set(checked) - {c})
         if e.success:
-            ok = pool.errors(e.model) < threshold_px
+            ok = pool.errors(e.model) < v.threshold_px
             inl[c] = np.bincount(pool.cam[ok], minlength=M)
     cams = list(inl)
-
-    def agree(c, d):
-        return inl[c][d] >= VERIFY_SHARE * inl[d][d] or inl[d][c] >= VERIFY_SHARE * inl[c][c]
-
-    groups, seen = [], set()
-    for c in cams:  # (connected components of the agreement)
-        if c in seen:
-            continue
-        group, todo = {c}, [c]
-        while todo:
-            x = todo.pop()
-            for d in cams:
-                if d not in group and agree(x, d):
-                    group.add(d)
-                    todo.append(d)
-        seen |= group
-        groups.append(group)
-    if len(groups) < 2:
+    agree = [[inl[c][d] >= VERIFY_SHARE * inl[d][d] for d in cams] for c in cams]
+    n, label = connected_components(np.array(agree), directed=False)  # (c, d or d, c)
+    if n < 2:
         return None
+    groups = [{c for c, g in zip(cams, label, strict=True) if g == k} for k in range(n)]
     groups.sort(key=len, reverse=True)
-    fits = [solve(set(checked) - g) for g in groups[:2]]
-    return _decided(pool, est, fits, groups[:2], voters, set(checked), threshold_px, prediction)
+    fits = [v.solve(set(checked) - g) for g in groups[:2]]
+    return _decided(v, est, fits, groups[:2], set(checked))
 
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
@@ -757,9 +694,7 @@ def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
         d.append(float(ang + np.linalg.norm(-R.T @ C - pp) / max(depth, 0.1)))
     if d[0] * PREDICTION_MARGIN <= d[1]:
         return 0
-    if d[1] * PREDICTION_MARGIN <= d[0]:
-        return 1
-    return None
+    return 1 if d[1] * PREDICTION_MARGIN <= d[0] else None
 
 
 #: :func:`~.rig_batch.search_batch`'s subset of no subset (every pool point sampled)
@@ -767,63 +702,44 @@ _NO_SUBSET = np.zeros(0, dtype=np.int64)
 #: :func:`~.rig_batch.search_batch`'s anchor of none (P3P pre-rotates the samples)
 _NO_ANCHOR = np.zeros((0, 3))
 
-#: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
-#: candidates and the one it returns
-_ERRORS_KEPT = 6
-
 
 class _RigSearch(RansacLoop):
-    """The rig's RANSAC: the single camera's :class:`~.ransac.RansacLoop` with the rig's
-    :class:`~.ransac.RansacEstimator`: ``generate_models`` draws 6 points
-    (:meth:`~.view.StackedViews.samples`, or :meth:`~.view.StackedViews.uniform_samples` for
-    the generalized P3P) and solves them (:func:`_hypotheses`), dropping models beyond the
-    velocity bounds (``implausible``; compiled without a gyro, each batch drawn, solved and
-    scored in one call, :meth:`_batch`); ``score_models`` is MSAC on every point's error in
-    pixels; ``refine_model`` keeps the model (local optimization runs after the search) and
-    gives termination its inlier ratio (among the seed's inliers ``subset`` when RANSAC
-    verifies a seed). ``spread``: every global-shutter sample corrected across the cameras
-    (:attr:`missed`)."""
+    """The rig's :class:`~.ransac.RansacEstimator` on the single camera's
+    :class:`~.ransac.RansacLoop`: samples of :meth:`~.view.StackedViews.samples` (or
+    ``uniform_samples`` for the generalized P3P) solved by :func:`_hypotheses` (compiled
+    without a gyro, a batch drawn, solved and scored in one call, :meth:`_batch`), MSAC on
+    every point's error in pixels; ``refine_model`` keeps the model (local optimization runs
+    after the search), its inlier ratio among the seed's inliers ``subset`` when RANSAC
+    verifies a seed."""
 
     #: a compiled batch checks termination after every sample, as PoseLib's loop does
     per_sample = True
 
-    def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
-        r = options.ransac
+    def __init__(self, stages: _RigStages, anchored: bool, subset: np.ndarray | None):
+        pool, still, spread, prior, r = (stages.pool, stages.still, stages.spread, stages.prior,
+                                         stages.options.ransac)  # fmt: skip
         super().__init__(3 if still else 6, r)
-        self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
+        self.pool, self.still, self.generalized, self.prior = pool, still, stages.generalized, prior
         self.anchored, self.subset, self.spread = anchored, subset, spread
-        self._seed, self._rng = r.seed, None
+        self.rng = SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
-        self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
-        p = options.plausibility
+        self.solver_iterations = r.solver_iterations or 3
+        p = stages.options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._w2max, self._v2max = self.bounds[0] ** 2, self.bounds[1] ** 2
-        self._e, self._cost = np.zeros(0), 0.0
-        self._costed: list = []
+        self._e, self._cost, self._costed = np.zeros(0), 0.0, []
         self.batches = r  # (:func:`~.ransac.batch_sizes` of the options)
-        counts = pool.counts()
-        self._counts = np.array(counts, dtype=np.int64)
-        #: the number of cameras with points in the pool
-        self.cameras = sum(1 for n in counts if n)
+        self._counts = np.array(pool.counts(), dtype=np.int64)
+        self.cameras = int(np.count_nonzero(self._counts))  # (the cameras with points)
         #: (M,) bool, the cameras of 3 or more points the best model explains none of (None:
         #: none), whose global-shutter samples are corrected (:func:`_hypotheses`)
         self.missed = self._counts >= 3 if spread and still else None
-        self.fused = not generalized and pool.compiled and (still or prior is None)
+        self.fused = not self.generalized and pool.compiled and (still or prior is None)
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
-        self._min_it, self._max_it = r.min_iterations, r.max_iterations
-        self._args: tuple | None = None  # (:meth:`_batch`'s kernels' arguments)
-        self._drawn = 0  # (the seed's random draws the batches took)
-        self._out: tuple | None = None  # (:meth:`_batch`'s output buffers)
+        # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
+        self._args, self._drawn, self._out = None, 0, None
         self._n, self._missed = 0, self._no_missed
-
-    @property
-    def rng(self) -> np.random.Generator:
-        """The search's random generator (:func:`~.ransac.seeded_rng`; a compiled batch reads
-        the same stream, :func:`~.ransac.seeded_stream`)."""
-        if self._rng is None:
-            self._rng = seeded_rng(self._seed)
-        return self._rng
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for :meth:`errors`)."""
@@ -835,11 +751,11 @@ class _RigSearch(RansacLoop):
         return cost
 
     def _kept(self, model, e: np.ndarray, cost: float) -> None:
-        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e, cost)]
+        self._costed = [*self._costed[-5:], (model, e, cost)]  # (the final refinement's 5)
 
     def errors(self, model) -> np.ndarray:
         """(N,) the errors (px) of ``model`` on every point, those :meth:`cost` kept when it is
-        one of the last :data:`_ERRORS_KEPT` models it measured (the same object)."""
+        one of the last 6 models it measured (the same object)."""
         for m, e, _ in self._costed:
             if m is model:
                 return e
@@ -850,12 +766,11 @@ class _RigSearch(RansacLoop):
             return self._batch(K)
         pool = self.pool
         draw = pool.uniform_samples if self.generalized else pool.samples
-        samples = draw(self.rng, K, self.subset)
+        samples = draw(self.rng.generator(), K, self.subset)
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            hyp = _hypotheses(pool, samples, 0, generalized=self.generalized, missed=self.missed,
-                              rounds=rounds)  # fmt: skip
-            return hyp, K
+            return _hypotheses(pool, samples, 0, generalized=self.generalized,
+                               missed=self.missed, rounds=rounds), K  # fmt: skip
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(pool, samples, self.solver_iterations, anchor, self.prior,
                           self.threshold_px, self.generalized)  # fmt: skip
@@ -875,7 +790,9 @@ class _RigSearch(RansacLoop):
             pool, subset = self.pool, self.subset
             X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
-            self._draws = seeded_stream(self._seed, "random", 7 * int(self._max_it))
+            self._draws = seeded_stream(
+                self.rng.seed, "random", 7 * int(self.batches.max_iterations)
+            )
         o = self._drawn
         self._drawn = o + 7 * K
         # (a batch that found a best model wrote it into these buffers: the search keeps them)
@@ -891,7 +808,7 @@ class _RigSearch(RansacLoop):
             self._no_missed if self.missed is None else self.missed,
             SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
             self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-            self.iterations, self._min_it, self.needed, self._log_miss, self._out,
+            self.iterations, self.batches.min_iterations, self.needed, self._log_miss, self._out,
         )  # fmt: skip
         self.implausible += beyond
         if h < 0:
@@ -938,50 +855,38 @@ def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = N
     per = pool.per_camera(inl)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
-        record.pop("failure", None),
-        RSModel(R, C, w, t),
+        record.pop("failure", None), RSModel(R, C, w, t),
         RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled),
-        np.array(inl, dtype=bool) if pool.all_valid else _joined(per),
-        len(pool.cam),
-        sum(pool.sizes),
-        outputs,
+        np.array(inl, dtype=bool) if pool.all_valid else _joined(per), len(pool.cam),
+        sum(pool.sizes), outputs,
         (per, tuple(int(np.count_nonzero(m)) for m in per), pool.counts()),
-        solver=RIG_SOLVER,
-        **record,
-    )
+        solver=RIG_SOLVER, **record,
+    )  # fmt: skip
 
 
-def _estimate(pool: StackedViews, *settings, **kwargs) -> RSPoseEstimate:
-    """The staged estimator (:func:`~.driver.staged_estimate`) on :class:`_RigStages`."""
-    return staged_estimate(_RigStages(pool, *settings, **kwargs))
-
-
+@dataclass
 class _RigStages:
-    """A rig frame's stacked views ``pool`` as the staged estimator's
-    :class:`~.driver.Stages` (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior``
-    (:func:`~.gyro.gyro_prior`, one second per unit of tau; ``gyro_time``: s from the rig's
-    reference time, for the sensitivity to acceleration) or without one; ``still``: the
-    global-shutter model or not (None: when the observation times are within
-    :data:`STILL_SPREAD`).
+    """A rig frame's stacked views ``pool`` as the staged estimator's :class:`~.driver.Stages`
+    (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior`` (one second per unit of
+    tau; ``gyro_time``: s from the rig's reference time) or without; ``still``: the
+    global-shutter model or not (None: observation times within :data:`STILL_SPREAD`).
+    Second ways: a global-shutter search whose model has too few inliers runs again with every
+    sample's P3P poses corrected across the cameras (``spread``: a pose between the cameras'
+    own can explain every corner where each P3P pose explains one camera's); a rolling-shutter
+    rig frame without a gyro that shows no motion, on the global-shutter model."""
 
-    Its stages, a camera's with the rig's steps: at least 6 points, 3 in one camera, that fix
-    a pose; the initial model's seed and :class:`_RigSearch`; :func:`~.local_optimization.polish`;
-    the final refinement of the lowest MSAC cost (:func:`~.finalize.chosen_refinement`), its
-    covariance, the last checks. Second ways: a global-shutter search whose model has too few
-    inliers searches again with every sample's P3P poses corrected across the cameras
-    (``spread``, :data:`SPREAD_CORRECTION_ROUNDS`: a pose between the cameras' own can explain
-    every corner where each P3P pose explains one camera's); a rolling-shutter rig frame
-    without a gyro that fails and shows no motion is posed on the global-shutter model
-    (:func:`~.finalize.still_fallback`)."""
+    pool: StackedViews
+    options: EstimateOptions
+    initial_model: InitialModel | None
+    generalized: bool
+    prior: MotionPrior | None = None
+    still: bool | None = None
+    spread: bool = False
+    gyro_time: float = 0.0
 
-    def __init__(self, pool: StackedViews, options: EstimateOptions, initial_model,
-                 generalized: bool, prior: MotionPrior | None = None, still: bool | None = None,
-                 spread: bool = False, gyro_time: float = 0.0):  # fmt: skip
-        self.pool, self.options, self.initial_model = pool, options, initial_model
-        self.generalized, self.prior, self.still, self.spread = generalized, prior, still, spread
-        self.gyro_time = gyro_time
-        self.threshold_px = float(options.ransac.threshold_px)
-        self.refine = options.refine.enabled
+    def __post_init__(self) -> None:
+        self.threshold_px = float(self.options.ransac.threshold_px)
+        self.refine = self.options.refine.enabled
         self.search: _RigSearch | None = None
         self.last = None
 
@@ -993,12 +898,10 @@ class _RigStages:
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         if self.still is None:
             self.still = pool.tau_spread <= STILL_SPREAD
-        return None
 
     def searched(self) -> Model:
         pool, still, prior, threshold_px = self.pool, self.still, self.prior, self.threshold_px
-        r = self.options.ransac
-        free, size = (6, 3) if still else (12, 6)
+        size = 3 if still else 6
         explained, anchored, subset, seeded = -1, False, None, None
         if self.initial_model is not None:  # (as a single camera's: tested on every point)
             im = self.initial_model
@@ -1006,7 +909,7 @@ class _RigStages:
             gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
             explained, seeded, anchored = initial_model_seed(
                 model, im.min_explained, not still, size, gate,
-                *view_seed_steps(pool, threshold_px, gate, free == 12, prior),
+                *view_seed_steps(pool, threshold_px, gate, not still, prior),
             )  # fmt: skip
             n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
             # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
@@ -1015,16 +918,11 @@ class _RigStages:
             if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
                 subset = np.flatnonzero(seeded[2])
         self.explained, self.seeded = explained, seeded
-        self.search = search = _RigSearch(
-            pool, self.options, still, self.generalized, prior, anchored, subset, self.spread
-        )
+        self.search = search = _RigSearch(self, anchored, subset)
         if seeded is not None:
             search.best, search.score = seeded[1], search.cost(seeded[1])
-            search.needed = (
-                0.0
-                if subset is not None
-                else required_iterations(float(np.mean(seeded[2])), size, r.confidence)
-            )
+            needed = required_iterations(float(np.mean(seeded[2])), size, search.confidence)
+            search.needed = 0.0 if subset is not None else needed
         search.search(search, search.batches)
         return search.found()
 
@@ -1033,9 +931,8 @@ class _RigStages:
         # the final refinement's first; on a frame taken at one time that refinement alone,
         # kept where it lowers the cost)
         pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
-        exact = functools.partial(
-            refined_model, pool, th=threshold_px, rolling=not self.still, prior=prior
-        )
+        exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not self.still,
+                                  prior=prior)  # fmt: skip
         if self.still:
             self.last = (model, exact(model)) if self.refine else None
             if self.last is not None and search.cost(self.last[1]) < search.score:
@@ -1059,9 +956,7 @@ class _RigStages:
         if refine:  # the final refinement, the model of the lowest MSAC cost
             # (local optimization's last refinement is the final one's first, whether it took
             # it or the model is still the one it started from)
-            first = None
-            if last is not None and (last[0] is model or last[1] is model):
-                first = last[1]
+            first = last[1] if last and (last[0] is model or last[1] is model) else None
             model = chosen_refinement(
                 pool, model, threshold_px, rolling, prior, search.cost, search.errors,
                 search.cameras, CONTRADICTION_GATE, first,
@@ -1075,13 +970,11 @@ class _RigStages:
         inl = final.inliers
         if not inl.all() and collinear_3d(pool.X[inl], compiled=pool.compiled):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
-        ref = rate = None
+        ref, rate = None, None if prior is None else (self.gyro_time, prior.information()[3:, 3:])
         if refine and np.count_nonzero(inl) > 6:
             ref = frame_refinement(pool, final.model, threshold_px, rolling,
                                    prior if rolling else None, rolling,
                                    max_iterations=0)  # fmt: skip
-        if prior is not None:
-            rate = (self.gyro_time, prior.information()[3:, 3:])
         return with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
                                alone=False, rate_prior=rate, errors=e)  # fmt: skip
 
@@ -1105,21 +998,17 @@ class _RigStages:
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
-        pool, still = self.pool, self.still
-        settings = (self.options, self.initial_model, self.generalized)
-        if still is None:  # (refused before the time spread was looked at)
+        if self.still is None:  # (refused before the time spread was looked at)
             return None
-        if still:
+        if self.still:
             if failure.reason != TOO_FEW_INLIERS or self.spread:
                 return None
-            return _estimate(pool, *settings, self.prior, True, True, self.gyro_time)
+            return staged_estimate(replace(self, spread=True))
         if self.prior is not None or not self.refine:
             return None
         # (a rolling-shutter rig frame that shows no motion: the global-shutter model)
-        return still_fallback(
-            failure.reason, lambda: _estimate(pool, *settings, still=True), pool,
-            self.threshold_px,
-        )  # fmt: skip
+        again = lambda: staged_estimate(replace(self, still=True))  # noqa: E731
+        return still_fallback(failure.reason, again, self.pool, self.threshold_px)
 
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
         iterations = 0 if self.search is None else self.search.iterations
@@ -1127,10 +1016,7 @@ class _RigStages:
                              ransac_iterations=iterations, num_behind=failure.behind)  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
-        pool, threshold_px, compiled = self.pool, self.threshold_px, self.pool.compiled
-        image = image_alone(pool, est.model, threshold_px, None) if est.success else None
-
-        def planar() -> bool:
-            return coplanar(pool.X[pool.errors(est.model) < threshold_px], compiled)
-
+        pool, th = self.pool, self.threshold_px
+        image = image_alone(pool, est.model, th, None) if est.success else None
+        planar = lambda: coplanar(pool.X[pool.errors(est.model) < th], pool.compiled)  # noqa: E731
         return image, planar, len(pool.cam)
