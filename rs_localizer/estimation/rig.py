@@ -137,6 +137,7 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     built_estimate,
+    output_covariance,
 )
 from .rig_batch import (
     counted,
@@ -632,10 +633,12 @@ def _consensus(
     the group whose pose is nearer the ``prediction`` (by :data:`PREDICTION_MARGIN`), poses
     the rig; the other group's cameras are
     ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``,
-    unless the two groups are near (:func:`_near`): then the joint estimate is returned. A
-    tie without a prediction is first checked with the joint estimate alone: when one pose
-    fitted from it explains every voting camera within the gate (:func:`_one_pose`), the
-    joint estimate is returned without solving the others.
+    unless the two groups are near (:func:`_near`): then the joint estimate is returned, its
+    covariance widened by the groups' disagreement (:func:`_near_spread`). A tie without a
+    prediction is first checked with the joint estimate alone: when one pose fitted from it
+    explains every voting camera within the gate (:func:`_one_pose`), the joint estimate is
+    returned so, the others solved alone only when it leaves one of them out (for
+    :func:`_near_spread`).
     The joint estimate's point count never decides: a camera with most of the points is
     outvoted by two that agree with each other. With a prediction, the cameras whose points
     it explains are checked first (:func:`_by_track`: a track never outvotes more cameras
@@ -666,7 +669,10 @@ def _consensus(
     # two groups are near, whatever the others' own pose
     tried = len(a) == len(rest) and prediction is None
     if tried and _one_pose(pool, est, voters, set(voters), threshold_px):
-        return est
+        if set(voters) <= _agreeing(est, voters):
+            return est
+        other = solve(_only(views, a))
+        return _near_spread(est, _restored(other, pool) if other.success else other, voters)
     sub = solve(_only(views, a))
     sub = _restored(sub, pool) if sub.success else sub
     b = _agreeing(sub, voters) if sub.success else set()
@@ -685,12 +691,46 @@ def _consensus(
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
     if choice is None and _near(pool, est, sub, a, b, voters, threshold_px, tried):
-        return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
+        # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
+        return _near_spread(est, sub, voters)
     if choice == 0:
         return _outvoted(est, pool, rest)
     if choice == 1:
         return _outvoted(sub, pool, set(voters) - b)
     return _disagree(est, pool, a | b)
+
+
+def _near_spread(est: RSPoseEstimate, other: RSPoseEstimate, voters) -> RSPoseEstimate:
+    """``est``, the joint estimate of two groups of cameras that are near (:func:`_near`),
+    with the covariance of their disagreement: when a voting camera does not agree with it
+    (:func:`_agreeing`: the fit at the inlier threshold kept one group's points), its model
+    covariance plus ``other``'s (the other group's own estimate) plus ``d d^T``, ``d`` the
+    step between the two estimates' models (over (delta, C) of the global-shutter model,
+    (delta, C, w, t) of the rolling-shutter one), its outputs' covariances derived again.
+    Cameras that disagree beyond their noise but within the gate carry an error none of
+    them models (a lens model, a tag map or an exposure time a little off), and nothing in
+    the rig frame says which group is right, while the pose of one group alone has a
+    covariance of that group's points only (docs/rig.md, "Real 4-camera rigs"). ``est``
+    unchanged when every voting camera agrees, or either estimate has no covariance."""
+    if set(voters) <= _agreeing(est, voters) or not other.success:
+        return est
+    if est.model_covariance is None or other.model_covariance is None:
+        return est
+    rolling = est.motion_model != GLOBAL_SHUTTER
+    free = 12 if rolling else 6
+    R, C, w, t = est.model
+    Ro, Co, wo, to = other.model
+    d = np.concatenate([matrix_to_rotvec(Ro @ R.T), Co - C, wo - w, to - t])[:free]
+    if not np.isfinite(d).all():
+        return est
+    cov = np.array(est.model_covariance, dtype=float)
+    cov[:free, :free] += np.asarray(other.model_covariance)[:free, :free] + np.outer(d, d)
+    spr = 1.0 if rolling else 0.0  # (a rig's times are in seconds: StackedViews.spr)
+    out = output_covariance(cov, R, C, w, spr, est.implementation != NUMPY)
+    return est._replaced(
+        model_covariance=cov, covariance=out[0], pose_covariance=out[1],
+        twist_covariance=out[2] if est.twist_covariance is not None else None,
+    )  # fmt: skip
 
 
 def _gated(pool: StackedViews, est, voters, gate_px: float, model=None) -> set[int]:
