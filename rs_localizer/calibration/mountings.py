@@ -48,9 +48,8 @@ class MountingEstimate:
             on the corners (``corners_refined``): the corners' solve's, runs of rig frames
             as groups, plus the error the two estimates disagree by (``corner_misfit``,
             :func:`_corner_covariance`; docs/rig_node.md, "Mountings from data", step 5);
-            with time offsets on the corners also the variance of a rig frame's exposure
-            about the offset (the runs of rig frames' scatter) times the camera's motion on
-            the rig (:func:`_motion_moment`).
+            with time offsets on the corners the offsets' covariance is part of it (a rig
+            frame's exposure off the offset is the rig pose's: ``time_offset_std``).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -572,23 +571,6 @@ def _corner_covariance(
     return cov, misfit, dt_std, scatter
 
 
-def _motion_moment(problem: RigCorners, sol: CornerSolution, index: int) -> np.ndarray:
-    """(6, 6): the mean over the corners of time offset ``index`` of ``a a^T``, ``a`` its camera's
-    twist in rig axes (angular rad/s, linear m/s; :class:`RigCorners` ``motion`` turned by its
-    rig frame's pose of ``sol``): a time offset ``dt`` moves the camera's pose on the rig at
-    its rig frame's time by ``dt a`` (rotation rig axes, position), so a variance ``s2`` of it
-    adds ``s2`` times this to the mounting's covariance (the axes of
-    :attr:`~rs_localizer.frames.Mounting.covariance`)."""
-    mine = problem.motion[0] == index
-    if not mine.any():
-        return np.zeros((6, 6))
-    Rg = sol.rig[0][problem.frame[mine]]
-    _, w, v = problem.motion
-    a = np.concatenate([np.einsum("nji,nj->ni", Rg, w[mine]), np.einsum("nji,nj->ni", Rg, v[mine])],
-                       axis=1)  # fmt: skip
-    return a.T @ a / len(a)
-
-
 def _exposed_apart(
     rig_frames: list, poses: dict, mounts: dict, reference: str, bad: set, px: float
 ) -> tuple[dict, dict, dict]:
@@ -784,17 +766,12 @@ def calibrate_mountings(
         if refined:
             # (the two estimates compared alike: with a time offset per camera or without)
             start, start_cov = (timed, timed_cov) if apart else (mounts, cov)
-            cov, misfit, dt_c, spread = _corner_covariance(
-                *corners[:3], start, reference, start_cov
-            )
+            cov, misfit, dt_c, _ = _corner_covariance(*corners[:3], start, reference, start_cov)
             mounts = corners[0]
             if apart:
                 dt = corners[1].time_offsets(corners[2].result.x)
                 dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_c, dt, strict=True)}
                 dt_std = dt_c
-                # (a rig frame's exposure off the offset moves the camera on the rig)
-                for i, n in enumerate(dt_c):
-                    cov[n] = cov[n] + spread[n] * _motion_moment(corners[1], corners[2], i)
     cam, e = [o[2] for o in obs], _errors(obs, r)  # (the camera frames' pose errors)
     out = {}
     for name in poses:
