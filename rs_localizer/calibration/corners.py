@@ -328,10 +328,7 @@ class RigCorners:
         ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
         mountings, the rig poses' part projected out), so corners that share an error (a tag
         map's, a camera model's) count once per group. ``offsets`` (with ``motion``): also
-        the time offsets' standard deviations (D,) s, ``(covariances, std)``, and with
-        ``clusters`` the variance (D,) s^2 of one group's own offset (one Gauss-Newton step
-        from the solution) about the solution's, weighted by its information, times ``C / (C
-        - 1)``: ``(covariances, std, scatter)`` (exposures that drift against the reference's).
+        the time offsets' standard deviations (D,) s, ``(covariances, std)``.
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -369,15 +366,8 @@ class RigCorners:
             U = np.zeros((ci.max() + 1, mc))
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
-            if offsets and self.D:
-                info = np.zeros((ci.max() + 1, self.D))
-                np.add.at(info, ci, A[:, mc - self.D :] ** 2)
-                n_c = len(info)
-                own = np.sum(U[:, mc - self.D :] ** 2 / np.where(info > 0, info, np.inf), axis=0)
-                scatter = own / np.maximum(info.sum(axis=0), 1e-300) * n_c / max(n_c - 1, 1)
         C = 0.5 * (C + C.T)
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
         if not offsets:
             return blocks
-        std = np.sqrt(np.diag(C)[6 * self.F :])
-        return (blocks, std, scatter) if clusters is not None and self.D else (blocks, std)
+        return blocks, np.sqrt(np.diag(C)[6 * self.F :])

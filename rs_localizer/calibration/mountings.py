@@ -510,21 +510,19 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
     (:meth:`~rs_localizer.calibration.corners.RigCorners.mounting_covariance`, runs of rig
     frames as :data:`CORNER_BLOCKS` groups, times ``B / (B - 1)``) plus ``(misfit - 1)
     pose_cov``, ``misfit`` the squared step from the pose-level mountings ``start`` (covariance
-    ``pose_cov``) per degree of freedom (at least :data:`MISFIT_FLOOR`); with time offsets
-    plus one run's offset variance about the offset and the offset's own times the mean of
-    ``a a^T`` over the camera's corners, ``a`` its twist in rig axes (an exposure ``dt`` later
-    moves the camera on the rig by ``dt a``). Returns ``(covariances, misfit, camera -> time
-    offset std s ({} without))``."""
+    ``pose_cov``) per degree of freedom (at least :data:`MISFIT_FLOOR`). A rig frame's exposure
+    off the camera's time offset is not added here: it moves the rig pose, whose covariance
+    takes the offset's std at the frame's own twist (``time_offset_std``). Returns
+    ``(covariances, misfit, camera -> time offset std s ({} without))``."""
     problem, sol = refined.problem, refined.sol
     free = [n for n in refined.mounts if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
     runs = (problem.frame * blocks) // problem.G
-    dt_std, scatter = {}, {}
+    dt_std = {}
     if problem.D:
-        C, std, var = problem.mounting_covariance(sol, runs, True)
+        C, std = problem.mounting_covariance(sol, runs, True)
         std = std * np.sqrt(blocks / max(blocks - 1, 1))
         dt_std = dict(zip(free, std.tolist(), strict=True))
-        scatter = {n: float(v) + dt_std[n] ** 2 for n, v in zip(free, var, strict=True)}
     else:
         C = problem.mounting_covariance(sol, runs)
     C = C * (blocks / max(blocks - 1, 1))
@@ -536,12 +534,6 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
         m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
-    for i, n in enumerate(scatter):
-        mine = problem.motion[0] == i
-        if mine.any():
-            Rg, w, v = sol.rig[0][problem.frame[mine]], *(a[mine] for a in problem.motion[1:])
-            a = np.concatenate([np.einsum("nji,nj->ni", Rg, w), np.einsum("nji,nj->ni", Rg, v)], 1)
-            cov[n] = cov[n] + scatter[n] * (a.T @ a / len(a))
     return cov, misfit, dt_std
 
 

@@ -89,6 +89,7 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     built_estimate,
+    output_covariance,
 )
 from .rig_batch import counted, lambda_twist_on_rig, search_batch
 from .single_tag import posed_planarity
@@ -456,7 +457,8 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     Otherwise the rig is solved (``solve``) without the agreeing cameras and the two groups
     are decided (:func:`_decided`): by their number of cameras (never of points), on a tie by
     the ``prediction``, else the joint estimate when they are near (:func:`_near`; first
-    tried from ``est`` alone, :func:`_one_pose`) or ``cameras_disagree``. With a prediction
+    tried from ``est`` alone, :func:`_one_pose`), its covariance widened by the groups'
+    disagreement (:func:`_near_spread`), or ``cameras_disagree``. With a prediction
     the cameras it explains are checked first (:func:`_by_track`); with ``verify`` every
     voting camera is posed alone (:func:`_verified`: a wrong stamp can leave two cameras a
     fair share of inliers under a joint pose that is wrong)."""
@@ -479,8 +481,8 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    if tried and _one_pose(v, est, set(voters)):
-        return est  # (a tie of groups one pose fitted from the joint estimate explains)
+    if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
+        return _near_spread(est, solve(a), voters)
     sub = solve(a)
     b = _agreeing(sub, voters) if sub.success else set()
     if b & a:  # (a pose the agreeing cameras share: cameras with outliers, no contradiction)
@@ -491,7 +493,41 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
         sub = solve(set(voters) - b)
         if not sub.success:
             return _outvoted(est, pool, rest)
-    return _decided(v, est, (est, sub), (a, b), set(voters), tried)
+    out = _decided(v, est, (est, sub), (a, b), set(voters), tried)
+    return _near_spread(est, sub, voters) if out is est else out
+
+
+def _near_spread(est: RSPoseEstimate, other: RSPoseEstimate, voters) -> RSPoseEstimate:
+    """``est``, the joint estimate of two groups of cameras that are near (:func:`_near`),
+    with the covariance of their disagreement: when a voting camera does not agree with it
+    (:func:`_agreeing`: the fit at the inlier threshold kept one group's points), its model
+    covariance plus ``other``'s (the other group's own estimate) plus ``d d^T``, ``d`` the
+    step between the two estimates' models (over (delta, C) of the global-shutter model,
+    (delta, C, w, t) of the rolling-shutter one), its outputs' covariances derived again.
+    Cameras that disagree beyond their noise but within the gate carry an error none of
+    them models (a lens model, a tag map or an exposure time a little off), and nothing in
+    the rig frame says which group is right, while the pose of one group alone has a
+    covariance of that group's points only (docs/rig.md, "Real 4-camera rigs"). ``est``
+    unchanged when every voting camera agrees, or either estimate has no covariance."""
+    if set(voters) <= _agreeing(est, voters) or not other.success:
+        return est
+    if est.model_covariance is None or other.model_covariance is None:
+        return est
+    rolling = est.motion_model != GLOBAL_SHUTTER
+    free = 12 if rolling else 6
+    R, C, w, t = est.model
+    Ro, Co, wo, to = other.model
+    d = np.concatenate([matrix_to_rotvec(Ro @ R.T), Co - C, wo - w, to - t])[:free]
+    if not np.isfinite(d).all():
+        return est
+    cov = np.array(est.model_covariance, dtype=float)
+    cov[:free, :free] += np.asarray(other.model_covariance)[:free, :free] + np.outer(d, d)
+    spr = 1.0 if rolling else 0.0  # (a rig's times are in seconds: StackedViews.spr)
+    out = output_covariance(cov, R, C, w, spr, est.implementation != NUMPY)
+    return est._replaced(
+        model_covariance=cov, covariance=out[0], pose_covariance=out[1],
+        twist_covariance=out[2] if est.twist_covariance is not None else None,
+    )  # fmt: skip
 
 
 def _decided(v: _Vote, est, fits, groups, cams: set, tried=False) -> RSPoseEstimate:

@@ -159,8 +159,7 @@ def test_a_camera_whose_exposures_drift_gets_their_mean_and_its_scatter():
     """The left camera's frames stamped 5 ms after its exposures at the start of the video and
     15 ms at the end (a camera that runs free of the reference): its time offset is their
     mean, about -10 ms, within 3 of its std, which shows the drift (above 0.5 ms, where a
-    constant offset is fixed to 0.03 ms); its mounting, whose covariance holds the rig's
-    motion over the drift, within 3 of its std of the truth."""
+    constant offset is fixed to 0.03 ms); its mounting within 3 of its std of the truth."""
     cams, fr, _ = _video()
     truth = mounts_of(cams)
     t0, t1 = min(f.stamp_ns for f in fr), max(f.stamp_ns for f in fr)
