@@ -18,9 +18,10 @@ import pytest
 from rs_localizer.runtime import jit_cache
 
 KERNEL = textwrap.dedent("""
-    from numba import njit
+    from rs_localizer._jit import kernel
+    from rs_localizer._so3 import FMA
 
-    @njit(cache=True)
+    @kernel(fastmath=FMA)
     def plus_one(x):
         return x + 1
 """)
@@ -36,6 +37,7 @@ PROBE = textwrap.dedent("""
         assert m.plus_one(41) == 42
     print(json.dumps({"hits": sum(m.plus_one.stats.cache_hits.values()),
                       "misses": sum(m.plus_one.stats.cache_misses.values()),
+                      "nogil": m.plus_one.targetoptions.get("nogil"),
                       "compiled": [k for k, _ in prog.kernels]}))
 """)
 
@@ -69,6 +71,7 @@ def test_seeded_user_cache_loads_the_package_kernels(tiny_package, tmp_path):
     tmp = tiny_package
     first = _run(tmp, {})  # writable package: numba compiles into tinypkg/__pycache__
     assert first["misses"] == 1 and first["compiled"] == ["tinypkg.mod.plus_one"], first
+    assert first["nogil"] is True  # (the package's decorator: rs_localizer._jit.kernel)
     assert list((tmp / "tinypkg" / "__pycache__").glob("mod.plus_one-*.nbi"))
     # control: a fresh user cache directory compiles again
     ctrl = _run(tmp, {"NUMBA_CACHE_DIR": str(tmp_path / "fresh")})
@@ -76,7 +79,7 @@ def test_seeded_user_cache_loads_the_package_kernels(tiny_package, tmp_path):
     # seeded from the package: loaded, nothing compiled
     user = tmp_path / "user"
     seeded = _run(tmp, {"NUMBA_CACHE_DIR": str(user)}, str(user))
-    assert seeded == {"hits": 1, "misses": 0, "compiled": []}, seeded
+    assert seeded == {"hits": 1, "misses": 0, "nogil": True, "compiled": []}, seeded
     # seeding again copies nothing (the copies are not older than the package's files)
     assert jit_cache.seed_cache(str(tmp / "tinypkg"), str(user)) == 0
 

@@ -7,15 +7,10 @@ Measured against the clock, not the flag: a thread of pure Python stamps
 (R6P_{v,C,w,t}^{[v]x}'s batched kernel on many problems, as RANSAC calls it). A kernel that
 holds the GIL stops the stamping thread for the whole call (its largest gap equals the call);
 one that releases it leaves gaps of an OS time slice. Every kernel of the package is also
-checked to be compiled with ``nogil``, and a kernel declared with the decorator compiles on a
-cold cache and loads from it in the next process."""
+checked to be compiled with ``nogil`` and cached (that a kernel declared with the decorator
+loads from the cache in the next process: ``test_jit_cache.py``)."""
 
 import importlib
-import json
-import os
-import subprocess
-import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -112,52 +107,3 @@ def test_every_kernel_of_the_package_releases_the_gil():
     assert held == []
     uncached = sorted(n for n, k in kernels.items() if k._cache.__class__.__name__ == "NullCache")
     assert uncached == []
-
-
-_DECLARED = textwrap.dedent("""
-    from rs_localizer._jit import kernel
-    from rs_localizer._so3 import FMA
-
-    @kernel(fastmath=FMA)
-    def plus_one(x):
-        return x + 1
-""")
-
-_PROBE = textwrap.dedent("""
-    import json, sys
-    sys.path.insert(0, sys.argv[1])
-    from rs_localizer.runtime.jit_cache import compile_progress
-    with compile_progress() as prog:
-        import tinypkg.mod as m
-        assert m.plus_one(41) == 42
-    print(json.dumps({"hits": sum(m.plus_one.stats.cache_hits.values()),
-                      "misses": sum(m.plus_one.stats.cache_misses.values()),
-                      "nogil": m.plus_one.targetoptions.get("nogil"),
-                      "compiled": [k for k, _ in prog.kernels]}))
-""")
-
-
-def test_a_kernel_declared_with_the_decorator_is_cached_for_the_next_process(tmp_path):
-    """On a cold cache the kernel compiles; the next process loads it from the cache."""
-    pkg = tmp_path / "tinypkg"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "mod.py").write_text(_DECLARED)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-
-    def run():
-        out = subprocess.run(
-            [sys.executable, "-c", _PROBE, str(tmp_path)],
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert out.returncode == 0, out.stderr
-        return json.loads(out.stdout.strip().splitlines()[-1])
-
-    cold, warm = run(), run()
-    assert cold["misses"] == 1 and cold["hits"] == 0
-    assert cold["compiled"] == ["tinypkg.mod.plus_one"]
-    assert warm["misses"] == 0 and warm["hits"] == 1 and warm["compiled"] == []
-    assert cold["nogil"] is True and warm["nogil"] is True
