@@ -1,0 +1,298 @@
+"""How far a TagSLAM recording's reference poses are from what their own corners say, and what
+the rig pose's stated covariance leaves out: ``python -m benchmarks.reference_fit --folder
+PATH/test_N``.
+
+Two references of one recording (:mod:`benchmarks.tagslam_data`,
+:mod:`benchmarks.joint_reference`): TagSLAM's published rig poses on its final tag map and
+extrinsics, and the joint solution's poses on its own map and mountings. On each reference's
+map and mountings (taken as exact), every rig frame with tags in two or more cameras and a
+reference pose is posed by the rig estimator
+(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`, :data:`RIG_OPTIONS`), then:
+
+1. **The reference's own fit** (:func:`delta_chi2`): the corners' squared error in the
+   distorted image at the reference's pose minus at the estimator's, over the corners' noise
+   variance ``sigma^2`` (the estimator's squared error over ``2 N - 6``). A pose at the corners'
+   best fit has about 0; a pose the corners reject has more than the 99.73 % quantile of a
+   chi-square of 6 degrees of freedom (20.1). How many rig poses are within 3 sigma of the
+   reference (rotation and position NEES, 3 degrees of freedom each, below the 99.73 %
+   quantile) in the covariance the estimator states.
+2. **The two references against each other** in that covariance: rig frames whose two
+   reference poses are within 3 sigma of each other. Where they are not, no covariance of
+   ours can be within 3 sigma of both.
+3. **The tags' common shift** (:func:`tag_shift_variances`, :func:`shift_covariance`): the
+   4 corners of one tag in one image share part of their error (the tag's image shifted as a
+   whole: a lens model, the detector, the map a little off where the tag is seen). Printed:
+   at the joint solution, the correlation of two corners' errors of one tag, the shift's share
+   of a corner's error variance, and the correlation of one tag's shift in one camera between
+   consecutive rig frames (under 0.2 s apart: a slowly varying error, not noise); per rig
+   frame, the rig pose's covariance with the shift as a random effect per tag (its variance
+   and the corners' own estimated from that frame's residuals; the least-squares pose's
+   sandwich covariance ``(J^T J)^-1 J^T Sigma J (J^T J)^-1``, ``J`` the corners' image
+   Jacobian over the rig pose) in place of the independent corners' ``sigma^2 (J^T J)^-1``,
+   and the rig poses within 3 sigma of each reference with it. The estimator does not take
+   this term: its points carry no tag.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+from itertools import pairwise
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from benchmarks.joint_reference import CACHE, joint_reference, with_reference
+from benchmarks.tagslam_data import RealRig, load_tagslam
+from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
+from rs_localizer.estimation.view import View
+from rs_localizer.frames import Mounting
+from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = [
+    "corner_errors",
+    "delta_chi2",
+    "main",
+    "pose_jacobian",
+    "shift_covariance",
+    "tag_shift_variances",
+]
+
+#: the 99.73 % quantiles of a chi-square of 3 and of 6 degrees of freedom
+K3, K6 = chi2.ppf(0.9973, 3), chi2.ppf(0.9973, 6)
+
+
+def corner_errors(
+    rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, mounts: dict | None = None
+) -> np.ndarray:
+    """(N, 2) px: every corner of ``views`` (a rig frame's, camera -> ``(uv, X)``) projected at
+    the rig pose ``x_rig = R X + C`` through ``mounts`` (camera -> ``(R, c)``, default
+    ``rig``'s) and ``rig``'s cameras, minus its detection (the distorted image), in ``views``'
+    order."""
+    mounts = rig.mounts if mounts is None else mounts
+    out = []
+    for n, (uv, X) in views.items():
+        Rm, cm = mounts[n]
+        out.append(rig.cameras[n].project((X @ R.T + C) @ Rm.T + cm) - uv)
+    return np.concatenate(out)
+
+
+def delta_chi2(e_ref: np.ndarray, e_best: np.ndarray, n_free: int = 6) -> float:
+    """The corners' squared error at a reference pose (``e_ref`` (N, 2) px) minus at the
+    best fit (``e_best``), over the noise variance per image axis the best fit's residuals
+    give (``sum e_best^2 / (2 N - n_free)``): chi-square of ``n_free`` degrees of freedom when
+    the reference is the truth and the errors independent and Gaussian."""
+    s_best = float((e_best**2).sum())
+    s2 = s_best / max(2 * len(e_best) - n_free, 1)
+    return (float((e_ref**2).sum()) - s_best) / s2
+
+
+def pose_jacobian(
+    rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, mounts: dict | None = None,
+    h: float = 1e-6,
+):  # fmt: skip
+    """(2 N, 6) the corners' image errors' (:func:`corner_errors`, ``mounts`` as there)
+    derivative over the rig pose's rotation (``R exp([d]x)``: a rotation vector ``d`` of the
+    world axes, the error convention of :func:`~benchmarks.bench_real_rig.calibrated_rig_run`)
+    and its position in the world (m), by forward differences of step ``h``."""
+    p = -R.T @ C
+    e0 = corner_errors(rig, views, R, C, mounts).ravel()
+    J = np.empty((len(e0), 6))
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        Rk = R @ rotvec_to_matrix(d[:3])
+        J[:, k] = (corner_errors(rig, views, Rk, -Rk @ (p + d[3:]), mounts).ravel() - e0) / h
+    return J
+
+
+def tag_shift_variances(E: np.ndarray, n_free: int = 6) -> tuple[float, float]:
+    """A rig frame's corner errors ``E`` (G, 4, 2) px (its G tags' 4 corners at the best fit,
+    ``n_free`` parameters fitted) as a common shift of each tag (variance ``s_t^2`` per image
+    axis) plus each corner's own error (``s_n^2``): one-way random effects, from the mean
+    squares within the tags (``6 G`` degrees of freedom) and of the tags' mean errors
+    (``2 G - n_free``; ``E[4 mean^2] = s_n^2 + 4 s_t^2``). Returns ``(s_n^2, s_t^2)`` px^2,
+    ``s_t^2`` at least 0."""
+    m = E.mean(axis=1, keepdims=True)
+    g = len(E)
+    msw = float(((E - m) ** 2).sum()) / max(6 * g, 1)
+    msb = 4 * float((m**2).sum()) / max(2 * g - n_free, 1)
+    return msw, max((msb - msw) / 4, 0.0)
+
+
+def shift_covariance(J: np.ndarray, s_n2: float, s_t2: float) -> np.ndarray:
+    """(6, 6) the least-squares pose's covariance over ``J``'s parameters when the corners'
+    errors (rows of ``J``: (2 N, 6), corners in tags of 4, x and y interleaved) are each
+    corner's own (``s_n2`` px^2 per axis) plus a shift common to a tag's 4 corners (``s_t2``):
+    ``A J^T Sigma J A``, ``A = (J^T J)^-1``, ``Sigma`` per tag and axis ``s_n2 I + s_t2 1 1^T``.
+    With ``s_t2 = 0``: ``s_n2 (J^T J)^-1``."""
+    A = np.linalg.inv(J.T @ J)
+    Jr = J.reshape(-1, 4, 2, J.shape[1])
+    SJ = (s_n2 * Jr + s_t2 * Jr.sum(axis=1, keepdims=True)).reshape(J.shape)
+    return A @ (J.T @ SJ) @ A
+
+
+def _within(cov: np.ndarray, R, C, ref) -> bool:
+    """The rig pose ``x_rig = R X + C`` within 3 sigma of ``ref`` ``(R, C)`` in ``cov``
+    (rotation and position NEES, 3 degrees of freedom each)."""
+    Rr, Cr = ref
+    er = matrix_to_rotvec(R.T @ Rr)
+    ep = Rr.T @ Cr - R.T @ C
+    return bool(
+        er @ np.linalg.solve(cov[:3, :3], er) <= K3
+        and ep @ np.linalg.solve(cov[3:6, 3:6], ep) <= K3
+    )
+
+
+def _tag_shift_persistence(rig: RealRig) -> tuple[float, float, float]:
+    """At ``rig``'s reference poses: the mean correlation of two corners' errors (x) of one
+    tag in one image, the tags' shift's share of a corner's error variance, and the
+    correlation of one tag's shift (its 4 corners' mean error, x and y pooled) in one camera
+    between rig frames under 0.2 s apart."""
+    E, seq = [], defaultdict(list)
+    for s, views in rig.frames:
+        if s not in rig.reference:
+            continue
+        e = corner_errors(rig, views, *rig.reference[s]).reshape(-1, 4, 2)
+        E.append(e)
+        k = 0
+        for n, (uv, _) in views.items():
+            for t, m in zip(rig.tag_ids[s][n], e[k : k + len(uv) // 4].mean(axis=1), strict=True):
+                seq[(n, int(t))].append((s, m))
+            k += len(uv) // 4
+    E = np.concatenate(E)
+    c = np.corrcoef(E[:, :, 0].T)
+    corner_corr = float(c[np.triu_indices(4, 1)].mean())
+    v = E.reshape(-1, 2).var(axis=0).sum()
+    share = float((E.mean(axis=1).var(axis=0).sum() - v / 4) / (0.75 * v))
+    a, b = [], []
+    for track in seq.values():
+        for (s0, m0), (s1, m1) in pairwise(track):
+            if s1 - s0 < 0.2:
+                a.append(m0)
+                b.append(m1)
+    a, b = np.array(a).ravel(), np.array(b).ravel()
+    return corner_corr, share, float(np.corrcoef(a, b)[0, 1]) if len(a) > 2 else float("nan")
+
+
+def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> dict:
+    """On ``rig``'s map and mountings (exact; or ``estimates``: camera -> ``MountingEstimate``,
+    calibrated mountings with their covariance and time offset std, as
+    :func:`~benchmarks.bench_real_rig.calibrated_rig_run` poses the rig), every rig frame with
+    tags in two or more cameras and a pose in every reference of ``references`` (label ->
+    stamp -> ``(R, C)``; the first: ``rig``'s own). Returns ``{"frames", "delta_chi2": (F,)
+    of the first reference's pose (through the same mountings as the rig's), "within": label
+    -> (F,) in the stated covariance, "within_shift": label -> (F,) with the tags' shift,
+    "between", "between_shift": (F,) the first two references' poses within 3 sigma of each
+    other in the stated covariance and with the tags' shift, "share": (F,) the shift's share
+    of a corner's error variance per rig frame}``."""
+    from benchmarks.bench_real_rig import _tracked_twist
+
+    first, *_ = references
+    out = {"delta_chi2": [], "within": defaultdict(list), "within_shift": defaultdict(list),
+           "between": [], "between_shift": [], "share": []}  # fmt: skip
+    mountings, mounts = dict(rig.mountings), dict(rig.mounts)
+    for n, e in (estimates or {}).items():
+        s_t = e.time_offset_std if e.time_offset and np.isfinite(e.time_offset_std) else 0
+        mountings[n] = Mounting(e.mount.R, e.mount.c, e.mount.covariance, s_t)
+        mounts[n] = (e.mount.R, e.mount.c)
+    last: list = []
+    for stamp, views in rig.frames:
+        if len(views) < 2 or any(stamp not in r for r in references.values()):
+            continue
+        rv = [View(uv, X, rig.cameras[n], mountings[n], name=n) for n, (uv, X) in views.items()]
+        e = estimate_rig_pose(
+            rv, RIG_OPTIONS, twist=_tracked_twist(last, stamp) if estimates else None
+        )
+        if not e.success or e.covariance is None:
+            continue
+        last = [*last[-1:], (stamp, e.model)]
+        R, C = e.model.R, e.model.C
+        cov = np.asarray(e.covariance)[:6, :6]
+        best = corner_errors(rig, views, R, C, mounts)
+        ref_err = corner_errors(rig, views, *references[first][stamp], mounts)
+        out["delta_chi2"].append(delta_chi2(ref_err, best))
+        J = pose_jacobian(rig, views, R, C, mounts)
+        s_n2, s_t2 = tag_shift_variances(best.reshape(-1, 4, 2))
+        s2 = float((best**2).sum()) / max(2 * len(best) - 6, 1)
+        shifted = cov + shift_covariance(J, s_n2, s_t2) - shift_covariance(J, s2, 0.0)
+        out["share"].append(s_t2 / (s_t2 + s_n2) if s_t2 + s_n2 > 0 else 0.0)
+        for label, ref in references.items():
+            out["within"][label].append(_within(cov, R, C, ref[stamp]))
+            out["within_shift"][label].append(_within(shifted, R, C, ref[stamp]))
+        a, b = list(references.values())[:2]
+        Ra, Ca = a[stamp]
+        out["between"].append(_within(cov, Ra, Ca, b[stamp]))
+        out["between_shift"].append(_within(shifted, Ra, Ca, b[stamp]))
+    out["frames"] = len(out["delta_chi2"])
+    return {k: (np.asarray(v) if isinstance(v, list) else {n: np.asarray(x) for n, x in v.items()})
+            if k != "frames" else v for k, v in out.items()}  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m benchmarks.reference_fit --folder PATH/test_N [--calibrated] [--cache DIR]``:
+    the module's three measurements on both references of the recording; ``--calibrated``: the
+    rig posed with ``calibrate-rig``'s mountings and their covariance (the first of 20 and 8
+    inliers that calibrates every camera, on each reference's map, as
+    ``benchmarks.joint_reference`` runs it) instead of the reference's mountings as exact."""
+    from benchmarks.bench_real_rig import calibrate_estimates
+
+    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap.add_argument("--calibrated", action="store_true", help="calibrate-rig's mountings")
+    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
+    a = ap.parse_args(argv)
+    if not a.folder.is_dir():
+        print(f"{a.folder} absent: nothing to measure")
+        return
+    rig = load_tagslam(a.folder)
+    joint = with_reference(rig, joint_reference(rig, a.cache))
+    corr, share, persist = _tag_shift_persistence(joint)
+    print(
+        f"{rig.name}: corner errors at the joint solution: two corners of one tag correlated "
+        f"{corr:.2f} (x); the tags' common shift {100 * share:.0f} % of a corner's error "
+        f"variance; one tag's shift in consecutive rig frames correlated {persist:.2f}"
+    )
+    for label, r, refs in (
+        ("TagSLAM's", rig, {"TagSLAM's": rig.reference, "the joint solution's": joint.reference}),
+        ("the joint solution's", joint,
+         {"the joint solution's": joint.reference, "TagSLAM's": rig.reference}),
+    ):  # fmt: skip
+        est = None
+        if a.calibrated:
+            for mi in (20, 8):
+                try:
+                    est = calibrate_estimates(r, mi)
+                except ValueError:
+                    continue
+                if len(est) == len(r.cameras):
+                    break
+        m = measure(r, refs, est)
+        n, d = m["frames"], m["delta_chi2"]
+        how = "calibrate-rig's mountings" if est else "mountings (exact)"
+        fit = (
+            f"its poses' delta chi2 over the rig estimator's: median {np.median(d):.1f}, beyond "
+            f"{K6:.1f} (99.73 %, 6 dof) in {100 * np.mean(d > K6):.1f} %; "
+            if est is None
+            else ""
+        )
+        print(
+            f"on {label} map and {how}, {n} rig frames: {fit}the tags' shift "
+            f"{100 * np.median(m['share']):.0f} % of a corner's error variance (median)"
+        )
+        print(
+            f"  the two references within 3 sigma of each other: {100 * m['between'].mean():.1f}"
+            f" % (stated covariance), {100 * m['between_shift'].mean():.1f} % (with the tags' "
+            "shift)"
+        )
+        for ref in refs:
+            print(
+                f"  rig poses within 3 sigma of {ref} poses: {100 * m['within'][ref].mean():.1f} "
+                f"% (stated covariance), {100 * m['within_shift'][ref].mean():.1f} % (with the "
+                "tags' shift)"
+            )
+
+
+if __name__ == "__main__":
+    main()
