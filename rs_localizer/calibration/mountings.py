@@ -22,8 +22,8 @@ from scipy.stats import chi2
 from ..camera import reference_stamp_ns
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
-from ..frames import Mounting
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..frames import Mounting, base_pose
+from ..geometry import compose, matrix_to_rotvec, rotvec_to_matrix
 from .corners import CornerSolution, RigCorners
 
 __all__ = [
@@ -234,8 +234,7 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
                 d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
                 keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
                 p = ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
-                Ra, pa = mounts[a]
-                mounts[b] = (Ra @ M, pa + Ra @ p)
+                mounts[b] = compose(*mounts[a], M, p)
                 nxt.append(b)
         frontier = nxt
     return mounts
@@ -320,9 +319,9 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
             continue
         seen = rig_frames[g][1]
         a = reference if reference in known else known[0]
-        (Ra, pa), (Oa, ppa) = mounts[a], seen[a][:2]
-        R0g.append(Oa @ Ra.T)
-        P0g.append(ppa - R0g[-1] @ pa)
+        Rg, Pg = base_pose(*seen[a][:2], Mounting.from_pose(*mounts[a]))
+        R0g.append(Rg)
+        P0g.append(Pg)
         for n in known:
             Oc, p, c6, twist = seen[n][:4]
             # the typical covariance's shape, scaled to the size of the frame's own (its
@@ -423,10 +422,7 @@ def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float)
     wrongly, e.g. a tag's mirrored pose, costs its corners the cap)."""
     best, out = np.inf, None
     for n in known:
-        O_t, p_t = seen[n][:2]
-        Rm, pm = mounts[n]
-        Rg = O_t @ Rm.T
-        Pg = p_t - Rg @ pm
+        Rg, Pg = base_pose(*seen[n][:2], Mounting.from_pose(*mounts[n]))
         cost = 0.0
         for m in known:
             uv, X, cam = every[m][seen[m][4]][6]
