@@ -22,8 +22,8 @@ from scipy.stats import chi2
 from ..camera import reference_stamp_ns
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
-from ..frames import Mounting
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..frames import Mounting, base_pose
+from ..geometry import compose, matrix_to_rotvec, rotvec_to_matrix
 from .corners import CornerSolution, RigCorners
 
 __all__ = [
@@ -121,29 +121,27 @@ def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
     return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
 
 
-def _posed_alone(frames: list, options: Any, min_inliers: int, stamp_row: float, given: dict):
+def _posed_alone(frames: list, options: Any, stamp_row: float, given: dict):
     """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`,
-    step 1), those with at least ``min_inliers`` inliers and a finite covariance: camera -> list
-    of ``(t ns on the rig's clock (plus the camera's ``given`` offset), orientation (3, 3) camera
-    -> world, position (3,) m, angular rad/s and linear m/s velocity (3,) in camera axes,
-    covariance (12, 12), inlier corners (pixels (K, 2), map points (K, 3) m, camera model))``
-    in time order."""
+    step 1), those with a finite covariance: camera -> list of ``(t ns on the rig's clock (plus
+    the camera's ``given`` offset), orientation (3, 3) camera -> world, position (3,) m,
+    angular rad/s and linear m/s velocity (3,) in camera axes, covariance (12, 12), inlier
+    corners (pixels (K, 2), map points (K, 3) m, camera model))`` in time order."""
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
             continue
         est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
         poses.setdefault(f.camera_name, [])
-        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
-            continue
-        if not np.isfinite(est.covariance[:6, :6]).all():
+        cov = est.covariance
+        if not est.success or cov is None or not np.isfinite(cov[:6, :6]).all():
             continue
         t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
         t += int(round(given.get(f.camera_name, 0.0) * 1e9))
         q, inl = est.pose, np.asarray(est.inliers, dtype=bool)
         corners = (np.asarray(f.points2d, float)[inl], np.asarray(f.points3d, float)[inl], f.camera)
         poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
-                                     q.linear_velocity, est.covariance, corners))  # fmt: skip
+                                     q.linear_velocity, cov, corners))  # fmt: skip
     for items in poses.values():
         items.sort(key=lambda i: i[0])
     return poses
@@ -236,8 +234,7 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
                 d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
                 keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
                 p = ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
-                Ra, pa = mounts[a]
-                mounts[b] = (Ra @ M, pa + Ra @ p)
+                mounts[b] = compose(*mounts[a], M, p)
                 nxt.append(b)
         frontier = nxt
     return mounts
@@ -246,8 +243,8 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
 class _Fit(NamedTuple):
     """One pose-level adjustment (:func:`_adjust`); per observation (a camera frame in a rig
     frame, m of them) its rig pose ``gi``, rig frame ``g`` (an index into the rig frames),
-    camera, pose ``O`` (m, 3, 3) camera -> world and ``p`` (m, 3) m, whitening ``W`` (m, 6, 6)
-    and twist ``w`` rad/s, ``v`` m/s (m, 3) in world axes."""
+    camera, orientation ``O`` (m, 3, 3) camera -> world, whitening ``W`` (m, 6, 6) and angular
+    velocity ``w`` (m, 3) rad/s in world axes."""
 
     mounts: dict  # camera -> (camera -> rig rotation, position m), every adjusted camera's
     J: Any  # the whitened Jacobian (sparse; columns: rig poses, mountings, 6 each, offsets)
@@ -256,10 +253,8 @@ class _Fit(NamedTuple):
     g: np.ndarray
     cam: np.ndarray
     O: np.ndarray  # noqa: E741
-    p: np.ndarray
     W: np.ndarray
     w: np.ndarray
-    v: np.ndarray
     free: list  # the adjusted cameras (all but the reference)
     dts: dict  # camera -> its time offset (s; {} without offsets)
     rig: tuple  # the rig poses: (rig -> world rotations (G, 3, 3), positions (G, 3) m)
@@ -324,9 +319,9 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
             continue
         seen = rig_frames[g][1]
         a = reference if reference in known else known[0]
-        (Ra, pa), (Oa, ppa) = mounts[a], seen[a][:2]
-        R0g.append(Oa @ Ra.T)
-        P0g.append(ppa - R0g[-1] @ pa)
+        Rg, Pg = base_pose(*seen[a][:2], Mounting.from_pose(*mounts[a]))
+        R0g.append(Rg)
+        P0g.append(Pg)
         for n in known:
             Oc, p, c6, twist = seen[n][:4]
             # the typical covariance's shape, scaled to the size of the frame's own (its
@@ -377,7 +372,7 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
     dts = {n: float(res.x[6 * (G + F) + i]) for i, n in enumerate(free)} if D else {}
     rig = (rotvec_to_matrix(xg[:, :3]) @ R0g, P0g + xg[:, 3:])
     r = res.fun[: 6 * m].reshape(-1, 6)
-    return _Fit(out, res.jac, r, gi, g, cam, O, p, W, w, v, free, dts, rig)
+    return _Fit(out, res.jac, r, gi, g, cam, O, W, w, free, dts, rig)
 
 
 def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
@@ -427,10 +422,7 @@ def _rig_start(seen: dict, every: dict, mounts: dict, known: list, scale: float)
     wrongly, e.g. a tag's mirrored pose, costs its corners the cap)."""
     best, out = np.inf, None
     for n in known:
-        O_t, p_t = seen[n][:2]
-        Rm, pm = mounts[n]
-        Rg = O_t @ Rm.T
-        Pg = p_t - Rg @ pm
+        Rg, Pg = base_pose(*seen[n][:2], Mounting.from_pose(*mounts[n]))
         cost = 0.0
         for m in known:
             uv, X, cam = every[m][seen[m][4]][6]
@@ -517,15 +509,10 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
     problem, sol = refined.problem, refined.sol
     free = [n for n in refined.mounts if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
-    runs = (problem.frame * blocks) // problem.G
-    dt_std = {}
-    if problem.D:
-        C, std = problem.mounting_covariance(sol, runs, True)
-        std = std * np.sqrt(blocks / max(blocks - 1, 1))
-        dt_std = dict(zip(free, std.tolist(), strict=True))
-    else:
-        C = problem.mounting_covariance(sol, runs)
-    C = C * (blocks / max(blocks - 1, 1))
+    C, std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G, True)
+    k = blocks / max(blocks - 1, 1)
+    C, std = C * k, std * np.sqrt(k)
+    dt_std = dict(zip(free, std.tolist(), strict=True)) if problem.D else {}
     d = [np.r_[matrix_to_rotvec(refined.mounts[n][0] @ start[n][0].T),
                refined.mounts[n][1] - start[n][1]] for n in free]  # fmt: skip
     seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
@@ -562,25 +549,20 @@ def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -
     shifted = {n: 0.0 for n in poses}
     rounds = TIME_OFFSET_ROUNDS if timed else 1
     for k in range(rounds):
-        covariance = None
         fit = _adjust(rig_frames, mounts, reference, offsets=timed)
         bad = fit.outliers()
         if bad:
             fit = _adjust(rig_frames, fit.mounts, reference, bad, offsets=timed)
-        mounts = fit.mounts
-        if not fit.dts or k == rounds - 1:
-            break
-        covariance = _mounting_covariance(fit)
-        std = covariance[1]
+        mounts, (cov, std) = fit.mounts, _mounting_covariance(fit)
         step = {n: dt for n, dt in fit.dts.items()
                 if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
-        if not step:
+        if not step or k == rounds - 1:
             break
         for n, dt in step.items():
             shifted[n] += dt
             poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
         rig_frames = _rig_frames(poses, window, max_step)
-    return fit, covariance or _mounting_covariance(fit), bad, rig_frames, shifted
+    return fit, (cov, std), bad, rig_frames, shifted
 
 
 def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, max_step):
@@ -589,8 +571,12 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, 
     shifted in place) and solved again until they change by less than :data:`TIME_OFFSET_TOL`.
     Returns ``(cameras apart, None or (mountings, covariances, misfit, offsets, their std))``."""
     apart, timed, timed_cov = _exposed_apart(rig_frames, poses, fit, reference, bad, px)
-    args = (rig_frames, every, fit, fit.mounts, reference, px, window, max_step, bool(apart))
-    corners = _refine_on_corners(*args)
+
+    def refine(mounts: dict, warm: dict | None = None) -> _Refined | None:
+        return _refine_on_corners(rig_frames, every, fit, mounts, reference, px, window,
+                                  max_step, bool(apart), warm)  # fmt: skip
+
+    corners = refine(fit.mounts)
     found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
     for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
         dt = corners.problem.time_offsets(corners.sol.result.x)
@@ -601,7 +587,7 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, 
             found[n] = found.get(n, 0.0) + v
             every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
         warm = dict(zip(corners.times, zip(*corners.sol.rig, strict=True), strict=True))
-        again = _refine_on_corners(*args[:3], corners.mounts, *args[4:], warm)
+        again = refine(corners.mounts, warm)
         if again is None:
             break
         corners = again
@@ -665,7 +651,7 @@ def calibrate_mountings(
     given = {n: float(v) for n, v in (time_offsets or {}).items()}
     # every camera frame posed alone (the corners' refinement takes them all), those with at
     # least min_inliers inliers for the pose-level adjustment
-    every = _posed_alone(frames, options, 0, stamp_row, given)
+    every = _posed_alone(frames, options, stamp_row, given)
     poses = {n: [i for i in items if len(i[6][0]) >= min_inliers] for n, items in every.items()}
     if not poses.get(reference):
         raise ValueError(
