@@ -36,8 +36,8 @@ RIG_ONLY = {
         "frames, their disagreement, the refusal of a rig frame one camera poses"
     ),
     "ros/rig_node.py": (
-        "the node's rig-only parts (rig.cameras set): its cameras' parameters, inputs and "
-        "counts, the grouping of queued frames, its ready and failure lines, debug views"
+        "the node's rig-only parts (rig.cameras set): its cameras' parameters, the "
+        "grouping of queued frames into rig frames"
     ),
     "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
     "calibration/corners.py": "RigCorners: a rig video's corners as one least-squares problem",

@@ -36,7 +36,14 @@ from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
 from ..tracking.gyro_input import GyroInput
 from ..tracking.video import Localizer, LocalizerOutput
-from .camera_input import CameraInput, DroppedFrame, FrameStep, ImageFrame
+from .camera_input import (
+    CameraCounts,
+    CameraInput,
+    DroppedFrame,
+    FrameStep,
+    ImageFrame,
+    rig_camera_inputs,
+)
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .core import ModeBase, NodeCore, QueuedFrame, TakenFrame, names_a_rig
 from .diagnostics import (
@@ -46,7 +53,15 @@ from .diagnostics import (
     frontend_values,
     localizer_status_parts,
 )
-from .outputs import CameraView, FrameOutcome, LogLine, frame_outcome, publish_frame
+from .outputs import (
+    CameraView,
+    FrameOutcome,
+    LogLine,
+    frame_outcome,
+    publish_frame,
+    rig_frame_line,
+    rig_frame_views,
+)
 from .pipeline import (
     Drop,
     FusedOutput,
@@ -60,11 +75,7 @@ from .rig_node import (
     RIG_TEXTS,
     SameRigFrame,
     declare_rig_cameras,
-    new_rig_cameras,
-    rig_failure_line,
-    rig_ready_subject,
     rig_values,
-    rig_views,
 )
 
 __all__ = ["CameraFrameResult", "LocalizerMode"]
@@ -211,11 +222,23 @@ class LocalizerMode(ModeBase):
         localizer: the camera alone's (its counts :class:`~.pipeline.PipelineStats`, its
         frames', input stage's, estimates' and gyro's, worded as a camera's; its frames on
         the NumPy implementation of its solver while the kernels compile), or a rig's
-        (:func:`.rig_node.new_rig_cameras`: each camera's input and counts, the rig's own
-        counts, the frames grouped by rig frame), with the localizer's ``settings``."""
+        (each camera's input, :func:`.camera_input.rig_camera_inputs`: its camera_infos by
+        stamp, its clouds' rows, its images; its counts, the diagnostics' ``<c>.<key>``; the
+        rig's own counts: the map-fit check over the rig frames, its times per stage, its IMU
+        messages rejected; the frame queue grouped by rig frame, :class:`.rig_node.SameRigFrame`;
+        its log each kind once per 5 s; its rig frames on the NumPy implementation while the
+        kernels compile in the background), with the localizer's ``settings``."""
         node = self.node
         if not self.alone:  # (a rig frame groups several cameras' frames: counted apart)
-            self.rig, self._counts, self._grouping = new_rig_cameras(node, cfg)
+            log = ThrottledLog(node.get_logger(), period=5.0)
+            self.rig = Localizer(cfg.settings, log=log, implementation=ready_implementation)
+            counts = {c.name: CameraCounts(c.name) for c in cfg.cameras}
+            add = lambda n, key, k=1: counts[n].add(key, k)  # noqa: E731
+            inputs = rig_camera_inputs(
+                cfg, log, add, stopped=node.stopping, wait=cfg.camera_info_wait
+            )
+            self._counts, self._grouping = CameraCounts(), SameRigFrame(cfg.settings, inputs)
+            node.set_cameras(inputs, counts, log, self._grouping, "rs_localizer_rig_worker")
             self._map_fit = MapFitCheck("rig frames")
             self._images = {}
             return
@@ -283,9 +306,18 @@ class LocalizerMode(ModeBase):
         return []
 
     def _ready_subject(self) -> str:
-        if not self.alone:  # (the camera's line kept; a rig's names each camera's timing)
-            return rig_ready_subject(self.cfg, self.node.map_frame)
         cfg, cam = self.cfg, self.cfg.camera
+        if not self.alone:  # (the camera's line kept; a rig's names each camera's RS timing)
+            timing = "; ".join(
+                f"{c.name} readout {c.readout_time * 1e3:.2f} ms {c.direction}"
+                if c.readout_time > 0
+                else f"{c.name} line delay {c.line_delay * 1e6:.2f} us/line {c.direction}"
+                for c in cfg.cameras
+            )
+            return (
+                f"rig of {len(cfg.cameras)} cameras ({timing}) posed as {cfg.base_frame} in "
+                f"{self.node.map_frame}"
+            )
         text = f"solver {cfg.solver}, line delay {cam.line_delay * 1e6:.2f} us/line"
         if cam.readout_time > 0:
             text += f", readout {cam.readout_time * 1e3:.2f} ms"
@@ -516,13 +548,13 @@ class LocalizerMode(ModeBase):
             failed = self.node.camera_counts[name].get(f"failed.{res.failure}")
             text = f"{self.node.inputs[name].label}frame dropped ({res.failure}): {res.detail}"
             return [FrameOutcome(None, res.fused, (LogLine(key, text, failed),))]
-        return [self._outcome(out, res, rig_failure_line(self.rig, out)) for out in res.outs]
+        return [self._outcome(out, res, rig_frame_line(out, self.rig)) for out in res.outs]
 
     def _outcome(self, out: LocalizerOutput, res: CameraFrameResult | None = None,
                  line: LogLine | None = None) -> FrameOutcome:  # fmt: skip
         """What a rig frame publishes (:func:`.outputs.frame_outcome`, the one of the node
         and ``replay``): the fused twists it made final, its log ``line`` (a camera frame's
-        rig frames: :func:`.rig_node.rig_failure_line`, none for the camera alone, whose frame
+        rig frames: :func:`.outputs.rig_frame_line`, none for the camera alone, whose frame
         that cannot be posed is dropped in the frame step; none for the rig frames closed at
         the end of the video) and, posed, its pose at the rig frame's time (the camera
         alone's: its reference line's) with its own twist when that is final, in the fused
@@ -538,15 +570,23 @@ class LocalizerMode(ModeBase):
         (:class:`.outputs.CameraView` s). The camera alone's is its frame as the frame step
         gave it (its rows, camera model, stamps, decoded image), always handed (its ``path``
         is drawn from its camera's pose); a rig's (a rig frame groups several cameras'
-        frames) only those watched, each as the rig's pose and its mounting put it with the
-        image kept for it by :meth:`_entered` (:func:`.rig_node.rig_views`)."""
+        frames) only those watched (its ``debug_image`` or ``markers``), each as the rig's pose
+        and its mounting put it with the image kept for it by :meth:`_entered`
+        (:func:`.outputs.rig_frame_views`)."""
         if self.alone and res is not None:  # (a rig frame's views are drawn from kept images)
             return (CameraView("", out.camera_estimate, res.points2d, res.points3d, res.camera,
                                res.stamp_ns, res.out_stamp_ns, res.frame_id,
                                res.image),)  # fmt: skip
         if self.node.viz is None:
             return ()
-        return rig_views(out, self.cfg, self.node.camera_viz, self._images)
+        viz = self.node.camera_viz
+
+        def wanted(n: str) -> bool:
+            v = viz.get(n)
+            return v is not None and (v.wants("debug_image") or v.wants("markers"))
+
+        mounts = {c.name: c.mount for c in self.cfg.cameras}
+        return rig_frame_views(out, mounts, wanted, self._images)
 
     def _fused(self, fused: list) -> list[FusedOutput]:
         """twist / odom of the rig frames whose fused state is final

@@ -31,7 +31,7 @@ from .pipeline import FusedOutput, fused_outputs
 
 if TYPE_CHECKING:
     from ..frames import Mounting
-    from ..tracking.video import LocalizerOutput
+    from ..tracking.video import Localizer, LocalizerOutput
     from .core import NodeCore
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "outcome_messages",
     "pose_messages",
     "publish_frame",
+    "rig_frame_line",
     "rig_frame_views",
 ]
 
@@ -158,6 +159,34 @@ def rig_frame_views(
         views.append(CameraView(n, view, f.points2d, f.points3d, f.camera, f.stamp_ns, ref,
                                 f.tag or n, image))  # fmt: skip
     return tuple(views)
+
+
+def rig_frame_line(out: LocalizerOutput, rig: Localizer) -> LogLine | None:
+    """The line a rig's rig frame logs (each reason at most once per 5 s): why it failed with
+    the count of rig frames failed so far for that reason (the localizer ``rig``'s counts), or
+    on a posed one the cameras outvoted by the others; None: nothing to say."""
+    if out.error is not None:
+        reason, detail = "error", f"the estimator raised {out.error}"
+    elif out.estimate is not None and not out.success:
+        reason = out.estimate.failure or "error"
+        detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
+        if reason == "cameras_disagree" and out.outvoted:
+            detail += f"; {', '.join(out.outvoted)} contradict each other"
+    elif out.outvoted:
+        names = ", ".join(out.outvoted)
+        return LogLine(
+            f"rig.outvoted.{names}",
+            f"rig camera {names}: outvoted by the others (its points contradict their "
+            "pose; its mounting, clock, line delay or matches are likely wrong) "
+            f"[{rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
+        )
+    else:
+        return None
+    n = rig.counts[f"rig.failed.{reason}"]
+    return LogLine(
+        f"rig.failed.{reason}",
+        f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
+    )
 
 
 def _everything(topic: str) -> bool:

@@ -3,11 +3,12 @@ node's one mode, :class:`~rs_localizer.ros.mode.LocalizerMode`, takes each camer
 its ``<c>/`` topics through the camera alone's steps and publishes the rig, ``base_frame``, as
 one body; topics, parameters, counts and diagnostics: docs/rig_node.md): its cameras'
 parameters (``rig.<c>.*``, :func:`declare_rig_cameras`, :func:`rig_values`; a change at run
-time is refused for those a rig cannot take without a restart), its cameras' inputs and counts
-with the frame queue grouping queued frames into rig frames (:func:`new_rig_cameras`,
-:class:`SameRigFrame`: a full queue drops whole rig frames), its ready line and log lines
-(:func:`rig_ready_subject`, :func:`rig_failure_line`) and its cameras' debug views
-(:func:`rig_views`).
+time is refused for those a rig cannot take without a restart) and the frame queue's grouping
+of queued frames into rig frames (:class:`SameRigFrame`: a full queue drops whole rig frames).
+Its cameras' inputs and counts, ready line, log lines and debug views are made where the
+camera alone's are (:meth:`~.mode.LocalizerMode._new_cameras`,
+:meth:`~.mode.LocalizerMode._ready_subject`, :func:`.outputs.rig_frame_line`,
+:func:`.outputs.rig_frame_views`).
 """
 
 from __future__ import annotations
@@ -15,25 +16,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from ..runtime.background import ready_implementation
-from ..tracking.video import Localizer, LocalizerOutput
-from .camera_input import CameraCounts, DroppedFrame, rig_camera_inputs
+from .camera_input import DroppedFrame
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
 from .declare import declare_dynamic, declare_parameters
-from .outputs import CameraView, LogLine, rig_frame_views
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import ThrottledLog
 
 __all__ = [
     "RIG_TEXTS",
     "SameRigFrame",
     "declare_rig_cameras",
-    "new_rig_cameras",
-    "rig_failure_line",
-    "rig_ready_subject",
     "rig_values",
-    "rig_views",
 ]
 
 #: the rig's topics and texts (:class:`~rs_localizer.ros.core.ModeBase`'s attributes): its
@@ -104,24 +97,6 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
     return values, cams
 
 
-def new_rig_cameras(node: Any, config: LocalizerConfig) -> tuple[Localizer, CameraCounts, Any]:
-    """A rig's cameras handed to ``node`` (:meth:`.core.NodeCore.set_cameras`): each camera's
-    input (its camera_infos by stamp, its clouds' rows, its images,
-    :func:`.camera_input.rig_camera_inputs`) and counts (the diagnostics' ``<c>.<key>``), the
-    frame queue grouped by rig frame (:class:`SameRigFrame`), its log (each kind once per
-    5 s). Returns the rig's localizer (its rig frames on the NumPy implementation while the
-    kernels compile in the background), the rig's own counts (the worker's map-fit check
-    over the rig frames, its times per stage, its IMU messages rejected) and the grouping."""
-    log = ThrottledLog(node.get_logger(), period=5.0)
-    rig = Localizer(config.settings, log=log, implementation=ready_implementation)
-    counts = {c.name: CameraCounts(c.name) for c in config.cameras}
-    inputs = rig_camera_inputs(config, log, lambda n, key, k=1: counts[n].add(key, k),
-                               stopped=node.stopping, wait=config.camera_info_wait)  # fmt: skip
-    grouping = SameRigFrame(config.settings, inputs)
-    node.set_cameras(inputs, counts, log, grouping, "rs_localizer_rig_worker")
-    return rig, CameraCounts(), grouping
-
-
 class SameRigFrame:
     """Whether a waiting frame goes with the frames the worker takes (the frame queue's
     ``group``, :class:`~.frame_queue.FrameQueue`): another camera's whose reference-line time
@@ -146,55 +121,3 @@ class SameRigFrame:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
         stamp without one)."""
         return self.settings.reference_ns(item.name, item.stamp, self.inputs[item.name].newest)
-
-
-def rig_ready_subject(cfg: LocalizerConfig, map_frame: str) -> str:
-    """The subject of the rig's ``ready:`` line: its cameras' RS timing, its frames."""
-    timing = "; ".join(
-        f"{c.name} readout {c.readout_time * 1e3:.2f} ms {c.direction}" if c.readout_time > 0
-        else f"{c.name} line delay {c.line_delay * 1e6:.2f} us/line {c.direction}"
-        for c in cfg.cameras
-    )  # fmt: skip
-    return f"rig of {len(cfg.cameras)} cameras ({timing}) posed as {cfg.base_frame} in {map_frame}"
-
-
-def rig_failure_line(rig: Localizer, out: LocalizerOutput) -> LogLine | None:
-    """The line a rig frame logs (each reason at most once per 5 s): why it failed with the
-    count of rig frames failed so far for that reason, or on a posed one the cameras outvoted
-    by the others; None: nothing to say."""
-    if out.error is not None:
-        reason, detail = "error", f"the estimator raised {out.error}"
-    elif out.estimate is not None and not out.success:
-        reason = out.estimate.failure or "error"
-        detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
-        if reason == "cameras_disagree" and out.outvoted:
-            detail += f"; {', '.join(out.outvoted)} contradict each other"
-    elif out.outvoted:
-        names = ", ".join(out.outvoted)
-        return LogLine(
-            f"rig.outvoted.{names}",
-            f"rig camera {names}: outvoted by the others (its points contradict their "
-            "pose; its mounting, clock, line delay or matches are likely wrong) "
-            f"[{rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
-        )
-    else:
-        return None
-    n = rig.counts[f"rig.failed.{reason}"]
-    return LogLine(
-        f"rig.failed.{reason}",
-        f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
-    )
-
-
-def rig_views(out: LocalizerOutput, cfg: LocalizerConfig, camera_viz: Mapping,
-              images: Mapping) -> tuple[CameraView, ...]:  # fmt: skip
-    """The cameras of a posed rig frame whose debug views are watched (``camera_viz``: camera
-    -> its visualization; ``<c>/debug_image`` or ``<c>/markers``), each with its frame's
-    image of ``images`` (camera -> its last kept ``(image, encoding, stamp_ns)``):
-    :func:`.outputs.rig_frame_views`."""
-
-    def wanted(n: str) -> bool:
-        viz = camera_viz.get(n)
-        return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
-
-    return rig_frame_views(out, {c.name: c.mount for c in cfg.cameras}, wanted, images)
