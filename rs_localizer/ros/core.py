@@ -90,7 +90,9 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
+from ..estimation.implementation import NUMPY
 from ..frontends.shared import SHARED_MAPS
+from ..runtime.background import ready_implementation
 from . import conversions as cv
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import status
@@ -109,6 +111,10 @@ if TYPE_CHECKING:
 __all__ = ["ModeBase", "NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
+
+#: the worker's rest after a frame on the NumPy implementation, as a share of the frame's time
+#: (:meth:`NodeCore._rest_uncompiled`)
+UNCOMPILED_REST = 1.0
 
 #: the output topics of a pose (relative names, as :mod:`.outputs` names them) and their types
 POSE_OUTPUTS = (
@@ -196,6 +202,13 @@ class ModeBase:
 
     def __init__(self, node: NodeCore):
         self.node = node
+
+    def solves_uncompiled(self) -> bool:
+        """Whether the next frame is solved on the NumPy implementation (the kernels not
+        compiled yet, or this process must not compile them): the worker then rests between
+        frames (:meth:`NodeCore._rest_uncompiled`)."""
+        alone = getattr(self, "alone", True) and self.cfg is not None
+        return ready_implementation(self.cfg.solver if alone else None) == NUMPY
 
     def configure(self) -> None:
         """Parameters -> configuration, taken, then the kernels warmed up (:meth:`_warm_up`).
@@ -610,7 +623,22 @@ class NodeCore:
         counted in its camera's counts; ``group``: :class:`~.frame_queue.FrameQueue`'s."""
         return FrameQueue(self._process, self._deliver, self._delivery_failed, name,
                           counts_of=lambda item: self._counts_of(item.name),
-                          group=group)  # fmt: skip
+                          group=group, rest=self._rest_uncompiled)  # fmt: skip
+
+    def _rest_uncompiled(self, seconds: float) -> float:
+        """The worker's rest after a frame of ``seconds`` while frames wait
+        (:class:`~.frame_queue.FrameQueue`'s ``rest``): on the NumPy implementation
+        (:meth:`ModeBase.solves_uncompiled`) until the executor has taken the messages
+        waiting on the frame subscriptions (:meth:`_take_frames` ends it), at most as long
+        again as the frame took; with the compiled kernels none.
+        The compiled kernels release Python's lock (GIL) while they run; the NumPy
+        implementation holds it in nearly all of a frame, and on a loaded machine the
+        executor's thread, which needs it for every message it takes off the middleware, then
+        waits for the worker to be scheduled again each time: a reliable stream outran the
+        subscriptions' history and the middleware lost frames the node never counted. Resting
+        leaves the executor the lock once per frame; frames arriving faster than the worker
+        solves them are dropped from the full queue as always (``skipped.queue_full``)."""
+        return seconds * UNCOMPILED_REST if self.mode.solves_uncompiled() else 0.0
 
     def _on_frame(self, name: str, kind: str, msg) -> None:
         """Camera ``name``'s frame message (subscription callback), queued
@@ -656,6 +684,7 @@ class NodeCore:
                     self._on_frame(n, k, taken[0])
             if not took:
                 break
+        self._frames.end_rest()  # (the readers are empty: the worker may go on)
         _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:

@@ -279,6 +279,79 @@ def test_frame_accounting_holds_in_every_snapshot():
     assert all(f == "internal_error" for k, f in delivered if k % 7 == 0)
 
 
+def test_frame_queue_rest_leaves_the_lock_until_the_producer_took_its_frames():
+    """``rest``: after a frame, while frames wait, the worker rests (holds neither the CPU nor
+    Python's lock) at most ``rest(seconds)``; :meth:`FrameQueue.end_rest` (the executor took
+    what waited) ends the rest early; with no frame waiting it does not rest; every frame is
+    still counted (a full queue's drops as ``skipped.queue_full``)."""
+    counts = CameraCounts()
+    starts = []
+
+    def process(k):
+        starts.append((k, time.perf_counter()))
+        time.sleep(0.02)
+        counts.frame_done(0.0, "solved")
+        return _Outcome()
+
+    asked = []
+    q = FrameQueue(process, counts_of=lambda k: counts,
+                   rest=lambda s: asked.append(s) or 0.4)  # fmt: skip
+    q.start()
+    for k in range(3):  # (frames 1 and 2 wait while frame 0 is solved)
+        q.put(k, 10)
+    while len(starts) < 2:
+        time.sleep(0.001)
+    gap = starts[1][1] - starts[0][1]
+    assert gap >= 0.4, gap  # rested the whole 0.4 s: nobody ended it
+    assert asked[0] >= 0.02
+    time.sleep(0.05)  # (frame 1 is done: the worker rests again, frame 2 waiting)
+    tic = time.perf_counter()
+    q.end_rest()
+    while len(starts) < 3:
+        time.sleep(0.001)
+    assert starts[2][1] - tic < 0.2  # the producer ended the rest
+    while q.pending:
+        time.sleep(0.001)
+    n = len(asked)
+    q.put(3, 10)  # (nothing else waits: no rest before the next frame)
+    while q.pending:
+        time.sleep(0.001)
+    tic = time.perf_counter()
+    q.put(4, 10)
+    while q.pending:
+        time.sleep(0.001)
+    assert starts[4][1] - tic < 0.2 and len(asked) == n + 2
+    q.stop()
+    c = frame_accounting(counts.counts())
+    assert (c.received, c.solved, c.skipped, c.pending) == (5, 5, 0, 0)
+
+
+def test_the_worker_rests_only_on_the_uncompiled_path():
+    """The node's worker rests after a frame (:meth:`NodeCore._rest_uncompiled`) only while
+    its frames are solved on the NumPy implementation (kernels compiling in the background,
+    or a solver with a NumPy form in a process that must not compile): as long again as the
+    frame took at most; with the compiled kernels (a solver without NumPy form too) never,
+    so a node with its kernels in the cache runs as before."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.core import ModeBase, NodeCore
+    from rs_localizer.runtime import background as B
+
+    def rest(solver, alone=True):
+        mode = ModeBase(None)
+        mode.cfg, mode.alone = SimpleNamespace(solver=solver), alone
+        return NodeCore._rest_uncompiled(SimpleNamespace(mode=mode), 0.03)
+
+    assert B.compiled_ready()
+    assert [rest("r6p_1lin"), rest("r9p"), rest(None, alone=False)] == [0.0, 0.0, 0.0]
+    B._hold(True)  # (as a background compile holds the frames on NumPy)
+    try:
+        assert [rest("r6p_1lin"), rest("p3p"), rest(None, alone=False)] == [0.03] * 3
+        assert rest("r9p") == 0.0  # (no NumPy implementation: compiled whatever is held)
+    finally:
+        B._hold(False)
+
+
 def test_frame_queue_drops_the_oldest_and_stops():
     gate = threading.Event()
     done = []
