@@ -90,9 +90,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
-from ..estimation.implementation import NUMPY
 from ..frontends.shared import SHARED_MAPS
-from ..runtime.background import ready_implementation
 from . import conversions as cv
 from .declare import declare_dynamic, declare_parameters
 from .diagnostics import status
@@ -183,7 +181,8 @@ class ModeBase:
     :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
     how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its gyro's
     input (``_take_imu``) and its ``ready`` line's subject and warnings (``_ready_subject()``,
-    ``_ready_warnings()``). The topics and texts as data are the single camera's (the rig's
+    ``_ready_warnings()``) and whether its next frame is solved uncompiled
+    (``solves_uncompiled()``). The topics and texts as data are the single camera's (the rig's
     mode sets its own)."""
 
     #: the single camera counts its image frames (``image_frames``)
@@ -202,13 +201,6 @@ class ModeBase:
 
     def __init__(self, node: NodeCore):
         self.node = node
-
-    def solves_uncompiled(self) -> bool:
-        """Whether the next frame is solved on the NumPy implementation (the kernels not
-        compiled yet, or this process must not compile them): the worker then rests between
-        frames (:meth:`NodeCore._rest_uncompiled`)."""
-        alone = getattr(self, "alone", True) and self.cfg is not None
-        return ready_implementation(self.cfg.solver if alone else None) == NUMPY
 
     def configure(self) -> None:
         """Parameters -> configuration, taken, then the kernels warmed up (:meth:`_warm_up`).

@@ -334,12 +334,13 @@ def test_the_worker_rests_only_on_the_uncompiled_path():
     so a node with its kernels in the cache runs as before."""
     from types import SimpleNamespace
 
-    from rs_localizer.ros.core import ModeBase, NodeCore
+    from rs_localizer.ros.core import NodeCore
+    from rs_localizer.ros.mode import LocalizerMode
     from rs_localizer.runtime import background as B
 
     def rest(solver, alone=True):
-        mode = ModeBase(None)
-        mode.cfg, mode.alone = SimpleNamespace(solver=solver), alone
+        mode = SimpleNamespace(cfg=SimpleNamespace(solver=solver), alone=alone)
+        mode.solves_uncompiled = lambda: LocalizerMode.solves_uncompiled(mode)
         return NodeCore._rest_uncompiled(SimpleNamespace(mode=mode), 0.03)
 
     assert B.compiled_ready()
