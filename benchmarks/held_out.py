@@ -49,8 +49,11 @@ __all__ = [
     "Scores",
     "alone_poses",
     "calibrated_mounts",
+    "given_extrinsics",
+    "held_out",
     "main",
     "relative_disagreement",
+    "report",
     "reprojection",
     "split",
 ]
@@ -87,6 +90,25 @@ def calibrated_mounts(rig: RealRig, min_inliers=(20, 8)) -> tuple[dict, int]:
             return {n: (est[n].mount.R, est[n].mount.c) for n in rig.cameras}, mi
         last = ValueError(f"{sorted(set(rig.cameras) - set(est))} not calibrated")
     raise ValueError(f"{rig.name}: calibrate-rig with min_inliers {list(min_inliers)}: {last}")
+
+
+def given_extrinsics(folder: Path) -> dict:
+    """The extrinsics ``camera_poses.yaml`` gives TagSLAM (each camera's pose in the rig: its
+    position, m, and rotation vector, rad, camera -> rig), as :attr:`RealRig.mounts` (camera
+    -> ``(R, c)``, ``x_cam = R x_rig + c``); {} without the file."""
+    import yaml
+
+    from rs_localizer.geometry import rotvec_to_matrix
+
+    path = Path(folder) / "camera_poses.yaml"
+    if not path.is_file():
+        return {}
+    out = {}
+    for name, v in (yaml.safe_load(path.read_text()) or {}).items():
+        p, r = v["pose"]["position"], v["pose"]["rotation"]
+        R = rotvec_to_matrix(np.array([r[k] for k in "xyz"], dtype=float)).T
+        out[name] = (R, -R @ np.array([p[k] for k in "xyz"], dtype=float))
+    return out
 
 
 def _rig_frames(rig: RealRig, frames: list) -> list:
@@ -340,10 +362,12 @@ def report(rig: RealRig, out: dict, label: str) -> None:
 def main(argv: list[str] | None = None) -> None:
     """``python -m benchmarks.held_out --folder PATH/test_N``: ``calibrate-rig``'s mountings,
     TagSLAM's extrinsics and the joint solution's scored on rig frames the calibration did not
-    see, on TagSLAM's tag map and on the joint solution's (the module docstring)."""
+    see, on TagSLAM's tag map and on the joint solution's (the module docstring); the
+    extrinsics ``camera_poses.yaml`` gives TagSLAM for every camera, if it does, too (unless
+    TagSLAM's solution kept them)."""
     import argparse
 
-    from benchmarks.tagslam_data import load_tagslam
+    from benchmarks.tagslam_data import errors, load_tagslam
 
     ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
     ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
@@ -361,6 +385,13 @@ def main(argv: list[str] | None = None) -> None:
     rig = load_tagslam(a.folder)
     sol = joint_reference(rig, a.cache)
     refs = {"TagSLAM's": rig.mounts, "joint": sol.mounts}
+    given = given_extrinsics(a.folder)
+    if set(given) >= set(rig.cameras):
+        d = np.array([errors(*given[n], rig.mounts[n]) for n in rig.cameras])
+        print(f"{rig.name}: camera_poses.yaml gives TagSLAM every camera's extrinsics; TagSLAM's "
+              f"are within {d[:, 0].max():.1g} deg and {d[:, 1].max():.1g} mm of them")  # fmt: skip
+        if d[:, 0].max() > 1e-3 or d[:, 1].max() > 1e-2:
+            refs["given"] = {n: given[n] for n in rig.cameras}
     for m in a.maps:
         r = rig if m == "tagslam" else with_reference(rig, sol)
         label = "TagSLAM's" if m == "tagslam" else "the joint solution's"
