@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.joint_reference import CACHE, _part, joint_reference, with_reference
+from benchmarks.joint_reference import _part, recording, recording_parser, with_reference
 from benchmarks.tagslam_data import RealRig
 from rs_localizer.calibration.corners import RigCorners, soft_l1
 from rs_localizer.geometry import matrix_to_rotvec
@@ -365,25 +365,19 @@ def main(argv: list[str] | None = None) -> None:
     see, on TagSLAM's tag map and on the joint solution's (the module docstring); the
     extrinsics ``camera_poses.yaml`` gives TagSLAM for every camera, if it does, too (unless
     TagSLAM's solution kept them)."""
-    import argparse
+    from benchmarks.tagslam_data import errors
 
-    from benchmarks.tagslam_data import errors, load_tagslam
-
-    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
-    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap = recording_parser(main.__doc__)
     ap.add_argument("--min-inliers", type=int, nargs="+", default=[20, 8])
     ap.add_argument("--blocks", type=int, default=10, help="runs of consecutive rig frames")
-    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
     ap.add_argument("--no-whole", action="store_true",
                     help="without calibrate-rig on every rig frame (in-sample)")  # fmt: skip
     ap.add_argument("--maps", nargs="+", default=["tagslam", "joint"],
                     choices=["tagslam", "joint"])  # fmt: skip
     a = ap.parse_args(argv)
-    if not a.folder.is_dir():
-        print(f"{a.folder} absent: nothing to measure")
+    if (loaded := recording(a)) is None:
         return
-    rig = load_tagslam(a.folder)
-    sol = joint_reference(rig, a.cache)
+    rig, sol = loaded
     refs = {"TagSLAM's": rig.mounts, "joint": sol.mounts}
     given = given_extrinsics(a.folder)
     if set(given) >= set(rig.cameras):

@@ -286,6 +286,31 @@ def halves(est_a: dict, est_b: dict, first: str) -> dict:
     return out
 
 
+def recording_parser(doc: str):
+    """The command line of a benchmark over one TagSLAM recording: ``--folder`` (the
+    recording), ``--cache`` (the joint solutions' folder); ``doc``: the benchmark's ``main``
+    docstring, whose first line the help prints."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
+    return ap
+
+
+def recording(a) -> tuple[RealRig, JointSolution] | None:
+    """The recording in ``a.folder`` (:func:`~benchmarks.tagslam_data.load_tagslam`) and its
+    joint solution (:func:`joint_reference`, cached in ``a.cache``); None, said on stdout,
+    when the folder is absent (the data is not on this machine)."""
+    from benchmarks.tagslam_data import load_tagslam
+
+    if not a.folder.is_dir():
+        print(f"{a.folder} absent: nothing to measure")
+        return None
+    rig = load_tagslam(a.folder)
+    return rig, joint_reference(rig, a.cache)
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m benchmarks.joint_reference --folder PATH/test_N``: the recording's joint
     solution, then ``calibrate-rig`` (the first of ``--min-inliers`` that calibrates every
@@ -296,21 +321,14 @@ def main(argv: list[str] | None = None) -> None:
     calibrate-rig on each half of the video, the halves against each other (:func:`halves`:
     an independent check of the std, which the joint solution, solved from the same corners,
     is not)."""
-    import argparse
-
     from benchmarks.bench_real_rig import calibrate_estimates, calibrated_rig_run
-    from benchmarks.tagslam_data import load_tagslam
 
-    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
-    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap = recording_parser(main.__doc__)
     ap.add_argument("--min-inliers", type=int, nargs="+", default=[20, 8])
-    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
     a = ap.parse_args(argv)
-    if not a.folder.is_dir():
-        print(f"{a.folder} absent: nothing to measure")
+    if (loaded := recording(a)) is None:
         return
-    rig = load_tagslam(a.folder)
-    sol = joint_reference(rig, a.cache)
+    rig, sol = loaded
     print(f"{rig.name}: joint solution {sol.info}")
     first = next(iter(rig.cameras))
     for label, r in (("TagSLAM's", rig), ("the joint solution's", with_reference(rig, sol))):

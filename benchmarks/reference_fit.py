@@ -35,16 +35,14 @@ reference pose is posed by the rig estimator
 
 from __future__ import annotations
 
-import argparse
 from collections import defaultdict
 from itertools import pairwise
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2
 
-from benchmarks.joint_reference import CACHE, joint_reference, with_reference
-from benchmarks.tagslam_data import RealRig, load_tagslam
+from benchmarks.joint_reference import recording, recording_parser, with_reference
+from benchmarks.tagslam_data import RealRig
 from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
@@ -238,16 +236,13 @@ def main(argv: list[str] | None = None) -> None:
     ``benchmarks.joint_reference`` runs it) instead of the reference's mountings as exact."""
     from benchmarks.bench_real_rig import calibrate_estimates
 
-    ap = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
-    ap.add_argument("--folder", type=Path, required=True, help="a TagSLAM test folder")
+    ap = recording_parser(main.__doc__)
     ap.add_argument("--calibrated", action="store_true", help="calibrate-rig's mountings")
-    ap.add_argument("--cache", type=Path, default=CACHE, help="the joint solutions' folder")
     a = ap.parse_args(argv)
-    if not a.folder.is_dir():
-        print(f"{a.folder} absent: nothing to measure")
+    if (loaded := recording(a)) is None:
         return
-    rig = load_tagslam(a.folder)
-    joint = with_reference(rig, joint_reference(rig, a.cache))
+    rig, sol = loaded
+    joint = with_reference(rig, sol)
     corr, share, persist = _tag_shift_persistence(joint)
     print(
         f"{rig.name}: corner errors at the joint solution: two corners of one tag correlated "
