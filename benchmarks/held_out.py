@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.joint_reference import _part, recording, recording_parser, with_reference
+from benchmarks.joint_reference import recording, recording_parser, rig_part, with_reference
 from benchmarks.tagslam_data import RealRig
 from rs_localizer.calibration.corners import RigCorners, soft_l1
 from rs_localizer.geometry import matrix_to_rotvec
@@ -281,7 +281,7 @@ def held_out(
     parts = split(rig, blocks)
     ours, used = [], []
     for k in (1, 0):  # (the mountings scored on part k come from the other part)
-        m, mi = calibrated_mounts(_part(rig, parts[k]), min_inliers)
+        m, mi = calibrated_mounts(rig_part(rig, parts[k]), min_inliers)
         ours.append(m)
         used.append(mi)
     scored = [_rig_frames(rig, p) for p in parts]

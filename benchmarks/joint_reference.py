@@ -37,6 +37,9 @@ __all__ = [
     "joint_reference",
     "main",
     "mounting_coverage",
+    "recording",
+    "recording_parser",
+    "rig_part",
     "soft_l1",
     "solve_joint",
     "with_reference",
@@ -222,7 +225,7 @@ def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:
                    rig.tag_ids, rig.anchors)  # fmt: skip
 
 
-def _part(rig: RealRig, frames: list) -> RealRig:
+def rig_part(rig: RealRig, frames: list) -> RealRig:
     """``rig`` with only ``frames`` (a part of its rig frames)."""
     return RealRig(rig.cameras, rig.mounts, frames, rig.reference, rig.name, rig.stamps_shared,
                    rig.tolerance, rig.messages, rig.tags, rig.tag_ids, rig.anchors)  # fmt: skip
@@ -367,7 +370,8 @@ def main(argv: list[str] | None = None) -> None:
             continue
         h = len(r.frames) // 2
         try:
-            parts = [calibrate_estimates(_part(r, fr), mi) for fr in (r.frames[:h], r.frames[h:])]
+            video_halves = (r.frames[:h], r.frames[h:])
+            parts = [calibrate_estimates(rig_part(r, fr), mi) for fr in video_halves]
         except ValueError as exc:
             print(f"  each half of the video: {exc}")
             continue
