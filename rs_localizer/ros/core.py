@@ -110,10 +110,6 @@ __all__ = ["ModeBase", "NodeCore", "QueuedFrame", "TakenFrame", "names_a_rig"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
-#: the worker's rest after a frame on the NumPy implementation, as a share of the frame's time
-#: (:meth:`NodeCore._rest_uncompiled`)
-UNCOMPILED_REST = 1.0
-
 #: the output topics of a pose (relative names, as :mod:`.outputs` names them) and their types
 POSE_OUTPUTS = (
     ("pose", PoseStamped),
@@ -181,8 +177,7 @@ class ModeBase:
     :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
     how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its gyro's
     input (``_take_imu``) and its ``ready`` line's subject and warnings (``_ready_subject()``,
-    ``_ready_warnings()``) and whether its next frame is solved uncompiled
-    (``solves_uncompiled()``). The topics and texts as data are the single camera's (the rig's
+    ``_ready_warnings()``). The topics and texts as data are the single camera's (the rig's
     mode sets its own)."""
 
     #: the single camera counts its image frames (``image_frames``)
@@ -615,22 +610,7 @@ class NodeCore:
         counted in its camera's counts; ``group``: :class:`~.frame_queue.FrameQueue`'s."""
         return FrameQueue(self._process, self._deliver, self._delivery_failed, name,
                           counts_of=lambda item: self._counts_of(item.name),
-                          group=group, rest=self._rest_uncompiled)  # fmt: skip
-
-    def _rest_uncompiled(self, seconds: float) -> float:
-        """The worker's rest after a frame of ``seconds`` while frames wait
-        (:class:`~.frame_queue.FrameQueue`'s ``rest``): on the NumPy implementation
-        (:meth:`ModeBase.solves_uncompiled`) until the executor has taken the messages
-        waiting on the frame subscriptions (:meth:`_take_frames` ends it), at most as long
-        again as the frame took; with the compiled kernels none.
-        The compiled kernels release Python's lock (GIL) while they run; the NumPy
-        implementation holds it in nearly all of a frame, and on a loaded machine the
-        executor's thread, which needs it for every message it takes off the middleware, then
-        waits for the worker to be scheduled again each time: a reliable stream outran the
-        subscriptions' history and the middleware lost frames the node never counted. Resting
-        leaves the executor the lock once per frame; frames arriving faster than the worker
-        solves them are dropped from the full queue as always (``skipped.queue_full``)."""
-        return seconds * UNCOMPILED_REST if self.mode.solves_uncompiled() else 0.0
+                          group=group)  # fmt: skip
 
     def _on_frame(self, name: str, kind: str, msg) -> None:
         """Camera ``name``'s frame message (subscription callback), queued
@@ -676,7 +656,6 @@ class NodeCore:
                     self._on_frame(n, k, taken[0])
             if not took:
                 break
-        self._frames.end_rest()  # (the readers are empty: the worker may go on)
         _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
 
     def _enqueue(self, name: str, kind: str, msg) -> None:

@@ -19,7 +19,6 @@ camera's with the rig's). No ROS import.
 from __future__ import annotations
 
 import threading
-import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -223,12 +222,6 @@ class FrameQueue:
             then solved one after another and no longer dropped by a full queue (still
             pending). A full queue drops its oldest frame with the waiting frames that belong
             with it. None: one frame at a time.
-        rest: ``rest(seconds) -> seconds``: after a frame that took ``seconds`` on the worker
-            (solved and delivered), at most how long the worker leaves the CPU and Python's
-            lock to the other threads before it takes the next waiting frame: not when none
-            waits; :meth:`end_rest` (the producer has taken what waited for it) or a stop
-            ends it early; None or 0: none. Frames that arrive meanwhile queue as usual (a
-            full queue drops its oldest, counted ``skipped.queue_full``).
     """
 
     def __init__(
@@ -239,7 +232,6 @@ class FrameQueue:
         name: str = "rs_localizer_worker",
         counts_of: Callable[[Any], Any] | None = None,
         group: Callable[[list, Any], bool] | None = None,
-        rest: Callable[[float], float] | None = None,
     ):
         self._process = process
         self._deliver = deliver
@@ -247,8 +239,6 @@ class FrameQueue:
         self._name = name
         self._counts_of = counts_of
         self._group = group
-        self._rest = rest
-        self._resting = False
         self._cond = threading.Condition()
         self._queue: deque = deque()
         self._in_flight = 0  # frames the worker took and has not finished yet
@@ -329,28 +319,8 @@ class FrameQueue:
                     return
                 batch = self._take_group()
                 self._in_flight = len(batch)
-            tic = time.perf_counter()
             for item in batch:
                 self._solve(item)
-            if self._rest is not None:
-                self._rest_after(time.perf_counter() - tic)
-
-    def _rest_after(self, seconds: float) -> None:
-        """The worker's rest after frames that took ``seconds`` (``rest``), while frames wait."""
-        pause = self._rest(seconds)
-        if pause > 0:
-            with self._cond:
-                if self._queue:
-                    self._resting = True
-                    self._cond.wait_for(lambda: self._stop or not self._resting, pause)
-                    self._resting = False
-
-    def end_rest(self) -> None:
-        """End the worker's rest (``rest``), if it rests: the producer has taken what waited."""
-        with self._cond:
-            if self._resting:
-                self._resting = False
-                self._cond.notify_all()
 
     def _take_group(self) -> list:
         """Take the oldest waiting frame and those that belong with it (``group``; with the

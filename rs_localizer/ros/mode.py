@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from ..correspondences import Correspondences
-from ..estimation.implementation import NUMPY
 from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
 from ..tracking.gyro_input import GyroInput
@@ -305,14 +304,6 @@ class LocalizerMode(ModeBase):
                 "timing, the published twist will be zero"
             ]
         return []
-
-    def solves_uncompiled(self) -> bool:
-        """Whether the next frame is solved on the NumPy implementation (the kernels not
-        compiled yet, or this process must not compile them): the worker then rests between
-        frames (:meth:`~rs_localizer.ros.core.NodeCore._rest_uncompiled`)."""
-        if self.cfg is None:
-            return False
-        return ready_implementation(self.cfg.solver if self.alone else None) == NUMPY
 
     def _ready_subject(self) -> str:
         cfg, cam = self.cfg, self.cfg.camera
