@@ -118,6 +118,7 @@ GATE = FusionOptions().gate
 __all__ = [
     "calibrate",
     "calibrate_estimates",
+    "calibrate_every_camera",
     "calibrated_rig_run",
     "camera_alone",
     "compare_references",
@@ -127,6 +128,7 @@ __all__ = [
     "single_run",
     "summary",
     "video_run",
+    "within_3_sigma",
 ]
 
 
@@ -502,6 +504,41 @@ def _tracked_twist(last: list, stamp: float) -> tuple | None:
     return matrix_to_rotvec(m1.R @ m0.R.T) / dt, (m1.C - m0.C) / dt
 
 
+def calibrate_every_camera(rig: RealRig, min_inliers=(20, 8), failed=None) -> tuple:
+    """:func:`calibrate_estimates` with the first of ``min_inliers`` that calibrates every
+    camera of ``rig``: ``(estimates, that min_inliers)``; when none does, the last that
+    calibrated some (its estimates lack cameras); ``(None, None)`` when each raised.
+    ``failed(min_inliers, exc)``, if given, hears each ValueError raised."""
+    est, used = None, None
+    for mi in min_inliers:
+        try:
+            est, used = calibrate_estimates(rig, mi), mi
+        except ValueError as exc:
+            if failed is not None:
+                failed(mi, exc)
+            continue
+        if len(est) == len(rig.cameras):
+            break
+    return est, used
+
+
+def within_3_sigma(cov: np.ndarray, R: np.ndarray, C: np.ndarray, ref: tuple) -> bool:
+    """The rig pose ``x_rig = R X + C`` within 3 sigma of ``ref`` ``(R, C)`` in ``cov`` (its
+    first 6 rows and columns: rotation (rig -> world, world axes), position (world)): the
+    rotation's and the position's NEES (3 degrees of freedom each) below the 99.73 % quantile
+    of a chi-square of 3."""
+    from scipy.stats import chi2
+
+    k = chi2.ppf(0.9973, 3)
+    Rr, Cr = ref
+    e_r = matrix_to_rotvec(R.T @ Rr)  # (rig -> world, world axes)
+    e_p = Rr.T @ Cr - R.T @ C  # (the position's error, world)
+    return bool(
+        e_r @ np.linalg.solve(cov[:3, :3], e_r) <= k
+        and e_p @ np.linalg.solve(cov[3:6, 3:6], e_p) <= k
+    )
+
+
 def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None) -> dict:
     """The rig frames with tags in two or more cameras and a reference pose, posed by the rig
     estimator with the calibrated mountings (``estimates``: camera -> ``MountingEstimate``)
@@ -509,10 +546,8 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
     (``"covariance"``; the rig's twist for the offsets' share, :func:`_tracked_twist`, from
     the two rig frames posed before, as a tracker predicts it): per variant ``(poses within
     3 sigma of the reference, poses, rig frames)``; within 3 sigma: the rotation's and the
-    position's NEES (3 degrees of freedom each) below the 99.73 % quantile."""
-    from scipy.stats import chi2
-
-    k = chi2.ppf(0.9973, 3)
+    position's NEES (3 degrees of freedom each) below the 99.73 % quantile
+    (:func:`within_3_sigma`)."""
     out = {}
     for label, exact in (("exact", True), ("covariance", False)):
         inside = posed = total = 0
@@ -535,14 +570,7 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
                 continue
             last = [*last[-1:], (stamp, e.model)]
             posed += 1
-            Rr, Cr = rig.reference[stamp]
-            e_r = matrix_to_rotvec(e.model.R.T @ Rr)  # (rig -> world, world axes)
-            e_p = Rr.T @ Cr - e.model.R.T @ e.model.C  # (the position's error, world)
-            C = e.covariance
-            inside += bool(
-                e_r @ np.linalg.solve(C[:3, :3], e_r) <= k
-                and e_p @ np.linalg.solve(C[3:6, 3:6], e_p) <= k
-            )
+            inside += within_3_sigma(e.covariance, e.model.R, e.model.C, rig.reference[stamp])
         out[label] = (inside, posed, total)
     return out
 

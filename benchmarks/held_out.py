@@ -71,25 +71,23 @@ def split(rig: RealRig, blocks: int = 10) -> tuple[list, list]:
 
 def calibrated_mounts(rig: RealRig, min_inliers=(20, 8)) -> tuple[dict, int]:
     """``calibrate-rig``'s mountings of ``rig`` (its frames and tag map; the first camera at
-    its reference mounting), with the first of ``min_inliers`` that calibrates every camera:
-    ``(camera -> (R (3, 3), c (3,) m) as RealRig.mounts, the min_inliers)``.
+    its reference mounting), with the first of ``min_inliers`` that calibrates every camera
+    (:func:`~benchmarks.bench_real_rig.calibrate_every_camera`): ``(camera -> (R (3, 3), c
+    (3,) m) as RealRig.mounts, the min_inliers)``.
 
     Raises:
         ValueError: no ``min_inliers`` calibrates every camera.
     """
-    from benchmarks.bench_real_rig import calibrate_estimates
+    from benchmarks.bench_real_rig import calibrate_every_camera
 
-    last = None
-    for mi in min_inliers:
-        try:
-            est = calibrate_estimates(rig, mi)
-        except ValueError as exc:
-            last = exc
-            continue
-        if all(n in est for n in rig.cameras):
-            return {n: (est[n].mount.R, est[n].mount.c) for n in rig.cameras}, mi
-        last = ValueError(f"{sorted(set(rig.cameras) - set(est))} not calibrated")
-    raise ValueError(f"{rig.name}: calibrate-rig with min_inliers {list(min_inliers)}: {last}")
+    why: dict = {}  # min_inliers -> why it did not calibrate every camera
+    est, mi = calibrate_every_camera(rig, min_inliers, why.__setitem__)
+    if est is not None and all(n in est for n in rig.cameras):
+        return {n: (est[n].mount.R, est[n].mount.c) for n in rig.cameras}, mi
+    if est is not None:
+        why[mi] = f"{sorted(set(rig.cameras) - set(est))} not calibrated"
+    said = "; ".join(f"{k}: {why[k]}" for k in min_inliers if k in why)
+    raise ValueError(f"{rig.name}: calibrate-rig with min_inliers {list(min_inliers)}: {said}")
 
 
 def given_extrinsics(folder: Path) -> dict:

@@ -324,7 +324,11 @@ def main(argv: list[str] | None = None) -> None:
     calibrate-rig on each half of the video, the halves against each other (:func:`halves`:
     an independent check of the std, which the joint solution, solved from the same corners,
     is not)."""
-    from benchmarks.bench_real_rig import calibrate_estimates, calibrated_rig_run
+    from benchmarks.bench_real_rig import (
+        calibrate_estimates,
+        calibrate_every_camera,
+        calibrated_rig_run,
+    )
 
     ap = recording_parser(main.__doc__)
     ap.add_argument("--min-inliers", type=int, nargs="+", default=[20, 8])
@@ -335,15 +339,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{rig.name}: joint solution {sol.info}")
     first = next(iter(rig.cameras))
     for label, r in (("TagSLAM's", rig), ("the joint solution's", with_reference(rig, sol))):
-        est, mi = None, None
-        for mi in a.min_inliers:
-            try:
-                est = calibrate_estimates(r, mi)
-            except ValueError as exc:
-                print(f"calibrate-rig (min_inliers {mi}) on {label} tag map: {exc}")
-                continue
-            if len(est) == len(r.cameras):
-                break
+
+        def failed(mi: int, exc: ValueError, label: str = label) -> None:
+            print(f"calibrate-rig (min_inliers {mi}) on {label} tag map: {exc}")
+
+        est, mi = calibrate_every_camera(r, a.min_inliers, failed)
         if est is None:
             continue
         e = next(v for k, v in est.items() if k != first)

@@ -46,7 +46,7 @@ from benchmarks.tagslam_data import RealRig
 from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
-from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+from rs_localizer.geometry import rotvec_to_matrix
 
 __all__ = [
     "corner_errors",
@@ -131,18 +131,6 @@ def shift_covariance(J: np.ndarray, s_n2: float, s_t2: float) -> np.ndarray:
     return A @ (J.T @ SJ) @ A
 
 
-def _within(cov: np.ndarray, R, C, ref) -> bool:
-    """The rig pose ``x_rig = R X + C`` within 3 sigma of ``ref`` ``(R, C)`` in ``cov``
-    (rotation and position NEES, 3 degrees of freedom each)."""
-    Rr, Cr = ref
-    er = matrix_to_rotvec(R.T @ Rr)
-    ep = Rr.T @ Cr - R.T @ C
-    return bool(
-        er @ np.linalg.solve(cov[:3, :3], er) <= K3
-        and ep @ np.linalg.solve(cov[3:6, 3:6], ep) <= K3
-    )
-
-
 def _tag_shift_persistence(rig: RealRig) -> tuple[float, float, float]:
     """At ``rig``'s reference poses: the mean correlation of two corners' errors (x) of one
     tag in one image, the tags' shift's share of a corner's error variance, and the
@@ -185,7 +173,7 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
     "between", "between_shift": (F,) the first two references' poses within 3 sigma of each
     other in the stated covariance and with the tags' shift, "share": (F,) the shift's share
     of a corner's error variance per rig frame}``."""
-    from benchmarks.bench_real_rig import _tracked_twist
+    from benchmarks.bench_real_rig import _tracked_twist, within_3_sigma
 
     first, *_ = references
     out = {"delta_chi2": [], "within": defaultdict(list), "within_shift": defaultdict(list),
@@ -217,12 +205,12 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
         shifted = cov + shift_covariance(J, s_n2, s_t2) - shift_covariance(J, s2, 0.0)
         out["share"].append(s_t2 / (s_t2 + s_n2) if s_t2 + s_n2 > 0 else 0.0)
         for label, ref in references.items():
-            out["within"][label].append(_within(cov, R, C, ref[stamp]))
-            out["within_shift"][label].append(_within(shifted, R, C, ref[stamp]))
+            out["within"][label].append(within_3_sigma(cov, R, C, ref[stamp]))
+            out["within_shift"][label].append(within_3_sigma(shifted, R, C, ref[stamp]))
         a, b = list(references.values())[:2]
         Ra, Ca = a[stamp]
-        out["between"].append(_within(cov, Ra, Ca, b[stamp]))
-        out["between_shift"].append(_within(shifted, Ra, Ca, b[stamp]))
+        out["between"].append(within_3_sigma(cov, Ra, Ca, b[stamp]))
+        out["between_shift"].append(within_3_sigma(shifted, Ra, Ca, b[stamp]))
     out["frames"] = len(out["delta_chi2"])
     return {k: (np.asarray(v) if isinstance(v, list) else {n: np.asarray(x) for n, x in v.items()})
             if k != "frames" else v for k, v in out.items()}  # fmt: skip
@@ -234,7 +222,7 @@ def main(argv: list[str] | None = None) -> None:
     rig posed with ``calibrate-rig``'s mountings and their covariance (the first of 20 and 8
     inliers that calibrates every camera, on each reference's map, as
     ``benchmarks.joint_reference`` runs it) instead of the reference's mountings as exact."""
-    from benchmarks.bench_real_rig import calibrate_estimates
+    from benchmarks.bench_real_rig import calibrate_every_camera
 
     ap = recording_parser(main.__doc__)
     ap.add_argument("--calibrated", action="store_true", help="calibrate-rig's mountings")
@@ -254,15 +242,7 @@ def main(argv: list[str] | None = None) -> None:
         ("the joint solution's", joint,
          {"the joint solution's": joint.reference, "TagSLAM's": rig.reference}),
     ):  # fmt: skip
-        est = None
-        if a.calibrated:
-            for mi in (20, 8):
-                try:
-                    est = calibrate_estimates(r, mi)
-                except ValueError:
-                    continue
-                if len(est) == len(r.cameras):
-                    break
+        est = calibrate_every_camera(r)[0] if a.calibrated else None
         m = measure(r, refs, est)
         n, d = m["frames"], m["delta_chi2"]
         how = "calibrate-rig's mountings" if est else "mountings (exact)"
