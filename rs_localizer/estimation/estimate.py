@@ -125,6 +125,7 @@ def estimate_rs_pose(
     point_sigma: np.ndarray | None = None,
     implementation: str | None = None,
     view: View | None = None,
+    groups: np.ndarray | None = None,
 ) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
@@ -195,6 +196,12 @@ def estimate_rs_pose(
             body's) and ``gyro`` (the body's angular velocity in its frame) are given in the
             body's terms (:meth:`~rs_localizer.estimation.view.View.camera_model`, the gyro
             turned by the mounting's rotation). None: the camera's own estimate.
+        groups: optional (N,) int, each correspondence's group (one marker's corners: the
+            marker's id; default: the ``view``'s :attr:`~.view.View.groups`): points of one
+            group share a part of their image error, which the covariance then includes,
+            its size estimated from the frame's residuals where they tell it
+            (:func:`~.noise_model.shared_shift_covariance`; the compiled implementation's
+            refined frames). The estimate itself is unchanged.
 
     A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones
     or :data:`~.single_tag.MIN_SPREAD_POINTS` or more on more than one plane, or exactly four
@@ -214,8 +221,9 @@ def estimate_rs_pose(
         ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
             without it, arrays that are not (N, 2) / (N, 3) / (N,), ``options`` that are not
             :class:`EstimateOptions`, a ``gyro`` that is not a
-            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, or a ``view`` whose camera
-            is not ``camera`` or without a mounting.
+            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, a ``view`` whose camera
+            is not ``camera`` or without a mounting, or ``groups`` that are not (N,)
+            integers.
     """
     options, initial_model = checked_inputs(
         "estimate_rs_pose", options, EstimateOptions(), initial_model, gyro
@@ -227,6 +235,8 @@ def estimate_rs_pose(
             initial_model = replace(initial_model, model=view.camera_model(initial_model.model))
         if gyro is not None:
             gyro = gyro.rotated(view.mounting.R)
+        if groups is None:
+            groups = view.groups
     est = _estimate_rs_pose(
         points2d,
         points3d,
@@ -239,6 +249,7 @@ def estimate_rs_pose(
         point_sigma,
         implementation,
         solver,
+        groups,
     )
     return est if view is None else body_estimate(est, view)
 
@@ -255,6 +266,7 @@ def _estimate_rs_pose(
     point_sigma: np.ndarray | None,
     implementation: str | None,
     name: str,
+    groups: np.ndarray | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with ``solver``, its estimate recorded as ``name``'s (a
     global shutter's frame of a rolling-shutter solver runs the global-shutter one)."""
@@ -264,14 +276,14 @@ def _estimate_rs_pose(
         # a global shutter: every row at one time, nothing to fit the velocities to
         est = _estimate_rs_pose(
             points2d, points3d, camera, GS_SOLVER, opts, scores, initial_model, gyro,
-            point_sigma, implementation, name,
+            point_sigma, implementation, name, groups,
         )  # fmt: skip
         return est if est.solver == name else replace(est, solver=name)
     compiled = resolve_implementation(implementation, solver) == COMPILED
     unused: tuple[str, ...] = ()
     if not compiled:
-        unused = _unused_by_numpy(opts, scores, point_sigma)
-        scores = point_sigma = None
+        unused = _unused_by_numpy(opts, scores, point_sigma, groups)
+        scores = point_sigma = groups = None
     if point_sigma is not None:
         point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
     args = (points2d, points3d, camera, solver)
@@ -279,18 +291,19 @@ def _estimate_rs_pose(
         ignored = unused if gyro is None else ("gyro", *unused)
         return _estimate(
             *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=ignored,
-            compiled=compiled, name=name,
+            compiled=compiled, name=name, groups=groups,
         )  # fmt: skip
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior, compiled))
     return gyro_checked_estimate(
         _CameraStages(
             *args, aided, scores, initial_model, gyro, opts.motion_prior,
             point_sigma=point_sigma, ignored=unused, compiled=compiled, name=name,
+            groups=groups,
         ),
         gyro,
         lambda: _estimate(
             *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=unused,
-            compiled=compiled,
+            compiled=compiled, groups=groups,
         ),
         compiled,
     )  # fmt: skip
@@ -300,6 +313,7 @@ def _unused_by_numpy(
     opts: EstimateOptions,
     scores: np.ndarray | None,
     point_sigma: np.ndarray | None,
+    groups: np.ndarray | None = None,
 ) -> tuple[str, ...]:
     """The inputs given that the NumPy implementation does not use (its estimate's
     ``ignored_inputs``; :data:`~.implementation.NUMPY_UNUSED`)."""
@@ -307,6 +321,7 @@ def _unused_by_numpy(
         scores is not None,
         point_sigma is not None,
         opts.correlated_noise.sigma_px > 0,
+        groups is not None,
     )
     return tuple(name for name, g in zip(NUMPY_UNUSED, given, strict=True) if g)
 
@@ -331,7 +346,8 @@ class _CameraStages:
     SciPy; the gyro only through the motion prior and the image-alone check, not in the
     minimal samples; without ``scores``, ``point_sigma``, single-tag frames and the
     global-shutter model of still frames). ``name``: the solver a few-points frame's estimate
-    records (None: ``solver``).
+    records (None: ``solver``). ``groups``: (num_rows,) each point's group, or None
+    (:attr:`~.frame.Frame.groups`).
 
     Its stages: :func:`~.frame.prepare_frame`, :func:`~.frame.configure_frame` (or
     :func:`_few_points`); LO-RANSAC (:class:`~.ransac.Ransac`); the final refinement
@@ -355,8 +371,10 @@ class _CameraStages:
         ignored: tuple[str, ...] = (),
         compiled: bool = True,
         name: str | None = None,
+        groups: np.ndarray | None = None,
     ):
         self.inputs = (points2d, points3d, camera)
+        self.groups = groups
         self.solver, self.opts, self.scores = solver, opts, scores
         self.initial_model, self.gyro, self.image_prior = initial_model, gyro, image_prior
         self.point_sigma, self.ignored, self.compiled = point_sigma, ignored, compiled
@@ -371,7 +389,7 @@ class _CameraStages:
         shuffle = SeededShuffle(opts.ransac.seed)  # (the generator built when RANSAC runs)
         self.fr = fr = prepare_frame(
             points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle,
-            compiled=compiled,
+            compiled=compiled, groups=self.groups,
         )  # fmt: skip
         if self.gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
             fr.known_w = -camera.seconds_per_unit_r * self.gyro.angular_velocity

@@ -35,7 +35,7 @@ from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, coplanar, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model, RefinementView
 from .implementation import NUMPY
-from .noise_model import correlated_noise_covariance, pixel_jacobians
+from .noise_model import correlated_noise_covariance, pixel_jacobians, shared_shift_covariance
 from .options import EstimateOptions
 from .outputs import final_inliers
 from .plausibility import (
@@ -52,6 +52,7 @@ from .refine import (
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    exact_residuals,
     exact_time_jacobian,
     huber_weights,
     image_variance,
@@ -897,7 +898,11 @@ def final_covariance(
     """The (12, 12) covariance over ``(delta, C, w, t)`` of a final model of a camera's or a
     rig's frame (``fr``) at ``model``: its final refinement's ``ref`` (``sigma^2 H^-1``, the
     posterior's with a prior; :func:`frame_refinement`), None where it is missing or not
-    finite; with cameras whose mountings have covariances
+    finite; with points in groups (:attr:`~.frame.RefinementView.groups`, one marker's
+    corners) the white noise's share replaced by the sandwich under white noise plus a shift
+    shared by each group's points, both estimated from the frame's residuals
+    (:func:`~.noise_model.shared_shift_covariance`: unchanged where the residuals show no
+    shared shift or cannot tell one); with cameras whose mountings have covariances
     (:meth:`~.frame.RefinementView.mounting_covariances`, a rig's) their share added to first
     order, ``A Sigma_m A^T`` per camera, ``A = H^-1 J^T W J_m`` the model's sensitivity to
     its mounting (``J``, ``J_m``: the image errors' analytic Jacobians over the model and the
@@ -915,22 +920,33 @@ def final_covariance(
     if cov is None or not np.isfinite(cov).all():
         return None
     mounted = fr.mounting_covariances()
-    if mounted is None:
+    groups = fr.groups
+    if mounted is None and groups is None:
         return cov
-    mountings, mount_cov, time_std, twist = mounted
     th = float(th)
     free = 12 if rolling else 6
     e = fr.errors(model) if errors is None else errors
     idx = np.flatnonzero(e < FINAL_CUTOFF * th)
-    sub = mountings.take(idx)
+    plain = fr.plain_mountings
+    sub = None if plain is None else plain.take(idx)
     R0, C0, w0, t0 = model
     theta = np.concatenate([np.zeros(3), C0, w0, t0])
     X, x, tau = fr.X[idx], fr.x[idx], (fr.r - fr.r0)[idx]
-    W = np.repeat(huber_weights(e[idx], th), 2)
-    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
+    weights = huber_weights(e[idx], th)
+    J = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free]
+    cov = cov.copy()
+    if groups is not None and ref.sigma > 0:
+        residuals = exact_residuals(theta, R0, X, x, tau, sub)
+        cov[:free, :free] = shared_shift_covariance(
+            cov[:free, :free], ref.sigma, J, weights, residuals, groups[idx]
+        )[0]
+    if mounted is None:
+        return cov if np.isfinite(cov).all() else None
+    _, mount_cov, time_std, twist = mounted
+    WJ = J * np.repeat(weights, 2)[:, None]
     Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
     rows = np.repeat(sub.cam, 2)
-    Hinv = cov[:free, :free] / ref.sigma**2
+    Hinv = ref.covariance[:free, :free] / ref.sigma**2
     share = np.zeros((free, free))
     for c, mc in enumerate(mount_cov):
         on = rows == c
@@ -948,7 +964,6 @@ def final_covariance(
             if s_t and on.any():
                 a = s_t * (Hinv @ (WJ[on].T @ Jt[on]))
                 share += np.outer(a, a)
-    cov = cov.copy()
     cov[:free, :free] += share
     cov = 0.5 * (cov + cov.T)
     return cov if np.isfinite(cov).all() else None

@@ -36,6 +36,7 @@ __all__ = [
     "Frame",
     "RefinementView",
     "camera_values",
+    "checked_groups",
     "configure_frame",
     "correspondences",
     "kernel_ready",
@@ -78,8 +79,17 @@ class RefinementView(Protocol):
     planar: bool
     compiled: bool
 
+    #: (N,) int64 each point's group (points of one group share a part of their image error,
+    #: e.g. one marker's corners, :mod:`~.noise_model`), or None: every point's error its own
+    groups: np.ndarray | None
+
     def mountings(self) -> Mountings | KernelMountings | None:
         """The refinement's mountings of every point (None: one camera's plain errors)."""
+        ...
+
+    @property
+    def plain_mountings(self) -> Mountings | None:
+        """:meth:`mountings` as :class:`~.refine.Mountings` (the NumPy functions' form)."""
         ...
 
     def errors(self, model: Model) -> np.ndarray:
@@ -136,6 +146,9 @@ class Frame:
         known_w: (3,) the angular velocity a gyro measured, in the model's units (rad per
             unit r, camera frame): RANSAC's samples are then solved with it known
             (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); ``None``: no gyro.
+        groups: (N,) int64 each point's group (its input row's, :func:`with_groups`):
+            points of one group share a part of their image error (one marker's corners),
+            which the final covariance includes (:mod:`~.noise_model`); ``None``: none.
 
     The NumPy implementation (:mod:`.numpy_impl`) prepares its frames here too and adds its
     own ``tau`` ((N,) ``r - r0``).
@@ -149,6 +162,7 @@ class Frame:
     motion_bounds = None
     known_w: np.ndarray | None = None
     W: np.ndarray = np.zeros((0, 4))
+    groups: np.ndarray | None = None
     threshold: float
     #: the frame was prepared for the compiled implementation (:func:`prepare_frame`); False:
     #: the NumPy one's, whose final-stage refinements and errors run in NumPy and SciPy
@@ -189,6 +203,11 @@ class Frame:
         return Mountings(
             np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
         )
+
+    @property
+    def plain_mountings(self) -> Mountings | None:
+        """:meth:`mountings` of every point (:attr:`RefinementView.plain_mountings`)."""
+        return self.mountings()
 
     def kernel_mountings(self) -> KernelMountings | None:
         """:meth:`mountings` of every point in the refinement kernel's form, as
@@ -285,9 +304,11 @@ def prepare_frame(
     max_point_norm: float,
     rng: np.random.Generator | None = None,
     compiled: bool = True,
+    groups: np.ndarray | None = None,
 ) -> Frame:
     """Validate and normalize one frame's correspondences (both implementations of the
-    estimator; ``compiled=False``: NumPy only, the same rule and formulas).
+    estimator; ``compiled=False``: NumPy only, the same rule and formulas), with each point's
+    group (:attr:`Frame.groups`) from ``groups``, (N,) one per input row, or None.
 
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
@@ -299,16 +320,38 @@ def prepare_frame(
     Args:
         points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
     Raises:
-        ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
+        ValueError: arrays that are not (N, 2) and (N, 3) with the same N, or ``groups``
+            that are not (N,) integers (:func:`checked_groups`).
     """
     u, X = correspondences(points2d, points3d)
+    g = checked_groups(groups, len(u))
     rows = np.flatnonzero(valid_correspondences(u, X, max_point_norm, compiled))
     if rng is not None:
         rows = rng.permutation(rows)
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
     u_px = u.take(rows, axis=0)
     x, r, r0e = camera.normalize(u_px, compiled)
-    return _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
+    fr = _frame(u, X, rows, u_px, x, r, r0e, camera, compiled)
+    if g is not None:
+        fr.groups = g.take(fr.rows)
+    return fr
+
+
+def checked_groups(groups: np.ndarray | None, n: int) -> np.ndarray | None:
+    """``groups`` (points sharing a part of their image error: :attr:`Frame.groups`) as an
+    (n,) int64 array, or None for None.
+
+    Raises:
+        ValueError: not a 1-D array of n integers.
+    """
+    if groups is None:
+        return None
+    g = np.asarray(groups)
+    if g.shape != (n,) or not (np.issubdtype(g.dtype, np.integer) or g.size == 0):
+        raise ValueError(
+            f"groups must be ({n},) integers, one per correspondence; got {g.dtype} {g.shape}"
+        )
+    return g.astype(np.int64, copy=False)
 
 
 def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

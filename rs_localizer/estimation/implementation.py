@@ -50,8 +50,9 @@ IMPLEMENTATIONS = (COMPILED, NUMPY)
 #: and the global-shutter P3P baseline); the others are compiled only
 NUMPY_SOLVERS = ("r6p_1lin", "p3p")
 #: what the NumPy implementation cannot use, as ``RSPoseEstimate.ignored_inputs`` names it:
-#: the arguments ``scores`` (PROSAC ordering: it samples uniformly), ``point_sigma``, and the
-#: option ``correlated_noise`` (with ``sigma_px > 0``). It does use ``initial_model`` (the
+#: the arguments ``scores`` (PROSAC ordering: it samples uniformly), ``point_sigma``,
+#: ``groups`` (a camera's; a rig frame's views' groups it uses), and the option
+#: ``correlated_noise`` (with ``sigma_px > 0``). It does use ``initial_model`` (the
 #: seed and the anchored samples), ``gyro`` (its motion prior and the image-alone check; the
 #: minimal samples stay the linear R6P's, without the gyro's angular velocity) and
 #: ``refine.acceleration_sensitivity``
@@ -59,6 +60,7 @@ NUMPY_UNUSED = (
     "scores",
     "point_sigma",
     "correlated_noise",
+    "groups",
 )
 #: environment variable: ``0`` makes :func:`default_implementation` ``"numpy"`` for the
 #: solvers that have it (numba unusable on this machine, or to measure that implementation)

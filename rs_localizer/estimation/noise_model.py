@@ -25,6 +25,19 @@ likelihood (:func:`fit_correlated_noise`), set with
 The estimate itself is unchanged (the white-noise (MAP) refinement); only its covariance is:
 the sandwich covariance of that estimator under the model above,
 :func:`correlated_noise_covariance`.
+
+A square marker's corners share more than a smooth field: the detector fits the tag's four
+edges together, and blur, lighting and the quad fit move the four corners of one tag in one
+image as one (on real AprilTag recordings two corners' errors of one tag correlate by 0.6-0.9,
+the common shift ~60 % of a corner's error variance, ``python -m benchmarks.reference_fit``).
+Points given a group (:attr:`~rs_localizer.estimation.view.View.groups`, a marker's id) take
+the model::
+
+    e = n + g,   Cov(n_i, n_j) = s_n^2 delta_ij,   Cov(g_i, g_j) = s_g^2 [group_i = group_j]
+
+per image axis, with ``s_n`` and ``s_g`` estimated from the frame's own residuals
+(:func:`shared_shift_variances`), and the covariance is the sandwich under it
+(:func:`shared_shift_covariance`).
 """
 
 from __future__ import annotations
@@ -37,7 +50,20 @@ import numpy as np
 from ..camera import CameraModel
 from .refine import RefineSettings, exact_jacobian, exact_residuals, refine_rs_pose
 
-__all__ = ["NoiseFit", "correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians"]
+__all__ = [
+    "MIN_SHIFT_DOF",
+    "NoiseFit",
+    "correlated_noise_covariance",
+    "fit_correlated_noise",
+    "pixel_jacobians",
+    "shared_shift_covariance",
+    "shared_shift_variances",
+]
+
+#: the fewest degrees of freedom of the groups' mean errors left after the fit (2 per group,
+#: less what the model absorbs) for a frame to estimate the groups' common shift from its own
+#: residuals; below it the covariance stays the white-noise one
+MIN_SHIFT_DOF = 4.0
 
 
 def _kernel(u_px, length_px):
@@ -119,6 +145,124 @@ def correlated_noise_covariance(
     B = cov12 / sigma**2
     out = cov12 + correlated_px**2 * (B @ M @ B)
     return 0.5 * (out + out.T)
+
+
+def _group_sums(A: np.ndarray, col: np.ndarray, n_col: int) -> np.ndarray:
+    """(n_col, ...) the rows of A (2N, ...) summed per column index ``col`` (2N,): ``Z^T A``
+    for the groups' indicator Z (one column per group and image axis)."""
+    out = np.zeros((n_col,) + A.shape[1:])
+    np.add.at(out, col, A)
+    return out
+
+
+def shared_shift_variances(
+    residuals: np.ndarray, J: np.ndarray, K: np.ndarray, groups: np.ndarray
+) -> tuple[float, float, float]:
+    """The white and the shared variance of a frame's image errors under the grouped model of
+    the module doc, from the residuals of one least-squares fit (method of moments).
+
+    The residuals of the fit are ``rho = M e``, ``M = I - J K`` (``K`` the map from the errors
+    to the fitted parameters, ``delta = K e``); with ``Z`` the groups' indicator (one column
+    per group and axis) ``E|rho|^2 = s_n^2 |M|^2 + s_g^2 |M Z|^2`` and ``E|Z^T rho|^2 = s_n^2
+    |Z^T M|^2 + s_g^2 |Z^T M Z|^2`` (Frobenius norms); the two equations solved for ``s_n^2``,
+    ``s_g^2`` (both at least 0).
+
+    Args:
+        residuals: (2N,) the fit's residuals, x and y of each point interleaved (any units:
+            the variances come in their square).
+        J: (2N, P) their Jacobian over the P fitted parameters. K: (P, 2N) the fit's gain
+            (``H^-1 J^T W``: ``H`` the normal matrix, ``W`` the points' weights).
+        groups: (N,) int each point's group (points of one group share a shift).
+    Returns:
+        ``(s_n^2, s_g^2, dof)``: the two variances and the degrees of freedom of the groups'
+        mean errors the fit leaves (``tr(Z^T M Z (Z^T Z)^-1)``: 2 per group less what the
+        fitted parameters absorb); ``s_g^2`` is 0 where ``dof`` is below
+        :data:`MIN_SHIFT_DOF` (a fit that absorbs the groups' shifts cannot tell them).
+    Raises:
+        ValueError: arrays of mismatched lengths.
+    """
+    r = np.asarray(residuals, dtype=float)
+    J = np.asarray(J, dtype=float)
+    K = np.asarray(K, dtype=float)
+    g = np.asarray(groups)
+    n2 = len(r)
+    if not (J.shape[0] == n2 == K.shape[1] == 2 * len(g) and J.shape[1] == K.shape[0]):
+        raise ValueError(
+            f"shared_shift_variances: residuals {r.shape}, J {J.shape}, K {K.shape} and "
+            f"groups {g.shape} disagree"
+        )
+    _, gi = np.unique(g, return_inverse=True)
+    n_col = 2 * (int(gi.max()) + 1) if len(gi) else 0
+    col = (2 * gi[:, None] + np.arange(2)[None, :]).ravel()
+    counts = np.bincount(col, minlength=n_col).astype(float)  # (Z^T Z, diagonal)
+    JtJ, KKt = J.T @ J, K @ K.T
+    ZJ = _group_sums(J, col, n_col)  # Z^T J (2G, P)
+    KZ = _group_sums(K.T, col, n_col).T  # K Z (P, 2G)
+    a11 = n2 - 2.0 * float(np.trace(K @ J)) + float(np.sum(JtJ * KKt))
+    tz = float(counts.sum())
+    a12 = tz - 2.0 * float(np.sum(ZJ * KZ.T)) + float(np.sum(KZ * (JtJ @ KZ)))
+    a21 = tz - 2.0 * float(np.sum(ZJ * KZ.T)) + float(np.sum(ZJ * (ZJ @ KKt)))
+    ZMZ = np.diag(counts) - ZJ @ KZ
+    a22 = float(np.sum(ZMZ**2))
+    dof = float(np.sum(np.diag(ZMZ) / np.maximum(counts, 1.0)))
+    q1 = float(r @ r)
+    q2 = float(np.sum(_group_sums(r, col, n_col) ** 2))
+    det = a11 * a22 - a12 * a21
+    if dof < MIN_SHIFT_DOF or not det > 1e-12 * a11 * a22:
+        return max(q1 / max(a11, 1.0), 0.0), 0.0, dof
+    s_n2 = (a22 * q1 - a12 * q2) / det
+    s_g2 = (a11 * q2 - a21 * q1) / det
+    if s_g2 <= 0.0:
+        return max(q1 / a11, 0.0), 0.0, dof
+    if s_n2 < 0.0:
+        return 0.0, max(q1 / a12, 0.0) if a12 > 0 else 0.0, dof
+    return float(s_n2), float(s_g2), dof
+
+
+def shared_shift_covariance(
+    cov: np.ndarray,
+    sigma: float,
+    J: np.ndarray,
+    weights: np.ndarray,
+    residuals: np.ndarray,
+    groups: np.ndarray,
+) -> tuple[np.ndarray, float, float]:
+    """The covariance of a refined estimate under white noise plus a shift shared by each
+    group's points (module doc), in place of the white noise's alone.
+
+    The refinement minimised ``sum w_i |r_i|^2`` (+ a prior), its covariance ``cov = sigma^2
+    H^-1``; linearised, its error is ``H^-1 J^T W e``. With the variances of
+    :func:`shared_shift_variances` (``K = H^-1 J^T W``) the covariance is::
+
+        cov + (s_n^2 - sigma^2) K K^T + s_g^2 (K Z)(K Z)^T
+
+    (the white-noise part replaced by the sandwich under the grouped model; ``cov`` itself
+    when the frame cannot tell a shared shift: ``s_g^2 = 0``).
+
+    Args:
+        cov: (P, P) the refinement's covariance over its P free parameters (the units of J's
+            columns). sigma: its residual sigma (the residuals' units, > 0).
+        J: (2N, P) the residuals' Jacobian at the estimate (x, y interleaved), the points the
+            refinement weighed; weights: (N,) their weights ``w_i`` (Huber's; 1 inside the
+            threshold). residuals: (2N,) their residuals. groups: (N,) their groups.
+    Returns:
+        ``(covariance (P, P) symmetrized, s_n^2, s_g^2)``.
+    Raises:
+        ValueError: arrays of mismatched lengths, or a sigma that is not > 0.
+    """
+    if not sigma > 0:
+        raise ValueError(f"shared_shift_covariance: sigma must be > 0, got {sigma!r}")
+    J = np.asarray(J, dtype=float)
+    WJ = J * np.repeat(np.asarray(weights, dtype=float), 2)[:, None]
+    K = (np.asarray(cov, dtype=float) / sigma**2) @ WJ.T
+    s_n2, s_g2, _ = shared_shift_variances(residuals, J, K, groups)
+    if s_g2 <= 0.0:
+        return np.asarray(cov, dtype=float).copy(), s_n2, 0.0
+    _, gi = np.unique(np.asarray(groups), return_inverse=True)
+    col = (2 * gi[:, None] + np.arange(2)[None, :]).ravel()
+    KZ = _group_sums(K.T, col, 2 * (int(gi.max()) + 1)).T
+    out = cov + (s_n2 - sigma**2) * (K @ K.T) + s_g2 * (KZ @ KZ.T)
+    return 0.5 * (out + out.T), s_n2, s_g2
 
 
 @dataclass(frozen=True)

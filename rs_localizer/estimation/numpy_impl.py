@@ -48,7 +48,8 @@ gyro's angular velocity, R5P_{v,C,t}^{w}).
 
 Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
 was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling),
-``point_sigma`` and the correlated image-noise covariance.
+``point_sigma``, the correlated image-noise covariance and the groups' shared error
+(``groups``).
 Solvers: :data:`~.implementation.NUMPY_SOLVERS`. Nothing here calls a numba kernel, so nothing
 compiles; where numba is missing or broken, :mod:`rs_localizer.runtime.jit_cache` puts a
 stand-in in its place so that the package imports, and this implementation runs.

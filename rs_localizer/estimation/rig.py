@@ -402,7 +402,7 @@ def estimate_rig_pose(
     def solve(drop: set[int]) -> RSPoseEstimate:
         """The rig frame without the points of cameras ``drop`` (each keeps its place),
         restored to every view (:func:`_restored`) when it is posed."""
-        none = {"uv": np.zeros((0, 2)), "X": np.zeros((0, 3))}
+        none = {"uv": np.zeros((0, 2)), "X": np.zeros((0, 3)), "groups": None}
         est = estimated(stacked([replace(v, **none) if c in drop else v
                                  for c, v in enumerate(views)]))  # fmt: skip
         return _restored(est, pool) if est.success else est

@@ -27,6 +27,7 @@ from ..pose import RSModel
 from .degeneracy import coplanar
 from .frame import (
     camera_values,
+    checked_groups,
     correspondences,
     kernel_ready,
     normalized_rows,
@@ -64,6 +65,11 @@ class View:
         stamp_offset: capture time of the camera's reference line (``camera.reference_line``)
             minus the rig's reference time (s).
         name: the camera's name in error messages (default: its index in the rig frame).
+        groups: (N,) int, each correspondence's group, or None: points of one group share a
+            part of their image error, as one marker's 4 corners share a shift of the tag's
+            image (give the marker's id); the covariance then includes that shared error,
+            estimated from the frame's residuals (:mod:`~.noise_model`). The estimate itself
+            is unchanged.
     """
 
     uv: np.ndarray
@@ -72,6 +78,7 @@ class View:
     mounting: Mounting | None = field(default_factory=lambda: Mounting(np.eye(3), np.zeros(3)))
     stamp_offset: float = 0.0
     name: str = ""
+    groups: np.ndarray | None = None
 
     def camera_model(self, model: RSModel | tuple) -> RSModel:
         """This view's camera's own model at its reference line (per unit r, as its own
@@ -166,6 +173,17 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
         A[:, 0] = A[:, 3] = focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             focal, A)  # fmt: skip
+
+
+def checked_view_groups(c: int, v: View) -> np.ndarray | None:
+    """Camera ``c``'s view's :attr:`View.groups` checked (one integer per correspondence,
+    :func:`~.frame.checked_groups`; the error names the camera)."""
+    if v.groups is None:
+        return None
+    try:
+        return checked_groups(v.groups, len(np.asarray(v.uv).reshape(-1, 2)))
+    except ValueError as e:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
 
 
 @kernel
@@ -296,6 +314,7 @@ class StackedViews:
         #: every input row of every view is valid (the stack's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
         self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
+        self._groups = [checked_view_groups(c, v) for c, v in enumerate(views)]
         if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
             q = parts[0]
             self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
@@ -324,6 +343,25 @@ class StackedViews:
     @property
     def r(self) -> np.ndarray:
         return self.tau
+
+    @functools.cached_property
+    def groups(self) -> np.ndarray | None:
+        """(N,) int64 each point's group (:attr:`View.groups`; one marker seen by two cameras
+        is a group in each, a view without groups a group per point), or None when no view
+        has groups (:class:`~.frame.RefinementView`)."""
+        if all(v is None for v in self._groups):
+            return None
+        keys = []
+        for c, (g, rows) in enumerate(zip(self._groups, self._rows, strict=True)):
+            n = self._sizes_valid[c]
+            if g is None:
+                own = np.arange(n, dtype=np.int64)
+                keys.append(np.stack([np.full(n, c), np.full(n, 1), own], axis=1))
+            else:
+                gv = g if rows is None else g.take(rows)
+                keys.append(np.stack([np.full(n, c), np.zeros(n, np.int64), gv], axis=1))
+        _, inverse = np.unique(np.concatenate(keys), axis=0, return_inverse=True)
+        return inverse.reshape(-1).astype(np.int64)
 
     @functools.cached_property
     def bounds(self) -> np.ndarray:
