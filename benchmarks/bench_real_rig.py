@@ -558,13 +558,13 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
             if any(n not in estimates for n in views):
                 continue
             total += 1
-            rv = []
-            for n, (uv, X) in views.items():
+            mountings = {}
+            for n in views:
                 e = estimates[n]
                 m = Mounting(e.mount.R, e.mount.c)
                 s_t = e.time_offset_std if e.time_offset and np.isfinite(e.time_offset_std) else 0
-                m = m if exact else Mounting(m.R, m.c, e.mount.covariance, s_t)
-                rv.append(View(uv, X, rig.cameras[n], m, name=n))
+                mountings[n] = m if exact else Mounting(m.R, m.c, e.mount.covariance, s_t)
+            rv = rig.views(stamp, views, mountings)
             e = estimate_rig_pose(rv, RIG_OPTIONS, twist=_tracked_twist(last, stamp))
             if not e.success or e.covariance is None:
                 continue

@@ -19,23 +19,22 @@ reference pose is posed by the rig estimator
 2. **The two references against each other** in that covariance: rig frames whose two
    reference poses are within 3 sigma of each other. Where they are not, no covariance of
    ours can be within 3 sigma of both.
-3. **The tags' common shift** (:func:`tag_shift_variances`, :func:`shift_covariance`): the
-   4 corners of one tag in one image share part of their error (the tag's image shifted as a
-   whole: a lens model, the detector, the map a little off where the tag is seen). Printed:
-   at the joint solution, the correlation of two corners' errors of one tag, the shift's share
-   of a corner's error variance, and the correlation of one tag's shift in one camera between
-   consecutive rig frames (under 0.2 s apart: a slowly varying error, not noise); per rig
-   frame, the rig pose's covariance with the shift as a random effect per tag (its variance
-   and the corners' own estimated from that frame's residuals; the least-squares pose's
-   sandwich covariance ``(J^T J)^-1 J^T Sigma J (J^T J)^-1``, ``J`` the corners' image
-   Jacobian over the rig pose) in place of the independent corners' ``sigma^2 (J^T J)^-1``,
-   and the rig poses within 3 sigma of each reference with it. The estimator does not take
-   this term: its points carry no tag.
+3. **The tags' common shift**: the 4 corners of one tag in one image share part of their
+   error (the tag's image shifted as a whole: a lens model, the detector, the map a little off
+   where the tag is seen). Printed: at the joint solution, the correlation of two corners'
+   errors of one tag, the shift's share of a corner's error variance, and the correlation of
+   one tag's shift in one camera between consecutive rig frames (under 0.2 s apart: a slowly
+   varying error, not noise); the rig poses within 3 sigma of each reference in the
+   covariance the estimator states with the corners grouped by tag (``View.groups``: the
+   shift's variance and the corners' own estimated from the frame's residuals,
+   :func:`~rs_localizer.estimation.noise_model.shared_shift_covariance`) and in the one it
+   states for independent corners (the views without groups).
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import replace
 from itertools import pairwise
 
 import numpy as np
@@ -44,18 +43,9 @@ from scipy.stats import chi2
 from benchmarks.joint_reference import recording, recording_parser, with_reference
 from benchmarks.tagslam_data import RealRig
 from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
-from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
-from rs_localizer.geometry import rotvec_to_matrix
 
-__all__ = [
-    "corner_errors",
-    "delta_chi2",
-    "main",
-    "pose_jacobian",
-    "shift_covariance",
-    "tag_shift_variances",
-]
+__all__ = ["corner_errors", "delta_chi2", "main", "measure"]
 
 #: the 99.73 % quantiles of a chi-square of 3 and of 6 degrees of freedom
 K3, K6 = chi2.ppf(0.9973, 3), chi2.ppf(0.9973, 6)
@@ -84,51 +74,6 @@ def delta_chi2(e_ref: np.ndarray, e_best: np.ndarray, n_free: int = 6) -> float:
     s_best = float((e_best**2).sum())
     s2 = s_best / max(2 * len(e_best) - n_free, 1)
     return (float((e_ref**2).sum()) - s_best) / s2
-
-
-def pose_jacobian(
-    rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, mounts: dict | None = None,
-    h: float = 1e-6,
-):  # fmt: skip
-    """(2 N, 6) the corners' image errors' (:func:`corner_errors`, ``mounts`` as there)
-    derivative over the rig pose's rotation (``R exp([d]x)``: a rotation vector ``d`` of the
-    world axes, the error convention of :func:`~benchmarks.bench_real_rig.calibrated_rig_run`)
-    and its position in the world (m), by forward differences of step ``h``."""
-    p = -R.T @ C
-    e0 = corner_errors(rig, views, R, C, mounts).ravel()
-    J = np.empty((len(e0), 6))
-    for k in range(6):
-        d = np.zeros(6)
-        d[k] = h
-        Rk = R @ rotvec_to_matrix(d[:3])
-        J[:, k] = (corner_errors(rig, views, Rk, -Rk @ (p + d[3:]), mounts).ravel() - e0) / h
-    return J
-
-
-def tag_shift_variances(E: np.ndarray, n_free: int = 6) -> tuple[float, float]:
-    """A rig frame's corner errors ``E`` (G, 4, 2) px (its G tags' 4 corners at the best fit,
-    ``n_free`` parameters fitted) as a common shift of each tag (variance ``s_t^2`` per image
-    axis) plus each corner's own error (``s_n^2``): one-way random effects, from the mean
-    squares within the tags (``6 G`` degrees of freedom) and of the tags' mean errors
-    (``2 G - n_free``; ``E[4 mean^2] = s_n^2 + 4 s_t^2``). Returns ``(s_n^2, s_t^2)`` px^2,
-    ``s_t^2`` at least 0."""
-    m = E.mean(axis=1, keepdims=True)
-    g = len(E)
-    msw = float(((E - m) ** 2).sum()) / max(6 * g, 1)
-    msb = 4 * float((m**2).sum()) / max(2 * g - n_free, 1)
-    return msw, max((msb - msw) / 4, 0.0)
-
-
-def shift_covariance(J: np.ndarray, s_n2: float, s_t2: float) -> np.ndarray:
-    """(6, 6) the least-squares pose's covariance over ``J``'s parameters when the corners'
-    errors (rows of ``J``: (2 N, 6), corners in tags of 4, x and y interleaved) are each
-    corner's own (``s_n2`` px^2 per axis) plus a shift common to a tag's 4 corners (``s_t2``):
-    ``A J^T Sigma J A``, ``A = (J^T J)^-1``, ``Sigma`` per tag and axis ``s_n2 I + s_t2 1 1^T``.
-    With ``s_t2 = 0``: ``s_n2 (J^T J)^-1``."""
-    A = np.linalg.inv(J.T @ J)
-    Jr = J.reshape(-1, 4, 2, J.shape[1])
-    SJ = (s_n2 * Jr + s_t2 * Jr.sum(axis=1, keepdims=True)).reshape(J.shape)
-    return A @ (J.T @ SJ) @ A
 
 
 def _tag_shift_persistence(rig: RealRig) -> tuple[float, float, float]:
@@ -167,17 +112,18 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
     calibrated mountings with their covariance and time offset std, as
     :func:`~benchmarks.bench_real_rig.calibrated_rig_run` poses the rig), every rig frame with
     tags in two or more cameras and a pose in every reference of ``references`` (label ->
-    stamp -> ``(R, C)``; the first: ``rig``'s own). Returns ``{"frames", "delta_chi2": (F,)
-    of the first reference's pose (through the same mountings as the rig's), "within": label
-    -> (F,) in the stated covariance, "within_shift": label -> (F,) with the tags' shift,
-    "between", "between_shift": (F,) the first two references' poses within 3 sigma of each
-    other in the stated covariance and with the tags' shift, "share": (F,) the shift's share
-    of a corner's error variance per rig frame}``."""
+    stamp -> ``(R, C)``; the first: ``rig``'s own), posed twice: each corner's error its own
+    (the views without groups) and the corners grouped by tag (:meth:`RealRig.views`: the
+    covariance with the tags' shared shift). Returns ``{"frames", "delta_chi2": (F,) of the
+    first reference's pose (through the same mountings as the rig's), "within": label -> (F,)
+    within 3 sigma in the independent corners' covariance, "within_groups": label -> (F,) in
+    the covariance with the tags' shift, "between", "between_groups": (F,) the first two
+    references' poses within 3 sigma of each other in either covariance}``."""
     from benchmarks.bench_real_rig import _tracked_twist, within_3_sigma
 
     first, *_ = references
-    out = {"delta_chi2": [], "within": defaultdict(list), "within_shift": defaultdict(list),
-           "between": [], "between_shift": [], "share": []}  # fmt: skip
+    out = {"delta_chi2": [], "within": defaultdict(list), "within_groups": defaultdict(list),
+           "between": [], "between_groups": []}  # fmt: skip
     mountings, mounts = dict(rig.mountings), dict(rig.mounts)
     for n, e in (estimates or {}).items():
         s_t = e.time_offset_std if e.time_offset and np.isfinite(e.time_offset_std) else 0
@@ -187,30 +133,26 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
     for stamp, views in rig.frames:
         if len(views) < 2 or any(stamp not in r for r in references.values()):
             continue
-        rv = [View(uv, X, rig.cameras[n], mountings[n], name=n) for n, (uv, X) in views.items()]
-        e = estimate_rig_pose(
-            rv, RIG_OPTIONS, twist=_tracked_twist(last, stamp) if estimates else None
-        )
-        if not e.success or e.covariance is None:
+        grouped = rig.views(stamp, views, mountings)
+        twist = _tracked_twist(last, stamp) if estimates else None
+        e = estimate_rig_pose(grouped, RIG_OPTIONS, twist=twist)
+        plain = estimate_rig_pose([replace(v, groups=None) for v in grouped], RIG_OPTIONS,
+                                  twist=twist)  # fmt: skip
+        if not (e.success and plain.success) or e.covariance is None or plain.covariance is None:
             continue
         last = [*last[-1:], (stamp, e.model)]
         R, C = e.model.R, e.model.C
-        cov = np.asarray(e.covariance)[:6, :6]
+        cov, cov_g = np.asarray(plain.covariance)[:6, :6], np.asarray(e.covariance)[:6, :6]
         best = corner_errors(rig, views, R, C, mounts)
         ref_err = corner_errors(rig, views, *references[first][stamp], mounts)
         out["delta_chi2"].append(delta_chi2(ref_err, best))
-        J = pose_jacobian(rig, views, R, C, mounts)
-        s_n2, s_t2 = tag_shift_variances(best.reshape(-1, 4, 2))
-        s2 = float((best**2).sum()) / max(2 * len(best) - 6, 1)
-        shifted = cov + shift_covariance(J, s_n2, s_t2) - shift_covariance(J, s2, 0.0)
-        out["share"].append(s_t2 / (s_t2 + s_n2) if s_t2 + s_n2 > 0 else 0.0)
         for label, ref in references.items():
             out["within"][label].append(within_3_sigma(cov, R, C, ref[stamp]))
-            out["within_shift"][label].append(within_3_sigma(shifted, R, C, ref[stamp]))
+            out["within_groups"][label].append(within_3_sigma(cov_g, R, C, ref[stamp]))
         a, b = list(references.values())[:2]
         Ra, Ca = a[stamp]
         out["between"].append(within_3_sigma(cov, Ra, Ca, b[stamp]))
-        out["between_shift"].append(within_3_sigma(shifted, Ra, Ca, b[stamp]))
+        out["between_groups"].append(within_3_sigma(cov_g, Ra, Ca, b[stamp]))
     out["frames"] = len(out["delta_chi2"])
     return {k: (np.asarray(v) if isinstance(v, list) else {n: np.asarray(x) for n, x in v.items()})
             if k != "frames" else v for k, v in out.items()}  # fmt: skip
@@ -252,20 +194,17 @@ def main(argv: list[str] | None = None) -> None:
             if est is None
             else ""
         )
+        print(f"on {label} map and {how}, {n} rig frames{': ' + fit[:-2] if fit else ''}")
         print(
-            f"on {label} map and {how}, {n} rig frames: {fit}the tags' shift "
-            f"{100 * np.median(m['share']):.0f} % of a corner's error variance (median)"
-        )
-        print(
-            f"  the two references within 3 sigma of each other: {100 * m['between'].mean():.1f}"
-            f" % (stated covariance), {100 * m['between_shift'].mean():.1f} % (with the tags' "
-            "shift)"
+            "  the two references within 3 sigma of each other: "
+            f"{100 * m['between_groups'].mean():.1f} % (corners grouped by tag), "
+            f"{100 * m['between'].mean():.1f} % (independent corners)"
         )
         for ref in refs:
             print(
-                f"  rig poses within 3 sigma of {ref} poses: {100 * m['within'][ref].mean():.1f} "
-                f"% (stated covariance), {100 * m['within_shift'][ref].mean():.1f} % (with the "
-                "tags' shift)"
+                f"  rig poses within 3 sigma of {ref} poses: "
+                f"{100 * m['within_groups'][ref].mean():.1f} % (corners grouped by tag), "
+                f"{100 * m['within'][ref].mean():.1f} % (independent corners)"
             )
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rs_localizer.camera import CameraModel
+from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
 
@@ -116,6 +117,20 @@ class RealRig:
         self.messages = list(messages)
         self.tags, self.tag_ids = tags or {}, tag_ids or {}
         self.anchors = frozenset(anchors)
+
+    def views(self, stamp: float, views: dict, mountings: dict | None = None) -> list:
+        """The rig frame ``views`` (``{name: (uv, X)}``, :attr:`frames`' item at ``stamp``) as
+        the rig estimator's :class:`~rs_localizer.estimation.view.View` s: each camera at its
+        mounting (``mountings``: name -> :class:`~rs_localizer.frames.Mounting`, default
+        :attr:`mountings`), its corners grouped by tag (:attr:`tag_ids`; none where the
+        frame's tags are not known)."""
+        mountings = self.mountings if mountings is None else mountings
+        ids = self.tag_ids.get(stamp, {})
+        return [
+            View(uv, X, self.cameras[n], mountings[n], name=n,
+                 groups=np.repeat(ids[n], 4) if n in ids else None)
+            for n, (uv, X) in views.items()
+        ]  # fmt: skip
 
 
 def _pose(t: dict) -> tuple[np.ndarray, np.ndarray]:
