@@ -53,6 +53,7 @@ from .refine import (
     exact_jacobian,
     exact_mounting_jacobian,
     exact_residuals,
+    exact_rows,
     exact_time_jacobian,
     huber_weights,
     image_variance,
@@ -933,10 +934,13 @@ def final_covariance(
     theta = np.concatenate([np.zeros(3), C0, w0, t0])
     X, x, tau = fr.X[idx], fr.x[idx], (fr.r - fr.r0)[idx]
     weights = huber_weights(e[idx], th)
-    J = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free]
+    rows = None
+    if groups is not None and fr.compiled:  # (the refinement's kernel: ~15x faster)
+        rows = exact_rows(model, X, x, tau, th, sub)
+    J = (exact_jacobian(theta, R0, X, x, tau, sub) if rows is None else rows[1])[:, :free]
     cov = cov.copy()
     if groups is not None and ref.sigma > 0:
-        residuals = exact_residuals(theta, R0, X, x, tau, sub)
+        residuals = exact_residuals(theta, R0, X, x, tau, sub) if rows is None else rows[0]
         cov[:free, :free] = shared_shift_covariance(
             cov[:free, :free], ref.sigma, J, weights, residuals, groups[idx]
         )[0]

@@ -147,12 +147,56 @@ def correlated_noise_covariance(
     return 0.5 * (out + out.T)
 
 
-def _group_sums(A: np.ndarray, col: np.ndarray, n_col: int) -> np.ndarray:
-    """(n_col, ...) the rows of A (2N, ...) summed per column index ``col`` (2N,): ``Z^T A``
-    for the groups' indicator Z (one column per group and image axis)."""
-    out = np.zeros((n_col,) + A.shape[1:])
-    np.add.at(out, col, A)
-    return out
+def _group_columns(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(order (2N,), starts (2G,), 2G)`` of the groups' indicator Z (one column per group
+    and image axis) over the 2N rows (x, y interleaved) of N points in ``groups`` (N,): the
+    rows in the order of their columns and where each column's rows start in it
+    (:func:`_group_sums`)."""
+    _, gi = np.unique(np.asarray(groups), return_inverse=True)
+    gi = gi.reshape(-1)
+    col = np.empty(2 * len(gi), dtype=np.int64)
+    col[0::2] = 2 * gi
+    col[1::2] = 2 * gi + 1
+    order = np.argsort(col, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(col[order]) != 0])
+    return order, starts, len(starts)
+
+
+def _group_sums(A: np.ndarray, order: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``Z^T A``: the rows of A ((2N,) or (2N, P)) summed per column of the groups' indicator
+    Z (:func:`_group_columns`' ``order`` and ``starts``)."""
+    return np.add.reduceat(A[order], starts, axis=0)
+
+
+def _variances(r, J, K, order, starts) -> tuple[float, float, float, np.ndarray]:
+    """:func:`shared_shift_variances` with the groups as :func:`_group_columns` gives them,
+    and ``K Z`` (P, 2G)."""
+    n2, P = J.shape
+    sums = _group_sums(np.column_stack([J, K.T, r]), order, starts)
+    ZJ, KZ, Zr = sums[:, :P], sums[:, P : 2 * P].T, sums[:, -1]  # Z^T J, K Z, Z^T r
+    counts = np.diff(np.r_[starts, n2]).astype(float)  # (Z^T Z, diagonal)
+    JtJ, KKt = J.T @ J, K @ K.T
+    cross = float(np.sum(ZJ * KZ.T))  # tr(Z^T J K Z)
+    a11 = n2 - 2.0 * float(np.sum(K * J.T)) + float(np.sum(JtJ * KKt))
+    tz = float(n2)
+    a12 = tz - 2.0 * cross + float(np.sum(KZ * (JtJ @ KZ)))
+    a21 = tz - 2.0 * cross + float(np.sum(ZJ * (ZJ @ KKt)))
+    ZMZ = -(ZJ @ KZ)
+    ZMZ[np.diag_indices(len(counts))] += counts
+    a22 = float(np.sum(ZMZ**2))
+    dof = float(np.sum(np.diag(ZMZ) / counts))
+    q1, q2 = float(r @ r), float(Zr @ Zr)
+    det = a11 * a22 - a12 * a21
+    white = max(q1 / a11, 0.0) if a11 > 0 else 0.0
+    if dof < MIN_SHIFT_DOF or not det > 1e-12 * a11 * a22:
+        return white, 0.0, dof, KZ
+    s_n2 = (a22 * q1 - a12 * q2) / det
+    s_g2 = (a11 * q2 - a21 * q1) / det
+    if s_g2 <= 0.0:
+        return white, 0.0, dof, KZ
+    if s_n2 < 0.0:
+        return 0.0, max(q1 / a12, 0.0) if a12 > 0 else 0.0, dof, KZ
+    return float(s_n2), float(s_g2), dof, KZ
 
 
 def shared_shift_variances(
@@ -185,38 +229,13 @@ def shared_shift_variances(
     J = np.asarray(J, dtype=float)
     K = np.asarray(K, dtype=float)
     g = np.asarray(groups)
-    n2 = len(r)
-    if not (J.shape[0] == n2 == K.shape[1] == 2 * len(g) and J.shape[1] == K.shape[0]):
+    if not (J.shape[0] == len(r) == K.shape[1] == 2 * len(g) and J.shape[1] == K.shape[0]):
         raise ValueError(
             f"shared_shift_variances: residuals {r.shape}, J {J.shape}, K {K.shape} and "
             f"groups {g.shape} disagree"
         )
-    _, gi = np.unique(g, return_inverse=True)
-    n_col = 2 * (int(gi.max()) + 1) if len(gi) else 0
-    col = (2 * gi[:, None] + np.arange(2)[None, :]).ravel()
-    counts = np.bincount(col, minlength=n_col).astype(float)  # (Z^T Z, diagonal)
-    JtJ, KKt = J.T @ J, K @ K.T
-    ZJ = _group_sums(J, col, n_col)  # Z^T J (2G, P)
-    KZ = _group_sums(K.T, col, n_col).T  # K Z (P, 2G)
-    a11 = n2 - 2.0 * float(np.trace(K @ J)) + float(np.sum(JtJ * KKt))
-    tz = float(counts.sum())
-    a12 = tz - 2.0 * float(np.sum(ZJ * KZ.T)) + float(np.sum(KZ * (JtJ @ KZ)))
-    a21 = tz - 2.0 * float(np.sum(ZJ * KZ.T)) + float(np.sum(ZJ * (ZJ @ KKt)))
-    ZMZ = np.diag(counts) - ZJ @ KZ
-    a22 = float(np.sum(ZMZ**2))
-    dof = float(np.sum(np.diag(ZMZ) / np.maximum(counts, 1.0)))
-    q1 = float(r @ r)
-    q2 = float(np.sum(_group_sums(r, col, n_col) ** 2))
-    det = a11 * a22 - a12 * a21
-    if dof < MIN_SHIFT_DOF or not det > 1e-12 * a11 * a22:
-        return max(q1 / max(a11, 1.0), 0.0), 0.0, dof
-    s_n2 = (a22 * q1 - a12 * q2) / det
-    s_g2 = (a11 * q2 - a21 * q1) / det
-    if s_g2 <= 0.0:
-        return max(q1 / a11, 0.0), 0.0, dof
-    if s_n2 < 0.0:
-        return 0.0, max(q1 / a12, 0.0) if a12 > 0 else 0.0, dof
-    return float(s_n2), float(s_g2), dof
+    order, starts, _ = _group_columns(g)
+    return _variances(r, J, K, order, starts)[:3]
 
 
 def shared_shift_covariance(
@@ -252,15 +271,21 @@ def shared_shift_covariance(
     """
     if not sigma > 0:
         raise ValueError(f"shared_shift_covariance: sigma must be > 0, got {sigma!r}")
+    cov = np.asarray(cov, dtype=float)
     J = np.asarray(J, dtype=float)
-    WJ = J * np.repeat(np.asarray(weights, dtype=float), 2)[:, None]
-    K = (np.asarray(cov, dtype=float) / sigma**2) @ WJ.T
-    s_n2, s_g2, _ = shared_shift_variances(residuals, J, K, groups)
+    r = np.asarray(residuals, dtype=float)
+    g = np.asarray(groups)
+    w = np.asarray(weights, dtype=float)
+    if not (J.shape == (len(r), len(cov)) == (2 * len(g), len(cov)) and len(w) == len(g)):
+        raise ValueError(
+            f"shared_shift_covariance: cov {cov.shape}, J {J.shape}, weights {w.shape}, "
+            f"residuals {r.shape} and groups {g.shape} disagree"
+        )
+    K = (cov / sigma**2) @ (J * np.repeat(w, 2)[:, None]).T
+    order, starts, _ = _group_columns(g)
+    s_n2, s_g2, _, KZ = _variances(r, J, K, order, starts)
     if s_g2 <= 0.0:
-        return np.asarray(cov, dtype=float).copy(), s_n2, 0.0
-    _, gi = np.unique(np.asarray(groups), return_inverse=True)
-    col = (2 * gi[:, None] + np.arange(2)[None, :]).ravel()
-    KZ = _group_sums(K.T, col, 2 * (int(gi.max()) + 1)).T
+        return cov.copy(), s_n2, 0.0
     out = cov + (s_n2 - sigma**2) * (K @ K.T) + s_g2 * (KZ @ KZ.T)
     return 0.5 * (out + out.T), s_n2, s_g2
 

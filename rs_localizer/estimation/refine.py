@@ -53,6 +53,7 @@ __all__ = [
     "exact_jacobian",
     "exact_mounting_jacobian",
     "exact_residuals",
+    "exact_rows",
     "huber_fit_numpy",
     "huber_weights",
     "image_variance",
@@ -1496,6 +1497,34 @@ def refine_backend(compiled: bool) -> Callable[..., RefineResult]:
     """:func:`refine_rs_pose`, or with ``compiled`` False its NumPy and SciPy form
     :func:`refine_rs_pose_numpy` (the same arguments and result)."""
     return refine_rs_pose if compiled else refine_rs_pose_numpy
+
+
+def exact_rows(
+    model: RSModel | tuple,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    k: float,
+    mountings: Mountings | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`exact_residuals` (2N,) and :func:`exact_jacobian` (2N, 12) of ``model``
+    ``(R, C, w, t)`` at N points in front of their cameras, computed by the refinement's own
+    compiled kernel (its rows scaled by the square root of each point's Huber weight at scale
+    ``k``, then unscaled), with ``mountings`` as there; None where a point is behind its
+    camera (the kernel skips it)."""
+    R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64) for a in model)
+    f = np.float64
+    X, x, tau = (np.ascontiguousarray(a, dtype=f) for a in (X, x, tau))
+    n = len(X)
+    km = None if mountings is None else kernel_mountings(mountings, n).views
+    Jt, _ = _workspace(n)
+    m = _evaluate(R, C, w, t, X, x, tau, float(k), np.inf, Jt, km)[0]
+    if m != n:
+        return None
+    rows = Jt[:13, : 2 * n].T
+    q = np.hypot(rows[0::2, 12], rows[1::2, 12])  # (sqrt(weight) times each point's error)
+    s = np.repeat(np.where(q <= k, 1.0, q / k), 2)  # (1 / sqrt(weight))
+    return rows[:, 12] * s, rows[:, :12] * s[:, None]
 
 
 def huber_weights(e: np.ndarray, k: float) -> np.ndarray:

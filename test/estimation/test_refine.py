@@ -6,11 +6,13 @@ import pytest
 from rs_localizer._linalg import solve_symmetric as _solve_symmetric
 from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import (
+    Mountings,
     RefineSettings,
     _normal_equations,
     exact_errors,
     exact_jacobian,
     exact_residuals,
+    exact_rows,
     posterior_step,
     refine_rs_pose,
     refine_rs_pose_scipy,
@@ -296,3 +298,29 @@ def test_posterior_step_refuses():
     assert posterior_step(nocov, MotionPrior(), 1e-3) is None
     with pytest.raises(ValueError):
         posterior_step(ml, MotionPrior(), 0.0)
+
+
+@pytest.mark.parametrize("mounted", [False, True])
+def test_exact_rows_are_the_exact_residuals_and_jacobian(mounted):
+    """The refinement kernel's rows (exact_rows) equal the NumPy exact_residuals and
+    exact_jacobian to rounding, at Huber-downweighted points too, one camera and mounted
+    whitened points; None with a point behind the camera."""
+    rng = np.random.default_rng(5)
+    n = 40
+    X = rng.normal(size=(n, 3)) + [0.0, 0.0, 5.0]
+    x = rng.normal(scale=0.1, size=(n, 2))
+    tau = rng.normal(scale=0.01, size=n)
+    R0 = rotvec_to_matrix(np.r_[0.1, 0.2, -0.1])
+    C, w, t = np.r_[0.1, 0.2, 0.3], np.r_[0.5, -0.3, 0.2], np.r_[0.1, 0.2, -0.1]
+    m = None
+    if mounted:
+        scale = rng.normal(scale=0.1, size=(n, 2, 2)) + np.eye(2)
+        m = Mountings(np.zeros(n, np.int64), np.eye(3)[None], np.zeros((1, 3)), scale)
+    r, J = exact_rows((R0, C, w, t), X, x, tau, 0.02, m)
+    theta = np.r_[0.0, 0.0, 0.0, C, w, t]
+    r0, J0 = exact_residuals(theta, R0, X, x, tau, m), exact_jacobian(theta, R0, X, x, tau, m)
+    assert np.abs(r0.reshape(-1, 2)).max() > 0.02  # (some points beyond the Huber scale)
+    np.testing.assert_allclose(r, r0, rtol=0, atol=1e-12 * np.abs(r0).max())
+    np.testing.assert_allclose(J, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
+    X[3, 2] = -5.0
+    assert exact_rows((R0, C, w, t), X, x, tau, 0.02, m) is None
