@@ -107,14 +107,18 @@ def _tag_shift_persistence(rig: RealRig) -> tuple[float, float, float]:
     return corner_corr, share, float(np.corrcoef(a, b)[0, 1]) if len(a) > 2 else float("nan")
 
 
-def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> dict:
+def measure(
+    rig: RealRig, references: dict, estimates: dict | None = None, shift_share: float = 0.0
+) -> dict:
     """On ``rig``'s map and mountings (exact; or ``estimates``: camera -> ``MountingEstimate``,
     calibrated mountings with their covariance and time offset std, as
     :func:`~benchmarks.bench_real_rig.calibrated_rig_run` poses the rig), every rig frame with
     tags in two or more cameras and a pose in every reference of ``references`` (label ->
     stamp -> ``(R, C)``; the first: ``rig``'s own), posed twice: each corner's error its own
     (the views without groups) and the corners grouped by tag (:meth:`RealRig.views`: the
-    covariance with the tags' shared shift). Returns ``{"frames", "delta_chi2": (F,) of the
+    covariance with the tags' shared shift; ``shift_share``: the options'
+    ``correlated_noise.shift_share``, the shift's share of a corner's error variance in rig
+    frames too few tags to tell it). Returns ``{"frames", "delta_chi2": (F,) of the
     first reference's pose (through the same mountings as the rig's), "within": label -> (F,)
     within 3 sigma in the independent corners' covariance, "within_groups": label -> (F,) in
     the covariance with the tags' shift, "between", "between_groups": (F,) the first two
@@ -122,6 +126,8 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
     from benchmarks.bench_real_rig import _tracked_twist, within_3_sigma
 
     first, *_ = references
+    shared = replace(RIG_OPTIONS.correlated_noise, shift_share=shift_share)
+    options = replace(RIG_OPTIONS, correlated_noise=shared)
     out = {"delta_chi2": [], "within": defaultdict(list), "within_groups": defaultdict(list),
            "between": [], "between_groups": []}  # fmt: skip
     mountings, mounts = dict(rig.mountings), dict(rig.mounts)
@@ -135,7 +141,7 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
             continue
         grouped = rig.views(stamp, views, mountings)
         twist = _tracked_twist(last, stamp) if estimates else None
-        e = estimate_rig_pose(grouped, RIG_OPTIONS, twist=twist)
+        e = estimate_rig_pose(grouped, options, twist=twist)
         plain = estimate_rig_pose([replace(v, groups=None) for v in grouped], RIG_OPTIONS,
                                   twist=twist)  # fmt: skip
         if not (e.success and plain.success) or e.covariance is None or plain.covariance is None:
@@ -159,15 +165,22 @@ def measure(rig: RealRig, references: dict, estimates: dict | None = None) -> di
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m benchmarks.reference_fit --folder PATH/test_N [--calibrated] [--cache DIR]``:
-    the module's three measurements on both references of the recording; ``--calibrated``: the
-    rig posed with ``calibrate-rig``'s mountings and their covariance (the first of 20 and 8
-    inliers that calibrates every camera, on each reference's map, as
-    ``benchmarks.joint_reference`` runs it) instead of the reference's mountings as exact."""
+    """``python -m benchmarks.reference_fit --folder PATH/test_N [--calibrated]
+    [--shift-share S] [--cache DIR]``: the module's three measurements on both references of
+    the recording; ``--calibrated``: the rig posed with ``calibrate-rig``'s mountings and their
+    covariance (the first of 20 and 8 inliers that calibrates every camera, on each
+    reference's map, as ``benchmarks.joint_reference`` runs it) instead of the reference's
+    mountings as exact; ``--shift-share``: the options' ``correlated_noise.shift_share`` for
+    the rig frames with too few tags to tell the shift (default 0: none there)."""
     from benchmarks.bench_real_rig import calibrate_every_camera
 
     ap = recording_parser(main.__doc__)
     ap.add_argument("--calibrated", action="store_true", help="calibrate-rig's mountings")
+    ap.add_argument(
+        "--shift-share", type=float, default=0.0,
+        help="correlated_noise.shift_share: the tags' shift's share of a corner's error "
+        "variance in rig frames with too few tags to tell it (default 0)",
+    )  # fmt: skip
     a = ap.parse_args(argv)
     if (loaded := recording(a)) is None:
         return
@@ -185,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
          {"the joint solution's": joint.reference, "TagSLAM's": rig.reference}),
     ):  # fmt: skip
         est = calibrate_every_camera(r)[0] if a.calibrated else None
-        m = measure(r, refs, est)
+        m = measure(r, refs, est, a.shift_share)
         n, d = m["frames"], m["delta_chi2"]
         how = "calibrate-rig's mountings" if est else "mountings (exact)"
         fit = (

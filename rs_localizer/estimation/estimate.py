@@ -391,6 +391,7 @@ class _CameraStages:
             points2d, points3d, camera, opts.plausibility.max_point_norm, shuffle,
             compiled=compiled, groups=self.groups,
         )  # fmt: skip
+        fr.shift_share = opts.correlated_noise.shift_share
         if self.gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
             fr.known_w = -camera.seconds_per_unit_r * self.gyro.angular_velocity
         order = prosac_order(fr, self.scores)

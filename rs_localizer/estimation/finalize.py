@@ -942,7 +942,7 @@ def final_covariance(
     if groups is not None and ref.sigma > 0:
         residuals = exact_residuals(theta, R0, X, x, tau, sub) if rows is None else rows[0]
         cov[:free, :free] = shared_shift_covariance(
-            cov[:free, :free], ref.sigma, J, weights, residuals, groups[idx]
+            cov[:free, :free], ref.sigma, J, weights, residuals, groups[idx], fr.shift_share
         )[0]
     if mounted is None:
         return cov if np.isfinite(cov).all() else None

@@ -82,6 +82,9 @@ class RefinementView(Protocol):
     #: (N,) int64 each point's group (points of one group share a part of their image error,
     #: e.g. one marker's corners, :mod:`~.noise_model`), or None: every point's error its own
     groups: np.ndarray | None
+    #: the share of a grouped point's error variance its group shares, for a frame whose
+    #: residuals cannot tell it (the options' ``correlated_noise.shift_share``)
+    shift_share: float
 
     def mountings(self) -> Mountings | KernelMountings | None:
         """The refinement's mountings of every point (None: one camera's plain errors)."""
@@ -149,6 +152,7 @@ class Frame:
         groups: (N,) int64 each point's group (its input row's, :func:`with_groups`):
             points of one group share a part of their image error (one marker's corners),
             which the final covariance includes (:mod:`~.noise_model`); ``None``: none.
+        shift_share: the options' ``correlated_noise.shift_share`` (set by the estimator).
 
     The NumPy implementation (:mod:`.numpy_impl`) prepares its frames here too and adds its
     own ``tau`` ((N,) ``r - r0``).
@@ -163,6 +167,7 @@ class Frame:
     known_w: np.ndarray | None = None
     W: np.ndarray = np.zeros((0, 4))
     groups: np.ndarray | None = None
+    shift_share = 0.0
     threshold: float
     #: the frame was prepared for the compiled implementation (:func:`prepare_frame`); False:
     #: the NumPy one's, whose final-stage refinements and errors run in NumPy and SciPy

@@ -37,7 +37,10 @@ the model::
 
 per image axis, with ``s_n`` and ``s_g`` estimated from the frame's own residuals
 (:func:`shared_shift_variances`), and the covariance is the sandwich under it
-(:func:`shared_shift_covariance`).
+(:func:`shared_shift_covariance`). A frame of a few groups cannot tell a shift from its own
+residuals (the pose absorbs the groups' shifts): there the covariance takes the share
+``s_g^2 / (s_n^2 + s_g^2)`` the options give (``correlated_noise.shift_share``; 0, the
+default: the white noise's covariance).
 """
 
 from __future__ import annotations
@@ -168,9 +171,10 @@ def _group_sums(A: np.ndarray, order: np.ndarray, starts: np.ndarray) -> np.ndar
     return np.add.reduceat(A[order], starts, axis=0)
 
 
-def _variances(r, J, K, order, starts) -> tuple[float, float, float, np.ndarray]:
+def _variances(r, J, K, order, starts, share=0.0) -> tuple[float, float, float, np.ndarray, bool]:
     """:func:`shared_shift_variances` with the groups as :func:`_group_columns` gives them,
-    and ``K Z`` (P, 2G)."""
+    ``K Z`` (P, 2G) and whether the residuals told the shared variance (else the share's or
+    none)."""
     n2, P = J.shape
     sums = _group_sums(np.column_stack([J, K.T, r]), order, starts)
     ZJ, KZ, Zr = sums[:, :P], sums[:, P : 2 * P].T, sums[:, -1]  # Z^T J, K Z, Z^T r
@@ -189,18 +193,26 @@ def _variances(r, J, K, order, starts) -> tuple[float, float, float, np.ndarray]
     det = a11 * a22 - a12 * a21
     white = max(q1 / a11, 0.0) if a11 > 0 else 0.0
     if dof < MIN_SHIFT_DOF or not det > 1e-12 * a11 * a22:
-        return white, 0.0, dof, KZ
+        if share > 0.0 and a11 > 0:  # (E q1 = a11 s_n^2 + a12 s_g^2, s_g^2 = kappa s_n^2)
+            kappa = share / (1.0 - share)
+            s_n2 = max(q1 / (a11 + kappa * a12), 0.0)
+            return s_n2, kappa * s_n2, dof, KZ, False
+        return white, 0.0, dof, KZ, False
     s_n2 = (a22 * q1 - a12 * q2) / det
     s_g2 = (a11 * q2 - a21 * q1) / det
     if s_g2 <= 0.0:
-        return white, 0.0, dof, KZ
+        return white, 0.0, dof, KZ, True
     if s_n2 < 0.0:
-        return 0.0, max(q1 / a12, 0.0) if a12 > 0 else 0.0, dof, KZ
-    return float(s_n2), float(s_g2), dof, KZ
+        return 0.0, max(q1 / a12, 0.0) if a12 > 0 else 0.0, dof, KZ, True
+    return float(s_n2), float(s_g2), dof, KZ, True
 
 
 def shared_shift_variances(
-    residuals: np.ndarray, J: np.ndarray, K: np.ndarray, groups: np.ndarray
+    residuals: np.ndarray,
+    J: np.ndarray,
+    K: np.ndarray,
+    groups: np.ndarray,
+    share: float = 0.0,
 ) -> tuple[float, float, float]:
     """The white and the shared variance of a frame's image errors under the grouped model of
     the module doc, from the residuals of one least-squares fit (method of moments).
@@ -217,13 +229,16 @@ def shared_shift_variances(
         J: (2N, P) their Jacobian over the P fitted parameters. K: (P, 2N) the fit's gain
             (``H^-1 J^T W``: ``H`` the normal matrix, ``W`` the points' weights).
         groups: (N,) int each point's group (points of one group share a shift).
+        share: the shift's share of a point's error variance, ``s_g^2 / (s_n^2 + s_g^2)`` in
+            [0, 1), taken where the residuals cannot tell it (below): ``s_g^2 = kappa
+            s_n^2``, ``kappa = share / (1 - share)``, and ``s_n^2`` from the first equation.
     Returns:
         ``(s_n^2, s_g^2, dof)``: the two variances and the degrees of freedom of the groups'
         mean errors the fit leaves (``tr(Z^T M Z (Z^T Z)^-1)``: 2 per group less what the
-        fitted parameters absorb); ``s_g^2`` is 0 where ``dof`` is below
-        :data:`MIN_SHIFT_DOF` (a fit that absorbs the groups' shifts cannot tell them).
+        fitted parameters absorb); where ``dof`` is below :data:`MIN_SHIFT_DOF` (a fit that
+        absorbs the groups' shifts cannot tell them) ``s_g^2`` is ``share``'s, 0 without.
     Raises:
-        ValueError: arrays of mismatched lengths.
+        ValueError: arrays of mismatched lengths, a share outside [0, 1).
     """
     r = np.asarray(residuals, dtype=float)
     J = np.asarray(J, dtype=float)
@@ -234,8 +249,10 @@ def shared_shift_variances(
             f"shared_shift_variances: residuals {r.shape}, J {J.shape}, K {K.shape} and "
             f"groups {g.shape} disagree"
         )
+    if not 0.0 <= share < 1.0:
+        raise ValueError(f"shared_shift_variances: share must be in [0, 1), got {share!r}")
     order, starts, _ = _group_columns(g)
-    return _variances(r, J, K, order, starts)[:3]
+    return _variances(r, J, K, order, starts, float(share))[:3]
 
 
 def shared_shift_covariance(
@@ -245,6 +262,8 @@ def shared_shift_covariance(
     weights: np.ndarray,
     residuals: np.ndarray,
     groups: np.ndarray,
+    share: float = 0.0,
+    floor: float = 0.0,
 ) -> tuple[np.ndarray, float, float]:
     """The covariance of a refined estimate under white noise plus a shift shared by each
     group's points (module doc), in place of the white noise's alone.
@@ -264,11 +283,19 @@ def shared_shift_covariance(
         J: (2N, P) the residuals' Jacobian at the estimate (x, y interleaved), the points the
             refinement weighed; weights: (N,) their weights ``w_i`` (Huber's; 1 inside the
             threshold). residuals: (2N,) their residuals. groups: (N,) their groups.
+        share: the shift's share of a point's error variance where the residuals cannot
+            tell it (:func:`shared_shift_variances`; 0: the white noise's covariance there).
+        floor: the least white variance ``s_n^2`` (the residuals' units squared; a fit whose
+            noise has a floor, e.g. a few points' pose, :mod:`.single_tag`); with ``share``
+            the shared one follows it.
     Returns:
         ``(covariance (P, P) symmetrized, s_n^2, s_g^2)``.
     Raises:
-        ValueError: arrays of mismatched lengths, or a sigma that is not > 0.
+        ValueError: arrays of mismatched lengths, a sigma that is not > 0 or a share outside
+            [0, 1).
     """
+    if not 0.0 <= share < 1.0:
+        raise ValueError(f"shared_shift_covariance: share must be in [0, 1), got {share!r}")
     if not sigma > 0:
         raise ValueError(f"shared_shift_covariance: sigma must be > 0, got {sigma!r}")
     cov = np.asarray(cov, dtype=float)
@@ -283,9 +310,12 @@ def shared_shift_covariance(
         )
     K = (cov / sigma**2) @ (J * np.repeat(w, 2)[:, None]).T
     order, starts, _ = _group_columns(g)
-    s_n2, s_g2, _, KZ = _variances(r, J, K, order, starts)
+    s_n2, s_g2, _, KZ, told = _variances(r, J, K, order, starts, float(share))
     if s_g2 <= 0.0:
         return cov.copy(), s_n2, 0.0
+    if s_n2 < floor:
+        s_n2 = float(floor)
+        s_g2 = s_g2 if told else share / (1.0 - share) * s_n2
     out = cov + (s_n2 - sigma**2) * (K @ K.T) + s_g2 * (KZ @ KZ.T)
     return 0.5 * (out + out.T), s_n2, s_g2
 

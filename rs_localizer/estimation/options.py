@@ -241,13 +241,22 @@ class CorrelatedNoise:
             calibration views. Costs O(N^2) in the inliers: ~1 ms at 54 points, ~13 ms at 300,
             ~90 ms at 1000 (one core, the covariance step alone).
         length_px: its correlation length (px, > 0).
+        shift_share: for points given in groups (one marker's corners,
+            :attr:`~rs_localizer.estimation.view.View.groups`): the share of a point's
+            error variance its group shares (the marker's image shifted as a whole), in [0,
+            1), taken by frames whose own residuals cannot tell it (too few groups for the
+            fitted parameters, :func:`~.noise_model.shared_shift_variances`); frames that can
+            estimate their own. ``0``: none there (default). Measure it on a recording with
+            ``python -m benchmarks.reference_fit``.
 
     Raises:
-        ValueError: a negative or non-finite ``sigma_px`` or a ``length_px`` that is not > 0.
+        ValueError: a negative or non-finite ``sigma_px``, a ``length_px`` that is not > 0
+            or a ``shift_share`` outside [0, 1).
     """
 
     sigma_px: float = 0.0
     length_px: float = 100.0
+    shift_share: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.sigma_px) and self.sigma_px >= 0):
@@ -257,6 +266,10 @@ class CorrelatedNoise:
         if not (np.isfinite(self.length_px) and self.length_px > 0):
             raise ValueError(
                 f"correlated_noise.length_px must be finite and > 0, got {self.length_px!r}"
+            )
+        if not (0.0 <= self.shift_share < 1.0):
+            raise ValueError(
+                f"correlated_noise.shift_share must be in [0, 1), got {self.shift_share!r}"
             )
 
 

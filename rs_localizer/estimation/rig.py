@@ -384,6 +384,7 @@ def estimate_rig_pose(
     def stacked(vs: Sequence[View]) -> StackedViews:
         pool = StackedViews(vs, compiled, cache, max_norm)
         pool.twist = twist
+        pool.shift_share = options.correlated_noise.shift_share
         return pool
 
     def estimated(pool: StackedViews) -> RSPoseEstimate:

@@ -43,6 +43,7 @@ from ..pose import RSModel
 from .degeneracy import PLANAR_TOLERANCE, condition_number, coplanar, planarity
 from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
 from .frame import Frame
+from .noise_model import shared_shift_covariance
 from .options import EstimateOptions, InitialModel
 from .prior import MotionPrior
 from .refine import (
@@ -53,6 +54,7 @@ from .refine import (
     exact_errors,
     exact_jacobian,
     exact_residuals,
+    exact_rows,
 )
 from .result import (
     AMBIGUOUS_TAG,
@@ -527,6 +529,16 @@ def few_points_model(
         cov[:6, :6] = sigma2 * np.linalg.inv(H)
     except np.linalg.LinAlgError:
         raise EstimationFailed(DEGENERATE_GEOMETRY) from None
+    if fr.groups is not None and fr.shift_share > 0:
+        # (each marker's corners share a shift: the options' share of the corner's noise,
+        # the few points cannot tell it themselves; noise_model)
+        rows = exact_rows((R, C, w, t), fr.X, fr.x, fr.r - fr.r0, th, fr.mountings())
+        if rows is not None:
+            r, J = rows
+            cov[:6, :6] = shared_shift_covariance(
+                cov[:6, :6], math.sqrt(sigma2), J[:, :6], np.ones(n), r, fr.groups,
+                fr.shift_share, floor=sigma2,
+            )[0]  # fmt: skip
     if moving:
         cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
     final = FinalModel(

@@ -274,6 +274,9 @@ class StackedViews:
     spr = 1.0
     #: no planar motion prior in the final stage (:class:`~.frame.RefinementView`)
     planar = False
+    #: the share of a grouped point's error variance its group shares where the frame's
+    #: residuals cannot tell it (the options' ``correlated_noise.shift_share``)
+    shift_share = 0.0
     #: the rig's ``(w (3,) rad/s, t (3,) m/s)`` known from outside the frame (a tracker's
     #: prediction) for the time offsets' share of a global-shutter rig frame's covariance,
     #: whose model has no twist (:func:`~.finalize.final_covariance`); None: none

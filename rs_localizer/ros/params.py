@@ -157,6 +157,15 @@ PARAMETERS = {
         FloatRange(from_value=0.1, to_value=1e5),
         field="estimate",
     ),
+    "correlated_noise.shift_share": Parameter(
+        0.0,
+        "share of a marker corner's error variance that the marker's 4 corners share (its "
+        "image shifted as a whole), in the covariance of frames with too few markers to "
+        "estimate it themselves (frames with more estimate their own); 0 = none there. "
+        "Measure it with python -m benchmarks.reference_fit",
+        FloatRange(from_value=0.0, to_value=0.99),
+        field="estimate",
+    ),
     "rs.line_delay": Parameter(
         3.0e-5,
         "time between consecutive image lines (s/line); 0 = global shutter",
