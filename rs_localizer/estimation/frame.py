@@ -149,7 +149,7 @@ class Frame:
         known_w: (3,) the angular velocity a gyro measured, in the model's units (rad per
             unit r, camera frame): RANSAC's samples are then solved with it known
             (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); ``None``: no gyro.
-        groups: (N,) int64 each point's group (its input row's, :func:`with_groups`):
+        groups: (N,) int64 each point's group (its input row's, :func:`prepare_frame`):
             points of one group share a part of their image error (one marker's corners),
             which the final covariance includes (:mod:`~.noise_model`); ``None``: none.
         shift_share: the options' ``correlated_noise.shift_share`` (set by the estimator).

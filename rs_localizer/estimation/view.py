@@ -175,7 +175,7 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
             focal, A)  # fmt: skip
 
 
-def checked_view_groups(c: int, v: View) -> np.ndarray | None:
+def _checked_view_groups(c: int, v: View) -> np.ndarray | None:
     """Camera ``c``'s view's :attr:`View.groups` checked (one integer per correspondence,
     :func:`~.frame.checked_groups`; the error names the camera)."""
     if v.groups is None:
@@ -317,7 +317,7 @@ class StackedViews:
         #: every input row of every view is valid (the stack's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
         self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
-        self._groups = [checked_view_groups(c, v) for c, v in enumerate(views)]
+        self._groups = [_checked_view_groups(c, v) for c, v in enumerate(views)]
         if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
             q = parts[0]
             self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
