@@ -52,7 +52,7 @@ def _warn_pixels(stacklevel: int = 3) -> None:
 class Correspondences:
     """2D-3D correspondences of one frame.
 
-    ``Correspondences(points2d, points, ids=None, scores=None)``.
+    ``Correspondences(points2d, points, ids=None, scores=None, groups=None)``.
 
     Attributes:
         points2d: (N, 2) px, distorted image points.
@@ -60,6 +60,12 @@ class Correspondences:
         ids: (N,) int64 landmark / corner ids, or None.
         scores: (N,) match quality (higher is better, e.g. ``1 - ratio`` of a feature match),
             or None; used by PROSAC-style sampling.
+        groups: (N,) int64 each correspondence's group, or None (every correspondence's image
+            error its own): correspondences of one group share a part of their image error,
+            as one marker's 4 corners share a shift of the marker's image (the group is the
+            marker's id). The estimator's covariance includes that shared error
+            (:attr:`~rs_localizer.estimation.view.View.groups`); the estimate does not
+            change with it.
 
     It unpacks, and indexes, as ``points2d, points, ids`` (``uv, xyz, ids =
     frontend.process(image)``); ``len`` is the number of rows. ``uv`` and ``xyz`` name
@@ -69,14 +75,18 @@ class Correspondences:
     Deprecated: ``pixels`` (the keyword and the attribute), the former name of ``points2d``,
     works for one more release and warns (``DeprecationWarning``).
 
+    :meth:`take` keeps the rows given (every per-row field alike).
+
     Raises:
         TypeError: ``points2d`` or ``points`` missing, or both ``points2d`` and ``pixels``.
+        ValueError: ``groups`` that are not one integer per row of ``points2d``.
     """
 
     points2d: np.ndarray
     points: np.ndarray
     ids: np.ndarray | None = None
     scores: np.ndarray | None = None
+    groups: np.ndarray | None = None
 
     def __init__(
         self,
@@ -84,6 +94,7 @@ class Correspondences:
         points: np.ndarray | None = None,
         ids: np.ndarray | None = None,
         scores: np.ndarray | None = None,
+        groups: np.ndarray | None = None,
         *,
         pixels: np.ndarray | None = None,
     ):
@@ -99,6 +110,7 @@ class Correspondences:
         set_(self, "points", points)
         set_(self, "ids", ids)
         set_(self, "scores", scores)
+        set_(self, "groups", _checked_groups(groups, np.size(points2d) // 2))
 
     @property
     def pixels(self) -> np.ndarray:
@@ -140,10 +152,44 @@ class Correspondences:
         """``points2d``, ``points``, ``ids`` by position (as the former 3-tuple)."""
         return (self.points2d, self.points, self.ids)[i]
 
+    def take(self, rows: np.ndarray) -> Correspondences:
+        """The correspondences of ``rows`` ((M,) indices into the N rows, or an (N,) bool
+        mask), in that order: ``points2d`` (M, 2), ``points`` (M, 3) and, each when it has one
+        entry per row, ``ids``, ``scores`` and ``groups`` (M,) (one that has not: None).
+
+        Raises:
+            IndexError: an index out of range, a mask of another length.
+        """
+        n = len(self)
+
+        def per_row(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None or len(a) != n else np.asarray(a)[rows]
+
+        uv = np.asarray(self.points2d).reshape(-1, 2)[rows]
+        xyz = np.asarray(self.points).reshape(-1, 3)[rows]
+        return Correspondences(
+            uv, xyz, per_row(self.ids), per_row(self.scores), per_row(self.groups)
+        )
+
     def valid_scores(self) -> np.ndarray | None:
         """``scores`` when there is one per row, else None."""
         s = self.scores
         return s if s is not None and len(s) == len(self.points2d) else None
+
+
+def _checked_groups(groups: Any, n: int) -> np.ndarray | None:
+    """``groups`` as (n,) int64 (None stays None).
+
+    Raises:
+        ValueError: not a 1-D array of ``n`` integers."""
+    if groups is None:
+        return None
+    g = np.asarray(groups)
+    if g.shape != (n,) or not (np.issubdtype(g.dtype, np.integer) or g.size == 0):
+        raise ValueError(
+            f"Correspondences: groups must be ({n},) integers, one per row; got {g.dtype} {g.shape}"
+        )
+    return g.astype(np.int64, copy=False)
 
 
 @runtime_checkable

@@ -65,3 +65,35 @@ def test_observe_takes_the_deprecated_pixels_keyword():
     assert fe.seen[0] == 7 and fe.seen[1] is uv
     with pytest.warns(DeprecationWarning):
         FrontendHooks().observe(0, pixels=uv, feedback=None)
+
+
+def test_groups_are_checked_and_kept_with_their_rows():
+    """``groups`` (one marker's corners: the marker's id) is one int64 per row, unpacking stays
+    the 3-tuple, and :meth:`Correspondences.take` keeps each per-row field's rows in the order
+    asked (indices or a mask), a field not one per row dropped."""
+    uv = np.arange(16.0).reshape(8, 2)
+    xyz = np.arange(24.0).reshape(8, 3)
+    ids = np.arange(8) + 100
+    scores = np.linspace(0.1, 0.8, 8)
+    groups = np.array([7, 7, 7, 7, 3, 3, 3, 3], np.int32)
+    c = Correspondences(uv, xyz, ids, scores, groups)
+    assert c.groups.dtype == np.int64 and np.array_equal(c.groups, groups)
+    a, b, i = c
+    assert a is uv and b is xyz and i is ids
+    assert Correspondences(uv, xyz).groups is None
+    rows = np.array([6, 1, 4])
+    t = c.take(rows)
+    assert np.array_equal(t.points2d, uv[rows]) and np.array_equal(t.points, xyz[rows])
+    assert np.array_equal(t.ids, ids[rows]) and np.array_equal(t.scores, scores[rows])
+    assert t.groups.tolist() == [3, 7, 3]
+    mask = np.array([False, True, False, False, True, True, False, False])
+    m = c.take(mask)
+    assert m.groups.tolist() == [7, 3, 3] and m.ids.tolist() == [101, 104, 105]
+    # a field without one entry per row (scores of another length) is not indexed
+    odd = Correspondences(uv, xyz, None, np.ones(3), groups).take(rows)
+    assert odd.scores is None and odd.ids is None and odd.groups.tolist() == [3, 7, 3]
+    assert Correspondences(uv, xyz).take(rows).groups is None
+    for bad in (np.zeros(7, int), np.zeros(8), np.zeros((8, 1), int)):
+        with pytest.raises(ValueError, match="groups"):
+            Correspondences(uv, xyz, groups=bad)
+    assert Correspondences(np.zeros((0, 2)), np.zeros((0, 3)), groups=[]).groups.shape == (0,)

@@ -7,7 +7,9 @@ dictionaries) finds the markers, over the full frame or, with ``windowed``, in w
 the predicted markers (the same detector and settings); each corner ``k`` (in the detector's
 order: for ArUco dictionaries the printed top-left, top-right, bottom-right, bottom-left; for
 AprilTag families ``docs/marker_maps.md``'s "Corner order") of marker ``id`` found in the
-marker map becomes a correspondence with id ``4 * id + k`` and the corner's 3D position.
+marker map becomes a correspondence with id ``4 * id + k``, group ``id`` (the marker's 4 corners
+share a part of their image error: the detector fits the marker's edges together) and the
+corner's 3D position.
 Markers not in the map are ignored; an id found twice in one image is dropped from that image
 (counted).
 """
@@ -393,8 +395,9 @@ class ArucoFrontend(FrontendHooks):
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
         (``points2d`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
-        stated std when it has them (``marker_std``), else None; unpacks as
-        ``(points2d, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
+        stated std when it has them (``marker_std``), else None, ``groups`` (N,) each
+        corner's marker id; unpacks as ``(points2d, points3d, ids)``) with
+        ``ids = 4 * marker_id + corner``. Pixels stay
         distorted, as the estimator expects; ``camera`` (the frame's model) and
         ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
         video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
@@ -420,7 +423,8 @@ class ArucoFrontend(FrontendHooks):
         uv = corners[keep].reshape(-1, 2)
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
-        return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)
+        groups = np.repeat(np.asarray(mids[keep], np.int64), 4)
+        return Correspondences(uv, X, ids.astype(np.int64), self.last_scores, groups)
 
 
 #: px: markers predicted with a side shorter than this get no window (the AprilTag library

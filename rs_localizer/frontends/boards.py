@@ -84,6 +84,12 @@ class _BoardFrontend(FrontendHooks):
     def _detect_ids(self, gray, camera):
         raise NotImplementedError
 
+    def _groups(self, ids: np.ndarray) -> np.ndarray | None:
+        """(N,) each correspondence's group (:attr:`~rs_localizer.correspondences.
+        Correspondences.groups`) of the board's correspondence ``ids`` (N,), or None: each
+        corner's image error its own (a chessboard corner is found alone)."""
+        return None
+
     def process(
         self,
         image: np.ndarray,
@@ -92,7 +98,9 @@ class _BoardFrontend(FrontendHooks):
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`,
         unpacks as ``(points2d (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
-        int64)``; no scores); detections whose id is not on the board are dropped.
+        int64)``; no scores; ``groups`` (N,) a tag board's corners' tag ids, None for the
+        chessboard corners of a checkerboard or ChArUco board); detections whose id is not on
+        the board are dropped.
         ``camera`` is optional (the ChArUco front end uses it to interpolate corners);
         every image alone."""
         uv, ids = self._detect_ids(to_gray(image, encoding), camera)
@@ -101,7 +109,8 @@ class _BoardFrontend(FrontendHooks):
         rows, found = self.board.lookup(ids)
         if not found.any():
             return Correspondences.empty()
-        return Correspondences(uv[found], self.board.points[rows], ids[found])
+        ids = ids[found]
+        return Correspondences(uv[found], self.board.points[rows], ids, None, self._groups(ids))
 
 
 class CheckerboardFrontend(_BoardFrontend):
@@ -296,7 +305,10 @@ class TagFrontend(_BoardFrontend):
     Raises:
         ValueError: unknown refinement.
 
-    Tags whose id is not on the board are ignored (``last_unknown`` counts them).
+    Tags whose id is not on the board are ignored (``last_unknown`` counts them). Each tag's
+    4 corners are one group (:attr:`~rs_localizer.correspondences.Correspondences.groups`, the
+    tag's id): the detector fits each tag's quad alone, so its corners share a part of their
+    image error, whether the tags are printed on one board or placed one by one.
     """
 
     name = "tags"
@@ -356,6 +368,10 @@ class TagFrontend(_BoardFrontend):
         corners, tids = corners[on_board], tids[on_board]
         ids = (4 * tids[:, None] + np.arange(4)[None, :]).ravel() + self.board.id_offset
         return corners.reshape(-1, 2), ids
+
+    def _groups(self, ids: np.ndarray) -> np.ndarray:
+        """Each corner's tag id (its id is ``id_offset + 4 * tag_id + corner``)."""
+        return (np.asarray(ids, np.int64) - self.board.id_offset) // 4
 
 
 _FRONTENDS = {

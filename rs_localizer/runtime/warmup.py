@@ -150,12 +150,13 @@ def warm_up(
     """Run everything a node with ``solver``, ``options`` and ``tracking`` runs on a frame, on
     small synthetic problems, so that numba compiles (or loads from its cache) every kernel
     before the first real frame: :func:`~rs_localizer.estimation.estimate_rs_pose` on a
-    60-point 3D scene with and without scores (the two input paths of the node), on a small
-    distant object (the motion prior's MAP step) and on a planar scene (MAP refinement and
-    damped hypotheses) for solvers that take one, and on one tag's four corners (the
-    few-points path, with and without distortion, and with a prediction's velocities held);
-    with ``tracking`` (the video tracker's
-    options, None: every frame alone) also an
+    60-point 3D scene with and without scores (the two input paths of the node) and with its
+    points in groups of four (a marker front end's corners: their shared shift's
+    covariance), on a small distant object (the motion prior's MAP step) and on a planar
+    scene (MAP refinement and damped hypotheses) for solvers that take one, and on one tag's
+    four corners (the few-points path, with and without distortion, and with a prediction's
+    velocities held); with ``tracking`` (the video tracker's options, None: every frame
+    alone) also an
     :class:`~rs_localizer.tracking.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
     sensitivity). With ``gyro`` each of these again with a gyro measurement (RANSAC's
@@ -193,6 +194,9 @@ def _run(solver, options, tracking, gyro: bool = True, impl: str | None = None) 
     cam, uv, X, scores = synthetic_problem()
     est = estimate_rs_pose(uv, X, cam, **kw)
     estimate_rs_pose(uv, X, cam, scores=scores, **kw)
+    # (points in groups of four, a marker front end's corners: the covariance of their shared
+    # shift, :mod:`~rs_localizer.estimation.noise_model`)
+    estimate_rs_pose(uv, X, cam, groups=np.arange(len(uv)) // 4, **kw)
     # (a camera without distortion refines the plain errors: the refinement's other version)
     estimate_rs_pose(uv, X, replace(cam, D=np.zeros(0)), **kw)
     if gyro:
@@ -515,8 +519,9 @@ def warm_rig(
     rig turning (0.3 rad/s) and moving (0.5 m/s) among points in front of every camera,
     projected through each camera's exact RS model (0.3 px noise), with gyro samples at 200 Hz
     when ``settings.imu`` is set: numba compiles (or loads) every kernel the rig's estimator
-    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`: gR6P, P3P, its residuals), its
-    tracking and twist filter and the per-camera checks run. ``timing``: camera name ->
+    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`: gR6P, P3P, its residuals, the
+    shared shift's covariance of points in groups), its tracking and twist filter and the
+    per-camera checks run. ``timing``: camera name ->
     ``(line_delay s, readout_time s, direction)`` (default: 30 us per line, top to bottom; the
     kernels' types do not depend on the values).
     Returns the rig frames posed (all of them on this scene)."""
@@ -571,6 +576,10 @@ def warm_rig(
             ok = np.isfinite(uv).all(1)
             views[still].append(View(uv[ok], points[name][ok], cam, m))
     estimate_rig_pose(views[True], settings.options)
+    # (each camera's points in groups of four, a marker front end's corners: the covariance
+    # of their shared shift)
+    grouped = [replace(v, groups=np.arange(len(v.uv)) // 4) for v in views[False]]
+    estimate_rig_pose(grouped, settings.options)
     # (one camera's four corners alone: a rig frame posed by that camera's few-points path,
     # its frame taken from the rig's undistorted points)
     cam, uv, X, _ = synthetic_problem(4, scene="planar")

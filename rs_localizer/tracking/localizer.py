@@ -12,7 +12,8 @@ camera's adapter (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) sh
 - each camera's image front end (:class:`CameraFrontend`, :func:`search_image`): the
   frozen-image check (:func:`same_image`), the search with the prediction (``process``), its
   one-time warning, the feedback of how the frame was solved (``observe``), and the rows the
-  estimator can use (:func:`finite_rows`, :func:`usable_rows`, :func:`too_few_points`).
+  estimator can use (:func:`finite_rows`, :func:`usable_rows`, :func:`usable_correspondences`,
+  :func:`too_few_points`).
 
 A video also checks the cameras' rolling-shutter timing (:class:`PendingTwists`,
 :meth:`Localizer.readout_values <rs_localizer.tracking.video.Localizer.readout_values>`): a
@@ -44,9 +45,10 @@ from ..correspondences import (
     VideoFrontend,
     video_frontend,
 )
+from ..estimation.frame import checked_groups
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions, points_needed
-from ..estimation.points import cap_points
+from ..estimation.points import capped_rows
 from ..estimation.single_tag import few_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
 from .fusion import FusedState
@@ -69,6 +71,7 @@ __all__ = [
     "same_image",
     "search_image",
     "too_few_points",
+    "usable_correspondences",
     "usable_rows",
 ]
 
@@ -97,11 +100,16 @@ class CameraFrame:
             fused twist (one camera), in its rig frame's ``tags`` (a rig).
         camera_name: the camera's name in the rig
             (:attr:`~rs_localizer.tracking.video.LocalizerSettings.mounts`); "" for one camera.
+        groups: (N,) int64 each correspondence's group (one marker's corners: the marker's
+            id; :attr:`~rs_localizer.correspondences.Correspondences.groups`), or None: what
+            the estimator's covariance takes as a shared part of their image error
+            (:attr:`~rs_localizer.estimation.view.View.groups`).
 
     Raises:
         ValueError: a stamp that is not a finite number within the int64 nanosecond range
-            (:func:`~rs_localizer.camera.checked_stamp`). TypeError: a ``camera`` that is
-            neither a :class:`~rs_localizer.camera.CameraModel` nor None.
+            (:func:`~rs_localizer.camera.checked_stamp`); ``groups`` that are not one integer
+            per row of ``points2d``. TypeError: a ``camera`` that is neither a
+            :class:`~rs_localizer.camera.CameraModel` nor None.
     """
 
     stamp_ns: int
@@ -111,9 +119,13 @@ class CameraFrame:
     scores: np.ndarray | None = None
     tag: object = None
     camera_name: str = ""
+    groups: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
+        if self.groups is not None:
+            n = len(np.asarray(self.points2d).reshape(-1, 2))
+            object.__setattr__(self, "groups", checked_groups(self.groups, n))
         if self.camera is not None:
             check_camera(self.camera)
 
@@ -166,6 +178,32 @@ def finite_rows(
     return uv, xyz, scores, n_bad
 
 
+def _usable_indices(
+    uv: np.ndarray,
+    xyz: np.ndarray,
+    scores: np.ndarray | None,
+    max_points: int | None,
+    count: Callable[[str, int], Any],
+    warn: Callable[[str, str], Any],
+) -> np.ndarray | None:
+    """The rows of :func:`usable_rows` as indices (increasing) into the N rows given, or None:
+    every row (counted and warned as :func:`usable_rows` says)."""
+    good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+    n = int(np.count_nonzero(good))
+    rows = None
+    if n < len(uv):
+        count("points_dropped", len(uv) - n)
+        rows = np.flatnonzero(good)
+    if max_points is not None and n > max_points:
+        count("capped_clouds", 1)
+        count("capped_points", n - max_points)
+        warn("capped", f"cloud of {n} points capped to max_points {max_points}")
+        s = scores if rows is None or scores is None else scores[rows]
+        keep = capped_rows(n, max_points, s)
+        rows = keep if rows is None else rows[keep]
+    return rows
+
+
 def too_few_points(
     points3d: np.ndarray, solver: str, options: EstimateOptions | None
 ) -> int | None:
@@ -195,16 +233,37 @@ def usable_rows(
     (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
     ``capped_points``, and ``warn("capped", text)``). Each camera's images, a camera video's
     and a rig's (:meth:`~rs_localizer.tracking.video.Localizer.process_image`), and the
-    node's per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
-    uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
-    if n_bad:
-        count("points_dropped", n_bad)
-    if max_points is not None and len(uv) > max_points:
-        count("capped_clouds", 1)
-        count("capped_points", len(uv) - max_points)
-        warn("capped", f"cloud of {len(uv)} points capped to max_points {max_points}")
-        uv, xyz, scores = cap_points(uv, xyz, scores, max_points)
-    return uv, xyz, scores
+    node's per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it
+    (an image's front end's rows: :func:`usable_correspondences`)."""
+    rows = _usable_indices(uv, xyz, scores, max_points, count, warn)
+    if rows is None:
+        return uv, xyz, scores
+    return uv[rows], xyz[rows], None if scores is None else scores[rows]
+
+
+def usable_correspondences(
+    found: Correspondences,
+    max_points: int | None,
+    count: Callable[[str, int], Any],
+    warn: Callable[[str, str], Any],
+) -> Correspondences:
+    """A front end's :class:`~rs_localizer.correspondences.Correspondences` ``found`` as the
+    estimator takes them: its rows by :func:`usable_rows` (those with a NaN or inf dropped,
+    then at most ``max_points``; counted and warned alike), ``points2d`` (M, 2) px and
+    ``points`` (M, 3) m as float, with the same rows of ``ids``, ``scores`` (the
+    :meth:`~rs_localizer.correspondences.Correspondences.valid_scores`: None unless one per
+    row) and ``groups`` (a marker's corners keep their group).
+
+    Raises:
+        ValueError: ``points2d`` or ``points`` that do not make (N, 2) and (N, 3).
+    """
+    uv = np.asarray(found.points2d, float).reshape(-1, 2)
+    xyz = np.asarray(found.points, float).reshape(-1, 3)
+    scores = found.valid_scores()
+    ids = found.ids if found.ids is not None and len(found.ids) == len(uv) else None
+    rows = _usable_indices(uv, xyz, scores, max_points, count, warn)
+    c = Correspondences(uv, xyz, ids, scores, found.groups)
+    return c if rows is None else c.take(rows)
 
 
 @dataclass(frozen=True)

@@ -660,6 +660,7 @@ class RSTracker(TrackerPath):
         *,
         gyro: GyroMeasurement | None = None,
         implementation: str | None = None,
+        groups: np.ndarray | None = None,
     ) -> TrackResult:
         """Estimate one frame and update the track.
 
@@ -676,14 +677,18 @@ class RSTracker(TrackerPath):
                 filter's steps run as plain Python too: nothing compiles): the prediction,
                 the gyro and the filter are the same on either, so a track goes on across a
                 switch.
+            groups: (N,) int each point's group (one marker's corners: the marker's id), or
+                None: as :func:`estimate_rs_pose`'s (the covariance includes the image error
+                a group's points share; the estimate is the same).
         Returns:
             :class:`TrackResult`.
         Raises:
-            ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
+            ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver, groups
+                that are not (N,) integers).
         """
         return self.track(
             stamp_ns,
-            self.frame_views(points2d, points3d, camera, scores, gyro, implementation),
+            self.frame_views(points2d, points3d, camera, scores, gyro, implementation, groups),
         )
 
     def frame_views(
@@ -694,9 +699,11 @@ class RSTracker(TrackerPath):
         scores: np.ndarray | None = None,
         gyro: GyroMeasurement | None = None,
         implementation: str | None = None,
+        groups: np.ndarray | None = None,
     ) -> FrameViews:
         """A camera's frame as the estimator of :meth:`~TrackerPath.track` (:meth:`process`'s
-        arguments): its one view solved with the tracker's solver, options and tracked
+        arguments; ``groups`` its view's :attr:`~rs_localizer.estimation.view.View.groups`):
+        its one view solved with the tracker's solver, options and tracked
         options (the prediction's twist as the tracked solve's motion prior where
         ``prior_from_prediction`` asks for it, a rolling shutter's); the twist filter's
         kernels set for ``implementation``."""
@@ -707,7 +714,7 @@ class RSTracker(TrackerPath):
             to.prior_from_prediction == "planar" and self._planar
         )
         return FrameViews(
-            (View(points2d, points3d, camera, _OWN_FRAME),), self.options,
+            (View(points2d, points3d, camera, _OWN_FRAME, groups=groups),), self.options,
             self.tracked_options, solver=self.solver, scores=scores, gyro=gyro,
             implementation=implementation,
             prior_inflation=to.prior_inflation if prior and camera.seconds_per_unit_r > 0 else None,
@@ -752,7 +759,8 @@ class FrameViews:
 
     Args:
         views: the frame's :class:`~rs_localizer.estimation.view.View`\\ s: a camera's
-            one (its mounting and stamp offset unused) or a rig's.
+            one (its mounting and stamp offset unused; its ``groups`` given to
+            :func:`estimate_rs_pose`) or a rig's.
         options, tracked_options: the estimator's
             :class:`~rs_localizer.estimation.options.EstimateOptions` of cold (and
             relocalized) solves and of tracked ones.
@@ -839,7 +847,7 @@ class FrameViews:
             v = self.views[0]
             est = estimate_rs_pose(
                 v.uv, v.X, v.camera, self.solver, options, scores=self.scores, gyro=self.gyro,
-                implementation=self.implementation, initial_model=initial,
+                implementation=self.implementation, initial_model=initial, groups=v.groups,
             )  # fmt: skip
         else:
             est = estimate_rig_pose(

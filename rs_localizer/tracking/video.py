@@ -121,9 +121,12 @@ two or more other cameras run (:func:`~rs_localizer.tracking.rig.refusal`).
 Images: :meth:`Localizer.process_image` runs each camera's own front end
 (:meth:`Localizer.set_frontend`) with the rig's prediction mapped into that camera
 (:meth:`Localizer.predict_camera`), keeps the rows the estimator can use
-(:func:`~rs_localizer.tracking.localizer.usable_rows`: non-finite rows dropped, then at most
-:attr:`LocalizerSettings.max_points`; counted per camera), then takes the frame as
-:meth:`Localizer.add` does.
+(:func:`~rs_localizer.tracking.localizer.usable_correspondences`: non-finite rows dropped, then
+at most :attr:`LocalizerSettings.max_points`; counted per camera), then takes the frame as
+:meth:`Localizer.add` does, each row with its group (a marker front end's: the marker's id,
+:attr:`~rs_localizer.correspondences.Correspondences.groups`), which the estimator's covariance
+takes as a shared part of the image error of one marker's corners
+(:attr:`~rs_localizer.estimation.view.View.groups`).
 
 Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
 
@@ -193,7 +196,7 @@ from .localizer import (
     readout_warning,
     search_image,
     too_few_points,
-    usable_rows,
+    usable_correspondences,
 )
 from .rig import MISSED_REASONS, CameraAgreement, OpenRigFrame, RigGrouping, alone_deg, refusal
 from .tracker import (
@@ -1400,11 +1403,12 @@ class Localizer(GyroReadouts):
         """Take one camera's image: its front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's
         prediction for this camera, :meth:`predict_camera`, when the front end takes one), the
-        rows the estimator can use as a single camera's
-        (:func:`~rs_localizer.tracking.localizer.usable_rows`: those with a NaN or inf dropped,
-        counted ``<name>.points_dropped``; then at most :attr:`LocalizerSettings.max_points`,
-        highest scores first, counted ``<name>.capped_clouds`` and ``<name>.capped_points``, with a
-        warning), then :meth:`add`; each camera's front end is told how its frame was solved
+        rows the estimator can use as a single camera's, with their scores and groups
+        (:func:`~rs_localizer.tracking.localizer.usable_correspondences`: those with a NaN or
+        inf dropped, counted ``<name>.points_dropped``; then at most
+        :attr:`LocalizerSettings.max_points`, highest scores first, counted
+        ``<name>.capped_clouds`` and ``<name>.capped_points``, with a warning), then
+        :meth:`add`; each camera's front end is told how its frame was solved
         (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
         the rig's estimate, :func:`~rs_localizer.estimation.result.camera_estimate`: the rig
         frame's success, the camera's inliers and its model from the rig's pose and its
@@ -1475,12 +1479,10 @@ class Localizer(GyroReadouts):
         found = img.found[name] = r.found
         if r.failure is not None:  # (frontend_too_few_points: a rig of one's)
             return self._observed(self._drop(name, stamp, ref, r.failure))
-        uv = np.asarray(found.points2d, float).reshape(-1, 2)
-        xyz = np.asarray(found.points, float).reshape(-1, 3)
-        uv, xyz, scores = self._usable_rows(name, uv, xyz, found.valid_scores())
-        r.points2d, r.points3d = uv, xyz
+        use = self._usable_rows(name, found)
+        uv, xyz = r.points2d, r.points3d = use.points2d, use.points
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        frame = CameraFrame(stamp, camera, uv, xyz, scores, tag, camera_name=name)
+        frame = CameraFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
         return self._observed(self._add(frame, ref))
 
     def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
@@ -1583,18 +1585,16 @@ class Localizer(GyroReadouts):
             fe = img.frontends[name] = CameraFrontend(self.log)
         return fe
 
-    def _usable_rows(
-        self, name: str, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Camera ``name``'s rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None
-        as the rig estimator takes them, as a single camera's
-        (:func:`~rs_localizer.tracking.localizer.usable_rows`): without those holding a NaN or
-        inf (counted ``<name>.points_dropped``), then at most :attr:`LocalizerSettings.max_points`
-        (counted ``<name>.capped_clouds``, ``<name>.capped_points``; a warning)."""
+    def _usable_rows(self, name: str, found: Correspondences) -> Correspondences:
+        """Camera ``name``'s front end's correspondences ``found`` as the rig estimator takes
+        them, as a single camera's (:func:`~rs_localizer.tracking.localizer.usable_correspondences`:
+        their scores and groups with their rows): without those holding a NaN or inf (counted
+        ``<name>.points_dropped``), then at most :attr:`LocalizerSettings.max_points` (counted
+        ``<name>.capped_clouds``, ``<name>.capped_points``; a warning)."""
 
         if self._rows_count is not None:  # (a camera's video: under its caller's names)
-            return usable_rows(uv, xyz, scores, self.settings.max_points, self._rows_count,
-                               self.log.warning)  # fmt: skip
+            return usable_correspondences(found, self.settings.max_points, self._rows_count,
+                                          self.log.warning)  # fmt: skip
 
         def count(key: str, n: int) -> None:
             self.counts[f"{name}.{key}"] += n
@@ -1602,7 +1602,7 @@ class Localizer(GyroReadouts):
         def warn(key: str, text: str) -> None:
             self.log.warning(f"rig.{key}.{name}", f"rig camera {name!r}: {text}")
 
-        return usable_rows(uv, xyz, scores, self.settings.max_points, count, warn)
+        return usable_correspondences(found, self.settings.max_points, count, warn)
 
     def _warn_image(self, key: str, text: str) -> None:
         """A rig camera's image skipped (frozen, its front end failed): warned, unless worded
@@ -1702,7 +1702,9 @@ class Localizer(GyroReadouts):
             out.tags[n] = frame.tag
             out.frames[n] = frame
             m = self._cams[n].mount
-            views.append(View(frame.points2d, frame.points3d, frame.camera, m, off))
+            views.append(
+                View(frame.points2d, frame.points3d, frame.camera, m, off, groups=frame.groups)
+            )
         with self._lock:
             out.fused, self._carry = self._carry, []
             self._restart_if_asked(out)
@@ -1802,7 +1804,9 @@ class Localizer(GyroReadouts):
                 self._track = RSTracker(s.solver, s.options, s.tracking)
                 self._track_key = key
                 self._track_camera = v.camera  # (keeps id(camera) unique while in use)
-            return self._track.frame_views(v.uv, v.X, v.camera, scores, self._gyro, self._impl)
+            return self._track.frame_views(
+                v.uv, v.X, v.camera, scores, self._gyro, self._impl, groups=v.groups
+            )
         if self._tracked[0] is not s:  # (the tracked options: made once per settings)
             t = s.tracking
             n = None if t is None else t.tracked_max_iterations
@@ -1909,7 +1913,8 @@ class Localizer(GyroReadouts):
         m = self._cams[n].mount
         if not out.success or n not in out.stamp_offsets or frame.camera is None:
             return None
-        view = View(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
+        view = View(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n],
+                    groups=frame.groups)  # fmt: skip
         return alone_deg(view, out.estimate)
 
     def camera_partner(self, name: str) -> str | None:

@@ -248,8 +248,12 @@ def test_single_markers_photo():
     _uv, _X, ids = fe.process(img)
     assert len(ids) == 24
     part = TagFrontend(TagBoard.from_tags(tags[:3], "DICT_6X6_250", id_offset=1000))
-    _uv3, X3, ids3 = part.process(img)
+    found3 = part.process(img)
+    _uv3, X3, ids3 = found3
     assert len(ids3) == 12 and part.last_unknown == 3
+    # groups: the tags' own ids (the board's id offset is the correspondences' only)
+    assert sorted(found3.groups.tolist()) == sorted(4 * [23, 40, 62])
+    np.testing.assert_array_equal(found3.groups, (ids3 - 1000) // 4)
     assert set(((ids3 - 1000) // 4).tolist()) == {23, 40, 62}
     # the same corners, shifted ids, the map points of the 3 tags
     np.testing.assert_allclose(X3, part.board.points[part.board.lookup(ids3)[0]])
@@ -312,6 +316,7 @@ def test_synthetic_checkerboard_ids_follow_the_board(roll_deg, method):
     img, H = render(board, K_SYN, R, C, ppm=2000.0, margin=30)
     fe = CheckerboardFrontend(board, method=method)
     uv, X, ids = fe.process(img)
+    assert fe.process(img).groups is None  # (each chessboard corner found alone)
     np.testing.assert_array_equal(ids, np.arange(54) + 7)
     err = np.linalg.norm(uv - project(H, board.points_board), axis=1)
     assert err.max() < 0.5 and np.median(err) < 0.15
@@ -355,6 +360,7 @@ def test_synthetic_charuco():
     fe = CharucoFrontend(board)
     camera = CameraModel(K=K_SYN)
     uv, X, ids = fe.process(img, camera)
+    assert fe.process(img, camera).groups is None  # (each chessboard corner found alone)
     assert sorted(fe.last_markers) == list(range(20, 35))
     np.testing.assert_array_equal(np.sort(ids), np.arange(20))  # (6-1) x (5-1) corners
     d = uv - project(H, board.points_board[ids])
@@ -383,8 +389,14 @@ def test_synthetic_apriltag_grid():
     )
     img, H = render(board, K_SYN, R, C)
     fe = TagFrontend(board)
-    uv, X, ids = fe.process(np.repeat(img[:, :, None], 3, axis=2))  # rgb8 in
+    found = fe.process(np.repeat(img[:, :, None], 3, axis=2))  # rgb8 in
+    uv, X, ids = found
     np.testing.assert_array_equal(np.sort(ids), 4 * 10 + np.arange(48))
+    # each corner's group is its tag: the 4 corners of a tag's printed square
+    g = found.groups
+    assert g.dtype == np.int64 and sorted(set(g.tolist())) == list(range(10, 22))
+    for t in range(10, 22):
+        np.testing.assert_allclose(X[g == t], board.points[board.lookup(4 * t + np.arange(4))[0]])
     err = np.linalg.norm(uv - project(H, board.points_board[board.lookup(ids)[0]]), axis=1)
     # subpixel refinement of square-marker corners pulls them ~0.1 px inwards
     assert err.max() < 0.5 and np.median(err) < 0.3

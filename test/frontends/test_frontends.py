@@ -45,6 +45,22 @@ def test_aruco_corners_match_ground_truth(aruco_frame):
     assert len(ids4) > 0 and np.all((ids4 // 4) % 2 == 0)
 
 
+def test_aruco_groups_are_each_corners_marker(aruco_frame):
+    """Each correspondence's group is the marker whose 4 map corners it is one of (the
+    estimator's covariance takes a marker's corners to share a shift): 4 rows per group,
+    their 3D points that marker's corners; the windowed detection alike."""
+    scene, camera, _, _, f = aruco_frame
+    corners = scene.marker_corners()
+    for fe in (ArucoFrontend.from_scene(scene), ArucoFrontend.from_scene(scene, windowed=True)):
+        c = fe.process(f.image, camera)
+        g = c.groups
+        assert g.dtype == np.int64 and len(g) == len(c) >= 200
+        for m in np.unique(g):
+            assert np.count_nonzero(g == m) == 4
+            np.testing.assert_array_equal(c.points[g == m], corners[int(m)])
+    assert ArucoFrontend.from_scene(scene).process(np.full((48, 64), 128, np.uint8)).groups is None
+
+
 def test_aruco_from_map_file(aruco_frame, tmp_path):
     scene, camera, _, _, f = aruco_frame
     write_marker_map(

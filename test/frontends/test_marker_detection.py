@@ -74,6 +74,17 @@ def test_apriltag_corners_match_the_renderer(tag_board):
     assert np.median(times) < 0.1
 
 
+def test_apriltag_front_end_groups_each_tags_corners(tag_board):
+    """The marker front end on an AprilTag family: each correspondence's group is the tag
+    whose 4 map corners it is one of (12 tags, 4 rows each)."""
+    scene, camera, _, _, gray = tag_board
+    c = ArucoFrontend.from_scene(scene).process(gray, camera, encoding="mono8")
+    mc = scene.marker_corners()
+    assert sorted(set(c.groups.tolist())) == list(range(12)) and len(c) == 48
+    for m in range(12):
+        np.testing.assert_array_equal(c.points[c.groups == m], mc[m])
+
+
 @needs_apriltag
 def test_both_back_ends_agree_on_an_apriltag_family(tag_board):
     scene, _, motion, r, gray = tag_board

@@ -254,3 +254,38 @@ def test_a_camera_s_video_speaks_as_the_camera_and_publishes_as_the_node():
     assert fused and all(f.tag == "cam_optical" for f in fused)
     failed = dataclasses.replace(out, estimate=dataclasses.replace(est, success=False))
     assert frame_outcome(failed, "robot", mount).posed is None
+
+
+def test_a_camera_s_replay_of_marker_images_gives_the_estimator_each_corner_s_marker(
+    sample_images_bag, monkeypatch
+):
+    """The node's path of an image (``replay``: the camera's input, its rig of one's front
+    end, the tracker path's solves): every solve of every frame is given the groups of the
+    rows it is given, each row's marker, as the front end's ids tell it (``4 * marker_id +
+    corner``): the marker corners' shared error reaches the estimator's covariance."""
+    from helpers.paths import CONFIG, IMAGES_CONFIG
+
+    from rs_localizer.frontends.aruco import ArucoFrontend
+    from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.tracking import tracker
+
+    found, given = [], []
+    process = ArucoFrontend.process
+
+    def searched(self, *args, **kw):
+        c = process(self, *args, **kw)
+        found.append(c)
+        return c
+
+    def solved(uv, *args, **kw):
+        given.append((len(found), np.asarray(uv).copy(), kw.get("groups")))
+        return estimate_rs_pose(uv, *args, **kw)
+
+    monkeypatch.setattr(ArucoFrontend, "process", searched)
+    monkeypatch.setattr(tracker, "estimate_rs_pose", solved)
+    res = replay(sample_images_bag, params_files=[CONFIG, IMAGES_CONFIG], progress=None)
+    assert res.solved == len(res.rows) > 0 and len(given) >= len(res.rows)
+    for k, uv, groups in given:
+        c = found[k - 1]  # (the image the solve is of: the last searched)
+        assert np.array_equal(uv, c.points2d)  # (every row given: none dropped nor capped)
+        assert groups is not None and np.array_equal(groups, np.asarray(c.ids) // 4)

@@ -281,7 +281,8 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     them (:func:`usable_rows`): counted ``front.capped_clouds`` (every frame) and
     ``front.capped_points``, a warning naming the camera; the left camera's 30 rows are left
     as they are; the rig posed from at most 40 front rows a rig frame; the diagnostics show
-    the counts under the camera's keys."""
+    the counts under the camera's keys. Each front row's group (its row index given, here)
+    stays with its row: the rig frame's rows are the given rows their groups name."""
     from dataclasses import replace
 
     from helpers.ros import rig_status
@@ -295,7 +296,7 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     front = [f for f in frames if f.name == "front"]
     assert min(len(f.uv) for f in front) > 40
     rng = np.random.default_rng(2)
-    current, observed = {}, {}
+    current, observed, given = {}, {}, {}
 
     class Frontend:  # (the frame's own rows; the front camera's with NaN rows and scores)
         def process(self, image, camera, encoding="bgr8", prediction=None):
@@ -306,7 +307,8 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
             xyz = np.vstack([f.xyz, f.xyz[:5]])
             scores = rng.permutation(len(uv)).astype(float)
             current["given"] = (uv, xyz, scores)
-            return Correspondences(uv, xyz, scores=scores)
+            given[f.stamp_ns] = uv
+            return Correspondences(uv, xyz, scores=scores, groups=np.arange(len(uv)))
 
         def observe(self, stamp_ns, points2d, feedback):
             observed[stamp_ns] = points2d
@@ -335,6 +337,13 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     assert c["left.capped_clouds"] == c["left.points_dropped"] == 0
     assert outs and all(o.success for o in outs)
     assert all(o.shares["front"].points <= 40 for o in outs if "front" in o.shares)
+    posed = [o.frames["front"] for o in outs if "front" in o.frames]
+    assert len(posed) == len(front)
+    for fr in posed:  # (the kept rows' groups name the rows given: none of the NaN rows)
+        uv = given[fr.stamp_ns]
+        assert len(fr.groups) == 40 and fr.groups.max() < len(uv) - 5
+        assert np.array_equal(uv[fr.groups], fr.points2d)
+    assert all(o.frames["left"].groups is None for o in outs if "left" in o.frames)
     assert set(observed) >= set(expected)
     for stamp, uv in expected.items():
         assert np.array_equal(observed[stamp], uv) and len(uv) == 40
