@@ -34,6 +34,7 @@ __all__ = [
     "TrackingFrontend",
     "VideoFrontend",
     "accepts_pixels_keyword",
+    "checked_groups",
     "video_frontend",
 ]
 
@@ -110,7 +111,7 @@ class Correspondences:
         set_(self, "points", points)
         set_(self, "ids", ids)
         set_(self, "scores", scores)
-        set_(self, "groups", _checked_groups(groups, np.size(points2d) // 2))
+        set_(self, "groups", checked_groups(groups, np.size(points2d) // 2))
 
     @property
     def pixels(self) -> np.ndarray:
@@ -177,17 +178,20 @@ class Correspondences:
         return s if s is not None and len(s) == len(self.points2d) else None
 
 
-def _checked_groups(groups: Any, n: int) -> np.ndarray | None:
-    """``groups`` as (n,) int64 (None stays None).
+def checked_groups(groups: Any, n: int) -> np.ndarray | None:
+    """``groups`` (each correspondence's group, :attr:`Correspondences.groups`; the
+    estimator's :attr:`~rs_localizer.estimation.view.View.groups`) as an (n,) int64 array, or
+    None for None.
 
     Raises:
-        ValueError: not a 1-D array of ``n`` integers."""
+        ValueError: not a 1-D array of ``n`` integers.
+    """
     if groups is None:
         return None
     g = np.asarray(groups)
     if g.shape != (n,) or not (np.issubdtype(g.dtype, np.integer) or g.size == 0):
         raise ValueError(
-            f"Correspondences: groups must be ({n},) integers, one per row; got {g.dtype} {g.shape}"
+            f"groups must be ({n},) integers, one per correspondence; got {g.dtype} {g.shape}"
         )
     return g.astype(np.int64, copy=False)
 

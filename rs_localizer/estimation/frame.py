@@ -10,6 +10,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..correspondences import checked_groups
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import coplanar
@@ -36,7 +37,6 @@ __all__ = [
     "Frame",
     "RefinementView",
     "camera_values",
-    "checked_groups",
     "configure_frame",
     "correspondences",
     "kernel_ready",
@@ -326,7 +326,8 @@ def prepare_frame(
         points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N, or ``groups``
-            that are not (N,) integers (:func:`checked_groups`).
+            that are not (N,) integers
+            (:func:`~rs_localizer.correspondences.checked_groups`).
     """
     u, X = correspondences(points2d, points3d)
     g = checked_groups(groups, len(u))
@@ -340,23 +341,6 @@ def prepare_frame(
     if g is not None:
         fr.groups = g.take(fr.rows)
     return fr
-
-
-def checked_groups(groups: np.ndarray | None, n: int) -> np.ndarray | None:
-    """``groups`` (points sharing a part of their image error: :attr:`Frame.groups`) as an
-    (n,) int64 array, or None for None.
-
-    Raises:
-        ValueError: not a 1-D array of n integers.
-    """
-    if groups is None:
-        return None
-    g = np.asarray(groups)
-    if g.shape != (n,) or not (np.issubdtype(g.dtype, np.integer) or g.size == 0):
-        raise ValueError(
-            f"groups must be ({n},) integers, one per correspondence; got {g.dtype} {g.shape}"
-        )
-    return g.astype(np.int64, copy=False)
 
 
 def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,12 +22,12 @@ import numpy as np
 
 from .._jit import kernel
 from ..camera import CameraModel, distortion_jacobian
+from ..correspondences import checked_groups
 from ..frames import Mounting
 from ..pose import RSModel
 from .degeneracy import coplanar
 from .frame import (
     camera_values,
-    checked_groups,
     correspondences,
     kernel_ready,
     normalized_rows,

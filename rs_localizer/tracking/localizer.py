@@ -12,7 +12,7 @@ camera's adapter (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) sh
 - each camera's image front end (:class:`CameraFrontend`, :func:`search_image`): the
   frozen-image check (:func:`same_image`), the search with the prediction (``process``), its
   one-time warning, the feedback of how the frame was solved (``observe``), and the rows the
-  estimator can use (:func:`finite_rows`, :func:`usable_rows`, :func:`usable_correspondences`,
+  estimator can use (:func:`usable_rows`, :func:`usable_correspondences`,
   :func:`too_few_points`).
 
 A video also checks the cameras' rolling-shutter timing (:class:`PendingTwists`,
@@ -43,9 +43,9 @@ from ..correspondences import (
     FrameFeedback,
     Frontend,
     VideoFrontend,
+    checked_groups,
     video_frontend,
 )
-from ..estimation.frame import checked_groups
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions, points_needed
 from ..estimation.points import capped_rows
@@ -66,7 +66,6 @@ __all__ = [
     "FusedPose",
     "ImageSearch",
     "PendingTwists",
-    "finite_rows",
     "image_sample",
     "same_image",
     "search_image",
@@ -164,20 +163,6 @@ def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL
     return None if float(np.std(cur[0])) < 2.0 else d
 
 
-def finite_rows(
-    uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int]:
-    """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without those
-    holding a NaN or inf: ``(uv, xyz, scores, the number of rows dropped)`` (the arrays given
-    back as they are when none is)."""
-    good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
-    n_bad = len(uv) - int(np.count_nonzero(good))
-    if n_bad:
-        uv, xyz = uv[good], xyz[good]
-        scores = None if scores is None else scores[good]
-    return uv, xyz, scores, n_bad
-
-
 def _usable_indices(
     uv: np.ndarray,
     xyz: np.ndarray,
@@ -227,7 +212,7 @@ def usable_rows(
     warn: Callable[[str, str], Any],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None as the
-    estimator takes them: without those holding a NaN or inf (:func:`finite_rows`; counted
+    estimator takes them: without those holding a NaN or inf (counted
     ``count("points_dropped", n)``; before the cap, so that the cap keeps valid rows), then
     at most ``max_points`` of them (None: no cap) spread over the image
     (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
