@@ -155,13 +155,13 @@ def _group_columns(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     and image axis) over the 2N rows (x, y interleaved) of N points in ``groups`` (N,): the
     rows in the order of their columns and where each column's rows start in it
     (:func:`_group_sums`)."""
-    _, gi = np.unique(np.asarray(groups), return_inverse=True)
-    gi = gi.reshape(-1)
-    col = np.empty(2 * len(gi), dtype=np.int64)
-    col[0::2] = 2 * gi
-    col[1::2] = 2 * gi + 1
+    g = np.asarray(groups, dtype=np.int64).reshape(-1)
+    col = np.empty(2 * len(g), dtype=np.int64)
+    col[0::2] = 2 * g
+    col[1::2] = 2 * g + 1
     order = np.argsort(col, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(col[order]) != 0])
+    sorted_col = col[order]
+    starts = np.flatnonzero(np.r_[True, sorted_col[1:] != sorted_col[:-1]])
     return order, starts, len(starts)
 
 

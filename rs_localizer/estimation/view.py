@@ -354,17 +354,16 @@ class StackedViews:
         has groups (:class:`~.frame.RefinementView`)."""
         if all(v is None for v in self._groups):
             return None
-        keys = []
+        out, first = [], 0  # (each view's groups numbered on from the last view's)
         for c, (g, rows) in enumerate(zip(self._groups, self._rows, strict=True)):
             n = self._sizes_valid[c]
             if g is None:
-                own = np.arange(n, dtype=np.int64)
-                keys.append(np.stack([np.full(n, c), np.full(n, 1), own], axis=1))
+                ids = np.arange(n, dtype=np.int64)
             else:
-                gv = g if rows is None else g.take(rows)
-                keys.append(np.stack([np.full(n, c), np.zeros(n, np.int64), gv], axis=1))
-        _, inverse = np.unique(np.concatenate(keys), axis=0, return_inverse=True)
-        return inverse.reshape(-1).astype(np.int64)
+                _, ids = np.unique(g if rows is None else g.take(rows), return_inverse=True)
+            out.append(ids.reshape(-1) + first)
+            first += int(ids.max()) + 1 if n else 0
+        return np.concatenate(out).astype(np.int64, copy=False)
 
     @functools.cached_property
     def bounds(self) -> np.ndarray:

@@ -1,0 +1,26 @@
+"""benchmarks.bench_shared_shift: its frames' truth, and a short run's report."""
+
+import numpy as np
+
+from benchmarks.bench_shared_shift import D, K, main, rig_frames, tag_frame
+from rs_localizer.camera import CameraModel
+
+
+def test_frames_project_to_their_pixels_at_the_truth():
+    """Without noise or shift every corner is where the true pose projects it, in the image;
+    a rig view's points through its mounting too."""
+    camera = CameraModel(K=K, D=D, width=640, height=480, line_delay=0.0)
+    rng = np.random.default_rng(0)
+    uv, X, g, R, C = tag_frame(rng, camera, 5, 0.0, 0.0)
+    np.testing.assert_allclose(camera.project(X @ R.T + C), uv, atol=1e-9)
+    assert np.array_equal(g, np.repeat(np.arange(5), 4)) and (uv >= 20).all()
+    for views, R, C in rig_frames(rng, camera, 2, 0.0, 0.0):
+        for v in views:
+            P = (v.X @ R.T + C) @ v.mounting.R.T + v.mounting.c
+            np.testing.assert_allclose(camera.project(P), v.uv, atol=1e-9)
+
+
+def test_a_short_run_reports_every_case(capsys):
+    main(["--frames", "2"])
+    out = capsys.readouterr().out
+    assert out.count("grouped / plain time") == 5 and "rig of 3" in out
