@@ -31,32 +31,11 @@ from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+from rs_localizer.sim.noise import shifted_tag_frame
 
 K = np.array([[535.9157, 0.0, 342.2832], [0.0, 535.9157, 235.5708], [0.0, 0.0, 1.0]])
 D = np.array([-0.26637, -0.038589, 0.0017832, -0.00028122, 0.23839])
 Q6 = chi2.ppf(0.9973, 6)
-SIDE = np.array([[-1, 1, 0], [1, 1, 0], [1, -1, 0], [-1, -1, 0]]) * 0.08
-
-
-def tag_frame(rng, camera, tags, shift, noise):
-    """(pixels (4 tags, 2), world points, each corner's tag, R, C) of a still camera
-    (``x_cam = R X + C``) seeing ``tags`` tags, every corner 20 px inside the image."""
-    P = []
-    while len(P) < tags:
-        z = rng.uniform(1.5, 3.5)
-        q = (
-            SIDE @ rotvec_to_matrix(rng.normal(scale=0.4, size=3)).T
-            + np.r_[rng.uniform(-0.6, 0.6) * z, rng.uniform(-0.45, 0.45) * z, z]
-        )
-        u = camera.project(q)
-        if np.all((u >= 20) & (u <= [camera.width - 20, camera.height - 20])):
-            P.append(q)
-    P = np.concatenate(P)
-    R = rotvec_to_matrix(rng.normal(scale=0.2, size=3))
-    C = rng.normal(scale=0.2, size=3)
-    uv = camera.project(P) + np.repeat(rng.normal(scale=shift, size=(tags, 2)), 4, axis=0)
-    uv = uv + rng.normal(scale=noise, size=uv.shape)
-    return uv, (P - C) @ R, np.repeat(np.arange(tags), 4), R, C
 
 
 def within_3_sigma(est, R, C) -> bool:
@@ -93,7 +72,7 @@ def rig_frames(rng, camera, n, shift, noise):
         R, C = rotvec_to_matrix(rng.normal(scale=0.2, size=3)), rng.normal(scale=0.2, size=3)
         views = []
         for m in mounts:
-            uv, Xa, g, Ra, Ca = tag_frame(rng, camera, 3, shift, noise)
+            uv, Xa, g, Ra, Ca = shifted_tag_frame(rng, camera, 3, shift, noise)
             X = ((Xa @ Ra.T + Ca - m.c) @ m.R - C) @ R  # (the camera's points on the rig)
             views.append(View(uv, X, camera, m, groups=g))
         out.append((views, R, C))
@@ -122,7 +101,9 @@ def main(argv: list[str] | None = None) -> None:
     for line_delay, model in ((0.0, "global shutter"), (30e-6, "rolling shutter")):
         camera = CameraModel(K=K, D=D, width=640, height=480, line_delay=line_delay)
         for tags in (9, 75):
-            frames = [tag_frame(rng, camera, tags, a.shift, a.noise) for _ in range(a.frames)]
+            frames = [
+                shifted_tag_frame(rng, camera, tags, a.shift, a.noise) for _ in range(a.frames)
+            ]
             truth = [(R, C) for *_, R, C in frames]
             cases.append((f"camera, {model}, {tags} tags", _camera_case(camera, frames), truth))
     camera = CameraModel(K=K, D=D, width=640, height=480, line_delay=0.0)

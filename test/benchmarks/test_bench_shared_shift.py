@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from benchmarks.bench_shared_shift import D, K, main, rig_frames, tag_frame
+from benchmarks.bench_shared_shift import D, K, main, rig_frames
 from rs_localizer.camera import CameraModel
+from rs_localizer.sim.noise import shifted_tag_frame
 
 
 def test_frames_project_to_their_pixels_at_the_truth():
@@ -11,7 +12,7 @@ def test_frames_project_to_their_pixels_at_the_truth():
     a rig view's points through its mounting too."""
     camera = CameraModel(K=K, D=D, width=640, height=480, line_delay=0.0)
     rng = np.random.default_rng(0)
-    uv, X, g, R, C = tag_frame(rng, camera, 5, 0.0, 0.0)
+    uv, X, g, R, C = shifted_tag_frame(rng, camera, 5, 0.0, 0.0)
     np.testing.assert_allclose(camera.project(X @ R.T + C), uv, atol=1e-9)
     assert np.array_equal(g, np.repeat(np.arange(5), 4)) and (uv >= 20).all()
     for views, R, C in rig_frames(rng, camera, 2, 0.0, 0.0):

@@ -26,7 +26,7 @@ from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.estimation.view import View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
-from rs_localizer.sim.noise import correlated_field
+from rs_localizer.sim.noise import correlated_field, shifted_tag_frame
 
 # the OpenCV sample camera of test/data/photos/left_intrinsics.yml (strong barrel distortion)
 K = np.array([[535.9157, 0.0, 342.2832], [0.0, 535.9157, 235.5708], [0.0, 0.0, 1.0]])
@@ -255,27 +255,6 @@ def test_shared_shift_variances_recover_known_variances():
     assert s_g2 == 0.0 and dof < MIN_SHIFT_DOF and s_n2 > 0
 
 
-def _tag_frame(rng, camera, tags, shift, own):
-    """A still camera seeing ``tags`` 0.16 m square tags 1.5-3.5 m away, every corner at least
-    20 px inside the image: (pixels (4 tags, 2) with each tag's shift (px per axis) and each
-    corner's own noise, world points, tag of each corner, R, C (x_cam = R X + C))."""
-    side = np.array([[-1, 1, 0], [1, 1, 0], [1, -1, 0], [-1, -1, 0]]) * 0.08
-    P = []
-    while len(P) < tags:
-        Rt = rotvec_to_matrix(rng.normal(scale=0.4, size=3))
-        z = rng.uniform(1.5, 3.5)
-        q = side @ Rt.T + np.r_[rng.uniform(-0.6, 0.6) * z, rng.uniform(-0.45, 0.45) * z, z]
-        u = camera.project(q)
-        if np.all((u >= 20) & (u <= [camera.width - 20, camera.height - 20])):
-            P.append(q)
-    P = np.concatenate(P)
-    R = rotvec_to_matrix(rng.normal(scale=0.2, size=3))
-    C = rng.normal(scale=0.2, size=3)
-    X = (P - C) @ R  # (R X + C = P)
-    uv = camera.project(P) + np.repeat(rng.normal(scale=shift, size=(tags, 2)), 4, axis=0)
-    return uv + rng.normal(scale=own, size=uv.shape), X, np.repeat(np.arange(tags), 4), R, C
-
-
 def _pose_nees(est, R, C):
     d = np.r_[matrix_to_rotvec(est.model.R @ R.T), est.model.C - C]
     return float(d @ np.linalg.solve(np.asarray(est.covariance)[:6, :6], d))
@@ -294,7 +273,7 @@ def test_grouped_covariance_covers_the_truth(line_delay):
     for shift, grouped_min, plain_max in ((0.5, 0.8, 0.6), (0.0, 0.85, 1.0)):
         inside = {True: [], False: []}
         for _ in range(60):
-            uv, X, g, R, C = _tag_frame(rng, camera, 16, shift, 0.15)
+            uv, X, g, R, C = shifted_tag_frame(rng, camera, 16, shift, 0.15)
             plain = estimate_rs_pose(uv, X, camera)
             grouped = estimate_rs_pose(uv, X, camera, groups=g)
             assert plain.success and grouped.success
@@ -318,8 +297,8 @@ def test_grouped_rig_covariance_covers_the_truth():
     rng = np.random.default_rng(8)
     inside = {True: [], False: []}
     for _ in range(60):
-        uv0, X0, g0, R, C = _tag_frame(rng, camera, 5, 0.5, 0.15)
-        uv1, Xa, g1, R1, C1 = _tag_frame(rng, camera, 5, 0.5, 0.15)
+        uv0, X0, g0, R, C = shifted_tag_frame(rng, camera, 5, 0.5, 0.15)
+        uv1, Xa, g1, R1, C1 = shifted_tag_frame(rng, camera, 5, 0.5, 0.15)
         # (camera 1's points in its own frame, P1 = R1 Xa + C1, put in the world of the rig
         # pose (R, C) through the mounting: P1 = turn.R (R X + C) + turn.c)
         X1 = ((Xa @ R1.T + C1 - turn.c) @ turn.R - C) @ R
@@ -337,7 +316,7 @@ def test_groups_are_checked_and_the_numpy_implementation_says_it_ignores_them():
     """Groups of the wrong length or not integers are refused (a rig's naming the camera);
     the NumPy implementation lists them in ``ignored_inputs``."""
     camera = CameraModel(K=K, D=D, width=640, height=480, line_delay=0.0)
-    uv, X, g, _, _ = _tag_frame(np.random.default_rng(9), camera, 6, 0.0, 0.2)
+    uv, X, g, _, _ = shifted_tag_frame(np.random.default_rng(9), camera, 6, 0.0, 0.2)
     with pytest.raises(ValueError, match="groups must be"):
         estimate_rs_pose(uv, X, camera, groups=g[:-1])
     with pytest.raises(ValueError, match="groups must be"):
@@ -361,7 +340,7 @@ def test_shift_share_covers_frames_too_few_to_tell(tags):
     rng = np.random.default_rng(11)
     inside = {True: [], False: []}
     for _ in range(60):
-        uv, X, g, R, C = _tag_frame(rng, camera, tags, 0.5, 0.15)
+        uv, X, g, R, C = shifted_tag_frame(rng, camera, tags, 0.5, 0.15)
         for k, opts in ((True, shared), (False, EstimateOptions())):
             est = estimate_rs_pose(uv, X, camera, options=opts, groups=g)
             assert est.success and est.few_points == (tags == 2)
