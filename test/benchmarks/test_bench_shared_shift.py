@@ -1,9 +1,12 @@
 """benchmarks.bench_shared_shift: its frames' truth, and a short run's report."""
 
+from types import SimpleNamespace
+
 import numpy as np
 
-from benchmarks.bench_shared_shift import D, K, main, rig_frames
+from benchmarks.bench_shared_shift import D, K, main, pose_errors, rig_frames
 from rs_localizer.camera import CameraModel
+from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.noise import shifted_tag_frame
 
 
@@ -21,7 +24,19 @@ def test_frames_project_to_their_pixels_at_the_truth():
             np.testing.assert_allclose(camera.project(P), v.uv, atol=1e-9)
 
 
+def test_pose_errors_are_the_rotation_angle_and_the_centre_distance():
+    """An estimate turned 0.2 deg about its own axis and its camera centre moved 3 mm from the
+    truth ``x = R X + C`` (centre ``-R^T C``): 0.2 deg and 3 mm."""
+    R, C = rotvec_to_matrix(np.r_[0.3, -0.2, 0.1]), np.r_[0.1, -0.4, 2.0]
+    Re = rotvec_to_matrix(np.radians(0.2) * np.r_[0.0, 0.6, 0.8]) @ R
+    centre = -R.T @ C + np.r_[0.003, 0.0, 0.0]
+    est = SimpleNamespace(model=SimpleNamespace(R=Re, C=-Re @ centre))
+    rot, pos = pose_errors(est, R, C)
+    assert np.isclose(rot, 0.2, rtol=1e-9) and np.isclose(pos, 3.0, rtol=1e-9)
+
+
 def test_a_short_run_reports_every_case(capsys):
     main(["--frames", "2"])
     out = capsys.readouterr().out
-    assert out.count("grouped / plain time") == 5 and "rig of 3" in out
+    assert out.count("grouped / plain time") == 7 and "rig of 3" in out
+    assert out.count("median error rotation") == 7
