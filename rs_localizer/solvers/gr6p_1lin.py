@@ -59,7 +59,7 @@ import numpy as np
 
 from .._jit import kernel
 from ..geometry import cross
-from ._common import RSBatch, RSSolution
+from ._common import RSBatch, RSSolution, check_batch, check_inputs
 from ._linear import (
     PATIENCE,
     cross_into,
@@ -218,22 +218,13 @@ def _solve_numpy(
 
 
 def _check(x, X, tau, cam, R_mount, c_mount, batched):
-    """Shapes (N or K, N) of the inputs, the mountings (M, 3, 3), (M, 3) finite, camera
-    indices in range; float64 (int64 for ``cam``) contiguous copies."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    X = np.ascontiguousarray(X, dtype=np.float64)
+    """Shapes (N or K, N) of the inputs (a camera's solver's checks,
+    :func:`~._common.check_inputs` with ``tau`` as its ``r``, every value finite, or
+    :func:`~._common.check_batch`), the mountings (M, 3, 3), (M, 3) finite, camera indices in
+    range; float64 (int64 for ``cam``) contiguous copies."""
+    check = check_batch if batched else check_inputs
+    x, X, tau, _ = check(x, X, np.asarray(tau, dtype=np.float64), 0.0, MIN_POINTS, NAME)
     lead = x.shape[:-1]
-    nd = 3 if batched else 2
-    shape = "(K, N" if batched else "(N"
-    if x.ndim != nd or x.shape[-1] != 2:
-        raise ValueError(f"{NAME}: x must have shape {shape}, 2), got {x.shape}")
-    if X.shape != lead + (3,):
-        raise ValueError(f"{NAME}: X must have shape {lead + (3,)}, got {X.shape}")
-    if x.shape[-2] < MIN_POINTS:
-        raise ValueError(f"{NAME}: needs at least {MIN_POINTS} correspondences, got {x.shape[-2]}")
-    tau = np.ascontiguousarray(tau, dtype=np.float64)
-    if tau.shape != lead:
-        raise ValueError(f"{NAME}: tau must have shape {lead}, got {tau.shape}")
     Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
     cm = np.ascontiguousarray(c_mount, dtype=np.float64)
     if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
@@ -294,8 +285,6 @@ def gr6p_1lin(
             points, every tau equal).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
-    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
-        raise ValueError(f"{NAME}: inputs contain NaN or inf")
     kernel, _ = _kernels(solve_mounted, cam[None], Rm, cm)
     return run_single(
         kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
@@ -377,7 +366,7 @@ def rig_algebraic_error(
     Args: as :func:`gr6p_1lin`, and the rig's v, C, w, t (3,) each.
     Returns: the RMS over points of the two eliminated equations (normalized image units
         times depth).
-    Raises: ValueError on wrong shapes (as :func:`gr6p_1lin`).
+    Raises: ValueError on wrong shapes or NaN/inf inputs (as :func:`gr6p_1lin`).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (v, C, w, t)]
