@@ -45,7 +45,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
-from ..solvers.gr6p_1lin import gr6p_1lin_batch, still_solve_rotated
+from ..solvers.gr6p_1lin import gr6p_1lin_batch
 from .degeneracy import coplanar
 from .driver import checked_inputs, gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
@@ -91,7 +91,7 @@ from .result import (
     built_estimate,
     output_covariance,
 )
-from .rig_batch import counted, lambda_twist_on_rig, search_batch
+from .rig_batch import counted, lambda_twist_on_rig, search_batch, still_solve_rotated
 from .single_tag import posed_planarity
 from .view import StackedViews, View
 
@@ -232,7 +232,7 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
     (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``. Compiled:
-    :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated` (the same solution from the
+    :func:`~.rig_batch.still_solve_rotated` (the same solution from the
     pose's six unknowns alone)."""
     if not pool.compiled:
         solve = _rig_solver(pool, 1, held=True)

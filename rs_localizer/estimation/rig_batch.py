@@ -13,11 +13,12 @@ import numpy as np
 
 from .._jit import kernel
 from .._so3 import compose_rotvec
-from ..solvers.gr6p_1lin import solve_rotated, still_solve_rotated
+from ..solvers.gr6p_1lin import still_solve_kernel
 from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
+from ..solvers.r6p_1lin import solve_mounted
 from .plausibility import motion_norms2
 from .ransac import required_samples_kernel
-from .sampling import batch_samples
+from .sampling import batch_samples, gather_prerotated
 from .scoring import STOP, model_cost
 
 __all__ = [
@@ -26,7 +27,9 @@ __all__ = [
     "moving_models",
     "p3p_on_rig_into",
     "search_batch",
+    "solve_rotated",
     "still_models",
+    "still_solve_rotated",
 ]
 
 
@@ -182,7 +185,7 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
     """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
     the order they are scored: :func:`p3p_on_rig_into` (into the buffers ``R``, ``C``), then,
     when a point of the sample lies in a camera ``missed`` ((M,) bool), those corrected
-    ``rounds`` times by :func:`~rs_localizer.solvers.gr6p_1lin.still_solve_rotated`. Returns
+    ``rounds`` times by :func:`still_solve_rotated`. Returns
     ``(R (H, 3, 3), C (H, 3))``."""
     q = p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
@@ -213,7 +216,7 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
     (:func:`~.rig._hypotheses`): pre-rotated by their P3P poses (:func:`lambda_twist_on_rig`)
     or by ``anchor`` (3, 3) unless empty, then ``iterations`` of
-    :func:`~rs_localizer.solvers.gr6p_1lin.solve_rotated`. Returns ``(R (H, 3, 3), C, w, t
+    :func:`solve_rotated`. Returns ``(R (H, 3, 3), C, w, t
     (H, 3), valid (H,), the sample of each (H,))``."""
     K = samples.shape[0]
     if anchor.shape[0]:
@@ -233,3 +236,46 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     w = np.ascontiguousarray(sol[:, 6:9])
     t = np.ascontiguousarray(sol[:, 9:12])
     return R, C, w, t, ok, own
+
+
+@kernel
+def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
+    """:func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` of K problems whose world
+    points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are pre-rotated by ``Rg[k]`` (K, 3, 3)
+    here (:func:`~.sampling.gather_prerotated`): ``(out (K, 6), ok (K,))``."""
+    Xp = gather_prerotated(S, Rg, x, X, x[:, 0])[1]
+    out = np.empty((S.shape[0], 6))
+    ok = np.empty(S.shape[0], dtype=np.bool_)
+    still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok)
+    return out, ok
+
+
+@kernel
+def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
+    """:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`'s kernel (no prior rows,
+    ``v_init`` zero, its default tolerance) on K problems whose world points ``X[S[k]]``
+    (``X`` (P, 3), ``S`` (K, N)) are pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times
+    ``tau[S[k]]`` (``tau`` (P,) s) in the cameras ``cam[S[k]]`` (gathered by
+    :func:`~.sampling.gather_prerotated`); ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t,
+    zeros where not solved; ok (K,): solved, every entry finite)``, each rotation
+    ``expm([v]x) R0[k]``."""
+    K, N = S.shape[0], S.shape[1]
+    xs, Xp, ts = gather_prerotated(S, R0, x, X, tau)
+    cs = np.empty((K, N), dtype=np.int64)
+    for k in range(K):
+        for i in range(N):
+            cs[k, i] = cam[S[k, i]]
+    out = np.zeros((K, 12))
+    ok = np.zeros(K, dtype=np.bool_)
+    its = np.zeros(K, dtype=np.int64)
+    err = np.zeros(K)
+    use = np.zeros(1, dtype=np.bool_)[0]  # (a bool, as the batch's np.bool_, not a literal)
+    solve_mounted(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)),
+                  np.zeros((1, 6, 6)), np.zeros((1, 6)), use, out, ok, its, err)  # fmt: skip
+    for k in range(K):
+        for j in range(12):
+            if not np.isfinite(out[k, j]):
+                ok[k] = False
+        if not ok[k]:
+            out[k, :] = 0.0
+    return out, ok

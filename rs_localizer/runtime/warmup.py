@@ -55,11 +55,11 @@ from ..estimation.refine import (
 )
 from ..estimation.result import camera_model_of_rig
 from ..estimation.rig import estimate_rig_pose
+from ..estimation.rig_batch import still_solve_rotated
 from ..estimation.scoring import exact_msac_scores
 from ..estimation.view import View
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
-from ..solvers.gr6p_1lin import still_solve_rotated
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info

@@ -59,16 +59,16 @@ import numpy as np
 
 from .._jit import kernel
 from ..geometry import cross
-from ._common import RSBatch, RSSolution
+from ._common import RSBatch, RSSolution, check_batch, check_inputs
 from ._linear import (
     PATIENCE,
     cross_into,
     householder_lstsq,
-    lstsq,
     lstsq_stack,
     run_batch_with_prior,
     run_single,
 )
+from .r6p_1lin import mounted_error, solve_mounted
 
 __all__ = [
     "gr6p_1lin",
@@ -105,115 +105,12 @@ def rig_times(
 
 
 @kernel
-def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
-    """RMS algebraic residual of the rig eq. 5 for one problem (module docstring)."""
-    n = x.shape[0]
-    acc = 0.0
-    for i in range(n):
-        ti = tau[i]
-        c = cam[i]
-        y0 = X[i, 0] + v[1] * X[i, 2] - v[2] * X[i, 1]
-        y1 = X[i, 1] + v[2] * X[i, 0] - v[0] * X[i, 2]
-        y2 = X[i, 2] + v[0] * X[i, 1] - v[1] * X[i, 0]
-        p0 = y0 + ti * (w[1] * y2 - w[2] * y1) + C[0] + ti * t[0]
-        p1 = y1 + ti * (w[2] * y0 - w[0] * y2) + C[1] + ti * t[1]
-        p2 = y2 + ti * (w[0] * y1 - w[1] * y0) + C[2] + ti * t[2]
-        q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
-        q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
-        q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
-        e1 = -q1 + x[i, 1] * q2
-        e2 = q0 - x[i, 0] * q2
-        acc += e1 * e1 + e2 * e2
-    return np.sqrt(acc / n)
-
-
-@kernel
-def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
-    """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
-    tau (K, N), cam (K, N) indices into the mountings Rm (M, 3, 3), cm (M, 3)); with
-    ``use_prior`` each linear solve also takes the 6 rows ``P[k] (w, t) = q[k]``."""
-    K, N = x.shape[0], x.shape[1]
-    n_rows = 2 * N + 6 if use_prior else 2 * N
-    A = np.empty((n_rows, 12))
-    b = np.empty(n_rows)
-    u = np.zeros(12)
-    F = np.empty((N, 2, 3))  # the elimination rows in the rig frame, R_c^T E
-    d = np.empty((N, 2))  # -F . X - E . c_c (the part of the right-hand side without v_hat)
-    vhat = np.empty(3)
-    for k in range(K):
-        for i in range(N):
-            c = cam[k, i]
-            xi, yi = x[k, i, 0], x[k, i, 1]
-            X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
-            # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's
-            # identity case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
-            for j in range(3):
-                F[i, 0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
-                F[i, 1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
-            ec0 = -cm[c, 1] + yi * cm[c, 2]
-            ec1 = cm[c, 0] - xi * cm[c, 2]
-            d[i, 0] = -(F[i, 0, 0] * X0 + F[i, 0, 1] * X1 + F[i, 0, 2] * X2) - ec0
-            d[i, 1] = -(F[i, 1, 0] * X0 + F[i, 1, 1] * X1 + F[i, 1, 2] * X2) - ec1
-        for a in range(3):
-            vhat[a] = v_init[k, a]
-        best = np.inf
-        stale = 0
-        ok[k] = False
-        its[k] = 0
-        for it in range(iterations):
-            for i in range(N):
-                ti = tau[k, i]
-                X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
-                Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
-                Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
-                Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
-                for qq in range(2):
-                    row = A[2 * i + qq]
-                    f0, f1, f2 = F[i, qq, 0], F[i, qq, 1], F[i, qq, 2]
-                    cross_into(X0, X1, X2, f0, f1, f2, row, 0)
-                    row[3] = f0
-                    row[4] = f1
-                    row[5] = f2
-                    cross_into(Z0, Z1, Z2, f0, f1, f2, row, 6)
-                    row[6] *= ti
-                    row[7] *= ti
-                    row[8] *= ti
-                    row[9] = ti * f0
-                    row[10] = ti * f1
-                    row[11] = ti * f2
-                    b[2 * i + qq] = d[i, qq]
-            if use_prior:
-                for a in range(6):
-                    row = A[2 * N + a]
-                    for j in range(6):
-                        row[j] = 0.0
-                        row[6 + j] = P[k, a, j]
-                    b[2 * N + a] = q[k, a]
-            if not lstsq(A, b, u):
-                break
-            e = _rig_error(x[k], X[k], tau[k], cam[k], Rm, cm, u[0:3], u[3:6], u[6:9], u[9:12])
-            its[k] = it + 1
-            # stop as r6p_1lin: converged, or no new best by more than tol for PATIENCE steps
-            stale = 0 if e < best - tol else stale + 1
-            if e < best:
-                best = e
-                for a in range(12):
-                    out[k, a] = u[a]
-                ok[k] = True
-            for a in range(3):
-                vhat[a] = u[a]
-            if e <= tol or stale >= PATIENCE:
-                break
-        err[k] = best
-
-
-@kernel
 def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
-    """:func:`_solve` of K problems whose observations were all taken at one time, with the
-    velocities held at zero (``tau`` zero, the prior rows the identity with right-hand side
-    zero; any number of iterations: ``v_hat`` only enters times ``tau``): the same ``v`` and
-    ``C`` and validity to the bit, from the 2N x 6 system of ``(v, C)`` alone
-    (:func:`~._linear.householder_lstsq` with the held unknowns' unit pivots).
+    """:func:`~.r6p_1lin.solve_mounted` of K problems whose observations were all taken at
+    one time, with the velocities held at zero (``tau`` zero, the prior rows the identity
+    with right-hand side zero; any number of iterations: ``v_hat`` only enters times
+    ``tau``): the same ``v`` and ``C`` and validity to the bit, from the 2N x 6 system of
+    ``(v, C)`` alone (:func:`~._linear.householder_lstsq` with the held unknowns' unit pivots).
 
     Problem k's points are rows ``S[k]`` (K, N) of the normalized points ``x`` (P, 2) and
     camera indices ``cam`` (P,), its world points ``Xp[k]`` (K, N, 3), N >= 3; ``out``
@@ -237,7 +134,7 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
             ec1 = cm[c, 0] - xi * cm[c, 2]
             for qq in range(2):
                 row = A[2 * i + qq]
-                # (as _solve's F = R_c^T E and right-hand side, to the bit)
+                # (as solve_mounted's F = R_c^T E and right-hand side, to the bit)
                 for j in range(3):
                     if qq == 0:
                         row[3 + j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
@@ -251,7 +148,7 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
             out[k, a] = 0.0
         if not householder_lstsq(A, b, u, 1.0):
             continue
-        e = _rig_error(xk, Xp[k], tau, ck, Rm, cm, u[0:3], u[3:6], zero, zero)
+        e = mounted_error(xk, Xp[k], tau, ck, Rm, cm, u[0:3], u[3:6], zero, zero)
         if e < np.inf:
             finite = True
             for a in range(6):
@@ -266,10 +163,10 @@ def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
 def _solve_numpy(
     x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err
 ):
-    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same
-    arguments, rows, iteration, stopping rule (converged, or ``PATIENCE`` steps without a new
-    best by more than ``tol``) and best iterate, the linear solves by
-    :func:`~._linear.lstsq_stack`."""
+    """:func:`~.r6p_1lin.solve_mounted` in NumPy for all K problems at once (nothing
+    compiles): the same arguments, rows, iteration, stopping rule (converged, or
+    ``PATIENCE`` steps without a new best by more than ``tol``) and best iterate, the linear
+    solves by :func:`~._linear.lstsq_stack`."""
     K, N = x.shape[0], x.shape[1]
     Rc, cc = Rm[cam], cm[cam]  # (K, N, 3, 3), (K, N, 3)
     xi, yi = x[..., 0:1], x[..., 1:2]
@@ -304,7 +201,7 @@ def _solve_numpy(
         u, good = lstsq_stack(A, b[k])
         active[k[~good]] = False  # (rank loss: the compiled solver stops there)
         k, u = k[good], u[good]
-        # the RMS algebraic error of the rig eq. 5 at the iterate (_rig_error)
+        # the RMS algebraic error of the rig eq. 5 at the iterate (mounted_error)
         v, C, w, t = u[:, None, 0:3], u[:, None, 3:6], u[:, None, 6:9], u[:, None, 9:12]
         y = X[k] + cross(v, X[k])
         p = y + tau[k][..., None] * (cross(w, y) + t) + C
@@ -321,22 +218,13 @@ def _solve_numpy(
 
 
 def _check(x, X, tau, cam, R_mount, c_mount, batched):
-    """Shapes (N or K, N) of the inputs, the mountings (M, 3, 3), (M, 3) finite, camera
-    indices in range; float64 (int64 for ``cam``) contiguous copies."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    X = np.ascontiguousarray(X, dtype=np.float64)
+    """Shapes (N or K, N) of the inputs (a camera's solver's checks,
+    :func:`~._common.check_inputs` with ``tau`` as its ``r``, every value finite, or
+    :func:`~._common.check_batch`), the mountings (M, 3, 3), (M, 3) finite, camera indices in
+    range; float64 (int64 for ``cam``) contiguous copies."""
+    check = check_batch if batched else check_inputs
+    x, X, tau, _ = check(x, X, np.asarray(tau, dtype=np.float64), 0.0, MIN_POINTS, NAME)
     lead = x.shape[:-1]
-    nd = 3 if batched else 2
-    shape = "(K, N" if batched else "(N"
-    if x.ndim != nd or x.shape[-1] != 2:
-        raise ValueError(f"{NAME}: x must have shape {shape}, 2), got {x.shape}")
-    if X.shape != lead + (3,):
-        raise ValueError(f"{NAME}: X must have shape {lead + (3,)}, got {X.shape}")
-    if x.shape[-2] < MIN_POINTS:
-        raise ValueError(f"{NAME}: needs at least {MIN_POINTS} correspondences, got {x.shape[-2]}")
-    tau = np.ascontiguousarray(tau, dtype=np.float64)
-    if tau.shape != lead:
-        raise ValueError(f"{NAME}: tau must have shape {lead}, got {tau.shape}")
     Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
     cm = np.ascontiguousarray(c_mount, dtype=np.float64)
     if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
@@ -397,9 +285,7 @@ def gr6p_1lin(
             points, every tau equal).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
-    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
-        raise ValueError(f"{NAME}: inputs contain NaN or inf")
-    kernel, _ = _kernels(_solve, cam[None], Rm, cm)
+    kernel, _ = _kernels(solve_mounted, cam[None], Rm, cm)
     return run_single(
         kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
         degenerate="collinear or duplicated points, or every observation at the same time?",
@@ -441,7 +327,7 @@ def gr6p_1lin_batch(
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    kernel, with_prior = _kernels(_solve_numpy if numpy else _solve, cam, Rm, cm)
+    kernel, with_prior = _kernels(_solve_numpy if numpy else solve_mounted, cam, Rm, cm)
     return run_batch_with_prior(
         kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows,
         checked=True,
@@ -449,15 +335,15 @@ def gr6p_1lin_batch(
 
 
 def _kernels(solve, cam, Rm, cm):
-    """``solve`` (:func:`_solve` or :func:`_solve_numpy`) on the cameras ``cam`` at the
-    mountings ``Rm``, ``cm`` as the single camera's kernels of :mod:`._linear` (the
+    """``solve`` (:func:`~.r6p_1lin.solve_mounted` or :func:`_solve_numpy`) on the cameras
+    ``cam`` at the mountings ``Rm``, ``cm`` as the single camera's kernels of :mod:`._linear` (the
     observation times passed as its ``r``, ``r0`` unused): ``(kernel, solve with prior)``."""
 
     def with_prior(x, X, tau, r0, iterations, tol, v_init, P, q, use, out, ok, its, err):
         solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use, out, ok, its, err)
 
     def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
-        # (the prior's types, a non-literal flag: one compiled _solve for both)
+        # (the prior's types, a non-literal flag: one compiled solve_mounted for both)
         solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
 
     return kernel, with_prior
@@ -480,59 +366,8 @@ def rig_algebraic_error(
     Args: as :func:`gr6p_1lin`, and the rig's v, C, w, t (3,) each.
     Returns: the RMS over points of the two eliminated equations (normalized image units
         times depth).
-    Raises: ValueError on wrong shapes (as :func:`gr6p_1lin`).
+    Raises: ValueError on wrong shapes or NaN/inf inputs (as :func:`gr6p_1lin`).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (v, C, w, t)]
-    return float(_rig_error(x, X, tau, cam, Rm, cm, *f))
-
-
-@kernel
-def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
-    """:func:`still_solve_kernel` of K problems whose world points ``X[S[k]]`` (``X`` (P, 3),
-    ``S`` (K, N)) are pre-rotated by ``Rg[k]`` (K, 3, 3) here: ``(out (K, 6), ok (K,))``."""
-    K, N = S.shape[0], S.shape[1]
-    Xp = np.empty((K, N, 3))
-    for k in range(K):
-        for i in range(N):
-            p = S[k, i]
-            for a in range(3):
-                Xp[k, i, a] = Rg[k, a, 0] * X[p, 0] + Rg[k, a, 1] * X[p, 1] + Rg[k, a, 2] * X[p, 2]
-    out = np.empty((K, 6))
-    ok = np.empty(K, dtype=np.bool_)
-    still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok)
-    return out, ok
-
-
-@kernel
-def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
-    """:func:`gr6p_1lin_batch`'s kernel (no prior rows, ``v_init`` zero, its default
-    tolerance) on K problems whose world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are
-    pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times ``tau[S[k]]`` (``tau`` (P,) s) in
-    the cameras ``cam[S[k]]``; ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t, zeros where
-    not solved; ok (K,): solved, every entry finite)``, each rotation ``expm([v]x) R0[k]``."""
-    K, N = S.shape[0], S.shape[1]
-    xs = np.empty((K, N, 2))
-    Xp = np.empty((K, N, 3))
-    ts = np.empty((K, N))
-    cs = np.empty((K, N), dtype=np.int64)
-    for k in range(K):
-        for i in range(N):
-            p = S[k, i]
-            xs[k, i, 0], xs[k, i, 1], ts[k, i], cs[k, i] = x[p, 0], x[p, 1], tau[p], cam[p]
-            for a in range(3):
-                Xp[k, i, a] = R0[k, a, 0] * X[p, 0] + R0[k, a, 1] * X[p, 1] + R0[k, a, 2] * X[p, 2]
-    out = np.zeros((K, 12))
-    ok = np.zeros(K, dtype=np.bool_)
-    its = np.zeros(K, dtype=np.int64)
-    err = np.zeros(K)
-    use = np.zeros(1, dtype=np.bool_)[0]  # (a bool, as the batch's np.bool_, not a literal)
-    _solve(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)), np.zeros((1, 6, 6)),
-           np.zeros((1, 6)), use, out, ok, its, err)  # fmt: skip
-    for k in range(K):
-        for j in range(12):
-            if not np.isfinite(out[k, j]):
-                ok[k] = False
-        if not ok[k]:
-            out[k, :] = 0.0
-    return out, ok
+    return float(mounted_error(x, X, tau, cam, Rm, cm, *f))

@@ -10,6 +10,12 @@ takes ``v_hat`` from the previous estimate. A fixed point satisfies eq. 5 exactl
 
 Coefficient rows, for each elimination row E of point i (see ``_linear``), with
 ``Z = X + v_hat x X``:  ``[X x E | E | tau (Z x E) | tau E] . [v; C; w; t] = -E . X``.
+
+One kernel (:func:`solve_mounted`) solves it for a camera alone and for a rig's cameras: each
+point seen through its camera's mounting ``x_cam = R_c x + c_c`` at its own time ``tau``, the
+rows ``F = R_c^T E`` and right-hand side ``-F . X - E . c_c``; a camera alone is one mounting
+at the identity with ``tau = r - r0``, its rows the ones above to the bit (a rig:
+:mod:`~.gr6p_1lin`).
 """
 
 from __future__ import annotations
@@ -21,30 +27,71 @@ from ._common import RSBatch, RSSolution
 from ._linear import (
     PATIENCE,
     cross_into,
-    eq5_error,
     lstsq,
-    rows_E,
     run_batch_with_prior,
     run_single,
 )
 
-__all__ = ["r6p_1lin", "r6p_1lin_batch"]
+__all__ = ["mounted_error", "r6p_1lin", "r6p_1lin_batch", "solve_mounted"]
 
 
 @kernel
-def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
-    """The iteration of the module docstring for K problems; with ``use_prior`` each linear
-    solve also takes the 6 rows ``P[k] (w, t) = q[k]`` (damped least squares, see
-    :func:`r6p_1lin_batch`), so the system is (2N + 6) x 12."""
+def mounted_error(x, X, tau, cam, Rm, cm, v, C, w, t):
+    """RMS algebraic residual of eq. 5 for one problem whose points ``x`` (N, 2), ``X`` (N, 3)
+    are seen at the times ``tau`` (N,) through the mountings ``Rm[cam]``, ``cm[cam]`` (the
+    module docstring; a camera alone: one mounting at the identity, ``tau = r - r0``)."""
+    n = x.shape[0]
+    acc = 0.0
+    for i in range(n):
+        ti = tau[i]
+        c = cam[i]
+        y0 = X[i, 0] + v[1] * X[i, 2] - v[2] * X[i, 1]
+        y1 = X[i, 1] + v[2] * X[i, 0] - v[0] * X[i, 2]
+        y2 = X[i, 2] + v[0] * X[i, 1] - v[1] * X[i, 0]
+        p0 = y0 + ti * (w[1] * y2 - w[2] * y1) + C[0] + ti * t[0]
+        p1 = y1 + ti * (w[2] * y0 - w[0] * y2) + C[1] + ti * t[1]
+        p2 = y2 + ti * (w[0] * y1 - w[1] * y0) + C[2] + ti * t[2]
+        q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
+        q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
+        q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
+        e1 = -q1 + x[i, 1] * q2
+        e2 = q0 - x[i, 0] * q2
+        acc += e1 * e1 + e2 * e2
+    return np.sqrt(acc / n)
+
+
+@kernel
+def solve_mounted(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its,
+                  err):  # fmt: skip
+    """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
+    tau (K, N), cam (K, N) indices into the mountings Rm (M, 3, 3), cm (M, 3)); with
+    ``use_prior`` each linear solve also takes the 6 rows ``P[k] (w, t) = q[k]`` (damped least
+    squares, see :func:`r6p_1lin_batch`), so the system is (2N + 6) x 12. The rows of a point
+    seen at the identity mounting are those of the module docstring to the bit (``F = E``: the
+    sums below in its order, ``1 * e + 0 * ...`` exact); a rig's cameras:
+    :mod:`~.gr6p_1lin`."""
     K, N = x.shape[0], x.shape[1]
     n_rows = 2 * N + 6 if use_prior else 2 * N
     A = np.empty((n_rows, 12))
     b = np.empty(n_rows)
     u = np.zeros(12)
-    E = np.empty((2, 3))
+    F = np.empty((N, 2, 3))  # the elimination rows in the rig frame, R_c^T E
+    d = np.empty((N, 2))  # -F . X - E . c_c (the part of the right-hand side without v_hat)
     vhat = np.empty(3)
     for k in range(K):
-        for a in range(3):  # (element by element: see _so3.copy_matrix3)
+        for i in range(N):
+            c = cam[k, i]
+            xi, yi = x[k, i, 0], x[k, i, 1]
+            X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+            # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (R_c = I: E itself, to the bit)
+            for j in range(3):
+                F[i, 0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
+                F[i, 1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
+            ec0 = -cm[c, 1] + yi * cm[c, 2]
+            ec1 = cm[c, 0] - xi * cm[c, 2]
+            d[i, 0] = -(F[i, 0, 0] * X0 + F[i, 0, 1] * X1 + F[i, 0, 2] * X2) - ec0
+            d[i, 1] = -(F[i, 1, 0] * X0 + F[i, 1, 1] * X1 + F[i, 1, 2] * X2) - ec1
+        for a in range(3):
             vhat[a] = v_init[k, a]
         best = np.inf
         stale = 0
@@ -52,27 +99,26 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
         its[k] = 0
         for it in range(iterations):
             for i in range(N):
-                tau = r[k, i] - r0
+                ti = tau[k, i]
                 X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
                 Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
                 Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
                 Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
-                rows_E(x[k], i, E)
                 for qq in range(2):
                     row = A[2 * i + qq]
-                    e0, e1, e2 = E[qq, 0], E[qq, 1], E[qq, 2]
-                    cross_into(X0, X1, X2, e0, e1, e2, row, 0)
-                    row[3] = e0
-                    row[4] = e1
-                    row[5] = e2
-                    cross_into(Z0, Z1, Z2, e0, e1, e2, row, 6)
-                    row[6] *= tau
-                    row[7] *= tau
-                    row[8] *= tau
-                    row[9] = tau * e0
-                    row[10] = tau * e1
-                    row[11] = tau * e2
-                    b[2 * i + qq] = -(e0 * X0 + e1 * X1 + e2 * X2)
+                    f0, f1, f2 = F[i, qq, 0], F[i, qq, 1], F[i, qq, 2]
+                    cross_into(X0, X1, X2, f0, f1, f2, row, 0)
+                    row[3] = f0
+                    row[4] = f1
+                    row[5] = f2
+                    cross_into(Z0, Z1, Z2, f0, f1, f2, row, 6)
+                    row[6] *= ti
+                    row[7] *= ti
+                    row[8] *= ti
+                    row[9] = ti * f0
+                    row[10] = ti * f1
+                    row[11] = ti * f2
+                    b[2 * i + qq] = d[i, qq]
             if use_prior:
                 for a in range(6):
                     row = A[2 * N + a]
@@ -82,10 +128,10 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
                     b[2 * N + a] = q[k, a]
             if not lstsq(A, b, u):
                 break
-            e = eq5_error(x[k], X[k], r[k], r0, u[0:3], u[3:6], u[6:9], u[9:12])
+            e = mounted_error(x[k], X[k], tau[k], cam[k], Rm, cm, u[0:3], u[3:6], u[6:9], u[9:12])
             its[k] = it + 1
-            # stop when converged, or when the error has not improved on the best by more than
-            # tol for PATIENCE iterations (the fixed-point error is not always monotone)
+            # stop when converged, or when the error has not improved on the best by more
+            # than tol for PATIENCE iterations (the fixed-point error is not always monotone)
             stale = 0 if e < best - tol else stale + 1
             if e < best:
                 best = e
@@ -100,11 +146,27 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
 
 
 @kernel
+def _with_prior(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
+    """:func:`solve_mounted` of one camera (K problems at ``r``, ``r0``): ``tau = r - r0``, one
+    mounting at the identity."""
+    K, N = x.shape[0], x.shape[1]
+    tau = np.empty((K, N))
+    for k in range(K):
+        for i in range(N):
+            tau[k, i] = r[k, i] - r0
+    cam = np.zeros((K, N), dtype=np.int64)
+    Rm, cm = np.eye(3).reshape(1, 3, 3), np.zeros((1, 3))
+    solve_mounted(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its,
+                  err)  # fmt: skip
+
+
+@kernel
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     # (no prior rows: the arguments of the same types as the prior path's, writable arrays
-    # and a non-literal flag, so that both share one compiled _solve)
+    # and a non-literal flag, so that both share one compiled solve)
     no_P, no_q = np.zeros((1, 6, 6)), np.zeros((1, 6))
-    _solve(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its, err)
+    _with_prior(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its,
+                err)  # fmt: skip
 
 
 def r6p_1lin(
@@ -170,5 +232,5 @@ def r6p_1lin_batch(
         ValueError: wrong shapes or N < 6, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
     return run_batch_with_prior(
-        _kernel, _solve, "r6p_1lin", 6, x, X, r, r0, iterations, tol, v_init, prior_rows
+        _kernel, _with_prior, "r6p_1lin", 6, x, X, r, r0, iterations, tol, v_init, prior_rows
     )

@@ -1,7 +1,8 @@
 """``rs-localizer compile --params-file RIG.yaml`` compiles the rig's kernels too: after it, a
 rig replay (the rig node's pipeline) adds no signature to any numba dispatcher of the package,
-while a compile without the rig leaves the rig estimator's kernels (gR6P, its residuals)
-uncompiled. Run in a fresh process, so that no earlier test has loaded them."""
+while a compile without the rig leaves the rig estimator's kernels (its compiled search
+batch, its residuals) uncompiled. Run in a fresh process, so that no earlier test has loaded
+them."""
 
 from __future__ import annotations
 
@@ -71,9 +72,9 @@ def test_compile_with_rig_parameters_leaves_nothing_for_the_rig_to_compile(tmp_p
     assert out.returncode == 0, out.stderr[-3000:]
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r["solved"] == 8
-    gr6p = "rs_localizer.solvers.gr6p_1lin._solve"
+    search = "rs_localizer.estimation.rig_batch.search_batch"
     residuals = "rs_localizer.estimation.scoring.best_msac"
-    for k in (gr6p, residuals):  # (the rig's kernels: not compiled by the camera's warm-up)
+    for k in (search, residuals):  # (the rig's kernels: not compiled by the camera's warm-up)
         assert not r["without"].get(k) and r["with_rig"].get(k), k
     new = {
         k: sorted(set(v) - set(r["with_rig"].get(k, [])))
