@@ -25,9 +25,9 @@ use them.
 
 :class:`PoseWithCovariance` holds an :class:`RSPose` and its (6, 6) pose and twist covariances
 (ROS order); the message conversions take it. The library's results are one (subclasses that
-add their own fields): an estimate
-(:class:`~rs_localizer.estimation.result.RSPoseEstimate`, which also holds its ``model``), a
-rig's estimate (:class:`~rs_localizer.estimation.result.RSPoseEstimate`), a fused frame
+add their own fields): an estimate, a
+camera's or a rig's (:class:`~rs_localizer.estimation.result.RSPoseEstimate`, which also
+holds its ``model``), a fused frame
 (:class:`~rs_localizer.tracking.sequence.FusedPose`) and a base state
 (:func:`~rs_localizer.frames.camera_to_base`) hold ``pose``, ``pose_covariance`` and
 ``twist_covariance`` as their own fields: read ``x.pose.orientation``, ``x.pose.position``,
@@ -35,22 +35,22 @@ rig's estimate (:class:`~rs_localizer.estimation.result.RSPoseEstimate`), a fuse
 (:class:`~rs_localizer.tracking.fusion.FusedState`) holds its ``pose`` and (12, 12)
 ``covariance``, and a predicted model (:class:`~rs_localizer.estimation.options.InitialModel`)
 its ``model``. The numba kernels take the model's bare arrays (an :class:`RSModel` unpacks as
-them). :class:`PoseMeasurement` is what a camera's and a rig's estimates both give the twist
-filter: ``success``, ``pose``, the covariances and the acceleration sensitivity.
+them). The twist filter fuses an estimate as it is
+(:meth:`~rs_localizer.tracking.fusion.TwistFilter.update` takes the one result type of a
+camera's and a rig's estimator, :class:`~rs_localizer.estimation.result.RSPoseEstimate`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, NamedTuple, Protocol, runtime_checkable
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ._jit import kernel
 
 __all__ = [
-    "PoseMeasurement",
     "PoseWithCovariance",
     "RSModel",
     "RSPose",
@@ -312,45 +312,3 @@ class PoseWithCovariance:
     pose: RSPose = field(default_factory=RSPose)
     pose_covariance: np.ndarray | None = None
     twist_covariance: np.ndarray | None = None
-
-
-@runtime_checkable
-class PoseMeasurement(Protocol):
-    """What one frame's estimator gives the twist filter
-    (:meth:`~rs_localizer.tracking.fusion.TwistFilter.update`) and a fused frame
-    (:meth:`~rs_localizer.tracking.sequence.FusedPose.of`): a camera's estimate
-    (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) and a rig's
-    (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) are one. The time of the frame is
-    passed beside it (the estimates' ``pose`` has no stamp).
-
-    Attributes:
-        success: the estimator found a pose (a failed one is not fused).
-        pose: the :class:`RSPose` of the body (camera or rig): orientation (3, 3) body ->
-            world, position (3,) m, angular (rad/s) and linear (m/s) velocity in the body frame.
-        covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
-            velocity [rad/s, body frame], linear velocity [m/s, body frame]), or None (not
-            fused then).
-        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame, or None.
-        twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), body frame, or None: the
-            frame measured no twist (a global shutter): only its pose is fused.
-        acceleration_sensitivity: (12, 6) change of the outputs (rows as ``covariance``) per
-            unit of angular (rad/s^2) and linear (m/s^2) acceleration during the frame, or None.
-    """
-
-    @property
-    def success(self) -> bool: ...
-
-    @property
-    def pose(self) -> RSPose: ...
-
-    @property
-    def covariance(self) -> np.ndarray | None: ...
-
-    @property
-    def pose_covariance(self) -> np.ndarray | None: ...
-
-    @property
-    def twist_covariance(self) -> np.ndarray | None: ...
-
-    @property
-    def acceleration_sensitivity(self) -> np.ndarray | None: ...

@@ -73,7 +73,8 @@ from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
 from ..estimation.implementation import compiled_by_default
 from ..estimation.prior import MotionPrior, prior_arrays
-from ..pose import PoseMeasurement, RSPose
+from ..estimation.result import RSPoseEstimate
+from ..pose import RSPose
 
 __all__ = [
     "ADAPT_MAX_SCALE",
@@ -952,7 +953,7 @@ class TwistFilter:
         return out
 
     # ------------------------------------------------------------------ measurement
-    def _measurement_inputs(self, est: PoseMeasurement, prior: MotionPrior | None = None):
+    def _measurement_inputs(self, est: RSPoseEstimate, prior: MotionPrior | None = None):
         """The arguments of :func:`_prepare_measurement` for an estimate up to
         ``measurement_scale`` (m, cov, O, p, omega, v_cam, G, has_G, prior_on, mean, info),
         or None when it is unusable by its shapes (failed, no (12, 12) covariance;
@@ -986,7 +987,7 @@ class TwistFilter:
             info,
         )
 
-    def _measurement(self, est: PoseMeasurement, prior: MotionPrior | None = None):
+    def _measurement(self, est: RSPoseEstimate, prior: MotionPrior | None = None):
         """The measurement an estimate gives: a :class:`_Measurement` with m = 12 (pose and
         twist with the (12, 12) covariance) or 6 (pose only: no twist covariance, a global
         shutter), or None when unusable. R is scaled by ``measurement_scale``; G (m, 6) is the
@@ -1079,7 +1080,7 @@ class TwistFilter:
     def update(
         self,
         stamp_ns: int,
-        estimate: PoseMeasurement,
+        estimate: RSPoseEstimate,
         relocalized: bool = False,
         prior: MotionPrior | None = None,
     ) -> FusionStep:
@@ -1087,9 +1088,9 @@ class TwistFilter:
 
         Args:
             stamp_ns: the frame's time (ns): the time of ``estimate.pose``.
-            estimate: a :class:`~rs_localizer.pose.PoseMeasurement`: a camera's
-                :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-                :class:`~rs_localizer.estimation.result.RSPoseEstimate`. A failed estimate or
+            estimate: the frame's :class:`~rs_localizer.estimation.result.RSPoseEstimate` (a
+                camera's or a rig's; read: ``success``, ``pose``, ``covariance``,
+                ``twist_covariance``, ``acceleration_sensitivity``). A failed estimate or
                 one without a finite (12, 12) ``covariance`` is not fused: the frame gets the
                 prediction; one without ``twist_covariance`` (a global shutter) is fused as a
                 pose only.

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike
 
 from ..camera import checked_stamp
 from ..estimation.gyro import GyroMeasurement
-from ..pose import PoseMeasurement
+from ..estimation.result import RSPoseEstimate
 from .gyro import ImuBuffer
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from .gyro_check import GyroMountCheck, MountCheckOptions
@@ -107,24 +107,6 @@ class TrackLog(Protocol):
     def info(self, text: str) -> None: ...
 
     def warning(self, key: str, text: str, count: int = 0) -> None: ...
-
-
-class SolvedFrame(PoseMeasurement, Protocol):
-    """What :meth:`GyroInput.solved` reads of a frame's estimate (a camera's
-    :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-    :class:`~rs_localizer.estimation.result.RSPoseEstimate`): the twist filter's measurement
-    (:class:`~rs_localizer.pose.PoseMeasurement`: ``success``, ``pose``, ``covariance``)
-    and whether the gyro was used (``gyro_used``) or rejected (``gyro_rejected``, why:
-    ``gyro_rejection``)."""
-
-    @property
-    def gyro_used(self) -> bool: ...
-
-    @property
-    def gyro_rejected(self) -> bool: ...
-
-    @property
-    def gyro_rejection(self) -> str: ...
 
 
 class SilentLog:
@@ -412,7 +394,7 @@ class GyroInput:
         self._count(f"{kind}.{reason}", 1)
         self.log.warning(key, text)
 
-    def solved(self, stamp_ns: int, estimate: SolvedFrame | None, new_track: bool) -> None:
+    def solved(self, stamp_ns: int, estimate: RSPoseEstimate | None, new_track: bool) -> None:
         """A frame (a camera's or a rig's) after its estimate: the one rule of both.
 
         Counted: ``<used>`` (``frames_with_gyro``; a rig's ``gyro_used``) when it was posed

@@ -49,8 +49,9 @@ from ..correspondences import (
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions, points_needed
 from ..estimation.points import capped_rows
+from ..estimation.result import RSPoseEstimate
 from ..estimation.single_tag import few_points
-from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel, RSPose
 from .fusion import FusedState
 from .gyro_input import SilentLog, TrackLog
 
@@ -287,10 +288,9 @@ class FusedPose(PoseWithCovariance):
 
     @classmethod
     def of(
-        cls, estimate: PoseMeasurement, fused: FusedState, tag: object = None, own: bool = False
+        cls, estimate: RSPoseEstimate, fused: FusedState, tag: object = None, own: bool = False
     ) -> FusedPose:
-        """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
-        :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+        """The estimate's pose (a camera's or a rig's
         :class:`~rs_localizer.estimation.result.RSPoseEstimate`) with the fused state's twist,
         at the fused state's stamp; the estimate's own twist and covariance where the filter
         did not fuse the frame (:attr:`own_twist`), or with ``own`` (the fused twist is
@@ -421,7 +421,7 @@ class PendingTwists:
     def hold(
         self,
         stamp_ns: int,
-        estimate: PoseMeasurement,
+        estimate: RSPoseEstimate,
         tag: object = None,
         relocalized: bool = False,
     ) -> None:

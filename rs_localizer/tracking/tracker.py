@@ -54,7 +54,7 @@ from ..estimation.rig import estimate_rig_pose
 from ..estimation.view import View
 from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
-from ..pose import PoseMeasurement, RSModel
+from ..pose import RSModel
 from ..solvers.registry import solver_info
 from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
 
@@ -276,25 +276,7 @@ def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     return state.pose.model(camera.seconds_per_unit_r)
 
 
-class PathEstimate(PoseMeasurement, Protocol):
-    """A frame's estimate on the tracker path: a camera's
-    :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-    :class:`~rs_localizer.estimation.result.RSPoseEstimate`; besides the twist filter's
-    measurement (:class:`~rs_localizer.pose.PoseMeasurement`): ``failure`` (why it failed;
-    None when it succeeded), ``initial_used`` (it was found from the initial model) and
-    ``initial_explained`` (the points the initial model explained, -1 without one)."""
-
-    @property
-    def failure(self) -> str | None: ...
-
-    @property
-    def initial_used(self) -> bool: ...
-
-    @property
-    def initial_explained(self) -> int: ...
-
-
-def frame_inlier_ratio(estimate: PathEstimate, num_rows: int) -> float:
+def frame_inlier_ratio(estimate: RSPoseEstimate, num_rows: int) -> float:
     """A solved frame's inlier ratio as the tracker keeps it for the next frame's gate
     (:func:`predicted_initial_model`): its inliers over the ``num_rows`` rows it was given."""
     return estimate.num_inliers / max(num_rows, 1)
@@ -345,16 +327,15 @@ class Solve:
     """One solve of a frame by a :class:`PathEstimator`.
 
     Attributes:
-        estimate: the estimator's result: a camera's
-            :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-            :class:`~rs_localizer.estimation.result.RSPoseEstimate` (:class:`PathEstimate`).
+        estimate: the estimator's result, a camera's or a rig's
+            :class:`~rs_localizer.estimation.result.RSPoseEstimate`.
         prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
             refinement used, None: none (the twist filter takes its information out again).
         prior_from_prediction: the estimator was given the prediction's twist as its motion
             prior: when the prediction does not hold the frame is solved again without it.
     """
 
-    estimate: PathEstimate
+    estimate: RSPoseEstimate
     prior: MotionPrior | None = None
     prior_from_prediction: bool = False
 
@@ -398,7 +379,7 @@ class PathFrame:
     ``explained`` (points the prediction explained, -1 without one) and ``prior`` (the motion
     prior the estimate's refinement used, for :meth:`TrackerPath.update`)."""
 
-    estimate: PathEstimate
+    estimate: RSPoseEstimate
     path: str
     predicted: FusedState | None = None
     explained: int = -1
@@ -570,7 +551,7 @@ class TrackerPath:
     def update(
         self,
         stamp_ns: int,
-        estimate: PathEstimate,
+        estimate: RSPoseEstimate,
         path: str,
         inlier_ratio: float = 0.0,
         prior: MotionPrior | None = None,
@@ -723,7 +704,7 @@ class RSTracker(TrackerPath):
     def update(
         self,
         stamp_ns: int,
-        estimate: PathEstimate,
+        estimate: RSPoseEstimate,
         path: str,
         inlier_ratio: float = 0.0,
         prior: MotionPrior | None = None,

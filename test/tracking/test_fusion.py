@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import dataclasses
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, est
 from rs_localizer.estimation.result import RSPoseEstimate
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
-from rs_localizer.pose import PoseMeasurement, RSPose
+from rs_localizer.pose import RSPose
 from rs_localizer.sim import synthetic as sim_rig
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
 from rs_localizer.tracking.fusion import FusedState, FusionOptions, TwistFilter
@@ -612,10 +611,11 @@ def test_fused_states_are_fused_state_dataclasses():
 
 
 def test_a_camera_estimate_and_a_rig_estimate_are_the_filters_measurement():
-    """Both estimators' results are :class:`~rs_localizer.pose.PoseMeasurement`, which the
-    filter takes as they are (a rig of one camera, its frame also posed by the camera's
-    estimator): the measurement is the estimate's pose and twist with its (12, 12) covariance,
-    the frame's stamp passed beside it; an object without those fields is none."""
+    """Both estimators' results are one type,
+    :class:`~rs_localizer.estimation.result.RSPoseEstimate`, which the filter takes as it is
+    (a rig of one camera, its frame also posed by the camera's estimator): the measurement is
+    the estimate's pose and twist with its (12, 12) covariance, the frame's stamp passed beside
+    it."""
     rng = np.random.default_rng(4)
     rig = sim_rig.make_rig(1, rng, stamp_spread=0.0)
     frame = sim_rig.rig_frame(rig, sim_rig.rig_motion(rng, 1.0, 1.0), [150], rng, outliers=0.0)
@@ -623,7 +623,7 @@ def test_a_camera_estimate_and_a_rig_estimate_are_the_filters_measurement():
     view = frame.views[0]
     cam_est = estimate_rs_pose(view.uv, view.X, view.camera, "r6p_1lin")
     for est in (cam_est, rig_est):
-        assert est.success and isinstance(est, PoseMeasurement)
+        assert est.success and type(est) is RSPoseEstimate
         z = TwistFilter()._measurement(est)
         assert z.m == 12 and not z.deprior
         np.testing.assert_allclose(z.Ori, est.pose.orientation, atol=1e-12)
@@ -633,4 +633,3 @@ def test_a_camera_estimate_and_a_rig_estimate_are_the_filters_measurement():
         np.testing.assert_allclose(z.R, est.covariance, rtol=1e-9, atol=1e-15)
         step = TwistFilter().update(123, est)
         assert step.current.fused and step.current.pose.stamp_ns == 123
-    assert not isinstance(SimpleNamespace(success=True, pose=RSPose()), PoseMeasurement)
