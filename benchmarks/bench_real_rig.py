@@ -289,7 +289,8 @@ def video_run(
     max_gap: float | None = None,
 ) -> dict:
     """The rig's video path: every camera's detection message (its tags' corners matched to
-    the map, none when it saw no tag of the map) fed in stamp order into a
+    the map, none when it saw no tag of the map; each tag's corners one group,
+    :meth:`~benchmarks.tagslam_data.RealRig.groups`) fed in stamp order into a
     :class:`~rs_localizer.tracking.video.Localizer` (the reference's extrinsics as the
     mountings, ``options``, :class:`~rs_localizer.tracking.video.LocalizerSettings`' defaults:
     tracking with the prediction and the fused twist; ``stop_after`` and the tracking's
@@ -325,11 +326,12 @@ def video_run(
         if group > last:
             break
         uv, X = views_of.get(group, {}).get(name, empty)
+        groups = rig.groups(group, name) if len(uv) else None
+        stamp_ns = int(round(stamp * 1e9))
         video.append(
-            CameraFrame(
-                int(round(stamp * 1e9)), rig.cameras[name], uv, X, tag=group, camera_name=name
-            )
-        )
+            CameraFrame(stamp_ns, rig.cameras[name], uv, X, tag=group, camera_name=name,
+                        groups=groups)
+        )  # fmt: skip
     warm = Localizer(settings)  # (compiles the tracking's kernels: untimed)
     for f in video[: 20 * len(rig.cameras)]:
         warm.add(f)
@@ -431,8 +433,9 @@ def calibrate_estimates(
     rig: RealRig, min_inliers: int = 8, reference: str | None = None, time_offsets: bool = False
 ):
     """Every camera's mounting from the recording (every camera frame with tags, as
-    ``calibrate-rig`` reads them; ``reference``, default the first camera, at its reference
-    extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result
+    ``calibrate-rig`` reads them, each tag's corners one group,
+    :meth:`~benchmarks.tagslam_data.RealRig.groups`; ``reference``, default the first camera,
+    at its reference extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result
     (``time_offsets``: with each camera's time offset estimated, ``calibrate-rig
     --time-offsets``)."""
     from rs_localizer.calibration import calibrate_mountings
@@ -440,7 +443,14 @@ def calibrate_estimates(
 
     ref = reference or next(iter(rig.cameras))
     cam_frames = [
-        CameraFrame(int(round(stamp * 1e9)), rig.cameras[n], uv, X, camera_name=n)
+        CameraFrame(
+            int(round(stamp * 1e9)),
+            rig.cameras[n],
+            uv,
+            X,
+            camera_name=n,
+            groups=rig.groups(stamp, n),
+        )
         for stamp, views in rig.frames
         for n, (uv, X) in views.items()
     ]

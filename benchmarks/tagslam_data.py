@@ -125,12 +125,18 @@ class RealRig:
         :attr:`mountings`), its corners grouped by tag (:attr:`tag_ids`; none where the
         frame's tags are not known)."""
         mountings = self.mountings if mountings is None else mountings
-        ids = self.tag_ids.get(stamp, {})
         return [
-            View(uv, X, self.cameras[n], mountings[n], name=n,
-                 groups=np.repeat(ids[n], 4) if n in ids else None)
+            View(uv, X, self.cameras[n], mountings[n], name=n, groups=self.groups(stamp, n))
             for n, (uv, X) in views.items()
-        ]  # fmt: skip
+        ]
+
+    def groups(self, stamp: float, name: str) -> np.ndarray | None:
+        """Camera ``name``'s corners in the rig frame at ``stamp`` (:attr:`frames`) grouped
+        by tag: (N,) int64, each corner's tag id (:attr:`tag_ids`), as a marker front end's
+        :attr:`~rs_localizer.correspondences.Correspondences.groups`; None where the frame's
+        tags are not known."""
+        ids = self.tag_ids.get(stamp, {})
+        return np.repeat(np.asarray(ids[name], np.int64), 4) if name in ids else None
 
 
 def _pose(t: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -123,15 +123,17 @@ def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
 
 def _posed_alone(frames: list, options: Any, stamp_row: float, given: dict):
     """Each camera's frames posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`,
-    step 1), those with a finite covariance: camera -> list of ``(t ns on the rig's clock (plus
-    the camera's ``given`` offset), orientation (3, 3) camera -> world, position (3,) m,
-    angular rad/s and linear m/s velocity (3,) in camera axes, covariance (12, 12), inlier
-    corners (pixels (K, 2), map points (K, 3) m, camera model))`` in time order."""
+    step 1; a frame's :attr:`~rs_localizer.tracking.localizer.CameraFrame.groups`, a marker's
+    corners, enter the covariance as a shift they share), those with a finite covariance:
+    camera -> list of ``(t ns on the rig's clock (plus the camera's ``given`` offset),
+    orientation (3, 3) camera -> world, position (3,) m, angular rad/s and linear m/s velocity
+    (3,) in camera axes, covariance (12, 12), inlier corners (pixels (K, 2), map points (K, 3)
+    m, camera model))`` in time order."""
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
             continue
-        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options, groups=f.groups)
         poses.setdefault(f.camera_name, [])
         cov = est.covariance
         if not est.success or cov is None or not np.isfinite(cov[:6, :6]).all():
@@ -625,7 +627,9 @@ def calibrate_mountings(
 
     Args:
         frames: :class:`~rs_localizer.tracking.localizer.CameraFrame` of every camera (any
-            order; frames without a camera model are skipped).
+            order; frames without a camera model are skipped); a frame's ``groups`` (each
+            corner's marker) make its pose's covariance, which weighs it in the pose-level
+            adjustment, that of corners sharing a shift per marker (None: independent).
         reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
             (its known mounting on the rig) places it.
         window: s; frames further apart are not one rig frame.

@@ -43,12 +43,13 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from ..camera import CameraModel, FrameTime, Stamp
-from ..tracking.localizer import CameraFrame, usable_rows
+from ..tracking.localizer import CameraFrame, usable_correspondences, usable_rows
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .pointcloud import Keypoints, read_correspondences, read_keypoints
 
 if TYPE_CHECKING:
+    from ..correspondences import Correspondences
     from ..tracking.video import Localizer, LocalizerOutput
 
 __all__ = [
@@ -605,6 +606,12 @@ class CameraInput:
         (counted ``capped_clouds``, ``capped_points``; a warning):
         :func:`~rs_localizer.tracking.localizer.usable_rows`."""
         return usable_rows(uv, xyz, scores, self.max_points, self.count, self._warn)
+
+    def usable(self, found: Correspondences) -> Correspondences:
+        """A front end's correspondences ``found`` with :meth:`rows`' rows (counted and
+        warned alike), each row's ``ids`` and ``groups`` kept (a marker's corners keep their
+        group): :func:`~rs_localizer.tracking.localizer.usable_correspondences`."""
+        return usable_correspondences(found, self.max_points, self.count, self._warn)
 
     def _warn(self, key: str, text: str) -> None:
         self.log.warning(f"{self.label}{key}", f"{self.label}{text}")

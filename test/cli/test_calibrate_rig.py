@@ -413,3 +413,44 @@ def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
     args = ["calibrate-rig", str(rig_bag), "-p", "frontend:=aruco"]
     assert main(args) == 2
     assert "the rig bag has no camera images" in capsys.readouterr().err
+
+
+def test_a_markers_corners_reach_the_estimator_as_one_group(tmp_path, monkeypatch, capsys):
+    """Read through each camera's ArUco front end, calibrate-rig's camera frames carry each
+    corner's marker id as its group: every corner's map point is a corner of the marker of its
+    group in the bag's marker map, at most 4 corners a group; and each camera frame is posed
+    alone with those groups (the covariance of a marker's shared shift weighs its pose)."""
+    from rs_localizer.calibration import mountings as mountings_module
+    from rs_localizer.cli import main
+    from rs_localizer.maps.markers import load_marker_map
+    from rs_localizer.ros.bags.bag_frames import read_rig_frames
+
+    bag = tmp_path / "rendered"
+    assert main(["render-bag", str(bag), "--rig", "2", "--frames", "6", "--supersample", "1",
+                 "--quiet"]) == 0  # fmt: skip
+    _, markers = load_marker_map(bag / "markers.yaml")
+    params = {"frontend": "aruco", "frontend_map": str(bag / "markers.yaml")}
+    frames = read_rig_frames(bag, params=params).frames
+    assert len(frames) == 12
+    for f in frames:
+        assert f.groups is not None and f.groups.shape == (len(f.points2d),)
+        assert len(set(f.groups.tolist())) >= 2
+        assert np.bincount(f.groups).max() <= 4
+        for g, X in zip(f.groups, f.points3d, strict=True):
+            assert np.abs(markers[int(g)] - X).max(axis=1).min() < 1e-5, (g, X)
+
+    seen = []
+    estimate = mountings_module.estimate_rs_pose
+
+    def spy(uv, X, camera, **kw):
+        seen.append((len(uv), kw.get("groups")))
+        return estimate(uv, X, camera, **kw)
+
+    monkeypatch.setattr(mountings_module, "estimate_rs_pose", spy)
+    capsys.readouterr()
+    args = ["calibrate-rig", str(bag), "--json", "-o", str(tmp_path / "r.yaml"),
+            "--min-inliers", "8", "-p", "frontend:=aruco",
+            "-p", f"frontend_map:={bag / 'markers.yaml'}"]  # fmt: skip
+    assert main(args) == 0
+    want = sorted((len(f.points2d), f.groups.tolist()) for f in frames)
+    assert sorted((n, None if g is None else g.tolist()) for n, g in seen) == want

@@ -506,9 +506,11 @@ def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFra
     """A camera's decoded image ``item`` as a frame of its front end's correspondences,
     without a rig to predict it (``calibrate-rig``): ``frontend.process(image, camera,
     encoding)`` (a :class:`~rs_localizer.correspondences.Frontend`) on the whole image, its
-    rows as a cloud's (:meth:`~rs_localizer.ros.camera_input.CameraInput.rows`: non-finite
-    rows dropped, at most ``max_points``). Without a camera model: a frame without rows, as
-    the rig takes a frame before its camera_info. A front end that raises: a
+    rows as a cloud's (:meth:`~rs_localizer.ros.camera_input.CameraInput.usable`: non-finite
+    rows dropped, at most ``max_points``), each with its group (a marker's corners: the
+    marker's id, :attr:`~rs_localizer.correspondences.Correspondences.groups`), which the
+    pose's covariance takes as a shift the marker's corners share. Without a camera model: a
+    frame without rows, as the rig takes a frame before its camera_info. A front end that raises: a
     :class:`~rs_localizer.ros.camera_input.DroppedFrame` (``frontend_error``)."""
     from ...tracking.localizer import CameraFrame
     from ..camera_input import DroppedFrame
@@ -522,10 +524,9 @@ def _found_frame(inp: CameraInput, item: ImageFrame, frontend: Any) -> CameraFra
     except Exception as e:  # (any front end's failure: the frame is left out, counted)
         return DroppedFrame(name, stamp, camera, ValueError(f"{type(e).__name__}: {e}"),
                             "frontend_error")  # fmt: skip
-    uv = np.asarray(found.points2d, float).reshape(-1, 2)
-    xyz = np.asarray(found.points, float).reshape(-1, 3)
-    uv, xyz, _ = inp.rows(uv, xyz, found.valid_scores())
-    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
+    c = inp.usable(found)
+    return CameraFrame(stamp, camera, c.points2d, c.points, tag=tag, camera_name=name,
+                       groups=c.groups)  # fmt: skip
 
 
 def rig_kinds(inputs: Mapping[str, CameraInput], images: bool = False) -> tuple[str, ...]:
