@@ -235,6 +235,19 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
     return notes, {"parameters_off_deg": deg, "parameters_off_mm": mm}
 
 
+def _frames_read(frames: list, name: str) -> str:
+    """``back: no frame in the bag ...`` or ``back: 40 frames read``: whether a camera the
+    calibration could not connect had frames at all (its topics) or too few posed with the
+    others (the map seen too rarely or by too few points)."""
+    n = sum(f.camera_name == name for f in frames)
+    if n == 0:
+        return (
+            f"{name}: no frame in the bag (no {name}/correspondences, or {name}/image_raw with "
+            "a front end, under the rig's namespace)"
+        )
+    return f"{name}: {n} frames read (too few posed near another camera's: lower --min-inliers?)"
+
+
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
@@ -268,8 +281,9 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         raise A.CliError(
             f"camera(s) {missing} share no rig frame with the reference camera {ref!r}, "
-            f"directly or through other cameras (frames posed alone within --window "
-            f"{args.window} s of each other)"
+            f"directly or through other cameras (frames posed alone with --min-inliers "
+            f"{args.min_inliers} or more inliers, within --window {args.window} s of each "
+            f"other): {'; '.join(_frames_read(read.frames, n) for n in missing)}"
         )
     if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
         frame = _optical_frame_id(bag, ref)

@@ -214,6 +214,13 @@ def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "['front']" in err[0] and "'left'" in err[0], err
+    n_front = sum(f.name == "front" for f in alone)
+    assert f"front: {n_front} frames read" in err[0], err
+    # a camera of the parameters with no frame in the bag at all: said so, by name
+    bag = write_rig_bag(tmp_path / "no_back", [f for f in seen if f.name != "back"], cams, traj)
+    assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "['back']" in err[0] and "back: no frame in the bag" in err[0], err
 
 
 def _quat(R):
