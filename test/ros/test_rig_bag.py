@@ -95,7 +95,9 @@ def test_replay_names_a_camera_whose_frames_never_join_the_others(tmp_path, caps
     -0.02 s, its frames put 20 ms early on the rig's clock): its frames are refused, not
     published, and ``replay`` warns as the node's diagnostics do (``frames_apart``), with its
     apparent offsets from the other cameras and the parameter that fixes a constant one; with
-    the bag's own timing no camera is named."""
+    the bag's own timing no camera is named. With its clock 20 ms late its frames join the
+    others' next rig frames, stamped where the ground truth has no pose: the report says how
+    many posed rig frames its errors leave out."""
     from rs_localizer.cli import main
 
     bag = tmp_path / "rig"
@@ -113,6 +115,16 @@ def test_replay_names_a_camera_whose_frames_never_join_the_others(tmp_path, caps
     assert "ms from front" in line[0] and "set rig.left.time_offset" in line[0], line
     assert main(args) == 0
     assert "never join" not in capsys.readouterr().err
+    # left's frames 20 ms late: they join the next rig frames of the others, at stamps the
+    # ground truth has none of; the report says how many posed rig frames it leaves out
+    late = [*args, "-p", "rig.left.time_offset:=0.02"]
+    assert main(late) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["solved"] > s["frames"], s
+    assert main([a for a in late if a != "--json"]) == 0
+    text = capsys.readouterr().out
+    n = s["solved"] - s["frames"]
+    assert f"  {n} posed rig frames have no ground truth at their stamp" in text, text
 
 
 def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tmp_path, capsys):
