@@ -235,6 +235,30 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
     return notes, {"parameters_off_deg": deg, "parameters_off_mm": mm}
 
 
+def _frames_read(frames: list, name: str, min_inliers: int) -> str:
+    """``back: no frame in the bag ...``, ``back: 40 frames read, none with 20
+    correspondences or more ...`` or ``back: 40 frames read, 12 with 20 correspondences or
+    more ...``: whether a camera the calibration could not connect had frames at all (its
+    topics), saw the map (the camera sees too little of it) or too few of its frames were
+    posed near another camera's."""
+    mine = [f for f in frames if f.camera_name == name]
+    if not mine:
+        return (
+            f"{name}: no frame in the bag (no {name}/correspondences, or {name}/image_raw with "
+            "a front end, under the rig's namespace)"
+        )
+    seen = sum(len(f.points2d) >= min_inliers for f in mine)
+    if seen == 0:
+        return (
+            f"{name}: {len(mine)} frames read, none with {min_inliers} correspondences or more "
+            "(the camera sees too little of the map)"
+        )
+    return (
+        f"{name}: {len(mine)} frames read, {seen} with {min_inliers} correspondences or more, "
+        "too few of them posed near another camera's (lower --min-inliers?)"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
@@ -268,8 +292,9 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         raise A.CliError(
             f"camera(s) {missing} share no rig frame with the reference camera {ref!r}, "
-            f"directly or through other cameras (frames posed alone within --window "
-            f"{args.window} s of each other)"
+            f"directly or through other cameras (frames posed alone with --min-inliers "
+            f"{args.min_inliers} or more inliers, within --window {args.window} s of each "
+            f"other): {'; '.join(_frames_read(read.frames, n, args.min_inliers) for n in missing)}"
         )
     if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
         frame = _optical_frame_id(bag, ref)

@@ -296,7 +296,7 @@ def _print_report(args: argparse.Namespace, res) -> None:
             "delay a varying one)",
             file=text,
         )
-    _print_accuracy(solver, res.summary, n, text)
+    _print_accuracy(solver, res.summary, n, text, res.solved, unit)
     if res.cameras and res.own_twist.get("frames") and res.tracked:
         own = format_summary(solver, res.own_twist, n).split("; ", 1)[-1]
         print(f"  each rig frame's own twist: {own}", file=text)
@@ -355,14 +355,24 @@ def _print_gyro(c: dict, bias, how: str, unit: str, text) -> None:
         )
 
 
-def _print_accuracy(solver: str, summary: dict, n: int, text) -> None:
-    """The errors against ground truth of a replay's report (none without it), and after a
-    rigid fit of the frames when the ground truth is in another frame."""
+def _print_accuracy(
+    solver: str, summary: dict, n: int, text, solved: int = 0, unit: str = "frames"
+) -> None:
+    """The errors against ground truth of a replay's report (none without it), how many of
+    the ``solved`` (rig) frames had no ground truth at their stamp (left out of the errors:
+    a rig frame stamped by a camera whose clock is off), and after a rigid fit of the frames
+    when the ground truth is in another frame."""
     from ..accuracy import format_summary
 
     if not summary.get("frames"):
         return
     print(format_summary(solver, summary, n), file=text)
+    if solved > summary["frames"]:
+        print(
+            f"  {solved - summary['frames']} posed {unit} have no ground truth at their stamp "
+            "and are not in these errors",
+            file=text,
+        )
     fit = summary.get("frame_fit")
     if fit and fit["other_frame"]:
         print(

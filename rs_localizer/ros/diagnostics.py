@@ -735,7 +735,9 @@ def rig_camera_status(
     (first) and ``bad_input`` (last: its clouds not read); its ``warnings``: its frames never join
     the others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
     off``), it disagrees with the rig or with its partner, the cameras' consensus outvoted it in its
-    last rig frame, it stopped, it waits for its camera_info."""
+    last rig frame, it stopped (``camera right stopped: no frame received from it (is
+    right/correspondences published in the node's namespace?)`` when the node never received
+    one), it waits for its camera_info."""
     own: dict[str, int] | None = None
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
@@ -780,6 +782,14 @@ def rig_camera_status(
         warnings.append(
             f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
             "its mounting, clock, line delay or matches are likely wrong"
+        )
+    elif state == "stopped" and own is not None and not own.get("received", 0):
+        topic = (
+            f"{n}/image_raw" if inputs is not None and inputs.frontend else f"{n}/correspondences"
+        )
+        warnings.append(
+            f"camera {n} stopped: no frame received from it (is {topic} published in the "
+            "node's namespace?)"
         )
     elif state == "stopped":
         warnings.append(f"camera {n} stopped")

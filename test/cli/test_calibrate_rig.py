@@ -214,6 +214,21 @@ def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "['front']" in err[0] and "'left'" in err[0], err
+    n_front = sum(f.name == "front" for f in alone)
+    assert f"front: {n_front} frames read, {n_front} with 20 correspondences" in err[0], err
+    # a camera whose frames hold no correspondence (it never sees the map): said so
+    blind = [replace(f, uv=f.uv[:0], xyz=f.xyz[:0]) if f.name == "back" else f for f in seen]
+    bag = write_rig_bag(tmp_path / "blind", blind, cams, traj)
+    assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    n_back = sum(f.name == "back" for f in blind)
+    assert len(err) == 1 and "['back']" in err[0], err
+    assert f"back: {n_back} frames read, none with 20 correspondences or more" in err[0], err
+    # a camera of the parameters with no frame in the bag at all: said so, by name
+    bag = write_rig_bag(tmp_path / "no_back", [f for f in seen if f.name != "back"], cams, traj)
+    assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "['back']" in err[0] and "back: no frame in the bag" in err[0], err
 
 
 def _quat(R):

@@ -130,6 +130,37 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert v[f"{names[0]}.received"] == 0 and v["latency_ms_median"] == "nan"
 
 
+def test_a_camera_that_never_sent_a_frame_is_named_with_its_topic():
+    """A camera of ``rig.cameras`` from which the node received nothing while the others run
+    (its topic not published, or not remapped into the node's namespace): once the rig runs
+    on the others it is ``stopped`` and the status says that no frame came from it and which
+    topic to check, not only that it stopped."""
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros.diagnostics import WARN, RigInputs
+    from rs_localizer.sim.trajectory import default_rig, generate_rig_video
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.video import Localizer, LocalizerSettings
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.8, num_points=60, seed=2)
+    by = {c.name: c.camera for c in cams}
+    silent = cams[2].name
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    sent = Counter()
+    for f in frames:
+        if f.name != silent:
+            rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+            sent[f"{f.name}.received"] += 1
+    level, message, v = rig_status(rig, (), RigInputs(sent), ([], []))
+    assert v[f"{silent}.state"] == "stopped" and v[f"{silent}.received"] == 0, v
+    assert level == WARN and v["rig_frames_solved"] > 0
+    assert f"camera {silent} stopped: no frame received from it" in message, message
+    assert f"{silent}/correspondences" in message
+    level, message, _ = rig_status(rig, (), RigInputs(sent, frontend=True), ([], []))
+    assert f"{silent}/image_raw" in message, message
+
+
 def test_the_rig_status_has_the_tracks_values_of_a_camera():
     """A rig's status reports its track as a camera's does, the keys in the camera's order:
     ``track_state``, ``frames_tracked``, ``relocalizations``, ``resets`` (gained by the rig:

@@ -213,6 +213,38 @@ def test_lockstep_gives_up_naming_the_pose_topics_that_exist(imu_bag, ros_contex
     assert "/nobody/camera/pose" in res.gave_up and "to the first 2 frames" in res.gave_up
 
 
+def test_lockstep_gives_up_naming_the_frame_topics_a_running_node_does_not_take(
+    imu_bag, ros_context
+):
+    """The node publishes the pose topic lock-step waits on but takes none of the frames (a
+    rig node waiting for a camera whose topic it does not receive): the player stops saying
+    so, names the frame topic nobody subscribes and the diagnostics command, instead of
+    pointing at the pose topic it waits on as if the node ran elsewhere."""
+    from rs_localizer.ros.bags.play import play
+
+    r = _Responder(ros_context, "/mute/elsewhere", "/mute/camera/pose")
+    try:
+        res = play(
+            imu_bag,
+            lockstep=True,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            remap={"__ns": "/mute"},
+            context=ros_context,
+            wait_subscribers=0.5,
+            timeout=0.2,
+            retries=0,
+            give_up=2,
+            log=print,
+        )
+    finally:
+        r.close()
+    assert len(res.frames) == 2 and res.answered == 0 and r.frames == 0
+    assert "though a node publishes it" in res.gave_up
+    assert "no node subscribes /mute/camera/correspondences" in res.gave_up
+    assert "rs-localizer diagnostics --ns /mute/camera --once" in res.gave_up
+    assert "with a publisher:" not in res.gave_up
+
+
 class _CompilingResponder(_Responder):
     """A responder that answers no frame during its first ``busy`` seconds (a node compiling
     its kernels); with ``say``, it logs as the node's warm-up does (``/rosout``) when it

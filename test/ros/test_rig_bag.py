@@ -90,6 +90,43 @@ def test_replay_names_a_camera_that_disagrees_with_the_angle_it_is_off(tmp_path,
     assert json.loads(capsys.readouterr().out)["disagreeing"] == {}
 
 
+def test_replay_names_a_camera_whose_frames_never_join_the_others(tmp_path, capsys):
+    """A rig bag replayed with the left camera's clock 20 ms off (``rig.left.time_offset``
+    -0.02 s, its frames put 20 ms early on the rig's clock): its frames are refused, not
+    published, and ``replay`` warns as the node's diagnostics do (``frames_apart``), with its
+    apparent offsets from the other cameras and the parameter that fixes a constant one; with
+    the bag's own timing no camera is named. With its clock 20 ms late its frames join the
+    others' next rig frames, stamped where the ground truth has no pose: the report says how
+    many posed rig frames its errors leave out."""
+    from rs_localizer.cli import main
+
+    bag = tmp_path / "rig"
+    assert main(["make-bag", str(bag), "--rig", "3", "--frames", "20", "--points", "120",
+                 "--quiet"]) == 0  # fmt: skip
+    capsys.readouterr()
+    args = ["replay", str(bag), "--quiet", "--json"]
+    assert main([*args, "-p", "rig.left.time_offset:=-0.02"]) == 0
+    out = capsys.readouterr()
+    s = json.loads(out.out)
+    assert s["counts"]["left"]["solved"] == 0 and s["solved"] == 20, s["counts"]
+    assert s["rot_deg"]["max"] < 0.35 and s["pos_m"]["max"] < 0.02, s
+    line = [x for x in out.err.splitlines() if "never join" in x]
+    assert len(line) == 1 and line[0].startswith("warning: camera left: its frames never join")
+    assert "ms from front" in line[0] and "set rig.left.time_offset" in line[0], line
+    assert main(args) == 0
+    assert "never join" not in capsys.readouterr().err
+    # left's frames 20 ms late: they join the next rig frames of the others, at stamps the
+    # ground truth has none of; the report says how many posed rig frames it leaves out
+    late = [*args, "-p", "rig.left.time_offset:=0.02"]
+    assert main(late) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["solved"] > s["frames"], s
+    assert main([a for a in late if a != "--json"]) == 0
+    text = capsys.readouterr().out
+    n = s["solved"] - s["frames"]
+    assert f"  {n} posed rig frames have no ground truth at their stamp" in text, text
+
+
 def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tmp_path, capsys):
     """A rig bag of two cameras, the left one's clouds each with 3 rows holding a NaN: the
     replay drops those rows before the rig, counted ``points_dropped`` (3 per left cloud);

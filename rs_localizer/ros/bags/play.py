@@ -507,11 +507,28 @@ def _no_answer_message(
     node: Any, executor: Any, topics: Sequence[str], when: str, frame_topics: Iterable[str] = ()
 ) -> str:
     """Why lock-step stops: no answer on ``topics``; the cause: a managed node that is not
-    active (by name, with the commands that activate it), else the pose topics that have a
-    publisher in the graph (the namespace the node may run in)."""
+    active (by name, with the commands that activate it); else, when ``topics`` have a
+    publisher (the node runs but poses nothing: a rig waiting for a camera), the
+    ``frame_topics`` no node subscribes and the diagnostics command; else the pose topics that
+    have a publisher in the graph (the namespace the node may run in)."""
+    frame_topics = list(frame_topics)
     not_active = _not_active(node, executor, [*topics, *frame_topics])
     if not_active:
         return f"no node answered on {', '.join(topics)} {when}; {_activate_hint(not_active)}"
+    if topics and all(_published_by_others(node, t) for t in topics):
+        unheard = [t for t in frame_topics if not _subscribed_by_others(node, t)]
+        ns = topics[0].rsplit("/", 1)[0] or "/"
+        return (
+            f"no node answered on {', '.join(topics)} {when}, though a node publishes it: "
+            "it takes no frame or poses none"
+            + (
+                f"; no node subscribes {', '.join(unheard)} (a rig waits for each camera of "
+                "rig.cameras until the others' stamps are rig.stop_after ahead)"
+                if unheard
+                else ""
+            )
+            + f"; its diagnostics say why: rs-localizer diagnostics --ns {ns} --once"
+        )
     poses = sorted(
         name
         for name, kinds in node.get_topic_names_and_types()
@@ -910,6 +927,7 @@ class _Session:
         wall0 = time.perf_counter()
         n_frames = n_waited = 0
         last_pub = {}
+        played: dict[str, None] = {}  # the frame topics played, in order (as the node's names)
         t_first = t_last = None
         shift = stamp_offset_ns
         for rep in range(max(int(loop), 1)):
@@ -948,6 +966,7 @@ class _Session:
                 result.published += 1
                 if not is_frame_topic(topic, msgtype):
                     continue
+                played.setdefault(live_topic(topic, self.remap))
                 n_frames += 1
                 frame = {
                     "index": n_frames - 1,
@@ -971,7 +990,7 @@ class _Session:
                         self.executor,
                         waited[topic],
                         f"to the first {n_waited} frames",
-                        [live_topic(topic, self.remap)],
+                        list(played),
                     )
                     self.log(f"error: {result.gave_up}")
                 if result.gave_up or (limit is not None and n_frames >= limit):

@@ -36,6 +36,7 @@ import numpy as np
 from ...accuracy import GroundTruth
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from ...tracking.localizer import readout_warning
+from ...tracking.rig import offsets_text
 from ..camera_input import DroppedFrame
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
 from ..outputs import FrameOutcome, frame_outcome, outcome_messages, rig_frame_views
@@ -757,8 +758,9 @@ class _Run:
     def finish(self, rows: ReplayRows) -> None:
         """The counts and the warnings of the video into the result: a camera's counts (its
         input's, its gyro's, the map-fit check's, as the node's diagnostics name them); a
-        rig's cameras' and the rig's counts, the gyro's, the rig frames' own twist and the
-        cameras' disagreement."""
+        rig's cameras' and the rig's counts, the gyro's, the rig frames' own twist, the
+        cameras' disagreement and, as a note, each camera whose frames never join the others'
+        at the end of the video (:meth:`~rs_localizer.tracking.video.Localizer.camera_apart`)."""
         result, rig = self.result, self.engine
         if self.per_frame:
             result.counts = self.own[""].counts()
@@ -769,6 +771,16 @@ class _Run:
                                                         self.landmarks is not None)  # fmt: skip
             result.off_deg = self.off_deg
             result.own_twist = rows.own_twist()
+            for n in rig.cameras:  # (as the rig node's diagnostics warn: frames_apart)
+                apart = rig.camera_apart(n)
+                if apart is not None:
+                    offs = offsets_text(apart, quoted=False, unknown="offset unknown")
+                    result.notes.append(
+                        f"camera {n}: its frames never join the others' ({offs}): its clock "
+                        f"or stamp offset is likely wrong (a constant offset: set "
+                        f"rig.{n}.time_offset); its frames are posed alone only where the "
+                        "rig's track agrees"
+                    )
             if self.cfg.settings.imu is not None:
                 result.counts = rig.gyro_counts()
                 if self.imu_rejected:  # (as the rig node's diagnostics count them)
