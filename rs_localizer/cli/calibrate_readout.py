@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration.readout import calibrate_line_delay
     from ..estimation.estimate import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_bag_frames, read_gyro
+    from ..runtime.background import CameraKernels, cold_compile_note
 
     bag = read_bag_frames(
         path,
@@ -109,11 +110,13 @@ def run(args: argparse.Namespace) -> int:
     )
     gyro = read_gyro(path, args.imu_topic) if args.imu_topic else None
     stamp_row = bag.stamp_row if args.stamp_row is None else args.stamp_row
+    options = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold, seed=0))
+    cold_compile_note(CameraKernels(args.solver, options))
     res = calibrate_line_delay(
         bag.frames,
         bag.camera,
         solver=args.solver,
-        options=EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold, seed=0)),
+        options=options,
         gyro=gyro,
         stamp_row=stamp_row,
     )

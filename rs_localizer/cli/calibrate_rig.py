@@ -265,6 +265,8 @@ def run(args: argparse.Namespace) -> int:
     from ..ros.bags.bag_frames import read_rig_frames
     from ..ros.config import mounting_covariance_values, mounting_values
     from ..ros.params import ConfigError
+    from ..runtime.background import CameraKernels, cold_compile_note
+    from ..solvers.registry import DEFAULT_SOLVER
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
@@ -281,10 +283,11 @@ def run(args: argparse.Namespace) -> int:
         raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
     given = parameter_mountings(cams, names)
     ref_mount = None if args.optical_frame else given.get(ref)
+    options = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
+    cold_compile_note(CameraKernels(DEFAULT_SOLVER, options))  # (each frame posed alone)
     est = calibrate_mountings(
         read.frames, ref, reference_mount=ref_mount, window=args.window,
-        stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers,
-        options=EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold)),
+        stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers, options=options,
         time_offsets=read.settings.time_offsets if read.settings is not None else None,
         estimate_time_offsets=args.time_offsets,
     )  # fmt: skip

@@ -255,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
             path_length=args.path_length,
             image_topic=args.image_topic,
             imu_topic=getattr(args, "imu_topic", None),
+            compile_note=sys.stderr,
         )
     except ConfigError as e:
         if not rig:

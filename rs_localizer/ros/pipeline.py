@@ -178,7 +178,6 @@ def warm_localizer(cfg: Any, logger: Any) -> None:
     if cfg.settings is None:  # (the camera alone: its own estimator's kernels)
         log_warm_up(cfg.solver, cfg.options, cfg.tracking, logger, cfg.imu is not None, True)
         return
-    from ..runtime.background import RigKernels
     from ..runtime.warmup import warm_rig
 
     def warm() -> tuple[float, str]:
@@ -186,8 +185,21 @@ def warm_localizer(cfg: Any, logger: Any) -> None:
         posed = warm_rig(cfg.settings, cfg.timings)
         return time.perf_counter() - tic, f"{posed} synthetic rig frames posed"
 
-    kernels = RigKernels(cfg.settings, cfg.timings)
-    warm_kernels(kernels, "rig", warm, logger, True, "`rs-localizer compile --params-file`")
+    warm_kernels(config_kernels(cfg), "rig", warm, logger, True,
+                 "`rs-localizer compile --params-file`")  # fmt: skip
+
+
+def config_kernels(cfg: Any) -> Any:
+    """The kernels the frames of a configuration (``cfg``, a :class:`~.config.LocalizerConfig`)
+    run on: the camera alone's (``cfg.settings`` None) a
+    :class:`~rs_localizer.runtime.background.CameraKernels` of its solver, estimator options,
+    tracking and gyro; a rig's a :class:`~rs_localizer.runtime.background.RigKernels` of its
+    settings and its cameras' RS timing."""
+    from ..runtime.background import CameraKernels, RigKernels
+
+    if cfg.settings is None:
+        return CameraKernels(cfg.solver, cfg.options, cfg.tracking, cfg.imu is not None)
+    return RigKernels(cfg.settings, cfg.timings)
 
 
 def warm_kernels(

@@ -27,10 +27,12 @@ import atexit
 import contextlib
 import pickle
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TextIO
 
 import numpy as np
 
@@ -45,6 +47,7 @@ __all__ = [
     "CameraKernels",
     "RigKernels",
     "background_state",
+    "cold_compile_note",
     "compiled_ready",
     "fall_back_uncompiled",
     "ready_implementation",
@@ -161,6 +164,33 @@ class RigKernels:
 
     def uncompiled_hz(self) -> None:
         return None  # (the rig's NumPy rate is not measured)
+
+
+def cold_compile_note(kernels: CameraKernels | RigKernels, stream: TextIO | None = None) -> bool:
+    """For the offline commands that solve frames on the compiled kernels and compile them
+    on the first frame (``replay``, ``calibrate-rig``, ``calibrate-readout``; the node
+    compiles in the background instead, :func:`start_background_compile`): say once on
+    ``stream`` (None: ``sys.stderr``), before the first frame, that ``kernels``
+    (:class:`CameraKernels`, :class:`RigKernels`) compile now, once, into numba's cache,
+    roughly how long it takes (``rs-localizer compile`` took 35-110 s on an empty cache,
+    docs/install.md "Start-up") and that ``rs-localizer compile`` does it ahead. Says
+    nothing when they are cached (``kernels.cached()``, the node's check) or this process
+    does not compile them (:func:`compiled_ready` false for frames that have a NumPy
+    implementation).
+
+    Returns:
+        True when it said so.
+    """
+    if (kernels.numpy and not compiled_ready()) or kernels.cached():
+        return False
+    print(
+        f"compiling {kernels.what} before the first frame: numba compiles them once and caches "
+        f"them in {cache_state()['dir']} (about half a minute to two minutes, longer on a busy "
+        "machine); `rs-localizer compile [--params-file FILE]` after installing does it ahead",
+        file=stream or sys.stderr,
+        flush=True,
+    )
+    return True
 
 
 def start_background_compile(

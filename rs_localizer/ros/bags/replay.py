@@ -265,6 +265,7 @@ def replay(
     image_topic: str | None = None,
     imu_topic: str | None = None,
     log: Any = None,
+    compile_note: TextIO | None = None,
 ) -> ReplayResult:
     """Run the localizer node over every frame of a bag, offline, through the rig mode
     (:class:`_Run`): a rig bag's cameras
@@ -309,6 +310,9 @@ def replay(
         progress: stream for the progress bar (None: none). log: logger (``info``,
             ``warning``) for a camera's warnings, worded and throttled as the camera node's
             (None: silent); of a rig bag, a frame whose step raised.
+        compile_note: stream on which to say, before the first frame, that the kernels the
+            frames run on are not in numba's cache and compile on it
+            (:func:`~rs_localizer.runtime.background.cold_compile_note`; None: not said).
 
     A frame whose step raises (a defect) fails as in the node: its row (a camera's bag)
     or its camera's count ``failed.internal_error`` (a rig bag's), the exception logged, and
@@ -338,6 +342,11 @@ def replay(
     else:
         run = _Run.of_camera_bag(path, params_files, params, source, image_topic, imu_topic,
                                  debug_outputs, log)  # fmt: skip
+    if compile_note is not None:
+        from ...runtime.background import cold_compile_note
+        from ..pipeline import config_kernels
+
+        cold_compile_note(config_kernels(run.cfg), compile_note)
     result = run.result
     ts = typestore()
     gt = load_ground_truth(path) if GT_POSE in run.bag_topics else GroundTruth()
