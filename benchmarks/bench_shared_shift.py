@@ -123,6 +123,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{a.frames} frames per case, each tag shifted {a.shift} px, {a.noise} px own noise")
     for name, run, truth in cases:
         grouped, plain = run(True), run(False)
+        for e, p in zip(grouped, plain, strict=True):  # (groups change only the covariance)
+            assert e.success == p.success and (
+                not e.success or np.array_equal(e.model.R, p.model.R)
+            )
         both = [
             (e, p, R, C)
             for e, p, (R, C) in zip(grouped, plain, truth, strict=True)
