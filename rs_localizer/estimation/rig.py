@@ -285,24 +285,6 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
     return RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0], own
 
 
-def _refit(pool: StackedViews, inl: np.ndarray, model, threshold_px: float, rounds: int = 2,
-           prior: MotionPrior | None = None):  # fmt: skip
-    """A camera's non-minimal step (:func:`~.hypotheses.linear_refit`) with the rig solver
-    (:func:`_rig_solver`, the gyro ``prior``'s rows at ``threshold_px``): on the inliers,
-    pre-rotated by the current model, ``rounds`` times."""
-    R, C, w, t = model
-    idx = np.flatnonzero(inl)
-    if len(idx) < 6:
-        return model
-    solve = _rig_solver(pool, 10, prior, threshold_px)
-    for _ in range(rounds):
-        m = linear_refit(idx, R, C, pool.x, pool.X, pool.tau, solve)
-        if m is None:
-            return model
-        R, C, w, t = m
-    return R, C, w, t
-
-
 def estimate_rig_pose(
     views: Sequence[View],
     options: EstimateOptions | None = None,
@@ -970,8 +952,13 @@ class _RigStages:
                 model = self.last[1]
             return model
 
-        def refit(m, inl):
-            return [_refit(pool, inl, m, threshold_px, prior=prior)]
+        def refit(m, inl):  # (a camera's linear step with the rig solver, 10 steps, twice)
+            idx = np.flatnonzero(inl)
+            if len(idx) < 6:
+                return [m]
+            solve = _rig_solver(pool, 10, prior, threshold_px)
+            fit = linear_refit(idx, m[0], m[1], pool.x, pool.X, pool.tau, solve, rounds=2)
+            return [m if fit is None else fit]
 
         def evaluate(m):
             return search.cost(m), search.errors(m) < threshold_px
