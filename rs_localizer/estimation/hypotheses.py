@@ -208,19 +208,23 @@ def linear_refit(
     X: np.ndarray,
     r: np.ndarray,
     solve: SampleSolver,
+    rounds: int = 1,
 ) -> RSModel | None:
     """Local optimization's linear step on one inlier set: the linear RS solver ``solve``
     (:data:`SampleSolver`) on the points ``idx`` (n,) int of ``x`` (N, 2), ``X`` (N, 3) at
     ``r`` (N,), pre-rotated by the current ``R`` (3, 3) (``C`` (3,) the current position:
-    where the motion prior's rows are linearized, or None). Returns the model (rotation
-    ``expm([v]x) R``) or None when the solve failed. A camera's inliers and a rig's are
+    where the motion prior's rows are linearized, or None), ``rounds`` times, each round
+    pre-rotated by the previous one's model. Returns the last round's model (rotation
+    ``expm([v]x) R``) or None when a solve failed. A camera's inliers and a rig's are
     refitted so, as their samples are (:func:`prerotated_models`)."""
-    Xr = (X[idx] @ R.T)[None]
-    C0 = None if C is None else np.asarray(C)[None]
-    b = solve(idx[None], x[idx][None], Xr, r[idx][None], C0)[0]
-    if not b.valid[0]:
-        return None
-    return RSModel(rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0])
+    for _ in range(rounds):
+        Xr = (X[idx] @ R.T)[None]
+        C0 = None if C is None else np.asarray(C)[None]
+        b = solve(idx[None], x[idx][None], Xr, r[idx][None], C0)[0]
+        if not b.valid[0]:
+            return None
+        R, C = rotvec_to_matrix(b.v[0]) @ R, b.C[0]
+    return RSModel(R, C, b.w[0], b.t[0])
 
 
 def _p3p_prerotations(fr: Frame, samples, th2=None):

@@ -23,7 +23,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 import numpy as np
@@ -218,6 +218,10 @@ class RansacLoop:
         best: the best model so far or None; score: its MSAC score.
         iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
             asks for; implausible: hypotheses rejected for their motion alone.
+        explained: points an initial model explained (-1 without one); anchored: its
+            rotation, then the best model's, pre-rotates the samples; subset: the seed's
+            inliers (int indices) when RANSAC only verifies it, sampling among them, else None
+            (:meth:`seeded`).
     """
 
     per_sample = False
@@ -231,6 +235,29 @@ class RansacLoop:
         self.iterations = 0
         self.needed = float(r.max_iterations)
         self.implausible = 0
+        self.explained, self.anchored, self.subset = -1, False, None
+
+    def seeded(self, test: tuple, verified: Callable[[np.ndarray], bool],
+               order: np.ndarray | None = None) -> None:  # fmt: skip
+        """Start from an initial model's ``test`` (``(explained, seed, anchored)`` of
+        :func:`~.local_optimization.initial_model_seed`): its seed (score, model, (N,) inlier
+        mask), if any, is the first best model. When ``verified(inliers)`` (they explain the
+        frame) RANSAC only verifies it with samples drawn from its inliers (as LO-RANSAC's
+        inner sampling, so the all-inlier probability is that of the pool, not of the frame):
+        ``subset`` is them in ``order`` (None: in index order) and no more samples are
+        needed; else termination counts on the seed's inlier ratio."""
+        self.explained, seed, self.anchored = test
+        if seed is None:
+            return
+        self.score, self.best, inliers = seed
+        if verified(inliers):
+            self.subset = (
+                np.flatnonzero(inliers) if order is None else order.compress(inliers.take(order))
+            )
+            self.needed = 0.0
+        else:
+            ratio = np.count_nonzero(inliers) / len(inliers)
+            self.needed = required_samples(ratio, self.s, self._log_miss)
 
     def search(self, estimator: RansacEstimator, r: RansacOptions) -> None:
         """Draw batches (:func:`batch_sizes`) of ``estimator``'s hypotheses; a better score
@@ -268,9 +295,8 @@ class Ransac(RansacLoop):
         iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
             asks for; implausible: hypotheses rejected for their motion alone.
         anchor: (R, C) pre-rotating the samples instead of P3P (an initial model, then the
-            best model), or None; explained: points the initial model explained (-1 without
-            one); guided: > 0 when RANSAC verifies a seed by sampling only among its first
-            ``guided`` points of ``order`` (its inliers).
+            best model), or None; explained, subset: as :class:`RansacLoop`'s (the seed's
+            inliers in ``order``).
         timings: ``ransac`` and ``local_optimization`` seconds once :meth:`run` returns.
 
     What needs compiled kernels is in four methods (:meth:`hypothesis_source`,
@@ -300,8 +326,6 @@ class Ransac(RansacLoop):
         self.inliers = np.zeros(len(fr.x), dtype=bool)
         self.count = 0
         self.anchor: tuple[np.ndarray, np.ndarray] | None = None
-        self.explained = -1
-        self.guided = 0
         self.timings: dict[str, float] = {}
         self._t_local = 0.0
 
@@ -360,8 +384,8 @@ class Ransac(RansacLoop):
         """Points the next K samples are drawn from: the seed's inliers when verifying it, a
         PROSAC-style growing prefix of the best-scored points, or all."""
         N = len(self.fr.x)
-        if self.guided:
-            return self.guided
+        if self.subset is not None:
+            return len(self.subset)
         if self.scored:
             growth = max(self.opts.ransac.prosac_growth, 1)
             return int(min(N, max(2 * self.s, np.ceil(N * (self.iterations + K) / growth))))
@@ -369,30 +393,19 @@ class Ransac(RansacLoop):
 
     def _seed(self, initial: InitialModel) -> None:
         t_lo = time.perf_counter()
-        self.explained, seed, anchored = seed_from_initial_model(
+        test = seed_from_initial_model(
             self.fr, self.solver, initial, self.th2, self.opts, **self.seed_steps()
         )
-        if anchored:
+        need = max(initial.min_explained, self.s + 1)
+        self.seeded(test, lambda inliers: np.count_nonzero(inliers) >= need, self.order)
+        if self.anchored:
             self.anchor = (
                 np.ascontiguousarray(initial.model.R, dtype=np.float64),
                 np.ascontiguousarray(initial.model.C, dtype=np.float64),
             )
-        if seed is not None:
-            self.score, self.best, self.inliers = seed
+        if test[1] is not None:
+            self.inliers = test[1][2]
             self.count = int(np.count_nonzero(self.inliers))
-            self.needed = required_iterations(
-                self.count / len(self.fr.x), self.s, self.opts.ransac.confidence
-            )
-            if self.count >= max(initial.min_explained, self.s + 1):
-                # the seed explains the frame: RANSAC verifies it with samples drawn from its
-                # inliers (as LO-RANSAC's inner sampling), so the all-inlier probability is
-                # that of the pool, not of the frame
-                first = self.inliers.take(self.order)
-                self.order = np.concatenate(
-                    [self.order.compress(first), self.order.compress(~first)]
-                )
-                self.guided = self.count
-                self.needed = 0.0
         self._t_local += time.perf_counter() - t_lo
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple[ScoredBatch, int]:
@@ -405,8 +418,9 @@ class Ransac(RansacLoop):
                 np.ascontiguousarray(self.best[0], dtype=np.float64),
                 np.ascontiguousarray(self.best[1], dtype=np.float64),
             )
+        order = self.order if self.subset is None else self.subset
         out = self._source.best_of_batch(
-            self.rng.random((K, self.s)), pool, self.order, self.score, pretest_min, self.anchor
+            self.rng.random((K, self.s)), pool, order, self.score, pretest_min, self.anchor
         )
         self.implausible += out.implausible
         return out, K
@@ -422,13 +436,10 @@ class Ransac(RansacLoop):
         verified seed's inliers when verifying it."""
         t_lo = time.perf_counter()
         score, self.inliers = self.evaluate(model)
-        if not self.guided:
+        if self.subset is None:
             score, model, self.inliers = self.local_optimization((score, model, self.inliers))
         self._t_local += time.perf_counter() - t_lo
         self.count = int(np.count_nonzero(self.inliers))
-        ratio = (
-            np.count_nonzero(self.inliers[self.order[: self.guided]]) / self.guided
-            if self.guided
-            else self.count / len(self.fr.x)
-        )
-        return score, model, ratio
+        if self.subset is None:
+            return score, model, self.count / len(self.fr.x)
+        return score, model, np.count_nonzero(self.inliers[self.subset]) / len(self.subset)

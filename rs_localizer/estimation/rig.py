@@ -79,7 +79,7 @@ from .numpy_impl import p3p_roots
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, plausible_motion
 from .prior import MotionPrior, sample_prior_rows
-from .ransac import RansacLoop, SeededShuffle, required_iterations, seeded_stream
+from .ransac import RansacLoop, SeededShuffle, seeded_stream
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
@@ -283,24 +283,6 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
     return RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0], own
-
-
-def _refit(pool: StackedViews, inl: np.ndarray, model, threshold_px: float, rounds: int = 2,
-           prior: MotionPrior | None = None):  # fmt: skip
-    """A camera's non-minimal step (:func:`~.hypotheses.linear_refit`) with the rig solver
-    (:func:`_rig_solver`, the gyro ``prior``'s rows at ``threshold_px``): on the inliers,
-    pre-rotated by the current model, ``rounds`` times."""
-    R, C, w, t = model
-    idx = np.flatnonzero(inl)
-    if len(idx) < 6:
-        return model
-    solve = _rig_solver(pool, 10, prior, threshold_px)
-    for _ in range(rounds):
-        m = linear_refit(idx, R, C, pool.x, pool.X, pool.tau, solve)
-        if m is None:
-            return model
-        R, C, w, t = m
-    return R, C, w, t
 
 
 def estimate_rig_pose(
@@ -752,12 +734,12 @@ class _RigSearch(RansacLoop):
     #: a compiled batch checks termination after every sample, as PoseLib's loop does
     per_sample = True
 
-    def __init__(self, stages: _RigStages, anchored: bool, subset: np.ndarray | None):
+    def __init__(self, stages: _RigStages):
         pool, still, spread, prior, r = (stages.pool, stages.still, stages.spread, stages.prior,
                                          stages.options.ransac)  # fmt: skip
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, stages.generalized, prior
-        self.anchored, self.subset, self.spread = anchored, subset, spread
+        self.spread = spread
         self.rng = SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
         self.th2 = self.threshold_px**2
@@ -937,29 +919,23 @@ class _RigStages:
             self.still = pool.tau_spread <= STILL_SPREAD
 
     def searched(self) -> Model:
-        pool, still, prior, threshold_px = self.pool, self.still, self.prior, self.threshold_px
-        size = 3 if still else 6
-        explained, anchored, subset, seeded = -1, False, None, None
-        if self.initial_model is not None:  # (as a single camera's: tested on every point)
-            im = self.initial_model
+        pool, still, im = self.pool, self.still, self.initial_model
+        self.search = search = _RigSearch(self)
+        self.initial_used = False
+        if im is not None:  # (as a single camera's: tested on every point)
             # (copies in the prediction's own memory order, which the kernels and BLAS see)
             gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
-            explained, seeded, anchored = initial_model_seed(
-                model, im.min_explained, not still, size, gate,
-                *view_seed_steps(pool, threshold_px, gate, not still, prior),
+            explained, seed, anchored = initial_model_seed(
+                model, im.min_explained, not still, search.s, gate,
+                *view_seed_steps(pool, self.threshold_px, gate, not still, self.prior),
             )  # fmt: skip
-            n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
+            if seed is not None:  # (scored as the search scores: its errors kept)
+                seed, self.initial_used = (search.cost(seed[1]), *seed[1:]), True
             # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
             # it, sampling among them, whose all-inlier probability is 1)
-            need = max(int(im.min_explained), size + 1, 6)
-            if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
-                subset = np.flatnonzero(seeded[2])
-        self.explained, self.seeded = explained, seeded
-        self.search = search = _RigSearch(self, anchored, subset)
-        if seeded is not None:
-            search.best, search.score = seeded[1], search.cost(seeded[1])
-            needed = required_iterations(float(np.mean(seeded[2])), size, search.confidence)
-            search.needed = 0.0 if subset is not None else needed
+            need = max(int(im.min_explained), search.s + 1, 6)
+            search.seeded((explained, seed, anchored), lambda inl: np.count_nonzero(inl) >= need
+                          and np.bincount(pool.cam[inl]).max() >= 3)  # fmt: skip
         search.search(search, search.batches)
         return search.found()
 
@@ -976,8 +952,13 @@ class _RigStages:
                 model = self.last[1]
             return model
 
-        def refit(m, inl):
-            return [_refit(pool, inl, m, threshold_px, prior=prior)]
+        def refit(m, inl):  # (a camera's linear step with the rig solver, 10 steps, twice)
+            idx = np.flatnonzero(inl)
+            if len(idx) < 6:
+                return [m]
+            solve = _rig_solver(pool, 10, prior, threshold_px)
+            fit = linear_refit(idx, m[0], m[1], pool.x, pool.X, pool.tau, solve, rounds=2)
+            return [m if fit is None else fit]
 
         def evaluate(m):
             return search.cost(m), search.errors(m) < threshold_px
@@ -1030,8 +1011,8 @@ class _RigStages:
             ransac_iterations=search.iterations, rmse_px=final.rmse_px, num_behind=behind,
             model_covariance=final.covariance,
             motion_model=ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
-            acceleration_sensitivity=final.sensitivity, initial_explained=self.explained,
-            initial_used=self.seeded is not None, gyro_used=self.prior is not None,
+            acceleration_sensitivity=final.sensitivity, initial_explained=search.explained,
+            initial_used=self.initial_used, gyro_used=self.prior is not None,
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:

@@ -106,6 +106,28 @@ def test_the_inlier_refit_is_the_solver_on_every_inlier():
     assert linear_refit(idx, R0, None, x, X, r, failing) is None
 
 
+def test_the_inlier_refit_in_rounds_is_each_round_from_the_last():
+    """``linear_refit`` with ``rounds`` 2 is two refits in turn, the second pre-rotated by the
+    first's model (bit for bit); a solve that fails in the second round gives None."""
+    x, X, r, (R, C, _, _) = _frame(7)
+    idx = np.arange(0, 40, 2)
+    R0 = rotvec_to_matrix(np.array([0.08, -0.05, 0.06])) @ R
+    m1 = linear_refit(idx, R0, C, x, X, r, _rig_of_one)
+    m2 = linear_refit(idx, m1.R, m1.C, x, X, r, _rig_of_one)
+    both = linear_refit(idx, R0, C, x, X, r, _rig_of_one, rounds=2)
+    for a, b in zip(m2, both, strict=True):
+        assert np.array_equal(a, b)
+    calls = []
+
+    def second_fails(S, xs, Xs, rs, C0):
+        b = _rig_of_one(S, xs, Xs, rs, C0)[0]
+        calls.append(C0)
+        b.valid[:] = len(calls) < 2
+        return [b]
+
+    assert linear_refit(idx, R0, C, x, X, r, second_fails, rounds=2) is None and len(calls) == 2
+
+
 def test_still_models_are_at_rest():
     R, C = rotvec_to_matrix(np.ones((2, 3))), np.ones((2, 3))
     R1, C1, w, t = still_models(R, C)
