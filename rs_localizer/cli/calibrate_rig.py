@@ -121,12 +121,9 @@ def _optical_frame_id(bag, camera: str) -> str:
     from ..ros.bags.bag_io import bag_topics, iter_messages, typestore
 
     topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
-    ts = typestore()
-    for _, msgtype, _, raw in iter_messages(bag, topics[:1]) if topics else ():
-        frame_id = str(ts.deserialize_cdr(raw, msgtype).header.frame_id).strip()
-        if frame_id:
-            return frame_id
-        break
+    for _, msgtype, _, raw in iter_messages(bag, topics[:1]):  # (the first one, if any)
+        frame_id = str(typestore().deserialize_cdr(raw, msgtype).header.frame_id).strip()
+        return frame_id or f"{camera}_optical_frame"
     return f"{camera}_optical_frame"
 
 
