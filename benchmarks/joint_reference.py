@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.tagslam_data import RealRig, tag_corners
-from rs_localizer.calibration.corners import RigCorners, TagPoints, soft_l1
+from rs_localizer.calibration.corners import RigCorners, TagPoints
 
 __all__ = [
     "CACHE",
@@ -40,7 +40,6 @@ __all__ = [
     "recording",
     "recording_parser",
     "rig_part",
-    "soft_l1",
     "solve_joint",
     "with_reference",
 ]

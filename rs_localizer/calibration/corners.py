@@ -16,13 +16,11 @@ camera axes), as TagSLAM parameterizes its factor graph.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import LinAlgWarning
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
@@ -316,19 +314,18 @@ class RigCorners:
         rig, mounts, tags = self.unpack(res.x)
         return CornerSolution(rig, mounts, tags, self.keep.copy(), res)
 
-    def mounting_covariance(
-        self, sol: CornerSolution, clusters: np.ndarray | None = None, offsets: bool = False
-    ) -> np.ndarray | tuple:
-        """(F, 6, 6): each free mounting's covariance over (rotation [rad, rig axes], position
-        [m, rig frame]; ``parameters="rig"``) at ``sol``, the rig poses marginalized (the Schur
-        complement ``S`` of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
-        ``least_squares`` returns; the free tags, if any, held at the solution).
+    def mounting_covariance(self, sol: CornerSolution, clusters: np.ndarray | None = None) -> tuple:
+        """``(covariances (F, 6, 6), std (D,) s)``: each free mounting's covariance over
+        (rotation [rad, rig axes], position [m, rig frame]; ``parameters="rig"``) at ``sol``,
+        the rig poses marginalized (the Schur complement ``S`` of their blocks in ``H = J^T J``,
+        ``J`` the robust-weighted Jacobian ``least_squares`` returns; the free tags, if any,
+        held at the solution).
         ``clusters`` None: ``s^2 S^-1`` with ``s^2 = 2 cost / (2 K - n)``, every corner's error
         independent; ``clusters`` (N,) int, each corner's group: the cluster-robust "sandwich"
         ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
         mountings, the rig poses' part projected out), so corners that share an error (a tag
-        map's, a camera model's) count once per group. ``offsets`` (with ``motion``): also
-        the time offsets' standard deviations (D,) s, ``(covariances, std)``.
+        map's, a camera model's) count once per group; ``std``: the time offsets' standard
+        deviations (``motion``; empty without).
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -347,9 +344,7 @@ class RigCorners:
         np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
         blocks = np.zeros((self.G, 6, 6))
         np.add.at(blocks, g, Jgd[:, :, None] * Jgd[:, None, :])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)
-            inv = np.linalg.pinv(blocks)
+        inv = np.linalg.pinv(blocks)
         Hgm = (Jg.T @ Jm).toarray().reshape(self.G, 6, mc)
         W = np.einsum("gij,gjk->gik", inv, Hgm)  # (H_gg^-1 H_gm)
         S = (Jm.T @ Jm).toarray() - np.einsum("gji,gjk->ik", Hgm, W)
@@ -368,6 +363,4 @@ class RigCorners:
             C = Sinv @ (U.T @ U) @ Sinv
         C = 0.5 * (C + C.T)
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
-        if not offsets:
-            return blocks
         return blocks, np.sqrt(np.diag(C)[6 * self.F :])

@@ -101,6 +101,9 @@ _OUTLIER_QUANTILE = 0.999
 #: no systematic error is added to the corners' covariance
 MISFIT_FLOOR = 1.0
 
+#: s: the longest interval between a camera's two frames to interpolate over (:func:`_carried`)
+MAX_STEP = 0.1
+
 #: ``least_squares``' bound on the evaluations of :func:`_refine_on_corners`
 _CORNER_NFEV = 300
 
@@ -109,12 +112,12 @@ _CORNER_NFEV = 300
 CORNER_BLOCKS = 10
 
 
-def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
-    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
+def _std_of_mean(d: np.ndarray) -> float:
+    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, k) in
     time order by batch means (neighbouring frames share slow errors): the scatter of the means
-    of ``blocks`` consecutive runs; 0 with fewer than 2 frames per block."""
+    of 8 runs of consecutive frames; 0 with fewer than 2 frames per run."""
     n = len(d)
-    k = min(blocks, n // 2)
+    k = min(8, n // 2)
     if k < 2:
         return 0.0
     means = np.array([b.mean(axis=0) for b in np.array_split(d, k)])
@@ -149,11 +152,11 @@ def _posed_alone(frames: list, options: Any, stamp_row: float, given: dict):
     return poses
 
 
-def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: float):
+def _carried(items: list, times: np.ndarray, t_r: int, window: float):
     """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
     carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s), at the
     constant twist between its own two frames around ``t_r`` (else its frame's own twist; frames
-    at most ``max_step`` s apart); its motion there in world axes (angular rad/s, linear m/s),
+    at most :data:`MAX_STEP` apart); its motion there in world axes (angular rad/s, linear m/s),
     differenced between its frames before and after the nearest one (not from that frame's own
     pose, whose error it would share) or next to it, else its frame's own twist; the frame's
     index in ``items``."""
@@ -164,7 +167,7 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
     _, Oc, p, om, v, cov = items[k][:6]
 
     def near(j: int) -> bool:
-        return 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step
+        return 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= MAX_STEP
 
     j = k + 1 if dt > 0 else k - 1
     twist = (Oc @ om, Oc @ v)
@@ -184,7 +187,7 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
     return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov, twist, k
 
 
-def _rig_frames(poses: dict, window: float, max_step: float) -> list:
+def _rig_frames(poses: dict, window: float) -> list:
     """The rig frames (step 2): every camera frame's time, in order, starts one unless within
     ``window`` of the current one's start; each camera with a frame within ``window`` carried to
     it (:func:`_carried`). Returns ``[(t_ns, {camera: _carried's tuple})]``, two cameras or more."""
@@ -196,7 +199,7 @@ def _rig_frames(poses: dict, window: float, max_step: float) -> list:
             continue
         start = t
         seen = {n: c for n, ts in times.items()
-                if (c := _carried(poses[n], ts, t, window, max_step)) is not None}  # fmt: skip
+                if (c := _carried(poses[n], ts, t, window)) is not None}  # fmt: skip
         if len(seen) >= 2:
             out.append((t, seen))
     return out
@@ -447,7 +450,7 @@ class _Refined(NamedTuple):
 
 
 def _refine_on_corners(
-    rig_frames, every, fit, mounts, reference, scale, window, max_step, timed=False, warm=None
+    rig_frames, every, fit, mounts, reference, scale, window, timed=False, warm=None
 ) -> _Refined | None:
     """The mountings refined on the corners (step 4): every rig frame's pose (two or more
     cameras in ``mounts``) and every free mounting adjusted to the inlier corners of ``every``
@@ -463,7 +466,7 @@ def _refine_on_corners(
                 for i, g in zip(fit.gi, fit.g, strict=True)}  # fmt: skip
     groups: dict = {}  # (camera name, model id) -> the lists of the corners' arrays
     Rg0, Pg0, times = [], [], []
-    for t, seen in _rig_frames(every, window, max_step):
+    for t, seen in _rig_frames(every, window):
         known = [n for n in seen if n in mounts]
         if len(known) < 2:
             continue
@@ -511,16 +514,14 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
     problem, sol = refined.problem, refined.sol
     free = [n for n in refined.mounts if n != reference]
     blocks = min(CORNER_BLOCKS, problem.G)
-    C, std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G, True)
+    C, std = problem.mounting_covariance(sol, (problem.frame * blocks) // problem.G)
     k = blocks / max(blocks - 1, 1)
     C, std = C * k, std * np.sqrt(k)
     dt_std = dict(zip(free, std.tolist(), strict=True)) if problem.D else {}
     d = [np.r_[matrix_to_rotvec(refined.mounts[n][0] @ start[n][0].T),
                refined.mounts[n][1] - start[n][1]] for n in free]  # fmt: skip
     seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LinAlgWarning)
-        m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
+    m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
     return cov, misfit, dt_std
@@ -543,7 +544,7 @@ def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: f
     return out, timed.mounts, cov
 
 
-def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -> tuple:
+def _pose_level(rig_frames, poses, mounts, reference, timed, window) -> tuple:
     """The pose-level adjustment (step 4), again without the outliers; with ``timed`` the frames
     regrouped at the offsets found (beyond 3 std; ``poses`` shifted in place) until they change
     by less than :data:`TIME_OFFSET_TOL` (:data:`TIME_OFFSET_ROUNDS` at most). Returns ``(fit,
@@ -563,11 +564,11 @@ def _pose_level(rig_frames, poses, mounts, reference, timed, window, max_step) -
         for n, dt in step.items():
             shifted[n] += dt
             poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
-        rig_frames = _rig_frames(poses, window, max_step)
+        rig_frames = _rig_frames(poses, window)
     return fit, (cov, std), bad, rig_frames, shifted
 
 
-def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, max_step):
+def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
     """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
     that expose apart a time offset each, the frames regrouped at the offsets found (``every``
     shifted in place) and solved again until they change by less than :data:`TIME_OFFSET_TOL`.
@@ -576,7 +577,7 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window, 
 
     def refine(mounts: dict, warm: dict | None = None) -> _Refined | None:
         return _refine_on_corners(rig_frames, every, fit, mounts, reference, px, window,
-                                  max_step, bool(apart), warm)  # fmt: skip
+                                  bool(apart), warm)  # fmt: skip
 
     corners = refine(fit.mounts)
     found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
@@ -612,7 +613,6 @@ def calibrate_mountings(
     stamp_row: float = 0.0,
     min_inliers: int = 20,
     options: Any = None,
-    max_step: float = 0.1,
     time_offsets: Mapping[str, float] | None = None,
     estimate_time_offsets: bool = False,
 ) -> dict:
@@ -639,7 +639,6 @@ def calibrate_mountings(
         options: the single-camera estimator's
             :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults; its RANSAC
             threshold is the corners' loss scale).
-        max_step: s; the longest interval between a camera's two frames to interpolate over.
         time_offsets: camera -> s added to its stamps (a rig's
             :attr:`~rs_localizer.tracking.video.LocalizerSettings.time_offsets`); None: none.
         estimate_time_offsets: also estimate every camera's time offset against the
@@ -662,20 +661,20 @@ def calibrate_mountings(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
         )
     base = reference_mount if reference_mount is not None else Mounting(np.eye(3), np.zeros(3))
-    rig_frames = _rig_frames(poses, window, max_step)
+    rig_frames = _rig_frames(poses, window)
     mounts = _initial_mounts(rig_frames, reference, base)
     if len(mounts) < 2:  # (no camera shares a rig frame with the reference)
         n_ref = len(poses[reference])
         return {reference: MountingEstimate(reference, base, n_ref, 0, 0.0, 0.0, 0.0, 0.0)}
     fit, (cov, dt_std), bad, rig_frames, shifted = _pose_level(
-        rig_frames, poses, mounts, reference, estimate_time_offsets, window, max_step
+        rig_frames, poses, mounts, reference, estimate_time_offsets, window
     )
     mounts, dts, misfit, apart, refined = fit.mounts, fit.dts, np.nan, {}, None
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart, refined = _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px,
-                                     window, max_step)  # fmt: skip
+                                     window)  # fmt: skip
         if refined is not None:
             mounts, cov, misfit, dts, dt_std = refined
     e = fit.errors()  # (the camera frames' pose errors about the adjusted rig)

@@ -76,31 +76,6 @@ UNSEEN_OFFSET_STD = 0.005
 MIN_RIG_FRAMES = 10
 
 
-def short_video_warning(name: str, frames: int) -> str:
-    """The warning for a camera whose mounting rests on ``frames`` (< ``MIN_RIG_FRAMES``) rig
-    frames: the error may exceed the std by the 95 % bound ``sqrt((n - 1) / chi2_0.05(n - 1))``."""
-    from scipy.stats import chi2
-
-    dof = max(frames - 1, 1)
-    factor = float(np.sqrt(dof / chi2.ppf(0.05, dof)))
-    return (
-        f"WARNING: {name}: only {frames} rig frames: the std is their scatter, which that few "
-        f"frames fix poorly (the error may be up to {factor:.1f}x the std, 95 % bound); record "
-        f"{MIN_RIG_FRAMES} or more rig frames"
-    )
-
-
-def rows_note(name: str, counts: dict, max_points: int) -> str:
-    """The line on camera ``name``'s rows and clouds left out (``counts``:
-    :attr:`~rs_localizer.ros.bags.bag_frames.RigFrames.counts`), named as ``replay`` names them."""
-    return (
-        f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
-        + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
-        "rows capped to it; clouds not read: no u, v, x, y, z fields (bad_input), a header stamp "
-        "out of range (bad_stamp))"
-    )  # fmt: skip
-
-
 def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame: str) -> str:
     """The node's parameter file of the calibrated rig (``est``: camera ->
     :class:`~rs_localizer.calibration.MountingEstimate`): per camera its ``mounting`` and
@@ -128,19 +103,6 @@ def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame
 PARAMETERS_OFF_STD = 3.0
 
 
-def parameter_mountings(cams: dict, names: list) -> dict[str, Mounting]:
-    """The mountings the parameters give the cameras (``rig.<camera>.mounting``, the node's
-    reading of it: :func:`~rs_localizer.ros.config.rig_mounting`), in the parameters'
-    ``base_frame``; cameras without one are left out.
-
-    Raises:
-        ~rs_localizer.ros.params.ConfigError: a mounting the node would refuse, naming it.
-    """
-    from ..ros.config import rig_mounting
-
-    return {n: rig_mounting(n, cams[n]["mounting"]) for n in names if cams[n].get("mounting")}
-
-
 def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]:
     """``mountings`` re-expressed in camera ``ref``'s optical frame (``x_ref = R_ref x_base +
     c_ref``); empty without ``ref``'s own mounting (the frames are then unrelated)."""
@@ -159,18 +121,17 @@ def _optical_frame_id(bag, camera: str) -> str:
     from ..ros.bags.bag_io import bag_topics, iter_messages, typestore
 
     topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
-    ts = typestore()
-    for _, msgtype, _, raw in iter_messages(bag, topics[:1]) if topics else ():
-        frame_id = str(ts.deserialize_cdr(raw, msgtype).header.frame_id).strip()
-        if frame_id:
-            return frame_id
-        break
+    for _, msgtype, _, raw in iter_messages(bag, topics[:1]):  # (the first one, if any)
+        frame_id = str(typestore().deserialize_cdr(raw, msgtype).header.frame_id).strip()
+        return frame_id or f"{camera}_optical_frame"
     return f"{camera}_optical_frame"
 
 
 def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
     """The lines printed on a non-reference camera's estimate ``e`` and, with the parameters'
     mounting ``given``, how far that is (lines, and ``parameters_off_deg``/``_mm``)."""
+    from scipy.stats import chi2
+
     from ..geometry import rotation_angle_deg
 
     notes = [
@@ -216,8 +177,14 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
             f"NOTE: {n}: the cameras do not seem to expose together ({n} about "
             f"{1e3 * e.exposure_offset:+.1f} ms from the reference while the rig turns): {how}"
         )
-    if e.frames < MIN_RIG_FRAMES:
-        notes.append(short_video_warning(n, e.frames))
+    if e.frames < MIN_RIG_FRAMES:  # (the error may exceed the std by the 95 % bound
+        # sqrt((n - 1) / chi2_0.05(n - 1)) of a std from n frames' scatter)
+        dof = max(e.frames - 1, 1)
+        notes.append(
+            f"WARNING: {n}: only {e.frames} rig frames: the std is their scatter, which that few "
+            f"frames fix poorly (the error may be up to {np.sqrt(dof / chi2.ppf(0.05, dof)):.1f}x "
+            f"the std, 95 % bound); record {MIN_RIG_FRAMES} or more rig frames"
+        )
     if given is None:
         return notes, {}
     deg = float(rotation_angle_deg(e.mount.R, given.R))
@@ -263,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_rig_frames
-    from ..ros.config import mounting_covariance_values, mounting_values
+    from ..ros.config import mounting_covariance_values, mounting_values, rig_mounting
     from ..ros.params import ConfigError
     from ..runtime.background import CameraKernels, cold_compile_note
     from ..solvers.registry import DEFAULT_SOLVER
@@ -281,7 +248,8 @@ def run(args: argparse.Namespace) -> int:
     ref = args.reference or names[0]
     if ref not in names:
         raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
-    given = parameter_mountings(cams, names)
+    # the mountings the parameters give (the node's reading: it refuses a bad one, naming it)
+    given = {n: rig_mounting(n, cams[n]["mounting"]) for n in names if cams[n].get("mounting")}
     ref_mount = None if args.optical_frame else given.get(ref)
     options = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
     cold_compile_note(CameraKernels(DEFAULT_SOLVER, options))  # (each frame posed alone)
@@ -310,8 +278,13 @@ def run(args: argparse.Namespace) -> int:
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
         f"in the rig frame {frame} ({where})"
     ]
-    notes += [rows_note(n, read.counts[n], int(values["max_points"]))
-              for n in names if any(read.counts[n].values())]  # fmt: skip
+    notes += [  # (each camera's rows and clouds left out, named as replay names them)
+        f"{n}: " + ", ".join(f"{k} {v}" for k, v in read.counts[n].items())
+        + " (rows with a NaN or inf dropped; clouds of more than max_points "
+        f"{int(values['max_points'])} rows capped to it; clouds not read: no u, v, x, y, z "
+        "fields (bad_input), a header stamp out of range (bad_stamp))"
+        for n in names if any(read.counts[n].values())
+    ]  # fmt: skip
     report = {}
     for n in names:
         e = est[n]

@@ -164,11 +164,10 @@ def test_the_parameters_mountings_are_checked_against_the_calibrated_ones(
         assert "WARNING: right" not in cap.err
     # the reference camera not placed by the parameters: its optical frame and theirs are
     # unrelated, nothing is compared
-    from rs_localizer.cli.calibrate_rig import parameter_mountings, relative_to
+    from rs_localizer.cli.calibrate_rig import relative_to
+    from rs_localizer.ros.config import rig_mounting
 
-    cams = {"front": {}, "left": {"mounting": truth["left"]}}
-    assert set(parameter_mountings(cams, ["front", "left"])) == {"left"}
-    assert relative_to(parameter_mountings(cams, ["front", "left"]), "front") == {}
+    assert relative_to({"left": rig_mounting("left", truth["left"])}, "front") == {}
     # a mounting the node would refuse is refused here too, by the node's own reading
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**/rs_localizer:\n  ros__parameters:\n    rig:\n      left:\n"
