@@ -91,7 +91,8 @@ from .result import (
     built_estimate,
     output_covariance,
 )
-from .rig_batch import counted, lambda_twist_on_rig, search_batch, still_solve_rotated
+from .rig_batch import counted, search_batch, still_solve_rotated
+from .sampling import p3p_mounted
 from .single_tag import posed_planarity
 from .view import StackedViews, View
 
@@ -250,7 +251,7 @@ def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
 def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = False):
     """P3P on each sample's first 3 points, all of one camera, mapped to the rig: ``R = R_c^T
     R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3), and the sample of each (H,); None
-    when none solved. Compiled: Lambda Twist (:func:`~.rig_batch.lambda_twist_on_rig`);
+    when none solved. Compiled: Lambda Twist (:func:`~.sampling.p3p_mounted`);
     NumPy: OpenCV's (:func:`~.numpy_impl.p3p_roots`, every root). ``generalized``: PoseLib's
     ``gp3p`` on the 3 points in whatever cameras they lie (rays ``R_c^T x`` from the camera
     centres ``-R_c^T c_c``; needs ``poselib``)."""
@@ -275,7 +276,7 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
         return (R[ok], C[ok], own[ok]) if ok.any() else None
     if pool.compiled:  # (solved and mapped to the rig in one compiled call)
         X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
-        R, C, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
+        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm, False)
         return (R, C, own) if len(own) else None
     cam0 = pool.cam[samples[:, 0]]
     R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
