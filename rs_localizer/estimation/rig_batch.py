@@ -132,10 +132,10 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
 @kernel
 def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
     """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
-    the order they are scored: :func:`~.sampling.p3p_mounted_into` (into the buffers ``R``,
-    ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,) bool), those
-    corrected ``rounds`` times by :func:`still_solve_rotated`. Returns ``(R (H, 3, 3), C (H,
-    3))``."""
+    the order they are scored: its P3P pose (:func:`~.sampling.p3p_mounted_into`, into the
+    buffers ``R``, ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,)
+    bool), that pose corrected ``rounds`` times by :func:`still_solve_rotated`. Returns
+    ``(R (H, 3, 3), C (H, 3))``."""
     q = p3p_mounted_into(x, X, sample, cam, Rm, cm, False, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
     hit = False
@@ -163,10 +163,10 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
 @kernel
 def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
-    (:func:`~.rig._hypotheses`): pre-rotated by their P3P poses (:func:`~.sampling.p3p_mounted`)
-    or by ``anchor`` (3, 3) unless empty, then ``iterations`` of
-    :func:`solve_rotated`. Returns ``(R (H, 3, 3), C, w, t
-    (H, 3), valid (H,), the sample of each (H,))``."""
+    (:func:`~.rig._hypotheses`): pre-rotated by each one's P3P pose
+    (:func:`~.sampling.p3p_mounted`: one per sample) or by ``anchor`` (3, 3) unless empty,
+    then ``iterations`` of :func:`solve_rotated`. Returns ``(R (H, 3, 3), C, w, t (H, 3),
+    valid (H,), the sample of each (H,))``, H <= K."""
     K = samples.shape[0]
     if anchor.shape[0]:
         R0 = np.empty((K, 3, 3))
