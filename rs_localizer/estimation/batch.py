@@ -2,7 +2,8 @@
 preemptive MSAC scoring (paper sec. 4).
 
 :func:`ransac_batch` runs the same kernels as the step-by-step path of
-:mod:`rs_localizer.estimation.estimate` (:func:`~.sampling.draw_samples`, Lambda Twist P3P,
+:mod:`rs_localizer.estimation.estimate` (:func:`~.sampling.draw_samples`, Lambda Twist P3P
+on unit bearings (:func:`~.sampling.p3p_mounted`),
 :func:`~.sampling.select_prerotations`, :func:`~.sampling.gather_prerotated`, the solver's
 batched kernel, :func:`~rs_localizer._so3.compose_rotvec`'s rotation,
 :func:`~.scoring.msac_scores`) on the same numbers, so its hypotheses and scores are the same,
@@ -28,11 +29,10 @@ from ..solvers.kernels import (
     kernel_set,
     run_kernels,
 )
-from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.p3p import DEFAULT_BACKEND
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
 from .plausibility import motion_norms2
-from .sampling import draw_samples, gather_prerotated, select_prerotations
+from .sampling import draw_samples, gather_prerotated, p3p_mounted, select_prerotations
 from .scoring import msac_scores
 
 __all__ = ["fused_kernels", "prerotated_batch", "ransac_batch"]
@@ -128,20 +128,10 @@ def ransac_batch(
     K, s = u.shape
     local = draw_samples(u, pool)
     samples = np.empty((K, s), dtype=np.int64)
-    b3 = np.empty((K, 3, 3))
-    X3 = np.empty((K, 3, 3))
     for k in range(K):
         for j in range(s):
             samples[k, j] = order[local[k, j]]
-        for j in range(3):  # unit bearings of the first three points (P3P)
-            i = samples[k, j]
-            nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
-            b3[k, j, 0] = x[i, 0] / nrm
-            b3[k, j, 1] = x[i, 1] / nrm
-            b3[k, j, 2] = 1.0 / nrm
-            for a in range(3):
-                X3[k, j, a] = X[i, a]
-    R, C, own = lambda_twist_batch(b3, X3)
+    R, C, own = p3p_mounted(x, X, samples, None, None, None, True)  # (unit bearings)
     R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
     return _solve_and_score(
         samples,

@@ -91,7 +91,8 @@ from .result import (
     built_estimate,
     output_covariance,
 )
-from .rig_batch import counted, lambda_twist_on_rig, search_batch, still_solve_rotated
+from .rig_batch import counted, search_batch, still_solve_rotated
+from .sampling import least_error_roots, p3p_mounted
 from .single_tag import posed_planarity
 from .view import StackedViews, View
 
@@ -250,10 +251,16 @@ def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
 def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = False):
     """P3P on each sample's first 3 points, all of one camera, mapped to the rig: ``R = R_c^T
     R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3), and the sample of each (H,); None
-    when none solved. Compiled: Lambda Twist (:func:`~.rig_batch.lambda_twist_on_rig`);
-    NumPy: OpenCV's (:func:`~.numpy_impl.p3p_roots`, every root). ``generalized``: PoseLib's
-    ``gp3p`` on the 3 points in whatever cameras they lie (rays ``R_c^T x`` from the camera
-    centres ``-R_c^T c_c``; needs ``poselib``)."""
+    when none solved. A sample keeps one pose, as a camera's does: the one of least error on
+    its other points through their mountings (:func:`~.sampling.least_error_roots`).
+    Compiled: Lambda Twist (:func:`~.sampling.p3p_mounted`); NumPy: OpenCV's
+    (:func:`~.numpy_impl.p3p_roots`). ``generalized``: PoseLib's ``gp3p`` on the 3 points in
+    whatever cameras they lie (rays ``R_c^T x`` from the camera centres ``-R_c^T c_c``; needs
+    ``poselib``)."""
+    if pool.compiled and not generalized:  # (solved, mapped and chosen in one compiled call)
+        X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
+        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm, False)
+        return (R, C, own) if len(own) else None
     if generalized:
         import poselib  # (an optional comparison: imported on use)
 
@@ -271,18 +278,17 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
             return None
         R, C = np.array([s[0] for s in sols]), np.array([s[1] for s in sols])
         ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
-        own = np.array([s[2] for s in sols], dtype=np.int64)
-        return (R[ok], C[ok], own[ok]) if ok.any() else None
-    if pool.compiled:  # (solved and mapped to the rig in one compiled call)
-        X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
-        R, C, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
-        return (R, C, own) if len(own) else None
-    cam0 = pool.cam[samples[:, 0]]
-    R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
+        R, C, own = R[ok], C[ok], np.array([s[2] for s in sols], dtype=np.int64)[ok]
+    else:
+        cam0 = pool.cam[samples[:, 0]]
+        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
+        RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
+        R, C = RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     if len(own) == 0:
         return None
-    RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
-    return RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0], own
+    keep = least_error_roots(R, C, own, samples, pool.X, pool.x, pool.cam, pool.R_mount,
+                             pool.c_mount)  # fmt: skip
+    return (R[keep], C[keep], own[keep]) if len(keep) else None
 
 
 def estimate_rig_pose(

@@ -14,72 +14,21 @@ import numpy as np
 from .._jit import kernel
 from .._so3 import compose_rotvec
 from ..solvers.gr6p_1lin import still_solve_kernel
-from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
+from ..solvers.lambda_twist import MAX_SOLUTIONS
 from ..solvers.r6p_1lin import solve_mounted
 from .plausibility import motion_norms2
 from .ransac import required_samples_kernel
-from .sampling import batch_samples, gather_prerotated
+from .sampling import batch_samples, gather_prerotated, p3p_mounted, p3p_mounted_into
 from .scoring import STOP, model_cost
 
 __all__ = [
     "counted",
-    "lambda_twist_on_rig",
     "moving_models",
-    "p3p_on_rig_into",
     "search_batch",
     "solve_rotated",
     "still_models",
     "still_solve_rotated",
 ]
-
-
-@kernel
-def p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
-    """Lambda Twist's solutions on the first 3 points of one ``sample`` (pool indices) of the
-    normalized points ``x`` (N, 2) and world points ``X`` (N, 3), mapped to the rig through
-    the first point's camera (``cam`` (N,), mountings ``Rm`` (M, 3, 3), ``cm`` (M, 3)) into
-    ``R[off:off + n]``, ``C[off:off + n]``; returns n <= 4. ``b``, ``P``, ``R_cam``,
-    ``C_cam``: the caller's buffers."""
-    for j in range(3):
-        i = sample[j]
-        b[j, 0], b[j, 1], b[j, 2] = x[i, 0], x[i, 1], 1.0
-        for a in range(3):
-            P[j, a] = X[i, a]
-    n = lambda_twist_into(b, P, R_cam, C_cam, np.int64(0))
-    c = cam[sample[0]]
-    for h in range(n):
-        for i in range(3):
-            for j in range(3):
-                R[off + h, i, j] = (
-                    Rm[c, 0, i] * R_cam[h, 0, j]
-                    + Rm[c, 1, i] * R_cam[h, 1, j]
-                    + (Rm[c, 2, i] * R_cam[h, 2, j])
-                )
-            C[off + h, i] = (
-                Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
-                + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
-                + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
-            )
-    return n
-
-
-@kernel
-def lambda_twist_on_rig(x, X, samples, cam, Rm, cm):
-    """:func:`p3p_on_rig_into` on each of the samples (K, >= 3): ``(R (H, 3, 3), C (H, 3),
-    the sample of each (H,))`` as :func:`~.rig._p3p_on_rig`'s."""
-    K = samples.shape[0]
-    R = np.empty((MAX_SOLUTIONS * K, 3, 3))
-    C = np.empty((MAX_SOLUTIONS * K, 3))
-    own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
-    b, P = np.empty((3, 3)), np.empty((3, 3))
-    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
-    m = 0
-    for k in range(K):
-        n = p3p_on_rig_into(x, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
-        for j in range(n):
-            own[m + j] = k
-        m += n
-    return R[:m].copy(), C[:m].copy(), own[:m].copy()
 
 
 @kernel
@@ -183,11 +132,11 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
 @kernel
 def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
     """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
-    the order they are scored: :func:`p3p_on_rig_into` (into the buffers ``R``, ``C``), then,
-    when a point of the sample lies in a camera ``missed`` ((M,) bool), those corrected
-    ``rounds`` times by :func:`still_solve_rotated`. Returns
+    the order they are scored: its P3P pose (:func:`~.sampling.p3p_mounted_into`, into the
+    buffers ``R``, ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,)
+    bool), that pose corrected ``rounds`` times by :func:`still_solve_rotated`. Returns
     ``(R (H, 3, 3), C (H, 3))``."""
-    q = p3p_on_rig_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
+    q = p3p_mounted_into(x, X, sample, cam, Rm, cm, False, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
     hit = False
     if q > 0 and rounds > 0:
@@ -214,10 +163,10 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
 @kernel
 def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
     """The rolling-shutter models of K samples (K, 6) without a gyro
-    (:func:`~.rig._hypotheses`): pre-rotated by their P3P poses (:func:`lambda_twist_on_rig`)
-    or by ``anchor`` (3, 3) unless empty, then ``iterations`` of
-    :func:`solve_rotated`. Returns ``(R (H, 3, 3), C, w, t
-    (H, 3), valid (H,), the sample of each (H,))``."""
+    (:func:`~.rig._hypotheses`): pre-rotated by each one's P3P pose
+    (:func:`~.sampling.p3p_mounted`: one per sample) or by ``anchor`` (3, 3) unless empty,
+    then ``iterations`` of :func:`solve_rotated`. Returns ``(R (H, 3, 3), C, w, t (H, 3),
+    valid (H,), the sample of each (H,))``, H <= K."""
     K = samples.shape[0]
     if anchor.shape[0]:
         R0 = np.empty((K, 3, 3))
@@ -226,7 +175,7 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
         S = samples
         own = np.arange(K)
     else:
-        R0, _, own = lambda_twist_on_rig(x, X, samples, cam, Rm, cm)
+        R0, _, own = p3p_mounted(x, X, samples, cam, Rm, cm, False)
         S = np.empty((len(own), 6), dtype=np.int64)
         for h in range(len(own)):
             S[h] = samples[own[h]]

@@ -2,10 +2,11 @@
 (paper sec. 4).
 
 Row validation, sampling without replacement (a camera's, and over views stacked by view: a
-rig frame's, :func:`batch_samples`), the choice of each sample's P3P pre-rotation, and the
-gather of the pre-rotated sample points, each one call per frame or per batch of
-samples, so that the estimator's cost is the solvers themselves and not array glue (a NumPy
-call costs 5-10 us here).
+rig frame's, :func:`batch_samples`), each sample's P3P poses through its first point's
+mounting (:func:`p3p_mounted`: a camera alone, or a rig's camera), the choice of each
+sample's P3P pre-rotation, and the gather of the pre-rotated sample points, each one call per
+frame or per batch of samples, so that the estimator's cost is the solvers themselves and not
+array glue (a NumPy call costs 5-10 us here).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 
 from .._jit import kernel
 from .._so3 import INLINE, copy_matrix3
+from ..solvers.lambda_twist import MAX_SOLUTIONS, lambda_twist_into
 
 
 @kernel
@@ -94,6 +96,134 @@ def draw_samples_numpy(
                 c += chosen[:, m] <= c
         out[:, j] = c
     return out
+
+
+@kernel
+def p3p_mounted_into(x, X, sample, cam, Rm, cm, unit, b, P, R_cam, C_cam, R, C, off):
+    """Lambda Twist's solutions (Persson and Nordberg, ECCV 2018) on the first 3 points of one
+    ``sample`` (indices into the normalized points ``x`` (N, 2) and world points ``X`` (N,
+    3)) into ``R[off:off + n]`` (3, 3), ``C[off:off + n]`` (3,); returns n (<= 4 for a
+    camera, <= 1 for a rig).
+
+    A camera alone: ``Rm`` None (``cam``, ``cm`` None too), the poses ``x_cam = R X + C``. A
+    rig: the poses mapped to the rig through the first point's camera ``c = cam[sample[0]]``
+    (``cam`` (N,) int64, mountings ``x_cam = Rm[c] x_rig + cm[c]``, ``Rm`` (M, 3, 3), ``cm``
+    (M, 3)): ``R = Rm[c]^T R_cam``, ``C = Rm[c]^T (C_cam - cm[c])``, and only the pose of
+    least global-shutter error on the sample's other points through their mountings kept
+    (:func:`_mounted_error`; n = 0 when every pose puts one behind its camera), as a camera's
+    pre-rotation is chosen (:func:`select_prerotations`). ``unit``: the bearings
+    handed to Lambda Twist are unit rays ``(x, 1) / |(x, 1)|`` (a camera's), else ``(x, 1)``
+    (Lambda Twist normalizes them itself; the two differ in the last bits). ``b``, ``P`` (3,
+    3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers; ``off`` an int64."""
+    for j in range(3):
+        i = sample[j]
+        if unit:
+            nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
+            b[j, 0], b[j, 1], b[j, 2] = x[i, 0] / nrm, x[i, 1] / nrm, 1.0 / nrm
+        else:
+            b[j, 0], b[j, 1], b[j, 2] = x[i, 0], x[i, 1], 1.0
+        for a in range(3):
+            P[j, a] = X[i, a]
+    if Rm is None:  # (a camera: numba prunes the mapping at compile time)
+        return lambda_twist_into(b, P, R, C, off)
+    else:
+        n = lambda_twist_into(b, P, R_cam, C_cam, np.int64(0))
+        c = cam[sample[0]]
+        best, e_best = -1, np.inf
+        for h in range(n):
+            for i in range(3):
+                for j in range(3):
+                    R[off + h, i, j] = (
+                        Rm[c, 0, i] * R_cam[h, 0, j]
+                        + Rm[c, 1, i] * R_cam[h, 1, j]
+                        + (Rm[c, 2, i] * R_cam[h, 2, j])
+                    )
+                C[off + h, i] = (
+                    Rm[c, 0, i] * (C_cam[h, 0] - cm[c, 0])
+                    + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
+                    + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
+                )
+            e = _mounted_error(R, C, off + h, sample, X, x, cam, Rm, cm)
+            if e < e_best:
+                best, e_best = h, e
+        if best < 0:
+            return 0
+        if best > 0:
+            copy_matrix3(R[off + best], R[off])
+            for a in range(3):
+                C[off, a] = C[off + best, a]
+        return 1
+
+
+@kernel(inline=INLINE)
+def _mounted_error(R, C, m, sample, X, x, cam, Rm, cm):
+    """:func:`_sample_error` of the rig pose ``R[m], C[m]`` on ``sample``'s points beyond the
+    first three, each seen through its camera's mounting (``cam``, ``Rm``, ``cm`` as
+    :func:`p3p_mounted_into`'s): the sum of squared distances in each camera's normalized
+    plane, ``inf`` when a point is not in front of its camera."""
+    e = 0.0
+    for j in range(3, sample.shape[0]):
+        i, c = sample[j], cam[sample[j]]
+        p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
+        p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
+        p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
+        q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
+        q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
+        q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
+        if not q2 > 0.0:
+            return np.inf
+        dx = q0 / q2 - x[i, 0]
+        dy = q1 / q2 - x[i, 1]
+        e += dx * dx + dy * dy
+    return e
+
+
+def least_error_roots(
+    R: np.ndarray,
+    C: np.ndarray,
+    own: np.ndarray,
+    samples: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    cam: np.ndarray,
+    Rm: np.ndarray,
+    cm: np.ndarray,
+) -> np.ndarray:
+    """The NumPy twin of :func:`p3p_mounted`'s choice for a rig: of the rig poses ``R`` (H,
+    3, 3), ``C`` (H, 3) of the samples ``own`` (H,) (non-decreasing) among ``samples`` (K,
+    s), the index of each sample's pose of least :func:`_mounted_error` (the first of equal
+    ones; none where every pose puts a point behind its camera): (K',) int64, K' <= K."""
+    S = samples[own, 3:]
+    c = cam[S]
+    P = np.einsum("hab,hnb->hna", R, X[S]) + C[:, None]
+    Q = np.einsum("hnab,hnb->hna", Rm[c], P) + cm[c]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = Q[..., :2] / Q[..., 2:3] - x[S]
+    e = np.where((Q[..., 2] > 0).all(axis=1), (d * d).sum(axis=(1, 2)), np.inf)
+    order = np.lexsort((e, own))  # (stable: the first of equal errors)
+    first = order[np.unique(own[order], return_index=True)[1]]
+    return first[np.isfinite(e[first])]
+
+
+@kernel
+def p3p_mounted(x, X, samples, cam, Rm, cm, unit):
+    """:func:`p3p_mounted_into` on each of the samples (K, >= 3) (``cam``, ``Rm``, ``cm``
+    None for a camera alone): ``(R (H, 3, 3), C (H, 3), the sample of each (H,) int64)``, a
+    camera's every finite solution, a rig's chosen one, grouped by sample in increasing
+    order."""
+    K = samples.shape[0]
+    R = np.empty((MAX_SOLUTIONS * K, 3, 3))
+    C = np.empty((MAX_SOLUTIONS * K, 3))
+    own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
+    b, P = np.empty((3, 3)), np.empty((3, 3))
+    R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
+    m = np.int64(0)  # (an int64 from the start: one compiled p3p_mounted_into)
+    for k in range(K):
+        n = p3p_mounted_into(x, X, samples[k], cam, Rm, cm, unit, b, P, R_cam, C_cam, R, C, m)
+        for j in range(n):
+            own[m + j] = k
+        m += n
+    return R[:m].copy(), C[:m].copy(), own[:m].copy()
 
 
 @kernel

@@ -56,12 +56,12 @@ from ..estimation.refine import (
 from ..estimation.result import camera_model_of_rig
 from ..estimation.rig import estimate_rig_pose
 from ..estimation.rig_batch import still_solve_rotated
+from ..estimation.sampling import p3p_mounted
 from ..estimation.scoring import exact_msac_scores
 from ..estimation.view import View
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
-from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
 from ..tracking.localizer import CameraFrame
 from ..tracking.sequence import reference_stamp_ns
@@ -308,7 +308,8 @@ def split_batch(solver: str, first: bool) -> None:
     """Compile (or load) one share of the callees of ``solver``'s cold RANSAC batch
     (:func:`.estimation.batch.ransac_batch`, compiled first and alone on a cold frame's path)
     with the argument types the batch passes them: ``first``: the batched solver kernels (the first
-    process, before its warm-up); else Lambda Twist's batch and the MSAC scoring (the second
+    process, before its warm-up); else the P3P poses of a camera's samples
+    (:func:`~.estimation.sampling.p3p_mounted` on unit bearings) and the MSAC scoring (the second
     process, before :func:`warm_late`), which the first process's batch reaches after the
     kernels and then loads from numba's cache. Nothing for a solver without a fused batch."""
     fused = fused_kernels(solver)
@@ -317,9 +318,9 @@ def split_batch(solver: str, first: bool) -> None:
     if first:
         compile_kernel_set(fused[0])
         return
-    lambda_twist_batch(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)))
     cam, uv, X, _ = synthetic_problem()
     fr = prepare_frame(uv, X, cam, np.inf, np.random.default_rng(0))
+    p3p_mounted(fr.x, fr.X, np.zeros((1, 3), dtype=np.int64), None, None, None, True)
     H = 2
     exact_msac_scores(
         fr.x,

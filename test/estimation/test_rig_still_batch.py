@@ -20,6 +20,7 @@ from rs_localizer.estimation.view import StackedViews
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import synthetic as sim_rig
+from rs_localizer.solvers.lambda_twist import lambda_twist
 
 #: a batch's search state of no best model and no termination before its last sample:
 #: ``(best cost, samples drawn, min_iterations, samples asked for, log(1 - confidence))``
@@ -244,3 +245,52 @@ def test_the_compiled_sampling_distribution_is_the_pools(counts, every):
         np.testing.assert_array_equal(g, w)
         assert g.dtype == w.dtype
     assert got[4] == want[4]
+
+
+def _least_error_pose(pool, sample):
+    """Every Lambda Twist pose of ``sample``'s first 3 points (in their camera), mapped to the
+    rig, and the index of the one of least global-shutter error on its other 3 points
+    projected through their own cameras' mountings (None: every pose puts a point behind its
+    camera): an independent computation of a rig sample's pre-rotation."""
+    c = pool.cam[sample[0]]
+    Rc, tc = lambda_twist(np.c_[pool.x[sample[:3]], np.ones(3)], pool.X[sample[:3]])
+    poses, errors = [], []
+    for R_cam, C_cam in zip(Rc, tc, strict=True):
+        R = pool.R_mount[c].T @ R_cam
+        C = pool.R_mount[c].T @ (C_cam - pool.c_mount[c])
+        e = 0.0
+        for i in sample[3:]:
+            q = pool.R_mount[pool.cam[i]] @ (R @ pool.X[i] + C) + pool.c_mount[pool.cam[i]]
+            e = e + np.sum((q[:2] / q[2] - pool.x[i]) ** 2) if q[2] > 0 else np.inf
+        poses.append((R, C))
+        errors.append(e)
+    best = int(np.argmin(errors)) if np.isfinite(errors).any() else None
+    return poses, best
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_rig_sample_keeps_one_p3p_pose_as_a_camera_does(compiled):
+    """Each of a rig frame's samples pre-rotates the rig solver by one P3P pose, as a camera's
+    sample does: the pose of least global-shutter error on the sample's other 3 points seen
+    through their cameras' mountings. So a frame's moving hypotheses (one rig solve each) are
+    at most its samples, not every P3P root's (up to 4 per sample)."""
+    views = _moving_frame(5, (30, 24, 12))[0]
+    pool = StackedViews(views, compiled=compiled)
+    K = 60
+    samples = pool.samples(np.random.default_rng(3), K, None)
+    R, C, own = rig_mod._p3p_on_rig(pool, samples)
+    assert len(np.unique(own)) == len(own) == len(R)
+    several = 0
+    for k, sample in enumerate(samples):
+        poses, best = _least_error_pose(pool, sample)
+        several += len(poses) > 1
+        if best is None:
+            assert k not in own
+            continue
+        assert k in own
+        np.testing.assert_allclose(R[own == k][0], poses[best][0], atol=1e-7)
+        np.testing.assert_allclose(C[own == k][0], poses[best][1], atol=1e-6)
+    assert several > K // 4  # (many samples have more than one P3P pose to choose from)
+    assert len(own) > K // 2
+    moving = rig_mod._hypotheses(pool, samples, 3)
+    assert len(moving[0]) <= K

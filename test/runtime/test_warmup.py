@@ -113,7 +113,7 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
 
     from numba.core.registry import CPUDispatcher
 
-    from rs_localizer.estimation import prior, refine, scoring
+    from rs_localizer.estimation import prior, refine, sampling, scoring
     from rs_localizer.runtime.warmup import fused_cached, split_batch, warm_late, warm_up
     from rs_localizer.tracking import fusion
     from rs_localizer.tracking.tracker import TrackerOptions
@@ -124,7 +124,7 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
     ]
     kernels = {  # "module.function" -> dispatcher
         f"{mod.__name__.rsplit('.', 1)[1]}.{name}": obj
-        for mod in (refine, prior, fusion, scoring, *solvers)
+        for mod in (refine, prior, fusion, scoring, sampling, *solvers)
         for name, obj in vars(mod).items()
         if isinstance(obj, CPUDispatcher)
     }
@@ -141,7 +141,8 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
     # signatures are in numba's cache index
     split = (
         "scoring.msac_scores",
-        "lambda_twist.lambda_twist_batch",
+        "sampling.p3p_mounted",
+        "sampling.p3p_mounted_into",
         "r6p_1lin._kernel",
         "r5p_w._kernel",
     )
