@@ -582,11 +582,11 @@ def _cornered(refined: _Refined) -> set:
 def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
     """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
     that expose apart a time offset each, the frames regrouped at the offsets found and solved
-    again until they change by less than :data:`TIME_OFFSET_TOL` (a regrouping that leaves a
-    camera no corner, its frames then in no rig frame with another camera's, is not taken: the
-    solve before it stands). A camera that no corner constrains in the last solve keeps its
-    pose-level mounting, covariance and time offset (not refined). Returns ``(cameras apart,
-    None or (mountings, covariances, misfit, offsets, their std, the cameras refined))``."""
+    again until they change by less than :data:`TIME_OFFSET_TOL`. A camera that a regrouping
+    leaves no corner (its frames then in no rig frame with another camera's) keeps the
+    mounting, covariance and time offset of the last solve that saw its corners; one that no
+    solve constrains keeps its pose-level ones (not refined). Returns ``(cameras apart, None
+    or (mountings, covariances, camera -> misfit of the refined ones, offsets, their std))``."""
     apart, timed, timed_cov, timed_dts, timed_std = _exposed_apart(rig_frames, poses, fit,
                                                                    reference, bad, px)  # fmt: skip
 
@@ -596,6 +596,7 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
 
     corners = refine(every, fit.mounts)
     found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
+    earlier: dict = {}  # (camera -> the last solve that saw its corners, found at it)
     for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
         dt = corners.problem.time_offsets(corners.sol.result.x)
         if np.all(np.abs(dt) < TIME_OFFSET_TOL):
@@ -607,26 +608,39 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
             moved[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
         warm = dict(zip(corners.times, zip(*corners.sol.rig, strict=True), strict=True))
         again = refine(moved, corners.mounts, warm)
-        if again is None or not _cornered(corners) <= _cornered(again):
+        if again is None:  # (no rig frame of two cameras left)
             break
+        names = list(corners.mounts)
+        for k in _cornered(corners) - _cornered(again):
+            earlier.setdefault(names[k], (corners, found))
         corners, every, found = again, moved, sums
     if corners is None:
         return apart, None
     # (the two estimates compared alike: with a time offset per camera or without)
     start, start_cov = (timed, timed_cov) if apart else (fit.mounts, cov)
-    cov, misfit, dt_std = _corner_covariance(corners, start, reference, start_cov)
-    dt = corners.problem.time_offsets(corners.sol.result.x)
-    dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
-    mounts, refined = dict(corners.mounts), set(corners.mounts)
+
+    def estimates(refined: _Refined, found: dict) -> tuple:
+        cov, misfit, dt_std = _corner_covariance(refined, start, reference, start_cov)
+        dt = refined.problem.time_offsets(refined.sol.result.x)
+        dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
+        return cov, misfit, dts, dt_std
+
+    cov, misfit, dts, dt_std = estimates(corners, found)
+    mounts, misfits = dict(corners.mounts), dict.fromkeys(corners.mounts, misfit)
+    for n, (solve, at) in earlier.items():
+        c, m, d, s = estimates(solve, at)
+        if np.isfinite(c[n]).all() and not np.isfinite(cov[n]).all():
+            mounts[n], cov[n], misfits[n] = solve.mounts[n], c[n], m
+            dts[n], dt_std[n] = d[n], s[n]
     for n in [n for n in cov if not np.isfinite(cov[n]).all()]:
         # (no corner constrains it: its pose-level estimate, not a refined one)
-        refined.discard(n)
         mounts[n], cov[n] = start[n], start_cov[n]
+        del misfits[n]
         dts.pop(n, None)
         dt_std.pop(n, None)
         if apart:
             dts[n], dt_std[n] = timed_dts[n], timed_std[n]
-    return apart, (mounts, cov, misfit, dts, dt_std, refined)
+    return apart, (mounts, cov, misfits, dts, dt_std)
 
 
 def calibrate_mountings(
@@ -694,14 +708,14 @@ def calibrate_mountings(
     fit, (cov, dt_std), bad, rig_frames, shifted = _pose_level(
         rig_frames, poses, mounts, reference, estimate_time_offsets, window
     )
-    mounts, dts, misfit, apart, refined, on_corners = fit.mounts, fit.dts, np.nan, {}, None, set()
+    mounts, dts, misfits, apart, refined = fit.mounts, fit.dts, {}, {}, None
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart, refined = _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px,
                                      window)  # fmt: skip
         if refined is not None:
-            mounts, cov, misfit, dts, dt_std, on_corners = refined
+            mounts, cov, misfits, dts, dt_std = refined
     e = fit.errors()  # (the camera frames' pose errors about the adjusted rig)
     out = {}
     for name in poses:
@@ -721,6 +735,6 @@ def calibrate_mountings(
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
             float(np.rad2deg(scat[0])), float(1e3 * scat[1]), offset, dt_std.get(name, np.nan),
-            name in on_corners, apart.get(name, np.nan), misfit if name in on_corners else np.nan,
+            name in misfits, apart.get(name, np.nan), misfits.get(name, np.nan),
         )  # fmt: skip
     return out
