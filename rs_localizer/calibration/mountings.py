@@ -50,12 +50,14 @@ class MountingEstimate:
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
         time_offset: s added to the camera's stamps (the given one, or the estimate);
             time_offset_std: s, the estimate's standard deviation (NaN: not estimated).
-        corners_refined: the mounting was refined on the corners (step 4).
+        corners_refined: the mounting was refined on the corners (step 4); False for a camera
+            no corner of the refinement constrains (it keeps its pose-level estimate).
         exposure_offset: s, the time offset the pose-level adjustment shows when the cameras
             do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
         corner_misfit: the squared step from the pose-level to the refined mountings in the
-            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one for
-            the rig); NaN when not refined."""
+            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one per
+            corners' solve: the rig's, or for a camera a regrouping left without corners that
+            of the last solve that saw them); NaN when not refined."""
 
     name: str
     mount: Mounting
