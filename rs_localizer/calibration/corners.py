@@ -32,6 +32,10 @@ __all__ = ["CornerSolution", "RigCorners", "TagPoints", "soft_l1"]
 #: camera's field of view during the solve), so that the solve moves away from it
 UNPROJECTED_PENALTY = 1e3
 
+#: an eigenvalue of the mountings' information (:meth:`RigCorners.mounting_covariance`) below
+#: this share of the largest is a direction the corners do not constrain
+UNCONSTRAINED_RTOL = 1e-12
+
 
 def soft_l1(s: np.ndarray, f_scale: float) -> np.ndarray:
     """The robust loss of squared errors ``s`` (px^2): ``2 f^2 (sqrt(1 + s / f^2) - 1)``
@@ -325,7 +329,11 @@ class RigCorners:
         ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
         mountings, the rig poses' part projected out), so corners that share an error (a tag
         map's, a camera model's) count once per group; ``std``: the time offsets' standard
-        deviations (``motion``; empty without).
+        deviations (``motion``; empty without). A parameter that the kept corners do not
+        constrain (one in a direction of ``S`` of eigenvalue below :data:`UNCONSTRAINED_RTOL`
+        of the largest, e.g. a mounting or time offset none of whose corners is kept) gets an
+        infinite variance (its rows and columns inf; an infinite std), never the zero of
+        ``S``'s pseudo-inverse.
 
         Raises:
             ValueError: a solution without free mountings, or ``parameters="inverse"``.
@@ -362,5 +370,12 @@ class RigCorners:
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
         C = 0.5 * (C + C.T)
+        # (a direction no kept corner constrains, e.g. a mounting none of whose corners is
+        # left: the pseudo-inverse gives it zero variance; its parameters get infinite)
+        w, V = np.linalg.eigh(0.5 * (S + S.T))
+        null = w <= max(float(w[-1]) if len(w) else 0.0, 0.0) * UNCONSTRAINED_RTOL
+        if null.any():
+            loose = np.flatnonzero(np.sum(V[:, null] ** 2, axis=1) > 1e-6)
+            C[loose, :] = C[:, loose] = np.inf
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
         return blocks, np.sqrt(np.diag(C)[6 * self.F :])

@@ -50,12 +50,14 @@ class MountingEstimate:
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
         time_offset: s added to the camera's stamps (the given one, or the estimate);
             time_offset_std: s, the estimate's standard deviation (NaN: not estimated).
-        corners_refined: the mounting was refined on the corners (step 4).
+        corners_refined: the mounting was refined on the corners (step 4); False for a camera
+            no corner of the refinement constrains (it keeps its pose-level estimate).
         exposure_offset: s, the time offset the pose-level adjustment shows when the cameras
             do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
         corner_misfit: the squared step from the pose-level to the refined mountings in the
-            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one for
-            the rig); NaN when not refined."""
+            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one per
+            corners' solve: the rig's, or for a camera a regrouping left without corners that
+            of the last solve that saw them); NaN when not refined."""
 
     name: str
     mount: Mounting
@@ -459,7 +461,8 @@ def _refine_on_corners(
     (``soft_l1`` at ``scale`` px), each camera frame at its pose relative to the one carried to
     its rig frame's time. A rig frame starts at ``warm``'s pose (time ns -> rig pose), else
     ``fit``'s, else :func:`_rig_start`'s. ``timed``: a time offset per free camera too.
-    Global-shutter cameras only. None when no corner projects."""
+    Global-shutter cameras only. None when no rig frame has two such cameras or no corner
+    projects."""
     free = [n for n in mounts if n != reference]
     names = list(mounts)
     start_at = {rig_frames[g][0]: (fit.rig[0][i], fit.rig[1][i])
@@ -485,6 +488,8 @@ def _refine_on_corners(
                      np.full(K, free.index(n) if n in free else -1),
                      np.broadcast_to(w, (K, 3)), np.broadcast_to(v, (K, 3)))  # fmt: skip
             groups.setdefault((n, id(cam)), (cam, []))[1].append(parts)
+    if not groups:  # (no rig frame of two cameras in ``mounts``)
+        return None
     cams = [cam for cam, _ in groups.values()]
     per_cam = [[np.concatenate(a) for a in zip(*ls, strict=True)] for _, ls in groups.values()]
     camera = np.concatenate([np.full(len(a[0]), i) for i, a in enumerate(per_cam)])
@@ -520,7 +525,8 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
     dt_std = dict(zip(free, std.tolist(), strict=True)) if problem.D else {}
     d = [np.r_[matrix_to_rotvec(refined.mounts[n][0] @ start[n][0].T),
                refined.mounts[n][1] - start[n][1]] for n in free]  # fmt: skip
-    seen = [(di, n) for di, n in zip(d, free, strict=True) if np.isfinite(pose_cov[n]).all()]
+    seen = [(di, n) for di, n, Ci in zip(d, free, C, strict=True)
+            if np.isfinite(pose_cov[n]).all() and np.isfinite(Ci).all()]  # fmt: skip
     m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
     cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
@@ -531,7 +537,8 @@ def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: f
     """The cameras that do not expose with the reference (camera -> time offset s): those whose
     offset in an adjustment with offsets (from ``fit``, ``bad`` left out) is beyond 3 std and
     moves a corner by more than :data:`EXPOSED_APART_SHARE` of ``px`` at the rig's median
-    angular speed; also that adjustment's mountings and covariance."""
+    angular speed; also that adjustment's mountings, covariance, time offsets (s) and their
+    std (s)."""
     timed = _adjust(rig_frames, fit.mounts, reference, bad, True)
     cov, std = _mounting_covariance(timed)
     speed = np.linalg.norm(timed.w, axis=1)
@@ -541,7 +548,7 @@ def _exposed_apart(rig_frames, poses, fit: _Fit, reference: str, bad: set, px: f
         shift = abs(dt) * float(np.median(speed[timed.cam == n])) * focal
         if abs(dt) > 3.0 * std.get(n, np.inf) and shift > EXPOSED_APART_SHARE * px:
             out[n] = dt
-    return out, timed.mounts, cov
+    return out, timed.mounts, cov, timed.dts, std
 
 
 def _pose_level(rig_frames, poses, mounts, reference, timed, window) -> tuple:
@@ -568,40 +575,74 @@ def _pose_level(rig_frames, poses, mounts, reference, timed, window) -> tuple:
     return fit, (cov, std), bad, rig_frames, shifted
 
 
+def _cornered(refined: _Refined) -> set:
+    """The mountings (indices) that some kept corner of ``refined``'s solve sees."""
+    p = refined.problem
+    return set(np.unique(p.mounting[refined.sol.keep]).tolist())
+
+
 def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
     """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
-    that expose apart a time offset each, the frames regrouped at the offsets found (``every``
-    shifted in place) and solved again until they change by less than :data:`TIME_OFFSET_TOL`.
-    Returns ``(cameras apart, None or (mountings, covariances, misfit, offsets, their std))``."""
-    apart, timed, timed_cov = _exposed_apart(rig_frames, poses, fit, reference, bad, px)
+    that expose apart a time offset each, the frames regrouped at the offsets found and solved
+    again until they change by less than :data:`TIME_OFFSET_TOL`. A camera that a regrouping
+    leaves no corner (its frames then in no rig frame with another camera's) keeps the
+    mounting, covariance and time offset of the last solve that saw its corners; one that no
+    solve constrains keeps its pose-level ones (not refined). Returns ``(cameras apart, None
+    or (mountings, covariances, camera -> misfit of the refined ones, offsets, their std))``."""
+    apart, timed, timed_cov, timed_dts, timed_std = _exposed_apart(rig_frames, poses, fit,
+                                                                   reference, bad, px)  # fmt: skip
 
-    def refine(mounts: dict, warm: dict | None = None) -> _Refined | None:
-        return _refine_on_corners(rig_frames, every, fit, mounts, reference, px, window,
+    def refine(shots: dict, mounts: dict, warm: dict | None = None) -> _Refined | None:
+        return _refine_on_corners(rig_frames, shots, fit, mounts, reference, px, window,
                                   bool(apart), warm)  # fmt: skip
 
-    corners = refine(fit.mounts)
+    corners = refine(every, fit.mounts)
     found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
+    earlier: dict = {}  # (camera -> the last solve that saw its corners, found at it)
     for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
         dt = corners.problem.time_offsets(corners.sol.result.x)
         if np.all(np.abs(dt) < TIME_OFFSET_TOL):
             break
         free = [n for n in corners.mounts if n != reference]
+        moved, sums = dict(every), dict(found)
         for n, v in zip(free, dt.tolist(), strict=True):
-            found[n] = found.get(n, 0.0) + v
-            every[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
+            sums[n] = sums.get(n, 0.0) + v
+            moved[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
         warm = dict(zip(corners.times, zip(*corners.sol.rig, strict=True), strict=True))
-        again = refine(corners.mounts, warm)
-        if again is None:
+        again = refine(moved, corners.mounts, warm)
+        if again is None:  # (no rig frame of two cameras left)
             break
-        corners = again
+        names = list(corners.mounts)
+        for k in _cornered(corners) - _cornered(again):
+            earlier.setdefault(names[k], (corners, found))
+        corners, every, found = again, moved, sums
     if corners is None:
         return apart, None
     # (the two estimates compared alike: with a time offset per camera or without)
     start, start_cov = (timed, timed_cov) if apart else (fit.mounts, cov)
-    cov, misfit, dt_std = _corner_covariance(corners, start, reference, start_cov)
-    dt = corners.problem.time_offsets(corners.sol.result.x)
-    dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
-    return apart, (corners.mounts, cov, misfit, dts, dt_std)
+
+    def estimates(refined: _Refined, found: dict) -> tuple:
+        cov, misfit, dt_std = _corner_covariance(refined, start, reference, start_cov)
+        dt = refined.problem.time_offsets(refined.sol.result.x)
+        dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
+        return cov, misfit, dts, dt_std
+
+    cov, misfit, dts, dt_std = estimates(corners, found)
+    mounts, misfits = dict(corners.mounts), dict.fromkeys(corners.mounts, misfit)
+    for n, (solve, at) in earlier.items():
+        c, m, d, s = estimates(solve, at)
+        if np.isfinite(c[n]).all() and not np.isfinite(cov[n]).all():
+            mounts[n], cov[n], misfits[n] = solve.mounts[n], c[n], m
+            dts[n], dt_std[n] = d[n], s[n]
+    for n in [n for n in cov if not np.isfinite(cov[n]).all()]:
+        # (no corner constrains it: its pose-level estimate, not a refined one)
+        mounts[n], cov[n] = start[n], start_cov[n]
+        del misfits[n]
+        dts.pop(n, None)
+        dt_std.pop(n, None)
+        if apart:
+            dts[n], dt_std[n] = timed_dts[n], timed_std[n]
+    return apart, (mounts, cov, misfits, dts, dt_std)
 
 
 def calibrate_mountings(
@@ -669,14 +710,14 @@ def calibrate_mountings(
     fit, (cov, dt_std), bad, rig_frames, shifted = _pose_level(
         rig_frames, poses, mounts, reference, estimate_time_offsets, window
     )
-    mounts, dts, misfit, apart, refined = fit.mounts, fit.dts, np.nan, {}, None
+    mounts, dts, misfits, apart, refined = fit.mounts, fit.dts, {}, {}, None
     rolling = any(i[6][2].readout_time != 0.0 for items in poses.values() for i in items)
     if not estimate_time_offsets and not rolling:
         px = (options if options is not None else EstimateOptions()).ransac.threshold_px
         apart, refined = _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px,
                                      window)  # fmt: skip
         if refined is not None:
-            mounts, cov, misfit, dts, dt_std = refined
+            mounts, cov, misfits, dts, dt_std = refined
     e = fit.errors()  # (the camera frames' pose errors about the adjusted rig)
     out = {}
     for name in poses:
@@ -696,6 +737,6 @@ def calibrate_mountings(
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
             float(np.rad2deg(scat[0])), float(1e3 * scat[1]), offset, dt_std.get(name, np.nan),
-            refined is not None, apart.get(name, np.nan), misfit,
+            name in misfits, apart.get(name, np.nan), misfits.get(name, np.nan),
         )  # fmt: skip
     return out

@@ -127,9 +127,12 @@ def _optical_frame_id(bag, camera: str) -> str:
     return f"{camera}_optical_frame"
 
 
-def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
-    """The lines printed on a non-reference camera's estimate ``e`` and, with the parameters'
-    mounting ``given``, how far that is (lines, and ``parameters_off_deg``/``_mm``)."""
+def _camera_notes(
+    n: str, e, given: Mounting | None, rig_refined: bool = False
+) -> tuple[list[str], dict]:
+    """The lines printed on a non-reference camera's estimate ``e`` (``rig_refined``: the rig's
+    mountings were refined on the corners) and, with the parameters' mounting ``given``, how
+    far that is (lines, and ``parameters_off_deg``/``_mm``)."""
     from scipy.stats import chi2
 
     from ..geometry import rotation_angle_deg
@@ -145,6 +148,12 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
             f"cameras' poses and the corners disagree by (misfit {e.corner_misfit:.1f}: how "
             "far the refinement moved the mountings in the pose-level std, squared, per degree "
             "of freedom; 1: none added)"
+        )
+    elif rig_refined:
+        notes.append(
+            f"{n}: not refined on the corners: none of its corners is left in the corners' "
+            "solve (at the time offsets found its frames share no rig frame with another "
+            "camera's), so its mounting, std and time offset are the pose-level adjustment's"
         )
     if np.isfinite(e.time_offset_std):
         notes.append(
@@ -170,6 +179,9 @@ def _camera_notes(n: str, e, given: Mounting | None) -> tuple[list[str], dict]:
         how = (
             "the mountings were refined on the corners with a time offset per camera (above)"
             if e.corners_refined
+            else f"the others' mountings were refined on the corners with a time offset per "
+            f"camera, {n}'s not (above)"
+            if rig_refined
             else "the mountings were not refined on the corners; --time-offsets estimates "
             "the offsets"
         )
@@ -301,7 +313,7 @@ def run(args: argparse.Namespace) -> int:
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
-            lines, off = _camera_notes(n, e, given.get(n))
+            lines, off = _camera_notes(n, e, given.get(n), est[ref].corners_refined)
             notes += lines
             report[n].update(off)
     text = params_yaml(values["rs.stamp_row"], cams, {n: est[n] for n in names}, notes, frame)

@@ -109,6 +109,25 @@ def test_the_mountings_covariance_is_the_dense_one_with_the_rig_poses_marginaliz
                                    rtol=1e-6, atol=1e-15)  # fmt: skip
 
 
+def test_a_mounting_no_corner_sees_gets_an_infinite_covariance():
+    """The right camera's corners dropped (its mounting still free): the corners do not
+    constrain it, so its covariance is infinite (the pseudo-inverse would say 0), the left
+    camera's the same as without the right camera's mounting in the problem at all (but for
+    the residual variance's degrees of freedom)."""
+    p, _ = _problem(1)
+    seen = p.mounting != 2
+    args = (p.uv[seen], [p.cameras[0]], p.camera[seen], p.frame[seen], p.mounting[seen],
+            (p.R0g, p.P0g))  # fmt: skip
+    q = RigCorners(*args, (p.R0m, p.p0m), np.array([False, True, True]), p.X[seen])
+    sol = q.solve(2.0, ftol=1e-12, xtol=1e-12)
+    C = q.mounting_covariance(sol)[0]
+    assert np.isinf(C[1]).all() and np.isfinite(C[0]).all()
+    alone = RigCorners(*args, (p.R0m[:2], p.p0m[:2]), np.array([False, True]), p.X[seen])
+    C_alone = alone.mounting_covariance(alone.solve(2.0, ftol=1e-12, xtol=1e-12))[0]
+    dof = (2 * len(q.uv) - q.n) / (2 * len(q.uv) - alone.n)  # (s^2 over 6 parameters more)
+    np.testing.assert_allclose(C[0] * dof, C_alone[0], rtol=1e-5, atol=1e-13)
+
+
 def test_the_truth_is_within_the_covariance_as_often_as_chi_square_says():
     """Independent corner noise: each free camera's mounting NEES (6 degrees of freedom)
     averages 6 and stays below its 99 % quantile in nearly every one of 30 videos."""

@@ -124,6 +124,59 @@ def test_a_camera_that_exposes_apart_gets_its_time_offset_on_the_corners(monkeyp
         assert deg < deg_a and mm < mm_a, (n, deg, deg_a, mm, mm_a)
 
 
+def test_a_camera_regrouped_away_from_the_others_keeps_the_solve_that_sees_it():
+    """The front and left cameras expose together, the right one 16.5 ms later (about half a
+    frame: further than the 15 ms window from either front frame) but its stamps say 2.5 ms
+    (14 ms early), so it starts grouped with the front camera. Regrouped at the offset the
+    corners find, it shares no rig frame: its mounting and time offset are those of the last
+    solve that saw its corners, the others' the regrouped solve's, each with a std that covers
+    its error against the truth (3 std; never 0)."""
+    cams = [replace(c, camera=default_camera(line_delay=0.0))
+            for c in default_rig(3, (0.0, 0.0, 0.0165))]  # fmt: skip
+    frames, _, _ = generate_rig_video(cams, duration=1.0, num_points=150, outlier_ratio=0.0,
+                                      seed=5)  # fmt: skip
+    by = {c.name: c.camera for c in cams}
+    early = {"right": 14_000_000}
+    fr = [CameraFrame(f.stamp_ns - early.get(f.name, 0), by[f.name], f.uv, f.xyz,
+                      camera_name=f.name) for f in frames]  # fmt: skip
+    truth = mounts_of(cams)
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert all(e.corners_refined for e in out.values())
+    right = out["right"]
+    assert abs(right.exposure_offset - 0.014) < 1e-3, right
+    for n, e in out.items():
+        if n == "front":
+            continue
+        assert e.std_deg > 0 and e.std_mm > 0 and e.time_offset_std > 0, e
+        deg = rotation_angle_deg(e.mount.R, truth[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e)
+        dt = e.time_offset - early.get(n, 0) * 1e-9
+        assert abs(dt) < 3 * e.time_offset_std, (n, dt, e)
+
+
+def test_a_camera_no_corner_constrains_keeps_its_pose_level_estimate(monkeypatch):
+    """A camera with no corner left in the corners' solve (here: the right camera's corners
+    dropped from it) keeps the pose-level adjustment's mounting and std, is not marked refined
+    and gets no misfit; the left camera is still refined."""
+    cams, fr, _ = _video()
+    truth = mounts_of(cams)
+    refine = mountings_module._refine_on_corners
+
+    def without_right(rig_frames, every, *a):
+        return refine(rig_frames, {**every, "right": []}, *a)
+
+    monkeypatch.setattr(mountings_module, "_refine_on_corners", without_right)
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    monkeypatch.setattr(mountings_module, "_refine_on_corners", lambda *a: None)
+    alone = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert out["left"].corners_refined and not out["right"].corners_refined
+    r, a = out["right"], alone["right"]
+    assert np.isnan(r.corner_misfit) and r.std_deg == a.std_deg and r.std_mm == a.std_mm
+    np.testing.assert_array_equal(r.mount.R, a.mount.R)
+    np.testing.assert_array_equal(r.mount.covariance, a.mount.covariance)
+
+
 def test_frames_with_few_corners_enter_the_corners_refinement():
     """Every other camera frame of the left and right cameras thinned to 10 corners (fewer
     than ``min_inliers``, so the pose-level adjustment leaves them out): the refined

@@ -259,7 +259,8 @@ def test_a_short_video_is_warned_about(tmp_path, capsys):
 def test_cameras_that_do_not_expose_together_are_noted():
     """A camera whose mounting was kept from the corners' refinement for the time offset the
     video shows: a note with that offset naming --time-offsets; none without one (a refined
-    mounting's note says how its std was scaled)."""
+    mounting's note says how its std was scaled; one left out of the others' refinement says
+    so)."""
     from rs_localizer.calibration.mountings import MountingEstimate
     from rs_localizer.cli.calibrate_rig import _camera_notes
     from rs_localizer.frames import Mounting
@@ -276,6 +277,10 @@ def test_cameras_that_do_not_expose_together_are_noted():
     assert any("refined on the corners" in n and "misfit 4.0" in n for n in notes), notes
     notes, _ = _camera_notes("left", e, None)
     assert not any("refined on the corners" in n for n in notes), notes
+    # the others refined on the corners, this camera not (no corner of it in their solve)
+    notes, _ = _camera_notes("left", replace(e, exposure_offset=-0.0088), None, True)
+    assert any("not refined on the corners" in n and "pose-level" in n for n in notes), notes
+    assert not any("--time-offsets" in n for n in notes), notes
     # a poorly fixed offset: refined on the corners (the rig moved), the offset changes over
     # the video; estimated at the pose level alone, the rig did not move enough to show it
     timed = replace(e, time_offset=-0.006, time_offset_std=0.012, exposure_offset=-0.009)
