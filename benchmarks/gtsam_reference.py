@@ -296,7 +296,7 @@ def _print_distances(label: str, d: dict) -> None:
     print(
         f"  {label} vs the GTSAM optimum: rig poses ({d['frames']} rig frames with tags in two "
         f"or more cameras) median {r:.3f} deg {p:.2f} mm, p90 {r9:.3f} deg {p9:.2f} mm, max "
-        f"{rx:.3f} deg {px:.1f} mm; mountings "
+        f"{rx:.3f} deg {px:.2f} mm; mountings "
         + ", ".join(f"{n} {a:.3f} deg {b:.2f} mm" for n, (a, b) in d["mounts"].items())
         + f"; tags median {d['tags'][0][0]:.3f} deg {d['tags'][0][1]:.2f} mm, max "
         f"{d['tags'][1][0]:.3f} deg {d['tags'][1][1]:.2f} mm"

@@ -154,3 +154,35 @@ def test_tagslams_slow_mode_solution_is_given_back():
     for n, m in slow.mounts.items():
         rot, pos = errors(*m, sol.mounts[n])
         assert rot < 0.01 and pos < 0.2
+
+
+def test_distances_measure_a_known_move():
+    # a solution against itself moved: one rig pose turned 0.5 deg about z and moved 3 mm
+    # along x, cam1's mounting moved 2 mm, a tag's centre 4 mm; a rig frame of one camera
+    # left out of the rig poses' statistics
+    from benchmarks.gtsam_reference import distances
+    from benchmarks.joint_reference import JointSolution
+
+    R0 = Rotation.from_rotvec([0.2, -0.1, 0.3]).as_matrix()
+    turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(0.5)]).as_matrix()
+    poses = {1.0: (R0, np.array([0.1, 0.2, 0.3])), 2.0: (R0, np.zeros(3)), 3.0: (R0, np.ones(3))}
+    mounts = {"cam0": (np.eye(3), np.zeros(3)), "cam1": (R0, np.array([0.05, 0.0, 0.0]))}
+    tags = {7: (R0, np.array([1.0, 2.0, 0.0]), 0.15)}
+    sol = JointSolution(poses, tags, mounts)
+    two = {"cam0": (None, None), "cam1": (None, None)}
+    rig = RealRig({}, {}, [(1.0, two), (2.0, two), (3.0, {"cam0": (None, None)})], poses)
+    R, C = poses[1.0]
+    moved = dict(poses)
+    R1 = R @ turn.T
+    moved[1.0] = (R1, -R1 @ (-R.T @ C + [0.003, 0.0, 0.0]))  # (its centre moved 3 mm)
+    Rm, cm = mounts["cam1"]
+    m2 = {"cam0": mounts["cam0"], "cam1": (Rm, cm - Rm @ np.array([0.0, 0.002, 0.0]))}
+    t2 = {7: (R0, tags[7][1] + [0.0, 0.0, 0.004], 0.15)}
+    d = distances(rig, sol, moved, m2, t2)
+    assert d["frames"] == 2
+    (r, p), _, (rx, px) = d["poses"]
+    assert abs(rx - 0.5) < 1e-5 and abs(px - 3.0) < 1e-9
+    assert abs(r - 0.25) < 1e-5 and abs(p - 1.5) < 1e-9  # (the median of 0 and the move)
+    assert d["mounts"]["cam0"] == (0.0, 0.0)
+    assert d["mounts"]["cam1"][0] < 1e-5 and abs(d["mounts"]["cam1"][1] - 2.0) < 1e-9
+    assert abs(d["tags"][1][1] - 4.0) < 1e-9 and d["tags"][1][0] < 1e-5
