@@ -6,6 +6,7 @@ move, it is read back from its cache, and on test_8 (TagSLAM run with ``optimize
 slow``, its published solution the optimum of its graph) it gives back TagSLAM's solution."""
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -17,9 +18,14 @@ from benchmarks.gtsam_reference import GTSAM_MISSING, gtsam_reference, import_gt
 from benchmarks.joint_reference import solve_joint, with_reference
 from benchmarks.tagslam_data import DATA, FOLDER, RealRig, errors, load_tagslam, tag_corners
 
-#: TagSLAM's test_8 (optimizer_mode: slow): next to test_2 or in the acceptance recordings
+#: TagSLAM's test_8 (optimizer_mode: slow): next to test_2, or in the folder of TagSLAM's test
+#: recordings that ``RS_TAGSLAM_RECORDINGS`` names
 SLOW = next(
-    (p for p in (DATA / "test_8", Path("/work/realdata/tagslam/test_8")) if p.is_dir()),
+    (
+        p / "test_8"
+        for p in (DATA, Path(os.environ.get("RS_TAGSLAM_RECORDINGS", DATA)))
+        if (p / "test_8").is_dir()
+    ),
     DATA / "test_8",
 )
 
