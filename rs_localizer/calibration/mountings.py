@@ -55,9 +55,8 @@ class MountingEstimate:
         exposure_offset: s, the time offset the pose-level adjustment shows when the cameras
             do not expose together (:data:`EXPOSED_APART_SHARE`); NaN otherwise.
         corner_misfit: the squared step from the pose-level to the refined mountings in the
-            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one per
-            corners' solve: the rig's, or for a camera a regrouping left without corners that
-            of the last solve that saw them); NaN when not refined."""
+            pose-level covariance per degree of freedom (at least :data:`MISFIT_FLOOR`, one for
+            the rig); NaN when not refined."""
 
     name: str
     mount: Mounting
@@ -584,11 +583,12 @@ def _cornered(refined: _Refined) -> set:
 def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
     """The refinement on the corners (steps 4, 5) after the pose-level ``fit``: with cameras
     that expose apart a time offset each, the frames regrouped at the offsets found and solved
-    again until they change by less than :data:`TIME_OFFSET_TOL`. A camera that a regrouping
-    leaves no corner (its frames then in no rig frame with another camera's) keeps the
-    mounting, covariance and time offset of the last solve that saw its corners; one that no
-    solve constrains keeps its pose-level ones (not refined). Returns ``(cameras apart, None
-    or (mountings, covariances, camera -> misfit of the refined ones, offsets, their std))``."""
+    again until they change by less than :data:`TIME_OFFSET_TOL`. A regrouping that leaves a
+    camera no corner (its frames then in no rig frame with another camera's) is not taken: the
+    last solve that saw it stands. A camera that no corner of the solve constrains keeps its
+    pose-level mounting, covariance and time offset (not refined). Returns ``(cameras apart,
+    None or (mountings, covariances, camera -> misfit of the refined ones, offsets, their
+    std))``."""
     apart, timed, timed_cov, timed_dts, timed_std = _exposed_apart(rig_frames, poses, fit,
                                                                    reference, bad, px)  # fmt: skip
 
@@ -598,7 +598,6 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
 
     corners = refine(every, fit.mounts)
     found: dict = {}  # (s: with apart, the offsets the corners' solves found, summed)
-    earlier: dict = {}  # (camera -> the last solve that saw its corners, found at it)
     for _ in range(TIME_OFFSET_ROUNDS - 1 if apart and corners is not None else 0):
         dt = corners.problem.time_offsets(corners.sol.result.x)
         if np.all(np.abs(dt) < TIME_OFFSET_TOL):
@@ -610,30 +609,17 @@ def _on_corners(rig_frames, every, poses, fit, cov, reference, bad, px, window):
             moved[n] = [(t + int(round(v * 1e9)), *rest) for t, *rest in every[n]]
         warm = dict(zip(corners.times, zip(*corners.sol.rig, strict=True), strict=True))
         again = refine(moved, corners.mounts, warm)
-        if again is None:  # (no rig frame of two cameras left)
-            break
-        names = list(corners.mounts)
-        for k in _cornered(corners) - _cornered(again):
-            earlier.setdefault(names[k], (corners, found))
+        if again is None or _cornered(corners) - _cornered(again):
+            break  # (no rig frame of two cameras left, or a camera without corners)
         corners, every, found = again, moved, sums
     if corners is None:
         return apart, None
     # (the two estimates compared alike: with a time offset per camera or without)
     start, start_cov = (timed, timed_cov) if apart else (fit.mounts, cov)
-
-    def estimates(refined: _Refined, found: dict) -> tuple:
-        cov, misfit, dt_std = _corner_covariance(refined, start, reference, start_cov)
-        dt = refined.problem.time_offsets(refined.sol.result.x)
-        dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
-        return cov, misfit, dts, dt_std
-
-    cov, misfit, dts, dt_std = estimates(corners, found)
+    cov, misfit, dt_std = _corner_covariance(corners, start, reference, start_cov)
+    dt = corners.problem.time_offsets(corners.sol.result.x)
+    dts = {n: float(v) + found.get(n, 0.0) for n, v in zip(dt_std, dt, strict=True)}
     mounts, misfits = dict(corners.mounts), dict.fromkeys(corners.mounts, misfit)
-    for n, (solve, at) in earlier.items():
-        c, m, d, s = estimates(solve, at)
-        if np.isfinite(c[n]).all() and not np.isfinite(cov[n]).all():
-            mounts[n], cov[n], misfits[n] = solve.mounts[n], c[n], m
-            dts[n], dt_std[n] = d[n], s[n]
     for n in [n for n in cov if not np.isfinite(cov[n]).all()]:
         # (no corner constrains it: its pose-level estimate, not a refined one)
         mounts[n], cov[n] = start[n], start_cov[n]

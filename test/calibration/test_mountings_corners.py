@@ -124,13 +124,13 @@ def test_a_camera_that_exposes_apart_gets_its_time_offset_on_the_corners(monkeyp
         assert deg < deg_a and mm < mm_a, (n, deg, deg_a, mm, mm_a)
 
 
-def test_a_camera_regrouped_away_from_the_others_keeps_the_solve_that_sees_it():
+def test_a_regrouping_that_leaves_a_camera_no_corner_is_not_taken():
     """The front and left cameras expose together, the right one 16.5 ms later (about half a
     frame: further than the 15 ms window from either front frame) but its stamps say 2.5 ms
     (14 ms early), so it starts grouped with the front camera. Regrouped at the offset the
-    corners find, it shares no rig frame: its mounting and time offset are those of the last
-    solve that saw its corners, the others' the regrouped solve's, each with a std that covers
-    its error against the truth (3 std; never 0)."""
+    corners find, it would share no rig frame: that regrouping is not taken, and every
+    camera's mounting and time offset are those of the last solve that saw them all, each
+    with a std that covers its error against the truth (3 std; never 0)."""
     cams = [replace(c, camera=default_camera(line_delay=0.0))
             for c in default_rig(3, (0.0, 0.0, 0.0165))]  # fmt: skip
     frames, _, _ = generate_rig_video(cams, duration=1.0, num_points=150, outlier_ratio=0.0,
