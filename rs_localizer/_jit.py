@@ -170,7 +170,11 @@ def _stamp_callees(disp) -> None:
     kernel again and overwrites the entry)."""
     cache = getattr(disp, "_cache", None)
     index = getattr(cache, "_cache_file", None)
-    if index is None or "_source_stamp" not in vars(index):
+    if (
+        _CalleeStampedIndex is None
+        or type(index) is not _CalleeStampedIndex.__bases__[0]
+        or "_source_stamp" not in vars(index)
+    ):
         return  # (no cache, or a numba whose cache we do not know: its own check only)
     stamped = _CalleeStampedIndex.__new__(_CalleeStampedIndex)
     state = dict(vars(index))
