@@ -18,8 +18,9 @@ build``, while the package directory is still writable) leaves the kernels in th
 files into the user cache directory (a few MB, milliseconds; only files missing there or older
 than the package's), so even the first start of every user loads compiled kernels instead of
 compiling them. numba validates each cached kernel against its source file (content hash or
-modification time + size, depending on the numba version) and the CPU, so a stale or foreign
-entry is recompiled, never used.
+modification time + size, depending on the numba version) and the CPU, and
+:func:`rs_localizer._jit.kernel` adds the files of the kernels it calls (compiled into it), so
+a stale or foreign entry is recompiled, never used.
 
 :func:`compile_progress` reports each kernel numba compiles (name, seconds) to a callback: the
 node logs them during its warm-up and ``rs-localizer compile`` prints them.
