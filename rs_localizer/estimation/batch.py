@@ -131,7 +131,7 @@ def ransac_batch(
     for k in range(K):
         for j in range(s):
             samples[k, j] = order[local[k, j]]
-    R, C, own = p3p_mounted(x, X, samples, None, None, None, True)  # (unit bearings)
+    R, C, own = p3p_mounted(x, X, samples, None, None, None)  # (a camera: unit bearings)
     R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
     return _solve_and_score(
         samples,

@@ -259,7 +259,7 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
     ``poselib``)."""
     if pool.compiled and not generalized:  # (solved, mapped and chosen in one compiled call)
         X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
-        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm, False)
+        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm)
         return (R, C, own) if len(own) else None
     if generalized:
         import poselib  # (an optional comparison: imported on use)

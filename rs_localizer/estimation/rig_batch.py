@@ -136,7 +136,7 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
     buffers ``R``, ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,)
     bool), that pose corrected ``rounds`` times by :func:`still_solve_rotated`. Returns
     ``(R (H, 3, 3), C (H, 3))``."""
-    q = p3p_mounted_into(x, X, sample, cam, Rm, cm, False, b, P, R_cam, C_cam, R, C, 0)
+    q = p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
     hit = False
     if q > 0 and rounds > 0:
@@ -175,7 +175,7 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
         S = samples
         own = np.arange(K)
     else:
-        R0, _, own = p3p_mounted(x, X, samples, cam, Rm, cm, False)
+        R0, _, own = p3p_mounted(x, X, samples, cam, Rm, cm)
         S = np.empty((len(own), 6), dtype=np.int64)
         for h in range(len(own)):
             S[h] = samples[own[h]]

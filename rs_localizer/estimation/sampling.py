@@ -99,7 +99,7 @@ def draw_samples_numpy(
 
 
 @kernel
-def p3p_mounted_into(x, X, sample, cam, Rm, cm, unit, b, P, R_cam, C_cam, R, C, off):
+def p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     """Lambda Twist's solutions (Persson and Nordberg, ECCV 2018) on the first 3 points of one
     ``sample`` (indices into the normalized points ``x`` (N, 2) and world points ``X`` (N,
     3)) into ``R[off:off + n]`` (3, 3), ``C[off:off + n]`` (3,); returns n (<= 4 for a
@@ -111,13 +111,13 @@ def p3p_mounted_into(x, X, sample, cam, Rm, cm, unit, b, P, R_cam, C_cam, R, C, 
     (M, 3)): ``R = Rm[c]^T R_cam``, ``C = Rm[c]^T (C_cam - cm[c])``, and only the pose of
     least global-shutter error on the sample's other points through their mountings kept
     (:func:`_mounted_error`; n = 0 when every pose puts one behind its camera), as a camera's
-    pre-rotation is chosen (:func:`select_prerotations`). ``unit``: the bearings
-    handed to Lambda Twist are unit rays ``(x, 1) / |(x, 1)|`` (a camera's), else ``(x, 1)``
-    (Lambda Twist normalizes them itself; the two differ in the last bits). ``b``, ``P`` (3,
+    pre-rotation is chosen (:func:`select_prerotations`). The bearings handed to Lambda
+    Twist: a camera's unit rays ``(x, 1) / |(x, 1)|``, a rig's ``(x, 1)`` (Lambda Twist
+    normalizes them itself; the two differ in the last bits). ``b``, ``P`` (3,
     3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers; ``off`` an int64."""
     for j in range(3):
         i = sample[j]
-        if unit:
+        if Rm is None:  # (a camera)
             nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
             b[j, 0], b[j, 1], b[j, 2] = x[i, 0] / nrm, x[i, 1] / nrm, 1.0 / nrm
         else:
@@ -206,7 +206,7 @@ def least_error_roots(
 
 
 @kernel
-def p3p_mounted(x, X, samples, cam, Rm, cm, unit):
+def p3p_mounted(x, X, samples, cam, Rm, cm):
     """:func:`p3p_mounted_into` on each of the samples (K, >= 3) (``cam``, ``Rm``, ``cm``
     None for a camera alone): ``(R (H, 3, 3), C (H, 3), the sample of each (H,) int64)``, a
     camera's every finite solution, a rig's chosen one, grouped by sample in increasing
@@ -219,7 +219,7 @@ def p3p_mounted(x, X, samples, cam, Rm, cm, unit):
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     m = np.int64(0)  # (an int64 from the start: one compiled p3p_mounted_into)
     for k in range(K):
-        n = p3p_mounted_into(x, X, samples[k], cam, Rm, cm, unit, b, P, R_cam, C_cam, R, C, m)
+        n = p3p_mounted_into(x, X, samples[k], cam, Rm, cm, b, P, R_cam, C_cam, R, C, m)
         for j in range(n):
             own[m + j] = k
         m += n

@@ -320,7 +320,7 @@ def split_batch(solver: str, first: bool) -> None:
         return
     cam, uv, X, _ = synthetic_problem()
     fr = prepare_frame(uv, X, cam, np.inf, np.random.default_rng(0))
-    p3p_mounted(fr.x, fr.X, np.zeros((1, 3), dtype=np.int64), None, None, None, True)
+    p3p_mounted(fr.x, fr.X, np.zeros((1, 3), dtype=np.int64), None, None, None)
     H = 2
     exact_msac_scores(
         fr.x,
