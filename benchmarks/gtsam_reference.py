@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.joint_reference import JointSolution
+from benchmarks.joint_reference import JointSolution, cached_solution
 from benchmarks.tagslam_data import RealRig, errors, tag_corners
 
 __all__ = [
@@ -236,36 +236,7 @@ def gtsam_reference(
         :func:`solve_gtsam`.
     """
     path = None if cache is None else Path(cache) / f"{rig.name}_{_key(rig, frames)}.npz"
-    if path is not None and path.is_file():
-        z = np.load(path, allow_pickle=False)
-        return JointSolution(
-            {float(s): (R, C) for s, R, C in zip(z["stamps"], z["Rf"], z["Cf"], strict=True)},
-            {
-                int(i): (R, p, float(w))
-                for i, R, p, w in zip(z["ids"], z["Rt"], z["pt"], z["side"], strict=True)
-            },
-            {str(n): (R, c) for n, R, c in zip(z["names"], z["Rm"], z["cm"], strict=True)},
-            {k[5:]: z[k].item() for k in z.files if k.startswith("info_")},
-        )
-    sol = solve_gtsam(rig, frames)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        stamps, ids, names = list(sol.poses), list(sol.tags), list(sol.mounts)
-        np.savez(
-            path,
-            stamps=np.array(stamps),
-            Rf=np.array([sol.poses[s][0] for s in stamps]),
-            Cf=np.array([sol.poses[s][1] for s in stamps]),
-            ids=np.array(ids),
-            Rt=np.array([sol.tags[i][0] for i in ids]),
-            pt=np.array([sol.tags[i][1] for i in ids]),
-            side=np.array([sol.tags[i][2] for i in ids]),
-            names=np.array(names),
-            Rm=np.array([sol.mounts[n][0] for n in names]),
-            cm=np.array([sol.mounts[n][1] for n in names]),
-            **{f"info_{k}": v for k, v in sol.info.items()},
-        )
-    return sol
+    return cached_solution(path, lambda: solve_gtsam(rig, frames))
 
 
 def distances(rig: RealRig, sol: JointSolution, poses: dict, mounts: dict, tags: dict) -> dict:

@@ -33,6 +33,7 @@ from rs_localizer.calibration.corners import RigCorners, TagPoints
 __all__ = [
     "CACHE",
     "JointSolution",
+    "cached_solution",
     "halves",
     "joint_reference",
     "main",
@@ -69,6 +70,41 @@ class JointSolution:
     tags: dict
     mounts: dict
     info: dict = field(default_factory=dict)
+
+
+def cached_solution(path: Path | None, solve) -> JointSolution:
+    """The solution kept at ``path`` (an ``.npz``; None: none kept), else ``solve()``'s (->
+    :class:`JointSolution`), saved there."""
+    if path is not None and path.is_file():
+        z = np.load(path, allow_pickle=False)
+        return JointSolution(
+            {float(s): (R, C) for s, R, C in zip(z["stamps"], z["Rf"], z["Cf"], strict=True)},
+            {
+                int(i): (R, p, float(w))
+                for i, R, p, w in zip(z["ids"], z["Rt"], z["pt"], z["side"], strict=True)
+            },
+            {str(n): (R, c) for n, R, c in zip(z["names"], z["Rm"], z["cm"], strict=True)},
+            {k[5:]: z[k].item() for k in z.files if k.startswith("info_")},
+        )
+    sol = solve()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        stamps, ids, names = list(sol.poses), list(sol.tags), list(sol.mounts)
+        np.savez(
+            path,
+            stamps=np.array(stamps),
+            Rf=np.array([sol.poses[s][0] for s in stamps]),
+            Cf=np.array([sol.poses[s][1] for s in stamps]),
+            ids=np.array(ids),
+            Rt=np.array([sol.tags[i][0] for i in ids]),
+            pt=np.array([sol.tags[i][1] for i in ids]),
+            side=np.array([sol.tags[i][2] for i in ids]),
+            names=np.array(names),
+            Rm=np.array([sol.mounts[n][0] for n in names]),
+            cm=np.array([sol.mounts[n][1] for n in names]),
+            **{f"info_{k}": v for k, v in sol.info.items()},
+        )
+    return sol
 
 
 def _observations(rig: RealRig):
@@ -174,39 +210,7 @@ def joint_reference(
     when it holds one of the same corners, start and ``f_scale``, else solved and saved
     there (``<name>_<digest>.npz``)."""
     path = None if cache is None else Path(cache) / f"{rig.name}_{_key(rig, f_scale)}.npz"
-    if path is not None and path.is_file():
-        z = np.load(path, allow_pickle=False)
-        names = [str(n) for n in z["names"]]
-        return JointSolution(
-            {float(s): (R, C) for s, R, C in zip(z["stamps"], z["Rf"], z["Cf"], strict=True)},
-            {
-                int(i): (R, p, float(w))
-                for i, R, p, w in zip(z["ids"], z["Rt"], z["pt"], z["side"], strict=True)
-            },
-            {n: (R, c) for n, R, c in zip(names, z["Rm"], z["cm"], strict=True)},
-            {k[5:]: z[k].item() for k in z.files if k.startswith("info_")},
-        )
-    sol = solve_joint(rig, f_scale, verbose=verbose)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        stamps = list(sol.poses)
-        ids = list(sol.tags)
-        names = list(sol.mounts)
-        np.savez(
-            path,
-            stamps=np.array(stamps),
-            Rf=np.array([sol.poses[s][0] for s in stamps]),
-            Cf=np.array([sol.poses[s][1] for s in stamps]),
-            ids=np.array(ids),
-            Rt=np.array([sol.tags[i][0] for i in ids]),
-            pt=np.array([sol.tags[i][1] for i in ids]),
-            side=np.array([sol.tags[i][2] for i in ids]),
-            names=np.array(names),
-            Rm=np.array([sol.mounts[n][0] for n in names]),
-            cm=np.array([sol.mounts[n][1] for n in names]),
-            **{f"info_{k}": v for k, v in sol.info.items()},
-        )
-    return sol
+    return cached_solution(path, lambda: solve_joint(rig, f_scale, verbose=verbose))
 
 
 def with_reference(rig: RealRig, sol: JointSolution) -> RealRig:

@@ -49,42 +49,16 @@ def rig():
     return load_tagslam(FOLDER)
 
 
-def _turned(R, rng, deg):
-    return Rotation.from_rotvec(np.deg2rad(deg) * rng.normal(size=3) / np.sqrt(3)).as_matrix() @ R
-
-
 @needs_gtsam
 @needs_test2
-def test_exact_corners_give_back_their_solution_from_a_perturbed_start(rig):
+def test_exact_corners_give_back_their_solution_from_a_perturbed_start(
+    rig, exact_corners_perturbed
+):
     # corners projected exactly from TagSLAM's solution by rs_localizer's equidistant camera
     # model (the first 120 rig frames with a reference pose), the start that solution with
     # every free pose turned by ~0.3 deg and moved by ~3 mm: GTSAM's Cal3Fisheye factor graph
     # brings it back (the anchored tag and the first camera are held)
-    rng = np.random.default_rng(5)
-    frames, ids = [], {}
-    for stamp, views in [f for f in rig.frames if f[0] in rig.reference][:120]:
-        R, C = rig.reference[stamp]
-        out = {}
-        for n, (_, X) in views.items():
-            Rm, cm = rig.mounts[n]
-            out[n] = (rig.cameras[n].project((X @ R.T + C) @ Rm.T + cm), X)
-        frames.append((stamp, out))
-        ids[stamp] = rig.tag_ids[stamp]
-    first = next(iter(rig.cameras))
-    start = RealRig(
-        rig.cameras,
-        {n: m if n == first else (_turned(m[0], rng, 0.3), m[1] + rng.normal(0, 0.002, 3))
-         for n, m in rig.mounts.items()},
-        frames,
-        {s: (_turned(rig.reference[s][0], rng, 0.3), rig.reference[s][1]
-             + rng.normal(0, 0.002, 3)) for s, _ in frames},
-        "exact",
-        tags={i: t if i in rig.anchors else (_turned(t[0], rng, 0.3),
-                                             t[1] + rng.normal(0, 0.002, 3), t[2])
-              for i, t in rig.tags.items()},
-        tag_ids=ids,
-        anchors=rig.anchors,
-    )  # fmt: skip
+    start, frames, ids = exact_corners_perturbed(rig, 120, 5)
     sol = solve_gtsam(start)
     assert sol.info["cost_start"] > 1e3 and sol.info["cost"] < 1e-8
     d = np.array([errors(*sol.poses[s], rig.reference[s]) for s, _ in frames])

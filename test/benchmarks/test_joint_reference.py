@@ -15,7 +15,7 @@ from benchmarks.joint_reference import (
     solve_joint,
     with_reference,
 )
-from benchmarks.tagslam_data import FOLDER, RealRig, errors, load_test2, tag_corners
+from benchmarks.tagslam_data import FOLDER, errors, load_test2, tag_corners
 
 pytestmark = pytest.mark.skipif(not FOLDER.is_dir(), reason=f"{FOLDER} absent")
 
@@ -35,39 +35,13 @@ def joint(rig, cache):
     return joint_reference(rig, cache)
 
 
-def _turned(R, rng, deg):
-    return Rotation.from_rotvec(np.deg2rad(deg) * rng.normal(size=3) / np.sqrt(3)).as_matrix() @ R
-
-
-def test_exact_corners_give_back_their_solution_from_a_perturbed_start(rig):
+def test_exact_corners_give_back_their_solution_from_a_perturbed_start(
+    rig, exact_corners_perturbed
+):
     # corners projected exactly from TagSLAM's solution (the first 150 rig frames), the start
     # that solution with every free pose turned by ~0.3 deg and moved by ~3 mm: the solution
     # comes back (the anchored tag and the first camera's mounting stay where they are)
-    rng = np.random.default_rng(3)
-    frames, ids = [], {}
-    for stamp, views in [f for f in rig.frames if f[0] in rig.reference][:150]:
-        R, C = rig.reference[stamp]
-        out = {}
-        for n, (_, X) in views.items():
-            Rm, cm = rig.mounts[n]
-            out[n] = (rig.cameras[n].project((X @ R.T + C) @ Rm.T + cm), X)
-        frames.append((stamp, out))
-        ids[stamp] = rig.tag_ids[stamp]
-    first = next(iter(rig.cameras))
-    start = RealRig(
-        rig.cameras,
-        {n: m if n == first else (_turned(m[0], rng, 0.3), m[1] + rng.normal(0, 0.002, 3))
-         for n, m in rig.mounts.items()},
-        frames,
-        {s: (_turned(rig.reference[s][0], rng, 0.3), rig.reference[s][1]
-             + rng.normal(0, 0.002, 3)) for s, _ in frames},
-        "exact",
-        tags={i: t if i in rig.anchors else (_turned(t[0], rng, 0.3),
-                                             t[1] + rng.normal(0, 0.002, 3), t[2])
-              for i, t in rig.tags.items()},
-        tag_ids=ids,
-        anchors=rig.anchors,
-    )  # fmt: skip
+    start, frames, ids = exact_corners_perturbed(rig, 150, 3)
     sol = solve_joint(start)
     d = np.array([errors(*sol.poses[s], rig.reference[s]) for s, _ in frames])
     assert np.max(d[:, 0]) < 1e-4 and np.max(d[:, 1]) < 1e-3
