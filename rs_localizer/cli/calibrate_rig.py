@@ -151,9 +151,9 @@ def _camera_notes(
         )
     elif rig_refined:
         notes.append(
-            f"{n}: not refined on the corners: none of its corners is left in the corners' "
-            "solve (at the time offsets found its frames share no rig frame with another "
-            "camera's), so its mounting, std and time offset are the pose-level adjustment's"
+            f"{n}: not refined on the corners: none of its corners is in the corners' solve "
+            "(its frames share no rig frame with another camera's there), so its mounting, "
+            "std and time offset are the pose-level adjustment's"
         )
     if np.isfinite(e.time_offset_std):
         notes.append(
