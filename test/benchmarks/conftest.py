@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from benchmarks.tagslam_data import RealRig
+from benchmarks.tagslam_data import RealRig, errors, tag_corners
 
 
 def _turned(R: np.ndarray, rng: np.random.Generator, deg: float) -> np.ndarray:
@@ -51,3 +51,24 @@ def _exact_corners_perturbed(rig: RealRig, frames: int, seed: int) -> tuple[Real
 def exact_corners_perturbed():
     """:func:`_exact_corners_perturbed`: ``(rig, frames, seed) -> (start, frames, ids)``."""
     return _exact_corners_perturbed
+
+
+def _assert_gives_back(sol, rig: RealRig, frames: list, ids: dict, deg: float, m: float) -> None:
+    """``sol`` (a ``JointSolution`` solved from :func:`_exact_corners_perturbed`'s start) holds
+    ``rig``'s reference rig poses of ``frames`` and its mountings within ``deg`` and ``m``, and
+    the corners of every tag ``ids`` names within ``m / 100``."""
+    d = np.array([errors(*sol.poses[s], rig.reference[s]) for s, _ in frames])
+    assert np.max(d[:, 0]) < deg and np.max(d[:, 1]) < m
+    for n, mount in rig.mounts.items():
+        rot, pos = errors(*sol.mounts[n], mount)
+        assert rot < deg and pos < m
+    for i in {i for s, _ in frames for v in ids[s].values() for i in v}:
+        R, p, side = sol.tags[i]
+        moved = tag_corners(side) @ R.T + p - tag_corners(side) @ rig.tags[i][0].T - rig.tags[i][1]
+        assert np.abs(moved).max() < m / 100
+
+
+@pytest.fixture
+def assert_gives_back():
+    """:func:`_assert_gives_back`: ``(sol, rig, frames, ids, deg, m)``, asserting."""
+    return _assert_gives_back

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from benchmarks.gtsam_reference import GTSAM_MISSING, gtsam_reference, import_gtsam, solve_gtsam
 from benchmarks.joint_reference import solve_joint, with_reference
-from benchmarks.tagslam_data import DATA, FOLDER, RealRig, errors, load_tagslam, tag_corners
+from benchmarks.tagslam_data import DATA, FOLDER, RealRig, errors, load_tagslam
 
 #: TagSLAM's test_8 (optimizer_mode: slow): next to test_2, or in the folder of TagSLAM's test
 #: recordings that ``RS_TAGSLAM_RECORDINGS`` names
@@ -52,7 +52,7 @@ def rig():
 @needs_gtsam
 @needs_test2
 def test_exact_corners_give_back_their_solution_from_a_perturbed_start(
-    rig, exact_corners_perturbed
+    rig, exact_corners_perturbed, assert_gives_back
 ):
     # corners projected exactly from TagSLAM's solution by rs_localizer's equidistant camera
     # model (the first 120 rig frames with a reference pose), the start that solution with
@@ -61,16 +61,7 @@ def test_exact_corners_give_back_their_solution_from_a_perturbed_start(
     start, frames, ids = exact_corners_perturbed(rig, 120, 5)
     sol = solve_gtsam(start)
     assert sol.info["cost_start"] > 1e3 and sol.info["cost"] < 1e-8
-    d = np.array([errors(*sol.poses[s], rig.reference[s]) for s, _ in frames])
-    assert np.max(d[:, 0]) < 1e-5 and np.max(d[:, 1]) < 1e-4
-    for n, m in rig.mounts.items():
-        rot, pos = errors(*sol.mounts[n], m)
-        assert rot < 1e-5 and pos < 1e-4
-    seen = {i for s, _ in frames for v in ids[s].values() for i in v}
-    for i in seen:
-        R, p, side = sol.tags[i]
-        assert np.abs(tag_corners(side) @ R.T + p - tag_corners(side) @ rig.tags[i][0].T
-                      - rig.tags[i][1]).max() < 1e-6  # fmt: skip
+    assert_gives_back(sol, rig, frames, ids, 1e-5, 1e-4)
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from benchmarks.joint_reference import (
     solve_joint,
     with_reference,
 )
-from benchmarks.tagslam_data import FOLDER, errors, load_test2, tag_corners
+from benchmarks.tagslam_data import FOLDER, errors, load_test2
 
 pytestmark = pytest.mark.skipif(not FOLDER.is_dir(), reason=f"{FOLDER} absent")
 
@@ -36,23 +36,14 @@ def joint(rig, cache):
 
 
 def test_exact_corners_give_back_their_solution_from_a_perturbed_start(
-    rig, exact_corners_perturbed
+    rig, exact_corners_perturbed, assert_gives_back
 ):
     # corners projected exactly from TagSLAM's solution (the first 150 rig frames), the start
     # that solution with every free pose turned by ~0.3 deg and moved by ~3 mm: the solution
     # comes back (the anchored tag and the first camera's mounting stay where they are)
     start, frames, ids = exact_corners_perturbed(rig, 150, 3)
     sol = solve_joint(start)
-    d = np.array([errors(*sol.poses[s], rig.reference[s]) for s, _ in frames])
-    assert np.max(d[:, 0]) < 1e-4 and np.max(d[:, 1]) < 1e-3
-    for n, m in rig.mounts.items():
-        rot, pos = errors(*sol.mounts[n], m)
-        assert rot < 1e-4 and pos < 1e-3
-    seen = {i for s, _ in frames for v in ids[s].values() for i in v}
-    for i in seen:
-        R, p, side = sol.tags[i]
-        assert np.abs(tag_corners(side) @ R.T + p - tag_corners(side) @ rig.tags[i][0].T
-                      - rig.tags[i][1]).max() < 1e-5  # fmt: skip
+    assert_gives_back(sol, rig, frames, ids, 1e-4, 1e-3)
     e = reference_residuals(with_reference(start, sol))[:, 1]
     assert np.max(e) < 1e-3
 
