@@ -298,6 +298,7 @@ def main(argv: list[str] | None = None) -> None:
     from benchmarks.joint_reference import (
         joint_reference,
         mounting_coverage,
+        print_coverage,
         recording_parser,
         solve_joint,
         with_reference,
@@ -364,13 +365,7 @@ def main(argv: list[str] | None = None) -> None:
                 "mountings: error deg, mm; std deg, mm; largest |error| / std of the 6 axes; "
                 "NEES (6)"
             )
-            cover = mounting_coverage(est, sol.mounts, first)
-            for n, c in ((n, cover[n]) for n in rig.cameras if n in cover):
-                print(
-                    f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std "
-                    f"{c['std_deg']:.3f} deg {c['std_mm']:.1f} mm; {c['k']:.1f}; "
-                    f"{c['nees']:.1f}; within 3 sigma: {'yes' if c['within'] else 'no'}"
-                )
+            print_coverage(mounting_coverage(est, sol.mounts, first), rig.cameras)
             if r is not g:
                 continue
             for v, (inside, posed, total) in calibrated_rig_run(g, est).items():

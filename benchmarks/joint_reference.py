@@ -38,6 +38,7 @@ __all__ = [
     "joint_reference",
     "main",
     "mounting_coverage",
+    "print_coverage",
     "recording",
     "recording_parser",
     "rig_part",
@@ -266,6 +267,18 @@ def mounting_coverage(est: dict, mounts: dict, first: str) -> dict:
     return out
 
 
+def print_coverage(cover: dict, cameras) -> None:
+    """One line per camera of ``cameras`` in ``cover`` (:func:`mounting_coverage`): its error
+    (deg, mm), std (deg, mm), largest |error| / std of the 6 axes, NEES and whether it is
+    within 3 sigma."""
+    for n, c in ((n, cover[n]) for n in cameras if n in cover):
+        print(
+            f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std {c['std_deg']:.3f}"
+            f" deg {c['std_mm']:.1f} mm; {c['k']:.1f}; {c['nees']:.1f}; within 3 sigma: "
+            f"{'yes' if c['within'] else 'no'}"
+        )
+
+
 def halves(est_a: dict, est_b: dict, first: str) -> dict:
     """Two calibrations of the same rig from disjoint parts of a video (camera ->
     ``MountingEstimate``; the reference camera ``first`` left out) against each other, an
@@ -356,13 +369,7 @@ def main(argv: list[str] | None = None) -> None:
             + (how or "pose-level")
             + "): error deg, mm; std deg, mm; largest |error| / std of the 6 axes; NEES (6)"
         )
-        cover = mounting_coverage(est, r.mounts, first)
-        for n, c in ((n, cover[n]) for n in r.cameras if n in cover):
-            print(
-                f"  {n}: {c['error_deg']:.3f} deg {c['error_mm']:.1f} mm; std {c['std_deg']:.3f}"
-                f" deg {c['std_mm']:.1f} mm; {c['k']:.1f}; {c['nees']:.1f}; within 3 sigma: "
-                f"{'yes' if c['within'] else 'no'}"
-            )
+        print_coverage(mounting_coverage(est, r.mounts, first), r.cameras)
         for v, (inside, posed, total) in calibrated_rig_run(r, est).items():
             print(
                 f"  the rig with these mountings ({v}): {inside} of {posed} rig poses within "
