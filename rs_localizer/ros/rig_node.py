@@ -68,11 +68,12 @@ def declare_rig_cameras(node: Any) -> list[str]:
 def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
                ) -> tuple[dict, dict | None]:  # fmt: skip
     """A rig's own parameter values for :func:`.config.build_config`: ``(values, cameras)``,
-    the :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` its names) and each camera's
-    ``rig.<c>.*``; ``({}, None)`` for the camera alone (``rig.cameras`` empty). With
-    ``current``, the configuration the rig runs with (None: at configure, unchecked), a change
-    of ``overrides`` (name -> value) is refused for the parameters a rig cannot take without
-    a restart (:func:`.config.rig_change_refused`) unless their value stays the same.
+    the :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` as set: ``build_config`` reads its
+    names) and each camera's ``rig.<c>.*``; ``({}, None)`` for the camera alone
+    (``rig.cameras`` empty). With ``current``, the configuration the rig runs with (None: at
+    configure, unchecked), a change of ``overrides`` (name -> value) is refused for the
+    parameters a rig cannot take without a restart (:func:`.config.rig_change_refused`)
+    unless their value stays the same.
 
     Raises:
         ConfigError: names that cannot be used, or a change refused (naming them).
@@ -87,12 +88,10 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
         refused = rig_change_refused(changed, current.settings.single_camera)
         if refused is not None:
             raise ConfigError(refused)
-    names = rig_camera_names(value)
-    values = {n: node.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
-    values["rig.cameras"] = names
+    values = {n: node.get_parameter(n).value for n in RIG_PARAMETERS}
     cams = {
         n: {k: node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
-        for n in names
+        for n in rig_camera_names(value)
     }
     return values, cams
 

@@ -155,13 +155,17 @@ class RigGrouping:
         cameras: the cameras' names, in the rig's order.
         counts: the localizer's counters (``rig_frames``, ``<camera>.stopped``,
             ``rig.skipped[.time_reset]``). log: its warnings (a camera stopped, back).
-        skip: ``skip(camera, reason)`` counts a camera's frame skipped.
+        skip: ``skip(camera, reason)`` counts a camera's frame skipped (``skip("rig",
+            "time_reset")``: a rig frame).
         ordered: its cameras' frames are kept in order (a frame not later than its camera's
             previous one, or older than the last rig frame closed, skipped); False: a rig of
             one, which takes every frame as its camera's video does (any step back of its
             stamps is a time reset, :mod:`~rs_localizer.tracking.clock`).
 
     Attributes:
+        cams: camera -> its state, in the rig's order: ``newest`` (ns; None: no frame since the
+            start or the last time reset), ``stopped`` (no frame for ``stop_after`` s while
+            others send), with its agreement's (:class:`CameraAgreement`: ``apart``).
         open: the rig frames open, oldest first. first: ns, the first frame's time since the
             start (or the last time reset), None before one. last_closed: ns, the time of the
             last rig frame closed, None before one.
@@ -175,18 +179,6 @@ class RigGrouping:
         self.first: int | None = None
         self.last_closed: int | None = None
         self.counts, self.log, self._skip = counts, log, skip
-
-    def stopped(self, name: str) -> bool:
-        """Camera ``name`` has stopped (no frame for ``stop_after`` s while others send)."""
-        return self.cams[name].stopped
-
-    def waiting(self, name: str) -> bool:
-        """No frame of camera ``name`` yet (since the start or the last time reset)."""
-        return self.cams[name].newest is None
-
-    def pending(self, name: str) -> int:
-        """Camera ``name``'s frames in rig frames open."""
-        return sum(name in g.frames for g in self.open)
 
     def note_first(self, stamp: int) -> None:
         """A frame came at ``stamp`` (ns): the first since the start or the last time reset
@@ -241,7 +233,7 @@ class RigGrouping:
         """The open rig frames every camera has joined, moved past (its newest frame later than
         the rig frame's earliest plus ``window`` s) or stopped for (no frame for ``stop_after``
         s, :meth:`stop_ns`; marked here, with a warning), oldest first, each taken out of
-        :attr:`open` as it is handed out."""
+        :attr:`open` and closed as it is handed out (:meth:`_handed_out`)."""
         now = max((c.newest for c in self.cams.values() if c.newest is not None), default=None)
         if now is None:
             return
@@ -258,15 +250,12 @@ class RigGrouping:
                     "(stop_after): the rig runs on the other cameras",
                 )
         window_ns = int(round(window * 1e9))
-        while self.open:
-            g = self.open[0]
-            if not all(
+        yield from self._handed_out(
+            lambda g: all(
                 n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + window_ns)
                 for n, c in self.cams.items()
-            ):
-                break
-            self.open.pop(0)
-            yield g
+            )
+        )
 
     def stop_ns(self, cam: _RigCamera, stop_after: float) -> float:
         """ns without a frame of ``cam`` after which it counts as stopped: ``stop_after`` s, or
@@ -281,16 +270,18 @@ class RigGrouping:
         return max(stop_ns, STOP_INTERVALS * float(np.median(steps))) if len(steps) else stop_ns
 
     def close_all(self) -> Iterator[OpenRigFrame]:
-        """Every rig frame still open (the end of a video), oldest first, each taken out of
-        :attr:`open` as it is handed out."""
-        while self.open:
-            yield self.open.pop(0)
+        """Every rig frame still open (the end of a video), as :meth:`complete` hands them
+        out."""
+        return self._handed_out(lambda g: True)
 
-    def closed(self, g: OpenRigFrame) -> tuple:
-        """The rig frame ``g`` closed (no later frame joins one before it): its cameras (rig
-        order)."""
-        self.last_closed = g.lo
-        return tuple(n for n in self.cams if n in g.frames)
+    def _handed_out(self, ready: Callable[[OpenRigFrame], bool]) -> Iterator[OpenRigFrame]:
+        """The open rig frames, oldest first, up to the first that is not ``ready``; each taken
+        out of :attr:`open` and closed as it is handed out (:attr:`last_closed` its time: no
+        later frame joins one before it)."""
+        while self.open and ready(self.open[0]):
+            g = self.open.pop(0)
+            self.last_closed = g.lo
+            yield g
 
     def missing_reason(self, name: str, g: OpenRigFrame, window: float) -> str:
         """Why camera ``name`` is missing from rig frame ``g`` (a key of
@@ -313,8 +304,7 @@ class RigGrouping:
         for g in self.open:
             for n in g.frames:
                 self._skip(n, "time_reset")
-            self.counts["rig.skipped"] += 1
-            self.counts["rig.skipped.time_reset"] += 1
+            self._skip("rig", "time_reset")
         self.open = []
         for cam in self.cams.values():
             cam.newest = cam.last_ref = None
@@ -354,21 +344,20 @@ def _frame_steps(recent) -> np.ndarray:
 class CameraAgreement:
     """The cameras' agreement with the rig (module docstring): which disagree with it, which
     of them with one other camera alone (:meth:`partner`), whose frames are kept apart from the
-    others' (:meth:`apart`).
+    others' (each camera's ``apart``, :meth:`update_apart`).
 
     Args:
         history: rig frames a camera's disagreement looks back over (``disagree_history``).
-        frames: the rig's :class:`RigGrouping` (its cameras, in the rig's order, and their
-            apparent clock offsets).
-        counts: the localizer's counters (``<camera>.disagreements``, ``<camera>.apart``).
-        log: its warnings.
+        frames: the rig's :class:`RigGrouping`: its cameras (in the rig's order; their
+            agreement kept with them), their apparent clock offsets, and the counters
+            (``<camera>.disagreements``, ``<camera>.apart``) and warnings of its localizer.
     """
 
-    def __init__(self, history: int, frames: RigGrouping, counts: Counter, log: TrackLog):
-        self.cams = frames.cams  # (the grouping's cameras: their agreement kept with them)
+    def __init__(self, history: int, frames: RigGrouping):
+        self.cams = frames.cams
         for cam in self.cams.values():
             cam.flags = deque(maxlen=history)
-        self.frames, self.counts, self.log = frames, counts, log
+        self.frames, self.counts, self.log = frames, frames.counts, frames.log
 
     def disagrees(self, name: str) -> bool:
         """Camera ``name`` disagrees with the rig, or is the partner of one that disagrees with
@@ -378,22 +367,10 @@ class CameraAgreement:
     def partner(self, name: str) -> str | None:
         """The other camera when ``name`` is one of two cameras that disagree with each other
         and no third camera tells which mounting is wrong (both are named), else None."""
-        cam = self.cams[name]
-        if cam.disagrees and cam.partner is not None:
-            return cam.partner
-        for n, c in self.cams.items():
-            if c.disagrees and c.partner == name:
-                return n
-        return None
-
-    def apart(self, name: str) -> bool:
-        """Camera ``name``'s frames are kept apart from the others' (its clock or stamp offset
-        is likely wrong).
-
-        Raises:
-            KeyError: a camera not in the rig.
-        """
-        return self.cams[name].apart
+        own = self.cams[name].partner  # (a camera's partner is set only while it disagrees)
+        if own is not None:
+            return own
+        return next((n for n, c in self.cams.items() if c.partner == name), None)
 
     def update_apart(self, cameras: tuple, missing: dict, window: float) -> None:
         """Flag the cameras whose frames are kept apart from the others' (module docstring),

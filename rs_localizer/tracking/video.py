@@ -679,8 +679,7 @@ class Localizer(GyroReadouts):
         # (tracking/rig.py)
         self._frames = RigGrouping(settings.cameras, self.counts, self.log, self._skip,
                                    ordered=not settings.single_camera)  # fmt: skip
-        self._agreement = CameraAgreement(settings.disagree_history, self._frames, self.counts,
-                                          self.log)  # fmt: skip
+        self._agreement = CameraAgreement(settings.disagree_history, self._frames)
         # the frames waiting for their fused twist, their last camera frame's wall time
         # (tracking/localizer.py), the lock, the last posed frame carried
         self._twists = PendingTwists()
@@ -787,7 +786,7 @@ class Localizer(GyroReadouts):
         """``received``, ``solved``, ``failed``, ``skipped``, ``pending`` of a camera
         (received = the other four summed)."""
         c = self.counts
-        pending = self._frames.pending(name)
+        pending = sum(name in g.frames for g in self._frames.open)
         keys = ("received", "solved", "failed", "skipped")
         out = {k: c[f"{name}.{k}"] for k in keys}
         out["pending"] = pending
@@ -822,11 +821,12 @@ class Localizer(GyroReadouts):
     def camera_state(self, name: str) -> str:
         """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees`` (also the
         partner of a camera that disagrees with it alone, :meth:`camera_partner`)."""
+        cam = self._frames.cams[name]
         if self._agreement.disagrees(name):
             return "disagrees"
-        if self._frames.stopped(name):
+        if cam.stopped:
             return "stopped"
-        return "waiting" if self._frames.waiting(name) else "running"
+        return "waiting" if cam.newest is None else "running"
 
     def last_share(self, name: str) -> CameraShare | None:
         """The camera's :class:`CameraShare` in the last solved rig frame it was in."""
@@ -1657,7 +1657,7 @@ class Localizer(GyroReadouts):
     def _closed(self, g: OpenRigFrame) -> LocalizerOutput:
         """The rig frame ``g`` closed (no later frame joins one before it): its output with its
         cameras, not solved yet."""
-        return LocalizerOutput(stamp_ns=g.lo, cameras=self._frames.closed(g))
+        return LocalizerOutput(stamp_ns=g.lo, cameras=tuple(n for n in self._cams if n in g.frames))
 
     def _solve(self, g: OpenRigFrame) -> LocalizerOutput:
         """A rig frame complete (:meth:`_ready`, :meth:`close`): its cameras missing counted,
@@ -1897,7 +1897,7 @@ class Localizer(GyroReadouts):
         Raises:
             KeyError: a camera not in the rig.
         """
-        return self.clock_offsets(name) if self._agreement.apart(name) else None
+        return self.clock_offsets(name) if self._frames.cams[name].apart else None
 
     def camera_off_deg(self, out: LocalizerOutput, frame: CameraFrame) -> float | None:
         """deg between camera ``frame.camera_name``'s rotation posed alone from its frame in
