@@ -175,9 +175,7 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
         own = np.arange(K)
     else:
         R0, _, own = p3p_mounted(x, X, samples, cam, Rm, cm)
-        S = np.empty((len(own), 6), dtype=np.int64)
-        for h in range(len(own)):
-            S[h] = samples[own[h]]
+        S = samples[own]
     sol, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
     R = compose_rotvec(np.ascontiguousarray(sol[:, 0:3]), R0)
     C = np.ascontiguousarray(sol[:, 3:6])
