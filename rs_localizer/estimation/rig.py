@@ -233,8 +233,7 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
     (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``. Compiled:
-    :func:`~.rig_batch.still_solve_rotated` (the same solution from the
-    pose's six unknowns alone)."""
+    :func:`~.rig_batch.still_solve_rotated`."""
     if not pool.compiled:
         solve = _rig_solver(pool, 1, held=True)
         R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
@@ -470,9 +469,9 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
-        return _near_spread(est, solve(a), voters)
     sub = solve(a)
+    if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
+        return _near_spread(est, sub, voters)
     b = _agreeing(sub, voters) if sub.success else set()
     if b & a:  # (a pose the agreeing cameras share: cameras with outliers, no contradiction)
         return est
@@ -543,12 +542,16 @@ def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -
     least :data:`AGREE_SHARE` times the best voting camera's, and not 0."""
     hits = est.num_inliers_per_view
     if pool is not None:
-        ok = pool.errors(est.model if model is None else model) < gate_px
-        hits = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
+        hits = _hits(pool, est.model if model is None else model, gate_px)
     valid = est.num_valid_per_view
     ratio = {c: int(hits[c]) / int(valid[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+
+
+def _hits(pool: StackedViews, model, gate_px: float) -> np.ndarray:
+    """(M,) int64: each camera's points within ``gate_px`` of ``model`` ``(R, C, w, t)``."""
+    return np.bincount(pool.cam[pool.errors(model) < gate_px], minlength=len(pool.sizes))
 
 
 def _one_pose(v: _Vote, est, cams: set, start=None) -> bool:
@@ -623,7 +626,7 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
     alone; two agree when either's own pose explains at least :data:`VERIFY_SHARE` of the
     other's own inliers; the largest group that agrees poses the rig, a tie decided as the
     consensus decides one (:func:`_decided`); None when they all agree."""
-    pool, M, valid = v.pool, len(v.pool.sizes), np.asarray(est.num_valid_per_view)
+    valid = np.asarray(est.num_valid_per_view)
     checked = [c for c in v.voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(checked) < 2:
         return None
@@ -636,8 +639,7 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
     for c in checked:
         e = v.solve(set(checked) - {c})
         if e.success:
-            ok = pool.errors(e.model) < v.threshold_px
-            inl[c] = np.bincount(pool.cam[ok], minlength=M)
+            inl[c] = _hits(v.pool, e.model, v.threshold_px)
     cams = list(inl)
     agree = [[inl[c][d] >= VERIFY_SHARE * inl[d][d] for d in cams] for c in cams]
     n, label = connected_components(np.array(agree), directed=False)  # (c, d or d, c)

@@ -13,7 +13,6 @@ import numpy as np
 
 from .._jit import kernel
 from .._so3 import compose_rotvec
-from ..solvers.gr6p_1lin import still_solve_kernel
 from ..solvers.lambda_twist import MAX_SOLUTIONS
 from ..solvers.r6p_1lin import solve_mounted
 from .plausibility import motion_norms2
@@ -176,9 +175,7 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
         own = np.arange(K)
     else:
         R0, _, own = p3p_mounted(x, X, samples, cam, Rm, cm)
-        S = np.empty((len(own), 6), dtype=np.int64)
-        for h in range(len(own)):
-            S[h] = samples[own[h]]
+        S = samples[own]
     sol, ok = solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations)
     R = compose_rotvec(np.ascontiguousarray(sol[:, 0:3]), R0)
     C = np.ascontiguousarray(sol[:, 3:6])
@@ -189,25 +186,24 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
 
 @kernel
 def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
-    """:func:`~rs_localizer.solvers.gr6p_1lin.still_solve_kernel` of K problems whose world
-    points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are pre-rotated by ``Rg[k]`` (K, 3, 3)
-    here (:func:`~.sampling.gather_prerotated`): ``(out (K, 6), ok (K,))``."""
-    Xp = gather_prerotated(S, Rg, x, X, x[:, 0])[1]
-    out = np.empty((S.shape[0], 6))
-    ok = np.empty(S.shape[0], dtype=np.bool_)
-    still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok)
-    return out, ok
+    """The rig solver of K problems whose observations were all taken at one time, with the
+    velocities held at zero (:func:`solve_rotated` at ``tau`` zero, one step, the prior rows
+    the identity with right-hand side zero, as :func:`~.rig._held_solve` in NumPy), on the
+    world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) pre-rotated by ``Rg[k]`` (K, 3, 3):
+    ``(out (K, 6): v, C, zeros where not solved; ok (K,))``."""
+    out, ok = solve_rotated(x, X, S, Rg, np.zeros(X.shape[0]), cam, Rm, cm, 1, True)
+    return np.ascontiguousarray(out[:, 0:6]), ok
 
 
 @kernel
-def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
-    """:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`'s kernel (no prior rows,
-    ``v_init`` zero, its default tolerance) on K problems whose world points ``X[S[k]]``
-    (``X`` (P, 3), ``S`` (K, N)) are pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times
-    ``tau[S[k]]`` (``tau`` (P,) s) in the cameras ``cam[S[k]]`` (gathered by
-    :func:`~.sampling.gather_prerotated`); ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t,
-    zeros where not solved; ok (K,): solved, every entry finite)``, each rotation
-    ``expm([v]x) R0[k]``."""
+def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations, held=False):
+    """:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`'s kernel (``v_init`` zero, its
+    default tolerance; no prior rows, or ``held`` the velocities held at zero by the prior
+    rows ``(w, t) = 0``) on K problems whose world points ``X[S[k]]`` (``X`` (P, 3), ``S``
+    (K, N)) are pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times ``tau[S[k]]`` (``tau``
+    (P,) s) in the cameras ``cam[S[k]]`` (gathered by :func:`~.sampling.gather_prerotated`);
+    ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t, zeros where not solved; ok (K,): solved,
+    every entry finite)``, each rotation ``expm([v]x) R0[k]``."""
     K, N = S.shape[0], S.shape[1]
     xs, Xp, ts = gather_prerotated(S, R0, x, X, tau)
     cs = np.empty((K, N), dtype=np.int64)
@@ -218,9 +214,15 @@ def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations):
     ok = np.zeros(K, dtype=np.bool_)
     its = np.zeros(K, dtype=np.int64)
     err = np.zeros(K)
-    use = np.zeros(1, dtype=np.bool_)[0]  # (a bool, as the batch's np.bool_, not a literal)
-    solve_mounted(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)),
-                  np.zeros((1, 6, 6)), np.zeros((1, 6)), use, out, ok, its, err)  # fmt: skip
+    P = np.zeros((K if held else 1, 6, 6))
+    if held:
+        for k in range(K):
+            for a in range(6):
+                P[k, a, a] = 1.0
+    use = np.zeros(1, dtype=np.bool_)  # (a bool, as the batch's np.bool_, not a literal)
+    use[0] = held
+    solve_mounted(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)), P,
+                  np.zeros((P.shape[0], 6)), use[0], out, ok, its, err)  # fmt: skip
     for k in range(K):
         for j in range(12):
             if not np.isfinite(out[k, j]):

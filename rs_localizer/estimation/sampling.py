@@ -110,7 +110,7 @@ def p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     (``cam`` (N,) int64, mountings ``x_cam = Rm[c] x_rig + cm[c]``, ``Rm`` (M, 3, 3), ``cm``
     (M, 3)): ``R = Rm[c]^T R_cam``, ``C = Rm[c]^T (C_cam - cm[c])``, and only the pose of
     least global-shutter error on the sample's other points through their mountings kept
-    (:func:`_mounted_error`; n = 0 when every pose puts one behind its camera), as a camera's
+    (:func:`_sample_error`; n = 0 when every pose puts one behind its camera), as a camera's
     pre-rotation is chosen (:func:`select_prerotations`). The bearings handed to Lambda
     Twist: a camera's unit rays ``(x, 1) / |(x, 1)|``, a rig's ``(x, 1)`` (Lambda Twist
     normalizes them itself; the two differ in the last bits). ``b``, ``P`` (3,
@@ -143,7 +143,7 @@ def p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
                     + Rm[c, 1, i] * (C_cam[h, 1] - cm[c, 1])
                     + Rm[c, 2, i] * (C_cam[h, 2] - cm[c, 2])
                 )
-            e = _mounted_error(R, C, off + h, sample, X, x, cam, Rm, cm)
+            e = _sample_error(R, C, off + h, sample, X, x, cam, Rm, cm)
             if e < e_best:
                 best, e_best = h, e
         if best < 0:
@@ -153,29 +153,6 @@ def p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
             for a in range(3):
                 C[off, a] = C[off + best, a]
         return 1
-
-
-@kernel(inline=INLINE)
-def _mounted_error(R, C, m, sample, X, x, cam, Rm, cm):
-    """:func:`_sample_error` of the rig pose ``R[m], C[m]`` on ``sample``'s points beyond the
-    first three, each seen through its camera's mounting (``cam``, ``Rm``, ``cm`` as
-    :func:`p3p_mounted_into`'s): the sum of squared distances in each camera's normalized
-    plane, ``inf`` when a point is not in front of its camera."""
-    e = 0.0
-    for j in range(3, sample.shape[0]):
-        i, c = sample[j], cam[sample[j]]
-        p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
-        p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
-        p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
-        q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
-        q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
-        q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
-        if not q2 > 0.0:
-            return np.inf
-        dx = q0 / q2 - x[i, 0]
-        dy = q1 / q2 - x[i, 1]
-        e += dx * dx + dy * dy
-    return e
 
 
 def least_error_roots(
@@ -191,7 +168,7 @@ def least_error_roots(
 ) -> np.ndarray:
     """The NumPy twin of :func:`p3p_mounted`'s choice for a rig: of the rig poses ``R`` (H,
     3, 3), ``C`` (H, 3) of the samples ``own`` (H,) (non-decreasing) among ``samples`` (K,
-    s), the index of each sample's pose of least :func:`_mounted_error` (the first of equal
+    s), the index of each sample's pose of least :func:`_sample_error` (the first of equal
     ones; none where every pose puts a point behind its camera): (K',) int64, K' <= K."""
     S = samples[own, 3:]
     c = cam[S]
@@ -253,18 +230,27 @@ def gather_prerotated(samples, R_pre, x, X, r):
 
 
 @kernel(inline=INLINE)
-def _sample_error(R, C, m, samples, k, X, x):
-    """Global-shutter reprojection error of P3P solution ``m`` (``R[m] X + C[m]``) on sample
-    ``k``'s points beyond the first three (all of them for 3-point samples): the sum of squared
-    normalized-plane distances, ``inf`` when one of them is not in front of the camera."""
-    s = samples.shape[1]
+def _sample_error(R, C, m, sample, X, x, cam, Rm, cm):
+    """Global-shutter reprojection error of the pose ``R[m], C[m]`` (``p = R[m] X + C[m]``)
+    on ``sample``'s points (s,) beyond the first three (all of them for 3-point samples): the
+    sum of squared distances in the normalized image plane, ``inf`` when one of them is not in
+    front of its camera. A camera alone: ``Rm`` None (``cam``, ``cm`` None too), ``p`` the
+    point in the camera. A rig: ``p`` in the rig, each point seen through its camera's mounting
+    ``q = Rm[c] p + cm[c]``, ``c = cam[i]`` (as :func:`p3p_mounted_into`'s)."""
+    s = sample.shape[0]
     first = 3 if s > 3 else 0
     e = 0.0
     for j in range(first, s):
-        i = samples[k, j]
+        i = sample[j]
         p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
         p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
         p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
+        if Rm is not None:  # (a rig: numba prunes the mapping for a camera at compile time)
+            c = cam[i]
+            q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
+            q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
+            q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
+            p0, p1, p2 = q0, q1, q2
         if not p2 > 0.0:
             return np.inf
         dx = p0 / p2 - x[i, 0]
@@ -294,7 +280,7 @@ def select_prerotations(R, C, owner, samples, X, x, K):
     best = np.full(K, np.inf)
     for m in range(R.shape[0]):
         k = owner[m]
-        e = _sample_error(R, C, m, samples, k, X, x)
+        e = _sample_error(R, C, m, samples[k], X, x, None, None, None)
         if e < best[k]:
             best[k] = e
             _copy_pose(R, C, m, Rout, Cout, k)
@@ -325,7 +311,7 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
     m2 = np.full(K, -1)
     for m in range(R.shape[0]):
         k = owner[m]
-        e = _sample_error(R, C, m, samples, k, X, x)
+        e = _sample_error(R, C, m, samples[k], X, x, None, None, None)
         if e < e1[k]:
             e2[k], m2[k] = e1[k], m1[k]
             e1[k], m1[k] = e, m

@@ -57,17 +57,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
 from ..geometry import cross
 from ._common import RSBatch, RSSolution, check_batch, check_inputs
-from ._linear import (
-    PATIENCE,
-    cross_into,
-    householder_lstsq,
-    lstsq_stack,
-    run_batch_with_prior,
-    run_single,
-)
+from ._linear import PATIENCE, lstsq_stack, run_batch_with_prior, run_single
 from .r6p_1lin import mounted_error, solve_mounted
 
 __all__ = [
@@ -102,61 +94,6 @@ def rig_times(
         (N,) tau in the time unit of ``line_delay`` and ``stamp_offset``.
     """
     return float(stamp_offset) + float(line_delay) * (np.asarray(r, dtype=np.float64) - float(r0))
-
-
-@kernel
-def still_solve_kernel(x, Xp, S, cam, Rm, cm, out, ok):
-    """:func:`~.r6p_1lin.solve_mounted` of K problems whose observations were all taken at
-    one time, with the velocities held at zero (``tau`` zero, the prior rows the identity
-    with right-hand side zero; any number of iterations: ``v_hat`` only enters times
-    ``tau``): the same ``v`` and ``C`` and validity to the bit, from the 2N x 6 system of
-    ``(v, C)`` alone (:func:`~._linear.householder_lstsq` with the held unknowns' unit pivots).
-
-    Problem k's points are rows ``S[k]`` (K, N) of the normalized points ``x`` (P, 2) and
-    camera indices ``cam`` (P,), its world points ``Xp[k]`` (K, N, 3), N >= 3; ``out``
-    (K, 6): ``(v, C)`` (zeros where not solved), ``ok`` (K,): solved, finite."""
-    K, N = S.shape[0], S.shape[1]
-    A = np.empty((2 * N, 6))
-    b = np.empty(2 * N)
-    u = np.zeros(6)
-    zero = np.zeros(3)
-    tau = np.zeros(N)
-    xk = np.empty((N, 2))
-    ck = np.empty(N, dtype=np.int64)
-    for k in range(K):
-        for i in range(N):
-            p = S[k, i]
-            c = cam[p]
-            xi, yi = x[p, 0], x[p, 1]
-            xk[i, 0], xk[i, 1], ck[i] = xi, yi, c
-            X0, X1, X2 = Xp[k, i, 0], Xp[k, i, 1], Xp[k, i, 2]
-            ec0 = -cm[c, 1] + yi * cm[c, 2]
-            ec1 = cm[c, 0] - xi * cm[c, 2]
-            for qq in range(2):
-                row = A[2 * i + qq]
-                # (as solve_mounted's F = R_c^T E and right-hand side, to the bit)
-                for j in range(3):
-                    if qq == 0:
-                        row[3 + j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
-                    else:
-                        row[3 + j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
-                f0, f1, f2 = row[3], row[4], row[5]
-                cross_into(X0, X1, X2, f0, f1, f2, row, 0)
-                b[2 * i + qq] = -(f0 * X0 + f1 * X1 + f2 * X2) - (ec0 if qq == 0 else ec1)
-        ok[k] = False
-        for a in range(6):
-            out[k, a] = 0.0
-        if not householder_lstsq(A, b, u, 1.0):
-            continue
-        e = mounted_error(xk, Xp[k], tau, ck, Rm, cm, u[0:3], u[3:6], zero, zero)
-        if e < np.inf:
-            finite = True
-            for a in range(6):
-                finite = finite and np.isfinite(u[a])
-            if finite:
-                for a in range(6):
-                    out[k, a] = u[a]
-                ok[k] = True
 
 
 @np.errstate(invalid="ignore", over="ignore", divide="ignore")

@@ -4,6 +4,7 @@ single-camera r6p_1lin and PoseLib's generalized absolute pose."""
 import numpy as np
 import pytest
 
+from rs_localizer.estimation.rig_batch import still_solve_rotated
 from rs_localizer.geometry import (
     rotation_angle_deg,
     rotvec_to_matrix,
@@ -17,7 +18,6 @@ from rs_localizer.solvers.gr6p_1lin import (
     gr6p_1lin_batch,
     rig_algebraic_error,
     rig_times,
-    still_solve_kernel,
 )
 
 #: readout directions d (r = d . x): top to bottom, left to right, bottom to top
@@ -268,9 +268,10 @@ def test_global_shutter_rig_matches_poselib():
 
 
 def test_still_kernel_is_the_held_solver_to_the_bit():
-    """The solver of a rig frame taken at one time with the velocities held at zero (``tau``
-    zero, prior rows the identity and zeros), on the six unknowns of the pose alone, gives
-    the full solver's v, C and validity bit for bit, noisy samples of points spread over the
+    """The rig estimator's compiled solve of a rig frame taken at one time with the
+    velocities held at zero (``tau`` zero, prior rows the identity and zeros), its points
+    gathered from the pool by sample and pre-rotated (here by the identity), gives the
+    batched solver's v, C and validity bit for bit, noisy samples of points spread over the
     cameras and samples it refuses (rank loss) included."""
     rng = np.random.default_rng(12)
     Rm, cm, cams = make_rig(rng, 3)
@@ -286,9 +287,10 @@ def test_still_kernel_is_the_held_solver_to_the_bit():
     K = len(x)
     held = (np.broadcast_to(np.eye(6), (K, 6, 6)).copy(), np.zeros((K, 6)))
     ref = gr6p_1lin_batch(x, X, np.zeros((K, 6)), cam, Rm, cm, 1, prior_rows=held)
-    out, ok = np.empty((K, 6)), np.empty(K, dtype=bool)
     S = np.arange(6 * K, dtype=np.int64).reshape(K, 6)
-    still_solve_kernel(x.reshape(-1, 2), X, S, cam.reshape(-1), Rm, cm, out, ok)
+    Rg = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+    xf, Xf, cf = x.reshape(-1, 2), X.reshape(-1, 3), cam.reshape(-1)
+    out, ok = still_solve_rotated(xf, Xf, S, Rg, cf, Rm, cm)
     assert not ok[5] and ok.sum() == K - 1
     np.testing.assert_array_equal(ok, ref.valid)
     np.testing.assert_array_equal(out[:, :3], ref.v)
