@@ -218,36 +218,32 @@ class RigCorners:
             t = self.tags.tag
             X = np.einsum("nij,nj->ni", tags[0][t], self.tags.local) + tags[1][t]
         # (each view's camera pose, then each corner through its view's)
-        f = self.first
+        f, v = self.first, self.view
         g, m = self.frame[f], self.mounting[f]
         if self.inverse:  # (world -> rig, rig -> camera)
             R, c = Rm[m] @ Rg[g], np.einsum("nij,nj->ni", Rm[m], Pg[g]) + pm[m]
-            v = self.view
-            return self._projected(np.einsum("nij,nj->ni", R[v], X) + c[v])
-        Ow = Rg[g] @ Rm[m]  # (camera -> world at the rig frame's time)
-        p = Pg[g] + (Rg[g] @ pm[m][:, :, None])[:, :, 0]
-        if self.offsets is not None:
-            Dr, Dp = self.offsets[0][f], self.offsets[1][f]
-            p = p + np.einsum("nij,nj->ni", Ow, Dp)
-            Ow = Ow @ Dr
-        if self.D:  # (each corner's camera dt later: moved along its twist, world axes)
-            k, w, v = (a[f] for a in self.motion)
-            dt = np.where(k >= 0, self.time_offsets(x)[np.maximum(k, 0)], 0.0)[:, None]
-            Ow = rotvec_to_matrix(dt * w) @ Ow
-            p = p + dt * v
-        v = self.view
-        return self._projected(np.einsum("nji,nj->ni", Ow[v], X - p[v]))
-
-    def time_offsets(self, x: np.ndarray) -> np.ndarray:
-        """(D,) s: the time offsets of the parameters ``x`` (the last ``D``)."""
-        return x[self.n - self.D :]
-
-    def _projected(self, x_cam: np.ndarray) -> np.ndarray:
-        """(N, 2) px: the corners ``x_cam`` (N, 3) (optical frames) projected minus their pixels."""
+            x_cam = np.einsum("nij,nj->ni", R[v], X) + c[v]
+        else:
+            Ow = Rg[g] @ Rm[m]  # (camera -> world at the rig frame's time)
+            p = Pg[g] + (Rg[g] @ pm[m][:, :, None])[:, :, 0]
+            if self.offsets is not None:
+                Dr, Dp = self.offsets[0][f], self.offsets[1][f]
+                p = p + np.einsum("nij,nj->ni", Ow, Dp)
+                Ow = Ow @ Dr
+            if self.D:  # (each corner's camera dt later: moved along its twist, world axes)
+                k, w, vel = (a[f] for a in self.motion)
+                dt = np.where(k >= 0, self.time_offsets(x)[np.maximum(k, 0)], 0.0)[:, None]
+                Ow = rotvec_to_matrix(dt * w) @ Ow
+                p = p + dt * vel
+            x_cam = np.einsum("nji,nj->ni", Ow[v], X - p[v])
         out = np.empty_like(self.uv)
         for cam, sel in zip(self.cameras, self.by_cam, strict=True):
             out[sel] = cam.project(x_cam[sel])
         return out - self.uv
+
+    def time_offsets(self, x: np.ndarray) -> np.ndarray:
+        """(D,) s: the time offsets of the parameters ``x`` (the last ``D``)."""
+        return x[self.n - self.D :]
 
     def residuals(self, x: np.ndarray, corner_scale: float | None = None) -> np.ndarray:
         """(2 K,) px: the kept corners' errors, a corner that no longer projects at
@@ -356,7 +352,8 @@ class RigCorners:
         Hgm = (Jg.T @ Jm).toarray().reshape(self.G, 6, mc)
         W = np.einsum("gij,gjk->gik", inv, Hgm)  # (H_gg^-1 H_gm)
         S = (Jm.T @ Jm).toarray() - np.einsum("gji,gjk->ik", Hgm, W)
-        Sinv = np.linalg.pinv(0.5 * (S + S.T))
+        S = 0.5 * (S + S.T)
+        Sinv = np.linalg.pinv(S)
         if clusters is None:
             s2 = 2.0 * float(sol.result.cost) / max(len(r) - self.n, 1)
             C = s2 * Sinv
@@ -372,7 +369,7 @@ class RigCorners:
         C = 0.5 * (C + C.T)
         # (a direction no kept corner constrains, e.g. a mounting none of whose corners is
         # left: the pseudo-inverse gives it zero variance; its parameters get infinite)
-        w, V = np.linalg.eigh(0.5 * (S + S.T))
+        w, V = np.linalg.eigh(S)
         null = w <= max(float(w[-1]) if len(w) else 0.0, 0.0) * UNCONSTRAINED_RTOL
         if null.any():
             loose = np.flatnonzero(np.sum(V[:, null] ** 2, axis=1) > 1e-6)
