@@ -160,21 +160,18 @@ def _camera_notes(
             f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
             f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
         )
-        if e.time_offset_std > UNSEEN_OFFSET_STD and e.corners_refined:
+        std = f"std {1e3 * e.time_offset_std:.0f} ms"
+        if e.time_offset_std > UNSEEN_OFFSET_STD:
             # (refined with offsets: the rig moved enough to show one, so the runs of rig
-            # frames disagree on it)
-            notes.append(
-                f"WARNING: {n}: its time offset changes over the video (std "
-                f"{1e3 * e.time_offset_std:.0f} ms over runs of rig frames): the cameras do "
-                "not seem to be triggered together; its mounting's std includes the rig's "
-                "motion over that change; trigger the cameras together"
-            )
-        elif e.time_offset_std > UNSEEN_OFFSET_STD:
-            notes.append(
-                f"WARNING: {n}: the video does not show its time offset (std "
-                f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "
-                "frames it shares; record one that moves"
-            )
+            # frames disagree on it; else the rig hardly moved)
+            notes.append(f"WARNING: {n}: " + (
+                f"its time offset changes over the video ({std} over runs of rig frames): the "
+                "cameras do not seem to be triggered together; its mounting's std includes the "
+                "rig's motion over that change; trigger the cameras together"
+                if e.corners_refined
+                else f"the video does not show its time offset ({std}): the rig hardly moves "
+                "in the rig frames it shares; record one that moves"
+            ))  # fmt: skip
     if np.isfinite(e.exposure_offset):
         how = (
             "the mountings were refined on the corners with a time offset per camera (above)"
