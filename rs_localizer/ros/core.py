@@ -92,7 +92,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
-from .declare import declare_dynamic, declare_parameters
+from .declare import declare_parameters
 from .diagnostics import status
 from .frame_queue import BetweenFrames, FrameQueue
 from .outputs import FrameOutcome, publish_frame
@@ -320,9 +320,7 @@ class NodeCore:
         """Every parameter, each once: :data:`~.params.PARAMETERS` and the rig's
         :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` of any type, checked at configure; a
         rig camera's ``rig.<camera>.*`` are declared by the rig's configure)."""
-        declare_parameters(self, PARAMETERS)
-        declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
-        declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
+        declare_parameters(self, {**PARAMETERS, **RIG_PARAMETERS}, dynamic=("rig.cameras",))
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         """The node (``node_name`` and ``kwargs`` to the rclpy ``Node`` or ``LifecycleNode``

@@ -3,7 +3,7 @@ range, read-only) from :data:`rs_localizer.ros.params.PARAMETERS`."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -11,20 +11,30 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 
 from .params import FloatRange, Parameter
 
-__all__ = ["declare_dynamic", "declare_parameters"]
+__all__ = ["declare_parameters"]
 
 
-def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
+def declare_parameters(
+    node: Any, parameters: Mapping[str, Parameter], dynamic: Collection[str] = ()
+) -> None:
     """Declare every ``name -> (default, description, range, read_only, ...)`` (a
     :class:`~rs_localizer.ros.params.Parameter`) on ``node`` (the value from the node's
-    parameter overrides, else the default).
+    parameter overrides, else the default), in the mapping's order with the names of
+    ``dynamic`` after the others. Those are declared of any type, not set (None) unless
+    overridden (their default is the one the docs show): their value is checked by
+    :func:`.config.build_config`, which names the parameter and the fix (``rig.cameras:
+    front`` instead of ``[front]``, a mounting of integers).
 
     Raises:
         RuntimeError: a value of the wrong type or outside its range, naming the parameter
-            (the node refuses to start).
+            (the node refuses to start, or a rig camera's to configure).
     """
-    for name, par in parameters.items():
-        default, desc, rng, ro = par[:4]
+    for name in sorted(parameters, key=lambda n: n in dynamic):  # (stable: the order kept)
+        default, desc, rng, ro = parameters[name][:4]
+        if name in dynamic:
+            d = ParameterDescriptor(description=desc, read_only=ro, dynamic_typing=True)
+            node.declare_parameter(name, None, d)
+            continue
         d = ParameterDescriptor(description=desc, read_only=ro)
         if isinstance(rng, FloatRange):
             d.floating_point_range = [
@@ -45,15 +55,3 @@ def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
                 + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
                 + f": {e}"
             ) from None
-
-
-def declare_dynamic(node: Any, name: str, par: Parameter) -> Any:
-    """Declare parameter ``name`` (a :class:`~rs_localizer.ros.params.Parameter` ``par``) of any
-    type (its value checked by :func:`.config.build_config`, which names the parameter and the
-    fix: ``rig.cameras: front`` instead of ``[front]``, a mounting of integers); returns its
-    value (None: not set)."""
-    d = ParameterDescriptor(
-        description=par.description, read_only=par.read_only, dynamic_typing=True
-    )
-    node.declare_parameter(name, None, d)
-    return node.get_parameter(name).value

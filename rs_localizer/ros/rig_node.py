@@ -19,7 +19,7 @@ from typing import Any
 from .camera_input import DroppedFrame
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
-from .declare import declare_dynamic, declare_parameters
+from .declare import declare_parameters
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 
 __all__ = [
@@ -47,22 +47,21 @@ RIG_TEXTS = {
 }
 
 
-def declare_rig_cameras(node: Any) -> list[str]:
-    """The rig's camera names of ``rig.cameras`` (they make parameter and topic names; none
-    for the camera alone, ``rig.cameras`` empty), each camera's ``rig.<camera>.*`` declared
-    on ``node`` on first use.
+def declare_rig_cameras(node: Any) -> None:
+    """Declare on ``node`` each rig camera's ``rig.<camera>.*``
+    (:data:`~.params.RIG_CAMERA_PARAMETERS`, ``mounting`` of any type) for the cameras of
+    ``rig.cameras`` (none for the camera alone, ``rig.cameras`` empty), each on first use;
+    their values are read by :func:`rig_values`.
 
     Raises:
-        ConfigError: names that cannot be used.
+        ConfigError: names that cannot be used (they make parameter and topic names).
     """
     value = node.get_parameter("rig.cameras").value
     names = rig_camera_names(value) if names_a_rig(value) else []
-    own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
     for n in names:
         if not node.has_parameter(f"rig.{n}.line_delay"):
-            declare_parameters(node, {f"rig.{n}.{k}": v for k, v in own.items()})
-            declare_dynamic(node, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
-    return names
+            own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
+            declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
 
 
 def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
