@@ -1049,19 +1049,19 @@ class Localizer(GyroReadouts):
     def _add_frame(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
         """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), grouped
         into its rig frame (a rig of one's complete at once) and the rig frames complete
-        solved."""
+        solved. A frame without a camera model is dropped as ``no_camera_info``
+        (:meth:`_drop`, its time its stamp on the rig's clock): counted and noted as every
+        frame, then skipped."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        if frame.camera is None:
+            t = self._on_clock(name, frame.stamp_ns)
+            return self._drop(name, frame.stamp_ns, t, "no_camera_info")
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         stamp = self._on_clock(name, frame.stamp_ns)
-        if frame.camera is None:  # (noted as every frame: a time reset at it, then skipped)
-            self._note(name, stamp)
-            self._frames.note_first(stamp)
-            self._frames.skipped(name, stamp, "no_camera_info")
-            return self._ready()
         self._frames.note_first(stamp)
         self._note(name, stamp)  # (a time reset: every camera's timeline started again)
         if not self._frames.take(name, frame, ref, self.settings.window):
