@@ -50,18 +50,23 @@ RIG_TEXTS = {
 def declare_rig_cameras(node: Any) -> None:
     """Declare on ``node`` each rig camera's ``rig.<camera>.*``
     (:data:`~.params.RIG_CAMERA_PARAMETERS`, ``mounting`` of any type) for the cameras of
-    ``rig.cameras`` (none for the camera alone, ``rig.cameras`` empty), each on first use;
-    their values are read by :func:`rig_values`.
+    ``rig.cameras`` (none for the camera alone, ``rig.cameras`` empty), each parameter once
+    (on the first configure that names the camera); their values are read by
+    :func:`rig_values`.
 
     Raises:
         ConfigError: names that cannot be used (they make parameter and topic names).
+        RuntimeError: a camera's value of the wrong type or outside its range, naming the
+            parameter (:func:`.declare.declare_parameters`; again at a retried configure).
     """
     value = node.get_parameter("rig.cameras").value
     names = rig_camera_names(value) if names_a_rig(value) else []
     for n in names:
-        if not node.has_parameter(f"rig.{n}.line_delay"):
-            own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
-            declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
+        own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
+        # (those not declared yet: a configure retried after a value was refused declares
+        # the rest and names that value again)
+        own = {name: v for name, v in own.items() if not node.has_parameter(name)}
+        declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
 
 
 def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None

@@ -303,3 +303,27 @@ def test_a_running_rig_takes_the_estimators_parameters_and_says_why_not_the_othe
         ["rs.stamp_row"]
     )
     assert rig_change_refused(["solver", "base_frame"]).count(";") == 1
+
+
+def test_a_refused_rig_camera_value_is_named_again_when_configure_is_retried(ros_context):
+    """A rig camera's value outside its range refuses the configure, naming the parameter; a
+    configure retried names it again (the camera's parameters declared before it are not
+    declared twice)."""
+    pytest.importorskip("rclpy")
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.declare import declare_parameters
+    from rs_localizer.ros.rig_node import declare_rig_cameras
+
+    overrides = [Parameter("rig.cameras", value=["front"]),
+                 Parameter("rig.front.line_delay", value=0.5)]  # fmt: skip
+    node = Node("rig_params", context=ros_context, parameter_overrides=overrides)
+    try:
+        declare_parameters(node, RIG_PARAMETERS, dynamic=("rig.cameras",))
+        for _ in range(2):
+            with pytest.raises(RuntimeError, match=r"rig\.front\.line_delay"):
+                declare_rig_cameras(node)
+        assert node.has_parameter("rig.front.mounting_covariance")
+    finally:
+        node.destroy_node()
