@@ -68,7 +68,7 @@ from ..solvers._linear import lstsq_stack
 from ..solvers.registry import solver_info
 from .finalize import FINAL_CUTOFF, FinalModel
 from .frame import Frame, Model
-from .hypotheses import ScoredBatch, hypothesis_iterations
+from .hypotheses import ScoredBatch, composed, hypothesis_iterations, prerotated_points
 from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions
 from .plausibility import plausible_models
@@ -255,12 +255,10 @@ def _hypotheses(
         Rp, _, ok = _p3p(fr, samples)
     else:
         Rp, ok = np.broadcast_to(anchor, (len(samples), 3, 3)), np.ones(len(samples), dtype=bool)
-    s = samples[ok]
     Rp = Rp[ok]
-    Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
-    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], iterations)
-    R = np.einsum("kij,kjl->kil", rotvec_to_matrix(v[good]), Rp[good])
-    return R, C[good], w[good], t[good]
+    xs, Xs, taus = prerotated_points(samples[ok], Rp, fr.x, fr.X, fr.tau, compiled=False)
+    v, C, w, t, good = _r6p_1lin(xs, Xs, taus, iterations)
+    return composed(v[good], Rp[good], compiled=False), C[good], w[good], t[good]
 
 
 class NumpySamples:
