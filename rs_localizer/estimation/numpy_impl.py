@@ -68,7 +68,7 @@ from ..solvers._linear import lstsq_stack
 from ..solvers.registry import solver_info
 from .finalize import FINAL_CUTOFF, FinalModel
 from .frame import Frame, Model
-from .hypotheses import ScoredBatch, hypothesis_iterations
+from .hypotheses import ScoredBatch, composed, hypothesis_iterations, prerotated_points
 from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions
 from .plausibility import plausible_models
@@ -84,11 +84,11 @@ from .result import (
     TOO_FEW_INLIERS,
     EstimationFailed,
 )
-from .sampling import draw_samples_numpy
+from .sampling import draw_samples_numpy, least_error_roots
 from .scoring import exact_errors2_numpy
 from .sensitivity import physical_sensitivity
 
-__all__ = ["NumpyRansac", "NumpySamples", "errors2", "final_model"]
+__all__ = ["NumpyRansac", "NumpySamples", "errors2", "final_model", "p3p_prerotations"]
 
 #: :func:`_refine`'s default prior: the frame's own
 _FRAME_PRIOR = object()
@@ -151,26 +151,54 @@ def p3p_roots(X3: np.ndarray, x3: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return R, np.array(tv).reshape(-1, 3), np.array(owner, dtype=np.int64)
 
 
+def p3p_prerotations(
+    X: np.ndarray,
+    x: np.ndarray,
+    samples: np.ndarray,
+    cam: np.ndarray | None = None,
+    Rm: np.ndarray | None = None,
+    cm: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each sample's P3P pose in NumPy, as the compiled estimator chooses it (a camera's:
+    :func:`~.sampling.p3p_mounted`, then :func:`~.sampling.select_prerotations`; a rig's:
+    :func:`~.sampling.p3p_mounted`): OpenCV's P3P (:func:`p3p_roots`) on the sample's first
+    three points, then the root of least squared error on its other points (all of them for
+    3-point samples), each in front of its camera (:func:`~.sampling.least_error_roots`).
+
+    A camera alone: ``cam``, ``Rm``, ``cm`` None, the poses world -> camera
+    (``x_cam = R X + C``). A rig: the first three points of a sample all of one camera
+    ``c = cam[sample[0]]`` (``cam`` (N,) int64, mountings ``x_cam = Rm[c] x_rig + cm[c]``,
+    ``Rm`` (M, 3, 3), ``cm`` (M, 3) m), its roots mapped to the rig, ``R = Rm[c]^T R_cam``,
+    ``C = Rm[c]^T (C_cam - cm[c])``, and the other points seen through their own mountings.
+
+    Args:
+        X: (N, 3) world points (m).
+        x: (N, 2) normalized image points.
+        samples: (K, s) int64 indices into the points, s >= 3.
+    Returns:
+        (R (H, 3, 3), C (H, 3) m, own (H,) int64): the pose of the H <= K samples that kept
+        one (a sample whose roots all put a point behind its camera, or that OpenCV rejects,
+        keeps none), ``own`` their rows of ``samples`` in increasing order.
+    """
+    R, C, own = p3p_roots(X[samples[:, :3]], x[samples[:, :3]])
+    if Rm is not None:
+        c0 = cam[samples[own, 0]]
+        RcT = Rm[c0].transpose(0, 2, 1)
+        R, C = RcT @ R, (RcT @ (C - cm[c0])[..., None])[..., 0]
+    if len(own) == 0:
+        return R, C, own
+    keep = least_error_roots(R, C, own, samples, X, x, cam, Rm, cm)
+    return R[keep], C[keep], own[keep]
+
+
 def _p3p(fr: Frame, samples: np.ndarray):
-    """P3P pre-rotation of each sample (K, s): OpenCV's P3P on its first three points, the
-    root with the least squared error on its other points (all of them for P3P's own
-    samples) in front of the camera. Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
+    """P3P pre-rotation of each sample (K, s) of the camera's frame (:func:`p3p_prerotations`).
+    Returns (R (K, 3, 3), C (K, 3), ok (K,)); a sample without a pose: the identity, zero,
+    False."""
     K = len(samples)
     Rs, Cs, ok = np.tile(np.eye(3), (K, 1, 1)), np.zeros((K, 3)), np.zeros(K, dtype=bool)
-    R, c, owner = p3p_roots(fr.X[samples[:, :3]], fr.x[samples[:, :3]])
-    if len(owner) == 0:
-        return Rs, Cs, ok
-    rest = samples[:, 3:] if samples.shape[1] > 3 else samples
-    Xr, xr = fr.X[rest[owner]], fr.x[rest[owner]]  # (M, m, 3), (M, m, 2)
-    p = np.einsum("mij,mnj->mni", R, Xr) + c[:, None, :]
-    z = p[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.sum((p[..., :2] / z[..., None] - xr) ** 2, axis=(1, 2))
-    e = np.where((z > 0).all(axis=1) & np.isfinite(e), e, np.inf)
-    order = np.lexsort((e, owner))  # by sample, the least error first
-    first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-    first = first[np.isfinite(e[first])]
-    Rs[owner[first]], Cs[owner[first]], ok[owner[first]] = R[first], c[first], True
+    R, C, own = p3p_prerotations(fr.X, fr.x, samples)
+    Rs[own], Cs[own], ok[own] = R, C, True
     return Rs, Cs, ok
 
 
@@ -227,12 +255,10 @@ def _hypotheses(
         Rp, _, ok = _p3p(fr, samples)
     else:
         Rp, ok = np.broadcast_to(anchor, (len(samples), 3, 3)), np.ones(len(samples), dtype=bool)
-    s = samples[ok]
     Rp = Rp[ok]
-    Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
-    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], iterations)
-    R = np.einsum("kij,kjl->kil", rotvec_to_matrix(v[good]), Rp[good])
-    return R, C[good], w[good], t[good]
+    xs, Xs, taus = prerotated_points(samples[ok], Rp, fr.x, fr.X, fr.tau, compiled=False)
+    v, C, w, t, good = _r6p_1lin(xs, Xs, taus, iterations)
+    return composed(v[good], Rp[good], compiled=False), C[good], w[good], t[good]
 
 
 class NumpySamples:

@@ -75,7 +75,7 @@ from .hypotheses import (
 )
 from .implementation import COMPILED, NUMPY, resolve_implementation
 from .local_optimization import initial_model_seed, polish, view_seed_steps
-from .numpy_impl import p3p_roots
+from .numpy_impl import p3p_prerotations
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, plausible_motion
 from .prior import MotionPrior, sample_prior_rows
@@ -252,37 +252,35 @@ def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = Fal
     R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3), and the sample of each (H,); None
     when none solved. A sample keeps one pose, as a camera's does: the one of least error on
     its other points through their mountings (:func:`~.sampling.least_error_roots`).
-    Compiled: Lambda Twist (:func:`~.sampling.p3p_mounted`); NumPy: OpenCV's
-    (:func:`~.numpy_impl.p3p_roots`). ``generalized``: PoseLib's ``gp3p`` on the 3 points in
-    whatever cameras they lie (rays ``R_c^T x`` from the camera centres ``-R_c^T c_c``; needs
-    ``poselib``)."""
-    if pool.compiled and not generalized:  # (solved, mapped and chosen in one compiled call)
-        X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
-        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm)
+    Compiled: Lambda Twist (:func:`~.sampling.p3p_mounted`); NumPy: OpenCV's, mapped and
+    chosen by the function that chooses a camera's (:func:`~.numpy_impl.p3p_prerotations`).
+    ``generalized``: PoseLib's ``gp3p`` on the 3 points in whatever cameras they lie (rays
+    ``R_c^T x`` from the camera centres ``-R_c^T c_c``; needs ``poselib``)."""
+    if not generalized:
+        if pool.compiled:  # (solved, mapped and chosen in one compiled call)
+            X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
+            R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm)
+        else:
+            R, C, own = p3p_prerotations(pool.X, pool.x, samples, pool.cam, pool.R_mount,
+                                         pool.c_mount)  # fmt: skip
         return (R, C, own) if len(own) else None
-    if generalized:
-        import poselib  # (an optional comparison: imported on use)
+    import poselib  # (an optional comparison: imported on use)
 
-        centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
-        first = samples[:, :3]
-        rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
-        rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
-        rays /= np.linalg.norm(rays, axis=2, keepdims=True)
-        sols = [
-            (s.R, s.t, h)
-            for h in range(len(samples))
-            for s in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]])
-        ]
-        if not sols:
-            return None
-        R, C = np.array([s[0] for s in sols]), np.array([s[1] for s in sols])
-        ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
-        R, C, own = R[ok], C[ok], np.array([s[2] for s in sols], dtype=np.int64)[ok]
-    else:
-        cam0 = pool.cam[samples[:, 0]]
-        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
-        RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
-        R, C = RcT @ R_cam, (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
+    centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
+    first = samples[:, :3]
+    rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
+    rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    sols = [
+        (s.R, s.t, h)
+        for h in range(len(samples))
+        for s in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]])
+    ]
+    if not sols:
+        return None
+    R, C = np.array([s[0] for s in sols]), np.array([s[1] for s in sols])
+    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
+    R, C, own = R[ok], C[ok], np.array([s[2] for s in sols], dtype=np.int64)[ok]
     if len(own) == 0:
         return None
     keep = least_error_roots(R, C, own, samples, pool.X, pool.x, pool.cam, pool.R_mount,

@@ -162,21 +162,36 @@ def least_error_roots(
     samples: np.ndarray,
     X: np.ndarray,
     x: np.ndarray,
-    cam: np.ndarray,
-    Rm: np.ndarray,
-    cm: np.ndarray,
+    cam: np.ndarray | None = None,
+    Rm: np.ndarray | None = None,
+    cm: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The NumPy twin of :func:`p3p_mounted`'s choice for a rig: of the rig poses ``R`` (H,
-    3, 3), ``C`` (H, 3) of the samples ``own`` (H,) (non-decreasing) among ``samples`` (K,
-    s), the index of each sample's pose of least :func:`_sample_error` (the first of equal
-    ones; none where every pose puts a point behind its camera): (K',) int64, K' <= K."""
-    S = samples[own, 3:]
-    c = cam[S]
+    """The NumPy twin of the compiled choice of each sample's P3P pose (a camera's,
+    :func:`select_prerotations`; a rig's, :func:`p3p_mounted_into`): among the poses ``R``
+    (H, 3, 3), ``C`` (H, 3) of the samples ``own`` (H,) int64 (non-decreasing; rows of
+    ``samples`` (K, s) int64), the index of each sample's pose of least :func:`_sample_error`
+    (squared normalized units summed over the sample's points beyond the first three, all of
+    them for 3-point samples; the first of equal ones), none where every pose puts one of
+    those points behind its camera (or gives no finite error).
+
+    A camera alone: ``cam``, ``Rm``, ``cm`` None, the poses world -> camera
+    (``x_cam = R X + C``). A rig: the poses world -> rig, each point seen through its
+    camera's mounting ``x_cam = Rm[c] x_rig + cm[c]``, ``c = cam[i]`` (``cam`` (N,) int64,
+    ``Rm`` (M, 3, 3), ``cm`` (M, 3)). ``X`` (N, 3) world points, ``x`` (N, 2) normalized
+    image points.
+
+    Returns:
+        (K',) int64 indices into the H poses, K' <= K, in increasing order of their sample.
+    """
+    S = samples[own, 3:] if samples.shape[1] > 3 else samples[own]
     P = np.einsum("hab,hnb->hna", R, X[S]) + C[:, None]
-    Q = np.einsum("hnab,hnb->hna", Rm[c], P) + cm[c]
+    if Rm is not None:
+        c = cam[S]
+        P = np.einsum("hnab,hnb->hna", Rm[c], P) + cm[c]
     with np.errstate(divide="ignore", invalid="ignore"):
-        d = Q[..., :2] / Q[..., 2:3] - x[S]
-    e = np.where((Q[..., 2] > 0).all(axis=1), (d * d).sum(axis=(1, 2)), np.inf)
+        d = P[..., :2] / P[..., 2:3] - x[S]
+        e = (d * d).sum(axis=(1, 2))
+    e = np.where((P[..., 2] > 0).all(axis=1) & np.isfinite(e), e, np.inf)
     order = np.lexsort((e, own))  # (stable: the first of equal errors)
     first = order[np.unique(own[order], return_index=True)[1]]
     return first[np.isfinite(e[first])]
