@@ -569,9 +569,6 @@ class _ImageInput:
         self.searched: dict[str, ImageSearch | None] = {}
 
 
-_NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
-
-
 class Localizer(GyroReadouts):
     """The localizer of a video of one camera or of a rig of cameras (module docstring).
 
@@ -1025,20 +1022,14 @@ class Localizer(GyroReadouts):
         Raises:
             ValueError: a camera not in the rig.
         """
-        if frame.camera is None:
-            return self._add(frame, None)
+        name = frame.camera_name
+        if name not in self._cams:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        if frame.camera is None:  # (counted and noted as every frame, skipped)
+            return self._drop(name, frame.stamp_ns, None, "no_camera_info")
         if reference_ns is None:
-            s = self.settings
-            reference_ns = s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera)
+            reference_ns = self.settings.reference_ns(name, frame.stamp_ns, frame.camera)
         return self._add(frame, reference_ns)
-
-    def _add(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
-        """:meth:`add` of a frame (its stamp checked: a
-        :class:`~rs_localizer.tracking.localizer.CameraFrame`'s) with its reference time
-        ``ref`` (ns; None without a camera model): the rig frames a time reset at it solved
-        (:meth:`_note`, also when its image search noted it) first."""
-        out = self._add_frame(frame, ref)
-        return self._solved_by_reset() + out
 
     def _solved_by_reset(self) -> list[LocalizerOutput]:
         """The rig frames a time reset solved (a jump ahead: the old timeline's open rig
@@ -1046,27 +1037,21 @@ class Localizer(GyroReadouts):
         out, self._reset_solved = self._reset_solved, []
         return out
 
-    def _add_frame(self, frame: CameraFrame, ref: int | None) -> list[LocalizerOutput]:
-        """:meth:`_add` of the frame itself: counted, its time noted (:meth:`_note`), grouped
-        into its rig frame (a rig of one's complete at once) and the rig frames complete
-        solved. A frame without a camera model is dropped as ``no_camera_info``
-        (:meth:`_drop`, its time its stamp on the rig's clock): counted and noted as every
-        frame, then skipped."""
+    def _add(self, frame: CameraFrame, ref: int) -> list[LocalizerOutput]:
+        """:meth:`add` of a rig camera's frame with its camera model (its stamp checked: a
+        :class:`~rs_localizer.tracking.localizer.CameraFrame`'s) and its reference time ``ref``
+        (ns): counted, its time noted (:meth:`_note`), grouped into its rig frame (a rig of
+        one's complete at once) and the rig frames complete solved; the rig frames a time reset
+        at it solved (:meth:`_note`, also when its image search noted it) first."""
         name = frame.camera_name
-        cam = self._cams.get(name)
-        if cam is None:
-            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        if frame.camera is None:
-            t = self._on_clock(name, frame.stamp_ns)
-            return self._drop(name, frame.stamp_ns, t, "no_camera_info")
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         stamp = self._on_clock(name, frame.stamp_ns)
         self._frames.note_first(stamp)
         self._note(name, stamp)  # (a time reset: every camera's timeline started again)
-        if not self._frames.take(name, frame, ref, self.settings.window):
-            return []
-        return self._ready()
+        taken = self._frames.take(name, frame, ref, self.settings.window)
+        out = self._ready() if taken else []
+        return self._solved_by_reset() + out
 
     def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
         """Note camera ``name``'s frame stamp (ns, the capture time of row ``stamp_row``; None:
@@ -1379,15 +1364,16 @@ class Localizer(GyroReadouts):
             self._img.found[name] = None
         return self._drop(name, t.stamp_ns, t.reference_ns, reason)
 
-    def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
+    def _drop(self, name: str, stamp: Stamp, t: int | None, reason: str) -> list:
         """:meth:`drop` of a frame stamped ``stamp`` (checked) whose time is ``t`` (ns: its
-        reference time, or its stamp without a camera model)."""
+        reference time; None: a frame without a camera model's, which :meth:`add` and
+        :meth:`process_image` skip as ``no_camera_info``: its stamp on the rig's clock)."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
         on_clock = self._on_clock(name, stamp)
         self._note(name, on_clock)  # (as every frame's; an image's search noted it already)
         self._frames.note_first(on_clock)
-        self._frames.skipped(name, t, reason)
+        self._frames.skipped(name, on_clock if t is None else t, reason)
         out = self._ready()
         return self._solved_by_reset() + out
 
@@ -1455,9 +1441,8 @@ class Localizer(GyroReadouts):
             t = self.frame_time(name, stamp_ns, camera)
         stamp, ref = t.stamp_ns, t.reference_ns
         img.found[name] = img.searched[name] = None
-        if camera is None:
-            frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
-            return self._observed(self._add(frame, None))
+        if camera is None:  # (the front end does not run)
+            return self._observed(self._drop(name, stamp, None, "no_camera_info"))
         r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
         if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
             img.found[name] = r.found
