@@ -62,10 +62,10 @@ def declare_rig_cameras(node: Any) -> None:
     value = node.get_parameter("rig.cameras").value
     names = rig_camera_names(value) if names_a_rig(value) else []
     for n in names:
-        own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
         # (those not declared yet: a configure retried after a value was refused declares
         # the rest and names that value again)
-        own = {name: v for name, v in own.items() if not node.has_parameter(name)}
+        p = f"rig.{n}."
+        own = {p + k: v for k, v in RIG_CAMERA_PARAMETERS.items() if not node.has_parameter(p + k)}
         declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
 
 
