@@ -3,7 +3,9 @@ same batch step by step (the sampling, Lambda Twist mapped to the rig, the held 
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
 cost): the same best model, cost, errors, inliers and missed cameras; and their termination
 after the first sample at which the samples drawn reach what the best model's inlier ratio
-asks for (``required_iterations``), against the same steps on the samples drawn."""
+asks for (``required_iterations``), against the same steps on the samples drawn. The held rig
+solver the batches correct with (``still_solve_rotated``) against the batched rig solver with
+the same prior rows (``gr6p_1lin_batch``), bit for bit."""
 
 from dataclasses import replace
 
@@ -14,12 +16,13 @@ from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
-from rs_localizer.estimation.rig_batch import search_batch
+from rs_localizer.estimation.rig_batch import search_batch, still_solve_rotated
 from rs_localizer.estimation.sampling import batch_sampling, view_sampling
 from rs_localizer.estimation.view import StackedViews
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim import synthetic as sim_rig
+from rs_localizer.solvers.gr6p_1lin import gr6p_1lin_batch
 from rs_localizer.solvers.lambda_twist import lambda_twist
 
 #: a batch's search state of no best model and no termination before its last sample:
@@ -128,6 +131,28 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     np.testing.assert_array_equal(missed_f, (counts_all >= 3) & (hit == 0))
     if turn and len(counts) == 3:  # (the turned camera's points: none an inlier)
         assert missed_f[-1]
+
+
+def test_the_held_still_solve_is_the_batched_solver_with_held_prior_rows():
+    """The rig's compiled solve of a global-shutter rig frame's samples with the velocities
+    held at zero (``still_solve_rotated``, ``_held_solve``'s: ``tau`` zero, one step, prior
+    rows the identity with right-hand side zero), its points gathered from the pool by sample
+    and pre-rotated (here by the identity), gives the batched rig solver's v, C and validity
+    with those prior rows (``gr6p_1lin_batch``) bit for bit: the RANSAC samples of a frame of
+    three cameras (noise, outliers) and a sample it refuses (one point six times: rank loss)."""
+    pool = StackedViews(_frame(12, (24, 24, 24)))
+    X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
+    S = pool.samples(np.random.default_rng(12), 60)
+    S[5] = S[5, 0]  # (one point six times: rank loss)
+    K = len(S)
+    held = (np.broadcast_to(np.eye(6), (K, 6, 6)).copy(), np.zeros((K, 6)))
+    ref = gr6p_1lin_batch(x[S], X[S], np.zeros((K, 6)), cam[S], Rm, cm, 1, prior_rows=held)
+    Rg = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
+    out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
+    assert not ok[5] and ok.sum() == K - 1
+    np.testing.assert_array_equal(ok, ref.valid)
+    np.testing.assert_array_equal(out[:, :3], ref.v)
+    np.testing.assert_array_equal(out[:, 3:], ref.C)
 
 
 def _moving_frame(seed, counts):

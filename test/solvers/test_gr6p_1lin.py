@@ -4,7 +4,6 @@ single-camera r6p_1lin and PoseLib's generalized absolute pose."""
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.rig_batch import still_solve_rotated
 from rs_localizer.geometry import (
     rotation_angle_deg,
     rotvec_to_matrix,
@@ -265,36 +264,6 @@ def test_global_shutter_rig_matches_poselib():
         np.testing.assert_allclose(sol.w, 0, atol=1e-6)
         np.testing.assert_allclose(sol.t, 0, atol=1e-6)
         assert np.abs(R_ref - R_true).max() < 1e-9
-
-
-def test_still_kernel_is_the_held_solver_to_the_bit():
-    """The rig estimator's compiled solve of a rig frame taken at one time with the
-    velocities held at zero (``tau`` zero, prior rows the identity and zeros), its points
-    gathered from the pool by sample and pre-rotated (here by the identity), gives the
-    batched solver's v, C and validity bit for bit, noisy samples of points spread over the
-    cameras and samples it refuses (rank loss) included."""
-    rng = np.random.default_rng(12)
-    Rm, cm, cams = make_rig(rng, 3)
-    z = np.zeros(3)
-    xs, Xs, cs = [], [], []
-    for _ in range(60):
-        x, X, _, cam = observe(rng, Rm, cm, cams, [2, 2, 2], z, rng.normal(size=3) * 0.2, z, z)
-        xs.append(x + rng.normal(size=x.shape) * 1e-3)
-        Xs.append(X @ rotvec_to_matrix(rng.normal(size=3) * 0.03).T)
-        cs.append(cam)
-    x, X, cam = np.array(xs), np.array(Xs), np.array(cs)
-    X[5] = X[5, :1]  # (one point six times: rank loss)
-    K = len(x)
-    held = (np.broadcast_to(np.eye(6), (K, 6, 6)).copy(), np.zeros((K, 6)))
-    ref = gr6p_1lin_batch(x, X, np.zeros((K, 6)), cam, Rm, cm, 1, prior_rows=held)
-    S = np.arange(6 * K, dtype=np.int64).reshape(K, 6)
-    Rg = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-    xf, Xf, cf = x.reshape(-1, 2), X.reshape(-1, 3), cam.reshape(-1)
-    out, ok = still_solve_rotated(xf, Xf, S, Rg, cf, Rm, cm)
-    assert not ok[5] and ok.sum() == K - 1
-    np.testing.assert_array_equal(ok, ref.valid)
-    np.testing.assert_array_equal(out[:, :3], ref.v)
-    np.testing.assert_array_equal(out[:, 3:], ref.C)
 
 
 def test_rig_algebraic_error_is_zero_on_model_data():
