@@ -50,7 +50,6 @@ from .degeneracy import coplanar
 from .driver import checked_inputs, gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
 from .finalize import (
-    FINAL_CUTOFF,
     GLOBAL_SHUTTER,
     ROLLING_SHUTTER,
     FinalModel,
@@ -83,7 +82,6 @@ from .ransac import RansacLoop, SeededShuffle, seeded_stream
 from .result import (
     CAMERAS_DISAGREE,
     DEGENERATE_GEOMETRY,
-    RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
     TOO_FEW_POINTS,
     EstimationFailed,
@@ -99,11 +97,9 @@ from .view import StackedViews, View
 __all__ = [
     "AGREE_SHARE",
     "CONTRADICTION_GATE",
-    "FINAL_CUTOFF",
     "LO_ROUNDS",
     "PREDICTION_GATE",
     "PREDICTION_MARGIN",
-    "RIG_FAILURE_REASONS",
     "RIG_OPTIONS",
     "RIG_SOLVER",
     "SPREAD_CORRECTION_ROUNDS",
@@ -343,8 +339,8 @@ def estimate_rig_pose(
     Returns:
         :class:`RSPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
-        inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
-        frame gives no pose.
+        inliers per camera; ``success=False`` with one of
+        :data:`~.result.RIG_FAILURE_REASONS` when the frame gives no pose.
     Raises:
         ValueError: the inputs :func:`~.driver.checked_inputs` refuses, an unknown
             ``pre_rotation`` or ``implementation``, no views, a view that is not a
@@ -540,16 +536,11 @@ def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -
     least :data:`AGREE_SHARE` times the best voting camera's, and not 0."""
     hits = est.num_inliers_per_view
     if pool is not None:
-        hits = _hits(pool, est.model if model is None else model, gate_px)
+        hits = pool.counts(pool.errors(est.model if model is None else model) < gate_px)
     valid = est.num_valid_per_view
     ratio = {c: int(hits[c]) / int(valid[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
-
-
-def _hits(pool: StackedViews, model, gate_px: float) -> np.ndarray:
-    """(M,) int64: each camera's points within ``gate_px`` of ``model`` ``(R, C, w, t)``."""
-    return np.bincount(pool.cam[pool.errors(model) < gate_px], minlength=len(pool.sizes))
 
 
 def _one_pose(v: _Vote, est, cams: set, start=None) -> bool:
@@ -637,7 +628,7 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
     for c in checked:
         e = v.solve(set(checked) - {c})
         if e.success:
-            inl[c] = _hits(v.pool, e.model, v.threshold_px)
+            inl[c] = v.pool.counts(v.pool.errors(e.model) < v.threshold_px)
     cams = list(inl)
     agree = [[inl[c][d] >= VERIFY_SHARE * inl[d][d] for d in cams] for c in cams]
     n, label = connected_components(np.array(agree), directed=False)  # (c, d or d, c)

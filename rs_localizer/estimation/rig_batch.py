@@ -22,10 +22,7 @@ from .scoring import STOP, model_cost
 
 __all__ = [
     "counted",
-    "moving_models",
     "search_batch",
-    "solve_rotated",
-    "still_models",
     "still_solve_rotated",
 ]
 

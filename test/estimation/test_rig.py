@@ -12,12 +12,8 @@ from rs_localizer.estimation import (
     RansacOptions,
     estimate_rs_pose,
 )
-from rs_localizer.estimation.result import camera_estimate
-from rs_localizer.estimation.rig import (
-    RIG_FAILURE_REASONS,
-    RIG_OPTIONS,
-    estimate_rig_pose,
-)
+from rs_localizer.estimation.result import RIG_FAILURE_REASONS, camera_estimate
+from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
 from rs_localizer.estimation.view import StackedViews, View
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
