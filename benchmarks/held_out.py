@@ -12,7 +12,7 @@ one part; on the other part every candidate set of mountings is scored the same 
 
 * **held-out reprojection** (:func:`reprojection`): each rig frame's pose fitted to all its
   cameras' corners with the candidate's mountings held fixed
-  (:class:`~rs_localizer.calibration.corners.RigCorners`, every mounting fixed, the map
+  (:class:`~benchmarks.joint_reference.TagSLAMCorners`, every mounting fixed, the map
   points fixed; each corner's error in pixels of its camera's distorted image, the soft-L1
   loss of its distance at ``f_scale`` px, SciPy ``least_squares``), then each corner's error
   at that pose: per camera its median, 90th percentile and RMS (px), over the corners every
@@ -124,10 +124,10 @@ def reprojection(rig: RealRig, frames: list, mounts: dict, f_scale: float = 2.0)
     """Each rig frame of ``frames`` (``(stamp, {camera: (uv, X)})``; each needs a pose in
     ``rig.reference`` to start from) posed on all its cameras' corners with ``mounts``
     (camera -> ``(R, c)``, ``x_cam = R x_rig + c``) held fixed, the map points ``X`` fixed
-    (:class:`~rs_localizer.calibration.corners.RigCorners`, ``parameters="inverse"``, soft-L1
-    loss of each corner's distance at ``f_scale`` px): ``{"error": (N,) px each corner's
-    distance at the fitted pose (NaN: not projected at the start), "camera": (N,) camera
-    index (``rig.cameras``' order), "frame": (N,) index into frames}``."""
+    (:class:`~benchmarks.joint_reference.TagSLAMCorners`, soft-L1 loss of each corner's
+    distance at ``f_scale`` px): ``{"error": (N,) px each corner's distance at the fitted pose
+    (NaN: not projected at the start), "camera": (N,) camera index (``rig.cameras``' order),
+    "frame": (N,) index into frames}``."""
     names = list(rig.cameras)
     uv, X, cam, fr = [], [], [], []
     for f, (_, views) in enumerate(frames):
