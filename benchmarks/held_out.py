@@ -12,7 +12,7 @@ one part; on the other part every candidate set of mountings is scored the same 
 
 * **held-out reprojection** (:func:`reprojection`): each rig frame's pose fitted to all its
   cameras' corners with the candidate's mountings held fixed
-  (:class:`~rs_localizer.calibration.corners.RigCorners`, every mounting fixed, the map
+  (:class:`~benchmarks.joint_reference.TagSLAMCorners`, every mounting fixed, the map
   points fixed; each corner's error in pixels of its camera's distorted image, the soft-L1
   loss of its distance at ``f_scale`` px, SciPy ``least_squares``), then each corner's error
   at that pose: per camera its median, 90th percentile and RMS (px), over the corners every
@@ -40,9 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.joint_reference import recording, recording_parser, rig_part, with_reference
+from benchmarks.joint_reference import (
+    TagSLAMCorners,
+    recording,
+    recording_parser,
+    rig_part,
+    soft_l1,
+    with_reference,
+)
 from benchmarks.tagslam_data import RealRig
-from rs_localizer.calibration.corners import RigCorners, soft_l1
 from rs_localizer.geometry import matrix_to_rotvec
 
 __all__ = [
@@ -118,10 +124,10 @@ def reprojection(rig: RealRig, frames: list, mounts: dict, f_scale: float = 2.0)
     """Each rig frame of ``frames`` (``(stamp, {camera: (uv, X)})``; each needs a pose in
     ``rig.reference`` to start from) posed on all its cameras' corners with ``mounts``
     (camera -> ``(R, c)``, ``x_cam = R x_rig + c``) held fixed, the map points ``X`` fixed
-    (:class:`~rs_localizer.calibration.corners.RigCorners`, ``parameters="inverse"``, soft-L1
-    loss of each corner's distance at ``f_scale`` px): ``{"error": (N,) px each corner's
-    distance at the fitted pose (NaN: not projected at the start), "camera": (N,) camera
-    index (``rig.cameras``' order), "frame": (N,) index into frames}``."""
+    (:class:`~benchmarks.joint_reference.TagSLAMCorners`, soft-L1 loss of each corner's
+    distance at ``f_scale`` px): ``{"error": (N,) px each corner's distance at the fitted pose
+    (NaN: not projected at the start), "camera": (N,) camera index (``rig.cameras``' order),
+    "frame": (N,) index into frames}``."""
     names = list(rig.cameras)
     uv, X, cam, fr = [], [], [], []
     for f, (_, views) in enumerate(frames):
@@ -135,8 +141,8 @@ def reprojection(rig: RealRig, frames: list, mounts: dict, f_scale: float = 2.0)
     C0 = np.array([rig.reference[s][1] for s, _ in frames])
     Rm = np.array([mounts[n][0] for n in names])
     cm = np.array([mounts[n][1] for n in names])
-    problem = RigCorners(uv, [rig.cameras[n] for n in names], cam, fr, cam, (R0, C0), (Rm, cm),
-                         np.zeros(len(names), bool), X, parameters="inverse")  # fmt: skip
+    problem = TagSLAMCorners(uv, [rig.cameras[n] for n in names], cam, fr, cam, (R0, C0),
+                             (Rm, cm), np.zeros(len(names), bool), X)  # fmt: skip
     sol = problem.solve(f_scale, loss="corner_soft_l1", max_nfev=100, ftol=1e-10, xtol=1e-10)
     err = np.full(len(uv), np.nan)
     if sol is not None:
@@ -169,9 +175,9 @@ def alone_poses(rig: RealRig, frames: list, f_scale: float = 2.0, min_tags: int 
         Rm, cm = rig.mounts[n]
         R0.append(Rm @ R)
         C0.append(Rm @ C + cm)
-    problem = RigCorners(uv, [rig.cameras[n] for n in names], cam, g, np.zeros(len(uv), int),
-                         (np.array(R0), np.array(C0)), (np.eye(3)[None], np.zeros((1, 3))),
-                         np.zeros(1, bool), X, parameters="inverse")  # fmt: skip
+    problem = TagSLAMCorners(uv, [rig.cameras[n] for n in names], cam, g,
+                             np.zeros(len(uv), int), (np.array(R0), np.array(C0)),
+                             (np.eye(3)[None], np.zeros((1, 3))), np.zeros(1, bool), X)  # fmt: skip
     sol = problem.solve(f_scale, loss="corner_soft_l1", max_nfev=100, ftol=1e-10, xtol=1e-10)
     if sol is None:
         return {}

@@ -8,13 +8,13 @@ solution is what a full optimization of the same factor graph gives: the residua
 corner's error in the distorted image of its camera (the camera's own model,
 :meth:`~rs_localizer.camera.CameraModel.project`) through its rig pose, its camera's mounting
 and its tag's pose, the problem ``calibrate-rig`` refines its mountings on
-(:class:`~rs_localizer.calibration.corners.RigCorners`, with the tags' poses free here),
-under a robust loss (``soft_l1`` of each corner's distance at ``f_scale`` px: quadratic up to
-about that, linear beyond), minimized by SciPy's ``least_squares`` (``trf``, ``lsmr``, a
-finite-difference Jacobian of the known sparsity ``jac_sparsity``) from TagSLAM's
-reference. The gauge is TagSLAM's: the tags ``tagslam.yaml``
-gives a pose (:attr:`~benchmarks.tagslam_data.RealRig.anchors`) and the first camera's
-mounting (``camera_poses.yaml``'s prior) stay at the reference's; the tags keep their sizes.
+(:class:`~rs_localizer.calibration.corners.RigCorners`) with the tags' poses free and TagSLAM's
+parameters (:class:`TagSLAMCorners`), under a robust loss (:func:`soft_l1` of each corner's
+distance at ``f_scale`` px: quadratic up to about that, linear beyond), minimized by SciPy's
+``least_squares`` (``trf``, ``lsmr``, a finite-difference Jacobian of the known sparsity
+``jac_sparsity``) from TagSLAM's reference. The gauge is TagSLAM's: the tags ``tagslam.yaml``
+gives a pose (:attr:`~benchmarks.tagslam_data.RealRig.anchors`) and the first camera's mounting
+(``camera_poses.yaml``'s prior) stay at the reference's; the tags keep their sizes.
 Only the rig frames with a reference pose take part (their poses start at it).
 """
 
@@ -28,11 +28,13 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.tagslam_data import RealRig, tag_corners
-from rs_localizer.calibration.corners import RigCorners, TagPoints
+from rs_localizer.calibration.corners import CornerSolution, RigCorners
 
 __all__ = [
     "CACHE",
     "JointSolution",
+    "TagPoints",
+    "TagSLAMCorners",
     "cached_solution",
     "halves",
     "joint_reference",
@@ -42,6 +44,7 @@ __all__ = [
     "recording",
     "recording_parser",
     "rig_part",
+    "soft_l1",
     "solve_joint",
     "with_reference",
 ]
@@ -52,6 +55,147 @@ CACHE = Path("/tmp/rs_localizer_joint_reference")
 # at; every recording but test_14, whose mountings move a degree from the start, stops at the
 # cost's within 50)
 _MAX_NFEV, _FTOL = 400, 1e-8
+
+
+def soft_l1(s: np.ndarray, f_scale: float) -> np.ndarray:
+    """The robust loss of squared errors ``s`` (px^2): ``2 f^2 (sqrt(1 + s / f^2) - 1)``
+    (``f`` = ``f_scale`` px): ``s`` for small errors, ``2 f |e|`` for large ones (SciPy's
+    ``soft_l1``)."""
+    return 2 * f_scale**2 * (np.sqrt(1 + s / f_scale**2) - 1)
+
+
+@dataclass(frozen=True)
+class TagPoints:
+    """The corners' map points as corners of tags whose poses may be adjusted.
+
+    Attributes:
+        tag: (N,) int, each corner's tag (an index into ``R`` and ``p``).
+        local: (N, 3) m, each corner in its tag's frame.
+        R: (T, 3, 3) tag -> world rotations at the start. p: (T, 3) m, the tags' positions.
+        free: (T,) bool, the tags adjusted (the others, e.g. the gauge's anchors, stay).
+    """
+
+    tag: np.ndarray
+    local: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    free: np.ndarray
+
+    def world(self, R: np.ndarray | None = None, p: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) m: the corners in the world with the tags at ``R`` (T, 3, 3) tag -> world,
+        ``p`` (T, 3) m (None: at the start)."""
+        R, p = (self.R, self.p) if R is None else (R, p)
+        return np.einsum("nij,nj->ni", R[self.tag], self.local) + p[self.tag]
+
+
+class TagSLAMCorners(RigCorners):
+    """:class:`~rs_localizer.calibration.corners.RigCorners` as TagSLAM parameterizes its
+    factor graph: the rig poses and mountings are the inverse transforms, world -> rig
+    (``x_rig = R_f x_world + C_f``) and rig -> camera (``x_cam = R x_rig + c``, as
+    :class:`~rs_localizer.frames.Mounting`), their increments composed on their left (rig and
+    camera axes); the map points fixed or the corners of tags whose poses (tag -> world,
+    ``x_world = R_t x_tag + p_t``, increments composed on the left, world axes) may be
+    adjusted (:class:`TagPoints`); each corner's error under :func:`soft_l1` of its distance
+    (:meth:`solve`'s ``loss``). The parameters are the rig poses', the free tags', then the
+    free mountings' (6 each). Its solution's ``rig`` and ``mounts`` are the inverse transforms
+    (``(R_f, C_f)``, ``(R, c)``); the tags' poses: :meth:`tag_poses`.
+
+    Args:
+        uv, cameras, camera, frame, mounting, free: as ``RigCorners``'.
+        rig: ``(R_f (G, 3, 3), C_f (G, 3) m)`` and ``mounts``: ``(R (M, 3, 3), c (M, 3) m)``,
+            the rig poses and mountings to start from.
+        points: (N, 3) m, the corners' map points in the world (fixed), or :class:`TagPoints`.
+
+    Raises:
+        ValueError: as ``RigCorners``' (inconsistent lengths, an index out of range).
+    """
+
+    def __init__(self, uv, cameras, camera, frame, mounting, rig, mounts, free,
+                 points: np.ndarray | TagPoints):  # fmt: skip
+        self.tags = points if isinstance(points, TagPoints) else None
+        X = points if self.tags is None else self.tags.world()
+        super().__init__(uv, cameras, camera, frame, mounting, rig, mounts, free, X)
+        self.T = int(self.tags.free.sum()) if self.tags is not None else 0
+        self.lead = self.G + self.T
+        self.corner_loss = True
+        if self.tags is not None:  # (each free tag's parameter block, -1: fixed)
+            self.block_t = np.where(self.tags.free, np.cumsum(self.tags.free) - 1, -1)
+
+    def tag_poses(self, x: np.ndarray) -> tuple | None:
+        """``(R_t (T, 3, 3), p_t (T, 3) m)``: every tag's pose at the parameters ``x`` (the
+        fixed ones as given); None without :class:`TagPoints`."""
+        t = self.tags
+        if t is None:
+            return None
+        return self._moved(t.R, t.p, x[6 * self.G : 6 * self.lead].reshape(self.T, 6), t.free)
+
+    def world_points(self, x: np.ndarray) -> np.ndarray:
+        """(N, 3) m: the fixed map points, or the tags' corners at :meth:`tag_poses`."""
+        if self.tags is None:
+            return super().world_points(x)
+        return self.tags.world(*self.tag_poses(x))
+
+    def camera_points(self, x: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(N, 3) m: each corner's map point ``X`` (N, 3) m in its camera's frame at the
+        parameters ``x``: each view's world -> camera transform ``(R R_f, R C_f + c)``, then
+        each corner through its view's."""
+        (Rf, Cf), (Rm, cm) = self.unpack(x)
+        f, v = self.first, self.view
+        g, m = self.frame[f], self.mounting[f]
+        R, c = Rm[m] @ Rf[g], np.einsum("nij,nj->ni", Rm[m], Cf[g]) + cm[m]
+        return np.einsum("nij,nj->ni", R[v], X) + c[v]
+
+    def corner_blocks(self, keep: np.ndarray) -> list:
+        """``RigCorners``' blocks with each kept corner's tag's (when free) between its rig
+        pose's and its mounting's."""
+        rig, mounts = super().corner_blocks(keep)
+        if self.tags is None:
+            return [rig, mounts]
+        t = self.block_t[self.tags.tag[keep]]
+        return [rig, (np.flatnonzero(t >= 0), self.G + t[t >= 0]), mounts]
+
+    def residuals(self, x: np.ndarray, corner_scale: float | None = None) -> np.ndarray:
+        """(2 K,) px: ``RigCorners``' residuals; ``corner_scale``: px, each corner's error
+        scaled to the :func:`soft_l1` loss of its distance (``e sqrt(rho(|e|^2) / |e|^2)``);
+        None: as they are."""
+        r = super().residuals(x)
+        if corner_scale is None:
+            return r
+        e = r.reshape(-1, 2)
+        s = (e * e).sum(axis=1)
+        w = np.sqrt(soft_l1(s, corner_scale) / np.where(s > 0, s, 1.0))
+        return (e * np.where(s > 0, w, 1.0)[:, None]).ravel()
+
+    def robust_loss(self, f_scale: float) -> dict:
+        """:func:`soft_l1` of each corner's distance at ``f_scale`` px (:meth:`residuals`), or
+        with ``loss="soft_l1"`` SciPy's on each coordinate."""
+        if self.corner_loss:
+            return {"kwargs": {"corner_scale": f_scale}}
+        return super().robust_loss(f_scale)
+
+    def solve(
+        self, f_scale: float, loss: str = "corner_soft_l1", **bounds
+    ) -> CornerSolution | None:
+        """``RigCorners``' solve (``bounds``: its ``max_nfev``, ``ftol``, ``xtol``,
+        ``verbose``) under ``loss``: ``"corner_soft_l1"``, :func:`soft_l1` of each corner's
+        distance at ``f_scale`` px, or ``"soft_l1"``, SciPy's on each coordinate.
+
+        Raises:
+            ValueError: an unknown ``loss``.
+        """
+        if loss not in ("soft_l1", "corner_soft_l1"):
+            raise ValueError(f"TagSLAMCorners.solve: unknown loss {loss!r}")
+        self.corner_loss = loss == "corner_soft_l1"
+        return super().solve(f_scale, **bounds)
+
+    def mounting_covariance(self, sol, clusters=None) -> tuple:
+        """Not given in the inverse transforms.
+
+        Raises:
+            ValueError: always.
+        """
+        raise ValueError("TagSLAMCorners.mounting_covariance: no covariance of the inverse "
+                         "transforms")  # fmt: skip
 
 
 @dataclass
@@ -162,13 +306,13 @@ def solve_joint(
         np.array([rig.tags[i][1] for i in ids]),
         np.array([i not in rig.anchors for i in ids]),
     )
-    problem = RigCorners(uv, [rig.cameras[n] for n in names], c, f, c, (R0f, C0f), (R0m, c0m),
-                         np.arange(len(names)) > 0, tags, parameters="inverse")  # fmt: skip
+    problem = TagSLAMCorners(uv, [rig.cameras[n] for n in names], c, f, c, (R0f, C0f),
+                             (R0m, c0m), np.arange(len(names)) > 0, tags)  # fmt: skip
     sol = problem.solve(f_scale, loss="corner_soft_l1", max_nfev=max_nfev, ftol=ftol,
                         xtol=1e-12, verbose=verbose)  # fmt: skip
     if sol is None:
         raise ValueError(f"{rig.name}: no corner projects at TagSLAM's solution")
-    (Rf, Cf), (Rc, cm), (Rt, pt) = sol.rig, sol.mounts, sol.tags
+    (Rf, Cf), (Rc, cm), (Rt, pt) = sol.rig, sol.mounts, problem.tag_poses(sol.result.x)
     res = sol.result
     info = {
         "seconds": time.process_time() - t0,
