@@ -60,12 +60,11 @@ import numpy as np
 from ..geometry import cross
 from ._common import RSBatch, RSSolution, check_batch, check_inputs
 from ._linear import PATIENCE, lstsq_stack, run_batch_with_prior, run_single
-from .r6p_1lin import mounted_error, solve_mounted
+from .r6p_1lin import solve_mounted
 
 __all__ = [
     "gr6p_1lin",
     "gr6p_1lin_batch",
-    "rig_algebraic_error",
     "rig_times",
 ]
 
@@ -284,27 +283,3 @@ def _kernels(solve, cam, Rm, cm):
         solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
 
     return kernel, with_prior
-
-
-def rig_algebraic_error(
-    x: np.ndarray,
-    X: np.ndarray,
-    tau: np.ndarray,
-    cam: np.ndarray,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
-    v: np.ndarray,
-    C: np.ndarray,
-    w: np.ndarray,
-    t: np.ndarray,
-) -> float:
-    """RMS algebraic residual of the rig eq. 5 (module docstring) for one solution.
-
-    Args: as :func:`gr6p_1lin`, and the rig's v, C, w, t (3,) each.
-    Returns: the RMS over points of the two eliminated equations (normalized image units
-        times depth).
-    Raises: ValueError on wrong shapes or NaN/inf inputs (as :func:`gr6p_1lin`).
-    """
-    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
-    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (v, C, w, t)]
-    return float(mounted_error(x, X, tau, cam, Rm, cm, *f))
