@@ -23,10 +23,11 @@ readout, e.g. ``x[:, 1]``) was taken at::
 
 with ``stamp_c`` the time of the camera's reference coordinate ``r0_c`` in that frame,
 ``t_ref`` the rig's reference time and ``line_delay_c`` the camera's readout time per unit of
-``r`` (see :func:`rig_times`). The solver takes ``tau`` itself, in any time unit; ``w`` and
-``t`` come out per that unit (seconds give rad/s and world units/s). Gaussian elimination with
-partial pivoting and the Householder least squares do not depend on column scaling beyond the
-rank tolerance, so seconds (tau ~ 1e-2) work as well as the single camera's ``r`` (tau ~ 1).
+``r`` (in seconds: the readout time of one pixel row times the focal length in pixels). The
+solver takes ``tau`` itself, in any time unit; ``w`` and ``t`` come out per that unit (seconds
+give rad/s and world units/s). Gaussian elimination with partial pivoting and the Householder
+least squares do not depend on column scaling beyond the rank tolerance, so seconds
+(tau ~ 1e-2) work as well as the single camera's ``r`` (tau ~ 1).
 
 Linearization (as eq. 6 of sec. 3.3). Expanding,
 ``(I + tau [w]x)(I + [v]x) X = X + [v]x X + tau [w]x X + tau [w]x [v]x X``; only the last term
@@ -62,37 +63,10 @@ from ._common import RSBatch, RSSolution, check_batch, check_inputs
 from ._linear import PATIENCE, lstsq_stack, run_batch_with_prior, run_single
 from .r6p_1lin import solve_mounted
 
-__all__ = [
-    "gr6p_1lin",
-    "gr6p_1lin_batch",
-    "rig_times",
-]
+__all__ = ["gr6p_1lin", "gr6p_1lin_batch"]
 
 NAME = "gr6p_1lin"
 MIN_POINTS = 6
-
-
-def rig_times(
-    r: np.ndarray,
-    r0: float,
-    line_delay: float,
-    stamp_offset: float = 0.0,
-) -> np.ndarray:
-    """The time of each observation of one camera relative to the rig's reference time.
-
-    ``tau = stamp_offset + line_delay * (r - r0)`` (module docstring).
-
-    Args:
-        r: (N,) RS coordinates of the observations (normalized image units along the readout,
-            as the single-camera solvers' ``r``).
-        r0: the RS coordinate at which the camera's frame is stamped.
-        line_delay: time per unit of ``r`` (e.g. seconds per normalized unit: the readout time
-            of one pixel row times the focal length in pixels).
-        stamp_offset: the camera's frame stamp minus the rig's reference time (same time unit).
-    Returns:
-        (N,) tau in the time unit of ``line_delay`` and ``stamp_offset``.
-    """
-    return float(stamp_offset) + float(line_delay) * (np.asarray(r, dtype=np.float64) - float(r0))
 
 
 @np.errstate(invalid="ignore", over="ignore", divide="ignore")
@@ -202,7 +176,8 @@ def gr6p_1lin(
             N >= 6 over all cameras, N > 6 solves each iteration in the least-squares sense.
         X: (N, 3) world points (any unit; C and t come out in it).
         tau: (N,) time of each observation relative to the rig's reference time, any time unit
-            (:func:`rig_times` converts one camera's RS coordinates); not all equal.
+            (module docstring, "Time": from each camera's RS coordinates, line delay and
+            stamp); not all equal.
         cam: (N,) int index of the camera that observed each point (or one int for all).
         R_mount: (M, 3, 3) camera rotations on the rig (``x_cam = R_c x_rig + c_c``).
         c_mount: (M, 3) camera offsets ``c_c`` (world units).

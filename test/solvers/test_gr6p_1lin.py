@@ -12,11 +12,7 @@ from rs_localizer.geometry import (
     skew,
 )
 from rs_localizer.solvers import DegenerateInputError, r6p_1lin, r6p_1lin_batch
-from rs_localizer.solvers.gr6p_1lin import (
-    gr6p_1lin,
-    gr6p_1lin_batch,
-    rig_times,
-)
+from rs_localizer.solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from rs_localizer.solvers.r6p_1lin import mounted_error
 
 #: readout directions d (r = d . x): top to bottom, left to right, bottom to top
@@ -78,7 +74,9 @@ def observe(rng, Rm, cm, cams, counts, v, C, w, t, exact=False):
         assert len(sel) == n
         xs.append(x[sel])
         Xs.append(Xw[sel])
-        taus.append(rig_times(r[sel], k["r0"], k["delay"], k["stamp"]))
+        # each observation's time relative to the rig's reference time (the solver's module
+        # docstring): the camera's stamp offset plus its line delay times (r - r0)
+        taus.append(k["stamp"] + k["delay"] * (r[sel] - k["r0"]))
         ids.append(np.full(n, c))
     return np.vstack(xs), np.vstack(Xs), np.concatenate(taus), np.concatenate(ids)
 
