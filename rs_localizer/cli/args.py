@@ -34,6 +34,7 @@ __all__ = [
     "marker_map_file",
     "marker_sizes",
     "node_default",
+    "node_parameter_options",
     "nonneg_float",
     "nonneg_int",
     "output_dir",
@@ -401,6 +402,20 @@ def bag_dir(path: str | Path, require_messages: bool = False) -> Path:
     if require_messages and count == 0:
         raise CliError(f"{path}: the bag has no messages")
     return path
+
+
+def node_parameter_options(
+    parser: argparse.ArgumentParser, files_help: str, param_help: str, default: Any = None
+) -> None:
+    """Add the node's parameters to a command's ``parser``: ``--params-file FILE`` (the node's
+    ROS 2 parameter files) and ``-p``/``--param NAME:=VALUE`` (one parameter, its value in YAML
+    as ``ros2 run ... -p``; :func:`param_overrides` reads them), both repeatable, with their
+    help. Not given: ``default`` (None: an empty list; ``argparse.SUPPRESS``: no attribute)."""
+    fresh = default is None
+    parser.add_argument("--params-file", action="append", default=[] if fresh else default,
+                        metavar="FILE", help=files_help)  # fmt: skip
+    parser.add_argument("-p", "--param", action="append", default=[] if fresh else default,
+                        metavar="NAME:=VALUE", help=param_help)  # fmt: skip
 
 
 def param_overrides(items: Iterable[str] | None) -> dict:

@@ -37,13 +37,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
     c.add_argument("-o", "--output", help="parameter file to write (default: on stdout)")
-    c.add_argument("--params-file", action="append", default=[], metavar="FILE",
-                   help="the node's parameter file with rig.cameras and the cameras' RS timing "
-                   "(repeatable; later ones win; over the bag's rig_params.yaml)")  # fmt: skip
-    c.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
-                   help="set a node parameter (YAML value, as ros2 run -p; repeatable; over the "
-                   "parameter files), e.g. frontend:=aruco with frontend_map:=BAG/markers.yaml "
-                   "to read each camera's images through its front end")  # fmt: skip
+    A.node_parameter_options(
+        c, "the node's parameter file with rig.cameras and the cameras' RS timing (repeatable; "
+        "later ones win; over the bag's rig_params.yaml)",
+        "set a node parameter (YAML value, as ros2 run -p; repeatable; over the parameter "
+        "files), e.g. frontend:=aruco with frontend_map:=BAG/markers.yaml to read each camera's "
+        "images through its front end",
+    )  # fmt: skip
     c.add_argument("--reference", help="the camera the others are measured from (default: the "
                    "first of rig.cameras)")  # fmt: skip
     c.add_argument("--optical-frame", action="store_true",

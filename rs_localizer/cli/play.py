@@ -42,22 +42,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         formatter_class=A.HelpFormatter,
     )
     pl.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
-    pl.add_argument(
-        "--params-file",
-        action="append",
-        default=[],
-        metavar="FILE",
-        help="the rig node's parameter file (repeatable; later ones win; over a rig bag's "
+    A.node_parameter_options(
+        pl,
+        "the rig node's parameter file (repeatable; later ones win; over a rig bag's "
         "rig_params.yaml): with rig.cameras, a recording of the rig's cameras plays as a rig "
         "bag, its frames grouped into rig frames with these parameters",
-    )
-    pl.add_argument(
-        "-p",
-        "--param",
-        action="append",
-        default=[],
-        metavar="NAME:=VALUE",
-        help="set a rig node parameter (YAML value, as ros2 run -p; repeatable; over the "
+        "set a rig node parameter (YAML value, as ros2 run -p; repeatable; over the "
         "parameter files), e.g. rig.window:=0.02",
     )
     pl.add_argument(

@@ -36,21 +36,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="bag directory (make-bag or render-bag output, or a recording) or its .mcap file",
     )
     unset = argparse.SUPPRESS  # (options only override: unset ones leave the parameters)
-    r.add_argument(
-        "--params-file",
-        action="append",
+    A.node_parameter_options(
+        r,
+        "the node's ROS 2 parameter file, e.g. config/rs_localizer.yaml (repeatable; later ones "
+        "win)",
+        "set a node parameter (YAML value, as ros2 run -p; repeatable), e.g. tracking.lag:=2",
         default=unset,
-        metavar="FILE",
-        help="the node's ROS 2 parameter file, e.g. config/rs_localizer.yaml (repeatable; "
-        "later ones win)",
-    )
-    r.add_argument(
-        "-p",
-        "--param",
-        action="append",
-        default=unset,
-        metavar="NAME:=VALUE",
-        help="set a node parameter (YAML value, as ros2 run -p; repeatable), e.g. tracking.lag:=2",
     )
 
     def over(param: str, text: str) -> str:
