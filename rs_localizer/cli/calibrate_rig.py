@@ -76,24 +76,23 @@ UNSEEN_OFFSET_STD = 0.005
 MIN_RIG_FRAMES = 10
 
 
-def params_yaml(stamp_row: float, cams: dict, est: dict, notes: list, base_frame: str) -> str:
-    """The node's parameter file of the calibrated rig (``est``: camera ->
-    :class:`~rs_localizer.calibration.MountingEstimate`): per camera its ``mounting`` and
-    covariance, the RS timing it was read with (``cams``), its ``time_offset`` and
-    ``time_offset_std``; ``notes``: comment lines on top."""
-    from ..ros.config import mounting_covariance_values, mounting_values, rig_parameter_file
+def params_yaml(stamp_row: float, cams: dict, report: dict, notes: list, base_frame: str) -> str:
+    """The node's parameter file of the calibrated rig (``report``: camera -> its entry of the
+    JSON report, :func:`run`): per camera its ``mounting`` and ``mounting_covariance`` (none
+    for the reference), the RS timing it was read with (``cams``), its ``time_offset`` and
+    ``time_offset_std`` (s, 7 decimals; none when zero or not estimated); ``notes``: comment
+    lines on top."""
+    from ..ros.config import rig_parameter_file
 
     body_cams = {}
-    for n, e in est.items():
-        entry = {"mounting": mounting_values(e.mount)}
-        if e.mount.covariance is not None:
-            entry["mounting_covariance"] = mounting_covariance_values(e.mount)
+    for n, r in report.items():
+        entry = {k: r[k] for k in ("mounting", "mounting_covariance") if r[k] is not None}
         entry.update({k: v for k in ("line_delay", "readout_time", "direction")
                       if (v := cams[n].get(k)) not in (None, "", -1.0)})  # fmt: skip
-        if e.time_offset:
-            entry["time_offset"] = round(float(e.time_offset), 7) + 0.0
-            if np.isfinite(e.time_offset_std) and e.time_offset_std > 0:
-                entry["time_offset_std"] = round(float(e.time_offset_std), 7) + 0.0
+        if r["time_offset"]:
+            entry["time_offset"] = round(float(r["time_offset"]), 7) + 0.0
+            if r.get("time_offset_std", 0.0) > 0:
+                entry["time_offset_std"] = round(float(r["time_offset_std"]), 7) + 0.0
         body_cams[n] = entry
     return rig_parameter_file(base_frame, stamp_row, body_cams, notes=notes)
 
@@ -313,7 +312,7 @@ def run(args: argparse.Namespace) -> int:
             lines, off = _camera_notes(n, e, given.get(n), est[ref].corners_refined)
             notes += lines
             report[n].update(off)
-    text = params_yaml(values["rs.stamp_row"], cams, {n: est[n] for n in names}, notes, frame)
+    text = params_yaml(values["rs.stamp_row"], cams, report, notes, frame)
     if out_path is not None:
         out_path.write_text(text)
     for line in notes:
