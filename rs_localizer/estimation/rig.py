@@ -642,51 +642,45 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with ``est``'s per camera
-    counts."""
-    none, identity = np.zeros(len(pool.cam), dtype=bool), RSModel.identity()
-    return replace(
-        est, success=False, failure=CAMERAS_DISAGREE, model=identity,
-        inliers=np.zeros(len(est.inliers), dtype=bool), inliers_per_view=pool.per_camera(none),
-        rmse_px=np.nan, num_behind=0, num_dropped=est.num_dropped - est.num_behind,
-        covariance=None, model_covariance=None, acceleration_sensitivity=None,
-        disagreeing=tuple(sorted(cams)), pose=RSPose.from_model(identity, 1.0),
-        pose_covariance=None, twist_covariance=None,
+    counts (:func:`_restored` with no inlier in any view)."""
+    identity = RSModel.identity()
+    return _restored(
+        est, pool, out=range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
+        model=identity, num_inliers_per_view=est.num_inliers_per_view, rmse_px=np.nan,
+        num_behind=0, num_dropped=est.num_dropped - est.num_behind, covariance=None,
+        model_covariance=None, acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
+        pose=RSPose.from_model(identity, 1.0), pose_covariance=None, twist_covariance=None,
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None) -> RSPoseEstimate:
+def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, out=(),
+              **changes) -> RSPoseEstimate:  # fmt: skip
     """An estimate of views some of whose points were removed, or of the one view ``view``
     (a camera's own estimate), as one of the full views ``pool``: their valid point counts,
-    no inlier among the removed points or in the other views."""
+    its inliers per view counted again, none among the removed points, in the other views or
+    in the views ``out`` (those the consensus leaves out), and the fields ``changes`` by
+    name (also over those)."""
     own = est.inliers_per_view
     if view is not None:
         own = tuple(
             own[0] if c == view else np.zeros(0, dtype=bool) for c in range(len(pool.sizes))
         )
     per = tuple(
-        m if len(m) == n else np.zeros(n, dtype=bool) for m, n in zip(own, pool.sizes, strict=True)
+        m if c not in out and len(m) == n else np.zeros(n, dtype=bool)
+        for c, (m, n) in enumerate(zip(own, pool.sizes, strict=True))
     )
-    counts = est.num_inliers_per_view
-    if view is not None:
-        counts = tuple(int(np.count_nonzero(m)) for m in per)
-    return est._replaced(
+    fields = dict(
         inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_inliers_per_view=counts, num_valid=len(pool.cam),
-        num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
+        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
+        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
     )  # fmt: skip
+    return est._replaced(**(fields | changes))
 
 
 def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
-    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier."""
-    inliers = tuple(
-        np.zeros(pool.sizes[c], dtype=bool) if c in cams else np.asarray(m, dtype=bool)
-        for c, m in enumerate(est.inliers_per_view)
-    )
-    per = tuple(0 if c in cams else int(n) for c, n in enumerate(est.num_inliers_per_view))
-    return replace(
-        est, inliers=_joined(inliers), inliers_per_view=inliers, num_inliers_per_view=per,
-        disagreeing=tuple(sorted(cams)),
-    )  # fmt: skip
+    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier
+    (:func:`_restored`)."""
+    return _restored(est, pool, out=cams, disagreeing=tuple(sorted(cams)))
 
 
 def _joined(per_view: tuple) -> np.ndarray:
