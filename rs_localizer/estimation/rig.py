@@ -430,6 +430,12 @@ class _Vote(NamedTuple):
     solve: Callable[[set[int]], RSPoseEstimate]
     prediction: tuple | None
 
+    def solved(self, drop: set[int]) -> tuple[RSPoseEstimate, set[int]]:
+        """The rig solved without the cameras ``drop`` (``solve``) and the voting cameras
+        that agree with it (:func:`_agreeing`; none when it failed)."""
+        est = self.solve(drop)
+        return est, _agreeing(est, self.voters) if est.success else set()
+
 
 def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, solve, prediction,
                verify: bool = False) -> RSPoseEstimate:  # fmt: skip
@@ -463,10 +469,9 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    sub = solve(a)
+    sub, b = v.solved(a)
     if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
         return _near_spread(est, sub, voters)
-    b = _agreeing(sub, voters) if sub.success else set()
     if b & a:  # (a pose the agreeing cameras share: cameras with outliers, no contradiction)
         return est
     if not b or len(b) < len(a):  # (no consistent pose of their own, or fewer cameras)
@@ -596,10 +601,7 @@ def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
         return None  # (a track never outvotes more cameras than it keeps)
     kept = est
     if _agreeing(est, voters) != explained:
-        kept = solve(suspect)
-        if not kept.success:
-            return None
-        agree = _agreeing(kept, voters)
+        kept, agree = v.solved(suspect)  # (none agree with a failed solve)
         if not (explained <= agree and not suspect & agree):
             return None
     if kept.motion_model == GLOBAL_SHUTTER:
