@@ -847,8 +847,7 @@ class _RigSearch(RansacLoop):
             n, missed = counted(self._e, self.threshold_px, pool.cam, self._counts, subset)
         else:  # (the same numbers in NumPy)
             inl = self._e < self.threshold_px
-            hit = np.bincount(pool.cam[inl], minlength=len(pool.sizes))
-            missed = (self._counts >= 3) & (hit == 0)
+            missed = (self._counts >= 3) & (np.array(pool.counts(inl)) == 0)
             n = np.count_nonzero(inl if self.subset is None else inl[self.subset])
         if self.still and not self.spread:
             self.missed = missed if missed.any() else None
