@@ -430,6 +430,12 @@ class _Vote(NamedTuple):
     solve: Callable[[set[int]], RSPoseEstimate]
     prediction: tuple | None
 
+    def solved(self, drop: set[int]) -> tuple[RSPoseEstimate, set[int]]:
+        """The rig solved without the cameras ``drop`` (``solve``) and the voting cameras
+        that agree with it (:func:`_agreeing`; none when it failed)."""
+        est = self.solve(drop)
+        return est, _agreeing(est, self.voters) if est.success else set()
+
 
 def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, solve, prediction,
                verify: bool = False) -> RSPoseEstimate:  # fmt: skip
@@ -463,10 +469,9 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
         return _outvoted(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
-    sub = solve(a)
+    sub, b = v.solved(a)
     if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
         return _near_spread(est, sub, voters)
-    b = _agreeing(sub, voters) if sub.success else set()
     if b & a:  # (a pose the agreeing cameras share: cameras with outliers, no contradiction)
         return est
     if not b or len(b) < len(a):  # (no consistent pose of their own, or fewer cameras)
@@ -596,10 +601,7 @@ def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
         return None  # (a track never outvotes more cameras than it keeps)
     kept = est
     if _agreeing(est, voters) != explained:
-        kept = solve(suspect)
-        if not kept.success:
-            return None
-        agree = _agreeing(kept, voters)
+        kept, agree = v.solved(suspect)  # (none agree with a failed solve)
         if not (explained <= agree and not suspect & agree):
             return None
     if kept.motion_model == GLOBAL_SHUTTER:
@@ -642,51 +644,45 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with ``est``'s per camera
-    counts."""
-    none, identity = np.zeros(len(pool.cam), dtype=bool), RSModel.identity()
-    return replace(
-        est, success=False, failure=CAMERAS_DISAGREE, model=identity,
-        inliers=np.zeros(len(est.inliers), dtype=bool), inliers_per_view=pool.per_camera(none),
-        rmse_px=np.nan, num_behind=0, num_dropped=est.num_dropped - est.num_behind,
-        covariance=None, model_covariance=None, acceleration_sensitivity=None,
-        disagreeing=tuple(sorted(cams)), pose=RSPose.from_model(identity, 1.0),
-        pose_covariance=None, twist_covariance=None,
+    counts (:func:`_restored` with no inlier in any view)."""
+    identity = RSModel.identity()
+    return _restored(
+        est, pool, out=range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
+        model=identity, num_inliers_per_view=est.num_inliers_per_view, rmse_px=np.nan,
+        num_behind=0, num_dropped=est.num_dropped - est.num_behind, covariance=None,
+        model_covariance=None, acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
+        pose=RSPose.from_model(identity, 1.0), pose_covariance=None, twist_covariance=None,
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None) -> RSPoseEstimate:
+def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, out=(),
+              **changes) -> RSPoseEstimate:  # fmt: skip
     """An estimate of views some of whose points were removed, or of the one view ``view``
     (a camera's own estimate), as one of the full views ``pool``: their valid point counts,
-    no inlier among the removed points or in the other views."""
+    its inliers per view counted again, none among the removed points, in the other views or
+    in the views ``out`` (those the consensus leaves out), and the fields ``changes`` by
+    name (also over those)."""
     own = est.inliers_per_view
     if view is not None:
         own = tuple(
             own[0] if c == view else np.zeros(0, dtype=bool) for c in range(len(pool.sizes))
         )
     per = tuple(
-        m if len(m) == n else np.zeros(n, dtype=bool) for m, n in zip(own, pool.sizes, strict=True)
+        m if c not in out and len(m) == n else np.zeros(n, dtype=bool)
+        for c, (m, n) in enumerate(zip(own, pool.sizes, strict=True))
     )
-    counts = est.num_inliers_per_view
-    if view is not None:
-        counts = tuple(int(np.count_nonzero(m)) for m in per)
-    return est._replaced(
+    fields = dict(
         inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_inliers_per_view=counts, num_valid=len(pool.cam),
-        num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
+        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
+        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
     )  # fmt: skip
+    return est._replaced(**(fields | changes))
 
 
 def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
-    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier."""
-    inliers = tuple(
-        np.zeros(pool.sizes[c], dtype=bool) if c in cams else np.asarray(m, dtype=bool)
-        for c, m in enumerate(est.inliers_per_view)
-    )
-    per = tuple(0 if c in cams else int(n) for c, n in enumerate(est.num_inliers_per_view))
-    return replace(
-        est, inliers=_joined(inliers), inliers_per_view=inliers, num_inliers_per_view=per,
-        disagreeing=tuple(sorted(cams)),
-    )  # fmt: skip
+    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier
+    (:func:`_restored`)."""
+    return _restored(est, pool, out=cams, disagreeing=tuple(sorted(cams)))
 
 
 def _joined(per_view: tuple) -> np.ndarray:
@@ -851,8 +847,7 @@ class _RigSearch(RansacLoop):
             n, missed = counted(self._e, self.threshold_px, pool.cam, self._counts, subset)
         else:  # (the same numbers in NumPy)
             inl = self._e < self.threshold_px
-            hit = np.bincount(pool.cam[inl], minlength=len(pool.sizes))
-            missed = (self._counts >= 3) & (hit == 0)
+            missed = (self._counts >= 3) & (np.array(pool.counts(inl)) == 0)
             n = np.count_nonzero(inl if self.subset is None else inl[self.subset])
         if self.still and not self.spread:
             self.missed = missed if missed.any() else None
