@@ -960,3 +960,27 @@ def test_a_rig_camera_s_frame_whose_step_raises_fails_and_the_replay_goes_on(tmp
     assert res.solved == len(res.rows) > 0
     later = {f.stamp_ns for o in res.outputs for n, f in o.frames.items() if n == "left"}
     assert set(left[3:]) <= later and left[2] not in later
+
+
+def test_a_rig_cameras_name_with_spaces_reads_its_parameters_as_the_rig_node_names_it():
+    """``rig.cameras: [" front", ...]`` (a quoted name with spaces) names the camera ``front``,
+    as the rig node's parameters do: its ``rig.front.*`` values are read, and the rig's
+    configuration is that of the names without spaces."""
+    from rs_localizer.ros.bags.bag_frames import rig_bag_config, rig_parameter_values
+
+    params = {
+        "rig.front.line_delay": 2e-5,
+        "rig.front.mounting": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting": [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    }
+    spaced = {**params, "rig.cameras": [" front", "left "]}
+    cams = rig_parameter_values(None, params=spaced)[1]
+    assert list(cams) == ["front", "left"]
+    assert cams["front"]["line_delay"] == 2e-5
+    assert cams["left"]["mounting"] == [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    got = rig_bag_config(None, params=spaced)[2].cameras
+    plain = rig_bag_config(None, params={**params, "rig.cameras": ["front", "left"]})[2].cameras
+    assert [(c.name, c.line_delay, tuple(c.mount.c)) for c in got] == [
+        (c.name, c.line_delay, tuple(c.mount.c)) for c in plain
+    ]
+    assert got[0].line_delay == 2e-5 and got[1].mount.c[0] == -0.1

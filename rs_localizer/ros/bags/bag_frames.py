@@ -237,7 +237,8 @@ def rig_parameter_values(
 ) -> tuple[dict, dict]:
     """``(values, camera values)`` for :func:`~rs_localizer.ros.config.build_config`: the
     defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
-    then ``params``."""
+    then ``params``; the camera values by camera name as the rig node reads ``rig.cameras``
+    (each name stripped of spaces), each its ``rig.<camera>.*`` parameters."""
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
                    for k, p in RIG_PARAMETERS.items()})  # fmt: skip
@@ -248,7 +249,7 @@ def rig_parameter_values(
     tree.update(params or {})
     values.update({k: v for k, v in tree.items() if k in values})
     cams = {}
-    for n in values["rig.cameras"]:
+    for n in (str(n).strip() for n in values["rig.cameras"]):  # (as the rig node names them)
         cams[n] = {k: tree.get(f"rig.{n}.{k}", p.default) for k, p in RIG_CAMERA_PARAMETERS.items()}
         cams[n]["mounting"] = tree.get(f"rig.{n}.mounting")
     return values, cams
@@ -291,7 +292,7 @@ def rig_bag_config(
             )
     given = cams
     if not mountings:
-        given = {str(n).strip(): {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
+        given = {n: {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
                  for n, c in cams.items()}  # fmt: skip
     return values, cams, build_config(values, given)
 
