@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from ..accuracy import covariance_distances
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.result import CONTRADICTS_TRACK, UNCONFIRMED, RSPoseEstimate
 from ..estimation.rig import VOTE_MIN_POINTS
@@ -530,20 +531,17 @@ def refusal(
 
 def _contradicts(est: RSPoseEstimate, pred) -> bool:
     """The estimate's pose is further from the prediction than their covariances allow
-    (:data:`CONTRADICTION_GATE`) and at least :data:`CONTRADICTION_MIN_DEG` or
-    :data:`CONTRADICTION_MIN_M` away."""
-    pose = RSPose.from_model(est.model, 1.0)
-    d_rot = matrix_to_rotvec(pose.orientation @ pred.pose.orientation.T)
-    d_pos = pose.position - pred.pose.position
-    deg, dist = float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(d_pos))
+    (:data:`CONTRADICTION_GATE`, the squared Mahalanobis distance of
+    :func:`~rs_localizer.accuracy.covariance_distances`) and at least
+    :data:`CONTRADICTION_MIN_DEG` or :data:`CONTRADICTION_MIN_M` away."""
+    a, b = RSPose.from_model(est.model, 1.0), pred.pose
+    deg = np.degrees(np.linalg.norm(matrix_to_rotvec(a.orientation @ b.orientation.T)))
+    dist = np.linalg.norm(a.position - b.position)
     if deg < CONTRADICTION_MIN_DEG and dist < CONTRADICTION_MIN_M:
         return False
-    S = np.asarray(pred.covariance, float)[:6, :6]
-    if est.covariance is not None and np.isfinite(est.covariance[:6, :6]).all():
-        S = S + np.asarray(est.covariance, float)[:6, :6]
-    d = np.concatenate([d_rot, d_pos])
-    try:
-        nis = float(d @ np.linalg.solve(S, d))
-    except np.linalg.LinAlgError:
-        return True
-    return not nis <= float(chi2.ppf(CONTRADICTION_GATE, 6))
+    S = np.asarray(pred.pose_covariance, float)
+    if est.pose_covariance is not None and np.isfinite(est.pose_covariance).all():
+        S = S + np.asarray(est.pose_covariance, float)
+    # (NaN, a contradiction, when S is not positive definite)
+    poses = (a.orientation[None], a.position[None], b.orientation[None], b.position[None])
+    return not covariance_distances(*poses, S[None])[0] <= float(chi2.ppf(CONTRADICTION_GATE, 6))
