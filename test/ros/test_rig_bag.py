@@ -974,7 +974,8 @@ def test_a_rig_cameras_name_with_spaces_reads_its_parameters_as_the_rig_node_nam
         "rig.left.mounting": [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
     }
     spaced = {**params, "rig.cameras": [" front", "left "]}
-    cams = rig_parameter_values(None, params=spaced)[1]
+    values, cams = rig_parameter_values(None, params=spaced)
+    assert values["rig.cameras"] == ["front", "left"]
     assert list(cams) == ["front", "left"]
     assert cams["front"]["line_delay"] == 2e-5
     assert cams["left"]["mounting"] == [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]

@@ -237,8 +237,8 @@ def rig_parameter_values(
 ) -> tuple[dict, dict]:
     """``(values, camera values)`` for :func:`~rs_localizer.ros.config.build_config`: the
     defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
-    then ``params``; the camera values by camera name as the rig node reads ``rig.cameras``
-    (each name stripped of spaces), each its ``rig.<camera>.*`` parameters."""
+    then ``params``; ``rig.cameras``' names as the rig node reads them (stripped of spaces),
+    and by each its camera values, its ``rig.<camera>.*`` parameters."""
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
                    for k, p in RIG_PARAMETERS.items()})  # fmt: skip
@@ -248,8 +248,11 @@ def rig_parameter_values(
         tree.update(read_params_file(f))
     tree.update(params or {})
     values.update({k: v for k, v in tree.items() if k in values})
+    names = values["rig.cameras"]
+    if isinstance(names, (list, tuple)):  # (as the rig node names them: stripped)
+        values["rig.cameras"] = names = [n.strip() if isinstance(n, str) else n for n in names]
     cams = {}
-    for n in (str(n).strip() for n in values["rig.cameras"]):  # (as the rig node names them)
+    for n in names:
         cams[n] = {k: tree.get(f"rig.{n}.{k}", p.default) for k, p in RIG_CAMERA_PARAMETERS.items()}
         cams[n]["mounting"] = tree.get(f"rig.{n}.mounting")
     return values, cams
