@@ -1,14 +1,9 @@
-"""What only a rig of several cameras needs in ``rs_localizer_node`` (``rig.cameras`` set; the
-node's one mode, :class:`~rs_localizer.ros.mode.LocalizerMode`, takes each camera's frames on
-its ``<c>/`` topics through the camera alone's steps and publishes the rig, ``base_frame``, as
-one body; topics, parameters, counts and diagnostics: docs/rig_node.md): its cameras'
-parameters (``rig.<c>.*``, :func:`declare_rig_cameras`, :func:`rig_values`; a change at run
-time is refused for those a rig cannot take without a restart) and the frame queue's grouping
-of queued frames into rig frames (:class:`SameRigFrame`: a full queue drops whole rig frames).
-Its cameras' inputs and counts, ready line, log lines and debug views are made where the
-camera alone's are (:meth:`~.mode.LocalizerMode._new_cameras`,
-:meth:`~.mode.LocalizerMode._ready_subject`, :func:`.outputs.rig_frame_line`,
-:func:`.outputs.rig_frame_views`).
+"""What only a rig of several cameras needs in ``rs_localizer_node`` (``rig.cameras`` set;
+docs/rig_node.md): its cameras' parameters (``rig.<c>.*``: :func:`declare_rig_cameras`,
+:func:`rig_values`) and the grouping of queued frames into rig frames (:class:`SameRigFrame`).
+The rest of the rig runs where the camera alone's does, in the node's one mode
+(:class:`~rs_localizer.ros.mode.LocalizerMode`: its cameras' inputs and counts, ready line),
+:mod:`.outputs` (its log lines, debug views) and :mod:`.diagnostics` (its status).
 """
 
 from __future__ import annotations

@@ -1,32 +1,13 @@
-"""What only a rig of several cameras needs, as units the localizer
+"""What only a rig of several cameras runs, as units the localizer
 (:class:`~rs_localizer.tracking.video.Localizer`) holds and calls: a camera alone is a rig of
 one, each of its frames a rig frame complete at once, which nothing refuses and no other camera
-disagrees with.
+disagrees with. The rules as users meet them: docs/rig_node.md.
 
-- :class:`RigGrouping`, the **grouping** of the cameras' frames into *rig frames* by the capture
-  time of each frame's reference line (:func:`~rs_localizer.camera.reference_stamp_ns`): a
-  rig frame holds at most one frame per camera, all within ``window`` s of its earliest
-  (:attr:`~rs_localizer.tracking.video.LocalizerSettings.window`). A rig frame is solved once
-  every camera is in it or has *moved past* it (its newest frame is later than the rig frame's
-  earliest plus ``window``) or has *stopped* (no frame for ``stop_after`` s of stamp time while
-  others go on, or :data:`STOP_INTERVALS` of its own frame intervals): cameras are free to miss
-  a rig frame (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not
-  waited for and the rig runs on the others, and a camera that sends again joins again. A
-  camera's frame not later than its previous one is ``out_of_order``, one older than the last
-  rig frame solved ``late`` (a rig of one takes every frame: any step back of its stamps is a
-  time reset, :mod:`~rs_localizer.tracking.clock`).
-- :class:`CameraAgreement`, the cameras' **disagreement** with the rig: per solved rig frame
-  and camera its points and inliers; a camera whose points are outliers far more often than the
-  others' over several rig frames *disagrees* with the rig (a mounting off by degrees, or the
-  camera's matches are wrong), with a warning; when its points are compared with one other
-  camera's only, both are named (:meth:`CameraAgreement.partner`): two cameras cannot tell
-  which mounting is wrong. A camera whose frames never join the others' (its clock or stamp
-  offset likely wrong) is *apart*, named with its apparent clock offsets
-  (:meth:`RigGrouping.clock_offsets`, a warning); its stamps are not shifted (stamps alone give
-  an offset only up to the frame period and cannot tell a clock error from cameras out of phase
-  by design): its frames are posed alone only where the track agrees.
-- :func:`refusal`, why a rig frame posed from one camera's points alone while other cameras
-  run is refused (``contradicts_track``, ``unconfirmed``).
+- :class:`RigGrouping`: the cameras' frames grouped into *rig frames* by their reference-line
+  times, when a rig frame is complete, why a camera missed it, the apparent clock offsets;
+- :class:`CameraAgreement`: the cameras that *disagree* with the rig, and those whose frames
+  never join the others' (*apart*);
+- :func:`refusal`: why a rig frame posed from one camera alone while others run is refused.
 """
 
 from __future__ import annotations
@@ -76,10 +57,9 @@ MISSED_REASONS = {
     "stopped": "the camera sent no frame for stop_after s while the others did: the rig runs on "
     "the others",
     "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
-    "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
+    "(its camera_info had not arrived: skipped.no_camera_info)",
     "skipped": "the camera's frame within 2 x window of the rig frame was skipped (Localizer."
-    "drop: an image that did not decode, a front end error, a frozen image, an unreadable "
-    "cloud; counted skipped.<reason>), not a frame apart",
+    "drop, a reason of SKIP_REASONS: e.g. an image that did not decode), not a frame apart",
 }
 #: a pose contradicts the track when its normalized squared distance from the prediction
 #: (rotation and position, the prediction's and the estimate's covariances) exceeds this
@@ -92,12 +72,8 @@ CONTRADICTION_MIN_M = 0.02
 #: ``VOTE_MIN_POINTS`` points, e.g. one tag's 4 corners) confirms a tracked rig frame posed by
 #: one voting camera when at least this many of its points are inliers of the rig's pose
 #: (one more than the 3 that pose a camera, so that they check the pose rather than merely
-#: fit it): the rig frame is posed by two cameras and the track's prediction does not
-#: refuse it (on TagSLAM's fisheye rigs, ``python -m benchmarks.bench_real_rig --video``, the
-#: 10 such rig frames of ``test_5`` whose prediction, 1.4-10.5 deg off, contradicts them are
-#: within 0.44 deg and 9.2 mm of the reference). Not at a track's start (``unconfirmed``):
-#: there nothing else checks the pose, and a joint fit of 8 and 4 corners can explain them all
-#: 2 degrees off
+#: fit it): the track's prediction does not refuse it. Not at a track's start
+#: (``unconfirmed``): nothing else checks the pose there (docs/rig.md, TagSLAM's rigs)
 CONFIRM_MIN_INLIERS = 4
 #: a camera is *apart* (its clock likely off) when it missed, or was alone in, at least
 #: APART_SHARE of its last APART_HISTORY rig frames as ``apart`` (at least APART_MIN of them)
@@ -148,9 +124,11 @@ class _RigCamera:
 
 
 class RigGrouping:
-    """The grouping of a rig's cameras' frames into rig frames (module docstring): the rig
-    frames open, each camera's frame times, the rules of when a rig frame is complete and why a
-    camera is missing from it.
+    """The grouping of a rig's cameras' frames into rig frames: a rig frame holds at most one
+    frame per camera, all within ``window`` s of its earliest reference time
+    (:func:`~rs_localizer.camera.reference_stamp_ns`); it is complete once every camera is in
+    it, has moved past it or has stopped (:meth:`complete`), and a camera that sends again
+    joins again. Its state: the rig frames open, each camera's frame times.
 
     Args:
         cameras: the cameras' names, in the rig's order.
@@ -343,9 +321,12 @@ def _frame_steps(recent) -> np.ndarray:
 
 # ---------------------------------------------------------------------- agreement
 class CameraAgreement:
-    """The cameras' agreement with the rig (module docstring): which disagree with it, which
-    of them with one other camera alone (:meth:`partner`), whose frames are kept apart from the
-    others' (each camera's ``apart``, :meth:`update_apart`).
+    """The cameras' agreement with the rig: which disagree with it (their points outliers far
+    more often than the others' over several rig frames: a mounting off, or wrong matches;
+    :meth:`update`), which of them with one other camera alone (:meth:`partner`), whose frames
+    are kept apart from the others' (each camera's ``apart``, :meth:`update_apart`: its clock
+    or stamp offset likely wrong; its stamps are not shifted, stamps alone giving an offset
+    only up to the frame period).
 
     Args:
         history: rig frames a camera's disagreement looks back over (``disagree_history``).
@@ -374,12 +355,12 @@ class CameraAgreement:
         return next((n for n, c in self.cams.items() if c.partner == name), None)
 
     def update_apart(self, cameras: tuple, missing: dict, window: float) -> None:
-        """Flag the cameras whose frames are kept apart from the others' (module docstring),
-        given a rig frame's ``cameras`` and ``missing`` (camera -> a key of
-        :data:`MISSED_REASONS`; ``window`` s): a camera missing as ``apart`` from a rig frame of
-        others, or alone in one the others missed as ``apart``; named (a warning with its
-        apparent clock offsets, :meth:`RigGrouping.clock_offsets`) in :data:`APART_SHARE` of its
-        last :data:`APART_HISTORY`."""
+        """Flag the cameras whose frames are kept apart from the others', given a rig frame's
+        ``cameras`` and ``missing`` (camera -> a key of :data:`MISSED_REASONS`; ``window`` s):
+        a camera missing as ``apart`` from a rig frame of others, or alone in one the others
+        missed as ``apart``; named (a warning with its apparent clock offsets,
+        :meth:`RigGrouping.clock_offsets`) in :data:`APART_SHARE` of its last
+        :data:`APART_HISTORY`."""
         alone = len(cameras) == 1 and "apart" in missing.values()
         for n, cam in self.cams.items():
             if n not in cameras and missing.get(n) != "apart":
@@ -404,17 +385,16 @@ class CameraAgreement:
 
     def update(self, names: list, views: list, est: RSPoseEstimate, settings: Any,
                implementation: str | None = None) -> tuple:  # fmt: skip
-        """Flag the cameras whose points fit the rig's pose far worse than the others' (module
-        docstring): rig frame's cameras ``names``, their ``views`` and the estimate ``est``
-        (each camera's points and inliers, ``num_valid_per_view`` and
-        ``num_inliers_per_view``; a camera found to disagree is posed alone on
-        ``implementation`` for its warning), the rule's ``settings``
-        (``disagree_ratio``, ``disagree_min_points``, ``disagree_frames``). The others' verdict
-        names a camera alone when at least two other cameras with points stand against it:
-        when its points are compared with one other camera's only, the two disagree and either
-        mounting may be the wrong one (the camera with fewer points is outvoted by the one with
-        more, not shown wrong), so both are named (:meth:`partner`). Returns the cameras that
-        disagree now (rig order)."""
+        """Flag the cameras whose points fit the rig's pose far worse than the others': a rig
+        frame's cameras ``names``, their ``views`` and the estimate ``est`` (each camera's
+        points and inliers, ``num_valid_per_view`` and ``num_inliers_per_view``; a camera
+        found to disagree is posed alone on ``implementation`` for its warning), the rule's
+        ``settings`` (``disagree_ratio``, ``disagree_min_points``, ``disagree_frames``). The
+        others' verdict names a camera alone when at least two other cameras with points stand
+        against it: when its points are compared with one other camera's only, the two
+        disagree and either mounting may be the wrong one (the camera with fewer points is
+        outvoted by the one with more, not shown wrong), so both are named (:meth:`partner`).
+        Returns the cameras that disagree now (rig order)."""
         s = settings
         n_pts, n_in = np.asarray(est.num_valid_per_view), np.asarray(est.num_inliers_per_view)
         strong = [j for j in range(len(names)) if int(n_pts[j]) >= s.disagree_min_points]
