@@ -18,18 +18,21 @@ def declare_parameters(
     node: Any, parameters: Mapping[str, Parameter], dynamic: Collection[str] = ()
 ) -> None:
     """Declare every ``name -> (default, description, range, read_only, ...)`` (a
-    :class:`~rs_localizer.ros.params.Parameter`) on ``node`` (the value from the node's
-    parameter overrides, else the default), in the mapping's order with the names of
-    ``dynamic`` after the others. Those are declared of any type, not set (None) unless
-    overridden (their default is the one the docs show): their value is checked by
-    :func:`.config.build_config`, which names the parameter and the fix (``rig.cameras:
-    front`` instead of ``[front]``, a mounting of integers).
+    :class:`~rs_localizer.ros.params.Parameter`) not declared yet on ``node`` (the value from
+    the node's parameter overrides, else the default; one declared already is kept: a rig
+    camera's at a configure retried after a value of it was refused declares the rest), in
+    the mapping's order with the names of ``dynamic`` after the others. Those are declared
+    of any type, not set (None) unless overridden (their default is the one the docs show):
+    their value is checked by :func:`.config.build_config`, which names the parameter and the
+    fix (``rig.cameras: front`` instead of ``[front]``, a mounting of integers).
 
     Raises:
         RuntimeError: a value of the wrong type or outside its range, naming the parameter
             (the node refuses to start, or a rig camera's to configure).
     """
     for name in sorted(parameters, key=lambda n: n in dynamic):  # (stable: the order kept)
+        if node.has_parameter(name):
+            continue
         default, desc, rng, ro = parameters[name][:4]
         if name in dynamic:
             d = ParameterDescriptor(description=desc, read_only=ro, dynamic_typing=True)

@@ -56,11 +56,8 @@ def declare_rig_cameras(node: Any) -> None:
     """
     value = node.get_parameter("rig.cameras").value
     names = rig_camera_names(value) if names_a_rig(value) else []
-    for n in names:
-        # (those not declared yet: a configure retried after a value was refused declares
-        # the rest and names that value again)
-        p = f"rig.{n}."
-        own = {p + k: v for k, v in RIG_CAMERA_PARAMETERS.items() if not node.has_parameter(p + k)}
+    for n in names:  # (a configure retried declares those not declared yet)
+        own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
         declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
 
 
