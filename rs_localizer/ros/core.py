@@ -403,11 +403,12 @@ class NodeCore:
 
     # ---------------------------------------------------------------- parameters
     def param_values(self, overrides: Mapping) -> dict:
-        """Every parameter of :data:`~.params.PARAMETERS` by name: its value in ``overrides``
-        (a change being checked), else the node's."""
+        """Every parameter of :data:`~.params.PARAMETERS` and :data:`~.params.RIG_PARAMETERS`
+        (``rig.cameras`` as set) by name: its value in ``overrides`` (a change being checked),
+        else the node's."""
         return {
             name: overrides[name] if name in overrides else self.get_parameter(name).value
-            for name in PARAMETERS
+            for name in (*PARAMETERS, *RIG_PARAMETERS)
         }
 
     def _has_configuration(self) -> bool:

@@ -189,7 +189,7 @@ class LocalizerMode(ModeBase):
         return self.changed_configuration({})
 
     def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, dict]:
-        """The configuration of the parameters with ``overrides`` (with a rig's own
+        """The configuration of the parameters with ``overrides`` (with a rig's cameras'
         parameters, :func:`.rig_node.rig_values`: a change refused for those a rig cannot
         take without a restart) and each camera's maps (camera name -> its
         :class:`~rs_localizer.frontends.shared.LoadedMaps`, held by the node: the landmarks of
@@ -200,8 +200,8 @@ class LocalizerMode(ModeBase):
             ConfigError: a value that cannot be used, a map that does not load, a change
                 refused (naming them).
         """
-        rig, cams = rig_values(self.node, overrides, self.cfg)
-        cfg = build_config({**self.node.param_values(overrides), **rig}, cams)
+        cams = rig_values(self.node, overrides, self.cfg)
+        cfg = build_config(self.node.param_values(overrides), cams)
         return cfg, {c.name: load_maps(c, owner=self.node, current=self._loaded.get(c.name))
                      for c in cfg.cameras}  # fmt: skip
 

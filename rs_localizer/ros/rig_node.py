@@ -15,7 +15,7 @@ from .camera_input import DroppedFrame
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
 from .declare import declare_parameters
-from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
+from .params import RIG_CAMERA_PARAMETERS, ConfigError
 
 __all__ = [
     "RIG_TEXTS",
@@ -62,11 +62,10 @@ def declare_rig_cameras(node: Any) -> None:
 
 
 def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
-               ) -> tuple[dict, dict | None]:  # fmt: skip
-    """A rig's own parameter values for :func:`.config.build_config`: ``(values, cameras)``,
-    the :data:`~.params.RIG_PARAMETERS` (``rig.cameras`` as set: ``build_config`` reads its
-    names) and each camera's ``rig.<c>.*``; ``({}, None)`` for the camera alone
-    (``rig.cameras`` empty). With ``current``, the configuration the rig runs with (None: at
+               ) -> dict | None:  # fmt: skip
+    """A rig's cameras' parameter values for :func:`.config.build_config` (the others:
+    :meth:`.core.NodeCore.param_values`): camera -> its ``rig.<c>.*``; None for the camera
+    alone (``rig.cameras`` empty). With ``current``, the configuration the rig runs with (None: at
     configure, unchecked), a change of ``overrides`` (name -> value) is refused for the
     parameters a rig cannot take without a restart (:func:`.config.rig_change_refused`)
     unless their value stays the same.
@@ -76,7 +75,7 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
     """
     value = node.get_parameter("rig.cameras").value
     if not names_a_rig(value):
-        return {}, None
+        return None
     if current is not None:
         changed = [
             n for n, v in overrides.items() if not same_value(v, node.get_parameter(n).value)
@@ -84,12 +83,10 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
         refused = rig_change_refused(changed, current.settings.single_camera)
         if refused is not None:
             raise ConfigError(refused)
-    values = {n: node.get_parameter(n).value for n in RIG_PARAMETERS}
-    cams = {
+    return {
         n: {k: node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
         for n in rig_camera_names(value)
     }
-    return values, cams
 
 
 class SameRigFrame:
