@@ -80,10 +80,8 @@ CONFIRM_MIN_INLIERS = 4
 APART_HISTORY = 10
 APART_MIN = 6
 APART_SHARE = 0.8
-#: a camera whose frames come further apart than ``stop_after`` counts as stopped only after
-#: this many of its own frame intervals without a frame (the median of its recent ones): a
-#: rig of 2 Hz cameras with the default 0.5 s is otherwise cut in two at every stamp (the
-#: first camera's frame solved alone, the others stopped)
+#: a camera counts as stopped only after this many of its own frame intervals without a frame
+#: too (:meth:`RigGrouping.stop_ns`; docs/rig.md: TagSLAM's 2 Hz cameras)
 STOP_INTERVALS = 2.0
 
 
