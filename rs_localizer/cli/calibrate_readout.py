@@ -96,9 +96,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..calibration.readout import calibrate_line_delay
-    from ..estimation.estimate import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_bag_frames, read_gyro
-    from ..runtime.background import CameraKernels, cold_compile_note
+    from ..runtime.background import frames_alone_options
 
     bag = read_bag_frames(
         path,
@@ -110,8 +109,7 @@ def run(args: argparse.Namespace) -> int:
     )
     gyro = read_gyro(path, args.imu_topic) if args.imu_topic else None
     stamp_row = bag.stamp_row if args.stamp_row is None else args.stamp_row
-    options = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold, seed=0))
-    cold_compile_note(CameraKernels(args.solver, options))
+    options = frames_alone_options(args.threshold, args.solver)
     res = calibrate_line_delay(
         bag.frames,
         bag.camera,

@@ -117,13 +117,12 @@ def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]
 def _optical_frame_id(bag, camera: str) -> str:
     """``camera``'s optical frame in a rig bag: its first camera_info's ``frame_id``, else
     ``<camera>_optical_frame``."""
-    from ..ros.bags.bag_io import bag_topics, iter_messages, typestore
+    from ..ros.bags.bag_io import bag_topics, first_message
 
     topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
-    for _, msgtype, _, raw in iter_messages(bag, topics[:1]):  # (the first one, if any)
-        frame_id = str(typestore().deserialize_cdr(raw, msgtype).header.frame_id).strip()
-        return frame_id or f"{camera}_optical_frame"
-    return f"{camera}_optical_frame"
+    info = first_message(bag, topics[:1])  # (of the first such topic, if any)
+    frame_id = "" if info is None else str(info.header.frame_id).strip()
+    return frame_id or f"{camera}_optical_frame"
 
 
 def _camera_notes(
@@ -236,12 +235,10 @@ def _frames_read(frames: list, name: str, min_inliers: int) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
-    from ..estimation import EstimateOptions, RansacOptions
     from ..ros.bags.bag_frames import read_rig_frames
     from ..ros.config import mounting_covariance_values, mounting_values, rig_mounting
     from ..ros.params import ConfigError
-    from ..runtime.background import CameraKernels, cold_compile_note
-    from ..solvers.registry import DEFAULT_SOLVER
+    from ..runtime.background import frames_alone_options
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
@@ -252,15 +249,14 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as e:
         raise A.CliError(f"invalid parameters: {e}") from None
     values, cams = read.values, read.cameras
-    names = [str(n).strip() for n in values["rig.cameras"]]
+    names = list(cams)  # (rig.cameras, named as the rig node names them)
     ref = args.reference or names[0]
     if ref not in names:
         raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
     # the mountings the parameters give (the node's reading: it refuses a bad one, naming it)
     given = {n: rig_mounting(n, cams[n]["mounting"]) for n in names if cams[n].get("mounting")}
     ref_mount = None if args.optical_frame else given.get(ref)
-    options = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
-    cold_compile_note(CameraKernels(DEFAULT_SOLVER, options))  # (each frame posed alone)
+    options = frames_alone_options(args.threshold)
     est = calibrate_mountings(
         read.frames, ref, reference_mount=ref_mount, window=args.window,
         stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers, options=options,

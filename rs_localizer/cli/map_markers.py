@@ -81,6 +81,7 @@ def frames_from_bag(
         COMPRESSED_IMAGE,
         IMAGE,
         bag_topics,
+        first_message,
         iter_messages,
         read_bag_info,
         typestore,
@@ -109,19 +110,15 @@ def frames_from_bag(
         raise ValueError(f"{path}: no camera_info topic")
     ns = image_topic.rsplit("/", 1)[0]
     info_topic = next((t for t in infos if t.rsplit("/", 1)[0] == ns), infos[0])
-    ts = typestore()
-    camera = None
-    for _, msgtype, _, raw in iter_messages(path, {info_topic}):
-        camera = cv.camera_model_from_camera_info(
-            ts.deserialize_cdr(raw, msgtype), readout_time=readout_time
-        )
-        break
-    if camera is None:
+    info = first_message(path, {info_topic})
+    if info is None:
         raise ValueError(f"{path}: no camera_info message on {info_topic}")
+    camera = cv.camera_model_from_camera_info(info, readout_time=readout_time)
     stamp_row = float(read_bag_info(path).get("rs", {}).get("stamp_row", 0.0))
     offset = float(camera.line_time(camera.reference_line) - camera.line_time(stamp_row))
     front = ArucoFrontend({}, dictionary, detector_options=detector_options)
     frames, counts = [], {"images": 0, "without_markers": 0, "duplicate_ids": 0}
+    ts = typestore()
     msgs = iter_messages(path, {image_topic})
     if progress:
         from tqdm import tqdm

@@ -36,7 +36,7 @@ from typing import TextIO
 
 import numpy as np
 
-from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
 from ..estimation.implementation import COMPILED, NUMPY, NUMPY_SOLVERS, compiled_by_default
 from ..tracking.tracker import TrackerOptions
 from ..tracking.video import SINGLE_CAMERA_SOLVER, LocalizerSettings
@@ -50,6 +50,7 @@ __all__ = [
     "cold_compile_note",
     "compiled_ready",
     "fall_back_uncompiled",
+    "frames_alone_options",
     "ready_implementation",
     "start_background_compile",
     "uncompiled_rate",
@@ -191,6 +192,19 @@ def cold_compile_note(kernels: CameraKernels | RigKernels, stream: TextIO | None
         flush=True,
     )
     return True
+
+
+def frames_alone_options(
+    threshold_px: float, solver: str = SINGLE_CAMERA_SOLVER, stream: TextIO | None = None
+) -> EstimateOptions:
+    """The single-camera estimator's options of an offline command that poses each frame
+    alone with ``solver`` on the compiled kernels (``calibrate-rig``, ``calibrate-readout``):
+    the defaults with the RANSAC threshold ``threshold_px`` (px). Their
+    :class:`CameraKernels` are told on ``stream`` first when they compile now
+    (:func:`cold_compile_note`)."""
+    options = EstimateOptions(ransac=RansacOptions(threshold_px=threshold_px))
+    cold_compile_note(CameraKernels(solver, options), stream)
+    return options
 
 
 def start_background_compile(

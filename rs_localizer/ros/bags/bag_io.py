@@ -43,6 +43,7 @@ __all__ = [
     "RosbagsMessages",
     "bag_connections",
     "bag_topics",
+    "first_message",
     "iter_messages",
     "load_ground_truth",
     "read_bag_info",
@@ -298,6 +299,15 @@ def iter_messages(
             return
         for conn, t_ns, raw in r.messages(connections=conns):
             yield conn.topic, conn.msgtype, t_ns, bytes(raw)
+
+
+def first_message(path: str | os.PathLike, topics: Iterable[str]) -> Any | None:
+    """The first message (in log-time order) of those of ``topics`` in the bag at ``path``,
+    deserialized (e.g. a camera's first ``sensor_msgs/CameraInfo``); None when they have
+    none or the bag has none of them."""
+    for _, msgtype, _, raw in iter_messages(path, topics):
+        return typestore().deserialize_cdr(raw, msgtype)
+    return None
 
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
