@@ -20,6 +20,8 @@ the bit (a rig: :mod:`~.gr6p_1lin`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .._jit import kernel
@@ -168,8 +170,11 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
 _NO_PRIOR = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.bool_(False))
 
 
-def run_mounted(name, batched, solve, x, X, tau, cam, Rm, cm, iterations, tol, v_init,
-                prior_rows=None, **single):  # fmt: skip
+def run_mounted(name: str, batched: bool, solve: Callable, x: np.ndarray, X: np.ndarray,
+                tau: np.ndarray, cam: np.ndarray, Rm: np.ndarray, cm: np.ndarray, iterations: int,
+                tol: float, v_init: np.ndarray | None,
+                prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+                **single: str) -> RSSolution | RSBatch:  # fmt: skip
     """One problem (``batched`` False: :func:`~._linear.run_single` on it as a batch of one,
     with its keywords ``single``) or K (:func:`~._linear.run_batch_with_prior`) by ``solve``
     (:func:`solve_mounted`, or a function of its arguments) on points seen at the times
