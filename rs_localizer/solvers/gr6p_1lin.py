@@ -29,12 +29,9 @@ give rad/s and world units/s). Gaussian elimination with partial pivoting and th
 least squares do not depend on column scaling beyond the rank tolerance, so seconds
 (tau ~ 1e-2) work as well as the single camera's ``r`` (tau ~ 1).
 
-Linearization (as eq. 6 of sec. 3.3). Expanding,
-``(I + tau [w]x)(I + [v]x) X = X + [v]x X + tau [w]x X + tau [w]x [v]x X``; only the last term
-is bilinear. Each iteration fixes ``v_hat`` in it:
-``tau [w]x [v_hat]x X = tau w x Z`` with ``Z = X + v_hat x X``; everything else is linear in
-(v, C, w, t). The first iteration uses ``v_hat = v_init`` (default 0), each next one the
-previous estimate of ``v``; a fixed point satisfies the rig eq. 5 exactly.
+Linearization: :mod:`~.r6p_1lin`'s (eq. 6 of sec. 3.3). Each iteration fixes ``v_hat`` in the
+one bilinear term, ``tau [w]x [v_hat]x X = tau w x Z`` with ``Z = X + v_hat x X`` (``v_init``,
+default 0, then the previous estimate of ``v``); a fixed point satisfies the rig eq. 5 exactly.
 
 Rows per point. lambda is eliminated with the camera's ray: the rows ``E`` (2, 3) of
 ``[x_hat]x`` (``E1 = [0, -1, y]``, ``E2 = [1, 0, -x]``, see ``_linear``) give
@@ -60,8 +57,8 @@ import numpy as np
 
 from ..geometry import cross
 from ._common import RSBatch, RSSolution, check_batch, check_inputs
-from ._linear import PATIENCE, lstsq_stack, run_batch_with_prior, run_single
-from .r6p_1lin import solve_mounted
+from ._linear import PATIENCE, lstsq_stack
+from .r6p_1lin import run_mounted, solve_mounted
 
 __all__ = ["gr6p_1lin", "gr6p_1lin_batch"]
 
@@ -154,9 +151,6 @@ def _check(x, X, tau, cam, R_mount, c_mount, batched):
     return x, X, tau, cam, Rm, cm
 
 
-_NO_PRIOR = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.bool_(False))
-
-
 def gr6p_1lin(
     x: np.ndarray,
     X: np.ndarray,
@@ -196,11 +190,9 @@ def gr6p_1lin(
             points, every tau equal).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
-    kernel, _ = _kernels(solve_mounted, cam[None], Rm, cm)
-    return run_single(
-        kernel, NAME, 12, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init,
+    return run_mounted(
+        NAME, False, solve_mounted, x, X, tau, cam, Rm, cm, iterations, tol, v_init,
         degenerate="collinear or duplicated points, or every observation at the same time?",
-        checked=True,
     )  # fmt: skip
 
 
@@ -238,23 +230,6 @@ def gr6p_1lin_batch(
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    kernel, with_prior = _kernels(_solve_numpy if numpy else solve_mounted, cam, Rm, cm)
-    return run_batch_with_prior(
-        kernel, with_prior, NAME, MIN_POINTS, x, X, tau, 0.0, iterations, tol, v_init, prior_rows,
-        checked=True,
-    )  # fmt: skip
-
-
-def _kernels(solve, cam, Rm, cm):
-    """``solve`` (:func:`~.r6p_1lin.solve_mounted` or :func:`_solve_numpy`) on the cameras
-    ``cam`` at the mountings ``Rm``, ``cm`` as the single camera's kernels of :mod:`._linear` (the
-    observation times passed as its ``r``, ``r0`` unused): ``(kernel, solve with prior)``."""
-
-    def with_prior(x, X, tau, r0, iterations, tol, v_init, P, q, use, out, ok, its, err):
-        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use, out, ok, its, err)
-
-    def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
-        # (the prior's types, a non-literal flag: one compiled solve_mounted for both)
-        solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
-
-    return kernel, with_prior
+    solve = _solve_numpy if numpy else solve_mounted
+    return run_mounted(NAME, True, solve, x, X, tau, cam, Rm, cm, iterations, tol, v_init,
+                       prior_rows)  # fmt: skip

@@ -11,19 +11,21 @@ takes ``v_hat`` from the previous estimate. A fixed point satisfies eq. 5 exactl
 Coefficient rows, for each elimination row E of point i (see ``_linear``), with
 ``Z = X + v_hat x X``:  ``[X x E | E | tau (Z x E) | tau E] . [v; C; w; t] = -E . X``.
 
-One kernel (:func:`solve_mounted`) solves it for a camera alone and for a rig's cameras: each
-point seen through its camera's mounting ``x_cam = R_c x + c_c`` at its own time ``tau``, the
-rows ``F = R_c^T E`` and right-hand side ``-F . X - E . c_c``; a camera alone is one mounting
-at the identity with ``tau = r - r0``, its rows the ones above to the bit (a rig:
-:mod:`~.gr6p_1lin`).
+One kernel (:func:`solve_mounted`, run by :func:`run_mounted`) solves it for a camera alone
+and for a rig's cameras: each point seen through its camera's mounting ``x_cam = R_c x + c_c``
+at its own time ``tau``, the rows ``F = R_c^T E`` and right-hand side ``-F . X - E . c_c``; a
+camera alone is one mounting at the identity with ``tau = r - r0``, its rows the ones above to
+the bit (a rig: :mod:`~.gr6p_1lin`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .._jit import kernel
-from ._common import RSBatch, RSSolution
+from ._common import RSBatch, RSSolution, check_batch, check_inputs
 from ._linear import (
     PATIENCE,
     cross_into,
@@ -32,7 +34,7 @@ from ._linear import (
     run_single,
 )
 
-__all__ = ["mounted_error", "r6p_1lin", "r6p_1lin_batch", "solve_mounted"]
+__all__ = ["mounted_error", "r6p_1lin", "r6p_1lin_batch", "run_mounted", "solve_mounted"]
 
 
 @kernel
@@ -146,9 +148,10 @@ def solve_mounted(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_pri
 
 
 @kernel
-def _with_prior(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
-    """:func:`solve_mounted` of one camera (K problems at ``r``, ``r0``): ``tau = r - r0``, one
-    mounting at the identity."""
+def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    """:func:`solve_mounted` of one camera (K problems at ``r``, ``r0``; the kernel of the fused
+    RANSAC batch, :mod:`.kernels`): ``tau = r - r0``, one mounting at the identity, no prior
+    rows."""
     K, N = x.shape[0], x.shape[1]
     tau = np.empty((K, N))
     for k in range(K):
@@ -156,17 +159,49 @@ def _with_prior(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, 
             tau[k, i] = r[k, i] - r0
     cam = np.zeros((K, N), dtype=np.int64)
     Rm, cm = np.eye(3).reshape(1, 3, 3), np.zeros((1, 3))
-    solve_mounted(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its,
-                  err)  # fmt: skip
-
-
-@kernel
-def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     # (no prior rows: the arguments of the same types as the prior path's, writable arrays
     # and a non-literal flag, so that both share one compiled solve)
     no_P, no_q = np.zeros((1, 6, 6)), np.zeros((1, 6))
-    _with_prior(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its,
-                err)  # fmt: skip
+    solve_mounted(x, X, tau, cam, Rm, cm, iterations, tol, v_init, no_P, no_q, np.bool_(False),
+                  out, ok, its, err)  # fmt: skip
+
+
+#: :func:`solve_mounted`'s prior arguments without prior rows (as ``_kernel``'s)
+_NO_PRIOR = (np.zeros((1, 6, 6)), np.zeros((1, 6)), np.bool_(False))
+
+
+def run_mounted(name: str, batched: bool, solve: Callable, x: np.ndarray, X: np.ndarray,
+                tau: np.ndarray, cam: np.ndarray, Rm: np.ndarray, cm: np.ndarray, iterations: int,
+                tol: float, v_init: np.ndarray | None,
+                prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+                **single: str) -> RSSolution | RSBatch:  # fmt: skip
+    """One problem (``batched`` False: :func:`~._linear.run_single` on it as a batch of one,
+    with its keywords ``single``) or K (:func:`~._linear.run_batch_with_prior`) by ``solve``
+    (:func:`solve_mounted`, or a function of its arguments) on points seen at the times
+    ``tau`` (N,) or (K, N) through the mountings ``Rm[cam]``, ``cm[cam]`` (``cam`` int64 as
+    ``tau``): a camera alone (:func:`r6p_1lin`, :func:`r6p_1lin_batch`) and a rig's cameras
+    (:mod:`~.gr6p_1lin`). ``x``, ``X``, ``tau`` already checked by the caller."""
+    cams = cam if batched else cam[None]
+
+    def with_prior(x, X, tau, r0, iterations, tol, v_init, P, q, use, out, ok, its, err):
+        solve(x, X, tau, cams, Rm, cm, iterations, tol, v_init, P, q, use, out, ok, its, err)
+
+    def kernel(x, X, tau, r0, iterations, tol, v_init, out, ok, its, err):
+        solve(x, X, tau, cams, Rm, cm, iterations, tol, v_init, *_NO_PRIOR, out, ok, its, err)
+
+    if batched:
+        return run_batch_with_prior(kernel, with_prior, name, 6, x, X, tau, 0.0, iterations, tol,
+                                    v_init, prior_rows, checked=True)  # fmt: skip
+    return run_single(kernel, name, 12, 6, x, X, tau, 0.0, iterations, tol, v_init, checked=True,
+                      **single)  # fmt: skip
+
+
+def _one_camera(batched, x, X, r, r0, iterations, tol, v_init, prior_rows=None):
+    """:func:`run_mounted` of a camera alone: ``tau = r - r0``, one mounting at the identity."""
+    x, X, r, r0 = (check_batch if batched else check_inputs)(x, X, r, r0, 6, "r6p_1lin")
+    return run_mounted("r6p_1lin", batched, solve_mounted, x, X, r - r0,
+                       np.zeros(r.shape, dtype=np.int64), np.eye(3).reshape(1, 3, 3),
+                       np.zeros((1, 3)), iterations, tol, v_init, prior_rows)  # fmt: skip
 
 
 def r6p_1lin(
@@ -202,7 +237,7 @@ def r6p_1lin(
         ValueError: wrong shapes, N < 6, NaN/inf input, iterations < 1.
         DegenerateInputError (a ValueError): rank-deficient system (collinear, duplicated points).
     """
-    return run_single(_kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
+    return _one_camera(False, x, X, r, r0, iterations, tol, v_init)
 
 
 def r6p_1lin_batch(
@@ -231,6 +266,4 @@ def r6p_1lin_batch(
     Raises:
         ValueError: wrong shapes or N < 6, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    return run_batch_with_prior(
-        _kernel, _with_prior, "r6p_1lin", 6, x, X, r, r0, iterations, tol, v_init, prior_rows
-    )
+    return _one_camera(True, x, X, r, r0, iterations, tol, v_init, prior_rows)
