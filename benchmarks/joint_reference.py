@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.tagslam_data import RealRig, tag_corners
-from rs_localizer.calibration.corners import CornerSolution, RigCorners
+from rs_localizer.calibration.corners import CornerSolution, RigCorners, moved
 
 __all__ = [
     "CACHE",
@@ -127,7 +127,7 @@ class TagSLAMCorners(RigCorners):
         t = self.tags
         if t is None:
             return None
-        return self._moved(t.R, t.p, x[6 * self.G : 6 * self.lead].reshape(self.T, 6), t.free)
+        return moved(t.R, t.p, x[6 * self.G : 6 * self.lead].reshape(self.T, 6), t.free)
 
     def world_points(self, x: np.ndarray) -> np.ndarray:
         """(N, 3) m: the fixed map points, or the tags' corners at :meth:`tag_poses`."""

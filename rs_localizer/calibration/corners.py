@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
 from ..geometry import rotvec_to_matrix
 
-__all__ = ["CornerSolution", "RigCorners"]
+__all__ = ["CornerSolution", "RigCorners", "moved"]
 
 #: px, times the loss scale: the error given to a corner that no longer projects (it left its
 #: camera's field of view during the solve), so that the solve moves away from it
@@ -30,6 +30,16 @@ UNPROJECTED_PENALTY = 1e3
 #: an eigenvalue of the mountings' information (:meth:`RigCorners.mounting_covariance`) below
 #: this share of the largest is a direction the corners do not constrain
 UNCONSTRAINED_RTOL = 1e-12
+
+
+def moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel) -> tuple:
+    """Copies of the poses ``R`` (K, 3, 3), ``p`` (K, 3) m with the blocks ``sel`` moved by
+    the increments ``d`` (k, 6): rotation vector (rad) composed on the left, translation (m)
+    added (the parameters of :class:`RigCorners` and of the mountings' pose-level adjustment)."""
+    R, p = R.copy(), p.copy()
+    if len(d):
+        R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
+    return R, p
 
 
 @dataclass
@@ -155,22 +165,12 @@ class RigCorners:
             first, view = np.arange(n), np.arange(n)
         self.first, self.view = first, view
 
-    @staticmethod
-    def _moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel) -> tuple:
-        """Copies of the poses ``R`` (K, 3, 3), ``p`` (K, 3) m with the blocks ``sel`` moved by
-        the increments ``d`` (k, 6): rotation vector (rad) composed on the left, translation
-        (m) added."""
-        R, p = R.copy(), p.copy()
-        if len(d):
-            R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
-        return R, p
-
     def unpack(self, x: np.ndarray) -> tuple:
         """``((R_g, P_g), (R_m, p_m))``: the rig poses and mountings of the parameters ``x``
         (n,)."""
         G, F, lo = self.G, self.F, 6 * self.lead
-        rig = self._moved(self.R0g, self.P0g, x[: 6 * G].reshape(G, 6), slice(None))
-        return rig, self._moved(self.R0m, self.p0m, x[lo : lo + 6 * F].reshape(F, 6), self.free)
+        rig = moved(self.R0g, self.P0g, x[: 6 * G].reshape(G, 6), slice(None))
+        return rig, moved(self.R0m, self.p0m, x[lo : lo + 6 * F].reshape(F, 6), self.free)
 
     def errors(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) px: every corner's projection at the parameters ``x`` minus its pixel (NaN:

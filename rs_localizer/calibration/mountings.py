@@ -24,7 +24,7 @@ from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting, base_pose
 from ..geometry import compose, matrix_to_rotvec, rotvec_to_matrix
-from .corners import CornerSolution, RigCorners
+from .corners import CornerSolution, RigCorners, moved
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",
@@ -339,17 +339,17 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
     gi, g, cam, O, p, W, w, v = (np.array(x) for x in zip(*obs, strict=True))  # noqa: E741
     G, F, m = len(R0g), len(free), len(obs)
     D = F if offsets else 0  # (a time offset per free camera, s, after the mountings)
-    R0m = np.array([mounts[n][0] for n in free]).reshape(-1, 3, 3)
-    p0m = np.array([mounts[n][1] for n in free]).reshape(-1, 3)
-    Rref, pref = mounts[reference]
-    ci = np.array([free.index(n) if n in free else -1 for n in cam])  # (the reference's: -1)
+    # the mountings: the free ones', then the reference's (fixed; an observation's index -1)
+    R0m, p0m = (np.array([mounts[n][i] for n in [*free, reference]]) for i in (0, 1))
+    ci = np.array([free.index(n) if n in free else -1 for n in cam])
     R0g, P0g, O_T = np.array(R0g), np.array(P0g), np.array(O.transpose(0, 2, 1))
 
+    def unpack(x):  # (the rig poses and the mountings at the parameters x)
+        rig = moved(R0g, P0g, x[: 6 * G].reshape(G, 6), slice(None))
+        return rig, moved(R0m, p0m, x[6 * G : 6 * (G + F)].reshape(F, 6), np.arange(F + 1) < F)
+
     def fun(x):
-        xg, xm, xd = x[: 6 * G].reshape(G, 6), x[6 * G : 6 * (G + F)].reshape(F, 6), x[6 * (G + F) :]  # fmt: skip  # noqa: E501
-        Rg = rotvec_to_matrix(xg[:, :3]) @ R0g
-        Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m, Rref[None]]) if F else Rref[None]
-        pm = np.concatenate([p0m + xm[:, 3:], pref[None]])
+        ((Rg, Pg), (Rm, pm)), xd = unpack(x), x[6 * (G + F) :]
         Ot, p_t = O_T, p
         if D:  # (a time offset dt at the rig frame's time is the pose dt earlier on the
             # camera's own time, constant twist: O -> expm(-dt [w]x) O, p -> p - dt v)
@@ -357,7 +357,7 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
             Ot, p_t = Ot @ rotvec_to_matrix(dt[:, None] * w), p - dt[:, None] * v
         e = np.concatenate(
             [matrix_to_rotvec(Rg[gi] @ Rm[ci] @ Ot),
-             (P0g + xg[:, 3:])[gi] + np.einsum("nij,nj->ni", Rg[gi], pm[ci]) - p_t], axis=1,
+             Pg[gi] + np.einsum("nij,nj->ni", Rg[gi], pm[ci]) - p_t], axis=1,
         )  # fmt: skip
         return np.concatenate([np.einsum("nij,nj->ni", W, e).ravel(), xd / TIME_OFFSET_PRIOR])
 
@@ -371,12 +371,9 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
         sp = bmat([[sp, kron(T, np.ones((6, 1)))], [None, identity(D)]])
     res = least_squares(fun, np.zeros(6 * (G + F) + D), jac_sparsity=sp, method="trf",
                         xtol=1e-10, ftol=1e-10, max_nfev=100)  # fmt: skip
-    xg, xm = res.x[: 6 * G].reshape(G, 6), res.x[6 * G : 6 * (G + F)].reshape(F, 6)
-    out = {reference: (Rref, pref)}
-    for i, n in enumerate(free):
-        out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
+    rig, (Rm, pm) = unpack(res.x)
+    out = {n: (Rm[i], pm[i]) for i, n in [(-1, reference), *enumerate(free)]}
     dts = {n: float(res.x[6 * (G + F) + i]) for i, n in enumerate(free)} if D else {}
-    rig = (rotvec_to_matrix(xg[:, :3]) @ R0g, P0g + xg[:, 3:])
     r = res.fun[: 6 * m].reshape(-1, 6)
     return _Fit(out, res.jac, r, gi, g, cam, O, W, w, free, dts, rig)
 
