@@ -88,6 +88,7 @@ from .result import (
     RSPoseEstimate,
     built_estimate,
     output_covariance,
+    per_view_fields,
 )
 from .rig_batch import counted, search_batch, still_solve_rotated
 from .sampling import p3p_mounted
@@ -652,11 +653,7 @@ def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, 
         m if c not in out and len(m) == n else np.zeros(n, dtype=bool)
         for c, (m, n) in enumerate(zip(own, pool.sizes, strict=True))
     )
-    fields = dict(
-        inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
-        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
-    )  # fmt: skip
+    fields = per_view_fields(per, pool.counts(), sum(pool.sizes), est.num_behind)
     return est._replaced(**(fields | changes))
 
 
@@ -664,11 +661,6 @@ def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPose
     """``est`` with the voting cameras ``cams`` left out: none of their points an inlier
     (:func:`_restored`)."""
     return _restored(est, pool, out=cams, disagreeing=tuple(sorted(cams)))
-
-
-def _joined(per_view: tuple) -> np.ndarray:
-    """The views' (N_c,) bool masks as one over the rig frame's rows in order."""
-    return np.concatenate(per_view) if per_view else np.zeros(0, dtype=bool)
 
 
 def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
@@ -846,15 +838,11 @@ def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = N
     ``failure=`` a reason (the identity, no inliers); ``record``: other fields by name."""
     R, C, w, t = RSModel.identity() if model is None else model
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
-    per = pool.per_camera(inl)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
         record.pop("failure", None), RSModel(R, C, w, t),
-        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled),
-        np.array(inl, dtype=bool) if pool.all_valid else _joined(per), len(pool.cam),
-        sum(pool.sizes), outputs,
-        (per, tuple(int(np.count_nonzero(m)) for m in per), pool.counts()),
-        solver=RIG_SOLVER, **record,
+        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled), pool.per_camera(inl),
+        pool.counts(), sum(pool.sizes), outputs, solver=RIG_SOLVER, **record,
     )  # fmt: skip
 
 
