@@ -268,7 +268,7 @@ def estimate_rig_pose(
     initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
     gyro_time: float | None = None,
-    pre_rotation=None,
+    pre_rotation: object = None,
     prediction: RSModel | tuple | None = None,
     consensus: bool = True,
     verify_cameras: bool = False,
