@@ -32,8 +32,8 @@ estimated without a gyro, with a right one (the true angular velocity plus
 degrees off): frames posed, gyro rejections, median errors and the 90th percentile of the
 angular velocity error, CPU time; then its targets. ``--pre-rotation`` compares the
 pre-rotations of RANSAC's samples (:func:`pre_rotation_run`): P3P within one camera
-(default) against PoseLib's generalized P3P (``gp3p``) on 2-4 cameras and the 20 + 3 points
-rig.
+(default) against PoseLib's generalized P3P (``gp3p``, :class:`GeneralizedP3P`) on 2-4 cameras
+and the 20 + 3 points rig.
 
     python -m benchmarks.bench_rig [--frames 40] [--points 300] [--rigs 2 3 4] [--seed 0]
     python -m benchmarks.bench_rig --gyro [--frames 40] [--points 300] [--rigs 3]
@@ -51,12 +51,14 @@ import numpy as np
 from rs_localizer.estimation import EstimateOptions, GyroMeasurement, estimate_rs_pose
 from rs_localizer.estimation.result import rig_model_of_camera
 from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose
+from rs_localizer.estimation.sampling import draw_samples_numpy, least_error_roots
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_rig, rig_frame, rig_motion
 
 __all__ = [
+    "GeneralizedP3P",
     "few_points",
     "gyro_run",
     "gyro_targets",
@@ -319,15 +321,63 @@ def gyro_targets(s: dict) -> list[tuple[str, bool | None, str]]:
     return out
 
 
+class GeneralizedP3P:
+    """PoseLib's generalized P3P (``poselib.gp3p``, Nister and Stewenius 2007) as the
+    pre-rotation of the rig's RANSAC samples (``estimate_rig_pose(..., pre_rotation=)``, for
+    :func:`pre_rotation_run`'s comparison with P3P in one camera; needs ``poselib``)."""
+
+    @staticmethod
+    def samples(pool, rng, n_samples: int, subset=None) -> np.ndarray:
+        """n_samples samples of 6 distinct indices of the stacked views ``pool`` drawn
+        uniformly as a camera's (:func:`~rs_localizer.estimation.sampling.draw_samples_numpy`;
+        ``subset``: among those sorted indices, at least 6), whose first 3 points may lie in
+        any cameras. Returns (S, 6)."""
+        n = len(pool.cam) if subset is None else len(subset)
+        u = draw_samples_numpy(rng.random((n_samples, 6)), n)
+        return u if subset is None else subset[u]
+
+    @staticmethod
+    def poses(pool, samples: np.ndarray):
+        """gp3p on each sample's first 3 points in whatever cameras they lie (rays ``R_c^T
+        x`` from the camera centres ``-R_c^T c_c``): the rig's ``(R (H, 3, 3), C (H, 3), the
+        sample of each (H,))``, a sample keeping the pose of least error on its other points
+        (:func:`~rs_localizer.estimation.sampling.least_error_roots`), or None when none
+        solved."""
+        import poselib
+
+        centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
+        first = samples[:, :3]
+        rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
+        rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
+        rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+        sols = [
+            (s.R, s.t, h)
+            for h in range(len(samples))
+            for s in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]])
+        ]
+        if not sols:
+            return None
+        R, C = np.array([s[0] for s in sols]), np.array([s[1] for s in sols])
+        ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
+        R, C, own = R[ok], C[ok], np.array([s[2] for s in sols], dtype=np.int64)[ok]
+        if len(own) == 0:
+            return None
+        keep = least_error_roots(
+            R, C, own, samples, pool.X, pool.x, pool.cam, pool.R_mount, pool.c_mount
+        )
+        return (R[keep], C[keep], own[keep]) if len(keep) else None
+
+
 def pre_rotation_run(m: int, frames: int, points, seed: int = 0, outliers=OUTLIERS) -> dict:
     """``frames`` rig frames of ``m`` cameras (``points``: per camera, an int or a list),
     each estimated with both pre-rotations of RANSAC's samples (``estimate_rig_pose(...,
-    pre_rotation=)``: ``p3p`` within one camera, ``gp3p`` PoseLib's generalized P3P) from
-    the same seed. Returns {pre-rotation: {"err": (F, 3), "time": (F,) s, "iterations":
-    (F,)}}."""
+    pre_rotation=)``: ``p3p`` within one camera, the rig's own, ``gp3p`` PoseLib's
+    generalized P3P, :class:`GeneralizedP3P`) from the same seed. Returns {pre-rotation:
+    {"err": (F, 3), "time": (F,) s, "iterations": (F,)}}."""
     rng = np.random.default_rng(seed + 300 + 1000 * m)
     counts = [points] * m if np.ndim(points) == 0 else list(points)
     out = {k: {"err": [], "time": [], "iterations": []} for k in ("p3p", "gp3p")}
+    hooks = {"p3p": None, "gp3p": GeneralizedP3P()}
     for _ in range(frames):
         rig = make_rig(m, rng)
         truth = rig_motion(rng, rng.uniform(*ANGULAR_SPEED), LINEAR_SPEED)
@@ -335,7 +385,7 @@ def pre_rotation_run(m: int, frames: int, points, seed: int = 0, outliers=OUTLIE
         for kind, d in out.items():
             est, dt = _timed(
                 lambda f=f, k=kind: estimate_rig_pose(
-                    f.views, _rig_options(min_inliers=6), pre_rotation=k
+                    f.views, _rig_options(min_inliers=6), pre_rotation=hooks[k]
                 )
             )
             d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)

@@ -569,9 +569,8 @@ def _failed(
     RANSAC hypotheses, by ``implementation`` (which could not use ``ignored``):
     :func:`~.result.built_estimate`, no inlier among its ``fr.num_rows`` rows (its one
     view's too)."""
-    none, n_valid = np.zeros(fr.num_rows, dtype=bool), len(fr.x)
     return built_estimate(
-        reason, None, None, none, n_valid, fr.num_rows, per_view=((none,), (0,), (n_valid,)),
+        reason, None, None, (np.zeros(fr.num_rows, dtype=bool),), (len(fr.x),), fr.num_rows,
         solver=solver, ransac_iterations=iterations, timings=timings,
         implementation=implementation, ignored_inputs=ignored,
     )  # fmt: skip

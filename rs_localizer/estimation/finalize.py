@@ -1308,15 +1308,13 @@ def final_estimate(
     }
     if not compiled:
         record["implementation"] = NUMPY
-    n_valid = len(fr.x)
     return built_estimate(
         None,
         RSModel(R, C, w, t),
         RSPose._trusted(R.T, camera_position(R, C), om, vc),
-        mask,
-        n_valid,
+        (mask,),
+        (len(fr.x),),
         fr.num_rows,
         cov,
-        ((mask,), (int(np.count_nonzero(mask)),), (n_valid,)),
         **(record | fields),
     )

@@ -57,6 +57,7 @@ __all__ = [
     "camera_estimate",
     "camera_model_of_rig",
     "output_covariance",
+    "per_view_fields",
     "physical_velocities",
     "rig_model_jacobian",
     "rig_model_of_camera",
@@ -348,11 +349,10 @@ def built_estimate(
     failure: str | None,
     model: RSModel | None,
     pose: RSPose | None,
-    inliers: np.ndarray,
-    num_valid: int,
+    per_view: tuple,
+    num_valid_per_view: tuple,
     num_rows: int,
     covariances: tuple | None = None,
-    per_view: tuple | None = None,
     **fields: object,
 ) -> RSPoseEstimate:
     """The :class:`RSPoseEstimate` of one camera's frame or of a rig frame (its views' rows in
@@ -366,14 +366,11 @@ def built_estimate(
             identity and zeros (a failure's).
         pose: the :class:`~rs_localizer.pose.RSPose` of ``model``, or None: the identity and
             zeros.
-        inliers: (num_rows,) bool over the input rows (every view's, in order).
-        num_valid: rows that passed validation; num_rows: the input rows. ``num_dropped`` is
-            their difference plus ``fields``' ``num_behind`` (0 if not given).
+        per_view, num_valid_per_view, num_rows: each view's inliers over its input rows and
+            its valid rows, the input rows of all (:func:`per_view_fields`, with ``fields``'
+            ``num_behind``, 0 if not given).
         covariances: ``(covariance (12, 12), pose (6, 6), twist (6, 6) or None)`` in ROS order
             (:func:`output_covariance`), or None.
-        per_view: ``(inliers_per_view, num_inliers_per_view, num_valid_per_view)``: a rig
-            frame's views', or one camera's one view's (``((inliers,), (num_inliers,),
-            (num_valid,))``); None leaves them empty.
         fields: the estimate's other fields by name; they also replace those set here.
 
     Raises:
@@ -381,13 +378,8 @@ def built_estimate(
     """
     if failure is not None and failure not in _REASONS:
         raise ValueError(f"unknown failure reason {failure!r}; expected one of {_REASONS}")
-    values = {
-        "success": failure is None,
-        "failure": failure,
-        "inliers": inliers,
-        "num_valid": num_valid,
-        "num_dropped": num_rows - num_valid + fields.get("num_behind", 0),
-    }
+    values = {"success": failure is None, "failure": failure}
+    values |= per_view_fields(per_view, num_valid_per_view, num_rows, fields.get("num_behind", 0))
     if model is not None:
         values["model"] = model
     if pose is not None:
@@ -395,11 +387,31 @@ def built_estimate(
     if covariances is not None:
         cov = covariances
         values["covariance"], values["pose_covariance"], values["twist_covariance"] = cov
-    if per_view is not None:
-        per = per_view
-        values["inliers_per_view"], values["num_inliers_per_view"] = per[0], per[1]
-        values["num_valid_per_view"] = per[2]
     return RSPoseEstimate._trusted(**(values | fields))
+
+
+def per_view_fields(
+    per_view: tuple, num_valid_per_view: tuple, num_rows: int, num_behind: int = 0
+) -> dict:
+    """The fields of an estimate's rows by view (a camera's one view, a rig's cameras in
+    order), from each view's (N_c,) bool inliers over its input rows ``per_view`` and its
+    valid rows ``num_valid_per_view``: ``inliers`` (every view's rows in order),
+    ``inliers_per_view``, ``num_inliers_per_view``, ``num_valid_per_view``, ``num_valid``,
+    and ``num_dropped`` (of the ``num_rows`` input rows those not valid, plus the
+    ``num_behind`` valid ones behind their cameras)."""
+    if len(per_view) == 1:  # (one view's inliers are the estimate's own)
+        inliers = per_view[0]
+    else:
+        inliers = np.concatenate(per_view) if per_view else np.zeros(0, dtype=bool)
+    num_valid = sum(num_valid_per_view)
+    return {
+        "inliers": inliers,
+        "inliers_per_view": per_view,
+        "num_inliers_per_view": tuple(int(np.count_nonzero(m)) for m in per_view),
+        "num_valid_per_view": num_valid_per_view,
+        "num_valid": num_valid,
+        "num_dropped": num_rows - num_valid + num_behind,
+    }
 
 
 #: every failure reason of a camera's or a rig's estimate (:func:`built_estimate`)
@@ -578,14 +590,10 @@ def camera_estimate(
         solver=est.solver,
         model=model,
         pose=RSPose.from_model(model, spr),
-        inliers=inl,
-        num_valid=n,
         rmse_px=rmse,
         motion_model=est.motion_model,
         implementation=est.implementation,
-        inliers_per_view=(inl,),
-        num_inliers_per_view=(int(np.count_nonzero(inl)),),
-        num_valid_per_view=(n,),
+        **per_view_fields((inl,), (n,), n),
     )
 
 

@@ -88,9 +88,10 @@ from .result import (
     RSPoseEstimate,
     built_estimate,
     output_covariance,
+    per_view_fields,
 )
 from .rig_batch import counted, search_batch, still_solve_rotated
-from .sampling import least_error_roots, p3p_mounted
+from .sampling import p3p_mounted
 from .single_tag import posed_planarity
 from .view import StackedViews, View
 
@@ -187,13 +188,14 @@ def _rig_solver(pool: StackedViews, iterations: int, prior: MotionPrior | None =
 
 
 def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor=None,
-                prior: MotionPrior | None = None, threshold_px: float = 2.0, generalized=False,
+                prior: MotionPrior | None = None, threshold_px: float = 2.0, poses=None,
                 missed: np.ndarray | None = None, rounds: int = 1):  # fmt: skip
     """Models (R, C, w, t) of the samples (K, 6), as a camera's samples are solved
     (:func:`~.hypotheses.prerotated_models`): each pre-rotated by its P3P poses mapped to the
-    rig (:func:`_p3p_on_rig`) or by ``anchor`` ``(R, C)`` (an initial model's or the best
-    model's), then the rig solver (:func:`_rig_solver`, ``iterations``, the gyro ``prior``'s
-    rows at ``threshold_px``), the models not finite dropped. ``iterations`` 0: a
+    rig (:func:`_p3p_on_rig`; ``poses``: another pre-rotation's, :func:`estimate_rig_pose`'s
+    ``pre_rotation``) or by ``anchor`` ``(R, C)`` (an initial model's or the best model's),
+    then the rig solver (:func:`_rig_solver`, ``iterations``, the gyro ``prior``'s rows at
+    ``threshold_px``), the models not finite dropped. ``iterations`` 0: a
     global-shutter rig frame's P3P poses with ``w = t = 0``, those of samples with points in
     a camera ``missed`` ((M,) bool: the best model explains none of its points) also
     corrected on their 6 points ``rounds`` times by the rig solver with the velocities held
@@ -202,7 +204,7 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
     if anchor is not None:
         (R0, C0), S = anchor_prerotations(anchor, len(samples)), samples
     else:
-        pre = _p3p_on_rig(pool, samples, generalized)
+        pre = (_p3p_on_rig if poses is None else poses)(pool, samples)
         if pre is None:
             return None
         R0, C0, own = pre
@@ -243,45 +245,20 @@ def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     return composed(out[:, 0:3], Rg), out[:, 3:6], ok
 
 
-def _p3p_on_rig(pool: StackedViews, samples: np.ndarray, generalized: bool = False):
+def _p3p_on_rig(pool: StackedViews, samples: np.ndarray):
     """P3P on each sample's first 3 points, all of one camera, mapped to the rig: ``R = R_c^T
     R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3), and the sample of each (H,); None
     when none solved. A sample keeps one pose, as a camera's does: the one of least error on
     its other points through their mountings (:func:`~.sampling.least_error_roots`).
     Compiled: Lambda Twist (:func:`~.sampling.p3p_mounted`); NumPy: OpenCV's, mapped and
-    chosen by the function that chooses a camera's (:func:`~.numpy_impl.p3p_prerotations`).
-    ``generalized``: PoseLib's ``gp3p`` on the 3 points in whatever cameras they lie (rays
-    ``R_c^T x`` from the camera centres ``-R_c^T c_c``; needs ``poselib``)."""
-    if not generalized:
-        if pool.compiled:  # (solved, mapped and chosen in one compiled call)
-            X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
-            R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm)
-        else:
-            R, C, own = p3p_prerotations(pool.X, pool.x, samples, pool.cam, pool.R_mount,
-                                         pool.c_mount)  # fmt: skip
-        return (R, C, own) if len(own) else None
-    import poselib  # (an optional comparison: imported on use)
-
-    centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
-    first = samples[:, :3]
-    rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
-    rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
-    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
-    sols = [
-        (s.R, s.t, h)
-        for h in range(len(samples))
-        for s in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]])
-    ]
-    if not sols:
-        return None
-    R, C = np.array([s[0] for s in sols]), np.array([s[1] for s in sols])
-    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
-    R, C, own = R[ok], C[ok], np.array([s[2] for s in sols], dtype=np.int64)[ok]
-    if len(own) == 0:
-        return None
-    keep = least_error_roots(R, C, own, samples, pool.X, pool.x, pool.cam, pool.R_mount,
-                             pool.c_mount)  # fmt: skip
-    return (R[keep], C[keep], own[keep]) if len(keep) else None
+    chosen by the function that chooses a camera's (:func:`~.numpy_impl.p3p_prerotations`)."""
+    if pool.compiled:  # (solved, mapped and chosen in one compiled call)
+        X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
+        R, C, own = p3p_mounted(x, X, samples, cam, Rm, cm)
+    else:
+        R, C, own = p3p_prerotations(pool.X, pool.x, samples, pool.cam, pool.R_mount,
+                                     pool.c_mount)  # fmt: skip
+    return (R, C, own) if len(own) else None
 
 
 def estimate_rig_pose(
@@ -291,7 +268,7 @@ def estimate_rig_pose(
     initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
     gyro_time: float | None = None,
-    pre_rotation: str = "p3p",
+    pre_rotation: object = None,
     prediction: RSModel | tuple | None = None,
     consensus: bool = True,
     verify_cameras: bool = False,
@@ -320,10 +297,13 @@ def estimate_rig_pose(
             sample's rig solve); ignored on a global-shutter rig frame and without ``refine``.
         gyro_time: s from the rig's reference time: the middle of the gyro's window (for the
             ``acceleration_sensitivity``); None: the middle of the observation times.
-        pre_rotation: ``"p3p"`` (3 points of one camera, Lambda Twist, mapped to the rig) or
-            ``"gp3p"`` (PoseLib's generalized P3P on 3 points drawn from all cameras, samples
-            drawn uniformly; needs ``poselib``; ``python -m benchmarks.bench_rig
-            --pre-rotation``, docs/rig.md).
+        pre_rotation: None: RANSAC's samples pre-rotated by P3P on 3 points of one camera
+            (Lambda Twist, mapped to the rig); or another pre-rotation for a comparison, an
+            object with ``samples(pool, rng, K, subset)`` (K, 6) int64 indices of the stacked
+            views (:class:`~.view.StackedViews`; ``subset``: sorted indices to draw among, or
+            None) and ``poses(pool, samples)`` as :func:`_p3p_on_rig`'s, each sample's pose
+            on its first 3 points (the search then runs step by step:
+            ``benchmarks.bench_rig.GeneralizedP3P``, PoseLib's generalized P3P, docs/rig.md).
         prediction: the rig's predicted model that decides between cameras that contradict
             each other (:func:`_consensus`); None: ``initial_model``'s model, if any.
         consensus: check that the cameras with points agree (:func:`_consensus`); False: the
@@ -342,18 +322,20 @@ def estimate_rig_pose(
         inliers per camera; ``success=False`` with one of
         :data:`~.result.RIG_FAILURE_REASONS` when the frame gives no pose.
     Raises:
-        ValueError: the inputs :func:`~.driver.checked_inputs` refuses, an unknown
-            ``pre_rotation`` or ``implementation``, no views, a view that is not a
-            :class:`View`, a camera without a mounting (named) or with a mounting that is not
-            a :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
-            shapes.
+        ValueError: the inputs :func:`~.driver.checked_inputs` refuses, a ``pre_rotation``
+            without ``samples`` and ``poses``, an unknown ``implementation``, no views, a view
+            that is not a :class:`View`, a camera without a mounting (named) or with a
+            mounting that is not a :class:`~rs_localizer.frames.Mounting`, mismatched pixel
+            and point counts or shapes.
     """
     who = "estimate_rig_pose"
     if len(views) == 0:
         raise ValueError(f"{who}: needs at least one camera")
     options, initial_model = checked_inputs(who, options, RIG_OPTIONS, initial_model, gyro)
-    if pre_rotation not in ("p3p", "gp3p"):
-        raise ValueError(f"{who}: pre_rotation must be 'p3p' or 'gp3p': {pre_rotation!r}")
+    if pre_rotation is not None and not all(
+        callable(getattr(pre_rotation, n, None)) for n in ("samples", "poses")
+    ):
+        raise ValueError(f"{who}: pre_rotation needs samples and poses: {pre_rotation!r}")
     compiled = resolve_implementation(implementation, None) == COMPILED
     cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
     max_norm = float(options.plausibility.max_point_norm)
@@ -371,7 +353,7 @@ def estimate_rig_pose(
     def estimated(pool: StackedViews) -> RSPoseEstimate:
         """The rig frame of ``pool`` before the consensus, the gyro checked as a camera's
         (:func:`~.driver.gyro_checked_estimate`)."""
-        stages = _RigStages(pool, options, initial_model, pre_rotation == "gp3p")
+        stages = _RigStages(pool, options, initial_model, pre_rotation)
         still = len(pool.cam) and pool.tau_spread <= STILL_SPREAD
         if gyro is None or still or not stages.refine:
             return staged_estimate(stages)
@@ -671,11 +653,7 @@ def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, 
         m if c not in out and len(m) == n else np.zeros(n, dtype=bool)
         for c, (m, n) in enumerate(zip(own, pool.sizes, strict=True))
     )
-    fields = dict(
-        inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
-        num_inliers_per_view=tuple(int(np.count_nonzero(m)) for m in per),
-        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
-    )  # fmt: skip
+    fields = per_view_fields(per, pool.counts(), sum(pool.sizes), est.num_behind)
     return est._replaced(**(fields | changes))
 
 
@@ -683,11 +661,6 @@ def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPose
     """``est`` with the voting cameras ``cams`` left out: none of their points an inlier
     (:func:`_restored`)."""
     return _restored(est, pool, out=cams, disagreeing=tuple(sorted(cams)))
-
-
-def _joined(per_view: tuple) -> np.ndarray:
-    """The views' (N_c,) bool masks as one over the rig frame's rows in order."""
-    return np.concatenate(per_view) if per_view else np.zeros(0, dtype=bool)
 
 
 def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
@@ -717,8 +690,8 @@ _NO_ANCHOR = np.zeros((0, 3))
 
 class _RigSearch(RansacLoop):
     """The rig's :class:`~.ransac.RansacEstimator` on the single camera's
-    :class:`~.ransac.RansacLoop`: samples of :meth:`~.view.StackedViews.samples` (or
-    ``uniform_samples`` for the generalized P3P) solved by :func:`_hypotheses` (compiled
+    :class:`~.ransac.RansacLoop`: samples of :meth:`~.view.StackedViews.samples` (or another
+    ``pre_rotation``'s, :func:`estimate_rig_pose`) solved by :func:`_hypotheses` (compiled
     without a gyro, a batch drawn, solved and scored in one call, :meth:`_batch`), MSAC on
     every point's error in pixels; ``refine_model`` keeps the model (local optimization runs
     after the search), its inlier ratio among the seed's inliers ``subset`` when RANSAC
@@ -731,7 +704,10 @@ class _RigSearch(RansacLoop):
         pool, still, spread, prior, r = (stages.pool, stages.still, stages.spread, stages.prior,
                                          stages.options.ransac)  # fmt: skip
         super().__init__(3 if still else 6, r)
-        self.pool, self.still, self.generalized, self.prior = pool, still, stages.generalized, prior
+        self.pool, self.still, self.prior, hook = pool, still, prior, stages.pre_rotation
+        # (the samples and their P3P poses: in one camera, or another pre-rotation's)
+        self.draw = pool.samples if hook is None else functools.partial(hook.samples, pool)
+        self.poses = None if hook is None else hook.poses
         self.spread = spread
         self.rng = SeededShuffle(r.seed)  # (the generator built on use)
         self.threshold_px = float(r.threshold_px)
@@ -747,7 +723,7 @@ class _RigSearch(RansacLoop):
         #: (M,) bool, the cameras of 3 or more points the best model explains none of (None:
         #: none), whose global-shutter samples are corrected (:func:`_hypotheses`)
         self.missed = self._counts >= 3 if spread and still else None
-        self.fused = not self.generalized and pool.compiled and (still or prior is None)
+        self.fused = hook is None and pool.compiled and (still or prior is None)
         self._no_missed = np.zeros(len(pool.sizes), dtype=bool)
         # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
         self._args, self._drawn, self._out = None, 0, None
@@ -776,16 +752,15 @@ class _RigSearch(RansacLoop):
     def generate_models(self, loop: RansacLoop, K: int) -> tuple:
         if self.fused:
             return self._batch(K)
-        pool = self.pool
-        draw = pool.uniform_samples if self.generalized else pool.samples
-        samples = draw(self.rng.generator(), K, self.subset)
+        pool, poses = self.pool, self.poses
+        samples = self.draw(self.rng.generator(), K, self.subset)
         if self.still:
             rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
-            return _hypotheses(pool, samples, 0, generalized=self.generalized,
-                               missed=self.missed, rounds=rounds), K  # fmt: skip
+            return _hypotheses(pool, samples, 0, poses=poses, missed=self.missed,
+                               rounds=rounds), K  # fmt: skip
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(pool, samples, self.solver_iterations, anchor, self.prior,
-                          self.threshold_px, self.generalized)  # fmt: skip
+                          self.threshold_px, poses)  # fmt: skip
         if hyp is None:
             return None, K
         ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds, pool.compiled)
@@ -863,15 +838,11 @@ def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = N
     ``failure=`` a reason (the identity, no inliers); ``record``: other fields by name."""
     R, C, w, t = RSModel.identity() if model is None else model
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
-    per = pool.per_camera(inl)
     record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
     return built_estimate(
         record.pop("failure", None), RSModel(R, C, w, t),
-        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled),
-        np.array(inl, dtype=bool) if pool.all_valid else _joined(per), len(pool.cam),
-        sum(pool.sizes), outputs,
-        (per, tuple(int(np.count_nonzero(m)) for m in per), pool.counts()),
-        solver=RIG_SOLVER, **record,
+        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled), pool.per_camera(inl),
+        pool.counts(), sum(pool.sizes), outputs, solver=RIG_SOLVER, **record,
     )  # fmt: skip
 
 
@@ -889,7 +860,7 @@ class _RigStages:
     pool: StackedViews
     options: EstimateOptions
     initial_model: InitialModel | None
-    generalized: bool
+    pre_rotation: object = None
     prior: MotionPrior | None = None
     still: bool | None = None
     spread: bool = False

@@ -3,8 +3,8 @@ the search drawn (:func:`~.sampling.batch_samples`), solved (:func:`still_models
 :func:`moving_models`: the rig's own hypotheses, :func:`~.rig._hypotheses`) and scored
 (:func:`~.scoring.model_cost`, MSAC on each point's error in pixels) in one numba call
 (:func:`search_batch`), as :mod:`.batch` does for one camera, termination checked after every
-sample as PoseLib's loop does. The rig's step-by-step search (with a gyro, the generalized
-P3P) calls the same kernels one by one.
+sample as PoseLib's loop does. The rig's step-by-step search (with a gyro, or another
+pre-rotation) calls the same kernels one by one.
 """
 
 from __future__ import annotations

@@ -533,13 +533,3 @@ class StackedViews:
         size[:, :3], offset[:, :3] = counts[cams][:, None], starts[cams][:, None]
         out = draw_samples_numpy(u[1:].T, size, offset)
         return out if subset is None else subset[out]
-
-    def uniform_samples(
-        self, rng: np.random.Generator, n_samples: int, subset: np.ndarray | None = None
-    ) -> np.ndarray:
-        """n_samples samples of 6 distinct indices drawn uniformly as a camera's
-        (:func:`~.sampling.draw_samples_numpy`; ``subset``: among those sorted indices, at
-        least 6), whose first 3 points may lie in any views. Returns (S, 6)."""
-        n = len(self.cam) if subset is None else len(subset)
-        u = draw_samples_numpy(rng.random((n_samples, 6)), n)
-        return u if subset is None else subset[u]

@@ -67,24 +67,24 @@ def test_physical_velocities_match_the_cross_product_formula():
 
 
 def test_one_builder_counts_the_rows_of_a_camera_and_of_a_rig_and_refuses_unknown_reasons():
-    # one camera: 5 input rows, 3 valid; a failure is the identity, no inlier, no per-view
-    cam = built_estimate("too_few_points", None, None, np.zeros(5, dtype=bool), 3, 5, solver="p3p")
+    # one camera: 5 input rows, 3 valid; a failure is the identity, no inlier, its one view's
+    none = np.zeros(5, dtype=bool)
+    cam = built_estimate("too_few_points", None, None, (none,), (3,), 5, solver="p3p")
     assert not cam.success and cam.failure == "too_few_points" and cam.solver == "p3p"
     assert cam.num_valid == 3 and cam.num_dropped == 2 and cam.num_inliers == 0
     assert np.array_equal(cam.model.R, np.eye(3)) and not np.any(cam.pose.position)
-    assert cam.inliers_per_view == () and cam.num_valid_per_view == ()
+    assert cam.inliers is none and cam.inliers_per_view == (none,)
+    assert cam.num_valid_per_view == (3,) and cam.num_inliers_per_view == (0,)
     # a rig of two views (2 and 3 rows, all valid), posed, one valid row behind its camera
     per = (np.array([True, False]), np.array([True, True, False]))
     model = (np.eye(3), np.array([0.0, 0.0, 1.0]), np.zeros(3), np.zeros(3))
-    rig = built_estimate(
-        None, model, None, np.concatenate(per), 5, 5, (None, None, None), (per, (1, 2), (2, 3)),
-        num_behind=1,
-    )  # fmt: skip
+    rig = built_estimate(None, model, None, per, (2, 3), 5, (None, None, None), num_behind=1)
     assert rig.success and rig.failure is None and rig.num_inliers == 3
     assert rig.num_dropped == 1 and rig.num_inliers_per_view == (1, 2)
     assert rig.num_valid_per_view == (2, 3) and rig.inliers_per_view[1].tolist() == per[1].tolist()
+    assert rig.inliers.tolist() == [True, False, True, True, False]
     assert rig.model is model and rig.covariance is None
     # a rig's own reason is known to the one builder, a made-up one is not
-    assert built_estimate("cameras_disagree", None, None, np.zeros(0, dtype=bool), 0, 0).failure
+    assert built_estimate("cameras_disagree", None, None, (), (), 0).failure
     with pytest.raises(ValueError, match="unknown failure reason"):
-        built_estimate("tired", None, None, np.zeros(0, dtype=bool), 0, 0)
+        built_estimate("tired", None, None, (), (), 0)

@@ -159,6 +159,8 @@ def test_bad_input():
         estimate_rig_pose([])
     with pytest.raises(ValueError):
         estimate_rig_pose([View(np.zeros((3, 2)), np.zeros((4, 3)), cams[0])])
+    with pytest.raises(ValueError, match="pre_rotation needs samples and poses"):
+        estimate_rig_pose(views, pre_rotation="gp3p")  # (a pre-rotation is an object)
 
 
 def _poselib_generalized(views):

@@ -31,9 +31,7 @@ RIG_ONLY = (
 )
 
 #: names a rig-only module may use for a concept of its own: (module, name) -> what it is
-OWN_NAMES = {
-    ("estimation/rig.py", "p3p"): "the rig's pre_rotation option (p3p or gp3p), not a solver",
-}
+OWN_NAMES: dict[tuple[str, str], str] = {}
 
 
 class _Dots:
