@@ -55,7 +55,6 @@ from ..estimation.refine import (
 )
 from ..estimation.result import camera_model_of_rig
 from ..estimation.rig import estimate_rig_pose
-from ..estimation.rig_batch import still_solve_rotated
 from ..estimation.sampling import p3p_mounted
 from ..estimation.scoring import exact_msac_scores
 from ..estimation.view import View
@@ -588,11 +587,6 @@ def warm_rig(
     if settings.imu is not None:
         gyro = GyroMeasurement(om, 1e-4 * np.eye(3))
         estimate_rig_pose(views[False], settings.options, gyro=gyro)
-    i64 = np.int64  # (that correction's kernel alone: the generalized P3P's search calls it)
-    still_solve_rotated(
-        np.zeros((6, 2)), np.zeros((6, 3)), np.zeros((1, 6), i64), np.eye(3)[None],
-        np.zeros(6, i64), np.eye(3)[None], np.zeros((1, 3)),
-    )  # fmt: skip
     # (the image variance by which the rig's final refinement judges the inliers' own fit,
     # tried only on points between one and two thresholds of its model: none here)
     untruncated_variance(1.0, 2.0)
