@@ -79,3 +79,106 @@ def test_report_figures_against_independent_counts():
     # the package's own claim (docs/architecture.md): no import circle
     assert r["import_circles"] == {"module level": [], "with deferred": []}
     assert r["imports"]["module level"] > 300
+
+
+#: a package of five modules: r.py the only rig-only one, c.py a camera's
+SYNTHETIC = {
+    "__init__.py": "",
+    "shared/__init__.py": "from .a import Reexported\n",
+    "shared/a.py": (
+        "def dec(f):\n"  # 1
+        "    return f\n"
+        "@dec\n"  # 3: only_rig's first line
+        "def only_rig():\n"
+        "    return _inner()\n"
+        "def _inner():\n"  # 6
+        "    return _recursive(2)\n"
+        "def _recursive(n):\n"  # 8
+        "    return _recursive(n - 1) if n else 0\n"
+        "def both():\n"  # 10
+        "    return 2\n"
+        "class Reexported:\n"  # 12
+        "    pass\n"
+        "def loop_a():\n"  # 14
+        "    return loop_b()\n"
+        "def loop_b():\n"  # 16
+        "    return loop_a()\n"
+        "def via_module():\n"  # 18
+        "    return 3\n"
+        "def unused():\n"  # 20
+        "    return 4\n"
+        "def level():\n"  # 22
+        "    return 5\n"
+        "LEVEL = level()\n"  # 24
+        "def in_doc():\n"  # 25
+        "    return 6\n"
+        "def deep():\n"  # 27
+        "    return 7\n"
+        "def camera_too():\n"  # 29
+        "    return 8\n"
+    ),
+    "b.py": (
+        "from .shared.a import deep, camera_too\n"
+        "def helper():\n"
+        "    return deep()\n"
+        "def helper2():\n"
+        "    return camera_too()\n"
+    ),
+    "r.py": (
+        "from .shared.a import only_rig, both, level, in_doc, via_module, camera_too\n"
+        "from .shared import Reexported\n"
+        "from .b import helper, helper2\n"
+        "def run():\n"
+        "    return only_rig(), both(), level(), in_doc(), via_module(), Reexported()\n"
+        "X = helper(), helper2(), camera_too\n"
+    ),
+    "c.py": (
+        '"""Never in_doc, nor camera_too."""\n'
+        "from rs_localizer.shared.a import both\n"
+        "from .shared import a\n"
+        "from .b import helper2\n"
+        '__all__ = ["in_doc", "only_rig"]\n'
+        "def f():\n"
+        "    return both(), a.via_module(), helper2()\n"
+    ),
+}
+
+
+def test_rig_only_definitions_on_a_synthetic_package():
+    ar = _tool()
+    trees = {m: ast.parse(src) for m, src in SYNTHETIC.items()}
+    found = {
+        f"{d.module}:{d.name}": (d.line, d.lines) for d in ar.rig_only_definitions(trees, {"r.py"})
+    }
+    # only_rig with its decorator line; dec, _inner and _recursive used only through it (a
+    # function's use of itself not a use); deep only through b.helper, used only by r.py;
+    # in_doc named by c.py only in its docstring and __all__. Not: both, via_module (c.py's
+    # a.via_module), Reexported (shared/__init__.py's re-export), level (used at a.py's
+    # module level), loop_a/loop_b (a loop no rig-only module enters), unused, camera_too
+    # (b.helper2's too, which c.py uses), run and helper2.
+    assert found == {
+        "shared/a.py:dec": (1, 2),
+        "shared/a.py:only_rig": (3, 3),
+        "shared/a.py:_inner": (6, 2),
+        "shared/a.py:_recursive": (8, 2),
+        "shared/a.py:in_doc": (25, 2),
+        "shared/a.py:deep": (27, 2),
+        "b.py:helper": (2, 2),
+    }
+
+
+def test_rig_only_code_in_shared_modules_of_the_package():
+    ar = _tool()
+    rig = ar.report(top=1)["rig_only"]
+    shared = {d["definition"]: d for d in rig["shared_definitions"]}
+    # StackedViews: estimation/view.py's, imported only by estimation/rig.py; View: a
+    # camera's too (tracking/video.py, estimation/estimate.py)
+    assert "estimation/view.py:StackedViews" in shared
+    assert "estimation/view.py:View" not in shared
+    tree = ast.parse((ROOT / "rs_localizer" / "estimation" / "view.py").read_text())
+    node = next(n for n in tree.body if getattr(n, "name", None) == "StackedViews")
+    first = min([node.lineno] + [d.lineno for d in node.decorator_list])
+    assert shared["estimation/view.py:StackedViews"]["lines"] == node.end_lineno - first + 1
+    assert rig["shared_lines"] == sum(d["lines"] for d in shared.values())
+    assert rig["total_lines"] == rig["lines"] + rig["shared_lines"]
+    assert not any(d.split(":")[0] in ar.RIG_ONLY for d in shared)

@@ -10,8 +10,18 @@ Import circles are the strongly connected components of the graph of ``import`` 
 between the package's modules: module-level imports (what Python runs at import time; those
 under ``if TYPE_CHECKING:`` left out), and again with the imports inside functions too.
 ``from .pkg import name`` is an edge to ``pkg/name.py`` when that module exists, else to
-``pkg/__init__.py``. Exit status 1 when a listed estimator or pose carrier is not found where
-the list says (the list is out of date).
+``pkg/__init__.py``.
+
+The rig's lines are the modules of ``RIG_ONLY`` and, in the other (shared) modules, the
+top-level functions and classes (their decorators included) that only those modules use
+(:func:`rig_only_definitions`): a definition is used where its name is loaded (imported by
+name, ``module.name`` through an imported module, or in its own module), a use counted for
+the top-level definition it is in, or for its module outside any; an import whose name is
+never loaded (a re-export) is a use by its module. Names in strings (``__all__``, registries,
+``importlib``) are not uses; the tests and benchmarks are not read.
+
+Exit status 1 when a listed estimator or pose carrier is not found where the list says (the
+list is out of date).
 """
 
 from __future__ import annotations
@@ -20,6 +30,7 @@ import argparse
 import ast
 import json
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,6 +216,142 @@ def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = No
     return found
 
 
+@dataclass(frozen=True)
+class Definition:
+    module: str  # path under rs_localizer/
+    name: str  # a top-level function or class
+    line: int  # its first line, decorators included
+    lines: int
+
+
+def _bindings(
+    rel: str, tree: ast.AST, known: set[str]
+) -> tuple[dict[str, tuple[str, str | None]], list[str]]:
+    """The names module ``rel`` binds by importing from the package, anywhere in it (under
+    TYPE_CHECKING and in functions too): local name -> (module name, imported name), the name
+    None for a module itself; and the modules it star-imports."""
+    me = _module_name(rel)
+    pkg = me if rel.endswith("__init__.py") else me.rpartition(".")[0]
+    bound: dict[str, tuple[str, str | None]] = {}
+    star: list[str] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.asname and a.name in known:
+                    bound[a.asname] = (a.name, None)
+                elif not a.asname and a.name.split(".")[0] in known:
+                    head = a.name.split(".")[0]
+                    bound[head] = (head, None)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg
+                for _ in range(node.level - 1):
+                    base = base.rpartition(".")[0]
+                base = f"{base}.{node.module}" if node.module else base
+            else:
+                base = node.module or ""
+            for a in node.names:
+                if a.name == "*":
+                    if base in known:
+                        star.append(base)
+                elif f"{base}.{a.name}" in known:
+                    bound[a.asname or a.name] = (f"{base}.{a.name}", None)
+                elif base in known:
+                    bound[a.asname or a.name] = (base, a.name)
+    return bound, star
+
+
+def rig_only_definitions(
+    trees: dict[str, ast.AST], rig_only: Iterable[str], known: set[str] | None = None
+) -> list[Definition]:
+    """The top-level functions and classes of the modules not in ``rig_only`` that only the
+    ``rig_only`` modules use: every use of one is in a ``rig_only`` module, in itself, or in
+    another such definition, and at least one is in a ``rig_only`` module.
+
+    ``trees``: every module of the package (path under rs_localizer/ -> its parsed source);
+    ``known``: the package's module names (default: those of ``trees``). Uses are read as the
+    module docstring says. Sorted by module, then line."""
+    known = {_module_name(m) for m in trees} if known is None else known
+    rel_of = {_module_name(m): m for m in trees}
+    rig = set(rig_only)
+    defs = {
+        (m, n.name): n
+        for m, t in trees.items()
+        for n in t.body
+        if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef)
+    }
+    bindings = {m: _bindings(m, t, known) for m, t in trees.items()}
+
+    def resolve(module: str, name: str, seen: frozenset = frozenset()) -> tuple[str, str] | None:
+        """The definition ``name`` of ``module`` is, following re-exports."""
+        m = rel_of.get(module)
+        if m is None or (m, name) in seen:
+            return None
+        if (m, name) in defs:
+            return m, name
+        b = bindings[m][0].get(name)
+        return resolve(b[0], b[1], seen | {(m, name)}) if b and b[1] else None
+
+    def target_of(m: str, node: ast.AST) -> tuple[str, str] | None:
+        """The definition a loaded name or ``module.name`` in module ``m`` is, if any."""
+        if isinstance(node, ast.Name):
+            b = bindings[m][0].get(node.id)
+            if b is None:
+                return (m, node.id) if (m, node.id) in defs else None
+            return resolve(*b) if b[1] else None
+        parts = []
+        while isinstance(node, ast.Attribute):
+            parts.append(node.attr)
+            node = node.value
+        b = bindings[m][0].get(node.id) if isinstance(node, ast.Name) else None
+        if b is None or b[1] is not None:
+            return None
+        module = b[0]
+        for attr in reversed(parts[1:]):
+            module = f"{module}.{attr}"
+        return resolve(module, parts[0]) if module in known else None
+
+    users: dict[tuple[str, str], set[tuple[str, str | None]]] = {d: set() for d in defs}
+    for m, tree in trees.items():
+        loaded: set[str] = set()
+        for stmt in tree.body:
+            owner = stmt.name if (m, getattr(stmt, "name", None)) in defs else None
+            for node in ast.walk(stmt):
+                if isinstance(node, ast.Name | ast.Attribute) and isinstance(node.ctx, ast.Load):
+                    d = target_of(m, node)
+                    if d is not None:
+                        users[d].add((m, owner))
+                    if isinstance(node, ast.Name):
+                        loaded.add(node.id)
+        bound, star = bindings[m]
+        for local, (module, name) in bound.items():  # imported, never loaded: a re-export
+            d = resolve(module, name) if name and local not in loaded else None
+            if d is not None:
+                users[d].add((m, None))
+        for module in star:
+            for mm, name in defs:
+                if mm == rel_of[module] and not name.startswith("_"):
+                    users[(mm, name)].add((m, None))
+
+    def serves_rig(d: tuple[str, str], keep: set) -> bool:
+        return all(u[0] in rig or u == d or u in keep for u in users[d])
+
+    # the largest set whose every use is in a rig-only module, in itself or in the set ...
+    keep = {d for d, u in users.items() if d[0] not in rig and u}
+    while drop := {d for d in keep if not serves_rig(d, keep)}:
+        keep -= drop
+    # ... of those a rig-only module reaches (not a loop nothing outside it uses)
+    reached = {d for d in keep if any(u[0] in rig for u in users[d])}
+    while more := {d for d in keep - reached if users[d] & reached}:
+        reached |= more
+    out = []
+    for m, name in reached:
+        n = defs[(m, name)]
+        first = min([n.lineno] + [x.lineno for x in n.decorator_list])
+        out.append(Definition(m, name, first, n.end_lineno - first + 1))
+    return sorted(out, key=lambda d: (d.module, d.line))
+
+
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:
     """The strongly connected components of more than one module (Tarjan, iterative)."""
     index: dict[str, int] = {}
@@ -277,6 +424,8 @@ def report(top: int = 10) -> dict:
         key=lambda f: (-f.lines, f.module, f.line),
     )
     known = _known()
+    shared = rig_only_definitions(trees, RIG_ONLY, known)
+    shared_lines = sum(d.lines for d in shared)
     graphs = {
         kind: {
             _module_name(m): imports(m, t, deferred=(kind == "with deferred"), known=known)
@@ -291,6 +440,12 @@ def report(top: int = 10) -> dict:
             "modules": rig_lines,
             "lines": sum(rig_lines.values()),
             "missing": missing_rig,
+            "shared_definitions": [
+                {"definition": f"{d.module}:{d.name}", "line": d.line, "lines": d.lines}
+                for d in shared
+            ],
+            "shared_lines": shared_lines,
+            "total_lines": sum(rig_lines.values()) + shared_lines,
         },
         "estimators": [f"{m}:{n}" for (m, n) in ESTIMATORS],
         "pose_carriers": [f"{m}:{n}" for (m, n) in POSE_CARRIERS],
@@ -322,6 +477,17 @@ def _print(r: dict) -> None:
         print(f"  {m:<26} {n:>5}  {RIG_ONLY[m]}")
     for m in rig["missing"]:
         print(f"  {m:<26}     -  listed but not in the package")
+    shared = rig["shared_definitions"]
+    print(
+        f"rig-only code in shared modules: {rig['shared_lines']} lines in {len(shared)} "
+        "definitions (used only by the modules above, or through one another)"
+    )
+    for d in shared:
+        print(f"  {d['definition']:<58} {d['lines']:>5}")
+    print(
+        f"rig-only lines, modules and shared definitions: {rig['total_lines']} "
+        f"({100 * rig['total_lines'] / total:.1f} % of the package)"
+    )
     print(f"\nestimators: {len(ESTIMATORS)}")
     for (m, n), why in ESTIMATORS.items():
         print(f"  {m}:{n}  {why}")
