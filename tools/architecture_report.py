@@ -168,6 +168,17 @@ def _known() -> set[str]:
     return {_module_name(_rel(p)) for p in modules()}
 
 
+def _from_base(pkg: str, node: ast.ImportFrom) -> str:
+    """The absolute module name ``from ... import`` statement ``node`` imports from, in the
+    package ``pkg`` of the importing module (a relative import resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = pkg
+    for _ in range(node.level - 1):
+        base = base.rpartition(".")[0]
+    return f"{base}.{node.module}" if node.module else base
+
+
 def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = None) -> set[str]:
     """The package modules (names as in :func:`_module_name`) that module ``rel`` imports: at
     module level, and with ``deferred`` also inside functions; never under TYPE_CHECKING.
@@ -200,13 +211,7 @@ def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = No
                     if name:
                         found.add(name)
             elif isinstance(child, ast.ImportFrom) and (deferred or not in_function):
-                if child.level:
-                    base = pkg
-                    for _ in range(child.level - 1):
-                        base = base.rpartition(".")[0]
-                    base = f"{base}.{child.module}" if child.module else base
-                else:
-                    base = child.module or ""
+                base = _from_base(pkg, child)
                 if base.split(".")[0] == "rs_localizer":
                     target(base, [a.name for a in child.names])
             visit(child, in_function or fn)
@@ -243,13 +248,7 @@ def _bindings(
                     head = a.name.split(".")[0]
                     bound[head] = (head, None)
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = pkg
-                for _ in range(node.level - 1):
-                    base = base.rpartition(".")[0]
-                base = f"{base}.{node.module}" if node.module else base
-            else:
-                base = node.module or ""
+            base = _from_base(pkg, node)
             for a in node.names:
                 if a.name == "*":
                     if base in known:
