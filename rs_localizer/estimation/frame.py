@@ -288,7 +288,9 @@ class Frame:
         :func:`~.plausibility.degenerate_points`; ``compiled=False``:
         :func:`~.plausibility.degenerate_points_numpy`)."""
         test = degenerate_points if compiled else degenerate_points_numpy
-        return bool(test(self.X, self.u_px, self.x, mask, float(self.f), float(threshold_px)))
+        one = np.array([[0, len(self.x)]], dtype=np.int64)  # (one view: every row)
+        f = np.array([float(self.f)])
+        return bool(test(self.X, self.u_px, self.x, mask, f, one, float(threshold_px)))
 
 
 def varying_pixel_jacobian(camera: CameraModel) -> bool:

@@ -15,8 +15,9 @@ checks here keep such models out:
 * :func:`depths_at_capture`: the depth of every point at its own capture time under the exact
   constant-velocity model (``expm(tau [w]x) R X + C + tau t``, the model of the refinement);
   inliers must be in front of the camera (cheirality).
-* :func:`image_degenerate`, :func:`collinear_3d`: point sets that fix no pose (identical points,
-  3D points on a line, image points within the inlier threshold of one image line).
+* :func:`degenerate_points`, :func:`collinear_points`: point sets that fix no pose (identical
+  points, 3D points on a line, image points within the inlier threshold of one image line), of
+  one camera or of each camera of a rig.
 * :func:`check_final_model`: the last check before ``success=True``; returns a failure reason
   (``implausible_motion``, ``cheirality``) or ``None``.
 """
@@ -35,7 +36,8 @@ __all__ = [
     "IMPLAUSIBLE_MOTION",
     "all_finite",
     "check_final_model",
-    "collinear_3d",
+    "collinear_points",
+    "collinear_points_numpy",
     "degenerate_points",
     "degenerate_points_numpy",
     "depths_at_capture",
@@ -43,12 +45,10 @@ __all__ = [
     "final_model_check",
     "final_model_check_numpy",
     "finite_model",
-    "image_degenerate",
     "motion_bounds",
     "motion_norms2",
     "plausible_models",
     "plausible_motion",
-    "views_degenerate",
 ]
 
 #: failure reasons of :func:`check_final_model`
@@ -256,135 +256,6 @@ def _depths(R, C, w, t, X, tau):
 
 
 @kernel
-def _scatter(P):
-    """Upper triangle of the scatter matrix of the centred rows of P (N, d), d = 2 or 3."""
-    n, d = P.shape
-    m = np.zeros(d)
-    for i in range(n):
-        for a in range(d):
-            m[a] += P[i, a]
-    m /= max(n, 1)
-    S = np.zeros((d, d))
-    for i in range(n):
-        for a in range(d):
-            da = P[i, a] - m[a]
-            for b in range(a, d):
-                S[a, b] += da * (P[i, b] - m[b])
-    for a in range(d):
-        for b in range(a):
-            S[a, b] = S[b, a]
-    return S
-
-
-def collinear_3d(X: np.ndarray, tol: float = 1e-3, compiled: bool = True) -> bool:
-    """True if the 3D points (N, 3) lie (nearly) on a line or are identical (the rotation about
-    that line is free): second singular value of the centred points below ``tol`` times the
-    first (the eigenvalues of their 3x3 scatter matrix are the squared singular values).
-    ``compiled=False``: the scatter matrix in NumPy (nothing compiles)."""
-    X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
-    if len(X) < 3:
-        return True
-    S = _scatter(X) if compiled else np.cov(X.T, bias=True) * len(X)
-    if _clearly_spread(S, tol):
-        return False
-    ev = np.linalg.eigvalsh(S)  # ascending
-    return bool(not ev[2] > 0 or ev[1] < tol * tol * ev[2])
-
-
-def _clearly_spread(S: np.ndarray, tol: float) -> bool:
-    """Whether the symmetric 3x3 scatter ``S`` has its middle eigenvalue above ten times
-    ``tol^2`` times its largest, shown without the eigenvalues: with ``l1 <= l2 <= l3``, the
-    sum of its principal 2x2 minors ``e2`` is at most ``3 l2 l3`` and its trace at least
-    ``l3``, so ``l2 / l3 >= e2 / (3 trace^2)`` (:func:`collinear_3d` then returns False
-    whatever the eigenvalues' rounding; a margin of ten over ``tol^2``)."""
-    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
-    tr = a + d + f
-    e2 = (a * d - b * b) + (a * f - c * c) + (d * f - e * e)
-    return bool(tr > 0 and e2 > 30.0 * tol * tol * tr * tr)
-
-
-def line_rms(points: np.ndarray) -> float:
-    """RMS distance of 2D points (N, 2) from their total-least-squares line (0 for N < 3):
-    the square root of the smaller eigenvalue of their 2x2 scatter matrix over N."""
-    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(p) < 3:
-        return 0.0
-    S = _scatter(p)
-    a, b, c = S[0, 0], S[0, 1], S[1, 1]
-    lam = 0.5 * (a + c) - math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
-    return math.sqrt(max(lam, 0.0) / len(p))
-
-
-def image_degenerate(
-    points_px: np.ndarray,
-    points_normalized: np.ndarray,
-    focal: float,
-    threshold_px: float,
-    compiled: bool = True,
-) -> bool:
-    """True if the image points lie within the inlier threshold of one image line (identical
-    points included): the rays then span a plane through the camera centre and the pose is not
-    determined (with the RS model's velocities, RANSAC still "fits" them).
-
-    Tested in the measured pixels and in the undistorted normalized coordinates scaled by
-    ``focal`` (a straight image line stays degenerate whichever of the two it is straight in).
-
-    Args:
-        points_px (N, 2) measured pixels; points_normalized (N, 2) undistorted normalized
-        coordinates; focal (px); threshold_px: RMS distance from the line (px) below which
-        the set is degenerate; compiled: False: the line fits in NumPy (nothing compiles).
-    """
-    rms = line_rms if compiled else _line_rms_numpy
-    return (
-        rms(np.asarray(points_px, dtype=float).reshape(-1, 2)) < threshold_px
-        or rms(np.asarray(points_normalized, dtype=float).reshape(-1, 2) * focal) < threshold_px
-    )
-
-
-@kernel
-def _line_rms_scaled(P, a, b, scale):
-    """:func:`line_rms` of ``scale * P[a:b]`` (P (N, 2)), the same arithmetic."""
-    n = b - a
-    if n < 3:
-        return 0.0
-    Q = np.empty((n, 2))
-    for i in range(n):
-        Q[i, 0], Q[i, 1] = P[a + i, 0] * scale, P[a + i, 1] * scale
-    S = _scatter(Q)
-    s00, s01, s11 = S[0, 0], S[0, 1], S[1, 1]
-    lam = 0.5 * (s00 + s11) - math.sqrt(max(0.25 * (s00 - s11) ** 2 + s01 * s01, 0.0))
-    return math.sqrt(max(lam, 0.0) / n)
-
-
-@kernel
-def views_degenerate(X, points_px, points_normalized, focal, bounds, threshold_px, tol=1e-3):
-    """:func:`collinear_3d` of the world points X (N, 3), or else :func:`image_degenerate` of
-    every view's rows ``bounds[c, 0]:bounds[c, 1]`` of the pixels and normalized points (N, 2)
-    (the view's focal length: ``focal`` (N,) px at its first row; a view of fewer than 3 rows
-    counts as degenerate),
-    in one compiled call, the same arithmetic: 1 when the points are degenerate, 0 when not,
-    -1 when the collinearity test needs the scatter matrix's eigenvalues (then undecided)."""
-    if X.shape[0] < 3:
-        return 1
-    S = _scatter(X)
-    a, b, c, d, e, f = S[0, 0], S[0, 1], S[0, 2], S[1, 1], S[1, 2], S[2, 2]
-    tr = a + d + f  # (:func:`_clearly_spread`)
-    e2 = (a * d - b * b) + (a * f - c * c) + (d * f - e * e)
-    if not (tr > 0 and e2 > 30.0 * tol * tol * tr * tr):
-        return -1
-    for v in range(bounds.shape[0]):
-        lo, hi = bounds[v, 0], bounds[v, 1]
-        if hi - lo < 3:
-            continue
-        if _line_rms_scaled(points_px, lo, hi, 1.0) < threshold_px:
-            continue
-        if _line_rms_scaled(points_normalized, lo, hi, focal[lo]) < threshold_px:
-            continue
-        return 0
-    return 1
-
-
-@kernel
 def masked_scatter(P, mask, scale):
     """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number) for
     d = 2 or 3 columns, in one pass: sums and products of the rows relative to the first
@@ -427,7 +298,9 @@ def masked_scatter(P, mask, scale):
 
 @kernel
 def _line_rms_masked(P, mask, scale):
-    """:func:`line_rms` of ``scale * P[mask]``."""
+    """RMS distance of the 2D points ``scale * P[mask]`` (P (N, 2)) from their
+    total-least-squares line (0 for fewer than 3): the square root of the smaller eigenvalue
+    of their 2x2 scatter matrix over their number."""
     S, c = masked_scatter(P, mask, scale)
     if c < 3:
         return 0.0
@@ -437,21 +310,59 @@ def _line_rms_masked(P, mask, scale):
 
 
 @kernel
-def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px, tol=1e-3):
-    """``collinear_3d(X[mask], tol) or image_degenerate(points_px[mask],
-    points_normalized[mask], focal, threshold_px)`` in one compiled call, without the fancy
-    indexing (the estimator runs it on every frame, twice). X (N, 3), points_px and
-    points_normalized (N, 2), mask (N,) bool."""
+def collinear_points(X, mask, tol=1e-3):
+    """Whether the 3D points ``X[mask]`` (X (N, 3), mask (N,) bool) are fewer than 3,
+    identical or (nearly) on one line (the rotation about that line is free): the second
+    singular value of the centred points below ``tol`` times the first (the eigenvalues of
+    their scatter matrix, :func:`masked_scatter`, are the squared singular values)."""
     S, c = masked_scatter(X, mask, 1.0)
     if c < 3:
         return True
     ev = np.linalg.eigvalsh(S)  # ascending
-    if not ev[2] > 0 or ev[1] < tol * tol * ev[2]:
+    return not ev[2] > 0 or ev[1] < tol * tol * ev[2]
+
+
+def collinear_points_numpy(X: np.ndarray, mask: np.ndarray, tol: float = 1e-3) -> bool:
+    """:func:`collinear_points` in NumPy (the estimator's NumPy implementation; nothing
+    compiles)."""
+    P = X[mask]
+    if len(P) < 3:
         return True
-    return (
-        _line_rms_masked(points_px, mask, 1.0) < threshold_px
-        or _line_rms_masked(points_normalized, mask, focal) < threshold_px
-    )
+    ev = np.linalg.eigvalsh(np.cov(P.T, bias=True) * len(P))
+    return bool(not ev[2] > 0 or ev[1] < tol**2 * ev[2])
+
+
+@kernel
+def degenerate_points(X, points_px, points_normalized, mask, focal, rows, threshold_px, tol=1e-3):
+    """Whether the points ``mask`` selects fix no pose, of one camera or of a rig's cameras,
+    in one compiled call without the fancy indexing (the estimator runs it on every frame):
+    the world points :func:`collinear_points`, or every view's image points within
+    ``threshold_px`` of one image line (the view's rays then span a plane through its
+    camera's centre and its pose is not determined; with the RS model's velocities, RANSAC
+    still "fits" them). A view's points are tested in the measured pixels and in the
+    undistorted normalized coordinates times its focal length (a straight image line stays
+    degenerate whichever of the two it is straight in): the RMS distance from their
+    total-least-squares line below ``threshold_px``; a view of fewer than 3 selected points
+    is on a line (one or two rays always lie in a plane through the camera's centre).
+
+    Args:
+        X (N, 3) world points (m); points_px (N, 2) measured pixels; points_normalized (N, 2)
+        undistorted normalized coordinates; mask (N,) bool; focal (M,) each view's focal
+        length (px per normalized unit); rows (M, 2) int64: view v's points are the rows
+        ``rows[v, 0]:rows[v, 1]`` (a camera alone: one view, ``[[0, N]]``); threshold_px
+        (px) > 0; tol: of :func:`collinear_points`.
+    """
+    if collinear_points(X, mask, tol):
+        return True
+    for v in range(rows.shape[0]):
+        a, b = rows[v, 0], rows[v, 1]
+        m = mask[a:b]
+        if not (
+            _line_rms_masked(points_px[a:b], m, 1.0) < threshold_px
+            or _line_rms_masked(points_normalized[a:b], m, focal[v]) < threshold_px
+        ):
+            return False
+    return True
 
 
 def degenerate_points_numpy(
@@ -459,26 +370,24 @@ def degenerate_points_numpy(
     points_px: np.ndarray,
     points_normalized: np.ndarray,
     mask: np.ndarray,
-    focal: float,
+    focal: np.ndarray,
+    rows: np.ndarray,
     threshold_px: float,
     tol: float = 1e-3,
 ) -> bool:
     """:func:`degenerate_points` in NumPy, for the estimator's NumPy implementation (nothing
     compiles): the same tests on the same arrays."""
-    P = X[mask]
-    if len(P) < 3:
+    if collinear_points_numpy(X, mask, tol):
         return True
-    ev = np.linalg.eigvalsh(np.cov(P.T, bias=True) * len(P))
-    if not ev[2] > 0 or ev[1] < tol**2 * ev[2]:
-        return True
-    return (
-        _line_rms_numpy(points_px[mask]) < threshold_px
-        or _line_rms_numpy(points_normalized[mask] * focal) < threshold_px
+    return all(
+        _line_rms_numpy(points_px[a:b][mask[a:b]]) < threshold_px
+        or _line_rms_numpy(points_normalized[a:b][mask[a:b]] * f) < threshold_px
+        for (a, b), f in zip(np.asarray(rows).tolist(), np.asarray(focal).tolist(), strict=True)
     )
 
 
 def _line_rms_numpy(P: np.ndarray) -> float:
-    """:func:`line_rms` in NumPy."""
+    """:func:`_line_rms_masked` in NumPy."""
     if len(P) < 3:
         return 0.0
     S = np.cov(P.T, bias=True) * len(P)

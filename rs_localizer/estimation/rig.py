@@ -76,7 +76,7 @@ from .implementation import COMPILED, NUMPY, resolve_implementation
 from .local_optimization import initial_model_seed, polish, view_seed_steps
 from .numpy_impl import p3p_prerotations
 from .options import EstimateOptions, InitialModel, RansacOptions
-from .plausibility import collinear_3d, plausible_motion
+from .plausibility import collinear_points, collinear_points_numpy, plausible_motion
 from .prior import MotionPrior, sample_prior_rows
 from .ransac import RansacLoop, SeededShuffle, seeded_stream
 from .result import (
@@ -949,7 +949,8 @@ class _RigStages:
         final = selected_final(pool, copies, threshold_px, self.options.ransac.min_inliers,
                                errors=e)  # fmt: skip
         inl = final.inliers
-        if not inl.all() and collinear_3d(pool.X[inl], compiled=pool.compiled):
+        collinear = collinear_points if pool.compiled else collinear_points_numpy
+        if not inl.all() and collinear(pool.X, inl):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         ref, rate = None, None if prior is None else (self.gyro_time, prior.information()[3:, 3:])
         if refine and np.count_nonzero(inl) > 6:

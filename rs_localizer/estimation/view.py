@@ -35,7 +35,7 @@ from .frame import (
 )
 from .numpy_impl import errors2
 from .options import EstimateOptions
-from .plausibility import collinear_3d, image_degenerate, views_degenerate
+from .plausibility import degenerate_points, degenerate_points_numpy
 from .refine import KernelMountings, Mountings, kernel_mountings_of
 from .result import camera_model_of_rig
 from .sampling import batch_samples, draw_samples_numpy, valid_rows, view_sampling
@@ -474,22 +474,13 @@ class StackedViews:
     def degenerate(self, threshold_px: float) -> bool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
         undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
-        rays in one plane through its centre)."""
-        if self.compiled:  # (the same tests in one compiled call, unless it needs eigenvalues)
-            code = views_degenerate(
-                self.X, self.uv, self.x, self.focal, self.bounds, float(threshold_px)
-            )
-            if code >= 0:
-                return bool(code)
-        if collinear_3d(self.X, compiled=self.compiled):
-            return True
-        for s in self.slices:
-            # (one or two rays always lie in a plane through the camera's centre)
-            if s.stop - s.start >= 3 and not image_degenerate(
-                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, self.compiled
-            ):
-                return False
-        return True
+        rays in one plane through its centre): :func:`~.plausibility.degenerate_points` of
+        the views (``compiled=False``: :func:`~.plausibility.degenerate_points_numpy`)."""
+        test = degenerate_points if self.compiled else degenerate_points_numpy
+        # (each view's focal length; an empty view's is never read)
+        focal = np.array([self.focal[s.start] if s.stop > s.start else 0.0 for s in self.slices])
+        every = np.ones(len(self.X), dtype=bool)
+        return bool(test(self.X, self.uv, self.x, every, focal, self.bounds, float(threshold_px)))
 
     def repeated(self, copies: Sequence[int]) -> StackedViews:
         """The stack with view c's points repeated ``copies[c]`` times (a least-squares fit on

@@ -19,8 +19,8 @@ from rs_localizer.estimation import (
 )
 from rs_localizer.estimation.plausibility import (
     check_final_model,
+    degenerate_points,
     depths_at_capture,
-    image_degenerate,
     motion_bounds,
     plausible_motion,
 )
@@ -134,17 +134,26 @@ def test_pixels_on_one_line_are_degenerate(seq):
     assert not e.success and e.failure == "degenerate_geometry"
 
 
-def test_image_degenerate_against_a_direct_computation():
+def test_pixels_near_one_line_are_degenerate_against_a_direct_computation():
+    """:func:`degenerate_points` of world points spread in 3D: degenerate exactly when the
+    pixels (or the normalized points times the focal length) lie within the threshold of one
+    line."""
     rng = np.random.default_rng(0)
     u = rng.uniform(0, 1000, 200)
     line = np.stack([u, 0.5 * u + 10], axis=1)
     # distance of (u, 0.5 u + 10 + e) from the line is e / sqrt(1.25)
     off = line + np.stack([np.zeros(200), np.full(200, 3.0) * rng.choice([-1, 1], 200)], 1)
-    assert image_degenerate(line, line / 1000, 1000.0, 2.0)
-    assert image_degenerate(off, off / 1000, 1000.0, 3.0)  # 2.68 px from the line
-    assert not image_degenerate(off, off / 1000, 1000.0, 2.0)
     spread = rng.uniform(0, 1000, (200, 2))
-    assert not image_degenerate(spread, spread / 1000, 1000.0, 2.0)
+    X = rng.uniform(-2, 2, (200, 3)) + [0, 0, 6]
+    every, one, focal = np.ones(200, dtype=bool), np.array([[0, 200]]), np.array([1000.0])
+
+    def degenerate(p, threshold_px):
+        return degenerate_points(X, p, p / 1000, every, focal, one, threshold_px)
+
+    assert degenerate(line, 2.0)
+    assert degenerate(off, 3.0)  # 2.68 px from the line
+    assert not degenerate(off, 2.0)
+    assert not degenerate(spread, 2.0)
 
 
 def test_velocities_beyond_the_bounds_are_never_reported(seq):

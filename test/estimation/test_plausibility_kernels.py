@@ -1,20 +1,21 @@
 """The estimator's one-call plausibility kernels against the functions of
-:mod:`rs_localizer.estimation.plausibility` they fuse (on the same inputs)."""
+:mod:`rs_localizer.estimation.plausibility` they fuse, or against an independent computation
+(NumPy's SVD), on the same inputs."""
 
 import numpy as np
 import pytest
 
 from rs_localizer.estimation.plausibility import (
     check_final_model,
-    collinear_3d,
+    collinear_points,
+    collinear_points_numpy,
     degenerate_points,
+    degenerate_points_numpy,
     depths_at_capture,
     final_model_check,
     finite_model,
-    image_degenerate,
     motion_bounds,
     plausible_motion,
-    views_degenerate,
 )
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame, paper_camera
@@ -39,52 +40,72 @@ def _point_sets(rng):
     yield f.X[:2], f.points_px[:2], f.x[:2]
 
 
-def test_degenerate_points_equals_collinear_3d_or_image_degenerate():
+def _collinear_svd(X, tol=1e-3):
+    """Fewer than 3 points, or the second singular value of the centred points below ``tol``
+    times the first (NumPy's SVD)."""
+    if len(X) < 3:
+        return True
+    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
+    return not s[0] > 0 or s[1] < tol * s[0]
+
+
+def _on_line_svd(u, x, focal, threshold_px):
+    """The RMS distance of the pixels ``u``, or of ``x * focal``, from their
+    total-least-squares line (the smaller singular value of the centred points over
+    sqrt(N); 0 for fewer than 3) below ``threshold_px``."""
+    if len(u) < 3:
+        return True
+    rms = [np.linalg.svd(p - p.mean(axis=0), compute_uv=False)[1] / np.sqrt(len(p))
+           for p in (u, x * focal)]  # fmt: skip
+    return min(rms) < threshold_px
+
+
+def _both(*args):
+    """:func:`degenerate_points`, compiled and in NumPy (equal)."""
+    got = degenerate_points(*args)
+    assert got == degenerate_points_numpy(*args)
+    return got
+
+
+def test_degenerate_points_of_one_camera_against_numpys_svd():
     rng = np.random.default_rng(0)
-    n = 0
+    focal = np.array([CAM.mean_focal])
+    seen = set()
     for _ in range(5):
-        for X, u, x in _point_sets(rng):
+        for points in _point_sets(rng):
+            X, u, x = (np.ascontiguousarray(a) for a in points)
+            one = np.array([[0, len(X)]], dtype=np.int64)  # (one view: every row)
             for mask in (np.ones(len(X), dtype=bool), rng.random(len(X)) < 0.6):
-                ref = collinear_3d(X[mask]) or image_degenerate(
-                    u[mask], x[mask], CAM.mean_focal, 2.0
-                )
-                got = degenerate_points(
-                    np.ascontiguousarray(X),
-                    np.ascontiguousarray(u),
-                    np.ascontiguousarray(x),
-                    mask,
-                    CAM.mean_focal,
-                    2.0,
-                )
-                assert got == ref
-                n += ref
-    assert n > 0  # both outcomes occur
+                ref = _collinear_svd(X[mask]) or _on_line_svd(u[mask], x[mask], focal[0], 2.0)
+                assert _both(X, u, x, mask, focal, one, 2.0) == ref
+                assert collinear_points(X, mask) == _collinear_svd(X[mask])
+                assert collinear_points_numpy(X, mask) == _collinear_svd(X[mask])
+                seen.add(ref)
+    assert seen == {False, True}
 
 
-def test_views_degenerate_equals_collinear_3d_or_every_view_image_degenerate():
-    """Two views' rows stacked (each with its own focal length): the compiled test is
-    ``collinear_3d(X) or`` every view of 3 or more rows ``image_degenerate``, or undecided
-    (-1) only where the collinearity test needs eigenvalues."""
+def test_degenerate_points_of_two_views_against_numpys_svd():
+    """Two views' rows stacked, each with its own focal length: the world points collinear,
+    or every view's points on one image line (a view of fewer than 3 points, or none, is)."""
     rng = np.random.default_rng(4)
     seen = set()
     for _ in range(5):
         sets = list(_point_sets(rng))
         for (X, u, x), (_, u2, x2) in zip(sets, sets[1:] + sets[:1], strict=True):
-            for cut in (len(X) // 2, 2, len(X)):
+            for cut in (len(X) // 2, 2, 0, len(X)):
                 X2, U, Xn = np.r_[X, X[::-1]], np.r_[u[:cut], u2], np.r_[x[:cut], x2]
-                X2 = X2[: len(U)]
-                focal = np.r_[np.full(cut, CAM.mean_focal), np.full(len(u2), 300.0)]
+                X2 = np.resize(X2, (len(U), 3))  # (the rows repeated to the views' length)
+                focal = np.array([CAM.mean_focal, 300.0])
                 views = [(0, cut), (cut, len(U))]
-                ref = collinear_3d(X2) or all(
-                    b - a < 3 or image_degenerate(U[a:b], Xn[a:b], focal[a], 2.0) for a, b in views
+                every = np.ones(len(U), dtype=bool)
+                ref = _collinear_svd(X2) or all(
+                    _on_line_svd(U[a:b], Xn[a:b], f, 2.0)
+                    for (a, b), f in zip(views, focal, strict=True)
                 )
-                got = views_degenerate(
-                    np.ascontiguousarray(X2), np.ascontiguousarray(U), np.ascontiguousarray(Xn),
-                    focal, np.array(views, dtype=np.int64), 2.0,
-                )  # fmt: skip
-                assert got == -1 or got == int(ref)
+                got = _both(X2, U, Xn, every, focal, np.array(views, dtype=np.int64), 2.0)
+                assert got == ref
                 seen.add(got)
-    assert {0, 1} <= seen  # (both outcomes occur)
+    assert seen == {False, True}
 
 
 @pytest.mark.parametrize("bounds", [None, (0.05, 0.02), (5.0, 5.0)])
