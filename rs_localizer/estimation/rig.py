@@ -43,6 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
+from ..accuracy import absolute_pose_errors
 from ..geometry import matrix_to_rotvec
 from ..pose import RSModel, RSPose
 from ..solvers.gr6p_1lin import gr6p_1lin_batch
@@ -665,18 +666,16 @@ def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPose
 
 def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
     """0 or 1: the estimate whose pose is nearer the predicted model ``(R, C, ...)`` by
-    :data:`PREDICTION_MARGIN` (rotation angle in rad plus the positions' distance over the
-    points' median depth), None without a prediction or when neither is."""
+    :data:`PREDICTION_MARGIN` (the rotation angle in rad plus the positions' distance over the
+    points' median depth, of :func:`~rs_localizer.accuracy.absolute_pose_errors`), None
+    without a prediction or when neither is."""
     if prediction is None:
         return None
-    Rp = np.asarray(prediction[0], dtype=float)
-    pp = -Rp.T @ np.asarray(prediction[1], dtype=float)
     depth = float(np.median(np.linalg.norm(pool.X @ first.model.R.T + first.model.C, axis=1)))
-    d = []
-    for e in (first, second):
-        R, C = e.model.R, e.model.C
-        ang = np.linalg.norm(matrix_to_rotvec(R @ Rp.T))
-        d.append(float(ang + np.linalg.norm(-R.T @ C - pp) / max(depth, 0.1)))
+    a, b, p = (RSPose.from_model(m, 0.0) for m in (first.model, second.model, prediction))
+    err = absolute_pose_errors([a.orientation, b.orientation], [a.position, b.position],
+                               [p.orientation] * 2, [p.position] * 2)  # fmt: skip
+    d = np.radians(err["rot_deg"]) + err["pos_m"] / max(depth, 0.1)
     if d[0] * PREDICTION_MARGIN <= d[1]:
         return 0
     return 1 if d[1] * PREDICTION_MARGIN <= d[0] else None

@@ -19,12 +19,12 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from ..accuracy import covariance_distances
+from ..accuracy import absolute_pose_errors, covariance_distances
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.result import CONTRADICTS_TRACK, UNCONFIRMED, RSPoseEstimate
 from ..estimation.rig import VOTE_MIN_POINTS
 from ..estimation.view import View
-from ..geometry import matrix_to_rotvec, rotation_angle_deg
+from ..geometry import rotation_angle_deg
 from ..pose import RSPose
 from .fusion import FusedState
 from .gyro_input import TrackLog
@@ -511,15 +511,15 @@ def _contradicts(est: RSPoseEstimate, pred) -> bool:
     """The estimate's pose is further from the prediction than their covariances allow
     (:data:`CONTRADICTION_GATE`, the squared Mahalanobis distance of
     :func:`~rs_localizer.accuracy.covariance_distances`) and at least
-    :data:`CONTRADICTION_MIN_DEG` or :data:`CONTRADICTION_MIN_M` away."""
+    :data:`CONTRADICTION_MIN_DEG` or :data:`CONTRADICTION_MIN_M` away (the rotation angle and
+    the positions' distance of :func:`~rs_localizer.accuracy.absolute_pose_errors`)."""
     a, b = RSPose.from_model(est.model, 1.0), pred.pose
-    deg = np.degrees(np.linalg.norm(matrix_to_rotvec(a.orientation @ b.orientation.T)))
-    dist = np.linalg.norm(a.position - b.position)
-    if deg < CONTRADICTION_MIN_DEG and dist < CONTRADICTION_MIN_M:
+    poses = (a.orientation[None], a.position[None], b.orientation[None], b.position[None])
+    err = absolute_pose_errors(*poses)
+    if err["rot_deg"][0] < CONTRADICTION_MIN_DEG and err["pos_m"][0] < CONTRADICTION_MIN_M:
         return False
     S = np.asarray(pred.pose_covariance, float)
     if est.pose_covariance is not None and np.isfinite(est.pose_covariance).all():
         S = S + np.asarray(est.pose_covariance, float)
     # (NaN, a contradiction, when S is not positive definite)
-    poses = (a.orientation[None], a.position[None], b.orientation[None], b.position[None])
     return not covariance_distances(*poses, S[None])[0] <= float(chi2.ppf(CONTRADICTION_GATE, 6))
