@@ -20,15 +20,16 @@ from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
 from ..geometry import rotvec_to_matrix
+from .marginal import marginal_information
 
-__all__ = ["CornerSolution", "RigCorners", "moved"]
+__all__ = ["CornerSolution", "RigCorners", "marginal", "moved"]
 
 #: px, times the loss scale: the error given to a corner that no longer projects (it left its
 #: camera's field of view during the solve), so that the solve moves away from it
 UNPROJECTED_PENALTY = 1e3
 
-#: an eigenvalue of the mountings' information (:meth:`RigCorners.mounting_covariance`) below
-#: this share of the largest is a direction the corners do not constrain
+#: an eigenvalue of the mountings' information (:func:`marginal`) below this share of the
+#: largest is a direction the adjustment (the corners', the poses') does not constrain
 UNCONSTRAINED_RTOL = 1e-12
 
 
@@ -40,6 +41,29 @@ def moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel) -> tuple:
     if len(d):
         R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
     return R, p
+
+
+def marginal(J, k: int) -> tuple:
+    """The covariance factor of the parameters of columns ``k`` on of the Jacobian ``J`` (rows,
+    k + c) (the mountings', the time offsets'), the first ``k`` (the rig poses') marginalized
+    (:func:`~rs_localizer.calibration.marginal.marginal_information`; where their block is
+    singular, its dense pseudo-inverse): ``(S^+ (c, c), A (rows, c), loose)``, ``S^+`` the
+    pseudo-inverse of their information ``S``, ``A`` each row's Jacobian on them with the rig
+    poses' part projected out, ``loose`` the parameters in a direction of ``S`` of eigenvalue
+    below :data:`UNCONSTRAINED_RTOL` of the largest (e.g. a mounting none of whose rows is
+    left): their variance is infinite, never the zero of the pseudo-inverse."""
+    J = csr_matrix(J)
+    info = marginal_information(J, np.arange(k, J.shape[1]))
+    if info is None:  # (a rig pose its rows do not fix)
+        H = (J.T @ J).toarray()
+        X = np.linalg.pinv(H[:k, :k], hermitian=True) @ H[:k, k:]
+        info = H[k:, k:] - H[:k, k:].T @ X, X
+    S, X = info
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    null = w <= max(float(w[-1]) if len(w) else 0.0, 0.0) * UNCONSTRAINED_RTOL
+    Sinv = (V[:, ~null] / w[~null]) @ V[:, ~null].T
+    A = J[:, k:].toarray() - J[:, :k] @ X
+    return Sinv, A, np.flatnonzero(np.sum(V[:, null] ** 2, axis=1) > 1e-6)
 
 
 @dataclass
@@ -271,19 +295,18 @@ class RigCorners:
     def mounting_covariance(self, sol: CornerSolution, clusters: np.ndarray | None = None) -> tuple:
         """``(covariances (F, 6, 6), std (D,) s)``: each free mounting's covariance over
         (rotation [rad, rig axes], position [m, rig frame]; ``parameters="rig"``) at ``sol``,
-        the rig poses marginalized (the Schur complement ``S`` of their blocks in ``H = J^T J``,
-        ``J`` the robust-weighted Jacobian ``least_squares`` returns; a variant's blocks
-        between the rig poses' and the mountings', :attr:`lead`, held at the solution).
-        ``clusters`` None: ``s^2 S^-1`` with ``s^2 = 2 cost / (2 K - n)``, every corner's error
-        independent; ``clusters`` (N,) int, each corner's group: the cluster-robust "sandwich"
-        ``S^-1 (sum_c u_c u_c^T) S^-1`` (``u_c`` the group's gradient of the cost on the
-        mountings, the rig poses' part projected out), so corners that share an error (a tag
-        map's, a camera model's) count once per group; ``std``: the time offsets' standard
-        deviations (``motion``; empty without). A parameter that the kept corners do not
-        constrain (one in a direction of ``S`` of eigenvalue below :data:`UNCONSTRAINED_RTOL`
-        of the largest, e.g. a mounting or time offset none of whose corners is kept) gets an
-        infinite variance (its rows and columns inf; an infinite std), never the zero of
-        ``S``'s pseudo-inverse.
+        the rig poses marginalized (:func:`marginal`: the pseudo-inverse of the Schur
+        complement ``S`` of their blocks in ``H = J^T J``, ``J`` the robust-weighted Jacobian
+        ``least_squares`` returns; a variant's blocks between the rig poses' and the
+        mountings', :attr:`lead`, held at the solution). ``clusters`` None: ``s^2 S^-1`` with
+        ``s^2 = 2 cost / (2 K - n)``, every corner's error independent; ``clusters`` (N,) int,
+        each corner's group: the cluster-robust "sandwich" ``S^-1 (sum_c u_c u_c^T) S^-1``
+        (``u_c`` the group's gradient of the cost on the mountings, the rig poses' part
+        projected out), so corners that share an error (a tag map's, a camera model's) count
+        once per group; ``std``: the time offsets' standard deviations (``motion``; empty
+        without). A parameter that the kept corners do not constrain (e.g. a mounting or time
+        offset none of whose corners is kept) gets an infinite variance (its rows and columns
+        inf; an infinite std).
 
         Raises:
             ValueError: a solution without free mountings.
@@ -292,41 +315,17 @@ class RigCorners:
             raise ValueError("RigCorners.mounting_covariance: no free mounting")
         J = csr_matrix(sol.result.jac)
         r = np.asarray(sol.result.fun, dtype=float)
-        k, mc = 6 * self.G, 6 * self.F + self.D
-        lo = 6 * self.lead
-        Jg, Jm = J[:, :k], J[:, lo : lo + mc]
-        # (a corner's two rows touch its rig frame's block alone: H_gg is block diagonal)
-        g = np.repeat(self.frame[self.keep], 2)
-        coo = Jg.tocoo()
-        Jgd = np.zeros((len(r), 6))
-        np.add.at(Jgd, (coo.row, coo.col - 6 * g[coo.row]), coo.data)
-        blocks = np.zeros((self.G, 6, 6))
-        np.add.at(blocks, g, Jgd[:, :, None] * Jgd[:, None, :])
-        inv = np.linalg.pinv(blocks)
-        Hgm = (Jg.T @ Jm).toarray().reshape(self.G, 6, mc)
-        W = np.einsum("gij,gjk->gik", inv, Hgm)  # (H_gg^-1 H_gm)
-        S = (Jm.T @ Jm).toarray() - np.einsum("gji,gjk->ik", Hgm, W)
-        S = 0.5 * (S + S.T)
-        Sinv = np.linalg.pinv(S)
+        k, lo = 6 * self.G, 6 * self.lead
+        Sinv, A, loose = marginal(hstack([J[:, :k], J[:, lo : lo + 6 * self.F + self.D]]), k)
         if clusters is None:
-            s2 = 2.0 * float(sol.result.cost) / max(len(r) - self.n, 1)
-            C = s2 * Sinv
+            C = 2.0 * float(sol.result.cost) / max(len(r) - self.n, 1) * Sinv
         else:
-            # each corner's gradient on the mountings with the rig poses' part projected out:
-            # J_m - J_g H_gg^-1 H_gm, row by row
-            A = Jm.toarray() - np.einsum("ri,rik->rk", Jgd, W[g])
             c = np.repeat(np.asarray(clusters)[self.keep], 2)
             _, ci = np.unique(c, return_inverse=True)
-            U = np.zeros((ci.max() + 1, mc))
+            U = np.zeros((ci.max() + 1, A.shape[1]))
             np.add.at(U, ci, A * r[:, None])
             C = Sinv @ (U.T @ U) @ Sinv
         C = 0.5 * (C + C.T)
-        # (a direction no kept corner constrains, e.g. a mounting none of whose corners is
-        # left: the pseudo-inverse gives it zero variance; its parameters get infinite)
-        w, V = np.linalg.eigh(S)
-        null = w <= max(float(w[-1]) if len(w) else 0.0, 0.0) * UNCONSTRAINED_RTOL
-        if null.any():
-            loose = np.flatnonzero(np.sum(V[:, null] ** 2, axis=1) > 1e-6)
-            C[loose, :] = C[:, loose] = np.inf
+        C[loose, :] = C[:, loose] = np.inf
         blocks = np.array([C[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.F)])
         return blocks, np.sqrt(np.diag(C)[6 * self.F :])

@@ -7,14 +7,13 @@ below as "step N").
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from itertools import permutations
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.linalg import LinAlgWarning, block_diag, lu_factor, lu_solve
+from scipy.linalg import block_diag
 from scipy.optimize import least_squares
 from scipy.sparse import bmat, coo_matrix, identity, kron
 from scipy.stats import chi2
@@ -24,7 +23,7 @@ from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting, base_pose
 from ..geometry import compose, matrix_to_rotvec, rotvec_to_matrix
-from .corners import CornerSolution, RigCorners, moved
+from .corners import CornerSolution, RigCorners, marginal, moved
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",
@@ -380,9 +379,11 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier=frozenset(),
 
 def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
     """Each free camera's mounting covariance (6, 6) (rotation rad, rig axes; position m)
-    from the adjustment ``fit`` (step 5): ``s^2 H^-1`` inflated by :func:`_std_of_mean`, plus
+    from the adjustment ``fit`` (step 5): ``s^2 H^-1`` (the rig poses marginalized,
+    :func:`~rs_localizer.calibration.corners.marginal`) inflated by :func:`_std_of_mean`, plus
     each camera's bias (:data:`MOUNTING_BIAS_SHARE` of its scatter in its own axes) propagated
-    to first order; and each time offset's std (s, inflated alike). NaN where ``H`` is singular."""
+    to first order; and each time offset's std (s, inflated alike). Infinite where the
+    adjustment does not constrain it."""
     J, r, cam, free = fit.J, fit.r, fit.cam, fit.free
     n, k, mc = J.shape[1], 6 * len(fit.rig[0]), 6 * len(free)  # (rig, mountings, offsets)
     s2 = float(np.sum(r * r)) / max(6 * len(r) - n, 1)
@@ -393,28 +394,24 @@ def _mounting_covariance(fit: _Fit) -> tuple[dict, dict]:
         if len(rc) >= 16:
             iid = np.sum(np.var(rc, axis=0, ddof=1)) / len(rc)
             inflate = max(inflate, _std_of_mean(rc) ** 2 / max(iid, 1e-300))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", LinAlgWarning)
-        lu = lu_factor((J.T @ J).toarray())
-    Hinv = s2 * inflate * lu_solve(lu, np.eye(n)[:, k:])[k:]
+    Sinv, A, loose = marginal(J, k)
+    Hinv = s2 * inflate * Sinv
+    Hinv[loose, :] = Hinv[:, loose] = np.inf
     cov = Hinv[:mc, :mc]
-    dt_std = {f: float(np.sqrt(Hinv[mc + i, mc + i])) for i, f in enumerate(free) if n > k + mc}
-    Jt = J.T.tocsr()
     bias = np.repeat([MOUNTING_BIAS_SHARE["rotation"], MOUNTING_BIAS_SHARE["position"]], 3)
     e = fit.errors()
     for c in cams:
         i = np.flatnonzero(cam == c)
-        Z = np.zeros((J.shape[0], 6))  # (the offsets' prior rows, if any, last)
         Oc = fit.O[i]
-        Z[: 6 * len(r)].reshape(-1, 6, 6)[i] = np.concatenate(
-            [fit.W[i, :, :3] @ Oc, fit.W[i, :, 3:] @ Oc], axis=2
-        )
+        # (the whitened errors' derivative by the camera's pose error in its own axes)
+        Z = np.concatenate([fit.W[i, :, :3] @ Oc, fit.W[i, :, 3:] @ Oc], axis=2)
         e_cam = np.concatenate([np.einsum("nji,nj->ni", Oc, e[i, :3]),
                                 np.einsum("nji,nj->ni", Oc, e[i, 3:])], axis=1)  # fmt: skip
         B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
-        K = lu_solve(lu, Jt @ Z)[k : k + mc]
+        K = (Sinv @ (A[(6 * i[:, None] + np.arange(6)).ravel()].T @ Z.reshape(-1, 6)))[:mc]
         cov = cov + K @ B @ K.T
     cov = 0.5 * (cov + cov.T)
+    dt_std = {f: float(np.sqrt(Hinv[mc + i, mc + i])) for i, f in enumerate(free) if n > k + mc}
     return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
 
 
@@ -525,7 +522,8 @@ def _corner_covariance(refined: _Refined, start: dict, reference: str, pose_cov:
             if np.isfinite(pose_cov[n]).all() and np.isfinite(Ci).all()]  # fmt: skip
     m2 = sum(float(di @ np.linalg.lstsq(pose_cov[n], di, rcond=None)[0]) for di, n in seen)
     misfit = max(MISFIT_FLOOR, m2 / max(6 * len(seen), 1))
-    cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n]) for i, n in enumerate(free)}
+    cov = {n: C[i] + (misfit - 1.0) * np.nan_to_num(pose_cov[n], posinf=0.0, neginf=0.0)
+           for i, n in enumerate(free)}  # fmt: skip
     return cov, misfit, dt_std
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import splu
 
+from ..calibration.marginal import marginal_information
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
 from .marker_init import mirrored_tilt
 from .marker_model import MappingOptions, marker_corners_local
@@ -21,28 +22,18 @@ def _marker_covariance(jac, n_rep: int, sigma: float, prob: MarkerProblem) -> np
     """Covariance (6 M, 6 M) of the adjusted markers' parameters (rotation vector, centre; M =
     ``prob.nm``) at the solution: the markers' block of ``(J^T J)^-1`` with the first ``n_rep``
     rows of ``jac`` (those in pixels) scaled by ``1 / sigma``, the other parameters (frames,
-    line delay) marginalized by the Schur complement with a sparse LU factorization of their
-    block (SciPy ``splu``); where that block is singular, the dense pseudo-inverse of the
-    whole ``J^T J``."""
+    line delay) marginalized (:func:`marginal_information`); where their block is singular,
+    the dense pseudo-inverse of the whole ``J^T J``."""
     J = csr_matrix(jac)
     scale = np.ones(J.shape[0])
     scale[:n_rep] = 1.0 / max(sigma, 1e-12)
     J = diags(scale) @ J
-    H = (J.T @ J).tocsc()
     m0, m1 = prob.moff, prob.moff + 6 * prob.nm
-    other = np.r_[np.arange(m0), np.arange(m1, H.shape[0])]
-    Hmm = H[m0:m1, m0:m1].toarray()
-    Hoo = H[other][:, other].tocsc()
-    Hom = H[other][:, m0:m1].toarray()
-    try:
-        with np.errstate(all="raise"):
-            X = splu(Hoo).solve(Hom)
-        if not np.isfinite(X).all():
-            raise FloatingPointError
-    except (RuntimeError, FloatingPointError):
-        full = np.linalg.pinv(H.toarray(), rcond=1e-12, hermitian=True)
+    info = marginal_information(J, np.arange(m0, m1))
+    if info is None:
+        full = np.linalg.pinv((J.T @ J).toarray(), rcond=1e-12, hermitian=True)
         return full[m0:m1, m0:m1]
-    return np.linalg.pinv(Hmm - Hom.T @ X, rcond=1e-12, hermitian=True)
+    return np.linalg.pinv(info[0], rcond=1e-12, hermitian=True)
 
 
 def _view_clusters(prob: MarkerProblem, Rf, Cf, Rm_all: dict, angle: float) -> np.ndarray:
