@@ -48,19 +48,21 @@ def draw_samples(u, pool):
     out = np.empty((K, s), dtype=np.int64)
     chosen = np.empty(s, dtype=np.int64)  # sorted ascending
     for k in range(K):
-        draw_sample(u, k, 0, s, pool, chosen, out, 0)
+        draw_sample(u, k, 0, 0, s, pool, 0, chosen, out)
     return out
 
 
 @kernel(inline=INLINE)
-def draw_sample(u, k, j0, s, pool, chosen, out, o0):
-    """Sample ``k`` of :func:`draw_samples`: ``s`` distinct indices of ``range(pool)`` into
-    ``out[k, o0:o0 + s]`` from the uniform numbers ``u[k, j0:j0 + s]``, the j-th the
-    ``floor(u[k, j0 + j] * (pool - j))``-th index not chosen yet; ``chosen`` (at least s)
-    ends holding them sorted ascending."""
-    for j in range(s):
-        c = min(int(u[k, j0 + j] * (pool - j)), pool - j - 1)
-        # the c-th index not chosen yet: step over the chosen ones at or below it
+def draw_sample(u, k, j0, a, b, pool, offset, chosen, out):
+    """Draws ``a`` to ``b - 1`` of sample ``k`` of :func:`draw_samples` (or of
+    :func:`draw_samples_numpy`, with one range for these draws): the j-th into ``out[k, j]``,
+    the ``floor(u[k, j0 + j] * (pool - j))``-th index of ``offset + range(pool)`` not in the
+    sample yet (``u`` uniform numbers in [0, 1); ``b <= pool``, and the sample's first ``a``
+    indices must lie in that range). ``chosen`` (at least b int64) holds those first ``a``
+    sorted ascending and ends holding the first ``b`` so."""
+    for j in range(a, b):
+        c = min(int(u[k, j0 + j] * (pool - j)), pool - j - 1) + offset
+        # the pick among the indices not chosen yet: step over the chosen ones at or below it
         pos = 0
         while pos < j and chosen[pos] <= c:
             c += 1
@@ -68,7 +70,7 @@ def draw_sample(u, k, j0, s, pool, chosen, out, o0):
         for m in range(j, pos, -1):
             chosen[m] = chosen[m - 1]
         chosen[pos] = c
-        out[k, o0 + j] = c
+        out[k, j] = c
 
 
 def draw_samples_numpy(
@@ -346,34 +348,20 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
 @kernel
 def sample_kernel(u, cdf, eligible, counts, starts, n):
     """:meth:`~.view.StackedViews.samples`' (S, 6) samples from its uniform draws ``u`` (7, S)
-    in the order the NumPy form takes them: the view (inverse of ``cdf``), three distinct
-    points of it, three distinct points of the ``n - 3`` others (:func:`draw_sample`'s
-    draws)."""
+    in the order the NumPy form takes them: the view (inverse of ``cdf``), then six draws as
+    a camera's sample draws them (:func:`draw_sample`), the first three among the view's
+    points (its range of the stack), the other three among all ``n``."""
     S = u.shape[1]
     out = np.empty((S, 6), dtype=np.int64)
-    chosen = np.empty(3, dtype=np.int64)
+    chosen = np.empty(6, dtype=np.int64)
     v = u.T  # (the draws of sample k in row k)
     for k in range(S):
         j = 0
         while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
             j += 1
         cam = eligible[min(j, len(cdf) - 1)]
-        draw_sample(v, k, 1, 3, counts[cam], chosen, out, 0)
-        s0 = starts[cam]
-        for i in range(3):
-            out[k, i] += s0
-        # (the three sorted: the others mapped onto the pool without them)
-        t0, t1, t2 = chosen[0] + s0, chosen[1] + s0, chosen[2] + s0
-        draw_sample(v, k, 4, 3, n - 3, chosen, out, 3)
-        for i in range(3, 6):
-            r = out[k, i]
-            if r >= t0:
-                r += 1
-            if r >= t1:
-                r += 1
-            if r >= t2:
-                r += 1
-            out[k, i] = r
+        draw_sample(v, k, 1, 0, 3, counts[cam], starts[cam], chosen, out)
+        draw_sample(v, k, 1, 3, 6, n, 0, chosen, out)
     return out
 
 

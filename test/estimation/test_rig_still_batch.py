@@ -272,6 +272,26 @@ def test_the_compiled_sampling_distribution_is_the_pools(counts, every):
     assert got[4] == want[4]
 
 
+@pytest.mark.parametrize(("counts", "every"), [((30, 24, 12), 0), ((16, 2, 20), 3), ((5, 4), 0),
+                                               ((3, 9), 4)])  # fmt: skip
+def test_the_compiled_samples_are_the_numpy_forms(counts, every):
+    """The compiled samples (``batch_samples``: a camera's draws, ``draw_sample``, the first
+    three in the chosen camera's range of the pool, the others in the whole pool) are the
+    NumPy form's (``draw_samples_numpy`` with those ranges) from the same draws, bit for bit,
+    over the whole pool or a subset (every point but each ``every``-th): the first three in
+    one camera, all six distinct."""
+    views = _frame(31, counts)
+    pool = StackedViews(views)
+    subset = np.flatnonzero(np.arange(len(pool.cam)) % every != 1) if every else None
+    got = pool.samples(np.random.default_rng(5), 400, subset)
+    want = StackedViews(views, compiled=False).samples(np.random.default_rng(5), 400, subset)
+    np.testing.assert_array_equal(got, want)
+    assert (pool.cam[got[:, :3]] == pool.cam[got[:, :1]]).all()
+    assert all(len(set(row)) == 6 for row in got.tolist())
+    if subset is not None:
+        assert np.isin(got, subset).all()
+
+
 def _least_error_pose(pool, sample):
     """Every Lambda Twist pose of ``sample``'s first 3 points (in their camera), mapped to the
     rig, and the index of the one of least global-shutter error on its other 3 points
