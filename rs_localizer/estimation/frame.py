@@ -364,9 +364,10 @@ def valid_correspondences(
     """(N,) bool: the rows of (N, 2) pixels ``u`` and (N, 3) world points ``X`` (float64) a
     frame takes (:func:`prepare_frame`, a rig's camera, :mod:`~.rig`): a finite pixel and a
     point with every coordinate within ``max_point_norm`` (m) of the origin (NaN and points at
-    infinity fail); ``compiled=False``: in NumPy, the same rule
-    (:func:`~.sampling.valid_rows`)."""
-    if compiled:
+    infinity fail); ``compiled=False``, or arrays that are not :func:`kernel_ready` (a
+    read-only or strided input: the compiled test would compile another specialization during
+    the frame): in NumPy, the same rule (:func:`~.sampling.valid_rows`)."""
+    if compiled and kernel_ready(u) and kernel_ready(X):
         return valid_rows(u, X, max_point_norm)
     with np.errstate(invalid="ignore"):
         return np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
@@ -384,8 +385,8 @@ def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
 
 def kernel_ready(a: np.ndarray) -> bool:
     """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
-    small kernels of a frame's preparation (:func:`_undistorted_rows`, the rig's view
-    preparation, :mod:`~.rig`) are compiled for and warmed up with (another layout or a
+    small kernels of a frame's preparation (:func:`valid_correspondences`) and of a rig's
+    stacked views (:mod:`~.view`) are compiled for and warmed up with (another layout or a
     read-only array would compile another specialization during a frame)."""
     f = a.flags
     return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
