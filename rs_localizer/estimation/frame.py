@@ -318,7 +318,8 @@ def prepare_frame(
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
     ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization;
-    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`)
+    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`; None: in
+    their order, as a rig frame's views take them, :mod:`~.view`)
     and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
     the measured, distorted line), with each point's whitening :attr:`Frame.W`.
 
@@ -345,8 +346,8 @@ def prepare_frame(
 
 def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A frame's measured pixels ``points2d`` and world points ``points3d`` as float64 arrays,
-    checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`, a rig's camera,
-    :mod:`~.rig`).
+    checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`: a camera's frame
+    and each camera's of a rig frame, :mod:`~.view`).
 
     Raises:
         ValueError: arrays of other shapes or of different lengths, naming both shapes.
@@ -362,7 +363,7 @@ def valid_correspondences(
     u: np.ndarray, X: np.ndarray, max_point_norm: float, compiled: bool = True
 ) -> np.ndarray:
     """(N,) bool: the rows of (N, 2) pixels ``u`` and (N, 3) world points ``X`` (float64) a
-    frame takes (:func:`prepare_frame`, a rig's camera, :mod:`~.rig`): a finite pixel and a
+    frame takes (:func:`prepare_frame`, of a camera or a rig's camera): a finite pixel and a
     point with every coordinate within ``max_point_norm`` (m) of the origin (NaN and points at
     infinity fail); ``compiled=False``, or arrays that are not :func:`kernel_ready` (a
     read-only or strided input: the compiled test would compile another specialization during
@@ -375,8 +376,8 @@ def valid_correspondences(
 
 def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
     """The rows of :meth:`~rs_localizer.camera.CameraModel.normalize`'s (N, 2) points ``x`` and
-    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, a rig's camera,
-    :mod:`~.rig`): None when every one is finite, else the (N,) bool mask of those that are
+    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, of a camera or a rig's
+    camera): None when every one is finite, else the (N,) bool mask of those that are
     (undistortion can fail far outside the image)."""
     if np.isfinite(x).all() and np.isfinite(r).all():
         return None
