@@ -320,7 +320,8 @@ def prepare_frame(
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
     ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization;
-    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`)
+    anything with a generator's ``permutation``: :class:`~.ransac.SeededShuffle`; None: in
+    their order, as a rig frame's views take them, :mod:`~.view`)
     and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
     the measured, distorted line), with each point's whitening :attr:`Frame.W`.
 
@@ -347,8 +348,8 @@ def prepare_frame(
 
 def correspondences(points2d: np.ndarray, points3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A frame's measured pixels ``points2d`` and world points ``points3d`` as float64 arrays,
-    checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`, a rig's camera,
-    :mod:`~.rig`).
+    checked to be (N, 2) and (N, 3) with the same N (:func:`prepare_frame`: a camera's frame
+    and each camera's of a rig frame, :mod:`~.view`).
 
     Raises:
         ValueError: arrays of other shapes or of different lengths, naming both shapes.
@@ -364,11 +365,12 @@ def valid_correspondences(
     u: np.ndarray, X: np.ndarray, max_point_norm: float, compiled: bool = True
 ) -> np.ndarray:
     """(N,) bool: the rows of (N, 2) pixels ``u`` and (N, 3) world points ``X`` (float64) a
-    frame takes (:func:`prepare_frame`, a rig's camera, :mod:`~.rig`): a finite pixel and a
+    frame takes (:func:`prepare_frame`, of a camera or a rig's camera): a finite pixel and a
     point with every coordinate within ``max_point_norm`` (m) of the origin (NaN and points at
-    infinity fail); ``compiled=False``: in NumPy, the same rule
-    (:func:`~.sampling.valid_rows`)."""
-    if compiled:
+    infinity fail); ``compiled=False``, or arrays that are not :func:`kernel_ready` (a
+    read-only or strided input: the compiled test would compile another specialization during
+    the frame): in NumPy, the same rule (:func:`~.sampling.valid_rows`)."""
+    if compiled and kernel_ready(u) and kernel_ready(X):
         return valid_rows(u, X, max_point_norm)
     with np.errstate(invalid="ignore"):
         return np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
@@ -376,8 +378,8 @@ def valid_correspondences(
 
 def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
     """The rows of :meth:`~rs_localizer.camera.CameraModel.normalize`'s (N, 2) points ``x`` and
-    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, a rig's camera,
-    :mod:`~.rig`): None when every one is finite, else the (N,) bool mask of those that are
+    (N,) RS coordinates ``r`` a frame takes (:func:`prepare_frame`, of a camera or a rig's
+    camera): None when every one is finite, else the (N,) bool mask of those that are
     (undistortion can fail far outside the image)."""
     if np.isfinite(x).all() and np.isfinite(r).all():
         return None
@@ -386,8 +388,8 @@ def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
 
 def kernel_ready(a: np.ndarray) -> bool:
     """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
-    small kernels of a frame's preparation (:func:`_undistorted_rows`, the rig's view
-    preparation, :mod:`~.rig`) are compiled for and warmed up with (another layout or a
+    small kernels of a frame's preparation (:func:`valid_correspondences`) and of a rig's
+    stacked views (:mod:`~.view`) are compiled for and warmed up with (another layout or a
     read-only array would compile another specialization during a frame)."""
     f = a.flags
     return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))

@@ -21,24 +21,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._jit import kernel
-from ..camera import CameraModel, distortion_jacobian
-from ..correspondences import checked_groups
+from ..camera import CameraModel
 from ..frames import Mounting
 from ..pose import RSModel
 from .degeneracy import coplanar
-from .frame import (
-    camera_values,
-    correspondences,
-    kernel_ready,
-    normalized_rows,
-    valid_correspondences,
-)
+from .frame import camera_values, kernel_ready, prepare_frame
 from .numpy_impl import errors2
 from .options import EstimateOptions
 from .plausibility import degenerate_points, degenerate_points_numpy
 from .refine import KernelMountings, Mountings, kernel_mountings_of
 from .result import camera_model_of_rig
-from .sampling import batch_samples, draw_samples_numpy, valid_rows, view_sampling
+from .sampling import batch_samples, draw_samples_numpy, view_sampling
 from .scoring import best_msac
 
 __all__ = ["StackedViews", "View"]
@@ -97,13 +90,15 @@ def _label(c: int, v: View) -> str:
 def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`~.rig.estimate_rig_pose` raises) and
     prepared for :class:`StackedViews`: ``(R (3, 3), c (3,), mounting covariance or None,
-    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,) or None (every row, in
-    order), focal, A (n, 4))`` of its n valid rows: the rows a single camera's frame takes of
-    them (:func:`~.frame.prepare_frame`: its checks, :func:`~.frame.correspondences`,
-    :func:`~.frame.valid_correspondences` with every coordinate of a point within
-    ``max_norm`` m of the origin (the options' ``plausibility.max_point_norm``),
-    :func:`~.frame.normalized_rows`; its undistortion and RS coordinates,
-    :meth:`~rs_localizer.camera.CameraModel.normalize`), in their order."""
+    frame, tau (n,), A (n, 4))``. ``frame``: the :class:`~.frame.Frame` a single camera's
+    estimator prepares of the view's correspondences and groups
+    (:func:`~.frame.prepare_frame`, unshuffled: its n valid rows in their order, every
+    coordinate of a point within ``max_norm`` m of the origin (the options'
+    ``plausibility.max_point_norm``), undistorted and normalized); ``tau``: each point's
+    capture time from the rig's reference time (s, the view's stamp offset plus its row's
+    time from the camera's reference line); ``A``: each point's pixel Jacobian, row-major
+    (the frame's whitening times its focal length; the focal length times the identity
+    where the frame has none)."""
     if not isinstance(v, View):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a View")
     m = v.mounting
@@ -124,84 +119,25 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
     mc = None if mc is None or not mc.any() else mc
     uv = np.asarray(v.uv, dtype=float)
     X = np.asarray(v.X, dtype=float)
-    # (a camera's checks, :func:`~.frame.correspondences`; an empty view of any shape: no rows)
-    try:
-        uv, X = correspondences(
-            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X
-        )
+    try:  # (an empty view of any shape: no rows)
+        fr = prepare_frame(
+            uv.reshape(0, 2) if uv.size == 0 else uv, X.reshape(0, 3) if X.size == 0 else X,
+            v.camera, max_norm, compiled=compiled, groups=v.groups,
+        )  # fmt: skip
     except ValueError as e:
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
-    cam = v.camera
-    k = camera_values(cam)  # (kept per camera object)
-    spr, focal, jacobian, args = k.spr, k.focal, k.varying, k.jacobian
-    if len(uv) == 0:  # (no points: nothing to normalize; the consensus's removed cameras)
-        z2 = np.zeros((0, 2))
-        return (Rm, cm.reshape(3), mc, 0, z2, np.zeros((0, 3)), z2.copy(), np.zeros(0),
-                np.zeros(0, dtype=np.int64), focal, np.zeros((0, 4)))  # fmt: skip
-    stamp = float(v.stamp_offset)
-    args = args if compiled else None  # (a distorted camera's, compiled)
-    kernels = compiled and kernel_ready(uv) and kernel_ready(X)
-    if args is not None and spr == 0.0 and kernels:
-        # (a global shutter with distortion: the checks and rows below in one compiled call
-        # when every row is valid)
-        x = cam.undistort(uv)
-        if kernel_ready(x):
-            valid, tau, A = _global_shutter_rows(uv, X, x, stamp, max_norm, *args)
-            if valid:
-                return (Rm, cm.reshape(3), mc, len(uv), x, X, uv, tau, None, focal, A)
-    # (the rows a camera's frame takes, :func:`~.frame.valid_correspondences`)
-    ok = valid_correspondences(uv, X, max_norm, kernels)
-    if ok.all():
-        idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
-    else:
-        idx = np.flatnonzero(ok)
-        uv_g, X_g = uv[idx], X[idx]
-    # (a camera's undistortion and RS coordinates, CameraModel.normalize)
-    x, r, _ = cam.normalize(uv_g, compiled=compiled)
-    ok = normalized_rows(x, r)
-    if ok is not None:
-        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
+    stamp, spr = float(v.stamp_offset), camera_values(v.camera).spr
     if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.empty(len(uv_g))
+        tau = np.empty(len(fr.x))
         tau.fill(stamp + 0.0)
     else:
-        tau = stamp + (r - k.r0) * spr
-    if jacobian:
-        A = cam.pixel_jacobian(x, compiled=compiled).reshape(-1, 4)
+        tau = stamp + (fr.r - fr.r0) * spr
+    if len(fr.W):
+        A = fr.W * fr.f
     else:
-        A = np.zeros((len(idx), 4))
-        A[:, 0] = A[:, 3] = focal
-    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
-            focal, A)  # fmt: skip
-
-
-def _checked_view_groups(c: int, v: View) -> np.ndarray | None:
-    """Camera ``c``'s view's :attr:`View.groups` checked (one integer per correspondence,
-    :func:`~.frame.checked_groups`; the error names the camera)."""
-    if v.groups is None:
-        return None
-    try:
-        return checked_groups(v.groups, len(np.asarray(v.uv).reshape(-1, 2)))
-    except ValueError as e:
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
-
-
-@kernel
-def _global_shutter_rows(uv, X, x, stamp, max_norm, d, fisheye, fx, fy):
-    """A global-shutter camera's rows of :func:`_view_part` from its (n, 2) pixels ``uv``,
-    (n, 3) world points ``X`` and (n, 2) undistorted points ``x``: ``(every row valid (a
-    camera's rule, :func:`~.sampling.valid_rows`, every point within ``max_norm`` m) with a
-    finite ``x``, tau (n,) all ``stamp + 0.0``, A (n, 4): the pixel
-    Jacobians of :func:`~rs_localizer.camera.distortion_jacobian` with the camera's arguments
-    ``d, fisheye, fx, fy``)``."""
-    n = x.shape[0]
-    tau = np.empty(n)
-    ok = valid_rows(uv, X, max_norm)
-    for i in range(n):
-        if not (ok[i] and np.isfinite(x[i, 0]) and np.isfinite(x[i, 1])):
-            return False, tau, np.empty((0, 4))
-        tau[i] = stamp + 0.0
-    return True, tau, distortion_jacobian(x, d, fisheye, fx, fy).reshape(n, 4)
+        A = np.zeros((len(fr.x), 4))
+        A[:, 0] = A[:, 3] = fr.f
+    return Rm, cm.reshape(3), mc, fr, tau, A
 
 
 @kernel
@@ -267,7 +203,8 @@ class StackedViews:
         ValueError: a view that is not a :class:`View`, a camera without a mounting
             (``mounting`` None; the message names it) or with a mounting that is not a
             :class:`~rs_localizer.frames.Mounting`, no :class:`~rs_localizer.camera.CameraModel`,
-            a stamp offset not finite, mismatched pixel and point counts or shapes."""
+            a stamp offset not finite, mismatched pixel and point counts or shapes, groups
+            that are not one integer per correspondence."""
 
     #: the time of :class:`~.frame.RefinementView`: tau itself, in seconds
     r0 = 0.0
@@ -309,39 +246,38 @@ class StackedViews:
         self.time_std = [v.mounting.time_offset_std for v in views]
         #: some camera's mounting has a covariance or a time offset std
         self.has_mount_cov = any(mc is not None for mc in self.mount_cov) or any(self.time_std)
-        self.sizes = [q[3] for q in parts]
-        n = [len(q[5]) for q in parts]
+        frames = [q[3] for q in parts]
+        self.sizes = [fr.num_rows for fr in frames]
+        n = [len(fr.x) for fr in frames]
         #: each view's points in the stack
         self.slices = _stacked(n)
         self._sizes_valid = tuple(n)
         #: every input row of every view is valid (the stack's rows are the views' in order)
         self.all_valid = self._sizes_valid == tuple(self.sizes)
-        self._rows = [q[8] for q in parts]  # (:attr:`row`'s, None: every row in order)
-        self._groups = [_checked_view_groups(c, v) for c, v in enumerate(views)]
+        self._rows = [fr.rows for fr in frames]  # (:attr:`row`'s)
+        self._groups = [fr.groups for fr in frames]  # (:attr:`groups`', of the valid rows)
         if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
-            q = parts[0]
+            (fr,) = frames
             self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
-            self.focal.fill(q[9])
-            self.x, self.X, self.uv, self.tau, self.A = [q[k].copy() for k in (4, 5, 6, 7, 10)]
+            self.focal.fill(fr.f)
+            self.x, self.X, self.uv = fr.x.copy(), fr.X.copy(), fr.u_px.copy()
+            self.tau, self.A = parts[0][4].copy(), parts[0][5].copy()
         else:
             if not parts:
                 raise ValueError("StackedViews: needs at least one view")
             self.cam = np.arange(len(parts), dtype=np.int64).repeat(n)
-            self.focal = np.array([q[9] for q in parts], dtype=float).repeat(n)
-            self.x, self.X, self.uv, self.tau, self.A = [
-                np.concatenate([q[k] for q in parts]) for k in (4, 5, 6, 7, 10)
+            self.focal = np.array([fr.f for fr in frames], dtype=float).repeat(n)
+            self.x, self.X, self.uv = [
+                np.concatenate([getattr(fr, k) for fr in frames]) for k in ("x", "X", "u_px")
             ]
+            self.tau, self.A = [np.concatenate([q[k] for q in parts]) for k in (4, 5)]
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
         self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
 
     @functools.cached_property
     def row(self) -> np.ndarray:
         """(N,) int64: each point's row in its view's input rows (stacked by view)."""
-        rows = [
-            np.arange(n, dtype=np.int64) if q is None else q.copy()
-            for q, n in zip(self._rows, self._sizes_valid, strict=True)
-        ]
-        return np.concatenate(rows) if len(rows) > 1 else rows[0] if rows else np.zeros(0, np.int64)
+        return np.concatenate(self._rows).astype(np.int64, copy=False)
 
     @property
     def r(self) -> np.ndarray:
@@ -355,12 +291,11 @@ class StackedViews:
         if all(v is None for v in self._groups):
             return None
         out, first = [], 0  # (each view's groups numbered on from the last view's)
-        for c, (g, rows) in enumerate(zip(self._groups, self._rows, strict=True)):
-            n = self._sizes_valid[c]
+        for g, n in zip(self._groups, self._sizes_valid, strict=True):
             if g is None:
                 ids = np.arange(n, dtype=np.int64)
             else:
-                _, ids = np.unique(g if rows is None else g.take(rows), return_inverse=True)
+                _, ids = np.unique(g, return_inverse=True)
             out.append(ids.reshape(-1) + first)
             first += int(ids.max()) + 1 if n else 0
         return np.concatenate(out).astype(np.int64, copy=False)
