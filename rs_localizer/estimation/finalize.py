@@ -139,10 +139,11 @@ FINAL_CUTOFF = 2.0
 #: agree with those at 1e-10 to 1e-4 of the ML fit's spread (RS speed 0.5 and 1), with 4-5
 #: cost evaluations instead of 6-8
 FINAL_TOL = 1e-6
-#: the refinements :func:`chosen_refinement` compares by their MSAC cost stop at this relative
-#: decrease of the cost (the final refinement of one camera's frame at :data:`FINAL_TOL`): on
-#: the rendered 3-camera rig the looser tolerance moved the median angular velocity error by
-#: 5 % at no measurable saving
+#: the refinements of :func:`refined_model` (local optimization's, an initial model's pull,
+#: those :func:`chosen_refinement` compares by their MSAC cost) stop at this relative decrease
+#: of the cost (the final refinement of one camera's frame at :data:`FINAL_TOL`): on the
+#: rendered 3-camera rig the looser tolerance moved the median angular velocity error by 5 %
+#: at no measurable saving
 COMPARED_TOL = 1e-10
 #: the final refinement of a frame of several views keeps the fit of its inliers alone (the
 #: points within the threshold) instead of the fit over every point near the model only when
@@ -277,23 +278,25 @@ def refined_model(
     cutoff: float | None = None,
     max_iterations: int = 20,
 ) -> Model:
-    """The model ``(R, C, w, t)`` of :func:`frame_refinement` of ``model`` without the
-    covariance, stopping at :data:`COMPARED_TOL`: the refinement :func:`chosen_refinement`
-    compares, and the step of local optimization and of the initial model's pull of a frame
-    whose final stage chooses among refinements (a rig's). ``th``: the Huber scale in the
-    frame's units (px for a rig); points beyond ``cutoff`` (at least ``th``; None:
-    :data:`FINAL_CUTOFF` thresholds) ignored, re-selected at each iteration; ``rolling``: the
-    12 parameters, else the pose's 6 (``w``, ``t`` held); ``prior``: maximum a posteriori
-    (rolling shutter only). The arrays are the refinement's own (copies in NumPy)."""
-    cut = None if cutoff is None else max(float(cutoff), float(th))
+    """The model :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` of
+    :func:`frame_refinement` of ``model`` without the covariance, stopping at
+    :data:`COMPARED_TOL`: the step of local optimization (:func:`~.local_optimization.polish`:
+    a camera's on its bounded random subset of points, a rig's on every point) and of the pull
+    of an initial model onto the points it explains
+    (:func:`~.local_optimization.pulled_in`), and the refinement :func:`chosen_refinement`
+    compares. ``th``: the Huber scale in the frame's units (normalized for a camera, px for a
+    rig); points beyond ``cutoff`` (None: :data:`FINAL_CUTOFF` thresholds) ignored,
+    re-selected at each iteration; ``rolling``: the 12 parameters, else the pose's 6 (``w``,
+    ``t`` held); ``prior``: maximum a posteriori (rolling shutter only). The arrays are the
+    refinement's own (copies in NumPy)."""
     res = frame_refinement(
-        fr, model, th, rolling, prior if rolling else None, cutoff=cut,
+        fr, model, th, rolling, prior if rolling else None, cutoff=cutoff,
         max_iterations=max_iterations, covariance=False, tol=COMPARED_TOL,
     )  # fmt: skip
     if not fr.compiled:
-        return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
+        return RSModel(res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy())
     # (views of the refinement's own buffer: no other model shares it)
-    return res.R, res.C, res.w, res.t
+    return RSModel(res.R, res.C, res.w, res.t)
 
 
 def chosen_refinement(

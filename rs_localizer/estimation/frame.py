@@ -248,10 +248,12 @@ class Frame:
         """A camera alone: no mounting (:meth:`RefinementView.mounting_covariances`)."""
         return None
 
-    def head(self, m: int) -> Frame:
-        """The frame's first ``m`` points (a random subset: the rows are shuffled) with the
-        same camera, timing and prior (LO-RANSAC's bounded inner sample)."""
-        sub = Frame(self.x[:m], self.X[:m], self.r[:m], self.r0e[:m], self.r0, self.d, self.f)
+    def take(self, idx: slice | np.ndarray) -> Frame:
+        """The frame's points ``idx`` (a slice or an index array) with the same camera, timing
+        and prior: LO-RANSAC's bounded inner sample (the first points, a random subset: the
+        rows are shuffled), an initial model's explained points (its pull)."""
+        x, X, r, r0e = self.x[idx], self.X[idx], self.r[idx], self.r0e[idx]
+        sub = Frame(x, X, r, r0e, self.r0, self.d, self.f)
         sub.spr, sub.planar, sub.prior, sub.regularize, sub.known_w = (
             self.spr,
             self.planar,
@@ -261,7 +263,7 @@ class Frame:
         )
         sub.threshold, sub.compiled = self.threshold, self.compiled
         if len(self.W):
-            sub.W = self.W[:m]
+            sub.W = self.W[idx]
         return sub
 
     def evaluate(

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -17,7 +16,6 @@ from .hypotheses import nonminimal_models
 from .options import EstimateOptions, InitialModel
 from .plausibility import all_finite, finite_model
 from .prior import MotionPrior
-from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
 __all__ = [
@@ -25,6 +23,7 @@ __all__ = [
     "initial_model_seed",
     "local_optimization",
     "polish",
+    "pulled_in",
     "seed_from_initial_model",
     "view_seed_steps",
 ]
@@ -41,7 +40,7 @@ def local_optimization(
     opts: EstimateOptions,
     evaluate: Callable[[Model], tuple[float, np.ndarray]] | None = None,
     nonminimal: Callable[..., list[Model]] = nonminimal_models,
-    refine: Callable[..., Any] = refine_rs_pose,
+    refine: Callable[..., Model] = refined_model,
 ) -> Scored:
     """LO step of LO-RANSAC on a new ``best`` (score, model, inlier mask); ``th2``: squared
     inlier threshold (normalized units).
@@ -60,7 +59,8 @@ def local_optimization(
     The steps themselves are arguments (the NumPy implementation, :mod:`.numpy_impl`, passes
     its own): ``evaluate(model)`` (score, (N,) inlier mask) on every point (default
     :meth:`~.frame.Frame.evaluate`), ``nonminimal`` as :func:`~.hypotheses.nonminimal_models`,
-    ``refine`` as :func:`~.refine.refine_rs_pose` (its result's ``R``, ``C``, ``w``, ``t``).
+    ``refine`` as :func:`~.finalize.refined_model` (the refinement a rig's local optimization
+    runs on every point).
 
     Returns:
         the polished (score, model, inlier mask), scored on every point.
@@ -71,30 +71,13 @@ def local_optimization(
     th = np.sqrt(th2)
     rolling = solver_info(solver).rolling
     M = min(len(fr.x), max(lo.max_points, 2 * sample_size(solver)))
-    sub = fr.head(M)
-    tau = sub.r - sub.r0
+    sub = fr.take(slice(M))
 
     def linear(model: Model, inliers: np.ndarray) -> list[Model]:
         return nonminimal(sub, solver, inliers[:M], model[0], opts, model[1])
 
     def exact(model: Model) -> Model:
-        ref = refine(
-            model,
-            sub.X,
-            sub.x,
-            tau,
-            th,
-            RefineSettings(
-                rolling_shutter=rolling,
-                max_iterations=lo.refine_iterations,
-                covariance=False,
-                cutoff=2.0 * th,
-                seconds_per_unit_r=fr.spr,
-            ),
-            prior=fr.prior,
-            mountings=sub.mountings(),
-        )
-        return RSModel(ref.R, ref.C, ref.w, ref.t)
+        return refine(sub, model, th, rolling, fr.prior, max_iterations=lo.refine_iterations)
 
     return polish(best, evaluate, linear if lo.nonminimal else None, exact, lo.steps)[0]
 
@@ -160,7 +143,7 @@ def seed_from_initial_model(
     opts: EstimateOptions,
     errors2: Callable[[Model], np.ndarray] | None = None,
     evaluate: Callable[[Model], tuple[float, np.ndarray]] | None = None,
-    refine: Callable[..., Any] = refine_rs_pose,
+    refine: Callable[..., Model] = refined_model,
 ) -> tuple[int, Scored | None, bool]:
     """Test an :class:`InitialModel` on all points of ``fr`` (:func:`initial_model_seed`
     with the frame's steps, ``th2`` the squared inlier threshold, normalized units).
@@ -170,11 +153,15 @@ def seed_from_initial_model(
     point's measured capture time (default the compiled :func:`~.scoring.exact_errors2`),
     ``evaluate(model)`` (score, (N,) inlier mask) on every point (default
     :meth:`~.frame.Frame.evaluate` on those errors), ``refine`` as
-    :func:`~.refine.refine_rs_pose`.
+    :func:`~.finalize.refined_model`.
 
     Returns:
-        (explained, seed, anchor) as :func:`initial_model_seed`; the pull onto the explained
-        points is :func:`_pull_in`.
+        (explained, seed, anchor) as :func:`initial_model_seed`. A prediction a few pixels off
+        (a hand-held camera's at 30 fps: ~2-15 px) explains the frame within the gate, not
+        within the threshold: the pull onto the explained points (:func:`pulled_in`) runs on
+        at most a third of local optimization's ``max_points`` of them, with twice its
+        iterations (a third is plenty to pull a prediction in: the final refinement fits
+        every point).
     """
     finite = finite_model if errors2 is None else all_finite
     if errors2 is None:
@@ -189,12 +176,15 @@ def seed_from_initial_model(
         return fr.evaluate(m, th2, errors=e2) if given is None else given(m)
 
     gate = float(initial.gate_px) / fr.f
+    rolling, size = solver_info(solver).rolling, sample_size(solver)
+    lo = opts.local_optimization
 
     def pull(seed: Scored, near: np.ndarray) -> Scored:
-        return _pull_in(fr, solver, seed, near, gate, th2, opts, evaluate, refine, finite)
+        sub = fr.take(np.flatnonzero(near)[: max(lo.max_points // 3, 2 * size)])
+        steps = (2 * lo.refine_iterations, evaluate, refine, finite)
+        return pulled_in(seed, sub, np.sqrt(th2), gate, rolling, fr.prior, *steps)
 
     model = tuple(np.ascontiguousarray(a, dtype=np.float64).copy() for a in initial.model)
-    rolling, size = solver_info(solver).rolling, sample_size(solver)
     return initial_model_seed(
         model, initial.min_explained, rolling, size, gate * gate, errors2, score, pull, finite
     )
@@ -260,10 +250,9 @@ def view_seed_steps(
 ) -> tuple[Callable, Callable, Callable]:
     """The ``errors``, ``evaluate`` and ``pull`` steps of :func:`initial_model_seed` on a
     frame whose errors (:meth:`~.frame.RefinementView.errors`) are in the threshold's units
-    (a rig's, px): the MSAC score and inliers at ``th``, and the pull onto the explained points:
-    :func:`~.finalize.refined_model` on every point (at most 10 iterations, Huber at the
-    threshold, truncated at ``gate``; ``rolling``, ``prior`` as there), kept where it lowers
-    the MSAC score."""
+    (a rig's, px): the MSAC score and inliers at ``th``, and the pull onto the explained points
+    (:func:`pulled_in`) on every point, at most 10 iterations, truncated at ``gate`` (at least
+    the threshold; ``rolling``, ``prior`` as there)."""
     k = float(th)
     th2 = k**2
 
@@ -271,53 +260,35 @@ def view_seed_steps(
         return np.minimum(e * e, th2).sum(), e < k
 
     def pull(seed: Scored, near: np.ndarray) -> Scored:
-        pulled = refined_model(fr, seed[1], k, rolling, prior, cutoff=gate, max_iterations=10)
-        scored = evaluate(pulled, fr.errors(pulled))
-        return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
+        scored = lambda m: evaluate(m, fr.errors(m))  # noqa: E731
+        return pulled_in(seed, fr, k, max(float(gate), k), rolling, prior, 10, scored)
 
     return fr.errors, evaluate, pull
 
 
-def _pull_in(
-    fr: Frame,
-    solver: str,
+def pulled_in(
     seed: Scored,
-    near,
+    fr: RefinementView,
+    th: float,
     gate: float,
-    th2: float,
-    opts,
+    rolling: bool,
+    prior: MotionPrior | None,
+    iterations: int,
     evaluate: Callable[[Model], tuple[float, np.ndarray]],
-    refine: Callable[..., Any],
-    finite: Callable[..., bool],
-):
-    """A prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains the
-    frame within the gate, not within the threshold: pull it in with Levenberg-Marquardt on
-    (at most a third of local optimization's ``max_points`` of) the explained points,
-    truncated at the gate (a third is plenty to pull a prediction in: the final refinement
-    fits every point). Returns the better of ``seed`` and the pulled model."""
-    score, model, _ = seed
-    s = sample_size(solver)
-    lo = opts.local_optimization
-    idx = np.flatnonzero(near)[: max(lo.max_points // 3, 2 * s)]
-    ref = refine(
-        model,
-        fr.X[idx],
-        fr.x[idx],
-        fr.r[idx] - fr.r0,
-        np.sqrt(th2),
-        RefineSettings(
-            rolling_shutter=solver_info(solver).rolling,
-            max_iterations=2 * lo.refine_iterations,
-            covariance=False,
-            cutoff=gate,
-            seconds_per_unit_r=fr.spr,
-        ),
-        prior=fr.prior,
-        mountings=fr.mountings(idx),
-    )
-    if finite(ref.R, ref.C, ref.w, ref.t):
-        cand = RSModel(ref.R, ref.C, ref.w, ref.t)
-        sc, inl = evaluate(cand)
-        if sc < score:
-            return sc, cand, inl
+    refine: Callable[..., Model] = refined_model,
+    finite: Callable[..., bool] = all_finite,
+) -> Scored:
+    """The better (lower score) of ``seed`` (score, model, inlier mask) and its model pulled
+    onto the points of ``fr`` (an initial model's explained points: a camera's,
+    :func:`seed_from_initial_model`; every point of a rig's, :func:`view_seed_steps`):
+    ``refine`` (:func:`~.finalize.refined_model`: at most ``iterations`` iterations of Huber
+    loss at the threshold ``th``, in ``fr``'s units, on the points within ``gate``, re-selected
+    at each iteration; ``rolling``, ``prior`` as there), kept where its parameters are
+    ``finite`` and ``evaluate(model)`` (score, (N,) inlier mask on every point) lowers the
+    score."""
+    model = refine(fr, seed[1], th, rolling, prior, cutoff=gate, max_iterations=iterations)
+    if finite(*model):
+        score, inliers = evaluate(model)
+        if score < seed[0]:
+            return score, model, inliers
     return seed

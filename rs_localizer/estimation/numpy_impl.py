@@ -363,27 +363,36 @@ def _nonminimal(fr: Frame, solver: str, inliers, R, opts: EstimateOptions, C=Non
 
 
 def _lo_refine(
-    model, X, x, tau, th: float, settings: RefineSettings, prior=None, mountings=None
+    fr: Frame,
+    model,
+    th: float,
+    rolling: bool,
+    prior=None,
+    *,
+    cutoff: float | None = None,
+    max_iterations: int = 20,
 ) -> RSModel:
-    """:func:`~.refine.refine_rs_pose` as local optimization runs it, on SciPy's
-    ``least_squares`` (:func:`~.refine.least_squares_exact_model`): Huber loss (scale ``th``)
-    on the points within ``settings.cutoff`` of ``model`` (selected once), at most
-    ``settings.max_iterations + 1`` evaluations; MAP with ``prior`` (image noise ``th / 2``)
-    on a rolling-shutter fit. ``mountings`` (the frame's pixel whitening) is not used: the
-    NumPy implementation measures errors in the undistorted plane, as its scoring does."""
+    """:func:`~.finalize.refined_model` as local optimization and an initial model's pull run
+    it, on SciPy's ``least_squares`` (:func:`~.refine.least_squares_exact_model`): Huber loss
+    (scale ``th``) on the points of ``fr`` within ``cutoff`` (None:
+    :data:`~.finalize.FINAL_CUTOFF` thresholds) of ``model`` (selected once), at most
+    ``max_iterations + 1`` evaluations; ``rolling``: the 12 parameters, else the pose's 6;
+    MAP with ``prior`` (image noise ``th / 2``) on a rolling-shutter fit. The frame's pixel
+    whitening is not used: the NumPy implementation measures errors in the undistorted plane,
+    as its scoring does."""
     R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
-    rolling = settings.rolling_shutter
+    X, x, tau = fr.X, fr.x, fr.r - fr.r0
     e = np.sqrt(exact_errors2_numpy(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])
-    near = e < settings.cutoff
+    near = e < (FINAL_CUTOFF * th if cutoff is None else cutoff)
     if np.count_nonzero(near) < 7:
         return RSModel(R0, C0, w0, t0)
     n_free = 12 if rolling else 6
     theta0 = np.concatenate([np.zeros(3), C0, w0 * rolling, t0 * rolling])
     args = (R0, theta0, n_free, X[near], x[near], tau[near])
-    max_nfev = max(settings.max_iterations, 1) + 1
+    max_nfev = max(max_iterations, 1) + 1
     try:
         if rolling and prior_arrays(prior)[0]:
-            th_ = huber_fit_numpy(*args, prior, settings.seconds_per_unit_r, 0.5 * th, th,
+            th_ = huber_fit_numpy(*args, prior, fr.spr, 0.5 * th, th,
                                   max_nfev=max_nfev, rounds=1)  # fmt: skip
         else:
             th_ = least_squares_exact_model(

@@ -908,11 +908,6 @@ class _RigStages:
         pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
         exact = functools.partial(refined_model, pool, th=threshold_px, rolling=not self.still,
                                   prior=prior)  # fmt: skip
-        if self.still:
-            self.last = (model, exact(model)) if self.refine else None
-            if self.last is not None and search.cost(self.last[1]) < search.score:
-                model = self.last[1]
-            return model
 
         def refit(m, inl):  # (a camera's linear step with the rig solver, 10 steps, twice)
             idx = np.flatnonzero(inl)
@@ -926,7 +921,7 @@ class _RigStages:
             return search.cost(m), search.errors(m) < threshold_px
 
         best = (search.score, model, search.errors(model) < threshold_px)
-        steps = (refit, exact if self.refine else None)
+        steps = (None if self.still else refit, exact if self.refine else None)
         (_, model, _), self.last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
         return model
 

@@ -228,3 +228,31 @@ def test_polish_hands_back_its_last_refinement_taken_or_not():
         assert last == (1.0, step(1.0))
     (score, model, _), last = polish(best, evaluate, lambda m, i: [1.0], None, 1)
     assert (score, model, last) == (4.0, 1.0, None)
+
+
+def test_pulled_in_keeps_a_finite_pull_that_lowers_the_score():
+    """An initial model's pull (``pulled_in``, a camera's and a rig's) on models scored by
+    their squared distance to 3: the refinement asked with the frame, the threshold, the gate
+    as its cutoff, the motion model, the prior and the iterations; its model is kept only
+    where it is finite and lowers the seed's score."""
+    from rs_localizer.estimation.local_optimization import pulled_in
+
+    def evaluate(m):
+        return float((m[0] - 3.0) ** 2), np.arange(4) < 2
+
+    seed = (4.0, (np.array(1.0),), np.zeros(4, dtype=bool))
+    calls = []
+
+    def pull(step):
+        def refine(fr, model, th, rolling, prior, *, cutoff, max_iterations):
+            calls.append((fr, th, cutoff, rolling, prior, max_iterations))
+            return (model[0] + step,)
+
+        return pulled_in(seed, "frame", 0.5, 7.0, True, None, 10, evaluate, refine)
+
+    for step, kept in ((1.5, True), (5.0, False), (np.nan, False)):
+        out = pull(step)
+        assert (out is not seed) == kept
+        if kept:
+            assert out[1][0] == 2.5 and out[0] == 0.25 and out[2].tolist() == [1, 1, 0, 0]
+    assert calls == [("frame", 0.5, 7.0, True, None, 10)] * 3
