@@ -39,6 +39,7 @@ __all__ = [
     "nonneg_int",
     "output_dir",
     "output_file",
+    "parameter_files",
     "parse_marker_sizes",
     "plain",
     "positive_float",
@@ -416,6 +417,15 @@ def node_parameter_options(
                         metavar="FILE", help=files_help)  # fmt: skip
     parser.add_argument("-p", "--param", action="append", default=[] if fresh else default,
                         metavar="NAME:=VALUE", help=param_help)  # fmt: skip
+
+
+def parameter_files(paths: Iterable[str | Path]) -> None:
+    """Load the node's parameter files (``--params-file``) now, before any work: one that is
+    missing, a directory, unreadable, not YAML or not a mapping raises CliError naming it (the
+    node's reading checks the rest)."""
+    for f in paths:
+        if not isinstance(yaml_file(f, "parameter file"), dict):
+            raise CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
 
 
 def param_overrides(items: Iterable[str] | None) -> dict:

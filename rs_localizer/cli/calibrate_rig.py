@@ -242,8 +242,7 @@ def run(args: argparse.Namespace) -> int:
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
-    for f in args.params_file:
-        A.input_file(f, "parameter file")
+    A.parameter_files(args.params_file)
     try:
         read = read_rig_frames(bag, args.params_file, A.param_overrides(args.param))
     except ConfigError as e:

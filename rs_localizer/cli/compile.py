@@ -123,9 +123,7 @@ def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
 def run(args: argparse.Namespace) -> int:
     """Compile (or load from the cache) the kernels; returns 0. Raises CliError for a
     parameter file that cannot be used."""
-    for f in args.params_file:
-        if not isinstance(A.yaml_file(f, "parameter file"), dict):
-            raise A.CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
+    A.parameter_files(args.params_file)
     what = compile_targets(args.params_file, args.solvers)
     from ..runtime.jit_cache import cache_state
     from ..runtime.warmup import DEFAULT_JOBS, compile_kernels

@@ -211,9 +211,7 @@ def run(args: argparse.Namespace) -> int:
     was solved. Raises CliError for a bag, parameter file, landmark file or output that
     cannot be used (before any frame), or a single camera's option given for a rig bag."""
     bag = A.bag_dir(args.bag, require_messages=True)
-    for f in getattr(args, "params_file", []):
-        if not isinstance(A.yaml_file(f, "parameter file"), dict):
-            raise A.CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
+    A.parameter_files(getattr(args, "params_file", []))
     if hasattr(args, "landmarks"):
         A.input_file(args.landmarks, "landmark CSV (id,x,y,z)")
     params = A.param_overrides(getattr(args, "param", []))
