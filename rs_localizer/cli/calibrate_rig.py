@@ -106,21 +106,22 @@ def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]
     """``mountings`` re-expressed in camera ``ref``'s optical frame (``x_ref = R_ref x_base +
     c_ref``); empty without ``ref``'s own mounting (the frames are then unrelated)."""
     from ..frames import Mounting
+    from ..geometry import compose
 
     base = mountings.get(ref)
     if base is None:
         return {}
-    return {n: Mounting(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
+    return {n: Mounting(*compose(m.R, m.c, base.rotation, base.translation))
             for n, m in mountings.items()}  # fmt: skip
 
 
-def _optical_frame_id(bag, camera: str) -> str:
-    """``camera``'s optical frame in a rig bag: its first camera_info's ``frame_id``, else
-    ``<camera>_optical_frame``."""
-    from ..ros.bags.bag_io import bag_topics, first_message
+def _optical_frame_id(bag, camera: str, names: list[str]) -> str:
+    """``camera``'s optical frame in a bag of the rig ``names``: its first camera_info's
+    ``frame_id`` (on the topic its frames are read from), else ``<camera>_optical_frame``."""
+    from ..ros.bags.bag_io import RigTopics, first_message, rig_namespace
 
-    topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
-    info = first_message(bag, topics[:1])  # (of the first such topic, if any)
+    topic = RigTopics(rig_namespace(bag, names), tuple(names)).topic(camera, "info")
+    info = first_message(bag, {topic})
     frame_id = "" if info is None else str(info.header.frame_id).strip()
     return frame_id or f"{camera}_optical_frame"
 
@@ -271,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
             f"other): {'; '.join(_frames_read(read.frames, n, args.min_inliers) for n in missing)}"
         )
     if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
-        frame = _optical_frame_id(bag, ref)
+        frame = _optical_frame_id(bag, ref, names)
         where = f"camera {ref}'s optical frame: z forward, x right, y down"
         given = relative_to(given, ref)
     else:
