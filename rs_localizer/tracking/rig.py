@@ -88,8 +88,7 @@ STOP_INTERVALS = 2.0
 
 # ---------------------------------------------------------------------- grouping
 def window_ns(window: float) -> int:
-    """A rig's ``window`` (s) in ns, rounded, as every test of its grouping takes it
-    (:class:`OpenRigFrame`, :class:`RigGrouping`, the rig node's frame queue)."""
+    """A rig's ``window`` (s) in ns, rounded as every test of its grouping and queue takes it."""
     return int(round(window * 1e9))
 
 
