@@ -94,9 +94,8 @@ def window_ns(window: float) -> int:
 
 class OpenRigFrame:
     """A rig frame being grouped: ``frames``, camera -> (its frame, its reference time ns);
-    ``lo`` and ``hi``, its earliest and latest reference times (ns). A frame :meth:`fits` it
-    when its camera is not in it yet and its reference time and theirs all lie within the
-    window (the spread, not the distance to the first frame)."""
+    ``lo`` and ``hi``, its earliest and latest reference times (ns); a frame :meth:`fits` it
+    when its camera is not in it and all their reference times lie within the window."""
 
     def __init__(self, name: str, frame: CameraFrame, ref: int):
         self.frames = {name: (frame, ref)}
