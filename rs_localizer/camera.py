@@ -565,13 +565,19 @@ def checked_stamp(stamp_ns: Any, what: str = "frame") -> Stamp:
     return Stamp(value)
 
 
-def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
+def reference_stamp_ns(stamp_ns: int, camera: CameraModel | None, stamp_row: float,
+                       clock_offset: float = 0.0) -> int:  # fmt: skip
     """The reference row's capture time (ns): the time of a frame's estimate, from its stamp
     ``stamp_ns`` (ns, the capture time of row ``stamp_row``, px along the readout):
     ``stamp_ns + (capture time of camera.reference_line - that of stamp_row)``, rounded to
-    the ns. The one computation of a frame's reference time: the single-camera and the rig
-    localizers, the rig's grouping and the rig node's queue take it from here."""
-    return int(stamp_ns) + int(round(camera.time_offset(stamp_row, camera.reference_line) * 1e9))
+    the ns (without a ``camera`` model, the stamp itself), plus ``clock_offset`` s rounded to
+    the ns (a rig camera's time offset onto the rig's clock). The one computation of a
+    frame's reference time: the single-camera and the rig localizers, the rig's grouping,
+    the rig node's queue and the rig's calibration take it from here."""
+    t = int(stamp_ns)
+    if camera is not None:
+        t += int(round(camera.time_offset(stamp_row, camera.reference_line) * 1e9))
+    return t + int(round(clock_offset * 1e9))
 
 
 @dataclass(frozen=True)

@@ -141,8 +141,7 @@ def _posed_alone(frames: list, options: Any, stamp_row: float, given: dict):
         cov = est.covariance
         if not est.success or cov is None or not np.isfinite(cov[:6, :6]).all():
             continue
-        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row, given.get(f.camera_name, 0.0))
         q, inl = est.pose, np.asarray(est.inliers, dtype=bool)
         corners = (np.asarray(f.points2d, float)[inl], np.asarray(f.points3d, float)[inl], f.camera)
         poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from ..tracking.rig import OpenRigFrame, window_ns
 from .camera_input import DroppedFrame
 from .config import LocalizerConfig, rig_camera_names, rig_change_refused, same_value
 from .core import names_a_rig
@@ -91,23 +92,24 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
 
 class SameRigFrame:
     """Whether a waiting frame goes with the frames the worker takes (the frame queue's
-    ``group``, :class:`~.frame_queue.FrameQueue`): another camera's whose reference-line time
-    (by the camera's newest camera_info, ``inputs[name].newest``) is within ``rig.window`` of
-    the first's, as the rig groups them
-    (:meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns` of ``settings``). A rig
+    ``group``, :class:`~.frame_queue.FrameQueue`): another camera's that the rig's grouping
+    would put in their rig frame (:meth:`~rs_localizer.tracking.rig.OpenRigFrame.fits`: the
+    reference-line times of the taken frames and its own, by each camera's newest
+    camera_info, ``inputs[name].newest``, all within ``rig.window``;
+    :meth:`~rs_localizer.tracking.video.LocalizerSettings.reference_ns` of ``settings``). A rig
     frame's frames are then taken together, and a full queue drops whole rig frames, not the
     rest of the one being solved."""
 
     def __init__(self, settings: Any, inputs: Mapping):
         self.settings, self.inputs = settings, inputs
-        self.window_ns = int(settings.window * 1e9)
 
     def __call__(self, batch: list, item: Any) -> bool:
-        if any(b.name == item.name for b in batch):
-            return False
         if isinstance(item.stamp, DroppedFrame) or isinstance(batch[0].stamp, DroppedFrame):
             return False  # (a stamp the worker will refuse: not grouped)
-        return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self.window_ns
+        g = OpenRigFrame(batch[0].name, batch[0], self._ref_ns(batch[0]))
+        for b in batch[1:]:  # (frames grouped with the first: none refused)
+            g.add(b.name, b, self._ref_ns(b))
+        return g.fits(item.name, self._ref_ns(item), window_ns(self.settings.window))
 
     def _ref_ns(self, item: Any) -> int:
         """A queued frame's time on the rig's clock (ns) by its camera's newest model (its

@@ -46,6 +46,7 @@ __all__ = [
     "alone_deg",
     "offsets_text",
     "refusal",
+    "window_ns",
 ]
 
 #: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
@@ -86,9 +87,15 @@ STOP_INTERVALS = 2.0
 
 
 # ---------------------------------------------------------------------- grouping
+def window_ns(window: float) -> int:
+    """A rig's ``window`` (s) in ns, rounded as every test of its grouping and queue takes it."""
+    return int(round(window * 1e9))
+
+
 class OpenRigFrame:
     """A rig frame being grouped: ``frames``, camera -> (its frame, its reference time ns);
-    ``lo`` and ``hi``, its earliest and latest reference times (ns)."""
+    ``lo`` and ``hi``, its earliest and latest reference times (ns); a frame :meth:`fits` it
+    when its camera is not in it and all their reference times lie within the window."""
 
     def __init__(self, name: str, frame: CameraFrame, ref: int):
         self.frames = {name: (frame, ref)}
@@ -195,9 +202,9 @@ class RigGrouping:
         if cam.stopped:
             cam.stopped = False
             self.log.info(f"rig camera {name!r} sends frames again")
-        window_ns = int(round(window * 1e9))
+        w = window_ns(window)
         for g in self.open:
-            if g.fits(name, ref, window_ns):
+            if g.fits(name, ref, w):
                 g.add(name, frame, ref)
                 break
         else:
@@ -226,10 +233,10 @@ class RigGrouping:
                     f"rig camera {cam.name!r}: no frame for {gap * 1e-9:.2f} s "
                     "(stop_after): the rig runs on the other cameras",
                 )
-        window_ns = int(round(window * 1e9))
+        w = window_ns(window)
         yield from self._handed_out(
             lambda g: all(
-                n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + window_ns)
+                n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + w)
                 for n, c in self.cams.items()
             )
         )
@@ -264,7 +271,7 @@ class RigGrouping:
         """Why camera ``name`` is missing from rig frame ``g`` (a key of
         :data:`MISSED_REASONS`; ``window`` s)."""
         cam = self.cams[name]
-        w2 = 2 * window * 1e9
+        w2 = 2 * window_ns(window)
         if any(abs(r - g.lo) <= w2 for r in cam.no_info):
             return "no_camera_info"
         if any(abs(r - g.lo) <= w2 for r in cam.dropped):

@@ -413,9 +413,9 @@ class LocalizerSettings:
         time of its reference line (:func:`~rs_localizer.camera.reference_stamp_ns` from the
         row ``stamp_row``; without a ``camera`` model, the stamp) plus its
         :attr:`time_offsets` entry."""
-        t = stamp_ns if camera is None else reference_stamp_ns(stamp_ns, camera, self.stamp_row)
-        dt = self.time_offsets.get(name, 0.0)
-        return t if dt == 0.0 else t + int(round(dt * 1e9))
+        return reference_stamp_ns(
+            stamp_ns, camera, self.stamp_row, self.time_offsets.get(name, 0.0)
+        )
 
     @property
     def back_tolerance_ns(self) -> int:

@@ -1652,3 +1652,54 @@ def test_the_diagnostics_timer_does_not_wait_for_the_frame_being_solved(ros_cont
         assert received == 6
     finally:
         node.destroy_node()
+
+
+def test_the_queue_groups_a_rig_frame_s_frames_as_the_rig_does():
+    """The frame queue's grouping (``SameRigFrame``) takes another camera's frame with the
+    waiting ones when the rig's grouping would put it in their rig frame
+    (``OpenRigFrame.fits``): the reference times of all of them within ``rig.window`` of
+    each other (not of the first alone), the window rounded to the ns as the rig rounds it,
+    one frame per camera, never a frame the worker refuses (``DroppedFrame``)."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.camera_input import DroppedFrame
+    from rs_localizer.ros.rig_node import SameRigFrame
+    from rs_localizer.tracking.rig import RigGrouping
+
+    ms = 1_000_000  # ns
+
+    def frame(name, ns):
+        return SimpleNamespace(name=name, stamp=T0 + ns)
+
+    def grouping(window):
+        settings = SimpleNamespace(window=window, reference_ns=lambda n, s, c: s)
+        return SameRigFrame(settings, {n: SimpleNamespace(newest=None) for n in "abc"})
+
+    same = grouping(0.015)
+    a, b = frame("a", 0), frame("b", 14 * ms)
+    assert same([a], b) and same([a, b], frame("c", 15 * ms))
+    assert not same([a, b], frame("c", 15 * ms + 1)) and not same([a], frame("a", ms))
+    # within the window of the first frame but not of the second: the rig's spread refuses it
+    assert same([a], frame("c", -14 * ms)) and not same([a, b], frame("c", -14 * ms))
+    dropped = SimpleNamespace(name="c", stamp=DroppedFrame("c", T0, None, ValueError(), "x"))
+    assert not same([a], dropped) and not same([dropped], a)
+    # a window of 6.5e-05 s is 64999.99999999999 ns: the rig rounds it to 65000 ns
+    assert 6.5e-5 * 1e9 < 65000
+    edge, ref = grouping(6.5e-5), frame("a", 0)
+    assert edge([ref], frame("b", 65000)) and not edge([ref], frame("b", 65001))
+
+    # the queue's batches are the rig frames the rig's grouping forms of the same frames
+    frames = [frame(n, t * ms) for n, t in [("a", 0), ("b", 14), ("c", -14), ("a", 33), ("c", 20)]]
+    batches, left = [], list(frames)
+    while left:
+        batch, rest = [left[0]], []
+        for f in left[1:]:
+            (batch if same(batch, f) else rest).append(f)
+        batches.append([(f.name, f.stamp) for f in batch])
+        left = rest
+    rig = RigGrouping(tuple("abc"), Counter(), None, lambda *a: None, ordered=False)
+    for f in frames:
+        rig.take(f.name, f, f.stamp, 0.015)
+    formed = [[(n, r) for n, (_, r) in g.frames.items()] for g in rig.close_all()]
+    assert sorted(map(sorted, batches)) == sorted(map(sorted, formed))

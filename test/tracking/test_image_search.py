@@ -83,14 +83,21 @@ def test_frame_time_is_the_reference_line_plus_the_camera_offset():
 
 def _spy(monkeypatch):
     """The times each frame is noted on a video's clock and the stamps whose reference time is
-    computed (``reference_stamp_ns``, the one rule of it)."""
+    computed (``reference_stamp_ns`` with a camera model, the one rule of it; without one it
+    puts a stamp on the rig's clock)."""
     from rs_localizer.tracking import video
     from rs_localizer.tracking.clock import VideoClock
 
     steps, refs = [], []
     step, ref = VideoClock.step, video.reference_stamp_ns
     monkeypatch.setattr(VideoClock, "step", lambda c, t, p: steps.append(t) or step(c, t, p))
-    monkeypatch.setattr(video, "reference_stamp_ns", lambda s, *a: refs.append(s) or ref(s, *a))
+
+    def spy(s, camera, *a):
+        if camera is not None:
+            refs.append(s)
+        return ref(s, camera, *a)
+
+    monkeypatch.setattr(video, "reference_stamp_ns", spy)
     return steps, refs
 
 
