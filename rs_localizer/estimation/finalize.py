@@ -1303,18 +1303,10 @@ def final_estimate(
         "ignored_inputs": ignored_inputs,
     }
     return posed_estimate(
-        final,
-        RSPose._trusted(R.T, camera_position(R, C), om, vc),
-        ((mask,), (len(fr.x),), fr.num_rows),
-        cov,
-        n_behind,
-        rolling,
-        iterations,
-        initial,
-        gyro_used,
-        compiled,
-        **(record | fields),
-    )
+        final, RSPose._trusted(R.T, camera_position(R, C), om, vc),
+        ((mask,), (len(fr.x),), fr.num_rows), cov, n_behind, rolling, iterations, initial,
+        gyro_used, compiled, **(record | fields),
+    )  # fmt: skip
 
 
 def posed_estimate(
