@@ -11,11 +11,12 @@ uncertainty (:func:`final_covariance`) and acceleration sensitivity
 (:func:`final_sensitivity`) from its refinement (:func:`with_covariance`); the last checks
 (:func:`last_checks`: finite model, motion bounds, cheirality of every camera's points), the
 consistent-fit test (:func:`inconsistent_fit`, view by view) and the output covariances
-(:func:`checked_outputs`); the global-shutter fallback (:func:`still_fallback`) and the
-gyro's image-alone refinement (:func:`image_alone`). What differs is given as arguments: a
-camera's refinement of RANSAC's model (:func:`final_refinement`) or a rig's choice among
-refinements at the threshold (:func:`chosen_refinement`) and its Jacobian at the chosen
-model, the units of the errors, the velocity bounds, the views that support a fit."""
+(:func:`checked_outputs`), the successful estimate's fields (:func:`posed_estimate`); the
+global-shutter fallback (:func:`still_fallback`) and the gyro's image-alone refinement
+(:func:`image_alone`). What differs is given as arguments: a camera's refinement of RANSAC's
+model (:func:`final_refinement`) or a rig's choice among refinements at the threshold
+(:func:`chosen_refinement`) and its Jacobian at the chosen model, the units of the errors,
+the velocity bounds, the views that support a fit."""
 
 from __future__ import annotations
 
@@ -107,6 +108,7 @@ __all__ = [
     "last_checks",
     "motion_chi2",
     "motion_significant",
+    "posed_estimate",
     "posterior_if_consistent",
     "prior_at_rest",
     "refine_final_model",
@@ -1293,31 +1295,56 @@ def final_estimate(
     mask[fr.rows[inl]] = True
     record = {
         "solver": solver,
-        "num_behind": n_behind,
         "planar": bool(flat < PLANAR_TOLERANCE),
         "planarity": flat,
         "condition_number": cond,
+        "timings": timings,
+        "motion_prior_used": final.prior_used,
+        "ignored_inputs": ignored_inputs,
+    }
+    return posed_estimate(
+        final, RSPose._trusted(R.T, camera_position(R, C), om, vc),
+        ((mask,), (len(fr.x),), fr.num_rows), cov, n_behind, rolling, iterations, initial,
+        gyro_used, compiled, **(record | fields),
+    )  # fmt: skip
+
+
+def posed_estimate(
+    final: FinalModel,
+    pose: RSPose,
+    views: tuple,
+    covariances: tuple | None,
+    num_behind: int,
+    rolling: bool,
+    iterations: int,
+    initial: tuple[int, bool],
+    gyro_used: bool,
+    compiled: bool = True,
+    **fields: Any,
+) -> RSPoseEstimate:
+    """The successful :class:`RSPoseEstimate` of the final model ``final`` of a camera's frame
+    (:func:`final_estimate`) or of a rig frame (:func:`~.rig.estimate_rig_pose`), built by
+    :func:`~.result.built_estimate`: its model, ``pose`` (its
+    :class:`~rs_localizer.pose.RSPose`), ``views`` (each view's (N_c,) inliers over its input
+    rows, each view's valid rows, the input rows of all), ``covariances`` (covariance (12,
+    12), pose (6, 6), twist (6, 6) or None in ROS order, or None), ``num_behind`` points
+    behind their cameras, its RMS error, model covariance and acceleration sensitivity, the
+    ``motion_model`` of ``rolling``, the search's ``iterations`` and ``initial`` (points the
+    initial model explained or -1, whether it was used), ``gyro_used`` and the
+    ``implementation`` of ``compiled``; ``fields``: the estimator's other fields by name, set
+    or replacing those set here."""
+    record = {
+        "num_behind": num_behind,
         "motion_model": ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
         "ransac_iterations": iterations,
-        "timings": timings,
         "rmse_px": final.rmse_px,
-        "motion_prior_used": final.prior_used,
         "initial_explained": initial[0],
         "initial_used": initial[1],
         "acceleration_sensitivity": final.sensitivity,
         "gyro_used": gyro_used,
-        "ignored_inputs": ignored_inputs,
         "model_covariance": final.covariance,
     }
     if not compiled:
         record["implementation"] = NUMPY
-    return built_estimate(
-        None,
-        RSModel(R, C, w, t),
-        RSPose._trusted(R.T, camera_position(R, C), om, vc),
-        (mask,),
-        (len(fr.x),),
-        fr.num_rows,
-        cov,
-        **(record | fields),
-    )
+    R, C, w, t = final.model
+    return built_estimate(None, RSModel(R, C, w, t), pose, *views, covariances, **(record | fields))

@@ -52,13 +52,13 @@ from .driver import checked_inputs, gyro_checked_estimate, staged_estimate
 from .estimate import estimate_rs_pose
 from .finalize import (
     GLOBAL_SHUTTER,
-    ROLLING_SHUTTER,
     FinalModel,
     checked_outputs,
     chosen_refinement,
     frame_refinement,
     image_alone,
     information_condition,
+    posed_estimate,
     refined_model,
     selected_final,
     still_fallback,
@@ -355,8 +355,7 @@ def estimate_rig_pose(
         """The rig frame of ``pool`` before the consensus, the gyro checked as a camera's
         (:func:`~.driver.gyro_checked_estimate`)."""
         stages = _RigStages(pool, options, initial_model, pre_rotation)
-        still = len(pool.cam) and pool.tau_spread <= STILL_SPREAD
-        if gyro is None or still or not stages.refine:
+        if gyro is None or stages.still or not stages.refine:
             return staged_estimate(stages)
         at = gyro_time
         if at is None:  # (the middle of the observation times)
@@ -829,28 +828,13 @@ class _RigSearch(RansacLoop):
         return self._cost, model, float(n / among)
 
 
-def _rig_estimate(pool: StackedViews, model=None, inliers: np.ndarray | None = None,
-                  outputs=(None, None, None), **record) -> RSPoseEstimate:  # fmt: skip
-    """The estimate of the stacked views ``pool`` (:func:`~.result.built_estimate`): of
-    ``model`` ``(R, C, w, t)`` (taken, not copied) with the (N_pool,) ``inliers`` and
-    ``outputs`` (the covariance (12, 12), the ROS pose and twist blocks), or with
-    ``failure=`` a reason (the identity, no inliers); ``record``: other fields by name."""
-    R, C, w, t = RSModel.identity() if model is None else model
-    inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
-    record.setdefault("implementation", COMPILED if pool.compiled else NUMPY)
-    return built_estimate(
-        record.pop("failure", None), RSModel(R, C, w, t),
-        RSPose.from_model((R, C, w, t), 1.0, compiled=pool.compiled), pool.per_camera(inl),
-        pool.counts(), sum(pool.sizes), outputs, solver=RIG_SOLVER, **record,
-    )  # fmt: skip
-
-
 @dataclass
 class _RigStages:
     """A rig frame's stacked views ``pool`` as the staged estimator's :class:`~.driver.Stages`
     (:func:`estimate_rig_pose`'s arguments), with the gyro ``prior`` (one second per unit of
     tau; ``gyro_time``: s from the rig's reference time) or without; ``still``: the
-    global-shutter model or not (None: observation times within :data:`STILL_SPREAD`).
+    global-shutter model or not (None: points whose observation times lie within
+    :data:`STILL_SPREAD`).
     Second ways: a global-shutter search whose model has too few inliers runs again with every
     sample's P3P poses corrected across the cameras (``spread``: a pose between the cameras'
     own can explain every corner where each P3P pose explains one camera's); a rolling-shutter
@@ -870,6 +854,8 @@ class _RigStages:
         self.refine = self.options.refine.enabled
         self.search: _RigSearch | None = None
         self.last = None
+        if self.still is None:
+            self.still = bool(len(self.pool.cam)) and self.pool.tau_spread <= STILL_SPREAD
 
     def prepared(self) -> None:
         pool = self.pool
@@ -877,8 +863,6 @@ class _RigStages:
             raise EstimationFailed(TOO_FEW_POINTS)
         if pool.degenerate(self.threshold_px):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
-        if self.still is None:
-            self.still = pool.tau_spread <= STILL_SPREAD
 
     def searched(self) -> Model:
         pool, still, im = self.pool, self.still, self.initial_model
@@ -964,18 +948,14 @@ class _RigStages:
             pool.view_planar, pool.compiled,
             bounds2=(search._w2max, search._v2max), support_share=AGREE_SHARE,
         )  # fmt: skip
-        return _rig_estimate(
-            pool, final.model, final.inliers, (None, None, None) if out is None else out,
-            ransac_iterations=search.iterations, rmse_px=final.rmse_px, num_behind=behind,
-            model_covariance=final.covariance,
-            motion_model=ROLLING_SHUTTER if rolling else GLOBAL_SHUTTER,
-            acceleration_sensitivity=final.sensitivity, initial_explained=search.explained,
-            initial_used=self.initial_used, gyro_used=self.prior is not None,
+        return posed_estimate(
+            final, RSPose.from_model(final.model, 1.0, compiled=pool.compiled),
+            (pool.per_camera(final.inliers), pool.counts(), sum(pool.sizes)), out, behind,
+            rolling, search.iterations, (search.explained, self.initial_used),
+            self.prior is not None, pool.compiled, solver=RIG_SOLVER,
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
-        if self.still is None:  # (refused before the time spread was looked at)
-            return None
         if self.still:
             if failure.reason != TOO_FEW_INLIERS or self.spread:
                 return None
@@ -987,9 +967,13 @@ class _RigStages:
         return still_fallback(failure.reason, again, self.pool, self.threshold_px)
 
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
-        iterations = 0 if self.search is None else self.search.iterations
-        return _rig_estimate(pool=self.pool, failure=failure.reason,
-                             ransac_iterations=iterations, num_behind=failure.behind)  # fmt: skip
+        pool, iterations = self.pool, 0 if self.search is None else self.search.iterations
+        none = np.zeros(len(pool.cam), dtype=bool)  # (as a camera's: the identity, no inlier)
+        return built_estimate(
+            failure.reason, None, None, pool.per_camera(none), pool.counts(), sum(pool.sizes),
+            solver=RIG_SOLVER, ransac_iterations=iterations, num_behind=failure.behind,
+            implementation=COMPILED if pool.compiled else NUMPY,
+        )  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
         pool, th = self.pool, self.threshold_px
