@@ -31,11 +31,11 @@ from ..solvers.kernels import (
 )
 from ..solvers.p3p import DEFAULT_BACKEND
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
-from .plausibility import motion_norms2
+from .plausibility import motion_checked
 from .sampling import draw_samples, gather_prerotated, p3p_mounted, select_prerotations
 from .scoring import msac_scores
 
-__all__ = ["fused_kernels", "prerotated_batch", "ransac_batch"]
+__all__ = ["checked_solutions", "fused_kernels", "prerotated_batch", "ransac_batch"]
 
 #: stopping tolerance of the iterative solvers on RANSAC samples (their default)
 _SOLVER_TOL = 1e-12
@@ -297,43 +297,25 @@ def _solve_and_score(
                 its,
                 err,
             )
-            npar = 12 if known else n_params[j]
+            checked_solutions(out, ok_k, 12 if known else n_params[j])
             for k in range(K):
                 h = j * K + k
-                good = ok_k[k]
-                for a in range(npar):
-                    if not np.isfinite(out[k, a]):
-                        good = False
-                if not good:  # (as RSBatch: an invalid problem's parameters are zero)
-                    for a in range(12):
-                        out[k, a] = 0.0
                 for a in range(3):
                     v[k, a] = out[k, a]
                     Cs[h, a] = out[k, 3 + a]
                     ws[h, a] = out[k, 6 + a]
                     ts[h, a] = out[k, 9 + a]
-                ok[h] = good and ok_p[k]
+                ok[h] = ok_k[k] and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
             Rj = compose_rotvec(v, R_p)
             for k in range(K):
                 copy_matrix3(Rj[k], Rs[j * K + k])
     n_implausible = 0
+    w2max, v2max = w_max * w_max, v_max * v_max
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
-        if ok[q]:
-            wn2, vn2 = motion_norms2(
-                Cs[q, 0],
-                Cs[q, 1],
-                Cs[q, 2],
-                ws[q, 0],
-                ws[q, 1],
-                ws[q, 2],
-                ts[q, 0],
-                ts[q, 1],
-                ts[q, 2],
-            )
-            if not (wn2 <= w_max * w_max and vn2 <= v_max * v_max):
-                ok[q] = False
-                n_implausible += 1
+        if ok[q] and not motion_checked(Cs, ws, ts, q, w2max, v2max)[1]:
+            ok[q] = False
+            n_implausible += 1
     scores, _ = msac_scores(
         x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5, measured, W
     )
@@ -342,6 +324,23 @@ def _solve_and_score(
         if scores[q] < scores[h]:
             h = q
     return h, scores[h], Rs, Cs, ws, ts, n_implausible
+
+
+@kernel
+def checked_solutions(out, ok, n_params):
+    """A batched solver's K solutions ``out`` (K, >= 12) ``(v, C, w, t)`` and their ``ok``
+    (K,) bool checked in place: ``ok[k]`` False where one of the first ``n_params``
+    parameters is not finite, and the 12 parameters of a row not ok zeroed (as
+    :class:`~rs_localizer.solvers.RSBatch`'s invalid problems): a camera's fused batch's
+    (:func:`ransac_batch`, :func:`nonminimal_solve`) and the rig's
+    (:func:`~.rig_batch.solve_rotated`)."""
+    for k in range(out.shape[0]):
+        for a in range(n_params):
+            if not np.isfinite(out[k, a]):
+                ok[k] = False
+        if not ok[k]:
+            for a in range(12):
+                out[k, a] = 0.0
 
 
 @kernel
@@ -392,18 +391,15 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
     v0 = np.zeros((1, 3))
     for j in range(J):
         out[:] = 0.0
-        good = False
+        ok1[0] = False
         if n >= min_points[j]:
             run_kernels(kernels, j, xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
-            good = ok1[0]
-        for a in range(n_params[j]):
-            if not np.isfinite(out[0, a]):
-                good = False
-        ok[j] = good
+        checked_solutions(out, ok1, n_params[j])
+        ok[j] = ok1[0]
         for a in range(3):
-            v[0, a] = out[0, a] if good else 0.0
-            Cs[j, a] = out[0, 3 + a] if good else 0.0
-            ws[j, a] = out[0, 6 + a] if good else 0.0
-            ts[j, a] = out[0, 9 + a] if good else 0.0
+            v[0, a] = out[0, a]
+            Cs[j, a] = out[0, 3 + a]
+            ws[j, a] = out[0, 6 + a]
+            ts[j, a] = out[0, 9 + a]
         copy_matrix3(compose_rotvec(v, R1)[0], Rs[j])
     return ok, Rs, Cs, ws, ts

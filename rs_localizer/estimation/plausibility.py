@@ -143,12 +143,24 @@ def motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2):
     given as their nine components: the squared angular and linear speeds per unit RS
     coordinate (:func:`rs_localizer.pose.model_twist` before its division by ``s``), which
     :func:`plausible_motion`, :func:`check_final_model` and RANSAC's hypothesis filter
-    (:func:`rs_localizer.estimation.batch.ransac_batch`) compare with the squared bounds of
+    (:func:`motion_checked`) compare with the squared bounds of
     :func:`motion_bounds`. A numba kernel (scalars in and out: no array per hypothesis)."""
     v0 = w1 * C2 - w2 * C1 - t0
     v1 = w2 * C0 - w0 * C2 - t1
     v2 = w0 * C1 - w1 * C0 - t2
     return w0 * w0 + w1 * w1 + w2 * w2, v0 * v0 + v1 * v1 + v2 * v2
+
+
+@kernel
+def motion_checked(C, w, t, q, w2max, v2max):
+    """RANSAC's hypothesis filter on model ``q`` of ``C``, ``w``, ``t`` (H, 3) (a camera's
+    fused batch, :func:`~.batch.ransac_batch`, and a rig's, :func:`~.rig_batch.search_batch`):
+    ``(finite, within)``, its squared speeds (:func:`motion_norms2`) finite (``|w|^2``
+    finite, ``|w x C - t|^2`` not NaN: :func:`plausible_motion` without bounds, of a model
+    whose C and t are finite) and within the squared bounds ``w2max``, ``v2max``."""
+    wn2, vn2 = motion_norms2(C[q, 0], C[q, 1], C[q, 2], w[q, 0], w[q, 1], w[q, 2], t[q, 0],
+                             t[q, 1], t[q, 2])  # fmt: skip
+    return np.isfinite(wn2) and vn2 <= np.inf, wn2 <= w2max and vn2 <= v2max
 
 
 @kernel

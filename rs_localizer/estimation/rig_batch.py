@@ -15,7 +15,8 @@ from .._jit import kernel
 from .._so3 import compose_rotvec
 from ..solvers.lambda_twist import MAX_SOLUTIONS
 from ..solvers.r6p_1lin import solve_mounted
-from .plausibility import motion_norms2
+from .batch import checked_solutions
+from .plausibility import motion_checked
 from .ransac import required_samples_kernel
 from .sampling import batch_samples, gather_prerotated, p3p_mounted, p3p_mounted_into
 from .scoring import STOP, model_cost
@@ -96,11 +97,10 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
             if not still:
                 if not ok[g]:
                     continue
-                wn2, vn2 = motion_norms2(C[g, 0], C[g, 1], C[g, 2], w[g, 0], w[g, 1], w[g, 2],
-                                         t[g, 0], t[g, 1], t[g, 2])  # fmt: skip
-                if not (np.isfinite(wn2) and vn2 <= np.inf):  # (_hypotheses' finite models)
+                finite, within = motion_checked(C, w, t, g, w2max, v2max)
+                if not finite:  # (_hypotheses' finite models)
                     continue
-                if not (wn2 <= w2max and vn2 <= v2max):
+                if not within:
                     beyond += 1
                     continue
             bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
@@ -220,10 +220,5 @@ def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations, held=False):
     use[0] = held
     solve_mounted(xs, Xp, ts, cs, Rm, cm, iterations, 1e-12, np.zeros((K, 3)), P,
                   np.zeros((P.shape[0], 6)), use[0], out, ok, its, err)  # fmt: skip
-    for k in range(K):
-        for j in range(12):
-            if not np.isfinite(out[k, j]):
-                ok[k] = False
-        if not ok[k]:
-            out[k, :] = 0.0
+    checked_solutions(out, ok, 12)
     return out, ok
