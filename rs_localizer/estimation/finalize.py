@@ -1291,8 +1291,7 @@ def final_estimate(
     om, vc = physical_velocities(R, C, w, t, fr.spr, compiled)[:2]
     if cov is not None and not rolling:
         cov = (cov[0], cov[1], None)
-    mask = np.zeros(fr.num_rows, dtype=bool)
-    mask[fr.rows[inl]] = True
+    mask = fr.input_mask(inl)
     record = {
         "solver": solver,
         "planar": bool(flat < PLANAR_TOLERANCE),

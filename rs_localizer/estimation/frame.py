@@ -284,15 +284,35 @@ class Frame:
         )
         return sc, inl
 
+    @property
+    def bounds(self) -> np.ndarray:
+        """(1, 2) int64: the frame's one view's first and end row (every row)."""
+        return np.array([[0, len(self.x)]], dtype=np.int64)
+
+    @property
+    def view_focal(self) -> np.ndarray:
+        """(1,): the frame's one view's focal length :attr:`f` (px)."""
+        return np.array([float(self.f)])
+
     def degenerate(self, mask: np.ndarray, threshold_px: float, compiled: bool = True) -> bool:
         """True if the points ``mask`` (N,) selects fix no pose: identical or collinear 3D
-        points, or pixels within ``threshold_px`` of one image line (see
+        points, or each view's pixels (measured ``u_px`` or undistorted ``x`` times its focal
+        length) within ``threshold_px`` of one image line (see
         :func:`~.plausibility.degenerate_points`; ``compiled=False``:
-        :func:`~.plausibility.degenerate_points_numpy`)."""
+        :func:`~.plausibility.degenerate_points_numpy`). The views are :attr:`bounds` and
+        :attr:`view_focal`: one here, a rig frame's cameras in
+        :class:`~.view.StackedViews`, which tests its points with this method."""
         test = degenerate_points if compiled else degenerate_points_numpy
-        one = np.array([[0, len(self.x)]], dtype=np.int64)  # (one view: every row)
-        f = np.array([float(self.f)])
-        return bool(test(self.X, self.u_px, self.x, mask, f, one, float(threshold_px)))
+        f, rows = self.view_focal, self.bounds
+        return bool(test(self.X, self.u_px, self.x, mask, f, rows, float(threshold_px)))
+
+    def input_mask(self, mask: np.ndarray) -> np.ndarray:
+        """(num_rows,) bool: the points ``mask`` (N,) selects over the rows given to the
+        estimator (the rows it left out False): an estimate's inliers over its input rows
+        (a camera's, a rig camera's view)."""
+        out = np.zeros(self.num_rows, dtype=bool)
+        out[self.rows] = mask
+        return out
 
 
 def varying_pixel_jacobian(camera: CameraModel) -> bool:

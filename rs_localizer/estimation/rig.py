@@ -861,7 +861,7 @@ class _RigStages:
         pool = self.pool
         if len(pool.cam) < 6 or max(pool.counts()) < 3:
             raise EstimationFailed(TOO_FEW_POINTS)
-        if pool.degenerate(self.threshold_px):
+        if pool.degenerate(np.ones(len(pool.X), dtype=bool), self.threshold_px, pool.compiled):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
 
     def searched(self) -> Model:

@@ -25,10 +25,9 @@ from ..camera import CameraModel
 from ..frames import Mounting
 from ..pose import RSModel
 from .degeneracy import coplanar
-from .frame import camera_values, kernel_ready, prepare_frame
+from .frame import Frame, camera_values, kernel_ready, prepare_frame
 from .numpy_impl import errors2
 from .options import EstimateOptions
-from .plausibility import degenerate_points, degenerate_points_numpy
 from .refine import KernelMountings, Mountings, kernel_mountings_of
 from .result import camera_model_of_rig
 from .sampling import batch_samples, draw_samples_numpy, view_sampling
@@ -185,7 +184,7 @@ class StackedViews:
     view at the identity mounting; a rig frame: one per camera): normalized points ``x``
     (N, 2), world points ``X`` (N, 3), ``tau`` (N,) each point's capture time from the
     frame's reference time (s), ``cam`` (N,) its view, ``focal`` (N,) its camera's focal
-    length (px per normalized unit), ``uv`` (N, 2) its measured pixels, and ``A`` (N, 4):
+    length (px per normalized unit), ``u_px`` (N, 2) its measured pixels, and ``A`` (N, 4):
     each point's row-major 2x2 pixel Jacobian of its camera
     (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, px per normalized unit: the
     normalized error times it is to first order the error in the measured, distorted image;
@@ -246,28 +245,27 @@ class StackedViews:
         self.time_std = [v.mounting.time_offset_std for v in views]
         #: some camera's mounting has a covariance or a time offset std
         self.has_mount_cov = any(mc is not None for mc in self.mount_cov) or any(self.time_std)
-        frames = [q[3] for q in parts]
+        #: each view's :class:`~.frame.Frame` (its valid rows, their groups, its input rows)
+        self.frames = frames = [q[3] for q in parts]
         self.sizes = [fr.num_rows for fr in frames]
         n = [len(fr.x) for fr in frames]
         #: each view's points in the stack
         self.slices = _stacked(n)
         self._sizes_valid = tuple(n)
-        #: every input row of every view is valid (the stack's rows are the views' in order)
-        self.all_valid = self._sizes_valid == tuple(self.sizes)
-        self._rows = [fr.rows for fr in frames]  # (:attr:`row`'s)
-        self._groups = [fr.groups for fr in frames]  # (:attr:`groups`', of the valid rows)
+        #: (M,) each view's focal length (px)
+        self.view_focal = np.array([fr.f for fr in frames], dtype=float)
         if len(parts) == 1:  # (one view: its arrays copied, as concatenated alone)
             (fr,) = frames
             self.cam, self.focal = np.zeros(n[0], dtype=np.int64), np.empty(n[0])
             self.focal.fill(fr.f)
-            self.x, self.X, self.uv = fr.x.copy(), fr.X.copy(), fr.u_px.copy()
+            self.x, self.X, self.u_px = fr.x.copy(), fr.X.copy(), fr.u_px.copy()
             self.tau, self.A = parts[0][4].copy(), parts[0][5].copy()
         else:
             if not parts:
                 raise ValueError("StackedViews: needs at least one view")
             self.cam = np.arange(len(parts), dtype=np.int64).repeat(n)
-            self.focal = np.array([fr.f for fr in frames], dtype=float).repeat(n)
-            self.x, self.X, self.uv = [
+            self.focal = self.view_focal.repeat(n)
+            self.x, self.X, self.u_px = [
                 np.concatenate([getattr(fr, k) for fr in frames]) for k in ("x", "X", "u_px")
             ]
             self.tau, self.A = [np.concatenate([q[k] for q in parts]) for k in (4, 5)]
@@ -277,7 +275,7 @@ class StackedViews:
     @functools.cached_property
     def row(self) -> np.ndarray:
         """(N,) int64: each point's row in its view's input rows (stacked by view)."""
-        return np.concatenate(self._rows).astype(np.int64, copy=False)
+        return np.concatenate([fr.rows for fr in self.frames]).astype(np.int64, copy=False)
 
     @property
     def r(self) -> np.ndarray:
@@ -288,10 +286,11 @@ class StackedViews:
         """(N,) int64 each point's group (:attr:`View.groups`; one marker seen by two cameras
         is a group in each, a view without groups a group per point), or None when no view
         has groups (:class:`~.frame.RefinementView`)."""
-        if all(v is None for v in self._groups):
+        if all(fr.groups is None for fr in self.frames):
             return None
         out, first = [], 0  # (each view's groups numbered on from the last view's)
-        for g, n in zip(self._groups, self._sizes_valid, strict=True):
+        for fr, n in zip(self.frames, self._sizes_valid, strict=True):
+            g = fr.groups
             if g is None:
                 ids = np.arange(n, dtype=np.int64)
             else:
@@ -381,16 +380,9 @@ class StackedViews:
         return int(h), float(cost), e
 
     def per_camera(self, mask: np.ndarray) -> tuple:
-        """(N,) bool -> one (N_c,) bool per view over its input rows."""
-        out = []
-        for n, s in zip(self.sizes, self.slices, strict=True):
-            if s.stop - s.start == n:  # (every row valid: the rows are 0..n-1 in order)
-                out.append(np.array(mask[s], dtype=bool))
-                continue
-            m = np.zeros(n, dtype=bool)
-            m[self.row[s]] = mask[s]
-            out.append(m)
-        return tuple(out)
+        """(N,) bool -> one (N_c,) bool per view over its input rows (its frame's
+        :meth:`~.frame.Frame.input_mask`)."""
+        return tuple(fr.input_mask(mask[s]) for fr, s in zip(self.frames, self.slices, strict=True))
 
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
         """(M,) number of the stack's points (``mask``: of those selected) per view."""
@@ -406,16 +398,11 @@ class StackedViews:
         """View c's points are coplanar (:func:`~.degeneracy.coplanar`)."""
         return coplanar(self.X[self.slices[c]], self.compiled)
 
-    def degenerate(self, threshold_px: float) -> bool:
-        """The world points identical or on one 3D line, or every camera's pixels (measured or
-        undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
-        rays in one plane through its centre): :func:`~.plausibility.degenerate_points` of
-        the views (``compiled=False``: :func:`~.plausibility.degenerate_points_numpy`)."""
-        test = degenerate_points if self.compiled else degenerate_points_numpy
-        # (each view's focal length; an empty view's is never read)
-        focal = np.array([self.focal[s.start] if s.stop > s.start else 0.0 for s in self.slices])
-        every = np.ones(len(self.X), dtype=bool)
-        return bool(test(self.X, self.uv, self.x, every, focal, self.bounds, float(threshold_px)))
+    #: ``degenerate(mask, threshold_px, compiled)``: the points ``mask`` selects fix no pose,
+    #: a camera's frame's test on every view (:meth:`~.frame.Frame.degenerate`: each view's
+    #: points of :attr:`bounds` at its :attr:`view_focal`; fewer than 3: each camera's rays in
+    #: one plane through its centre)
+    degenerate = Frame.degenerate
 
     def repeated(self, copies: Sequence[int]) -> StackedViews:
         """The stack with view c's points repeated ``copies[c]`` times (a least-squares fit on
@@ -429,12 +416,11 @@ class StackedViews:
         out = copy.copy(self)
         for cached in ("plain_mountings", "compiled_mountings", "kernel_arrays", "bounds"):
             out.__dict__.pop(cached, None)
-        for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
+        for name in ("x", "X", "u_px", "tau", "row", "focal", "A", "cam"):
             setattr(out, name, np.ascontiguousarray(getattr(self, name)[idx]))
         sizes = [k * (s.stop - s.start) for s, k in zip(self.slices, copies, strict=True)]
         out.slices = _stacked(sizes)
         out._sizes_valid = tuple(sizes)
-        out.all_valid = False
         return out
 
     def samples(
