@@ -114,9 +114,8 @@ def exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
 
 
 @kernel(inline=INLINE, fastmath=FMA)
-def measured_error2(x, X, d0, d1, r0e, pose, W, i):
-    """Squared reprojection error of point ``i`` under a camera's ``pose`` (18 scalars,
-    :func:`pose_error2`) at its measured capture time, whitened by ``W`` (N, 4) if it has rows.
+def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
+    """Squared reprojection error of one point (``q = R X``) at its measured capture time.
 
     The point's RS coordinate is its measured line, ``r - r0 = d . x - r0e`` (the per-point
     reference of :meth:`rs_localizer.camera.CameraModel.normalize`), and the point is
@@ -127,7 +126,9 @@ def measured_error2(x, X, d0, d1, r0e, pose, W, i):
     first-order row misplaces points by pixels (at RS speed 1, 30 deg per frame, the true
     model had 277 of 301 inliers under :func:`project_error2`). ``inf`` behind the camera.
     """
-    return pose_error2(pose, X, x, d0 * x[i, 0] + d1 * x[i, 1] - r0e, W, i, False)
+    return exact_error2(
+        x0, x1, d0 * x0 + d1 * x1 - r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2
+    )
 
 
 @kernel(inline=INLINE, fastmath=FMA)
@@ -141,6 +142,19 @@ def image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
     e0 = a00 * ex + a01 * ey
     e1 = a10 * ex + a11 * ey
     return e0 * e0 + e1 * e1
+
+
+@kernel(inline=INLINE, fastmath=FMA)
+def measured_error2_whitened(
+    x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
+):
+    """:func:`measured_error2` with the image error whitened by the point's 2x2 ``a`` (a row
+    of :attr:`~.frame.Frame.W`): the error in the measured (distorted) image to first
+    order, in normalized units of the mean focal length."""
+    tau = d0 * x0 + d1 * x1 - r0e
+    return exact_error2_whitened(
+        x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
+    )
 
 
 @kernel(inline=INLINE, fastmath=FMA)
@@ -191,55 +205,54 @@ def mounted_pose(R, C, w, t, h, Rm, cm, c):
 
 
 @kernel(inline=INLINE, fastmath=FMA)
-def model_pose(R, C, w, t):
-    """One model ``R`` (3, 3), ``C``, ``w``, ``t`` (3,) as the 18 scalars of
-    :func:`pose_error2`: ``R`` row-major, ``C``, ``w``, ``t``."""
-    return (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2],
-            C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])  # fmt: skip
-
-
-@kernel(inline=INLINE, fastmath=FMA)
-def pose_error2(pose, X, x, tau, W, i, still):
+def pose_error2(pose, X, x, tau, A, i, still):
     """The squared image error of point ``i`` (``X`` (N, 3), ``x`` (N, 2)) under a camera's
-    ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`model_pose`, a rig's
-    camera's :func:`mounted_pose`) at its capture time ``tau`` (``r - r0``;
-    :func:`measured_error2`): :func:`exact_error2`, or, when ``W`` (N, 4) has
-    rows, :func:`exact_error2_whitened` with the point's row-major 2x2 ``W[i]`` (a camera's
-    pixel Jacobian, :attr:`~.frame.Frame.W`: to first order the error in the measured
-    (distorted) image); ``inf`` behind the camera. ``still`` (``W`` with rows): ``w = t = 0``
-    (the rotation at every capture time the identity: the same error without the terms that
-    add zeros)."""
+    ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its
+    capture time ``tau[i]``: :func:`exact_error2_whitened` with the point's row-major 2x2
+    ``A[i]`` (a camera's pixel Jacobian: to first order the error in px of the measured
+    image); ``inf`` behind the camera. ``still``: ``w = t = 0`` (the rotation at every
+    capture time the identity: the same error without the terms that add zeros)."""
     (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
     X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
     q0 = r00 * X0 + r01 * X1 + r02 * X2
     q1 = r10 * X0 + r11 * X1 + r12 * X2
     q2 = r20 * X0 + r21 * X1 + r22 * X2
-    if W.shape[0] == 0:
-        return exact_error2(x[i, 0], x[i, 1], tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2)
     if still:
         return image_error2_whitened(
-            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, W[i, 0], W[i, 1], W[i, 2], W[i, 3]
+            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
         )
     return exact_error2_whitened(
-        x[i, 0], x[i, 1], tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
-        W[i, 0], W[i, 1], W[i, 2], W[i, 3],
+        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
+        A[i, 0], A[i, 1], A[i, 2], A[i, 3],
     )  # fmt: skip
 
 
 @kernel(inline=INLINE, fastmath=FMA)
-def _model_error2(x, X, r0e, d0, d1, R, C, w, t, i, exact, measured, W):
-    """Squared reprojection error of point i under one model ``R`` (3, 3), ``C``, ``w``,
-    ``t`` (3,) (see :func:`project_error2`; :func:`measured_error2` if ``measured``, whitened
-    by ``W`` (N, 4) if it has rows)."""
-    if measured:
-        return measured_error2(x, X, d0, d1, r0e[i], model_pose(R, C, w, t), W, i)
+def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
+    """Squared reprojection error of point i under hypothesis h (see :func:`project_error2`,
+    :func:`measured_error2` if ``measured``; :func:`measured_error2_whitened` if ``W`` (N, 4)
+    has rows and ``measured``)."""
     X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-    q0 = R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2
-    q1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2
-    q2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2
+    q0 = Rs[h, 0, 0] * X0 + Rs[h, 0, 1] * X1 + Rs[h, 0, 2] * X2
+    q1 = Rs[h, 1, 0] * X0 + Rs[h, 1, 1] * X1 + Rs[h, 1, 2] * X2
+    q2 = Rs[h, 2, 0] * X0 + Rs[h, 2, 1] * X1 + Rs[h, 2, 2] * X2
+    if measured and W.shape[0] > 0:
+        return measured_error2_whitened(
+            x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+            Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+            ts[h, 0], ts[h, 1], ts[h, 2],
+            W[i, 0], W[i, 1], W[i, 2], W[i, 3],
+        )  # fmt: skip
+    if measured:
+        return measured_error2(
+            x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+            Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+            ts[h, 0], ts[h, 1], ts[h, 2],
+        )  # fmt: skip
     return project_error2(
         x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
-        C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2], exact,
+        Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+        ts[h, 0], ts[h, 1], ts[h, 2], exact,
     )  # fmt: skip
 
 
@@ -252,7 +265,7 @@ def _msac_points(
     reachable. Returns (s, c, True if every point was added). The one place
     :func:`msac_scores` evaluates errors: one inlined copy of the error model to compile."""
     for i in range(start, stop):
-        e2 = _model_error2(x, X, r0e, d0, d1, Rs[h], Cs[h], ws[h], ts[h], i, exact, measured, W)
+        e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W)
         if e2 < th2:
             s += e2
             c += 1
@@ -300,7 +313,7 @@ def msac_scores(
         exact: see :func:`project_error2`.
         measured: score with :func:`measured_error2` instead (``exact`` is then ignored).
         W: (N, 4) each point's row-major 2x2 whitening of its image error (``measured``
-            only, :func:`pose_error2`; :attr:`~.frame.Frame.W`); (0, 4) or
+            only, :func:`measured_error2_whitened`; :attr:`~.frame.Frame.W`); (0, 4) or
             ``None``: none.
         pretest_n, pretest_min: pre-test size and the smallest inlier count among those points
             for a hypothesis to be completed (raised by every completed hypothesis).
@@ -357,7 +370,7 @@ def msac_scores(
 def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
     """(N,) squared reprojection errors of one hypothesis (``inf`` where invalid); see
     :func:`project_error2` (:func:`measured_error2` if ``measured``, whitened by ``W`` (N, 4)
-    if it has rows)."""
+    if it has rows: :func:`measured_error2_whitened`)."""
     # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
     if W is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
         Wa = np.zeros((0, 4))
@@ -366,7 +379,26 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
     N = x.shape[0]
     out = np.empty(N)
     for i in range(N):
-        out[i] = _model_error2(x, X, r0e, d[0], d[1], R, C, w, t, i, exact, measured, Wa)
+        X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+        q0 = R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2
+        q1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2
+        q2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2
+        if measured and Wa.shape[0] > 0:
+            out[i] = measured_error2_whitened(
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
+                Wa[i, 0], Wa[i, 1], Wa[i, 2], Wa[i, 3],
+            )  # fmt: skip
+        elif measured:
+            out[i] = measured_error2(
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
+            )  # fmt: skip
+        else:
+            out[i] = project_error2(
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2], exact,
+            )  # fmt: skip
     return out
 
 
@@ -448,7 +480,7 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e):
         if cam[i] != c_:
             c_ = cam[i]
             pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
-        q = pose_error2(pose, X, x, tau[i], A, i, still)
+        q = pose_error2(pose, X, x, tau, A, i, still)
         e[i] = np.sqrt(q)
         run += th2 if q > th2 else q
         if run > bound:
