@@ -19,7 +19,7 @@ from .batch import checked_solutions
 from .plausibility import motion_checked
 from .ransac import required_samples_kernel
 from .sampling import batch_samples, gather_prerotated, p3p_mounted, p3p_mounted_into
-from .scoring import STOP, model_cost
+from .scoring import model_cost
 
 __all__ = [
     "counted",
@@ -68,7 +68,7 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
     model as :mod:`.rig`'s steps one by one, bit for bit."""
     samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
     N = X.shape[0]
-    e, v = np.empty(N), np.empty(N)
+    e = np.empty(N)
     best_e, R_best, C_best, w_best, t_best, missed_best = out
     among = len(subset) if len(subset) else N
     s = 3 if still else 6
@@ -103,11 +103,10 @@ def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, 
                 if not within:
                     beyond += 1
                     continue
-            bound = best_cost * STOP if np.isfinite(best_cost) else np.inf
             if still:  # (the flag a constant in each call, as in the kernels' own code)
-                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, True, g, bound, e, v)
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, True, g, best_cost, e)
             else:
-                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, g, bound, e, v)
+                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, g, best_cost, e)
             if c >= 0 and c < best_cost:
                 best_cost, found = c, g
                 best_e[:] = e

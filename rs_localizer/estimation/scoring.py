@@ -462,77 +462,15 @@ def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False, W=None):
     return s, inl, c
 
 
-@kernel
-def block_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]``, ``n <= 128``, as NumPy's pairwise summation sums one
-    block: sequentially below 8, else in 8 interleaved partial sums."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    i = 8
-    m = n - n % 8
-    while i < m:
-        j = lo + i
-        r0 += a[j]
-        r1 += a[j + 1]
-        r2 += a[j + 2]
-        r3 += a[j + 3]
-        r4 += a[j + 4]
-        r5 += a[j + 5]
-        r6 += a[j + 6]
-        r7 += a[j + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@kernel
-def pairwise_sum(a, lo, n):
-    """The sum of ``a[lo:lo + n]`` in NumPy's pairwise order (``np.sum`` of a contiguous
-    float64 row, to the bit): blocks of at most 128 (:func:`block_sum`), larger ranges
-    halved at a multiple of 8 and their halves' sums added (without recursion: an explicit
-    stack)."""
-    if n <= 128:
-        return block_sum(a, lo, n)
-    st = np.empty((128, 3), dtype=np.int64)  # (start, length, halves summed)
-    vals = np.empty(128)
-    sp, vp = 1, 0
-    st[0, 0], st[0, 1], st[0, 2] = lo, n, 0
-    while sp > 0:
-        sp -= 1
-        a0, m, done = st[sp, 0], st[sp, 1], st[sp, 2]
-        if m <= 128:
-            vals[vp] = block_sum(a, a0, m)
-            vp += 1
-        elif done:
-            vals[vp - 2] = vals[vp - 2] + vals[vp - 1]
-            vp -= 1
-        else:
-            n2 = m // 2
-            n2 -= n2 % 8
-            st[sp, 0], st[sp, 1], st[sp, 2] = a0, m, 1
-            st[sp + 1, 0], st[sp + 1, 1], st[sp + 1, 2] = a0 + n2, m - n2, 0
-            st[sp + 2, 0], st[sp + 2, 1], st[sp + 2, 2] = a0, n2, 0
-            sp += 3
-    return vals[0]
-
-
 @kernel(fastmath=FMA)
-def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v):
-    """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed as
-    ``np.sum`` sums), its (N,) errors (px) written into ``e`` (``v`` (N,): the capped
-    squares); -1 when the plain running sum of its first capped squares exceeds ``bound`` (a
-    model then left before its last points: see :func:`best_msac`). Each point's error is
-    its camera's (:func:`~.scoring.pose_error2` of :func:`~.scoring.mounted_pose`, the latter
-    computed again where the camera changes: once per camera in a pool stacked by camera).
-    ``still``: every ``w`` and ``t`` zero."""
+def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e):
+    """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed in
+    the points' order, as :func:`msac_scores` sums a camera's), its (N,) errors (px) written
+    into ``e``; -1 once that running sum exceeds ``bound`` (the model then left before its
+    last points: its cost is larger). Each point's error is its camera's
+    (:func:`pose_error2` of :func:`mounted_pose`, the latter computed again where the camera
+    changes: once per camera in a pool stacked by camera). ``still``: every ``w`` and ``t``
+    zero."""
     N = X.shape[0]
     run = 0.0
     c_ = -1
@@ -544,36 +482,26 @@ def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v
             pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
         q = pose_error2(pose, X, x, tau, A, i, still)
         e[i] = np.sqrt(q)
-        v[i] = th2 if q > th2 else q
-        run += v[i]
+        run += th2 if q > th2 else q
         if run > bound:
             return -1.0
-    return pairwise_sum(v, 0, N)
-
-
-#: a model is left once the plain running sum of its first capped squares exceeds the best
-#: cost by this factor (:func:`model_cost`): its pairwise sum over every point is then larger
-#: (each sum of N non-negative terms is within N * 2^-52 of the exact one), so it is not the
-#: lowest
-STOP = 1.0 + 1e-9
+    return run
 
 
 @kernel
 def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
     """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
-    each squared error capped at ``th2`` px^2, summed as ``np.sum`` sums): ``(h, its cost,
-    its (N,) errors)``, ``h`` as ``np.argmin`` of the H costs picks it (the first minimum,
-    or the first NaN). A model whose running cost already exceeds the best one's is left
-    before its last points (:data:`STOP`): the hypotheses' models and the points are finite,
+    each squared error capped at ``th2`` px^2): ``(h, its cost, its (N,) errors)``, ``h`` the
+    first minimum (or the first NaN). A model whose running cost already exceeds the best
+    one's is left before its last points: the hypotheses' models and the points are finite,
     so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero."""
     H, N = R.shape[0], X.shape[0]
     e = np.empty(N)
-    v = np.empty(N)
     best_e = np.zeros(N)
     best, best_cost = -1, 0.0
     for h in range(H):
-        bound = best_cost * STOP if best >= 0 and np.isfinite(best_cost) else np.inf
-        c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e, v)
+        bound = best_cost if best >= 0 else np.inf
+        c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e)
         if c < 0:
             continue
         if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):

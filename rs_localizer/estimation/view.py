@@ -355,7 +355,7 @@ class StackedViews:
 
     def scored(self, model: RSModel | tuple, th2: float) -> tuple[np.ndarray, float]:
         """``(errors (N,) px, MSAC cost)`` of one model ``(R, C, w, t)`` (:meth:`best_scored`;
-        the squared errors capped at ``th2`` px^2 and summed as ``np.sum`` sums them)."""
+        the squared errors capped at ``th2`` px^2 and summed)."""
         _, cost, e = self.best_scored(*(np.asarray(a)[None] for a in model), th2)
         return e, cost
 
