@@ -340,6 +340,25 @@ class RSPoseEstimate(PoseWithCovariance):
         d = self.__dict__
         return frozen_instance(type(self), {n: d[n] for n in _FIELD_NAMES} | changes)
 
+    def _with_model_covariance(
+        self, cov: np.ndarray | None, seconds_per_unit: float = 1.0, **changes
+    ) -> RSPoseEstimate:
+        """This estimate with the fields ``changes`` (by name; ``model`` among them, if it
+        changes) and the (12, 12) covariance ``cov`` over that model's ``(delta, C, w, t)``,
+        or None (no covariances), and the output covariances derived of it
+        (:func:`output_covariance` at ``seconds_per_unit`` s per unit of the model's time; a
+        twist covariance only where this estimate has one): a camera's estimate as its
+        body's (:func:`body_estimate`), a rig's covariance widened by its cameras'
+        disagreement (:func:`~.rig.estimate_rig_pose`)."""
+        out = (None, None, None)
+        if cov is not None:
+            R, C, w, _ = changes.get("model", self.model)
+            out = output_covariance(cov, R, C, w, seconds_per_unit, self.implementation != NUMPY)
+        return self._replaced(
+            model_covariance=cov, covariance=out[0], pose_covariance=out[1],
+            twist_covariance=out[2] if self.twist_covariance is not None else None, **changes,
+        )  # fmt: skip
+
 
 #: the names of :class:`RSPoseEstimate`'s fields (:meth:`RSPoseEstimate._replaced`)
 _FIELD_NAMES = tuple(f.name for f in fields(RSPoseEstimate) if f.init)
@@ -670,21 +689,14 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
     """
     if not est.success:
         return est
-    compiled = est.implementation != NUMPY
     m, s, spr = view.mounting, view.stamp_offset, view.camera.seconds_per_unit_r
     model = rig_model_of_camera(est.model, m, s, spr)
-    R, C, w, _ = model
-    cov = out = None
+    cov = None
     if est.model_covariance is not None:
         J = rig_model_jacobian(est.model, m, s, spr)
         cov = J @ est.model_covariance @ J.T
-        out = output_covariance(cov, R, C, w, 1.0, compiled)
-    return est._replaced(
-        model=model,
-        pose=RSPose.from_model(model, 1.0, compiled=compiled),
-        model_covariance=cov,
-        covariance=None if out is None else out[0],
-        pose_covariance=None if out is None else out[1],
-        twist_covariance=None if out is None or est.twist_covariance is None else out[2],
+    compiled = est.implementation != NUMPY
+    return est._with_model_covariance(
+        cov, 1.0, model=model, pose=RSPose.from_model(model, 1.0, compiled=compiled),
         acceleration_sensitivity=None,
-    )
+    )  # fmt: skip

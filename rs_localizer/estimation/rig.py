@@ -88,7 +88,6 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     built_estimate,
-    output_covariance,
     per_view_fields,
 )
 from .rig_batch import counted, search_batch, still_solve_rotated
@@ -400,7 +399,7 @@ def _one_camera_alone(views: Sequence[View], pool: StackedViews, options: Estima
         v.uv, v.X, v.camera, options=options, initial_model=initial_model, gyro=gyro,
         implementation=COMPILED, view=v,
     )  # fmt: skip
-    return _restored(est, pool, c)
+    return _restored(est, pool, view=c)
 
 
 class _Vote(NamedTuple):
@@ -423,15 +422,15 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
                verify: bool = False) -> RSPoseEstimate:  # fmt: skip
     """The cameras' consensus on the solved joint estimate ``est`` (docs/rig.md, "The cameras'
     consensus"): every camera of at least :data:`VOTE_MIN_POINTS` valid points votes. All
-    agree (:func:`_agreeing`): ``est``. Fewer disagree than agree: they are outvoted.
-    Otherwise the rig is solved (``solve``) without the agreeing cameras and the two groups
-    are decided (:func:`_decided`): by their number of cameras (never of points), on a tie by
-    the ``prediction``, else the joint estimate when they are near (:func:`_near`; first
-    tried from ``est`` alone, :func:`_one_pose`), its covariance widened by the groups'
-    disagreement (:func:`_near_spread`), or ``cameras_disagree``. With a prediction
-    the cameras it explains are checked first (:func:`_by_track`); with ``verify`` every
-    voting camera is posed alone (:func:`_verified`: a wrong stamp can leave two cameras a
-    fair share of inliers under a joint pose that is wrong)."""
+    agree (:func:`_agreeing`): ``est``. Fewer disagree than agree: they are outvoted
+    (:func:`_restored`). Otherwise the rig is solved (``solve``) without the agreeing cameras
+    and the two groups are decided (:func:`_decided`): by their number of cameras (never of
+    points), on a tie by the ``prediction``, else the joint estimate when they are near
+    (:func:`_near`; first tried from ``est`` alone, :func:`_one_pose`), its covariance widened
+    by the groups' disagreement (:func:`_near_spread`), or ``cameras_disagree``. With a
+    prediction the cameras it explains are checked first (:func:`_by_track`); with
+    ``verify`` every voting camera is posed alone (:func:`_verified`: a wrong stamp can leave
+    two cameras a fair share of inliers under a joint pose that is wrong)."""
     voters = [c for c, n in enumerate(est.num_valid_per_view) if n >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
@@ -449,38 +448,37 @@ def _consensus(pool: StackedViews, est: RSPoseEstimate, threshold_px: float, sol
     if not rest:
         return est
     if len(a) > len(rest):  # (outvoted whatever the others' own pose: not solved)
-        return _outvoted(est, pool, rest)
+        return _restored(est, pool, rest)
     tried = len(a) == len(rest) and prediction is None
     sub, b = v.solved(a)
     if tried and _one_pose(v, est, set(voters)):  # (a tie one pose from ``est`` explains)
-        return _near_spread(est, sub, voters)
+        return _near_spread(est, sub)
     if b & a:  # (a pose the agreeing cameras share: cameras with outliers, no contradiction)
         return est
     if not b or len(b) < len(a):  # (no consistent pose of their own, or fewer cameras)
-        return _outvoted(est, pool, rest)
+        return _restored(est, pool, rest)
     if b != rest:  # (solved on the cameras that agree with the second pose only)
         sub = solve(set(voters) - b)
         if not sub.success:
-            return _outvoted(est, pool, rest)
+            return _restored(est, pool, rest)
     out = _decided(v, est, (est, sub), (a, b), set(voters), tried)
-    return _near_spread(est, sub, voters) if out is est else out
+    return _near_spread(est, sub) if out is est else out
 
 
-def _near_spread(est: RSPoseEstimate, other: RSPoseEstimate, voters) -> RSPoseEstimate:
-    """``est``, the joint estimate of two groups of cameras that are near (:func:`_near`),
-    with the covariance of their disagreement: when a voting camera does not agree with it
-    (:func:`_agreeing`: the fit at the inlier threshold kept one group's points), its model
-    covariance plus ``other``'s (the other group's own estimate) plus ``d d^T``, ``d`` the
-    step between the two estimates' models (over (delta, C) of the global-shutter model,
-    (delta, C, w, t) of the rolling-shutter one), its outputs' covariances derived again.
-    Cameras that disagree beyond their noise but within the gate carry an error none of
-    them models (a lens model, a tag map or an exposure time a little off), and nothing in
-    the rig frame says which group is right, while the pose of one group alone has a
-    covariance of that group's points only (docs/rig.md, "Real 4-camera rigs"). ``est``
-    unchanged when every voting camera agrees, or either estimate has no covariance."""
-    if set(voters) <= _agreeing(est, voters) or not other.success:
-        return est
-    if est.model_covariance is None or other.model_covariance is None:
+def _near_spread(est: RSPoseEstimate, other: RSPoseEstimate) -> RSPoseEstimate:
+    """``est``, the joint estimate of two groups of cameras that are near (:func:`_near`) and
+    that leaves a voting camera out (the fit at the inlier threshold kept one group's points),
+    with the covariance of their disagreement: its model covariance plus ``other``'s (the
+    other group's own estimate) plus ``d d^T``, ``d`` the step between the two estimates'
+    models (over (delta, C) of the global-shutter model, (delta, C, w, t) of the
+    rolling-shutter one), its outputs' covariances derived again
+    (:meth:`~.result.RSPoseEstimate._with_model_covariance`). Cameras that disagree beyond
+    their noise but within the gate carry an error none of them models (a lens model, a tag
+    map or an exposure time a little off), and nothing in the rig frame says which group is
+    right, while the pose of one group alone has a covariance of that group's points only
+    (docs/rig.md, "Real 4-camera rigs"). ``est`` unchanged when ``other`` failed or either
+    estimate has no covariance."""
+    if not other.success or est.model_covariance is None or other.model_covariance is None:
         return est
     rolling = est.motion_model != GLOBAL_SHUTTER
     free = 12 if rolling else 6
@@ -491,12 +489,8 @@ def _near_spread(est: RSPoseEstimate, other: RSPoseEstimate, voters) -> RSPoseEs
         return est
     cov = np.array(est.model_covariance, dtype=float)
     cov[:free, :free] += np.asarray(other.model_covariance)[:free, :free] + np.outer(d, d)
-    spr = 1.0 if rolling else 0.0  # (a rig's times are in seconds: StackedViews.spr)
-    out = output_covariance(cov, R, C, w, spr, est.implementation != NUMPY)
-    return est._replaced(
-        model_covariance=cov, covariance=out[0], pose_covariance=out[1],
-        twist_covariance=out[2] if est.twist_covariance is not None else None,
-    )  # fmt: skip
+    # (a rig's times are in seconds: StackedViews.spr)
+    return est._with_model_covariance(cov, 1.0 if rolling else 0.0)
 
 
 def _decided(v: _Vote, est, fits, groups, cams: set, tried=False) -> RSPoseEstimate:
@@ -514,7 +508,7 @@ def _decided(v: _Vote, est, fits, groups, cams: set, tried=False) -> RSPoseEstim
             return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice is None or not fits[choice].success:
         return _disagree(est, v.pool, a | b)
-    return _outvoted(fits[choice], v.pool, cams - groups[choice])
+    return _restored(fits[choice], v.pool, cams - groups[choice])
 
 
 def _agreeing(est: RSPoseEstimate, voters, pool=None, gate_px=0.0, model=None) -> set[int]:
@@ -591,7 +585,7 @@ def _by_track(v: _Vote, est) -> RSPoseEstimate | None:
         near = own.success and own.motion_model == GLOBAL_SHUTTER
         if near and _near(v, kept, own, explained, suspect):
             return None
-    return _outvoted(kept, pool, suspect)
+    return _restored(kept, pool, suspect)
 
 
 def _verified(v: _Vote, est) -> RSPoseEstimate | None:
@@ -629,7 +623,7 @@ def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPose
     counts (:func:`_restored` with no inlier in any view)."""
     identity = RSModel.identity()
     return _restored(
-        est, pool, out=range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
+        est, pool, range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
         model=identity, num_inliers_per_view=est.num_inliers_per_view, rmse_px=np.nan,
         num_behind=0, num_dropped=est.num_dropped - est.num_behind, covariance=None,
         model_covariance=None, acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
@@ -637,13 +631,14 @@ def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPose
     )  # fmt: skip
 
 
-def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, out=(),
+def _restored(est: RSPoseEstimate, pool: StackedViews, out=(), view: int | None = None,
               **changes) -> RSPoseEstimate:  # fmt: skip
     """An estimate of views some of whose points were removed, or of the one view ``view``
     (a camera's own estimate), as one of the full views ``pool``: their valid point counts,
     its inliers per view counted again, none among the removed points, in the other views or
-    in the views ``out`` (those the consensus leaves out), and the fields ``changes`` by
-    name (also over those)."""
+    in the views ``out``, and the fields ``changes`` by name (also over those). The voting
+    cameras ``out`` are those the consensus outvoted: ``disagreeing`` (unless ``changes``
+    names them)."""
     own = est.inliers_per_view
     if view is not None:
         own = tuple(
@@ -654,13 +649,7 @@ def _restored(est: RSPoseEstimate, pool: StackedViews, view: int | None = None, 
         for c, (m, n) in enumerate(zip(own, pool.sizes, strict=True))
     )
     fields = per_view_fields(per, pool.counts(), sum(pool.sizes), est.num_behind)
-    return est._replaced(**(fields | changes))
-
-
-def _outvoted(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
-    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier
-    (:func:`_restored`)."""
-    return _restored(est, pool, out=cams, disagreeing=tuple(sorted(cams)))
+    return est._replaced(**(fields | {"disagreeing": tuple(sorted(out))} | changes))
 
 
 def _by_prediction(pool: StackedViews, first, second, prediction) -> int | None:
