@@ -77,20 +77,23 @@ class VideoClock:
 
     Attributes:
         newest: ns, the newest frame time noted since the last reset (None before one).
+        first: ns, the first frame time noted since the start or the last reset (None before
+            one): when the video's timeline began.
     """
 
     def __init__(self, time_reset_ns: int = 10**9, back_tolerance_ns: int = 0):
         self.time_reset_ns = time_reset_ns
         self.back_tolerance_ns = back_tolerance_ns
         self.newest: int | None = None
+        self.first: int | None = None
         self._last: dict = {}  # (source -> its newest frame time since the last reset, ns)
 
     def step(self, stamp: int, source: str = "") -> TimeReset | None:
         """Note a frame's time ``stamp`` (ns) of ``source`` (a camera's name), compared with
         that source's newest frame time since the last reset (a step back) and with the
         video's :attr:`newest` (a jump ahead); for a video of one source they are the same
-        time. Returns the time reset it makes, or None. After a reset :attr:`newest` and the
-        source's newest are ``stamp``, the other sources have none."""
+        time. Returns the time reset it makes, or None. After a reset :attr:`first`,
+        :attr:`newest` and the source's newest are ``stamp``, the other sources have none."""
         last, previous = self.newest, self._last.get(source)
         reset = None
         if previous is not None and previous - stamp > self.back_tolerance_ns:
@@ -107,6 +110,8 @@ class VideoClock:
                 last,
             )
         self.newest = stamp if reset is not None or last is None else max(last, stamp)
+        if reset is not None or last is None:
+            self.first = stamp
         if reset is not None:
             self._last = {}
         self._last[source] = stamp if previous is None or reset else max(previous, stamp)
@@ -118,5 +123,5 @@ class VideoClock:
 
     def reset(self) -> None:
         """Forget the frames' time (the video forgotten)."""
-        self.newest = None
+        self.newest = self.first = None
         self._last = {}

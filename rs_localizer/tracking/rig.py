@@ -150,9 +150,8 @@ class RigGrouping:
         cams: camera -> its state, in the rig's order: ``newest`` (ns; None: no frame since the
             start or the last time reset), ``stopped`` (no frame for ``stop_after`` s while
             others send), with its agreement's (:class:`CameraAgreement`: ``apart``).
-        open: the rig frames open, oldest first. first: ns, the first frame's time since the
-            start (or the last time reset), None before one. last_closed: ns, the time of the
-            last rig frame closed, None before one.
+        open: the rig frames open, oldest first. last_closed: ns, the time of the last rig
+            frame closed, None before one.
     """
 
     def __init__(self, cameras: tuple, counts: Counter, log: TrackLog,
@@ -160,15 +159,8 @@ class RigGrouping:
         self.cams = {n: _RigCamera(n) for n in cameras}
         self.ordered = ordered
         self.open: list[OpenRigFrame] = []
-        self.first: int | None = None
         self.last_closed: int | None = None
         self.counts, self.log, self._skip = counts, log, skip
-
-    def note_first(self, stamp: int) -> None:
-        """A frame came at ``stamp`` (ns): the first since the start or the last time reset
-        when none came before."""
-        if self.first is None:
-            self.first = stamp
 
     def skipped(self, name: str, t: int, reason: str) -> None:
         """Camera ``name``'s frame at ``t`` (ns) skipped for ``reason`` (a key of
@@ -198,7 +190,6 @@ class RigGrouping:
         cam.last_ref = ref
         cam.newest = ref if cam.newest is None else max(cam.newest, ref)
         cam.recent.append(ref)
-        self.note_first(ref)  # (after a time reset)
         if cam.stopped:
             cam.stopped = False
             self.log.info(f"rig camera {name!r} sends frames again")
@@ -213,17 +204,20 @@ class RigGrouping:
             self.counts["rig_frames"] += 1
         return True
 
-    def complete(self, window: float, stop_after: float) -> Iterator[OpenRigFrame]:
+    def complete(self, window: float, stop_after: float, first: int | None
+                 ) -> Iterator[OpenRigFrame]:  # fmt: skip
         """The open rig frames every camera has joined, moved past (its newest frame later than
         the rig frame's earliest plus ``window`` s) or stopped for (no frame for ``stop_after``
-        s, :meth:`stop_ns`; marked here, with a warning), oldest first, each taken out of
-        :attr:`open` and closed as it is handed out (:meth:`_handed_out`)."""
+        s, :meth:`stop_ns`, since its last or, without one, since ``first``, ns: when the
+        video's clock began, :attr:`~rs_localizer.tracking.clock.VideoClock.first`; marked
+        here, with a warning), oldest first, each taken out of :attr:`open` and closed as it is
+        handed out (:meth:`_handed_out`)."""
         now = max((c.newest for c in self.cams.values() if c.newest is not None), default=None)
         if now is None:
             return
         stop_ns = stop_after * 1e9
         for cam in self.cams.values():
-            gap = now - (cam.newest if cam.newest is not None else self.first)
+            gap = now - (cam.newest if cam.newest is not None else first)
             # (stop_after first: the camera's own intervals only lengthen it)
             if not cam.stopped and gap > stop_ns and gap > self.stop_ns(cam, stop_after):
                 cam.stopped = True
@@ -294,7 +288,7 @@ class RigGrouping:
             cam.newest = cam.last_ref = None
             cam.recent.clear()
             cam.stopped = False
-        self.first = self.last_closed = None
+        self.last_closed = None
 
     def clock_offsets(self, name: str) -> dict:
         """Camera ``name``'s apparent clock offset against each other camera (other camera ->

@@ -1046,9 +1046,8 @@ class Localizer(GyroReadouts):
         name = frame.camera_name
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        stamp = self._on_clock(name, frame.stamp_ns)
-        self._frames.note_first(stamp)
-        self._note(name, stamp)  # (a time reset: every camera's timeline started again)
+        # (a time reset: every camera's timeline started again)
+        self._note(name, self._on_clock(name, frame.stamp_ns))
         taken = self._frames.take(name, frame, ref, self.settings.window)
         out = self._ready() if taken else []
         return self._solved_by_reset() + out
@@ -1178,7 +1177,8 @@ class Localizer(GyroReadouts):
         """Solve the open rig frames every camera has joined, moved past or stopped for
         (:meth:`~rs_localizer.tracking.rig.RigGrouping.complete`)."""
         s = self.settings
-        return [self._solve(g) for g in self._frames.complete(s.window, s.stop_after)]
+        complete = self._frames.complete(s.window, s.stop_after, self._clock.first)
+        return [self._solve(g) for g in complete]
 
     def close(self) -> list[LocalizerOutput]:
         """Solve every rig frame still open (the end of a video), oldest first."""
@@ -1372,7 +1372,6 @@ class Localizer(GyroReadouts):
         self._twists.note_frame()
         on_clock = self._on_clock(name, stamp)
         self._note(name, on_clock)  # (as every frame's; an image's search noted it already)
-        self._frames.note_first(on_clock)
         self._frames.skipped(name, on_clock if t is None else t, reason)
         out = self._ready()
         return self._solved_by_reset() + out

@@ -126,6 +126,34 @@ def test_a_camera_whose_frames_stop_the_rig_runs_on_the_others():
     assert set(MISSED_REASONS) >= {k.split(".")[-1] for k in rig.counts if ".missed." in k}
 
 
+def test_a_camera_that_never_sent_is_stopped_from_when_the_clock_began_however_noted(video):
+    """After a time reset a camera that has not sent since counts as stopped ``stop_after``
+    after the new timeline's first frame time on the video's clock (its stamp,
+    ``VideoClock.first``), the same whether the frames' times were noted ahead
+    (``check_time``, as the node and the replay do) or by ``add`` alone."""
+    from rs_localizer.tracking.video import GroupingOnly
+
+    cams, frames, _ = video
+    settings = LocalizerSettings(mounts_of(cams[:2]), stop_after=0.2)
+    f0 = next(f for f in frames if f.name == "front")
+    cam = cams[0].camera
+    d = settings.reference_ns("front", T0, cam) - T0  # (reference line after the stamp's)
+    assert d > 2_000_000
+    # (a timeline, then a stamp going back; the last frame 0.2 s after the first by its
+    # stamp, not by its reference time)
+    stamps = [T0 + 5 * 10**9, T0, T0 + 100_000_000, T0 + 200_000_000 - d // 2]
+    stopped = []
+    for ahead in (False, True):
+        rig = GroupingOnly(settings)
+        for t in stamps:
+            if ahead:
+                rig.check_time(t, "front")
+            rig.add(CameraFrame(t, cam, f0.uv, f0.xyz, camera_name="front"))
+        stopped.append(rig.counts["left.stopped"])
+        assert rig.camera_state("left") == "stopped" and rig.counts["rig.time_resets"] == 1
+    assert stopped == [1, 1]
+
+
 def test_cameras_slower_than_stop_after_are_not_taken_as_stopped_between_their_frames():
     """Three 2 Hz cameras (a frame every 0.5 s, the default ``stop_after``): each rig frame
     holds all three cameras' frames, none counted stopped or missed; with the frame interval
