@@ -64,9 +64,8 @@ MISSED_REASONS = {
 }
 #: a pose contradicts the track when its normalized squared distance from the prediction
 #: (rotation and position, the prediction's and the estimate's covariances) exceeds the
-#: chi-square quantile (6 degrees of freedom) of this probability (as the twist filter's gate,
-#: ``FusionOptions.gate``) and it is at least CONTRADICTION_MIN_DEG or CONTRADICTION_MIN_M
-#: away from it
+#: chi-square quantile (6 dof) of this probability, as the twist filter's gate does, and it is
+#: at least CONTRADICTION_MIN_DEG or CONTRADICTION_MIN_M away from it
 CONTRADICTION_QUANTILE = 0.9999
 CONTRADICTION_MIN_DEG = 0.3
 CONTRADICTION_MIN_M = 0.02
