@@ -35,9 +35,9 @@ __all__ = [
     "APART_MIN",
     "APART_SHARE",
     "CONFIRM_MIN_INLIERS",
-    "CONTRADICTION_GATE",
     "CONTRADICTION_MIN_DEG",
     "CONTRADICTION_MIN_M",
+    "CONTRADICTION_QUANTILE",
     "MISSED_REASONS",
     "STOP_INTERVALS",
     "CameraAgreement",
@@ -63,10 +63,10 @@ MISSED_REASONS = {
     "drop, a reason of SKIP_REASONS: e.g. an image that did not decode), not a frame apart",
 }
 #: a pose contradicts the track when its normalized squared distance from the prediction
-#: (rotation and position, the prediction's and the estimate's covariances) exceeds this
-#: chi-square quantile (6 degrees of freedom) and it is at least CONTRADICTION_MIN_DEG or
-#: CONTRADICTION_MIN_M away from it
-CONTRADICTION_GATE = 0.9999
+#: (rotation and position, the prediction's and the estimate's covariances) exceeds the
+#: chi-square quantile (6 dof) of this probability, as the twist filter's gate does, and it is
+#: at least CONTRADICTION_MIN_DEG or CONTRADICTION_MIN_M away from it
+CONTRADICTION_QUANTILE = 0.9999
 CONTRADICTION_MIN_DEG = 0.3
 CONTRADICTION_MIN_M = 0.02
 #: a camera too small to vote in the cameras' consensus (fewer than the estimator's
@@ -510,7 +510,7 @@ def refusal(
 
 def _contradicts(est: RSPoseEstimate, pred) -> bool:
     """The estimate's pose is further from the prediction than their covariances allow
-    (:data:`CONTRADICTION_GATE`, the squared Mahalanobis distance of
+    (:data:`CONTRADICTION_QUANTILE`, the squared Mahalanobis distance of
     :func:`~rs_localizer.accuracy.covariance_distances`) and at least
     :data:`CONTRADICTION_MIN_DEG` or :data:`CONTRADICTION_MIN_M` away (the rotation angle and
     the positions' distance of :func:`~rs_localizer.accuracy.absolute_pose_errors`)."""
@@ -523,4 +523,5 @@ def _contradicts(est: RSPoseEstimate, pred) -> bool:
     if est.pose_covariance is not None and np.isfinite(est.pose_covariance).all():
         S = S + np.asarray(est.pose_covariance, float)
     # (NaN, a contradiction, when S is not positive definite)
-    return not covariance_distances(*poses, S[None])[0] <= float(chi2.ppf(CONTRADICTION_GATE, 6))
+    d2 = covariance_distances(*poses, S[None])[0]
+    return not d2 <= float(chi2.ppf(CONTRADICTION_QUANTILE, 6))
