@@ -172,8 +172,8 @@ class TakenFrame:
 class ModeBase:
     """What the node's mode (:class:`~rs_localizer.ros.mode.LocalizerMode`, the camera alone
     or a rig) does at each phase, written once. A mode adds
-    its configuration (``_configuration()`` at configure, ``changed_configuration(overrides)``
-    at run time, both -> ``built``, whose first item is its
+    its configuration (``changed_configuration(overrides)``: at configure without overrides,
+    at run time with the changed values; -> ``built``, whose first item is its
     :class:`~.config.LocalizerConfig`, of one camera or of the rig, :attr:`cfg` once taken),
     how it takes it (``_start_with(built)``, ``_change_to(built, overrides)``), its gyro's
     input (``_take_imu``) and its ``ready`` line's subject and warnings (``_ready_subject()``,
@@ -201,7 +201,7 @@ class ModeBase:
         """Parameters -> configuration, taken, then the kernels warmed up (:meth:`_warm_up`).
         Raises RuntimeError for invalid parameters (naming them; the maps loaded released)."""
         try:
-            built = self._configuration()
+            built = self.changed_configuration({})
         except ConfigError as e:
             SHARED_MAPS.release(self.node)
             raise RuntimeError(f"invalid parameters: {e}") from None

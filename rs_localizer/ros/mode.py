@@ -74,7 +74,6 @@ from .pipeline import (
 from .rig_node import (
     RIG_TEXTS,
     SameRigFrame,
-    declare_rig_cameras,
     rig_values,
 )
 
@@ -177,28 +176,19 @@ class LocalizerMode(ModeBase):
         return self.node.inputs[item.name].camera_of(item.stamp)
 
     # ---------------------------------------------------------------- configuration
-    def _configuration(self) -> tuple[LocalizerConfig, dict]:
-        """The configuration at configure (:meth:`changed_configuration` without overrides),
-        each rig camera's ``rig.<camera>.*`` declared first on first use (none for the camera
-        alone).
-
-        Raises:
-            ConfigError: a value that cannot be used (naming it).
-        """
-        declare_rig_cameras(self.node)
-        return self.changed_configuration({})
-
     def changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, dict]:
-        """The configuration of the parameters with ``overrides`` (with a rig's cameras'
-        parameters, :func:`.rig_node.rig_values`: a change refused for those a rig cannot
-        take without a restart) and each camera's maps (camera name -> its
-        :class:`~rs_localizer.frontends.shared.LoadedMaps`, held by the node: the landmarks of
-        ``landmarks_file``, the camera's own front end of ``frontend_map``, the one in use
-        kept while its kind and map stay the same).
+        """The configuration of the parameters with ``overrides`` (none at configure; with a
+        rig's cameras' parameters, :func:`.rig_node.rig_values`: each declared on first use, a
+        change refused for those a rig cannot take without a restart) and each camera's maps
+        (camera name -> its :class:`~rs_localizer.frontends.shared.LoadedMaps`, held by the
+        node: the landmarks of ``landmarks_file``, the camera's own front end of
+        ``frontend_map``, the one in use kept while its kind and map stay the same).
 
         Raises:
             ConfigError: a value that cannot be used, a map that does not load, a change
                 refused (naming them).
+            RuntimeError: a rig camera's value of the wrong type or outside its range, at
+                its declaration (naming it).
         """
         cams = rig_values(self.node, overrides, self.cfg)
         cfg = build_config(self.node.param_values(overrides), cams)

@@ -1,5 +1,5 @@
 """What only a rig of several cameras needs in ``rs_localizer_node`` (``rig.cameras`` set;
-docs/rig_node.md): its cameras' parameters (``rig.<c>.*``: :func:`declare_rig_cameras`,
+docs/rig_node.md): its cameras' parameters (``rig.<c>.*``, declared and read by
 :func:`rig_values`) and the grouping of queued frames into rig frames (:class:`SameRigFrame`).
 The rest of the rig runs where the camera alone's does, in the node's one mode
 (:class:`~rs_localizer.ros.mode.LocalizerMode`: its cameras' inputs and counts, ready line),
@@ -21,7 +21,6 @@ from .params import RIG_CAMERA_PARAMETERS, ConfigError
 __all__ = [
     "RIG_TEXTS",
     "SameRigFrame",
-    "declare_rig_cameras",
     "rig_values",
 ]
 
@@ -43,40 +42,29 @@ RIG_TEXTS = {
 }
 
 
-def declare_rig_cameras(node: Any) -> None:
-    """Declare on ``node`` each rig camera's ``rig.<camera>.*``
-    (:data:`~.params.RIG_CAMERA_PARAMETERS`, ``mounting`` of any type) for the cameras of
-    ``rig.cameras`` (none for the camera alone, ``rig.cameras`` empty), each parameter once
-    (on the first configure that names the camera); their values are read by
-    :func:`rig_values`.
+def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
+               ) -> dict | None:  # fmt: skip
+    """A rig's cameras' parameter values for :func:`.config.build_config` (the others:
+    :meth:`.core.NodeCore.param_values`): camera -> its ``rig.<c>.*``
+    (:data:`~.params.RIG_CAMERA_PARAMETERS`, ``mounting`` of any type), each declared on
+    ``node`` once, by the first configure that names its camera (a configure retried declares
+    those not declared yet); None for the camera alone (``rig.cameras`` empty). With
+    ``current``, the configuration the rig runs with (None: at configure, unchecked), a change
+    of ``overrides`` (name -> value) is refused for the parameters a rig cannot take without a
+    restart (:func:`.config.rig_change_refused`) unless their value stays the same.
 
     Raises:
-        ConfigError: names that cannot be used (they make parameter and topic names).
+        ConfigError: names that cannot be used, or a change refused (naming them).
         RuntimeError: a camera's value of the wrong type or outside its range, naming the
             parameter (:func:`.declare.declare_parameters`; again at a retried configure).
     """
     value = node.get_parameter("rig.cameras").value
-    names = rig_camera_names(value) if names_a_rig(value) else []
-    for n in names:  # (a configure retried declares those not declared yet)
-        own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
-        declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
-
-
-def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = None
-               ) -> dict | None:  # fmt: skip
-    """A rig's cameras' parameter values for :func:`.config.build_config` (the others:
-    :meth:`.core.NodeCore.param_values`): camera -> its ``rig.<c>.*``; None for the camera
-    alone (``rig.cameras`` empty). With ``current``, the configuration the rig runs with (None: at
-    configure, unchecked), a change of ``overrides`` (name -> value) is refused for the
-    parameters a rig cannot take without a restart (:func:`.config.rig_change_refused`)
-    unless their value stays the same.
-
-    Raises:
-        ConfigError: names that cannot be used, or a change refused (naming them).
-    """
-    value = node.get_parameter("rig.cameras").value
     if not names_a_rig(value):
         return None
+    names = rig_camera_names(value)
+    for n in names:  # (declared already: kept)
+        own = {f"rig.{n}.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()}
+        declare_parameters(node, own, dynamic=(f"rig.{n}.mounting",))
     if current is not None:
         changed = [
             n for n, v in overrides.items() if not same_value(v, node.get_parameter(n).value)
@@ -86,7 +74,7 @@ def rig_values(node: Any, overrides: dict, current: LocalizerConfig | None = Non
             raise ConfigError(refused)
     return {
         n: {k: node.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
-        for n in rig_camera_names(value)
+        for n in names
     }
 
 

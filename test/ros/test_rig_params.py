@@ -314,7 +314,7 @@ def test_a_refused_rig_camera_value_is_named_again_when_configure_is_retried(ros
     from rclpy.parameter import Parameter
 
     from rs_localizer.ros.declare import declare_parameters
-    from rs_localizer.ros.rig_node import declare_rig_cameras
+    from rs_localizer.ros.rig_node import rig_values
 
     overrides = [Parameter("rig.cameras", value=["front"]),
                  Parameter("rig.front.line_delay", value=0.5)]  # fmt: skip
@@ -323,7 +323,7 @@ def test_a_refused_rig_camera_value_is_named_again_when_configure_is_retried(ros
         declare_parameters(node, RIG_PARAMETERS, dynamic=("rig.cameras",))
         for _ in range(2):
             with pytest.raises(RuntimeError, match=r"rig\.front\.line_delay"):
-                declare_rig_cameras(node)
+                rig_values(node, {})
         assert node.has_parameter("rig.front.mounting_covariance")
     finally:
         node.destroy_node()

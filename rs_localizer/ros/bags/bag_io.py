@@ -617,21 +617,24 @@ def write_rig_bag(
         **(extra or {}),
     }
     (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
-    (path / "rig_params.yaml").write_text(_params_yaml(rig, stamp_row))
+    (path / "rig_params.yaml").write_text(_params_yaml(rig, stamp_row, cameras))
     return path
 
 
-def _params_yaml(rig: dict, stamp_row: float) -> str:
-    """The node's parameter file of a rig bag's ``rig`` entry."""
-    from ..config import rig_parameter_file
+def _params_yaml(rig: dict, stamp_row: float, cameras: list) -> str:
+    """The node's parameter file of a rig bag's ``rig`` entry and ``cameras`` (each one's
+    mounting written as ``calibrate-rig`` writes it:
+    :func:`~rs_localizer.ros.config.mounting_values`)."""
+    from ...frames import Mounting
+    from ..config import mounting_values, rig_parameter_file
 
     cams = {
-        c["name"]: {
-            "mounting": [round(float(x), 9) + 0.0 for x in c["mounting"]],
-            "line_delay": float(c["line_delay"]),
-            "direction": c["direction"],
+        c.name: {
+            "mounting": mounting_values(Mounting.from_pose(c.R_rig_cam, c.p_rig_cam)),
+            "line_delay": float(c.camera.line_delay),
+            "direction": c.camera.readout,
         }
-        for c in rig["cameras"]
+        for c in cameras
     }
     extra = {}
     if "imu" in rig:
