@@ -231,7 +231,7 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
     (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``, as the
-    compiled batches correct theirs (:func:`~.rig_batch.still_solve_rotated`)."""
+    compiled batches correct theirs (:func:`~.rig_batch.solve_rotated` ``held``)."""
     solve = _rig_solver(pool, 1, held=True)
     R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                        solve, pool.compiled)  # fmt: skip
