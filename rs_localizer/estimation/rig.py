@@ -68,7 +68,6 @@ from .frame import Model
 from .gyro import GyroMeasurement, gyro_prior
 from .hypotheses import (
     anchor_prerotations,
-    composed,
     linear_refit,
     prerotated_models,
     still_models,
@@ -90,7 +89,7 @@ from .result import (
     built_estimate,
     per_view_fields,
 )
-from .rig_batch import counted, search_batch, still_solve_rotated
+from .rig_batch import search_batch
 from .sampling import p3p_mounted
 from .single_tag import posed_planarity
 from .view import StackedViews, View
@@ -230,19 +229,12 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
-    (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``. Compiled:
-    :func:`~.rig_batch.still_solve_rotated`."""
-    if not pool.compiled:
-        solve = _rig_solver(pool, 1, held=True)
-        R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
-                                           solve, False)  # fmt: skip
-        return R, C, ok
-    X, x = pool.kernel_arrays[:2]
-    cam, Rm, cm, _ = pool.compiled_mountings.views
-    S = np.ascontiguousarray(S, dtype=np.int64)
-    Rg = np.ascontiguousarray(Rg, dtype=np.float64)
-    out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
-    return composed(out[:, 0:3], Rg), out[:, 3:6], ok
+    (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``, as the
+    compiled batches correct theirs (:func:`~.rig_batch.solve_rotated` ``held``)."""
+    solve = _rig_solver(pool, 1, held=True)
+    R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
+                                       solve, pool.compiled)  # fmt: skip
+    return R, C, ok
 
 
 def _p3p_on_rig(pool: StackedViews, samples: np.ndarray):
@@ -802,12 +794,9 @@ class _RigSearch(RansacLoop):
         pool = self.pool
         if pool.compiled:  # (the compiled errors and cost of :meth:`cost`, to the bit)
             self._kept(model, self._e, self._cost)
-        if self.fused:
+        if self.fused:  # (the batch's count of them, :func:`~.rig_batch.counted`)
             n, missed = self._n, self._missed
-        elif pool.compiled:
-            subset = _NO_SUBSET if self.subset is None else self.subset
-            n, missed = counted(self._e, self.threshold_px, pool.cam, self._counts, subset)
-        else:  # (the same numbers in NumPy)
+        else:
             inl = self._e < self.threshold_px
             missed = (self._counts >= 3) & (np.array(pool.counts(inl)) == 0)
             n = np.count_nonzero(inl if self.subset is None else inl[self.subset])
@@ -951,8 +940,10 @@ class _RigStages:
             return staged_estimate(replace(self, spread=True))
         if self.prior is not None or not self.refine:
             return None
-        # (a rolling-shutter rig frame that shows no motion: the global-shutter model)
-        again = lambda: staged_estimate(replace(self, still=True))  # noqa: E731
+
+        def again() -> RSPoseEstimate:  # (a frame that shows no motion: the global-shutter model)
+            return staged_estimate(replace(self, still=True))
+
         return still_fallback(failure.reason, again, self.pool, self.threshold_px)
 
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
@@ -967,5 +958,8 @@ class _RigStages:
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
         pool, th = self.pool, self.threshold_px
         image = image_alone(pool, est.model, th, None) if est.success else None
-        planar = lambda: coplanar(pool.X[pool.errors(est.model) < th], pool.compiled)  # noqa: E731
+
+        def planar() -> bool:
+            return coplanar(pool.X[pool.errors(est.model) < th], pool.compiled)
+
         return image, planar, len(pool.cam)

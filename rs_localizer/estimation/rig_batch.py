@@ -24,7 +24,7 @@ from .scoring import model_cost
 __all__ = [
     "counted",
     "search_batch",
-    "still_solve_rotated",
+    "solve_rotated",
 ]
 
 
@@ -129,7 +129,8 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
     """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
     the order they are scored: its P3P pose (:func:`~.sampling.p3p_mounted_into`, into the
     buffers ``R``, ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,)
-    bool), that pose corrected ``rounds`` times by :func:`still_solve_rotated`. Returns
+    bool), that pose corrected ``rounds`` times by the rig solver with the velocities held at
+    zero (:func:`solve_rotated` ``held``, each round pre-rotated by the last). Returns
     ``(R (H, 3, 3), C (H, 3))``."""
     q = p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
@@ -145,7 +146,8 @@ def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, 
         S[h] = sample
     Rc, Cc = Rg, Cg
     for _ in range(rounds):
-        sol, ok = still_solve_rotated(x, X, S, np.ascontiguousarray(Rc), cam, Rm, cm)
+        sol, ok = solve_rotated(x, X, S, np.ascontiguousarray(Rc), np.zeros(X.shape[0]), cam, Rm,
+                                cm, 1, True)  # fmt: skip
         if not ok.any():
             return Rg, Cg
         keep = np.flatnonzero(ok)
@@ -181,25 +183,16 @@ def moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations):
 
 
 @kernel
-def still_solve_rotated(x, X, S, Rg, cam, Rm, cm):
-    """The rig solver of K problems whose observations were all taken at one time, with the
-    velocities held at zero (:func:`solve_rotated` at ``tau`` zero, one step, the prior rows
-    the identity with right-hand side zero, as :func:`~.rig._held_solve` in NumPy), on the
-    world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) pre-rotated by ``Rg[k]`` (K, 3, 3):
-    ``(out (K, 6): v, C, zeros where not solved; ok (K,))``."""
-    out, ok = solve_rotated(x, X, S, Rg, np.zeros(X.shape[0]), cam, Rm, cm, 1, True)
-    return np.ascontiguousarray(out[:, 0:6]), ok
-
-
-@kernel
 def solve_rotated(x, X, S, R0, tau, cam, Rm, cm, iterations, held=False):
     """:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`'s kernel (``v_init`` zero, its
     default tolerance; no prior rows, or ``held`` the velocities held at zero by the prior
-    rows ``(w, t) = 0``) on K problems whose world points ``X[S[k]]`` (``X`` (P, 3), ``S``
-    (K, N)) are pre-rotated by ``R0[k]`` (K, 3, 3) here, at the times ``tau[S[k]]`` (``tau``
-    (P,) s) in the cameras ``cam[S[k]]`` (gathered by :func:`~.sampling.gather_prerotated`);
-    ``x`` (P, 2). Returns ``(out (K, 12): v, C, w, t, zeros where not solved; ok (K,): solved,
-    every entry finite)``, each rotation ``expm([v]x) R0[k]``."""
+    rows ``(w, t) = 0``, the identity with right-hand side zero: with ``tau`` zero and one
+    step, a global-shutter sample's correction, :func:`~.rig._held_solve`'s) on K problems
+    whose world points ``X[S[k]]`` (``X`` (P, 3), ``S`` (K, N)) are pre-rotated by ``R0[k]``
+    (K, 3, 3) here, at the times ``tau[S[k]]`` (``tau`` (P,) s) in the cameras ``cam[S[k]]``
+    (gathered by :func:`~.sampling.gather_prerotated`); ``x`` (P, 2). Returns ``(out (K,
+    12): v, C, w, t, zeros where not solved; ok (K,): solved, every entry finite)``, each
+    rotation ``expm([v]x) R0[k]``."""
     K, N = S.shape[0], S.shape[1]
     xs, Xp, ts = gather_prerotated(S, R0, x, X, tau)
     cs = np.empty((K, N), dtype=np.int64)

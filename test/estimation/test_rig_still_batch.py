@@ -4,7 +4,7 @@ correction) scored in NumPy (the ``"numpy"`` implementation's reprojection error
 cost): the same best model, cost, errors, inliers and missed cameras; and their termination
 after the first sample at which the samples drawn reach what the best model's inlier ratio
 asks for (``required_iterations``), against the same steps on the samples drawn. The held rig
-solver the batches correct with (``still_solve_rotated``) against the batched rig solver with
+solver the batches correct with (``solve_rotated`` held) against the batched rig solver with
 the same prior rows (``gr6p_1lin_batch``), bit for bit."""
 
 from dataclasses import replace
@@ -16,7 +16,7 @@ from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
 from rs_localizer.estimation.ransac import required_iterations
-from rs_localizer.estimation.rig_batch import search_batch, still_solve_rotated
+from rs_localizer.estimation.rig_batch import search_batch, solve_rotated
 from rs_localizer.estimation.sampling import batch_sampling, view_sampling
 from rs_localizer.estimation.view import StackedViews
 from rs_localizer.frames import Mounting
@@ -135,7 +135,7 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
 
 def test_the_held_still_solve_is_the_batched_solver_with_held_prior_rows():
     """The rig's compiled solve of a global-shutter rig frame's samples with the velocities
-    held at zero (``still_solve_rotated``, ``_held_solve``'s: ``tau`` zero, one step, prior
+    held at zero (``solve_rotated`` held, ``_held_solve``'s: ``tau`` zero, one step, prior
     rows the identity with right-hand side zero), its points gathered from the pool by sample
     and pre-rotated (here by the identity), gives the batched rig solver's v, C and validity
     with those prior rows (``gr6p_1lin_batch``) bit for bit: the RANSAC samples of a frame of
@@ -148,11 +148,11 @@ def test_the_held_still_solve_is_the_batched_solver_with_held_prior_rows():
     held = (np.broadcast_to(np.eye(6), (K, 6, 6)).copy(), np.zeros((K, 6)))
     ref = gr6p_1lin_batch(x[S], X[S], np.zeros((K, 6)), cam[S], Rm, cm, 1, prior_rows=held)
     Rg = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-    out, ok = still_solve_rotated(x, X, S, Rg, cam, Rm, cm)
+    out, ok = solve_rotated(x, X, S, Rg, np.zeros(len(X)), cam, Rm, cm, 1, True)
     assert not ok[5] and ok.sum() == K - 1
     np.testing.assert_array_equal(ok, ref.valid)
     np.testing.assert_array_equal(out[:, :3], ref.v)
-    np.testing.assert_array_equal(out[:, 3:], ref.C)
+    np.testing.assert_array_equal(out[:, 3:6], ref.C)
 
 
 def _moving_frame(seed, counts):
