@@ -19,24 +19,14 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
-from ..geometry import rotvec_to_matrix
+from ..geometry import moved, rotvec_to_matrix
 from .marginal import loose_inverse, marginal_information
 
-__all__ = ["CornerSolution", "RigCorners", "marginal", "moved"]
+__all__ = ["CornerSolution", "RigCorners", "marginal"]
 
 #: px, times the loss scale: the error given to a corner that no longer projects (it left its
 #: camera's field of view during the solve), so that the solve moves away from it
 UNPROJECTED_PENALTY = 1e3
-
-
-def moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel) -> tuple:
-    """Copies of the poses ``R`` (K, 3, 3), ``p`` (K, 3) m with the blocks ``sel`` moved by
-    the increments ``d`` (k, 6): rotation vector (rad) composed on the left, translation (m)
-    added (the parameters of :class:`RigCorners` and of the mountings' pose-level adjustment)."""
-    R, p = R.copy(), p.copy()
-    if len(d):
-        R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
-    return R, p
 
 
 def marginal(J, k: int) -> tuple:
