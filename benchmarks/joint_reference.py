@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.tagslam_data import RealRig, tag_corners
-from rs_localizer.calibration.corners import CornerSolution, RigCorners, moved
+from rs_localizer.calibration.corners import CornerSolution, RigCorners
+from rs_localizer.geometry import moved
 
 __all__ = [
     "CACHE",

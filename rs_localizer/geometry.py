@@ -17,6 +17,8 @@ Conventions (paper sec. 2):
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -28,6 +30,7 @@ __all__ = [
     "exact_camera_points",
     "invert",
     "matrix_to_rotvec",
+    "moved",
     "nearest_rotation",
     "reprojection_errors",
     "rotation_angle_deg",
@@ -147,6 +150,18 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
 def compose(R1: np.ndarray, C1: np.ndarray, R2: np.ndarray, C2: np.ndarray):
     """Pose composition ``(R1, C1) o (R2, C2)``: ``X -> R1 (R2 X + C2) + C1``. Returns (R, C)."""
     return R1 @ R2, R1 @ C2 + C1
+
+
+def moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel: Any = slice(None)) -> tuple:
+    """Copies of the poses ``R`` (K, 3, 3), ``p`` (K, 3) with the poses ``sel`` (all) moved by
+    the increments ``d`` (k, 6): a rotation vector (rad) composed on the left, a translation added
+    (the parameters of the rig's mountings' adjustments,
+    :class:`~rs_localizer.calibration.corners.RigCorners`; the marker map's output frame's
+    propagation, :mod:`~rs_localizer.mapping.marker_frame`)."""
+    R, p = R.copy(), p.copy()
+    if len(d):
+        R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
+    return R, p
 
 
 def invert(R: np.ndarray, C: np.ndarray):

@@ -19,28 +19,14 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csr_matrix, hstack, kron
 
-from ..geometry import rotvec_to_matrix
-from .marginal import marginal_information
+from ..geometry import moved, rotvec_to_matrix
+from .marginal import loose_inverse, marginal_information
 
-__all__ = ["CornerSolution", "RigCorners", "marginal", "moved"]
+__all__ = ["CornerSolution", "RigCorners", "marginal"]
 
 #: px, times the loss scale: the error given to a corner that no longer projects (it left its
 #: camera's field of view during the solve), so that the solve moves away from it
 UNPROJECTED_PENALTY = 1e3
-
-#: an eigenvalue of the mountings' information (:func:`marginal`) below this share of the
-#: largest is a direction the adjustment (the corners', the poses') does not constrain
-UNCONSTRAINED_RTOL = 1e-12
-
-
-def moved(R: np.ndarray, p: np.ndarray, d: np.ndarray, sel) -> tuple:
-    """Copies of the poses ``R`` (K, 3, 3), ``p`` (K, 3) m with the blocks ``sel`` moved by
-    the increments ``d`` (k, 6): rotation vector (rad) composed on the left, translation (m)
-    added (the parameters of :class:`RigCorners` and of the mountings' pose-level adjustment)."""
-    R, p = R.copy(), p.copy()
-    if len(d):
-        R[sel], p[sel] = rotvec_to_matrix(d[:, :3]) @ R[sel], p[sel] + d[:, 3:]
-    return R, p
 
 
 def marginal(J, k: int) -> tuple:
@@ -49,9 +35,9 @@ def marginal(J, k: int) -> tuple:
     (:func:`~rs_localizer.calibration.marginal.marginal_information`; where their block is
     singular, its dense pseudo-inverse): ``(S^+ (c, c), A (rows, c), loose)``, ``S^+`` the
     pseudo-inverse of their information ``S``, ``A`` each row's Jacobian on them with the rig
-    poses' part projected out, ``loose`` the parameters in a direction of ``S`` of eigenvalue
-    below :data:`UNCONSTRAINED_RTOL` of the largest (e.g. a mounting none of whose rows is
-    left): their variance is infinite, never the zero of the pseudo-inverse."""
+    poses' part projected out, ``loose`` the parameters ``S`` does not constrain
+    (:func:`~rs_localizer.calibration.marginal.loose_inverse`; e.g. a mounting none of whose
+    rows is left): their variance is infinite, never the zero of the pseudo-inverse."""
     J = csr_matrix(J)
     info = marginal_information(J, np.arange(k, J.shape[1]))
     if info is None:  # (a rig pose its rows do not fix)
@@ -59,11 +45,8 @@ def marginal(J, k: int) -> tuple:
         X = np.linalg.pinv(H[:k, :k], hermitian=True) @ H[:k, k:]
         info = H[k:, k:] - H[:k, k:].T @ X, X
     S, X = info
-    w, V = np.linalg.eigh(0.5 * (S + S.T))
-    null = w <= max(float(w[-1]) if len(w) else 0.0, 0.0) * UNCONSTRAINED_RTOL
-    Sinv = (V[:, ~null] / w[~null]) @ V[:, ~null].T
-    A = J[:, k:].toarray() - J[:, :k] @ X
-    return Sinv, A, np.flatnonzero(np.sum(V[:, null] ** 2, axis=1) > 1e-6)
+    Sinv, loose = loose_inverse(S)
+    return Sinv, J[:, k:].toarray() - J[:, :k] @ X, loose
 
 
 @dataclass

@@ -22,8 +22,8 @@ from ..camera import reference_stamp_ns
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting, base_pose
-from ..geometry import compose, matrix_to_rotvec, rotvec_to_matrix
-from .corners import CornerSolution, RigCorners, marginal, moved
+from ..geometry import compose, matrix_to_rotvec, moved, rotvec_to_matrix
+from .corners import CornerSolution, RigCorners, marginal
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",

@@ -70,6 +70,7 @@ import numpy as np
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..geometry import matrix_to_rotvec
+from .marginal import loose_inverse
 
 __all__ = [
     "ReadoutCalibration",
@@ -504,7 +505,7 @@ def _sandwich(J: np.ndarray, r: np.ndarray, lags: int = 2) -> np.ndarray:
     """Sandwich covariance (p, p) of the parameters of a fit with Jacobian ``J`` (n, 3, p) and
     residuals ``r`` (n, 3): Huber weights, Newey-West (Bartlett kernel over ``lags``: nearby
     samples share frames), inflated by ``n / (n - p)``. A direction the data do not determine
-    gets an infinite variance."""
+    gets an infinite variance (:func:`~rs_localizer.calibration.marginal.loose_inverse`)."""
     n, p = len(r), J.shape[2]
     wts = _huber_weights(r)
     u = wts[:, None] * np.einsum("nip,ni->np", J, r)  # score per sample
@@ -514,13 +515,10 @@ def _sandwich(J: np.ndarray, r: np.ndarray, lags: int = 2) -> np.ndarray:
         G = u[lag:].T @ u[:-lag]
         V += (1.0 - lag / (lags + 1.0)) * (G + G.T)
     V *= n / max(n - p, 1)
-    ev, Q = np.linalg.eigh(A)
-    ok = ev > 1e-12 * max(float(ev.max()), 1e-300)
-    cov = (Q[:, ok] / ev[ok]) @ Q[:, ok].T @ V @ (Q[:, ok] / ev[ok]) @ Q[:, ok].T
+    Ainv, loose = loose_inverse(A)
+    cov = Ainv @ V @ Ainv
     # the undetermined directions: infinite variance on every parameter they touch
-    bad = np.any(np.abs(Q[:, ~ok]) > 1e-6, axis=1)
-    cov[bad, :] = np.inf
-    cov[:, bad] = np.inf
+    cov[loose, :] = cov[:, loose] = np.inf
     return cov
 
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, moved
 from .marker_covariance import corner_shape_std, covariance_in_gauge
 from .marker_model import MappingOptions, OutputFrame, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
@@ -18,12 +18,9 @@ from .marker_problem import MarkerProblem
 
 def _pose_vector_map(poses: dict, ids: list, x: np.ndarray) -> dict:
     """Marker poses with the perturbation ``x`` (6 per id: rotation vector, world axes left;
-    centre) applied."""
-    out = dict(poses)
-    for i, m in enumerate(ids):
-        R, p = poses[m]
-        out[m] = (rotvec_to_matrix(x[6 * i : 6 * i + 3]) @ R, p + x[6 * i + 3 : 6 * i + 6])
-    return out
+    centre) applied (:func:`~rs_localizer.geometry.moved`)."""
+    R, p = moved(*(np.array([poses[m][i] for m in ids]) for i in (0, 1)), x.reshape(-1, 6))
+    return {**poses, **dict(zip(ids, zip(R, p, strict=True), strict=True))}
 
 
 #: a marker whose normal lies within this angle of horizontal hangs on a wall (rad); within
