@@ -426,7 +426,7 @@ class CameraValues(NamedTuple):
     jacobian: tuple | None
 
 
-#: the cameras' values of :func:`camera_values`: (id,) -> ((camera,), values)
+#: the cameras' values of :func:`camera_values`: (0, id) -> ((camera,), values)
 _CAMERA_VALUES: dict = {}
 
 
@@ -448,12 +448,12 @@ def camera_values(camera: CameraModel) -> CameraValues:
     )
 
 
-def kept_per_objects(cache: dict, objects: tuple, build: Callable[[], T]) -> T:
-    """``build()`` kept in ``cache`` per tuple of ``objects``: by their ids, returned again
-    only for the same objects (frozen ones that many frames share: a camera, a rig's
-    mountings, :func:`camera_values` and :class:`~.view.StackedViews`); at most 64 kept, the
-    cache emptied when full."""
-    key = tuple(map(id, objects))
+def kept_per_objects(cache: dict, objects: tuple, build: Callable[[], T], tag: int = 0) -> T:
+    """``build()`` kept in ``cache`` per tuple of ``objects`` and ``tag``: by their ids,
+    returned again only for the same objects (frozen ones that many frames share: a camera, a
+    rig's mountings, :func:`camera_values` and :class:`~.view.StackedViews`; a view, at its
+    index ``tag`` in a rig frame); at most 64 kept, the cache emptied when full."""
+    key = (tag, *map(id, objects))
     hit = cache.get(key)
     if hit is not None and all(map(operator.is_, hit[0], objects)):
         return hit[1]

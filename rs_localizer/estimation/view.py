@@ -123,12 +123,8 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
         )  # fmt: skip
     except ValueError as e:
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
-    stamp, spr = float(v.stamp_offset), camera_values(v.camera).spr
-    if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.empty(len(fr.x))
-        tau.fill(stamp + 0.0)
-    else:
-        tau = stamp + (fr.r - fr.r0) * spr
+    # (a global shutter, spr 0: every point at the stamp)
+    tau = float(v.stamp_offset) + (fr.r - fr.r0) * camera_values(v.camera).spr
     if len(fr.W):
         A = fr.W * fr.f
     else:
@@ -137,7 +133,7 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
     return Rm, cm.reshape(3), mc, fr, tau, A
 
 
-#: the mountings' stacks of :class:`StackedViews`: (ids,) -> (mountings, (R (M, 3, 3), c (M, 3)))
+#: the mountings' stacks of :class:`StackedViews`: (0, ids) -> (mountings, (R (M, 3, 3), c (M, 3)))
 _MOUNTING_STACKS: dict = {}
 
 
@@ -197,19 +193,16 @@ class StackedViews:
         max_norm: float = EstimateOptions().plausibility.max_point_norm,
     ):
         self.compiled = bool(compiled)
-        # ``cache``: id(view) -> (view, its index, its checked and normalized part), shared by
-        # the stacks of one frame (a rig's consensus solves again on some of its cameras:
+        # ``cache``: each view's checked and normalized part per view object and index, shared
+        # by the stacks of one frame (a rig's consensus solves again on some of its cameras:
         # their views are the same objects, checked and undistorted once)
         cache = {} if cache is None else cache
-        parts = []
-        for c, v in enumerate(views):
-            hit = cache.get(id(v))
-            if hit is not None and hit[0] is v and hit[1] == c:
-                parts.append(hit[2])
-                continue
-            part = _view_part(c, v, self.compiled, max_norm)
-            cache[id(v)] = (v, c, part)
-            parts.append(part)
+        parts = [
+            kept_per_objects(
+                cache, (v,), functools.partial(_view_part, c, v, self.compiled, max_norm), c
+            )
+            for c, v in enumerate(views)
+        ]
         # (the mountings stacked, kept per tuple of mounting objects: frozen, a rig's frames
         # share them; read only, as every stack's)
         self.R_mount, self.c_mount = kept_per_objects(
