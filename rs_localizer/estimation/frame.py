@@ -5,7 +5,9 @@ normalized (:func:`prepare_frame`), then checked and configured for its solver
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+import operator
+from collections.abc import Callable
+from typing import NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -21,7 +23,7 @@ from .plausibility import (
     plausible_motion,
 )
 from .prior import MotionPrior
-from .refine import KernelMountings, Mountings, exact_errors, kernel_mountings_of
+from .refine import KernelMountings, Mountings, exact_errors
 from .result import (
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
@@ -31,6 +33,8 @@ from .result import (
 from .sampling import valid_rows
 from .scoring import exact_errors2_numpy, msac_evaluate
 
+T = TypeVar("T")
+
 __all__ = [
     "SCORE_AT_MEASURED_TIME",
     "CameraValues",
@@ -39,6 +43,7 @@ __all__ = [
     "camera_values",
     "configure_frame",
     "correspondences",
+    "kept_per_objects",
     "kernel_ready",
     "normalized_rows",
     "prepare_frame",
@@ -213,19 +218,6 @@ class Frame:
     def plain_mountings(self) -> Mountings | None:
         """:meth:`mountings` of every point (:attr:`RefinementView.plain_mountings`)."""
         return self.mountings()
-
-    def kernel_mountings(self) -> KernelMountings | None:
-        """:meth:`mountings` of every point in the refinement kernel's form, as
-        :func:`~.refine.kernel_mountings` checks and converts them (the same arrays' values),
-        built directly (:func:`~.refine.kernel_mountings_of`; a frame refined several times:
-        :mod:`.single_tag`); None as there."""
-        if not len(self.W) or not self.compiled:
-            return None
-        n = len(self.W)
-        scale = np.ascontiguousarray(self.W, dtype=np.float64)
-        return kernel_mountings_of(
-            np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), scale
-        )
 
     def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time
@@ -410,9 +402,9 @@ def normalized_rows(x: np.ndarray, r: np.ndarray) -> np.ndarray | None:
 
 def kernel_ready(a: np.ndarray) -> bool:
     """Whether ``a`` is a C-contiguous, writeable float64 or bool array: the array type the
-    small kernels of a frame's preparation (:func:`valid_correspondences`) and of a rig's
-    stacked views (:mod:`~.view`) are compiled for and warmed up with (another layout or a
-    read-only array would compile another specialization during a frame)."""
+    small kernels of a frame's preparation (:func:`valid_correspondences`) are compiled for
+    and warmed up with (another layout or a read-only array would compile another
+    specialization during a frame)."""
     f = a.flags
     return bool(f.c_contiguous and f.writeable and a.dtype in (np.float64, np.bool_))
 
@@ -434,28 +426,41 @@ class CameraValues(NamedTuple):
     jacobian: tuple | None
 
 
-#: the cameras' values of :func:`camera_values`: id -> (camera, values)
+#: the cameras' values of :func:`camera_values`: (0, id) -> ((camera,), values)
 _CAMERA_VALUES: dict = {}
 
 
 def camera_values(camera: CameraModel) -> CameraValues:
-    """The camera's :class:`CameraValues`, kept per camera object (a frozen dataclass that a
-    camera's frames and a rig's frames share: its properties cost as much as a frame's
-    arrays)."""
-    hit = _CAMERA_VALUES.get(id(camera))
-    if hit is not None and hit[0] is camera:
-        return hit[1]
-    out = CameraValues(
-        camera.r0,
-        camera.mean_focal,
-        varying_pixel_jacobian(camera),
-        READOUT_DIRECTIONS[camera.readout][2],
-        camera.seconds_per_unit_r,
-        camera.jacobian_arguments,
+    """The camera's :class:`CameraValues`, kept per camera object (:func:`kept_per_objects`: a
+    frozen dataclass that a camera's frames and a rig's frames share; its properties cost as
+    much as a frame's arrays)."""
+    return kept_per_objects(
+        _CAMERA_VALUES,
+        (camera,),
+        lambda: CameraValues(
+            camera.r0,
+            camera.mean_focal,
+            varying_pixel_jacobian(camera),
+            READOUT_DIRECTIONS[camera.readout][2],
+            camera.seconds_per_unit_r,
+            camera.jacobian_arguments,
+        ),
     )
-    if len(_CAMERA_VALUES) >= 64:
-        _CAMERA_VALUES.clear()
-    _CAMERA_VALUES[id(camera)] = (camera, out)
+
+
+def kept_per_objects(cache: dict, objects: tuple, build: Callable[[], T], tag: int = 0) -> T:
+    """``build()`` kept in ``cache`` per tuple of ``objects`` and ``tag``: by their ids,
+    returned again only for the same objects (frozen ones that many frames share: a camera, a
+    rig's mountings, :func:`camera_values` and :class:`~.view.StackedViews`; a view, at its
+    index ``tag`` in a rig frame); at most 64 kept, the cache emptied when full."""
+    key = (tag, *map(id, objects))
+    hit = cache.get(key)
+    if hit is not None and all(map(operator.is_, hit[0], objects)):
+        return hit[1]
+    out = build()
+    if len(cache) >= 64:
+        cache.clear()
+    cache[key] = (objects, out)
     return out
 
 

@@ -183,28 +183,6 @@ def kernel_mountings(mountings: Mountings, n: int) -> KernelMountings:
     return KernelMountings(int(n), _checked_mountings(mountings, int(n)))
 
 
-def kernel_mountings_of(
-    cam: np.ndarray, R_mount: np.ndarray, c_mount: np.ndarray, scale: np.ndarray
-) -> KernelMountings:
-    """The :class:`KernelMountings` of observations whose arrays are consistent (``cam`` (n,)
-    indices in range of ``R_mount`` (M, 3, 3) and ``c_mount`` (M, 3), ``scale`` (n, 4)
-    row-major 2x2 matrices): the arrays themselves when they are in the kernel's form
-    (int64 indices, a C-contiguous float64 ``scale``), without checking them again (a
-    camera's frame, a rig frame's stacked cameras: built once, refined several times); else
-    checked and converted by :func:`kernel_mountings`."""
-    f = np.float64
-    n = len(cam)
-    if (
-        cam.dtype == np.int64
-        and scale.dtype == f
-        and scale.flags.c_contiguous
-        and scale.shape == (n, 4)
-    ):
-        Rm, cm = np.ascontiguousarray(R_mount, f), np.ascontiguousarray(c_mount, f)
-        return KernelMountings(n, (np.ascontiguousarray(cam), Rm, cm, scale))
-    return kernel_mountings(Mountings(cam, R_mount, c_mount, np.reshape(scale, (-1, 2, 2))), n)
-
-
 def _scale_matrices(mountings: Mountings) -> np.ndarray:
     """(N, 2, 2) each observation's :attr:`Mountings.scale` as a matrix."""
     s = np.asarray(mountings.scale, dtype=np.float64)

@@ -363,7 +363,7 @@ def _fit_starts(rv, tv, X, x, tau, W, R, C, H, sse):
     :func:`_rodrigues`, translation ``tv[j]`` (3,) m, as OpenCV gives them) refined on the
     (N, 3) world points ``X``, (N, 2) normalized points ``x`` and (N,) times ``tau``, each
     point's error whitened by ``W`` (N, 4) (:attr:`~.frame.Frame.W`, the refinement's
-    mountings as :meth:`~.frame.Frame.kernel_mountings` gives them; (0, 4): the plain
+    mountings as :meth:`~.frame.Frame.mountings` gives them; (0, 4): the plain
     errors), by the compiled refinement (:func:`~.refine.refine_rs_pose`'s kernel: the pose
     alone, least squares (:data:`_LEAST_SQUARES`), every point, at most
     :data:`_FIT_ITERATIONS` iterations to :data:`_FIT_TOL`). Writes its rotation into

@@ -14,21 +14,19 @@ from __future__ import annotations
 import copy
 import functools
 import math
-import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._jit import kernel
 from ..camera import CameraModel
 from ..frames import Mounting
 from ..pose import RSModel
 from .degeneracy import coplanar
-from .frame import Frame, camera_values, kernel_ready, prepare_frame
+from .frame import Frame, camera_values, kept_per_objects, prepare_frame
 from .numpy_impl import errors2
 from .options import EstimateOptions
-from .refine import KernelMountings, Mountings, kernel_mountings_of
+from .refine import KernelMountings, Mountings, kernel_mountings
 from .result import camera_model_of_rig
 from .sampling import batch_samples, draw_samples_numpy, view_sampling
 from .scoring import best_msac
@@ -125,12 +123,8 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
         )  # fmt: skip
     except ValueError as e:
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: {e}") from None
-    stamp, spr = float(v.stamp_offset), camera_values(v.camera).spr
-    if spr == 0.0:  # (a global shutter: every point at the stamp)
-        tau = np.empty(len(fr.x))
-        tau.fill(stamp + 0.0)
-    else:
-        tau = stamp + (fr.r - fr.r0) * spr
+    # (a global shutter, spr 0: every point at the stamp)
+    tau = float(v.stamp_offset) + (fr.r - fr.r0) * camera_values(v.camera).spr
     if len(fr.W):
         A = fr.W * fr.f
     else:
@@ -139,35 +133,8 @@ def _view_part(c: int, v: View, compiled: bool, max_norm: float) -> tuple:
     return Rm, cm.reshape(3), mc, fr, tau, A
 
 
-@kernel
-def _selected_per_camera(mask, cam, M):
-    """(M,) int64: the number of True entries of ``mask`` (N,) per camera index ``cam``."""
-    out = np.zeros(M, dtype=np.int64)
-    for i in range(len(mask)):
-        if mask[i]:
-            out[cam[i]] += 1
-    return out
-
-
-#: the mountings' stacks of :func:`_mounting_stacks`: ids -> (mountings, R (M, 3, 3), c (M, 3))
+#: the mountings' stacks of :class:`StackedViews`: (0, ids) -> (mountings, (R (M, 3, 3), c (M, 3)))
 _MOUNTING_STACKS: dict = {}
-
-
-def _mounting_stacks(views: Sequence[View], parts: list) -> tuple[np.ndarray, np.ndarray]:
-    """``(R (M, 3, 3), c (M, 3))``: the mountings of the views' checked ``parts``
-    (:func:`_view_part`) stacked, kept per tuple of mounting objects (frozen: a rig's frames
-    share them; read only, as every stack's)."""
-    mountings = tuple([v.mounting for v in views])
-    key = tuple(map(id, mountings))
-    hit = _MOUNTING_STACKS.get(key)
-    if hit is not None and all(map(operator.is_, hit[0], mountings)):
-        return hit[1], hit[2]
-    R = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
-    c = np.array([q[1] for q in parts]).reshape(-1, 3)
-    if len(_MOUNTING_STACKS) >= 64:
-        _MOUNTING_STACKS.clear()
-    _MOUNTING_STACKS[key] = (mountings, R, c)
-    return R, c
 
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
@@ -226,20 +193,24 @@ class StackedViews:
         max_norm: float = EstimateOptions().plausibility.max_point_norm,
     ):
         self.compiled = bool(compiled)
-        # ``cache``: id(view) -> (view, its index, its checked and normalized part), shared by
-        # the stacks of one frame (a rig's consensus solves again on some of its cameras:
+        # ``cache``: each view's checked and normalized part per view object and index, shared
+        # by the stacks of one frame (a rig's consensus solves again on some of its cameras:
         # their views are the same objects, checked and undistorted once)
         cache = {} if cache is None else cache
-        parts = []
-        for c, v in enumerate(views):
-            hit = cache.get(id(v))
-            if hit is not None and hit[0] is v and hit[1] == c:
-                parts.append(hit[2])
-                continue
-            part = _view_part(c, v, self.compiled, max_norm)
-            cache[id(v)] = (v, c, part)
-            parts.append(part)
-        self.R_mount, self.c_mount = _mounting_stacks(views, parts)
+        parts = [
+            kept_per_objects(
+                cache, (v,), functools.partial(_view_part, c, v, self.compiled, max_norm), c
+            )
+            for c, v in enumerate(views)
+        ]
+        # (the mountings stacked, kept per tuple of mounting objects: frozen, a rig's frames
+        # share them; read only, as every stack's)
+        self.R_mount, self.c_mount = kept_per_objects(
+            _MOUNTING_STACKS,
+            tuple([v.mounting for v in views]),
+            lambda: (np.array([q[0] for q in parts]).reshape(-1, 3, 3),
+                     np.array([q[1] for q in parts]).reshape(-1, 3)),
+        )  # fmt: skip
         self.mount_cov = [q[2] for q in parts]
         #: each camera's time offset std (s, its mounting's ``time_offset_std``)
         self.time_std = [v.mounting.time_offset_std for v in views]
@@ -317,10 +288,10 @@ class StackedViews:
 
     @functools.cached_property
     def compiled_mountings(self) -> KernelMountings:
-        """:attr:`plain_mountings` in the refinement kernel's form
-        (:func:`~.refine.kernel_mountings_of`: the stack's own arrays, consistent by
-        construction): every refinement and the covariance of a frame take it."""
-        return kernel_mountings_of(self.cam, self.R_mount, self.c_mount, self.A)
+        """:attr:`plain_mountings` checked and converted once into the refinement kernel's
+        form (:func:`~.refine.kernel_mountings`, as a camera's refinement converts its
+        frame's): every refinement and the covariance of a frame take it."""
+        return kernel_mountings(self.plain_mountings, len(self.cam))
 
     @functools.cached_property
     def kernel_arrays(self) -> tuple:
@@ -385,14 +356,11 @@ class StackedViews:
         return tuple(fr.input_mask(mask[s]) for fr, s in zip(self.frames, self.slices, strict=True))
 
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
-        """(M,) number of the stack's points (``mask``: of those selected) per view."""
+        """(M,) number of the stack's points (``mask`` (N,) bool: of those selected) per view
+        (:func:`numpy.bincount` of their views, as :func:`~.sampling.view_sampling` counts)."""
         if mask is None:
             return self._sizes_valid
-        if len(self.slices) == 1 and len(mask) == len(self.cam):  # (one view: all its points)
-            return (int(np.count_nonzero(mask)),)
-        if not self.compiled or mask.dtype != np.bool_ or not kernel_ready(mask):
-            return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
-        return tuple(_selected_per_camera(mask, self.cam, len(self.slices)).tolist())
+        return tuple(np.bincount(self.cam[mask], minlength=len(self.slices)).tolist())
 
     def view_planar(self, c: int) -> bool:
         """View c's points are coplanar (:func:`~.degeneracy.coplanar`)."""

@@ -314,6 +314,29 @@ def test_a_rig_frame_takes_its_own_mountings_when_they_change():
     np.testing.assert_array_equal(StackedViews(views).R_mount, np.stack(R_m[:2]))
 
 
+def test_a_frame_s_stacks_share_each_view_s_part_at_its_index():
+    """The stacks of one frame (one ``cache``) prepare a view once per index: the same view
+    object at the same index takes the kept part, at another index its own (the errors name
+    the camera by its index); each stack counts a mask's points per view."""
+    rng = np.random.default_rng(23)
+    cams, R_m, c_m, stamps = make_rig(rng, 3)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [30, 25, 20], rig_truth(rng))
+    cache: dict = {}
+    full = StackedViews(views, cache=cache)
+    again = StackedViews(views, cache=cache)
+    assert all(a is b for a, b in zip(full.frames, again.frames, strict=True))
+    alone = StackedViews(views[1:2], cache=cache)  # (camera 1 at index 0)
+    assert alone.frames[0] is not full.frames[1]
+    np.testing.assert_array_equal(alone.x, full.x[full.slices[1]])
+    np.testing.assert_array_equal(alone.tau, full.tau[full.slices[1]])
+    mask = rng.random(len(full.cam)) < 0.5
+    want = tuple(int(np.count_nonzero(mask[s])) for s in full.slices)
+    assert full.counts(mask) == want and full.counts() == (30, 25, 20)
+    assert alone.counts(mask[full.slices[1]]) == (want[1],)
+    twice = full.repeated([2, 1, 3])
+    assert twice.counts(np.ones(len(twice.cam), dtype=bool)) == (60, 25, 60)
+
+
 def test_a_camera_without_mounting_is_named():
     rng = np.random.default_rng(13)
     cams, R_m, c_m, stamps = make_rig(rng, 2)

@@ -425,7 +425,7 @@ def test_the_fits_kernel_is_opencvs_rotation_and_the_refinement_of_each_start():
                 np.empty(k),
             )
             kept = _fit_starts(rv, tv, fr.X, fr.x, tau, fr.W, Rk, Ck, Hk, sse)
-            mountings = fr.kernel_mountings()
+            mountings = fr.mountings()
             kinds.add(mountings is None)
             for j in range(k):
                 start = (cv2.Rodrigues(rv[j])[0], tv[j], z, z)
