@@ -1019,6 +1019,73 @@ def test_two_cameras_a_little_apart_widen_the_covariance_by_their_disagreement()
     assert inside >= 0.9 * ties, (inside, ties)
 
 
+def _still_rig(rng, line_delay, off_deg=(0.0, 0.0), stamp_offset=0.0):
+    """Two rolling-shutter cameras of ``line_delay`` s per line, 70 and 40 correspondences of
+    a rig at rest (30 % outliers, 0.1 px noise), the first camera's mounting off by
+    ``off_deg`` (uniform, deg) that nothing states: the views and their cameras."""
+    cams = tuple(replace(c, camera=replace(c.camera, line_delay=line_delay),
+                         stamp_offset=stamp_offset)
+                 for c in sim_rig.make_rig(2, rng).cameras)  # fmt: skip
+    axis = rng.normal(size=3)
+    off = np.deg2rad(rng.uniform(*off_deg)) * axis / np.linalg.norm(axis)
+    m0 = cams[0].mounting
+    actual = (replace(cams[0], mounting=Mounting(m0.R @ rotvec_to_matrix(off), m0.c)), cams[1])
+    frame = sim_rig.rig_frame(sim_rig.Rig(actual), sim_rig.rig_motion(rng, 0.0, 0.0), [70, 40],
+                              rng, 0.3, 0.1)  # fmt: skip
+    return [replace(v, mounting=c.mounting) for v, c in zip(frame.views, cams, strict=True)]
+
+
+def test_a_widened_still_rig_frame_keeps_its_measured_twist_covariance():
+    """Two rolling-shutter cameras of a nanosecond readout at rest, one mounted 0.6-1.0 deg
+    off: the rig frame shows no motion and is posed on the global-shutter model with the
+    twist covariance of its rolling-shutter fit. Where the cameras' disagreement widens the
+    pose's covariance (the test above), the twist covariance and the velocity block of the
+    (12, 12) covariance stay the fit's (exactly those of the estimate before widening), never
+    None or zeros: the velocities were held, not measured to be exact."""
+    rng = np.random.default_rng(11)
+    widened = 0
+    for _ in range(12):
+        views = _still_rig(rng, 1e-9, (0.6, 1.0))
+        one = estimate_rig_pose(views, RIG_OPTIONS, consensus=False)
+        est = estimate_rig_pose(views, RIG_OPTIONS)
+        if not est.success or est.motion_model != "global_shutter" or est.disagreeing:
+            continue
+        assert one.twist_covariance is not None and np.all(np.diag(one.twist_covariance) > 0)
+        if np.array_equal(est.covariance[:6, :6], one.covariance[:6, :6]):
+            continue  # (the cameras agree: nothing widened)
+        widened += 1
+        assert np.all(np.diag(est.covariance[:6, :6]) >= np.diag(one.covariance[:6, :6]))
+        np.testing.assert_array_equal(est.twist_covariance, one.twist_covariance)
+        np.testing.assert_array_equal(est.covariance[6:, 6:], one.covariance[6:, 6:])
+        np.testing.assert_array_equal(est.covariance[:6, 6:], 0.0)
+    assert widened >= 3, widened
+
+
+def test_a_still_cameras_estimate_as_its_bodys_keeps_its_measured_twist_covariance():
+    """A rolling-shutter camera of a nanosecond readout at rest, mounted on a rig 4 ms off its
+    stamp, posed as its body (``estimate_rs_pose(..., view=)``): the frame shows no motion and
+    is posed on the global-shutter model; the body's twist covariance is the camera's (its
+    rolling-shutter fit's) carried to the body
+    (:func:`~rs_localizer.frames.base_twist_covariance`), in ``twist_covariance`` and in the
+    velocity block of ``covariance``, never zeros."""
+    from rs_localizer.estimation import estimate_rs_pose
+    from rs_localizer.frames import base_twist_covariance
+
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        v = _still_rig(rng, 1e-9, stamp_offset=0.004)[1]
+        own = estimate_rs_pose(v.uv, v.X, v.camera, options=RIG_OPTIONS)
+        est = estimate_rs_pose(v.uv, v.X, v.camera, options=RIG_OPTIONS, view=v)
+        assert own.success and own.motion_model == est.motion_model == "global_shutter"
+        assert np.all(np.diag(own.twist_covariance) > 0)
+        want = base_twist_covariance(own.twist_covariance, v.mounting)
+        np.testing.assert_allclose(est.twist_covariance, want, rtol=1e-12)
+        idx = np.r_[3:6, 0:3]  # (ROS (v, omega) -> the covariance's (omega, v))
+        np.testing.assert_array_equal(
+            est.covariance[6:, 6:], est.twist_covariance[np.ix_(idx, idx)]
+        )
+
+
 def test_a_mixed_rig_of_global_and_rolling_shutter_cameras():
     """A rig of a global-shutter camera (line delay 0: each of its points at its stamp) and two
     rolling-shutter ones, 3 x 80 correspondences, 20 % outliers, turning at 1.5 rad/s and
