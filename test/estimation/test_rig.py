@@ -712,7 +712,11 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
     """Two cameras (60 and 300 points), the one with 300 mounted 5 deg off: neither the number
     of cameras nor points tells which is right: ``cameras_disagree`` (both named), no pose;
     a prediction near the truth decides for the right camera, one near the wrong pose for the
-    other; right mountings: posed as without the consensus."""
+    other; right mountings: posed as without the consensus. A refusal reports no fit (no
+    ``initial_explained`` of an initial model given, no ``planarity``), as every failure."""
+    from rs_localizer.estimation import InitialModel
+
+    refused = 0
     for views, truth in _frames_with_a_wrong_mounting([60, 300], 5.0, n=3):
         est = estimate_rig_pose(views)
         assert not est.success and est.failure == "cameras_disagree"
@@ -724,6 +728,16 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
         wrong = estimate_rig_pose(views, consensus=False)
         est = estimate_rig_pose(views, prediction=wrong.model)
         assert est.success and est.disagreeing == (0,)
+        # (a failure reports no fit: nor the points a given initial model explained)
+        off = rotvec_to_matrix(np.radians([20.0, 0.0, 0.0])) @ truth.R  # (explains none)
+        guess = InitialModel((off, truth.C, truth.w, truth.t), 30.0, 40)
+        est = estimate_rig_pose(views, initial_model=guess)
+        # (an initial model changes the seeded draws: some frames are posed by one camera)
+        if est.failure == "cameras_disagree":
+            refused += 1
+            assert est.initial_explained == -1 and not est.planar
+            assert np.isnan(est.planarity) and np.isnan(est.condition_number)
+    assert refused >= 1
     for views, _ in _frames_with_a_wrong_mounting([60, 300], 0.0, n=2):
         a, b = estimate_rig_pose(views), estimate_rig_pose(views, consensus=False)
         assert a.success and a.disagreeing == () and np.array_equal(a.model.R, b.model.R)
