@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..camera import CameraModel
-from ..frames import Mounting
+from ..frames import Mounting, base_twist_covariance
 from ..geometry import rotvec_to_matrix, skew
 from ..pose import (
     PoseWithCovariance,
@@ -264,7 +264,9 @@ class RSPoseEstimate(PoseWithCovariance):
             expm([delta]x) R_0``; rad, m, and the velocities in the units of ``model``), what
             ``covariance`` is converted from, or ``None`` (no refinement, or a singular
             information matrix). A global-shutter estimate's velocity rows and columns are its
-            rolling-shutter fit's, or zero where the frame was taken at one time.
+            rolling-shutter fit's, or zero where the frame was taken at one time or posed by
+            the global-shutter fallback (:func:`~.finalize.still_fallback`, whose fit's
+            velocities are in ``twist_covariance`` and ``covariance`` alone).
         gyro_chi2: chi-square (3 dof) of the gyro measurement against the angular velocity the
             image alone gives near the aided estimate
             (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; ``inf`` when the image
@@ -341,7 +343,11 @@ class RSPoseEstimate(PoseWithCovariance):
         return frozen_instance(type(self), {n: d[n] for n in _FIELD_NAMES} | changes)
 
     def _with_model_covariance(
-        self, cov: np.ndarray | None, seconds_per_unit: float = 1.0, **changes
+        self,
+        cov: np.ndarray | None,
+        seconds_per_unit: float = 1.0,
+        mounting: Mounting | None = None,
+        **changes,
     ) -> RSPoseEstimate:
         """This estimate with the fields ``changes`` (by name; ``model`` among them, if it
         changes) and the (12, 12) covariance ``cov`` over that model's ``(delta, C, w, t)``,
@@ -349,14 +355,42 @@ class RSPoseEstimate(PoseWithCovariance):
         (:func:`output_covariance` at ``seconds_per_unit`` s per unit of the model's time; a
         twist covariance only where this estimate has one): a camera's estimate as its
         body's (:func:`body_estimate`), a rig's covariance widened by its cameras'
-        disagreement (:func:`~.rig.estimate_rig_pose`)."""
+        disagreement (:func:`~.rig.estimate_rig_pose`).
+
+        A global-shutter estimate of a frame that shows no motion, posed by the global-shutter
+        fallback (:func:`~.finalize.still_fallback`), holds its velocities at zero (``cov``'s
+        velocity rows and columns zero, or ``seconds_per_unit`` 0) but carries the twist
+        covariance its rolling-shutter fit measured (:func:`~.finalize.unobserved_twist`):
+        it keeps that one, in ``twist_covariance`` and in the velocity block of
+        ``covariance``, never the zeros (or None) of velocities that were held. As it is
+        (``mounting`` None: the model's velocities neither widened nor moved, as where only
+        the pose is widened), or in the frame of the body the camera is mounted on with
+        ``mounting`` (:func:`~rs_localizer.frames.base_twist_covariance`, exact at zero
+        velocities). Such an estimate whose ``cov`` is None keeps its twist covariance too.
+
+        Raises:
+            ValueError: a measured twist covariance that is not (6, 6) (``mounting`` given).
+        """
         out = (None, None, None)
         if cov is not None:
             R, C, w, _ = changes.get("model", self.model)
             out = output_covariance(cov, R, C, w, seconds_per_unit, self.implementation != NUMPY)
+        twist = out[2] if self.twist_covariance is not None else None
+        held = self.twist_covariance is not None and (
+            cov is None or seconds_per_unit <= 0 or not np.any(cov[6:, 6:])
+        )
+        full = out[0]
+        if held:  # (the fit's measured twist, not the held velocities' zeros)
+            twist = self.twist_covariance
+            if mounting is not None:
+                twist = base_twist_covariance(twist, mounting)
+            if full is not None:
+                full = np.array(full, dtype=float)
+                idx = np.r_[3:6, 0:3]  # (ROS (v, omega) -> the covariance's (omega, v))
+                full[6:, 6:] = twist[np.ix_(idx, idx)]
         return self._replaced(
-            model_covariance=cov, covariance=out[0], pose_covariance=out[1],
-            twist_covariance=out[2] if self.twist_covariance is not None else None, **changes,
+            model_covariance=cov, covariance=full, pose_covariance=out[1],
+            twist_covariance=twist, **changes,
         )  # fmt: skip
 
 
@@ -682,7 +716,9 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
     stamp offset: ``w``, ``t`` per second), ``pose`` its :class:`~rs_localizer.pose.RSPose`
     (one second per unit), ``model_covariance`` mapped to first order
     (:func:`rig_model_jacobian`) and the output covariances of it
-    (:func:`output_covariance`; the twist's where ``est`` has one); every other field,
+    (:func:`output_covariance`; the twist's where ``est`` has one, the measured twist of a
+    global-shutter fallback's held velocities carried to the body:
+    :meth:`RSPoseEstimate._with_model_covariance`); every other field,
     among them the inliers and the per-view fields of the view, ``est``'s own. The
     ``acceleration_sensitivity`` (in the camera's frame) is not carried: None. A failed
     estimate is returned as it is (the identity and zeros are every failure's).
@@ -697,6 +733,6 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
         cov = J @ est.model_covariance @ J.T
     compiled = est.implementation != NUMPY
     return est._with_model_covariance(
-        cov, 1.0, model=model, pose=RSPose.from_model(model, 1.0, compiled=compiled),
+        cov, 1.0, m, model=model, pose=RSPose.from_model(model, 1.0, compiled=compiled),
         acceleration_sensitivity=None,
     )  # fmt: skip

@@ -612,11 +612,14 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with ``est``'s per camera
-    counts (:func:`_restored` with no inlier in any view)."""
+    counts (:func:`_restored` with no inlier in any view). What describes a fit reports as
+    every failure does (:class:`~.result.RSPoseEstimate`): no ``initial_explained`` (-1),
+    ``planarity`` and ``condition_number`` NaN, not ``planar``."""
     identity = RSModel.identity()
     return _restored(
         est, pool, range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
         model=identity, num_inliers_per_view=est.num_inliers_per_view, rmse_px=np.nan,
+        initial_explained=-1, planarity=np.nan, planar=False, condition_number=np.nan,
         num_behind=0, num_dropped=est.num_dropped - est.num_behind, covariance=None,
         model_covariance=None, acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
         pose=RSPose.from_model(identity, 1.0), pose_covariance=None, twist_covariance=None,

@@ -735,7 +735,11 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
     """Two cameras (60 and 300 points), the one with 300 mounted 5 deg off: neither the number
     of cameras nor points tells which is right: ``cameras_disagree`` (both named), no pose;
     a prediction near the truth decides for the right camera, one near the wrong pose for the
-    other; right mountings: posed as without the consensus."""
+    other; right mountings: posed as without the consensus. A refusal reports no fit (no
+    ``initial_explained`` of an initial model given, no ``planarity``), as every failure."""
+    from rs_localizer.estimation import InitialModel
+
+    refused = 0
     for views, truth in _frames_with_a_wrong_mounting([60, 300], 5.0, n=3):
         est = estimate_rig_pose(views)
         assert not est.success and est.failure == "cameras_disagree"
@@ -747,6 +751,16 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
         wrong = estimate_rig_pose(views, consensus=False)
         est = estimate_rig_pose(views, prediction=wrong.model)
         assert est.success and est.disagreeing == (0,)
+        # (a failure reports no fit: nor the points a given initial model explained)
+        off = rotvec_to_matrix(np.radians([20.0, 0.0, 0.0])) @ truth.R  # (explains none)
+        guess = InitialModel((off, truth.C, truth.w, truth.t), 30.0, 40)
+        est = estimate_rig_pose(views, initial_model=guess)
+        # (an initial model changes the seeded draws: some frames are posed by one camera)
+        if est.failure == "cameras_disagree":
+            refused += 1
+            assert est.initial_explained == -1 and not est.planar
+            assert np.isnan(est.planarity) and np.isnan(est.condition_number)
+    assert refused >= 1
     for views, _ in _frames_with_a_wrong_mounting([60, 300], 0.0, n=2):
         a, b = estimate_rig_pose(views), estimate_rig_pose(views, consensus=False)
         assert a.success and a.disagreeing == () and np.array_equal(a.model.R, b.model.R)
@@ -1040,6 +1054,73 @@ def test_two_cameras_a_little_apart_widen_the_covariance_by_their_disagreement()
                        and e_p @ np.linalg.solve(P[3:6, 3:6], e_p) <= k)  # fmt: skip
     assert ties >= 8 and agreed >= 1, (ties, agreed)
     assert inside >= 0.9 * ties, (inside, ties)
+
+
+def _still_rig(rng, line_delay, off_deg=(0.0, 0.0), stamp_offset=0.0):
+    """Two rolling-shutter cameras of ``line_delay`` s per line, 70 and 40 correspondences of
+    a rig at rest (30 % outliers, 0.1 px noise), the first camera's mounting off by
+    ``off_deg`` (uniform, deg) that nothing states: the views and their cameras."""
+    cams = tuple(replace(c, camera=replace(c.camera, line_delay=line_delay),
+                         stamp_offset=stamp_offset)
+                 for c in sim_rig.make_rig(2, rng).cameras)  # fmt: skip
+    axis = rng.normal(size=3)
+    off = np.deg2rad(rng.uniform(*off_deg)) * axis / np.linalg.norm(axis)
+    m0 = cams[0].mounting
+    actual = (replace(cams[0], mounting=Mounting(m0.R @ rotvec_to_matrix(off), m0.c)), cams[1])
+    frame = sim_rig.rig_frame(sim_rig.Rig(actual), sim_rig.rig_motion(rng, 0.0, 0.0), [70, 40],
+                              rng, 0.3, 0.1)  # fmt: skip
+    return [replace(v, mounting=c.mounting) for v, c in zip(frame.views, cams, strict=True)]
+
+
+def test_a_widened_still_rig_frame_keeps_its_measured_twist_covariance():
+    """Two rolling-shutter cameras of a nanosecond readout at rest, one mounted 0.6-1.0 deg
+    off: the rig frame shows no motion and is posed on the global-shutter model with the
+    twist covariance of its rolling-shutter fit. Where the cameras' disagreement widens the
+    pose's covariance (the test above), the twist covariance and the velocity block of the
+    (12, 12) covariance stay the fit's (exactly those of the estimate before widening), never
+    None or zeros: the velocities were held, not measured to be exact."""
+    rng = np.random.default_rng(11)
+    widened = 0
+    for _ in range(12):
+        views = _still_rig(rng, 1e-9, (0.6, 1.0))
+        one = estimate_rig_pose(views, RIG_OPTIONS, consensus=False)
+        est = estimate_rig_pose(views, RIG_OPTIONS)
+        if not est.success or est.motion_model != "global_shutter" or est.disagreeing:
+            continue
+        assert one.twist_covariance is not None and np.all(np.diag(one.twist_covariance) > 0)
+        if np.array_equal(est.covariance[:6, :6], one.covariance[:6, :6]):
+            continue  # (the cameras agree: nothing widened)
+        widened += 1
+        assert np.all(np.diag(est.covariance[:6, :6]) >= np.diag(one.covariance[:6, :6]))
+        np.testing.assert_array_equal(est.twist_covariance, one.twist_covariance)
+        np.testing.assert_array_equal(est.covariance[6:, 6:], one.covariance[6:, 6:])
+        np.testing.assert_array_equal(est.covariance[:6, 6:], 0.0)
+    assert widened >= 3, widened
+
+
+def test_a_still_cameras_estimate_as_its_bodys_keeps_its_measured_twist_covariance():
+    """A rolling-shutter camera of a nanosecond readout at rest, mounted on a rig 4 ms off its
+    stamp, posed as its body (``estimate_rs_pose(..., view=)``): the frame shows no motion and
+    is posed on the global-shutter model; the body's twist covariance is the camera's (its
+    rolling-shutter fit's) carried to the body
+    (:func:`~rs_localizer.frames.base_twist_covariance`), in ``twist_covariance`` and in the
+    velocity block of ``covariance``, never zeros."""
+    from rs_localizer.estimation import estimate_rs_pose
+    from rs_localizer.frames import base_twist_covariance
+
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        v = _still_rig(rng, 1e-9, stamp_offset=0.004)[1]
+        own = estimate_rs_pose(v.uv, v.X, v.camera, options=RIG_OPTIONS)
+        est = estimate_rs_pose(v.uv, v.X, v.camera, options=RIG_OPTIONS, view=v)
+        assert own.success and own.motion_model == est.motion_model == "global_shutter"
+        assert np.all(np.diag(own.twist_covariance) > 0)
+        want = base_twist_covariance(own.twist_covariance, v.mounting)
+        np.testing.assert_allclose(est.twist_covariance, want, rtol=1e-12)
+        idx = np.r_[3:6, 0:3]  # (ROS (v, omega) -> the covariance's (omega, v))
+        np.testing.assert_array_equal(
+            est.covariance[6:, 6:], est.twist_covariance[np.ix_(idx, idx)]
+        )
 
 
 def test_a_mixed_rig_of_global_and_rolling_shutter_cameras():
