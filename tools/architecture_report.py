@@ -37,8 +37,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "rs_localizer"
 
-#: the modules only a rig of cameras uses (path under rs_localizer/ -> why); a single camera
-#: runs none of them
+#: the modules of what only a rig of several cameras needs (path under rs_localizer/ -> why),
+#: counted whole: a single camera runs none of them but tracking/rig.py's grouping, through
+#: which the localizer takes a camera's frames as a rig of one's
 RIG_ONLY = {
     "estimation/rig.py": "estimate_rig_pose: one pose for a rig frame of several cameras",
     "estimation/rig_batch.py": "the rig's compiled RANSAC batch and scoring kernels",
