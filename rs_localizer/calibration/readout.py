@@ -547,11 +547,10 @@ def _mount_from_frame_rotations(
     poses (which the images determine far better than one frame's angular velocity, whose
     readout-long fit trades it for the linear velocity) against the gyro's rotation over the
     same interval (:func:`_interval_rotations`): ``log(O_k^T O_{k+1}) = R_ci log(gyro rotation,
-    bias removed)``. Kabsch with a
-    centroid (Huber-reweighted), then the sandwich covariance of (phi (3) about the camera
-    axes, bias (3)), with the time offset ``d`` as a nuisance parameter when ``with_offset``
-    (it was estimated from the same video). Returns (R_ci, bias, cov (6, 6), samples) or None
-    below 10 pairs."""
+    bias removed)``. Kabsch with a centroid (:func:`_umeyama`'s rotation, Huber-reweighted),
+    then the sandwich covariance of (phi (3) about the camera axes, bias (3)), with the time
+    offset ``d`` as a nuisance parameter when ``with_offset`` (it was estimated from the same
+    video). Returns (R_ci, bias, cov (6, 6), samples) or None below 10 pairs."""
     dt = np.diff(t_ref) * 1e-9
     d_ns = np.round(d * 1e9)
     t0, t1 = t_ref[:-1] - d_ns, t_ref[1:] - d_ns
@@ -564,12 +563,9 @@ def _mount_from_frame_rotations(
     for _ in range(3):  # the gyro's rotation with the bias taken out, then the bias again
         g = _interval_rotations(t0[k], t1[k], t_imu, om_imu, bias)
         for _ in range(10):
+            _, R, _ = _umeyama(g, x, wts)  # (its rotation: x - mean x = R (g - mean g))
             W = wts / wts.sum()
-            mx, mg = W @ x, W @ g
-            U, _, Vt = np.linalg.svd(((x - mx) * W[:, None]).T @ (g - mg))
-            E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-            R = U @ E @ Vt
-            delta = mg - R.T @ mx  # x = R (g - delta): what is left of the bias
+            delta = W @ g - R.T @ (W @ x)  # x = R (g - delta): what is left of the bias
             r = x - (g - delta) @ R.T
             wts = _huber_weights(r)
         bias = bias + delta
