@@ -286,12 +286,7 @@ def main(argv: list[str] | None = None) -> None:
     within 3 sigma of the optimum's (``--no-calibrate`` leaves them out); the rig estimator
     against PoseLib's generalized pose with the optimum's map and extrinsics (medians and
     their ratio; ``--no-poselib`` leaves it out)."""
-    from benchmarks.bench_real_rig import (
-        calibrate_every_camera,
-        calibrated_rig_run,
-        rig_run,
-        summary,
-    )
+    from benchmarks.bench_real_rig import rig_run, summary
     from benchmarks.joint_reference import (
         CACHE as JOINT_CACHE,
     )
@@ -303,6 +298,7 @@ def main(argv: list[str] | None = None) -> None:
         solve_joint,
         with_reference,
     )
+    from benchmarks.real_rig_mountings import calibrate_every_camera, calibrated_rig_run
     from benchmarks.tagslam_data import load_tagslam
     from rs_localizer.experiments.timing import one_thread
 

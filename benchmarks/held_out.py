@@ -7,7 +7,7 @@ camera sees tags in both, so each part calibrates every camera), and consecutive
 whose errors are alike (the same view of the same tags a frame apart), stay in one part but
 at the runs' ends. ``calibrate-rig``
 (:func:`~rs_localizer.calibration.calibrate_mountings`, as
-:func:`benchmarks.bench_real_rig.calibrate_estimates` calls it) calibrates the mountings on
+:func:`benchmarks.real_rig_mountings.calibrate_estimates` calls it) calibrates the mountings on
 one part; on the other part every candidate set of mountings is scored the same way:
 
 * **held-out reprojection** (:func:`reprojection`): each rig frame's pose fitted to all its
@@ -78,13 +78,13 @@ def split(rig: RealRig, blocks: int = 10) -> tuple[list, list]:
 def calibrated_mounts(rig: RealRig, min_inliers=(20, 8)) -> tuple[dict, int]:
     """``calibrate-rig``'s mountings of ``rig`` (its frames and tag map; the first camera at
     its reference mounting), with the first of ``min_inliers`` that calibrates every camera
-    (:func:`~benchmarks.bench_real_rig.calibrate_every_camera`): ``(camera -> (R (3, 3), c
+    (:func:`~benchmarks.real_rig_mountings.calibrate_every_camera`): ``(camera -> (R (3, 3), c
     (3,) m) as RealRig.mounts, the min_inliers)``.
 
     Raises:
         ValueError: no ``min_inliers`` calibrates every camera.
     """
-    from benchmarks.bench_real_rig import calibrate_every_camera
+    from benchmarks.real_rig_mountings import calibrate_every_camera
 
     why: dict = {}  # min_inliers -> why it did not calibrate every camera
     est, mi = calibrate_every_camera(rig, min_inliers, why.__setitem__)

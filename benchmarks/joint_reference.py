@@ -481,11 +481,11 @@ def main(argv: list[str] | None = None) -> None:
     camera) on TagSLAM's tag map against TagSLAM's extrinsics and on the joint solution's
     against its mountings: each mounting's error, std, the largest error over std of its 6
     axes and its NEES; then the rig posed with those mountings, rig poses within 3 sigma of
-    the reference's (``bench_real_rig.calibrated_rig_run``); on the joint solution's map also
+    the reference's (``real_rig_mountings.calibrated_rig_run``); on the joint solution's map also
     calibrate-rig on each half of the video, the halves against each other (:func:`halves`:
     an independent check of the std, which the joint solution, solved from the same corners,
     is not)."""
-    from benchmarks.bench_real_rig import (
+    from benchmarks.real_rig_mountings import (
         calibrate_estimates,
         calibrate_every_camera,
         calibrated_rig_run,

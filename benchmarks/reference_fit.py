@@ -112,7 +112,7 @@ def measure(
 ) -> dict:
     """On ``rig``'s map and mountings (exact; or ``estimates``: camera -> ``MountingEstimate``,
     calibrated mountings with their covariance and time offset std, as
-    :func:`~benchmarks.bench_real_rig.calibrated_rig_run` poses the rig), every rig frame with
+    :func:`~benchmarks.real_rig_mountings.calibrated_rig_run` poses the rig), every rig frame with
     tags in two or more cameras and a pose in every reference of ``references`` (label ->
     stamp -> ``(R, C)``; the first: ``rig``'s own), posed twice: each corner's error its own
     (the views without groups) and the corners grouped by tag (:meth:`RealRig.views`: the
@@ -123,7 +123,7 @@ def measure(
     within 3 sigma in the independent corners' covariance, "within_groups": label -> (F,) in
     the covariance with the tags' shift, "between", "between_groups": (F,) the first two
     references' poses within 3 sigma of each other in either covariance}``."""
-    from benchmarks.bench_real_rig import _tracked_twist, within_3_sigma
+    from benchmarks.real_rig_mountings import _tracked_twist, within_3_sigma
 
     first, *_ = references
     shared = replace(RIG_OPTIONS.correlated_noise, shift_share=shift_share)
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
     reference's map, as ``benchmarks.joint_reference`` runs it) instead of the reference's
     mountings as exact; ``--shift-share``: the options' ``correlated_noise.shift_share`` for
     the rig frames with too few tags to tell the shift (default 0: none there)."""
-    from benchmarks.bench_real_rig import calibrate_every_camera
+    from benchmarks.real_rig_mountings import calibrate_every_camera
 
     ap = recording_parser(main.__doc__)
     ap.add_argument("--calibrated", action="store_true", help="calibrate-rig's mountings")

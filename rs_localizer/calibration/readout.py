@@ -69,7 +69,7 @@ import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
-from ..geometry import matrix_to_rotvec
+from ..geometry import matrix_to_rotvec, skew
 from .marginal import loose_inverse
 
 __all__ = [
@@ -485,14 +485,6 @@ def _fit_between_frames(stamps, Os, ws, max_dt: float, uniformity: float) -> _Fi
     return _Fit(s, std, rms, len(x), len(used), _rms(x))
 
 
-def _skew_rows(z: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) ``[z_k]x`` of (n, 3) vectors."""
-    zx = np.zeros((len(z), 3, 3))
-    zx[:, 0, 1], zx[:, 0, 2], zx[:, 1, 2] = -z[:, 2], z[:, 1], -z[:, 0]
-    zx[:, 1, 0], zx[:, 2, 0], zx[:, 2, 1] = z[:, 2], -z[:, 1], z[:, 0]
-    return zx
-
-
 def _huber_weights(r: np.ndarray) -> np.ndarray:
     """Huber weights (threshold 3 robust sigma) of (n, 3) residuals, as :func:`_robust_slope`."""
     rn = np.linalg.norm(r, axis=1)
@@ -570,7 +562,7 @@ def _mount_from_frame_rotations(
             wts = _huber_weights(r)
         bias = bias + delta
     z = (g - delta) @ R.T
-    cols = [-_skew_rows(z), np.broadcast_to(-R, (len(k), 3, 3))]
+    cols = [-skew(z), np.broadcast_to(-R, (len(k), 3, 3))]
     if with_offset:  # the time offset as a nuisance parameter: d(mean gyro)/d(offset)
         dg = -(_rates_at(t1[k], t_imu, om_imu) - _rates_at(t0[k], t_imu, om_imu)) / dt[k][:, None]
         cols.append((dg @ R.T)[:, :, None])

@@ -251,7 +251,9 @@ def estimate_rs_pose(
         solver,
         groups,
     )
-    return est if view is None else body_estimate(est, view)
+    if view is None:
+        return est
+    return body_estimate(est, view.mounting, view.stamp_offset, camera.seconds_per_unit_r)
 
 
 def _estimate_rs_pose(

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,9 +28,6 @@ from ..pose import (
 from .implementation import NUMPY
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
-
-if TYPE_CHECKING:
-    from .view import View
 
 __all__ = [
     "AMBIGUOUS_TAG",
@@ -709,13 +705,16 @@ def rig_model_jacobian(
     return J
 
 
-def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
-    """The estimate of the body (a rig) that ``view``'s camera is mounted on, of that camera's
-    own estimate ``est`` of the view's points (:func:`~.estimate.estimate_rs_pose` with
-    ``view``): ``model`` the body's (:func:`rig_model_of_camera` at the view's mounting and
-    stamp offset: ``w``, ``t`` per second), ``pose`` its :class:`~rs_localizer.pose.RSPose`
-    (one second per unit), ``model_covariance`` mapped to first order
-    (:func:`rig_model_jacobian`) and the output covariances of it
+def body_estimate(
+    est: RSPoseEstimate, mounting: Mounting, stamp_offset: float, seconds_per_unit_r: float
+) -> RSPoseEstimate:
+    """The estimate of the body (a rig) that a camera is mounted on, of that camera's own
+    estimate ``est`` (:func:`~.estimate.estimate_rs_pose` of a
+    :class:`~rs_localizer.estimation.view.View`'s points; the view's mounting, stamp offset and
+    its camera's ``seconds_per_unit_r``, as :func:`rig_model_of_camera` takes them): ``model``
+    the body's (:func:`rig_model_of_camera`: ``w``, ``t`` per second), ``pose`` its
+    :class:`~rs_localizer.pose.RSPose` (one second per unit), ``model_covariance`` mapped to
+    first order (:func:`rig_model_jacobian`) and the output covariances of it
     (:func:`output_covariance`; the twist's where ``est`` has one, the measured twist of a
     global-shutter fallback's held velocities carried to the body:
     :meth:`RSPoseEstimate._with_model_covariance`); every other field,
@@ -725,14 +724,13 @@ def body_estimate(est: RSPoseEstimate, view: View) -> RSPoseEstimate:
     """
     if not est.success:
         return est
-    m, s, spr = view.mounting, view.stamp_offset, view.camera.seconds_per_unit_r
-    model = rig_model_of_camera(est.model, m, s, spr)
+    model = rig_model_of_camera(est.model, mounting, stamp_offset, seconds_per_unit_r)
     cov = None
     if est.model_covariance is not None:
-        J = rig_model_jacobian(est.model, m, s, spr)
+        J = rig_model_jacobian(est.model, mounting, stamp_offset, seconds_per_unit_r)
         cov = J @ est.model_covariance @ J.T
     compiled = est.implementation != NUMPY
     return est._with_model_covariance(
-        cov, 1.0, m, model=model, pose=RSPose.from_model(model, 1.0, compiled=compiled),
+        cov, 1.0, mounting, model=model, pose=RSPose.from_model(model, 1.0, compiled=compiled),
         acceleration_sensitivity=None,
     )  # fmt: skip

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -32,13 +32,14 @@ from .pipeline import FusedOutput, fused_outputs
 if TYPE_CHECKING:
     from ..frames import Mounting
     from ..tracking.video import Localizer, LocalizerOutput
-    from .core import NodeCore
+    from .visualization import NodeVisualization
 
 __all__ = [
     "OUTPUT_TOPICS",
     "CameraView",
     "FrameOutcome",
     "LogLine",
+    "OutputNode",
     "PosedFrame",
     "frame_outcome",
     "fused_messages",
@@ -255,7 +256,24 @@ def pose_messages(
     return msgs
 
 
-def publish_frame(node: NodeCore, outcome: FrameOutcome) -> None:
+class OutputNode(Protocol):
+    """What :func:`publish_frame` uses of the node (:class:`~.core.NodeCore`): the frame its
+    poses are published in, whether a topic has a subscriber, its publishers, its
+    visualizations (``viz`` the ``path``'s, None: none; ``camera_viz`` each camera's by name)
+    and its throttled log."""
+
+    map_frame: str
+    viz: NodeVisualization | None
+    camera_viz: Mapping[str, NodeVisualization]
+
+    def wanted(self, topic: str) -> bool: ...
+
+    def publish_messages(self, messages: list) -> None: ...
+
+    def warn(self, key: str, text: str, count: int = 0) -> None: ...
+
+
+def publish_frame(node: OutputNode, outcome: FrameOutcome) -> None:
     """Publish a frame's outcome on ``node``'s outputs, for one camera and a rig alike: its
     messages (:func:`outcome_messages` in the node's ``map_frame``, only those with a
     subscriber built), then, posed, its pose to the ``path`` and each camera's view to its

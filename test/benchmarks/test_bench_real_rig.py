@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from benchmarks.bench_real_rig import (
-    calibrate,
     pixel_refit,
     reference_self_fit,
     rig_run,
@@ -16,6 +15,7 @@ from benchmarks.bench_real_rig import (
     summary,
     video_run,
 )
+from benchmarks.real_rig_mountings import calibrate
 from benchmarks.tagslam_data import FOLDER, RealRig, errors, load_test2
 from rs_localizer.geometry import rotvec_to_matrix
 
