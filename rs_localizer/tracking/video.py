@@ -558,15 +558,19 @@ class _Camera:
 class _ImageInput:
     """The image input's state (:meth:`Localizer.process_image`): per camera its front end
     (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
-    last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
-    time)`` -> ``(stamp, pixels, camera model)``), per camera what its front end found in its
-    last image (None: not searched) and its last search (:meth:`Localizer.last_search`)."""
+    last image's fingerprint), per camera what its front end found in its last image (None:
+    not searched) and its last search (:meth:`Localizer.last_search`)."""
 
     def __init__(self):
         self.frontends: dict[str, CameraFrontend] = {}
-        self.waiting: dict = {}
         self.found: dict[str, Correspondences | None] = {}
         self.searched: dict[str, ImageSearch | None] = {}
+
+
+class _ImageFrame(CameraFrame):
+    """A camera frame made from an image (:meth:`Localizer.process_image`): its camera's front
+    end is told how its rig frame was solved (a frame given to :meth:`Localizer.add`, e.g. a
+    cloud beside the front end, is not the front end's)."""
 
 
 class Localizer(GyroReadouts):
@@ -1465,8 +1469,7 @@ class Localizer(GyroReadouts):
             return self._observed(self._drop(name, stamp, ref, r.failure))
         use = self._usable_rows(name, found)
         uv, xyz = r.points2d, r.points3d = use.points2d, use.points
-        img.waiting[(name, ref)] = (stamp, uv, camera)
-        frame = CameraFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
+        frame = _ImageFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
         return self._observed(self._add(frame, ref))
 
     def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
@@ -1595,27 +1598,21 @@ class Localizer(GyroReadouts):
             self.log.warning(key, text)
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
-        """Tell each camera's front end how its frame in ``outs`` was solved
-        (:meth:`process_image`)."""
+        """Tell each camera's front end how its image's frame in ``outs`` was solved (the
+        frame its rig frame holds, :attr:`LocalizerOutput.frames`; :meth:`process_image`)."""
         img = self._image_input()
         for out in outs:
             est = out.estimate
             alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
             for k, n in enumerate(out.cameras):
-                ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
-                item = img.waiting.pop((n, ref), None)
-                fe = img.frontends.get(n)
-                if item is None or fe is None or fe.frontend is None:
+                frame, fe = out.frames.get(n), img.frontends.get(n)
+                if not isinstance(frame, _ImageFrame) or fe is None or fe.frontend is None:
                     continue
-                stamp, uv, camera = item
                 feedback = alone
                 if est is not None and alone is None:
                     mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
-                    feedback = camera_estimate(est, k, camera, mount, off, uv)
-                fe.observe(stamp, uv, feedback)
-        if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
-            for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
-                del img.waiting[key]
+                    feedback = camera_estimate(est, k, frame.camera, mount, off, frame.points2d)
+                fe.observe(frame.stamp_ns, frame.points2d, feedback)
         return outs
 
     def _twist_source(self) -> TrackerPath | None:
