@@ -363,7 +363,8 @@ def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved(
     observed exactly once, when an image's ``process_image`` solves its rig frame, with its
     stamp, its rows and the rig's feedback for that camera (success and the camera's
     inliers); a cloud's frame is not observed (it is not the front end's), nor is an image
-    skipped as ``out_of_order``."""
+    skipped as ``out_of_order`` (one of the same stamp, its own rows: not those of the frame
+    its rig frame holds)."""
     from rs_localizer.correspondences import Correspondences
 
     cams = default_rig(2)
@@ -372,8 +373,8 @@ def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved(
 
     class Frontend:  # (the frame's own correspondences; notes what it is told)
         def process(self, image, camera, encoding="bgr8", prediction=None):
-            f = current["frame"]
-            return Correspondences(f.uv, f.xyz)
+            f, n = current["frame"], current.get("rows")
+            return Correspondences(f.uv[:n], f.xyz[:n])
 
         def observe(self, stamp_ns, points2d, feedback):
             observed.append((current["names"][stamp_ns], stamp_ns, points2d, feedback))
@@ -396,8 +397,10 @@ def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved(
         img = rng.integers(0, 255, (48, 64), np.uint8)
         by_image += rig.process_image(f.name, f.stamp_ns, img, by[f.name], "mono8")
         images[(f.name, f.stamp_ns)] = f.uv
-        if i == 6:  # (the same image again, its stamp not later: skipped, never observed)
+        if i == 6:  # (another image of that stamp, 20 rows: skipped, never observed)
+            current["rows"] = 20
             by_image += rig.process_image(f.name, f.stamp_ns, img + 1, by[f.name], "mono8")
+            current["rows"] = None
     outs += by_image + rig.close()
     assert rig.counts[f"{frames[6].name}.skipped.out_of_order"] == 1
     assert clouds and outs and all(o.success for o in outs)
