@@ -558,15 +558,19 @@ class _Camera:
 class _ImageInput:
     """The image input's state (:meth:`Localizer.process_image`): per camera its front end
     (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
-    last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
-    time)`` -> ``(stamp, pixels, camera model)``), per camera what its front end found in its
-    last image (None: not searched) and its last search (:meth:`Localizer.last_search`)."""
+    last image's fingerprint), per camera what its front end found in its last image (None:
+    not searched) and its last search (:meth:`Localizer.last_search`)."""
 
     def __init__(self):
         self.frontends: dict[str, CameraFrontend] = {}
-        self.waiting: dict = {}
         self.found: dict[str, Correspondences | None] = {}
         self.searched: dict[str, ImageSearch | None] = {}
+
+
+class _ImageFrame(CameraFrame):
+    """A camera frame made from an image (:meth:`Localizer.process_image`): its camera's front
+    end is told how its rig frame was solved (a frame given to :meth:`Localizer.add`, e.g. a
+    cloud beside the front end, is not the front end's)."""
 
 
 class Localizer(GyroReadouts):
@@ -1026,10 +1030,10 @@ class Localizer(GyroReadouts):
         if name not in self._cams:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         if frame.camera is None:  # (counted and noted as every frame, skipped)
-            return self._drop(name, frame.stamp_ns, None, "no_camera_info")
+            return self._received(name, frame.stamp_ns, None, reason="no_camera_info")
         if reference_ns is None:
             reference_ns = self.settings.reference_ns(name, frame.stamp_ns, frame.camera)
-        return self._add(frame, reference_ns)
+        return self._received(name, frame.stamp_ns, reference_ns, frame)
 
     def _solved_by_reset(self) -> list[LocalizerOutput]:
         """The rig frames a time reset solved (a jump ahead: the old timeline's open rig
@@ -1037,19 +1041,26 @@ class Localizer(GyroReadouts):
         out, self._reset_solved = self._reset_solved, []
         return out
 
-    def _add(self, frame: CameraFrame, ref: int) -> list[LocalizerOutput]:
-        """:meth:`add` of a rig camera's frame with its camera model (its stamp checked: a
-        :class:`~rs_localizer.tracking.localizer.CameraFrame`'s) and its reference time ``ref``
-        (ns): counted, its time noted (:meth:`_note`), grouped into its rig frame (a rig of
-        one's complete at once) and the rig frames complete solved; the rig frames a time reset
-        at it solved (:meth:`_note`, also when its image search noted it) first."""
-        name = frame.camera_name
+    def _received(self, name: str, stamp: Stamp, t: int | None, frame: CameraFrame | None = None,
+                  reason: str = "") -> list[LocalizerOutput]:  # fmt: skip
+        """Camera ``name``'s frame stamped ``stamp`` (checked) received, the one path of
+        :meth:`add`, :meth:`drop` and :meth:`process_image`: counted, its stamp noted on the
+        video's clock (:meth:`_note`: a time reset starts every camera's timeline again; an
+        image's search noted it already), then ``frame`` (with its camera model) taken into
+        its rig frame at its reference time ``t`` (ns; a rig of one's complete at once) or,
+        without ``frame``, the frame skipped for ``reason`` at ``t`` (None: a frame without a
+        camera model's, ``no_camera_info``: its stamp on the rig's clock); the rig frames
+        complete solved (none after a frame refused as late or out of order), those a time
+        reset at it solved (:meth:`_note`) first."""
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        # (a time reset: every camera's timeline started again)
-        self._note(name, self._on_clock(name, frame.stamp_ns))
-        taken = self._frames.take(name, frame, ref, self.settings.window)
-        out = self._ready() if taken else []
+        on_clock = self._on_clock(name, stamp)
+        self._note(name, on_clock)
+        if frame is None:
+            self._frames.skipped(name, on_clock if t is None else t, reason)
+        elif not self._frames.take(name, frame, t, self.settings.window):
+            return self._solved_by_reset()
+        out = self._ready()
         return self._solved_by_reset() + out
 
     def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
@@ -1362,19 +1373,7 @@ class Localizer(GyroReadouts):
         t = self.frame_time(name, stamp_ns, camera)
         if self._img is not None:  # (its last image was not searched)
             self._img.found[name] = None
-        return self._drop(name, t.stamp_ns, t.reference_ns, reason)
-
-    def _drop(self, name: str, stamp: Stamp, t: int | None, reason: str) -> list:
-        """:meth:`drop` of a frame stamped ``stamp`` (checked) whose time is ``t`` (ns: its
-        reference time; None: a frame without a camera model's, which :meth:`add` and
-        :meth:`process_image` skip as ``no_camera_info``: its stamp on the rig's clock)."""
-        self.counts[f"{name}.received"] += 1
-        self._twists.note_frame()
-        on_clock = self._on_clock(name, stamp)
-        self._note(name, on_clock)  # (as every frame's; an image's search noted it already)
-        self._frames.skipped(name, on_clock if t is None else t, reason)
-        out = self._ready()
-        return self._solved_by_reset() + out
+        return self._received(name, t.stamp_ns, t.reference_ns, reason=reason)
 
     def process_image(
         self,
@@ -1441,7 +1440,7 @@ class Localizer(GyroReadouts):
         stamp, ref = t.stamp_ns, t.reference_ns
         img.found[name] = img.searched[name] = None
         if camera is None:  # (the front end does not run)
-            return self._observed(self._drop(name, stamp, None, "no_camera_info"))
+            return self._observed(self._received(name, stamp, None, reason="no_camera_info"))
         r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
         if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
             img.found[name] = r.found
@@ -1452,22 +1451,21 @@ class Localizer(GyroReadouts):
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{r.difference:.2f} gray levels): skipped",
             )
-            return self._observed(self._drop(name, stamp, ref, r.failure))
+            return self._observed(self._received(name, stamp, ref, reason=r.failure))
         if r.failure == "frontend_error":
             e = r.error
             self._warn_image(
                 f"rig.frontend.{name}",
                 f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
-            return self._observed(self._drop(name, stamp, ref, r.failure))
+            return self._observed(self._received(name, stamp, ref, reason=r.failure))
         found = img.found[name] = r.found
         if r.failure is not None:  # (frontend_too_few_points: a rig of one's)
-            return self._observed(self._drop(name, stamp, ref, r.failure))
+            return self._observed(self._received(name, stamp, ref, reason=r.failure))
         use = self._usable_rows(name, found)
         uv, xyz = r.points2d, r.points3d = use.points2d, use.points
-        img.waiting[(name, ref)] = (stamp, uv, camera)
-        frame = CameraFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
-        return self._observed(self._add(frame, ref))
+        frame = _ImageFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
+        return self._observed(self._received(name, stamp, ref, frame))
 
     def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
         """The times of camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time of row
@@ -1595,27 +1593,21 @@ class Localizer(GyroReadouts):
             self.log.warning(key, text)
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
-        """Tell each camera's front end how its frame in ``outs`` was solved
-        (:meth:`process_image`)."""
+        """Tell each camera's front end how its image's frame in ``outs`` was solved (the
+        frame its rig frame holds, :attr:`LocalizerOutput.frames`; :meth:`process_image`)."""
         img = self._image_input()
         for out in outs:
             est = out.estimate
             alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
             for k, n in enumerate(out.cameras):
-                ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
-                item = img.waiting.pop((n, ref), None)
-                fe = img.frontends.get(n)
-                if item is None or fe is None or fe.frontend is None:
+                frame, fe = out.frames.get(n), img.frontends.get(n)
+                if not isinstance(frame, _ImageFrame) or fe is None or fe.frontend is None:
                     continue
-                stamp, uv, camera = item
                 feedback = alone
                 if est is not None and alone is None:
                     mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
-                    feedback = camera_estimate(est, k, camera, mount, off, uv)
-                fe.observe(stamp, uv, feedback)
-        if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
-            for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
-                del img.waiting[key]
+                    feedback = camera_estimate(est, k, frame.camera, mount, off, frame.points2d)
+                fe.observe(frame.stamp_ns, frame.points2d, feedback)
         return outs
 
     def _twist_source(self) -> TrackerPath | None:

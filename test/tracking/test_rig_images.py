@@ -355,3 +355,61 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
     assert v["front.capped_clouds"] == len(front) and v["left.capped_clouds"] == 0
     assert v["front.points_dropped"] == 5 * len(front)
     assert_balanced(rig)
+
+
+def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved():
+    """Two cameras with front ends, the left camera's frames alternately images
+    (``process_image``) and clouds beside its front end (``add``): each image's frame is
+    observed exactly once, when an image's ``process_image`` solves its rig frame, with its
+    stamp, its rows and the rig's feedback for that camera (success and the camera's
+    inliers); a cloud's frame is not observed (it is not the front end's), nor is an image
+    skipped as ``out_of_order`` (one of the same stamp, its own rows: not those of the frame
+    its rig frame holds)."""
+    from rs_localizer.correspondences import Correspondences
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=4)
+    current, observed = {}, []
+
+    class Frontend:  # (the frame's own correspondences; notes what it is told)
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f, n = current["frame"], current.get("rows")
+            return Correspondences(f.uv[:n], f.xyz[:n])
+
+        def observe(self, stamp_ns, points2d, feedback):
+            observed.append((current["names"][stamp_ns], stamp_ns, points2d, feedback))
+
+        def pop_warning(self):
+            return None
+
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    for c in cams:
+        rig.set_frontend(c.name, Frontend(), "stub")
+    by = {c.name: c.camera for c in cams}
+    rng = np.random.default_rng(5)
+    current["names"], images, clouds, outs, by_image = {}, {}, set(), [], []
+    for i, f in enumerate(frames):
+        current["frame"], current["names"][f.stamp_ns] = f, f.name
+        if f.name == "left" and i % 4 == 1:
+            clouds.add(f.stamp_ns)
+            outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+            continue
+        img = rng.integers(0, 255, (48, 64), np.uint8)
+        by_image += rig.process_image(f.name, f.stamp_ns, img, by[f.name], "mono8")
+        images[(f.name, f.stamp_ns)] = f.uv
+        if i == 6:  # (another image of that stamp, 20 rows: skipped, never observed)
+            current["rows"] = 20
+            by_image += rig.process_image(f.name, f.stamp_ns, img + 1, by[f.name], "mono8")
+            current["rows"] = None
+    outs += by_image + rig.close()
+    assert rig.counts[f"{frames[6].name}.skipped.out_of_order"] == 1
+    assert clouds and outs and all(o.success for o in outs)
+    solved = {(n, o.frames[n].stamp_ns): (o, k) for o in by_image for k, n in enumerate(o.cameras)}
+    seen = [(n, t) for n, t, _, _ in observed]
+    assert len(seen) == len(set(seen)) and set(seen) == set(images) & set(solved)
+    assert not {t for _, t in seen} & clouds
+    for n, t, uv, feedback in observed:
+        o, k = solved[(n, t)]
+        assert uv is o.frames[n].points2d and np.array_equal(uv, images[(n, t)])
+        assert feedback.success and feedback.num_inliers == o.estimate.num_inliers_per_view[k]
+    assert_balanced(rig)
