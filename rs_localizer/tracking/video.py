@@ -1059,9 +1059,9 @@ class Localizer(GyroReadouts):
         if frame is None:
             self._frames.skipped(name, on_clock if t is None else t, reason)
         elif not self._frames.take(name, frame, t, self.settings.window):
-            return self._solved_by_reset()
+            return self._observed(self._solved_by_reset())
         out = self._ready()
-        return self._solved_by_reset() + out
+        return self._observed(self._solved_by_reset() + out)
 
     def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
         """Note camera ``name``'s frame stamp (ns, the capture time of row ``stamp_row``; None:
@@ -1193,7 +1193,7 @@ class Localizer(GyroReadouts):
 
     def close(self) -> list[LocalizerOutput]:
         """Solve every rig frame still open (the end of a video), oldest first."""
-        return [self._solve(g) for g in self._frames.close_all()]
+        return self._observed([self._solve(g) for g in self._frames.close_all()])
 
     def flush_idle(self, now: float | None = None) -> list[FusedPose]:
         """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
@@ -1440,32 +1440,32 @@ class Localizer(GyroReadouts):
         stamp, ref = t.stamp_ns, t.reference_ns
         img.found[name] = img.searched[name] = None
         if camera is None:  # (the front end does not run)
-            return self._observed(self._received(name, stamp, None, reason="no_camera_info"))
+            return self._received(name, stamp, None, reason="no_camera_info")
         r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
         if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
             img.found[name] = r.found
-            return self._solved_by_reset()
+            return self._observed(self._solved_by_reset())
         if r.failure == "frozen_image":
             self._warn_image(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{r.difference:.2f} gray levels): skipped",
             )
-            return self._observed(self._received(name, stamp, ref, reason=r.failure))
+            return self._received(name, stamp, ref, reason=r.failure)
         if r.failure == "frontend_error":
             e = r.error
             self._warn_image(
                 f"rig.frontend.{name}",
                 f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
-            return self._observed(self._received(name, stamp, ref, reason=r.failure))
+            return self._received(name, stamp, ref, reason=r.failure)
         found = img.found[name] = r.found
         if r.failure is not None:  # (frontend_too_few_points: a rig of one's)
-            return self._observed(self._received(name, stamp, ref, reason=r.failure))
+            return self._received(name, stamp, ref, reason=r.failure)
         use = self._usable_rows(name, found)
         uv, xyz = r.points2d, r.points3d = use.points2d, use.points
         frame = _ImageFrame(stamp, camera, uv, xyz, use.scores, tag, name, use.groups)
-        return self._observed(self._received(name, stamp, ref, frame))
+        return self._received(name, stamp, ref, frame)
 
     def frame_time(self, name: str, stamp_ns: int, camera: CameraModel | None) -> FrameTime:
         """The times of camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time of row
@@ -1594,9 +1594,11 @@ class Localizer(GyroReadouts):
 
     def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
         """Tell each camera's front end how its image's frame in ``outs`` was solved (the
-        frame its rig frame holds, :attr:`LocalizerOutput.frames`; :meth:`process_image`)."""
-        img = self._image_input()
-        for out in outs:
+        frame its rig frame holds, :attr:`LocalizerOutput.frames`), whichever frame completed
+        its rig frame (an image's, a cloud's, a dropped one's) or the video's end did; returns
+        ``outs``."""
+        img = self._img
+        for out in outs if img is not None else ():
             est = out.estimate
             alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
             for k, n in enumerate(out.cameras):

@@ -360,11 +360,11 @@ def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
 def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved():
     """Two cameras with front ends, the left camera's frames alternately images
     (``process_image``) and clouds beside its front end (``add``): each image's frame is
-    observed exactly once, when an image's ``process_image`` solves its rig frame, with its
-    stamp, its rows and the rig's feedback for that camera (success and the camera's
-    inliers); a cloud's frame is not observed (it is not the front end's), nor is an image
-    skipped as ``out_of_order`` (one of the same stamp, its own rows: not those of the frame
-    its rig frame holds)."""
+    observed exactly once, when its rig frame is solved, whether an image, a cloud or the
+    video's end (``close``) completed it, with its stamp, its rows and the rig's feedback for
+    that camera (success and the camera's inliers); a cloud's frame is not observed (it is
+    not the front end's), nor is an image skipped as ``out_of_order`` (one of the same stamp,
+    its own rows: not those of the frame its rig frame holds)."""
     from rs_localizer.correspondences import Correspondences
 
     cams = default_rig(2)
@@ -401,12 +401,14 @@ def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved(
             current["rows"] = 20
             by_image += rig.process_image(f.name, f.stamp_ns, img + 1, by[f.name], "mono8")
             current["rows"] = None
-    outs += by_image + rig.close()
+    by_others = outs + rig.close()  # (rig frames a cloud or the video's end completed)
+    outs = by_others + by_image
     assert rig.counts[f"{frames[6].name}.skipped.out_of_order"] == 1
     assert clouds and outs and all(o.success for o in outs)
-    solved = {(n, o.frames[n].stamp_ns): (o, k) for o in by_image for k, n in enumerate(o.cameras)}
+    solved = {(n, o.frames[n].stamp_ns): (o, k) for o in outs for k, n in enumerate(o.cameras)}
     seen = [(n, t) for n, t, _, _ in observed]
     assert len(seen) == len(set(seen)) and set(seen) == set(images) & set(solved)
+    assert {(n, o.frames[n].stamp_ns) for o in by_others for n in o.cameras} & set(seen)
     assert not {t for _, t in seen} & clouds
     for n, t, uv, feedback in observed:
         o, k = solved[(n, t)]
