@@ -52,6 +52,14 @@ def test_imports_resolve_relative_deferred_and_type_checking():
     top = ar.imports("ros/x.py", tree, deferred=False, known=known)
     assert top == {"rs_localizer.solvers.registry", "rs_localizer.camera"}
     assert ar.imports("ros/x.py", tree, deferred=True, known=known) == top
+    # (a module imported only under TYPE_CHECKING counts with typing alone)
+    only = ast.parse(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .. import camera\n"
+    )
+    assert ar.imports("ros/x.py", only, deferred=True, known=known) == set()
+    assert ar.imports("ros/x.py", only, deferred=True, known=known, typing=True) == {
+        "rs_localizer.camera"
+    }
 
 
 def test_report_figures_against_independent_counts():
@@ -77,7 +85,9 @@ def test_report_figures_against_independent_counts():
     )
     assert node.end_lineno - node.lineno + 1 == lengths[0]
     # the package's own claim (docs/architecture.md): no import circle
-    assert r["import_circles"] == {"module level": [], "with deferred": []}
+    assert r["import_circles"] == {
+        "module level": [], "with deferred": [], "with TYPE_CHECKING": []
+    }  # fmt: skip
     assert r["imports"]["module level"] > 300
 
 

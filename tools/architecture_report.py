@@ -8,7 +8,9 @@ and the import circles among the package's modules.
 Lines are physical lines (``wc -l``); "code" leaves out blank lines and comment lines.
 Import circles are the strongly connected components of the graph of ``import`` statements
 between the package's modules: module-level imports (what Python runs at import time; those
-under ``if TYPE_CHECKING:`` left out), and again with the imports inside functions too.
+under ``if TYPE_CHECKING:`` left out), again with the imports inside functions too, and again
+with those under ``TYPE_CHECKING`` too (a type named across modules ties them as an import
+does).
 ``from .pkg import name`` is an edge to ``pkg/name.py`` when that module exists, else to
 ``pkg/__init__.py``.
 
@@ -180,10 +182,13 @@ def _from_base(pkg: str, node: ast.ImportFrom) -> str:
     return f"{base}.{node.module}" if node.module else base
 
 
-def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = None) -> set[str]:
+def imports(
+    rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = None, typing: bool = False
+) -> set[str]:
     """The package modules (names as in :func:`_module_name`) that module ``rel`` imports: at
-    module level, and with ``deferred`` also inside functions; never under TYPE_CHECKING.
-    ``known``: the package's module names (default: read from the tree)."""
+    module level, with ``deferred`` also inside functions, with ``typing`` also under
+    ``if TYPE_CHECKING:``. ``known``: the package's module names (default: read from the
+    tree)."""
     me = _module_name(rel)
     pkg = me if rel.endswith("__init__.py") else me.rpartition(".")[0]
     known = _known() if known is None else known
@@ -199,7 +204,7 @@ def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = No
 
     def visit(node: ast.AST, in_function: bool) -> None:
         for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and _is_type_checking(child):
+            if isinstance(child, ast.If) and _is_type_checking(child) and not typing:
                 for other in child.orelse:
                     visit(ast.Module(body=[other], type_ignores=[]), in_function)
                 continue
@@ -428,10 +433,16 @@ def report(top: int = 10) -> dict:
     shared_lines = sum(d.lines for d in shared)
     graphs = {
         kind: {
-            _module_name(m): imports(m, t, deferred=(kind == "with deferred"), known=known)
+            _module_name(m): imports(
+                m,
+                t,
+                deferred=(kind != "module level"),
+                known=known,
+                typing=(kind == "with TYPE_CHECKING"),
+            )
             for m, t in trees.items()
         }
-        for kind in ("module level", "with deferred")
+        for kind in ("module level", "with deferred", "with TYPE_CHECKING")
     }
     return {
         "total_lines": total,
