@@ -1059,9 +1059,9 @@ class Localizer(GyroReadouts):
         if frame is None:
             self._frames.skipped(name, on_clock if t is None else t, reason)
         elif not self._frames.take(name, frame, t, self.settings.window):
-            return self._observed(self._solved_by_reset())
+            return self._solved_by_reset()
         out = self._ready()
-        return self._observed(self._solved_by_reset() + out)
+        return self._solved_by_reset() + out
 
     def check_time(self, stamp_ns: int, name: str | None = None) -> str | None:
         """Note camera ``name``'s frame stamp (ns, the capture time of row ``stamp_row``; None:
@@ -1193,7 +1193,7 @@ class Localizer(GyroReadouts):
 
     def close(self) -> list[LocalizerOutput]:
         """Solve every rig frame still open (the end of a video), oldest first."""
-        return self._observed([self._solve(g) for g in self._frames.close_all()])
+        return [self._solve(g) for g in self._frames.close_all()]
 
     def flush_idle(self, now: float | None = None) -> list[FusedPose]:
         """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
@@ -1444,7 +1444,7 @@ class Localizer(GyroReadouts):
         r = img.searched[name] = self._search(fe, name, t, image, camera, encoding)
         if r.failure is not None and not self._rig:  # (a camera's video: its caller's)
             img.found[name] = r.found
-            return self._observed(self._solved_by_reset())
+            return self._solved_by_reset()
         if r.failure == "frozen_image":
             self._warn_image(
                 f"rig.frozen.{name}",
@@ -1592,25 +1592,23 @@ class Localizer(GyroReadouts):
         if self._rig:
             self.log.warning(key, text)
 
-    def _observed(self, outs: list[LocalizerOutput]) -> list[LocalizerOutput]:
-        """Tell each camera's front end how its image's frame in ``outs`` was solved (the
-        frame its rig frame holds, :attr:`LocalizerOutput.frames`), whichever frame completed
-        its rig frame (an image's, a cloud's, a dropped one's) or the video's end did; returns
-        ``outs``."""
+    def _observed(self, out: LocalizerOutput) -> LocalizerOutput:
+        """Tell each camera's front end how its image's frame in the rig frame ``out`` was
+        solved (the frame its rig frame holds, :attr:`LocalizerOutput.frames`), once, as it is
+        solved (:meth:`_solve`), whichever frame completed it (an image's, a cloud's, a
+        dropped one's, a time reset's) or the video's end; returns ``out``."""
         img = self._img
-        for out in outs if img is not None else ():
-            est = out.estimate
-            alone = out.camera_estimate  # (a rig of one: its camera's own estimate)
-            for k, n in enumerate(out.cameras):
-                frame, fe = out.frames.get(n), img.frontends.get(n)
-                if not isinstance(frame, _ImageFrame) or fe is None or fe.frontend is None:
-                    continue
-                feedback = alone
-                if est is not None and alone is None:
-                    mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
-                    feedback = camera_estimate(est, k, frame.camera, mount, off, frame.points2d)
-                fe.observe(frame.stamp_ns, frame.points2d, feedback)
-        return outs
+        est, alone = out.estimate, out.camera_estimate  # (a rig of one: its camera's own)
+        for k, n in enumerate(out.cameras if img is not None else ()):
+            frame, fe = out.frames.get(n), img.frontends.get(n)
+            if not isinstance(frame, _ImageFrame) or fe is None or fe.frontend is None:
+                continue
+            feedback = alone
+            if est is not None and alone is None:
+                mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
+                feedback = camera_estimate(est, k, frame.camera, mount, off, frame.points2d)
+            fe.observe(frame.stamp_ns, frame.points2d, feedback)
+        return out
 
     def _twist_source(self) -> TrackerPath | None:
         """The tracker path (its fused states not yet final, :meth:`flush`)."""
@@ -1639,7 +1637,8 @@ class Localizer(GyroReadouts):
 
     def _solve(self, g: OpenRigFrame) -> LocalizerOutput:
         """A rig frame complete (:meth:`_ready`, :meth:`close`): its cameras missing counted,
-        then solved as every frame is (:meth:`_solve_frame`)."""
+        then solved as every frame is (:meth:`_solve_frame`), its images' front ends told how
+        (:meth:`_observed`)."""
         out = self._closed(g)
         for n in self._cams:
             if n not in g.frames:
@@ -1649,7 +1648,7 @@ class Localizer(GyroReadouts):
         if out.missing:
             self.counts["rig.incomplete"] += 1
         self._agreement.update_apart(out.cameras, out.missing, self.settings.window)
-        return self._solve_frame(out, {n: g.frames[n] for n in out.cameras})
+        return self._observed(self._solve_frame(out, {n: g.frames[n] for n in out.cameras}))
 
     def _solve_frame(self, out: LocalizerOutput, frames: dict) -> LocalizerOutput:
         """Solve a frame, a camera's or a rig's (``frames``: camera -> ``(CameraFrame,

@@ -415,3 +415,42 @@ def test_each_images_frame_and_only_it_is_observed_once_its_rig_frame_is_solved(
         assert uv is o.frames[n].points2d and np.array_equal(uv, images[(n, t)])
         assert feedback.success and feedback.num_inliers == o.estimate.num_inliers_per_view[k]
     assert_balanced(rig)
+
+
+def test_an_images_frame_solved_by_a_jump_ahead_is_observed_once():
+    """A rig frame still open when a camera's stamp jumps ahead (a time reset,
+    ``stamp_jump``) is solved as it is and handed out with the frame that made the jump: its
+    image's frame is observed by its front end exactly once, as every solved image's frame."""
+    from rs_localizer.correspondences import Correspondences
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=6)
+    current, observed = {}, []
+
+    class Frontend:  # (the frame's own correspondences; notes what it is told)
+        def __init__(self, name):
+            self.name = name
+
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            return Correspondences(current["frame"].uv, current["frame"].xyz)
+
+        def observe(self, stamp_ns, points2d, feedback):
+            observed.append((self.name, stamp_ns))
+
+        def pop_warning(self):
+            return None
+
+    rig = Localizer(LocalizerSettings(mounts_of(cams)))
+    for c in cams:
+        rig.set_frontend(c.name, Frontend(c.name), "stub")
+    by = {c.name: c.camera for c in cams}
+    img = np.zeros((48, 64), np.uint8)
+    first = frames[0]
+    other = next(g for g in frames if g.name != first.name)
+    outs = []
+    for k, (f, jump) in enumerate(((first, 0), (other, 5 * 10**9))):  # (the second jumps ahead)
+        current["frame"] = f
+        outs += rig.process_image(f.name, f.stamp_ns + jump, img + k, by[f.name], "mono8")
+    assert rig.counts["rig.time_resets"] == 1
+    assert [o.cameras for o in outs] == [(first.name,)] and outs[0].success
+    assert observed == [(first.name, first.stamp_ns)]
