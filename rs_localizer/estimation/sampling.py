@@ -114,16 +114,12 @@ def p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, off):
     least global-shutter error on the sample's other points through their mountings kept
     (:func:`_sample_error`; n = 0 when every pose puts one behind its camera), as a camera's
     pre-rotation is chosen (:func:`select_prerotations`). The bearings handed to Lambda
-    Twist: a camera's unit rays ``(x, 1) / |(x, 1)|``, a rig's ``(x, 1)`` (Lambda Twist
-    normalizes them itself; the two differ in the last bits). ``b``, ``P`` (3,
+    Twist: the unit rays ``(x, 1) / |(x, 1)|`` of each point in its own camera. ``b``, ``P`` (3,
     3), ``R_cam`` (4, 3, 3), ``C_cam`` (4, 3): the caller's buffers; ``off`` an int64."""
     for j in range(3):
         i = sample[j]
-        if Rm is None:  # (a camera)
-            nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
-            b[j, 0], b[j, 1], b[j, 2] = x[i, 0] / nrm, x[i, 1] / nrm, 1.0 / nrm
-        else:
-            b[j, 0], b[j, 1], b[j, 2] = x[i, 0], x[i, 1], 1.0
+        nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
+        b[j, 0], b[j, 1], b[j, 2] = x[i, 0] / nrm, x[i, 1] / nrm, 1.0 / nrm
         for a in range(3):
             P[j, a] = X[i, a]
     if Rm is None:  # (a camera: numba prunes the mapping at compile time)
