@@ -237,7 +237,12 @@ def _frames_read(frames: list, name: str, min_inliers: int) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..ros.bags.bag_frames import read_rig_frames
-    from ..ros.config import mounting_covariance_values, mounting_values, rig_mounting
+    from ..ros.config import (
+        mounting_covariance_values,
+        mounting_values,
+        rig_base_frame,
+        rig_mounting,
+    )
     from ..ros.params import ConfigError
     from ..runtime.background import frames_alone_options
 
@@ -276,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         where = f"camera {ref}'s optical frame: z forward, x right, y down"
         given = relative_to(given, ref)
     else:
-        frame = str(values.get("base_frame") or "").strip() or "base_link"
+        frame = rig_base_frame(values)
         where = f"base_frame, camera {ref} at its mounting of the parameters"
     notes = [
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "

@@ -50,6 +50,7 @@ __all__ = [
     "load_maps",
     "mounting_covariance_values",
     "mounting_values",
+    "rig_base_frame",
     "rig_change_refused",
     "rig_parameter_file",
     "rig_unused",
@@ -167,7 +168,7 @@ class LocalizerConfig:
         imu: the gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`), None = no
             gyro.
         map_frame, base_frame: the output frames (the single camera's ``base_frame``: "" =
-            none; a rig's: ``base_frame``, or ``base_link`` when empty).
+            none; a rig's: :func:`rig_base_frame`).
         stamp_row (px): the image row a frame's stamp is the capture time of.
         max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
             than this (ns) resets the time-dependent state. queue_size: frames waiting (per
@@ -497,9 +498,16 @@ def build_config(
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None
-    base = str(p["base_frame"]).strip() or "base_link"
+    base = rig_base_frame(p)
     unused = rig_unused(p, settings.single_camera)
     return LocalizerConfig(out, base_frame=base, settings=settings, unused=unused, **shared)
+
+
+def rig_base_frame(values: Mapping[str, Any]) -> str:
+    """A rig's frame, the one its pose and its cameras' mountings are in: the parameter
+    ``base_frame`` of ``values`` stripped of spaces, ``base_link`` (REP 105's robot body
+    frame) when it is empty, null or missing."""
+    return str(values.get("base_frame") or "").strip() or "base_link"
 
 
 def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
