@@ -265,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
     est = calibrate_mountings(
         read.frames, ref, reference_mount=ref_mount, window=args.window,
         stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers, options=options,
-        time_offsets=read.settings.time_offsets if read.settings is not None else None,
+        time_offsets=read.settings.time_offsets,
         estimate_time_offsets=args.time_offsets,
     )  # fmt: skip
     missing = [n for n in names if n not in est]
