@@ -80,8 +80,8 @@ def params_yaml(stamp_row: float, cams: dict, report: dict, notes: list, base_fr
     """The node's parameter file of the calibrated rig (``report``: camera -> its entry of the
     JSON report, :func:`run`): per camera its ``mounting`` and ``mounting_covariance`` (none
     for the reference), the RS timing it was read with (``cams``), its ``time_offset`` and
-    ``time_offset_std`` (s, 7 decimals; none when zero or not estimated); ``notes``: comment
-    lines on top."""
+    ``time_offset_std`` (s, 7 decimals; the offset none when zero, the std none when not
+    estimated: the node takes it whatever the offset); ``notes``: comment lines on top."""
     from ..ros.config import rig_parameter_file
 
     body_cams = {}
@@ -91,8 +91,8 @@ def params_yaml(stamp_row: float, cams: dict, report: dict, notes: list, base_fr
                       if (v := cams[n].get(k)) not in (None, "", -1.0)})  # fmt: skip
         if r["time_offset"]:
             entry["time_offset"] = round(float(r["time_offset"]), 7) + 0.0
-            if r.get("time_offset_std", 0.0) > 0:
-                entry["time_offset_std"] = round(float(r["time_offset_std"]), 7) + 0.0
+        if r.get("time_offset_std", 0.0) > 0:
+            entry["time_offset_std"] = round(float(r["time_offset_std"]), 7) + 0.0
         body_cams[n] = entry
     return rig_parameter_file(base_frame, stamp_row, body_cams, notes=notes)
 
