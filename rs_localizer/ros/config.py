@@ -30,6 +30,7 @@ from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Mounting
 from ..frontends.registry import FRONTEND_KINDS, frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
+from ..pose import ROS_ORDER
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from ..tracking.sequence import GyroSettings, SequenceSettings, rig_of_one
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
@@ -633,8 +634,7 @@ def rig_mounting(n: str, m: Any, cov_values: Any = None, time_std: Any = 0.0) ->
                 f"rig.{n}.mounting_covariance must be 36 finite numbers (6 x 6 over x, y, z, "
                 f"rot x, rot y, rot z) or all zero, got {C.size} numbers"
             )
-        P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as Mounting.covariance)
-        cov = C.reshape(6, 6)[np.ix_(P, P)]
+        cov = C.reshape(6, 6)[np.ix_(ROS_ORDER, ROS_ORDER)]  # (rotation first, as Mounting's)
     ok = isinstance(time_std, (int, float)) and not isinstance(time_std, bool)
     if not ok or not (math.isfinite(time_std) and time_std >= 0.0):
         raise ConfigError(
@@ -662,8 +662,8 @@ def mounting_covariance_values(m: Mounting) -> list[float] | None:
     (m), rot x, rot y, rot z (rad) in the rig frame; None without one."""
     if m.covariance is None:
         return None
-    P = [3, 4, 5, 0, 1, 2]  # (Mounting.covariance: rotation first)
-    return [float(f"{x:.6g}") + 0.0 for x in m.covariance[np.ix_(P, P)].ravel()]
+    C = m.covariance[np.ix_(ROS_ORDER, ROS_ORDER)]  # (Mounting's: rotation first)
+    return [float(f"{x:.6g}") + 0.0 for x in C.ravel()]
 
 
 def rig_parameter_file(
