@@ -51,6 +51,7 @@ import numpy as np
 from ._jit import kernel
 
 __all__ = [
+    "ROS_ORDER",
     "PoseWithCovariance",
     "RSModel",
     "RSPose",
@@ -290,6 +291,16 @@ class RSPose:
             linear_velocity,
             self.stamp_ns if stamp_ns is None else stamp_ns,
         )
+
+
+#: ROS order of a (6, 6) pose or twist covariance, (x, y, z, rot x, rot y, rot z) and (vx, vy,
+#: vz, wx, wy, wz), as indices into the rotation-first order of the estimator's and the twist
+#: filter's (12, 12) covariances (rotation, position; then omega, v at 6 + these) and of a
+#: :class:`~rs_localizer.frames.Mounting`'s ``covariance`` (rotation, position):
+#: ``C[np.ix_(ROS_ORDER, ROS_ORDER)]``. The same indices take ROS order back (the swap of the
+#: two halves is its own inverse). Read-only.
+ROS_ORDER = np.array([3, 4, 5, 0, 1, 2])
+ROS_ORDER.setflags(write=False)
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

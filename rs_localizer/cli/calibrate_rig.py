@@ -80,8 +80,8 @@ def params_yaml(stamp_row: float, cams: dict, report: dict, notes: list, base_fr
     """The node's parameter file of the calibrated rig (``report``: camera -> its entry of the
     JSON report, :func:`run`): per camera its ``mounting`` and ``mounting_covariance`` (none
     for the reference), the RS timing it was read with (``cams``), its ``time_offset`` and
-    ``time_offset_std`` (s, 7 decimals; none when zero or not estimated); ``notes``: comment
-    lines on top."""
+    ``time_offset_std`` (s, 7 decimals; the offset none when zero, the std none when not
+    estimated: the node takes it whatever the offset); ``notes``: comment lines on top."""
     from ..ros.config import rig_parameter_file
 
     body_cams = {}
@@ -91,8 +91,8 @@ def params_yaml(stamp_row: float, cams: dict, report: dict, notes: list, base_fr
                       if (v := cams[n].get(k)) not in (None, "", -1.0)})  # fmt: skip
         if r["time_offset"]:
             entry["time_offset"] = round(float(r["time_offset"]), 7) + 0.0
-            if r.get("time_offset_std", 0.0) > 0:
-                entry["time_offset_std"] = round(float(r["time_offset_std"]), 7) + 0.0
+        if r.get("time_offset_std", 0.0) > 0:
+            entry["time_offset_std"] = round(float(r["time_offset_std"]), 7) + 0.0
         body_cams[n] = entry
     return rig_parameter_file(base_frame, stamp_row, body_cams, notes=notes)
 
@@ -237,7 +237,12 @@ def _frames_read(frames: list, name: str, min_inliers: int) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..ros.bags.bag_frames import read_rig_frames
-    from ..ros.config import mounting_covariance_values, mounting_values, rig_mounting
+    from ..ros.config import (
+        mounting_covariance_values,
+        mounting_values,
+        rig_base_frame,
+        rig_mounting,
+    )
     from ..ros.params import ConfigError
     from ..runtime.background import frames_alone_options
 
@@ -260,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
     est = calibrate_mountings(
         read.frames, ref, reference_mount=ref_mount, window=args.window,
         stamp_row=float(values["rs.stamp_row"]), min_inliers=args.min_inliers, options=options,
-        time_offsets=read.settings.time_offsets if read.settings is not None else None,
+        time_offsets=read.settings.time_offsets,
         estimate_time_offsets=args.time_offsets,
     )  # fmt: skip
     missing = [n for n in names if n not in est]
@@ -276,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         where = f"camera {ref}'s optical frame: z forward, x right, y down"
         given = relative_to(given, ref)
     else:
-        frame = str(values.get("base_frame") or "").strip() or "base_link"
+        frame = rig_base_frame(values)
         where = f"base_frame, camera {ref} at its mounting of the parameters"
     notes = [
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "

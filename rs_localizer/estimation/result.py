@@ -18,6 +18,7 @@ from ..camera import CameraModel
 from ..frames import Mounting, base_twist_covariance
 from ..geometry import rotvec_to_matrix, skew
 from ..pose import (
+    ROS_ORDER,
     PoseWithCovariance,
     RSModel,
     RSPose,
@@ -382,8 +383,8 @@ class RSPoseEstimate(PoseWithCovariance):
                 twist = base_twist_covariance(twist, mounting)
             if full is not None:
                 full = np.array(full, dtype=float)
-                idx = np.r_[3:6, 0:3]  # (ROS (v, omega) -> the covariance's (omega, v))
-                full[6:, 6:] = twist[np.ix_(idx, idx)]
+                # (ROS (v, omega) -> the covariance's (omega, v))
+                full[6:, 6:] = twist[np.ix_(ROS_ORDER, ROS_ORDER)]
         return self._replaced(
             model_covariance=cov, covariance=full, pose_covariance=out[1],
             twist_covariance=twist, **changes,
@@ -548,9 +549,8 @@ def _output_covariance_numpy(cov12, R, C, w, s: float):
         J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
     out = J @ cov12 @ J.T
     out = 0.5 * (out + out.T)
-    idx = np.r_[3:6, 0:3]  # ROS (x, y, z, rot x, rot y, rot z)
-    pose = out[np.ix_(idx, idx)]
-    tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
+    pose = out[np.ix_(ROS_ORDER, ROS_ORDER)]
+    tw = 6 + ROS_ORDER
     return out, pose, (out[np.ix_(tw, tw)] if s > 0 else None)
 
 

@@ -30,6 +30,7 @@ from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Mounting
 from ..frontends.registry import FRONTEND_KINDS, frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
+from ..pose import ROS_ORDER
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from ..tracking.sequence import GyroSettings, SequenceSettings, rig_of_one
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
@@ -50,6 +51,7 @@ __all__ = [
     "load_maps",
     "mounting_covariance_values",
     "mounting_values",
+    "rig_base_frame",
     "rig_change_refused",
     "rig_parameter_file",
     "rig_unused",
@@ -167,7 +169,7 @@ class LocalizerConfig:
         imu: the gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`), None = no
             gyro.
         map_frame, base_frame: the output frames (the single camera's ``base_frame``: "" =
-            none; a rig's: ``base_frame``, or ``base_link`` when empty).
+            none; a rig's: :func:`rig_base_frame`).
         stamp_row (px): the image row a frame's stamp is the capture time of.
         max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
             than this (ns) resets the time-dependent state. queue_size: frames waiting (per
@@ -497,9 +499,16 @@ def build_config(
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None
-    base = str(p["base_frame"]).strip() or "base_link"
+    base = rig_base_frame(p)
     unused = rig_unused(p, settings.single_camera)
     return LocalizerConfig(out, base_frame=base, settings=settings, unused=unused, **shared)
+
+
+def rig_base_frame(values: Mapping[str, Any]) -> str:
+    """A rig's frame, the one its pose and its cameras' mountings are in: the parameter
+    ``base_frame`` of ``values`` stripped of spaces, ``base_link`` (REP 105's robot body
+    frame) when it is empty, null or missing."""
+    return str(values.get("base_frame") or "").strip() or "base_link"
 
 
 def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
@@ -625,8 +634,7 @@ def rig_mounting(n: str, m: Any, cov_values: Any = None, time_std: Any = 0.0) ->
                 f"rig.{n}.mounting_covariance must be 36 finite numbers (6 x 6 over x, y, z, "
                 f"rot x, rot y, rot z) or all zero, got {C.size} numbers"
             )
-        P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as Mounting.covariance)
-        cov = C.reshape(6, 6)[np.ix_(P, P)]
+        cov = C.reshape(6, 6)[np.ix_(ROS_ORDER, ROS_ORDER)]  # (rotation first, as Mounting's)
     ok = isinstance(time_std, (int, float)) and not isinstance(time_std, bool)
     if not ok or not (math.isfinite(time_std) and time_std >= 0.0):
         raise ConfigError(
@@ -654,8 +662,8 @@ def mounting_covariance_values(m: Mounting) -> list[float] | None:
     (m), rot x, rot y, rot z (rad) in the rig frame; None without one."""
     if m.covariance is None:
         return None
-    P = [3, 4, 5, 0, 1, 2]  # (Mounting.covariance: rotation first)
-    return [float(f"{x:.6g}") + 0.0 for x in m.covariance[np.ix_(P, P)].ravel()]
+    C = m.covariance[np.ix_(ROS_ORDER, ROS_ORDER)]  # (Mounting's: rotation first)
+    return [float(f"{x:.6g}") + 0.0 for x in C.ravel()]
 
 
 def rig_parameter_file(

@@ -74,7 +74,7 @@ from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coeffic
 from ..estimation.implementation import compiled_by_default
 from ..estimation.prior import MotionPrior, prior_arrays
 from ..estimation.result import RSPoseEstimate
-from ..pose import RSPose
+from ..pose import ROS_ORDER, RSPose
 
 __all__ = [
     "ADAPT_MAX_SCALE",
@@ -762,10 +762,9 @@ _NO_MEASUREMENT = (
     np.zeros(6),
     np.zeros((6, 6)),
 )
-_ROS_POSE = np.ix_([3, 4, 5, 0, 1, 2], [3, 4, 5, 0, 1, 2])
-#: indices of the ROS twist order (vx, vy, vz, wx, wy, wz) in the (12,) output layout
-_TWIST_ROS = np.array([[9], [10], [11], [6], [7], [8]])
-_ROS_TWIST = np.ix_([9, 10, 11, 6, 7, 8], [9, 10, 11, 6, 7, 8])
+#: the (12, 12) covariance's pose and twist blocks in ROS order (FusedState's)
+_ROS_POSE = np.ix_(ROS_ORDER, ROS_ORDER)
+_ROS_TWIST = np.ix_(6 + ROS_ORDER, 6 + ROS_ORDER)
 
 
 def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=float("nan")):

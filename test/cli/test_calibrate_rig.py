@@ -388,6 +388,33 @@ def test_a_cameras_time_offset_is_used_and_kept_or_estimated(rig_bag, tmp_path, 
         assert params.get(f"rig.{name}.time_offset", 0.0) == pytest.approx(dt, abs=1e-7)
 
 
+def test_an_estimated_time_offset_std_is_written_with_an_offset_of_zero_too(tmp_path):
+    """The node adds a camera's ``rig.<camera>.time_offset_std`` to each rig frame's covariance
+    whatever its ``time_offset``: the parameter file written for an offset estimated as 0 holds
+    the std, which the node's configuration reads into the camera's mounting; a camera whose
+    offset was not estimated (no std in the report, the reference's) gets neither."""
+    from rs_localizer.cli.calibrate_rig import params_yaml
+    from rs_localizer.ros.bags.bag_frames import rig_parameter_values
+    from rs_localizer.ros.config import build_config
+    from rs_localizer.ros.param_files import read_params_file
+
+    entry = {"mounting": [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "mounting_covariance": None}
+    report = {
+        "a": {**entry, "mounting": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "time_offset": 0.0},
+        "b": {**entry, "time_offset": 0.0, "time_offset_std": 2.5e-4},
+        "c": {**entry, "time_offset": -0.003, "time_offset_std": 1.25e-4},
+    }
+    out = tmp_path / "rig.yaml"
+    out.write_text(params_yaml(0.0, {n: {} for n in report}, report, [], "base_link"))
+    params = read_params_file(out)
+    assert params["rig.b.time_offset_std"] == 2.5e-4 and "rig.b.time_offset" not in params
+    assert params["rig.c.time_offset_std"] == 1.25e-4 and params["rig.c.time_offset"] == -0.003
+    assert not [k for k in params if k.startswith("rig.a.time_offset")]
+    a, b, c = build_config(*rig_parameter_values(None, [out])).cameras
+    assert (a.mount.time_offset_std, b.mount.time_offset_std) == (0.0, 2.5e-4)
+    assert (b.time_offset, c.time_offset, c.mount.time_offset_std) == (0.0, -0.003, 1.25e-4)
+
+
 def test_a_rendered_rig_bags_images_are_read_through_each_cameras_front_end(
     rig_bag, tmp_path, capsys
 ):

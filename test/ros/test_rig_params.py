@@ -111,6 +111,29 @@ def test_a_cameras_time_offset_reaches_the_rig():
         build_config(*_values({**one, "rig.a.time_offset": "late"}))
 
 
+@pytest.mark.parametrize(
+    "written, frame",
+    [(' " robot "', "robot"), (' ""', "base_link"), (" '  '", "base_link"), ("", "base_link"),
+     (" ~", "base_link")],
+)  # fmt: skip
+def test_a_rigs_base_frame_is_base_link_when_empty_or_null(tmp_path, written, frame):
+    """A rig's frame is its parameter file's ``base_frame`` stripped of spaces; empty, null
+    (``base_frame:`` with no value) or missing: ``base_link``, in the node's configuration
+    and in what replay and calibrate-rig read (the one rule, ``rig_base_frame``)."""
+    from rs_localizer.ros.bags.bag_frames import rig_parameter_values
+    from rs_localizer.ros.config import rig_base_frame
+
+    f = tmp_path / "rig.yaml"
+    f.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    rig:\n      cameras: [a]\n"
+        f"      a: {{mounting: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}}\n    base_frame:{written}\n"
+    )
+    values, cams = rig_parameter_values(None, [f])
+    assert build_config(values, cams).base_frame == frame
+    assert rig_base_frame(values) == frame
+    assert rig_base_frame({}) == "base_link"
+
+
 def test_a_single_camera_is_a_rig_of_one_camera_named_empty():
     """Without ``rig.cameras`` the configuration holds one camera named "", built as a rig's
     cameras are: its ``camera_to_base.*`` pose in ``base_frame`` is the mounting a rig camera

@@ -378,7 +378,7 @@ class RigFrames:
     values: dict
     cameras: dict
     counts: dict
-    settings: LocalizerSettings | None = None
+    settings: LocalizerSettings
 
     @property
     def frames(self) -> list:

@@ -488,7 +488,7 @@ class _Run:
         run.topics = RigTopics(ns, names).of(("info", *kinds))
         run.total, run.unit = None, " rig frames"
         run.map_frame = str(values["map_frame"])
-        run.base_frame = str(values["base_frame"]).strip() or "base_link"
+        run.base_frame = cfg.base_frame
         run.bag_topics = present = bag_topics(path)
         run.image_topics = {t: view_prefix(n) for t, (_, n) in RigTopics(ns, names).of(("image",))
                             .items() if t in present}  # fmt: skip
