@@ -611,12 +611,9 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
 
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
-    """The failure ``cameras_disagree`` of cameras ``cams``: built as every failure is
-    (:func:`~.result.built_estimate`: no inlier in any view, what describes a fit at its
-    failure's value, :class:`~.result.RSPoseEstimate`), with what the joint fit ``est`` did
-    before the cameras were found to disagree: its solver, samples, timings, implementation
-    and ignored inputs, the gyro's check (``gyro_rejected``, ``gyro_rejection``,
-    ``gyro_chi2``) and its inliers per camera (``num_inliers_per_view``)."""
+    """The failure ``cameras_disagree`` of cameras ``cams``, built as every failure is (no fit:
+    :class:`~.result.RSPoseEstimate`) with what the joint fit ``est`` found before the cameras
+    were found to disagree: its search's record, the gyro's check, its inliers per camera."""
     none = tuple(np.zeros(n, dtype=bool) for n in pool.sizes)
     return built_estimate(
         CAMERAS_DISAGREE, None, None, none, pool.counts(), sum(pool.sizes), solver=est.solver,
