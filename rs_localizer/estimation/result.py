@@ -160,6 +160,20 @@ class RSPoseEstimate(PoseWithCovariance):
     per-view fields say which view each count belongs to (one camera's estimate: its one
     view's).
 
+    A failed estimate (``success`` False) has no fit, whatever its reason, also one found after
+    a fit (``implausible_motion``, ``cheirality``, ``inconsistent_fit``, a rig's
+    ``cameras_disagree``): the fields that describe a fit keep their defaults (``model`` and
+    ``pose`` the identity and zeros; no covariances nor ``acceleration_sensitivity``;
+    ``rmse_px``, ``planarity``, ``condition_number`` NaN; ``planar``, ``initial_used``,
+    ``motion_prior_used``, ``gyro_used``, ``single_tag``, ``few_points`` False;
+    ``initial_explained`` -1; ``motion_model`` ``"rolling_shutter"``), never what a fit that
+    was refused had been fitted with. It reports the rows (``num_valid``,
+    ``num_valid_per_view``, ``num_dropped``), the search (``solver``, ``ransac_iterations``,
+    ``implementation``, ``ignored_inputs``) and the gyro's check where the gyro was judged
+    (``gyro_rejected``, ``gyro_rejection``, ``gyro_chi2``: a gyro the image contradicted before
+    the frame failed without it, or, with ``cameras_disagree``, the joint fit's check); a rig's
+    ``cameras_disagree`` also the joint fit's ``num_inliers_per_view`` and ``disagreeing``.
+
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
         failure: reason code when not successful, else ``None`` (a rig's:

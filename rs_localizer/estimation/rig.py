@@ -611,18 +611,17 @@ def _verified(v: _Vote, est) -> RSPoseEstimate | None:
 
 
 def _disagree(est: RSPoseEstimate, pool: StackedViews, cams: set[int]) -> RSPoseEstimate:
-    """The failure ``cameras_disagree`` of cameras ``cams``, with ``est``'s per camera
-    counts (:func:`_restored` with no inlier in any view). What describes a fit reports as
-    every failure does (:class:`~.result.RSPoseEstimate`): no ``initial_explained`` (-1),
-    ``planarity`` and ``condition_number`` NaN, not ``planar``."""
-    identity = RSModel.identity()
-    return _restored(
-        est, pool, range(len(pool.sizes)), success=False, failure=CAMERAS_DISAGREE,
-        model=identity, num_inliers_per_view=est.num_inliers_per_view, rmse_px=np.nan,
-        initial_explained=-1, planarity=np.nan, planar=False, condition_number=np.nan,
-        num_behind=0, num_dropped=est.num_dropped - est.num_behind, covariance=None,
-        model_covariance=None, acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
-        pose=RSPose.from_model(identity, 1.0), pose_covariance=None, twist_covariance=None,
+    """The failure ``cameras_disagree`` of cameras ``cams``, built as every failure is (no fit:
+    :class:`~.result.RSPoseEstimate`) with what the joint fit ``est`` found before the cameras
+    were found to disagree: its search's record, the gyro's check, its inliers per camera."""
+    none = tuple(np.zeros(n, dtype=bool) for n in pool.sizes)
+    return built_estimate(
+        CAMERAS_DISAGREE, None, None, none, pool.counts(), sum(pool.sizes), solver=est.solver,
+        ransac_iterations=est.ransac_iterations, timings=est.timings,
+        implementation=est.implementation, ignored_inputs=est.ignored_inputs,
+        gyro_rejected=est.gyro_rejected, gyro_rejection=est.gyro_rejection,
+        gyro_chi2=est.gyro_chi2, num_inliers_per_view=est.num_inliers_per_view,
+        disagreeing=tuple(sorted(cams)),
     )  # fmt: skip
 
 

@@ -175,7 +175,7 @@ from ..estimation.result import (
     camera_estimate,
     camera_model_of_rig,
 )
-from ..estimation.rig import RIG_OPTIONS
+from ..estimation.rig import RIG_OPTIONS, VOTE_MIN_POINTS
 from ..estimation.view import View
 from ..frames import Mounting
 from ..pose import RSModel
@@ -301,9 +301,15 @@ class LocalizerSettings:
             camera reads them all as the camera does, ``tracked_max_iterations`` None being
             ``options``' own); None: every rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
-            at least ``disagree_min_points`` points whose inlier ratio is below
+            at least ``disagree_min_points`` valid points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
-            ``disagree_history`` rig frames *disagrees* with the rig.
+            ``disagree_history`` rig frames *disagrees* with the rig (judged against the
+            others' points when they number ``disagree_min_points`` too).
+            ``disagree_min_points`` defaults to the points a camera votes with in a rig
+            frame's consensus (:data:`~rs_localizer.estimation.rig.VOTE_MIN_POINTS`, 8): a
+            camera the consensus can outvote is one the video can name (with a higher bar a
+            camera of one or two tags, 8-11 corners, whose mounting is off is outvoted in
+            every rig frame and never named; docs/rig.md).
         imu: a gyro on the rig: a :class:`~rs_localizer.tracking.gyro_input.GyroSettings`
             whose ``R_cam_imu`` is the rotation IMU -> **rig** frame (``R_rig_imu``: the rig's
             angular velocity is ``R_rig_imu (omega_imu - bias)``), ``time_offset`` s added to
@@ -351,7 +357,7 @@ class LocalizerSettings:
     options: EstimateOptions = RIG_OPTIONS
     tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
     disagree_ratio: float = 0.5
-    disagree_min_points: int = 12
+    disagree_min_points: int = VOTE_MIN_POINTS
     disagree_frames: int = 3
     disagree_history: int = 5
     imu: GyroSettings | None = None

@@ -766,6 +766,60 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
         assert a.success and a.disagreeing == () and np.array_equal(a.model.R, b.model.R)
 
 
+#: what describes a fit, which a failed estimate reports at its default (RSPoseEstimate)
+_FIT_FIELDS = ("motion_model", "gyro_used", "initial_used", "motion_prior_used",
+               "initial_explained", "planar", "single_tag", "few_points")  # fmt: skip
+
+
+def test_cameras_that_disagree_report_no_fit_as_a_failure_after_a_fit_does():
+    """``cameras_disagree`` after a joint fit that used a gyro and an initial model (and after a
+    global-shutter one) reports what describes a fit as a failure found after a fit of the
+    same views does (``implausible_motion`` under a velocity bound the motion exceeds,
+    ``too_few_inliers`` of more inliers than one camera gives): not the refused joint fit's
+    ``gyro_used``, ``initial_used``, ``motion_model``; what the joint fit found (its inliers per
+    camera, samples, the gyro's check) it reports."""
+    from rs_localizer.estimation import GyroMeasurement, InitialModel
+
+    slow = EstimateOptions(
+        ransac=RIG_OPTIONS.ransac, plausibility=PlausibilityOptions(max_angular_velocity=1e-3)
+    )
+    used = set()
+    for views, truth in _frames_with_a_wrong_mounting([60, 300], 5.0, n=3):
+        gyro = GyroMeasurement(-truth.w, 0.005**2 * np.eye(3))
+        joint = estimate_rig_pose(views, gyro=gyro, consensus=False)
+        guess = InitialModel(tuple(joint.model), 6.0, 40)  # (the joint fit: used)
+        # (a prediction far from both cameras' poses: it decides nothing)
+        far = (rotvec_to_matrix(np.radians([0.0, 0.0, 30.0])) @ truth.R, truth.C, truth.w, truth.t)
+        fit = estimate_rig_pose(views, gyro=gyro, initial_model=guess, consensus=False)
+        est = estimate_rig_pose(views, gyro=gyro, initial_model=guess, prediction=far)
+        assert fit.success and est.failure == "cameras_disagree" and est.disagreeing == (0, 1)
+        used |= {n for n in ("gyro_used", "initial_used") if getattr(fit, n)}
+        after_fit = estimate_rig_pose(views, slow, gyro=gyro, initial_model=guess)
+        assert after_fit.failure == "implausible_motion"
+        for name in _FIT_FIELDS:
+            assert getattr(est, name) == getattr(after_fit, name), name
+        assert est.model_covariance is None and est.pose_covariance is None
+        assert np.array_equal(est.model.R, np.eye(3)) and not est.inliers.any()
+        # (what the joint fit found before the cameras were found to disagree)
+        assert est.num_inliers_per_view == fit.num_inliers_per_view
+        assert est.ransac_iterations == fit.ransac_iterations
+        assert est.gyro_rejected == fit.gyro_rejected
+    assert used == {"gyro_used", "initial_used"}
+    views, _ = _global_shutter_frame(0, [60, 300], 0.3, 0.0)
+    bad = rotvec_to_matrix(np.radians([0.0, 5.0, 0.0]))
+    views[-1] = replace(views[-1], mounting=Mounting(bad @ views[-1].mounting.R,
+                                                     views[-1].mounting.c))  # fmt: skip
+    assert estimate_rig_pose(views, consensus=False).motion_model == "global_shutter"
+    est = estimate_rig_pose(views)
+    assert est.failure == "cameras_disagree"
+    # (a global-shutter fit moves at no velocity: refused for too few inliers after the fit)
+    strict = EstimateOptions(ransac=RansacOptions(min_inliers=350))
+    after_fit = estimate_rig_pose(views, strict)
+    assert after_fit.failure == "too_few_inliers"
+    for name in _FIT_FIELDS:
+        assert getattr(est, name) == getattr(after_fit, name), name
+
+
 def _global_shutter_frame(seed, counts, noise_px, outliers, line_delay=0.0, motion=()):
     """A rig frame of ``len(counts)`` cameras with equal stamps
     (:func:`rs_localizer.sim.synthetic.make_rig`) reading out at ``line_delay`` (s per line; 0:

@@ -234,6 +234,33 @@ def test_a_mounting_off_by_degrees_is_named():
     assert all(o.disagreeing == () for o in good)
 
 
+def test_a_camera_of_a_few_points_whose_mounting_is_off_is_named():
+    """The left camera cut to 8-11 points per frame (one or two tags' corners: it votes in
+    each rig frame's consensus) and its mounting given 3 degrees off: outvoted in every rig
+    frame and, judged from as many points as it votes with, named ``disagreeing`` with a
+    warning; with the right mountings nobody is named."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=150, seed=6)
+    rng = np.random.default_rng(6)
+    small = []
+    for f in frames:
+        if f.name == "left":
+            keep = np.flatnonzero(f.inlier)[: rng.integers(8, 12)]
+            f = replace(f, uv=f.uv[keep], xyz=f.xyz[keep], inlier=f.inlier[keep])
+        small.append(f)
+    assert {len(f.uv) for f in small if f.name == "left"} <= set(range(8, 12))
+    mounts = mounts_of(cams)
+    bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
+    mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
+    log = Log()
+    rig, outs, _ = run(small, cams, LocalizerSettings(mounts), log)
+    assert all(o.success and o.outvoted == ("left",) for o in outs)
+    assert outs[-1].disagreeing == ("left",) and rig.camera_state("left") == "disagrees"
+    assert [k for k, _ in log.warnings] == ["rig.disagrees.left"]
+    _, good, _ = run(small, cams)
+    assert all(o.success and o.disagreeing == () == o.outvoted for o in good)
+
+
 def test_stamps_going_back_start_the_rig_again(video):
     """The video played twice (stamps going back by more than ``time_reset_ns``): the rig
     starts again, the track cold; a camera's frame older than its previous one (by less) is
