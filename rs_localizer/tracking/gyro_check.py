@@ -18,18 +18,18 @@ gyro_bias.pair_innovation`) and keeps the outcome of the last ``window`` pairs:
 * ``failures`` failed pairs among the last ``window`` counted ones, *and* a mount error that
   explains them, declare the gyro **inconsistent** with the image. The mount error is the
   rotation ``Q`` that best maps the gyro's rotations onto the image's over the window
-  (``log(O_prev^T O) ~ Q phi_gyro``, both in the camera frame; Kabsch's fit with Huber
-  weights, the rotation-vector form of Umeyama 1991): it must exceed ``min_mount_error_deg``
-  and halve the pairs' median residual. Poses that are wrong now and then (a planar pose
-  ambiguity, a tracker glitch: the image is wrong, not the gyro) fail pairs in every
-  direction, which no rotation of the mount explains; a wrong mount (an axis swapped, a sign)
-  fails them all the same way. A time offset error is not a rotation either: on a 3D scene the
-  per-frame test rejects the frames it spoils, on a planar one it is mostly left in (a window
-  of poorly posed frames can happen to fit a rotation: in the measurements below, on two of
-  three videos of the wall, after 3.8 and 5.5 s). While the gyro is inconsistent,
-  the frames are solved without it (the caller's decision; the node counts them in
-  ``gyro_disabled_inconsistent``), and pairs are still tested with the gyro's own rotation, so
-  that the gyro is **consistent** again once at most ``recover_failures`` of the last
+  (``log(O_prev^T O) ~ Q phi_gyro``, both in the camera frame; the weighted least-squares
+  rotation of SciPy's ``Rotation.align_vectors``, Kabsch's fit without a centroid, repeated with
+  Huber weights): it must exceed ``min_mount_error_deg`` and halve the pairs' median residual.
+  Poses that are wrong now and then (a planar pose ambiguity, a tracker glitch: the image is
+  wrong, not the gyro) fail pairs in every direction, which no rotation of the mount explains; a
+  wrong mount (an axis swapped, a sign) fails them all the same way. A time offset error is not
+  a rotation either: on a 3D scene the per-frame test rejects the frames it spoils, on a planar
+  one it is mostly left in (a window of poorly posed frames can happen to fit a rotation: in the
+  measurements below, on two of three videos of the wall, after 3.8 and 5.5 s). While the gyro
+  is inconsistent, the frames are solved without it (the caller's decision; the node counts them
+  in ``gyro_disabled_inconsistent``), and pairs are still tested with the gyro's own rotation,
+  so that the gyro is **consistent** again once at most ``recover_failures`` of the last
   ``window`` pairs fail (the data became consistent, e.g. a corrected ``imu.rotation``).
 
 A wrong mount by an angle ``a`` leaves a residual of about ``2 sin(a / 2) |omega| dt`` per pair
@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
 
 from ..estimation.gyro import GYRO_CHI2_THRESHOLD
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
@@ -174,11 +175,8 @@ class GyroMountCheck:
         phi = np.array([w[1] for w in self._window])  # the gyro's rotations (camera frame)
         psi = np.array([w[2] for w in self._window])  # the image's
         wts = np.ones(len(phi))
-        for _ in range(5):  # Kabsch with Huber weights
-            H = (psi * wts[:, None]).T @ phi
-            U, _, Vt = np.linalg.svd(H)
-            E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-            Q = U @ E @ Vt
+        for _ in range(5):  # Huber weights: Q minimizes sum wts |psi - Q phi|^2
+            Q = Rotation.align_vectors(psi, phi, weights=wts)[0].as_matrix()
             rn = np.linalg.norm(psi - phi @ Q.T, axis=1)
             k = 1.5 * np.median(rn) + 1e-12
             wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))

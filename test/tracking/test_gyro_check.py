@@ -6,7 +6,7 @@ and a mount that becomes right again recovers."""
 import numpy as np
 import pytest
 
-from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.trajectory import R_IMU_CAMERA, imu_samples, make_trajectory
 from rs_localizer.tracking.gyro import ImuBuffer
 from rs_localizer.tracking.gyro_check import GyroMountCheck, MountCheckOptions
@@ -67,6 +67,30 @@ def test_wrong_mount_detected_and_recovers():
     back = 120 + int(np.argmin(inc[120:]))
     assert not inc[-1] and back <= 120 + 15, back
     assert check.counts["failed"] >= 100
+
+
+@pytest.mark.parametrize(
+    "rotvec",
+    [
+        [0.0, 0.0, np.pi / 2],  # 90 deg about the optical axis
+        np.full(3, 2 * np.pi / 3 / np.sqrt(3)),  # the axes permuted (x -> y -> z -> x)
+        [np.pi, 0.0, 0.0],  # two axes' signs flipped
+        [0.0, -0.6, 0.0],  # 34 deg off
+    ],
+)
+def test_mount_error_is_the_mounts_error(rotvec):
+    """A mount wrong by a known rotation ``E`` (``E R_true`` assumed) is detected, and the
+    mount the check's window suggests, ``mount_error`` times the assumed one, is the true
+    mount within 1.5 deg (the poses' noise, 0.02 deg per frame, against pairs' rotations of
+    0.5-3 deg); the mount error's angle is ``E``'s."""
+    E = rotvec_to_matrix(np.asarray(rotvec, dtype=float))
+    traj = make_trajectory("shake")
+    check = GyroMountCheck(E @ R_IMU_CAMERA.T, NOISE)
+    inc = _run(check, traj, _imu(traj, 3.0), 60)
+    assert inc.any() and int(np.argmax(inc)) <= 12
+    assert rotation_angle_deg(check.mount_error @ check.R_cam_imu, R_IMU_CAMERA.T) < 1.5
+    angle = np.rad2deg(np.linalg.norm(rotvec))
+    assert check.mount_error_deg == pytest.approx(angle, abs=1.5)
 
 
 def test_right_mount_not_flagged_despite_wrong_poses():
