@@ -47,6 +47,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation import EstimateOptions, GyroMeasurement, estimate_rs_pose
 from rs_localizer.estimation.result import rig_model_of_camera
@@ -94,8 +95,7 @@ def errors(model, truth) -> tuple[float, float, float]:
 
 def _mean_model(models):
     """The chordal mean of the rotations, the mean position and mean w of rig models."""
-    U, _, Vt = np.linalg.svd(sum(m[0] for m in models))
-    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    R = Rotation.from_matrix([m[0] for m in models]).mean().as_matrix()
     p = np.mean([-m[0].T @ m[1] for m in models], axis=0)
     return R, -R @ p, np.mean([m[2] for m in models], axis=0), None
 
