@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from ..camera import DISTORTION_MODELS, CameraModel, Stamp, checked_stamp
+from ..geometry import nearest_rotation
 from ..pose import PoseWithCovariance, RSPose
 
 if TYPE_CHECKING:  # (the message packages are imported where a message is built)
@@ -98,9 +99,7 @@ def quaternion_from_matrix(R: ArrayLike, orthonormal: bool = False) -> np.ndarra
     if orthonormal:
         rot = Rotation.from_matrix(R, **({"assume_valid": True} if _ASSUME_VALID else {}))
     else:
-        U, _, Vt = np.linalg.svd(R)
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-        rot = Rotation.from_matrix(U @ D @ Vt)
+        rot = Rotation.from_matrix(nearest_rotation(R))
     q = rot.as_quat()
     return -q if q[3] < 0 else q
 
