@@ -86,8 +86,9 @@ def search_batch(u, subset, X, x, tau, cam, Rm, cm, A, order, still, missed, rou
     best_e[:] = e
     R_best[:] = R[h]
     C_best[:] = C[h]
-    w_best[:] = w[h]
-    t_best[:] = t[h]
+    if not still:  # (a still model's velocities: none written)
+        w_best[:] = w[h]
+        t_best[:] = t[h]
     n_best, m = counted(e, k, cam, pool_counts, subset)
     missed_best[:] = m
     return h, cost, n_best, beyond
