@@ -8,8 +8,8 @@ drawn, the adaptive termination: :func:`required_iterations`, the batches:
 ``refine_model``: a new best). The single camera's :class:`Ransac` is its own estimator; the
 rig's is in :mod:`.rig`. Both draw from one seeded random stream (:func:`seeded_rng`; the
 start of it kept per seed by :func:`seeded_stream`: a frame's shuffle, a compiled rig
-batch's draws), and both terminate by one rule (:func:`required_samples`, compiled too for
-the rig's batches, which check it after every sample).
+batch's draws), and both terminate by one rule (:func:`required_samples`, checked after
+every batch).
 
 :class:`Ransac` holds the search's state (the best model, its score and inliers, the
 hypotheses drawn, the adaptive termination) and draws batches of minimal samples from a
@@ -28,7 +28,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._jit import kernel
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
 from .hypotheses import KNOWN_W_SAMPLE, HypothesisSource, ScoredBatch, hypothesis_source
@@ -132,20 +131,14 @@ def required_iterations(inlier_ratio: float, s: int, confidence: float) -> float
 
 
 def required_samples(inlier_ratio: float, s: int, log_miss: float) -> float:
-    """:func:`required_iterations` with ``log_miss`` ``log(1 - confidence)``, the formula once
-    for a camera's search and, compiled (:data:`required_samples_kernel`), a rig's
-    (:mod:`.rig_batch`)."""
+    """:func:`required_iterations` with ``log_miss`` ``log(1 - confidence)``: the formula once
+    for a camera's search and a rig's."""
     if inlier_ratio <= 0:
         return np.inf
     p = inlier_ratio ** float(s)  # (a float power, compiled too: pow(), not repeated products)
     if p >= 1:
         return 0.0
     return log_miss / np.log1p(-p)
-
-
-#: :func:`required_samples` compiled (the rig's batch kernels, :mod:`.rig_batch`, check it
-#: after every sample; compiled on its first call there)
-required_samples_kernel = kernel(required_samples)
 
 
 def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
@@ -170,14 +163,11 @@ def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
 def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
     """The sizes of the batches of minimal samples a search draws, until adaptive termination
     (``loop.needed``, read before each batch) or ``r.max_iterations``: the first batch
-    ``r.batch_size`` (no larger than ``r.min_iterations`` for an estimator that checks
-    termination after every sample, ``loop.per_sample``), each next one twice as large, but
-    none more than termination still asks for (at least ``r.min_iterations`` in all). The
-    caller adds the samples each drew to ``loop.iterations``."""
+    ``r.batch_size``, each next one twice as large, but none more than termination still
+    asks for (at least ``r.min_iterations`` in all). The caller adds the samples each drew to
+    ``loop.iterations``."""
     batch = max(int(r.batch_size), 1)
     min_it, max_it = r.min_iterations, r.max_iterations
-    if loop.per_sample:  # (a frame whose best model asks for no more stops at min_iterations)
-        batch = max(1, min(batch, int(min_it)))
     while True:
         it, needed = loop.iterations, loop.needed
         if not (it < max_it and (it < needed or it < min_it)):
@@ -195,9 +185,8 @@ class RansacEstimator(Protocol):
     def generate_models(self, loop: RansacLoop, K: int) -> tuple[Any, int]:
         """``(hypotheses, samples drawn)``: the hypotheses of up to ``K`` new minimal samples
         (``loop.iterations`` not yet counting them), or None when none gave a model, and the
-        samples drawn (``K``, or fewer when the estimator checks termination after every
-        sample and it was reached, as PoseLib's loop does); adds those dropped for their
-        motion alone to ``loop.implausible``."""
+        samples drawn (``K``); adds those dropped for their motion alone to
+        ``loop.implausible``."""
 
     def score_models(self, hypotheses: Any) -> tuple[float, Any]:
         """The best of ``generate_models``'s hypotheses: (its MSAC score, its model)."""
@@ -212,9 +201,6 @@ class RansacLoop:
 
     Attributes:
         s: the minimal sample's size. confidence: adaptive termination's.
-        per_sample: the estimator checks termination after every sample, as PoseLib's loop
-            does (a batch stops at the first sample at which it is reached): the first batch
-            is then no larger than ``min_iterations`` (:func:`batch_sizes`).
         best: the best model so far or None; score: its MSAC score.
         iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
             asks for; implausible: hypotheses rejected for their motion alone.
@@ -223,8 +209,6 @@ class RansacLoop:
             inliers (int indices) when RANSAC only verifies it, sampling among them, else None
             (:meth:`seeded`).
     """
-
-    per_sample = False
 
     def __init__(self, s: int, r: RansacOptions):
         self.s = s

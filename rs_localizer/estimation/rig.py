@@ -678,9 +678,6 @@ class _RigSearch(RansacLoop):
     after the search), its inlier ratio among the seed's inliers ``subset`` when RANSAC
     verifies a seed."""
 
-    #: a compiled batch checks termination after every sample, as PoseLib's loop does
-    per_sample = True
-
     def __init__(self, stages: _RigStages):
         pool, still, spread, prior, r = (stages.pool, stages.still, stages.spread, stages.prior,
                                          stages.options.ransac)  # fmt: skip
@@ -709,6 +706,8 @@ class _RigSearch(RansacLoop):
         # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
         self._args, self._drawn, self._out = None, 0, None
         self._n, self._missed = 0, self._no_missed
+        #: the best model's inliers among every point (the pre-test's bound, as a camera's)
+        self.count = 0
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for :meth:`errors`)."""
@@ -750,40 +749,42 @@ class _RigSearch(RansacLoop):
 
     def _batch(self, K: int) -> tuple:
         """``generate_models`` in one compiled call (:func:`~.rig_batch.search_batch`): K
-        samples on the seed's next ``7 K`` random draws, solved and scored in turn, stopping
-        after the first sample at which termination is reached. Returns ``((cost, model,
-        errors, inliers, missed cameras) of the batch's best model, or None when none beat the
-        best, samples drawn)``."""
+        samples on the seed's next ``7 K`` random draws, solved and scored as a camera's batch
+        is (the pre-test on a random order of the points, the seed's draws after the
+        samples'). Returns ``((cost, model, errors, inliers, missed cameras) of the batch's
+        best model, or None when none beat the best, K)``."""
+        pool = self.pool
         if self._args is None:
-            pool, subset = self.pool, self.subset
+            subset, N, n_draws = self.subset, len(pool.cam), 7 * int(self.batches.max_iterations)
             X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
             self._args = (_NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm, A)
-            self._draws = seeded_stream(
-                self.rng.seed, "random", 7 * int(self.batches.max_iterations)
-            )
+            stream = seeded_stream(self.rng.seed, "random", n_draws + N)
+            self._draws = stream[:n_draws]
+            self._order = np.argsort(stream[n_draws:], kind="stable")
         o = self._drawn
         self._drawn = o + 7 * K
         # (a batch that found a best model wrote it into these buffers: the search keeps them)
         if self._out is None:
-            N, M = len(self.pool.cam), len(self._counts)
+            N, M = len(pool.cam), len(self._counts)
             self._out = (np.empty(N), np.empty((3, 3)), np.empty(3), np.zeros(3), np.zeros(3),
                          np.empty(M, dtype=bool))  # fmt: skip
         anchor = _NO_ANCHOR
         if self.anchored and self.best is not None and not self.still:
             anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-        drawn, h, cost, n, beyond = search_batch(
-            self._draws, o, K, *self._args, self.still,
+        pretest = int(self.batches.pretest_points)
+        h, cost, n, beyond = search_batch(
+            self._draws[o : o + 7 * K].reshape((7, K)), *self._args, self._order, self.still,
             self._no_missed if self.missed is None else self.missed,
             SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
             self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-            self.iterations, self.batches.min_iterations, self.needed, self._log_miss, self._out,
+            pretest, int(0.5 * pretest * self.count / len(pool.cam)), self._out,
         )  # fmt: skip
         self.implausible += beyond
         if h < 0:
-            return None, drawn
+            return None, K
         e, R, C, w, t, missed = self._out
         self._out = None
-        return (cost, (R, C, w, t), e, n, missed), drawn
+        return (cost, (R, C, w, t), e, n, missed), K
 
     def score_models(self, hyp: tuple) -> tuple[float, tuple]:
         if self.fused:  # (:meth:`_batch`'s best, scored)
@@ -804,6 +805,7 @@ class _RigSearch(RansacLoop):
             n = np.count_nonzero(inl if self.subset is None else inl[self.subset])
         if self.still and not self.spread:
             self.missed = missed if missed.any() else None
+        self.count = int(np.count_nonzero(self._e < self.threshold_px))
         among = len(self._e) if self.subset is None else len(self.subset)
         return self._cost, model, float(n / among)
 
@@ -857,6 +859,7 @@ class _RigStages:
             )  # fmt: skip
             if seed is not None:  # (scored as the search scores: its errors kept)
                 seed, self.initial_used = (search.cost(seed[1]), *seed[1:]), True
+                search.count = int(np.count_nonzero(seed[2]))
             # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
             # it, sampling among them, whose all-inlier probability is 1)
             need = max(int(im.min_explained), search.s + 1, 6)

@@ -1,10 +1,10 @@
 """The compiled kernels of the rig's RANSAC (:func:`~.rig.estimate_rig_pose`): each batch of
 the search drawn (:func:`~.sampling.batch_samples`), solved (:func:`still_models`,
 :func:`moving_models`: the rig's own hypotheses, :func:`~.rig._hypotheses`) and scored
-(:func:`~.scoring.model_cost`, MSAC on each point's error in pixels) in one numba call
-(:func:`search_batch`), as :mod:`.batch` does for one camera, termination checked after every
-sample as PoseLib's loop does. The rig's step-by-step search (with a gyro, or another
-pre-rotation) calls the same kernels one by one.
+(the camera's :func:`~.scoring.msac_scores` with the mountings: MSAC on each point's error in
+pixels, with the pre-test) in one numba call (:func:`search_batch`), as :mod:`.batch` does for
+one camera, termination checked after every batch. The rig's step-by-step search (with a gyro,
+or another pre-rotation) calls the same kernels one by one.
 """
 
 from __future__ import annotations
@@ -17,9 +17,8 @@ from ..solvers.lambda_twist import MAX_SOLUTIONS
 from ..solvers.r6p_1lin import solve_mounted
 from .batch import checked_solutions
 from .plausibility import motion_checked
-from .ransac import required_samples_kernel
 from .sampling import batch_samples, gather_prerotated, p3p_mounted, p3p_mounted_into
-from .scoring import model_cost
+from .scoring import best_mounted
 
 __all__ = [
     "counted",
@@ -51,77 +50,68 @@ def counted(e, k, cam, pool_counts, subset):
 
 
 @kernel
-def search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, still, missed, rounds, anchor,
-                 iterations, w2max, v2max, th2, k, pool_counts, best_cost, it0, min_it, needed,
-                 log_miss, out):  # fmt: skip
+def search_batch(u, subset, X, x, tau, cam, Rm, cm, A, order, still, missed, rounds, anchor,
+                 iterations, w2max, v2max, th2, k, pool_counts, best_cost, pretest_n,
+                 pretest_min, out):  # fmt: skip
     """One batch of the compiled search: K samples of :meth:`~.view.StackedViews.samples` on
-    the draws ``draws[o:o + 7 K]`` (among the pool indices ``subset`` unless empty), each
-    sample's models (``still``: :func:`still_models` with ``missed``, ``rounds``; else
+    the draws ``u`` (7, K) (among the pool indices ``subset`` unless empty), each sample's
+    models (``still``: :func:`still_models` with ``missed``, ``rounds``; else
     :func:`moving_models` with ``anchor``, ``iterations``, those beyond ``w2max`` (rad/s)^2,
-    ``v2max`` (m/s)^2 counted, not scored) scored in turn (``th2`` px^2) against the search's
-    state (``best_cost``, ``it0`` samples drawn, ``min_it``, ``needed``, ``log_miss`` =
-    log(1 - confidence)), a new best's inliers below ``k`` px counted (:func:`counted`); the
-    batch stops after the first sample at which termination is reached
-    (:func:`~.ransac.required_samples`). Returns ``(samples drawn, h, cost, inliers, models
-    beyond the bounds)``: ``h`` -1 when no model beat the best, else the batch's best is
-    written into ``out`` ``(errors (N,) px, R, C, w, t, missed cameras (M,) bool)``: the same
-    model as :mod:`.rig`'s steps one by one, bit for bit."""
-    samples = batch_samples(draws[o : o + 7 * K].reshape((7, K)), cam, pool_counts, subset)
-    N = X.shape[0]
-    e = np.empty(N)
+    ``v2max`` (m/s)^2 counted, not scored) scored as a camera's batch is
+    (:func:`~.scoring.best_mounted`: MSAC on each point's error in px, ``th2`` px^2, the
+    pre-test on the first ``pretest_n`` points of ``order`` needing ``pretest_min`` inliers
+    there) against the best cost so far ``best_cost``, the batch's best's inliers below ``k``
+    px counted (:func:`counted`). Returns ``(h, cost, inliers, models beyond the bounds)``:
+    ``h`` -1 when no model beat the best, else the batch's best is written into ``out``
+    ``(errors (N,) px, R, C, w, t, missed cameras (M,) bool)``."""
+    samples = batch_samples(u, cam, pool_counts, subset)
     best_e, R_best, C_best, w_best, t_best, missed_best = out
-    among = len(subset) if len(subset) else N
-    s = 3 if still else 6
-    found, n_best, beyond, drawn = -1, 0, 0, K
-    # (one sample's global-shutter models' buffers; a moving frame's models of every sample)
+    beyond = 0
+    if still:
+        R, C = still_batch(samples, x, X, cam, Rm, cm, missed, rounds)
+        w = t = np.zeros((R.shape[0], 3))
+        ok = np.ones(R.shape[0], dtype=np.bool_)
+    else:
+        R, C, w, t, ok, _ = moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations)
+        for g in range(len(ok)):
+            if ok[g]:
+                finite, within = motion_checked(C, w, t, g, w2max, v2max)
+                ok[g] = finite and within  # (_hypotheses' finite models)
+                if finite and not within:
+                    beyond += 1
+    h, cost, e = best_mounted(R, C, w, t, ok, X, x, A, (cam, Rm, cm, tau, still, order), th2,
+                              best_cost, pretest_n, pretest_min)  # fmt: skip
+    if not cost < best_cost:
+        return -1, best_cost, 0, beyond
+    best_e[:] = e
+    R_best[:] = R[h]
+    C_best[:] = C[h]
+    if not still:  # (a still model's velocities: none written)
+        w_best[:] = w[h]
+        t_best[:] = t[h]
+    n_best, m = counted(e, k, cam, pool_counts, subset)
+    missed_best[:] = m
+    return h, cost, n_best, beyond
+
+
+@kernel
+def still_batch(samples, x, X, cam, Rm, cm, missed, rounds):
+    """:func:`still_models` of each of the samples (K, 6), in their order: ``(R (H, 3, 3), C
+    (H, 3))``."""
+    K = samples.shape[0]
+    R, C = np.empty((2 * MAX_SOLUTIONS * K, 3, 3)), np.empty((2 * MAX_SOLUTIONS * K, 3))
     b, P = np.empty((3, 3)), np.empty((3, 3))
     R_cam, C_cam = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     Rp, Cp = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
-    z = np.zeros((2 * MAX_SOLUTIONS, 3))
-    if still:
-        R, C, w, t = np.empty((0, 3, 3)), np.empty((0, 3)), z, z
-        ok, own = np.empty(0, dtype=np.bool_), np.empty(0, dtype=np.int64)
-    else:
-        R, C, w, t, ok, own = moving_models(samples, x, X, tau, cam, Rm, cm, anchor, iterations)
-    H, h = len(ok), 0
+    H = 0
     for j in range(K):
-        lo = h
-        if still:
-            R, C = still_models(samples[j], x, X, cam, Rm, cm, missed, rounds, b, P, R_cam,
-                                C_cam, Rp, Cp)  # fmt: skip
-            lo, h = 0, R.shape[0]
-        else:
-            while h < H and own[h] == j:
-                h += 1
-        for g in range(lo, h):
-            if not still:
-                if not ok[g]:
-                    continue
-                finite, within = motion_checked(C, w, t, g, w2max, v2max)
-                if not finite:  # (_hypotheses' finite models)
-                    continue
-                if not within:
-                    beyond += 1
-                    continue
-            if still:  # (the flag a constant in each call, as in the kernels' own code)
-                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, True, g, best_cost, e)
-            else:
-                c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, False, g, best_cost, e)
-            if c >= 0 and c < best_cost:
-                best_cost, found = c, g
-                best_e[:] = e
-                R_best[:] = R[g]
-                C_best[:] = C[g]
-                if not still:
-                    w_best[:] = w[g]
-                    t_best[:] = t[g]
-                n_best, m = counted(e, k, cam, pool_counts, subset)
-                missed_best[:] = m
-                needed = required_samples_kernel(n_best / among, s, log_miss)
-        if it0 + j + 1 >= min_it and it0 + j + 1 >= needed:
-            drawn = j + 1
-            break
-    return drawn, found, best_cost, n_best, beyond
+        Rj, Cj = still_models(samples[j], x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam,
+                              Rp, Cp)  # fmt: skip
+        n = Rj.shape[0]
+        R[H : H + n] = Rj
+        C[H : H + n] = Cj
+        H += n
+    return R[:H], C[:H]
 
 
 @kernel

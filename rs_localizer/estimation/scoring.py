@@ -1,8 +1,9 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
 A camera mounted on a rig is scored by the same exact-model error on the rig's model seen from
-that camera (:func:`mounted_pose`, :func:`pose_error2`); the MSAC cost of models on a frame's
-views stacked (:class:`~.view.StackedViews`) by :func:`best_msac`.
+that camera (:func:`mounted_pose`, :func:`pose_error2`), and the MSAC scores of models on a
+frame's views stacked (:class:`~.view.StackedViews`) are the camera's (:func:`msac_scores`
+with the mountings; :func:`best_mounted`).
 
 Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it
 is.
@@ -187,44 +188,72 @@ def _turned(Rm, c, v0, v1, v2):
 
 
 @kernel(inline=INLINE, fastmath=FMA)
-def mounted_pose(R, C, w, t, h, Rm, cm, c):
+def mounted_pose(R, C, w, t, h, Rm, cm, c, out):
     """Model ``h`` of the rig (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3)) as camera ``c``'s
-    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``: ``(Rm[c] R[h]``
-    (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c] t[h])``, 18 scalars. Since ``Rm
-    expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau [w]x) R X + C + tau t)
-    + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``, which the camera's
-    kernels evaluate (:func:`pose_error2`)."""
-    a00, a10, a20 = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
-    a01, a11, a21 = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
-    a02, a12, a22 = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
+    own exact model, the camera mounted at ``x_cam = Rm[c] x_rig + cm[c]``, written into
+    ``out`` (18,): ``(Rm[c] R[h]`` (row-major), ``Rm[c] C[h] + cm[c], Rm[c] w[h], Rm[c]
+    t[h])``. Since ``Rm expm(tau [w]x) = expm(tau [Rm w]x) Rm``, the point ``Rm (expm(tau
+    [w]x) R X + C + tau t) + cm`` is that model's ``expm(tau [w_c]x) R_c X + C_c + tau t_c``,
+    which the camera's kernels evaluate (:func:`pose_error2`)."""
+    out[0], out[3], out[6] = _turned(Rm, c, R[h, 0, 0], R[h, 1, 0], R[h, 2, 0])
+    out[1], out[4], out[7] = _turned(Rm, c, R[h, 0, 1], R[h, 1, 1], R[h, 2, 1])
+    out[2], out[5], out[8] = _turned(Rm, c, R[h, 0, 2], R[h, 1, 2], R[h, 2, 2])
     C0, C1, C2 = _turned(Rm, c, C[h, 0], C[h, 1], C[h, 2])
-    w0, w1, w2 = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
-    t0, t1, t2 = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
-    return (a00, a01, a02, a10, a11, a12, a20, a21, a22,
-            C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2], w0, w1, w2, t0, t1, t2)  # fmt: skip
+    out[9], out[10], out[11] = C0 + cm[c, 0], C1 + cm[c, 1], C2 + cm[c, 2]
+    out[12], out[13], out[14] = _turned(Rm, c, w[h, 0], w[h, 1], w[h, 2])
+    out[15], out[16], out[17] = _turned(Rm, c, t[h, 0], t[h, 1], t[h, 2])
 
 
 @kernel(inline=INLINE, fastmath=FMA)
 def pose_error2(pose, X, x, tau, A, i, still):
     """The squared image error of point ``i`` (``X`` (N, 3), ``x`` (N, 2)) under a camera's
-    ``pose`` (18 scalars: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its
-    capture time ``tau[i]``: :func:`exact_error2_whitened` with the point's row-major 2x2
-    ``A[i]`` (a camera's pixel Jacobian: to first order the error in px of the measured
-    image); ``inf`` behind the camera. ``still``: ``w = t = 0`` (the rotation at every
-    capture time the identity: the same error without the terms that add zeros)."""
-    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
+    ``pose`` (18,: ``R`` row-major, ``C``, ``w``, ``t``; :func:`mounted_pose`) at its capture
+    time ``tau[i]``: :func:`exact_error2_whitened` with the point's row-major 2x2 ``A[i]`` (a
+    camera's pixel Jacobian: to first order the error in px of the measured image); ``inf``
+    behind the camera. ``still``: ``w = t = 0`` (the rotation at every capture time the
+    identity: the same error without the terms that add zeros)."""
     X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-    q0 = r00 * X0 + r01 * X1 + r02 * X2
-    q1 = r10 * X0 + r11 * X1 + r12 * X2
-    q2 = r20 * X0 + r21 * X1 + r22 * X2
+    q0 = pose[0] * X0 + pose[1] * X1 + pose[2] * X2
+    q1 = pose[3] * X0 + pose[4] * X1 + pose[5] * X2
+    q2 = pose[6] * X0 + pose[7] * X1 + pose[8] * X2
     if still:
         return image_error2_whitened(
-            x[i, 0], x[i, 1], q0 + C0, q1 + C1, q2 + C2, A[i, 0], A[i, 1], A[i, 2], A[i, 3]
-        )
+            x[i, 0], x[i, 1], q0 + pose[9], q1 + pose[10], q2 + pose[11],
+            A[i, 0], A[i, 1], A[i, 2], A[i, 3],
+        )  # fmt: skip
     return exact_error2_whitened(
-        x[i, 0], x[i, 1], tau[i], q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2,
+        x[i, 0], x[i, 1], tau[i], q0, q1, q2, pose[9], pose[10], pose[11],
+        pose[12], pose[13], pose[14], pose[15], pose[16], pose[17],
         A[i, 0], A[i, 1], A[i, 2], A[i, 3],
     )  # fmt: skip
+
+
+@kernel(fastmath=FMA)
+def mounted_poses(Rs, Cs, ws, ts, valid, Rm, cm):
+    """(H, M, 18) every valid hypothesis (``Rs`` (H, 3, 3), ``Cs``, ``ws``, ``ts`` (H, 3),
+    ``valid`` (H,)) as each camera's own model (:func:`mounted_pose`; zeros where not
+    valid): computed once per hypothesis and camera, not per point."""
+    poses = np.zeros((Rs.shape[0], Rm.shape[0], 18))
+    for h in range(Rs.shape[0]):
+        if valid[h]:
+            for c in range(Rm.shape[0]):
+                mounted_pose(Rs, Cs, ws, ts, h, Rm, cm, c, poses[h, c])
+    return poses
+
+
+@kernel(fastmath=FMA)
+def mounted_errors(R, C, w, t, h, X, x, A, mount):
+    """(N,) the errors (px) of hypothesis ``h`` on every point of a rig's stacked views
+    (``mount`` as :func:`msac_scores`' , ``A`` its ``W``): each point's camera's
+    :func:`pose_error2`, the square root of what :func:`msac_scores` sums."""
+    cam, Rm, cm, tau, still, _ = mount
+    pose = np.empty((Rm.shape[0], 18))
+    for c in range(Rm.shape[0]):
+        mounted_pose(R, C, w, t, h, Rm, cm, c, pose[c])
+    e = np.empty(X.shape[0])
+    for i in range(X.shape[0]):
+        e[i] = np.sqrt(pose_error2(pose[cam[i]], X, x, tau, A, i, still))
+    return e
 
 
 @kernel(inline=INLINE, fastmath=FMA)
@@ -258,14 +287,22 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
 
 @kernel(fastmath=FMA)
 def _msac_points(
-    x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured, W
-):
+    x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured, W,
+    at,
+):  # fmt: skip
     """Add points ``start <= i < stop`` to hypothesis h's running MSAC score s and inlier
     count c, stopping early once s exceeds ``bail`` or fewer than ``need`` inliers remain
     reachable. Returns (s, c, True if every point was added). The one place
-    :func:`msac_scores` evaluates errors: one inlined copy of the error model to compile."""
+    :func:`msac_scores` evaluates errors: one inlined copy of the error model to compile.
+    ``at``: None (a camera's points, :func:`_error2_h`) or a rig's ``(cam, poses (H, M, 18),
+    tau, still, order)`` (the i-th point ``order[i]``, its camera's :func:`pose_error2`)."""
     for i in range(start, stop):
-        e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W)
+        if at is None:  # (a camera: numba prunes the rig's branch at compile time)
+            e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W)
+        else:
+            cam, poses, tau, still, order = at
+            p = order[i]
+            e2 = pose_error2(poses[h, cam[p]], X, x, tau, W, p, still)
         if e2 < th2:
             s += e2
             c += 1
@@ -295,6 +332,7 @@ def msac_scores(
     pretest_fraction=0.5,
     measured=False,
     W=None,
+    mount=None,
 ):
     """MSAC scores of H hypotheses on N points, evaluated preemptively.
 
@@ -317,6 +355,13 @@ def msac_scores(
             ``None``: none.
         pretest_n, pretest_min: pre-test size and the smallest inlier count among those points
             for a hypothesis to be completed (raised by every completed hypothesis).
+        mount: None (a camera) or a rig's stacked views ``(cam (N,) int64, Rm (M, 3, 3), cm
+            (M, 3), tau (N,) s, still, order (N,) int64)``: Rs ... ts are the rig's models,
+            each point's error its camera's (:func:`pose_error2` of :func:`mounted_pose`, the
+            mounting ``x_cam = Rm[c] x_rig + cm[c]``; ``still``: w = t = 0) with ``W`` its
+            (N, 4) pixel Jacobian (errors in px, ``th2`` px^2), the points visited in
+            ``order`` (a rig's views are stacked by camera: a random order makes the pre-test
+            points a random subset); ``r0e``, ``d``, ``exact`` and ``measured`` unused.
     Returns:
         (scores (H,), inlier counts (H,)): the MSAC score of every hypothesis that beat all
         hypotheses completed before it, ``inf`` for invalid, pre-test-rejected or bailed ones;
@@ -327,6 +372,11 @@ def msac_scores(
         Wa = np.zeros((0, 4))
     else:
         Wa = W
+    if mount is None:
+        at = None
+    else:  # (each valid hypothesis's pose in each camera, once)
+        cam, Rm, cm, tau, still, order = mount
+        at = (cam, mounted_poses(Rs, Cs, ws, ts, valid, Rm, cm), tau, still, order)
     H, N = Rs.shape[0], x.shape[0]
     scores = np.full(H, np.inf)
     counts = np.zeros(H, dtype=np.int64)
@@ -341,7 +391,7 @@ def msac_scores(
         # stop once the hypothesis can no longer pass the pre-test or beat the bound
         s, c, done = _msac_points(
             x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
-            zero, n_pre, 0.0, zero, th2, bail, pretest_min, exact, measured, Wa,
+            zero, n_pre, 0.0, zero, th2, bail, pretest_min, exact, measured, Wa, at,
         )  # fmt: skip
         if done:
             part[h] = s
@@ -355,7 +405,7 @@ def msac_scores(
             continue
         s, c, _ = _msac_points(
             x, X, r0e, d0, d1, Rs, Cs, ws, ts, h,
-            n_pre, N, part[h], pre_cnt[h], th2, bail, -N, exact, measured, Wa,
+            n_pre, N, part[h], pre_cnt[h], th2, bail, -N, exact, measured, Wa, at,
         )  # fmt: skip
         if s <= bail:
             scores[h] = s
@@ -364,6 +414,24 @@ def msac_scores(
             if N > 0:
                 pretest_min = max(pretest_min, int(pretest_fraction * n_pre * c / N))
     return scores, counts
+
+
+@kernel
+def best_mounted(R, C, w, t, valid, X, x, A, mount, th2, bail, pretest_n, pretest_min):
+    """The best of H rig models (``R`` (H, 3, 3), ``C``, ``w``, ``t`` (H, 3), ``valid``
+    (H,)) on a rig's stacked views (:func:`msac_scores` with ``mount``, ``A`` as its ``W``;
+    the pre-test on ``pretest_n`` points, ``bail`` the best cost so far): ``(h, its cost
+    (px^2), its (N,) errors px)``, ``h`` the first minimum; ``(h, inf, no errors)`` when no
+    model reached ``bail``."""
+    scores, _ = msac_scores(x, X, mount[3], np.zeros(2), R, C, w, t, th2, valid, bail, True,
+                            pretest_n, pretest_min, 0.5, True, A, mount)  # fmt: skip
+    h = 0
+    for q in range(scores.shape[0]):
+        if scores[q] < scores[h]:
+            h = q
+    if not (valid[h] and scores[h] <= bail):
+        return h, np.inf, np.empty(0)
+    return h, scores[h], mounted_errors(R, C, w, t, h, X, x, A, mount)
 
 
 @kernel(fastmath=FMA)
@@ -460,51 +528,3 @@ def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False, W=None):
         else:
             s += th2
     return s, inl, c
-
-
-@kernel(fastmath=FMA)
-def model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e):
-    """The MSAC cost of model ``h`` (each squared error (px^2) capped at ``th2``, summed in
-    the points' order, as :func:`msac_scores` sums a camera's), its (N,) errors (px) written
-    into ``e``; -1 once that running sum exceeds ``bound`` (the model then left before its
-    last points: its cost is larger). Each point's error is its camera's
-    (:func:`pose_error2` of :func:`mounted_pose`, the latter computed again where the camera
-    changes: once per camera in a pool stacked by camera). ``still``: every ``w`` and ``t``
-    zero."""
-    N = X.shape[0]
-    run = 0.0
-    c_ = -1
-    z = 0.0
-    pose = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
-    for i in range(N):
-        if cam[i] != c_:
-            c_ = cam[i]
-            pose = mounted_pose(R, C, w, t, h, Rm, cm, c_)
-        q = pose_error2(pose, X, x, tau, A, i, still)
-        e[i] = np.sqrt(q)
-        run += th2 if q > th2 else q
-        if run > bound:
-            return -1.0
-    return run
-
-
-@kernel
-def best_msac(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still=False):
-    """The model of the lowest MSAC cost among H models (:func:`model_cost`'s errors,
-    each squared error capped at ``th2`` px^2): ``(h, its cost, its (N,) errors)``, ``h`` the
-    first minimum (or the first NaN). A model whose running cost already exceeds the best
-    one's is left before its last points: the hypotheses' models and the points are finite,
-    so that no later point makes its cost NaN. ``still``: every ``w`` and ``t`` zero."""
-    H, N = R.shape[0], X.shape[0]
-    e = np.empty(N)
-    best_e = np.zeros(N)
-    best, best_cost = -1, 0.0
-    for h in range(H):
-        bound = best_cost if best >= 0 else np.inf
-        c = model_cost(R, C, w, t, X, tau, cam, Rm, cm, x, A, th2, still, h, bound, e)
-        if c < 0:
-            continue
-        if best < 0 or (best_cost == best_cost and (c < best_cost or c != c)):
-            best, best_cost = h, c
-            best_e[:] = e
-    return best, best_cost, best_e

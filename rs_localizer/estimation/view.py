@@ -29,7 +29,7 @@ from .options import EstimateOptions
 from .refine import KernelMountings, Mountings, kernel_mountings
 from .result import camera_model_of_rig
 from .sampling import batch_samples, draw_samples_numpy, view_sampling
-from .scoring import best_msac
+from .scoring import best_mounted
 
 __all__ = ["StackedViews", "View"]
 
@@ -337,17 +337,21 @@ class StackedViews:
         stack's points (each squared reprojection error (px^2) capped at ``th2``, the exact
         rotation ``expm(tau [w]x)`` at each observation's measured capture time, inf for a
         point behind its camera): ``(h, its cost, its (N,) errors px)``, ``h`` the first
-        minimum as ``np.argmin`` picks it. Compiled: :func:`~.scoring.best_msac`; NumPy: the
-        NumPy implementation's :func:`~.numpy_impl.errors2` of the stacked views, a camera's
-        errors with its mounting."""
+        minimum as ``np.argmin`` picks it. Compiled: the camera's
+        :func:`~.scoring.msac_scores` with the mountings, every point in index order
+        (:func:`~.scoring.best_mounted`); NumPy: the NumPy implementation's
+        :func:`~.numpy_impl.errors2` of the stacked views, a camera's errors with its
+        mounting."""
         if not self.compiled:
             e2 = errors2(self, *(np.asarray(a, dtype=float) for a in (R, C, w, t)))
             cost = np.minimum(e2, th2).sum(axis=1)
             h = int(np.argmin(cost))
             return h, float(cost[h]), np.sqrt(e2[h])
         f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
-        h, cost, e = best_msac(*f, self.X, self.tau, self.cam, self.R_mount, self.c_mount,
-                               self.x, self.A, th2)  # fmt: skip
+        X, x, tau, (cam, Rm, cm, A) = self.kernel_arrays
+        mount = (cam, Rm, cm, tau, False, np.arange(len(cam)))
+        h, cost, e = best_mounted(*f, np.ones(len(f[0]), dtype=bool), X, x, A, mount, th2,
+                                  np.inf, 0, 0)  # fmt: skip
         return int(h), float(cost), e
 
     def per_camera(self, mask: np.ndarray) -> tuple:

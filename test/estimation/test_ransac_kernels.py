@@ -109,3 +109,40 @@ def test_preemptive_msac_finds_the_brute_force_best(pretest):
         f.x, f.X, r0e, d, Rs, Cs, ws, ts, th2, valid, 0.5 * full[best], True, pretest, 0
     )
     assert np.isinf(none).all()
+
+
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_a_rig_of_one_camera_at_the_identity_is_scored_as_the_camera_bit_for_bit(shuffled):
+    """``msac_scores`` with the mountings (a rig's scoring: each point's error its camera's,
+    the points visited in ``order``) of one camera mounted at the identity, its capture times
+    the camera's measured ones and its pixel Jacobian the camera's whitening, gives the
+    camera's scores and inlier counts, pre-test included, bit for bit: on the points in order,
+    and in a random order against the camera's points shuffled by it. ``mounted_errors``
+    gives the camera's errors (the square roots of ``errors2``'s)."""
+    from rs_localizer.estimation.scoring import mounted_errors
+
+    rng = np.random.default_rng(5)
+    f = make_frame(rng, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
+    H = 40
+    Rs = np.array([rotvec_to_matrix(rng.normal(size=3) * 10.0 ** rng.uniform(-4, -1)) @ f.R
+                   for _ in range(H)])  # fmt: skip
+    Cs, ws, ts = (v + rng.normal(size=(H, 3)) * 1e-3 for v in (f.C, f.w, f.t))
+    valid = rng.random(H) > 0.1
+    N = len(f.x)
+    d, r0e = np.array([0.0, 1.0]), np.full(N, f.r0)
+    W = np.tile([1.1, 0.05, -0.02, 0.9], (N, 1))
+    th2 = (2.0 / 1207.0) ** 2
+    order = rng.permutation(N) if shuffled else np.arange(N)
+    x, X, r, Wo = f.x[order], f.X[order], r0e[order], W[order]
+    want = msac_scores(x, X, r, d, Rs, Cs, ws, ts, th2, valid, np.inf, True, 24, 0, 0.5, True, Wo)
+    tau = f.x[:, 1] - r0e  # (the camera's measured capture time, d . x - r0e)
+    mount = (np.zeros(N, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), tau, False, order)
+    got = msac_scores(f.x, f.X, r0e, d, Rs, Cs, ws, ts, th2, valid, np.inf, True, 24, 0, 0.5,
+                      True, W, mount)  # fmt: skip
+    assert np.isfinite(want[0]).sum() >= 2  # (several completed: the bound and the pre-test act)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    h = int(np.argmin(got[0]))
+    e2 = errors2(f.x, f.X, r0e, d, Rs[h], Cs[h], ws[h], ts[h], True, True, W)
+    np.testing.assert_array_equal(mounted_errors(Rs, Cs, ws, ts, h, f.X, f.x, W, mount),
+                                  np.sqrt(e2))  # fmt: skip

@@ -1,11 +1,10 @@
 """The rig's RANSAC batches in one compiled call (``search_batch``) against the
 same batch step by step (the sampling, Lambda Twist mapped to the rig, the held rig solver's
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
-cost): the same best model, cost, errors, inliers and missed cameras; and their termination
-after the first sample at which the samples drawn reach what the best model's inlier ratio
-asks for (``required_iterations``), against the same steps on the samples drawn. The held rig
-solver the batches correct with (``solve_rotated`` held) against the batched rig solver with
-the same prior rows (``gr6p_1lin_batch``), bit for bit."""
+cost): the same best model, cost, errors, inliers and missed cameras, scored in full or with
+the camera's pre-test on a random order of the points. The held rig solver the batches
+correct with (``solve_rotated`` held) against the batched rig solver with the same prior rows
+(``gr6p_1lin_batch``), bit for bit."""
 
 from dataclasses import replace
 
@@ -15,7 +14,6 @@ import pytest
 from rs_localizer.estimation import rig as rig_mod
 from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
-from rs_localizer.estimation.ransac import required_iterations
 from rs_localizer.estimation.rig_batch import search_batch, solve_rotated
 from rs_localizer.estimation.sampling import batch_sampling, view_sampling
 from rs_localizer.estimation.view import StackedViews
@@ -25,9 +23,9 @@ from rs_localizer.sim import synthetic as sim_rig
 from rs_localizer.solvers.gr6p_1lin import gr6p_1lin_batch
 from rs_localizer.solvers.lambda_twist import lambda_twist
 
-#: a batch's search state of no best model and no termination before its last sample:
-#: ``(best cost, samples drawn, min_iterations, samples asked for, log(1 - confidence))``
-_NO_STOP = (np.inf, 0, 2**62, np.inf, float(np.log(1e-4)))
+#: a batch's search state of no best model, scored in full: ``(best cost, pre-test points,
+#: pre-test inliers)``
+_NO_STOP = (np.inf, 0, 0)
 
 
 def _buffers(N, M):
@@ -40,22 +38,24 @@ def _buffers(N, M):
 
 def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, th2, k,
                 pool_counts, *state):  # fmt: skip
-    """``search_batch`` of a global-shutter rig frame: ``(drawn, h, cost, inliers)``."""
-    out = search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, True, missed, rounds,
-                       np.zeros((0, 3)), 1, np.inf, np.inf, th2, k, pool_counts,
-                       *state)  # fmt: skip
-    assert out[4] == 0
-    return out[:4]
+    """``search_batch`` of a global-shutter rig frame (the points in order): ``(h, cost,
+    inliers)``."""
+    out = search_batch(draws[o : o + 7 * K].reshape((7, K)), subset, X, x, tau, cam, Rm, cm, A,
+                       np.arange(len(cam)), True, missed, rounds, np.zeros((0, 3)), 1, np.inf,
+                       np.inf, th2, k, pool_counts, *state)  # fmt: skip
+    assert out[3] == 0
+    return out[:3]
 
 
 def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
-                 v2max, th2, k, pool_counts, *state):  # fmt: skip
-    """``search_batch`` of a rolling-shutter rig frame: ``(drawn, h, cost, inliers, beyond
-    the bounds)``."""
+                 v2max, th2, k, pool_counts, *state, order=None):  # fmt: skip
+    """``search_batch`` of a rolling-shutter rig frame (the points in ``order``, None: in
+    order): ``(h, cost, inliers, beyond the bounds)``."""
     missed = np.zeros(len(pool_counts), dtype=bool)
-    return search_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, False, missed, 1,
-                        anchor, iterations, w2max, v2max, th2, k, pool_counts,
-                        *state)  # fmt: skip
+    order = np.arange(len(cam)) if order is None else order
+    return search_batch(draws[o : o + 7 * K].reshape((7, K)), subset, X, x, tau, cam, Rm, cm, A,
+                        order, False, missed, 1, anchor, iterations, w2max, v2max, th2, k,
+                        pool_counts, *state)  # fmt: skip
 
 
 def _frame(seed, counts, turn_deg=0.0):
@@ -113,14 +113,14 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
     counts_all = np.bincount(pool.cam, minlength=len(counts))
     draws = np.random.default_rng(7 + seed).random(7 * K)
     out = _buffers(len(cam), len(counts))
-    drawn, hf, cf, n = still_batch(
+    hf, cf, n = still_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.zeros(len(counts), bool) if m is None else m, rounds, th * th, th, counts_all,
         *_NO_STOP, out,
     )  # fmt: skip
     ef, Rf, Cf, wf, tf, missed_f = out
     assert np.isnan(wf).all() and np.isnan(tf).all()  # (a still model's velocities: none)
-    assert drawn == K and hf >= 0
+    assert hf >= 0
     assert cf == pytest.approx(cost[h], rel=1e-12)
     np.testing.assert_allclose(ef, e, rtol=1e-9, atol=1e-9)
     np.testing.assert_array_equal(Rf, hyp[0][h])
@@ -165,20 +165,24 @@ def _moving_frame(seed, counts):
 
 
 @pytest.mark.parametrize(
-    ("seed", "counts", "anchored", "w_max", "guided"),
+    ("seed", "counts", "anchored", "w_max", "guided", "pretest"),
     [
-        (11, (36, 36, 36), False, np.inf, False),
-        (12, (30, 20), False, 2.0, False),
-        (13, (36, 36, 36), True, np.inf, False),
-        (14, (36, 24, 12), False, 2.0, True),
+        (11, (36, 36, 36), False, np.inf, False, 0),
+        (12, (30, 20), False, 2.0, False, 0),
+        (13, (36, 36, 36), True, np.inf, False, 0),
+        (14, (36, 24, 12), False, 2.0, True, 0),
+        (11, (36, 36, 36), False, np.inf, False, 24),
+        (15, (100, 100, 100), False, 2.0, False, 24),
     ],
 )
-def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts, anchored,
-                                                                   w_max, guided):  # fmt: skip
+def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts, anchored, w_max,
+                                                                   guided, pretest):  # fmt: skip
     """``moving_batch`` against ``_sample``, ``_hypotheses`` (P3P or an anchor's rotation
     pre-rotating the rig solver) and the motion bounds, scored in NumPy: the same best model
     (its rotation to rounding: the compiled Rodrigues), cost, errors, inliers, and the same
-    number of solutions beyond the bounds."""
+    number of solutions beyond the bounds; scored in full, or with the camera's pre-test on
+    the first ``pretest`` points of a random order (which leaves the batch's best model the
+    best here: it drops models that cannot beat it)."""
     th, K, iterations, v_max = 2.0, 40, 3, 10.0
     views, truth = _moving_frame(seed, counts)
     pool = StackedViews(views)
@@ -197,63 +201,21 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
     draws = np.random.default_rng(seed).random(7 * K)
     out = _buffers(len(cam), len(counts))
-    drawn, hf, cf, n, beyond_f = moving_batch(
+    order = np.random.default_rng(seed).permutation(len(cam)) if pretest else None
+    hf, cf, n, beyond_f = moving_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
         A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max**2,
-        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), *_NO_STOP, out,
+        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), np.inf, pretest, 0,
+        out, order=order,
     )  # fmt: skip
     ef, Rf, Cf, wf, tf, _ = out
-    assert drawn == K and hf >= 0 and beyond_f == beyond
+    assert hf >= 0 and beyond_f == beyond
     assert cf == pytest.approx(cost[h], rel=1e-9)
     np.testing.assert_allclose(ef, e[h], rtol=1e-8, atol=1e-8)
     for got, want in zip((Rf, Cf, wf, tf), (a[h] for a in hyp), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
     inl = e[h] < th
     assert n == np.count_nonzero(inl if subset is None else inl[subset])
-
-
-@pytest.mark.parametrize(("seed", "counts", "moving"), [(21, (30, 24, 12), False),
-                                                       (22, (36, 24), True)])  # fmt: skip
-def test_a_batch_stops_at_the_first_sample_termination_allows(seed, counts, moving):
-    """With ``min_iterations`` 5 the batch draws samples until the first at which the samples
-    drawn reach ``required_iterations`` of the best model's inlier ratio among them; that best
-    model, recomputed step by step on the first ``drawn`` samples alone (scored in NumPy), is
-    the batch's, and on fewer samples termination would not have been reached."""
-    th, K, min_it = 2.0, 60, 5
-    views = _moving_frame(seed, counts)[0] if moving else _frame(seed, counts)
-    pool = StackedViews(views)
-    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
-    pool_counts = np.bincount(pool.cam, minlength=len(counts))
-    draws = np.random.default_rng(seed).random(7 * K)
-    state = (np.inf, 0, min_it, np.inf, float(np.log(1 - 0.9999)))
-    args = (draws, 0, K, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A)
-    out = _buffers(len(cam), len(counts))
-    if moving:
-        drawn, hf, cf, n, _ = moving_batch(*args, rig_mod._NO_ANCHOR, 3, np.inf, np.inf, th * th,
-                                           th, pool_counts, *state, out)  # fmt: skip
-    else:
-        drawn, hf, cf, n = still_batch(*args, np.zeros(len(counts), bool), 1, th * th, th,
-                                       pool_counts, *state, out)  # fmt: skip
-    assert hf >= 0 and min_it <= drawn < K  # (20 % outliers: it stops well before K)
-    samples = pool.samples(np.random.default_rng(seed), K)
-    numpy_pool = StackedViews(views, compiled=False)
-    s = 6 if moving else 3
-
-    def best_of(j):  # (the lowest MSAC cost among the first j samples' models, its inliers)
-        S = samples[:j]
-        hyp = (rig_mod._hypotheses(pool, S, 3) if moving
-               else rig_mod._hypotheses(pool, S, 0))  # fmt: skip
-        e = np.sqrt(errors2(numpy_pool, *hyp))
-        cost = np.minimum(e * e, th * th).sum(axis=1)
-        h = int(np.argmin(cost))
-        return cost[h], int(np.count_nonzero(e[h] < th))
-
-    c_drawn, n_drawn = best_of(drawn)
-    assert cf == pytest.approx(c_drawn, rel=1e-9) and n == n_drawn
-    assert drawn >= required_iterations(n / len(pool.cam), s, 0.9999)
-    if drawn > min_it:
-        n_before = best_of(drawn - 1)[1]
-        assert drawn - 1 < required_iterations(n_before / len(pool.cam), s, 0.9999)
 
 
 @pytest.mark.parametrize(("counts", "every"), [((30, 24, 12), 0), ((16, 2, 20), 3), ((5, 4), 2)])

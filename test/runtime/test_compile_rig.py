@@ -73,7 +73,7 @@ def test_compile_with_rig_parameters_leaves_nothing_for_the_rig_to_compile(tmp_p
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r["solved"] == 8
     search = "rs_localizer.estimation.rig_batch.search_batch"
-    residuals = "rs_localizer.estimation.scoring.best_msac"
+    residuals = "rs_localizer.estimation.scoring.best_mounted"
     for k in (search, residuals):  # (the rig's kernels: not compiled by the camera's warm-up)
         assert not r["without"].get(k) and r["with_rig"].get(k), k
     new = {
