@@ -3,6 +3,8 @@
 90 deg wrong mount is detected, a right one with noisy and occasionally wrong poses is not,
 and a mount that becomes right again recovers."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -91,6 +93,22 @@ def test_mount_error_is_the_mounts_error(rotvec):
     assert rotation_angle_deg(check.mount_error @ check.R_cam_imu, R_IMU_CAMERA.T) < 1.5
     angle = np.rad2deg(np.linalg.norm(rotvec))
     assert check.mount_error_deg == pytest.approx(angle, abs=1.5)
+
+
+def test_a_window_of_rotations_about_one_axis_is_explained_without_a_warning():
+    """A window of pairs turning about one axis only (a pan without noise: the mount error
+    about that axis is not observable) whose image rotations are the gyro's turned 90 deg
+    about x: explained by a mount error that turns the gyro's axis onto the image's, and no
+    warning reaches the caller's log."""
+    check = GyroMountCheck(R_IMU_CAMERA.T, NOISE)
+    Q0 = rotvec_to_matrix(np.array([np.pi / 2, 0.0, 0.0]))
+    for k in np.linspace(0.01, 0.03, check.options.window):
+        phi = np.array([0.0, 0.0, k])
+        check._window.append((True, phi, Q0 @ phi))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check._explained_by_mount()
+    assert np.allclose(check.mount_error @ [0.0, 0.0, 1.0], Q0 @ [0.0, 0.0, 1.0])
 
 
 def test_right_mount_not_flagged_despite_wrong_poses():
