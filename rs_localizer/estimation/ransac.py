@@ -201,7 +201,9 @@ class RansacLoop:
 
     Attributes:
         s: the minimal sample's size. confidence: adaptive termination's.
-        best: the best model so far or None; score: its MSAC score.
+        best: the best model so far or None; score: its MSAC score; count: its inliers
+            among every point (the estimator's, or the seed's), which raises the pre-test's
+            bound (:meth:`pretest_min`).
         iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
             asks for; implausible: hypotheses rejected for their motion alone.
         explained: points an initial model explained (-1 without one); anchored: its
@@ -216,6 +218,8 @@ class RansacLoop:
         self._log_miss = np.log(1 - r.confidence)  # (required_iterations' log(1 - confidence))
         self.best: Any = None
         self.score = np.inf
+        self.count = 0
+        self.pretest_points = int(r.pretest_points)
         self.iterations = 0
         self.needed = float(r.max_iterations)
         self.implausible = 0
@@ -234,6 +238,7 @@ class RansacLoop:
         if seed is None:
             return
         self.score, self.best, inliers = seed
+        self.count = int(np.count_nonzero(inliers))
         if verified(inliers):
             self.subset = (
                 np.flatnonzero(inliers) if order is None else order.compress(inliers.take(order))
@@ -242,6 +247,12 @@ class RansacLoop:
         else:
             ratio = np.count_nonzero(inliers) / len(inliers)
             self.needed = required_samples(ratio, self.s, self._log_miss)
+
+    def pretest_min(self, n: int) -> int:
+        """The pre-test's bound of the next batch on ``n`` points (:func:`~.scoring.msac_scores`'
+        ``pretest_min``): half the inliers the best model predicts among the
+        ``pretest_points`` first points, as every completed hypothesis raises it."""
+        return int(0.5 * self.pretest_points * self.count / n)
 
     def search(self, estimator: RansacEstimator, r: RansacOptions) -> None:
         """Draw batches (:func:`batch_sizes`) of ``estimator``'s hypotheses; a better score
@@ -308,7 +319,6 @@ class Ransac(RansacLoop):
         self.order, self.scored = order, scored
         self.th2 = np.nan  # (squared normalized threshold: set by run, on the configured frame)
         self.inliers = np.zeros(len(fr.x), dtype=bool)
-        self.count = 0
         self.anchor: tuple[np.ndarray, np.ndarray] | None = None
         self.timings: dict[str, float] = {}
         self._t_local = 0.0
@@ -389,14 +399,13 @@ class Ransac(RansacLoop):
             )
         if test[1] is not None:
             self.inliers = test[1][2]
-            self.count = int(np.count_nonzero(self.inliers))
         self._t_local += time.perf_counter() - t_lo
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple[ScoredBatch, int]:
         """The best of K samples' hypotheses, scored preemptively in the same compiled call
         (:meth:`~.hypotheses.HypothesisSource.best_of_batch`), and K."""
         pool = self._pool(K)
-        pretest_min = int(0.5 * self.opts.ransac.pretest_points * self.count / len(self.fr.x))
+        pretest_min = self.pretest_min(len(self.fr.x))
         if self.anchor is not None and self.best is not None:
             self.anchor = (
                 np.ascontiguousarray(self.best[0], dtype=np.float64),

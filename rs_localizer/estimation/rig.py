@@ -706,8 +706,6 @@ class _RigSearch(RansacLoop):
         # (:meth:`_batch`'s kernels' arguments, the draws they took, its output buffers)
         self._args, self._drawn, self._out = None, 0, None
         self._n, self._missed = 0, self._no_missed
-        #: the best model's inliers among every point (the pre-test's bound, as a camera's)
-        self.count = 0
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for :meth:`errors`)."""
@@ -771,13 +769,12 @@ class _RigSearch(RansacLoop):
         anchor = _NO_ANCHOR
         if self.anchored and self.best is not None and not self.still:
             anchor = np.ascontiguousarray(self.best[0], dtype=np.float64)
-        pretest = int(self.batches.pretest_points)
         h, cost, n, beyond = search_batch(
             self._draws[o : o + 7 * K].reshape((7, K)), *self._args, self._order, self.still,
             self._no_missed if self.missed is None else self.missed,
             SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
             self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
-            pretest, int(0.5 * pretest * self.count / len(pool.cam)), self._out,
+            self.pretest_points, self.pretest_min(len(pool.cam)), self._out,
         )  # fmt: skip
         self.implausible += beyond
         if h < 0:
@@ -859,7 +856,6 @@ class _RigStages:
             )  # fmt: skip
             if seed is not None:  # (scored as the search scores: its errors kept)
                 seed, self.initial_used = (search.cost(seed[1]), *seed[1:]), True
-                search.count = int(np.count_nonzero(seed[2]))
             # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies
             # it, sampling among them, whose all-inlier probability is 1)
             need = max(int(im.min_explained), search.s + 1, 6)
