@@ -176,14 +176,14 @@ class GyroMountCheck:
         phi = np.array([w[1] for w in self._window])  # the gyro's rotations (camera frame)
         psi = np.array([w[2] for w in self._window])  # the image's
         wts = np.ones(len(phi))
-        for _ in range(5):  # Huber weights: Q minimizes sum wts |psi - Q phi|^2
-            with warnings.catch_warnings():  # (rotations about one axis: every Q turning the
-                # gyro's axis onto the image's fits them, and the test below needs one of them)
-                warnings.filterwarnings("ignore", "Optimal rotation is not uniquely", UserWarning)
+        with warnings.catch_warnings():  # (rotations about one axis: every Q turning the
+            # gyro's axis onto the image's fits them, and the test below needs one of them)
+            warnings.filterwarnings("ignore", "Optimal rotation is not uniquely", UserWarning)
+            for _ in range(5):  # Huber weights: Q minimizes sum wts |psi - Q phi|^2
                 Q = Rotation.align_vectors(psi, phi, weights=wts)[0].as_matrix()
-            rn = np.linalg.norm(psi - phi @ Q.T, axis=1)
-            k = 1.5 * np.median(rn) + 1e-12
-            wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))
+                rn = np.linalg.norm(psi - phi @ Q.T, axis=1)
+                k = 1.5 * np.median(rn) + 1e-12
+                wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))
         self.mount_error = Q
         before = np.median(np.linalg.norm(psi - phi, axis=1))
         after = np.median(np.linalg.norm(psi - phi @ Q.T, axis=1))
