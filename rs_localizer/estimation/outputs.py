@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
-from ..pose import model_twist, model_twist_jacobian
+from ..pose import ROS_ORDER, model_twist, model_twist_jacobian
 
 __all__ = ["final_inliers", "output_covariance_kernel", "physical_velocities_kernel"]
 
@@ -91,13 +91,9 @@ def output_covariance_kernel(cov12, R, C, w, s):
     out = J @ cov12 @ J.T
     pose = np.empty((6, 6))
     twist = np.zeros((6, 6))
-    for a in range(6):
-        pa = a + 3 if a < 3 else a - 3  # (position, rotation) <- (rotation, position)
-        ta = a + 9 if a < 3 else a + 3  # (v, omega) <- rows 9-11, 6-8
+    for a in range(6):  # (ROS order: position before rotation, v before omega)
         for b in range(6):
-            pb = b + 3 if b < 3 else b - 3
-            tb = b + 9 if b < 3 else b + 3
-            pose[a, b] = out[pa, pb]
+            pose[a, b] = out[ROS_ORDER[a], ROS_ORDER[b]]
             if s > 0:
-                twist[a, b] = out[ta, tb]
+                twist[a, b] = out[6 + ROS_ORDER[a], 6 + ROS_ORDER[b]]
     return out, pose, twist

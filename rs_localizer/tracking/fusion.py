@@ -534,7 +534,7 @@ def _deprior(cov, p, omega, v, mean, info, G):
     estimate), data covariance (12, 12), data sensitivity (12, 6) from the posterior's G);
     ok False (and the inputs back) when the posterior or the data information is not
     positive definite."""
-    idx = np.array([9, 10, 11, 6, 7, 8])
+    idx = 6 + ROS_ORDER  # (omega, v of the (12, 12) in ROS order: v first)
     L, ok = _cholesky(cov)
     if not ok:
         return False, np.zeros(12), cov, G
