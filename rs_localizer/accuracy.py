@@ -156,29 +156,37 @@ def format_summary(name: str, summary: dict, total: int | None = None) -> str:
 
 # ---------------------------------------------------------------- trajectories (evaluate)
 def umeyama_alignment(
-    source: np.ndarray, target: np.ndarray, with_scale: bool = False
+    source: np.ndarray,
+    target: np.ndarray,
+    with_scale: bool = False,
+    weights: np.ndarray | None = None,
+    any_on_line: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """The similarity ``(R (3, 3), t (3,), s)`` minimizing ``sum_i |target_i - (s R source_i +
-    t)|^2`` over the point pairs ``source``, ``target`` (N, 3) (Umeyama, IEEE TPAMI 13(4),
-    1991); ``s = 1`` unless ``with_scale``. Raises ValueError for fewer than 3 pairs, shapes
-    that differ, or points on one line (the rotation is not determined)."""
+    """The similarity ``(R (3, 3), t (3,), s)`` minimizing ``sum_i w_i |target_i - (s R
+    source_i + t)|^2`` over the point pairs ``source``, ``target`` (N, 3) (Umeyama, IEEE TPAMI
+    13(4), 1991); ``weights`` (N,) ``w_i`` (None: equal); ``s = 1`` unless ``with_scale``.
+    Raises ValueError for shapes that differ, fewer than 3 pairs or points on one line (the
+    rotation is not determined), unless ``any_on_line`` (then one of the rotations that fit:
+    the line-delay calibration's gyro rates about one axis, whose covariance says which axis is
+    free)."""
     x = np.asarray(source, dtype=float)
     y = np.asarray(target, dtype=float)
-    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or len(x) < 3:
+    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or (len(x) < 3 and not any_on_line):
         raise ValueError(
             f"umeyama_alignment: expected two (N >= 3, 3) arrays, got {x.shape}, {y.shape}"
         )
-    mx, my = x.mean(0), y.mean(0)
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
+    W = w / w.sum()
+    mx, my = W @ x, W @ y
     xc, yc = x - mx, y - my
-    cov = yc.T @ xc / len(x)
-    U, d, Vt = np.linalg.svd(cov)
-    if d[1] <= 1e-12 * max(d[0], 1e-300):
+    U, d, Vt = np.linalg.svd((yc * W[:, None]).T @ xc)
+    if d[1] <= 1e-12 * max(d[0], 1e-300) and not any_on_line:
         raise ValueError("umeyama_alignment: the points are on one line (rotation undetermined)")
-    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0])
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
     R = U @ S @ Vt
-    s = float(np.trace(np.diag(d) @ S) / np.mean(np.sum(xc**2, 1))) if with_scale else 1.0
-    t = my - s * R @ mx
-    return R, t, s
+    var_x = float(np.sum(W * np.sum(xc * xc, axis=1)))
+    s = float(np.trace(np.diag(d) @ S) / max(var_x, 1e-300)) if with_scale else 1.0
+    return R, my - s * R @ mx, s
 
 
 def _angles_deg(R: np.ndarray) -> np.ndarray:

@@ -56,6 +56,32 @@ def test_umeyama_refuses_points_on_a_line():
         umeyama_alignment(x[:2], x[:2])
 
 
+def test_weighted_umeyama_is_the_fit_to_repeated_points_and_scipys_weighted_kabsch():
+    rng = np.random.default_rng(11)
+    R, t, s = _similarity(rng)
+    x = rng.normal(0, 1, (30, 3))
+    y = s * x @ R.T + t + rng.normal(0, 0.05, (30, 3))
+    k = rng.integers(1, 4, 30)
+    R_w, t_w, s_w = umeyama_alignment(x, y, with_scale=True, weights=k)
+    R_r, t_r, s_r = umeyama_alignment(np.repeat(x, k, 0), np.repeat(y, k, 0), with_scale=True)
+    assert np.allclose(R_w, R_r, atol=1e-12) and np.allclose(t_w, t_r, atol=1e-12)
+    assert s_w == pytest.approx(s_r, rel=1e-12)
+    # independent: SciPy's weighted align_vectors on the points about their weighted means
+    mx, my = k @ x / k.sum(), k @ y / k.sum()
+    R_k = Rotation.align_vectors(y - my, x - mx, weights=k)[0].as_matrix()
+    assert np.allclose(R_w, R_k, atol=1e-9)
+    assert np.allclose(t_w, my - s_w * R_k @ mx, atol=1e-9)
+
+
+def test_umeyama_on_a_line_when_asked_gives_a_rotation_that_fits():
+    d = np.array([1.0, 2.0, 0.5])
+    R = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix()
+    x = np.outer(np.arange(5.0), d)
+    R_l, t_l, s_l = umeyama_alignment(x, 2.0 * x @ R.T + 1.0, with_scale=True, any_on_line=True)
+    assert np.linalg.det(R_l) == pytest.approx(1.0) and np.allclose(R_l @ R_l.T, np.eye(3))
+    assert s_l == pytest.approx(2.0) and np.allclose(2.0 * x @ R_l.T + t_l, 2.0 * x @ R.T + 1.0)
+
+
 def _T(R, p):
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, p

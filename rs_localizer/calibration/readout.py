@@ -67,6 +67,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..accuracy import umeyama_alignment
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..geometry import matrix_to_rotvec, skew
@@ -291,21 +292,6 @@ def _simpson_samples(stamps, Os, ws, max_dt: float, uniformity: float):
     return np.array(xs).reshape(-1, 3), np.array(ys).reshape(-1, 3), used
 
 
-def _umeyama(x, y, wts):
-    """Weighted similarity ``y ~ s R x + c`` (Umeyama 1991): (s, R, c)."""
-    W = wts / wts.sum()
-    mx, my = W @ x, W @ y
-    xc, yc = x - mx, y - my
-    Sxy = (yc * W[:, None]).T @ xc
-    U, D, Vt = np.linalg.svd(Sxy)
-    E = np.eye(3)
-    E[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    R = U @ E @ Vt
-    var_x = float(np.sum(W * np.sum(xc * xc, axis=1)))
-    s = float(np.trace(np.diag(D) @ E) / max(var_x, 1e-300))
-    return s, R, my - s * R @ mx
-
-
 def _rates_at(t_ns, t_imu, om_imu) -> np.ndarray:
     """(n, 3) gyro rates linearly interpolated at ``t_ns`` (ns, IMU clock)."""
     t = np.asarray(t_ns, dtype=np.float64)
@@ -315,7 +301,7 @@ def _rates_at(t_ns, t_imu, om_imu) -> np.ndarray:
 
 def _trimmed_cost(om, y, keep: float = 0.9) -> float:
     """Trimmed sum of squared residuals of the similarity fit ``y ~ s R om + c``."""
-    s, R, c = _umeyama(om, y, np.ones(len(y)))
+    R, c, s = umeyama_alignment(om, y, with_scale=True, any_on_line=True)
     r2 = np.sum((y - s * om @ R.T - c) ** 2, axis=1)
     k = max(int(keep * len(r2)), 1)
     return float(np.sum(np.partition(r2, k - 1)[:k]))
@@ -375,9 +361,9 @@ def _gyro_samples(
     c (3,) the fit's offset, ``-s R_ci bias``, the time offset (s; 0 unless
     ``estimate_offset``), its std (s; NaN unless estimated), True when the offset is at the
     search's end, (the frame times used (n,) ns, the sorted gyro stamps and rates)). The
-    frame times depend on the line delay, so the similarity fit (:func:`_umeyama`), the time
-    offset and the times are iterated. Raises ValueError for
-    malformed gyro samples."""
+    frame times depend on the line delay, so the similarity fit
+    (:func:`~rs_localizer.accuracy.umeyama_alignment`), the time offset and the times are
+    iterated. Raises ValueError for malformed gyro samples."""
     t_imu = np.asarray(gyro[0], dtype=np.int64)
     om_imu = np.asarray(gyro[1], dtype=float).reshape(-1, 3)
     if len(t_imu) != len(om_imu) or len(t_imu) < 2:
@@ -396,7 +382,7 @@ def _gyro_samples(
         if estimate_offset and len(ti) >= 3:
             d, at_end = _search_offset(ti, yi, t_imu, om_imu, max_offset, step)
         om = _rates_at(ti - np.round(d * 1e9), t_imu, om_imu)
-        s, R_ci, c = _umeyama(om, yi, np.ones(len(ti)))
+        R_ci, c, s = umeyama_alignment(om, yi, with_scale=True, any_on_line=True)
         ld = max(s, 0.0) / camera.focal
     std = float("nan")
     if estimate_offset and len(ti) >= 3:
@@ -539,10 +525,11 @@ def _mount_from_frame_rotations(
     poses (which the images determine far better than one frame's angular velocity, whose
     readout-long fit trades it for the linear velocity) against the gyro's rotation over the
     same interval (:func:`_interval_rotations`): ``log(O_k^T O_{k+1}) = R_ci log(gyro rotation,
-    bias removed)``. Kabsch with a centroid (:func:`_umeyama`'s rotation, Huber-reweighted),
-    then the sandwich covariance of (phi (3) about the camera axes, bias (3)), with the time
-    offset ``d`` as a nuisance parameter when ``with_offset`` (it was estimated from the same
-    video). Returns (R_ci, bias, cov (6, 6), samples) or None below 10 pairs."""
+    bias removed)``. Kabsch with a centroid (the rotation of
+    :func:`~rs_localizer.accuracy.umeyama_alignment`, Huber-reweighted), then the sandwich
+    covariance of (phi (3) about the camera axes, bias (3)), with the time offset ``d`` as a
+    nuisance parameter when ``with_offset`` (it was estimated from the same video). Returns
+    (R_ci, bias, cov (6, 6), samples) or None below 10 pairs."""
     dt = np.diff(t_ref) * 1e-9
     d_ns = np.round(d * 1e9)
     t0, t1 = t_ref[:-1] - d_ns, t_ref[1:] - d_ns
@@ -555,7 +542,8 @@ def _mount_from_frame_rotations(
     for _ in range(3):  # the gyro's rotation with the bias taken out, then the bias again
         g = _interval_rotations(t0[k], t1[k], t_imu, om_imu, bias)
         for _ in range(10):
-            _, R, _ = _umeyama(g, x, wts)  # (its rotation: x - mean x = R (g - mean g))
+            # (its rotation: x - mean x = R (g - mean g))
+            R, _, _ = umeyama_alignment(g, x, weights=wts, any_on_line=True)
             W = wts / wts.sum()
             delta = W @ g - R.T @ (W @ x)  # x = R (g - delta): what is left of the bias
             r = x - (g - delta) @ R.T
