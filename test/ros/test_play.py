@@ -11,7 +11,7 @@ from helpers.ros import spinning
 
 from rs_localizer.cli import main as cli
 from rs_localizer.ros.bags.bag_io import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, PC2
-from rs_localizer.ros.bags.play import choose_frame_topics, is_frame_topic
+from rs_localizer.ros.bags.play import choice_is_final, choose_frame_topics, is_frame_topic
 
 
 def test_choose_frame_topics():
@@ -39,6 +39,45 @@ def test_choose_frame_topics():
     assert sorted(kept) == ["/cam/correspondences", "/other/keypoints"]
     assert is_frame_topic("/c/image/compressed", COMPRESSED_IMAGE)
     assert not is_frame_topic("/c/camera_info", CAMERA_INFO)
+
+
+def test_choice_is_final_when_no_later_subscription_can_change_it():
+    """``choice_is_final`` against every set of topics that could be found subscribed later:
+    final exactly when none of them changes the choice (e.g. ``auto`` and a subscribed image
+    in each namespace that has one; not with the correspondences subscribed and an image
+    not yet)."""
+    from itertools import chain, combinations
+
+    bag = {
+        "/cam/correspondences": PC2,
+        "/cam/keypoints": PC2,
+        "/cam/image_raw": IMAGE,
+        "/cam/image": IMAGE,
+        "/other/keypoints": PC2,
+        "/other/image/compressed": COMPRESSED_IMAGE,
+    }
+
+    def subsets(ts):
+        ts = sorted(ts)
+        return (
+            set(c) for c in chain.from_iterable(combinations(ts, k) for k in range(len(ts) + 1))
+        )
+
+    finals = 0
+    for source in ("auto", "image", "correspondences"):
+        for heard in subsets(bag):
+            kept = set(choose_frame_topics(bag, heard, source)[0])
+            later = (
+                set(choose_frame_topics(bag, heard | more, source)[0])
+                for more in subsets(set(bag) - heard)
+            )
+            expected = all(k == kept for k in later)
+            assert choice_is_final(bag, heard, source) == expected, (source, heard)
+            finals += expected
+    assert 0 < finals < 3 * 2 ** len(bag)
+    assert not choice_is_final(bag, {"/cam/correspondences", "/other/keypoints"})
+    assert choice_is_final(bag, {"/cam/image", "/cam/correspondences", "/other/image/compressed"})
+    assert choice_is_final({"/cam/correspondences": PC2, "/cam/keypoints": PC2}, set())
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +131,57 @@ def test_lockstep_plays_one_frame_topic_and_each_imu_sample_once(imu_bag, ros_co
     n_imu = sum(1 for m in iter_messages(imu_bag, None) if m[0] == "/imu/data")
     assert len(got["imu"]) == n_imu > 0  # each sample once, none primed or republished
     assert len(set(got["imu"])) == n_imu
+
+
+def test_auto_source_waits_for_an_image_subscription_found_after_the_correspondences(
+    sample_images_bag, ros_context
+):
+    """A node's subscriptions are discovered one by one (seconds apart on a loaded machine):
+    here a node takes ``/camera/correspondences`` at once and its image topic
+    ``/camera/image`` only 0.5 s after the player's publishers appear. ``--source auto``
+    still plays the rendered bag's images (``/camera/image_raw``, on the node's
+    ``/camera/image``), not its correspondences: the choice waits until the subscriptions
+    settle."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image, PointCloud2
+
+    from rs_localizer.ros.bags.play import SETTLE_S, play
+
+    delay = 0.5  # (found well within SETTLE_S of the correspondences: room for a late timer)
+    assert delay <= SETTLE_S - 0.4
+    node = rclpy.create_node("play_test_late_images", context=ros_context)
+    qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    pose = node.create_publisher(PoseStamped, "/camera/pose", qos)
+    got = {"correspondences": 0, "image": 0}
+    late = {}
+
+    def answer(kind):
+        def cb(msg):
+            got[kind] += 1
+            pose.publish(PoseStamped(header=msg.header))
+
+        return cb
+
+    node.create_subscription(PointCloud2, "/camera/correspondences", answer("correspondences"), qos)
+
+    def subscribe_images_later():
+        now = time.monotonic()
+        if "at" not in late and node.count_publishers("/camera/correspondences"):
+            late["at"] = now + delay  # (the player is there)
+        if "at" in late and "images" not in late and now >= late["at"]:
+            late["images"] = node.create_subscription(Image, "/camera/image", answer("image"), qos)
+
+    node.create_timer(0.02, subscribe_images_later)
+    notes = []
+    with spinning(ros_context, node):
+        res = play(sample_images_bag, lockstep=True, limit=2, timeout=5.0, context=ros_context,
+                   log=notes.append)  # fmt: skip
+    assert "images" in late
+    assert {f["topic"] for f in res.frames} == {"/camera/image_raw"}, notes
+    assert res.skipped_topics == ["/camera/correspondences"], notes
+    assert res.answered == 2 and got == {"correspondences": 0, "image": 2}, (got, notes)
 
 
 def test_live_and_pose_topics_follow_remaps_and_namespace():

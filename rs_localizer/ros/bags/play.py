@@ -42,6 +42,7 @@ from .bag_io import (
 __all__ = [
     "SOURCES",
     "PlayResult",
+    "choice_is_final",
     "choose_frame_topics",
     "is_frame_topic",
     "output_type",
@@ -52,6 +53,13 @@ __all__ = [
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 #: ``play(source=...)``: what a camera namespace with several frame topics sends
 SOURCES = ("auto", "image", "correspondences")
+#: choosing the frames (:func:`choose_frame_topics`): a node's subscriptions are discovered one
+#: by one (seconds apart on a loaded machine); the choice waits until the subscribed frame
+#: topics stayed the same this long (s), unless no subscription found later could change it
+#: (:func:`choice_is_final`)
+SETTLE_S = 1.0
+#: ... and at most this long (s) after every camera namespace has a subscriber
+SETTLE_CAP_S = 5.0
 #: the node's log lines (``/rosout``) that say it starts and ends compiling its kernels
 #: (:func:`~rs_localizer.ros.pipeline.log_warm_up`, :mod:`rs_localizer.runtime.jit_cache`)
 _COMPILING = re.compile(r"^(warm-up \(.*\): numba cache|compiling )")
@@ -191,6 +199,20 @@ def choose_frame_topics(
     return kept, skipped
 
 
+def choice_is_final(frame_topics: dict, subscribed: set, source: str = "auto") -> bool:
+    """Whether :func:`choose_frame_topics` keeps the same topics whichever other frame topics
+    are found subscribed later (``auto``: e.g. an image with a subscriber in every namespace
+    that has an image, or a bag without images; ``frame_topics``, ``subscribed``, ``source``
+    as there). A topic's rank depends only on whether it is subscribed itself, so trying the
+    other topics one at a time is enough: topics that together changed a namespace's choice
+    would change it with the one that wins alone."""
+    kept = set(choose_frame_topics(frame_topics, subscribed, source)[0])
+    return all(
+        set(choose_frame_topics(frame_topics, subscribed | {t}, source)[0]) == kept
+        for t in set(frame_topics) - subscribed
+    )
+
+
 def _bag_stream(
     path: str | os.PathLike,
     wanted: set[str],
@@ -314,7 +336,10 @@ def play(
         source: which frames a camera namespace with several frame topics sends: ``auto``
             (what the node listens to: the images when it subscribes an image topic in that
             namespace, i.e. runs a front end; else the correspondences), ``image`` or
-            ``correspondences`` (:func:`choose_frame_topics`). In every mode a bag image topic
+            ``correspondences`` (:func:`choose_frame_topics`), chosen once the node's
+            subscriptions have settled (at once when no subscription found later could change
+            the choice, :func:`choice_is_final`; else after :data:`SETTLE_S` s without a
+            change, at most :data:`SETTLE_CAP_S` s). In every mode a bag image topic
             nobody subscribes is published on the node's image topic of the same namespace and
             type (``/camera/image_raw`` as ``/camera/image``), unless ``remap`` names it.
         output_topics: the node's outputs to wait for in lock-step. Default: each frame waits
@@ -402,7 +427,7 @@ def play(
         if lockstep:
             s.watch_compiling()
         choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
-        s.wait_for_subscribers(frame_topics, choose, (), wait_subscribers)
+        s.wait_for_subscribers(frame_topics, choose, (), wait_subscribers, source=source)
         s.publish_images_on_node_topics(frame_topics, user_remapped)
         if choose:
             s.choose_frames(frame_topics, source)
@@ -716,17 +741,29 @@ class _Session:
         output_topics: Sequence[str],
         wait_subscribers: float,
         quiet: bool = False,
+        source: str = "auto",
     ) -> None:
         """Spin until the frame topics have subscribers and every ``output_topics`` topic a
         publisher, or ``wait_subscribers`` s passed (then a warning through ``log`` unless
         ``quiet``; longer while a node compiles). A bag image topic counts as subscribed when
         a node subscribes an image topic of its type in its namespace
         (:meth:`publish_images_on_node_topics` plays it there). After 2 s without subscribers
-        a managed node that is not active is named through ``log``, once."""
-        pubs, types = self.pubs, self.types
+        a managed node that is not active is named through ``log``, once.
+
+        ``choose`` (one frame topic per camera namespace is played, chosen by ``source`` from
+        the subscribed ones: :meth:`choose_frames`): a subscriber in each namespace is enough,
+        and then the wait goes on until the node's subscriptions are settled, as the frame
+        topics the ROS graph shows subscribed tell: either no subscription found later could
+        change the choice (:func:`choice_is_final`: e.g. the node's image topic is found) and
+        the topics it keeps have a subscriber as above (our publisher matched it), or the
+        subscribed frame topics stayed the same for :data:`SETTLE_S` s and every one has a
+        subscriber as above. After :data:`SETTLE_CAP_S` s the frames are chosen from the
+        subscribers matched then (a note through ``log`` says so)."""
+        node, pubs, types = self.node, self.pubs, self.types
         t0 = time.monotonic()
         deadline = t0 + wait_subscribers
         asked_lifecycle = False
+        settling = {"heard": None, "changed": t0, "since": None}
 
         def has_reader(t):
             if pubs[t].get_subscription_count():
@@ -737,21 +774,52 @@ class _Session:
             return target is not None and target != live_topic(t, self.remap)
 
         def unmatched():
-            # choosing: one subscribed frame topic per namespace is enough (then 0.5 s more
-            # for the others to match); else every frame topic needs its subscriber
+            # choosing: one subscribed frame topic per namespace is enough (then the wait for
+            # the subscriptions to settle); else every frame topic needs its subscriber
             if choose:
                 ns = {_parent(t) for t in frame_topics}
                 ok = {_parent(t) for t in frame_topics if has_reader(t)}
                 return bool(ns - ok)
             return not all(has_reader(t) for t in frame_topics)
 
-        while unmatched() or any(self.node.count_publishers(t) == 0 for t in output_topics):
+        def unsettled(now):
+            heard = {
+                t
+                for t in frame_topics
+                if has_reader(t) or _subscribed_by_others(node, live_topic(t, self.remap))
+            }
+            if heard != settling["heard"]:
+                settling.update(heard=heard, changed=now)
+            if settling["since"] is None:  # (every namespace has a subscriber from now on)
+                settling["since"] = now
+            frames = {t: types[t] for t in frame_topics}
+            final = choice_is_final(frames, heard, source)
+            # final: only the topics kept need their subscriber matched (the choice is made
+            # from the matched ones)
+            waited = set(choose_frame_topics(frames, heard, source)[0]) & heard if final else heard
+            unmatched_heard = [live_topic(t, self.remap) for t in waited if not has_reader(t)]
+            if now - settling["since"] >= SETTLE_CAP_S:
+                self.log(
+                    f"note: the subscriptions to the frame topics did not settle within "
+                    f"{SETTLE_CAP_S:g} s"
+                    + (f" ({', '.join(unmatched_heard)} not matched)" if unmatched_heard else "")
+                    + "; choosing from the subscribers matched now"
+                )
+                return False
+            return bool(unmatched_heard) or (now - settling["changed"] < SETTLE_S and not final)
+
+        while True:
             self._match_reliable_image_readers(frame_topics)
             now = time.monotonic()
+            if not (unmatched() or any(node.count_publishers(t) == 0 for t in output_topics)):
+                if not (choose and unsettled(now)):
+                    break
+                self.executor.spin_once(timeout_sec=0.05)
+                continue
             if not asked_lifecycle and not quiet and now - t0 > 2.0:
                 asked_lifecycle = True
                 live = [live_topic(t, self.remap) for t in frame_topics]
-                not_active = _not_active(self.node, self.executor, live)
+                not_active = _not_active(node, self.executor, live)
                 if not_active:
                     self.log(f"waiting: {_activate_hint(not_active)}")
             if now > deadline and self.busy_compiling() and now < t0 + self.compile_wait:
@@ -800,11 +868,9 @@ class _Session:
             self.executor.spin_once(timeout_sec=0.05)
 
     def choose_frames(self, frame_topics: Sequence[str], source: str = "auto") -> None:
-        """After 0.5 s more for subscribers: the frame topics :func:`choose_frame_topics`
-        leaves out, in ``result.skipped_topics`` (named through ``log``)."""
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.05)
+        """The frame topics :func:`choose_frame_topics` leaves out, in
+        ``result.skipped_topics`` (named through ``log``), from the subscribers matched now
+        (after :meth:`wait_for_subscribers` with ``choose``)."""
         pubs, types = self.pubs, self.types
         subscribed = {t for t in frame_topics if pubs[t].get_subscription_count()}
         kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed, source)
