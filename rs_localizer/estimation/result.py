@@ -243,8 +243,9 @@ class RSPoseEstimate(PoseWithCovariance):
             refined parameters (:func:`~.degeneracy.condition_number`; NaN without
             refinement): ~5-300 on 3D scenes, 1e4-1e6 on planar ones.
         motion_prior_used: the final refinement was maximum a posteriori (see
-            ``EstimateOptions.motion_prior``); on planar frames the velocities, and the
-            rotation they trade against, lean on the prior.
+            ``EstimateOptions.motion_prior``; with ``gyro_used``, on the gyro's rate too, a
+            rig's on the gyro's alone: the rig estimator takes no motion prior); on planar
+            frames the velocities, and the rotation they trade against, lean on the prior.
         initial_explained: points within ``InitialModel.gate_px`` of the initial model (-1
             without one; failed estimates do not report it); initial_used: the initial model
             seeded RANSAC and pre-rotated its samples (False: too few points explained, the

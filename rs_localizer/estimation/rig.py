@@ -932,6 +932,7 @@ class _RigStages:
             (pool.per_camera(final.inliers), pool.counts(), sum(pool.sizes)), out, behind,
             rolling, search.iterations, (search.explained, self.initial_used),
             self.prior is not None, pool.compiled, solver=RIG_SOLVER,
+            motion_prior_used=self.prior is not None,  # (the gyro's: MAP, as a camera's)
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
