@@ -111,3 +111,21 @@ def probe(ros_context):
     p = Probe(ros_context)
     yield p
     p.close()
+
+
+@pytest.fixture
+def cheirality_when_behind(monkeypatch):
+    """The final model's last checks
+    (:func:`~rs_localizer.estimation.finalize.last_checks`, a camera's and a rig's) refusing, as
+    ``cheirality``, a fit that puts rows behind their cameras, with their own count: the
+    failure a fit with an inlier behind its camera gives, on a frame whose rows behind are
+    known."""
+    from rs_localizer.estimation import finalize
+
+    real = finalize.last_checks
+
+    def refusing(*args):
+        failure, behind = real(*args)
+        return ("cheirality" if behind else failure), behind
+
+    monkeypatch.setattr(finalize, "last_checks", refusing)

@@ -74,7 +74,6 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     body_estimate,
-    built_estimate,
     physical_velocities,
 )
 from .single_tag import (
@@ -518,8 +517,8 @@ class _CameraStages:
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
         impl = COMPILED if self.compiled else NUMPY
         return _failed(
-            failure.reason, self.solver, self.fr, self.search.iterations, self.timings,
-            self.ignored, impl,
+            failure, self.solver, self.fr, self.search.iterations, self.timings, self.ignored,
+            impl,
         )  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:
@@ -553,13 +552,13 @@ def _few_points(
             flat=flat, name=name,
         )  # fmt: skip
     except EstimationFailed as failure:
-        return _failed(failure.reason, name, fr, 0, timings, ignored)
+        return _failed(failure, name, fr, 0, timings, ignored)
     timings["few_points"] = time.perf_counter() - t_start
     return est
 
 
 def _failed(
-    reason: str,
+    failure: EstimationFailed,
     solver: str,
     fr,
     iterations: int,
@@ -567,14 +566,14 @@ def _failed(
     ignored: tuple[str, ...],
     implementation: str = COMPILED,
 ) -> RSPoseEstimate:
-    """The failed estimate (``reason``) of the prepared frame ``fr`` after ``iterations``
+    """The failed estimate of ``failure`` on the prepared frame ``fr`` after ``iterations``
     RANSAC hypotheses, by ``implementation`` (which could not use ``ignored``):
-    :func:`~.result.built_estimate`, no inlier among its ``fr.num_rows`` rows (its one
-    view's too)."""
-    return built_estimate(
-        reason, None, None, (np.zeros(fr.num_rows, dtype=bool),), (len(fr.x),), fr.num_rows,
-        solver=solver, ransac_iterations=iterations, timings=timings,
-        implementation=implementation, ignored_inputs=ignored,
+    :meth:`~.result.EstimationFailed.estimate`, no inlier among its ``fr.num_rows`` rows (its
+    one view's too)."""
+    return failure.estimate(
+        (np.zeros(fr.num_rows, dtype=bool),), (len(fr.x),), fr.num_rows, solver=solver,
+        ransac_iterations=iterations, timings=timings, implementation=implementation,
+        ignored_inputs=ignored,
     )  # fmt: skip
 
 

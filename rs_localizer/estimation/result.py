@@ -140,12 +140,24 @@ GYRO_REJECTIONS = ("contradicted", "fewer_inliers", "aided_failed")
 class EstimationFailed(Exception):
     """A stage of the estimator found that the frame gives no pose; ``reason`` is one of
     :data:`FAILURE_REASONS`. Caught by the estimator, which returns its failed estimate
-    (:func:`built_estimate`; never raised to its caller). ``behind``: the frame's points
+    (:meth:`estimate`; never raised to its caller). ``behind``: the frame's points
     behind their cameras where the last checks found them (``cheirality``), else 0."""
 
     def __init__(self, reason: str, behind: int = 0):
         super().__init__(reason)
         self.reason, self.behind = reason, int(behind)
+
+    def estimate(
+        self, per_view: tuple, num_valid_per_view: tuple, num_rows: int, **fields: object
+    ) -> RSPoseEstimate:
+        """The failed estimate of this failure, a camera's or a rig's
+        (:func:`built_estimate`: no fit; ``per_view``, ``num_valid_per_view``, ``num_rows``
+        and ``fields`` as there): its reason and, with ``cheirality``, the points the refused
+        fit put behind their cameras (``num_behind``, also counted in ``num_dropped``)."""
+        return built_estimate(
+            self.reason, None, None, per_view, num_valid_per_view, num_rows,
+            num_behind=self.behind, **fields,
+        )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -168,11 +180,13 @@ class RSPoseEstimate(PoseWithCovariance):
     ``motion_prior_used``, ``gyro_used``, ``single_tag``, ``few_points`` False;
     ``initial_explained`` -1; ``motion_model`` ``"rolling_shutter"``), never what a fit that
     was refused had been fitted with. It reports the rows (``num_valid``,
-    ``num_valid_per_view``, ``num_dropped``), the search (``solver``, ``ransac_iterations``,
-    ``implementation``, ``ignored_inputs``) and the gyro's check where the gyro was judged
-    (``gyro_rejected``, ``gyro_rejection``, ``gyro_chi2``: a gyro the image contradicted before
-    the frame failed without it, or, with ``cameras_disagree``, the joint fit's check); a rig's
-    ``cameras_disagree`` also the joint fit's ``num_inliers_per_view`` and ``disagreeing``.
+    ``num_valid_per_view``, ``num_dropped``; with ``cheirality``, ``num_behind``: the rows the
+    refused fit put behind their cameras, what the failure is about), the search (``solver``,
+    ``ransac_iterations``, ``implementation``, ``ignored_inputs``) and the gyro's check where
+    the gyro was judged (``gyro_rejected``, ``gyro_rejection``, ``gyro_chi2``: a gyro the image
+    contradicted before the frame failed without it, or, with ``cameras_disagree``, the joint
+    fit's check); a rig's ``cameras_disagree`` also the joint fit's ``num_inliers_per_view``
+    and ``disagreeing``.
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
@@ -210,8 +224,9 @@ class RSPoseEstimate(PoseWithCovariance):
             rows in order, ``inliers_per_view`` split by view).
         num_valid: rows that passed validation (finite, undistortable, within
             ``max_point_norm``); num_behind: valid rows behind the camera at their capture
-            time under the final model (0 without one); num_dropped: rows not used, those
-            that failed validation plus ``num_behind``.
+            time under the final model (0 without one; a ``cheirality`` failure's: under the
+            refused final model); num_dropped: rows not used, those that failed validation
+            plus ``num_behind``.
         ransac_iterations: hypotheses drawn. timings: stage -> seconds.
         covariance: (12, 12) over (rotation of the camera in the world [rad, world axes],
             position [m, world], angular velocity [rad/s, camera frame], linear velocity [m/s,
@@ -228,8 +243,9 @@ class RSPoseEstimate(PoseWithCovariance):
             refined parameters (:func:`~.degeneracy.condition_number`; NaN without
             refinement): ~5-300 on 3D scenes, 1e4-1e6 on planar ones.
         motion_prior_used: the final refinement was maximum a posteriori (see
-            ``EstimateOptions.motion_prior``); on planar frames the velocities, and the
-            rotation they trade against, lean on the prior.
+            ``EstimateOptions.motion_prior``; with ``gyro_used``, on the gyro's rate too, a
+            rig's on the gyro's alone: the rig estimator takes no motion prior); on planar
+            frames the velocities, and the rotation they trade against, lean on the prior.
         initial_explained: points within ``InitialModel.gate_px`` of the initial model (-1
             without one; failed estimates do not report it); initial_used: the initial model
             seeded RANSAC and pre-rotated its samples (False: too few points explained, the

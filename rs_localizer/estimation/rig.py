@@ -932,6 +932,7 @@ class _RigStages:
             (pool.per_camera(final.inliers), pool.counts(), sum(pool.sizes)), out, behind,
             rolling, search.iterations, (search.explained, self.initial_used),
             self.prior is not None, pool.compiled, solver=RIG_SOLVER,
+            motion_prior_used=self.prior is not None,  # (the gyro's: MAP, as a camera's)
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
@@ -950,10 +951,9 @@ class _RigStages:
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
         pool, iterations = self.pool, 0 if self.search is None else self.search.iterations
         none = np.zeros(len(pool.cam), dtype=bool)  # (as a camera's: the identity, no inlier)
-        return built_estimate(
-            failure.reason, None, None, pool.per_camera(none), pool.counts(), sum(pool.sizes),
-            solver=RIG_SOLVER, ransac_iterations=iterations, num_behind=failure.behind,
-            implementation=COMPILED if pool.compiled else NUMPY,
+        return failure.estimate(
+            pool.per_camera(none), pool.counts(), sum(pool.sizes), solver=RIG_SOLVER,
+            ransac_iterations=iterations, implementation=COMPILED if pool.compiled else NUMPY,
         )  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:

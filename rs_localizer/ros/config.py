@@ -335,8 +335,8 @@ def _check_timing(timing: tuple) -> None:
 
 def _mounting(p: Mapping[str, Any]) -> Mounting | None:
     """Stage of :func:`camera_config`: the single camera's ``base_frame -> camera`` mounting of
-    ``camera_to_base.*`` (None without ``base_frame``)."""
-    if not str(p["base_frame"]).strip():
+    ``camera_to_base.*`` (None without ``base_frame``: :func:`_base_frame` empty)."""
+    if not _base_frame(p):
         return None
     try:
         return Mounting.from_translation_quaternion(
@@ -480,8 +480,7 @@ def build_config(
         republish_correspondences=bool(p["republish_correspondences"]),
     )
     if names is None:
-        base = str(p["base_frame"]).strip()
-        return LocalizerConfig((camera_config("", p),), base_frame=base, **shared)
+        return LocalizerConfig((camera_config("", p),), base_frame=_base_frame(p), **shared)
     out = tuple(camera_config(n, p, cameras.get(n, {})) for n in names)
     try:
         settings = rig_settings(
@@ -504,11 +503,18 @@ def build_config(
     return LocalizerConfig(out, base_frame=base, settings=settings, unused=unused, **shared)
 
 
+def _base_frame(values: Mapping[str, Any]) -> str:
+    """The parameter ``base_frame`` of ``values`` stripped of spaces, "" when it is empty,
+    null or missing: the single camera's output frame ("": none, its optical frame) and a
+    rig's (:func:`rig_base_frame`)."""
+    return str(values.get("base_frame") or "").strip()
+
+
 def rig_base_frame(values: Mapping[str, Any]) -> str:
     """A rig's frame, the one its pose and its cameras' mountings are in: the parameter
-    ``base_frame`` of ``values`` stripped of spaces, ``base_link`` (REP 105's robot body
-    frame) when it is empty, null or missing."""
-    return str(values.get("base_frame") or "").strip() or "base_link"
+    ``base_frame`` of ``values`` stripped of spaces (:func:`_base_frame`), ``base_link``
+    (REP 105's robot body frame) when it is empty, null or missing."""
+    return _base_frame(values) or "base_link"
 
 
 def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:

@@ -15,7 +15,7 @@ from typing import Any
 
 from .params import OTHER_NODE_PARAMETERS, PARAMETERS, ConfigError, check_parameter, default_values
 
-__all__ = ["parameter_values", "read_params_file"]
+__all__ = ["checked_value", "parameter_values", "read_params_file"]
 
 
 def _flatten(tree: Mapping, prefix: str = "") -> dict[str, Any]:
@@ -66,12 +66,28 @@ def read_params_file(path: str | os.PathLike, node_name: str = "rs_localizer") -
     return out
 
 
+def checked_value(name: str, value: Any) -> Any:
+    """A parameter file's or an override's ``value`` of the node parameter ``name``, as the
+    camera's and the rig's readers take it: a string parameter written with no value (YAML
+    null, ``base_frame:``) is the empty string, then the value is checked against the
+    parameter's type and range (:func:`~.params.check_parameter`).
+
+    Raises:
+        ConfigError: unknown parameter, wrong type, or outside the declared range (naming
+            the parameter).
+    """
+    if value is None and name in PARAMETERS and isinstance(PARAMETERS[name].default, str):
+        value = ""
+    check_parameter(name, value)
+    return value
+
+
 def parameter_values(
     files: Iterable[str | os.PathLike] = (), overrides: Mapping[str, Any] | None = None
 ) -> tuple[dict[str, Any], list[str]]:
     """Every parameter's value from its default, then each parameter file in order
     (:func:`read_params_file`), then ``overrides``, each value checked
-    (:func:`check_parameter`). Returns ``(values, ignored)``: ``ignored`` lists file entries
+    (:func:`checked_value`). Returns ``(values, ignored)``: ``ignored`` lists file entries
     that are not localizer parameters (``viz.*``, ``qos_overrides.*`` and ``cameras`` belong
     to the node but not to the estimation; other names are unknown to the node, which ignores
     them too).
@@ -88,9 +104,7 @@ def parameter_values(
                 if not name.startswith(OTHER_NODE_PARAMETERS):
                     ignored.append(name)
                 continue
-            check_parameter(name, value)
-            values[name] = value
+            values[name] = checked_value(name, value)
     for name, value in (overrides or {}).items():
-        check_parameter(name, value)
-        values[name] = value
+        values[name] = checked_value(name, value)
     return values, ignored

@@ -1096,7 +1096,8 @@ class TwistFilter:
             relocalized: the frame was not found from the previous one (the tracker's
                 relocalization): a measurement the gate rejects restarts the filter at once.
             prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
-                refinement used, if any (``RSPoseEstimate.motion_prior_used``): its
+                refinement holds, if any (a camera's ``RSPoseEstimate.motion_prior_used``;
+                :class:`~rs_localizer.tracking.tracker.Solve`): its
                 information is removed before fusing (see :meth:`_measurement`), but not from
                 a frame the filter (re)starts from (:meth:`_start`).
         Returns:

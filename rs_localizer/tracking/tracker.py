@@ -329,8 +329,10 @@ class Solve:
     Attributes:
         estimate: the estimator's result, a camera's or a rig's
             :class:`~rs_localizer.estimation.result.RSPoseEstimate`.
-        prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
-            refinement used, None: none (the twist filter takes its information out again).
+        prior: the options' :class:`~rs_localizer.estimation.prior.MotionPrior` the
+            estimate's refinement holds (a camera's maximum a posteriori one; a rig's holds
+            the gyro's rate alone), None: none (the twist filter takes its information out
+            again).
         prior_from_prediction: the estimator was given the prediction's twist as its motion
             prior: when the prediction does not hold the frame is solved again without it.
     """
@@ -823,7 +825,10 @@ class FrameViews:
         prior_from_prediction: bool = False,
     ) -> Solve:
         """The frame solved with ``options`` from the ``initial`` model or the
-        ``prediction`` (a rig's tie-breaker), with the motion prior its refinement used."""
+        ``prediction`` (a rig's tie-breaker), with the options' motion prior where its
+        refinement used it: a camera's maximum a posteriori refinement holds it (with a gyro,
+        with the gyro's rate), a rig's holds the gyro's rate alone (the rig estimator takes no
+        motion prior), which the filter keeps as a camera's."""
         if self.solver is not None:  # (a camera's own view)
             v = self.views[0]
             est = estimate_rs_pose(
@@ -837,5 +842,5 @@ class FrameViews:
                 verify_cameras=initial is None and prediction is None,
                 implementation=self.implementation,
             )  # fmt: skip
-        prior = options.motion_prior if est.motion_prior_used else None
-        return Solve(est, prior, prior_from_prediction)
+        own = self.solver is not None and est.motion_prior_used
+        return Solve(est, options.motion_prior if own else None, prior_from_prediction)

@@ -306,3 +306,20 @@ def test_final_check_of_a_rig_checks_each_camera_at_its_mounting(compiled):
         == final_check(R, C, w, t, X, tau, m0, compiled=compiled)
         == (0, int((~m0).sum()))
     )
+
+
+def test_a_cheirality_failure_reports_the_rows_behind_the_camera(seq, cheirality_when_behind):
+    """A frame refused as ``cheirality`` reports the rows its refused fit put behind the
+    camera in ``num_behind`` and ``num_dropped``, as a rig frame's does (test_rig.py): the 30 %
+    of the rows reflected behind the camera, one invalid row."""
+    fr, cam = seq
+    f = fr[2]
+    n = int(0.3 * len(f.xyz))
+    X = f.xyz.copy()
+    X[:n] = 2 * f.position - X[:n]
+    u = f.uv.copy()
+    u[n + 5] = np.nan
+    e = estimate_rs_pose(u, X, cam, options=_opts())
+    assert not e.success and e.failure == "cheirality"
+    assert e.num_behind == n and e.num_dropped == n + 1 and e.num_valid == len(X) - 1
+    assert not e.inliers.any() and e.num_inliers_per_view == (0,)

@@ -406,6 +406,24 @@ def test_points_behind_a_camera_are_counted_not_inliers():
     assert not est.inliers_per_view[0][40:].any()
 
 
+def test_a_cheirality_failure_reports_the_rows_behind_as_a_cameras_does(cheirality_when_behind):
+    """A rig frame refused as ``cheirality`` reports the rows its refused fit put behind their
+    cameras in ``num_behind`` and ``num_dropped``, as a camera's frame does
+    (test_plausibility.py): camera 0's five rows reflected through its centre."""
+    rng = np.random.default_rng(15)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    truth = rig_truth(rng)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], truth, outliers=0.0)
+    Rk, Ck, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], *truth)
+    v = views[0]
+    X = np.vstack([v.X, 2 * (-Rk.T @ Ck) - v.X[:5]])
+    uv = np.vstack([v.uv, v.uv[:5]])
+    est = estimate_rig_pose([View(uv, X, v.camera, v.mounting, v.stamp_offset), views[1]])
+    assert not est.success and est.failure == "cheirality"
+    assert est.num_behind == 5 and est.num_dropped == 5 and est.num_valid == 85
+    assert est.num_inliers_per_view == (0, 0)
+
+
 @pytest.mark.parametrize("implementation", ["compiled", "numpy"])
 def test_points_beyond_max_point_norm_are_dropped_as_a_camera_drops_them(implementation):
     """Camera 0 with 3 more rows whose world points lie 2e6 m away (beyond the default

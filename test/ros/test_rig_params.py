@@ -134,6 +134,63 @@ def test_a_rigs_base_frame_is_base_link_when_empty_or_null(tmp_path, written, fr
     assert rig_base_frame({}) == "base_link"
 
 
+@pytest.mark.parametrize("written", ["", " ~", ' ""', " '  '"])
+def test_a_single_cameras_base_frame_follows_the_rigs_rule(tmp_path, written):
+    """A single camera's ``base_frame`` is read by the rig's rule (``rig_base_frame``): stripped
+    of spaces, empty when empty, null (``base_frame:`` with no value) or missing, where the
+    camera's empty value means no base frame (its optical frame, no ``camera_to_base``
+    mounting), the rig's ``base_link``; the same file's ``base_frame`` set: both use it."""
+    from rs_localizer.ros.bags.bag_frames import rig_parameter_values
+    from rs_localizer.ros.param_files import parameter_values
+
+    f = tmp_path / "camera.yaml"
+    f.write_text(f"/**/rs_localizer:\n  ros__parameters:\n    base_frame:{written}\n")
+    cfg = build_config(parameter_values([f])[0])
+    assert cfg.base_frame == "" and cfg.camera.mount is None
+    cfg = build_config({**default_values(), "base_frame": None})
+    assert cfg.base_frame == "" and cfg.camera.mount is None
+    rig = {"rig.cameras": ["a"], "rig.a.mounting": [0.0] * 6 + [1.0]}
+    assert build_config(*rig_parameter_values(None, [f], rig)).base_frame == "base_link"
+    f.write_text("/**/rs_localizer:\n  ros__parameters:\n    base_frame: ' robot '\n")
+    cfg = build_config(parameter_values([f])[0])
+    assert cfg.base_frame == "robot" and cfg.camera.mount is not None
+    assert build_config(*rig_parameter_values(None, [f], rig)).base_frame == "robot"
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [("ransac.confidence", "high", "must be of type float"),
+     ("ransac.seed", 1.5, "must be of type int"),
+     ("ransac.max_iterations", 100.0, "must be of type int"),
+     ("max_points", "many", "must be of type int"),
+     ("ransac.confidence", 2.0, "is outside")],
+)  # fmt: skip
+def test_a_rigs_shared_parameters_are_checked_as_a_cameras(tmp_path, name, value, message):
+    """A node parameter of the wrong type or outside its range in a rig's parameter file (or
+    override) is refused with the message a single camera's gets, naming the parameter, by
+    every reader of a rig's parameters (replay, calibrate-rig, compile, play): never taken
+    as another type (a seed of 1.5 as 1) nor refused by what reads it later."""
+    from rs_localizer.ros.bags.bag_frames import rig_parameter_values
+    from rs_localizer.ros.param_files import parameter_values
+    from rs_localizer.ros.params import ConfigError
+
+    with pytest.raises(ConfigError) as camera:
+        parameter_values([], {name: value})
+    assert message in str(camera.value) and repr(name) in str(camera.value)
+    rig = {"rig.cameras": ["a"], "rig.a.mounting": [0.0] * 6 + [1.0]}
+    with pytest.raises(ConfigError) as given:
+        rig_parameter_values(None, [], {**rig, name: value})
+    assert str(given.value) == str(camera.value)
+    f = tmp_path / "rig.yaml"
+    f.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    rig:\n      cameras: [a]\n"
+        f"      a: {{mounting: [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]}}\n    {name}: {value!r}\n"
+    )
+    with pytest.raises(ConfigError) as written:
+        rig_parameter_values(None, [f])
+    assert str(written.value) == str(camera.value)
+
+
 def test_a_single_camera_is_a_rig_of_one_camera_named_empty():
     """Without ``rig.cameras`` the configuration holds one camera named "", built as a rig's
     cameras are: its ``camera_to_base.*`` pose in ``base_frame`` is the mounting a rig camera

@@ -263,3 +263,33 @@ def test_the_rigs_gap_is_passed_to_the_gyro_check_and_bias_estimator():
     assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.3
     rig = Localizer(LocalizerSettings(mounts, imu=imu, tracking=None, stop_after=0.8))
     assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.5
+
+
+def test_the_filter_takes_out_only_the_prior_a_frames_refinement_holds():
+    """A rig frame posed with a right gyro is refined with the gyro's rate alone
+    (``motion_prior_used``; the rig estimator takes no motion prior): its solve gives the twist
+    filter no prior to take out, though its options carry one; one camera's frame with the same
+    gyro holds the options' motion prior with it, which the filter takes out."""
+    from rs_localizer.estimation.gyro import GyroMeasurement
+    from rs_localizer.estimation.rig import RIG_OPTIONS
+    from rs_localizer.estimation.view import View
+    from rs_localizer.sim import synthetic as sim_rig
+    from rs_localizer.tracking.tracker import FrameViews
+
+    rng = np.random.default_rng(5)
+    rig = sim_rig.make_rig(3, rng)
+    truth = sim_rig.rig_motion(rng, 1.5, 1.5)
+    f = sim_rig.rig_frame(rig, truth, [60] * 3, rng)
+    gyro = GyroMeasurement(-truth.w, 0.005**2 * np.eye(3))
+    assert RIG_OPTIONS.motion_prior is not None
+    solve = FrameViews(f.views, RIG_OPTIONS, RIG_OPTIONS, gyro=gyro).cold()
+    est = solve.estimate
+    assert est.success and est.gyro_used and est.motion_prior_used
+    assert solve.prior is None
+    v = f.views[0]
+    R_m = v.mounting.R  # (the gyro in the camera's optical frame: R_cam_rig omega)
+    own = View(v.uv, v.X, v.camera, Mounting(np.eye(3), np.zeros(3)))
+    one = GyroMeasurement(R_m @ -truth.w, 0.005**2 * np.eye(3))
+    solve = FrameViews((own,), RIG_OPTIONS, RIG_OPTIONS, solver="r6p_1lin", gyro=one).cold()
+    assert solve.estimate.success and solve.estimate.motion_prior_used
+    assert solve.prior is RIG_OPTIONS.motion_prior

@@ -26,8 +26,14 @@ import numpy as np
 from ...camera import CameraModel
 from .. import conversions as cv
 from ..config import LocalizerConfig, build_config, load_maps, rig_camera_names
-from ..param_files import read_params_file
-from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
+from ..param_files import checked_value, read_params_file
+from ..params import (
+    PARAMETERS,
+    RIG_CAMERA_PARAMETERS,
+    RIG_PARAMETERS,
+    ConfigError,
+    default_values,
+)
 from .bag_io import (
     CAMERA_INFO,
     COMPRESSED_IMAGE,
@@ -237,8 +243,15 @@ def rig_parameter_values(
 ) -> tuple[dict, dict]:
     """``(values, camera values)`` for :func:`~rs_localizer.ros.config.build_config`: the
     defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
-    then ``params``; ``rig.cameras``' names as the rig node reads them (stripped of spaces),
-    and by each its camera values, its ``rig.<camera>.*`` parameters."""
+    then ``params``, the node's parameters (:data:`~rs_localizer.ros.params.PARAMETERS`)
+    checked as a camera's are (:func:`~rs_localizer.ros.param_files.checked_value`);
+    ``rig.cameras``' names as the rig node reads them (stripped of spaces), and by each its
+    camera values, its ``rig.<camera>.*`` parameters.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a node parameter's value of the wrong type or
+            outside its range (naming it); a file that is not a parameter file.
+    """
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
                    for k, p in RIG_PARAMETERS.items()})  # fmt: skip
@@ -247,7 +260,8 @@ def rig_parameter_values(
     for f in ([own] if own is not None and own.is_file() else []) + list(params_files):
         tree.update(read_params_file(f))
     tree.update(params or {})
-    values.update({k: v for k, v in tree.items() if k in values})
+    values.update({k: checked_value(k, v) if k in PARAMETERS else v
+                   for k, v in tree.items() if k in values})  # fmt: skip
     names = values["rig.cameras"]
     if isinstance(names, (list, tuple)):  # (as the rig node names them: stripped)
         values["rig.cameras"] = names = [n.strip() if isinstance(n, str) else n for n in names]
