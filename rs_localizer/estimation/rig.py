@@ -36,6 +36,7 @@ best model misses a camera (three corners of a small tag leave a pose degrees of
 from __future__ import annotations
 
 import functools
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import NamedTuple
@@ -833,6 +834,8 @@ class _RigStages:
         self.refine = self.options.refine.enabled
         self.search: _RigSearch | None = None
         self.last = None
+        self.t_start = time.perf_counter()
+        self.timings: dict[str, float] = {}  # (stage -> s, a camera's keys)
         if self.still is None:
             self.still = bool(len(self.pool.cam)) and self.pool.tau_spread <= STILL_SPREAD
 
@@ -842,6 +845,7 @@ class _RigStages:
             raise EstimationFailed(TOO_FEW_POINTS)
         if pool.degenerate(np.ones(len(pool.X), dtype=bool), self.threshold_px, pool.compiled):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
+        self.timings["prepare"] = time.perf_counter() - self.t_start
 
     def searched(self) -> Model:
         pool, still, im = self.pool, self.still, self.initial_model
@@ -861,7 +865,9 @@ class _RigStages:
             need = max(int(im.min_explained), search.s + 1, 6)
             search.seeded((explained, seed, anchored), lambda inl: np.count_nonzero(inl) >= need
                           and np.bincount(pool.cam[inl]).max() >= 3)  # fmt: skip
+        t0 = time.perf_counter()
         search.search(search, search.batches)
+        self.timings["ransac"] = time.perf_counter() - t0
         return search.found()
 
     def polished(self, model: Model) -> Model:
@@ -883,14 +889,17 @@ class _RigStages:
         def evaluate(m):
             return search.cost(m), search.errors(m) < threshold_px
 
+        t0 = time.perf_counter()
         best = (search.score, model, search.errors(model) < threshold_px)
         steps = (None if self.still else refit, exact if self.refine else None)
         (_, model, _), self.last = polish(best, evaluate, *steps, LO_ROUNDS, min_inliers=0)
+        self.timings["local_optimization"] = time.perf_counter() - t0
         return model
 
     def final(self, model: Model) -> FinalModel:
         pool, search, prior, threshold_px = self.pool, self.search, self.prior, self.threshold_px
         rolling, refine, last = not self.still, self.refine, self.last
+        t0 = time.perf_counter()
         if refine:  # the final refinement, the model of the lowest MSAC cost
             # (local optimization's last refinement is the final one's first, whether it took
             # it or the model is still the one it started from)
@@ -914,8 +923,10 @@ class _RigStages:
             ref = frame_refinement(pool, final.model, threshold_px, rolling,
                                    prior if rolling else None, rolling,
                                    max_iterations=0)  # fmt: skip
-        return with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
-                               alone=False, rate_prior=rate, errors=e)  # fmt: skip
+        out = with_covariance(pool, final, ref, threshold_px, rolling, sensitivity=rolling,
+                              alone=False, rate_prior=rate, errors=e)  # fmt: skip
+        self.timings["refine"] = time.perf_counter() - t0
+        return out
 
     def finished(self, final: FinalModel) -> RSPoseEstimate:
         pool, search, e, threshold_px = self.pool, self.search, self.e, self.threshold_px
@@ -933,6 +944,7 @@ class _RigStages:
             rolling, search.iterations, (search.explained, self.initial_used),
             self.prior is not None, pool.compiled, solver=RIG_SOLVER,
             motion_prior_used=self.prior is not None,  # (the gyro's: MAP, as a camera's)
+            timings=self.timings | {"total": time.perf_counter() - self.t_start},
         )  # fmt: skip
 
     def retried(self, failure: EstimationFailed) -> RSPoseEstimate | None:
@@ -954,6 +966,7 @@ class _RigStages:
         return failure.estimate(
             pool.per_camera(none), pool.counts(), sum(pool.sizes), solver=RIG_SOLVER,
             ransac_iterations=iterations, implementation=COMPILED if pool.compiled else NUMPY,
+            timings=self.timings | {"total": time.perf_counter() - self.t_start},
         )  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:

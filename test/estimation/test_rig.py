@@ -491,6 +491,21 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
         assert part.rmse_px == pytest.approx(one.rmse_px, rel=0.05)
 
 
+def test_a_rig_estimate_reports_its_stages_times_as_a_camera_s_does():
+    """A rig frame's estimate times the camera's stages under the camera's names (s), each
+    within the whole."""
+    rng = np.random.default_rng(17)
+    cam = sim_rig.make_rig(1, rng).cameras[0].camera
+    rig = sim_rig.Rig((sim_rig.RigCamera("front", cam, Mounting(np.eye(3), np.zeros(3)), 0.0),))
+    v = sim_rig.rig_frame(rig, rig_truth(rng), [200], rng).views[0]
+    est, one = estimate_rig_pose([v]), estimate_rs_pose(v.uv, v.X, v.camera)
+    assert est.success and one.success
+    assert set(est.timings) == set(one.timings) == {
+        "prepare", "ransac", "local_optimization", "refine", "total",
+    }  # fmt: skip
+    assert all(0 <= t <= est.timings["total"] for t in est.timings.values())
+
+
 def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
     """camera_estimate against an independent computation: the camera's model through its
     mounting and stamp offset (the rig's capture-time model composed by hand), its view's
