@@ -264,7 +264,8 @@ def solve_and_score(
     rig's stacked views, as :func:`~.scoring.msac_scores` takes them
     (:func:`~.rig_batch.search_batch`; ``w_known`` None, ``r`` the capture times s): each
     sample solved by the rig solver, or on a still rig frame the still models ``R_p``,
-    ``C_p`` (``w = t = 0``) scored."""
+    ``C_p`` (``w = t = 0``) scored. Returns as :func:`ransac_batch` (``h`` -1 and the score
+    ``inf`` for a batch of no hypothesis, a rig's whose samples P3P posed none)."""
     K = R_p.shape[0]
     # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
     if w_known is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
@@ -297,6 +298,8 @@ def solve_and_score(
         x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5,
         measured, W, mount,
     )  # fmt: skip
+    if scores.shape[0] == 0:  # (a rig's batch of no model: no sample posed)
+        return -1, np.inf, Rs, Cs, ws, ts, n_implausible
     h = np.argmin(scores)
     return h, scores[h], Rs, Cs, ws, ts, n_implausible
 

@@ -308,3 +308,22 @@ def test_a_rig_sample_keeps_one_p3p_pose_as_a_camera_does(compiled):
     assert len(own) > K // 2
     moving = rig_mod._hypotheses(pool, samples, 3)
     assert len(moving[0]) <= K
+
+
+def test_a_batch_that_poses_no_sample_finds_no_model():
+    """A still rig frame's batch in which P3P poses none of the samples (every world point
+    the same: no triangle) has no model to score: the batch reports none (``h`` -1, the
+    best cost unchanged) and writes nothing, where reading the first score of no scores
+    once took whatever lay beyond the arrays as the best model."""
+    views = _frame(1, (30, 24, 12))
+    pool = StackedViews(views)
+    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
+    X = np.ascontiguousarray(np.broadcast_to(X[0], X.shape))
+    counts = np.bincount(cam, minlength=3)
+    draws = np.random.default_rng(1).random(7 * 64)
+    out = _buffers(len(cam), 3)
+    missed = np.zeros(3, dtype=bool)
+    got = still_batch(draws, 0, 64, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A, missed, 1,
+                      4.0, 2.0, counts, 7.0, 0, 0, out)  # fmt: skip
+    assert got == (-1, 7.0, 0)
+    assert all(np.isnan(a).all() for a in out[:5]) and not out[5].any()
