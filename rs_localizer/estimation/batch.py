@@ -313,7 +313,8 @@ def prerotated_solutions(samples, R_p, ok_p, x, X, r, r0, kernels, n_params, ite
     ``known``: the set's known-angular-velocity kernel alone, J = 1, its w in every row of
     ``v0`` (K, 3), the kernels' ``v_init``; ``min_points`` (J,): a kernel given fewer points
     per sample is not run, its solutions not ok). ``mount``: None (a camera) or a rig's
-    stacked views as :func:`~.scoring.msac_scores` takes them: ``kernels`` R6P_{v,C,w,t}^{[v]x}
+    stacked views as :func:`~.scoring.msac_scores` takes them (its first five are read):
+    ``kernels`` R6P_{v,C,w,t}^{[v]x}
     alone, run through each point's camera's mounting
     (:func:`~rs_localizer.solvers.r6p_1lin.solve_mounted`, the rig solver; ``r`` the capture
     times s), on a still frame (``mount[4]``) with the velocities held at zero by the prior

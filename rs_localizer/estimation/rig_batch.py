@@ -72,7 +72,7 @@ def search_batch(u, subset, X, x, tau, cam, Rm, cm, A, order, still, missed, rou
     K = samples.shape[0]
     mount = (cam, Rm, cm, tau, still, order)
     if still:
-        R0, C0 = still_batch(samples, x, X, mount, missed, rounds)
+        R0, C0 = still_batch(samples, x, X, cam, Rm, cm, missed, rounds)
     elif anchor.shape[0]:
         R0, C0 = np.empty((K, 3, 3)), np.zeros((K, 3))
         for h in range(K):
@@ -99,7 +99,7 @@ def search_batch(u, subset, X, x, tau, cam, Rm, cm, A, order, still, missed, rou
 
 
 @kernel
-def still_batch(samples, x, X, mount, missed, rounds):
+def still_batch(samples, x, X, cam, Rm, cm, missed, rounds):
     """:func:`still_models` of each of the samples (K, 6), in their order: ``(R (H, 3, 3), C
     (H, 3))``."""
     K = samples.shape[0]
@@ -109,8 +109,8 @@ def still_batch(samples, x, X, mount, missed, rounds):
     Rp, Cp = np.empty((MAX_SOLUTIONS, 3, 3)), np.empty((MAX_SOLUTIONS, 3))
     H = 0
     for j in range(K):
-        Rj, Cj = still_models(samples[j], x, X, mount, missed, rounds, b, P, R_cam, C_cam, Rp,
-                              Cp)  # fmt: skip
+        Rj, Cj = still_models(samples[j], x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam,
+                              Rp, Cp)  # fmt: skip
         n = Rj.shape[0]
         R[H : H + n] = Rj
         C[H : H + n] = Cj
@@ -119,16 +119,14 @@ def still_batch(samples, x, X, mount, missed, rounds):
 
 
 @kernel
-def still_models(sample, x, X, mount, missed, rounds, b, P, R_cam, C_cam, R, C):
-    """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations) on a
-    still rig frame's stacked views ``mount`` (:func:`search_batch`'s), in the order they are
-    scored: its P3P pose (:func:`~.sampling.p3p_mounted_into`, into the buffers ``R``,
-    ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,) bool), that
-    pose corrected ``rounds`` times by the rig solver with the velocities held at zero
-    (:func:`~.batch.prerotated_solutions` on a still frame, each round pre-rotated by the
-    last). Returns ``(R (H, 3, 3), C (H, 3))``."""
-    cam = mount[0]
-    q = p3p_mounted_into(x, X, sample, cam, mount[1], mount[2], b, P, R_cam, C_cam, R, C, 0)
+def still_models(sample, x, X, cam, Rm, cm, missed, rounds, b, P, R_cam, C_cam, R, C):
+    """One sample's global-shutter models (:func:`~.rig._hypotheses` with 0 iterations), in
+    the order they are scored: its P3P pose (:func:`~.sampling.p3p_mounted_into`, into the
+    buffers ``R``, ``C``), then, when a point of the sample lies in a camera ``missed`` ((M,)
+    bool), that pose corrected ``rounds`` times by the rig solver with the velocities held at
+    zero (:func:`~.batch.prerotated_solutions` on the views at one time, each round
+    pre-rotated by the last). Returns ``(R (H, 3, 3), C (H, 3))``."""
+    q = p3p_mounted_into(x, X, sample, cam, Rm, cm, b, P, R_cam, C_cam, R, C, 0)
     Rg, Cg = R[:q], C[:q]
     hit = False
     if q > 0 and rounds > 0:
@@ -141,11 +139,12 @@ def still_models(sample, x, X, mount, missed, rounds, b, P, R_cam, C_cam, R, C):
     for h in range(q):
         S[h] = sample
     Rc, Cc = Rg, Cg
-    tau = np.zeros(X.shape[0])
+    still = (cam, Rm, cm, np.zeros(X.shape[0]), True)  # (the frame's views at one time)
     for _ in range(rounds):
         Rs, Cs, _, _, ok = prerotated_solutions(S, np.ascontiguousarray(Rc), np.ones(len(S),
-                                                dtype=np.bool_), x, X, tau, 0.0, *RIG_KERNELS, 1,
-                                                np.zeros((len(S), 3)), False, mount)  # fmt: skip
+                                                dtype=np.bool_), x, X, still[3], 0.0,
+                                                *RIG_KERNELS, 1, np.zeros((len(S), 3)), False,
+                                                still)  # fmt: skip
         if not ok.any():
             return Rg, Cg
         keep = np.flatnonzero(ok)
