@@ -294,10 +294,12 @@ def solve_and_score(
         if ok[q] and not motion_checked(Cs, ws, ts, q, w2max, v2max):
             ok[q] = False
             n_implausible += 1
-    scores, _ = msac_scores(
-        x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5,
-        measured, W, mount,
-    )  # fmt: skip
+    if mount is None:
+        scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
+                                pretest_min, 0.5, measured, W)  # fmt: skip
+    else:  # (a rig's: ``measured`` a constant, the camera's error forms compiled out)
+        scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
+                                pretest_min, 0.5, True, W, mount)  # fmt: skip
     if scores.shape[0] == 0:  # (a rig's batch of no model: no sample posed)
         return -1, np.inf, Rs, Cs, ws, ts, n_implausible
     h = np.argmin(scores)

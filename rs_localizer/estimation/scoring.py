@@ -486,7 +486,7 @@ def exact_msac_scores(
     """
     return msac_scores(
         x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, True, pretest_n, pretest_min,
-        pretest_fraction, measured, W, None,
+        pretest_fraction, measured, W,
     )  # fmt: skip
 
 
