@@ -30,12 +30,20 @@ from ..solvers.kernels import (
     run_kernels,
 )
 from ..solvers.p3p import DEFAULT_BACKEND
+from ..solvers.r6p_1lin import solve_mounted
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
 from .plausibility import motion_checked
 from .sampling import draw_samples, gather_prerotated, p3p_mounted, select_prerotations
 from .scoring import msac_scores
 
-__all__ = ["checked_solutions", "fused_kernels", "prerotated_batch", "ransac_batch"]
+__all__ = [
+    "checked_solutions",
+    "fused_kernels",
+    "prerotated_batch",
+    "prerotated_solutions",
+    "ransac_batch",
+    "solve_and_score",
+]
 
 #: stopping tolerance of the iterative solvers on RANSAC samples (their default)
 _SOLVER_TOL = 1e-12
@@ -133,7 +141,7 @@ def ransac_batch(
             samples[k, j] = order[local[k, j]]
     R, C, own = p3p_mounted(x, X, samples, None, None, None)  # (a camera: unit bearings)
     R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
-    return _solve_and_score(
+    return solve_and_score(
         samples,
         R_p,
         C_p,
@@ -198,7 +206,7 @@ def prerotated_batch(
         for j in range(s):
             samples[k, j] = order[local[k, j]]
         R_p[k] = R_pre
-    return _solve_and_score(
+    return solve_and_score(
         samples,
         R_p,
         np.zeros((K, 3)),
@@ -225,7 +233,7 @@ def prerotated_batch(
 
 
 @kernel
-def _solve_and_score(
+def solve_and_score(
     samples,
     R_p,
     C_p,
@@ -248,10 +256,17 @@ def _solve_and_score(
     v_max,
     w_known,
     W,
+    mount=None,
 ):
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
-    sample with each kernel, drop implausible hypotheses, score."""
-    K = samples.shape[0]
+    sample with each kernel (:func:`prerotated_solutions`), drop implausible hypotheses,
+    score, the batch's best the first minimum of the scores. ``mount``: None (a camera) or a
+    rig's stacked views, as :func:`~.scoring.msac_scores` takes them
+    (:func:`~.rig_batch.search_batch`; ``w_known`` None, ``r`` the capture times s): each
+    sample solved by the rig solver, or on a still rig frame the still models ``R_p``,
+    ``C_p`` (``w = t = 0``) scored. Returns as :func:`ransac_batch` (``h`` -1 and the score
+    ``inf`` for a batch of no hypothesis, a rig's whose samples P3P posed none)."""
+    K = R_p.shape[0]
     # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
     if w_known is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
         wk = np.zeros(0)
@@ -259,71 +274,105 @@ def _solve_and_score(
         wk = w_known
     known = wk.shape[0] == 3
     J = 1 if known else kernel_count(kernels)
+    if mount is not None and mount[4]:  # (a still rig frame: its models are R_p, C_p)
+        J = 0
     if J == 0:
         Rs, Cs, ok = R_p, C_p, ok_p
         ws = np.zeros((K, 3))
         ts = np.zeros((K, 3))
     else:
-        xs, Xs, rs = gather_prerotated(samples, R_p, x, X, r)
-        H = J * K
-        Rs = np.empty((H, 3, 3))
-        Cs = np.empty((H, 3))
-        ws = np.empty((H, 3))
-        ts = np.empty((H, 3))
-        ok = np.empty(H, dtype=np.bool_)
-        out = np.empty((K, MAX_PARAMS))
-        ok_k = np.zeros(K, dtype=np.bool_)
-        its = np.zeros(K, dtype=np.int64)
-        err = np.zeros(K)
         v0 = np.zeros((K, 3))
         if known:  # (the known-w kernel reads its w from v_init)
             for k in range(K):
                 v0[k, 0], v0[k, 1], v0[k, 2] = wk[0], wk[1], wk[2]
-        v = np.empty((K, 3))
-        for j in range(J):
-            out[:] = 0.0
-            run_kernels(
-                kernels,
-                KNOWN_W if known else j,
-                xs,
-                Xs,
-                rs,
-                r0,
-                iterations,
-                _SOLVER_TOL,
-                v0,
-                out,
-                ok_k,
-                its,
-                err,
-            )
-            checked_solutions(out, ok_k, 12 if known else n_params[j])
-            for k in range(K):
-                h = j * K + k
-                for a in range(3):
-                    v[k, a] = out[k, a]
-                    Cs[h, a] = out[k, 3 + a]
-                    ws[h, a] = out[k, 6 + a]
-                    ts[h, a] = out[k, 9 + a]
-                ok[h] = ok_k[k] and ok_p[k]
-            # (a call, not inlined: the same floating-point contraction as the step-by-step path)
-            Rj = compose_rotvec(v, R_p)
-            for k in range(K):
-                copy_matrix3(Rj[k], Rs[j * K + k])
+        Rs, Cs, ws, ts, ok = prerotated_solutions(
+            samples, R_p, ok_p, x, X, r, r0, kernels, n_params, iterations, v0, known, mount
+        )
     n_implausible = 0
     w2max, v2max = w_max * w_max, v_max * v_max
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
-        if ok[q] and not motion_checked(Cs, ws, ts, q, w2max, v2max)[1]:
+        if ok[q] and not motion_checked(Cs, ws, ts, q, w2max, v2max):
             ok[q] = False
             n_implausible += 1
-    scores, _ = msac_scores(
-        x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5, measured, W
-    )
-    h = 0
-    for q in range(scores.shape[0]):
-        if scores[q] < scores[h]:
-            h = q
+    if mount is None:
+        scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
+                                pretest_min, 0.5, measured, W)  # fmt: skip
+    else:  # (a rig's: ``measured`` a constant, the camera's error forms compiled out)
+        scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
+                                pretest_min, 0.5, True, W, mount)  # fmt: skip
+    if scores.shape[0] == 0:  # (a rig's batch of no model: no sample posed)
+        return -1, np.inf, Rs, Cs, ws, ts, n_implausible
+    h = np.argmin(scores)
     return h, scores[h], Rs, Cs, ws, ts, n_implausible
+
+
+@kernel
+def prerotated_solutions(samples, R_p, ok_p, x, X, r, r0, kernels, n_params, iterations, v0,
+                         known, mount=None, min_points=None):  # fmt: skip
+    """K samples (K, s) pre-rotated by ``R_p`` (K, 3, 3) (:func:`~.sampling.gather_prerotated`
+    on ``x`` (N, 2), ``X`` (N, 3), ``r`` (N,)) solved by each of the J batched kernels of
+    ``kernels`` (``n_params`` (J,) the parameters each writes, checked for finiteness;
+    ``known``: the set's known-angular-velocity kernel alone, J = 1, its w in every row of
+    ``v0`` (K, 3), the kernels' ``v_init``; ``min_points`` (J,): a kernel given fewer points
+    per sample is not run, its solutions not ok). ``mount``: None (a camera) or a rig's
+    stacked views as :func:`~.scoring.msac_scores` takes them (its first five are read):
+    ``kernels`` R6P_{v,C,w,t}^{[v]x}
+    alone, run through each point's camera's mounting
+    (:func:`~rs_localizer.solvers.r6p_1lin.solve_mounted`, the rig solver; ``r`` the capture
+    times s), on a still frame (``mount[4]``) with the velocities held at zero by the prior
+    rows ``(w, t) = 0`` (with ``r`` zero and one step, a global-shutter sample's correction).
+    Returns ``(Rs (H, 3, 3), Cs, ws, ts (H, 3), ok (H,))``, H = J K, kernel j's in rows
+    ``j K .. j K + K - 1``, each rotation ``expm([v]x) R_p[k]``; ``ok`` the solution's and
+    ``ok_p`` (K,)'s; a solution not ok zero (its rotation ``R_p[k]``)."""
+    K, s = samples.shape
+    J = 1 if known else kernel_count(kernels)
+    xs, Xs, rs = gather_prerotated(samples, R_p, x, X, r)
+    H = J * K
+    Rs = np.empty((H, 3, 3))
+    Cs = np.empty((H, 3))
+    ws = np.empty((H, 3))
+    ts = np.empty((H, 3))
+    ok = np.empty(H, dtype=np.bool_)
+    out = np.empty((K, MAX_PARAMS))
+    ok_k = np.zeros(K, dtype=np.bool_)
+    its = np.zeros(K, dtype=np.int64)
+    err = np.zeros(K)
+    v = np.empty((K, 3))
+    if mount is not None:  # (each point's camera; the prior rows of held velocities)
+        cam, Rm, cm, held = mount[0], mount[1], mount[2], mount[4]
+        cs = np.empty((K, s), dtype=np.int64)
+        for k in range(K):
+            for i in range(s):
+                cs[k, i] = cam[samples[k, i]]
+        P = np.zeros((K if held else 1, 6, 6))
+        if held:
+            for k in range(K):
+                for a in range(6):
+                    P[k, a, a] = 1.0
+    for j in range(J):
+        out[:] = 0.0
+        if mount is not None:
+            solve_mounted(xs, Xs, rs, cs, Rm, cm, iterations, _SOLVER_TOL, v0, P,
+                          np.zeros((P.shape[0], 6)), held, out, ok_k, its, err)  # fmt: skip
+        elif min_points is None or s >= min_points[j]:
+            run_kernels(kernels, KNOWN_W if known else j, xs, Xs, rs, r0, iterations,
+                        _SOLVER_TOL, v0, out, ok_k, its, err)  # fmt: skip
+        else:
+            ok_k[:] = False
+        checked_solutions(out, ok_k, 12 if known else n_params[j])
+        for k in range(K):
+            h = j * K + k
+            for a in range(3):
+                v[k, a] = out[k, a]
+                Cs[h, a] = out[k, 3 + a]
+                ws[h, a] = out[k, 6 + a]
+                ts[h, a] = out[k, 9 + a]
+            ok[h] = ok_k[k] and ok_p[k]
+        # (a call, not inlined: the same floating-point contraction as the step-by-step path)
+        Rj = compose_rotvec(v, R_p)
+        for k in range(K):
+            copy_matrix3(Rj[k], Rs[j * K + k])
+    return Rs, Cs, ws, ts, ok
 
 
 @kernel
@@ -331,9 +380,8 @@ def checked_solutions(out, ok, n_params):
     """A batched solver's K solutions ``out`` (K, >= 12) ``(v, C, w, t)`` and their ``ok``
     (K,) bool checked in place: ``ok[k]`` False where one of the first ``n_params``
     parameters is not finite, and the 12 parameters of a row not ok zeroed (as
-    :class:`~rs_localizer.solvers.RSBatch`'s invalid problems): a camera's fused batch's
-    (:func:`ransac_batch`, :func:`nonminimal_solve`) and the rig's
-    (:func:`~.rig_batch.solve_rotated`)."""
+    :class:`~rs_localizer.solvers.RSBatch`'s invalid problems): those of
+    :func:`prerotated_solutions`."""
     for k in range(out.shape[0]):
         for a in range(n_params):
             if not np.isfinite(out[k, a]):
@@ -359,47 +407,11 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
         (ok (J,), Rs (J, 3, 3), Cs, ws, ts (J, 3)): kernel j's solution composed with R,
         ``Rs[j] = expm([v]x) R``; ``ok[j]`` False for rank loss or non-finite values.
     """
-    n = 0
-    for i in range(inl.shape[0]):
-        if inl[i]:
-            n += 1
-    xs = np.empty((1, n, 2))
-    Xs = np.empty((1, n, 3))
-    rs = np.empty((1, n))
-    m = 0
-    for i in range(inl.shape[0]):
-        if inl[i]:
-            xs[0, m, 0] = x[i, 0]
-            xs[0, m, 1] = x[i, 1]
-            rs[0, m] = r[i]
-            for a in range(3):
-                Xs[0, m, a] = R[a, 0] * X[i, 0] + R[a, 1] * X[i, 1] + R[a, 2] * X[i, 2]
-            m += 1
-    J = kernel_count(kernels)
-    ok = np.zeros(J, dtype=np.bool_)
-    Rs = np.empty((J, 3, 3))
-    Cs = np.zeros((J, 3))
-    ws = np.zeros((J, 3))
-    ts = np.zeros((J, 3))
-    v = np.zeros((1, 3))
+    idx = np.flatnonzero(inl)
     R1 = np.empty((1, 3, 3))
     copy_matrix3(R, R1[0])
-    out = np.zeros((1, MAX_PARAMS))
-    ok1 = np.zeros(1, dtype=np.bool_)
-    its = np.zeros(1, dtype=np.int64)
-    err = np.zeros(1)
-    v0 = np.zeros((1, 3))
-    for j in range(J):
-        out[:] = 0.0
-        ok1[0] = False
-        if n >= min_points[j]:
-            run_kernels(kernels, j, xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
-        checked_solutions(out, ok1, n_params[j])
-        ok[j] = ok1[0]
-        for a in range(3):
-            v[0, a] = out[0, a]
-            Cs[j, a] = out[0, 3 + a]
-            ws[j, a] = out[0, 6 + a]
-            ts[j, a] = out[0, 9 + a]
-        copy_matrix3(compose_rotvec(v, R1)[0], Rs[j])
+    Rs, Cs, ws, ts, ok = prerotated_solutions(
+        idx.reshape((1, idx.shape[0])), R1, np.ones(1, dtype=np.bool_), x, X, r, r0, kernels,
+        n_params, iterations, np.zeros((1, 3)), False, None, min_points,
+    )  # fmt: skip
     return ok, Rs, Cs, ws, ts

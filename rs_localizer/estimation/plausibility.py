@@ -153,14 +153,12 @@ def motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2):
 
 @kernel
 def motion_checked(C, w, t, q, w2max, v2max):
-    """RANSAC's hypothesis filter on model ``q`` of ``C``, ``w``, ``t`` (H, 3) (a camera's
-    fused batch, :func:`~.batch.ransac_batch`, and a rig's, :func:`~.rig_batch.search_batch`):
-    ``(finite, within)``, its squared speeds (:func:`motion_norms2`) finite (``|w|^2``
-    finite, ``|w x C - t|^2`` not NaN: :func:`plausible_motion` without bounds, of a model
-    whose C and t are finite) and within the squared bounds ``w2max``, ``v2max``."""
+    """RANSAC's hypothesis filter on model ``q`` of ``C``, ``w``, ``t`` (H, 3) (a camera's or a
+    rig's fused batch, :func:`~.batch.solve_and_score`): its squared speeds
+    (:func:`motion_norms2`) within the squared bounds ``w2max``, ``v2max`` (False for NaN)."""
     wn2, vn2 = motion_norms2(C[q, 0], C[q, 1], C[q, 2], w[q, 0], w[q, 1], w[q, 2], t[q, 0],
                              t[q, 1], t[q, 2])  # fmt: skip
-    return np.isfinite(wn2) and vn2 <= np.inf, wn2 <= w2max and vn2 <= v2max
+    return wn2 <= w2max and vn2 <= v2max
 
 
 @kernel

@@ -231,7 +231,7 @@ def _hypotheses(pool: StackedViews, samples: np.ndarray, iterations: int, anchor
 def _held_solve(pool: StackedViews, S: np.ndarray, Rg: np.ndarray) -> tuple:
     """The rig solver with the velocities held at zero (one linear step) on the samples ``S``
     (H, 6), pre-rotated by ``Rg`` (H, 3, 3): ``(R (H, 3, 3), C (H, 3), valid (H,))``, as the
-    compiled batches correct theirs (:func:`~.rig_batch.solve_rotated` ``held``)."""
+    compiled batches correct theirs (:func:`~.batch.prerotated_solutions` ``held``)."""
     solve = _rig_solver(pool, 1, held=True)
     R, C, _, _, ok = prerotated_models(S, Rg, None, pool.x, pool.X, np.zeros(len(pool.X)),
                                        solve, pool.compiled)  # fmt: skip
@@ -774,7 +774,7 @@ class _RigSearch(RansacLoop):
             self._draws[o : o + 7 * K].reshape((7, K)), *self._args, self._order, self.still,
             self._no_missed if self.missed is None else self.missed,
             SPREAD_CORRECTION_ROUNDS if self.spread else 1, anchor, self.solver_iterations,
-            self._w2max, self._v2max, self.th2, self.threshold_px, self._counts, self.score,
+            *self.bounds, self.th2, self.threshold_px, self._counts, self.score,
             self.pretest_points, self.pretest_min(len(pool.cam)), self._out,
         )  # fmt: skip
         self.implausible += beyond

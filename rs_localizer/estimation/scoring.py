@@ -247,9 +247,8 @@ def mounted_errors(R, C, w, t, h, X, x, A, mount):
     (``mount`` as :func:`msac_scores`' , ``A`` its ``W``): each point's camera's
     :func:`pose_error2`, the square root of what :func:`msac_scores` sums."""
     cam, Rm, cm, tau, still, _ = mount
-    pose = np.empty((Rm.shape[0], 18))
-    for c in range(Rm.shape[0]):
-        mounted_pose(R, C, w, t, h, Rm, cm, c, pose[c])
+    one = slice(h, h + 1)
+    pose = mounted_poses(R[one], C[one], w[one], t[one], np.ones(1, dtype=np.bool_), Rm, cm)[0]
     e = np.empty(X.shape[0])
     for i in range(X.shape[0]):
         e[i] = np.sqrt(pose_error2(pose[cam[i]], X, x, tau, A, i, still))
@@ -425,10 +424,7 @@ def best_mounted(R, C, w, t, valid, X, x, A, mount, th2, bail, pretest_n, pretes
     model reached ``bail``."""
     scores, _ = msac_scores(x, X, mount[3], np.zeros(2), R, C, w, t, th2, valid, bail, True,
                             pretest_n, pretest_min, 0.5, True, A, mount)  # fmt: skip
-    h = 0
-    for q in range(scores.shape[0]):
-        if scores[q] < scores[h]:
-            h = q
+    h = np.argmin(scores)
     if not (valid[h] and scores[h] <= bail):
         return h, np.inf, np.empty(0)
     return h, scores[h], mounted_errors(R, C, w, t, h, X, x, A, mount)

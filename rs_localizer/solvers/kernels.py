@@ -23,6 +23,7 @@ import sys
 
 import numpy as np
 from numba import types
+from numba.core.imputils import lower_constant
 from numba.extending import NativeValue, models, overload, register_model, unbox
 
 from .._jit import kernel
@@ -118,6 +119,12 @@ register_model(KernelSetType)(models.OpaqueModel)
 def _unbox_kernel_set(typ, obj, c):
     # everything is in the type; the value itself carries nothing
     return NativeValue(c.context.get_dummy_value())
+
+
+@lower_constant(KernelSetType)
+def _constant_kernel_set(context, builder, ty, pyval):
+    # (a set as a global constant of compiled code: nothing to carry either)
+    return context.get_dummy_value()
 
 
 class KernelSet:

@@ -3,18 +3,20 @@ same batch step by step (the sampling, Lambda Twist mapped to the rig, the held 
 correction) scored in NumPy (the ``"numpy"`` implementation's reprojection errors and MSAC
 cost): the same best model, cost, errors, inliers and missed cameras, scored in full or with
 the camera's pre-test on a random order of the points. The held rig solver the batches
-correct with (``solve_rotated`` held) against the batched rig solver with the same prior rows
-(``gr6p_1lin_batch``), bit for bit."""
+correct with (``prerotated_solutions`` with the rig solver, held) against the batched rig
+solver with the same prior rows (``gr6p_1lin_batch``), bit for bit."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from rs_localizer._so3 import compose_rotvec
 from rs_localizer.estimation import rig as rig_mod
+from rs_localizer.estimation.batch import prerotated_solutions
 from rs_localizer.estimation.numpy_impl import errors2
 from rs_localizer.estimation.plausibility import plausible_motion
-from rs_localizer.estimation.rig_batch import search_batch, solve_rotated
+from rs_localizer.estimation.rig_batch import RIG_KERNELS, search_batch
 from rs_localizer.estimation.sampling import batch_sampling, view_sampling
 from rs_localizer.estimation.view import StackedViews
 from rs_localizer.frames import Mounting
@@ -47,14 +49,14 @@ def still_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, missed, rounds, 
     return out[:3]
 
 
-def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w2max,
-                 v2max, th2, k, pool_counts, *state, order=None):  # fmt: skip
+def moving_batch(draws, o, K, subset, X, x, tau, cam, Rm, cm, A, anchor, iterations, w_max,
+                 v_max, th2, k, pool_counts, *state, order=None):  # fmt: skip
     """``search_batch`` of a rolling-shutter rig frame (the points in ``order``, None: in
     order): ``(h, cost, inliers, beyond the bounds)``."""
     missed = np.zeros(len(pool_counts), dtype=bool)
     order = np.arange(len(cam)) if order is None else order
     return search_batch(draws[o : o + 7 * K].reshape((7, K)), subset, X, x, tau, cam, Rm, cm, A,
-                        order, False, missed, 1, anchor, iterations, w2max, v2max, th2, k,
+                        order, False, missed, 1, anchor, iterations, w_max, v_max, th2, k,
                         pool_counts, *state)  # fmt: skip
 
 
@@ -135,10 +137,11 @@ def test_the_fused_still_batch_is_the_batch_step_by_step(seed, counts, turn, mis
 
 def test_the_held_still_solve_is_the_batched_solver_with_held_prior_rows():
     """The rig's compiled solve of a global-shutter rig frame's samples with the velocities
-    held at zero (``solve_rotated`` held, ``_held_solve``'s: ``tau`` zero, one step, prior
-    rows the identity with right-hand side zero), its points gathered from the pool by sample
-    and pre-rotated (here by the identity), gives the batched rig solver's v, C and validity
-    with those prior rows (``gr6p_1lin_batch``) bit for bit: the RANSAC samples of a frame of
+    held at zero (``prerotated_solutions`` with the rig solver, held; ``_held_solve``'s: ``tau``
+    zero, one step, prior rows the identity with right-hand side zero), its points gathered
+    from the pool by sample and pre-rotated (here by the identity), gives the batched rig
+    solver's v (as the rotation it composes), C and validity with those prior rows
+    (``gr6p_1lin_batch``) bit for bit: the RANSAC samples of a frame of
     three cameras (noise, outliers) and a sample it refuses (one point six times: rank loss)."""
     pool = StackedViews(_frame(12, (24, 24, 24)))
     X, x, _, (cam, Rm, cm, _) = pool.kernel_arrays
@@ -148,11 +151,15 @@ def test_the_held_still_solve_is_the_batched_solver_with_held_prior_rows():
     held = (np.broadcast_to(np.eye(6), (K, 6, 6)).copy(), np.zeros((K, 6)))
     ref = gr6p_1lin_batch(x[S], X[S], np.zeros((K, 6)), cam[S], Rm, cm, 1, prior_rows=held)
     Rg = np.broadcast_to(np.eye(3), (K, 3, 3)).copy()
-    out, ok = solve_rotated(x, X, S, Rg, np.zeros(len(X)), cam, Rm, cm, 1, True)
+    still = (cam, Rm, cm, np.zeros(len(X)), True, np.arange(len(X)))  # (a still frame's views)
+    R, C, w, t, ok = prerotated_solutions(S, Rg, np.ones(K, dtype=bool), x, X, still[3], 0.0,
+                                          *RIG_KERNELS, 1, np.zeros((K, 3)), False,
+                                          still)  # fmt: skip
     assert not ok[5] and ok.sum() == K - 1
     np.testing.assert_array_equal(ok, ref.valid)
-    np.testing.assert_array_equal(out[:, :3], ref.v)
-    np.testing.assert_array_equal(out[:, 3:6], ref.C)
+    np.testing.assert_array_equal(R, compose_rotvec(np.ascontiguousarray(ref.v), Rg))
+    np.testing.assert_array_equal(C, ref.C)
+    assert not w.any() and not t.any()
 
 
 def _moving_frame(seed, counts):
@@ -204,8 +211,8 @@ def test_the_fused_rolling_shutter_batch_is_the_batch_step_by_step(seed, counts,
     order = np.random.default_rng(seed).permutation(len(cam)) if pretest else None
     hf, cf, n, beyond_f = moving_batch(
         draws, 0, K, rig_mod._NO_SUBSET if subset is None else subset, X, x, tau, cam, Rm, cm,
-        A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max**2,
-        v_max**2, th * th, th, np.bincount(pool.cam, minlength=len(counts)), np.inf, pretest, 0,
+        A, np.array(truth.R) if anchored else rig_mod._NO_ANCHOR, iterations, w_max,
+        v_max, th * th, th, np.bincount(pool.cam, minlength=len(counts)), np.inf, pretest, 0,
         out, order=order,
     )  # fmt: skip
     ef, Rf, Cf, wf, tf, _ = out
@@ -301,3 +308,22 @@ def test_a_rig_sample_keeps_one_p3p_pose_as_a_camera_does(compiled):
     assert len(own) > K // 2
     moving = rig_mod._hypotheses(pool, samples, 3)
     assert len(moving[0]) <= K
+
+
+def test_a_batch_that_poses_no_sample_finds_no_model():
+    """A still rig frame's batch in which P3P poses none of the samples (every world point
+    the same: no triangle) has no model to score: the batch reports none (``h`` -1, the
+    best cost unchanged) and writes nothing, where reading the first score of no scores
+    once took whatever lay beyond the arrays as the best model."""
+    views = _frame(1, (30, 24, 12))
+    pool = StackedViews(views)
+    X, x, tau, (cam, Rm, cm, A) = pool.kernel_arrays
+    X = np.ascontiguousarray(np.broadcast_to(X[0], X.shape))
+    counts = np.bincount(cam, minlength=3)
+    draws = np.random.default_rng(1).random(7 * 64)
+    out = _buffers(len(cam), 3)
+    missed = np.zeros(3, dtype=bool)
+    got = still_batch(draws, 0, 64, rig_mod._NO_SUBSET, X, x, tau, cam, Rm, cm, A, missed, 1,
+                      4.0, 2.0, counts, 7.0, 0, 0, out)  # fmt: skip
+    assert got == (-1, 7.0, 0)
+    assert all(np.isnan(a).all() for a in out[:5]) and not out[5].any()
