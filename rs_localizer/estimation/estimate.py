@@ -516,9 +516,9 @@ class _CameraStages:
 
     def failed(self, failure: EstimationFailed) -> RSPoseEstimate:
         impl = COMPILED if self.compiled else NUMPY
+        timings = self.timings | {"total": time.perf_counter() - self.t_start}
         return _failed(
-            failure, self.solver, self.fr, self.search.iterations, self.timings, self.ignored,
-            impl,
+            failure, self.solver, self.fr, self.search.iterations, timings, self.ignored, impl
         )  # fmt: skip
 
     def gyro_evidence(self, est: RSPoseEstimate) -> tuple:

@@ -493,7 +493,7 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
 
 def test_a_rig_estimate_reports_its_stages_times_as_a_camera_s_does():
     """A rig frame's estimate times the camera's stages under the camera's names (s), each
-    within the whole."""
+    within the whole; a failed one, as a camera's, the stages it ran and the whole."""
     rng = np.random.default_rng(17)
     cam = sim_rig.make_rig(1, rng).cameras[0].camera
     rig = sim_rig.Rig((sim_rig.RigCamera("front", cam, Mounting(np.eye(3), np.zeros(3)), 0.0),))
@@ -504,6 +504,11 @@ def test_a_rig_estimate_reports_its_stages_times_as_a_camera_s_does():
         "prepare", "ransac", "local_optimization", "refine", "total",
     }  # fmt: skip
     assert all(0 <= t <= est.timings["total"] for t in est.timings.values())
+    # a frame that fails after its search (points that no pose explains): the stages run
+    v = replace(v, uv=rng.permutation(v.uv))
+    est, one = estimate_rig_pose([v]), estimate_rs_pose(v.uv, v.X, v.camera)
+    assert not est.success and not one.success
+    assert {"ransac", "total"} <= set(est.timings) and {"ransac", "total"} <= set(one.timings)
 
 
 def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
