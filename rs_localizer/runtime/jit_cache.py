@@ -85,8 +85,9 @@ class _KernelUnavailable:
 
 def _numba_standin() -> dict:
     """Modules that stand in for numba (``numba``, ``numba.types``, ``numba.extending``,
-    ``numba.core``, ``numba.core.ir``) with what the package uses at import time: ``njit``
-    (kernels that raise when called), ``prange``, the extension decorators (no-ops)."""
+    ``numba.core``, ``numba.core.ir``, ``numba.core.imputils``) with what the package uses at
+    import time: ``njit`` (kernels that raise when called), ``prange``, the extension
+    decorators (no-ops)."""
     import types as _pytypes
 
     def njit(*args, **kwargs):
@@ -103,8 +104,11 @@ def _numba_standin() -> dict:
 
     mods = {
         n: _pytypes.ModuleType(n)
-        for n in ("numba", "numba.types", "numba.extending", "numba.core", "numba.core.ir")
-    }
+        for n in (
+            "numba", "numba.types", "numba.extending", "numba.core", "numba.core.ir",
+            "numba.core.imputils",
+        )
+    }  # fmt: skip
     top, ext = mods["numba"], mods["numba.extending"]
     top.njit = top.jit = njit
     top.prange = range
@@ -115,6 +119,8 @@ def _numba_standin() -> dict:
     ext.NativeValue = lambda *a, **k: None
     ext.models = _pytypes.SimpleNamespace(OpaqueModel=object, StructModel=object)
     mods["numba.core"].ir = mods["numba.core.ir"]
+    mods["numba.core"].imputils = mods["numba.core.imputils"]
+    mods["numba.core.imputils"].lower_constant = decorator_factory
     mods["numba.core.ir"].Var = type("Var", (), {})
     return mods
 
